@@ -1,0 +1,1 @@
+"""Async transport drivers and wire codecs (installed as ins_hil.drivers)."""

@@ -1,0 +1,189 @@
+"""Codec for the ins_hil serial IMU frame, version 1 (spec: drivers/SERIAL_FRAME.md).
+
+Pure byte-level code: encode one frame, decode one frame, and a streaming
+parser that resynchronises after garbage and counts every reason a byte or
+frame was dropped.
+"""
+
+from __future__ import annotations
+
+import binascii
+import math
+import struct
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ins_hil.types import ImuSample
+
+SYNC = b"\xa5\x5a"
+VERSION = 1
+FRAME_LEN = 41
+_BODY = struct.Struct("<BBHIH3f3fhB")  # version .. flags (bytes 2..38)
+_CRC = struct.Struct("<H")
+assert 2 + _BODY.size + _CRC.size == FRAME_LEN
+TEMP_INVALID = -32768
+
+
+def crc16_ccitt(data: bytes, init: int = 0xFFFF) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF)."""
+    return binascii.crc_hqx(data, init)
+
+
+def encode(sample: ImuSample) -> bytes:
+    """Encode an ImuSample as one 41-byte frame (times wrap as the spec says)."""
+    t_us = round(sample.t * 1e6) & 0xFFFFFFFF
+    dt_us = round(sample.dt * 1e6)
+    if not 1 <= dt_us <= 0xFFFF:
+        raise ValueError(f"dt {sample.dt} s out of range for the frame (1..65535 µs)")
+    temp = sample.temperature
+    tc = TEMP_INVALID if not math.isfinite(temp) else max(-32767, min(32767, round(temp * 100)))
+    body = _BODY.pack(
+        VERSION,
+        sample.imu_id & 0xFF,
+        sample.seq & 0xFFFF,
+        t_us,
+        dt_us,
+        float(sample.dtheta[0]),
+        float(sample.dtheta[1]),
+        float(sample.dtheta[2]),
+        float(sample.dvel[0]),
+        float(sample.dvel[1]),
+        float(sample.dvel[2]),
+        tc,
+        sample.flags & 0xFF,
+    )
+    return SYNC + body + _CRC.pack(crc16_ccitt(body))
+
+
+class FrameError(ValueError):
+    """A frame that fails a check; ``reason`` is a counter key."""
+
+    def __init__(self, reason: str, msg: str = "") -> None:
+        super().__init__(msg or reason)
+        self.reason = reason
+
+
+def decode(frame: bytes | memoryview, t_arrival_ns: int = 0) -> ImuSample:
+    """Decode one complete frame. Raises FrameError with a reason on any fault.
+
+    The returned ``t`` is the wrapped 32-bit µs time in seconds; stream
+    receivers unwrap it (see FrameParser).
+    """
+    if len(frame) != FRAME_LEN:
+        raise FrameError("length")
+    if bytes(frame[0:2]) != SYNC:
+        raise FrameError("sync")
+    body = bytes(frame[2:39])
+    if crc16_ccitt(body) != _CRC.unpack_from(frame, 39)[0]:
+        raise FrameError("crc")
+    ver, imu_id, seq, t_us, dt_us, a0, a1, a2, v0, v1, v2, tc, flags = _BODY.unpack(body)
+    if ver != VERSION:
+        raise FrameError("version")
+    if dt_us == 0:
+        raise FrameError("range", "dt_us = 0")
+    vals = (a0, a1, a2, v0, v1, v2)
+    if not all(math.isfinite(x) for x in vals):
+        raise FrameError("nonfinite")
+    return ImuSample(
+        t=t_us * 1e-6,
+        dt=dt_us * 1e-6,
+        dtheta=np.array((a0, a1, a2)),
+        dvel=np.array((v0, v1, v2)),
+        imu_id=imu_id,
+        seq=seq,
+        temperature=float("nan") if tc == TEMP_INVALID else tc * 0.01,
+        flags=flags,
+        t_arrival_ns=t_arrival_ns,
+    )
+
+
+@dataclass
+class FrameParser:
+    """Streaming parser: ``feed(bytes)`` returns the good samples, in order.
+
+    Sensor time is unwrapped per imu_id (32-bit µs counter). Counters (in
+    ``counts``): frames, garbage_bytes, crc, version, nonfinite, range,
+    seq_gap (frames missing), duplicate, time_backwards.
+    Duplicates and backwards-in-time frames are dropped; gaps are counted.
+    """
+
+    max_abs_dtheta: float = 1.0  # rad per interval (≈ 57 °/interval): beyond is not physical
+    max_abs_dvel: float = 50.0  # m/s per interval
+    counts: dict[str, int] = field(default_factory=dict)
+    _buf: bytearray = field(default_factory=bytearray)
+    _last_seq: dict[int, int] = field(default_factory=dict)
+    _last_tus: dict[int, int] = field(default_factory=dict)
+    _wraps: dict[int, int] = field(default_factory=dict)
+
+    def _count(self, key: str, n: int = 1) -> None:
+        self.counts[key] = self.counts.get(key, 0) + n
+
+    def feed(self, data: bytes, t_arrival_ns: int = 0) -> list[ImuSample]:
+        buf = self._buf
+        buf += data
+        out: list[ImuSample] = []
+        i = 0
+        n = len(buf)
+        while True:
+            j = buf.find(SYNC, i)
+            if j < 0:
+                # keep a trailing 0xA5 that may start a sync word
+                keep = 1 if n and buf[n - 1] == 0xA5 else 0
+                self._count("garbage_bytes", max(0, n - i - keep)) if n - i - keep > 0 else None
+                i = n - keep
+                break
+            if j > i:
+                self._count("garbage_bytes", j - i)
+            if n - j < FRAME_LEN:
+                i = j
+                break
+            try:
+                s = decode(memoryview(buf)[j : j + FRAME_LEN], t_arrival_ns)
+            except FrameError as e:
+                self._count(e.reason)
+                self._count("garbage_bytes", 1)
+                i = j + 1
+                continue
+            if (
+                max(abs(float(x)) for x in s.dtheta) > self.max_abs_dtheta
+                or max(abs(float(x)) for x in s.dvel) > self.max_abs_dvel
+            ):
+                self._count("range")
+                i = j + FRAME_LEN
+                continue
+            i = j + FRAME_LEN
+            if self._accept(s):
+                out.append(s)
+        del buf[:i]
+        return out
+
+    def _accept(self, s: ImuSample) -> bool:
+        iid = s.imu_id
+        t_us = round(s.t * 1e6)
+        last = self._last_seq.get(iid)
+        if last is not None:
+            d = (s.seq - last) & 0xFFFF
+            if d == 0:
+                self._count("duplicate")
+                return False
+            if d > 0x8000:  # older than the previous one
+                self._count("time_backwards")
+                return False
+            if d > 1:
+                self._count("seq_gap", d - 1)
+        lt = self._last_tus.get(iid)
+        wraps = self._wraps.get(iid, 0)
+        if lt is not None:
+            dt = (t_us - lt) & 0xFFFFFFFF
+            if dt == 0 or dt > 0x80000000:
+                self._count("time_backwards")
+                return False
+            if t_us < lt:
+                wraps += 1
+        self._last_seq[iid] = s.seq
+        self._last_tus[iid] = t_us
+        self._wraps[iid] = wraps
+        s.t = (t_us + wraps * 0x100000000) * 1e-6
+        self._count("frames")
+        return True

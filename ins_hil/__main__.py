@@ -1,0 +1,5 @@
+import sys
+
+from ins_hil.cli import main
+
+sys.exit(main())

@@ -1,0 +1,134 @@
+"""WGS84 Earth model: constants, radii, normal gravity, Earth and transport rates,
+and geodetic / ECEF / NED conversions (seed 001 §2.3–2.5, DIGEST_001_004 §1.2–1.5).
+
+Frames: NED local level; positions as geodetic latitude/longitude (rad) and
+ellipsoidal height (m). Seed 001 writes its l-frame as ENU; the formulas below
+are the same relations re-expressed in NED (north, east, down).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ins_hil.types import Vec
+
+# seed 001 Table 1 (WGS84)
+A_WGS84 = 6_378_137.0  # semi-major axis a [m]
+F_WGS84 = 1.0 / 298.257223563  # flattening f = (a-b)/a
+B_WGS84 = A_WGS84 * (1.0 - F_WGS84)  # semi-minor axis b [m]
+E2_WGS84 = F_WGS84 * (2.0 - F_WGS84)  # first eccentricity squared, seed 001 eq. 1
+OMEGA_E = 7.292115e-5  # Earth rate ω_e [rad/s]
+GM_WGS84 = 3.986004418e14  # [m^3/s^2] (seed 001 prints "3.986004.418", digest §1.3)
+GAMMA_A = 9.7803253359  # normal gravity at the equator [m/s^2]
+GAMMA_B = 9.8321849378  # normal gravity at the pole [m/s^2]
+K_SOMIGLIANA = B_WGS84 * GAMMA_B / (A_WGS84 * GAMMA_A) - 1.0  # seed 001 eq. 12
+
+G0 = 9.80665  # standard gravity, used only for unit conversions (g → m/s^2)
+
+
+def radii(lat: float) -> tuple[float, float]:
+    """Meridian radius M and prime-vertical radius N (m) at geodetic latitude (rad).
+
+    seed 001 eqs. 2 and 3.
+    """
+    s = math.sin(lat)
+    w2 = 1.0 - E2_WGS84 * s * s
+    w = math.sqrt(w2)
+    n = A_WGS84 / w
+    m = A_WGS84 * (1.0 - E2_WGS84) / (w2 * w)
+    return m, n
+
+
+def normal_gravity(lat: float, h: float = 0.0) -> float:
+    """Normal gravity magnitude γ (m/s^2) at latitude (rad) and height (m).
+
+    Somigliana (seed 001 eq. 12) plus the height series (eq. 16).
+    """
+    s2 = math.sin(lat) ** 2
+    g0 = GAMMA_A * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2_WGS84 * s2)
+    return g0 - (3.0877e-6 - 4.4e-9 * s2) * h + 0.72e-12 * h * h
+
+
+def gravity_ned(lat: float, h: float = 0.0) -> Vec:
+    """Gravity vector in NED, (0, 0, +γ) (seed 001 eq. 11 in NED; no deflection)."""
+    return np.array([0.0, 0.0, normal_gravity(lat, h)])
+
+
+def earth_rate_ned(lat: float) -> Vec:
+    """ω_ie^n in NED (rad/s): (ω_e cos φ, 0, −ω_e sin φ) (seed 001 eq. 67 in NED)."""
+    return np.array([OMEGA_E * math.cos(lat), 0.0, -OMEGA_E * math.sin(lat)])
+
+
+def transport_rate_ned(lat: float, h: float, v_ned: Vec) -> Vec:
+    """ω_en^n in NED (rad/s): (v_E/(N+h), −v_N/(M+h), −v_E tanφ/(N+h)).
+
+    NED form of the ENU transport rate implied by seed 001 eqs. 93/94/98
+    (DIGEST_001_004 §1.5).
+    """
+    m, n = radii(lat)
+    vn, ve = float(v_ned[0]), float(v_ned[1])
+    return np.array([ve / (n + h), -vn / (m + h), -ve * math.tan(lat) / (n + h)])
+
+
+def geodetic_rates(lat: float, h: float, v_ned: Vec) -> tuple[float, float, float]:
+    """(φ̇, λ̇, ḣ) from NED velocity (seed 001 eqs. 55/56 in NED)."""
+    m, n = radii(lat)
+    return (
+        float(v_ned[0]) / (m + h),
+        float(v_ned[1]) / ((n + h) * math.cos(lat)),
+        -float(v_ned[2]),
+    )
+
+
+def geodetic_to_ecef(lat: float, lon: float, h: float) -> Vec:
+    """ECEF position (m) of a geodetic point."""
+    _, n = radii(lat)
+    cl, sl = math.cos(lat), math.sin(lat)
+    return np.array([(n + h) * cl * math.cos(lon), (n + h) * cl * math.sin(lon), (n * (1.0 - E2_WGS84) + h) * sl])
+
+
+def ecef_to_geodetic(r: Vec) -> tuple[float, float, float]:
+    """Geodetic (lat rad, lon rad, h m) of an ECEF point (iterative, < 1e-9 m)."""
+    x, y, z = float(r[0]), float(r[1]), float(r[2])
+    lon = math.atan2(y, x)
+    p = math.hypot(x, y)
+    lat = math.atan2(z, p * (1.0 - E2_WGS84))
+    h = 0.0
+    for _ in range(10):
+        _, n = radii(lat)
+        h = p / math.cos(lat) - n if abs(lat) < math.radians(80) else z / math.sin(lat) - n * (1 - E2_WGS84)
+        lat_new = math.atan2(z, p * (1.0 - E2_WGS84 * n / (n + h)))
+        if abs(lat_new - lat) < 1e-15:
+            lat = lat_new
+            break
+        lat = lat_new
+    _, n = radii(lat)
+    h = p / math.cos(lat) - n if abs(lat) < math.radians(80) else z / math.sin(lat) - n * (1 - E2_WGS84)
+    return lat, lon, h
+
+
+def dcm_ecef_to_ned(lat: float, lon: float) -> Vec:
+    """C_e^n: rotates ECEF vectors into the local NED frame at (lat, lon)."""
+    sl, cl = math.sin(lat), math.cos(lat)
+    so, co = math.sin(lon), math.cos(lon)
+    return np.array([[-sl * co, -sl * so, cl], [-so, co, 0.0], [-cl * co, -cl * so, -sl]])
+
+
+def ned_from_geodetic(lat: float, lon: float, h: float, lat0: float, lon0: float, h0: float) -> Vec:
+    """Exact NED offset (m) of point (lat, lon, h) from reference (lat0, lon0, h0)."""
+    d = geodetic_to_ecef(lat, lon, h) - geodetic_to_ecef(lat0, lon0, h0)
+    return dcm_ecef_to_ned(lat0, lon0) @ d
+
+
+def geodetic_from_ned(ned: Vec, lat0: float, lon0: float, h0: float) -> tuple[float, float, float]:
+    """Geodetic point at NED offset (m) from a reference (inverse of ned_from_geodetic)."""
+    r = geodetic_to_ecef(lat0, lon0, h0) + dcm_ecef_to_ned(lat0, lon0).T @ np.asarray(ned, dtype=np.float64)
+    return ecef_to_geodetic(r)
+
+
+def ned_delta_small(dlat: float, dlon: float, dh: float, lat: float, h: float) -> Vec:
+    """Linearised NED displacement for small geodetic differences (seed 001 eqs. 6, 7)."""
+    m, n = radii(lat)
+    return np.array([(m + h) * dlat, (n + h) * math.cos(lat) * dlon, -dh])

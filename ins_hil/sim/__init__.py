@@ -1,0 +1,1 @@
+"""Trajectories, sensor error models and simulated devices."""

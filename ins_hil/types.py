@@ -1,0 +1,179 @@
+"""Typed, time-stamped samples and states shared by drivers, core and runtime.
+
+SI units inside (rad, m, m/s, s, Pa, T); body frame FRD, navigation frame NED.
+Every sample carries the sensor's own time ``t`` (s, sensor clock, after any
+clock-offset correction by the runtime) and the monotonic arrival time
+``t_arrival_ns`` (``time.monotonic_ns()`` when the bytes arrived; 0 offline).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum, IntFlag
+from typing import Any, TypeAlias
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: float arrays of any shape (3-vectors, quaternions, matrices); float64 by convention
+Vec: TypeAlias = NDArray[Any]
+
+
+def _zeros3() -> Vec:
+    return np.zeros(3)
+
+
+class ImuFlags(IntFlag):
+    """Status bits of an IMU sample (also the serial frame's status byte)."""
+
+    NONE = 0
+    GYRO_SATURATED = 1
+    ACCEL_SATURATED = 2
+    SELFTEST_FAIL = 4
+    CLIPPED = 8
+    TEMP_INVALID = 16
+
+
+@dataclass(slots=True)
+class ImuSample:
+    """One IMU output interval, in increment form.
+
+    ``dtheta``: delta angle over the interval (rad, body FRD, ∫ω_ib dt).
+    ``dvel``: delta velocity over the interval (m/s, body FRD, ∫f_b dt).
+    ``dt``: interval length (s); ``t``: sensor time at the END of the interval (s).
+    """
+
+    t: float
+    dt: float
+    dtheta: Vec
+    dvel: Vec
+    imu_id: int = 0
+    seq: int = 0
+    temperature: float = float("nan")
+    flags: int = 0
+    t_arrival_ns: int = 0
+
+    @property
+    def gyro(self) -> Vec:
+        """Mean angular rate over the interval (rad/s)."""
+        return self.dtheta / self.dt
+
+    @property
+    def accel(self) -> Vec:
+        """Mean specific force over the interval (m/s^2)."""
+        return self.dvel / self.dt
+
+
+class FixType(IntEnum):
+    """GNSS fix quality (MAVLink GPS_FIX_TYPE numbering)."""
+
+    NO_FIX = 1
+    FIX_2D = 2
+    FIX_3D = 3
+    DGPS = 4
+    RTK_FLOAT = 5
+    RTK_FIXED = 6
+
+
+@dataclass(slots=True)
+class GnssFix:
+    """A GNSS position/velocity solution valid at sensor time ``t`` (s).
+
+    lat/lon in rad (WGS84), h ellipsoidal height (m); vel_ned m/s or None.
+    Standard deviations in m and m/s.
+    """
+
+    t: float
+    lat: float
+    lon: float
+    h: float
+    vel_ned: Vec | None = None
+    std_ne: float = 2.5
+    std_d: float = 5.0
+    std_vel: float = 0.3
+    fix_type: FixType = FixType.FIX_3D
+    num_sats: int = 0
+    source: int = 0
+    t_arrival_ns: int = 0
+
+
+@dataclass(slots=True)
+class BaroSample:
+    """Static pressure (Pa) and/or barometric altitude (m, above the baro datum)."""
+
+    t: float
+    pressure: float
+    altitude: float = float("nan")
+    temperature: float = float("nan")
+    source: int = 0
+    t_arrival_ns: int = 0
+
+
+@dataclass(slots=True)
+class MagSample:
+    """Magnetic field in body FRD (tesla)."""
+
+    t: float
+    field_b: Vec
+    source: int = 0
+    t_arrival_ns: int = 0
+
+
+@dataclass(slots=True)
+class NavState:
+    """The navigation solution at time ``t`` (s).
+
+    q_nb: Hamilton scalar-first quaternion body→NED; vel_ned (m/s);
+    lat/lon (rad), h (m, ellipsoidal); biases in body FRD (rad/s, m/s^2);
+    std_* are 1-σ from the filter covariance (NED position m, velocity m/s,
+    attitude rad about NED axes).
+    """
+
+    t: float
+    q_nb: Vec
+    vel_ned: Vec
+    lat: float
+    lon: float
+    h: float
+    gyro_bias: Vec = field(default_factory=_zeros3)
+    accel_bias: Vec = field(default_factory=_zeros3)
+    std_pos: Vec = field(default_factory=_zeros3)
+    std_vel: Vec = field(default_factory=_zeros3)
+    std_att: Vec = field(default_factory=_zeros3)
+    omega_b: Vec = field(default_factory=_zeros3)
+    accel_b: Vec = field(default_factory=_zeros3)
+    aligned: bool = False
+    test_ratios: dict[str, float] = field(default_factory=dict)
+
+
+class FaultMode(IntEnum):
+    """Failure modes of inertial sensors (and aiding sensors)."""
+
+    UNKNOWN = 0
+    STEP_BIAS = 1
+    RAMP = 2
+    STUCK = 3
+    DROPOUT = 4
+    NOISE_BURST = 5
+    SATURATION = 6
+    SCALE_FACTOR = 7
+    JUMP = 8
+    DRIFT = 9
+
+
+@dataclass(slots=True)
+class FaultEvent:
+    """A detected and (where possible) isolated fault.
+
+    ``sensor`` names the sensor, e.g. ``"gyro[3]"``, ``"imu1.accel.y"``,
+    ``"gnss"``, ``"baro"``. ``magnitude`` is the estimated fault size in the
+    sensor's SI unit. ``isolated`` is False for detection without isolation.
+    """
+
+    t: float
+    sensor: str
+    mode: FaultMode = FaultMode.UNKNOWN
+    magnitude: float = float("nan")
+    isolated: bool = True
+    cleared: bool = False
+    detail: str = ""

@@ -1,0 +1,48 @@
+# Shared helpers for scripts/*: sourced, not run.
+# ROOT: the repository; VENV: its virtualenv; PY: the venv's python.
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${INS_HIL_VENV:-$ROOT/.venv}"
+PY="$VENV/bin/python"
+
+log() { printf '\033[1m[ins-hil]\033[0m %s\n' "$*" >&2; }
+
+# ensure_apt PKG...: install missing Debian packages (apt-get update once per run).
+ensure_apt() {
+  local missing=()
+  for p in "$@"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
+  [ ${#missing[@]} -eq 0 ] && return 0
+  local SUDO=""
+  if [ "$(id -u)" != 0 ]; then
+    command -v sudo >/dev/null 2>&1 || { log "need Debian packages: ${missing[*]} (run as root or install them)"; return 1; }
+    SUDO="sudo"
+  fi
+  if [ -z "${_INS_HIL_APT_UPDATED:-}" ]; then
+    log "apt-get update"
+    $SUDO apt-get update -qq >/dev/null || { log "apt-get update failed"; return 1; }
+    export _INS_HIL_APT_UPDATED=1
+  fi
+  log "installing Debian packages: ${missing[*]}"
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null \
+    || { log "apt-get install ${missing[*]} failed"; return 1; }
+}
+
+# ensure_venv: create .venv and (re)install the package with its dev extras
+# whenever pyproject.toml / setup.py / the C sources change.
+ensure_venv() {
+  local py=${PYTHON:-python3}
+  if ! "$py" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+    log "Python >= 3.11 is required (found: $("$py" --version 2>&1))"; return 1
+  fi
+  if [ ! -x "$PY" ]; then
+    log "creating virtualenv $VENV"
+    "$py" -m venv "$VENV" || { ensure_apt python3-venv && "$py" -m venv "$VENV"; } || return 1
+  fi
+  local stamp="$VENV/.ins_hil_stamp" want
+  want=$(cat "$ROOT/pyproject.toml" "$ROOT"/setup.py "$ROOT"/firmware_ref/src/*.c "$ROOT"/firmware_ref/include/*.h 2>/dev/null | sha256sum | cut -c1-16)
+  if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+    log "installing ins_hil and its dependencies into $VENV"
+    "$PY" -m pip install -q --disable-pip-version-check -e "$ROOT[dev]" 2>&1 | grep -vE '^WARNING: Location' >&2
+    [ "${PIPESTATUS[0]}" -eq 0 ] || { log "pip install failed"; return 1; }
+    echo "$want" > "$stamp"
+  fi
+}
