@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -74,10 +75,20 @@ class StrapdownNED:
     f_ned: Vec = field(default_factory=lambda: np.zeros(3))
     omega_ie: Vec = field(default_factory=lambda: np.zeros(3))
     omega_en: Vec = field(default_factory=lambda: np.zeros(3))
+    attitude: str = "rotvec"
+    _att: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.attitude != "rotvec":
+            from .attitude import make_attitude
+
+            self._att = make_attitude(self.attitude)
 
     def reset_history(self) -> None:
         """Forget the previous increments (after a gap or a reset)."""
         self._have_prev = False
+        if self._att is not None:
+            self._att.reset()
 
     def step(self, dtheta: Vec, dvel: Vec, dt: float) -> StrapdownState:
         """Advance the state by one IMU interval.
@@ -152,11 +163,14 @@ class StrapdownNED:
         vD1 = vD + fD + (g - (cN * vE - cE * vN)) * dt
 
         # attitude: q(−ζ) ⊗ q ⊗ q(φ)  (book eq. 2.15/2.16 for the body part)
-        r0, r1, r2, r3 = _rotvec_quat(px, py, pz)
-        a0 = q0 * r0 - q1 * r1 - q2 * r2 - q3 * r3
-        a1 = q0 * r1 + q1 * r0 + q2 * r3 - q3 * r2
-        a2 = q0 * r2 - q1 * r3 + q2 * r0 + q3 * r1
-        a3 = q0 * r3 + q1 * r2 - q2 * r1 + q3 * r0
+        if self._att is None:
+            r0, r1, r2, r3 = _rotvec_quat(px, py, pz)
+            a0 = q0 * r0 - q1 * r1 - q2 * r2 - q3 * r3
+            a1 = q0 * r1 + q1 * r0 + q2 * r3 - q3 * r2
+            a2 = q0 * r2 - q1 * r3 + q2 * r0 + q3 * r1
+            a3 = q0 * r3 + q1 * r2 - q2 * r1 + q3 * r0
+        else:  # a named algorithm from the registry (ins_hil.nav.attitude)
+            a0, a1, a2, a3 = (float(x) for x in self._att.step_increment(s.q_nb, dtheta, dt))
         if self.earth_rate:
             e0, e1, e2, e3 = _rotvec_quat(-zN, -zE, -zD)
             a0, a1, a2, a3 = (
