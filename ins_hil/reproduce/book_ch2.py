@@ -46,7 +46,7 @@ TABLE_2_1_TYPOS = {(6, 0): 25.27, (6, 1): -13.15}
 EX23_A, EX23_B, EX23_C = 3.0, 1.0, 1.25
 EX23_T = 1.6 * math.pi
 EX23_N = 50
-TABLE_2_2 = {  # column → (λ0, λ1, λ2, λ3) as printed (normalised λ(T))
+TABLE_2_2: dict[str, tuple[float, float, float, float]] = {  # column → (λ0, λ1, λ2, λ3) as printed (normalised λ(T))
     "dl1": (0.997, -5.64e-2, 1.93e-6, -4.22e-2),
     "dl2": (1.00, 1.89e-2, 3.43e-6, 1.41e-2),
     "dl2m": (1.00, -6.47e-3, 2.79e-6, -4.84e-3),
@@ -128,10 +128,18 @@ def rows() -> list[Row]:
             ours = table_2_1_value(n, q)
             if (n, j) in TABLE_2_1_TYPOS:
                 out.append(
-                    Row(g, f"n={n}, {TABLE_2_1_QNAME[j]}", pub, ours, 1e-3, "rel", TABLE_2_1_TYPOS[(n, j)],
+                    Row(
+                        g,
+                        f"n={n}, {TABLE_2_1_QNAME[j]}",
+                        pub,
+                        ours,
+                        1e-3,
+                        "rel",
+                        TABLE_2_1_TYPOS[(n, j)],
                         "printed value is a typo (DIGEST_000 §10 item 9); checked against the recomputed value",
-                        typo=True)
-                )  # fmt: skip
+                        typo=True,
+                    )
+                )
             else:
                 out.append(Row(g, f"n={n}, {TABLE_2_1_QNAME[j]}", pub, ours, 0.02, "rel"))
 
@@ -144,33 +152,62 @@ def rows() -> list[Row]:
         (1 / 12, 5, -1 / 120, -1 / 720, "book prints φ_m = χ − χ⁵/120; true coefficient −1/720 (§10 item 10)"),
     ):
         phi = 2.0 * math.atan2(chi / 2.0, 1.0 - q * chi * chi)
-        out.append(Row(g, f"(φ−χ)/χ^{k}, q={q:.4g}, χ=0.05", pub, (phi - chi) / chi**k, 0.01, "rel", corr, note,
-                       typo=corr is not None))  # fmt: skip
+        out.append(
+            Row(
+                g,
+                f"(φ−χ)/χ^{k}, q={q:.4g}, χ=0.05",
+                pub,
+                (phi - chi) / chi**k,
+                0.01,
+                "rel",
+                corr,
+                note,
+                typo=corr is not None,
+            )
+        )
 
     g = "Table 2.2"
-    for col, pub in TABLE_2_2.items():
+    for col, p22 in TABLE_2_2.items():
         lam = ex23_final(col)
         if col == "dl3":
             note3 = "∇θ₀ = 0 at the first step (DIGEST_000 §8 case 4, start-up undefined in the book)"
             for i in (1, 2, 3):
-                out.append(Row(g, f"{COLUMN[col]}: λ{i}(T)", pub[i], float(lam[i]), 0.10, "rel", note=note3))
+                out.append(Row(g, f"{COLUMN[col]}: λ{i}(T)", p22[i], float(lam[i]), 0.10, "rel", note=note3))
             continue
-        out.append(Row(g, f"{COLUMN[col]}: λ0(T)", pub[0], float(lam[0]), 1e-3, "abs"))
-        out.append(Row(g, f"{COLUMN[col]}: λ1(T)", pub[1], float(lam[1]), 0.01, "rel"))
-        out.append(Row(g, f"{COLUMN[col]}: |λ2(T)|", pub[2], abs(float(lam[2])), check="le", reference=1e-5,
-                       note="book's ~1e-6 is round-off of the original run; exact value 0 (checked ≤ 1e-5)"))  # fmt: skip
-        out.append(Row(g, f"{COLUMN[col]}: λ3(T)", pub[3], float(lam[3]), 0.01, "rel"))
+        out.append(Row(g, f"{COLUMN[col]}: λ0(T)", p22[0], float(lam[0]), 1e-3, "abs"))
+        out.append(Row(g, f"{COLUMN[col]}: λ1(T)", p22[1], float(lam[1]), 0.01, "rel"))
+        out.append(
+            Row(
+                g,
+                f"{COLUMN[col]}: |λ2(T)|",
+                p22[2],
+                abs(float(lam[2])),
+                check="le",
+                reference=1e-5,
+                note="book's ~1e-6 is round-off of the original run; exact value 0 (checked ≤ 1e-5)",
+            )
+        )
+        out.append(Row(g, f"{COLUMN[col]}: λ3(T)", p22[3], float(lam[3]), 0.01, "rel"))
 
     g = "Optimal q (Ex 2.3)"
-    lam = ex23_final("dlq", q=Q_OPT_PUBLISHED)
-    out.append(Row(g, "λ1(T) with q = 0.0939", Q_OPT_LAMBDA[1], float(lam[1]), 0.01))
-    out.append(Row(g, "λ3(T) with q = 0.0939", Q_OPT_LAMBDA[3], float(lam[3]), 0.01))
+    lam_q = ex23_final("dlq", q=Q_OPT_PUBLISHED)
+    out.append(Row(g, "λ1(T) with q = 0.0939", Q_OPT_LAMBDA[1], float(lam_q[1]), 0.01))
+    out.append(Row(g, "λ3(T) with q = 0.0939", Q_OPT_LAMBDA[3], float(lam_q[3]), 0.01))
     out.append(Row(g, "numerically optimal q", Q_OPT_PUBLISHED, ex23_optimal_q(), 2e-4, "abs"))
     qs = q_star(EX23_A, EX23_B, EX23_C)
     out.append(Row(g, "q* (eq. 2.31, body rates a=3, b=1, c=1.25)", 9.375e-2, qs, 1e-12, "abs"))
     qe = q_star_euler(-1.25, 3.75, math.acos(0.6))
-    out.append(Row(g, "q* (eq. 2.31, Euler-angle form)", 9.375e-2, qe, 1e-12, "abs",
-                   note="denominator typo (φ̇cosθ + φ̇) → (φ̇cosθ + ψ̇) fixed (DIGEST_000 §10 item 11)"))  # fmt: skip
+    out.append(
+        Row(
+            g,
+            "q* (eq. 2.31, Euler-angle form)",
+            9.375e-2,
+            qe,
+            1e-12,
+            "abs",
+            note="denominator typo (φ̇cosθ + φ̇) → (φ̇cosθ + ψ̇) fixed (DIGEST_000 §10 item 11)",
+        )
+    )
 
     # Table 2.3 formula rows (arcsec/s); the book truncates, so ±1
     g = "Table 2.3 (formula 2.32)"
@@ -185,8 +222,19 @@ def rows() -> list[Row]:
         for q, colname, pub in zip((0.0, 1 / 8, 1 / 12), ("δλ¹", "δλ²", "δλ²_m"), pub23[c]):
             u = drift_rate(q, qopt, wz, wn, f) * ARCSEC_PER_RAD
             if c == "I" and q == 1 / 12:
-                out.append(Row(g, f"case {c}, {colname}", pub, u, 1.0, "abs", 0.0,
-                               "printed 26 is impossible: q = q* = 1/12 gives 0 (DIGEST_000 §10 item 12)", typo=True))  # fmt: skip
+                out.append(
+                    Row(
+                        g,
+                        f"case {c}, {colname}",
+                        pub,
+                        u,
+                        1.0,
+                        "abs",
+                        0.0,
+                        "printed 26 is impossible: q = q* = 1/12 gives 0 (DIGEST_000 §10 item 12)",
+                        typo=True,
+                    )
+                )
             else:
                 out.append(Row(g, f"case {c}, {colname}", pub, u, 1.0, "abs"))
 
@@ -195,16 +243,34 @@ def rows() -> list[Row]:
     note_i = "one revolution at π rad/s, 10 Hz; book 2.4 %/0.7 % below an exact simulation (DIGEST_000 §8 case 10)"
     out.append(Row(g, "case I, δλ¹", 5130, sim_i[0.0], 0.03, note=note_i))
     out.append(Row(g, "case I, δλ²", 2626, sim_i[1 / 8], 0.03, note=note_i))
-    out.append(Row(g, "case I, δλ²_m", None, sim_i[1 / 12], 0.02, "rel", 8.7,
-                   "blank in the book; residual −χ⁵/720 per step gives 8.7 (DIGEST_000 §2.4)"))  # fmt: skip
+    out.append(
+        Row(
+            g,
+            "case I, δλ²_m",
+            None,
+            sim_i[1 / 12],
+            0.02,
+            "rel",
+            8.7,
+            "blank in the book; residual −χ⁵/720 per step gives 8.7 (DIGEST_000 §2.4)",
+        )
+    )
     lam_t = {col: ex23_final(col) for col in ("dl1", "dl2", "dl2m")}
     u_sim = {col: 2.0 * float(np.linalg.norm(lam_t[col][1:])) / EX23_T * ARCSEC_PER_RAD for col in lam_t}
     for col, pub in zip(("dl1", "dl2", "dl2m"), (5797, 1938, 660)):
-        out.append(Row(g, f"case II, {COLUMN[col]}", pub, u_sim[col], 0.006,
-                       note="drift 2‖vec λ(T)‖/T; disagrees with Table 2.4 γ=0 by 0.5 % (DIGEST_000 §10 item 12)"))  # fmt: skip
+        out.append(
+            Row(
+                g,
+                f"case II, {COLUMN[col]}",
+                pub,
+                u_sim[col],
+                0.006,
+                note="drift 2‖vec λ(T)‖/T; disagrees with Table 2.4 γ=0 by 0.5 % (DIGEST_000 §10 item 12)",
+            )
+        )
 
     g = "Table 2.4 (formula 2.33)"
-    pub24 = {
+    pub24: dict[int, tuple[float, float, float]] = {
         0: (5863, 1954, 651),
         30: (5077, 1692, 564),
         45: (4145, 1381, 460),
@@ -216,13 +282,24 @@ def rows() -> list[Row]:
             um = drift_rate_corrected(drift_rate(q, qs, omz2, math.sqrt(10.0), f2), math.radians(gam))
             um *= ARCSEC_PER_RAD
             if gam == 60 and q == 1 / 8:
-                out.append(Row(g, f"γ={gam}°, {col}", pub, um, 1.0, "abs", 977.16,
-                               "printed 979; U cos γ = 977.16 (DIGEST_000 §10 item 13)", typo=True))  # fmt: skip
+                out.append(
+                    Row(
+                        g,
+                        f"γ={gam}°, {col}",
+                        pub,
+                        um,
+                        1.0,
+                        "abs",
+                        977.16,
+                        "printed 979; U cos γ = 977.16 (DIGEST_000 §10 item 13)",
+                        typo=True,
+                    )
+                )
             else:
                 out.append(Row(g, f"γ={gam}°, {col}", pub, um, 1.0, "abs"))
 
     g = "Table 2.4 (simulation)"
-    sim24 = {
+    sim24: dict[int, tuple[float, float, float]] = {
         0: (5766, 1927, 660),
         30: (4998, 1673, 573),
         45: (4084, 1368, 468),
@@ -235,9 +312,26 @@ def rows() -> list[Row]:
             if gam == 0:
                 out.append(Row(g, f"γ={gam}°, {COLUMN[col]}", pub, um, 1.0, "abs", note="the book truncates"))
             elif gam == 90:
-                out.append(Row(g, f"γ={gam}°, {COLUMN[col]}", pub, um, check="le", reference=0.005 * sim24[0][j],
-                               note="azimuth of m not given; checked ≪ the γ=0 value (≤ 0.5 % of it)"))  # fmt: skip
+                out.append(
+                    Row(
+                        g,
+                        f"γ={gam}°, {COLUMN[col]}",
+                        pub,
+                        um,
+                        check="le",
+                        reference=0.005 * sim24[0][j],
+                        note="azimuth of m not given; checked ≪ the γ=0 value (≤ 0.5 % of it)",
+                    )
+                )
             else:
-                out.append(Row(g, f"γ={gam}°, {COLUMN[col]}", pub, um, 0.01,
-                               note="correction by m at γ from Z (azimuth not given; m in the Z–X plane)"))  # fmt: skip
+                out.append(
+                    Row(
+                        g,
+                        f"γ={gam}°, {COLUMN[col]}",
+                        pub,
+                        um,
+                        0.01,
+                        note="correction by m at γ from Z (azimuth not given; m in the Z–X plane)",
+                    )
+                )
     return out

@@ -74,11 +74,34 @@ def rows() -> list[Row]:
     per = measured_period(run)
     g = "Seed 001 Schuler oscillation (equator, δv_N(0) = 1 m/s, 5 Hz)"
     out = [
-        Row(g, "period [min] vs published", SCHULER_PUBLISHED_MIN, per / 60.0, 0.2, "abs",
-            note="published for g = 9.80665, R = 6371 km; ours uses the equator's g and meridian radius"),
-        Row(g, "period [min] vs √((M+h)/g) of the site", None, per / 60.0, 1e-3, "rel", run.period_theory / 60.0,
-            "seed 001 eq. 102–103 with the run's own g and M"),
-        Row(g, "peak north position error [m] (eq. 105: δv/ω₀)", None, float(np.max(np.abs(run.dr_north))), 5e-3,
-            "rel", run.period_theory / (2.0 * math.pi), "digest's 806.0 m is for R = 6371 km"),
-    ]  # fmt: skip
+        Row(
+            g,
+            "period [min] vs published",
+            SCHULER_PUBLISHED_MIN,
+            per / 60.0,
+            0.2,
+            "abs",
+            note="published for g = 9.80665, R = 6371 km; ours uses the equator's g and meridian radius",
+        ),
+        Row(
+            g,
+            "period [min] vs √((M+h)/g) of the site",
+            None,
+            per / 60.0,
+            1e-3,
+            "rel",
+            run.period_theory / 60.0,
+            "seed 001 eq. 102–103 with the run's own g and M",
+        ),
+        Row(
+            g,
+            "peak north position error [m] (eq. 105: δv/ω₀)",
+            None,
+            float(np.max(np.abs(run.dr_north))),
+            5e-3,
+            "rel",
+            run.period_theory / (2.0 * math.pi),
+            "digest's 806.0 m is for R = 6371 km",
+        ),
+    ]
     return out

@@ -64,7 +64,7 @@ def fit_drift(t: Vec, psi: Vec, w: float = OMEGA, harmonics: int = 4) -> float:
 
 def coning_run(kind: str, h: float, a: float = A_M, w: float = OMEGA, eps: float = PHASE, periods: int = 40) -> Vec:
     """Quaternions Λ(t_n) (un-normalised) of one algorithm over the coning run, shape (n + 1, 4)."""
-    n = int(round(periods * 2 * math.pi / w / h))
+    n = round(periods * 2 * math.pi / w / h)
     t = h * np.arange(n + 1)
     om = coning_rates(t, a, w, eps)
     return propagate(coning_initial(a, eps), increments(om[:-1], om[1:], h, kind))
@@ -104,8 +104,16 @@ def rows() -> list[Row]:
         r = coning_drift("revers1h", mu)
         k = coning_drift("rk21", mu)
         out.append(Row(g, f"Revers1h δ/μ², h = {h} s", 0.042, r / mu**2, 0.05))
-        out.append(Row(g, f"RK21 |δ|/μ², h = {h} s", 0.083, abs(k) / mu**2, 0.05,
-                       note="sign opposite to Revers1h (anti-phase)" if k * r < 0 else "SAME SIGN as Revers1h"))  # fmt: skip
+        out.append(
+            Row(
+                g,
+                f"RK21 |δ|/μ², h = {h} s",
+                0.083,
+                abs(k) / mu**2,
+                0.05,
+                note="sign opposite to Revers1h (anti-phase)" if k * r < 0 else "SAME SIGN as Revers1h",
+            )
+        )
         if h >= 0.01:
             out.append(Row(g, f"RK21/Revers1h drift ratio, h = {h} s", 2.0, abs(k / r), 0.10, note="'about twice'"))
     lit_note = "literal eq. (6) with ε → ω1 − ω0 (DIGEST_001_004 §2.4 item 3); ∝ a², matches only at a = 0.1"
@@ -113,30 +121,109 @@ def rows() -> list[Row]:
         mu = OMEGA * h
         p = coning_drift("picard_literal", mu)
         out.append(Row(g, f"Picard δ/μ², h = {h} s", 0.0021, abs(p) / mu**2, 0.10, note=lit_note))
-        out.append(Row(g, f"Revers1h/Picard drift ratio, h = {h} s", 20.0, coning_drift("revers1h", mu) / abs(p), 0.10,
-                       note="'more than 20 times less than Revers1h'"))  # fmt: skip
+        out.append(
+            Row(
+                g,
+                f"Revers1h/Picard drift ratio, h = {h} s",
+                20.0,
+                coning_drift("revers1h", mu) / abs(p),
+                0.10,
+                note="'more than 20 times less than Revers1h'",
+            )
+        )
     pc = coning_drift("picard", 0.1)
-    out.append(Row(g, "Picard (corrected eq. 6) δ/μ², h = 0.1 s", None, abs(pc) / 0.01, 0.05, "rel", 0.0828,
-                   "no published value: the correct Picard formula is no better than RK21 (digest §2.7)"))  # fmt: skip
+    out.append(
+        Row(
+            g,
+            "Picard (corrected eq. 6) δ/μ², h = 0.1 s",
+            None,
+            abs(pc) / 0.01,
+            0.05,
+            "rel",
+            0.0828,
+            "no published value: the correct Picard formula is no better than RK21 (digest §2.7)",
+        )
+    )
     for mu in (1.0, 0.5, 0.1):
-        out.append(Row(g, f"ExpRvrs1h δ/μ⁴, μ = {mu}", 7.3e-3, abs(coning_drift("exprvrs1h", mu)) / mu**4, 0.10,
-                       note="fourth-order law, printed for 0.05 < μ < 1"))  # fmt: skip
-    out.append(Row(g, "ExpRvrs1h δ/μ⁴, μ = 0.01", None, abs(coning_drift("exprvrs1h", 0.01)) / 1e-8, 0.10, "rel", 7.64e-3,
-                   "printed law here is 1.6e-7 μ² (likely 1.6e-5, DIGEST_001_004 §8 item 22); the 4th-order law persists"))  # fmt: skip
+        out.append(
+            Row(
+                g,
+                f"ExpRvrs1h δ/μ⁴, μ = {mu}",
+                7.3e-3,
+                abs(coning_drift("exprvrs1h", mu)) / mu**4,
+                0.10,
+                note="fourth-order law, printed for 0.05 < μ < 1",
+            )
+        )
+    out.append(
+        Row(
+            g,
+            "ExpRvrs1h δ/μ⁴, μ = 0.01",
+            None,
+            abs(coning_drift("exprvrs1h", 0.01)) / 1e-8,
+            0.10,
+            "rel",
+            7.64e-3,
+            "printed law here is 1.6e-7 μ² (likely 1.6e-5, DIGEST_001_004 §8 item 22); the 4th-order law persists",
+        )
+    )
     for mu in (0.04, 0.01):  # at μ = 0.05 itself 7.64e-3 μ⁴ = 4.8e-8 already exceeds 1.6e-5 μ² = 4.0e-8
-        out.append(Row(g, f"ExpRvrs1h δ ≤ 1.6e-5 μ², μ = {mu}", 1.6e-7 * mu**2, abs(coning_drift("exprvrs1h", mu)),
-                       check="le", reference=1.6e-5 * mu**2,
-                       note="small-μ law not reproduced; checked only as an upper bound with the corrected 1.6e-5"))  # fmt: skip
+        out.append(
+            Row(
+                g,
+                f"ExpRvrs1h δ ≤ 1.6e-5 μ², μ = {mu}",
+                1.6e-7 * mu**2,
+                abs(coning_drift("exprvrs1h", mu)),
+                check="le",
+                reference=1.6e-5 * mu**2,
+                note="small-μ law not reproduced; checked only as an upper bound with the corrected 1.6e-5",
+            )
+        )
     r1 = coning_drift("exprvrs1h", 1.0) / coning_drift("picard_literal", 1.0)
-    out.append(Row(g, "ExpRvrs1h/Picard drift at μ = 1 ('similar')", 1.0, abs(r1), 1.0, "rel",
-                   note="checked within a factor 2 (digest: 1.2)"))  # fmt: skip
+    out.append(
+        Row(
+            g,
+            "ExpRvrs1h/Picard drift at μ = 1 ('similar')",
+            1.0,
+            abs(r1),
+            1.0,
+            "rel",
+            note="checked within a factor 2 (digest: 1.2)",
+        )
+    )
     for mu in (0.04, 0.02):
         rr = coning_drift("revers1h", mu) / coning_drift("exprvrs1h", mu)
-        out.append(Row(g, f"Revers1h/ExpRvrs1h drift ratio, μ = {mu}", 2600.0, rr, check="ge",
-                       note="'2600 times' holds only for μ ≲ 0.046"))  # fmt: skip
+        out.append(
+            Row(
+                g,
+                f"Revers1h/ExpRvrs1h drift ratio, μ = {mu}",
+                2600.0,
+                rr,
+                check="ge",
+                note="'2600 times' holds only for μ ≲ 0.046",
+            )
+        )
     rr5 = coning_drift("revers1h", 0.05) / coning_drift("exprvrs1h", 0.05)
-    out.append(Row(g, "Revers1h/ExpRvrs1h drift ratio, μ = 0.05", 2600.0, rr5, check="le",
-                   note="the claim fails at μ = 0.05 (digest: 2183)"))  # fmt: skip
-    out.append(Row(g, "largest μ with ratio ≥ 2600", None, ratio_crossover(), 0.002, "abs", 0.046,
-                   "from the fitted laws 0.0416 μ² / 7.64e-3 μ⁴ (DIGEST_001_004 §2.7)"))  # fmt: skip
+    out.append(
+        Row(
+            g,
+            "Revers1h/ExpRvrs1h drift ratio, μ = 0.05",
+            2600.0,
+            rr5,
+            check="le",
+            note="the claim fails at μ = 0.05 (digest: 2183)",
+        )
+    )
+    out.append(
+        Row(
+            g,
+            "largest μ with ratio ≥ 2600",
+            None,
+            ratio_crossover(),
+            0.002,
+            "abs",
+            0.046,
+            "from the fitted laws 0.0416 μ² / 7.64e-3 μ⁴ (DIGEST_001_004 §2.7)",
+        )
+    )
     return out
