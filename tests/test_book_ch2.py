@@ -141,7 +141,7 @@ def test_every_registered_algorithm_tracks_a_slow_cone(name: str, form: str) -> 
 
 
 def test_registry_rejects_unknown_name() -> None:
-    with pytest.raises(ValueError, match="'nope'.*known: .*dl3m"):
+    with pytest.raises(ValueError, match=r"'nope'.*known: .*dl3m"):
         att.make_attitude("nope")
     assert {"rotvec", "dl1", "dl2", "dl2m", "dl3", "dl3m", "dlq", "revers1h", "rk21", "picard", "exprvrs1h",
             "poisson"} <= set(att.attitude_names())  # fmt: skip

@@ -26,6 +26,7 @@ algorithm of §2.4.4 (eq. 2.42).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -112,10 +113,15 @@ def six_accel_matrix(L: float) -> Vec:
     return np.array([A[3 * a + (p - 1)] for p, a in _SIX])
 
 
+@lru_cache(maxsize=16)
+def _six_inverse(L: float) -> Vec:
+    return np.linalg.inv(six_accel_matrix(L))
+
+
 def solve_six_accel(L: float, readings6: Vec, omega: Vec) -> tuple[Vec, Vec]:
     """(ε, w0) from the six tangential readings given ω (book §2.4.3: six accelerometers suffice)."""
     rhs = np.asarray(readings6) - accelerometer_readings(6, L, omega, np.zeros(3), np.zeros(3))  # − Ω²ρ terms
-    x = np.linalg.solve(six_accel_matrix(L), rhs)
+    x = _six_inverse(float(L)) @ rhs
     return x[:3], x[3:]
 
 

@@ -27,13 +27,43 @@ from ins_hil.types import Vec
 __all__ = [
     "ALGORITHMS",
     "PoissonAttitude",
+    "angles_yup",
     "dcm_increment",
+    "dcm_yup",
     "integrate_dcm",
     "orthonormalize",
     "poisson_rhs",
     "poisson_rhs_printed",
     "poisson_rhs_scalar",
 ]
+
+
+def dcm_yup(psi: float, theta: float, gamma: float) -> Vec:
+    """Body → navigation DCM in seed 003's convention (navigation x North, y Up, z East; body x forward,
+    y up, z right; ψ about y, ϑ about z′, γ about x″): C = R_y(ψ) R_z(ϑ) R_x(γ).
+
+    The thesis prints a non-orthogonal matrix (line 688, signs of C12/C23); this is the corrected one
+    (DIGEST_001_004 §3.4 [C])."""
+    cp, sp = math.cos(psi), math.sin(psi)
+    ct, st = math.cos(theta), math.sin(theta)
+    cg, sg = math.cos(gamma), math.sin(gamma)
+    return np.array(
+        [
+            [cp * ct, -cp * st * cg + sp * sg, cp * st * sg + sp * cg],
+            [st, ct * cg, -ct * sg],
+            [-sp * ct, sp * st * cg + cp * sg, -sp * st * sg + cp * cg],
+        ]
+    )
+
+
+def angles_yup(C: Vec) -> tuple[float, float, float]:
+    """(ψ, ϑ, γ) from :func:`dcm_yup`: ψ = atan2(−c31, c11), ϑ = asin c21, γ = atan2(−c23, c22)
+    (the thesis's "γ = arcsin(−c23/c22)" must be an arctangent)."""
+    return (
+        math.atan2(-C[2, 0], C[0, 0]),
+        math.asin(max(-1.0, min(1.0, float(C[1, 0])))),
+        math.atan2(-C[1, 2], C[1, 1]),
+    )
 
 
 def poisson_rhs(C: Vec, omega: Vec) -> Vec:
