@@ -19,6 +19,9 @@ def _table_lines(text: str) -> list[str]:
 def test_reproduce_command_writes_the_report(tmp_path: Path, capsys) -> None:
     out = tmp_path / "sub" / "reproduction.md"
     assert main(["reproduce", "--output", str(out), "--quiet"]) == 0
+    for png in ("reproduction_coning.png", "reproduction_schuler.png"):
+        assert (out.parent / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"![{png}]({png})" in out.read_text(encoding="utf-8")
     assert "rows pass; report written to" in capsys.readouterr().out
     text = out.read_text(encoding="utf-8")
     rows = all_rows()
@@ -34,7 +37,7 @@ def test_reproduce_command_writes_the_report(tmp_path: Path, capsys) -> None:
 
 def test_committed_report_is_current(tmp_path: Path) -> None:
     out = tmp_path / "r.md"
-    main(["reproduce", "--output", str(out), "--quiet"])
+    assert main(["reproduce", "--output", str(out), "--quiet", "--no-plots"]) == 0
     committed = (ROOT / "docs" / "reproduction.md").read_text(encoding="utf-8")
     assert _table_lines(committed) == _table_lines(out.read_text(encoding="utf-8")), "run `ins-hil reproduce`"
 
@@ -42,5 +45,5 @@ def test_committed_report_is_current(tmp_path: Path) -> None:
 def test_unwritable_output_is_reported(tmp_path: Path, capsys) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    assert main(["reproduce", "--output", str(blocker / "r.md"), "--quiet"]) == 2
+    assert main(["reproduce", "--output", str(blocker / "r.md"), "--quiet", "--no-plots"]) == 2
     assert "cannot write" in capsys.readouterr().err

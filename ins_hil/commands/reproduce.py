@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import platform
 import sys
 import time
@@ -24,6 +25,7 @@ DESCRIPTION = (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--output", "-o", type=Path, default=Path("docs/reproduction.md"), help="report path")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    p.add_argument("--no-plots", action="store_true", help="do not write the PNG figures beside the report")
 
 
 def _fmt(x: float | None) -> str:
@@ -39,7 +41,23 @@ def _fmt(x: float | None) -> str:
     return f"{x:.6g}"
 
 
-def render(sections: list[tuple[str, list[Row]]], seconds: float) -> str:
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def _machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} CPUs ({cpu}), Python {platform.python_version()}; other processes may have been running"
+
+
+def render(sections: list[tuple[str, list[Row]]], seconds: float, figures: list[str] | None = None) -> str:
     rows = [r for _, rs in sections for r in rs]
     n_pass = sum(r.passed for r in rows)
     lines = [
@@ -50,9 +68,11 @@ def render(sections: list[tuple[str, list[Row]]], seconds: float) -> str:
         "`published` is the printed value, `reference` what we check against (the published value, or the",
         "corrected value where the digest lists a typo — marked **typo**), `diff` = ours − reference.",
         "",
-        f"**{n_pass} of {len(rows)} rows pass.** Computed in {seconds:.1f} s (Python {platform.python_version()}).",
+        f"**{n_pass} of {len(rows)} rows pass.** Computed in {seconds:.1f} s on {_machine()}.",
         "",
     ]
+    for f in figures or []:
+        lines += [f"![{f}]({f})", ""]
     for title, rs in sections:
         lines += [
             f"## {title}",
@@ -61,9 +81,9 @@ def render(sections: list[tuple[str, list[Row]]], seconds: float) -> str:
         ]
         lines.append("|---|---|---|---|---|---|---|---|---|")
         for r in rs:
-            note = ("**typo** — " if r.typo else "") + r.note
+            note = ("**typo** — " if r.typo else "") + _cell(r.note)
             lines.append(
-                f"| {r.group} | {r.case} | {_fmt(r.published)} | {_fmt(r.ours)} | {_fmt(r.ref)} | "
+                f"| {_cell(r.group)} | {_cell(r.case)} | {_fmt(r.published)} | {_fmt(r.ours)} | {_fmt(r.ref)} | "
                 f"{_fmt(r.diff)} | {r.tolerance_text} | {'pass' if r.passed else '**FAIL**'} | {note} |"
             )
         lines.append("")
@@ -82,10 +102,15 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             bad = sum(not r.passed for r in rows)
             print(f" {len(rows)} rows, {bad} failed ({time.perf_counter() - t1:.1f} s)")
-    text = render(sections, time.perf_counter() - t0)
     out: Path = args.output
+    figures: list[str] = []
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
+        if not args.no_plots:
+            from ins_hil.reproduce.plots import write_figures
+
+            figures = [p.name for p in write_figures(out.parent)]
+        text = render(sections, time.perf_counter() - t0, figures)
         out.write_text(text + "\n", encoding="utf-8")
     except OSError as e:
         print(f"ins-hil reproduce: cannot write {out}: {e}", file=sys.stderr)

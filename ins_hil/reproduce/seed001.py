@@ -35,6 +35,7 @@ class SchulerRun:
     period_theory: float  # s, 2π √((M+h)/g) of the run's site
 
 
+@lru_cache(maxsize=8)
 def schuler_run(
     lat: float = 0.0, dv0: float = 1.0, rate: float = 5.0, periods: float = 1.5, attitude: str = "rotvec"
 ) -> SchulerRun:

@@ -111,7 +111,18 @@ def rows() -> list[Row]:
                 0.083,
                 abs(k) / mu**2,
                 0.05,
-                note="sign opposite to Revers1h (anti-phase)" if k * r < 0 else "SAME SIGN as Revers1h",
+                note="printed δ = 0.083 μ²",
+            )
+        )
+        out.append(
+            Row(
+                g,
+                f"sign of RK21 drift × sign of Revers1h drift, h = {h} s",
+                -1.0,
+                float(np.sign(k) * np.sign(r)),
+                0.0,
+                "abs",
+                note="'anti-phase': opposite signs",
             )
         )
         if h >= 0.01:
