@@ -91,6 +91,14 @@ def test_elementary_quaternions_match_their_formulas() -> None:
     np.testing.assert_allclose(att.dl2m(th), [1 - s / 12, *(th / 2)])
     np.testing.assert_allclose(att.dl3(th, tp), [1 - s / 8, *(0.5 * (1 - s / 24) * th - np.cross(th, tp) / 24)])
     np.testing.assert_allclose(att.dl3m(th, tp), [1 - s / 12, *(0.5 * th - np.cross(th, tp) / 24)])
+    # the registry's one-step path uses the same formulas
+    for kind, fn in (("dl1", att.dl1), ("dl2", att.dl2), ("dl2m", att.dl2m)):
+        np.testing.assert_allclose(att.make_attitude(kind).delta(th, 0.01), fn(th), atol=1e-16)
+    np.testing.assert_allclose(att.make_attitude("dlq", q=0.09).delta(th, 0.01), att.dlq(th, 0.09), atol=1e-16)
+    for kind, fn3 in (("dl3", att.dl3), ("dl3m", att.dl3m)):
+        a = att.make_attitude(kind)
+        a.delta(tp, 0.01)
+        np.testing.assert_allclose(a.delta(th, 0.01), fn3(th, tp), atol=1e-16)
     # vectorised over leading dimensions
     ths = rng.normal(size=(5, 3))
     np.testing.assert_allclose(att.dl3m(ths, ths[::-1])[2], att.dl3m(ths[2], ths[2]))

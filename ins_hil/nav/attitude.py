@@ -247,15 +247,22 @@ class ElementaryQuaternion(AttitudeAlgorithm):
         super().__init__()
 
     def delta(self, dtheta: Vec, dt: float) -> Vec:
+        # one step in scalar floats (numpy's per-call overhead dominates for 3-vectors);
+        # the same formulas as the vectorised dl* functions above
+        x, y, z = float(dtheta[0]), float(dtheta[1]), float(dtheta[2])
+        s2 = x * x + y * y + z * z
         k = self.kind
-        if k == "dl3":
-            d = dl3(dtheta, self._th_prev)
-        elif k == "dl3m":
-            d = dl3m(dtheta, self._th_prev)
-        elif k == "dlq":
-            d = dlq(dtheta, float(self.q))  # type: ignore[arg-type]
-        else:
-            d = {"dl1": dl1, "dl2": dl2, "dl2m": dl2m}[k](dtheta)
+        if k in ("dl3", "dl3m"):
+            px, py, pz = float(self._th_prev[0]), float(self._th_prev[1]), float(self._th_prev[2])
+            cx, cy, cz = (y * pz - z * py) / 24.0, (z * px - x * pz) / 24.0, (x * py - y * px) / 24.0
+            if k == "dl3":  # eq. 2.17
+                h = 0.5 * (1.0 - s2 / 24.0)
+                d = np.array((1.0 - s2 / 8.0, h * x - cx, h * y - cy, h * z - cz))
+            else:  # eq. 2.18 / 2.27
+                d = np.array((1.0 - s2 / 12.0, 0.5 * x - cx, 0.5 * y - cy, 0.5 * z - cz))
+        else:  # eq. 2.17 / 2.28
+            q = {"dl1": 0.0, "dl2": 1.0 / 8.0, "dl2m": 1.0 / 12.0}.get(k, self.q)
+            d = np.array((1.0 - float(q) * s2, 0.5 * x, 0.5 * y, 0.5 * z))  # type: ignore[arg-type]
         self._th_prev = dtheta
         return d
 
@@ -304,8 +311,8 @@ def _registry() -> dict[str, tuple[str, Callable[..., AttitudeAlgorithm]]]:
 
 
 def attitude_names() -> dict[str, str]:
-    """Registered algorithm names with a one-line description."""
-    return {k: v[0] for k, v in _registry().items()}
+    """Registered algorithm names with a one-line description and their native input form."""
+    return {k: f"{v[0]} [native input: {v[1]().native_input}]" for k, v in _registry().items()}
 
 
 def make_attitude(name: str, **params: Any) -> AttitudeAlgorithm:

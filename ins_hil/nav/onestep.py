@@ -58,6 +58,8 @@ def increments(w0: Vec, w1: Vec, h: float, kind: str) -> Vec:
     """Step quaternions N (…, 4) from rate samples ω0, ω1 (…, 3) in rad/s and step h (s)."""
     w0 = np.asarray(w0, dtype=np.float64)
     w1 = np.asarray(w1, dtype=np.float64)
+    if w0.ndim == 1 and w1.ndim == 1:
+        return _increment_one(w0, w1, h, kind)
     s = w0 + w1
     out = np.empty((*s.shape[:-1], 4))
     cr = np.cross(w0, w1)
@@ -74,6 +76,27 @@ def increments(w0: Vec, w1: Vec, h: float, kind: str) -> Vec:
     else:
         raise ValueError(f"unknown one-step algorithm {kind!r}; known: {', '.join(_KINDS)}")
     return out
+
+
+def _increment_one(w0: Vec, w1: Vec, h: float, kind: str) -> Vec:
+    """:func:`increments` for one step in scalar floats (same formulas; ~10× less overhead)."""
+    a, b, c = float(w0[0]), float(w0[1]), float(w0[2])
+    d, e, f = float(w1[0]), float(w1[1]), float(w1[2])
+    sx, sy, sz = a + d, b + e, c + f
+    cx, cy, cz = b * f - c * e, c * d - a * f, a * e - b * d  # ω0 × ω1
+    if kind in FAMILY_C:
+        k = FAMILY_C[kind] * h * h
+        s0 = 1.0 - k * (a * d + b * e + c * f)
+    elif kind == "picard":
+        k = h * h / 24.0
+        s0 = 1.0 - h * h / 32.0 * (sx * sx + sy * sy + sz * sz)
+    elif kind == "picard_literal":
+        k = h * h / 12.0
+        s0 = 1.0 - h * h / 8.0 * (sx * sx + sy * sy + sz * sz)
+    else:
+        raise ValueError(f"unknown one-step algorithm {kind!r}; known: {', '.join(_KINDS)}")
+    q = 0.25 * h
+    return np.array((s0, q * sx + k * cx, q * sy + k * cy, q * sz + k * cz))
 
 
 def _pure(w: Vec) -> Vec:
