@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from ins_hil.reproduce import GROUPS, Row
+from ins_hil.reproduce import Row, groups
 
 NAME = "reproduce"
 HELP = "recompute the seeds' published tables (book ch. 2, seeds 001/002) and write docs/reproduction.md"
@@ -93,7 +93,7 @@ def render(sections: list[tuple[str, list[Row]]], seconds: float, figures: list[
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     sections: list[tuple[str, list[Row]]] = []
-    for title, fn in GROUPS():
+    for title, fn in groups():
         t1 = time.perf_counter()
         if not args.quiet:
             print(f"reproduce: {title} ...", end="", flush=True)

@@ -4,7 +4,8 @@ Each module exposes ``rows() -> list[Row]`` (cached: computed once per process).
 A :class:`Row` holds the published value, the value we compute, the reference
 it is checked against (the published value, or the corrected one where the
 digest lists the published value as a typo), the tolerance and a note.
-``ins-hil reproduce`` renders all rows into ``docs/reproduction.md``.
+``ins-hil reproduce`` renders all rows into ``docs/reproduction.md`` (and :mod:`.plots` draws
+the coning-drift and Schuler figures beside it).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-__all__ = ["GROUPS", "Row", "all_rows"]
+__all__ = ["Row", "all_rows", "groups"]
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,7 @@ class Row:
         }[self.check]
 
 
-def _groups() -> list[tuple[str, Callable[[], list[Row]]]]:
+def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
     from . import book_ch2, gyrofree, seed001, seed002
 
     return [
@@ -83,12 +84,9 @@ def _groups() -> list[tuple[str, Callable[[], list[Row]]]]:
     ]
 
 
-GROUPS = _groups
-
-
 def all_rows() -> list[Row]:
     """Every row of every group (computations cached per process)."""
     out: list[Row] = []
-    for _, fn in _groups():
+    for _, fn in groups():
         out.extend(fn())
     return out
