@@ -153,3 +153,12 @@ def test_literal_picard_drift_scales_with_amplitude_squared() -> None:
     0.0021 holds only at its a = 0.1 rad — evidence that the paper simulated the printed eq. (6)."""
     assert abs(seed002.coning_drift("picard_literal", 0.1, a=0.05)) / 0.01 == pytest.approx(0.00042, rel=0.1)
     assert abs(seed002.coning_drift("picard_literal", 0.1, a=0.2)) / 0.01 == pytest.approx(0.0082, rel=0.1)
+
+
+def test_family_drift_law() -> None:
+    """δ_signed = (1/6 − 2c) μ² sin ε (DIGEST_001_004 §2.5 [C]) for every member of the family, incl. the
+    first Picard approximation (c = 0): 1/6, Revers 1/24, RK21 −1/12, new 0 (its μ⁴ term remains)."""
+    mu = 0.05
+    for kind, c in onestep.FAMILY_C.items():
+        d = seed002.coning_drift(kind, mu) / mu**2
+        assert d == pytest.approx(1 / 6 - 2 * c, abs=0.002 * (1 / 6))

@@ -12,6 +12,7 @@ family (DIGEST_001_004 §2.5 [C])::
   DIGEST_001_004 §8 item 17, so the compact form is implemented);
 * ``rk21``      c = 1/8: Heun / Runge–Kutta 2nd order, seed 002 eq. (3);
 * ``exprvrs1h`` c = 1/12: the authors' new combined algorithm, seed 002 eq. (7);
+* ``picard1``   first Picard approximation N₍₁₎ = 1 + (h/4)(ω0 + ω1) (seed 002 eq. (5), c = 0);
 * ``picard``    second Picard approximation with the two derivation errors of the
   printed eq. (6) corrected (DIGEST_001_004 §2.4):
   N = [1 − (h²/32)|ω0+ω1|²] + (h/4)(ω0+ω1) + (h²/24) ω0×ω1;
@@ -50,7 +51,7 @@ __all__ = [
 ]
 
 #: coefficient c of the family N = 1 + (h/4)(ω0+ω1) + c h² ω0∘ω1
-FAMILY_C = {"revers1h": 1.0 / 16.0, "rk21": 1.0 / 8.0, "exprvrs1h": 1.0 / 12.0}
+FAMILY_C = {"revers1h": 1.0 / 16.0, "rk21": 1.0 / 8.0, "exprvrs1h": 1.0 / 12.0, "picard1": 0.0}
 _KINDS = (*FAMILY_C, "picard", "picard_literal")
 
 
@@ -154,6 +155,7 @@ _SUMMARY = {
     "revers1h": "seed 002 one-step reverse algorithm (eq. 2), c = 1/16",
     "rk21": "seed 002 Heun/RK2 (eq. 3), c = 1/8",
     "exprvrs1h": "seed 002 new combined algorithm ExpRvrs1h (eq. 7), c = 1/12, 4th-order coning drift",
+    "picard1": "seed 002 Picard, 1st approximation N = 1 + (h/4)(ω0+ω1)",
     "picard": "seed 002 Picard, 2nd approximation, eq. (6) corrected",
     "picard_literal": "seed 002 Picard eq. (6) as printed (ε → ω1 − ω0), reproduces the paper",
 }
