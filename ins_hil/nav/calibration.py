@@ -405,6 +405,28 @@ def _match_plan(what: str, labels: list[int], refs: Vec) -> Vec:
     return refs
 
 
+#: a fitted scale factor further than this from 1 means wrong references or units, not a sensor error
+MAX_SCALE_ERROR = 0.2
+#: a deviation (eq. 4.17) above this means the plan does not match the log (the book's worst was 4 %)
+MAX_DEV_PERCENT = 10.0
+
+
+def _checked(what: str, fit: TriadFit) -> TriadFit:
+    s = np.diag(fit.matrix)
+    j = int(np.argmax(np.abs(s - 1.0)))
+    if abs(s[j] - 1.0) > MAX_SCALE_ERROR:
+        raise CalibrationError(
+            f"{what}: fitted scale factor {s[j]:.4g} on {'xyz'[j]} is implausible (|s − 1| > {MAX_SCALE_ERROR}); "
+            "the reference values (table rates, gravity) or the units of the log are wrong"
+        )
+    if fit.dev_percent > MAX_DEV_PERCENT:
+        raise CalibrationError(
+            f"{what}: deviation dev = {fit.dev_percent:.2f} % (eq. 4.17) exceeds {MAX_DEV_PERCENT} %; the steps do "
+            "not match the plan's positions (order, angles or signs)"
+        )
+    return fit
+
+
 def calibrate_accel(
     accel: Vec, labels: Vec, refs: Vec, limits: StepLimits = ACCEL_LIMITS, flags: Vec | None = None
 ) -> TriadFit:
@@ -421,7 +443,7 @@ def calibrate_accel(
             "need at least 4 positions not in one plane (the book uses 16: 8 about X, 8 about Y)"
         )
     labs, means, _ = step_means(accel, labels, limits, "accelerometer", flags, int(ImuFlags.ACCEL_SATURATED))
-    return fit_triad(_match_plan("accelerometer", labs, refs), means)
+    return _checked("accelerometer", fit_triad(_match_plan("accelerometer", labs, refs), means))
 
 
 def calibrate_gyro(
@@ -436,7 +458,7 @@ def calibrate_gyro(
             "need at least 4 (the book uses 7 positions × ±ω = 14 per rate)"
         )
     labs, means, _ = step_means(gyro, labels, limits, "gyro", flags, int(ImuFlags.GYRO_SATURATED))
-    return fit_triad(_match_plan("gyro", labs, refs), means)
+    return _checked("gyro", fit_triad(_match_plan("gyro", labs, refs), means))
 
 
 # ---------------------------------------------------------------------------
