@@ -88,6 +88,7 @@ def read_csv_log(path: Path) -> LogData:
 
     if "t" not in ix:
         raise cal.CalibrationError(f"{path}: column 't' (time, s) missing; columns are {cols}")
+    vec = {p: get3(p) for p in ("dtheta", "dvel", "mag", "gyro", "accel")}
     t = data[:, ix["t"]]
     if len(t) > 1 and np.any(np.diff(t) <= 0):
         raise cal.CalibrationError(f"{path}: column 't' must increase strictly (row {int(np.argmin(np.diff(t))) + 2})")
@@ -99,9 +100,9 @@ def read_csv_log(path: Path) -> LogData:
         dt = float(np.median(np.diff(t)))
     else:
         raise cal.CalibrationError(f"{path}: one row and no 'dt' column")
-    log = LogData(t=t, dt=dt, dtheta=get3("dtheta"), dvel=get3("dvel"), mag=get3("mag"))
-    log.gyro = get3("gyro")
-    log.accel = get3("accel")
+    log = LogData(t=t, dt=dt, dtheta=vec["dtheta"], dvel=vec["dvel"], mag=vec["mag"])
+    log.gyro = vec["gyro"]
+    log.accel = vec["accel"]
     if log.dtheta is not None and log.gyro is None:
         log.gyro = log.dtheta / dts[:, None]
     if log.dvel is not None and log.accel is None:
@@ -464,7 +465,7 @@ def _do_allan(args: argparse.Namespace, log: LogData, rep: Path, lines: list[str
             ax.loglog(res.tau, p0.rate_random_walk * np.sqrt(res.tau / 3), "-.", color="0.4", label="slope +½ (K)")
         ax.axhline(p0.bias_instability * av.B_FACTOR, color="0.6", lw=0.8, label="0.664 B")
         ax.set(xlabel="τ [s]", ylabel=f"Allan deviation [{u}]", title=f"{s}: overlapping Allan deviation (dashed: fit)")
-        ax.grid(True, which="both", alpha=0.3)
+        ax.grid(True, which="major", alpha=0.3)
         ax.legend(fontsize=8)
         fig.tight_layout()
         png = rep / f"allan_{s}.png"

@@ -779,17 +779,14 @@ def load_calibration(path: str | Path) -> SensorCalibration:
     import tomllib
 
     path = Path(path)
+    if path.suffix not in (".toml", ".json"):
+        raise CalibrationError(f"{path}: calibration files end in .toml or .json")
     try:
         text = path.read_text()
     except OSError as e:
         raise CalibrationError(f"{path}: cannot read calibration file ({e.strerror})") from e
     try:
-        if path.suffix == ".json":
-            d = json.loads(text)
-        elif path.suffix == ".toml":
-            d = tomllib.loads(text)
-        else:
-            raise CalibrationError(f"{path}: calibration files end in .toml or .json")
+        d = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
     except (json.JSONDecodeError, tomllib.TOMLDecodeError) as e:
         raise CalibrationError(f"{path}: not valid {path.suffix[1:].upper()}: {e}") from e
     if not isinstance(d, Mapping):
