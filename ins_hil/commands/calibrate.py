@@ -662,7 +662,7 @@ def bench(docs: Path, seed: int) -> int:
         "|---|---|---|---|---|---|",
         *rows,
         "",
-        f"Magnetometer (60 s tumble at 20 Hz, 0.2 µT noise, |F| = 50 µT given): hard iron within "
+        f"Magnetometer (60 s tumble at 20 Hz, 0.1 µT noise, |F| = 50 µT given): hard iron within "
         f"{me[:, 0].max():.1f} nT, soft-iron matrix within {me[:, 1].max():.1e}, |m| rms after correction "
         f"{me[:, 2].max():.0f} nT, fit {1e3 * me[:, 3].mean():.1f} ms.",
         "",

@@ -556,11 +556,13 @@ class TriadCalibration:
     cond: float = math.nan
     n_equations: int = 0
     inverse: Vec = field(init=False, repr=False)
+    coeffs: tuple[float, ...] = field(init=False, repr=False)  # A⁻¹ row-major, then b (hot path)
 
     def __post_init__(self) -> None:
         self.matrix = np.asarray(self.matrix, dtype=np.float64).reshape(3, 3)
         self.bias = np.asarray(self.bias, dtype=np.float64).reshape(3)
         self.inverse = np.linalg.inv(self.matrix)
+        self.coeffs = tuple(float(v) for v in self.inverse.ravel()) + tuple(float(v) for v in self.bias)
 
     def correct(self, m: Vec) -> Vec:
         """x = A⁻¹ (m − b) for one vector (3,) or rows (N, 3)."""
@@ -571,6 +573,12 @@ class TriadCalibration:
         if isinstance(fit, TriadFit):
             return cls(fit.matrix, fit.bias, unit, fit.dev_percent, fit.cond, fit.n_equations)
         return cls(fit.matrix, fit.bias, unit)
+
+
+def _correct_inc(c: tuple[float, ...], inc: Vec, dt: float) -> Vec:
+    """A⁻¹ (inc − b dt) with A⁻¹, b packed in ``c`` (scalar floats: numpy's per-call cost dominates for 3-vectors)."""
+    x, y, z = float(inc[0]) - c[9] * dt, float(inc[1]) - c[10] * dt, float(inc[2]) - c[11] * dt
+    return np.array([c[0] * x + c[1] * y + c[2] * z, c[3] * x + c[4] * y + c[5] * z, c[6] * x + c[7] * y + c[8] * z])
 
 
 @dataclass
@@ -594,15 +602,16 @@ class SensorCalibration:
         return self.imu_id is None or self.imu_id == imu_id
 
     def apply(self, imu: ImuSample) -> ImuSample:
-        """The sample with corrected increments: Δθ' = A_g⁻¹(Δθ − b_g dt), Δv' = A_a⁻¹(Δv − b_a dt)."""
-        dth, dv = imu.dtheta, imu.dvel
-        if self.gyro is not None:
-            dth = self.gyro.inverse @ (dth - self.gyro.bias * imu.dt)
-        if self.accel is not None:
-            dv = self.accel.inverse @ (dv - self.accel.bias * imu.dt)
+        """The sample with corrected increments: Δθ' = A_g⁻¹(Δθ − b_g dt), Δv' = A_a⁻¹(Δv − b_a dt).
+
+        Hot path: scalar arithmetic on coefficients cached at construction, one small array per triad.
+        """
+        dt = imu.dt
+        dth = imu.dtheta if self.gyro is None else _correct_inc(self.gyro.coeffs, imu.dtheta, dt)
+        dv = imu.dvel if self.accel is None else _correct_inc(self.accel.coeffs, imu.dvel, dt)
         return ImuSample(
             t=imu.t,
-            dt=imu.dt,
+            dt=dt,
             dtheta=dth,
             dvel=dv,
             imu_id=imu.imu_id,
