@@ -159,3 +159,23 @@ def test_command_allan(tmp_path: Path) -> None:
     assert c.noise["gyro"]["random_walk"] == pytest.approx(1e-3, rel=0.1)
     assert c.noise["accel"]["random_walk"] == pytest.approx(1e-3, rel=0.1)
     assert (tmp_path / "c_report" / "allan_gyro.png").exists()
+
+
+def test_command_six_position_plan_without_step_column(tmp_path: Path) -> None:
+    # the common 6-position test (each axis up and down) from a --plan CSV; steps detected from the signal
+    six = [(0.0, 0.0), (math.pi, 0.0), (math.pi / 2, 0.0), (-math.pi / 2, 0.0), (0.0, math.pi / 2), (0.0, -math.pi / 2)]
+    rng = np.random.default_rng(8)
+    acc = mems_accel(rng)
+    acc.bias_instability = 0.0
+    run = simcal.accel_static_run(ImuErrorModel(), acc, positions=six, dt=0.05, step_time=15.0, seed=9)
+    log = tmp_path / "six.csv"
+    write_csv_log(log, run.imu.t, run.imu.dt, {"accel": run.accel})  # rates, no step column
+    plan = tmp_path / "plan.csv"
+    rows = "\n".join(f"{k},{float(r[0])!r},{float(r[1])!r},{float(r[2])!r}" for k, r in enumerate(run.references))
+    plan.write_text("step,ref_x,ref_y,ref_z\n" + rows + "\n")
+    out = tmp_path / "six.toml"
+    assert main(["calibrate", "accel", str(log), "--plan", str(plan), "-o", str(out)]) == 0
+    c = cal.load_calibration(out)
+    assert c.accel is not None and c.accel.n_equations == 18
+    np.testing.assert_allclose(c.accel.matrix, acc.matrix(), atol=2e-4)
+    np.testing.assert_allclose(c.accel.bias, acc.bias, atol=2e-3)

@@ -251,7 +251,12 @@ def _plan_refs(args: argparse.Namespace, kind: str) -> Vec:
         raise cal.CalibrationError(f"--plan {path}: needs columns {list(need)}, has {d.dtype.names}")
     d = np.atleast_1d(d)
     order = np.argsort(d["step"])
-    return np.column_stack([d["ref_x"][order], d["ref_y"][order], d["ref_z"][order]])
+    refs = np.column_stack([d["ref_x"][order], d["ref_y"][order], d["ref_z"][order]])
+    if not np.all(np.isfinite(refs)) or not np.all(np.isfinite(d["step"])):
+        raise cal.CalibrationError(f"--plan {path}: every row needs numeric step, ref_x, ref_y, ref_z")
+    if np.any(np.diff(d["step"][order]) == 0):
+        raise cal.CalibrationError(f"--plan {path}: a step number appears twice")
+    return refs
 
 
 def _limits(args: argparse.Namespace, base: cal.StepLimits) -> cal.StepLimits:

@@ -192,6 +192,8 @@ def solve_qr(a_sigma: Vec, b_sigma: Vec) -> LsqResult:
     a_sigma = np.asarray(a_sigma, dtype=np.float64)
     b_sigma = np.asarray(b_sigma, dtype=np.float64).ravel()
     rows, n = a_sigma.shape
+    if not (np.all(np.isfinite(a_sigma)) and np.all(np.isfinite(b_sigma))):
+        raise CalibrationError("references or measurements contain NaN/inf")
     if rows < n:
         raise CalibrationError(f"{rows} equations for {n} unknowns: need at least {n} (book §4.2.1, n_e ≥ 12)")
     # numpy: A = Q_np R, so the book's Q is Q_np^T and Q B = Q_np^T B
