@@ -131,6 +131,11 @@ def test_command_accel_then_mag_writes_a_calibration_the_gateway_applies(
     assert c2.accel is not None and c2.mag is not None and c2.imu_id == 1
     np.testing.assert_allclose(c2.mag.bias, [1e-5, 2e-5, -5e-6], atol=1e-7)
     assert "updating" in capsys.readouterr().out
+    # the file belongs to IMU 1: a log of IMU 2 must not be merged into it
+    before = out.read_text()
+    assert main(["calibrate", "mag", str(mlog), "-o", str(out), "--imu-id", "2"]) == 1
+    assert "holds the calibration of IMU 1" in capsys.readouterr().err
+    assert out.read_text() == before
 
 
 def test_command_refuses_bad_data_and_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

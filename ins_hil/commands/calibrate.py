@@ -724,6 +724,8 @@ def _run(args: argparse.Namespace) -> int:
             args.lat = 50.45
     print(f"reading {args.log} ...", flush=True)
     log = read_log(args.log)
+    if args.output.exists():
+        cal.load_calibration(args.output)  # refuse early (before the work) if the file to update is broken
     rep = args.report if args.report is not None else args.output.with_name(args.output.stem + "_report")
     rep.mkdir(parents=True, exist_ok=True)
     lines: list[str] = [
@@ -743,6 +745,11 @@ def _run(args: argparse.Namespace) -> int:
     new.source = str(args.log)
     if args.output.exists():
         old = cal.load_calibration(args.output)
+        if old.imu_id is not None and new.imu_id is not None and old.imu_id != new.imu_id:
+            raise cal.CalibrationError(
+                f"{args.output} holds the calibration of IMU {old.imu_id}, this log is for IMU {new.imu_id}; "
+                "write it to another --output file"
+            )
         merged = old.merged(new)
         sec = "noise" if args.kind == "allan" else args.kind
         print(f"updating {args.output} ([{sec}] replaced, other sections kept)")
