@@ -431,6 +431,18 @@ def _checked(what: str, fit: TriadFit) -> TriadFit:
     return fit
 
 
+def _calibrate_triad(
+    what: str, values: Vec, labels: Vec, refs: Vec, limits: StepLimits, flags: Vec | None, bit: int, need: str
+) -> TriadFit:
+    refs = np.asarray(refs, dtype=np.float64)
+    if len(refs) < 4:
+        raise CalibrationError(
+            f"{what}: {len(refs)} steps give {3 * len(refs)} equations for 12 unknowns; need at least {need}"
+        )
+    labs, means, _ = step_means(values, labels, limits, what, flags, bit)
+    return _checked(what, fit_triad(_match_plan(what, labs, refs), means))
+
+
 def calibrate_accel(
     accel: Vec, labels: Vec, refs: Vec, limits: StepLimits = ACCEL_LIMITS, flags: Vec | None = None
 ) -> TriadFit:
@@ -440,14 +452,8 @@ def calibrate_accel(
     sample (−1 = moving); refs: (M, 3) reference specific force of step 0..M−1.
     Needs ≥ 4 positions not in one plane (12 unknowns, book n_e ≥ 12).
     """
-    refs = np.asarray(refs, dtype=np.float64)
-    if len(refs) < 4:
-        raise CalibrationError(
-            f"accelerometer: {len(refs)} positions give {3 * len(refs)} equations for 12 unknowns; "
-            "need at least 4 positions not in one plane (the book uses 16: 8 about X, 8 about Y)"
-        )
-    labs, means, _ = step_means(accel, labels, limits, "accelerometer", flags, int(ImuFlags.ACCEL_SATURATED))
-    return _checked("accelerometer", fit_triad(_match_plan("accelerometer", labs, refs), means))
+    need = "4 positions not in one plane (the book uses 16: 8 about X, 8 about Y)"
+    return _calibrate_triad("accelerometer", accel, labels, refs, limits, flags, int(ImuFlags.ACCEL_SATURATED), need)
 
 
 def calibrate_gyro(
@@ -455,14 +461,8 @@ def calibrate_gyro(
 ) -> TriadFit:
     """Rate-table gyro calibration (book §4.2.2, Table 4.1); arguments as :func:`calibrate_accel`
     with gyro rates (rad/s) and reference rates (rad/s, e.g. :func:`gyro_references`)."""
-    refs = np.asarray(refs, dtype=np.float64)
-    if len(refs) < 4:
-        raise CalibrationError(
-            f"gyro: {len(refs)} rate steps give {3 * len(refs)} equations for 12 unknowns; "
-            "need at least 4 (the book uses 7 positions × ±ω = 14 per rate)"
-        )
-    labs, means, _ = step_means(gyro, labels, limits, "gyro", flags, int(ImuFlags.GYRO_SATURATED))
-    return _checked("gyro", fit_triad(_match_plan("gyro", labs, refs), means))
+    need = "4 rate steps (the book uses 7 positions × ±ω = 14 per rate)"
+    return _calibrate_triad("gyro", gyro, labels, refs, limits, flags, int(ImuFlags.GYRO_SATURATED), need)
 
 
 # ---------------------------------------------------------------------------
