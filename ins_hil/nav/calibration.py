@@ -608,8 +608,11 @@ class SensorCalibration:
     def apply(self, imu: ImuSample) -> ImuSample:
         """The sample with corrected increments: Δθ' = A_g⁻¹(Δθ − b_g dt), Δv' = A_a⁻¹(Δv − b_a dt).
 
-        Hot path: scalar arithmetic on coefficients cached at construction, one small array per triad.
+        A sample of another IMU (``imu.imu_id`` ≠ ``imu_id``) is returned unchanged: a calibration
+        belongs to one sensor. Hot path: scalar arithmetic on coefficients cached at construction.
         """
+        if self.imu_id is not None and imu.imu_id != self.imu_id:
+            return imu
         dt = imu.dt
         dth = imu.dtheta if self.gyro is None else _correct_inc(self.gyro.coeffs, imu.dtheta, dt)
         dv = imu.dvel if self.accel is None else _correct_inc(self.accel.coeffs, imu.dvel, dt)
