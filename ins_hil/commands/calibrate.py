@@ -34,7 +34,7 @@ import numpy as np
 
 from ins_hil.nav import allan as av
 from ins_hil.nav import calibration as cal
-from ins_hil.types import ImuSample, MagSample, Vec
+from ins_hil.types import ImuFlags, ImuSample, MagSample, Vec
 
 NAME = "calibrate"
 HELP = "calibrate accelerometers, gyros, magnetometer or run an Allan-variance analysis from a recorded log"
@@ -259,6 +259,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="latitude in deg: gravity magnitude (accel) and vertical Earth rate (gyro) for the references",
     )
+    p.add_argument("--height", type=float, default=0.0, help="accel: ellipsoidal height in m for normal gravity")
     p.add_argument(
         "--max-std",
         type=float,
@@ -288,7 +289,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _plan_refs(args: argparse.Namespace, kind: str) -> Vec:
-    g = 9.80665 if args.lat is None else cal.earth.normal_gravity(math.radians(args.lat))
+    g = 9.80665 if args.lat is None else cal.earth.normal_gravity(math.radians(args.lat), args.height)
     if args.plan == "book":
         if kind == "accel":
             return cal.accel_references(cal.BOOK_ACCEL_POSITIONS, g)
@@ -498,7 +499,7 @@ def _do_allan(args: argparse.Namespace, log: LogData, rep: Path, lines: list[str
         if inc is None:
             raise cal.CalibrationError(f"{args.log}: allan --sensor {s} needs the {s} columns")
         if log.flags is not None:
-            bit = int(cal.ImuFlags.GYRO_SATURATED if s == "gyro" else cal.ImuFlags.ACCEL_SATURATED)
+            bit = int(ImuFlags.GYRO_SATURATED if s == "gyro" else ImuFlags.ACCEL_SATURATED)
             ns = int(np.count_nonzero(log.flags & bit))
             if ns:
                 raise cal.CalibrationError(
@@ -774,7 +775,7 @@ def _run(args: argparse.Namespace) -> int:
             args.rates, args.lat = "30,90", 50.45
             print("  (simulated table rates 30 and 90 °/s at latitude 50.45°: using --rates 30,90 --lat 50.45)")
         if args.kind == "accel" and args.plan == "book":
-            args.lat = 50.45
+            args.lat, args.height = 50.45, 100.0
     print(f"reading {args.log} ...", flush=True)
     log = read_log(args.log, args.imu_id)
     if args.output.exists():
