@@ -32,16 +32,18 @@ typedef double ins_pos;
 #define INS_FDI_M 2
 typedef struct {{
     ins_real q[4]; ins_real v[3]; ins_pos lat, lon, h; double t; ins_real dt;
-    ins_real dth_prev[3], dv_prev[3]; int have_prev; int coning, sculling, earth_rate;
-    uint32_t renorm_every, n; ins_real f_ned[3]; ins_real omega_ie[3]; ins_real omega_en[3];
+    ins_real f_ned[3]; ins_real omega_ie[3]; ins_real omega_en[3]; ...;
 }} ins_mech_t;
 typedef struct {{
     ins_real gyro_arw, accel_vrw, gyro_bias_sigma, gyro_bias_tau, accel_bias_sigma, accel_bias_tau;
-    ins_real p0_pos, p0_vel, p0_att, p0_bg, p0_ba, baro_offset;
+    ins_real p0_pos, p0_vel, p0_att, p0_yaw, p0_bg, p0_ba;
+    int second_order; ins_real gate_gnss, gate_baro; int gnss_reset_after;
+    ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; int use_gnss_vel; ins_real baro_std;
 }} ins_ekf_cfg_t;
 typedef struct {{
-    ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qd[15]; ins_real fg, fa;
-    ins_real baro_offset; uint32_t n_updates; ins_real last_nis;
+    ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
+    ins_pos baro_offset; uint32_t accepted[3], rejected[3], consecutive[3]; ins_real last_ratio[3];
+    uint32_t n_predict; ...;
 }} ins_ekf_t;
 typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; }} ins_core_t;
 typedef struct {{
@@ -58,9 +60,6 @@ void ins_book_att_init(ins_book_att_t *a, const ins_real q0[4], ins_real dt);
 void ins_book_att_step(ins_book_att_t *a, const ins_real w[3]);
 void ins_book_att_quat(const ins_book_att_t *a, ins_real q[4]);
 void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg);
-ins_real ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[15], ins_real z, ins_real r);
-void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m);
-void ins_ekf_feedback(ins_ekf_t *e, ins_mech_t *m);
 void ins_fdi_cone5_u2t(ins_real u2t[10]);
 void ins_fdi_parity(const ins_real u2t[10], const ins_real y[5], ins_real threshold, ins_fdi_result_t *r);
 uint16_t ins_crc16_ccitt(const uint8_t *data, size_t n, uint16_t init);
@@ -70,11 +69,11 @@ int cref_scalar_bits(void);
 void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, double lon, double h, double t,
                double dt, const ins_ekf_cfg_t *cfg, int filter);
 void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end);
-void cref_state(const ins_core_t *c, double out[23]);
+void cref_state(const ins_core_t *c, double out[26]);
 void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);
-void cref_fuse_baro(ins_core_t *c, double altitude, double std);
+int cref_fuse_baro(ins_core_t *c, double altitude);
 """
 
 _GLUE = r"""
@@ -98,7 +97,7 @@ void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_
     ins_core_step(c, dth, dv, t_end);
 #endif
 }
-/* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3] (26 values; first 23 used by state) */
+/* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3] (26 values) */
 static void put(const ins_core_t *c, double *o, size_t n) {
     ins_out_t r;
     double all[26];
@@ -117,7 +116,7 @@ static void put(const ins_core_t *c, double *o, size_t n) {
     all[8] = r.lat; all[9] = r.lon; all[10] = r.h;
     for (i = 0; i < n; ++i) o[i] = all[i];
 }
-void cref_state(const ins_core_t *c, double out[23]) { put(c, out, 23); }
+void cref_state(const ins_core_t *c, double out[26]) { put(c, out, 26); }
 void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride) {
     size_t k;
     for (k = 0; k < n; ++k) {
@@ -134,9 +133,7 @@ int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, co
     g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
     return ins_core_fuse_gnss(c, &g);
 }
-void cref_fuse_baro(ins_core_t *c, double altitude, double std) {
-    ins_core_fuse_baro(c, (ins_real)altitude, (ins_real)std);
-}
+int cref_fuse_baro(ins_core_t *c, double altitude) { return ins_core_fuse_baro(c, (ins_real)altitude); }
 """
 
 

@@ -6,24 +6,28 @@ either core (``make_core("python" | "c", initial)``). The C sources are
 compiled at install time by cffi (``firmware_ref/cffi_build.py``) into
 ``ins_hil._cref`` (double) and ``ins_hil._cref_f32`` (float).
 
+The C filter mirrors ``ins_hil.fusion`` (15 states, Joseph sequential scalar
+updates, the same gates and feedback) for the ``NavConfig`` settings it
+supports (others raise ``ValueError`` naming them): GNSS position/velocity
+without lever arm and baro; no magnetometer (ignored), adaptive R, NHC/ZUPT,
+alignment or delayed-fusion roll-back (a fix from the past is shifted by v·Δt
+and fused at the current step; NavCore rolls back instead).
+
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
 sample's ``dt``); a sample whose ``dt`` differs from it by more than
-``dt_tolerance`` (relative) is rejected with ``ValueError``. Measurements are
-applied at the current IMU time (no delayed fusion in the C core); GNSS
-position (+ velocity if present) and baro altitude are used; magnetometer
-samples are ignored (the C core has no magnetometer update).
+``dt_tolerance`` (relative) is rejected with ``ValueError``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
+from ins_hil.core import NavConfig
 from ins_hil.nav.mechanization import StrapdownState
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, NavState, Vec
+from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 Precision = Literal["double", "float"]
 
@@ -53,50 +57,62 @@ def available() -> bool:
     return True
 
 
-@dataclass
-class EkfConfig:
-    """Noise model and initial uncertainty of the C core's 15-state EKF (SI units, 1-σ).
+def _c_config(ffi: Any, cfg: NavConfig) -> Any:
+    """The C filter configuration from a NavConfig; ValueError for what the C core lacks."""
+    f = cfg.filter
+    unsupported = {
+        "filter.gyro_bias": not f.gyro_bias,
+        "filter.accel_bias": not f.accel_bias,
+        "filter.scale_factors": f.scale_factors,
+        "filter.numerics": f.numerics != "joseph",
+        "filter.cov_every": f.cov_every != 1,
+        "filter.earth_terms": not f.earth_terms,
+        "gnss_lever_arm_b": bool(np.any(np.asarray(cfg.gnss_lever_arm_b) != 0.0)),
+        "gnss_std_scale": cfg.gnss_std_scale != 1.0,
+        "adaptive": cfg.adaptive,
+        "nhc": cfg.nhc,
+        "zupt": cfg.zupt,
+        "mag_ref_ned": cfg.mag_ref_ned is not None,
+        "align": cfg.align != "given",
+    }
+    bad = [k for k, v in unsupported.items() if v]
+    if bad:
+        raise ValueError(f"CNavCore: NavConfig setting(s) not supported by the C core: {', '.join(bad)}")
+    c = ffi.new("ins_ekf_cfg_t *")
+    pairs = {
+        "gyro_arw": f.gyro_arw,
+        "accel_vrw": f.accel_vrw,
+        "gyro_bias_sigma": f.gyro_bias_sigma,
+        "gyro_bias_tau": f.gyro_bias_tau,
+        "accel_bias_sigma": f.accel_bias_sigma,
+        "accel_bias_tau": f.accel_bias_tau,
+        "p0_pos": f.init_pos,
+        "p0_vel": f.init_vel,
+        "p0_att": f.init_att,
+        "p0_yaw": f.init_yaw,
+        "p0_bg": f.init_gyro_bias,
+        "p0_ba": f.init_accel_bias,
+        "gate_gnss": cfg.gate_gnss,
+        "gate_baro": cfg.gate_baro,
+        "gnss_min_std_ne": cfg.gnss_min_std[0],
+        "gnss_min_std_d": cfg.gnss_min_std[1],
+        "gnss_min_std_vel": cfg.gnss_min_std[2],
+        "baro_std": cfg.baro_std,
+    }
+    for name, value in pairs.items():
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"CNavCore: config value {name}={value!r} must be finite and >= 0")
+        setattr(c, name, float(value))
+    for name in ("gyro_bias_tau", "accel_bias_tau"):
+        if not pairs[name] > 0.0:
+            raise ValueError(f"CNavCore: filter.{name}={pairs[name]!r} must be > 0")
+    c.second_order = 1 if f.second_order else 0
+    c.gnss_reset_after = int(cfg.gnss_reset_after)
+    c.use_gnss_vel = 1 if cfg.use_gnss_vel else 0
+    return c
 
-    Defaults: the MEMS grade of ``ins_hil.sim.sensors.mems_gyro``/``mems_accel``.
-    ``*_bias_tau`` ≤ 0 selects a random-walk bias (then ``*_bias_sigma`` is a rate density).
-    ``baro_offset``: ellipsoidal height (m) of the baro altitude datum.
-    """
 
-    gyro_arw: float = math.radians(0.15) / 60.0
-    accel_vrw: float = 70e-6 * 9.80665
-    gyro_bias_sigma: float = math.radians(10.0) / 3600.0
-    gyro_bias_tau: float = 300.0
-    accel_bias_sigma: float = 0.1e-3 * 9.80665
-    accel_bias_tau: float = 300.0
-    p0_pos: float = 5.0
-    p0_vel: float = 0.5
-    p0_att: float = math.radians(2.0)
-    p0_bg: float = math.radians(0.2)
-    p0_ba: float = 20e-3 * 9.80665
-    baro_offset: float = 0.0
-    baro_std: float = 0.5
-
-    def to_c(self, ffi: Any) -> Any:
-        cfg = ffi.new("ins_ekf_cfg_t *")
-        for name in (
-            "gyro_arw",
-            "accel_vrw",
-            "gyro_bias_sigma",
-            "gyro_bias_tau",
-            "accel_bias_sigma",
-            "accel_bias_tau",
-            "p0_pos",
-            "p0_vel",
-            "p0_att",
-            "p0_bg",
-            "p0_ba",
-            "baro_offset",
-        ):
-            value = float(getattr(self, name))
-            if not math.isfinite(value):
-                raise ValueError(f"EkfConfig.{name} must be finite, got {value!r}")
-            setattr(cfg, name, value)
-        return cfg
+_GROUPS = ("gnss_pos", "gnss_vel", "baro")
 
 
 #: columns of CNavCore.run's output array
@@ -115,23 +131,27 @@ class CNavCore:
     def __init__(
         self,
         initial: StrapdownState,
-        dt: float | None = None,
+        config: NavConfig | None = None,
         *,
+        dt: float | None = None,
         precision: Precision = "double",
         filter: bool = True,
-        ekf: EkfConfig | None = None,
         dt_tolerance: float = 0.05,
     ) -> None:
         self._ffi, self._lib_ = _lib(precision)
         self.precision = precision
         self.filter = filter
-        self.ekf_config = ekf or EkfConfig()
+        self.cfg = config if config is not None else NavConfig()
         self.dt_tolerance = dt_tolerance
         self._initial = initial.copy()
         self._core = self._ffi.new("ins_core_t *")
-        self._out = self._ffi.new("double[23]")
+        self._out = self._ffi.new("double[26]")
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
-        self._cfg = self.ekf_config.to_c(self._ffi)
+        self._cfg = _c_config(self._ffi, self.cfg)
+        self._omega_b = np.zeros(3)
+        self._f_b = np.zeros(3)
+        self._ratios: dict[str, float] = {}
+        self._events: list[FaultEvent] = []
         self.dt: float | None = None
         if dt is not None:
             self._init(dt)
@@ -170,22 +190,33 @@ class CNavCore:
         if dv.dtype != np.float64 or not dv.flags.c_contiguous:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
         self._lib_.cref_step(self._core, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t)
-        return self.state()
+        st = self.state()
+        # bias-compensated rate and specific force of this interval (as NavCore)
+        self._omega_b = (dth - st.gyro_bias * imu.dt) / imu.dt
+        self._f_b = (dv - st.accel_bias * imu.dt) / imu.dt
+        st.omega_b = self._omega_b
+        st.accel_b = self._f_b
+        return st
 
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
-        """Apply a GNSS fix (position, + velocity if given) or a baro altitude at the current time.
+        """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.
 
+        Gated like NavCore (per-component test ratio, ``gate_gnss``/``gate_baro``); a fix
+        valid at an earlier time is shifted by v·Δt (no roll-back in the C core).
         Magnetometer samples are ignored (no magnetometer update in the C core).
         """
         if self.dt is None or not self.filter:
             return None
+        e = self._core.ekf
+        before = [int(e.rejected[i]) for i in range(3)]
+        cons = [int(e.consecutive[i]) for i in range(3)]
         if isinstance(meas, GnssFix):
             vel = meas.vel_ned if meas.vel_ned is not None else np.full(3, np.nan)
             vel = np.ascontiguousarray(vel, dtype=np.float64)
             for name in ("std_ne", "std_d", "std_vel"):
                 sd = getattr(meas, name)
-                if not sd > 0.0:
-                    raise ValueError(f"GnssFix.{name} must be positive, got {sd!r}")
+                if not sd >= 0.0:
+                    raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
             self._lib_.cref_fuse_gnss(
                 self._core,
                 meas.t,
@@ -197,6 +228,7 @@ class CNavCore:
                 meas.std_d,
                 meas.std_vel,
             )
+            groups = (0, 1) if meas.vel_ned is not None and self.cfg.use_gnss_vel else (0,)
         elif isinstance(meas, BaroSample):
             alt = meas.altitude
             if not math.isfinite(alt):
@@ -205,8 +237,32 @@ class CNavCore:
                 from ins_hil.sim.sensors import altitude_from_pressure
 
                 alt = altitude_from_pressure(meas.pressure)
-            self._lib_.cref_fuse_baro(self._core, alt, self.ekf_config.baro_std)
+            self._lib_.cref_fuse_baro(self._core, alt)
+            groups = (2,)
+        else:
+            return None
+        ratios = dict(self._ratios)
+        for g in groups:
+            kind = _GROUPS[g]
+            ratios[kind] = float(e.last_ratio[g])
+            sensor = "gnss" if kind.startswith("gnss") else "baro"
+            if int(e.rejected[g]) > before[g] and cons[g] == 0:
+                self._events.append(
+                    FaultEvent(meas.t, sensor, FaultMode.JUMP, float("nan"), True, False,
+                               f"{kind} innovation test ratio {ratios[kind]:.2f}")
+                )  # fmt: skip
+            elif int(e.consecutive[g]) == 0 and cons[g] > 0:
+                self._events.append(
+                    FaultEvent(meas.t, sensor, FaultMode.JUMP, 0.0, True, True,
+                               f"{kind} accepted again after {cons[g]} rejections")
+                )  # fmt: skip
+        self._ratios = ratios
         return None
+
+    def drain_events(self) -> list[FaultEvent]:
+        """GNSS/baro fault events raised by the innovation gates since the last call."""
+        ev, self._events = self._events, []
+        return ev
 
     def state(self) -> NavState:
         """The current navigation state (biases and 1-σ from the C filter)."""
@@ -226,7 +282,11 @@ class CNavCore:
             accel_bias=o[14:17],
             std_pos=o[17:20],
             std_vel=o[20:23],
-            aligned=True,
+            std_att=o[23:26],
+            omega_b=self._omega_b,
+            accel_b=self._f_b,
+            aligned=bool(o[25] < self.cfg.aligned_yaw_std),
+            test_ratios=self._ratios,
         )
 
     def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1) -> Vec:
@@ -266,12 +326,12 @@ class CNavCore:
         return np.array([[float(p[i][j]) for j in range(15)] for i in range(15)])
 
 
-def make_core(kind: str, initial: StrapdownState, **kwargs: Any) -> Any:
+def make_core(kind: str, initial: StrapdownState, config: NavConfig | None = None, **kwargs: Any) -> Any:
     """The navigation core by name: ``"python"`` (ins_hil.core.NavCore) or ``"c"`` (CNavCore)."""
     if kind == "python":
         from ins_hil.core import NavCore
 
-        return NavCore(initial)
+        return NavCore(initial, config)
     if kind == "c":
-        return CNavCore(initial, **kwargs)
+        return CNavCore(initial, config, **kwargs)
     raise ValueError(f"unknown core {kind!r}: choose 'python' or 'c'")

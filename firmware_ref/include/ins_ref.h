@@ -117,34 +117,52 @@ void ins_mech_step(ins_mech_t *m, const ins_real dth[3], const ins_real dv[3]);
 
 /* ------------------------------------------------------------------------ EKF */
 
+/* Mirrors ins_hil.fusion.ekf.FilterConfig (15-state layout) and the GNSS/baro
+ * part of ins_hil.core.NavConfig; ins_ekf_default_cfg() gives the same defaults. */
 typedef struct {
-    ins_real gyro_arw;     /* gyro angle random walk, rad/sqrt(s) */
-    ins_real accel_vrw;    /* accel velocity random walk, m/s/sqrt(s) */
-    ins_real gyro_bias_sigma, gyro_bias_tau;   /* Gauss-Markov bias: steady 1-sigma (rad/s), tau (s); tau<=0: random walk */
+    ins_real gyro_arw;     /* gyro white noise, rad/s/sqrt(Hz) */
+    ins_real accel_vrw;    /* accel white noise, m/s^2/sqrt(Hz) */
+    ins_real gyro_bias_sigma, gyro_bias_tau;   /* Gauss-Markov bias: 1-sigma (rad/s), tau (s, > 0) */
     ins_real accel_bias_sigma, accel_bias_tau; /* same for the accelerometer (m/s^2, s) */
-    ins_real p0_pos, p0_vel, p0_att, p0_bg, p0_ba; /* initial 1-sigma (m, m/s, rad, rad/s, m/s^2) */
-    ins_real baro_offset;  /* ellipsoidal height of the baro altitude datum, m */
+    ins_real p0_pos, p0_vel, p0_att, p0_yaw, p0_bg, p0_ba; /* initial 1-sigma (m, m/s, rad, rad, rad/s, m/s^2) */
+    int second_order;      /* Phi = I + F dt + (F dt)^2 / 2 (book eq. 3.2) instead of I + F dt */
+    ins_real gate_gnss, gate_baro; /* innovation gates in sigma (per component, test ratio > 1 rejects) */
+    int gnss_reset_after;  /* after this many consecutive rejected GNSS positions: reset pos sigma and accept */
+    ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; /* floors on the reported GNSS sigmas */
+    int use_gnss_vel;
+    ins_real baro_std;     /* m */
 } ins_ekf_cfg_t;
+
+enum { INS_GRP_GNSS_POS = 0, INS_GRP_GNSS_VEL = 1, INS_GRP_BARO = 2, INS_NGRP = 3 };
 
 typedef struct {
     ins_real P[INS_NX][INS_NX];
     ins_real x[INS_NX];
     ins_real bg[3], ba[3];  /* estimated gyro (rad/s) and accel (m/s^2) biases, body */
-    ins_real qd[INS_NX];    /* discrete process noise per step (diagonal) */
-    ins_real fg, fa;        /* bias decay factors per step: 1 - dt/tau (or 1) */
-    ins_real baro_offset;
-    uint32_t n_updates;
-    ins_real last_nis;      /* normalised innovation squared of the last scalar update */
+    ins_real qc[INS_NX];    /* continuous noise densities (diagonal) */
+    ins_real inv_tau_g, inv_tau_a;
+    int second_order;
+    ins_real gate[INS_NGRP];
+    int gnss_reset_after, use_gnss_vel;
+    ins_real min_std[3];    /* GNSS NE, D, vel floors */
+    ins_real baro_std;
+    ins_pos baro_offset;    /* ellipsoid - baro datum, fixed at the first baro sample */
+    int have_baro_offset;
+    uint32_t accepted[INS_NGRP], rejected[INS_NGRP], consecutive[INS_NGRP];
+    ins_real last_ratio[INS_NGRP];
+    uint32_t n_predict;
 } ins_ekf_t;
 
-/* Default configuration (MEMS-grade, matches ins_hil.sim.sensors mems_gyro/mems_accel). */
+/* Default configuration: the defaults of ins_hil.fusion.ekf.FilterConfig / ins_hil.core.NavConfig. */
 void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg);
-void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg, ins_real dt);
-/* Covariance predict over one step after ins_mech_step(): P = Phi P Phi^T + Q,
- * Phi = I + F dt with F from the mechanization's last f_ned, rates and attitude. */
+void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg);
+/* Covariance predict over one step after ins_mech_step(): P = Phi P Phi^T + Q dt, with F from the
+ * mechanization's last f_ned, Earth/transport rates and attitude (see ekf.c). */
 void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m);
-/* Joseph-form scalar update for measurement z = h^T x + noise of variance r; returns the NIS. */
-ins_real ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r);
+/* Joseph-form scalar update for the residual z (measured - predicted, before x), row h, noise variance r. */
+void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r);
+/* Symmetrise P (after a group of scalar updates). */
+void ins_ekf_symmetrize(ins_ekf_t *e);
 /* Fold the error state into the navigation state and the biases, reset x. */
 void ins_ekf_feedback(ins_ekf_t *e, ins_mech_t *m);
 
@@ -180,10 +198,13 @@ void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], d
 /* n IMU steps in one call: inc is n x 6 (dtheta, dvel), t_end is n times (or NULL: t += dt);
  * out (n records, or NULL). */
 void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_t n, ins_out_t *out);
-/* GNSS position (+velocity when all vel components are finite) update, sequential scalar; returns updates applied. */
+/* GNSS fix: position group, feedback, then (if all vel components are finite) velocity group,
+ * feedback; each group gated (per-component test ratio), then sequential scalar Joseph updates.
+ * The position is shifted by v (t_now - g->t) to the current step. Returns a bit mask of the
+ * accepted groups (1 position, 2 velocity). */
 int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g);
-/* Baro altitude (m above the datum set by baro_offset) update. */
-void ins_core_fuse_baro(ins_core_t *c, ins_real altitude, ins_real std);
+/* Baro altitude (m above its datum; the datum offset is fixed at the first sample). Returns 1 if accepted. */
+int ins_core_fuse_baro(ins_core_t *c, ins_real altitude);
 void ins_core_output(const ins_core_t *c, ins_out_t *o);
 
 /* ---------------------------------------------------------------------- FDI */

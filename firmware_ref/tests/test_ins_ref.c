@@ -178,23 +178,34 @@ static void test_ekf(void) {
             for (j = 0; j < i; ++j) CHECK(c.ekf.P[i][j] == c.ekf.P[j][i], "P not symmetric");
         }
         g.t = c.mech.t;
-        CHECK(ins_core_fuse_gnss(&c, &g) == 6, "6 scalar updates");
+        CHECK(ins_core_fuse_gnss(&c, &g) == 3, "position and velocity accepted");
     }
     CHECK(fabs(c.mech.lat - lat) * 6371000.0 < 1.0, "north error after GNSS %g m", (c.mech.lat - lat) * 6371000.0);
     CHECK(fabs(c.mech.h) < 1.0, "height error after GNSS %g m", c.mech.h);
     CHECK(fabs((double)c.mech.v[1]) < 0.1, "east velocity after GNSS %g", (double)c.mech.v[1]);
     CHECK((double)c.ekf.P[0][0] < 1.0, "P_NN after GNSS %g", (double)c.ekf.P[0][0]);
-    /* baro pulls the height to the datum */
-    c.mech.h = 5.0;
-    for (k = 0; k < 50; ++k) ins_core_fuse_baro(&c, (ins_real)0.0, (ins_real)0.5);
-    CHECK(fabs(c.mech.h) < 0.5, "height after baro %g", c.mech.h);
+    /* baro: the first sample fixes the datum; later ones pull the height to it; a jump is gated out */
+    CHECK(ins_core_fuse_baro(&c, (ins_real)0.0) == 1, "first baro accepted");
+    {
+        const double datum = c.ekf.baro_offset;
+        c.mech.h += 2.0;
+        for (k = 0; k < 20; ++k) ins_core_fuse_baro(&c, (ins_real)0.0);
+        CHECK(fabs(c.mech.h - datum) < 0.5, "height after baro %g (datum %g)", c.mech.h, datum);
+        CHECK(ins_core_fuse_baro(&c, (ins_real)50.0) == 0 && c.ekf.rejected[INS_GRP_BARO] == 1, "baro jump gated");
+        CHECK(fabs(c.mech.h - datum) < 0.5, "height after the rejected jump %g", c.mech.h);
+    }
+    /* GNSS positions rejected gnss_reset_after times in a row are then accepted (position re-initialised) */
+    g.lat = lat + 500.0 / 6371000.0;
+    for (k = 0; k < cfg.gnss_reset_after; ++k) CHECK((ins_core_fuse_gnss(&c, &g) & 1) == 0, "jump %d rejected", k);
+    CHECK((ins_core_fuse_gnss(&c, &g) & 1) == 1, "accepted after %d rejections", cfg.gnss_reset_after);
+    CHECK(fabs(c.mech.lat - g.lat) * 6371000.0 < 1.0, "reset to the GNSS position");
 
     /* Joseph update equals the conventional P - P h h^T P / s for an optimal gain */
     {
         ins_ekf_t e;
         ins_real hv[INS_NX], u[INS_NX], Pc[INS_NX][INS_NX];
         double s = 0.3, maxd = 0.0;
-        ins_ekf_init(&e, &cfg, (ins_real)dt);
+        ins_ekf_init(&e, &cfg);
         for (i = 0; i < INS_NX; ++i)
             for (j = 0; j < INS_NX; ++j) e.P[i][j] += (ins_real)(0.01 * cos((double)(i + j)) * (i == j ? 10.0 : 1.0));
         for (i = 0; i < INS_NX; ++i) hv[i] = (ins_real)(i % 4 == 0 ? 1.0 : (i % 3 == 0 ? -0.5 : 0.0));
