@@ -60,6 +60,8 @@ class NavConfig:
     mag_ref_ned: reference magnetic field (NED, any unit, e.g. from WMM: declination is in it).
     nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, zero velocity
     when the IMU is at rest for ``zupt_time`` s). adaptive: Sage–Husa R on GNSS/baro.
+    The baro datum offset (baro altitude → ellipsoidal height) is taken from the first sample
+    and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
     """
 
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -73,6 +75,7 @@ class NavConfig:
     gate_aux: float = 5.0
     gnss_reset_after: int = 10
     baro_std: float = 0.5
+    baro_offset_tau: float = 10.0
     mag_std: float = 0.0524
     mag_ref_ned: Vec | None = None
     adaptive: bool = False
@@ -143,6 +146,9 @@ class NavCore:
         self._nhc_next = 0.0
         self._still_time = 0.0
         self._baro_offset: float | None = None
+        self._t_baro = 0.0
+        self._t_gnss_ok = -math.inf
+        self._h_gnss = 0.0
         # alignment
         self.phase = "nav" if self.cfg.align == "given" else "level"
         self._lev_buf: deque[tuple[float, Vec, Vec]] = deque()
@@ -260,9 +266,9 @@ class NavCore:
         self._restore(target.data)
         self._step_n = target.step
         replay = [e for e in self._log if e[0] >= target.step]
+        self._fuse_now(meas)  # counted and gated like any measurement
         self._replaying = True
         try:
-            self._fuse_now(meas)
             kept: deque[_Snap] = deque(s for s in self._snaps if s.step <= target.step)
             kept[-1] = _Snap(target.step, target.t, self._snapshot())
             for _step, kind, obj in replay:
@@ -292,11 +298,12 @@ class NavCore:
         if meas.t < t - 0.5 * self._dt and self.cfg.delay_compensation and self.cfg.max_delay > 0:
             if self._fuse_delayed(meas):
                 return
-        self._fuse_now(meas)
+        # uncompensated (or beyond the history): treat a late measurement as valid now
+        self._fuse_now(meas, assume_now=meas.t < t - 1.5 * self._dt)
         if self.cfg.delay_compensation and self.cfg.max_delay > 0:
             self._log.append((self._step_n, "meas", meas))
 
-    def _fuse_now(self, meas: GnssFix | BaroSample | MagSample) -> None:
+    def _fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
         s = self.ins.state
         C = dcm_from_quat(s.q_nb)
         c = self.cfg
@@ -304,7 +311,7 @@ class NavCore:
             lever = c.gnss_lever_arm_b
             std_ne = max(meas.std_ne, c.gnss_min_std[0]) * c.gnss_std_scale
             std_d = max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale
-            shift = s.vel_ned * (s.t - meas.t)  # time alignment to the step
+            shift = None if assume_now else s.vel_ned * (s.t - meas.t)  # time alignment to the step
             z, H = mm.gnss_position(self.idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, lever, shift)
             r = np.array((std_ne**2, std_ne**2, std_d**2))
             force = self.stats["gnss_pos"].consecutive_rejects >= c.gnss_reset_after
@@ -314,7 +321,9 @@ class NavCore:
                 zv = np.zeros(3) if meas.vel_ned is None else np.asarray(meas.vel_ned) - s.vel_ned
                 self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
                 self.stats["gnss_vel"].consecutive_rejects = 0
-            self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t)
+            if self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t):
+                self._t_gnss_ok = meas.t
+                self._h_gnss = meas.h + float((C @ lever)[2])  # IMU height from the antenna height
             if c.use_gnss_vel and meas.vel_ned is not None:
                 s = self.ins.state
                 C = dcm_from_quat(s.q_nb)
@@ -328,7 +337,13 @@ class NavCore:
 
                 alt = altitude_from_pressure(meas.pressure)
             if self._baro_offset is None:
-                self._baro_offset = s.h - alt  # baro datum → ellipsoid, fixed at the first sample
+                self._baro_offset = s.h - alt  # baro datum → ellipsoid, from the first sample
+            elif abs(meas.t - self._t_gnss_ok) < 0.5 and c.baro_offset_tau > 0:
+                # while GNSS is healthy, calibrate the datum against the GNSS height (first-order filter,
+                # τ = baro_offset_tau; against GNSS, not the filter height, which the baro itself drives)
+                a = min(1.0, max(0.0, meas.t - self._t_baro) / c.baro_offset_tau)
+                self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
+            self._t_baro = meas.t
             z, H = mm.baro_height(self.idx, s.h, alt + self._baro_offset)
             self._apply("baro", z, H, np.array((c.baro_std**2,)), c.gate_baro, meas.t)
         elif isinstance(meas, MagSample):
