@@ -60,8 +60,8 @@ class NavConfig:
     mag_ref_ned: reference magnetic field (NED, any unit, e.g. from WMM: declination is in it).
     nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, zero velocity
     when the IMU is at rest for ``zupt_time`` s). adaptive: Sage–Husa R on GNSS/baro.
-    The baro datum offset (baro altitude → ellipsoidal height) is taken from the first sample
-    and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
+    The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
+    taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
     """
 
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -76,6 +76,7 @@ class NavConfig:
     gnss_reset_after: int = 10
     baro_std: float = 0.5
     baro_offset_tau: float = 10.0
+    baro_offset: float | None = None
     mag_std: float = 0.0524
     mag_ref_ned: Vec | None = None
     adaptive: bool = False
@@ -149,6 +150,8 @@ class NavCore:
         self._t_baro = 0.0
         self._t_gnss_ok = -math.inf
         self._h_gnss = 0.0
+        self._gnss_var_d = 1.0
+        self._baro_offset_var = 0.0
         # alignment
         self.phase = "nav" if self.cfg.align == "given" else "level"
         self._lev_buf: deque[tuple[float, Vec, Vec]] = deque()
@@ -324,6 +327,7 @@ class NavCore:
             if self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t):
                 self._t_gnss_ok = meas.t
                 self._h_gnss = meas.h + float((C @ lever)[2])  # IMU height from the antenna height
+                self._gnss_var_d = std_d**2
             if c.use_gnss_vel and meas.vel_ned is not None:
                 s = self.ins.state
                 C = dcm_from_quat(s.q_nb)
@@ -337,15 +341,20 @@ class NavCore:
 
                 alt = altitude_from_pressure(meas.pressure)
             if self._baro_offset is None:
-                self._baro_offset = s.h - alt  # baro datum → ellipsoid, from the first sample
-            elif abs(meas.t - self._t_gnss_ok) < 0.5 and c.baro_offset_tau > 0:
+                # baro datum → ellipsoid: configured, or from the first sample
+                self._baro_offset = c.baro_offset if c.baro_offset is not None else s.h - alt
+                self._baro_offset_var = float(self.kf.P[2, 2])
+            elif abs(meas.t - self._t_gnss_ok) < 0.5 and c.baro_offset_tau > 0 and c.baro_offset is None:
                 # while GNSS is healthy, calibrate the datum against the GNSS height (first-order filter,
                 # τ = baro_offset_tau; against GNSS, not the filter height, which the baro itself drives)
                 a = min(1.0, max(0.0, meas.t - self._t_baro) / c.baro_offset_tau)
                 self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
+                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * self._gnss_var_d
             self._t_baro = meas.t
             z, H = mm.baro_height(self.idx, s.h, alt + self._baro_offset)
-            self._apply("baro", z, H, np.array((c.baro_std**2,)), c.gate_baro, meas.t)
+            # the uncertainty of a learnt datum is added to R (it is slowly varying, not white: approximate)
+            r_b = c.baro_std**2 + (self._baro_offset_var if c.baro_offset is None else 0.0)
+            self._apply("baro", z, H, np.array((r_b,)), c.gate_baro, meas.t)
         elif isinstance(meas, MagSample):
             self._last_mag = np.asarray(meas.field_b)
             if c.mag_ref_ned is None:
