@@ -60,6 +60,8 @@ class NavConfig:
     mag_ref_ned: reference magnetic field (NED, any unit, e.g. from WMM: declination is in it).
     nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, zero velocity
     when the IMU is at rest for ``zupt_time`` s). adaptive: Sage–Husa R on GNSS/baro.
+    The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
+    taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
     """
 
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -73,6 +75,8 @@ class NavConfig:
     gate_aux: float = 5.0
     gnss_reset_after: int = 10
     baro_std: float = 0.5
+    baro_offset_tau: float = 10.0
+    baro_offset: float | None = None
     mag_std: float = 0.0524
     mag_ref_ned: Vec | None = None
     adaptive: bool = False
@@ -90,6 +94,10 @@ class NavConfig:
     max_delay: float = 0.3
     align: str = "given"
     align_time: float = 2.0
+    align_level_only: bool = False
+    still_speed: float = 0.3
+    align_gyro_bias_std: float = 0.02 * DEG
+    mag_yaw_std: float = 3.0 * DEG
     gnss_yaw_speed: float = 1.0
     gnss_yaw_std: float = 3.0 * DEG
     aligned_yaw_std: float = 5.0 * DEG
@@ -139,12 +147,18 @@ class NavCore:
         self._nhc_next = 0.0
         self._still_time = 0.0
         self._baro_offset: float | None = None
+        self._t_baro = 0.0
+        self._t_gnss_ok = -math.inf
+        self._h_gnss = 0.0
+        self._gnss_var_d = 1.0
+        self._baro_offset_var = 0.0
         # alignment
         self.phase = "nav" if self.cfg.align == "given" else "level"
-        self._lev_n = 0
+        self._lev_buf: deque[tuple[float, Vec, Vec]] = deque()
         self._lev_f = np.zeros(3)
         self._lev_w = np.zeros(3)
         self._lev_t = 0.0
+        self._moving = False
         self._have_pos = self.cfg.align == "given"
         self._last_mag: Vec | None = None
         self.nis_log: list[tuple[float, str, float, int]] = []
@@ -255,9 +269,9 @@ class NavCore:
         self._restore(target.data)
         self._step_n = target.step
         replay = [e for e in self._log if e[0] >= target.step]
+        self._fuse_now(meas)  # counted and gated like any measurement
         self._replaying = True
         try:
-            self._fuse_now(meas)
             kept: deque[_Snap] = deque(s for s in self._snaps if s.step <= target.step)
             kept[-1] = _Snap(target.step, target.t, self._snapshot())
             for _step, kind, obj in replay:
@@ -287,11 +301,12 @@ class NavCore:
         if meas.t < t - 0.5 * self._dt and self.cfg.delay_compensation and self.cfg.max_delay > 0:
             if self._fuse_delayed(meas):
                 return
-        self._fuse_now(meas)
+        # uncompensated (or beyond the history): treat a late measurement as valid now
+        self._fuse_now(meas, assume_now=meas.t < t - 1.5 * self._dt)
         if self.cfg.delay_compensation and self.cfg.max_delay > 0:
             self._log.append((self._step_n, "meas", meas))
 
-    def _fuse_now(self, meas: GnssFix | BaroSample | MagSample) -> None:
+    def _fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
         s = self.ins.state
         C = dcm_from_quat(s.q_nb)
         c = self.cfg
@@ -299,9 +314,20 @@ class NavCore:
             lever = c.gnss_lever_arm_b
             std_ne = max(meas.std_ne, c.gnss_min_std[0]) * c.gnss_std_scale
             std_d = max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale
-            shift = s.vel_ned * (s.t - meas.t)  # time alignment to the step
+            shift = None if assume_now else s.vel_ned * (s.t - meas.t)  # time alignment to the step
             z, H = mm.gnss_position(self.idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, lever, shift)
-            self._apply("gnss_pos", z, H, np.array((std_ne**2, std_ne**2, std_d**2)), c.gate_gnss, meas.t)
+            r = np.array((std_ne**2, std_ne**2, std_d**2))
+            force = self.stats["gnss_pos"].consecutive_rejects >= c.gnss_reset_after
+            if force:
+                # GNSS rejected for too long: the INS has drifted, re-initialise position/velocity σ
+                self.kf.set_state_sigma("pos", np.sqrt(z * z + r))
+                zv = np.zeros(3) if meas.vel_ned is None else np.asarray(meas.vel_ned) - s.vel_ned
+                self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
+                self.stats["gnss_vel"].consecutive_rejects = 0
+            if self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t):
+                self._t_gnss_ok = meas.t
+                self._h_gnss = meas.h + float((C @ lever)[2])  # IMU height from the antenna height
+                self._gnss_var_d = std_d**2
             if c.use_gnss_vel and meas.vel_ned is not None:
                 s = self.ins.state
                 C = dcm_from_quat(s.q_nb)
@@ -315,9 +341,20 @@ class NavCore:
 
                 alt = altitude_from_pressure(meas.pressure)
             if self._baro_offset is None:
-                self._baro_offset = s.h - alt  # baro datum → ellipsoid, fixed at the first sample
+                # baro datum → ellipsoid: configured, or from the first sample
+                self._baro_offset = c.baro_offset if c.baro_offset is not None else s.h - alt
+                self._baro_offset_var = float(self.kf.P[2, 2])
+            elif abs(meas.t - self._t_gnss_ok) < 0.5 and c.baro_offset_tau > 0 and c.baro_offset is None:
+                # while GNSS is healthy, calibrate the datum against the GNSS height (first-order filter,
+                # τ = baro_offset_tau; against GNSS, not the filter height, which the baro itself drives)
+                a = min(1.0, max(0.0, meas.t - self._t_baro) / c.baro_offset_tau)
+                self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
+                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * self._gnss_var_d
+            self._t_baro = meas.t
             z, H = mm.baro_height(self.idx, s.h, alt + self._baro_offset)
-            self._apply("baro", z, H, np.array((c.baro_std**2,)), c.gate_baro, meas.t)
+            # the uncertainty of a learnt datum is added to R (it is slowly varying, not white: approximate)
+            r_b = c.baro_std**2 + (self._baro_offset_var if c.baro_offset is None else 0.0)
+            self._apply("baro", z, H, np.array((r_b,)), c.gate_baro, meas.t)
         elif isinstance(meas, MagSample):
             self._last_mag = np.asarray(meas.field_b)
             if c.mag_ref_ned is None:
@@ -344,6 +381,8 @@ class NavCore:
         if self.keep_nis and not self._replaying:
             self.nis_log.append((t, kind, nis, len(z)))
         force = kind == "gnss_pos" and st.consecutive_rejects >= self.cfg.gnss_reset_after
+        if kind == "gnss_vel" and self.stats["gnss_pos"].consecutive_rejects > 0:
+            force = False  # velocity follows the position decision below
         if ratio > 1.0 and not force:
             if not self._replaying:
                 st.rejected += 1
@@ -364,9 +403,6 @@ class NavCore:
                 )  # fmt: skip
             st.accepted += 1
             st.consecutive_rejects = 0
-        if force:
-            # long rejection: re-initialise the position uncertainty and accept (GNSS is the truth source)
-            kf.set_state_sigma("pos", np.sqrt(np.abs(z) ** 2 + r))
         kf.update(z, H, r)
         self._feedback(kf.reset())
         return True
@@ -392,37 +428,61 @@ class NavCore:
     # ------------------------------------------------------------------ alignment
     def _align_step(self, imu: ImuSample) -> None:
         self.ins.state.t = imu.t
+        c = self.cfg
         if self.phase == "level":
-            self._lev_n += 1
-            self._lev_f += imu.dvel
-            self._lev_w += imu.dtheta
+            if self._moving:
+                if self._lev_t >= c.align_time:
+                    self._level()
+                return
+            # at rest: keep the last ``align_time`` s of increments (sliding window of sums)
+            self._lev_buf.append((imu.dt, imu.dvel, imu.dtheta))
             self._lev_t += imu.dt
-            if self._lev_t >= self.cfg.align_time and self._have_pos:
-                f = self._lev_f / self._lev_t
-                roll, pitch = alignment.coarse_level(f)
-                yaw = 0.0
-                have_yaw = False
-                if self.cfg.mag_ref_ned is not None and self._last_mag is not None:
-                    s = self.ins.state
-                    g_ned = np.array((0.0, 0.0, -earth.normal_gravity(s.lat, s.h)))
-                    A = alignment.refined_alignment(
-                        np.vstack([g_ned, self.cfg.mag_ref_ned]), np.vstack([f, self._last_mag])
-                    )
-                    roll, pitch, yaw = euler_from_quat(alignment.quat_from_book_A(A))
-                    have_yaw = True
-                self.ins.state.q_nb = quat_from_euler(roll, pitch, yaw)
-                self.ins.state.vel_ned = np.zeros(3)
-                self.ins.reset_history()
-                if have_yaw:
-                    self._enter_nav()
-                else:
-                    self.phase = "heading"
+            self._lev_f = self._lev_f + imu.dvel
+            self._lev_w = self._lev_w + imu.dtheta
+            while self._lev_buf and self._lev_t - self._lev_buf[0][0] >= c.align_time:
+                dt0, dv0, dth0 = self._lev_buf.popleft()
+                self._lev_t -= dt0
+                self._lev_f = self._lev_f - dv0
+                self._lev_w = self._lev_w - dth0
+            if self._lev_t >= c.align_time - 0.5 * imu.dt and self._have_pos:
+                mag_ok = c.mag_ref_ned is not None and self._last_mag is not None
+                if mag_ok or c.align_level_only:
+                    self._level()
         elif self.phase == "heading":
-            # attitude from the gyros alone (position/velocity held) until a GNSS course is available
-            self.ins.step(imu.dtheta, imu.dvel, imu.dt)
+            # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
+            dth = imu.dtheta - self.bg * imu.dt
+            self.ins.step(dth, imu.dvel - self.ba * imu.dt, imu.dt)
             self.ins.state.t = imu.t
             self.ins.state.vel_ned = np.zeros(3)
-            self.omega_b = imu.dtheta / imu.dt
+            self.omega_b = dth / imu.dt
+
+    def _level(self) -> None:
+        """Coarse levelling (book §4.1.1) and gyro bias from the static window; refined
+        alignment with the magnetometer (§4.1.2) when a field reference is configured."""
+        c = self.cfg
+        s = self.ins.state
+        f = self._lev_f / self._lev_t
+        roll, pitch = alignment.coarse_level(f)
+        yaw = 0.0
+        # gyro bias = mean rate − Earth rate; only the vertical Earth-rate component is known before yaw
+        w = self._lev_w / self._lev_t
+        C0 = dcm_from_quat(quat_from_euler(roll, pitch, 0.0))
+        self.bg = w - C0.T @ np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(s.lat)))
+        have_yaw = False
+        if c.mag_ref_ned is not None and self._last_mag is not None:
+            g_ned = np.array((0.0, 0.0, -earth.normal_gravity(s.lat, s.h)))
+            A = alignment.refined_alignment(np.vstack([g_ned, c.mag_ref_ned]), np.vstack([f, self._last_mag]))
+            roll, pitch, yaw = euler_from_quat(alignment.quat_from_book_A(A))
+            have_yaw = True
+        s.q_nb = quat_from_euler(roll, pitch, yaw)
+        s.vel_ned = np.zeros(3)
+        self.ins.reset_history()
+        if self.idx.bg is not None:
+            self.kf.set_state_sigma("bg", c.align_gyro_bias_std)
+        if have_yaw:
+            self._enter_nav(yaw_std=c.mag_yaw_std)
+        else:
+            self.phase = "heading"
 
     def _align_meas(self, meas: GnssFix | BaroSample | MagSample) -> None:
         s = self.ins.state
@@ -431,26 +491,29 @@ class NavCore:
             return
         if not isinstance(meas, GnssFix):
             return
-        if not self._have_pos or self.phase == "level":
+        if self.phase == "level":
             s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
             self._have_pos = True
+            if meas.vel_ned is not None:
+                v = np.asarray(meas.vel_ned)
+                self._moving = self._moving or math.hypot(float(v[0]), float(v[1])) > self.cfg.still_speed
         if self.phase == "heading" and meas.vel_ned is not None:
             v = np.asarray(meas.vel_ned)
             sp = math.hypot(float(v[0]), float(v[1]))
             if sp >= self.cfg.gnss_yaw_speed:
                 roll, pitch, _ = euler_from_quat(s.q_nb)
-                yaw = math.atan2(float(v[1]), float(v[0]))  # in-motion yaw = GNSS course (no sideslip)
+                yaw = alignment.yaw_from_course(v)  # in-motion yaw = GNSS course (no sideslip)
                 s.q_nb = quat_from_euler(roll, pitch, yaw)
                 s.vel_ned = v.copy()
                 C = dcm_from_quat(s.q_nb)
-                s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
                 d = C @ self.cfg.gnss_lever_arm_b
-                m, n = earth.radii(s.lat)
-                s.lat -= d[0] / (m + s.h)
-                s.lon -= d[1] / ((n + s.h) * math.cos(s.lat))
-                s.h += d[2]
-                s.t = meas.t
-                self._enter_nav(yaw_std=self.cfg.gnss_yaw_std + 0.05 / max(sp, 0.1))
+                m, n = earth.radii(meas.lat)
+                s.lat = meas.lat - d[0] / (m + meas.h)
+                s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
+                s.h = meas.h + d[2]
+                self.ins.state.t = max(s.t, meas.t)
+                std_v = max(meas.std_vel, self.cfg.gnss_min_std[2])
+                self._enter_nav(yaw_std=self.cfg.gnss_yaw_std + 2.0 * std_v / sp)
 
     def _enter_nav(self, yaw_std: float | None = None) -> None:
         self.phase = "nav"
