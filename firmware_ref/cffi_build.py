@@ -39,6 +39,7 @@ typedef struct {{
     ins_real p0_pos, p0_vel, p0_att, p0_yaw, p0_bg, p0_ba;
     int second_order; ins_real gate_gnss, gate_baro; int gnss_reset_after;
     ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; int use_gnss_vel; ins_real baro_std;
+    int have_baro_offset; double baro_offset; double baro_offset_tau;
 }} ins_ekf_cfg_t;
 typedef struct {{
     ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
@@ -73,7 +74,7 @@ void cref_state(const ins_core_t *c, double out[26]);
 void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);
-int cref_fuse_baro(ins_core_t *c, double altitude);
+int cref_fuse_baro(ins_core_t *c, double t, double altitude);
 int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
                           double std_d, double std_vel, size_t n);
 """

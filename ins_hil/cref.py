@@ -107,6 +107,11 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         if not pairs[name] > 0.0:
             raise ValueError(f"CNavCore: filter.{name}={pairs[name]!r} must be > 0")
     c.second_order = 1 if f.second_order else 0
+    c.have_baro_offset = 0 if cfg.baro_offset is None else 1
+    c.baro_offset = 0.0 if cfg.baro_offset is None else float(cfg.baro_offset)
+    if not math.isfinite(cfg.baro_offset_tau) or not math.isfinite(c.baro_offset):
+        raise ValueError("CNavCore: baro_offset / baro_offset_tau must be finite")
+    c.baro_offset_tau = float(cfg.baro_offset_tau)
     c.gnss_reset_after = int(cfg.gnss_reset_after)
     c.use_gnss_vel = 1 if cfg.use_gnss_vel else 0
     return c
@@ -237,7 +242,7 @@ class CNavCore:
                 from ins_hil.sim.sensors import altitude_from_pressure
 
                 alt = altitude_from_pressure(meas.pressure)
-            self._lib_.cref_fuse_baro(self._core, alt)
+            self._lib_.cref_fuse_baro(self._core, meas.t, alt)
             groups = (2,)
         else:
             return None

@@ -134,6 +134,9 @@ typedef struct {
     ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; /* floors on the reported GNSS sigmas */
     int use_gnss_vel;
     ins_real baro_std;     /* m */
+    int have_baro_offset;  /* 1: baro_offset is given; 0: from the first sample, then calibrated against GNSS */
+    double baro_offset;    /* ellipsoidal height of the baro altitude datum, m */
+    double baro_offset_tau; /* time constant of that calibration, s (<= 0: off) */
 } ins_ekf_cfg_t;
 
 enum { INS_GRP_GNSS_POS = 0, INS_GRP_GNSS_VEL = 1, INS_GRP_BARO = 2, INS_NGRP = 3 };
@@ -149,8 +152,12 @@ typedef struct {
     int gnss_reset_after, use_gnss_vel;
     ins_real min_std[3];    /* GNSS NE, D, vel floors */
     ins_real baro_std;
-    ins_pos baro_offset;    /* ellipsoid - baro datum, fixed at the first baro sample */
-    int have_baro_offset;
+    ins_pos baro_offset;    /* baro datum -> ellipsoid, m (configured, or first sample + GNSS calibration) */
+    int have_baro_offset, baro_offset_fixed;
+    double baro_offset_var, baro_offset_tau, t_baro;
+    double t_gnss_ok;       /* time of the last accepted GNSS position (-1e300: none) */
+    ins_pos h_gnss;         /* its height */
+    double gnss_var_d;
     uint32_t accepted[INS_NGRP], rejected[INS_NGRP], consecutive[INS_NGRP];
     ins_real last_ratio[INS_NGRP];
     uint32_t n_predict;
@@ -206,8 +213,12 @@ void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_
  * The position is shifted by v (t_now - g->t) to the current step. Returns a bit mask of the
  * accepted groups (1 position, 2 velocity). */
 int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g);
-/* Baro altitude (m above its datum; the datum offset is fixed at the first sample). Returns 1 if accepted. */
-int ins_core_fuse_baro(ins_core_t *c, ins_real altitude);
+/* GNSS positions rejected gnss_reset_after times in a row re-initialise the position and velocity sigma
+ * and are then accepted. A fix older than 1.5 steps is taken as valid now (no shift). */
+/* Baro altitude valid at t (m above its datum: the datum is configured, or the first sample's, then
+ * calibrated against accepted GNSS heights with time constant baro_offset_tau; its variance is added to R).
+ * Returns 1 if accepted. */
+int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude);
 void ins_core_output(const ins_core_t *c, ins_out_t *o);
 
 /* ---------------------------------------------------------------------- FDI */

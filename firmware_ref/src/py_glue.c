@@ -56,7 +56,7 @@ int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, co
     g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
     return ins_core_fuse_gnss(c, &g);
 }
-int cref_fuse_baro(ins_core_t *c, double altitude) { return ins_core_fuse_baro(c, (ins_real)altitude); }
+int cref_fuse_baro(ins_core_t *c, double t, double altitude) { return ins_core_fuse_baro(c, t, altitude); }
 /* n GNSS updates in one call (benchmark of the update path); returns the number fully accepted */
 int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
                           double std_d, double std_vel, size_t n) {
