@@ -70,7 +70,7 @@ int cref_scalar_bits(void);
 void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, double lon, double h, double t,
                double dt, const ins_ekf_cfg_t *cfg, int filter);
 void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end);
-void cref_state(const ins_core_t *c, double out[26]);
+void cref_state(const ins_core_t *c, double out[32]);
 void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);

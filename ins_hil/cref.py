@@ -150,11 +150,9 @@ class CNavCore:
         self.dt_tolerance = dt_tolerance
         self._initial = initial.copy()
         self._core = self._ffi.new("ins_core_t *")
-        self._out = self._ffi.new("double[26]")
+        self._out = self._ffi.new("double[32]")
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
         self._cfg = _c_config(self._ffi, self.cfg)
-        self._omega_b = np.zeros(3)
-        self._f_b = np.zeros(3)
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         self.dt: float | None = None
@@ -195,13 +193,7 @@ class CNavCore:
         if dv.dtype != np.float64 or not dv.flags.c_contiguous:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
         self._lib_.cref_step(self._core, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t)
-        st = self.state()
-        # bias-compensated rate and specific force of this interval (as NavCore)
-        self._omega_b = (dth - st.gyro_bias * imu.dt) / imu.dt
-        self._f_b = (dv - st.accel_bias * imu.dt) / imu.dt
-        st.omega_b = self._omega_b
-        st.accel_b = self._f_b
-        return st
+        return self.state()
 
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
         """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.
@@ -288,8 +280,8 @@ class CNavCore:
             std_pos=o[17:20],
             std_vel=o[20:23],
             std_att=o[23:26],
-            omega_b=self._omega_b,
-            accel_b=self._f_b,
+            omega_b=o[26:29],  # bias-compensated rate and specific force of the last interval
+            accel_b=o[29:32],
             aligned=bool(o[25] < self.cfg.aligned_yaw_std),
             test_ratios=self._ratios,
         )

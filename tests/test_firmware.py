@@ -216,6 +216,10 @@ def test_c_filter_matches_python_navcore_with_gnss_and_baro_10min(flight10: Flig
                 ],
             )
     assert n_fused > 8000
+    np.testing.assert_allclose(b.omega_b, a.omega_b, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(b.accel_b, a.accel_b, rtol=1e-9, atol=1e-12)
+    assert set(b.test_ratios) == {"gnss_pos", "gnss_vel", "baro"}
+    assert b.aligned == a.aligned
     e = c._core.ekf
     assert [py.stats[k].accepted for k in ("gnss_pos", "gnss_vel", "baro")] == [int(e.accepted[i]) for i in range(3)]
     assert [py.stats[k].rejected for k in ("gnss_pos", "gnss_vel", "baro")] == [int(e.rejected[i]) for i in range(3)]

@@ -20,10 +20,11 @@ void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_
     ins_core_step(c, dth, dv, t_end);
 #endif
 }
-/* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3] (26 values) */
+/* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3], omega_b[3], f_b[3] (32 values);
+ * omega_b, f_b: the last bias-compensated increments / dt (rad/s, m/s^2, body) */
 static void put(const ins_core_t *c, double *o, size_t n) {
     ins_out_t r;
-    double all[26];
+    double all[32];
     size_t i;
     ins_core_output(c, &r);
     all[0] = r.t;
@@ -35,11 +36,13 @@ static void put(const ins_core_t *c, double *o, size_t n) {
         all[17 + i] = (double)r.std_pos[i];
         all[20 + i] = (double)r.std_vel[i];
         all[23 + i] = (double)r.std_att[i];
+        all[26 + i] = (double)(c->mech.dth_prev[i] / c->mech.dt);
+        all[29 + i] = (double)(c->mech.dv_prev[i] / c->mech.dt);
     }
     all[8] = r.lat; all[9] = r.lon; all[10] = r.h;
     for (i = 0; i < n; ++i) o[i] = all[i];
 }
-void cref_state(const ins_core_t *c, double out[26]) { put(c, out, 26); }
+void cref_state(const ins_core_t *c, double out[32]) { put(c, out, 32); }
 void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride) {
     size_t k;
     for (k = 0; k < n; ++k) {
