@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import re
 import subprocess
 from pathlib import Path
 
@@ -359,3 +360,21 @@ def test_cnavcore_interface_and_errors(flight10: Flight) -> None:
         make_core("rust", flight10.init)
     with pytest.raises(ValueError, match="dt must be positive"):
         CNavCore(flight10.init, dt=-1.0)
+
+
+def test_bench_core_command_writes_report(tmp_path: Path) -> None:
+    """`ins-hil bench-core` runs end to end on a tiny workload and writes the report (no timing asserted)."""
+    from ins_hil.cli import main
+
+    out = tmp_path / "ref_core.md"
+    rc = main(["bench-core", "--duration", "1", "--repeat", "1", "--no-callgrind", "--accuracy-duration", "4",
+               "--out", str(out)])  # fmt: skip
+    assert rc == 0
+    text = out.read_text()
+    assert "| Python `NavCore` (`step`, `fuse`) |" in text
+    assert "| C, whole log in one call" in text
+    assert "`nproc` = " in text
+    m = re.search(r"C double vs Python `StrapdownNED` \(free inertial\): max \|Δq\| (\S+),", text)
+    assert m is not None and float(m.group(1)) <= 1e-9
+    with pytest.raises(SystemExit, match="--repeat must be >= 1"):
+        main(["bench-core", "--repeat", "0", "--out", str(out)])
