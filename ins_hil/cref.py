@@ -14,8 +14,10 @@ alignment or delayed-fusion roll-back (a fix from the past is shifted by v·Δt
 and fused at the current step; NavCore rolls back instead).
 
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
-sample's ``dt``); a sample whose ``dt`` differs from it by more than
-``dt_tolerance`` (relative) is rejected with ``ValueError``.
+sample's ``dt``), as firmware does: a sample whose ``dt`` differs from it by more
+than ``dt_tolerance`` (relative) is counted in ``n_off_step`` and integrated over
+the fixed period (``on_dt_mismatch="count"``, the default, so a gateway keeps
+running), or rejected with ``ValueError`` (``on_dt_mismatch="raise"``).
 """
 
 from __future__ import annotations
@@ -142,12 +144,17 @@ class CNavCore:
         precision: Precision = "double",
         filter: bool = True,
         dt_tolerance: float = 0.05,
+        on_dt_mismatch: Literal["count", "raise"] = "count",
     ) -> None:
+        if on_dt_mismatch not in ("count", "raise"):
+            raise ValueError(f"on_dt_mismatch must be 'count' or 'raise', not {on_dt_mismatch!r}")
         self._ffi, self._lib_ = _lib(precision)
         self.precision = precision
         self.filter = filter
         self.cfg = config if config is not None else NavConfig()
         self.dt_tolerance = dt_tolerance
+        self.on_dt_mismatch = on_dt_mismatch
+        self.n_off_step = 0
         self._initial = initial.copy()
         self._core = self._ffi.new("ins_core_t *")
         self._out = self._ffi.new("double[32]")
@@ -185,7 +192,9 @@ class CNavCore:
         if self.dt is None:
             self._init(imu.dt)
         elif abs(imu.dt - self.dt) > self.dt_tolerance * self.dt:
-            raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
+            if self.on_dt_mismatch == "raise":
+                raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
+            self.n_off_step += 1
         ffi = self._ffi
         dth, dv = imu.dtheta, imu.dvel
         if dth.dtype != np.float64 or not dth.flags.c_contiguous:

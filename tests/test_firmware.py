@@ -348,8 +348,11 @@ def test_cnavcore_interface_and_errors(flight10: Flight) -> None:
     assert st0.lat == LAT0 and c.dt is None
     st = c.step(flight10.sample(0))
     assert c.dt == DT and st.t == flight10.imu.t[0] and st.std_pos[0] > 0
+    odd = ImuSample(t=st.t + 1.5 * DT, dt=1.5 * DT, dtheta=np.zeros(3), dvel=np.zeros(3))
+    assert c.step(odd).t == odd.t and c.n_off_step == 1  # integrated over the fixed step, counted
+    strict = CNavCore(flight10.init, dt=DT, on_dt_mismatch="raise")
     with pytest.raises(ValueError, match="differs from the fixed step"):
-        c.step(ImuSample(t=1.0, dt=1.5 * DT, dtheta=np.zeros(3), dvel=np.zeros(3)))
+        strict.step(odd)
     with pytest.raises(ValueError, match="std_ne must be >= 0"):
         c.fuse(GnssFix(t=0.01, lat=LAT0, lon=LON0, h=H0, std_ne=-1.0))
     with pytest.raises(ValueError, match="not supported by the C core: adaptive, nhc"):
