@@ -129,10 +129,11 @@ RUN_COLUMNS = ("t", "q0", "q1", "q2", "q3", "vN", "vE", "vD", "lat", "lon", "h")
 class CNavCore:
     """The C reference core with the ``NavCore`` interface.
 
-    initial: the starting state (as for ``NavCore``). dt: the fixed step (s);
-    None = take it from the first IMU sample. precision: ``"double"`` or
-    ``"float"`` (the C scalar type). filter: run the 15-state EKF predict on
-    every step (needed for ``fuse``); False = mechanization only.
+    initial, config: as for ``NavCore`` (``NavConfig``; settings the C core lacks raise
+    ``ValueError``). dt: the fixed step (s); None = take it from the first IMU sample.
+    precision: ``"double"`` or ``"float"`` (the C scalar type). filter: run the 15-state
+    EKF predict on every step (needed for ``fuse``); False = mechanization only.
+    dt_tolerance / on_dt_mismatch: see the module docstring.
     """
 
     def __init__(
