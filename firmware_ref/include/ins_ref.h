@@ -87,8 +87,10 @@ typedef struct {
 } ins_book_att_t;
 
 void ins_book_att_init(ins_book_att_t *a, const ins_real q0[4], ins_real dt);
-/* One step with the body rate w(t_i) (rad/s) sampled at the end of the step. */
+/* One step with the body rate w(t_i) (rad/s) sampled at the end of the step (eq. 2.19, then 2.18). */
 void ins_book_att_step(ins_book_att_t *a, const ins_real w[3]);
+/* One step of eq. 2.18 with given quasi-coordinates th_i (rad), e.g. exact gyro increments. */
+void ins_book_att_step_th(ins_book_att_t *a, const ins_real th[3]);
 /* Normalised copy of the current quaternion. */
 void ins_book_att_quat(const ins_book_att_t *a, ins_real q[4]);
 
