@@ -96,6 +96,7 @@ class NavConfig:
     align_time: float = 2.0
     align_level_only: bool = False
     still_speed: float = 0.3
+    still_delay: float = 1.5
     align_gyro_bias_std: float = 0.02 * DEG
     mag_yaw_std: float = 3.0 * DEG
     gnss_yaw_speed: float = 1.0
@@ -159,6 +160,7 @@ class NavCore:
         self._lev_w = np.zeros(3)
         self._lev_t = 0.0
         self._moving = False
+        self._lev_pending: deque[ImuSample] = deque()
         self._have_pos = self.cfg.align == "given"
         self._last_mag: Vec | None = None
         self.nis_log: list[tuple[float, str, float, int]] = []
@@ -430,23 +432,24 @@ class NavCore:
         self.ins.state.t = imu.t
         c = self.cfg
         if self.phase == "level":
-            if self._moving:
-                if self._lev_t >= c.align_time:
-                    self._level()
-                return
-            # at rest: keep the last ``align_time`` s of increments (sliding window of sums)
-            self._lev_buf.append((imu.dt, imu.dvel, imu.dtheta))
-            self._lev_t += imu.dt
-            self._lev_f = self._lev_f + imu.dvel
-            self._lev_w = self._lev_w + imu.dtheta
+            # samples enter the levelling window only ``still_delay`` s later, so the window cannot hold
+            # the first moments of a motion that the GNSS speed test detects late
+            self._lev_pending.append(imu)
+            while self._lev_pending and imu.t - self._lev_pending[0].t > c.still_delay:
+                old = self._lev_pending.popleft()
+                self._lev_buf.append((old.dt, old.dvel, old.dtheta))
+                self._lev_t += old.dt
+                self._lev_f = self._lev_f + old.dvel
+                self._lev_w = self._lev_w + old.dtheta
             while self._lev_buf and self._lev_t - self._lev_buf[0][0] >= c.align_time:
                 dt0, dv0, dth0 = self._lev_buf.popleft()
                 self._lev_t -= dt0
                 self._lev_f = self._lev_f - dv0
                 self._lev_w = self._lev_w - dth0
-            if self._lev_t >= c.align_time - 0.5 * imu.dt and self._have_pos:
+            full = self._lev_t >= c.align_time - 0.5 * imu.dt
+            if self._have_pos and (full or (self._moving and self._lev_t >= 0.5)):
                 mag_ok = c.mag_ref_ned is not None and self._last_mag is not None
-                if mag_ok or c.align_level_only:
+                if self._moving or mag_ok or c.align_level_only:
                     self._level()
         elif self.phase == "heading":
             # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
@@ -477,6 +480,14 @@ class NavCore:
         s.q_nb = quat_from_euler(roll, pitch, yaw)
         s.vel_ned = np.zeros(3)
         self.ins.reset_history()
+        # bring the attitude from the end of the window to now with the delayed samples
+        t_now = s.t
+        for old in self._lev_pending:
+            self.ins.step(old.dtheta - self.bg * old.dt, old.dvel, old.dt)
+            s = self.ins.state
+            s.vel_ned = np.zeros(3)
+        self._lev_pending.clear()
+        s.t = t_now
         if self.idx.bg is not None:
             self.kf.set_state_sigma("bg", c.align_gyro_bias_std)
         if have_yaw:

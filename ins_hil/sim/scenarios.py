@@ -77,13 +77,16 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
     if name == "static":
         T = duration or 120.0
         truth = tr.generate(tr.static_profile(0.02, -0.03, 0.8), T, 0.01, lat0, lon0, h0)
-        imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=rng).samples()
+        ser = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=rng)
+        imu = ser.samples()
         meas: list[Any] = se.gnss_fixes(truth, se.GnssModel(rate=5), seed=rng)
         meas += se.baro_samples(truth, seed=rng)
         meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
         cfg = NavConfig(align="static", mag_ref_ned=ref, mag_std=0.01, align_level_only=True)
         init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), lat0, lon0, h0)
-        return Scenario(name, truth, imu, meas, init, cfg)
+        return Scenario(
+            name, truth, imu, meas, init, cfg, {"accel_bias": ser.accel_bias[0], "gyro_bias": ser.gyro_bias[0]}
+        )
     if name in ("example32", "example32_gnss"):
         T = duration or 500.0
         dt = 0.05  # 20 Hz (book)

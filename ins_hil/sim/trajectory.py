@@ -334,3 +334,26 @@ def mission_profile(
         return np.stack([roll, pitch, yaw], axis=-1), vel, acc
 
     return _rates_by_difference(base)
+
+
+def car_profile(speed: float = 10.0, t_start: float = 2.0, t_stop: float = 40.0, ramp: float = 5.0) -> Profile:
+    """A level ground vehicle: at rest (heading 0), accelerates to ``speed`` (C² ramp of ``ramp`` s) while it
+    starts to weave (yaw a(t)·0.5 sin 0.2(t − t_start), a = the speed ramp), decelerates to rest at
+    ``t_stop``. No sideslip (velocity along body x)."""
+
+    def base(t: Vec) -> tuple[Vec, Vec, Vec]:
+        t = np.asarray(t, dtype=np.float64)
+        s, ds, _ = _smoothstep((t - t_start) / ramp)
+        s2, ds2, _ = _smoothstep((t - t_stop) / ramp)
+        V = speed * (s - s2)
+        dV = speed * (ds - ds2) / ramp
+        A, dA = s - s2, (ds - ds2) / ramp
+        yaw = A * 0.5 * np.sin(0.2 * (t - t_start))
+        w = dA * 0.5 * np.sin(0.2 * (t - t_start)) + A * 0.1 * np.cos(0.2 * (t - t_start))
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        z = np.zeros_like(t)
+        vel = np.stack([V * cy, V * sy, z], axis=-1)
+        acc = np.stack([dV * cy - V * sy * w, dV * sy + V * cy * w, z], axis=-1)
+        return np.stack([z, z, yaw], axis=-1), vel, acc
+
+    return _rates_by_difference(base)
