@@ -91,7 +91,8 @@ def drive_config(aids: bool) -> NavConfig:
     return NavConfig(
         filter=f,
         gnss_lever_arm_b=drive0708.LEVER_GNSS - drive0708.LEVER_IMU,
-        gnss_min_std=(0.05, 0.1, 0.05),
+        gnss_min_std=(0.03, 0.06, 0.15),  # RTK σ floors; the RTK velocity is noisier than its reported σ
+        gate_gnss=10.0,
         align="static",
         nhc=aids,
         zupt=aids,

@@ -312,8 +312,8 @@ def mission_profile(
     g: float = 9.81,
 ) -> Profile:
     """A UAV mission, 240 s: rest until ``t_takeoff``; take-off run and climb at ``climb_rate``
-    to ~110 m; cruise at ``cruise_speed`` with a 90° right turn, a 180° left turn and a 90°
-    right turn (coordinated bank φ = atan(V ψ̇ / g)); descent at 2 m/s; deceleration and rest.
+    to 96 m; cruise at ``cruise_speed`` with a 90° right turn, a 180° left turn and a 90°
+    right turn (coordinated bank φ = atan(V ψ̇ / g)); descent of 60 m at 2 m/s; deceleration and rest.
     Pitch = flight-path angle. All segments are C² quintic ramps (closed form)."""
     T0 = t_takeoff
     speed_items = [(T0, 10.0, 15.0), (T0 + 40.0, 5.0, cruise_speed - 15.0), (T0 + 190.0, 15.0, -cruise_speed)]
