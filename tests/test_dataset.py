@@ -46,7 +46,7 @@ def test_timetag_and_pos(drive_dir: Path):
     assert math.degrees(pos.lon[0]) == pytest.approx(-105.1474483, abs=1e-7)
     # the file's vu is up: NED down velocity is its negative (first epoch vu = 0.009 m/s)
     assert pos.vel_ned[0, 2] == pytest.approx(-0.009)
-    with pytest.raises(ValueError, match="TIMETAG|time-tag"):
+    with pytest.raises(ValueError, match=r"time-tag"):
         dd.read_timetag(drive_dir / "README.md")
 
 
