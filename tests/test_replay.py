@@ -8,7 +8,6 @@ import types
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from ins_hil.cli import main
 from ins_hil.commands import replay as rp
