@@ -240,23 +240,23 @@ class NavCore:
 
     # ------------------------------------------------------------------ snapshots (delayed fusion)
     def _snapshot(self) -> tuple[Any, ...]:
+        """References only: every array below is replaced, never mutated in place, by the mechanization,
+        the filter and the feedback (a cheap per-step snapshot for delayed fusion)."""
         ins, kf = self.ins, self.kf
+        st = ins.state
         return (
-            ins.state.copy(), ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n, ins.f_ned, ins.omega_ie,
-            ins.omega_en, self.bg.copy(), self.ba.copy(), self.sg.copy(), self.sa.copy(), kf.P.copy(),
-            kf.factor, kf._acc_n, kf._acc_dt, kf._acc_f.copy(), kf._acc_fb.copy(), kf._acc_w.copy(),
-            self.omega_b, self.f_b, self._nhc_next, self._still_time,
+            st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
+            ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
+            kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next, self._still_time,
         )  # fmt: skip
 
     def _restore(self, d: tuple[Any, ...]) -> None:
         ins, kf = self.ins, self.kf
-        (st, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n, ins.f_ned, ins.omega_ie, ins.omega_en,
-         bg, ba, sg, sa, P, kf.factor, kf._acc_n, kf._acc_dt, af, afb, aw, self.omega_b, self.f_b,
-         self._nhc_next, self._still_time) = d  # fmt: skip
-        ins.state = st.copy()
-        self.bg, self.ba, self.sg, self.sa = bg.copy(), ba.copy(), sg.copy(), sa.copy()
-        kf.P = P.copy()
-        kf._acc_f, kf._acc_fb, kf._acc_w = af.copy(), afb.copy(), aw.copy()
+        st = ins.state
+        (st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
+         ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
+         kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next,
+         self._still_time) = d  # fmt: skip
         kf.x = np.zeros(kf.n)
 
     def _fuse_delayed(self, meas: GnssFix | BaroSample | MagSample) -> bool:

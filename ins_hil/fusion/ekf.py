@@ -185,6 +185,7 @@ class ErrorStateEKF:
     def set_state_sigma(self, block: str, sigma: Vec | float) -> None:
         """Reset the variance of one block (e.g. "att" after an alignment); clears its correlations."""
         k = int(getattr(self.idx, block))
+        self.P = self.P.copy()  # P is replaced, never mutated in place (NavCore keeps references in snapshots)
         s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (3,))
         self.P[k : k + 3, :] = 0.0
         self.P[:, k : k + 3] = 0.0
@@ -246,10 +247,10 @@ class ErrorStateEKF:
         if ce > 1:
             self._acc_n += 1
             self._acc_dt += dt
-            self._acc_f += f_ned
+            self._acc_f = self._acc_f + f_ned
             if self.idx.sg is not None:
-                self._acc_fb += f_b
-                self._acc_w += w_b
+                self._acc_fb = self._acc_fb + f_b
+                self._acc_w = self._acc_w + w_b
             if self._acc_n < ce:
                 return
             k = self._acc_n
