@@ -85,6 +85,8 @@ class NavConfig:
     nhc_std: float = 0.1
     nhc_rate: float = 10.0
     nhc_min_speed: float = 0.5
+    nhc_vertical: bool = True
+    nhc_std_vertical: float = 0.1
     zupt: bool = False
     zupt_std: float = 0.02
     zupt_gyro: float = 0.02
@@ -236,7 +238,10 @@ class NavCore:
             self._apply("zupt", z, H, np.full(3, c.zupt_std**2), c.gate_aux, t)
         elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
             z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
-            self._apply("nhc", z, H, np.full(2, c.nhc_std**2), c.gate_aux, t)
+            if c.nhc_vertical:
+                self._apply("nhc", z, H, np.array((c.nhc_std**2, c.nhc_std_vertical**2)), c.gate_aux, t)
+            else:
+                self._apply("nhc", z[:1], H[:1], np.array((c.nhc_std**2,)), c.gate_aux, t)
 
     # ------------------------------------------------------------------ snapshots (delayed fusion)
     def _snapshot(self) -> tuple[Any, ...]:

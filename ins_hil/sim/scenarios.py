@@ -112,7 +112,7 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
         # book initial errors: attitude ≈ 0.1 rad per axis (quaternion [1, .05, −.05, .05]), 1 % in r and v
         init = _initial(truth, (0.1, -0.1, 0.1), eps_v=0.01, dpos_m=0.01 * 2864.79)
         cfg.gate_gnss = cfg.gate_mag = 10.0
-        return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 120.0 if name == "example32" else 150.0})
+        return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 120.0 if name == "example32" else 250.0})
     if name == "coning":
         T = duration or 60.0
         truth = tr.generate(tr.coning_profile(), T, 0.005, lat0, lon0, h0)
