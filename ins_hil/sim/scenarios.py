@@ -77,13 +77,16 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
     if name == "static":
         T = duration or 120.0
         truth = tr.generate(tr.static_profile(0.02, -0.03, 0.8), T, 0.01, lat0, lon0, h0)
-        imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=rng).samples()
+        ser = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=rng)
+        imu = ser.samples()
         meas: list[Any] = se.gnss_fixes(truth, se.GnssModel(rate=5), seed=rng)
         meas += se.baro_samples(truth, seed=rng)
         meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
         cfg = NavConfig(align="static", mag_ref_ned=ref, mag_std=0.01, align_level_only=True)
         init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), lat0, lon0, h0)
-        return Scenario(name, truth, imu, meas, init, cfg)
+        return Scenario(
+            name, truth, imu, meas, init, cfg, {"accel_bias": ser.accel_bias[0], "gyro_bias": ser.gyro_bias[0]}
+        )
     if name in ("example32", "example32_gnss"):
         T = duration or 500.0
         dt = 0.05  # 20 Hz (book)
@@ -109,7 +112,7 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
         # book initial errors: attitude ≈ 0.1 rad per axis (quaternion [1, .05, −.05, .05]), 1 % in r and v
         init = _initial(truth, (0.1, -0.1, 0.1), eps_v=0.01, dpos_m=0.01 * 2864.79)
         cfg.gate_gnss = cfg.gate_mag = 10.0
-        return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 120.0 if name == "example32" else 150.0})
+        return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 120.0 if name == "example32" else 250.0})
     if name == "coning":
         T = duration or 60.0
         truth = tr.generate(tr.coning_profile(), T, 0.005, lat0, lon0, h0)

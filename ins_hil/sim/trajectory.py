@@ -312,8 +312,8 @@ def mission_profile(
     g: float = 9.81,
 ) -> Profile:
     """A UAV mission, 240 s: rest until ``t_takeoff``; take-off run and climb at ``climb_rate``
-    to ~110 m; cruise at ``cruise_speed`` with a 90° right turn, a 180° left turn and a 90°
-    right turn (coordinated bank φ = atan(V ψ̇ / g)); descent at 2 m/s; deceleration and rest.
+    to 96 m; cruise at ``cruise_speed`` with a 90° right turn, a 180° left turn and a 90°
+    right turn (coordinated bank φ = atan(V ψ̇ / g)); descent of 60 m at 2 m/s; deceleration and rest.
     Pitch = flight-path angle. All segments are C² quintic ramps (closed form)."""
     T0 = t_takeoff
     speed_items = [(T0, 10.0, 15.0), (T0 + 40.0, 5.0, cruise_speed - 15.0), (T0 + 190.0, 15.0, -cruise_speed)]
@@ -332,5 +332,28 @@ def mission_profile(
         roll = np.arctan(V * r / g)
         pitch = np.arctan2(up, np.maximum(V, 1.0)) * np.clip(V, 0.0, 1.0)
         return np.stack([roll, pitch, yaw], axis=-1), vel, acc
+
+    return _rates_by_difference(base)
+
+
+def car_profile(speed: float = 10.0, t_start: float = 2.0, t_stop: float = 40.0, ramp: float = 5.0) -> Profile:
+    """A level ground vehicle: at rest (heading 0), accelerates to ``speed`` (C² ramp of ``ramp`` s) while it
+    starts to weave (yaw a(t)·0.5 sin 0.2(t − t_start), a = the speed ramp), decelerates to rest at
+    ``t_stop``. No sideslip (velocity along body x)."""
+
+    def base(t: Vec) -> tuple[Vec, Vec, Vec]:
+        t = np.asarray(t, dtype=np.float64)
+        s, ds, _ = _smoothstep((t - t_start) / ramp)
+        s2, ds2, _ = _smoothstep((t - t_stop) / ramp)
+        V = speed * (s - s2)
+        dV = speed * (ds - ds2) / ramp
+        A, dA = s - s2, (ds - ds2) / ramp
+        yaw = A * 0.5 * np.sin(0.2 * (t - t_start))
+        w = dA * 0.5 * np.sin(0.2 * (t - t_start)) + A * 0.1 * np.cos(0.2 * (t - t_start))
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        z = np.zeros_like(t)
+        vel = np.stack([V * cy, V * sy, z], axis=-1)
+        acc = np.stack([dV * cy - V * sy * w, dV * sy + V * cy * w, z], axis=-1)
+        return np.stack([z, z, yaw], axis=-1), vel, acc
 
     return _rates_by_difference(base)
