@@ -155,8 +155,13 @@ class _Stream(asyncio.Protocol, asyncio.DatagramProtocol):
         self.drv.feed(data)
 
     def datagram_received(self, data: bytes, addr: Any) -> None:
-        if self.drv.feed(data) and self.drv.kind == "udpin":
+        if self.drv.kind == "udpin":
+            old = self.peer
             self.peer = addr  # reply to the last sender of valid MAVLink
+            if not self.drv.feed(data):
+                self.peer = old or addr
+        else:
+            self.drv.feed(data)
 
     def error_received(self, exc: Exception) -> None:  # UDP: ICMP port unreachable etc.
         self.drv.health.count("socket_error")
