@@ -95,6 +95,8 @@ class SerialImuDriver:
         loop = asyncio.get_running_loop()
         first = True
         while True:
+            # a re-plugged device restarts its sequence and clock: fresh stream state, same counters
+            self.parser = FrameParser(counts=self.parser.counts)
             try:
                 transport, proto_ = await serial_asyncio_fast.create_serial_connection(
                     loop, lambda: _Proto(self, sink), self.port, baudrate=self.baudrate
