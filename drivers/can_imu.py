@@ -206,16 +206,19 @@ class CanImuDriver:
 
             def readable() -> None:
                 msgs = []
-                try:
-                    for _ in range(512):  # bounded batch: never starve the loop
+                for _ in range(512):  # bounded batch: never starve the loop
+                    try:
                         m = bus.recv(0)
-                        if m is None:
-                            break
-                        msgs.append(m)
-                except Exception as e:
-                    deliver(msgs)
-                    fail("bus_lost", f"{type(e).__name__}: {e}")
-                    return
+                    except (ValueError, IndexError, UnicodeDecodeError):
+                        self.health.count("malformed")  # e.g. a garbled slcan line: drop it, go on
+                        continue
+                    except Exception as e:
+                        deliver(msgs)
+                        fail("bus_lost", f"{type(e).__name__}: {e}")
+                        return
+                    if m is None:
+                        break
+                    msgs.append(m)
                 deliver(msgs)
 
             loop.add_reader(fd, readable)
@@ -225,6 +228,9 @@ class CanImuDriver:
                 while not stop.is_set():
                     try:
                         m = bus.recv(0.05)
+                    except (ValueError, IndexError, UnicodeDecodeError):
+                        loop.call_soon_threadsafe(self.health.count, "malformed")
+                        continue
                     except Exception as e:
                         loop.call_soon_threadsafe(fail, "bus_lost", f"{type(e).__name__}: {e}")
                         return

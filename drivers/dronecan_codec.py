@@ -329,7 +329,15 @@ class Reassembler:
         tid = tail & 0x1F
         sot, eot, tog = tail & 0x80, tail & 0x40, tail & 0x20
         part = self._open.get(can_id)
-        if part is not None and not sot and tid == part.transfer_id and tog == part.toggle and n == 8 and not eot:
+        if (
+            part is not None
+            and not sot
+            and not eot
+            and n == 8
+            and tid == part.transfer_id
+            and tog == part.toggle
+            and now_ns - part.t0_ns <= self.timeout_ns
+        ):
             # fast path: a middle frame of an open transfer
             part.data += data[:7]
             part.toggle = tog ^ 0x20

@@ -38,7 +38,9 @@ def _sample(seq: int, t: float, dt: float = 0.001, imu_id: int = 0) -> ImuSample
     st.floats(-300, 300),
     st.integers(0, 255),
 )
-def test_round_trip_property(v: list[float], imu_id: int, seq: int, t_us: int, dt_us: int, temp: float, flags: int) -> None:
+def test_round_trip_property(
+    v: list[float], imu_id: int, seq: int, t_us: int, dt_us: int, temp: float, flags: int
+) -> None:
     s = ImuSample(
         t=t_us * 1e-6, dt=dt_us * 1e-6, dtheta=np.array(v[:3]), dvel=np.array(v[3:]) * 10, imu_id=imu_id, seq=seq,
         temperature=temp, flags=flags,
