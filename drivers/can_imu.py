@@ -205,7 +205,7 @@ class CanImuDriver:
         if fd >= 0:
 
             def readable() -> None:
-                msgs = []
+                msgs: list[can.Message] = []
                 for _ in range(512):  # bounded batch: never starve the loop
                     try:
                         m = bus.recv(0)
