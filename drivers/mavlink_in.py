@@ -213,7 +213,8 @@ class MavlinkDriver:
         self.clock = ClockSync()
         self.fc: tuple[int, int] | None = None  # (sysid, compid) of the FC once its HEARTBEAT is seen
         self.local_address: Any = None
-        self.counts_by_type: dict[str, int] = {}
+        self.counts_by_type: dict[str, int] = {}  # handled messages by type
+        self.messages = 0  # every valid message (any type) from the accepted system
         self._sink: Sink | None = None
         self._proto: _Stream | None = None
         self._last_seq: dict[tuple[int, int], int] = {}
@@ -303,6 +304,7 @@ class MavlinkDriver:
                 h.count("unknown_system")
                 continue
             good = True
+            self.messages += 1
             self._last_rx_ns = now
             seq = m.get_seq()
             key = (sysid, compid)
