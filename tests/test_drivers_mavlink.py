@@ -75,7 +75,7 @@ def test_udp_against_simulated_fc() -> None:
 def test_scaled_imu_units(imu_msg: str) -> None:
     got, drv, _ = asyncio.run(_run_pair(0.8, {}, {"imu_hz": 100.0, "imu_msg": imu_msg}))
     imu = [s for s in got if isinstance(s, ImuSample)][1:]
-    assert len(imu) >= 40
+    assert len(imu) >= 40 and drv.health.errors == {}
     for s in imu:
         assert s.dt == pytest.approx(0.01, abs=1.5e-3)  # time_boot_ms resolution for SCALED_IMU
         np.testing.assert_allclose(s.dvel / s.dt, [0, 0, -G], atol=0.01)  # mG resolution
@@ -289,7 +289,7 @@ def test_serial_link_over_pty() -> None:
         return got, drv
 
     got, drv = asyncio.run(main())
-    assert len(got) == 30 and all(isinstance(s, GnssFix) for s in got)
+    assert len(got) == 30 and all(isinstance(s, GnssFix) for s in got) and drv.health.errors == {}
     assert np.all(np.diff([s.t for s in got]) == pytest.approx(0.1))
 
 
