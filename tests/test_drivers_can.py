@@ -304,3 +304,29 @@ def test_driver_over_slcan_pty() -> None:
     assert len(got) == 100
     assert [s.seq for s in got] == list(range(100))
     assert drv.health.errors.get("malformed", 0) == 1
+
+
+def test_error_frames_and_bus_off() -> None:
+    drv = CanImuDriver({"interface": "virtual", "channel": "x"}, node_id=None)
+    got: list = []
+    drv.handle(can.Message(arbitration_id=0x004, is_error_frame=True), got.append, 1)  # controller problem
+    with pytest.raises(can.CanOperationError):
+        drv.handle(can.Message(arbitration_id=0x040, is_error_frame=True), got.append, 1)  # bus-off: reopen
+    drv.handle(can.Message(arbitration_id=0x123, is_remote_frame=True), got.append, 1)
+    e = drv.health.errors
+    assert (e["error_frame"], e["bus_off"], e["not_classic_data_frame"]) == (2, 1, 1) and got == []
+
+
+def test_factory_builds_each_driver() -> None:
+    from ins_hil.drivers.base import Driver
+    from ins_hil.drivers.factory import make_driver
+
+    for cfg in (
+        {"type": "serial_imu", "port": "/dev/ttyUSB0"},
+        {"type": "can_imu", "interface": "socketcan", "channel": "can0", "protocol": "dbc"},
+        {"type": "mavlink", "url": "udpin:0.0.0.0:14550", "emit": ["gnss", "baro"]},
+    ):
+        d = make_driver(cfg)
+        assert isinstance(d, Driver) and d.health.name == d.name
+    with pytest.raises(ValueError, match="'type'"):
+        make_driver({"type": "gps"})
