@@ -40,12 +40,13 @@ def test_dronecan_on_vcan0_node_filter_nodestatus_and_link_down() -> None:
         tx = can.Bus(interface="socketcan", channel="vcan0", receive_own_messages=False)
         node = DroneCanImuNode(node_id=10, rate_hz=200.0, aux_hz=10.0)
         foreign = DroneCanImuNode(node_id=33, rate_hz=200.0, aux_hz=0)
-        frames = list(node.frames(200)) + list(foreign.frames(5))
-        sent = await send_frames(tx, frames, rate_hz=3000.0)
+        frames = list(node.frames(100)) + list(foreign.frames(5))
+        sent = await send_frames(tx, frames, rate_hz=1400.0, burst=14)  # a 200 Hz RawIMU node
         assert sent == len(frames)
         # a frame that is no DroneCAN at all (11-bit id), sent by can-utils
         subprocess.run(["cansend", "vcan0", "123#DEADBEEF"], check=True)
-        assert await _wait(lambda: sum(isinstance(s, ImuSample) for s in got) >= 200)
+        ok = await _wait(lambda: sum(isinstance(s, ImuSample) for s in got) >= 100)
+        assert ok, (sum(isinstance(s, ImuSample) for s in got), drv.health.errors)
         await asyncio.sleep(1.2)  # at least one NodeStatus period
         seen = []
         while (m := tx.recv(0)) is not None:
@@ -58,7 +59,7 @@ def test_dronecan_on_vcan0_node_filter_nodestatus_and_link_down() -> None:
         tx = can.Bus(interface="socketcan", channel="vcan0", receive_own_messages=False)
         n0 = sum(isinstance(s, ImuSample) for s in got)
         for _ in range(100):  # keep sending until the reopened socket hears us
-            await send_frames(tx, list(node.frames(5)), rate_hz=3000.0)
+            await send_frames(tx, list(node.frames(5)), rate_hz=1400.0, burst=14)
             if sum(isinstance(s, ImuSample) for s in got) > n0:
                 break
             await asyncio.sleep(0.05)
@@ -69,8 +70,8 @@ def test_dronecan_on_vcan0_node_filter_nodestatus_and_link_down() -> None:
 
     got, drv, seen = asyncio.run(main())
     imu = [s for s in got if isinstance(s, ImuSample)]
-    assert len(imu) > 200 and {s.imu_id for s in imu} == {10}
-    assert [s.seq for s in imu[:200]] == list(range(200))
+    assert len(imu) > 100 and {s.imu_id for s in imu} == {10}
+    assert [s.seq for s in imu[:100]] == list(range(100))
     assert any(isinstance(s, GnssFix) for s in got)
     assert any(isinstance(s, MagSample) for s in got) and any(isinstance(s, BaroSample) for s in got)
     e = drv.health.errors
@@ -89,15 +90,15 @@ def test_dbc_imu_on_vcan1_with_corruption() -> None:
         task = asyncio.create_task(drv.run(got.append))
         assert await _wait(lambda: drv.health.connected)
         tx = can.Bus(interface="socketcan", channel="vcan1")
-        frames = list(DbcImuNode(rate_hz=500.0, noise=0.02).frames(500))
+        frames = list(DbcImuNode(rate_hz=500.0, noise=0.02).frames(300))
         bad = 0
         for k in range(3, len(frames), 100):  # ~1% of the frames: one bit flipped
             d = bytearray(frames[k].data)
             d[k % 7] ^= 0x04
             frames[k] = can.Message(arbitration_id=frames[k].arbitration_id, data=d, is_extended_id=False)
             bad += 1
-        await send_frames(tx, frames, rate_hz=3000.0)
-        await _wait(lambda: len(got) >= 500 - bad)
+        await send_frames(tx, frames, rate_hz=1000.0, burst=10)
+        await _wait(lambda: len(got) >= 300 - bad)
         await asyncio.sleep(0.2)
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
@@ -105,6 +106,6 @@ def test_dbc_imu_on_vcan1_with_corruption() -> None:
         return got, drv, bad
 
     got, drv, bad = asyncio.run(main())
-    assert len(got) == 500 - bad
+    assert len(got) == 300 - bad, drv.health.errors
     assert drv.health.errors["crc"] == bad
     assert drv.health.errors["seq_gap"] == bad
