@@ -25,7 +25,7 @@ f32 = st.floats(-1e3, 1e3, allow_nan=False, width=32)
 f16 = st.floats(-1e3, 1e3, allow_nan=False, width=16)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(
     st.integers(0, 2**56 - 1), st.floats(0.0078125, 1.0, width=32), st.lists(f16, min_size=6, max_size=6),
     st.lists(f32, min_size=6, max_size=6), st.lists(f16, max_size=36),
@@ -78,7 +78,7 @@ def _imu_frames(n: int, node_id: int = 10) -> list[can.Message]:
     return list(node.frames(n))
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(st.data())
 def test_corrupted_transfers_counted_never_accepted(data: st.DataObject) -> None:
     """Bit flips in the payload bytes of a multi-frame RawIMU transfer are caught by the transfer
@@ -114,7 +114,7 @@ def test_corrupted_transfers_counted_never_accepted(data: st.DataObject) -> None
         np.testing.assert_allclose(s.dvel, [0, 0, -9.80665 / 200], rtol=1e-6)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 2**29 - 1), st.binary(max_size=8), st.booleans()), max_size=60))
 def test_dronecan_decoder_never_raises_on_random_frames(frames: list) -> None:
     dec = dc.DroneCanDecoder()
@@ -200,7 +200,7 @@ def test_dbc_round_trip_and_faults() -> None:
     assert np.all(np.diff([s.t for s in out]) > 0)
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(
     st.lists(
         st.tuples(st.sampled_from([0x180, 0x181, 0x182, 0x7FF]), st.binary(max_size=8), st.booleans()), max_size=30

@@ -28,7 +28,7 @@ def _sample(seq: int, t: float, dt: float = 0.001, imu_id: int = 0) -> ImuSample
     )  # fmt: skip
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(
     st.lists(f32, min_size=6, max_size=6),
     st.integers(0, 255),
@@ -52,7 +52,7 @@ def test_round_trip_property(
     assert d.temperature == pytest.approx(temp, abs=0.006)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(st.binary(max_size=400), st.integers(1, 64))
 def test_parser_never_crashes_on_garbage(data: bytes, chunk: int) -> None:
     p = sf.FrameParser()
@@ -64,7 +64,7 @@ def test_parser_never_crashes_on_garbage(data: bytes, chunk: int) -> None:
         assert np.all(np.isfinite(s.dtheta)) and np.all(np.isfinite(s.dvel))
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.data())
 def test_every_corrupted_frame_is_counted_and_none_accepted(data: st.DataObject) -> None:
     """Bit flips, truncation and oversize frames in a stream of good frames: each bad frame is
