@@ -22,7 +22,7 @@ import numpy as np
 from ins_hil.types import ImuSample
 
 NAME = "bench-drivers"
-HELP = "measure driver decode cost, max loss-free frame rate (pty, vcan) and 1% corruption handling"
+HELP = "measure driver decode cost, max loss-free frame rate (pty, vcan) and 1%% corruption handling"
 
 G = 9.80665
 
