@@ -440,6 +440,20 @@ class DroneCanDecoder:
         """One CAN frame; returns a sample when a wanted transfer completes."""
         if now_ns is None:
             now_ns = time.monotonic_ns()
+        # fast path: a middle frame of a transfer already open (its SOT passed every filter below)
+        part = self.reasm._open.get(can_id)
+        if part is not None and extended and len(data) == 8:
+            tail = data[7]
+            if (
+                not tail & 0xC0
+                and (tail & 0x1F) == part.transfer_id
+                and (tail & 0x20) == part.toggle
+                and now_ns - part.t0_ns <= self.reasm.timeout_ns
+                and len(part.data) <= MAX_TRANSFER
+            ):
+                part.data += data[:7]
+                part.toggle ^= 0x20
+                return None
         if not extended:
             self._count("not_dronecan")
             return None
