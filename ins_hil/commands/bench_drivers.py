@@ -388,6 +388,7 @@ def _vcan_in_guest() -> tuple[list[tuple[str, float, float, int, int]], str]:
     try:
         cmd = f'"{sys.executable}" -m ins_hil bench-drivers --only vcan --json "{out}"'
         env = dict(os.environ, VCAN_VM_TIMEOUT=os.environ.get("VCAN_VM_TIMEOUT", "600"))
+        env.setdefault("VCAN_VM_CWD_CACHE", "loose")  # the venv is in the shared directory: cache its reads
         p = subprocess.run([str(helper), cmd], cwd=root, env=env, capture_output=True, text=True)
         if p.returncode != 0:
             return [], f"scripts/vcan failed ({p.returncode}): {p.stderr.strip()[-300:]}"
