@@ -43,7 +43,8 @@ async def _run_pair(
 
 
 def test_udp_against_simulated_fc() -> None:
-    got, drv, fc = asyncio.run(_run_pair(2.0, {"request": {"GPS_RAW_INT": 10.0}}, {"imu_hz": 200.0, "gps_hz": 10.0}))
+    drv_kw = {"request": {"GPS_RAW_INT": 10.0}, "timesync_s": 0.4}
+    got, drv, fc = asyncio.run(_run_pair(2.0, drv_kw, {"imu_hz": 200.0, "gps_hz": 10.0}))
     kinds = Counter(type(s).__name__ for s in got)
     assert kinds["ImuSample"] >= 300 and kinds["GnssFix"] >= 15 and kinds["BaroSample"] >= 15
     assert kinds["MagSample"] == kinds["ImuSample"]
