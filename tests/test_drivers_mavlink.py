@@ -37,8 +37,10 @@ async def _run_pair(
     ft = asyncio.create_task(fc.run())
     await asyncio.sleep(duration)
     ft.cancel()
+    await asyncio.gather(ft, return_exceptions=True)
+    await asyncio.sleep(0.05)  # let the driver read what is still in flight
     task.cancel()
-    await asyncio.gather(ft, task, return_exceptions=True)
+    await asyncio.gather(task, return_exceptions=True)
     return got, drv, fc
 
 
