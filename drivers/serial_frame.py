@@ -103,18 +103,23 @@ class FrameParser:
     """Streaming parser: ``feed(bytes)`` returns the good samples, in order.
 
     Sensor time is unwrapped per imu_id (32-bit µs counter). Counters (in
-    ``counts``): frames, garbage_bytes, crc, version, nonfinite, range,
-    seq_gap (frames missing), duplicate, time_backwards.
-    Duplicates and backwards-in-time frames are dropped; gaps are counted.
+    ``counts``): frames (accepted), garbage_bytes, crc, version, nonfinite,
+    range, seq_gap (frames missing), duplicate, seq_backwards,
+    time_backwards, time_jump, time_reset.
+    Duplicates, backwards-in-time and time-jumped frames are dropped; gaps
+    are counted; a sensor clock reset (two consecutive frames agreeing on a
+    new time base) re-anchors the time.
     """
 
     max_abs_dtheta: float = 1.0  # rad per interval (≈ 57 °/interval): beyond is not physical
     max_abs_dvel: float = 50.0  # m/s per interval
+    max_time_jump_us: int = 100_000  # sensor-time step beyond (seq step × dt) that counts as a jump
     counts: dict[str, int] = field(default_factory=dict)
     _buf: bytearray = field(default_factory=bytearray)
     _last_seq: dict[int, int] = field(default_factory=dict)
     _last_tus: dict[int, int] = field(default_factory=dict)
     _wraps: dict[int, int] = field(default_factory=dict)
+    _pending: dict[int, tuple[int, int]] = field(default_factory=dict)
 
     def _count(self, key: str, n: int = 1) -> None:
         self.counts[key] = self.counts.get(key, 0) + n
@@ -161,26 +166,50 @@ class FrameParser:
     def _accept(self, s: ImuSample) -> bool:
         iid = s.imu_id
         t_us = round(s.t * 1e6)
+        dt_us = round(s.dt * 1e6)
         last = self._last_seq.get(iid)
+        d = 1
         if last is not None:
             d = (s.seq - last) & 0xFFFF
             if d == 0:
                 self._count("duplicate")
                 return False
             if d > 0x8000:  # older than the previous one
-                self._count("time_backwards")
+                self._count("seq_backwards")
                 return False
-            if d > 1:
-                self._count("seq_gap", d - 1)
         lt = self._last_tus.get(iid)
         wraps = self._wraps.get(iid, 0)
         if lt is not None:
-            dt = (t_us - lt) & 0xFFFFFFFF
-            if dt == 0 or dt > 0x80000000:
+            el = (t_us - lt) & 0xFFFFFFFF
+            if el == 0 or el > 0x80000000:
                 self._count("time_backwards")
+                return False
+            # sensor time must advance by about (seq step × dt): a jump beyond
+            # max(0.1 s, 10 intervals) is a clock glitch. A lone glitch is dropped;
+            # if the next frame agrees with the jumped one, the clock was reset:
+            # re-anchor there (counted as time_reset).
+            if abs(el - d * dt_us) > max(self.max_time_jump_us, 10 * d * dt_us):
+                pend = self._pending.get(iid)
+                self._pending[iid] = (s.seq, t_us)
+                if pend is not None:
+                    pel = (t_us - pend[1]) & 0xFFFFFFFF
+                    pd = (s.seq - pend[0]) & 0xFFFF
+                    if 0 < pel <= max(self.max_time_jump_us, 10 * pd * dt_us) and 0 < pd < 0x8000:
+                        self._count("time_reset")
+                        del self._pending[iid]
+                        self._wraps[iid] = wraps = 0
+                        self._last_tus[iid] = t_us
+                        self._last_seq[iid] = s.seq
+                        s.t = t_us * 1e-6
+                        self._count("frames")
+                        return True
+                self._count("time_jump")
                 return False
             if t_us < lt:
                 wraps += 1
+        self._pending.pop(iid, None)
+        if d > 1:
+            self._count("seq_gap", d - 1)
         self._last_seq[iid] = s.seq
         self._last_tus[iid] = t_us
         self._wraps[iid] = wraps

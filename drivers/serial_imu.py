@@ -1,0 +1,132 @@
+"""Async serial IMU driver: ins_hil serial frames (SERIAL_FRAME.md) from a UART or pty.
+
+Bytes arrive through pyserial-asyncio-fast (``loop.add_reader`` on the port's
+file descriptor: nothing blocks the event loop), are fed to the streaming
+:class:`~ins_hil.drivers.serial_frame.FrameParser` and every accepted
+:class:`~ins_hil.types.ImuSample` goes to ``sink``. Up to 921600 baud /
+2 kHz frames. The port vanishing (USB unplugged, pty closed) or going silent
+for ``stale_s`` closes it; it is re-opened with exponential backoff.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any
+
+import serial_asyncio_fast
+
+from ins_hil.drivers.base import Backoff, DriverHealth, Sink
+from ins_hil.drivers.serial_frame import FrameParser
+
+
+class _Proto(asyncio.Protocol):
+    def __init__(self, drv: SerialImuDriver, sink: Sink) -> None:
+        self.drv, self.sink = drv, sink
+        self.lost: asyncio.Future[Exception | None] = asyncio.get_running_loop().create_future()
+        self.last_rx_ns = time.monotonic_ns()
+
+    def data_received(self, data: bytes) -> None:
+        now = time.monotonic_ns()
+        self.last_rx_ns = now
+        self.drv.feed(data, self.sink, now)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.lost.done():
+            self.lost.set_result(exc)
+
+
+class SerialImuDriver:
+    """IMU frames over a serial port.
+
+    ``port``: device path (``/dev/ttyUSB0``, a pty slave) or any pyserial URL;
+    ``baudrate``: up to 921600; ``stale_s``: re-open the port after this many
+    seconds without a byte (0 = never). Error counters (``health.errors``):
+    the parser's (crc, sync/garbage_bytes, version, nonfinite, range,
+    seq_gap, duplicate, seq_backwards, time_backwards, time_jump,
+    time_reset) plus open_failed, port_lost, silence, sink_error.
+    """
+
+    def __init__(self, port: str, baudrate: int = 921600, name: str = "serial_imu", stale_s: float = 2.0) -> None:
+        if not port:
+            raise ValueError("serial IMU: 'port' must name a device, e.g. /dev/ttyUSB0")
+        if not isinstance(baudrate, int) or baudrate <= 0:
+            raise ValueError(f"serial IMU: 'baudrate' must be a positive integer, got {baudrate!r}")
+        self.name = name
+        self.port = port
+        self.baudrate = baudrate
+        self.stale_s = stale_s
+        self.health = DriverHealth(name)
+        self.parser = FrameParser()
+        self._backoff = Backoff()
+
+    @classmethod
+    def from_config(cls, cfg: dict[str, Any]) -> SerialImuDriver:
+        """``{"type": "serial_imu", "port": "/dev/ttyUSB0", "baudrate": 921600, "name": ..., "stale_s": 2}``."""
+        known = {"type", "port", "baudrate", "name", "stale_s"}
+        bad = set(cfg) - known
+        if bad:
+            raise ValueError(f"serial IMU config: unknown key(s) {sorted(bad)} (known: {sorted(known)})")
+        if "port" not in cfg:
+            raise ValueError("serial IMU config: missing key 'port'")
+        return cls(
+            str(cfg["port"]),
+            int(cfg.get("baudrate", 921600)),
+            str(cfg.get("name", "serial_imu")),
+            float(cfg.get("stale_s", 2.0)),
+        )
+
+    def feed(self, data: bytes, sink: Sink, now_ns: int) -> None:
+        """Parse bytes and deliver the good samples (also used by tests/benchmarks)."""
+        h = self.health
+        for s in self.parser.feed(data, now_ns):
+            h.seen(now_ns)
+            try:
+                sink(s)
+            except Exception:  # a faulty sink must not kill the driver
+                h.count("sink_error")
+        counts = self.parser.counts
+        errs = h.errors
+        for k, v in counts.items():
+            if k != "frames" and errs.get(k) != v:
+                errs[k] = v
+
+    async def run(self, sink: Sink) -> None:
+        """Open, read, and re-open with backoff until cancelled."""
+        loop = asyncio.get_running_loop()
+        first = True
+        while True:
+            try:
+                transport, proto = await serial_asyncio_fast.create_serial_connection(
+                    loop, lambda: _Proto(self, sink), self.port, baudrate=self.baudrate
+                )
+            except Exception as e:  # port missing, permission, busy
+                self.health.count("open_failed")
+                self.health.last_error = f"open {self.port}: {e}"
+                await self._backoff.wait()
+                continue
+            if not first:
+                self.health.reconnects += 1
+            first = False
+            self.health.connected = True
+            n0 = self.health.samples
+            try:
+                while True:
+                    timeout = self.stale_s if self.stale_s > 0 else None
+                    try:
+                        exc = await asyncio.wait_for(asyncio.shield(proto.lost), timeout)
+                    except TimeoutError:
+                        if (time.monotonic_ns() - proto.last_rx_ns) * 1e-9 >= self.stale_s:
+                            self.health.count("silence")
+                            self.health.last_error = f"no data for {self.stale_s} s"
+                            break
+                        continue
+                    self.health.count("port_lost")
+                    self.health.last_error = f"port lost: {exc}"
+                    break
+            finally:
+                self.health.connected = False
+                transport.close()
+            if self.health.samples > n0:
+                self._backoff.reset()
+            await self._backoff.wait()
