@@ -1,11 +1,9 @@
-"""Minimal input drivers for the runtime's default (simulated) setup.
+"""MAVLink input for the runtime's GNSS/baro (stop-gap until the drivers branch's MAVLink driver lands).
 
-``SerialImuDriver`` reads serial IMU frames (pty or UART) and
-``MavlinkUdpDriver`` reads GNSS/baro MAVLink over UDP. Both follow the
+``MavlinkUdpDriver`` reads GNSS/baro MAVLink 2 over UDP and follows the
 :class:`ins_hil.drivers.base.Driver` contract (``name``, ``health``,
-``async run(sink)``, non-blocking sink, reconnect with backoff, never raise
-on bad input). They are the runtime's stop-gap until the drivers branch's
-full drivers (serial, CAN, MAVLink) are merged, which then replace them.
+``async run(sink)``, non-blocking sink, never raise on bad input). The
+serial IMU is read by :class:`ins_hil.drivers.serial_imu.SerialImuDriver`.
 
 :class:`MavReceiver` is the signed-link-aware MAVLink 2 parser shared with
 the output endpoints: with a key it accepts only correctly signed messages
@@ -22,7 +20,6 @@ from typing import Any
 import numpy as np
 
 from ins_hil.drivers.base import DriverHealth, Sink
-from ins_hil.drivers.serial_frame import FrameParser
 from ins_hil.sim.sensors import altitude_from_pressure
 from ins_hil.types import BaroSample, FixType, GnssFix
 
@@ -131,67 +128,6 @@ def decode_aiding(m: Any, t_arrival_ns: int) -> GnssFix | BaroSample | None:
             t_arrival_ns=t_arrival_ns,
         )
     return None
-
-
-class SerialImuDriver:
-    """Serial IMU frames from a tty (a pty of the simulator, or a UART at ``baud``)."""
-
-    def __init__(self, name: str, port: str, baud: int = 921600) -> None:
-        self.name = name
-        self.port = port
-        self.baud = baud
-        self.health = DriverHealth(name)
-        self.parser = FrameParser()
-        self.last_error = ""
-
-    async def run(self, sink: Sink) -> None:
-        import serial_asyncio_fast
-
-        loop = asyncio.get_running_loop()
-        backoff = 0.1
-        drv = self
-
-        class _Proto(asyncio.Protocol):
-            def __init__(self) -> None:
-                self.lost: asyncio.Future[None] = loop.create_future()
-
-            def data_received(self, data: bytes) -> None:
-                now = time.monotonic_ns()
-                before = dict(drv.parser.counts)
-                for s in drv.parser.feed(data, now):
-                    drv.health.seen(now)
-                    sink(s)
-                for k, v in drv.parser.counts.items():
-                    if k != "frames" and v != before.get(k, 0):
-                        drv.health.count(k, v - before.get(k, 0))
-
-            def connection_lost(self, exc: Exception | None) -> None:
-                if not self.lost.done():
-                    self.lost.set_result(None)
-
-        while True:
-            transport: Any
-            proto: Any
-            try:
-                transport, proto = await serial_asyncio_fast.create_serial_connection(
-                    loop, _Proto, self.port, baudrate=self.baud
-                )
-            except (OSError, ValueError) as e:
-                self.health.connected = False
-                self.health.count("open_failed")
-                self.last_error = str(e)
-                await asyncio.sleep(backoff)
-                backoff = min(backoff * 2, 5.0)
-                continue
-            self.health.connected = True
-            backoff = 0.1
-            try:
-                await proto.lost
-            finally:
-                transport.close()
-                self.health.connected = False
-            self.health.reconnects += 1
-            await asyncio.sleep(backoff)
 
 
 class MavlinkUdpDriver:

@@ -32,7 +32,8 @@ from typing import Any
 
 from ins_hil.config import Config
 from ins_hil.drivers.base import Sample
-from ins_hil.runtime.inputs import MavlinkUdpDriver, SerialImuDriver
+from ins_hil.drivers.serial_imu import SerialImuDriver
+from ins_hil.runtime.inputs import MavlinkUdpDriver
 from ins_hil.runtime.mavlink_out import MavlinkEndpoint, fault_text
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.runtime.mqtt_out import MqttPublisher
@@ -230,7 +231,7 @@ class Gateway:
             await asyncio.get_running_loop().run_in_executor(None, self.sim.start)
         for ic in serial_inputs:
             dev = self.sim.imu_path if ic.port == "sim" and self.sim else ic.port
-            sdrv = SerialImuDriver(ic.name, dev, ic.baud)
+            sdrv = SerialImuDriver(dev, ic.baud, name=ic.name)
             self.drivers.append(sdrv)
             self._tasks.append(asyncio.create_task(sdrv.run(self._sink_for(ic.name)), name=ic.name))
         for coro, name in ((self._core_task(), "core"), (self._housekeeping(), "housekeeping")):

@@ -258,7 +258,19 @@ class SimDevices:
         self.proc = None
 
 
+def _die_with_parent() -> None:
+    """Linux: get SIGTERM when the gateway process dies, even by SIGKILL (prctl PR_SET_PDEATHSIG)."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
+    _die_with_parent()
     ap = argparse.ArgumentParser(description="simulated IMU (pty) + GNSS/baro (MAVLink over UDP)")
     ap.add_argument("--gnss-udp", required=True, help="host:port of the gateway's MAVLink input")
     for k, v in SimConfig().__dict__.items():
