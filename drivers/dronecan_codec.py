@@ -110,7 +110,7 @@ class DsdlLayout:
         raw = self.fmt.unpack_from(payload, 0)
         if self.odd:
             lst = list(raw)
-            for i, w, signed in self.odd:
+            for i, _w, signed in self.odd:
                 lst[i] = int.from_bytes(lst[i], "little", signed=signed)
             raw = tuple(lst)
         out: dict[str, Any] = {}

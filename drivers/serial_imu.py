@@ -15,7 +15,6 @@ import time
 from typing import Any
 
 import serial_asyncio_fast
-
 from ins_hil.drivers.base import Backoff, DriverHealth, Sink
 from ins_hil.drivers.serial_frame import FrameParser
 
@@ -96,8 +95,10 @@ class SerialImuDriver:
         loop = asyncio.get_running_loop()
         first = True
         while True:
+            # a re-plugged device restarts its sequence and clock: fresh stream state, same counters
+            self.parser = FrameParser(counts=self.parser.counts)
             try:
-                transport, proto = await serial_asyncio_fast.create_serial_connection(
+                transport, proto_ = await serial_asyncio_fast.create_serial_connection(
                     loop, lambda: _Proto(self, sink), self.port, baudrate=self.baudrate
                 )
             except Exception as e:  # port missing, permission, busy
@@ -105,6 +106,7 @@ class SerialImuDriver:
                 self.health.last_error = f"open {self.port}: {e}"
                 await self._backoff.wait()
                 continue
+            proto: _Proto = proto_  # type: ignore[assignment]
             if not first:
                 self.health.reconnects += 1
             first = False
