@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ins_hil.drivers.mavlink_in import parse_url as mavlink_in_url
 from ins_hil.runtime.mavlink_out import ALL_MESSAGES, EndpointConfig, parse_url
 from ins_hil.runtime.mqtt_out import MqttConfig
 from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig
@@ -196,7 +197,10 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         where = f"inputs[{i}]"
         _choice(f"{where}.type", ic.type, INPUT_TYPES)
         if ic.type == "mavlink":
-            _url(f"{where}.url", ic.url, ("udpin",))
+            try:
+                mavlink_in_url(ic.url)
+            except ValueError as e:
+                raise ConfigError(f"{where}.url = {ic.url!r}: {e}") from None
             _key(f"{where}.signing_key", ic.signing_key)
         else:
             if ic.port == "sim" and not cfg.sim_enabled:

@@ -24,6 +24,7 @@ import asyncio
 import contextlib
 import os
 import signal
+import socket
 import time
 from collections import deque
 from collections.abc import Callable
@@ -32,8 +33,9 @@ from typing import Any
 
 from ins_hil.config import Config
 from ins_hil.drivers.base import Sample
+from ins_hil.drivers.mavlink_in import MavlinkDriver
 from ins_hil.drivers.serial_imu import SerialImuDriver
-from ins_hil.runtime.inputs import MavlinkUdpDriver
+from ins_hil.runtime.clock import SensorClock
 from ins_hil.runtime.mavlink_out import MavlinkEndpoint, fault_text
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.runtime.mqtt_out import MqttPublisher
@@ -70,6 +72,7 @@ class Gateway:
         self._tasks: list[asyncio.Task[Any]] = []
         self._sigints = 0
         self._was_aligned = False
+        self.imu_clock = SensorClock()
         self.stopped_reason = ""
         self.error: BaseException | None = None
 
@@ -98,6 +101,7 @@ class Gateway:
         m = self.metrics
         pubs = self.publishers
         mono = time.monotonic_ns
+        clock = self.imu_clock
         while True:
             await self._wake.wait()
             self._wake.clear()
@@ -105,7 +109,16 @@ class Gateway:
             if depth > m.queue_depth_max:
                 m.queue_depth_max = depth
             while q:
-                s, _name = q.popleft()
+                s, name = q.popleft()
+                if isinstance(s, ImuSample):
+                    clock.update(s.t, s.t_arrival_ns)
+                else:
+                    # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
+                    t = clock.to_sensor(s.t)
+                    if t is None:
+                        m.source(name).drop("before_imu_clock")
+                        continue
+                    s.t = t
                 if rec is not None:
                     rec.write(s)
                 if isinstance(s, ImuSample):
@@ -212,16 +225,24 @@ class Gateway:
         serial_inputs = []
         for ic in cfg.inputs:
             if ic.type == "mavlink":
-                from ins_hil.runtime.mavlink_out import parse_url
-
-                _, host, port = parse_url(ic.url)
-                key = bytes.fromhex(ic.signing_key) if ic.signing_key else None
-                drv = MavlinkUdpDriver(ic.name, host, port, key, ic.sysid)
+                drv = MavlinkDriver(
+                    _pin_port(ic.url),
+                    name=ic.name,
+                    system_id=ic.sysid or None,
+                    signing_key=ic.signing_key or None,
+                    request={} if cfg.sim_enabled else None,
+                    emit={"gnss", "baro"},
+                )
                 self.drivers.append(drv)
                 self._tasks.append(asyncio.create_task(drv.run(self._sink_for(ic.name)), name=ic.name))
-                await asyncio.wait_for(drv.bound.wait(), 5.0)
+                for _ in range(100):  # until the socket is bound (port 0 = any free port)
+                    if drv.local_address is not None:
+                        break
+                    await asyncio.sleep(0.01)
+                if drv.local_address is None:
+                    raise RuntimeError(f"input {ic.name}: cannot open {ic.url}: {drv.health.last_error}")
                 if not sim_gnss_port:
-                    sim_gnss_port = drv.port
+                    sim_gnss_port = int(drv.local_address[1])
             else:
                 serial_inputs.append(ic)
         if cfg.sim_enabled:
@@ -289,3 +310,13 @@ class Gateway:
         if self.error is not None:
             raise RuntimeError(self.stopped_reason) from self.error
         return self.metrics
+
+
+def _pin_port(url: str) -> str:
+    """``udpin:HOST:0`` → a concrete free port, so a re-opened socket keeps the address the sender uses."""
+    parts = url.split(":")
+    if len(parts) == 3 and parts[0] in ("udpin", "udp") and parts[2] == "0":
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind((parts[1], 0))
+            return f"udpin:{parts[1]}:{s.getsockname()[1]}"
+    return url

@@ -32,9 +32,63 @@ import numpy as np
 
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat
-from ins_hil.runtime.inputs import MavReceiver, mavlink_module
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.types import FaultEvent, GnssFix, NavState
+
+
+def mavlink_module() -> Any:
+    """The MAVLink 2 dialect used everywhere (ardupilotmega ⊃ common)."""
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    return ardupilotmega
+
+
+class MavReceiver:
+    """Parse MAVLink 2 bytes; with ``key`` (32 bytes) accept only correctly signed messages.
+
+    ``counts``: messages, unsigned, bad_signature, bad_data.
+    """
+
+    def __init__(self, key: bytes | None = None, link_id: int = 0) -> None:
+        mavlink = mavlink_module()
+        self.mav = mavlink.MAVLink(None, srcSystem=0, srcComponent=0)
+        self.counts: dict[str, int] = {"messages": 0, "unsigned": 0, "bad_signature": 0, "bad_data": 0}
+        if key is not None:
+            from ins_hil.sim.devices import signing_timestamp
+
+            s = self.mav.signing
+            s.secret_key = key
+            s.link_id = link_id
+            s.timestamp = signing_timestamp()
+            s.allow_unsigned_callback = None  # unsigned → rejected
+
+    def feed(self, data: bytes) -> list[Any]:
+        out: list[Any] = []
+        mavlink = mavlink_module()
+        chunk: bytes = data
+        while True:
+            s = self.mav.signing
+            bad0, rej0 = s.badsig_count, s.reject_count
+            try:
+                m = self.mav.parse_char(chunk)
+            except mavlink.MAVError as e:
+                if s.badsig_count > bad0:
+                    self.counts["bad_signature"] += 1
+                elif s.reject_count > rej0 or "Invalid signature" in str(e):
+                    self.counts["unsigned"] += 1
+                else:
+                    self.counts["bad_data"] += 1
+                chunk = b""
+                continue
+            chunk = b""
+            if m is None:
+                return out
+            if m.get_type() == "BAD_DATA":
+                self.counts["bad_data"] += 1
+                continue
+            self.counts["messages"] += 1
+            out.append(m)
+
 
 GCS_RATES = {
     "HEARTBEAT": 1.0,

@@ -70,7 +70,7 @@ class SimConfig:
     lon_deg: float = 30.52
     h: float = 180.0
     seed: int = 7
-    chunk_s: float = 20.0
+    chunk_s: float = 10.0
     duration: float = 0.0  # 0 = until stopped
     gnss_sysid: int = 1
     sign_key: str = ""  # hex, 32 bytes: sign the GNSS/baro MAVLink messages
@@ -105,12 +105,24 @@ def _tail(tr: TruthSeries) -> TruthSeries:
 
 
 class _UdpWriter:
-    """File-like for pymavlink: each write is one datagram to ``addr``."""
+    """File-like for pymavlink: each write is one datagram to ``addr``; ``poll`` reads what comes back."""
 
     def __init__(self, addr: tuple[str, int]) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
         self.addr = addr
         self.errors = 0
+
+    def poll(self) -> bytes:
+        out = b""
+        while True:
+            try:
+                data, _ = self.sock.recvfrom(4096)
+            except (BlockingIOError, ConnectionRefusedError):
+                return out
+            except OSError:
+                return out
+            out += data
 
     def write(self, b: bytes) -> None:
         try:
@@ -144,6 +156,8 @@ def run_devices(cfg: SimConfig, gnss_addr: tuple[str, int], announce: bool = Tru
     from pymavlink.dialects.v20 import common as mavlink2
 
     mav = _mavlink(writer, cfg.gnss_sysid, mavlink2.MAV_COMP_ID_GPS, cfg.sign_key)
+    rx = mavlink2.MAVLink(None)
+    rx.robust_parsing = True
     chunks = truth_chunks(cfg)
     nxt: list[Any] = [next(chunks)]
     ready = threading.Event()
@@ -189,10 +203,21 @@ def run_devices(cfg: SimConfig, gnss_addr: tuple[str, int], announce: bool = Tru
             else:
                 b = baro[i]
                 mav.scaled_pressure_send(round(b.t * 1000), b.pressure / 100.0, 0.0, 2000)
+            _answer_timesync(writer, rx, mav, t_start)
             if ts - t_hb >= 1.0:
                 t_hb = ts
                 mav.heartbeat_send(mavlink2.MAV_TYPE_GENERIC, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         th.join()
+
+
+def _answer_timesync(writer: _UdpWriter, rx: Any, mav: Any, t_start: float) -> None:
+    """Answer TIMESYNC requests (tc1 = 0) with the device clock (ns of sensor time), as a flight controller does."""
+    data = writer.poll()
+    if not data:
+        return
+    for m in rx.parse_buffer(data) or []:
+        if m.get_type() == "TIMESYNC" and m.tc1 == 0:
+            mav.timesync_send(int((time.monotonic() - t_start) * 1e9), m.ts1)
 
 
 def _send_gnss(mav: Any, f: Any) -> None:
