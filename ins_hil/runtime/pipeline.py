@@ -46,6 +46,19 @@ class Core(Protocol):
 CORE_KINDS = ("python", "c")
 
 
+def check_core(kind: str) -> None:
+    """Raise now (before anything starts) if the core ``kind`` cannot be built."""
+    if kind not in CORE_KINDS:
+        raise ValueError(f"unknown core {kind!r} (choose from {', '.join(CORE_KINDS)})")
+    if kind == "c":
+        try:
+            mod = importlib.import_module("ins_hil.cref")
+        except ImportError as e:
+            raise RuntimeError(f"core 'c': the C reference core (ins_hil.cref) is not available: {e}") from e
+        if not hasattr(mod, "CNavCore"):
+            raise RuntimeError("core 'c': ins_hil.cref has no CNavCore")
+
+
 def make_core(kind: str, initial: StrapdownState) -> Core:
     """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore)."""
     if kind == "python":
@@ -96,6 +109,7 @@ class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
     def __init__(self, cfg: PipelineConfig) -> None:
+        check_core(cfg.core)
         self.cfg = cfg
         self.core: Core | None = None
         self.events: list[FaultEvent] = []
