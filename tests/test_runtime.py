@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from runtime_helpers import sim_config
+from runtime_helpers import free_port, sim_config
 
 from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.metrics import LatencyHistogram
@@ -29,7 +29,8 @@ REPO = Path(__file__).resolve().parent.parent
 def live_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """One 5 s live run at 1 kHz with every state kept."""
     tmp = tmp_path_factory.mktemp("live")
-    cfg = sim_config(sim={"imu_errors": "none"})
+    port = free_port()  # nobody listens: the endpoint sends anyway and counts what the socket refuses
+    cfg = sim_config(sim={"imu_errors": "none"}, outputs=[{"name": "gcs", "url": f"udp:127.0.0.1:{port}"}])
     gw = Gateway(cfg, record_path=tmp / "live.ihlog")
     states: list[NavState] = []
     gw.on_state.append(states.append)
@@ -194,3 +195,18 @@ def test_sigkill_loses_at_most_100ms_of_inputs(tmp_path: Path) -> None:
     last_arrival = max(r.t_arrival_ns for r in recs)
     lost_s = (t_stop - last_arrival) * 1e-9
     assert 0 <= lost_s <= 0.1, lost_s
+
+
+def test_status_view_renders_the_live_figures(live_run: dict) -> None:
+    from rich.console import Console
+
+    from ins_hil.commands.run import _summary_line, render
+
+    with open(os.devnull, "w") as devnull:
+        con = Console(width=160, record=True, file=devnull)
+        con.print(render(live_run["gw"]))
+    text = con.export_text()
+    for word in ("imu0", "gnss", "arrival to state", "state to sent", "gcs", "aligned", "test ratios"):
+        assert word in text, word
+    line = _summary_line(live_run["gw"])
+    assert "imu0" in line and "arrival→sent" in line
