@@ -38,7 +38,7 @@ ensure_venv() {
     "$py" -m venv "$VENV" || { ensure_apt python3-venv && "$py" -m venv "$VENV"; } || return 1
   fi
   local stamp="$VENV/.ins_hil_stamp" want
-  want=$(cat "$ROOT/pyproject.toml" "$ROOT"/setup.py "$ROOT"/firmware_ref/src/*.c "$ROOT"/firmware_ref/include/*.h 2>/dev/null | sha256sum | cut -c1-16)
+  want=$(cat "$ROOT/pyproject.toml" "$ROOT"/setup.py "$ROOT"/firmware_ref/cffi_build.py "$ROOT"/firmware_ref/src/*.[ch] "$ROOT"/firmware_ref/include/*.h 2>/dev/null | sha256sum | cut -c1-16)
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     log "installing ins_hil and its dependencies into $VENV"
     "$PY" -m pip install -q --disable-pip-version-check -e "$ROOT[dev]" 2>&1 | grep -vE '^WARNING: Location' >&2

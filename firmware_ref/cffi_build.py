@@ -1,0 +1,160 @@
+"""cffi (API mode) build of the C reference core into ``ins_hil._cref`` (double)
+and ``ins_hil._cref_f32`` (float, ``-DINS_REF_FLOAT``).
+
+Referenced from setup.py ``cffi_modules``, so ``pip install .`` and
+``pip install -e .`` compile the same sources as ``make -C firmware_ref``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from cffi import FFI
+
+_HERE = Path(__file__).resolve().parent
+_SOURCES = ["quat.c", "mech.c", "ekf.c", "core.c", "fdi.c", "frame.c"]
+
+
+def _rel(p: Path) -> str:
+    # setuptools wants source paths relative to the project root (the cwd of setup.py)
+    try:
+        return os.path.relpath(p)
+    except ValueError:  # pragma: no cover - other drive on Windows
+        return str(p)
+
+
+_CDEF = """
+typedef {real} ins_real;
+typedef double ins_pos;
+#define INS_NX 15
+#define INS_FDI_N 5
+#define INS_FDI_M 2
+typedef struct {{
+    ins_real q[4]; ins_real v[3]; ins_pos lat, lon, h; double t; ins_real dt;
+    ins_real f_ned[3]; ins_real omega_ie[3]; ins_real omega_en[3]; ...;
+}} ins_mech_t;
+typedef struct {{
+    ins_real gyro_arw, accel_vrw, gyro_bias_sigma, gyro_bias_tau, accel_bias_sigma, accel_bias_tau;
+    ins_real p0_pos, p0_vel, p0_att, p0_yaw, p0_bg, p0_ba;
+    int second_order; ins_real gate_gnss, gate_baro; int gnss_reset_after;
+    ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; int use_gnss_vel; ins_real baro_std;
+}} ins_ekf_cfg_t;
+typedef struct {{
+    ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
+    ins_pos baro_offset; uint32_t accepted[3], rejected[3], consecutive[3]; ins_real last_ratio[3];
+    uint32_t n_predict; ...;
+}} ins_ekf_t;
+typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; }} ins_core_t;
+typedef struct {{
+    ins_real lam[4]; ins_real w1[3]; ins_real w2[3]; ins_real th_prev[3]; ins_real dt; uint32_t n;
+}} ins_book_att_t;
+typedef struct {{
+    ins_real p[2]; ins_real p2; ins_real J[5]; ins_real rho[5]; int detected; int isolated;
+}} ins_fdi_result_t;
+
+void ins_quat_mul(const ins_real p[4], const ins_real q[4], ins_real r[4]);
+void ins_quat_from_rotvec(const ins_real v[3], ins_real q[4]);
+void ins_dcm_from_quat(const ins_real q[4], ins_real c[9]);
+void ins_book_att_init(ins_book_att_t *a, const ins_real q0[4], ins_real dt);
+void ins_book_att_step(ins_book_att_t *a, const ins_real w[3]);
+void ins_book_att_quat(const ins_book_att_t *a, ins_real q[4]);
+void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg);
+void ins_fdi_cone5_u2t(ins_real u2t[10]);
+void ins_fdi_parity(const ins_real u2t[10], const ins_real y[5], ins_real threshold, ins_fdi_result_t *r);
+uint16_t ins_crc16_ccitt(const uint8_t *data, size_t n, uint16_t init);
+
+/* glue in double for the Python wrapper (both variants) */
+int cref_scalar_bits(void);
+void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, double lon, double h, double t,
+               double dt, const ins_ekf_cfg_t *cfg, int filter);
+void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end);
+void cref_state(const ins_core_t *c, double out[26]);
+void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride);
+int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
+                   double std_d, double std_vel);
+int cref_fuse_baro(ins_core_t *c, double altitude);
+"""
+
+_GLUE = r"""
+#include "ins_ref.h"
+int cref_scalar_bits(void) { return INS_REF_SCALAR_BITS; }
+void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, double lon, double h, double t,
+               double dt, const ins_ekf_cfg_t *cfg, int filter) {
+    ins_real qq[4], vv[3];
+    int i;
+    for (i = 0; i < 4; ++i) qq[i] = (ins_real)q[i];
+    for (i = 0; i < 3; ++i) vv[i] = (ins_real)v[i];
+    ins_core_init(c, qq, vv, lat, lon, h, t, (ins_real)dt, cfg, filter);
+}
+void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end) {
+#ifdef INS_REF_FLOAT
+    ins_real a[3], u[3];
+    int i;
+    for (i = 0; i < 3; ++i) { a[i] = (ins_real)dth[i]; u[i] = (ins_real)dv[i]; }
+    ins_core_step(c, a, u, t_end);
+#else
+    ins_core_step(c, dth, dv, t_end);
+#endif
+}
+/* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3] (26 values) */
+static void put(const ins_core_t *c, double *o, size_t n) {
+    ins_out_t r;
+    double all[26];
+    size_t i;
+    ins_core_output(c, &r);
+    all[0] = r.t;
+    for (i = 0; i < 4; ++i) all[1 + i] = (double)r.q[i];
+    for (i = 0; i < 3; ++i) {
+        all[5 + i] = (double)r.v[i];
+        all[11 + i] = (double)r.bg[i];
+        all[14 + i] = (double)r.ba[i];
+        all[17 + i] = (double)r.std_pos[i];
+        all[20 + i] = (double)r.std_vel[i];
+        all[23 + i] = (double)r.std_att[i];
+    }
+    all[8] = r.lat; all[9] = r.lon; all[10] = r.h;
+    for (i = 0; i < n; ++i) o[i] = all[i];
+}
+void cref_state(const ins_core_t *c, double out[26]) { put(c, out, 26); }
+void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride) {
+    size_t k;
+    for (k = 0; k < n; ++k) {
+        cref_step(c, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt);
+        if (out != NULL) put(c, out + out_stride * k, out_stride);
+    }
+}
+int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
+                   double std_d, double std_vel) {
+    ins_gnss_t g;
+    int i;
+    g.t = t; g.lat = lat; g.lon = lon; g.h = h;
+    for (i = 0; i < 3; ++i) g.vel[i] = (ins_real)vel[i];
+    g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
+    return ins_core_fuse_gnss(c, &g);
+}
+int cref_fuse_baro(ins_core_t *c, double altitude) { return ins_core_fuse_baro(c, (ins_real)altitude); }
+"""
+
+
+def _builder(module: str, real: str, defines: list[tuple[str, str | None]]) -> FFI:
+    ffi = FFI()
+    ffi.cdef(_CDEF.format(real=real))
+    ffi.set_source(
+        module,
+        _GLUE,
+        sources=[_rel(_HERE / "src" / s) for s in _SOURCES],
+        include_dirs=[_rel(_HERE / "include"), _rel(_HERE / "src")],
+        define_macros=defines,
+        extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"],
+        libraries=["m"],
+    )
+    return ffi
+
+
+ffi_double = _builder("ins_hil._cref", "double", [])
+ffi_float = _builder("ins_hil._cref_f32", "float", [("INS_REF_FLOAT", None)])
+
+if __name__ == "__main__":
+    ffi_double.compile(verbose=True)
+    ffi_float.compile(verbose=True)

@@ -1,0 +1,251 @@
+/*
+ * ins_ref.h - ins_hil C99 fixed-step reference navigation core.
+ *
+ * What a flight computer would run: NED strapdown mechanization on IMU
+ * increments, a 15-state error-state EKF (GNSS position/velocity and baro
+ * updates, Joseph form, sequential scalar), and the redundant-gyro parity
+ * check (FDI) with a projector computed offline from the sensor geometry.
+ *
+ * Rules: C99; the step period is fixed at initialisation; no malloc, no
+ * recursion, no global mutable state (every function works on a caller-owned
+ * context struct); all loops are bounded by compile-time constants.
+ *
+ * Scalar type: `ins_real` is double, or float when compiled with
+ * -DINS_REF_FLOAT (a compile-time switch; the whole library follows it).
+ *
+ * Conventions (as ins_hil, see ARCHITECTURE.md / DIGEST_000 section 9):
+ * NED navigation frame, body FRD, Hamilton scalar-first quaternion q_nb
+ * (body -> NED), SI units (rad, m, m/s, s); latitude/longitude in rad,
+ * ellipsoidal height in m.
+ *
+ * Error state (15): x = [dr_N dr_E dr_D | dv_N dv_E dv_D | psi_N psi_E psi_D |
+ * dbg_x dbg_y dbg_z | dba_x dba_y dba_z] with dr, dv = true - computed (m,
+ * m/s, NED), psi the attitude error with C_hat = (I + [psi x]) C_true
+ * (DIGEST_000 section 9), dbg/dba = true - estimated gyro/accel bias (body,
+ * rad/s and m/s^2). The filter feeds back and resets x after each update.
+ */
+#ifndef INS_REF_H
+#define INS_REF_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#ifdef INS_REF_FLOAT
+typedef float ins_real;
+#define INS_REF_SCALAR_BITS 32
+#else
+typedef double ins_real;
+#define INS_REF_SCALAR_BITS 64
+#endif
+/* Geodetic position and time stay double in both builds: a 32-bit latitude
+ * has ~0.3 m resolution, coarser than one 200 Hz position increment (as in
+ * flight firmware that keeps lat/lon in double or integers). */
+typedef double ins_pos;
+
+#define INS_NX 15 /* error states */
+
+/* ---------------------------------------------------------------- quaternions */
+
+/* r = p (x) q, Hamilton product, scalar first (book eq. 2.16 in matrix form). r may alias neither. */
+void ins_quat_mul(const ins_real p[4], const ins_real q[4], ins_real r[4]);
+/* Normalise to unit norm with q0 >= 0. */
+void ins_quat_normalize(ins_real q[4]);
+/* Exact quaternion of a rotation vector (rad). */
+void ins_quat_from_rotvec(const ins_real v[3], ins_real q[4]);
+/* C_b^n from q_nb (row-major 3x3); the book's A = C_n^b is its transpose (eq. 2.5). */
+void ins_dcm_from_quat(const ins_real q[4], ins_real c[9]);
+/* Quaternion from C_b^n (Shepperd's method, q0 >= 0). */
+void ins_quat_from_dcm(const ins_real c[9], ins_real q[4]);
+/* Roll, pitch, yaw (ZYX, rad) from q_nb (book eq. 2.11 with atan2). */
+void ins_euler_from_quat(const ins_real q[4], ins_real rpy[3]);
+/* q_nb from roll, pitch, yaw (standard ZYX half-angle formula, DIGEST_000 section 1.3). */
+void ins_quat_from_euler(const ins_real rpy[3], ins_real q[4]);
+
+/* ------------------------------------------------------ book attitude update */
+
+/* The book's rotational mechanization (DIGEST_000 section 2.2): rate samples
+ * w_i at a fixed step, quasi-coordinates by the quadratic spline (eq. 2.19)
+ * and the update quaternion eq. 2.18, lam_i = lam_{i-1} (x) dlam_i (eq. 2.15).
+ * Start-up (the book is silent, DIGEST_000 section 10 item 6): step 1 uses
+ * dt*w_1, step 2 the trapezoid dt/2*(w_1+w_2), then eq. 2.19; the previous
+ * quasi-coordinate of step 1 is 0. lam is not normalised (the book's 1/12
+ * form is not unit norm); read it through ins_book_att_quat(). */
+typedef struct {
+    ins_real lam[4];    /* quaternion (body -> fixed frame), unnormalised */
+    ins_real w1[3];     /* w(t_{i-1}) */
+    ins_real w2[3];     /* w(t_{i-2}) */
+    ins_real th_prev[3]; /* quasi-coordinates of the previous step */
+    ins_real dt;
+    uint32_t n;         /* steps taken */
+} ins_book_att_t;
+
+void ins_book_att_init(ins_book_att_t *a, const ins_real q0[4], ins_real dt);
+/* One step with the body rate w(t_i) (rad/s) sampled at the end of the step. */
+void ins_book_att_step(ins_book_att_t *a, const ins_real w[3]);
+/* Normalised copy of the current quaternion. */
+void ins_book_att_quat(const ins_book_att_t *a, ins_real q[4]);
+
+/* -------------------------------------------------------------- mechanization */
+
+/* NED strapdown on increments: the same equations, in the same order, as
+ * ins_hil.nav.mechanization.StrapdownNED.step (rotation vector with coning
+ * correction, sculling, Earth rate, transport rate, Coriolis, normal gravity,
+ * trapezoidal position). */
+typedef struct {
+    ins_real q[4];      /* q_nb */
+    ins_real v[3];      /* v_ned, m/s */
+    ins_pos lat, lon, h;
+    double t;           /* sensor time, s */
+    ins_real dt;        /* fixed step, s */
+    ins_real dth_prev[3], dv_prev[3];
+    int have_prev;
+    int coning, sculling, earth_rate;
+    uint32_t renorm_every, n;
+    ins_real f_ned[3];     /* last specific force, NED, m/s^2 */
+    ins_real omega_ie[3];  /* last Earth rate, NED, rad/s */
+    ins_real omega_en[3];  /* last transport rate, NED, rad/s */
+} ins_mech_t;
+
+void ins_mech_init(ins_mech_t *m, const ins_real q[4], const ins_real v[3], ins_pos lat, ins_pos lon, ins_pos h,
+                   double t, ins_real dt);
+/* Advance by one fixed step with delta angle dth (rad, FRD) and delta velocity dv (m/s, FRD). */
+void ins_mech_step(ins_mech_t *m, const ins_real dth[3], const ins_real dv[3]);
+
+/* ------------------------------------------------------------------------ EKF */
+
+/* Mirrors ins_hil.fusion.ekf.FilterConfig (15-state layout) and the GNSS/baro
+ * part of ins_hil.core.NavConfig; ins_ekf_default_cfg() gives the same defaults. */
+typedef struct {
+    ins_real gyro_arw;     /* gyro white noise, rad/s/sqrt(Hz) */
+    ins_real accel_vrw;    /* accel white noise, m/s^2/sqrt(Hz) */
+    ins_real gyro_bias_sigma, gyro_bias_tau;   /* Gauss-Markov bias: 1-sigma (rad/s), tau (s, > 0) */
+    ins_real accel_bias_sigma, accel_bias_tau; /* same for the accelerometer (m/s^2, s) */
+    ins_real p0_pos, p0_vel, p0_att, p0_yaw, p0_bg, p0_ba; /* initial 1-sigma (m, m/s, rad, rad, rad/s, m/s^2) */
+    int second_order;      /* Phi = I + F dt + (F dt)^2 / 2 (book eq. 3.2) instead of I + F dt */
+    ins_real gate_gnss, gate_baro; /* innovation gates in sigma (per component, test ratio > 1 rejects) */
+    int gnss_reset_after;  /* after this many consecutive rejected GNSS positions: reset pos sigma and accept */
+    ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; /* floors on the reported GNSS sigmas */
+    int use_gnss_vel;
+    ins_real baro_std;     /* m */
+} ins_ekf_cfg_t;
+
+enum { INS_GRP_GNSS_POS = 0, INS_GRP_GNSS_VEL = 1, INS_GRP_BARO = 2, INS_NGRP = 3 };
+
+typedef struct {
+    ins_real P[INS_NX][INS_NX];
+    ins_real x[INS_NX];
+    ins_real bg[3], ba[3];  /* estimated gyro (rad/s) and accel (m/s^2) biases, body */
+    ins_real qc[INS_NX];    /* continuous noise densities (diagonal) */
+    ins_real inv_tau_g, inv_tau_a;
+    int second_order;
+    ins_real gate[INS_NGRP];
+    int gnss_reset_after, use_gnss_vel;
+    ins_real min_std[3];    /* GNSS NE, D, vel floors */
+    ins_real baro_std;
+    ins_pos baro_offset;    /* ellipsoid - baro datum, fixed at the first baro sample */
+    int have_baro_offset;
+    uint32_t accepted[INS_NGRP], rejected[INS_NGRP], consecutive[INS_NGRP];
+    ins_real last_ratio[INS_NGRP];
+    uint32_t n_predict;
+} ins_ekf_t;
+
+/* Default configuration: the defaults of ins_hil.fusion.ekf.FilterConfig / ins_hil.core.NavConfig. */
+void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg);
+void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg);
+/* Covariance predict over one step after ins_mech_step(): P = Phi P Phi^T + Q dt, with F from the
+ * mechanization's last f_ned, Earth/transport rates and attitude (see ekf.c). */
+void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m);
+/* Joseph-form scalar update for the residual z (measured - predicted, before x), row h, noise variance r. */
+void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r);
+/* Symmetrise P (after a group of scalar updates). */
+void ins_ekf_symmetrize(ins_ekf_t *e);
+/* Fold the error state into the navigation state and the biases, reset x. */
+void ins_ekf_feedback(ins_ekf_t *e, ins_mech_t *m);
+
+/* --------------------------------------------------------------- core (all) */
+
+typedef struct {
+    double t;
+    ins_pos lat, lon, h;
+    ins_real vel[3];      /* NED m/s, or NaN components for "no velocity" */
+    ins_real std_ne, std_d, std_vel;
+} ins_gnss_t;
+
+typedef struct {
+    ins_mech_t mech;
+    ins_ekf_t ekf;
+    int filter;           /* 0: mechanization only; 1: + EKF predict each step */
+    uint32_t steps;
+} ins_core_t;
+
+/* Flat output record of one state (for logs and the Python wrapper). */
+typedef struct {
+    double t;
+    ins_real q[4], v[3];
+    ins_pos lat, lon, h;
+    ins_real bg[3], ba[3];
+    ins_real std_pos[3], std_vel[3], std_att[3];
+} ins_out_t;
+
+void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_pos lat, ins_pos lon, ins_pos h,
+                   double t, ins_real dt, const ins_ekf_cfg_t *cfg, int filter);
+/* One IMU step: bias-correct the increments, mechanize, EKF predict (if filter). t_end: sensor time. */
+void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end);
+/* n IMU steps in one call: inc is n x 6 (dtheta, dvel), t_end is n times (or NULL: t += dt);
+ * out (n records, or NULL). */
+void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_t n, ins_out_t *out);
+/* GNSS fix: position group, feedback, then (if all vel components are finite) velocity group,
+ * feedback; each group gated (per-component test ratio), then sequential scalar Joseph updates.
+ * The position is shifted by v (t_now - g->t) to the current step. Returns a bit mask of the
+ * accepted groups (1 position, 2 velocity). */
+int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g);
+/* Baro altitude (m above its datum; the datum offset is fixed at the first sample). Returns 1 if accepted. */
+int ins_core_fuse_baro(ins_core_t *c, ins_real altitude);
+void ins_core_output(const ins_core_t *c, ins_out_t *o);
+
+/* ---------------------------------------------------------------------- FDI */
+
+/* Parity-space FDI for n redundant single-axis gyros y = A w + e (DIGEST_000
+ * section 5.1-5.2): p = U2^T y, J(k) = |p|^2 - (u_k.p)^2/|u_k|^2 (eq. 5.17
+ * corrected), isolated sensor argmin J, fault size rho = u_k.p/|u_k|^2 (5.16).
+ * U2^T is computed offline from the geometry A (tools/gen_parity.py). */
+#define INS_FDI_N 5
+#define INS_FDI_M 2
+typedef struct {
+    ins_real p[INS_FDI_M];     /* parity vector */
+    ins_real p2;               /* |p|^2 (detection statistic) */
+    ins_real J[INS_FDI_N];     /* isolation cost per candidate */
+    ins_real rho[INS_FDI_N];   /* fault size per candidate */
+    int detected;              /* p2 > threshold */
+    int isolated;              /* argmin J (0-based), -1 if not detected */
+} ins_fdi_result_t;
+
+/* The offline projector of the book's 5-gyro cone (Example 5.1): U2^T, 2 x 5. */
+void ins_fdi_cone5_u2t(ins_real u2t[INS_FDI_M * INS_FDI_N]);
+void ins_fdi_parity(const ins_real u2t[INS_FDI_M * INS_FDI_N], const ins_real y[INS_FDI_N], ins_real threshold,
+                    ins_fdi_result_t *r);
+
+/* ------------------------------------------------------------ serial frame */
+
+/* ins_hil serial IMU frame v1 (drivers/SERIAL_FRAME.md), 41 bytes little endian. */
+#define INS_FRAME_LEN 41
+typedef struct {
+    uint8_t imu_id, flags;
+    uint16_t seq, dt_us;
+    uint32_t t_us;
+    float dtheta[3], dvel[3];
+    int16_t temp_cdeg;
+} ins_frame_t;
+
+uint16_t ins_crc16_ccitt(const uint8_t *data, size_t n, uint16_t init);
+/* Decode one frame at buf (>= 41 bytes); 0 ok, -1 sync, -2 version, -3 crc. */
+int ins_frame_decode(const uint8_t *buf, ins_frame_t *f);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* INS_REF_H */

@@ -1,0 +1,146 @@
+/* The core: mechanization + EKF predict per IMU step, GNSS/baro updates. */
+#include "ins_internal.h"
+
+void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_pos lat, ins_pos lon, ins_pos h,
+                   double t, ins_real dt, const ins_ekf_cfg_t *cfg, int filter) {
+    ins_ekf_cfg_t def;
+    if (cfg == NULL) {
+        ins_ekf_default_cfg(&def);
+        cfg = &def;
+    }
+    ins_mech_init(&c->mech, q, v, lat, lon, h, t, dt);
+    ins_ekf_init(&c->ekf, cfg);
+    c->filter = filter;
+    c->steps = 0;
+}
+
+void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end) {
+    ins_real a[3], u[3];
+    const ins_real dt = c->mech.dt;
+    int i;
+    for (i = 0; i < 3; ++i) { /* bias-corrected increments (book eq. 3.45) */
+        a[i] = dth[i] - c->ekf.bg[i] * dt;
+        u[i] = dv[i] - c->ekf.ba[i] * dt;
+    }
+    ins_mech_step(&c->mech, a, u);
+    c->mech.t = t_end;
+    if (c->filter) ins_ekf_predict(&c->ekf, &c->mech);
+    c->steps++;
+}
+
+void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_t n, ins_out_t *out) {
+    size_t k;
+    for (k = 0; k < n; ++k) {
+        const double te = t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt;
+        ins_core_step(c, inc + 6 * k, inc + 6 * k + 3, te);
+        if (out != NULL) ins_core_output(c, out + k);
+    }
+}
+
+static void radii(ins_real lat, ins_real *m, ins_real *n) {
+    /* ins_hil.nav.earth.radii: seed 001 eqs. 2, 3 */
+    const ins_real sl = RSIN(lat), w2 = K(1.0) - K(INS_E2_WGS84) * sl * sl, w = RS(w2);
+    *n = K(INS_A_WGS84) / w;
+    *m = K(INS_A_WGS84) * (K(1.0) - K(INS_E2_WGS84)) / (w2 * w);
+}
+
+/* One measurement group with rows +-e_j (sign sg[i]) of the state, as NavCore._apply:
+ * per-component gate, forced acceptance of GNSS positions after a run of rejections,
+ * sequential scalar Joseph updates, symmetrise, feedback. Returns 1 if accepted. */
+static int apply_group(ins_core_t *c, int grp, int n, const int *idx, const ins_real *sg, const ins_real *z,
+                       const ins_real *r) {
+    ins_ekf_t *e = &c->ekf;
+    ins_real ratio = K(0.0), hv[INS_NX];
+    const ins_real g2 = e->gate[grp] * e->gate[grp];
+    int i, j, force;
+    for (i = 0; i < n; ++i) {
+        const ins_real s = e->P[idx[i]][idx[i]] + r[i];
+        const ins_real q = z[i] * z[i] / (g2 * s);
+        if (q > ratio || i == 0) ratio = q;
+    }
+    e->last_ratio[grp] = ratio;
+    force = grp == INS_GRP_GNSS_POS && (int)e->consecutive[grp] >= e->gnss_reset_after;
+    if (ratio > K(1.0) && !force) {
+        e->rejected[grp]++;
+        e->consecutive[grp]++;
+        return 0;
+    }
+    e->accepted[grp]++;
+    e->consecutive[grp] = 0;
+    if (force) { /* re-initialise the position uncertainty (kf.set_state_sigma("pos", ...)) */
+        for (i = 0; i < 3; ++i) {
+            const ins_real sd = RS(RFABS(z[i]) * RFABS(z[i]) + r[i]);
+            for (j = 0; j < INS_NX; ++j) e->P[i][j] = e->P[j][i] = K(0.0);
+            e->P[i][i] = sd * sd;
+        }
+    }
+    for (i = 0; i < n; ++i) {
+        for (j = 0; j < INS_NX; ++j) hv[j] = K(0.0);
+        hv[idx[i]] = sg[i];
+        ins_ekf_update_scalar(e, hv, z[i], r[i]);
+    }
+    ins_ekf_symmetrize(e);
+    ins_ekf_feedback(e, &c->mech);
+    return 1;
+}
+
+static ins_real maxr(ins_real a, ins_real b) { return a > b ? a : b; }
+
+int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
+    static const int ipos[3] = {0, 1, 2}, ivel[3] = {3, 4, 5};
+    static const ins_real plus[3] = {1, 1, 1};
+    ins_mech_t *m = &c->mech;
+    const ins_ekf_t *e = &c->ekf;
+    const ins_real sne = maxr(g->std_ne, e->min_std[0]), sd = maxr(g->std_d, e->min_std[1]);
+    const ins_real lat = (ins_real)m->lat, h = (ins_real)m->h, dtm = (ins_real)(m->t - g->t);
+    ins_real z[3], r[3], rm, rn;
+    int i, mask = 0;
+    radii(lat, &rm, &rn);
+    /* measured - computed, NED metres (seed 001 eq. 148 in metres), shifted to the step time */
+    z[0] = (ins_real)(g->lat - m->lat) * (rm + h) + m->v[0] * dtm;
+    z[1] = (ins_real)(g->lon - m->lon) * (rn + h) * RCOS(lat) + m->v[1] * dtm;
+    z[2] = -(ins_real)(g->h - m->h) + m->v[2] * dtm;
+    r[0] = r[1] = sne * sne;
+    r[2] = sd * sd;
+    if (apply_group(c, INS_GRP_GNSS_POS, 3, ipos, plus, z, r)) mask |= 1;
+    if (e->use_gnss_vel && g->vel[0] == g->vel[0] && g->vel[1] == g->vel[1] && g->vel[2] == g->vel[2]) {
+        const ins_real sv = maxr(g->std_vel, e->min_std[2]);
+        for (i = 0; i < 3; ++i) {
+            z[i] = g->vel[i] - m->v[i];
+            r[i] = sv * sv;
+        }
+        if (apply_group(c, INS_GRP_GNSS_VEL, 3, ivel, plus, z, r)) mask |= 2;
+    }
+    return mask;
+}
+
+int ins_core_fuse_baro(ins_core_t *c, ins_real altitude) {
+    static const int ih[1] = {2};
+    static const ins_real minus[1] = {-1};
+    ins_ekf_t *e = &c->ekf;
+    ins_real z, r;
+    if (!e->have_baro_offset) { /* baro datum -> ellipsoid, fixed at the first sample (as NavCore) */
+        e->baro_offset = c->mech.h - (ins_pos)altitude;
+        e->have_baro_offset = 1;
+    }
+    z = (ins_real)(((ins_pos)altitude + e->baro_offset) - c->mech.h); /* h_baro - h = -dr_D (book eq. 3.30) */
+    r = e->baro_std * e->baro_std;
+    return apply_group(c, INS_GRP_BARO, 1, ih, minus, &z, &r);
+}
+
+void ins_core_output(const ins_core_t *c, ins_out_t *o) {
+    int i;
+    o->t = c->mech.t;
+    for (i = 0; i < 4; ++i) o->q[i] = c->mech.q[i];
+    for (i = 0; i < 3; ++i) {
+        o->v[i] = c->mech.v[i];
+        o->bg[i] = c->ekf.bg[i];
+        o->ba[i] = c->ekf.ba[i];
+        o->std_pos[i] = RS(c->ekf.P[i][i]);
+        o->std_vel[i] = RS(c->ekf.P[3 + i][3 + i]);
+        o->std_att[i] = RS(c->ekf.P[6 + i][6 + i]);
+    }
+    o->lat = c->mech.lat;
+    o->lon = c->mech.lon;
+    o->h = c->mech.h;
+}

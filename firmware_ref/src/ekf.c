@@ -1,0 +1,235 @@
+/* 15-state error-state EKF: predict every IMU step, Joseph-form sequential
+ * scalar updates, feedback and reset.
+ *
+ * Mirrors ins_hil.fusion.ekf.ErrorStateEKF (15-state layout, Joseph numerics,
+ * cov_every = 1) and the feedback of ins_hil.core.NavCore, which follow
+ * DIGEST_000 section 9 (dr, dv = true - computed, C_hat = (I + [psi x]) C,
+ * bias errors = true - estimated) and the NED form of seed 001 eqs. 83-101
+ * (DIGEST_001_004 section 1.9):
+ *   d(dr)/dt  = dv
+ *   d(dv)/dt  = [f_n x] psi - (2 w_ie + w_en) x dv - C_b^n dba + (0, 0, 2 g/R dr_D)
+ *   d(psi)/dt = -w_in x psi + C_b^n dbg           (book eq. 3.40, seed 001 eq. 98)
+ *   d(db)/dt  = -db / tau + w                      (seed 001 eqs. 87/88)
+ * Phi = I + F dt + (F dt)^2 / 2 (book eq. 3.2), P = Phi P Phi^T + Q dt (book
+ * eq. 3.19) with diagonal Q: VRW^2, ARW^2, 2 sigma_b^2 / tau.
+ * Phi is never formed: Phi M = M + dt (F M) + dt^2/2 F (F M) with F applied by
+ * its block sparsity (f_mul), so a predict costs ~4 sparse products.
+ */
+#include "ins_internal.h"
+
+enum { IR = 0, IV = 3, IA = 6, IG = 9, IB = 12 };
+
+void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg) {
+    /* = ins_hil.fusion.ekf.FilterConfig() and ins_hil.core.NavConfig() */
+    const double deg = 3.14159265358979323846 / 180.0;
+    cfg->gyro_arw = K(0.15 * deg / 60.0);
+    cfg->accel_vrw = K(70e-6 * 9.80665);
+    cfg->gyro_bias_sigma = K(20.0 * deg / 3600.0);
+    cfg->gyro_bias_tau = K(300.0);
+    cfg->accel_bias_sigma = K(0.5e-3 * 9.80665);
+    cfg->accel_bias_tau = K(300.0);
+    cfg->p0_pos = K(5.0);
+    cfg->p0_vel = K(1.0);
+    cfg->p0_att = K(2.0 * deg);
+    cfg->p0_yaw = K(10.0 * deg);
+    cfg->p0_bg = K(0.3 * deg);
+    cfg->p0_ba = K(0.3);
+    cfg->second_order = 1;
+    cfg->gate_gnss = K(5.0);
+    cfg->gate_baro = K(5.0);
+    cfg->gnss_reset_after = 10;
+    cfg->gnss_min_std_ne = K(0.01);
+    cfg->gnss_min_std_d = K(0.01);
+    cfg->gnss_min_std_vel = K(0.02);
+    cfg->use_gnss_vel = 1;
+    cfg->baro_std = K(0.5);
+}
+
+void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
+    int i, j;
+    const ins_real sig[INS_NX] = {cfg->p0_pos, cfg->p0_pos, cfg->p0_pos, cfg->p0_vel, cfg->p0_vel,
+                                  cfg->p0_vel, cfg->p0_att, cfg->p0_att, cfg->p0_yaw, cfg->p0_bg,
+                                  cfg->p0_bg,  cfg->p0_bg,  cfg->p0_ba,  cfg->p0_ba,  cfg->p0_ba};
+    for (i = 0; i < INS_NX; ++i) {
+        for (j = 0; j < INS_NX; ++j) e->P[i][j] = K(0.0);
+        e->P[i][i] = sig[i] * sig[i];
+        e->x[i] = K(0.0);
+    }
+    for (i = 0; i < 3; ++i) {
+        e->bg[i] = e->ba[i] = K(0.0);
+        e->qc[IR + i] = K(0.0);
+        e->qc[IV + i] = cfg->accel_vrw * cfg->accel_vrw;
+        e->qc[IA + i] = cfg->gyro_arw * cfg->gyro_arw;
+        e->qc[IG + i] = K(2.0) * cfg->gyro_bias_sigma * cfg->gyro_bias_sigma / cfg->gyro_bias_tau;
+        e->qc[IB + i] = K(2.0) * cfg->accel_bias_sigma * cfg->accel_bias_sigma / cfg->accel_bias_tau;
+    }
+    e->inv_tau_g = K(1.0) / cfg->gyro_bias_tau;
+    e->inv_tau_a = K(1.0) / cfg->accel_bias_tau;
+    e->second_order = cfg->second_order;
+    e->gate[INS_GRP_GNSS_POS] = e->gate[INS_GRP_GNSS_VEL] = cfg->gate_gnss;
+    e->gate[INS_GRP_BARO] = cfg->gate_baro;
+    e->gnss_reset_after = cfg->gnss_reset_after;
+    e->use_gnss_vel = cfg->use_gnss_vel;
+    e->min_std[0] = cfg->gnss_min_std_ne;
+    e->min_std[1] = cfg->gnss_min_std_d;
+    e->min_std[2] = cfg->gnss_min_std_vel;
+    e->baro_std = cfg->baro_std;
+    e->baro_offset = 0.0;
+    e->have_baro_offset = 0;
+    for (i = 0; i < INS_NGRP; ++i) {
+        e->accepted[i] = e->rejected[i] = e->consecutive[i] = 0;
+        e->last_ratio[i] = K(0.0);
+    }
+    e->n_predict = 0;
+}
+
+typedef struct {
+    ins_real itg, ita, g2r;
+    ins_real vv[3][3]; /* -[(2 w_ie + w_en) x] */
+    ins_real va[3][3]; /* [f x] */
+    ins_real aa[3][3]; /* -[w_in x] */
+    ins_real c[3][3];  /* C_b^n */
+} fmat_t;
+
+/* out = F in (F block-sparse, see the file comment) */
+static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS_NX][INS_NX]) {
+    int i, j, k;
+    for (j = 0; j < INS_NX; ++j) {
+        for (i = 0; i < 3; ++i) {
+            ins_real sv = K(0.0), sa = K(0.0);
+            for (k = 0; k < 3; ++k) {
+                sv += f->vv[i][k] * in[IV + k][j] + f->va[i][k] * in[IA + k][j] - f->c[i][k] * in[IB + k][j];
+                sa += f->aa[i][k] * in[IA + k][j] + f->c[i][k] * in[IG + k][j];
+            }
+            if (i == 2) sv += f->g2r * in[IR + 2][j];
+            out[IR + i][j] = in[IV + i][j];
+            out[IV + i][j] = sv;
+            out[IA + i][j] = sa;
+            out[IG + i][j] = -f->itg * in[IG + i][j];
+            out[IB + i][j] = -f->ita * in[IB + i][j];
+        }
+    }
+}
+
+/* out = Phi in = in + dt F in (+ dt^2/2 F F in); tmp, tmp2 scratch */
+static void phi_mul(const fmat_t *f, ins_real dt, int second, ins_real in[INS_NX][INS_NX],
+                    ins_real out[INS_NX][INS_NX], ins_real tmp[INS_NX][INS_NX], ins_real tmp2[INS_NX][INS_NX]) {
+    const ins_real h2 = K(0.5) * dt * dt;
+    int i, j;
+    f_mul(f, in, tmp);
+    if (second) {
+        f_mul(f, tmp, tmp2);
+        for (i = 0; i < INS_NX; ++i)
+            for (j = 0; j < INS_NX; ++j) out[i][j] = in[i][j] + dt * tmp[i][j] + h2 * tmp2[i][j];
+    } else {
+        for (i = 0; i < INS_NX; ++i)
+            for (j = 0; j < INS_NX; ++j) out[i][j] = in[i][j] + dt * tmp[i][j];
+    }
+}
+
+static void skew_into(ins_real m[3][3], ins_real x, ins_real y, ins_real z, ins_real s) {
+    /* m = s [v x] */
+    m[0][0] = K(0.0);
+    m[0][1] = -s * z;
+    m[0][2] = s * y;
+    m[1][0] = s * z;
+    m[1][1] = K(0.0);
+    m[1][2] = -s * x;
+    m[2][0] = -s * y;
+    m[2][1] = s * x;
+    m[2][2] = K(0.0);
+}
+
+void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) {
+    fmat_t f;
+    ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX], c9[9];
+    const ins_real *wie = m->omega_ie, *wen = m->omega_en, dt = m->dt;
+    int i, j;
+    f.itg = e->inv_tau_g;
+    f.ita = e->inv_tau_a;
+    /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
+    f.g2r = K(2.0 * 9.80665 / 6371000.0);
+    skew_into(f.vv, K(2.0) * wie[0] + wen[0], wen[1], K(2.0) * wie[2] + wen[2], K(-1.0));
+    skew_into(f.va, m->f_ned[0], m->f_ned[1], m->f_ned[2], K(1.0));
+    skew_into(f.aa, wie[0] + wen[0], wen[1], wie[2] + wen[2], K(-1.0));
+    ins_dcm_from_quat(m->q, c9);
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) f.c[i][j] = c9[3 * i + j];
+    phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
+    for (i = 0; i < INS_NX; ++i)
+        for (j = 0; j < INS_NX; ++j) b[i][j] = a[j][i];
+    phi_mul(&f, dt, e->second_order, b, a, t1, t2); /* Phi (Phi P)^T = Phi P Phi^T */
+    for (i = 0; i < INS_NX; ++i) {
+        for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (a[i][j] + a[j][i]);
+        e->P[i][i] = a[i][i] + e->qc[i] * dt;
+    }
+    e->n_predict++;
+}
+
+void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {
+    /* Joseph form (book eqs. 3.16-3.18) for one scalar, as in ErrorStateEKF.update:
+     *   k = P h / (h^T P h + r); x += k (z - h^T x); P = (I - k h^T) P (I - k h^T)^T + r k k^T,
+     * evaluated as two rank-1 products: A = P - k (h^T P), P = A - (A h) k^T + r k k^T. */
+    ins_real u[INS_NX], k[INS_NX], hp[INS_NX], ah[INS_NX];
+    ins_real s = K(0.0), hx = K(0.0), innov;
+    int i, j;
+    for (i = 0; i < INS_NX; ++i) {
+        ins_real acc = K(0.0);
+        for (j = 0; j < INS_NX; ++j) acc += e->P[i][j] * h[j];
+        u[i] = acc; /* P h */
+    }
+    for (i = 0; i < INS_NX; ++i) {
+        s += h[i] * u[i];
+        hx += h[i] * e->x[i];
+    }
+    s += r;
+    innov = z - hx;
+    for (i = 0; i < INS_NX; ++i) {
+        k[i] = u[i] / s; /* book eq. 3.17 */
+        e->x[i] += k[i] * innov;
+    }
+    for (j = 0; j < INS_NX; ++j) {
+        ins_real acc = K(0.0);
+        for (i = 0; i < INS_NX; ++i) acc += h[i] * e->P[i][j];
+        hp[j] = acc; /* h^T P */
+    }
+    for (i = 0; i < INS_NX; ++i)
+        for (j = 0; j < INS_NX; ++j) e->P[i][j] -= k[i] * hp[j];
+    for (i = 0; i < INS_NX; ++i) {
+        ins_real acc = K(0.0);
+        for (j = 0; j < INS_NX; ++j) acc += e->P[i][j] * h[j];
+        ah[i] = acc; /* A h */
+    }
+    for (i = 0; i < INS_NX; ++i)
+        for (j = 0; j < INS_NX; ++j) e->P[i][j] += -ah[i] * k[j] + r * k[i] * k[j];
+}
+
+void ins_ekf_symmetrize(ins_ekf_t *e) {
+    int i, j;
+    for (i = 0; i < INS_NX; ++i)
+        for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (e->P[i][j] + e->P[j][i]);
+}
+
+void ins_ekf_feedback(ins_ekf_t *e, ins_mech_t *m) {
+    /* NavCore._feedback, operation by operation (radii at the old latitude, cos at the new one) */
+    const ins_real lat = (ins_real)m->lat, h = (ins_real)m->h;
+    const ins_real sl = RSIN(lat), w2 = K(1.0) - K(INS_E2_WGS84) * sl * sl, w = RS(w2);
+    const ins_real rn = K(INS_A_WGS84) / w, rm = K(INS_A_WGS84) * (K(1.0) - K(INS_E2_WGS84)) / (w2 * w);
+    ins_real dq[4], q[4], mpsi[3];
+    int i;
+    m->lat += (ins_pos)(e->x[IR + 0] / (rm + h));
+    m->lon += (ins_pos)(e->x[IR + 1] / ((rn + h) * RCOS((ins_real)m->lat)));
+    m->h -= (ins_pos)e->x[IR + 2];
+    for (i = 0; i < 3; ++i) {
+        m->v[i] += e->x[IV + i];
+        mpsi[i] = -e->x[IA + i];
+        e->bg[i] += e->x[IG + i];
+        e->ba[i] += e->x[IB + i];
+    }
+    /* attitude: C <- (I - [psi x]) C_hat, i.e. q <- q(-psi) (x) q (DIGEST_000 section 9);
+     * not renormalised here: the next mechanization step renormalises */
+    ins_quat_from_rotvec(mpsi, dq);
+    ins_quat_mul(dq, m->q, q);
+    for (i = 0; i < 4; ++i) m->q[i] = q[i];
+    for (i = 0; i < INS_NX; ++i) e->x[i] = K(0.0);
+}

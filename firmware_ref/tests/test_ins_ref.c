@@ -1,0 +1,303 @@
+/* C unit tests of the reference core; built in the double and the float configuration
+ * (tolerances scale with the scalar type). Exit status = number of failed checks. */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "ins_ref.h"
+
+#ifdef INS_REF_FLOAT
+#define EPS 1e-5
+#else
+#define EPS 1e-12
+#endif
+
+static int failures = 0, checks = 0;
+#define CHECK(cond, ...)                                        \
+    do {                                                        \
+        checks++;                                               \
+        if (!(cond)) {                                          \
+            failures++;                                         \
+            printf("FAIL %s:%d: ", __FILE__, __LINE__);         \
+            printf(__VA_ARGS__);                                \
+            printf("\n");                                       \
+        }                                                       \
+    } while (0)
+
+static const double PI = 3.14159265358979323846;
+
+static void test_quat(void) {
+    const ins_real rpy[3] = {(ins_real)0.3, (ins_real)-0.2, (ins_real)2.5};
+    ins_real q[4], c[9], q2[4], e[3], p[4], r[4], s[4], t[4], u[4];
+    int i, j, k;
+    ins_quat_from_euler(rpy, q);
+    ins_dcm_from_quat(q, c);
+    for (i = 0; i < 3; ++i) /* C C^T = I */
+        for (j = 0; j < 3; ++j) {
+            double acc = 0.0;
+            for (k = 0; k < 3; ++k) acc += (double)(c[3 * i + k] * c[3 * j + k]);
+            CHECK(fabs(acc - (i == j)) < 10 * EPS, "C C^T [%d][%d] = %g", i, j, acc);
+        }
+    /* book eq. 2.12: C31 = -sin(pitch), C21 = cos(pitch) sin(yaw) */
+    CHECK(fabs((double)c[6] + sin(-0.2)) < 10 * EPS, "C31");
+    CHECK(fabs((double)c[3] - cos(-0.2) * sin(2.5)) < 10 * EPS, "C21");
+    ins_quat_from_dcm(c, q2);
+    for (i = 0; i < 4; ++i) CHECK(fabs((double)(q2[i] - q[i])) < 10 * EPS, "quat_from_dcm %d", i);
+    ins_euler_from_quat(q, e);
+    for (i = 0; i < 3; ++i) CHECK(fabs((double)(e[i] - rpy[i])) < 10 * EPS, "euler %d", i);
+    /* associativity and rotvec composition about one axis */
+    {
+        const ins_real a[3] = {(ins_real)0.1, (ins_real)0.2, (ins_real)-0.3};
+        const ins_real b[3] = {(ins_real)0.2, (ins_real)0.4, (ins_real)-0.6};
+        ins_quat_from_rotvec(a, p);
+        ins_quat_mul(p, p, r);
+        ins_quat_from_rotvec(b, s);
+        for (i = 0; i < 4; ++i) CHECK(fabs((double)(r[i] - s[i])) < 10 * EPS, "rotvec compose %d", i);
+        ins_quat_mul(r, q, t);
+        ins_quat_mul(p, q, u);
+        ins_quat_mul(p, u, s);
+        for (i = 0; i < 4; ++i) CHECK(fabs((double)(t[i] - s[i])) < 10 * EPS, "assoc %d", i);
+    }
+}
+
+static void test_book_attitude(void) {
+    /* constant rate about a fixed axis (book Ex 2.1): eq. 2.18/2.19 error per step ~ chi^5/720 */
+    const ins_real q0[4] = {1, 0, 0, 0};
+    const ins_real w[3] = {(ins_real)0.6, (ins_real)-0.3, (ins_real)0.2};
+    const double dt = 0.01, T = 10.0;
+    ins_book_att_t a;
+    ins_real q[4], qe[4], rv[3];
+    int i, n = (int)(T / dt + 0.5);
+    ins_book_att_init(&a, q0, (ins_real)dt);
+    for (i = 0; i < n; ++i) ins_book_att_step(&a, w);
+    ins_book_att_quat(&a, q);
+    for (i = 0; i < 3; ++i) rv[i] = (ins_real)(w[i] * T);
+    ins_quat_from_rotvec(rv, qe);
+    ins_quat_normalize(qe); /* same sign convention (q0 >= 0) */
+#ifdef INS_REF_FLOAT
+    for (i = 0; i < 4; ++i) CHECK(fabs((double)(q[i] - qe[i])) < 2e-5, "book att %d: %g vs %g", i, q[i], qe[i]);
+#else
+    for (i = 0; i < 4; ++i) CHECK(fabs((double)(q[i] - qe[i])) < 5e-11, "book att %d: %.17g vs %.17g", i, q[i], qe[i]);
+#endif
+    /* with a coning motion the (th_i x th_{i-1})/24 term matters: compare with a 1/100-step reference */
+    {
+        ins_book_att_t c, f;
+        ins_real qc[4], qf[4], wc[3];
+        const double om = 2 * PI * 2.0, amp = 0.05;
+        int k, j;
+        double err = 0.0;
+        ins_book_att_init(&c, q0, (ins_real)0.01);
+        ins_book_att_init(&f, q0, (ins_real)0.0001);
+        for (k = 1; k <= 100; ++k) {
+            for (j = 1; j <= 100; ++j) {
+                const double t = (k - 1) * 0.01 + j * 0.0001;
+                wc[0] = (ins_real)(-amp * amp * om / 2.0); /* classical coning body rate */
+                wc[1] = (ins_real)(-amp * om * sin(om * t));
+                wc[2] = (ins_real)(amp * om * cos(om * t));
+                ins_book_att_step(&f, wc);
+            }
+            {
+                const double t = k * 0.01;
+                wc[0] = (ins_real)(-amp * amp * om / 2.0);
+                wc[1] = (ins_real)(-amp * om * sin(om * t));
+                wc[2] = (ins_real)(amp * om * cos(om * t));
+                ins_book_att_step(&c, wc);
+            }
+        }
+        ins_book_att_quat(&c, qc);
+        ins_book_att_quat(&f, qf);
+        for (j = 0; j < 4; ++j) err += fabs((double)(qc[j] - qf[j]));
+        /* the Euler start-up step (the book leaves it open) costs ~dt^2 |dw/dt| / 2 = 4e-4 rad */
+        CHECK(err < 1e-3, "book att coning: coarse vs fine differ by %g", err);
+    }
+}
+
+static void static_increments(double lat, double dt, ins_real dth[3], ins_real dv[3]) {
+    /* level, north-pointing, at rest: body senses Earth rate and -g (FRD, z down) */
+    const double e2 = (1.0 / 298.257223563) * (2.0 - 1.0 / 298.257223563);
+    const double s2 = sin(lat) * sin(lat);
+    const double b = 6378137.0 * (1.0 - 1.0 / 298.257223563);
+    const double k = b * 9.8321849378 / (6378137.0 * 9.7803253359) - 1.0;
+    const double g = 9.7803253359 * (1.0 + k * s2) / sqrt(1.0 - e2 * s2);
+    dth[0] = (ins_real)(7.292115e-5 * cos(lat) * dt);
+    dth[1] = (ins_real)0.0;
+    dth[2] = (ins_real)(-7.292115e-5 * sin(lat) * dt);
+    dv[0] = dv[1] = (ins_real)0.0;
+    dv[2] = (ins_real)(-g * dt);
+}
+
+static void test_mech_static(void) {
+    const double lat = 50.0 * PI / 180.0, dt = 0.005;
+    const ins_real q0[4] = {1, 0, 0, 0}, v0[3] = {0, 0, 0};
+    ins_real dth[3], dv[3];
+    ins_mech_t m;
+    int i;
+    double vmax = 0.0;
+    ins_mech_init(&m, q0, v0, lat, 0.5, 0.0, 0.0, (ins_real)dt);
+    static_increments(lat, dt, dth, dv);
+    for (i = 0; i < 12000; ++i) { /* 60 s */
+        ins_mech_step(&m, dth, dv);
+        if (fabs((double)m.v[0]) > vmax) vmax = fabs((double)m.v[0]);
+        if (fabs((double)m.v[1]) > vmax) vmax = fabs((double)m.v[1]);
+        if (fabs((double)m.v[2]) > vmax) vmax = fabs((double)m.v[2]);
+    }
+#ifdef INS_REF_FLOAT
+    CHECK(vmax < 2e-2, "static velocity drift %g m/s", vmax);
+#else
+    CHECK(vmax < 1e-6, "static velocity drift %g m/s", vmax);
+    CHECK(fabs(m.lat - lat) < 1e-12 && fabs(m.h) < 1e-4, "static position drift lat %g h %g", m.lat - lat, m.h);
+#endif
+    CHECK(fabs(m.t - 60.0) < 1e3 * EPS, "time %g", m.t); /* float: dt = 0.005f is 1e-10 s short */
+    CHECK(fabs((double)m.q[0] - 1.0) < 1e-6, "attitude q0 %g", (double)m.q[0]);
+}
+
+static void test_ekf(void) {
+    ins_ekf_cfg_t cfg;
+    ins_core_t c;
+    ins_real dth[3], dv[3];
+    const ins_real q0[4] = {1, 0, 0, 0}, v0[3] = {0, 0, 0};
+    const double lat = 50.0 * PI / 180.0, dt = 0.01;
+    ins_gnss_t g;
+    int i, j, k;
+    ins_ekf_default_cfg(&cfg);
+    /* start 20 m north, 3 m/s east and 10 m low of the truth (at rest, level) */
+    ins_core_init(&c, q0, v0, lat + 20.0 / 6371000.0, 0.5, -10.0, 0.0, (ins_real)dt, &cfg, 1);
+    c.mech.v[1] = (ins_real)3.0;
+    static_increments(lat, dt, dth, dv);
+    g.lat = lat;
+    g.lon = 0.5;
+    g.h = 0.0;
+    g.vel[0] = g.vel[1] = g.vel[2] = (ins_real)0.0;
+    g.std_ne = (ins_real)0.5;
+    g.std_d = (ins_real)1.0;
+    g.std_vel = (ins_real)0.05;
+    for (k = 0; k < 60; ++k) { /* 60 s, GNSS at 1 Hz */
+        for (i = 0; i < 100; ++i) ins_core_step(&c, dth, dv, c.mech.t + dt);
+        for (i = 0; i < INS_NX; ++i) {
+            CHECK(c.ekf.P[i][i] > 0, "P[%d][%d] = %g not positive", i, i, (double)c.ekf.P[i][i]);
+            for (j = 0; j < i; ++j) CHECK(c.ekf.P[i][j] == c.ekf.P[j][i], "P not symmetric");
+        }
+        g.t = c.mech.t;
+        CHECK(ins_core_fuse_gnss(&c, &g) == 3, "position and velocity accepted");
+    }
+    CHECK(fabs(c.mech.lat - lat) * 6371000.0 < 1.0, "north error after GNSS %g m", (c.mech.lat - lat) * 6371000.0);
+    CHECK(fabs(c.mech.h) < 1.0, "height error after GNSS %g m", c.mech.h);
+    CHECK(fabs((double)c.mech.v[1]) < 0.1, "east velocity after GNSS %g", (double)c.mech.v[1]);
+    CHECK((double)c.ekf.P[0][0] < 1.0, "P_NN after GNSS %g", (double)c.ekf.P[0][0]);
+    /* baro: the first sample fixes the datum; later ones pull the height to it; a jump is gated out */
+    CHECK(ins_core_fuse_baro(&c, (ins_real)0.0) == 1, "first baro accepted");
+    {
+        const double datum = c.ekf.baro_offset;
+        c.mech.h += 2.0;
+        for (k = 0; k < 20; ++k) ins_core_fuse_baro(&c, (ins_real)0.0);
+        CHECK(fabs(c.mech.h - datum) < 0.5, "height after baro %g (datum %g)", c.mech.h, datum);
+        CHECK(ins_core_fuse_baro(&c, (ins_real)50.0) == 0 && c.ekf.rejected[INS_GRP_BARO] == 1, "baro jump gated");
+        CHECK(fabs(c.mech.h - datum) < 0.5, "height after the rejected jump %g", c.mech.h);
+    }
+    /* GNSS positions rejected gnss_reset_after times in a row are then accepted (position re-initialised) */
+    g.lat = lat + 500.0 / 6371000.0;
+    for (k = 0; k < cfg.gnss_reset_after; ++k) CHECK((ins_core_fuse_gnss(&c, &g) & 1) == 0, "jump %d rejected", k);
+    CHECK((ins_core_fuse_gnss(&c, &g) & 1) == 1, "accepted after %d rejections", cfg.gnss_reset_after);
+    CHECK(fabs(c.mech.lat - g.lat) * 6371000.0 < 1.0, "reset to the GNSS position");
+
+    /* Joseph update equals the conventional P - P h h^T P / s for an optimal gain */
+    {
+        ins_ekf_t e;
+        ins_real hv[INS_NX], u[INS_NX], Pc[INS_NX][INS_NX];
+        double s = 0.3, maxd = 0.0;
+        ins_ekf_init(&e, &cfg);
+        for (i = 0; i < INS_NX; ++i)
+            for (j = 0; j < INS_NX; ++j) e.P[i][j] += (ins_real)(0.01 * cos((double)(i + j)) * (i == j ? 10.0 : 1.0));
+        for (i = 0; i < INS_NX; ++i) hv[i] = (ins_real)(i % 4 == 0 ? 1.0 : (i % 3 == 0 ? -0.5 : 0.0));
+        for (i = 0; i < INS_NX; ++i) {
+            double acc = 0.0;
+            for (j = 0; j < INS_NX; ++j) acc += (double)(e.P[i][j] * hv[j]);
+            u[i] = (ins_real)acc;
+            s += acc * (double)hv[i];
+        }
+        for (i = 0; i < INS_NX; ++i)
+            for (j = 0; j < INS_NX; ++j) Pc[i][j] = (ins_real)((double)e.P[i][j] - (double)(u[i] * u[j]) / s);
+        ins_ekf_update_scalar(&e, hv, (ins_real)0.1, (ins_real)0.3);
+        for (i = 0; i < INS_NX; ++i)
+            for (j = 0; j < INS_NX; ++j)
+                if (fabs((double)(e.P[i][j] - Pc[i][j])) > maxd) maxd = fabs((double)(e.P[i][j] - Pc[i][j]));
+        CHECK(maxd < 1e3 * EPS, "Joseph vs conventional %g", maxd);
+    }
+}
+
+static void test_fdi(void) {
+    /* book Example 5.1 / Table 5.1: J = (5 -+ sqrt 5)/20 off the diagonal, 0 on it */
+    static const double AT[3][5] = {{0.97204, -0.60075, 0.0, 0.0, -0.60075},
+                                    {0.0, -0.77653, 0.47992, -0.47992, 0.77653},
+                                    {-0.23482, -0.18997, 0.87731, 0.87731, -0.18997}};
+    const double w[3] = {1.0, 2.0, 3.0}, lo = (5.0 - sqrt(5.0)) / 20.0, hi = (5.0 + sqrt(5.0)) / 20.0;
+    ins_real u2t[INS_FDI_M * INS_FDI_N], y[INS_FDI_N];
+    ins_fdi_result_t r;
+    int i, j, k;
+    ins_fdi_cone5_u2t(u2t);
+    for (j = 0; j < INS_FDI_N; ++j) {
+        for (i = 0; i < INS_FDI_N; ++i) y[i] = (ins_real)(AT[0][i] * w[0] + AT[1][i] * w[1] + AT[2][i] * w[2] + (i == j));
+        ins_fdi_parity(u2t, y, (ins_real)0.01, &r);
+        CHECK(r.detected && r.isolated == j, "Table 5.1 row %d isolated %d", j + 1, r.isolated);
+        CHECK(fabs((double)r.rho[j] - 1.0) < 1e-4, "rho %g", (double)r.rho[j]);
+        for (k = 0; k < INS_FDI_N; ++k) {
+            const int d = (k - j + 5) % 5;
+            const double want = d == 0 ? 0.0 : (d == 1 || d == 4 ? lo : hi);
+            CHECK(fabs((double)r.J[k] - want) < 1e-4, "J(k_%d)[%d] = %g, want %g", j + 1, k + 1, (double)r.J[k], want);
+        }
+    }
+    for (i = 0; i < INS_FDI_N; ++i) y[i] = (ins_real)(AT[0][i] * w[0] + AT[1][i] * w[1] + AT[2][i] * w[2]);
+    ins_fdi_parity(u2t, y, (ins_real)0.01, &r);
+    CHECK(!r.detected && r.isolated == -1 && r.p2 < 1e-8, "healthy: p2 = %g", (double)r.p2);
+}
+
+static void test_frame(void) {
+    uint8_t buf[INS_FRAME_LEN];
+    const float dth[3] = {0.001f, -0.002f, 0.003f}, dv[3] = {0.01f, 0.02f, -0.049f};
+    ins_frame_t f;
+    uint16_t crc;
+    int i;
+    CHECK(ins_crc16_ccitt((const uint8_t *)"123456789", 9, 0xFFFF) == 0x29B1, "CRC check value");
+    memset(buf, 0, sizeof buf);
+    buf[0] = 0xA5;
+    buf[1] = 0x5A;
+    buf[2] = 1;
+    buf[3] = 2;
+    buf[4] = 0x34;
+    buf[5] = 0x12;
+    buf[6] = 0x40;
+    buf[7] = 0x42;
+    buf[8] = 0x0F;
+    buf[10] = 0x88;
+    buf[11] = 0x13;
+    for (i = 0; i < 3; ++i) {
+        memcpy(buf + 12 + 4 * i, &dth[i], 4);
+        memcpy(buf + 24 + 4 * i, &dv[i], 4);
+    }
+    buf[36] = 0xC4;
+    buf[37] = 0x09;
+    buf[38] = 4;
+    crc = ins_crc16_ccitt(buf + 2, 37, 0xFFFF);
+    buf[39] = (uint8_t)(crc & 0xFF);
+    buf[40] = (uint8_t)(crc >> 8);
+    CHECK(ins_frame_decode(buf, &f) == 0, "decode ok");
+    CHECK(f.imu_id == 2 && f.seq == 0x1234 && f.t_us == 1000000u && f.dt_us == 5000 && f.flags == 4, "fields");
+    CHECK(f.temp_cdeg == 2500 && f.dtheta[2] == 0.003f && f.dvel[2] == -0.049f, "payload");
+    buf[20] ^= 1;
+    CHECK(ins_frame_decode(buf, &f) == -3, "crc error detected");
+    buf[2] = 2;
+    CHECK(ins_frame_decode(buf, &f) == -2, "version error detected");
+    buf[0] = 0;
+    CHECK(ins_frame_decode(buf, &f) == -1, "sync error detected");
+}
+
+int main(void) {
+    test_quat();
+    test_book_attitude();
+    test_mech_static();
+    test_ekf();
+    test_fdi();
+    test_frame();
+    printf("ins_ref tests (%d-bit scalar): %d checks, %d failed\n", INS_REF_SCALAR_BITS, checks, failures);
+    return failures != 0;
+}

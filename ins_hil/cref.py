@@ -1,0 +1,337 @@
+"""The C99 reference core (``firmware_ref/``) behind the :class:`ins_hil.core.NavCore` interface.
+
+``CNavCore(initial)`` has the same ``step(imu) -> NavState``, ``fuse(meas)`` and
+``state()`` as the Python ``NavCore``, so the runtime and replay can run on
+either core (``make_core("python" | "c", initial)``). The C sources are
+compiled at install time by cffi (``firmware_ref/cffi_build.py``) into
+``ins_hil._cref`` (double) and ``ins_hil._cref_f32`` (float).
+
+The C filter mirrors ``ins_hil.fusion`` (15 states, Joseph sequential scalar
+updates, the same gates and feedback) for the ``NavConfig`` settings it
+supports (others raise ``ValueError`` naming them): GNSS position/velocity
+without lever arm and baro; no magnetometer (ignored), adaptive R, NHC/ZUPT,
+alignment or delayed-fusion roll-back (a fix from the past is shifted by v·Δt
+and fused at the current step; NavCore rolls back instead).
+
+The C core steps at a fixed period, set at initialisation (``dt``, or the first
+sample's ``dt``); a sample whose ``dt`` differs from it by more than
+``dt_tolerance`` (relative) is rejected with ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import numpy as np
+
+from ins_hil.core import NavConfig
+from ins_hil.nav.mechanization import StrapdownState
+from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
+
+Precision = Literal["double", "float"]
+
+
+def _lib(precision: Precision) -> tuple[Any, Any]:
+    try:
+        if precision == "double":
+            from ins_hil import _cref as mod  # type: ignore[attr-defined]
+        elif precision == "float":
+            from ins_hil import _cref_f32 as mod  # type: ignore[attr-defined]
+        else:
+            raise ValueError(f"precision must be 'double' or 'float', not {precision!r}")
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise ImportError(
+            "the C reference core extension (ins_hil._cref) is not built: reinstall the package "
+            "(pip install -e .) with a C compiler and cffi available"
+        ) from exc
+    return mod.ffi, mod.lib
+
+
+def available() -> bool:
+    """True if the compiled C core can be imported."""
+    try:
+        _lib("double")
+    except ImportError:
+        return False
+    return True
+
+
+def _c_config(ffi: Any, cfg: NavConfig) -> Any:
+    """The C filter configuration from a NavConfig; ValueError for what the C core lacks."""
+    f = cfg.filter
+    unsupported = {
+        "filter.gyro_bias": not f.gyro_bias,
+        "filter.accel_bias": not f.accel_bias,
+        "filter.scale_factors": f.scale_factors,
+        "filter.numerics": f.numerics != "joseph",
+        "filter.cov_every": f.cov_every != 1,
+        "filter.earth_terms": not f.earth_terms,
+        "gnss_lever_arm_b": bool(np.any(np.asarray(cfg.gnss_lever_arm_b) != 0.0)),
+        "gnss_std_scale": cfg.gnss_std_scale != 1.0,
+        "adaptive": cfg.adaptive,
+        "nhc": cfg.nhc,
+        "zupt": cfg.zupt,
+        "mag_ref_ned": cfg.mag_ref_ned is not None,
+        "align": cfg.align != "given",
+    }
+    bad = [k for k, v in unsupported.items() if v]
+    if bad:
+        raise ValueError(f"CNavCore: NavConfig setting(s) not supported by the C core: {', '.join(bad)}")
+    c = ffi.new("ins_ekf_cfg_t *")
+    pairs = {
+        "gyro_arw": f.gyro_arw,
+        "accel_vrw": f.accel_vrw,
+        "gyro_bias_sigma": f.gyro_bias_sigma,
+        "gyro_bias_tau": f.gyro_bias_tau,
+        "accel_bias_sigma": f.accel_bias_sigma,
+        "accel_bias_tau": f.accel_bias_tau,
+        "p0_pos": f.init_pos,
+        "p0_vel": f.init_vel,
+        "p0_att": f.init_att,
+        "p0_yaw": f.init_yaw,
+        "p0_bg": f.init_gyro_bias,
+        "p0_ba": f.init_accel_bias,
+        "gate_gnss": cfg.gate_gnss,
+        "gate_baro": cfg.gate_baro,
+        "gnss_min_std_ne": cfg.gnss_min_std[0],
+        "gnss_min_std_d": cfg.gnss_min_std[1],
+        "gnss_min_std_vel": cfg.gnss_min_std[2],
+        "baro_std": cfg.baro_std,
+    }
+    for name, value in pairs.items():
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"CNavCore: config value {name}={value!r} must be finite and >= 0")
+        setattr(c, name, float(value))
+    for name in ("gyro_bias_tau", "accel_bias_tau"):
+        if not pairs[name] > 0.0:
+            raise ValueError(f"CNavCore: filter.{name}={pairs[name]!r} must be > 0")
+    c.second_order = 1 if f.second_order else 0
+    c.gnss_reset_after = int(cfg.gnss_reset_after)
+    c.use_gnss_vel = 1 if cfg.use_gnss_vel else 0
+    return c
+
+
+_GROUPS = ("gnss_pos", "gnss_vel", "baro")
+
+
+#: columns of CNavCore.run's output array
+RUN_COLUMNS = ("t", "q0", "q1", "q2", "q3", "vN", "vE", "vD", "lat", "lon", "h")
+
+
+class CNavCore:
+    """The C reference core with the ``NavCore`` interface.
+
+    initial: the starting state (as for ``NavCore``). dt: the fixed step (s);
+    None = take it from the first IMU sample. precision: ``"double"`` or
+    ``"float"`` (the C scalar type). filter: run the 15-state EKF predict on
+    every step (needed for ``fuse``); False = mechanization only.
+    """
+
+    def __init__(
+        self,
+        initial: StrapdownState,
+        config: NavConfig | None = None,
+        *,
+        dt: float | None = None,
+        precision: Precision = "double",
+        filter: bool = True,
+        dt_tolerance: float = 0.05,
+    ) -> None:
+        self._ffi, self._lib_ = _lib(precision)
+        self.precision = precision
+        self.filter = filter
+        self.cfg = config if config is not None else NavConfig()
+        self.dt_tolerance = dt_tolerance
+        self._initial = initial.copy()
+        self._core = self._ffi.new("ins_core_t *")
+        self._out = self._ffi.new("double[26]")
+        self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
+        self._cfg = _c_config(self._ffi, self.cfg)
+        self._omega_b = np.zeros(3)
+        self._f_b = np.zeros(3)
+        self._ratios: dict[str, float] = {}
+        self._events: list[FaultEvent] = []
+        self.dt: float | None = None
+        if dt is not None:
+            self._init(dt)
+
+    def _init(self, dt: float) -> None:
+        if not (dt > 0.0 and math.isfinite(dt)):
+            raise ValueError(f"CNavCore: the fixed step dt must be positive, got {dt!r}")
+        s = self._initial
+        q = np.ascontiguousarray(s.q_nb, dtype=np.float64)
+        v = np.ascontiguousarray(s.vel_ned, dtype=np.float64)
+        ffi = self._ffi
+        self._lib_.cref_init(
+            self._core,
+            ffi.from_buffer("double[]", q),
+            ffi.from_buffer("double[]", v),
+            s.lat,
+            s.lon,
+            s.h,
+            s.t,
+            dt,
+            self._cfg,
+            1 if self.filter else 0,
+        )
+        self.dt = dt
+
+    def step(self, imu: ImuSample) -> NavState:
+        """Propagate with one IMU interval (mechanization + EKF predict); returns the state."""
+        if self.dt is None:
+            self._init(imu.dt)
+        elif abs(imu.dt - self.dt) > self.dt_tolerance * self.dt:
+            raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
+        ffi = self._ffi
+        dth, dv = imu.dtheta, imu.dvel
+        if dth.dtype != np.float64 or not dth.flags.c_contiguous:
+            dth = np.ascontiguousarray(dth, dtype=np.float64)
+        if dv.dtype != np.float64 or not dv.flags.c_contiguous:
+            dv = np.ascontiguousarray(dv, dtype=np.float64)
+        self._lib_.cref_step(self._core, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t)
+        st = self.state()
+        # bias-compensated rate and specific force of this interval (as NavCore)
+        self._omega_b = (dth - st.gyro_bias * imu.dt) / imu.dt
+        self._f_b = (dv - st.accel_bias * imu.dt) / imu.dt
+        st.omega_b = self._omega_b
+        st.accel_b = self._f_b
+        return st
+
+    def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
+        """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.
+
+        Gated like NavCore (per-component test ratio, ``gate_gnss``/``gate_baro``); a fix
+        valid at an earlier time is shifted by v·Δt (no roll-back in the C core).
+        Magnetometer samples are ignored (no magnetometer update in the C core).
+        """
+        if self.dt is None or not self.filter:
+            return None
+        e = self._core.ekf
+        before = [int(e.rejected[i]) for i in range(3)]
+        cons = [int(e.consecutive[i]) for i in range(3)]
+        if isinstance(meas, GnssFix):
+            vel = meas.vel_ned if meas.vel_ned is not None else np.full(3, np.nan)
+            vel = np.ascontiguousarray(vel, dtype=np.float64)
+            for name in ("std_ne", "std_d", "std_vel"):
+                sd = getattr(meas, name)
+                if not sd >= 0.0:
+                    raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
+            self._lib_.cref_fuse_gnss(
+                self._core,
+                meas.t,
+                meas.lat,
+                meas.lon,
+                meas.h,
+                self._ffi.from_buffer("double[]", vel),
+                meas.std_ne,
+                meas.std_d,
+                meas.std_vel,
+            )
+            groups = (0, 1) if meas.vel_ned is not None and self.cfg.use_gnss_vel else (0,)
+        elif isinstance(meas, BaroSample):
+            alt = meas.altitude
+            if not math.isfinite(alt):
+                if not meas.pressure > 0.0:
+                    return None
+                from ins_hil.sim.sensors import altitude_from_pressure
+
+                alt = altitude_from_pressure(meas.pressure)
+            self._lib_.cref_fuse_baro(self._core, alt)
+            groups = (2,)
+        else:
+            return None
+        ratios = dict(self._ratios)
+        for g in groups:
+            kind = _GROUPS[g]
+            ratios[kind] = float(e.last_ratio[g])
+            sensor = "gnss" if kind.startswith("gnss") else "baro"
+            if int(e.rejected[g]) > before[g] and cons[g] == 0:
+                self._events.append(
+                    FaultEvent(meas.t, sensor, FaultMode.JUMP, float("nan"), True, False,
+                               f"{kind} innovation test ratio {ratios[kind]:.2f}")
+                )  # fmt: skip
+            elif int(e.consecutive[g]) == 0 and cons[g] > 0:
+                self._events.append(
+                    FaultEvent(meas.t, sensor, FaultMode.JUMP, 0.0, True, True,
+                               f"{kind} accepted again after {cons[g]} rejections")
+                )  # fmt: skip
+        self._ratios = ratios
+        return None
+
+    def drain_events(self) -> list[FaultEvent]:
+        """GNSS/baro fault events raised by the innovation gates since the last call."""
+        ev, self._events = self._events, []
+        return ev
+
+    def state(self) -> NavState:
+        """The current navigation state (biases and 1-σ from the C filter)."""
+        if self.dt is None:
+            s = self._initial
+            return NavState(t=s.t, q_nb=s.q_nb.copy(), vel_ned=s.vel_ned.copy(), lat=s.lat, lon=s.lon, h=s.h)
+        self._lib_.cref_state(self._core, self._out)
+        o = self._out_np.copy()
+        return NavState(
+            t=float(o[0]),
+            q_nb=o[1:5],
+            vel_ned=o[5:8],
+            lat=float(o[8]),
+            lon=float(o[9]),
+            h=float(o[10]),
+            gyro_bias=o[11:14],
+            accel_bias=o[14:17],
+            std_pos=o[17:20],
+            std_vel=o[20:23],
+            std_att=o[23:26],
+            omega_b=self._omega_b,
+            accel_b=self._f_b,
+            aligned=bool(o[25] < self.cfg.aligned_yaw_std),
+            test_ratios=self._ratios,
+        )
+
+    def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1) -> Vec:
+        """Run a whole log of n IMU intervals in ONE C call (the core must have its dt).
+
+        dtheta, dvel: (n, 3) increments (rad, m/s, body FRD); t_end: (n,) sensor times or None
+        (t advances by dt). Returns an (n, 11) array of states, columns ``RUN_COLUMNS``
+        (every=0: no output, returns an empty array).
+        """
+        if self.dt is None:
+            raise ValueError("CNavCore.run: the fixed step is unknown; pass dt to the constructor")
+        dtheta = np.asarray(dtheta, dtype=np.float64)
+        dvel = np.asarray(dvel, dtype=np.float64)
+        if dtheta.ndim != 2 or dtheta.shape[1] != 3 or dvel.shape != dtheta.shape:
+            raise ValueError(f"CNavCore.run: dtheta and dvel must both be (n, 3), got {dtheta.shape} and {dvel.shape}")
+        n = dtheta.shape[0]
+        inc = np.ascontiguousarray(np.hstack((dtheta, dvel)))
+        ffi = self._ffi
+        tp = ffi.NULL
+        if t_end is not None:
+            t_arr = np.ascontiguousarray(t_end, dtype=np.float64)
+            if t_arr.shape != (n,):
+                raise ValueError(f"CNavCore.run: t_end must be ({n},), got {t_arr.shape}")
+            tp = ffi.from_buffer("double[]", t_arr)
+        if every == 0:
+            self._lib_.cref_run(self._core, ffi.from_buffer("double[]", inc), tp, n, ffi.NULL, 0)
+            return np.empty((0, len(RUN_COLUMNS)))
+        out = np.empty((n, len(RUN_COLUMNS)))
+        self._lib_.cref_run(
+            self._core, ffi.from_buffer("double[]", inc), tp, n, ffi.from_buffer("double[]", out), len(RUN_COLUMNS)
+        )
+        return out[every - 1 :: every] if every > 1 else out
+
+    def covariance(self) -> Vec:
+        """The EKF covariance P (15 × 15; order δr NED, δv NED, ψ NED, δb_g, δb_a)."""
+        p = self._core.ekf.P
+        return np.array([[float(p[i][j]) for j in range(15)] for i in range(15)])
+
+
+def make_core(kind: str, initial: StrapdownState, config: NavConfig | None = None, **kwargs: Any) -> Any:
+    """The navigation core by name: ``"python"`` (ins_hil.core.NavCore) or ``"c"`` (CNavCore)."""
+    if kind == "python":
+        from ins_hil.core import NavCore
+
+        return NavCore(initial, config)
+    if kind == "c":
+        return CNavCore(initial, config, **kwargs)
+    raise ValueError(f"unknown core {kind!r}: choose 'python' or 'c'")
