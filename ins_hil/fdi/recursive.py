@@ -61,5 +61,9 @@ def cyclic_isolation(y: Vec, A: Vec, sigma: float) -> CyclicResult:
     for r in range(n):
         ks = recursive_ks(np.roll(y, r), np.roll(A, r, axis=0), sigma)
         mu[r] = ks[-1] / max(ks[-2], 1e-300)
-    r_star = int(np.argmax(mu))
-    return CyclicResult(mu, n - r_star - 1)  # book's 1-based i = n − r*
+    return CyclicResult(mu, cyclic_decision(mu))
+
+
+def cyclic_decision(mu: Vec) -> int:
+    """Eq. 5.23: r* = argmax_r μ*_r, failed sensor i = n − r* (1-based), returned 0-based."""
+    return len(mu) - int(np.argmax(mu)) - 1
