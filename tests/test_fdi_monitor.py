@@ -191,7 +191,7 @@ def test_exclude_whole_imu(series) -> None:
 def test_config_errors_name_the_key() -> None:
     with pytest.raises(ValueError, match="p_false_alarm"):
         config(skewed6(), p_false_alarm=0.0)
-    with pytest.raises(ValueError, match="FdiConfig.dt"):
+    with pytest.raises(ValueError, match=r"FdiConfig\.dt"):
         FdiConfig(skewed6(), 0.0, 1e-3, 1e-3)
     with pytest.raises(ValueError, match="persistence"):
         config(skewed6(), persistence=0)
