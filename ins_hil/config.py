@@ -16,7 +16,7 @@ from typing import Any
 from ins_hil.drivers.mavlink_in import parse_url as mavlink_in_url
 from ins_hil.runtime.mavlink_out import ALL_MESSAGES, EndpointConfig, parse_url
 from ins_hil.runtime.mqtt_out import MqttConfig
-from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig
+from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig, check_core, fdi_monitor
 from ins_hil.sim.devices import SimConfig
 
 REPO_CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -155,6 +155,17 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     _positive("core.level_samples", p.level_samples)
     if p.calibration and not Path(p.calibration).is_file():
         raise ConfigError(f"core.calibration = {p.calibration!r}: file not found")
+    if p.calibration:
+        from ins_hil.nav.calibration import load_calibration
+
+        try:
+            load_calibration(p.calibration)
+        except Exception as e:
+            raise ConfigError(f"core.calibration = {p.calibration!r}: {e}") from None
+    try:
+        check_core(p.core, p.nav)
+    except (ValueError, RuntimeError) as e:
+        raise ConfigError(str(e)) from None
     fdi = d.get("fdi", {})
     if not isinstance(fdi, dict):
         raise ConfigError(f"fdi: expected a table, got {fdi!r}")
@@ -173,6 +184,14 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             p.fdi_options = dict(v)
         else:
             raise ConfigError(f"unknown key 'fdi.{k}' (known: enabled, imu_ids, options)")
+
+    if p.fdi:
+        try:
+            mon = fdi_monitor(p.fdi_options)
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+        if len(p.imu_ids) != mon.geo.units:
+            raise ConfigError(f"fdi.imu_ids = {p.imu_ids}: the geometry {mon.geo.name!r} has {mon.geo.units} IMUs")
 
     sim = dict(d.get("sim", {}))
     en = sim.pop("enabled", False)

@@ -91,9 +91,11 @@ def test_cli_core_c_fails_cleanly_or_runs(tmp_path: Path) -> None:
         text=True,
         timeout=60,
     )
+    from ins_hil.runtime.pipeline import check_core
+
     try:
-        import ins_hil.cref  # noqa: F401
-    except ImportError:
+        check_core("c")
+    except RuntimeError:
         assert r.returncode == 2 and "C reference core" in r.stderr
         assert not (tmp_path / "recordings").exists()
     else:

@@ -121,7 +121,7 @@ def test_state_and_faults_survive_a_broker_restart(broker: Broker) -> None:
         gw._fault(fault(3.0, "gyro[2]"))
         await asyncio.sleep(1.0)
         gw.request_stop()
-        await task
+        await asyncio.wait_for(task, 30.0)
 
     try:
         asyncio.run(scenario())
