@@ -90,8 +90,14 @@ def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
 
 
 def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> Core:
-    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore)."""
-    cfg = nav_config(nav or {})
+    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore).
+
+    ``filter.cov_every`` is a speed setting of the Python core only: the C core propagates the
+    covariance on every step, so it is dropped for ``c`` (every other setting must be supported)."""
+    opts = dict(nav or {})
+    if kind == "c" and isinstance(opts.get("filter"), dict):
+        opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
+    cfg = nav_config(opts)
     try:
         cref = importlib.import_module("ins_hil.cref")
     except ImportError as e:
@@ -104,6 +110,8 @@ def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = N
         core: Core = cref.make_core(kind, initial, cfg)
     except (ImportError, OSError) as e:
         raise RuntimeError(f"core {kind!r}: cannot load the C reference core: {e}") from e
+    except ValueError as e:
+        raise RuntimeError(f"core {kind!r}: {e}") from e
     return core
 
 
