@@ -82,7 +82,21 @@ def _row(name: str, s: dict[str, Any]) -> str:
     return f"| {name} | {s['count']} | {s['p50_us']:.0f} | {s['p99_us']:.0f} | {s['p999_us']:.0f} | {s['max_us']:.0f} |"
 
 
-def report(gw: Gateway, wall: float, duration: float) -> str:
+def _table(gw: Gateway) -> str:
+    lat = gw.metrics.snapshot()["latency"]
+    rows = "\n".join(
+        _row(label, lat[k])
+        for k, label in (
+            ("arrival_to_state", "arrival → state ready"),
+            ("state_to_sent", "state ready → MAVLink sent"),
+            ("arrival_to_sent", "arrival → MAVLink sent"),
+            ("core_step", "pipeline call (core step)"),
+        )
+    )
+    return "| path | samples | p50 µs | p99 µs | p99.9 µs | max µs |\n|---|---:|---:|---:|---:|---:|\n" + rows
+
+
+def report(gw: Gateway, wall: float, duration: float, gw_c: Gateway | None = None) -> str:
     snap = gw.metrics.snapshot()
     lat = snap["latency"]
     imu = snap["sources"]["imu0"]
@@ -111,6 +125,12 @@ def report(gw: Gateway, wall: float, duration: float) -> str:
         qmax=snap["queue_depth_max"],
         rows=rows,
         sent=snap["outputs"].get("gcs", {}).get("ATTITUDE", 0),
+        c_section=(
+            ""
+            if gw_c is None
+            else "\nThe same run with the C reference core (`--core c`, `ins_hil.cref.CNavCore`, covariance "
+            f"propagated every step), late {gw_c.metrics.late}:\n\n{_table(gw_c)}\n"
+        ),
     )
 
 
@@ -198,7 +218,7 @@ Arrival is stamped when the pty read returns (`time.monotonic_ns()` in the drive
 the pty and the kernel are outside the figure; "MAVLink sent" is when the datagram was handed to
 the socket. The state → sent figure counts only the samples whose state was published (50 Hz
 for ATTITUDE). Distributions: `docs/runtime_latency.png`.
-
+{c_section}
 ![latency](runtime_latency.png)
 
 ## Limits
@@ -216,14 +236,23 @@ for ATTITUDE). Distributions: `docs/runtime_latency.png`.
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--duration", type=float, default=30.0, help="seconds to run (default 30)")
-    ap.add_argument("--core", choices=["python", "c"], default="python")
+    ap.add_argument("--no-c", action="store_true", help="skip the second run with the C core")
     ap.add_argument("--out", default=str(REPO / "docs" / "runtime.md"), help="report file ('' = print only)")
     a = ap.parse_args(argv)
     print(f"ins-hil bench: {a.duration:.0f} s of configs/default.toml at 1 kHz …", flush=True)
-    gw, wall = measure(a.duration, a.core)
-    text = report(gw, wall, a.duration)
+    gw, wall = measure(a.duration, "python")
+    gw_c = None
+    if not a.no_c:
+        print(f"… and {a.duration:.0f} s with --core c", flush=True)
+        try:
+            gw_c, _ = measure(a.duration, "c")
+        except RuntimeError as e:
+            print(f"C core not measured: {e}")
+    text = report(gw, wall, a.duration, gw_c)
     table = text[text.index("| path |") : text.index("\n\nArrival")]
     print(table)
+    if gw_c is not None:
+        print("C core:\n" + _table(gw_c))
     if a.out:
         out = Path(a.out)
         out.parent.mkdir(parents=True, exist_ok=True)
