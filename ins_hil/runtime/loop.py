@@ -255,6 +255,13 @@ class Gateway:
             self.sim = SimDevices(cfg.sim, ("127.0.0.1", sim_gnss_port))
             await asyncio.get_running_loop().run_in_executor(None, self.sim.start)
         for ic in serial_inputs:
+            if ic.type == "can_imu":
+                from ins_hil.drivers.can_imu import CanImuDriver
+
+                cdrv = CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **ic.options})
+                self.drivers.append(cdrv)
+                self._tasks.append(asyncio.create_task(cdrv.run(self._sink_for(ic.name)), name=ic.name))
+                continue
             dev = self.sim.imu_path if ic.port == "sim" and self.sim else ic.port
             sdrv = SerialImuDriver(dev, ic.baud, name=ic.name)
             self.drivers.append(sdrv)
