@@ -1,46 +1,538 @@
 """NavCore: the one synchronous entry point the runtime and replay call.
 
-``step(imu)`` runs mechanization (and, once the fusion filter is plugged in,
-the EKF predict and FDI monitor) on every IMU sample; ``fuse(sample)`` applies
-a GNSS/baro/magnetometer measurement at its time of validity. Pure and
-deterministic: no I/O, no clock, no asyncio; the same input sequence gives
-the same output, bit for bit.
+``step(imu)`` runs the strapdown mechanization on the bias/scale-compensated
+increments and the error-state EKF time update; ``fuse(meas)`` applies a
+GNSS/baro/magnetometer measurement at its time of validity; ``state()``
+returns the current :class:`NavState`; ``drain_events()`` returns the
+GNSS/baro fault events raised by the innovation tests since the last call.
+
+Pure and deterministic: no I/O, no clock, no asyncio; the same input sequence
+gives the same output, bit for bit.
+
+Filter: closed-loop error-state EKF (:mod:`ins_hil.fusion.ekf`, conventions of
+DIGEST_000 §9), measurement models of :mod:`ins_hil.fusion.measurements`,
+chi-square gating and Sage–Husa adaptive R (:mod:`ins_hil.fusion.innovation`).
+
+Time alignment and latency: a measurement is fused at the IMU step nearest to
+its validity time ``t``. A measurement from the future is queued; one from the
+past (a delayed GNSS fix) is, with ``delay_compensation``, fused by rolling the
+filter back to the stored snapshot of that step and re-running the logged IMU
+samples and measurements up to now (delayed fusion with forward
+propagation; history ``max_delay`` s). The position measurement is shifted by
+v̂·(t_step − t) to the step time (interpolation between IMU samples).
+
+Alignment (``NavConfig.align``): ``"given"`` trusts the initial state;
+``"static"`` levels from the mean specific force over ``align_time`` s at rest
+(book §4.1.1), takes yaw from the magnetometer (refined alignment, §4.1.2,
+Example 4.1) when a field reference is configured, or else from the GNSS course
+once the speed exceeds ``gnss_yaw_speed`` (in-motion yaw). ``state().aligned``
+stays False until the attitude is known and the filter's yaw σ is below
+``aligned_yaw_std``.
 """
 
 from __future__ import annotations
 
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
 import numpy as np
 
+from ins_hil.fusion import measurements as mm
+from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
+from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
+from ins_hil.nav import alignment, earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, NavState
+from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
+from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
+
+DEG = math.pi / 180.0
+_KINDS = ("gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt")
+
+
+@dataclass
+class NavConfig:
+    """NavCore configuration (SI units; gates in σ; times in s).
+
+    gnss_lever_arm_b: IMU → GNSS antenna (m, body FRD). gnss_min_std: floor on the
+    reported GNSS σ (m, m/s). baro_std (m); mag_std (unit-vector component, book σ_m);
+    mag_ref_ned: reference magnetic field (NED, any unit, e.g. from WMM: declination is in it).
+    nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, zero velocity
+    when the IMU is at rest for ``zupt_time`` s). adaptive: Sage–Husa R on GNSS/baro.
+    The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
+    taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
+    """
+
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    gnss_lever_arm_b: Vec = field(default_factory=lambda: np.zeros(3))
+    gnss_min_std: tuple[float, float, float] = (0.01, 0.01, 0.02)  # NE, D, vel
+    gnss_std_scale: float = 1.0
+    use_gnss_vel: bool = True
+    gate_gnss: float = 5.0
+    gate_baro: float = 5.0
+    gate_mag: float = 5.0
+    gate_aux: float = 5.0
+    gnss_reset_after: int = 10
+    baro_std: float = 0.5
+    baro_offset_tau: float = 10.0
+    baro_offset: float | None = None
+    mag_std: float = 0.0524
+    mag_ref_ned: Vec | None = None
+    adaptive: bool = False
+    adaptive_b: float = 0.97
+    nhc: bool = False
+    nhc_std: float = 0.1
+    nhc_rate: float = 10.0
+    nhc_min_speed: float = 0.5
+    zupt: bool = False
+    zupt_std: float = 0.02
+    zupt_gyro: float = 0.02
+    zupt_accel: float = 0.15
+    zupt_time: float = 0.5
+    delay_compensation: bool = True
+    max_delay: float = 0.3
+    align: str = "given"
+    align_time: float = 2.0
+    align_level_only: bool = False
+    still_speed: float = 0.3
+    align_gyro_bias_std: float = 0.02 * DEG
+    mag_yaw_std: float = 3.0 * DEG
+    gnss_yaw_speed: float = 1.0
+    gnss_yaw_std: float = 3.0 * DEG
+    aligned_yaw_std: float = 5.0 * DEG
+
+    def __post_init__(self) -> None:
+        if self.align not in ("given", "static"):
+            raise ValueError(f"NavConfig.align={self.align!r}: expected 'given' or 'static'")
+        if not 0.0 <= self.max_delay <= 2.0:
+            raise ValueError(f"NavConfig.max_delay={self.max_delay}: expected 0..2 s")
+
+
+@dataclass
+class _Snap:
+    step: int
+    t: float
+    data: tuple[Any, ...]
 
 
 class NavCore:
-    """Strapdown navigation core (mechanization only until fusion lands)."""
+    """Strapdown INS + error-state EKF (+ alignment, gating, adaptive R, delayed fusion)."""
 
-    def __init__(self, initial: StrapdownState) -> None:
+    def __init__(self, initial: StrapdownState | None = None, config: NavConfig | None = None) -> None:
+        self.cfg = config if config is not None else NavConfig()
+        if initial is None:
+            if self.cfg.align == "given":
+                raise ValueError("NavCore: align='given' needs an initial state")
+            initial = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), 0.0, 0.0, 0.0)
         self.ins = StrapdownNED(initial.copy())
-        self._last_t: float | None = None
+        self.kf = ErrorStateEKF(self.cfg.filter)
+        self.idx = self.kf.idx
+        self.bg = np.zeros(3)
+        self.ba = np.zeros(3)
+        self.sg = np.zeros(3)
+        self.sa = np.zeros(3)
+        self.omega_b = np.zeros(3)
+        self.f_b = np.zeros(3)
+        self.stats = {k: GateStats() for k in _KINDS}
+        self.adapt = {k: SageHusa(b=self.cfg.adaptive_b) for k in ("gnss_pos", "gnss_vel", "baro")}
+        self._events: list[FaultEvent] = []
+        self._ratios: dict[str, float] = {}
+        self._step_n = 0
+        self._dt = 0.01
+        self._pending: list[GnssFix | BaroSample | MagSample] = []
+        self._snaps: deque[_Snap] = deque()
+        self._log: deque[tuple[int, str, Any]] = deque()
+        self._replaying = False
+        self._nhc_next = 0.0
+        self._still_time = 0.0
+        self._baro_offset: float | None = None
+        self._t_baro = 0.0
+        self._t_gnss_ok = -math.inf
+        self._h_gnss = 0.0
+        self._gnss_var_d = 1.0
+        self._baro_offset_var = 0.0
+        # alignment
+        self.phase = "nav" if self.cfg.align == "given" else "level"
+        self._lev_buf: deque[tuple[float, Vec, Vec]] = deque()
+        self._lev_f = np.zeros(3)
+        self._lev_w = np.zeros(3)
+        self._lev_t = 0.0
+        self._moving = False
+        self._have_pos = self.cfg.align == "given"
+        self._last_mag: Vec | None = None
+        self.nis_log: list[tuple[float, str, float, int]] = []
+        self.keep_nis = False
 
+    # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
         """Propagate with one IMU interval; returns the current state."""
-        self.ins.step(imu.dtheta, imu.dvel, imu.dt)
-        self.ins.state.t = imu.t
+        if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0 and self.phase == "nav":
+            self._log.append((self._step_n, "imu", imu))
+        self._dt = imu.dt
+        if self.phase != "nav":
+            self._align_step(imu)
+            return self.state()
+        self._propagate(imu)
+        if not self._replaying:
+            self._after_step()
         return self.state()
 
+    def _propagate(self, imu: ImuSample) -> None:
+        dt = imu.dt
+        dth = imu.dtheta - self.bg * dt
+        dv = imu.dvel - self.ba * dt
+        if self.idx.sg is not None:
+            dth = dth / (1.0 + self.sg)
+            dv = dv / (1.0 + self.sa)
+        ins = self.ins
+        ins.step(dth, dv, dt)
+        ins.state.t = imu.t
+        self.omega_b = dth / dt
+        self.f_b = dv / dt
+        self._step_n += 1
+        C = dcm_from_quat(ins.state.q_nb)
+        self.kf.predict(
+            dt, C, ins.f_ned, ins.omega_ie, ins.omega_en, self.f_b, self.omega_b, ins.state.lat, ins.state.h
+        )
+        self._ground_aids(imu)
+
+    def _after_step(self) -> None:
+        if self.cfg.delay_compensation and self.cfg.max_delay > 0:
+            self._snaps.append(_Snap(self._step_n, self.ins.state.t, self._snapshot()))
+            horizon = self.ins.state.t - self.cfg.max_delay - 2 * self._dt
+            while self._snaps and self._snaps[0].t < horizon:
+                self._snaps.popleft()
+            first = self._snaps[0].step if self._snaps else self._step_n
+            while self._log and self._log[0][0] < first:
+                self._log.popleft()
+        if self._pending:
+            t = self.ins.state.t
+            due = [m for m in self._pending if m.t <= t + 0.5 * self._dt]
+            if due:
+                self._pending = [m for m in self._pending if m.t > t + 0.5 * self._dt]
+                for m in due:
+                    self._fuse_now(m)
+
+    def _ground_aids(self, imu: ImuSample) -> None:
+        c = self.cfg
+        if not (c.nhc or c.zupt):
+            return
+        t = imu.t
+        s = self.ins.state
+        still = (
+            float(np.linalg.norm(self.omega_b)) < c.zupt_gyro
+            and abs(float(np.linalg.norm(self.f_b)) - earth.normal_gravity(s.lat, s.h)) < c.zupt_accel
+        )
+        self._still_time = self._still_time + imu.dt if still else 0.0
+        if t < self._nhc_next:
+            return
+        self._nhc_next = t + 1.0 / c.nhc_rate
+        C = dcm_from_quat(s.q_nb)
+        if c.zupt and self._still_time >= c.zupt_time:
+            z, H = mm.zero_velocity(self.idx, s.vel_ned)
+            self._apply("zupt", z, H, np.full(3, c.zupt_std**2), c.gate_aux, t)
+        elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
+            z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
+            self._apply("nhc", z, H, np.full(2, c.nhc_std**2), c.gate_aux, t)
+
+    # ------------------------------------------------------------------ snapshots (delayed fusion)
+    def _snapshot(self) -> tuple[Any, ...]:
+        ins, kf = self.ins, self.kf
+        return (
+            ins.state.copy(), ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n, ins.f_ned, ins.omega_ie,
+            ins.omega_en, self.bg.copy(), self.ba.copy(), self.sg.copy(), self.sa.copy(), kf.P.copy(),
+            kf.factor, kf._acc_n, kf._acc_dt, kf._acc_f.copy(), kf._acc_fb.copy(), kf._acc_w.copy(),
+            self.omega_b, self.f_b, self._nhc_next, self._still_time,
+        )  # fmt: skip
+
+    def _restore(self, d: tuple[Any, ...]) -> None:
+        ins, kf = self.ins, self.kf
+        (st, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n, ins.f_ned, ins.omega_ie, ins.omega_en,
+         bg, ba, sg, sa, P, kf.factor, kf._acc_n, kf._acc_dt, af, afb, aw, self.omega_b, self.f_b,
+         self._nhc_next, self._still_time) = d  # fmt: skip
+        ins.state = st.copy()
+        self.bg, self.ba, self.sg, self.sa = bg.copy(), ba.copy(), sg.copy(), sa.copy()
+        kf.P = P.copy()
+        kf._acc_f, kf._acc_fb, kf._acc_w = af.copy(), afb.copy(), aw.copy()
+        kf.x = np.zeros(kf.n)
+
+    def _fuse_delayed(self, meas: GnssFix | BaroSample | MagSample) -> bool:
+        """Roll back to the step nearest meas.t, fuse, replay; False if the history is too short."""
+        target = None
+        for sn in reversed(self._snaps):
+            if sn.t <= meas.t + 0.5 * self._dt:
+                target = sn
+                break
+        if target is None:
+            return False
+        self._restore(target.data)
+        self._step_n = target.step
+        replay = [e for e in self._log if e[0] >= target.step]
+        self._fuse_now(meas)  # counted and gated like any measurement
+        self._replaying = True
+        try:
+            kept: deque[_Snap] = deque(s for s in self._snaps if s.step <= target.step)
+            kept[-1] = _Snap(target.step, target.t, self._snapshot())
+            for _step, kind, obj in replay:
+                if kind == "imu":
+                    self._propagate(obj)
+                    kept.append(_Snap(self._step_n, self.ins.state.t, self._snapshot()))
+                else:
+                    self._fuse_now(obj)
+            self._snaps = kept
+        finally:
+            self._replaying = False
+        self._log.append((target.step, "meas", meas))
+        self._log = deque(sorted(self._log, key=lambda e: (e[0], e[1] != "imu")))
+        return True
+
+    # ------------------------------------------------------------------ aiding
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
-        """Apply an aiding measurement (no-op until the fusion filter is wired in)."""
-        return None
+        """Apply an aiding measurement valid at ``meas.t`` (queued if in the future, fused
+        on the past step's snapshot if delayed and ``delay_compensation``)."""
+        if self.phase != "nav":
+            self._align_meas(meas)
+            return
+        t = self.ins.state.t
+        if meas.t > t + 0.5 * self._dt:
+            self._pending.append(meas)
+            return
+        if meas.t < t - 0.5 * self._dt and self.cfg.delay_compensation and self.cfg.max_delay > 0:
+            if self._fuse_delayed(meas):
+                return
+        # uncompensated (or beyond the history): treat a late measurement as valid now
+        self._fuse_now(meas, assume_now=meas.t < t - 1.5 * self._dt)
+        if self.cfg.delay_compensation and self.cfg.max_delay > 0:
+            self._log.append((self._step_n, "meas", meas))
+
+    def _fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
+        s = self.ins.state
+        C = dcm_from_quat(s.q_nb)
+        c = self.cfg
+        if isinstance(meas, GnssFix):
+            lever = c.gnss_lever_arm_b
+            std_ne = max(meas.std_ne, c.gnss_min_std[0]) * c.gnss_std_scale
+            std_d = max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale
+            shift = None if assume_now else s.vel_ned * (s.t - meas.t)  # time alignment to the step
+            z, H = mm.gnss_position(self.idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, lever, shift)
+            r = np.array((std_ne**2, std_ne**2, std_d**2))
+            force = self.stats["gnss_pos"].consecutive_rejects >= c.gnss_reset_after
+            if force:
+                # GNSS rejected for too long: the INS has drifted, re-initialise position/velocity σ
+                self.kf.set_state_sigma("pos", np.sqrt(z * z + r))
+                zv = np.zeros(3) if meas.vel_ned is None else np.asarray(meas.vel_ned) - s.vel_ned
+                self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
+                self.stats["gnss_vel"].consecutive_rejects = 0
+            if self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t):
+                self._t_gnss_ok = meas.t
+                self._h_gnss = meas.h + float((C @ lever)[2])  # IMU height from the antenna height
+                self._gnss_var_d = std_d**2
+            if c.use_gnss_vel and meas.vel_ned is not None:
+                s = self.ins.state
+                C = dcm_from_quat(s.q_nb)
+                std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale
+                z, H = mm.gnss_velocity(self.idx, C, s.vel_ned, self.omega_b, np.asarray(meas.vel_ned), lever)
+                self._apply("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss, meas.t)
+        elif isinstance(meas, BaroSample):
+            alt = meas.altitude
+            if not math.isfinite(alt):
+                from ins_hil.sim.sensors import altitude_from_pressure
+
+                alt = altitude_from_pressure(meas.pressure)
+            if self._baro_offset is None:
+                # baro datum → ellipsoid: configured, or from the first sample
+                self._baro_offset = c.baro_offset if c.baro_offset is not None else s.h - alt
+                self._baro_offset_var = float(self.kf.P[2, 2])
+            elif abs(meas.t - self._t_gnss_ok) < 0.5 and c.baro_offset_tau > 0 and c.baro_offset is None:
+                # while GNSS is healthy, calibrate the datum against the GNSS height (first-order filter,
+                # τ = baro_offset_tau; against GNSS, not the filter height, which the baro itself drives)
+                a = min(1.0, max(0.0, meas.t - self._t_baro) / c.baro_offset_tau)
+                self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
+                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * self._gnss_var_d
+            self._t_baro = meas.t
+            z, H = mm.baro_height(self.idx, s.h, alt + self._baro_offset)
+            # the uncertainty of a learnt datum is added to R (it is slowly varying, not white: approximate)
+            r_b = c.baro_std**2 + (self._baro_offset_var if c.baro_offset is None else 0.0)
+            self._apply("baro", z, H, np.array((r_b,)), c.gate_baro, meas.t)
+        elif isinstance(meas, MagSample):
+            self._last_mag = np.asarray(meas.field_b)
+            if c.mag_ref_ned is None:
+                return
+            z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag_ref_ned)
+            self._apply("mag", z, H, np.full(2, c.mag_std**2), c.gate_mag, meas.t)
+        else:
+            raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
+
+    def _apply(self, kind: str, z: Vec, H: Vec, r: Vec, gate: float, t: float) -> bool:
+        """Gate, (adapt R), update, feed back. Returns True if accepted."""
+        kf = self.kf
+        HPHt = H @ kf.P @ H.T
+        ad = self.adapt.get(kind) if self.cfg.adaptive else None
+        if ad is not None:
+            r = r * ad.scale
+        S = HPHt + np.diag(r)
+        ratio, nis = test_ratio(z, S, gate)
+        st = self.stats[kind]
+        st.last_ratio = ratio
+        self._ratios = dict(self._ratios)
+        self._ratios[kind] = ratio
+        st.last_nis = nis
+        if self.keep_nis and not self._replaying:
+            self.nis_log.append((t, kind, nis, len(z)))
+        force = kind == "gnss_pos" and st.consecutive_rejects >= self.cfg.gnss_reset_after
+        if kind == "gnss_vel" and self.stats["gnss_pos"].consecutive_rejects > 0:
+            force = False  # velocity follows the position decision below
+        if ratio > 1.0 and not force:
+            if not self._replaying:
+                st.rejected += 1
+                st.consecutive_rejects += 1
+                if st.consecutive_rejects == 1 and kind in ("gnss_pos", "gnss_vel", "baro"):
+                    self._events.append(
+                        FaultEvent(t, "gnss" if kind.startswith("gnss") else "baro", FaultMode.JUMP,
+                                   float(np.max(np.abs(z))), True, False, f"{kind} innovation test ratio {ratio:.2f}")
+                    )  # fmt: skip
+            return False
+        if ad is not None:
+            ad.update(z, np.diag(HPHt), r / ad.scale)
+        if not self._replaying:
+            if st.consecutive_rejects > 0 and kind in ("gnss_pos", "gnss_vel", "baro"):
+                self._events.append(
+                    FaultEvent(t, "gnss" if kind.startswith("gnss") else "baro", FaultMode.JUMP, 0.0, True, True,
+                               f"{kind} accepted again after {st.consecutive_rejects} rejections")
+                )  # fmt: skip
+            st.accepted += 1
+            st.consecutive_rejects = 0
+        kf.update(z, H, r)
+        self._feedback(kf.reset())
+        return True
+
+    def _feedback(self, x: Vec) -> None:
+        """Apply the error estimate to the nominal state (DIGEST_000 §9 corrections)."""
+        i = self.idx
+        s = self.ins.state
+        m, n = earth.radii(s.lat)
+        s.lat += x[0] / (m + s.h)
+        s.lon += x[1] / ((n + s.h) * math.cos(s.lat))
+        s.h -= x[2]
+        s.vel_ned = s.vel_ned + x[3:6]
+        s.q_nb = quat_mul(quat_from_rotvec(-x[6:9]), s.q_nb)  # Ĉ ← (I − [μ×]) Ĉ
+        if i.bg is not None:
+            self.bg = self.bg + x[i.bg : i.bg + 3]
+        if i.ba is not None:
+            self.ba = self.ba + x[i.ba : i.ba + 3]
+        if i.sg is not None and i.sa is not None:
+            self.sg = self.sg + x[i.sg : i.sg + 3]
+            self.sa = self.sa + x[i.sa : i.sa + 3]
+
+    # ------------------------------------------------------------------ alignment
+    def _align_step(self, imu: ImuSample) -> None:
+        self.ins.state.t = imu.t
+        c = self.cfg
+        if self.phase == "level":
+            if self._moving:
+                if self._lev_t >= c.align_time:
+                    self._level()
+                return
+            # at rest: keep the last ``align_time`` s of increments (sliding window of sums)
+            self._lev_buf.append((imu.dt, imu.dvel, imu.dtheta))
+            self._lev_t += imu.dt
+            self._lev_f = self._lev_f + imu.dvel
+            self._lev_w = self._lev_w + imu.dtheta
+            while self._lev_buf and self._lev_t - self._lev_buf[0][0] >= c.align_time:
+                dt0, dv0, dth0 = self._lev_buf.popleft()
+                self._lev_t -= dt0
+                self._lev_f = self._lev_f - dv0
+                self._lev_w = self._lev_w - dth0
+            if self._lev_t >= c.align_time - 0.5 * imu.dt and self._have_pos:
+                mag_ok = c.mag_ref_ned is not None and self._last_mag is not None
+                if mag_ok or c.align_level_only:
+                    self._level()
+        elif self.phase == "heading":
+            # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
+            dth = imu.dtheta - self.bg * imu.dt
+            self.ins.step(dth, imu.dvel - self.ba * imu.dt, imu.dt)
+            self.ins.state.t = imu.t
+            self.ins.state.vel_ned = np.zeros(3)
+            self.omega_b = dth / imu.dt
+
+    def _level(self) -> None:
+        """Coarse levelling (book §4.1.1) and gyro bias from the static window; refined
+        alignment with the magnetometer (§4.1.2) when a field reference is configured."""
+        c = self.cfg
+        s = self.ins.state
+        f = self._lev_f / self._lev_t
+        roll, pitch = alignment.coarse_level(f)
+        yaw = 0.0
+        # gyro bias = mean rate − Earth rate; only the vertical Earth-rate component is known before yaw
+        w = self._lev_w / self._lev_t
+        C0 = dcm_from_quat(quat_from_euler(roll, pitch, 0.0))
+        self.bg = w - C0.T @ np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(s.lat)))
+        have_yaw = False
+        if c.mag_ref_ned is not None and self._last_mag is not None:
+            g_ned = np.array((0.0, 0.0, -earth.normal_gravity(s.lat, s.h)))
+            A = alignment.refined_alignment(np.vstack([g_ned, c.mag_ref_ned]), np.vstack([f, self._last_mag]))
+            roll, pitch, yaw = euler_from_quat(alignment.quat_from_book_A(A))
+            have_yaw = True
+        s.q_nb = quat_from_euler(roll, pitch, yaw)
+        s.vel_ned = np.zeros(3)
+        self.ins.reset_history()
+        if self.idx.bg is not None:
+            self.kf.set_state_sigma("bg", c.align_gyro_bias_std)
+        if have_yaw:
+            self._enter_nav(yaw_std=c.mag_yaw_std)
+        else:
+            self.phase = "heading"
+
+    def _align_meas(self, meas: GnssFix | BaroSample | MagSample) -> None:
+        s = self.ins.state
+        if isinstance(meas, MagSample):
+            self._last_mag = np.asarray(meas.field_b)
+            return
+        if not isinstance(meas, GnssFix):
+            return
+        if self.phase == "level":
+            s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
+            self._have_pos = True
+            if meas.vel_ned is not None:
+                v = np.asarray(meas.vel_ned)
+                self._moving = self._moving or math.hypot(float(v[0]), float(v[1])) > self.cfg.still_speed
+        if self.phase == "heading" and meas.vel_ned is not None:
+            v = np.asarray(meas.vel_ned)
+            sp = math.hypot(float(v[0]), float(v[1]))
+            if sp >= self.cfg.gnss_yaw_speed:
+                roll, pitch, _ = euler_from_quat(s.q_nb)
+                yaw = alignment.yaw_from_course(v)  # in-motion yaw = GNSS course (no sideslip)
+                s.q_nb = quat_from_euler(roll, pitch, yaw)
+                s.vel_ned = v.copy()
+                C = dcm_from_quat(s.q_nb)
+                d = C @ self.cfg.gnss_lever_arm_b
+                m, n = earth.radii(meas.lat)
+                s.lat = meas.lat - d[0] / (m + meas.h)
+                s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
+                s.h = meas.h + d[2]
+                self.ins.state.t = max(s.t, meas.t)
+                std_v = max(meas.std_vel, self.cfg.gnss_min_std[2])
+                self._enter_nav(yaw_std=self.cfg.gnss_yaw_std + 2.0 * std_v / sp)
+
+    def _enter_nav(self, yaw_std: float | None = None) -> None:
+        self.phase = "nav"
+        if yaw_std is not None:
+            c = self.cfg.filter
+            self.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))
+
+    # ------------------------------------------------------------------ outputs
+    def drain_events(self) -> list[FaultEvent]:
+        """GNSS/baro fault events raised by the innovation tests since the last call."""
+        ev, self._events = self._events, []
+        return ev
 
     def state(self) -> NavState:
+        """The current navigation solution (arrays are fresh: the core never mutates them later)."""
         s = self.ins.state
+        sd = np.sqrt(np.abs(self.kf.P.diagonal()[:9]))
+        att_ok = self.phase == "nav" and float(sd[8]) < self.cfg.aligned_yaw_std
         return NavState(
-            t=s.t,
-            q_nb=s.q_nb.copy(),
-            vel_ned=s.vel_ned.copy(),
-            lat=s.lat,
-            lon=s.lon,
-            h=s.h,
-            accel_b=np.zeros(3),
-            aligned=True,
-        )
+            s.t, s.q_nb, s.vel_ned, s.lat, s.lon, s.h, self.bg, self.ba, sd[0:3], sd[3:6], sd[6:9],
+            self.omega_b, self.f_b, att_ok, self._ratios,
+        )  # fmt: skip

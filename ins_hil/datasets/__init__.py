@@ -1,0 +1,1 @@
+"""Readers for recorded datasets (real drives) used by ``ins-hil replay``."""

@@ -1,0 +1,330 @@
+"""Error-state extended Kalman filter (closed loop, with feedback and reset).
+
+Error-state conventions (DIGEST_000 §9, the set that makes book ch. 3 consistent):
+
+* attitude: Ĉ_b^n = (I + [μ×]) C_b^n, μ the small rotation of the computed
+  attitude relative to the true one (rad, NED axes);
+* position/velocity: δr = r_true − r̂ (NED metres), δv = v_true − v̂ (m/s);
+* sensor errors: δb = b_true − b̂ (so the compensated rate error is ω̂ − ω = δb_g),
+  δs = s_true − ŝ for the scale factors (f̃ = (1 + s) f + b);
+* measurements: z = measured − predicted, entering with +H blocks as in
+  book eqs. (3.3), (3.30), (3.42), (3.43);
+* feedback after an update: r̂ += δr, v̂ += δv, Ĉ ← (I − [μ×]) Ĉ
+  (q ← q(−μ) ⊗ q), b̂ += δb, ŝ += δs; then the error estimate is reset to 0.
+
+Linear error dynamics (book eq. 3.1/3.40 extended to NED with Earth rate,
+seed 001 eqs. 83–98 reduced to the terms that matter for MEMS):
+
+    δṙ = δv
+    δv̇ = [f^n×] μ − (2ω_ie + ω_en) × δv − C δb_a − C diag(f^b) δs_a + (2g/R) δr_D e_D
+    μ̇  = −ω_in × μ + C δb_g + C diag(ω^b) δs_g
+    δḃ = −δb / τ + w      (first-order Gauss–Markov, seed 001 eqs. 87/88)
+
+Discretisation Φ = I + F Δt + ½ (F Δt)² (book eq. 3.2/3.41), propagated every
+IMU step or every ``cov_every`` steps with the averaged F. Process noise is
+diagonal (the noise is isotropic, so C σ² I C^T = σ² I).
+
+The state layout is configurable (``FilterConfig``): 9 states (book §3.1:
+μ, δv, δr), 12 (book §3.3: + gyro bias, ``accel_bias=False``), 15 (default:
++ accelerometer bias), 21 (+ gyro and accelerometer scale factors).
+Index order here is [δr, δv, μ, δb_g, δb_a, δs_g, δs_a].
+
+Pure and deterministic: no I/O, no clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ins_hil.types import Vec
+
+DEG = math.pi / 180.0
+
+
+@dataclass
+class FilterConfig:
+    """Error-state filter configuration (SI units; noise densities per √Hz).
+
+    gyro_arw: gyro white noise (rad/s/√Hz); accel_vrw: accelerometer white noise (m/s²/√Hz);
+    gyro_bias_sigma / accel_bias_sigma: 1-σ of the Gauss–Markov bias (rad/s, m/s²) with
+    correlation times gyro_bias_tau / accel_bias_tau (s); scale-factor 1-σ likewise.
+    init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
+    numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
+    "qr", "cholesky", "ud" (see ``ins_hil.fusion.sqrt``).
+    """
+
+    gyro_bias: bool = True
+    accel_bias: bool = True
+    scale_factors: bool = False
+    gyro_arw: float = 0.15 * DEG / 60.0
+    accel_vrw: float = 70e-6 * 9.80665
+    gyro_bias_sigma: float = 20.0 * DEG / 3600.0
+    gyro_bias_tau: float = 300.0
+    accel_bias_sigma: float = 0.5e-3 * 9.80665
+    accel_bias_tau: float = 300.0
+    gyro_sf_sigma: float = 1e-3
+    accel_sf_sigma: float = 2e-3
+    sf_tau: float = 3600.0
+    init_pos: float = 5.0
+    init_vel: float = 1.0
+    init_att: float = 2.0 * DEG
+    init_yaw: float = 10.0 * DEG
+    init_gyro_bias: float = 0.3 * DEG
+    init_accel_bias: float = 0.3
+    init_sf: float = 2e-3
+    cov_every: int = 1
+    second_order: bool = True
+    earth_terms: bool = True
+    numerics: str = "joseph"
+
+    def __post_init__(self) -> None:
+        if self.numerics not in ("joseph", "conventional", "qr", "cholesky", "ud"):
+            raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
+        if self.cov_every < 1:
+            raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
+
+
+@dataclass
+class StateIndex:
+    """Start index of each 3-block in the error state (None = not estimated)."""
+
+    n: int
+    pos: int = 0
+    vel: int = 3
+    att: int = 6
+    bg: int | None = None
+    ba: int | None = None
+    sg: int | None = None
+    sa: int | None = None
+
+    @staticmethod
+    def build(cfg: FilterConfig) -> StateIndex:
+        k = 9
+        bg = ba = sg = sa = None
+        if cfg.gyro_bias:
+            bg, k = k, k + 3
+        if cfg.accel_bias:
+            ba, k = k, k + 3
+        if cfg.scale_factors:
+            sg, k = k, k + 3
+            sa, k = k, k + 3
+        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa)
+
+
+def skew(a: Vec) -> Vec:
+    """[a×] (local fast copy of rotation.skew for floats)."""
+    return np.array(((0.0, -a[2], a[1]), (a[2], 0.0, -a[0]), (-a[1], a[0], 0.0)))
+
+
+@dataclass
+class ErrorStateEKF:
+    """Covariance, error-state estimate and the linear models of the closed-loop filter.
+
+    The nominal navigation state (quaternion, velocity, position, biases) lives in
+    :class:`ins_hil.core.NavCore`; this class owns P (n×n) and the error estimate x.
+    """
+
+    cfg: FilterConfig = field(default_factory=FilterConfig)
+
+    def __post_init__(self) -> None:
+        c = self.cfg
+        self.idx = StateIndex.build(c)
+        n = self.idx.n
+        self.n = n
+        self.x = np.zeros(n)
+        sig = np.zeros(n)
+        sig[0:3] = c.init_pos
+        sig[3:6] = c.init_vel
+        sig[6:9] = (c.init_att, c.init_att, c.init_yaw)
+        qc = np.zeros(n)  # continuous white-noise spectral densities
+        self._tau = np.full(n, np.inf)
+        qc[3:6] = c.accel_vrw**2
+        qc[6:9] = c.gyro_arw**2
+        i = self.idx
+        if i.bg is not None:
+            sig[i.bg : i.bg + 3] = c.init_gyro_bias
+            qc[i.bg : i.bg + 3] = 2.0 * c.gyro_bias_sigma**2 / c.gyro_bias_tau
+            self._tau[i.bg : i.bg + 3] = c.gyro_bias_tau
+        if i.ba is not None:
+            sig[i.ba : i.ba + 3] = c.init_accel_bias
+            qc[i.ba : i.ba + 3] = 2.0 * c.accel_bias_sigma**2 / c.accel_bias_tau
+            self._tau[i.ba : i.ba + 3] = c.accel_bias_tau
+        if i.sg is not None and i.sa is not None:
+            sig[i.sg : i.sg + 3] = c.init_sf
+            sig[i.sa : i.sa + 3] = c.init_sf
+            qc[i.sg : i.sg + 3] = 2.0 * c.gyro_sf_sigma**2 / c.sf_tau
+            qc[i.sa : i.sa + 3] = 2.0 * c.accel_sf_sigma**2 / c.sf_tau
+            self._tau[i.sg : i.sg + 6] = c.sf_tau
+        self.qc = qc
+        self.P = np.diag(sig**2)
+        self._F = np.zeros((n, n))
+        self._F[0:3, 3:6] = np.eye(3)
+        for k in range(n):
+            if math.isfinite(self._tau[k]):
+                self._F[k, k] = -1.0 / self._tau[k]
+        self._eye = np.eye(n)
+        self._g2r = 2.0 * 9.80665 / 6371000.0
+        self._diag = np.arange(n) * (n + 1)
+        # accumulation for cov_every > 1
+        self._acc_n = 0
+        self._acc_dt = 0.0
+        self._acc_f = np.zeros(3)
+        self._acc_w = np.zeros(3)
+        self._acc_fb = np.zeros(3)
+        self.n_predict = 0
+        self.factor: tuple | None = None  # square-root/UD factor when numerics is qr/cholesky/ud
+        if c.numerics in ("qr", "cholesky", "ud"):
+            from ins_hil.fusion import sqrt as sq
+
+            self.factor = sq.factor_from_cov(c.numerics, self.P)
+
+    # ------------------------------------------------------------------ prediction
+    def set_state_sigma(self, block: str, sigma: Vec | float) -> None:
+        """Reset the variance of one block (e.g. "att" after an alignment); clears its correlations."""
+        k = int(getattr(self.idx, block))
+        s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (3,))
+        self.P[k : k + 3, :] = 0.0
+        self.P[:, k : k + 3] = 0.0
+        self.P[k : k + 3, k : k + 3] = np.diag(s**2)
+        if self.factor is not None:
+            from ins_hil.fusion import sqrt as sq
+
+            self.factor = sq.factor_from_cov(self.cfg.numerics, self.P)
+
+    def build_F(self, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, f_b: Vec, w_b: Vec, lat: float, h: float) -> Vec:
+        """Continuous error-dynamics matrix F (n×n) at the current nominal state (see module doc).
+
+        Filled in place with scalar stores (hot path: numpy slicing costs ~1 µs per call)."""
+        F = self._F
+        i = self.idx
+        fN, fE, fD = float(f_ned[0]), float(f_ned[1]), float(f_ned[2])
+        # δv̇ = [f×] μ   (book eq. 3.1, block C)
+        F[3, 7] = -fD
+        F[3, 8] = fE
+        F[4, 6] = fD
+        F[4, 8] = -fN
+        F[5, 6] = -fE
+        F[5, 7] = fN
+        if self.cfg.earth_terms:
+            cN = 2.0 * float(w_ie[0]) + float(w_en[0])
+            cE = float(w_en[1])
+            cD = 2.0 * float(w_ie[2]) + float(w_en[2])
+            F[3, 4] = cD  # −[(2ω_ie + ω_en)×]
+            F[3, 5] = -cE
+            F[4, 3] = -cD
+            F[4, 5] = cN
+            F[5, 3] = cE
+            F[5, 4] = -cN
+            oN = float(w_ie[0]) + float(w_en[0])
+            oE = cE
+            oD = float(w_ie[2]) + float(w_en[2])
+            F[6, 7] = oD  # −[ω_in×]
+            F[6, 8] = -oE
+            F[7, 6] = -oD
+            F[7, 8] = oN
+            F[8, 6] = oE
+            F[8, 7] = -oN
+            F[5, 2] = self._g2r  # 2g/R, vertical channel (seed 001 eq. 96, NED sign)
+        if i.bg is not None:
+            F[6:9, i.bg : i.bg + 3] = C_bn  # μ̇ = C δb_g   (book eq. 3.40, A^T)
+        if i.ba is not None:
+            F[3:6, i.ba : i.ba + 3] = -C_bn
+        if i.sg is not None and i.sa is not None:
+            F[6:9, i.sg : i.sg + 3] = C_bn * w_b[None, :]
+            F[3:6, i.sa : i.sa + 3] = -C_bn * f_b[None, :]
+        return F
+
+    def predict(
+        self, dt: float, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, f_b: Vec, w_b: Vec, lat: float, h: float
+    ) -> None:
+        """Time update over one IMU interval dt (s); every ``cov_every`` calls the covariance is
+        propagated with F at the current state and the specific force/rates averaged over the block."""
+        ce = self.cfg.cov_every
+        if ce > 1:
+            self._acc_n += 1
+            self._acc_dt += dt
+            self._acc_f += f_ned
+            if self.idx.sg is not None:
+                self._acc_fb += f_b
+                self._acc_w += w_b
+            if self._acc_n < ce:
+                return
+            k = self._acc_n
+            dt = self._acc_dt
+            f_ned = self._acc_f / k
+            f_b = self._acc_fb / k
+            w_b = self._acc_w / k
+            self._acc_n = 0
+            self._acc_dt = 0.0
+            self._acc_f = np.zeros(3)
+            self._acc_fb = np.zeros(3)
+            self._acc_w = np.zeros(3)
+        F = self.build_F(C_bn, f_ned, w_ie, w_en, f_b, w_b, lat, h)
+        Phi = F * dt
+        if self.cfg.second_order:
+            Phi += (0.5 * dt * dt) * (F @ F)  # book eq. 3.2: I + FΔt + F²Δt²/2
+        Phi.flat[self._diag] += 1.0
+        self.propagate(Phi, self.qc * dt)
+
+    def propagate(self, Phi: Vec, qd: Vec) -> None:
+        """P ← Φ P Φ^T + diag(qd) (book eq. 3.7/3.19), or the factor form of the configured numerics."""
+        self.n_predict += 1
+        if self.factor is not None:
+            from ins_hil.fusion import sqrt as sq
+
+            self.factor = sq.factor_predict(self.factor, Phi, qd)
+            self.P = sq.factor_cov(self.factor)
+            return
+        P = np.dot(np.dot(Phi, self.P), Phi.T)
+        P.flat[self._diag] += qd
+        self.P = P
+
+    # ------------------------------------------------------------------ update
+    def innovation_cov(self, H: Vec, R: Vec) -> Vec:
+        """S = H P H^T + R."""
+        return H @ self.P @ H.T + R
+
+    def update(self, z: Vec, H: Vec, r_diag: Vec) -> None:
+        """Measurement update with residual z (measured − predicted, before the current x is applied),
+        rows H (m×n) and diagonal noise variances r_diag (m,).
+
+        Default: sequential scalar updates in Joseph form (book eq. 3.16–3.18); other
+        numerics from :mod:`ins_hil.fusion.sqrt`. The error estimate accumulates in ``x``
+        until :meth:`reset` (feedback) is called.
+        """
+        numerics = self.cfg.numerics
+        if numerics == "joseph":
+            x, P = self.x, self.P
+            for j in range(len(z)):
+                h = H[j]
+                ph = P @ h
+                s = float(h @ ph) + float(r_diag[j])
+                k = ph / s
+                x = x + k * (float(z[j]) - float(h @ x))
+                A = self._eye - np.outer(k, h)
+                P = A @ P @ A.T + float(r_diag[j]) * np.outer(k, k)
+            self.x = x
+            self.P = 0.5 * (P + P.T)
+            return
+        from ins_hil.fusion import sqrt as sq
+
+        if numerics == "conventional":
+            self.x, self.P = sq.conventional_update(self.x, self.P, z, H, np.diag(r_diag))
+            return
+        if self.factor is None:
+            self.factor = sq.factor_from_cov(numerics, self.P)
+        self.x, self.factor = sq.factor_update(self.factor, self.x, z, H, r_diag)
+        self.P = sq.factor_cov(self.factor)
+
+    def reset(self) -> Vec:
+        """Return the error estimate for feedback and zero it (closed-loop reset, DIGEST_000 §10 item 23)."""
+        x = self.x
+        self.x = np.zeros(self.n)
+        return x
+
+    def std(self) -> Vec:
+        """1-σ of every error state."""
+        return np.sqrt(np.abs(self.P.diagonal()))

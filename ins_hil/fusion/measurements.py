@@ -1,0 +1,120 @@
+"""Measurement models of the error-state filter: residual z = measured − predicted, rows H, noise.
+
+Conventions of :mod:`ins_hil.fusion.ekf` (DIGEST_000 §9): δr = true − computed (NED m),
+δv = true − computed, Ĉ_b^n = (I + [μ×]) C_b^n, δb = true − estimated.
+
+* GNSS position with lever arm l (body FRD, IMU → antenna):
+  z = r_gnss − (r̂ + Ĉ l) = δr + [(Ĉ l)×] μ            (book eq. 3.3 with lever arm)
+* GNSS velocity: z = v_gnss − (v̂ + Ĉ(ω̂ × l)) = δv + [(Ĉ(ω̂×l))×] μ + Ĉ [l×] δb_g
+* barometric height: z = h_baro − ĥ = −δr_D           (book eq. 3.30 last row, NED sign, §10 item 26)
+* magnetometer, book §3.2 eqs. 3.28–3.38: with the unit reference field m (NED) and the
+  rotation τ of eq. 3.33 (τ m = e1), z = rows 2–3 of τ (m × Ĉ m̄) = rows 2–3 of τ μ
+  (the two-component measurement −γ̄ of eq. 3.38; for m = e1, τ = I and z = [μ2, μ3], eq. 3.30)
+* non-holonomic constraint (ground vehicle): body lateral/vertical velocity 0:
+  z = 0 − (Ĉ^T v̂)_{y,z} = rows of Ĉ^T δv − Ĉ^T [v̂×] μ
+* zero-velocity update: z = 0 − v̂ = δv.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ins_hil.fusion.ekf import StateIndex, skew
+from ins_hil.nav import earth
+from ins_hil.types import Vec
+
+
+def ned_residual(lat_m: float, lon_m: float, h_m: float, lat: float, lon: float, h: float) -> Vec:
+    """NED metres of (measured − computed) geodetic position (small differences)."""
+    m, n = earth.radii(lat)
+    return np.array(((lat_m - lat) * (m + h), (lon_m - lon) * (n + h) * math.cos(lat), -(h_m - h)))
+
+
+def gnss_position(
+    idx: StateIndex,
+    C_bn: Vec,
+    lat: float,
+    lon: float,
+    h: float,
+    meas_lat: float,
+    meas_lon: float,
+    meas_h: float,
+    lever_b: Vec,
+    shift_ned: Vec | None = None,
+) -> tuple[Vec, Vec]:
+    """(z, H) of a GNSS position; ``shift_ned`` moves the measurement (e.g. −v·Δt time alignment)."""
+    la = C_bn @ lever_b
+    z = ned_residual(meas_lat, meas_lon, meas_h, lat, lon, h) - la
+    if shift_ned is not None:
+        z = z + shift_ned
+    H = np.zeros((3, idx.n))
+    H[:, idx.pos : idx.pos + 3] = np.eye(3)
+    H[:, idx.att : idx.att + 3] = skew(la)
+    return z, H
+
+
+def gnss_velocity(idx: StateIndex, C_bn: Vec, vel: Vec, omega_b: Vec, meas_vel: Vec, lever_b: Vec) -> tuple[Vec, Vec]:
+    """(z, H) of a GNSS velocity with the lever-arm rotation term."""
+    wl = C_bn @ np.cross(omega_b, lever_b)
+    z = meas_vel - (vel + wl)
+    H = np.zeros((3, idx.n))
+    H[:, idx.vel : idx.vel + 3] = np.eye(3)
+    H[:, idx.att : idx.att + 3] = skew(wl)
+    if idx.bg is not None:
+        H[:, idx.bg : idx.bg + 3] = C_bn @ skew(lever_b)
+    return z, H
+
+
+def baro_height(idx: StateIndex, h: float, baro_h: float) -> tuple[Vec, Vec]:
+    """(z, H) of a barometric height already referred to the ellipsoid (m)."""
+    H = np.zeros((1, idx.n))
+    H[0, idx.pos + 2] = -1.0
+    return np.array((baro_h - h,)), H
+
+
+def tau_matrix(m: Vec) -> Vec:
+    """Book eq. (3.33): orthogonal τ with τ m = e1 for a unit vector m (m_x > −1)."""
+    mx, my, mz = float(m[0]), float(m[1]), float(m[2])
+    if mx <= -1.0 + 1e-12:
+        raise ValueError("tau_matrix: m_x = -1 is singular (eq. 3.33)")
+    k = 1.0 / (1.0 + mx)
+    return np.array(
+        (
+            (mx, my, mz),
+            (-my, 1.0 - my * my * k, -my * mz * k),
+            (-mz, -my * mz * k, 1.0 - mz * mz * k),
+        )
+    )
+
+
+def magnetometer(idx: StateIndex, C_bn: Vec, field_b: Vec, ref_ned: Vec) -> tuple[Vec, Vec]:
+    """(z, H) of the book's reduced two-component magnetometer measurement (eqs. 3.28–3.38).
+
+    field_b: measured field (any unit, body FRD); ref_ned: reference field (NED, any unit).
+    Both are normalised (the book works with unit vectors, σ_m per component)."""
+    m = ref_ned / np.linalg.norm(ref_ned)
+    mb = field_b / np.linalg.norm(field_b)
+    tau = tau_matrix(m)
+    g = tau @ np.cross(m, C_bn @ mb)  # −γ̄ = m × τ Ā m̄  (eq. 3.38, in τ coordinates)
+    H = np.zeros((2, idx.n))
+    H[:, idx.att : idx.att + 3] = tau[1:3]
+    return g[1:3], H
+
+
+def nonholonomic(idx: StateIndex, C_bn: Vec, vel: Vec) -> tuple[Vec, Vec]:
+    """(z, H) of the non-holonomic constraint v_b,y = v_b,z = 0 (ground vehicle)."""
+    Cnb = C_bn.T
+    vb = Cnb @ vel
+    H = np.zeros((2, idx.n))
+    H[:, idx.vel : idx.vel + 3] = Cnb[1:3]
+    H[:, idx.att : idx.att + 3] = -(Cnb @ skew(vel))[1:3]
+    return -vb[1:3], H
+
+
+def zero_velocity(idx: StateIndex, vel: Vec) -> tuple[Vec, Vec]:
+    """(z, H) of a zero-velocity update."""
+    H = np.zeros((3, idx.n))
+    H[:, idx.vel : idx.vel + 3] = np.eye(3)
+    return -vel, H
