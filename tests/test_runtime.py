@@ -212,3 +212,16 @@ def test_status_view_renders_the_live_figures(live_run: dict) -> None:
         assert word in text, word
     line = _summary_line(live_run["gw"])
     assert "imu0" in line and "arrival→sent" in line
+
+
+def test_ins_hil_replay_command_on_an_ihlog(live_run: dict) -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "ins_hil", "replay", str(live_run["log"]), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    assert f"IMU epochs processed {len(live_run['states'])}," in r.stdout
+    last = live_run["states"][-1]
+    assert f"final state t {last.t:.3f} s" in r.stdout
