@@ -176,8 +176,24 @@ TEMPLATE = """# Runtime: the real-time gateway
   < 100 ms, tested), rotated by size (`run.ihlog`, `run.1.ihlog`, …). `replay_log` (and
   `ins-hil replay LOG.ihlog`) rebuilds the same pipeline from the header and reproduces the
   online states **bit for bit** (tested on a live 1 kHz run).
-- **Stop**: SIGINT/SIGTERM stop cleanly (simulator stopped, transports closed, recorder flushed);
-  a second SIGINT exits at once.
+- **Stop**: SIGINT/SIGTERM stop cleanly (simulator stopped, inputs closed, what they delivered
+  run through the pipeline, transports closed, recorder flushed); a second SIGINT exits at once.
+- **Pipeline** (`ins_hil/runtime/pipeline.py`, shared with replay): calibration
+  (`core.calibration`, `ins_hil.nav.calibration`) → redundant-IMU epoch grouping (`fdi.imu_ids`)
+  → FDI monitor (`[fdi] enabled`, `[fdi.options]`: geometry + `FdiConfig`) → core (`core.kind`:
+  `python` = `ins_hil.core.NavCore`, `c` = `ins_hil.cref.CNavCore`, both with the `NavConfig` of
+  `[core.nav]`). The core starts at the first 3-D GNSS fix, levelled from the accelerometers.
+  At 1 kHz the Python core runs with `delay_compensation = false` and `filter.cov_every = 10`
+  (configs/default.toml): with the rollback snapshots and a per-step covariance it needs more
+  than the 1 ms a sample allows on this machine. The C core propagates every step.
+- **Inputs**: `serial_imu` (pty or UART, `ins_hil.drivers.serial_imu`), `can_imu` (SocketCAN,
+  DroneCAN RawIMU or DBC frames, `ins_hil.drivers.can_imu`; `[inputs.options]`), `mavlink`
+  (GNSS/baro from a flight controller over UDP/TCP/serial, TIMESYNC, signing;
+  `ins_hil.drivers.mavlink_in`).
+- **API for tools and the soak test**: `Gateway(config).run(duration=...)`, `Gateway.metrics`
+  (`RuntimeMetrics.snapshot()`: per-source received/rate/dropped-by-reason, late, queue depth,
+  fused counts, output counters, cumulative and 5-s-window latency histograms), `Gateway.on_state`
+  and `Gateway.on_fault` callbacks.
 
 ## MAVLink
 
@@ -228,6 +244,9 @@ for ATTITUDE). Distributions: `docs/runtime_latency.png`.
   and FIFO depth (the status view and the warning say so).
 - GNSS/baro timing rests on TIMESYNC with the source and on the IMU arrival-time minimum: about
   1 ms of error here; a real setup with USB serial adds its own latency jitter.
+- Under CPU starvation the loop falls behind; the pty then fills and the simulator drops whole
+  frames, which the serial driver counts as `seq_gap` (visible in the status view); the FIFO
+  itself never grew past a few dozen samples in these runs.
 - The simulator generates the truth in 10 s chunks; the Gauss–Markov bias drift restarts from its
   stationary distribution at each chunk boundary.
 """

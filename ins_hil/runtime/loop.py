@@ -219,7 +219,11 @@ class Gateway:
                 path = Path(cfg.recorder.dir) / f"ins-hil-{stamp}.ihlog"
             self.recorder = Recorder(
                 path,
-                header={"config": cfg.to_dict(), "pipeline": cfg.to_dict()["pipeline"], "started": time.time()},
+                header={
+                    "config": _redact(cfg.to_dict()),
+                    "pipeline": cfg.to_dict()["pipeline"],
+                    "started": time.time(),
+                },
                 max_bytes=int(cfg.recorder.max_mb * 1024 * 1024),
                 flush_period=cfg.recorder.flush_period,
             )
@@ -341,3 +345,15 @@ def _pin_port(url: str) -> str:
             s.bind((parts[1], 0))
             return f"udpin:{parts[1]}:{s.getsockname()[1]}"
     return url
+
+
+_SECRETS = ("signing_key", "sign_key", "password")
+
+
+def _redact(d: Any) -> Any:
+    """The config for the log header without secrets (signing keys, passwords)."""
+    if isinstance(d, dict):
+        return {k: ("<redacted>" if k in _SECRETS and v else _redact(v)) for k, v in d.items()}
+    if isinstance(d, list):
+        return [_redact(v) for v in d]
+    return d
