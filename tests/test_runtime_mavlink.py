@@ -109,3 +109,75 @@ def test_flight_controller_messages_decode_to_the_state() -> None:
     hil = out["HIL_STATE_QUATERNION"][0]
     assert np.allclose(hil.attitude_quaternion, st.q_nb, atol=1e-7) and hil.alt == 181500 and hil.vx == 300
     assert out["HEARTBEAT"][0].type == mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
+
+
+def _stream_out(url: str, read: object) -> list[str]:
+    """Run a gcs endpoint on ``url`` for a moment; ``read()`` returns what the peer got."""
+    metrics = RuntimeMetrics()
+
+    async def go() -> None:
+        ep = MavlinkEndpoint(EndpointConfig(name="s", url=url, rates={"ATTITUDE": 100.0}), metrics)
+        await ep.start()
+        for k in range(60):
+            ep.offer(_state(1.0 + 0.01 * k), 0, 0)
+            await asyncio.sleep(0.01)
+        await ep.close()
+
+    asyncio.run(go())
+    mav = mavlink2.MAVLink(None)
+    return [m.get_type() for m in mav.parse_buffer(read()) or []]  # type: ignore[operator]
+
+
+def test_tcp_endpoint_connects_and_streams() -> None:
+    srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    srv.settimeout(10)
+    port = srv.getsockname()[1]
+    conns: list[socket.socket] = []
+
+    def read() -> bytes:
+        c = conns[0]
+        c.setblocking(False)
+        buf = b""
+        while True:
+            try:
+                d = c.recv(65536)
+            except BlockingIOError:
+                return buf
+            if not d:
+                return buf
+            buf += d
+
+    import threading
+
+    th = threading.Thread(target=lambda: conns.append(srv.accept()[0]))
+    th.start()
+    types = _stream_out(f"tcp:127.0.0.1:{port}", read=lambda: (th.join(), read())[1])
+    srv.close()
+    assert "HEARTBEAT" in types and types.count("ATTITUDE") > 10
+
+
+def test_serial_endpoint_writes_to_a_tty() -> None:
+    import os
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+
+    def read() -> bytes:
+        buf = b""
+        while True:
+            try:
+                d = os.read(master, 65536)
+            except BlockingIOError:
+                return buf
+            if not d:
+                return buf
+            buf += d
+
+    types = _stream_out(f"serial:{os.ttyname(slave)}:115200", read=read)
+    os.close(master)
+    os.close(slave)
+    assert "HEARTBEAT" in types and types.count("ATTITUDE") > 10
