@@ -76,6 +76,7 @@ class CanImuDriver:
         self._start_ns = time.monotonic_ns()
         self._ns_tid = 0
         self.node_status_sent = 0
+        self.frames_rx = 0  # every CAN frame handed to the driver (good or not)
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> CanImuDriver:
@@ -103,6 +104,7 @@ class CanImuDriver:
     def handle(self, msg: can.Message, sink: Sink, now_ns: int) -> None:
         """One received CAN message → zero or one sample to ``sink``."""
         h = self.health
+        self.frames_rx += 1
         if msg.is_error_frame:
             h.count("error_frame")
             if msg.arbitration_id & CAN_ERR_BUSOFF:
