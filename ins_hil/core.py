@@ -58,8 +58,10 @@ class NavConfig:
     gnss_lever_arm_b: IMU → GNSS antenna (m, body FRD). gnss_min_std: floor on the
     reported GNSS σ (m, m/s). baro_std (m); mag_std (unit-vector component, book σ_m);
     mag_ref_ned: reference magnetic field (NED, any unit, e.g. from WMM: declination is in it).
-    nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, zero velocity
-    when the IMU is at rest for ``zupt_time`` s). adaptive: Sage–Husa R on GNSS/baro.
+    nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, optionally also on
+    the vertical axis; zero velocity — and zero angular rate on the gyro bias with ``zaru`` — when
+    the averaged IMU looks at rest for ``zupt_time`` s and the speed is below ``zupt_max_speed``).
+    adaptive: Sage–Husa R on GNSS/baro.
     The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
     taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
     """
@@ -92,6 +94,10 @@ class NavConfig:
     zupt_gyro: float = 0.02
     zupt_accel: float = 0.15
     zupt_time: float = 0.5
+    zupt_tau: float = 0.3
+    zupt_max_speed: float = 1.0
+    zaru: bool = True
+    zaru_std: float = 0.002
     delay_compensation: bool = True
     max_delay: float = 0.3
     align: str = "given"
@@ -149,6 +155,9 @@ class NavCore:
         self._replaying = False
         self._nhc_next = 0.0
         self._still_time = 0.0
+        self._ema_w = np.zeros(3)
+        self._ema_f = np.array((0.0, 0.0, -9.80665))
+        self._g_local = 9.80665
         self._baro_offset: float | None = None
         self._t_baro = 0.0
         self._t_gnss_ok = -math.inf
@@ -219,24 +228,40 @@ class NavCore:
                     self._fuse_now(m)
 
     def _ground_aids(self, imu: ImuSample) -> None:
+        """ZUPT/ZARU at rest and the non-holonomic constraint in motion (ground vehicles).
+
+        Rest detection on exponentially averaged (τ = ``zupt_tau``) rate and specific-force
+        magnitudes, so engine vibration (tens of Hz, °/s-level on a car) does not hide a stop."""
         c = self.cfg
         if not (c.nhc or c.zupt):
             return
         t = imu.t
         s = self.ins.state
-        still = (
-            float(np.linalg.norm(self.omega_b)) < c.zupt_gyro
-            and abs(float(np.linalg.norm(self.f_b)) - earth.normal_gravity(s.lat, s.h)) < c.zupt_accel
-        )
+        a = min(1.0, imu.dt / c.zupt_tau)
+        self._ema_w = self._ema_w + a * (self.omega_b - self._ema_w)
+        self._ema_f = self._ema_f + a * (self.f_b - self._ema_f)
+        w, f = self._ema_w, self._ema_f
+        wn = math.sqrt(float(w[0]) ** 2 + float(w[1]) ** 2 + float(w[2]) ** 2)
+        fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + float(f[2]) ** 2)
+        vn = s.vel_ned
+        slow = float(vn[0]) ** 2 + float(vn[1]) ** 2 + float(vn[2]) ** 2 < c.zupt_max_speed**2
+        # constant-velocity driving looks like rest to the IMU: require a low estimated speed too
+        still = slow and wn < c.zupt_gyro and abs(fn - self._g_local) < c.zupt_accel
         self._still_time = self._still_time + imu.dt if still else 0.0
         if t < self._nhc_next:
             return
         self._nhc_next = t + 1.0 / c.nhc_rate
-        C = dcm_from_quat(s.q_nb)
         if c.zupt and self._still_time >= c.zupt_time:
             z, H = mm.zero_velocity(self.idx, s.vel_ned)
             self._apply("zupt", z, H, np.full(3, c.zupt_std**2), c.gate_aux, t)
+            if c.zaru and self.idx.bg is not None:
+                # zero angular rate: the averaged compensated rate is the residual gyro bias, z = 0 − ω̄ = −δb_g
+                H = np.zeros((3, self.idx.n))
+                H[:, self.idx.bg : self.idx.bg + 3] = -np.eye(3)
+                self._apply("zupt", -w, H, np.full(3, c.zaru_std**2), c.gate_aux, t)
+                self._ema_w = np.zeros(3)
         elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
+            C = dcm_from_quat(s.q_nb)
             z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
             if c.nhc_vertical:
                 self._apply("nhc", z, H, np.array((c.nhc_std**2, c.nhc_std_vertical**2)), c.gate_aux, t)
@@ -533,6 +558,8 @@ class NavCore:
 
     def _enter_nav(self, yaw_std: float | None = None) -> None:
         self.phase = "nav"
+        s = self.ins.state
+        self._g_local = earth.normal_gravity(s.lat, s.h)
         if yaw_std is not None:
             c = self.cfg.filter
             self.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))

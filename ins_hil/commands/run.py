@@ -1,20 +1,162 @@
-"""`ins-hil run`: the gateway (until the runtime lands: the simulated end-to-end core run)."""
+"""`ins-hil run`: the real-time gateway (default: configs/default.toml, simulated sensors)."""
 
 from __future__ import annotations
 
 import argparse
-
-from ins_hil.commands import demo
+import asyncio
+import json
+import math
+import sys
+from typing import Any
 
 NAME = "run"
-HELP = "run the gateway (default: built-in simulated sensors)"
+HELP = "run the gateway (default: configs/default.toml, simulated sensors, MAVLink to udp:127.0.0.1:14550)"
+DESCRIPTION = (
+    "Run the real-time gateway. With no arguments it runs configs/default.toml: simulated IMU (1 kHz serial "
+    "frames over a pty), GNSS and baro (MAVLink over UDP), publishing MAVLink to udp:127.0.0.1:14550 "
+    "(QGroundControl) and MQTT to 127.0.0.1:1883 when a broker is running, with a live status view. "
+    "Ctrl-C stops cleanly (recorder flushed); a second Ctrl-C exits at once."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    demo.add_arguments(p)
+    p.add_argument("--config", metavar="TOML", help="configuration file (default: configs/default.toml)")
+    p.add_argument("--core", choices=["python", "c"], help="navigation core (overrides core.kind)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--no-status", action="store_true", help="no live view: one summary line every 5 s")
+    p.add_argument("--record", metavar="PATH", help="recorder file (default: recorder.dir/ins-hil-<time>.ihlog)")
+    p.add_argument("--no-mqtt", action="store_true", help="do not publish MQTT")
+    p.add_argument("--json", metavar="PATH", help="write the final metrics snapshot as JSON")
+
+
+def _fmt(v: float, unit: str = "") -> str:
+    return "—" if v is None or not math.isfinite(v) else f"{v:,.0f}{unit}" if abs(v) >= 100 else f"{v:.2f}{unit}"
+
+
+def render(gw: Any) -> Any:
+    """The rich status view of a running gateway."""
+    from rich.console import Group
+    from rich.table import Table
+
+    snap = gw.metrics.snapshot()
+    st = gw.pipeline.last_state
+    head = Table.grid(padding=(0, 2))
+    head.add_row(
+        f"[b]ins-hil[/b] {gw.cfg.source}",
+        f"up {snap['uptime_s']:.0f} s",
+        f"core {gw.cfg.pipeline.core}",
+        "[green]aligned[/green]" if snap["aligned"] else "[yellow]aligning[/yellow]",
+        f"FDI {snap['fdi_state']}",
+        f"faults {snap['faults']}",
+    )
+    t_in = Table(title="inputs", expand=True)
+    for c in ("source", "rate Hz", "received", "dropped"):
+        t_in.add_column(c)
+    for name, s in snap["sources"].items():
+        drops = ", ".join(f"{k} {v}" for k, v in s["dropped"].items() if v) or "0"
+        t_in.add_row(name, f"{s['rate_hz']:.1f}", str(s["received"]), drops)
+    t_lat = Table(title="latency (last 5 s window / total), µs", expand=True)
+    for c in ("path", "p50", "p99", "p99.9", "max", "count"):
+        t_lat.add_column(c)
+    for k in ("arrival_to_state", "state_to_sent", "arrival_to_sent", "core_step"):
+        w, tot = snap["latency_window"][k], snap["latency"][k]
+        t_lat.add_row(
+            k.replace("_", " "),
+            f"{_fmt(w['p50_us'])} / {_fmt(tot['p50_us'])}",
+            f"{_fmt(w['p99_us'])} / {_fmt(tot['p99_us'])}",
+            _fmt(tot["p999_us"]),
+            _fmt(tot["max_us"]),
+            str(tot["count"]),
+        )
+    t_out = Table(title="outputs", expand=True)
+    for c in ("endpoint", "counters"):
+        t_out.add_column(c)
+    for name, d in snap["outputs"].items():
+        t_out.add_row(name, ", ".join(f"{k} {v}" for k, v in sorted(d.items()) if k != "bytes"))
+    if gw.mqtt is not None:
+        link = "connected" if gw.mqtt.connected else f"[yellow]offline[/yellow] {gw.mqtt.last_error}"
+        t_out.add_row("mqtt link", link)
+    parts: list[Any] = [head, t_in, t_lat, t_out]
+    nav = Table.grid(padding=(0, 2))
+    if st is not None:
+        from ins_hil.nav.rotation import euler_from_quat
+
+        e = [math.degrees(float(x)) for x in euler_from_quat(st.q_nb)]
+        nav.add_row(
+            f"t {st.t:.2f} s",
+            f"lat {math.degrees(st.lat):.6f}  lon {math.degrees(st.lon):.6f}  h {st.h:.1f} m",
+            f"rpy {e[0]:.1f} {e[1]:.1f} {e[2]:.1f} °",
+            f"v {st.vel_ned[0]:.1f} {st.vel_ned[1]:.1f} {st.vel_ned[2]:.1f} m/s",
+        )
+        ratios = "  ".join(f"{k} {v:.2f}" for k, v in snap["test_ratios"].items()) or "—"
+        nav.add_row("test ratios", ratios, f"late {snap['late']}", f"queue max {snap['queue_depth_max']}")
+    parts.append(nav)
+    if snap["warnings"]:
+        parts.append("[yellow]" + snap["warnings"][-1] + "[/yellow]")
+    return Group(*parts)
+
+
+def _summary_line(gw: Any) -> str:
+    s = gw.metrics.snapshot()
+    lat = s["latency"]["arrival_to_sent"]
+    rates = " ".join(f"{n} {v['rate_hz']:.0f}Hz" for n, v in s["sources"].items())
+    return (
+        f"[ins-hil] {s['uptime_s']:.0f} s  {rates}  epochs {s['imu_epochs']}  late {s['late']}  "
+        f"dropped {gw.metrics.dropped_total()}  arrival→sent p50 {_fmt(lat['p50_us'])} µs "
+        f"p99 {_fmt(lat['p99_us'])} µs  aligned {s['aligned']}  faults {s['faults']}"
+    )
+
+
+async def _status_live(gw: Any) -> None:
+    from rich.live import Live
+
+    with Live(render(gw), auto_refresh=False, transient=False) as live:
+        while True:
+            await asyncio.sleep(gw.cfg.gateway.status_period)
+            live.update(render(gw), refresh=True)
+
+
+async def _status_lines(gw: Any) -> None:
+    while True:
+        await asyncio.sleep(5.0)
+        print(_summary_line(gw), file=sys.stderr, flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
-    if not hasattr(args, "profile"):
-        args.profile = "uav"
-    return demo.run(args)
+    from ins_hil import config as config_mod
+    from ins_hil.runtime.loop import Gateway
+
+    path = args.config or config_mod.default_path()
+    try:
+        cfg = config_mod.load(path)
+    except config_mod.ConfigError as e:
+        print(f"ins-hil run: config error: {e}", file=sys.stderr)
+        return 2
+    if args.core:
+        cfg.pipeline.core = args.core
+    if args.no_mqtt:
+        cfg.mqtt.enabled = False
+    if args.duration is not None and args.duration <= 0:
+        print("ins-hil run: --duration must be positive", file=sys.stderr)
+        return 2
+    try:
+        gw = Gateway(cfg, record_path=args.record)
+    except (RuntimeError, ValueError) as e:
+        print(f"ins-hil run: {e}", file=sys.stderr)
+        return 2
+    interactive = not args.no_status and sys.stdout.isatty()
+    status = _status_live if interactive else _status_lines
+    try:
+        asyncio.run(gw.run(duration=args.duration, status=status))
+    except (OSError, RuntimeError) as e:
+        print(f"ins-hil run: {e}", file=sys.stderr)
+        return 1
+    print(_summary_line(gw), file=sys.stderr)
+    if gw.recorder is not None:
+        print(f"[ins-hil] recorded {gw.recorder.records} inputs to {gw.recorder.paths[0]}", file=sys.stderr)
+    if args.json:
+        from ins_hil.runtime.mqtt_out import clean_json
+
+        with open(args.json, "w") as f:
+            json.dump(clean_json(gw.metrics.snapshot()), f, indent=1)
+    return 0

@@ -1,0 +1,477 @@
+"""Runtime FDI monitor for redundant inertial sensors: detect, isolate, exclude, reconstruct, re-admit.
+
+Called by the runtime on every IMU epoch, before the navigation core::
+
+    mon = FdiMonitor(FdiConfig(geometry=skewed6(), dt=0.005, gyro_noise=..., accel_noise=...))
+    imu, events = mon.process(samples)   # samples: one ImuSample per unit (imu_id = unit index)
+
+Input layout: see :mod:`ins_hil.fdi.geometry` (a skewed single-axis array carries one
+gyro scalar in ``dtheta[0]`` and one accelerometer scalar in ``dvel[0]`` per unit; a
+full IMU carries its triad in its own frame). A unit absent from the epoch, or NaN
+values, is a dropout. Output: the body-frame (FRD) :class:`ImuSample` by weighted least
+squares from the healthy sensors, ω̂ = Z_h y_h (book eq. 5.26), plus new
+:class:`FaultEvent` s.
+
+Per group (gyros, accelerometers), with outputs whitened by their noise:
+
+* parity vector p = U₂ᵀ y/σ of the healthy rows (book eqs. 5.9–5.12);
+* fast test ‖p‖² > χ² threshold on ``persistence`` consecutive samples (steps,
+  noise bursts, scale jumps in motion); slow test on the exponential average
+  p̄ (time constant ``slow_tau``) for drifts and small biases; thresholds from
+  the noise and ``p_false_alarm`` (:mod:`ins_hil.fdi.thresholds`);
+* isolation: argmax over candidates of Σ (u_kᵀp)²/‖u_k‖² over the run (fast) or
+  (u_kᵀp̄)²/‖u_k‖² (slow): the generalised-likelihood form of the corrected
+  eq. 5.17 (argmin J(k) = argmax (u_kᵀp)²/‖u_k‖²);
+* direct checks: NaN/missing → DROPOUT; the same value ``stuck_samples`` times
+  in a row → STUCK (a noisy sensor never repeats exactly; raise the count or set
+  0 to disable for coarsely quantised sensors);
+* exclusion: the row leaves the parity space and the least squares at once; the
+  :class:`FaultEvent` (``t`` = exclusion time) is emitted after ``classify_time``
+  more seconds, when the failure mode has been classified from the residual of
+  the excluded sensor against the healthy solution (step, ramp, noise burst,
+  saturation plateau, scale factor, by least-squares fits);
+* re-admission (``readmit_after`` > 0): an excluded sensor whose residual passes
+  both tests for ``readmit_after`` seconds is taken back (event with ``cleared=True``).
+
+With m = n_healthy − 3 = 1 a fault is detected (event with ``isolated=False``)
+but cannot be isolated; with m = 0 nothing is monitored. Pure and deterministic
+(no clock, no I/O); cost a few tens of µs per call (``ins-hil bench-fdi``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ins_hil.fdi.geometry import SensorGeometry
+from ins_hil.fdi.parity import parity_basis
+from ins_hil.fdi.thresholds import fast_threshold, increment_sigma, slow_threshold, slow_variance
+from ins_hil.types import FaultEvent, FaultMode, ImuSample, Vec
+
+
+@dataclass
+class FdiConfig:
+    """Monitor configuration.
+
+    geometry: the redundant set; dt: nominal IMU interval (s);
+    gyro_noise / accel_noise: white-noise density of one sensor (rad/s/√Hz, m/s²/√Hz);
+    gyro_bias / accel_bias: 1-σ residual bias of one sensor after calibration (rad/s, m/s²),
+    e.g. its bias instability; p_false_alarm: allowed false-alarm probability per hour and
+    test; persistence: consecutive exceedances to trip (samples); slow_tau: averaging time
+    constant of the slow test (s); classify_time: post-exclusion time used to classify the
+    mode (s); readmit_after: healthy time before re-admission (s, 0 = never);
+    stuck_samples: identical consecutive outputs that mean STUCK (0 = off);
+    exclude_unit: exclude every row of the failed unit (whole IMU), not only the axis;
+    history: pre-isolation residual history kept for classification (s);
+    isolation_margin: after a trip, the best candidate's likelihood score must exceed the
+    second best by this much (in χ² units, i.e. a 4-σ separation) before it is excluded;
+    compensate_leak: on exclusion, subtract once from the next output what the fault put into the
+    least-squares output since its onset (residual of the excluded sensor against the others,
+    summed over the history, times its column of Z), so the integrated attitude/velocity is repaired.
+    """
+
+    geometry: SensorGeometry
+    dt: float
+    gyro_noise: float
+    accel_noise: float
+    gyro_bias: float = 0.0
+    accel_bias: float = 0.0
+    p_false_alarm: float = 1e-3
+    persistence: int = 3
+    slow_tau: float = 1.0
+    classify_time: float = 1.0
+    readmit_after: float = 0.0
+    stuck_samples: int = 10
+    exclude_unit: bool = False
+    history: float = 5.0
+    isolation_margin: float = 16.0
+    compensate_leak: bool = True
+
+    def __post_init__(self) -> None:
+        for key in ("dt", "gyro_noise", "accel_noise", "slow_tau", "history"):
+            v = getattr(self, key)
+            if not (isinstance(v, int | float) and v > 0 and math.isfinite(v)):
+                raise ValueError(f"FdiConfig.{key} must be a positive number, got {v!r}")
+        for key in ("gyro_bias", "accel_bias", "classify_time", "readmit_after"):
+            v = getattr(self, key)
+            if not (isinstance(v, int | float) and v >= 0 and math.isfinite(v)):
+                raise ValueError(f"FdiConfig.{key} must be a non-negative number, got {v!r}")
+        if not 0.0 < self.p_false_alarm < 1.0:
+            raise ValueError(f"FdiConfig.p_false_alarm must be in (0, 1), got {self.p_false_alarm!r}")
+        if self.persistence < 1:
+            raise ValueError(f"FdiConfig.persistence must be ≥ 1, got {self.persistence!r}")
+        if self.stuck_samples < 0:
+            raise ValueError(f"FdiConfig.stuck_samples must be ≥ 0, got {self.stuck_samples!r}")
+
+
+@dataclass
+class _Pending:
+    row: int
+    t_iso: float
+    test: str
+    t: list[float]
+    y: list[float]
+    yhat: list[float]
+
+
+class _Group:
+    """Parity monitor of one sensor group (gyros or accelerometers)."""
+
+    def __init__(self, cfg: FdiConfig, name: str, A: Vec, noise: float, bias: float) -> None:
+        self.cfg = cfg
+        self.name = name
+        self.geo = cfg.geometry
+        self.A = np.asarray(A, dtype=np.float64)
+        self.n = self.A.shape[0]
+        self.sig = increment_sigma(noise, cfg.dt)  # increment σ (rad or m/s)
+        self.sig_rate = self.sig / cfg.dt
+        self.bias_ratio = bias * cfg.dt / self.sig
+        self.alpha = min(1.0, cfg.dt / cfg.slow_tau)
+        self.var_slow = slow_variance(cfg.dt, cfg.slow_tau, self.bias_ratio)
+        self.healthy = np.ones(self.n, dtype=bool)
+        self.prev = np.full(self.n, np.nan)
+        self.same = np.zeros(self.n, dtype=np.int64)
+        L = max(4, round(cfg.history / cfg.dt))
+        self.buf = np.full((L, self.n), np.nan)
+        self.tbuf = np.full(L, np.nan)
+        self.pos = 0
+        self.pending: list[_Pending] = []
+        self.mode: dict[int, FaultMode] = {}
+        self.readmit_start: dict[int, float | None] = {}
+        self.readmit_ema: dict[int, float] = {}
+        self.detect_latched = False
+        self.est: Vec = np.zeros(3)
+        self.leak: Vec = np.zeros(3)
+        self.leak_on = False
+        self._rebuild()
+
+    # -- configuration of the healthy subset --------------------------------------------------
+    def _rebuild(self) -> None:
+        self.hidx = np.flatnonzero(self.healthy)
+        Ah = self.A[self.hidx]
+        self.Z = np.linalg.pinv(Ah)  # book eq. 5.26 on the healthy rows
+        self.P = np.linalg.inv(Ah.T @ Ah)
+        self.m = len(self.hidx) - 3
+        if self.m >= 1:
+            U2 = parity_basis(Ah)
+            self.V = U2.T / self.sig
+            norms = np.linalg.norm(U2, axis=1)
+            self.Un = U2 / np.where(norms > 1e-12, norms, np.inf)[:, None]
+            self.thr_fast = fast_threshold(self.cfg.p_false_alarm, self.cfg.dt, self.cfg.persistence, self.m)
+            self.thr_slow = slow_threshold(self.cfg.p_false_alarm, self.cfg.slow_tau, self.m) * self.var_slow
+            self.ema = np.zeros(self.m)
+            self.M = np.vstack([self.V, self.Z])
+        self.run = 0
+        self.srun = 0
+        self.score = np.zeros(len(self.hidx))
+        self.onset = math.nan
+        thr1 = fast_threshold(self.cfg.p_false_alarm, self.cfg.dt, self.cfg.persistence, 1)
+        self.thr_fast1 = thr1
+        self.thr_slow1 = slow_threshold(self.cfg.p_false_alarm, self.cfg.slow_tau, 1) * self.var_slow
+
+    # -- one epoch --------------------------------------------------------------------------------
+    def step(self, t: float, y: Vec, events: list[FaultEvent]) -> Vec:
+        cfg = self.cfg
+        t = float(t)
+        self.buf[self.pos] = y
+        self.tbuf[self.pos] = t
+        self.pos = (self.pos + 1) % len(self.tbuf)
+        # stuck counter (NaN never compares equal)
+        same = self.same
+        same += 1
+        same *= y == self.prev
+        self.prev[:] = y
+        if math.isnan(float(y.sum())):
+            bad = np.flatnonzero(np.isnan(y) & self.healthy)
+            if len(bad):
+                self._exclude_now(bad, t, FaultMode.DROPOUT, "no output (dropout)", events)
+        if cfg.stuck_samples and same.max() >= cfg.stuck_samples:
+            for k in np.flatnonzero((same >= cfg.stuck_samples) & self.healthy):
+                if int(self.healthy.sum()) > 3:
+                    self._isolate(int(k), t, "stuck-output", t - cfg.stuck_samples * cfg.dt)
+        yh = y[self.hidx]
+        if self.m < 1:
+            est = self.Z @ yh
+        else:
+            out = self.M @ yh  # [parity p (whitened, eq. 5.12); LS estimate (eq. 5.26)] in one product
+            p = out[: self.m]
+            est = out[self.m :]
+            s = float(p @ p)
+            ema = self.ema
+            ema *= 1.0 - self.alpha
+            ema += self.alpha * p
+            if s > self.thr_fast:
+                if self.run == 0:
+                    self.onset = t
+                self.run += 1
+                g = self.Un @ p
+                self.score += g * g
+            elif self.run:
+                self.run = 0
+                self.score[:] = 0.0
+            self.srun = self.srun + 1 if float(ema @ ema) > self.thr_slow else 0
+            tripped = False
+            if self.run >= cfg.persistence:
+                tripped = self._trip(t, self.score, 1.0, "fast", self.onset, events)
+            elif self.srun >= cfg.persistence:
+                g = self.Un @ self.ema
+                tripped = self._trip(t, g * g, self.var_slow, "slow", t - cfg.history, events)
+            if tripped:
+                est = self.Z @ y[self.hidx]
+        if len(self.hidx) < self.n:
+            self._watch_excluded(t, y, est, events)
+        if self.leak_on:
+            est = est - self.leak
+            self.leak[:] = 0.0
+            self.leak_on = False
+        self.est = np.asarray(est)
+        return est
+
+    def _trip(self, t: float, score: Vec, scale: float, test: str, onset: float, events: list[FaultEvent]) -> bool:
+        """A test has tripped: isolate and exclude if the best candidate is clear; True if excluded."""
+        if self.m < 2:
+            if not self.detect_latched:
+                self.detect_latched = True
+                events.append(
+                    FaultEvent(t, self.name, FaultMode.UNKNOWN, math.nan, isolated=False, detail=f"{test} parity test")
+                )
+            return False
+        top2 = np.partition(score, len(score) - 2)[-2:]
+        if (top2[1] - top2[0]) < self.cfg.isolation_margin * scale:
+            return False  # not yet separable: keep accumulating
+        self._isolate(int(self.hidx[int(np.argmax(score))]), t, test, onset)
+        return True
+
+    def _isolate(self, k: int, t: float, test: str, onset: float) -> None:
+        """Exclude row k (and its unit if configured); classification follows after classify_time."""
+        rows = [k]
+        if self.cfg.exclude_unit:
+            u = self.geo.unit_of(k)
+            rows = [int(r) for r in self.hidx if self.geo.unit_of(int(r)) == u]
+        if len(self.hidx) - len(rows) < 3:
+            rows = [k]
+        # residual history since the onset (against the others) for the classifier
+        others = np.array([r for r in self.hidx if r != k])
+        order = np.argsort(self.tbuf)
+        tb = self.tbuf[order]
+        sel = np.isfinite(tb) & (tb >= onset - 1e-9)
+        Yb = self.buf[order][sel]
+        yhat = (Yb[:, others] @ np.linalg.pinv(self.A[others]).T) @ self.A[k]
+        # classification looks at the last ≤ 2 s before the exclusion (a slow fault's shape), the leak at all of it
+        csel = tb[sel] >= max(onset, t - 2.0) - 1e-9
+        pend = _Pending(k, t, test, list(tb[sel][csel]), list(Yb[csel, k]), list(yhat[csel]))
+        if self.cfg.compensate_leak:
+            # the fault leaked into the output through column k of the LS matrix since the onset:
+            # take it back once from the next output (the navigation integrates increments)
+            pos_k = int(np.searchsorted(self.hidx, k))
+            resid = Yb[:, k] - yhat
+            self.leak += self.Z[:, pos_k] * float(np.nansum(resid))
+            self.leak_on = True
+        for r in rows:
+            self.healthy[int(r)] = False
+        self._rebuild()
+        self.pending.append(pend)
+        for r in rows:
+            if int(r) != k:
+                self.mode[int(r)] = FaultMode.UNKNOWN
+                self.readmit_start[int(r)] = None
+                self.readmit_ema[int(r)] = 0.0
+
+    def _exclude_now(self, rows: Vec, t: float, mode: FaultMode, detail: str, events: list[FaultEvent]) -> None:
+        units: dict[int, list[int]] = {}
+        for r in rows:
+            units.setdefault(self.geo.unit_of(int(r)), []).append(int(r))
+        for u, rs in units.items():
+            if int(self.healthy.sum()) - len(rs) < 3:
+                events.append(
+                    FaultEvent(t, self.name, mode, math.nan, isolated=False, detail=detail + "; too few left")
+                )
+                continue
+            for r in rs:
+                self.healthy[r] = False
+                self.mode[r] = mode
+                self.readmit_start[r] = None
+                self.readmit_ema[r] = 0.0
+            self._rebuild()
+            if len(rs) == 1:
+                name = self.geo.row_name(self.name, rs[0])
+            else:
+                name = f"imu{u}.{self.name}" if self.geo.kind == "imus" else self.name
+            events.append(FaultEvent(t, name, mode, math.nan, isolated=True, detail=detail))
+
+    def _watch_excluded(self, t: float, y: Vec, est: Vec, events: list[FaultEvent]) -> None:
+        cfg = self.cfg
+        for pend in list(self.pending):
+            yk = float(y[pend.row])
+            pend.t.append(t)
+            pend.y.append(yk)
+            pend.yhat.append(float(self.A[pend.row] @ est))
+            if t >= pend.t_iso + cfg.classify_time - 1e-9:
+                self.pending.remove(pend)
+                mode, mag = classify(np.array(pend.t), np.array(pend.y), np.array(pend.yhat), cfg.dt, self.sig_rate)
+                self.mode[pend.row] = mode
+                self.readmit_start[pend.row] = None
+                self.readmit_ema[pend.row] = 0.0
+                events.append(
+                    FaultEvent(
+                        pend.t_iso,
+                        self.geo.row_name(self.name, pend.row),
+                        mode,
+                        mag,
+                        isolated=True,
+                        detail=f"{pend.test} parity test",
+                    )
+                )
+        if cfg.readmit_after <= 0:
+            return
+        waiting = {p.row for p in self.pending}
+        for kk in np.flatnonzero(~self.healthy):
+            k = int(kk)
+            if k in waiting:
+                continue
+            a = self.A[k]
+            r = float(y[k] - a @ est)
+            ok = math.isfinite(r) and (cfg.stuck_samples == 0 or self.same[k] < cfg.stuck_samples)
+            if ok:
+                z = r / (self.sig * math.sqrt(1.0 + float(a @ self.P @ a)))
+                e = self.readmit_ema[k] + self.alpha * (z - self.readmit_ema[k])
+                self.readmit_ema[k] = e
+                ok = z * z < self.thr_fast1 and e * e < self.thr_slow1
+            if not ok:
+                self.readmit_start[k] = None
+                continue
+            t0 = self.readmit_start.get(k)
+            if t0 is None:
+                self.readmit_start[k] = t
+            elif t - t0 >= cfg.readmit_after:
+                self.healthy[k] = True
+                mode = self.mode.pop(k, FaultMode.UNKNOWN)
+                self.readmit_start.pop(k, None)
+                self.readmit_ema.pop(k, None)
+                self._rebuild()
+                self.detect_latched = False
+                events.append(
+                    FaultEvent(
+                        t,
+                        self.geo.row_name(self.name, k),
+                        mode,
+                        math.nan,
+                        isolated=True,
+                        cleared=True,
+                        detail=f"re-admitted after {cfg.readmit_after:g} s healthy",
+                    )
+                )
+
+
+def classify(t: Vec, y: Vec, yhat: Vec, dt: float, sig_rate: float) -> tuple[FaultMode, float]:
+    """Failure mode and size from an excluded sensor's output ``y`` and its value ``yhat``
+    predicted by the healthy sensors (increments over ``dt``; times ``t`` in s).
+
+    Size units: STEP_BIAS rate (rad/s, m/s²), RAMP rate per second, NOISE_BURST rate σ,
+    SATURATION clip level (rate), SCALE_FACTOR dimensionless, STUCK the frozen rate.
+    """
+    ok = np.isfinite(y) & np.isfinite(yhat)
+    if not ok.any():
+        return FaultMode.DROPOUT, math.nan
+    t, y, yhat = t[ok], y[ok] / dt, yhat[ok] / dt
+    r = y - yhat
+    n = len(r)
+    if n >= 3 and np.all(y == y[-1]):
+        # held constant: a saturation if the true value lies beyond it (same sign) throughout
+        beyond = (np.abs(yhat) > abs(y[-1]) + 2.0 * sig_rate) & (yhat * y[-1] > 0)
+        if float(np.mean(beyond)) >= 0.9:
+            return FaultMode.SATURATION, abs(float(y[-1]))
+        return FaultMode.STUCK, float(y[-1])
+    ymax = float(np.max(np.abs(y)))
+    at_max = int(np.sum(np.abs(y) >= ymax * (1 - 1e-12)))
+    if at_max >= 3 and float(np.max(np.abs(yhat))) > ymax + 3 * sig_rate:
+        return FaultMode.SATURATION, ymax
+    c = float(np.mean(r))
+    rss0 = float(np.sum((r - c) ** 2))
+    if n >= 4:
+        tt = t - t.mean()
+        slope = float(tt @ r / max(float(tt @ tt), 1e-300))
+        rss1 = float(np.sum((r - c - slope * tt) ** 2))
+    else:
+        slope, rss1 = 0.0, rss0
+    yy = float(yhat @ yhat)
+    sf = float(yhat @ r) / yy if yy > 0 else 0.0
+    rss2 = float(np.sum((r - sf * yhat) ** 2))
+    best = min(rss0, rss1, rss2)
+    resid_sd = math.sqrt(best / max(n - 1, 1))
+    # the healthy prediction has its own noise; the sensor's own noise is sig_rate
+    if resid_sd > 3.0 * sig_rate:
+        return FaultMode.NOISE_BURST, resid_sd
+    # F-tests against the constant (step) model: 25 ≈ a 5-σ improvement
+    f_sf = (rss0 - rss2) / max(rss2 / max(n - 1, 1), 1e-300)
+    f_ramp = (rss0 - rss1) / max(rss1 / max(n - 2, 1), 1e-300)
+    if rss2 <= 1.05 * rss1 and f_sf > 25.0:
+        return FaultMode.SCALE_FACTOR, sf
+    if f_ramp > 25.0:
+        return FaultMode.RAMP, slope
+    return FaultMode.STEP_BIAS, c
+
+
+class FdiMonitor:
+    """Runtime monitor: ``process(samples)`` → (reconstructed body ImuSample, new FaultEvents)."""
+
+    def __init__(self, config: FdiConfig) -> None:
+        self.cfg = config
+        g = config.geometry
+        self.geo = g
+        self.gyro = _Group(config, "gyro", g.gyro_axes, config.gyro_noise, config.gyro_bias)
+        self.accel = _Group(config, "accel", g.accel_axes, config.accel_noise, config.accel_bias)
+        self._yg = np.empty(g.n)
+        self._ya = np.empty(g.n)
+        self._seq = 0
+        self.events: list[FaultEvent] = []  # every event so far
+
+    @property
+    def excluded(self) -> list[str]:
+        """Names of the sensors currently excluded."""
+        out = []
+        for grp in (self.gyro, self.accel):
+            out += [self.geo.row_name(grp.name, int(k)) for k in np.flatnonzero(~grp.healthy)]
+        return out
+
+    def process(self, samples: Sequence[ImuSample]) -> tuple[ImuSample, list[FaultEvent]]:
+        """One epoch: the samples of all units (matched by ``imu_id``); missing units are dropouts."""
+        if not samples:
+            raise ValueError("FdiMonitor.process: empty epoch")
+        yg, ya = self._yg, self._ya
+        yg.fill(math.nan)
+        ya.fill(math.nan)
+        us = self.geo.unit_size
+        nu = self.geo.units
+        t = -math.inf
+        for s in samples:
+            j = s.imu_id
+            if not 0 <= j < nu:
+                raise ValueError(f"FdiMonitor.process: imu_id {j} outside 0..{nu - 1} for {self.geo.name}")
+            if us == 1:
+                yg[j] = s.dtheta[0]
+                ya[j] = s.dvel[0]
+            else:
+                yg[3 * j : 3 * j + 3] = s.dtheta
+                ya[3 * j : 3 * j + 3] = s.dvel
+            if s.t > t:
+                t = s.t
+        events: list[FaultEvent] = []
+        dth = self.gyro.step(t, yg, events)
+        dv = self.accel.step(t, ya, events)
+        if events:
+            self.events.extend(events)
+        self._seq = (self._seq + 1) & 0xFFFF
+        return ImuSample(t=t, dt=samples[0].dt, dtheta=dth, dvel=dv, seq=self._seq), events
+
+    def process_arrays(self, t: float, dt: float, yg: Vec, ya: Vec) -> tuple[Vec, Vec, list[FaultEvent]]:
+        """Same as :meth:`process` on stacked outputs (n,) (benchmarks, replay); returns Δθ, Δv, events."""
+        events: list[FaultEvent] = []
+        dth = self.gyro.step(t, np.array(yg, dtype=np.float64), events)
+        dv = self.accel.step(t, np.array(ya, dtype=np.float64), events)
+        if events:
+            self.events.extend(events)
+        return dth, dv, events

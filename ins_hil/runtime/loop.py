@@ -1,0 +1,359 @@
+"""The real-time gateway: driver tasks → bounded queue → pipeline (one task) → publishers.
+
+Drivers call a per-source ``sink`` (non-blocking): the sample goes into one
+bounded FIFO (arrival order); when it is full the sample is dropped and
+counted (``queue_full``) — never silently. The core task drains the FIFO and
+calls the synchronous :class:`~ins_hil.runtime.pipeline.Pipeline` on every
+sample (nothing on this path awaits I/O), records the sample (recorder:
+in-memory buffer, flushed by a 50 ms task), measures arrival → state ready,
+and hands the state to every publisher's mailbox (coalesced, each publisher
+is its own task and measures state ready → sent).
+
+A sample is *late* when its arrival → state latency exceeds
+``gateway.late_threshold_ms``; the loop warns (at most once a second) with
+the late count and the queue depth. Memory is bounded by the queue size.
+
+Stop: :meth:`Gateway.request_stop` (SIGINT/SIGTERM) ends the run cleanly,
+flushing the recorder and closing every transport; a second SIGINT exits at
+once (``os._exit(130)``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import signal
+import socket
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ins_hil.config import Config
+from ins_hil.drivers.base import Sample
+from ins_hil.drivers.mavlink_in import MavlinkDriver
+from ins_hil.drivers.serial_imu import SerialImuDriver
+from ins_hil.runtime.clock import SensorClock
+from ins_hil.runtime.mavlink_out import MavlinkEndpoint, fault_text
+from ins_hil.runtime.metrics import RuntimeMetrics
+from ins_hil.runtime.mqtt_out import MqttPublisher
+from ins_hil.runtime.pipeline import Pipeline
+from ins_hil.runtime.recorder import Recorder
+from ins_hil.sim.devices import SimDevices
+from ins_hil.types import FaultEvent, GnssFix, ImuSample, NavState
+
+
+class Gateway:
+    """One gateway run built from a validated :class:`~ins_hil.config.Config`.
+
+    ``metrics`` is the live :class:`RuntimeMetrics` (status view, MQTT health,
+    soak test); ``on_state`` callbacks get every state (tests, tools).
+    """
+
+    def __init__(self, cfg: Config, record_path: str | Path | None = None) -> None:
+        self.cfg = cfg
+        self.metrics = RuntimeMetrics(cfg.gateway.late_threshold_ms * 1e-3)
+        self.pipeline = Pipeline(cfg.pipeline)  # may raise: before anything starts
+        self.on_state: list[Callable[[NavState], None]] = []
+        self.on_fault: list[Callable[[FaultEvent], None]] = []
+        self.queue: deque[tuple[Sample, str]] = deque()
+        self.queue_size = cfg.gateway.queue_size
+        self._wake = asyncio.Event()
+        self._stop = asyncio.Event()
+        self.drivers: list[Any] = []
+        self.mav_outputs = [MavlinkEndpoint(e, self.metrics) for e in cfg.outputs]
+        self.mqtt = MqttPublisher(cfg.mqtt, self.metrics) if cfg.mqtt.enabled else None
+        self.publishers: list[Any] = [*self.mav_outputs, *([self.mqtt] if self.mqtt else [])]
+        self.sim: SimDevices | None = None
+        self.recorder: Recorder | None = None
+        self.record_path = Path(record_path) if record_path else None
+        self._tasks: list[asyncio.Task[Any]] = []
+        self._sigints = 0
+        self._was_aligned = False
+        self.imu_clock = SensorClock()
+        self.stopped_reason = ""
+        self.error: BaseException | None = None
+
+    # -- sinks (called by drivers, never block) ------------------------------------
+    def _sink_for(self, name: str) -> Callable[[Sample], None]:
+        stats = self.metrics.source(name)
+        q = self.queue
+        cap = self.queue_size
+        wake = self._wake
+
+        def sink(s: Sample) -> None:
+            stats.received += 1
+            if len(q) >= cap:
+                stats.drop("queue_full")
+                return
+            q.append((s, name))
+            wake.set()
+
+        return sink
+
+    # -- the core task ---------------------------------------------------------------
+    async def _core_task(self) -> None:
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            self._process_queue()
+
+    def _process_queue(self) -> None:
+        """Run the pipeline on everything in the FIFO (synchronous: never awaits)."""
+        q = self.queue
+        pipe = self.pipeline
+        rec = self.recorder
+        m = self.metrics
+        pubs = self.publishers
+        mono = time.monotonic_ns
+        clock = self.imu_clock
+        depth = len(q)
+        if depth > m.queue_depth_max:
+            m.queue_depth_max = depth
+        while q:
+            s, name = q.popleft()
+            if isinstance(s, ImuSample):
+                clock.update(s.t, s.t_arrival_ns)
+            else:
+                # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
+                t = clock.to_sensor(s.t)
+                if t is None:
+                    m.source(name).drop("before_imu_clock")
+                    continue
+                s.t = t
+            if rec is not None:
+                rec.write(s)
+            if isinstance(s, ImuSample):
+                t0 = mono()
+                st = pipe.imu(s)
+                ready = mono()
+                if st is None:
+                    continue
+                m.record_state(s.t_arrival_ns, ready, ready - t0)
+                for p in pubs:
+                    p.offer(st, s.t_arrival_ns, ready)
+                for cb in self.on_state:
+                    cb(st)
+                if st.aligned != self._was_aligned:
+                    self._was_aligned = st.aligned
+                    m.aligned = st.aligned
+                    self._text(6 if st.aligned else 4, "INS aligned" if st.aligned else "INS alignment lost")
+                if st.test_ratios:
+                    m.test_ratios = st.test_ratios
+            else:
+                pipe.aid(s)
+                kind = type(s).__name__
+                m.fused[kind] = m.fused.get(kind, 0) + 1
+                if isinstance(s, GnssFix):
+                    for e in self.mav_outputs:
+                        e.offer_gnss(s)
+            if pipe.events:
+                for ev in pipe.drain_events():
+                    self._fault(ev)
+
+    def _text(self, severity: int, text: str) -> None:
+        for e in self.mav_outputs:
+            if e.cfg.role == "gcs":
+                e.statustext(severity, text)
+
+    def _fault(self, ev: FaultEvent) -> None:
+        m = self.metrics
+        m.faults += 1
+        m.last_fault = f"{ev.sensor} {ev.mode.name}{' cleared' if ev.cleared else ''} at {ev.t:.2f} s"
+        m.fdi_state = "ok" if ev.cleared else f"fault {ev.sensor}"
+        sev, text = fault_text(ev)
+        self._text(sev, text)
+        if self.mqtt is not None:
+            self.mqtt.offer_fault(ev)
+        for cb in self.on_fault:
+            cb(ev)
+
+    # -- housekeeping ---------------------------------------------------------------
+    async def _housekeeping(self) -> None:
+        rec = self.recorder
+        period = self.cfg.recorder.flush_period
+        m = self.metrics
+        last_roll = last_warn = time.monotonic()
+        late_seen = 0
+        while True:
+            await asyncio.sleep(period)
+            if rec is not None:
+                rec.flush()
+            now = time.monotonic()
+            m.tick()
+            for d in self.drivers:
+                st = m.source(d.name)
+                for k, v in d.health.errors.items():
+                    st.dropped["driver_" + k] = v
+            for k, v in self.pipeline.counts.items():
+                m.fused[k] = v
+            if now - last_roll >= 5.0:
+                last_roll = now
+                m.roll_window()
+            if now - last_warn >= 1.0:
+                last_warn = now
+                if m.late > late_seen:
+                    n_late = m.late - late_seen
+                    m.warn(f"core behind: {n_late} late samples in the last second, queue {len(self.queue)}")
+                    late_seen = m.late
+
+    # -- start / stop ------------------------------------------------------------------
+    def request_stop(self, reason: str = "stop") -> None:
+        self.stopped_reason = self.stopped_reason or reason
+        self._stop.set()
+
+    def _on_sigint(self) -> None:
+        self._sigints += 1
+        if self._sigints >= 2:
+            os._exit(130)
+        self.request_stop("SIGINT")
+
+    async def _start(self) -> None:
+        cfg = self.cfg
+        if cfg.recorder.enabled:
+            path = self.record_path
+            if path is None:
+                stamp = time.strftime("%Y%m%d-%H%M%S")
+                path = Path(cfg.recorder.dir) / f"ins-hil-{stamp}.ihlog"
+            self.recorder = Recorder(
+                path,
+                header={
+                    "config": _redact(cfg.to_dict()),
+                    "pipeline": cfg.to_dict()["pipeline"],
+                    "started": time.time(),
+                },
+                max_bytes=int(cfg.recorder.max_mb * 1024 * 1024),
+                flush_period=cfg.recorder.flush_period,
+            )
+        for p in self.publishers:
+            await p.start()
+        sim_gnss_port = 0
+        serial_inputs = []
+        for ic in cfg.inputs:
+            if ic.type == "mavlink":
+                drv = MavlinkDriver(
+                    _pin_port(ic.url),
+                    name=ic.name,
+                    system_id=ic.sysid or None,
+                    signing_key=ic.signing_key or None,
+                    request={} if cfg.sim_enabled else None,
+                    emit={"gnss", "baro"},
+                )
+                self.drivers.append(drv)
+                self._tasks.append(asyncio.create_task(drv.run(self._sink_for(ic.name)), name=ic.name))
+                for _ in range(100):  # until the socket is bound (port 0 = any free port)
+                    if drv.local_address is not None:
+                        break
+                    await asyncio.sleep(0.01)
+                if drv.local_address is None:
+                    raise RuntimeError(f"input {ic.name}: cannot open {ic.url}: {drv.health.last_error}")
+                if not sim_gnss_port:
+                    sim_gnss_port = int(drv.local_address[1])
+            else:
+                serial_inputs.append(ic)
+        if cfg.sim_enabled:
+            if not sim_gnss_port:
+                raise RuntimeError("[sim] needs a mavlink input for its GNSS/baro")
+            self.sim = SimDevices(cfg.sim, ("127.0.0.1", sim_gnss_port))
+            await asyncio.get_running_loop().run_in_executor(None, self.sim.start)
+        for ic in serial_inputs:
+            if ic.type == "can_imu":
+                from ins_hil.drivers.can_imu import CanImuDriver
+
+                cdrv = CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **ic.options})
+                self.drivers.append(cdrv)
+                self._tasks.append(asyncio.create_task(cdrv.run(self._sink_for(ic.name)), name=ic.name))
+                continue
+            dev = self.sim.imu_path if ic.port == "sim" and self.sim else ic.port
+            sdrv = SerialImuDriver(dev, ic.baud, name=ic.name)
+            self.drivers.append(sdrv)
+            self._tasks.append(asyncio.create_task(sdrv.run(self._sink_for(ic.name)), name=ic.name))
+        for coro, name in ((self._core_task(), "core"), (self._housekeeping(), "housekeeping")):
+            t = asyncio.create_task(coro, name=name)
+            t.add_done_callback(self._task_done)
+            self._tasks.append(t)
+
+    def _task_done(self, t: asyncio.Task[Any]) -> None:
+        if t.cancelled():
+            return
+        exc = t.exception()
+        if exc is not None:
+            self.error = exc
+            self.request_stop(f"{t.get_name()} task failed: {type(exc).__name__}: {exc}")
+
+    async def _shutdown(self) -> None:
+        if self.sim is not None:
+            self.sim.stop()
+        # inputs first, then what they already delivered goes through the pipeline (and the recorder)
+        for t in self._tasks:
+            if t.get_name() in {d.name for d in self.drivers}:
+                t.cancel()
+        for t in self._tasks:
+            if t.get_name() in {d.name for d in self.drivers}:
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await t
+        if self.error is None and self.queue:
+            self._process_queue()
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await t
+        self._tasks.clear()
+        for p in self.publishers:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(p.close(), 10.0)
+        if self.recorder is not None:
+            self.recorder.close()
+
+    async def run(
+        self,
+        duration: float | None = None,
+        signals: bool = True,
+        status: Callable[[Gateway], Any] | None = None,
+    ) -> RuntimeMetrics:
+        """Run until ``duration`` (s), a stop request or a signal; returns the metrics."""
+        loop = asyncio.get_running_loop()
+        if signals:
+            loop.add_signal_handler(signal.SIGINT, self._on_sigint)
+            loop.add_signal_handler(signal.SIGTERM, self.request_stop, "SIGTERM")
+        try:
+            await self._start()
+            if status is not None:
+                self._tasks.append(asyncio.create_task(status(self), name="status"))
+            try:
+                await asyncio.wait_for(self._stop.wait(), duration)
+            except TimeoutError:
+                self.stopped_reason = self.stopped_reason or "duration"
+        finally:
+            await self._shutdown()
+            if signals:
+                loop.remove_signal_handler(signal.SIGINT)
+                loop.remove_signal_handler(signal.SIGTERM)
+        if self.error is not None:
+            raise RuntimeError(self.stopped_reason) from self.error
+        return self.metrics
+
+
+def _pin_port(url: str) -> str:
+    """``udpin:HOST:0`` → a concrete free port, so a re-opened socket keeps the address the sender uses."""
+    parts = url.split(":")
+    if len(parts) == 3 and parts[0] in ("udpin", "udp") and parts[2] == "0":
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind((parts[1], 0))
+            return f"udpin:{parts[1]}:{s.getsockname()[1]}"
+    return url
+
+
+_SECRETS = ("signing_key", "sign_key", "password")
+
+
+def _redact(d: Any) -> Any:
+    """The config for the log header without secrets (signing keys, passwords)."""
+    if isinstance(d, dict):
+        return {k: ("<redacted>" if k in _SECRETS and v else _redact(v)) for k, v in d.items()}
+    if isinstance(d, list):
+        return [_redact(v) for v in d]
+    return d

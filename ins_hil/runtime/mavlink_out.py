@@ -1,0 +1,590 @@
+"""MAVLink 2 output endpoints: to a ground station (as its own vehicle) or to a flight controller.
+
+An endpoint owns one transport (``udp:host:port`` sends to a listener such as
+QGroundControl on 14550; ``udpin:host:port`` listens and answers the last
+peer; ``tcp:host:port`` connects, with reconnect; ``serial:/dev/ttyX:baud``)
+and runs as its own task: the loop hands it the newest state with
+:meth:`MavlinkEndpoint.offer` (never blocks; older states are coalesced), the
+task sends every message whose period is due. Messages and rates are
+configurable per endpoint.
+
+role ``gcs``: HEARTBEAT, SYS_STATUS, ATTITUDE, ATTITUDE_QUATERNION,
+GLOBAL_POSITION_INT, LOCAL_POSITION_NED, GPS_RAW_INT (pass-through of the
+last GNSS fix), VFR_HUD, ESTIMATOR_STATUS, STATUSTEXT (faults, alignment).
+role ``fc``: HEARTBEAT, ODOMETRY (external navigation), GPS_INPUT,
+HIL_STATE_QUATERNION (PX4 HIL).
+
+Signing (MAVLink 2): with a 32-byte key every outgoing message is signed and
+incoming messages on the endpoint are accepted only when correctly signed
+(rejections are counted in the metrics as ``rx_unsigned``/``rx_bad_signature``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ins_hil.nav import earth
+from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat
+from ins_hil.runtime.metrics import RuntimeMetrics
+from ins_hil.types import FaultEvent, GnssFix, NavState
+
+
+def mavlink_module() -> Any:
+    """The MAVLink 2 dialect used everywhere (ardupilotmega ⊃ common)."""
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    return ardupilotmega
+
+
+class MavReceiver:
+    """Parse MAVLink 2 bytes; with ``key`` (32 bytes) accept only correctly signed messages.
+
+    ``counts``: messages, unsigned, bad_signature, bad_data.
+    """
+
+    def __init__(self, key: bytes | None = None, link_id: int = 0) -> None:
+        mavlink = mavlink_module()
+        self.mav = mavlink.MAVLink(None, srcSystem=0, srcComponent=0)
+        self.counts: dict[str, int] = {"messages": 0, "unsigned": 0, "bad_signature": 0, "bad_data": 0}
+        if key is not None:
+            from ins_hil.sim.devices import signing_timestamp
+
+            s = self.mav.signing
+            s.secret_key = key
+            s.link_id = link_id
+            s.timestamp = signing_timestamp()
+            s.allow_unsigned_callback = None  # unsigned → rejected
+
+    def feed(self, data: bytes) -> list[Any]:
+        out: list[Any] = []
+        mavlink = mavlink_module()
+        chunk: bytes = data
+        while True:
+            s = self.mav.signing
+            bad0, rej0 = s.badsig_count, s.reject_count
+            try:
+                m = self.mav.parse_char(chunk)
+            except mavlink.MAVError as e:
+                if s.badsig_count > bad0:
+                    self.counts["bad_signature"] += 1
+                elif s.reject_count > rej0 or "Invalid signature" in str(e):
+                    self.counts["unsigned"] += 1
+                else:
+                    self.counts["bad_data"] += 1
+                chunk = b""
+                continue
+            chunk = b""
+            if m is None:
+                return out
+            if m.get_type() == "BAD_DATA":
+                self.counts["bad_data"] += 1
+                continue
+            self.counts["messages"] += 1
+            out.append(m)
+
+
+GCS_RATES = {
+    "HEARTBEAT": 1.0,
+    "SYS_STATUS": 1.0,
+    "ATTITUDE": 50.0,
+    "ATTITUDE_QUATERNION": 50.0,
+    "GLOBAL_POSITION_INT": 10.0,
+    "LOCAL_POSITION_NED": 10.0,
+    "GPS_RAW_INT": 5.0,
+    "VFR_HUD": 4.0,
+    "ESTIMATOR_STATUS": 2.0,
+}
+FC_RATES = {"HEARTBEAT": 1.0, "ODOMETRY": 30.0, "GPS_INPUT": 5.0, "HIL_STATE_QUATERNION": 0.0}
+ALL_MESSAGES = sorted(set(GCS_RATES) | set(FC_RATES))
+SCHEMES = ("udp", "udpin", "tcp", "serial")
+
+
+def parse_url(url: str) -> tuple[str, str, int]:
+    """``udp:host:port`` → (scheme, host, port); ``serial:/dev/ttyUSB0:921600`` → (serial, path, baud)."""
+    parts = url.split(":")
+    if len(parts) != 3 or parts[0] not in SCHEMES:
+        raise ValueError(f"bad endpoint {url!r}: expected one of {', '.join(s + ':HOST:PORT' for s in SCHEMES)}")
+    scheme, host, port = parts
+    try:
+        p = int(port)
+    except ValueError:
+        raise ValueError(f"bad endpoint {url!r}: port/baud {port!r} is not a number") from None
+    if scheme != "serial" and not 0 <= p <= 65535:
+        raise ValueError(f"bad endpoint {url!r}: port {p} out of range")
+    return scheme, host, p
+
+
+@dataclass
+class EndpointConfig:
+    """One MAVLink output (the ``[[outputs]]`` tables of type mavlink)."""
+
+    name: str = "gcs"
+    url: str = "udp:127.0.0.1:14550"
+    role: str = "gcs"  # gcs | fc
+    sysid: int = 42
+    compid: int = 1
+    mav_type: str = "QUADROTOR"
+    signing_key: str = ""  # 64 hex digits
+    rates: dict[str, float] = field(default_factory=dict)
+
+    def effective_rates(self) -> dict[str, float]:
+        base = dict(GCS_RATES if self.role == "gcs" else FC_RATES)
+        base.update(self.rates)
+        return {k: v for k, v in base.items() if v > 0}
+
+
+class _Transport:
+    """Non-blocking byte sink over asyncio; ``write`` never awaits."""
+
+    def __init__(self, url: str, on_data: Any) -> None:
+        self.scheme, self.host, self.port = parse_url(url)
+        self.on_data = on_data
+        self.tr: Any = None
+        self.peer: Any = None
+        self.errors: dict[str, int] = {}
+        self.connected = False
+        self._task: asyncio.Task[None] | None = None
+
+    def _err(self, k: str) -> None:
+        self.errors[k] = self.errors.get(k, 0) + 1
+
+    async def open(self) -> None:
+        loop = asyncio.get_running_loop()
+        outer = self
+        if self.scheme in ("udp", "udpin"):
+
+            class _U(asyncio.DatagramProtocol):
+                def datagram_received(self, data: bytes, addr: Any) -> None:
+                    outer.peer = addr
+                    outer.on_data(data)
+
+                def error_received(self, exc: Exception) -> None:
+                    outer._err("refused" if isinstance(exc, ConnectionRefusedError) else "send_error")
+
+            if self.scheme == "udp":
+                self.tr, _ = await loop.create_datagram_endpoint(_U, remote_addr=(self.host, self.port))
+                self.connected = True
+            else:
+                self.tr, _ = await loop.create_datagram_endpoint(_U, local_addr=(self.host, self.port))
+                self.port = self.tr.get_extra_info("sockname")[1]
+        else:
+            self._task = asyncio.create_task(self._stream_loop())
+
+    async def _stream_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        outer = self
+        backoff = 0.2
+
+        class _S(asyncio.Protocol):
+            def __init__(self) -> None:
+                self.lost: asyncio.Future[None] = loop.create_future()
+
+            def data_received(self, data: bytes) -> None:
+                outer.on_data(data)
+
+            def connection_lost(self, exc: Exception | None) -> None:
+                if not self.lost.done():
+                    self.lost.set_result(None)
+
+        while True:
+            tr: Any
+            proto: Any
+            try:
+                if self.scheme == "tcp":
+                    tr, proto = await loop.create_connection(_S, self.host, self.port)
+                else:
+                    import serial_asyncio_fast
+
+                    tr, proto = await serial_asyncio_fast.create_serial_connection(
+                        loop, _S, self.host, baudrate=self.port
+                    )
+            except (OSError, ValueError):
+                self._err("connect_failed")
+                await asyncio.sleep(backoff)
+                backoff = min(5.0, backoff * 2)
+                continue
+            self.tr, self.connected, backoff = tr, True, 0.2
+            await proto.lost
+            self.connected = False
+            self.tr = None
+            self._err("disconnected")
+
+    def write(self, data: bytes) -> bool:
+        tr = self.tr
+        if tr is None:
+            return False
+        if self.scheme == "udp":
+            tr.sendto(data)
+        elif self.scheme == "udpin":
+            if self.peer is None:
+                return False
+            tr.sendto(data, self.peer)
+        else:
+            if tr.get_write_buffer_size() > 65536:  # slow link: drop rather than buffer without bound
+                self._err("backpressure")
+                return False
+            tr.write(data)
+        return True
+
+    def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+        if self.tr is not None:
+            self.tr.close()
+            self.tr = None
+
+
+class MavlinkEndpoint:
+    """One MAVLink output endpoint (see the module docstring)."""
+
+    def __init__(self, cfg: EndpointConfig, metrics: RuntimeMetrics) -> None:
+        mavlink = mavlink_module()
+        self.cfg = cfg
+        self.name = cfg.name
+        self.metrics = metrics
+        self.rates = cfg.effective_rates()
+        self.period_ns = {k: round(1e9 / v) for k, v in self.rates.items()}
+        self.next_ns = dict.fromkeys(self.rates, 0)
+        key = bytes.fromhex(cfg.signing_key) if cfg.signing_key else None
+        self.rx = MavReceiver(key)
+        self.rx_messages: dict[str, int] = {}
+        self.tr = _Transport(cfg.url, self._on_data)
+        self.mav = mavlink.MAVLink(self, srcSystem=cfg.sysid, srcComponent=cfg.compid)
+        if key is not None:
+            from ins_hil.sim.devices import signing_timestamp
+
+            self.mav.signing.secret_key = key
+            self.mav.signing.link_id = 0
+            self.mav.signing.timestamp = signing_timestamp()
+            self.mav.signing.sign_outgoing = True
+        self.mav_type = getattr(mavlink, "MAV_TYPE_" + cfg.mav_type)
+        self._latest: tuple[NavState, int, int] | None = None
+        self._wake = asyncio.Event()
+        self._texts: deque[tuple[int, str]] = deque(maxlen=32)
+        self._gnss: GnssFix | None = None
+        self._gnss_new = False
+        self._home: tuple[float, float, float] | None = None
+        self.sent: dict[str, int] = {}
+        self._t0_ns = time.monotonic_ns()
+        self._task: asyncio.Task[None] | None = None
+
+    # -- file-like for pymavlink ----------------------------------------------
+    def write(self, buf: bytes) -> None:
+        if self.tr.write(buf):
+            self.metrics.output(self.name, "bytes", len(buf))
+        else:
+            self.metrics.output(self.name, "not_sent")
+
+    def _on_data(self, data: bytes) -> None:
+        before = dict(self.rx.counts)
+        for m in self.rx.feed(data):
+            t = m.get_type()
+            self.rx_messages[t] = self.rx_messages.get(t, 0) + 1
+        for k in ("unsigned", "bad_signature", "bad_data"):
+            d = self.rx.counts[k] - before[k]
+            if d:
+                self.metrics.output(self.name, "rx_" + k, d)
+        d = self.rx.counts["messages"] - before["messages"]
+        if d:
+            self.metrics.output(self.name, "rx_messages", d)
+
+    # -- called by the loop (never blocks) --------------------------------------
+    def offer(self, st: NavState, arrival_ns: int, ready_ns: int) -> None:
+        self._latest = (st, arrival_ns, ready_ns)
+        self._wake.set()
+
+    def offer_gnss(self, g: GnssFix) -> None:
+        self._gnss, self._gnss_new = g, True
+
+    def statustext(self, severity: int, text: str) -> None:
+        self._texts.append((severity, text[:50]))
+        self._wake.set()
+
+    async def start(self) -> None:
+        await self.tr.open()
+        self._task = asyncio.create_task(self._run(), name=f"mavlink-{self.name}")
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            try:
+                await self._task
+            except asyncio.CancelledError:
+                pass
+        self.tr.close()
+
+    # -- the sender task -----------------------------------------------------------
+    async def _run(self) -> None:
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            try:
+                self._send_due()
+            except Exception as e:  # a bad value must not kill the output
+                self.metrics.output(self.name, "encode_error")
+                self.metrics.warn(f"{self.name}: {type(e).__name__}: {e}")
+
+    def _count(self, typ: str) -> None:
+        self.sent[typ] = self.sent.get(typ, 0) + 1
+        self.metrics.output(self.name, typ)
+
+    def _send_due(self) -> None:
+        while self._texts:
+            sev, text = self._texts.popleft()
+            self.mav.statustext_send(sev, text.encode())
+            self._count("STATUSTEXT")
+        latest = self._latest
+        if latest is None:
+            return
+        st, arrival_ns, ready_ns = latest
+        now = time.monotonic_ns()
+        any_sent = False
+        for typ, due in self.next_ns.items():
+            if now < due:
+                continue
+            if typ == "GPS_RAW_INT" and not self._gnss_new:
+                continue
+            self.next_ns[typ] = max(due + self.period_ns[typ], now)
+            getattr(self, "_send_" + typ.lower())(st)
+            self._count(typ)
+            any_sent = True
+        if any_sent:
+            self.metrics.record_sent(arrival_ns, ready_ns, time.monotonic_ns())
+
+    # -- message builders (units: MAVLink's integer units at the edge) -------------
+    def _tboot_ms(self, st: NavState) -> int:
+        return round(st.t * 1000) & 0xFFFFFFFF
+
+    def _send_heartbeat(self, st: NavState) -> None:
+        m = mavlink_module()
+        status = m.MAV_STATE_ACTIVE if st.aligned else m.MAV_STATE_CALIBRATING
+        if self.cfg.role == "gcs":
+            self.mav.heartbeat_send(self.mav_type, m.MAV_AUTOPILOT_GENERIC, 0, 0, status)
+        else:
+            self.mav.heartbeat_send(m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_AUTOPILOT_INVALID, 0, 0, status)
+
+    def _send_sys_status(self, st: NavState) -> None:
+        m = mavlink_module()
+        bits = (
+            m.MAV_SYS_STATUS_SENSOR_3D_GYRO
+            | m.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+            | m.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+            | m.MAV_SYS_STATUS_SENSOR_GPS
+            | m.MAV_SYS_STATUS_AHRS
+        )
+        health = (
+            bits
+            if self.metrics.fdi_state == "ok"
+            else bits & ~(m.MAV_SYS_STATUS_SENSOR_3D_GYRO | m.MAV_SYS_STATUS_SENSOR_3D_ACCEL)
+        )
+        drops = min(10000, self.metrics.dropped_total())
+        self.mav.sys_status_send(bits, bits, health, 0, 0, -1, -1, drops, 0, 0, 0, 0, 0)
+
+    def _euler(self, st: NavState) -> Any:
+        return euler_from_quat(st.q_nb)
+
+    def _send_attitude(self, st: NavState) -> None:
+        r, p, y = self._euler(st)
+        w = st.omega_b
+        self.mav.attitude_send(self._tboot_ms(st), r, p, y, float(w[0]), float(w[1]), float(w[2]))
+
+    def _send_attitude_quaternion(self, st: NavState) -> None:
+        q, w = st.q_nb, st.omega_b
+        self.mav.attitude_quaternion_send(self._tboot_ms(st), *(float(x) for x in q), *(float(x) for x in w))
+
+    def _home_ned(self, st: NavState) -> np.ndarray:
+        if self._home is None:
+            self._home = (st.lat, st.lon, st.h)
+        return earth.ned_from_geodetic(st.lat, st.lon, st.h, *self._home)
+
+    def _send_global_position_int(self, st: NavState) -> None:
+        v = st.vel_ned
+        hdg = math.degrees(self._euler(st)[2]) % 360.0
+        rel = st.h - (self._home[2] if self._home else st.h)
+        self._home_ned(st)
+        self.mav.global_position_int_send(
+            self._tboot_ms(st),
+            round(math.degrees(st.lat) * 1e7),
+            round(math.degrees(st.lon) * 1e7),
+            round(st.h * 1000),
+            round(rel * 1000),
+            _i16(v[0] * 100),
+            _i16(v[1] * 100),
+            _i16(v[2] * 100),
+            round(hdg * 100) % 36000,
+        )
+
+    def _send_local_position_ned(self, st: NavState) -> None:
+        d = self._home_ned(st)
+        v = st.vel_ned
+        self.mav.local_position_ned_send(
+            self._tboot_ms(st), float(d[0]), float(d[1]), float(d[2]), float(v[0]), float(v[1]), float(v[2])
+        )
+
+    def _send_gps_raw_int(self, st: NavState) -> None:
+        g = self._gnss
+        self._gnss_new = False
+        if g is None:
+            return
+        v = g.vel_ned if g.vel_ned is not None else np.zeros(3)
+        gs = math.hypot(v[0], v[1])
+        cog = (math.degrees(math.atan2(v[1], v[0])) % 360.0) if gs > 0.2 else 0.0
+        self.mav.gps_raw_int_send(
+            round(g.t * 1e6),
+            int(g.fix_type),
+            round(math.degrees(g.lat) * 1e7),
+            round(math.degrees(g.lon) * 1e7),
+            round(g.h * 1000),
+            min(65535, round(g.std_ne * 100)),
+            min(65535, round(g.std_d * 100)),
+            min(65535, round(gs * 100)),
+            round(cog * 100) % 36000,
+            g.num_sats,
+            round(g.h * 1000),
+            round(g.std_ne * 1000),
+            round(g.std_d * 1000),
+            round(g.std_vel * 1000),
+            0,
+        )
+
+    def _send_vfr_hud(self, st: NavState) -> None:
+        v = st.vel_ned
+        gs = math.hypot(v[0], v[1])
+        hdg = round(math.degrees(self._euler(st)[2])) % 360
+        self.mav.vfr_hud_send(gs, gs, hdg, 0, st.h, -float(v[2]))
+
+    def _send_estimator_status(self, st: NavState) -> None:
+        m = mavlink_module()
+        tr = st.test_ratios
+        flags = 0
+        if st.aligned:
+            flags = (
+                m.ESTIMATOR_ATTITUDE
+                | m.ESTIMATOR_VELOCITY_HORIZ
+                | m.ESTIMATOR_VELOCITY_VERT
+                | m.ESTIMATOR_POS_HORIZ_ABS
+                | m.ESTIMATOR_POS_VERT_ABS
+            )
+        else:
+            flags = m.ESTIMATOR_CONST_POS_MODE
+
+        def ratio(*keys: str) -> float:
+            vals = [float(v) for k, v in tr.items() if any(s in k.lower() for s in keys)]
+            return max(vals) if vals else 0.0
+
+        sp = st.std_pos
+        self.mav.estimator_status_send(
+            round(st.t * 1e6),
+            flags,
+            ratio("vel"),
+            ratio("pos", "gnss_ne", "horiz"),
+            ratio("baro", "hgt", "height", "vert", "_d"),
+            ratio("mag"),
+            0.0,
+            0.0,
+            float(math.hypot(sp[0], sp[1])),
+            float(sp[2]),
+        )
+
+    def _send_odometry(self, st: NavState) -> None:
+        m = mavlink_module()
+        d = self._home_ned(st)
+        q, w = st.q_nb, st.omega_b
+        v_b = dcm_from_quat(q).T @ st.vel_ned  # child frame body FRD (MAVLink ODOMETRY convention)
+        nan21 = [float("nan")] + [0.0] * 20
+        pc = list(nan21)
+        vc = list(nan21)
+        sp, sv, sa = st.std_pos, st.std_vel, st.std_att
+        if float(np.max(sp)) > 0:
+            # upper-right triangle, row-major: diagonal at 0, 6, 11, 15, 18, 20
+            pc = [0.0] * 21
+            for i, val in zip((0, 6, 11, 15, 18, 20), (sp[0], sp[1], sp[2], sa[0], sa[1], sa[2])):
+                pc[i] = float(val) ** 2
+            vc = [0.0] * 21
+            for i, val in zip((0, 6, 11), (sv[0], sv[1], sv[2])):
+                vc[i] = float(val) ** 2
+        self.mav.odometry_send(
+            round(st.t * 1e6),
+            m.MAV_FRAME_LOCAL_NED,
+            m.MAV_FRAME_BODY_FRD,
+            float(d[0]),
+            float(d[1]),
+            float(d[2]),
+            [float(x) for x in q],
+            float(v_b[0]),
+            float(v_b[1]),
+            float(v_b[2]),
+            float(w[0]),
+            float(w[1]),
+            float(w[2]),
+            pc,
+            vc,
+            0,
+            m.MAV_ESTIMATOR_TYPE_NAIVE,
+            100 if st.aligned else 0,
+        )
+
+    def _send_gps_input(self, st: NavState) -> None:
+        v, sp, sv = st.vel_ned, st.std_pos, st.std_vel
+        self.mav.gps_input_send(
+            round(st.t * 1e6),
+            0,
+            0,
+            0,
+            0,
+            3 if st.aligned else 1,
+            round(math.degrees(st.lat) * 1e7),
+            round(math.degrees(st.lon) * 1e7),
+            float(st.h),
+            1.0,
+            1.0,
+            float(v[0]),
+            float(v[1]),
+            float(v[2]),
+            float(max(sv)),
+            float(math.hypot(sp[0], sp[1])),
+            float(sp[2]),
+            12,
+        )
+
+    def _send_hil_state_quaternion(self, st: NavState) -> None:
+        q, w, v = st.q_nb, st.omega_b, st.vel_ned
+        a = st.accel_b / earth.G0 * 1000.0  # mG
+        gs = math.hypot(v[0], v[1])
+        self.mav.hil_state_quaternion_send(
+            round(st.t * 1e6),
+            [float(x) for x in q],
+            float(w[0]),
+            float(w[1]),
+            float(w[2]),
+            round(math.degrees(st.lat) * 1e7),
+            round(math.degrees(st.lon) * 1e7),
+            round(st.h * 1000),
+            _i16(v[0] * 100),
+            _i16(v[1] * 100),
+            _i16(v[2] * 100),
+            min(65535, round(gs * 100)),
+            min(65535, round(gs * 100)),
+            _i16(a[0]),
+            _i16(a[1]),
+            _i16(a[2]),
+        )
+
+
+def _i16(x: float) -> int:
+    return max(-32768, min(32767, round(float(x))))
+
+
+def fault_text(ev: FaultEvent) -> tuple[int, str]:
+    """STATUSTEXT (severity, ≤50 chars) for a fault event."""
+    m = mavlink_module()
+    if ev.cleared:
+        return m.MAV_SEVERITY_NOTICE, f"INS fault cleared: {ev.sensor}"
+    return m.MAV_SEVERITY_WARNING, f"INS fault {ev.sensor} {ev.mode.name.lower()}"

@@ -1,0 +1,231 @@
+"""MQTT publisher (aiomqtt): fused state, health (retained) and fault events (QoS 1).
+
+Topics under ``topic_prefix`` (default ``ins_hil``):
+
+- ``<prefix>/state``: JSON, QoS 0, at ``state_rate`` Hz (newest state, older ones coalesced)::
+
+    {"t": 12.345,                 # sensor time (s)
+     "seq": 1234,                 # state message counter
+     "lat_deg": 50.45, "lon_deg": 30.52, "h_m": 180.2,   # WGS84, ellipsoidal height
+     "vel_ned": [vn, ve, vd],     # m/s
+     "q_nb": [q0, q1, q2, q3],    # Hamilton, scalar first, body FRD → NED
+     "euler_deg": [roll, pitch, yaw],
+     "std_pos_m": [n, e, d], "std_vel_ms": [n, e, d], "std_att_deg": [n, e, d],
+     "gyro_bias": [...],          # rad/s, body FRD
+     "accel_bias": [...],         # m/s², body FRD
+     "aligned": true, "test_ratios": {"...": 0.3}}
+
+- ``<prefix>/fault``: JSON per FaultEvent, QoS 1 (kept in a bounded queue
+  while the broker is away and sent after reconnect)::
+
+    {"t": 30.0, "sensor": "gyro[3]", "mode": "STEP_BIAS", "magnitude": 0.01,
+     "isolated": true, "cleared": false, "detail": ""}
+
+- ``<prefix>/health``: JSON, QoS 1, retained, every second: the runtime
+  metrics snapshot (rates, latencies, counters, FDI state).
+- ``<prefix>/online``: retained ``"1"``, and ``"0"`` as the last will.
+
+The publisher is its own task: a broker outage never touches the IMU path.
+It reconnects with exponential backoff (0.2 s … 5 s); states due while
+disconnected are counted as ``state_dropped_offline``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import ssl
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+from ins_hil.nav.rotation import euler_from_quat
+from ins_hil.runtime.metrics import RuntimeMetrics
+from ins_hil.types import FaultEvent, NavState
+
+
+@dataclass
+class MqttConfig:
+    """The ``[mqtt]`` table."""
+
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = 1883
+    topic_prefix: str = "ins_hil"
+    state_rate: float = 10.0
+    health_period: float = 1.0
+    client_id: str = ""
+    username: str = ""
+    password: str = ""
+    tls: bool = False
+    tls_ca: str = ""
+    tls_cert: str = ""
+    tls_key: str = ""
+    tls_insecure: bool = False
+    keepalive: int = 10
+
+
+def state_json(st: NavState, seq: int) -> dict[str, Any]:
+    e = euler_from_quat(st.q_nb)
+    return {
+        "t": st.t,
+        "seq": seq,
+        "lat_deg": math.degrees(st.lat),
+        "lon_deg": math.degrees(st.lon),
+        "h_m": st.h,
+        "vel_ned": [float(x) for x in st.vel_ned],
+        "q_nb": [float(x) for x in st.q_nb],
+        "euler_deg": [math.degrees(float(x)) for x in e],
+        "std_pos_m": [float(x) for x in st.std_pos],
+        "std_vel_ms": [float(x) for x in st.std_vel],
+        "std_att_deg": [math.degrees(float(x)) for x in st.std_att],
+        "gyro_bias": [float(x) for x in st.gyro_bias],
+        "accel_bias": [float(x) for x in st.accel_bias],
+        "aligned": bool(st.aligned),
+        "test_ratios": {k: float(v) for k, v in st.test_ratios.items()},
+    }
+
+
+def fault_json(ev: FaultEvent) -> dict[str, Any]:
+    mag = ev.magnitude
+    return {
+        "t": ev.t,
+        "sensor": ev.sensor,
+        "mode": ev.mode.name,
+        "magnitude": mag if math.isfinite(mag) else None,
+        "isolated": ev.isolated,
+        "cleared": ev.cleared,
+        "detail": ev.detail,
+    }
+
+
+class MqttPublisher:
+    """State/health/fault publisher with reconnect; ``offer_*`` never block."""
+
+    def __init__(self, cfg: MqttConfig, metrics: RuntimeMetrics) -> None:
+        self.cfg = cfg
+        self.metrics = metrics
+        self.name = "mqtt"
+        self.connected = False
+        self.connects = 0
+        self._latest: NavState | None = None
+        self._faults: deque[FaultEvent] = deque(maxlen=1000)
+        self._wake = asyncio.Event()
+        self._seq = 0
+        self._period_ns = round(1e9 / cfg.state_rate) if cfg.state_rate > 0 else 0
+        self._next_ns = 0
+        self._task: asyncio.Task[None] | None = None
+        self.last_error = ""
+
+    def offer(self, st: NavState, arrival_ns: int, ready_ns: int) -> None:
+        self._latest = st
+        if not self._period_ns:
+            return
+        now = time.monotonic_ns()
+        if now >= self._next_ns:
+            self._next_ns = max(self._next_ns + self._period_ns, now)
+            if self.connected:
+                self._wake.set()
+            else:
+                self.metrics.output(self.name, "state_dropped_offline")
+
+    def offer_fault(self, ev: FaultEvent) -> None:
+        if len(self._faults) == self._faults.maxlen:
+            self.metrics.output(self.name, "fault_dropped_overflow")
+        self._faults.append(ev)
+        self._wake.set()
+
+    async def start(self) -> None:
+        self._task = asyncio.create_task(self._run(), name="mqtt")
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            try:
+                await asyncio.wait_for(self._task, 5.0)
+            except (asyncio.CancelledError, TimeoutError):
+                pass
+
+    async def _run(self) -> None:
+        import aiomqtt
+
+        c = self.cfg
+        p = c.topic_prefix
+        backoff = 0.2
+        tls_context = None
+        if c.tls:
+            tls_context = ssl.create_default_context(cafile=c.tls_ca or None)
+            if c.tls_cert:
+                tls_context.load_cert_chain(c.tls_cert, c.tls_key or None)
+            if c.tls_insecure:
+                tls_context.check_hostname = False
+                tls_context.verify_mode = ssl.CERT_NONE
+        while True:
+            try:
+                async with aiomqtt.Client(
+                    c.host,
+                    c.port,
+                    identifier=c.client_id or None,
+                    username=c.username or None,
+                    password=c.password or None,
+                    keepalive=c.keepalive,
+                    tls_context=tls_context,
+                    tls_insecure=c.tls_insecure if c.tls else None,
+                    will=aiomqtt.Will(f"{p}/online", b"0", qos=1, retain=True),
+                    timeout=3.0,
+                ) as client:
+                    self.connected = True
+                    self.connects += 1
+                    backoff = 0.2
+                    self.metrics.output(self.name, "connects")
+                    await client.publish(f"{p}/online", b"1", qos=1, retain=True, timeout=2.0)
+                    await self._serve(client)
+            except aiomqtt.MqttError as e:
+                self.last_error = str(e)
+            except OSError as e:
+                self.last_error = str(e)
+            self.connected = False
+            await asyncio.sleep(backoff)
+            backoff = min(5.0, backoff * 2)
+
+    async def _serve(self, client: Any) -> None:
+        p = self.cfg.topic_prefix
+        next_health = 0.0
+        while True:
+            try:
+                await asyncio.wait_for(self._wake.wait(), timeout=self.cfg.health_period)
+            except TimeoutError:
+                pass
+            self._wake.clear()
+            while self._faults:
+                ev = self._faults[0]
+                await client.publish(f"{p}/fault", json.dumps(clean_json(fault_json(ev))), qos=1, timeout=2.0)
+                self._faults.popleft()
+                self.metrics.output(self.name, "faults")
+            st = self._latest
+            if st is not None and self._period_ns:
+                self._latest = None
+                self._seq += 1
+                await client.publish(
+                    f"{p}/state", json.dumps(clean_json(state_json(st, self._seq))), qos=0, timeout=2.0
+                )
+                self.metrics.output(self.name, "states")
+            now = time.monotonic()
+            if now >= next_health:
+                next_health = now + self.cfg.health_period
+                snap = self.metrics.snapshot()
+                await client.publish(f"{p}/health", json.dumps(clean_json(snap)), qos=1, retain=True, timeout=2.0)
+                self.metrics.output(self.name, "health")
+
+
+def clean_json(x: Any) -> Any:
+    """Replace non-finite floats by None (JSON has no NaN/inf)."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: clean_json(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [clean_json(v) for v in x]
+    return x

@@ -1,0 +1,317 @@
+"""The synchronous navigation pipeline shared by the live loop and replay.
+
+calibration → (redundant-IMU epoch grouping →) FDI monitor → core.step, and
+aiding measurements held until the IMU time reaches their time of validity,
+then ``core.fuse``. Pure and deterministic: no I/O, no clock, no asyncio.
+The loop records every input in the order it hands them to
+:meth:`Pipeline.imu` / :meth:`Pipeline.aid`; replaying that order through a
+fresh pipeline built from the same config gives the same states bit for bit.
+
+Initialisation (until the core aligns itself): the core is created at the
+first 3-D GNSS fix, at its position and velocity, with roll/pitch levelled
+from the mean specific force of the last ``level_samples`` IMU intervals
+(standard levelling, the x-forward reading of book eq. 4.1 — DIGEST_000
+§4.1 notes the book swaps the axes) and yaw from the config (or the GNSS
+course when moving faster than 3 m/s). ``init = "config"`` starts at a
+configured state instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from ins_hil.nav.mechanization import StrapdownState
+from ins_hil.nav.rotation import quat_from_euler
+from ins_hil.types import BaroSample, FaultEvent, FixType, GnssFix, ImuSample, MagSample, NavState
+
+Aid = GnssFix | BaroSample | MagSample
+
+
+class Core(Protocol):
+    """What the runtime needs of a navigation core (Python NavCore or C CNavCore)."""
+
+    def step(self, imu: ImuSample) -> NavState: ...
+
+    def fuse(self, meas: Aid) -> Any: ...
+
+    def state(self) -> NavState: ...
+
+
+CORE_KINDS = ("python", "c")
+
+
+def nav_config(options: dict[str, Any]) -> Any:
+    """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table (``filter`` = FilterConfig fields).
+
+    Raises ValueError naming the bad key."""
+    from ins_hil.core import NavConfig
+    from ins_hil.fusion.ekf import FilterConfig
+
+    known = {f.name: f for f in dataclasses.fields(NavConfig)}
+    kw: dict[str, Any] = {}
+    for k, v in options.items():
+        if k not in known:
+            raise ValueError(f"unknown key 'core.nav.{k}' (known: {', '.join(sorted(known))})")
+        if k == "filter":
+            fk = {f.name for f in dataclasses.fields(FilterConfig)}
+            bad = set(v) - fk if isinstance(v, dict) else {"?"}
+            if bad:
+                raise ValueError(f"core.nav.filter: unknown key(s) {sorted(bad)} (known: {', '.join(sorted(fk))})")
+            v = FilterConfig(**v)
+        elif k in ("gnss_lever_arm_b", "mag_ref_ned"):
+            v = np.array(v, dtype=np.float64)
+            if v.shape != (3,):
+                raise ValueError(f"core.nav.{k} = {options[k]!r}: expected 3 numbers")
+        elif k == "gnss_min_std":
+            v = tuple(float(x) for x in v)
+        kw[k] = v
+    try:
+        return NavConfig(**kw)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"core.nav: {e}") from None
+
+
+def _initial_placeholder() -> StrapdownState:
+    return StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.9, 0.5, 100.0)
+
+
+def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
+    """Raise now (before anything starts) if the core ``kind`` cannot be built with these options."""
+    if kind not in CORE_KINDS:
+        raise ValueError(f"unknown core {kind!r} (choose from {', '.join(CORE_KINDS)})")
+    make_core(kind, _initial_placeholder(), nav or {})
+
+
+def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> Core:
+    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore).
+
+    ``filter.cov_every`` is a speed setting of the Python core only: the C core propagates the
+    covariance on every step, so it is dropped for ``c`` (every other setting must be supported)."""
+    opts = dict(nav or {})
+    if kind == "c" and isinstance(opts.get("filter"), dict):
+        opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
+    cfg = nav_config(opts)
+    try:
+        cref = importlib.import_module("ins_hil.cref")
+    except ImportError as e:
+        if kind == "c":
+            raise RuntimeError(f"core 'c': the C reference core (ins_hil.cref) is not available: {e}") from e
+        from ins_hil.core import NavCore
+
+        return NavCore(initial, cfg)
+    try:
+        core: Core = cref.make_core(kind, initial, cfg)
+    except (ImportError, OSError) as e:
+        raise RuntimeError(f"core {kind!r}: cannot load the C reference core: {e}") from e
+    except ValueError as e:
+        raise RuntimeError(f"core {kind!r}: {e}") from e
+    return core
+
+
+@dataclass
+class PipelineConfig:
+    """Settings of the pipeline (the ``[core]`` table of a config, plus FDI and calibration)."""
+
+    core: str = "python"
+    init: str = "gnss"  # "gnss" (first 3-D fix + levelling) or "config"
+    init_lat_deg: float = 0.0
+    init_lon_deg: float = 0.0
+    init_h: float = 0.0
+    init_roll_deg: float = 0.0
+    init_pitch_deg: float = 0.0
+    init_yaw_deg: float = 0.0
+    level_samples: int = 200
+    imu_ids: list[int] = field(default_factory=lambda: [0])
+    fdi: bool = False
+    fdi_options: dict[str, Any] = field(default_factory=dict)
+    calibration: str = ""
+    nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig fields
+
+
+def level_attitude(f_b: np.ndarray, yaw: float) -> np.ndarray:
+    """q_nb from a mean specific force f_b (m/s², body FRD, at rest f = −g up = (0, 0, −g)) and a yaw (rad).
+
+    roll = atan2(−f_y, −f_z), pitch = atan2(f_x, √(f_y² + f_z²)) (x-forward levelling).
+    """
+    fx, fy, fz = float(f_b[0]), float(f_b[1]), float(f_b[2])
+    roll = math.atan2(-fy, -fz)
+    pitch = math.atan2(fx, math.hypot(fy, fz))
+    return quat_from_euler(roll, pitch, yaw)
+
+
+class Pipeline:
+    """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
+
+    def __init__(self, cfg: PipelineConfig) -> None:
+        check_core(cfg.core, cfg.nav)
+        self.cfg = cfg
+        self.core: Core | None = None
+        self.events: list[FaultEvent] = []
+        self.counts: dict[str, int] = {}
+        self._held: list[Aid] = []  # aiding samples newer than the IMU time, sorted by t
+        self._t_imu = -math.inf
+        self._lvl: deque[tuple[np.ndarray, float]] = deque(maxlen=max(1, cfg.level_samples))
+        self._lvl_sum = np.zeros(3)
+        self._lvl_dt = 0.0
+        self._multi = len(cfg.imu_ids) > 1
+        self._pending: dict[int, dict[int, ImuSample]] = {}
+        self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
+        self._fdi = _make_fdi(cfg) if cfg.fdi else None
+        self.last_state: NavState | None = None
+        if cfg.init == "config":
+            self._start(
+                StrapdownState(
+                    quat_from_euler(
+                        *(math.radians(a) for a in (cfg.init_roll_deg, cfg.init_pitch_deg, cfg.init_yaw_deg))
+                    ),
+                    np.zeros(3),
+                    math.radians(cfg.init_lat_deg),
+                    math.radians(cfg.init_lon_deg),
+                    cfg.init_h,
+                    0.0,
+                )
+            )
+
+    def _count(self, key: str) -> None:
+        self.counts[key] = self.counts.get(key, 0) + 1
+
+    def _start(self, initial: StrapdownState) -> None:
+        self.core = make_core(self.cfg.core, initial, self.cfg.nav)
+
+    # -- IMU ------------------------------------------------------------------
+    def imu(self, s: ImuSample) -> NavState | None:
+        """Consume one IMU sample; returns the new state when an epoch was processed."""
+        if self._calib is not None:
+            s = self._calib.apply(s)
+        if not self._multi:
+            return self._epoch([s])
+        key = round(s.t * 1e6)
+        pend = self._pending.setdefault(key, {})
+        if s.imu_id in pend:
+            self._count("imu_duplicate")
+            return None
+        pend[s.imu_id] = s
+        out: NavState | None = None
+        # epochs older than this one by more than 2 intervals will not complete: run them as they are
+        stale = [k for k in self._pending if k < key - 2.5 * s.dt * 1e6]
+        for k in sorted(stale):
+            self._count("imu_epoch_incomplete")
+            out = self._epoch(list(self._pending.pop(k).values())) or out
+        if len(pend) == len(self.cfg.imu_ids):
+            del self._pending[key]
+            out = self._epoch([pend[i] for i in sorted(pend)]) or out
+        return out
+
+    def _epoch(self, samples: list[ImuSample]) -> NavState | None:
+        if self._fdi is not None:
+            s, ev = self._fdi.process(samples)
+            if ev:
+                self.events.extend(ev)
+        else:
+            s = samples[0]
+        if s.t <= self._t_imu:
+            self._count("imu_time_backwards")
+            return None
+        self._t_imu = s.t
+        core = self.core
+        if core is None:
+            self._level_add(s)
+            self._count("imu_before_init")
+            return None
+        st = core.step(s)
+        drain = getattr(core, "drain_events", None)
+        if drain is not None:
+            ev2 = drain()
+            if ev2:
+                self.events.extend(ev2)
+        if self._held:
+            while self._held and self._held[0].t <= s.t:
+                self._fuse(self._held.pop(0))
+            st = core.state()
+        self.last_state = st
+        return st
+
+    def _level_add(self, s: ImuSample) -> None:
+        if len(self._lvl) == self._lvl.maxlen:
+            dv, dt = self._lvl[0]
+            self._lvl_sum -= dv
+            self._lvl_dt -= dt
+        self._lvl.append((s.dvel, s.dt))
+        self._lvl_sum += s.dvel
+        self._lvl_dt += s.dt
+
+    # -- aiding -------------------------------------------------------------------
+    def aid(self, m: Aid) -> None:
+        """Consume one aiding measurement: fused now if its time of validity has passed, else held."""
+        if self.core is None:
+            if isinstance(m, GnssFix) and m.fix_type >= FixType.FIX_3D and self._lvl_dt > 0:
+                self._init_from_gnss(m)
+            else:
+                self._count("aid_before_init")
+            return
+        if m.t <= self._t_imu:
+            self._fuse(m)
+            return
+        i = len(self._held)
+        while i > 0 and self._held[i - 1].t > m.t:
+            i -= 1
+        self._held.insert(i, m)
+        if len(self._held) > 256:  # IMU stopped: do not grow without bound
+            self._held.pop(0)
+            self._count("aid_held_overflow")
+
+    def _fuse(self, m: Aid) -> None:
+        assert self.core is not None
+        self.core.fuse(m)
+        self._count("fused_" + type(m).__name__)
+
+    def _init_from_gnss(self, g: GnssFix) -> None:
+        f_b = self._lvl_sum / self._lvl_dt
+        vel = np.array(g.vel_ned, dtype=np.float64) if g.vel_ned is not None else np.zeros(3)
+        yaw = math.radians(self.cfg.init_yaw_deg)
+        if math.hypot(vel[0], vel[1]) > 3.0:
+            yaw = math.atan2(vel[1], vel[0])
+        self._start(StrapdownState(level_attitude(f_b, yaw), vel, g.lat, g.lon, g.h, self._t_imu))
+        self._count("init_gnss")
+
+    def drain_events(self) -> list[FaultEvent]:
+        ev, self.events = self.events, []
+        return ev
+
+
+def _load_calibration(path: str) -> Any:
+    """A calibration file (``ins_hil.nav.calibration``): an object with ``apply(imu) -> ImuSample``."""
+    from ins_hil.nav.calibration import load_calibration
+
+    return load_calibration(path)
+
+
+def fdi_monitor(options: dict[str, Any]) -> Any:
+    """``FdiMonitor`` from the ``[fdi.options]`` table: ``geometry`` (a name of
+    ``ins_hil.fdi.geometry.CONFIGS``) plus ``FdiConfig`` fields (dt, gyro_noise, accel_noise, ...)."""
+    from ins_hil.fdi.geometry import by_name
+    from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
+
+    opts = dict(options)
+    known = {f.name for f in dataclasses.fields(FdiConfig)}
+    bad = set(opts) - known
+    if bad:
+        raise ValueError(
+            f"unknown key(s) {sorted('fdi.options.' + b for b in bad)} (known: {', '.join(sorted(known))})"
+        )
+    try:
+        opts["geometry"] = by_name(str(opts.get("geometry", "triple_imu")))
+        return FdiMonitor(FdiConfig(**opts))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"fdi.options: {e}") from None
+
+
+def _make_fdi(cfg: PipelineConfig) -> Any:
+    return fdi_monitor(cfg.fdi_options)
