@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.machine import cpu_model
+
 NAME = "bench-core"
 HELP = "benchmark the Python core against the C reference core (per step, per GNSS update, callgrind)"
 
@@ -54,14 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _machine() -> dict[str, str]:
-    cpu = platform.processor() or "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     try:
         load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     except OSError:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.machine import cpu_model
 from ins_hil.types import ImuSample
 
 NAME = "bench-drivers"
@@ -54,14 +55,7 @@ def _best_of(fn: Any, n_runs: int = 7) -> float:
 
 
 def _machine() -> str:
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     return (
         f"{os.cpu_count()} CPUs (`nproc`), {cpu}; Python {platform.python_version()}; "

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ins_hil.machine import cpu_model
 from ins_hil.nav import allan as av
 from ins_hil.nav import calibration as cal
 from ins_hil.types import ImuFlags, ImuSample, MagSample, Vec
@@ -612,16 +613,8 @@ BENCH_END = "<!-- calibrate bench: end -->"
 
 def _machine() -> str:
     import os
-    import platform
 
-    cpu = platform.processor() or "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
     return f"{os.cpu_count()} CPUs ({cpu}), load average {load} (other processes were running: timings are noisy)"
 

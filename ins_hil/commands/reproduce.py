@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+from ins_hil.machine import cpu_model
 from ins_hil.reproduce import Row, groups
 
 NAME = "reproduce"
@@ -46,14 +47,7 @@ def _cell(text: str) -> str:
 
 
 def _machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     return f"{os.cpu_count()} CPUs ({cpu}), Python {platform.python_version()}; other processes may have been running"
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ins_hil.config import default_path, load
+from ins_hil.machine import cpu_model
 from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.metrics import _BASE_NS, _RATIO, LatencyHistogram
 
@@ -27,14 +28,7 @@ REPO = Path(__file__).resolve().parent.parent.parent
 
 
 def machine() -> str:
-    cpu = platform.processor() or "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     load1 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return f"{os.cpu_count()} CPUs (nproc), {cpu}, Python {platform.python_version()}, load average {load1:.2f}"
 
