@@ -410,8 +410,6 @@ class NavCore:
         self._ratios = dict(self._ratios)
         self._ratios[kind] = ratio
         st.last_nis = nis
-        if self.keep_nis and not self._replaying:
-            self.nis_log.append((t, kind, nis, len(z)))
         force = kind == "gnss_pos" and st.consecutive_rejects >= self.cfg.gnss_reset_after
         if kind == "gnss_vel" and self.stats["gnss_pos"].consecutive_rejects > 0:
             force = False  # velocity follows the position decision below
@@ -425,6 +423,8 @@ class NavCore:
                                    float(np.max(np.abs(z))), True, False, f"{kind} innovation test ratio {ratio:.2f}")
                     )  # fmt: skip
             return False
+        if self.keep_nis and not self._replaying:
+            self.nis_log.append((t, kind, nis, len(z)))  # accepted innovations only (consistency check)
         if ad is not None:
             ad.update(z, np.diag(HPHt), r / ad.scale)
         if not self._replaying:

@@ -428,8 +428,8 @@ def full_report(args: argparse.Namespace) -> int:
         sims[name] = m
         plots[name] = plot_series(ser, name, figdir / name)
     report["scenarios"] = sims
-    report["monte_carlo"] = monte_carlo("example32_gnss", 10, 300.0, quiet)
-    report["monte_carlo_uav"] = monte_carlo("uav", 10, 140.0, quiet)
+    report["monte_carlo"] = monte_carlo("example32_gnss", 10, None, quiet)
+    report["monte_carlo_uav"] = monte_carlo("uav_modelled", 10, 140.0, quiet)
     report["elapsed_s"] = time.perf_counter() - t_start
     (figdir / "metrics.json").write_text(json.dumps(report, indent=2, default=float))
     (docs / "accuracy.md").write_text(render_markdown(report, plots, docs))
@@ -510,11 +510,14 @@ def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path)
                 a(f"![{p.stem}]({p.relative_to(docs)})")
     a("")
     a("## Hot path (µs per IMU step, Python)\n")
-    a("| measurement | µs |")
-    a("|---|---|")
-    for k, v in r["hot_path"].items():
-        a(f"| {k} | {v:.1f} |")
-    a("\nTarget: mechanization + 15-state predict ≤ 150 µs (mechanization alone ~21 µs on an idle machine). "
+    hp = r["hot_path"]
+    scale = 21.0 / hp["mechanization_us"]
+    a("| measurement | µs (measured, loaded machine) | µs scaled to a 21 µs mechanization (estimate) |")
+    a("|---|---|---|")
+    for k, v in hp.items():
+        a(f"| {k} | {v:.1f} | {v * scale:.1f} |")
+    a("\nTarget: mechanization + 15-state predict ≤ 150 µs (mechanization alone ~21 µs on an idle machine; the "
+      "scaled column divides out the machine load measured on the mechanization itself). "
       "`with_delay_history` keeps the state snapshots for delayed GNSS fusion (rollback and forward "
       "propagation).\n")  # fmt: skip
     a(f"Report generated in {r['elapsed_s']:.0f} s.\n")

@@ -205,6 +205,7 @@ def load_drive(
     mounting: str = "misalign_then_mount",
     time_offset: float = IMU_TIME_OFFSET,
     misalign: tuple[float, float, float] = MISALIGN_EULER,
+    increments: str = "trapezoid",
 ) -> Drive:
     """Load the drive: IMU rotated into the vehicle body frame and time-tagged (GPST + offset),
     GNSS fixes from the .pos file (only Q ≤ 2 epochs; σ from the file)."""
@@ -225,11 +226,11 @@ def load_drive(
         dt = float(t[k] - t[k - 1])
         if not 0.0 < dt < 0.1:
             continue
-        # trapezoid of the two rate samples over the interval
-        samples.append(
-            ImuSample(t=float(t[k]), dt=dt, dtheta=0.5 * (gyro[k] + gyro[k - 1]) * dt,
-                      dvel=0.5 * (acc[k] + acc[k - 1]) * dt, seq=k & 0xFFFF)
-        )  # fmt: skip
+        if increments == "trapezoid":  # trapezoid of the two rate samples over the interval
+            w, a = 0.5 * (gyro[k] + gyro[k - 1]), 0.5 * (acc[k] + acc[k - 1])
+        else:  # "end": the sample at the end of the interval held over it (rate = interval mean)
+            w, a = gyro[k], acc[k]
+        samples.append(ImuSample(t=float(t[k]), dt=dt, dtheta=w * dt, dvel=a * dt, seq=k & 0xFFFF))
     pos = read_pos(d / "gnss_1934_sf.pos")
     fixes = []
     for k in range(len(pos.t)):

@@ -19,6 +19,9 @@ Scenarios:
 * ``coning``: 60 s of coning at rest (2 Hz, 0.05 rad, IMU 200 Hz), GNSS + baro + magnetometer.
 * ``uav``: the mission profile (take-off, climb, turns, cruise, descent), MEMS IMU at
   100 Hz, GNSS 5 Hz with 200 ms latency, a 20 s outage and multipath outliers, baro, mag.
+* ``uav_modelled``: the same with only the IMU errors the 15-state filter models (biases,
+  Gauss–Markov drift, white noise; no scale-factor/misalignment) and no outliers: the
+  filter-consistency (NEES/NIS) check.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from ins_hil.sim import trajectory as tr
 from ins_hil.types import ImuSample
 
 ARCMIN = math.pi / 180.0 / 60.0
-NAMES = ("static", "example32", "example32_gnss", "coning", "uav")
+NAMES = ("static", "example32", "example32_gnss", "coning", "uav", "uav_modelled")
 
 
 @dataclass
@@ -121,14 +124,19 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
         meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
         init = _initial(truth, (0.01, -0.01, 0.02))
         return Scenario(name, truth, imu, meas, init, NavConfig(mag_ref_ned=ref, mag_std=0.01, baro_offset=0.0))
-    # uav
+    # uav, uav_modelled
     T = duration or 240.0
     truth = tr.generate(tr.mission_profile(), T, 0.01, lat0, lon0, h0)
-    imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=rng).samples()
-    gm = se.GnssModel(rate=5, std_ne=1.0, std_d=2.0, std_vel=0.1, outages=[(150.0, 170.0)], outlier_prob=0.01,
-                      outlier_size=20.0, latency=0.2)  # fmt: skip
+    gyro, accel = se.mems_gyro(rng), se.mems_accel(rng)
+    if name == "uav_modelled":  # only the errors the 15-state filter models: biases (GM) and white noise
+        gyro.scale_factor = accel.scale_factor = np.zeros(3)
+        gyro.misalignment = accel.misalignment = np.zeros((3, 3))
+    imu = se.corrupt_imu(truth, gyro, accel, seed=rng).samples()
+    gm = se.GnssModel(rate=5, std_ne=1.0, std_d=2.0, std_vel=0.1, outages=[(150.0, 170.0)],
+                      outlier_prob=0.01 if name == "uav" else 0.0, outlier_size=20.0, latency=0.2)  # fmt: skip
     meas = [*_deliver(list(se.gnss_fixes(truth, gm, seed=rng)), gm.latency), *se.baro_samples(truth, seed=rng)]
     meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
     init = _initial(truth, (0.01, -0.01, 0.05))
-    cfg = NavConfig(mag_ref_ned=ref, mag_std=0.02, baro_offset=0.0)  # baro datum known (QNH-like)
+    # σ_m = 0.2 µT / 50 µT = 0.004 per unit-vector component (the simulated sensor); datum known (QNH-like)
+    cfg = NavConfig(mag_ref_ned=ref, mag_std=0.004, baro_offset=0.0)
     return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 60.0})
