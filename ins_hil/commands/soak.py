@@ -44,6 +44,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--transports", default="serial,udp", help="serial,udp (CAN is not available: no vcan on this kernel)"
     )
+    p.add_argument(
+        "--imu-links",
+        choices=["shared", "separate"],
+        default="shared",
+        help="redundant IMUs' frames on one pty (interleaved by imu_id, default) or one pty per IMU",
+    )
     p.add_argument("--gcs-rate", type=float, default=50.0, metavar="HZ", help="ODOMETRY rate to the ground station")
     p.add_argument("--no-record", action="store_true", help="do not run the gateway's recorder")
     p.add_argument("--seed", type=int, default=7)
@@ -88,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         duration=args.duration,
         rate=args.rate,
         imus=args.imus,
+        links=args.imu_links,
         faults=faults,
         core=args.core,
         load=args.load,

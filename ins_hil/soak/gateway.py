@@ -53,6 +53,10 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+#: s healthy before an excluded sensor is taken back (FdiConfig.readmit_after)
+READMIT_S = 2.0
+
+
 def fdi_config(n_imus: int, rate: float) -> Any:
     """The FDI monitor settings for the simulated sensors (stochastic MEMS errors of ins_hil.sim.redundant)."""
     from ins_hil.fdi.monitor import FdiConfig
@@ -60,8 +64,10 @@ def fdi_config(n_imus: int, rate: float) -> Any:
     from ins_hil.soak.faults import geometry_for
 
     g, ac = mems_gyro(), mems_accel()
+    # readmit_after: a unit that dropped out because its frames were lost in transport comes back
+    # once healthy again (a faulty sensor's residual never passes, so it stays excluded)
     return FdiConfig(geometry_for(n_imus), 1.0 / rate, g.noise_density, ac.noise_density,
-                     g.bias_instability, ac.bias_instability)  # fmt: skip
+                     g.bias_instability, ac.bias_instability, readmit_after=READMIT_S)  # fmt: skip
 
 
 async def _run(a: argparse.Namespace) -> int:
@@ -143,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, AttributeError):
         pass
     ap = argparse.ArgumentParser(description="soak gateway process (see ins_hil.soak.gateway)")
-    ap.add_argument("--imu", action="append", required=True, help="IMU pty (repeat per IMU)")
+    ap.add_argument("--imu", action="append", required=True, help="IMU link pty (repeat per link)")
     ap.add_argument("--gnss-port", type=int, required=True)
     ap.add_argument("--gcs-port", type=int, required=True)
     ap.add_argument("--gcs-rate", type=float, default=50.0)
@@ -153,8 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True)
     ap.add_argument("--cpu", type=int, default=-1)
     ap.add_argument("--record", action="store_true")
+    ap.add_argument("--imus", type=int, default=1, help="redundant IMUs (their frames may share one link)")
     a = ap.parse_args(argv)
-    a.imus = len(a.imu)
     pin(a.cpu)
     return asyncio.run(_run(a))
 

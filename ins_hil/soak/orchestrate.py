@@ -31,6 +31,7 @@ class SoakOptions:
     duration: float = 120.0  # s
     rate: float = 1000.0  # IMU Hz
     imus: int = 1
+    links: str = "shared"  # IMU frames: shared (one pty, interleaved by imu_id) | separate (one pty per IMU)
     faults: str = "auto"  # see ins_hil.soak.faults
     core: str = "python"
     load: int = 0  # busy-loop background processes
@@ -118,13 +119,14 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
         _line(procs["gcs"], "ground-station client")
         procs["sim"] = subprocess.Popen(
             [py, "-m", "ins_hil.soak.simproc", "--gnss-udp", f"127.0.0.1:{gnss_port}", "--out", str(out),
-             "--imus", str(opt.imus), "--rate", str(opt.rate), "--duration", str(opt.duration),
+             "--imus", str(opt.imus), "--links", opt.links, "--rate", str(opt.rate), "--duration", str(opt.duration),
              "--faults", opt.faults, "--cpu", str(cpu_s), "--seed", str(opt.seed)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
         ptys = _line(procs["sim"], "sensor simulator")["imu"]
         gw_args = [py, "-m", "ins_hil.soak.gateway", "--gnss-port", str(gnss_port), "--gcs-port", str(gcs_port),
                    "--gcs-rate", str(opt.gcs_rate), "--rate", str(opt.rate), "--core", opt.core,
-                   "--duration", str(opt.duration + 3.0), "--out", str(out), "--cpu", str(cpu_g)]  # fmt: skip
+                   "--duration", str(opt.duration + 3.0), "--out", str(out), "--cpu", str(cpu_g),
+                   "--imus", str(opt.imus)]  # fmt: skip
         for p in ptys:
             gw_args += ["--imu", p]
         if opt.record:

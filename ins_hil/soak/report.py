@@ -199,13 +199,13 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
         )
     lines += [
         "",
-        "| navigation error (after 30 s) | RMS first third | RMS last third | max | stable |",
+        "| navigation error (after the settling time) | RMS first third | RMS last third | max | stable |",
         "|---|---|---|---|---|",
     ]
     for k, v in m["accuracy"].items():
         lines.append(
             f"| {k.replace('_', ' (')}) | {_f(v['first_rms'], 2)} | {_f(v['last_rms'], 2)} | "
-            f"{_f(v.get('max'), 2)} | {_ok(v['stable'])} |"
+            f"{_f(v.get('max'), 2)} | {_ok(v['stable'])} {v.get('note', '')} |"
         )
     fc = m["faults"]
     if fc["injected"]:
@@ -222,7 +222,8 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
     if o["imus"] > 1:
         lines += [
             "",
-            f"FDI events {fc['events']}, false alarms {fc['false_alarms']}, warning STATUSTEXTs "
+            f"FDI events {fc['events']}, false alarms {fc['false_alarms']}, DROPOUT events (frames that did not "
+            f"arrive: lost in transport, not false alarms) {fc['dropout_events']}, warning STATUSTEXTs "
             f"received by the ground station {fc['statustext_at_gcs']}.",
         ]
     lines.append("")

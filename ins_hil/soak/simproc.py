@@ -3,14 +3,15 @@
 Like :mod:`ins_hil.sim.devices` (whose MAVLink helpers it reuses) but built for
 measurement: it pins itself to one CPU, waits for ``go`` on stdin before its clock
 starts (so no frame is written before the gateway reads), simulates ``--imus``
-redundant IMUs (:mod:`ins_hil.sim.redundant`, one pty each, ``imu_id`` = unit) with
+redundant IMUs (:mod:`ins_hil.sim.redundant`, ``imu_id`` = unit; ``--links shared``: all
+frames interleaved on one pty like an IMU hub, ``separate``: one pty per IMU) with
 the fault schedule injected (:mod:`ins_hil.sim.faults`), and writes to ``--out``:
 
 * ``emission.bin``: int64 pairs (sensor time µs, CLOCK_MONOTONIC ns just after the
   first unit's frame was handed to the pty) for every IMU epoch;
 * ``truth.bin``: float64 rows (t, lat, lon, h, vn, ve, vd, roll, pitch, yaw) at 10 Hz
   (rad, m, m/s, s of sensor time);
-* ``sim.json``: frames written and dropped (pty full) per IMU, send lateness.
+* ``sim.json``: frames written and dropped (pty full) per link, send lateness.
 
 Sensor time ``t`` = CLOCK_MONOTONIC − start, the same clock as the gateway's
 ``t_arrival_ns`` (both processes read the system-wide monotonic clock).
@@ -142,8 +143,9 @@ def run(a: argparse.Namespace) -> None:
     pin(a.cpu)
     sys.setswitchinterval(0.0005)  # the chunk generator thread must not hold the GIL for long
     out = Path(a.out)
+    n_links = a.imus if a.links == "separate" else 1
     masters, slaves, paths = [], [], []
-    for _ in range(a.imus):
+    for _ in range(n_links):
         m, s = os.openpty()
         tty.setraw(s)
         os.set_blocking(m, False)
@@ -162,10 +164,10 @@ def run(a: argparse.Namespace) -> None:
     print(json.dumps({"imu": paths, "pid": os.getpid()}), flush=True)
     if sys.stdin.readline().strip() != "go":
         return
-    written = [0] * a.imus
-    pending = [b""] * a.imus
+    written = [0] * n_links
+    pending = [b""] * n_links
     seq = 0
-    dropped = [0] * a.imus
+    dropped = [0] * n_links
     late = LatencyHistogram()  # emission − scheduled time
     stats: dict[str, Any] = {}
 
@@ -185,6 +187,7 @@ def run(a: argparse.Namespace) -> None:
     def _write_stats() -> None:
         stats.update(
             imus=a.imus,
+            links=n_links,
             rate_hz=a.rate,
             written=written,
             dropped_pty_full=dropped,
@@ -221,10 +224,11 @@ def run(a: argparse.Namespace) -> None:
                         tk = float(t_imu[i])
                         for u in range(a.imus):
                             frame = encode(ImuSample(tk, dt, dth[i, u], dv[i, u], u, seq & 0xFFFF, 35.0, int(fl[i, u])))
-                            if _write(masters[u], frame, pending, u):
-                                written[u] += 1
+                            lk = u if n_links > 1 else 0
+                            if _write(masters[lk], frame, pending, lk):
+                                written[lk] += 1
                             else:
-                                dropped[u] += 1
+                                dropped[lk] += 1
                             if u == 0:
                                 now = mono()
                                 em[i, 1] = now
@@ -260,6 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--gnss-udp", required=True, help="host:port of the gateway's MAVLink input")
     ap.add_argument("--out", required=True)
     ap.add_argument("--imus", type=int, default=1)
+    ap.add_argument("--links", choices=["shared", "separate"], default="shared")
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--duration", type=float, required=True)
     ap.add_argument("--faults", default="none")
