@@ -56,7 +56,7 @@ def test_fault_schedule_parse_round_trip_and_errors() -> None:
     assert parse_faults("none", 60.0, 1) == []
     with pytest.raises(ValueError, match="needs --imus 2"):
         parse_faults("auto", 60.0, 1)
-    with pytest.raises(ValueError, match="row 6 outside 0..5"):
+    with pytest.raises(ValueError, match=r"row 6 outside 0\.\.5"):
         parse_faults("10:gyro:6:step_bias:0.1", 60.0, 2)
     with pytest.raises(ValueError, match="unknown mode 'wobble'"):
         parse_faults("10:gyro:1:wobble:0.1", 60.0, 2)
