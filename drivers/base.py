@@ -41,7 +41,7 @@ class DriverHealth:
     errors: dict[str, int] = field(default_factory=dict)
     last_error: str = ""
     _rate_n0: int = 0
-    _rate_t0_ns: int = 0
+    _rate_t0_ns: int = -1
     _rate_hz: float = 0.0
 
     def count(self, reason: str, n: int = 1) -> None:
@@ -58,7 +58,7 @@ class DriverHealth:
         the source goes silent.
         """
         now = time.monotonic_ns() if now_ns is None else now_ns
-        if not self._rate_t0_ns:
+        if self._rate_t0_ns < 0:
             self._rate_t0_ns, self._rate_n0 = now, self.samples
             return 0.0
         span = (now - self._rate_t0_ns) * 1e-9

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import socket
 import threading
 import time
 from typing import Any
@@ -38,6 +39,7 @@ class CanImuDriver:
     ``channel``, ``bitrate``, ...). ``protocol``: ``"dronecan"`` or ``"dbc"``.
     ``nodes``: DroneCAN source node ids to accept (None = any).
     ``node_id``: our DroneCAN node id for NodeStatus (None = do not publish).
+    ``rcvbuf``: socket receive buffer asked for on socketcan (bytes; 0 = leave the default).
     """
 
     def __init__(
@@ -49,6 +51,7 @@ class CanImuDriver:
         node_id: int | None = 100,
         dbc: DbcProfile | None = None,
         stale_s: float = 2.0,
+        rcvbuf: int = 4 << 20,
     ) -> None:
         if protocol not in ("dronecan", "dbc"):
             raise ValueError(f"CAN IMU: 'protocol' must be 'dronecan' or 'dbc', got {protocol!r}")
@@ -64,6 +67,7 @@ class CanImuDriver:
         self.protocol = protocol
         self.node_id = node_id
         self.stale_s = stale_s
+        self.rcvbuf = rcvbuf
         self.health = DriverHealth(name)
         self.dronecan = dc.DroneCanDecoder(nodes=frozenset(nodes) if nodes else None)
         self.dbc = DbcImuDecoder(dbc or DbcProfile()) if protocol == "dbc" else None
@@ -72,13 +76,14 @@ class CanImuDriver:
         self._start_ns = time.monotonic_ns()
         self._ns_tid = 0
         self.node_status_sent = 0
+        self.frames_rx = 0  # every CAN frame handed to the driver (good or not)
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> CanImuDriver:
         """``{"type": "can_imu", "interface": "socketcan", "channel": "vcan0", "protocol": "dronecan",
         "nodes": [10], "node_id": 100, "bitrate": 1000000, "dbc": {...DbcProfile keys}, "stale_s": 2}``;
         keys other than the driver's own go to :class:`can.Bus`."""
-        own = {"type", "protocol", "name", "nodes", "node_id", "dbc", "stale_s"}
+        own = {"type", "protocol", "name", "nodes", "node_id", "dbc", "stale_s", "rcvbuf"}
         bus_cfg = {k: v for k, v in cfg.items() if k not in own}
         dbc = cfg.get("dbc")
         if dbc is not None and not isinstance(dbc, dict):
@@ -92,12 +97,14 @@ class CanImuDriver:
             node_id=None if cfg.get("node_id", 100) is None else int(cfg.get("node_id", 100)),
             dbc=DbcProfile.from_config(dbc) if dbc else None,
             stale_s=float(cfg.get("stale_s", 2.0)),
+            rcvbuf=int(cfg.get("rcvbuf", 4 << 20)),
         )
 
     # ------------------------------------------------------------ decoding (also for tests/benchmarks)
     def handle(self, msg: can.Message, sink: Sink, now_ns: int) -> None:
         """One received CAN message → zero or one sample to ``sink``."""
         h = self.health
+        self.frames_rx += 1
         if msg.is_error_frame:
             h.count("error_frame")
             if msg.arbitration_id & CAN_ERR_BUSOFF:
@@ -200,22 +207,35 @@ class CanImuDriver:
         fd = -1
         with contextlib.suppress(Exception):
             fd = bus.fileno()
+        sock = getattr(bus, "socket", None)
+        if sock is not None and self.rcvbuf:
+            # IMU bursts (7 frames per DroneCAN RawIMU) overflow the default ~200 kB socket buffer
+            # (≈300 frames) as soon as the loop stalls for a few ms; ask for more (FORCE needs root)
+            for opt in (33, socket.SO_RCVBUF):  # 33 = SO_RCVBUFFORCE
+                try:
+                    sock.setsockopt(socket.SOL_SOCKET, opt, self.rcvbuf)
+                    break
+                except OSError:
+                    continue
         stop = threading.Event()
         thread: threading.Thread | None = None
         if fd >= 0:
 
             def readable() -> None:
-                msgs = []
-                try:
-                    for _ in range(512):  # bounded batch: never starve the loop
+                msgs: list[can.Message] = []
+                for _ in range(512):  # bounded batch: never starve the loop
+                    try:
                         m = bus.recv(0)
-                        if m is None:
-                            break
-                        msgs.append(m)
-                except Exception as e:
-                    deliver(msgs)
-                    fail("bus_lost", f"{type(e).__name__}: {e}")
-                    return
+                    except (ValueError, IndexError, UnicodeDecodeError):
+                        self.health.count("malformed")  # e.g. a garbled slcan line: drop it, go on
+                        continue
+                    except Exception as e:
+                        deliver(msgs)
+                        fail("bus_lost", f"{type(e).__name__}: {e}")
+                        return
+                    if m is None:
+                        break
+                    msgs.append(m)
                 deliver(msgs)
 
             loop.add_reader(fd, readable)
@@ -225,6 +245,9 @@ class CanImuDriver:
                 while not stop.is_set():
                     try:
                         m = bus.recv(0.05)
+                    except (ValueError, IndexError, UnicodeDecodeError):
+                        loop.call_soon_threadsafe(self.health.count, "malformed")
+                        continue
                     except Exception as e:
                         loop.call_soon_threadsafe(fail, "bus_lost", f"{type(e).__name__}: {e}")
                         return

@@ -329,7 +329,15 @@ class Reassembler:
         tid = tail & 0x1F
         sot, eot, tog = tail & 0x80, tail & 0x40, tail & 0x20
         part = self._open.get(can_id)
-        if part is not None and not sot and tid == part.transfer_id and tog == part.toggle and n == 8 and not eot:
+        if (
+            part is not None
+            and not sot
+            and not eot
+            and n == 8
+            and tid == part.transfer_id
+            and tog == part.toggle
+            and now_ns - part.t0_ns <= self.timeout_ns
+        ):
             # fast path: a middle frame of an open transfer
             part.data += data[:7]
             part.toggle = tog ^ 0x20
@@ -432,6 +440,20 @@ class DroneCanDecoder:
         """One CAN frame; returns a sample when a wanted transfer completes."""
         if now_ns is None:
             now_ns = time.monotonic_ns()
+        # fast path: a middle frame of a transfer already open (its SOT passed every filter below)
+        part = self.reasm._open.get(can_id)
+        if part is not None and extended and len(data) == 8:
+            tail = data[7]
+            if (
+                not tail & 0xC0
+                and (tail & 0x1F) == part.transfer_id
+                and (tail & 0x20) == part.toggle
+                and now_ns - part.t0_ns <= self.reasm.timeout_ns
+                and len(part.data) <= MAX_TRANSFER
+            ):
+                part.data += data[:7]
+                part.toggle ^= 0x20
+                return None
         if not extended:
             self._count("not_dronecan")
             return None

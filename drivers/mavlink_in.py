@@ -213,7 +213,8 @@ class MavlinkDriver:
         self.clock = ClockSync()
         self.fc: tuple[int, int] | None = None  # (sysid, compid) of the FC once its HEARTBEAT is seen
         self.local_address: Any = None
-        self.counts_by_type: dict[str, int] = {}
+        self.counts_by_type: dict[str, int] = {}  # handled messages by type
+        self.messages = 0  # every valid message (any type) from the accepted system
         self._sink: Sink | None = None
         self._proto: _Stream | None = None
         self._last_seq: dict[tuple[int, int], int] = {}
@@ -303,6 +304,7 @@ class MavlinkDriver:
                 h.count("unknown_system")
                 continue
             good = True
+            self.messages += 1
             self._last_rx_ns = now
             seq = m.get_seq()
             key = (sysid, compid)
@@ -419,10 +421,20 @@ class MavlinkDriver:
     def _imu(
         self, stream: str, iid: int, t_us: int, acc: tuple, gyro: tuple, mag: tuple | None, temp: float, now: int
     ) -> None:
-        if not all(math.isfinite(x) for x in (*acc, *gyro)):
+        a0, a1, a2 = acc
+        w0, w1, w2 = gyro
+        fin = math.isfinite
+        if not (fin(a0) and fin(a1) and fin(a2) and fin(w0) and fin(w1) and fin(w2)):
             self.health.count("nonfinite")
             return
-        if max(abs(x) for x in gyro) > MAX_GYRO or max(abs(x) for x in acc) > MAX_ACCEL:
+        if (
+            abs(w0) > MAX_GYRO
+            or abs(w1) > MAX_GYRO
+            or abs(w2) > MAX_GYRO
+            or abs(a0) > MAX_ACCEL
+            or abs(a1) > MAX_ACCEL
+            or abs(a2) > MAX_ACCEL
+        ):
             self.health.count("range")
             return
         fc_ns = t_us * 1000
@@ -443,13 +455,14 @@ class MavlinkDriver:
         self._last_imu[key] = fc_ns
         t = self._time_s(t_us, now)
         if "imu" in self.emit:
+            # point samples → increments by the rectangular rule: Δθ = ω·dt, Δv = f·dt
             self._deliver(
-                ImuSample(t=t, dt=dt, dtheta=np.array(gyro) * dt, dvel=np.array(acc) * dt, imu_id=iid,
-                          temperature=temp, t_arrival_ns=now),
+                ImuSample(t, dt, np.array((w0 * dt, w1 * dt, w2 * dt)), np.array((a0 * dt, a1 * dt, a2 * dt)), iid,
+                          0, temp, 0, now),
                 now,
             )  # fmt: skip
         if mag is not None and "mag" in self.emit:
-            if not all(math.isfinite(x) for x in mag):
+            if not all(fin(x) for x in mag):
                 self.health.count("nonfinite")
             elif max(abs(x) for x in mag) > MAX_MAG_GAUSS:
                 self.health.count("range")

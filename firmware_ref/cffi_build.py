@@ -39,6 +39,7 @@ typedef struct {{
     ins_real p0_pos, p0_vel, p0_att, p0_yaw, p0_bg, p0_ba;
     int second_order; ins_real gate_gnss, gate_baro; int gnss_reset_after;
     ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; int use_gnss_vel; ins_real baro_std;
+    int have_baro_offset; double baro_offset; double baro_offset_tau;
 }} ins_ekf_cfg_t;
 typedef struct {{
     ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
@@ -69,72 +70,16 @@ int cref_scalar_bits(void);
 void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, double lon, double h, double t,
                double dt, const ins_ekf_cfg_t *cfg, int filter);
 void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end);
-void cref_state(const ins_core_t *c, double out[26]);
+void cref_state(const ins_core_t *c, double out[32]);
 void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);
-int cref_fuse_baro(ins_core_t *c, double altitude);
+int cref_fuse_baro(ins_core_t *c, double t, double altitude);
+int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
+                          double std_d, double std_vel, size_t n);
 """
 
-_GLUE = r"""
-#include "ins_ref.h"
-int cref_scalar_bits(void) { return INS_REF_SCALAR_BITS; }
-void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, double lon, double h, double t,
-               double dt, const ins_ekf_cfg_t *cfg, int filter) {
-    ins_real qq[4], vv[3];
-    int i;
-    for (i = 0; i < 4; ++i) qq[i] = (ins_real)q[i];
-    for (i = 0; i < 3; ++i) vv[i] = (ins_real)v[i];
-    ins_core_init(c, qq, vv, lat, lon, h, t, (ins_real)dt, cfg, filter);
-}
-void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end) {
-#ifdef INS_REF_FLOAT
-    ins_real a[3], u[3];
-    int i;
-    for (i = 0; i < 3; ++i) { a[i] = (ins_real)dth[i]; u[i] = (ins_real)dv[i]; }
-    ins_core_step(c, a, u, t_end);
-#else
-    ins_core_step(c, dth, dv, t_end);
-#endif
-}
-/* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3] (26 values) */
-static void put(const ins_core_t *c, double *o, size_t n) {
-    ins_out_t r;
-    double all[26];
-    size_t i;
-    ins_core_output(c, &r);
-    all[0] = r.t;
-    for (i = 0; i < 4; ++i) all[1 + i] = (double)r.q[i];
-    for (i = 0; i < 3; ++i) {
-        all[5 + i] = (double)r.v[i];
-        all[11 + i] = (double)r.bg[i];
-        all[14 + i] = (double)r.ba[i];
-        all[17 + i] = (double)r.std_pos[i];
-        all[20 + i] = (double)r.std_vel[i];
-        all[23 + i] = (double)r.std_att[i];
-    }
-    all[8] = r.lat; all[9] = r.lon; all[10] = r.h;
-    for (i = 0; i < n; ++i) o[i] = all[i];
-}
-void cref_state(const ins_core_t *c, double out[26]) { put(c, out, 26); }
-void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride) {
-    size_t k;
-    for (k = 0; k < n; ++k) {
-        cref_step(c, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt);
-        if (out != NULL) put(c, out + out_stride * k, out_stride);
-    }
-}
-int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
-                   double std_d, double std_vel) {
-    ins_gnss_t g;
-    int i;
-    g.t = t; g.lat = lat; g.lon = lon; g.h = h;
-    for (i = 0; i < 3; ++i) g.vel[i] = (ins_real)vel[i];
-    g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
-    return ins_core_fuse_gnss(c, &g);
-}
-int cref_fuse_baro(ins_core_t *c, double altitude) { return ins_core_fuse_baro(c, (ins_real)altitude); }
-"""
+_GLUE = '#include "py_glue.c"\n'  # firmware_ref/src/py_glue.c (a source file, so ensure_venv rebuilds)
 
 
 def _builder(module: str, real: str, defines: list[tuple[str, str | None]]) -> FFI:
@@ -145,8 +90,9 @@ def _builder(module: str, real: str, defines: list[tuple[str, str | None]]) -> F
         _GLUE,
         sources=[_rel(_HERE / "src" / s) for s in _SOURCES],
         include_dirs=[_rel(_HERE / "include"), _rel(_HERE / "src")],
+        depends=[_rel(p) for p in (*(_HERE / "src").glob("*.[ch]"), _HERE / "include" / "ins_ref.h")],
         define_macros=defines,
-        extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"],
+        extra_compile_args=["-std=c99", "-O3", "-ffp-contract=off"],
         libraries=["m"],
     )
     return ffi

@@ -16,11 +16,11 @@ from typing import Any
 from ins_hil.drivers.mavlink_in import parse_url as mavlink_in_url
 from ins_hil.runtime.mavlink_out import ALL_MESSAGES, EndpointConfig, parse_url
 from ins_hil.runtime.mqtt_out import MqttConfig
-from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig
+from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig, check_core, fdi_monitor
 from ins_hil.sim.devices import SimConfig
 
 REPO_CONFIGS = Path(__file__).resolve().parent.parent / "configs"
-INPUT_TYPES = ("serial_imu", "mavlink")
+INPUT_TYPES = ("serial_imu", "mavlink", "can_imu")
 MAV_TYPES = ("QUADROTOR", "FIXED_WING", "HELICOPTER", "HEXAROTOR", "OCTOROTOR", "VTOL_FIXEDROTOR", "GROUND_ROVER",
              "SURFACE_BOAT", "GENERIC", "ONBOARD_CONTROLLER")  # fmt: skip
 
@@ -39,7 +39,8 @@ class GatewaySettings:
 
 @dataclass
 class InputConfig:
-    """One ``[[inputs]]`` table: ``serial_imu`` (port, baud) or ``mavlink`` (url, signing_key, sysid)."""
+    """One ``[[inputs]]`` table: ``serial_imu`` (port, baud), ``mavlink`` (url, signing_key, sysid)
+    or ``can_imu`` (``[inputs.options]``: the CAN IMU driver's keys, ins_hil.drivers.can_imu)."""
 
     name: str = ""
     type: str = "serial_imu"
@@ -48,6 +49,7 @@ class InputConfig:
     url: str = "udpin:127.0.0.1:0"
     signing_key: str = ""
     sysid: int = 0
+    options: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -155,6 +157,17 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     _positive("core.level_samples", p.level_samples)
     if p.calibration and not Path(p.calibration).is_file():
         raise ConfigError(f"core.calibration = {p.calibration!r}: file not found")
+    if p.calibration:
+        from ins_hil.nav.calibration import load_calibration
+
+        try:
+            load_calibration(p.calibration)
+        except Exception as e:
+            raise ConfigError(f"core.calibration = {p.calibration!r}: {e}") from None
+    try:
+        check_core(p.core, p.nav)
+    except (ValueError, RuntimeError) as e:
+        raise ConfigError(str(e)) from None
     fdi = d.get("fdi", {})
     if not isinstance(fdi, dict):
         raise ConfigError(f"fdi: expected a table, got {fdi!r}")
@@ -173,6 +186,14 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             p.fdi_options = dict(v)
         else:
             raise ConfigError(f"unknown key 'fdi.{k}' (known: enabled, imu_ids, options)")
+
+    if p.fdi:
+        try:
+            mon = fdi_monitor(p.fdi_options)
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+        if len(p.imu_ids) != mon.geo.units:
+            raise ConfigError(f"fdi.imu_ids = {p.imu_ids}: the geometry {mon.geo.name!r} has {mon.geo.units} IMUs")
 
     sim = dict(d.get("sim", {}))
     en = sim.pop("enabled", False)
@@ -202,6 +223,13 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             except ValueError as e:
                 raise ConfigError(f"{where}.url = {ic.url!r}: {e}") from None
             _key(f"{where}.signing_key", ic.signing_key)
+        elif ic.type == "can_imu":
+            from ins_hil.drivers.can_imu import CanImuDriver
+
+            try:
+                CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **ic.options})
+            except (ValueError, TypeError) as e:
+                raise ConfigError(f"{where}.options: {e}") from None
         else:
             if ic.port == "sim" and not cfg.sim_enabled:
                 raise ConfigError(f"{where}.port = 'sim' needs [sim] enabled = true")
@@ -210,8 +238,8 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     names = [i.name for i in cfg.inputs]
     if len(set(names)) != len(names):
         raise ConfigError(f"inputs: duplicate names {names}")
-    if not any(i.type == "serial_imu" for i in cfg.inputs):
-        raise ConfigError("inputs: no IMU input (add an [[inputs]] table with type = 'serial_imu')")
+    if not any(i.type in ("serial_imu", "can_imu") for i in cfg.inputs):
+        raise ConfigError("inputs: no IMU input (add an [[inputs]] table with type = 'serial_imu' or 'can_imu')")
 
     outputs = d.get("outputs", [])
     if not isinstance(outputs, list):

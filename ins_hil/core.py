@@ -58,10 +58,12 @@ class NavConfig:
     gnss_lever_arm_b: IMU → GNSS antenna (m, body FRD). gnss_min_std: floor on the
     reported GNSS σ (m, m/s). baro_std (m); mag_std (unit-vector component, book σ_m);
     mag_ref_ned: reference magnetic field (NED, any unit, e.g. from WMM: declination is in it).
-    nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, zero velocity
-    when the IMU is at rest for ``zupt_time`` s). adaptive: Sage–Husa R on GNSS/baro.
-    The baro datum offset (baro altitude → ellipsoidal height) is taken from the first sample
-    and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
+    nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, optionally also on
+    the vertical axis; zero velocity — and zero angular rate on the gyro bias with ``zaru`` — when
+    the averaged IMU looks at rest for ``zupt_time`` s and the speed is below ``zupt_max_speed``).
+    adaptive: Sage–Husa R on GNSS/baro.
+    The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
+    taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
     """
 
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -76,6 +78,7 @@ class NavConfig:
     gnss_reset_after: int = 10
     baro_std: float = 0.5
     baro_offset_tau: float = 10.0
+    baro_offset: float | None = None
     mag_std: float = 0.0524
     mag_ref_ned: Vec | None = None
     adaptive: bool = False
@@ -84,17 +87,24 @@ class NavConfig:
     nhc_std: float = 0.1
     nhc_rate: float = 10.0
     nhc_min_speed: float = 0.5
+    nhc_vertical: bool = True
+    nhc_std_vertical: float = 0.1
     zupt: bool = False
     zupt_std: float = 0.02
     zupt_gyro: float = 0.02
     zupt_accel: float = 0.15
     zupt_time: float = 0.5
+    zupt_tau: float = 0.3
+    zupt_max_speed: float = 1.0
+    zaru: bool = True
+    zaru_std: float = 0.002
     delay_compensation: bool = True
     max_delay: float = 0.3
     align: str = "given"
     align_time: float = 2.0
     align_level_only: bool = False
     still_speed: float = 0.3
+    still_delay: float = 1.5
     align_gyro_bias_std: float = 0.02 * DEG
     mag_yaw_std: float = 3.0 * DEG
     gnss_yaw_speed: float = 1.0
@@ -145,10 +155,15 @@ class NavCore:
         self._replaying = False
         self._nhc_next = 0.0
         self._still_time = 0.0
+        self._ema_w = np.zeros(3)
+        self._ema_f = np.array((0.0, 0.0, -9.80665))
+        self._g_local = 9.80665
         self._baro_offset: float | None = None
         self._t_baro = 0.0
         self._t_gnss_ok = -math.inf
         self._h_gnss = 0.0
+        self._gnss_var_d = 1.0
+        self._baro_offset_var = 0.0
         # alignment
         self.phase = "nav" if self.cfg.align == "given" else "level"
         self._lev_buf: deque[tuple[float, Vec, Vec]] = deque()
@@ -156,6 +171,7 @@ class NavCore:
         self._lev_w = np.zeros(3)
         self._lev_t = 0.0
         self._moving = False
+        self._lev_pending: deque[ImuSample] = deque()
         self._have_pos = self.cfg.align == "given"
         self._last_mag: Vec | None = None
         self.nis_log: list[tuple[float, str, float, int]] = []
@@ -212,46 +228,65 @@ class NavCore:
                     self._fuse_now(m)
 
     def _ground_aids(self, imu: ImuSample) -> None:
+        """ZUPT/ZARU at rest and the non-holonomic constraint in motion (ground vehicles).
+
+        Rest detection on exponentially averaged (τ = ``zupt_tau``) rate and specific-force
+        magnitudes, so engine vibration (tens of Hz, °/s-level on a car) does not hide a stop."""
         c = self.cfg
         if not (c.nhc or c.zupt):
             return
         t = imu.t
         s = self.ins.state
-        still = (
-            float(np.linalg.norm(self.omega_b)) < c.zupt_gyro
-            and abs(float(np.linalg.norm(self.f_b)) - earth.normal_gravity(s.lat, s.h)) < c.zupt_accel
-        )
+        a = min(1.0, imu.dt / c.zupt_tau)
+        self._ema_w = self._ema_w + a * (self.omega_b - self._ema_w)
+        self._ema_f = self._ema_f + a * (self.f_b - self._ema_f)
+        w, f = self._ema_w, self._ema_f
+        wn = math.sqrt(float(w[0]) ** 2 + float(w[1]) ** 2 + float(w[2]) ** 2)
+        fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + float(f[2]) ** 2)
+        vn = s.vel_ned
+        slow = float(vn[0]) ** 2 + float(vn[1]) ** 2 + float(vn[2]) ** 2 < c.zupt_max_speed**2
+        # constant-velocity driving looks like rest to the IMU: require a low estimated speed too
+        still = slow and wn < c.zupt_gyro and abs(fn - self._g_local) < c.zupt_accel
         self._still_time = self._still_time + imu.dt if still else 0.0
         if t < self._nhc_next:
             return
         self._nhc_next = t + 1.0 / c.nhc_rate
-        C = dcm_from_quat(s.q_nb)
         if c.zupt and self._still_time >= c.zupt_time:
             z, H = mm.zero_velocity(self.idx, s.vel_ned)
             self._apply("zupt", z, H, np.full(3, c.zupt_std**2), c.gate_aux, t)
+            if c.zaru and self.idx.bg is not None:
+                # zero angular rate: the averaged compensated rate is the residual gyro bias, z = 0 − ω̄ = −δb_g
+                H = np.zeros((3, self.idx.n))
+                H[:, self.idx.bg : self.idx.bg + 3] = -np.eye(3)
+                self._apply("zupt", -w, H, np.full(3, c.zaru_std**2), c.gate_aux, t)
+                self._ema_w = np.zeros(3)
         elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
+            C = dcm_from_quat(s.q_nb)
             z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
-            self._apply("nhc", z, H, np.full(2, c.nhc_std**2), c.gate_aux, t)
+            if c.nhc_vertical:
+                self._apply("nhc", z, H, np.array((c.nhc_std**2, c.nhc_std_vertical**2)), c.gate_aux, t)
+            else:
+                self._apply("nhc", z[:1], H[:1], np.array((c.nhc_std**2,)), c.gate_aux, t)
 
     # ------------------------------------------------------------------ snapshots (delayed fusion)
     def _snapshot(self) -> tuple[Any, ...]:
+        """References only: every array below is replaced, never mutated in place, by the mechanization,
+        the filter and the feedback (a cheap per-step snapshot for delayed fusion)."""
         ins, kf = self.ins, self.kf
+        st = ins.state
         return (
-            ins.state.copy(), ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n, ins.f_ned, ins.omega_ie,
-            ins.omega_en, self.bg.copy(), self.ba.copy(), self.sg.copy(), self.sa.copy(), kf.P.copy(),
-            kf.factor, kf._acc_n, kf._acc_dt, kf._acc_f.copy(), kf._acc_fb.copy(), kf._acc_w.copy(),
-            self.omega_b, self.f_b, self._nhc_next, self._still_time,
+            st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
+            ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
+            kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next, self._still_time,
         )  # fmt: skip
 
     def _restore(self, d: tuple[Any, ...]) -> None:
         ins, kf = self.ins, self.kf
-        (st, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n, ins.f_ned, ins.omega_ie, ins.omega_en,
-         bg, ba, sg, sa, P, kf.factor, kf._acc_n, kf._acc_dt, af, afb, aw, self.omega_b, self.f_b,
-         self._nhc_next, self._still_time) = d  # fmt: skip
-        ins.state = st.copy()
-        self.bg, self.ba, self.sg, self.sa = bg.copy(), ba.copy(), sg.copy(), sa.copy()
-        kf.P = P.copy()
-        kf._acc_f, kf._acc_fb, kf._acc_w = af.copy(), afb.copy(), aw.copy()
+        st = ins.state
+        (st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
+         ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
+         kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next,
+         self._still_time) = d  # fmt: skip
         kf.x = np.zeros(kf.n)
 
     def _fuse_delayed(self, meas: GnssFix | BaroSample | MagSample) -> bool:
@@ -324,6 +359,7 @@ class NavCore:
             if self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t):
                 self._t_gnss_ok = meas.t
                 self._h_gnss = meas.h + float((C @ lever)[2])  # IMU height from the antenna height
+                self._gnss_var_d = std_d**2
             if c.use_gnss_vel and meas.vel_ned is not None:
                 s = self.ins.state
                 C = dcm_from_quat(s.q_nb)
@@ -337,15 +373,20 @@ class NavCore:
 
                 alt = altitude_from_pressure(meas.pressure)
             if self._baro_offset is None:
-                self._baro_offset = s.h - alt  # baro datum → ellipsoid, from the first sample
-            elif abs(meas.t - self._t_gnss_ok) < 0.5 and c.baro_offset_tau > 0:
+                # baro datum → ellipsoid: configured, or from the first sample
+                self._baro_offset = c.baro_offset if c.baro_offset is not None else s.h - alt
+                self._baro_offset_var = float(self.kf.P[2, 2])
+            elif abs(meas.t - self._t_gnss_ok) < 0.5 and c.baro_offset_tau > 0 and c.baro_offset is None:
                 # while GNSS is healthy, calibrate the datum against the GNSS height (first-order filter,
                 # τ = baro_offset_tau; against GNSS, not the filter height, which the baro itself drives)
                 a = min(1.0, max(0.0, meas.t - self._t_baro) / c.baro_offset_tau)
                 self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
+                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * self._gnss_var_d
             self._t_baro = meas.t
             z, H = mm.baro_height(self.idx, s.h, alt + self._baro_offset)
-            self._apply("baro", z, H, np.array((c.baro_std**2,)), c.gate_baro, meas.t)
+            # the uncertainty of a learnt datum is added to R (it is slowly varying, not white: approximate)
+            r_b = c.baro_std**2 + (self._baro_offset_var if c.baro_offset is None else 0.0)
+            self._apply("baro", z, H, np.array((r_b,)), c.gate_baro, meas.t)
         elif isinstance(meas, MagSample):
             self._last_mag = np.asarray(meas.field_b)
             if c.mag_ref_ned is None:
@@ -421,23 +462,24 @@ class NavCore:
         self.ins.state.t = imu.t
         c = self.cfg
         if self.phase == "level":
-            if self._moving:
-                if self._lev_t >= c.align_time:
-                    self._level()
-                return
-            # at rest: keep the last ``align_time`` s of increments (sliding window of sums)
-            self._lev_buf.append((imu.dt, imu.dvel, imu.dtheta))
-            self._lev_t += imu.dt
-            self._lev_f = self._lev_f + imu.dvel
-            self._lev_w = self._lev_w + imu.dtheta
+            # samples enter the levelling window only ``still_delay`` s later, so the window cannot hold
+            # the first moments of a motion that the GNSS speed test detects late
+            self._lev_pending.append(imu)
+            while self._lev_pending and imu.t - self._lev_pending[0].t > c.still_delay:
+                old = self._lev_pending.popleft()
+                self._lev_buf.append((old.dt, old.dvel, old.dtheta))
+                self._lev_t += old.dt
+                self._lev_f = self._lev_f + old.dvel
+                self._lev_w = self._lev_w + old.dtheta
             while self._lev_buf and self._lev_t - self._lev_buf[0][0] >= c.align_time:
                 dt0, dv0, dth0 = self._lev_buf.popleft()
                 self._lev_t -= dt0
                 self._lev_f = self._lev_f - dv0
                 self._lev_w = self._lev_w - dth0
-            if self._lev_t >= c.align_time - 0.5 * imu.dt and self._have_pos:
+            full = self._lev_t >= c.align_time - 0.5 * imu.dt
+            if self._have_pos and (full or (self._moving and self._lev_t >= 0.5)):
                 mag_ok = c.mag_ref_ned is not None and self._last_mag is not None
-                if mag_ok or c.align_level_only:
+                if self._moving or mag_ok or c.align_level_only:
                     self._level()
         elif self.phase == "heading":
             # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
@@ -468,6 +510,14 @@ class NavCore:
         s.q_nb = quat_from_euler(roll, pitch, yaw)
         s.vel_ned = np.zeros(3)
         self.ins.reset_history()
+        # bring the attitude from the end of the window to now with the delayed samples
+        t_now = s.t
+        for old in self._lev_pending:
+            self.ins.step(old.dtheta - self.bg * old.dt, old.dvel, old.dt)
+            s = self.ins.state
+            s.vel_ned = np.zeros(3)
+        self._lev_pending.clear()
+        s.t = t_now
         if self.idx.bg is not None:
             self.kf.set_state_sigma("bg", c.align_gyro_bias_std)
         if have_yaw:
@@ -508,6 +558,8 @@ class NavCore:
 
     def _enter_nav(self, yaw_std: float | None = None) -> None:
         self.phase = "nav"
+        s = self.ins.state
+        self._g_local = earth.normal_gravity(s.lat, s.h)
         if yaw_std is not None:
             c = self.cfg.filter
             self.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))

@@ -14,8 +14,10 @@ alignment or delayed-fusion roll-back (a fix from the past is shifted by v·Δt
 and fused at the current step; NavCore rolls back instead).
 
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
-sample's ``dt``); a sample whose ``dt`` differs from it by more than
-``dt_tolerance`` (relative) is rejected with ``ValueError``.
+sample's ``dt``), as firmware does: a sample whose ``dt`` differs from it by more
+than ``dt_tolerance`` (relative) is counted in ``n_off_step`` and integrated over
+the fixed period (``on_dt_mismatch="count"``, the default, so a gateway keeps
+running), or rejected with ``ValueError`` (``on_dt_mismatch="raise"``).
 """
 
 from __future__ import annotations
@@ -107,6 +109,11 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         if not pairs[name] > 0.0:
             raise ValueError(f"CNavCore: filter.{name}={pairs[name]!r} must be > 0")
     c.second_order = 1 if f.second_order else 0
+    c.have_baro_offset = 0 if cfg.baro_offset is None else 1
+    c.baro_offset = 0.0 if cfg.baro_offset is None else float(cfg.baro_offset)
+    if not math.isfinite(cfg.baro_offset_tau) or not math.isfinite(c.baro_offset):
+        raise ValueError("CNavCore: baro_offset / baro_offset_tau must be finite")
+    c.baro_offset_tau = float(cfg.baro_offset_tau)
     c.gnss_reset_after = int(cfg.gnss_reset_after)
     c.use_gnss_vel = 1 if cfg.use_gnss_vel else 0
     return c
@@ -122,10 +129,11 @@ RUN_COLUMNS = ("t", "q0", "q1", "q2", "q3", "vN", "vE", "vD", "lat", "lon", "h")
 class CNavCore:
     """The C reference core with the ``NavCore`` interface.
 
-    initial: the starting state (as for ``NavCore``). dt: the fixed step (s);
-    None = take it from the first IMU sample. precision: ``"double"`` or
-    ``"float"`` (the C scalar type). filter: run the 15-state EKF predict on
-    every step (needed for ``fuse``); False = mechanization only.
+    initial, config: as for ``NavCore`` (``NavConfig``; settings the C core lacks raise
+    ``ValueError``). dt: the fixed step (s); None = take it from the first IMU sample.
+    precision: ``"double"`` or ``"float"`` (the C scalar type). filter: run the 15-state
+    EKF predict on every step (needed for ``fuse``); False = mechanization only.
+    dt_tolerance / on_dt_mismatch: see the module docstring.
     """
 
     def __init__(
@@ -137,19 +145,22 @@ class CNavCore:
         precision: Precision = "double",
         filter: bool = True,
         dt_tolerance: float = 0.05,
+        on_dt_mismatch: Literal["count", "raise"] = "count",
     ) -> None:
+        if on_dt_mismatch not in ("count", "raise"):
+            raise ValueError(f"on_dt_mismatch must be 'count' or 'raise', not {on_dt_mismatch!r}")
         self._ffi, self._lib_ = _lib(precision)
         self.precision = precision
         self.filter = filter
         self.cfg = config if config is not None else NavConfig()
         self.dt_tolerance = dt_tolerance
+        self.on_dt_mismatch = on_dt_mismatch
+        self.n_off_step = 0
         self._initial = initial.copy()
         self._core = self._ffi.new("ins_core_t *")
-        self._out = self._ffi.new("double[26]")
+        self._out = self._ffi.new("double[32]")
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
         self._cfg = _c_config(self._ffi, self.cfg)
-        self._omega_b = np.zeros(3)
-        self._f_b = np.zeros(3)
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         self.dt: float | None = None
@@ -182,7 +193,9 @@ class CNavCore:
         if self.dt is None:
             self._init(imu.dt)
         elif abs(imu.dt - self.dt) > self.dt_tolerance * self.dt:
-            raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
+            if self.on_dt_mismatch == "raise":
+                raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
+            self.n_off_step += 1
         ffi = self._ffi
         dth, dv = imu.dtheta, imu.dvel
         if dth.dtype != np.float64 or not dth.flags.c_contiguous:
@@ -190,13 +203,7 @@ class CNavCore:
         if dv.dtype != np.float64 or not dv.flags.c_contiguous:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
         self._lib_.cref_step(self._core, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t)
-        st = self.state()
-        # bias-compensated rate and specific force of this interval (as NavCore)
-        self._omega_b = (dth - st.gyro_bias * imu.dt) / imu.dt
-        self._f_b = (dv - st.accel_bias * imu.dt) / imu.dt
-        st.omega_b = self._omega_b
-        st.accel_b = self._f_b
-        return st
+        return self.state()
 
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
         """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.
@@ -237,7 +244,7 @@ class CNavCore:
                 from ins_hil.sim.sensors import altitude_from_pressure
 
                 alt = altitude_from_pressure(meas.pressure)
-            self._lib_.cref_fuse_baro(self._core, alt)
+            self._lib_.cref_fuse_baro(self._core, meas.t, alt)
             groups = (2,)
         else:
             return None
@@ -283,8 +290,8 @@ class CNavCore:
             std_pos=o[17:20],
             std_vel=o[20:23],
             std_att=o[23:26],
-            omega_b=self._omega_b,
-            accel_b=self._f_b,
+            omega_b=o[26:29],  # bias-compensated rate and specific force of the last interval
+            accel_b=o[29:32],
             aligned=bool(o[25] < self.cfg.aligned_yaw_std),
             test_ratios=self._ratios,
         )

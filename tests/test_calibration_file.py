@@ -131,6 +131,11 @@ def test_command_accel_then_mag_writes_a_calibration_the_gateway_applies(
     assert c2.accel is not None and c2.mag is not None and c2.imu_id == 1
     np.testing.assert_allclose(c2.mag.bias, [1e-5, 2e-5, -5e-6], atol=1e-7)
     assert "updating" in capsys.readouterr().out
+    # the file belongs to IMU 1: a log of IMU 2 must not be merged into it
+    before = out.read_text()
+    assert main(["calibrate", "mag", str(mlog), "-o", str(out), "--imu-id", "2"]) == 1
+    assert "holds the calibration of IMU 1" in capsys.readouterr().err
+    assert out.read_text() == before
 
 
 def test_command_refuses_bad_data_and_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -159,3 +164,59 @@ def test_command_allan(tmp_path: Path) -> None:
     assert c.noise["gyro"]["random_walk"] == pytest.approx(1e-3, rel=0.1)
     assert c.noise["accel"]["random_walk"] == pytest.approx(1e-3, rel=0.1)
     assert (tmp_path / "c_report" / "allan_gyro.png").exists()
+
+
+def test_command_six_position_plan_without_step_column(tmp_path: Path) -> None:
+    # the common 6-position test (each axis up and down) from a --plan CSV; steps detected from the signal
+    six = [(0.0, 0.0), (math.pi, 0.0), (math.pi / 2, 0.0), (-math.pi / 2, 0.0), (0.0, math.pi / 2), (0.0, -math.pi / 2)]
+    rng = np.random.default_rng(8)
+    acc = mems_accel(rng)
+    acc.bias_instability = 0.0
+    run = simcal.accel_static_run(ImuErrorModel(), acc, positions=six, dt=0.05, step_time=15.0, seed=9)
+    log = tmp_path / "six.csv"
+    write_csv_log(log, run.imu.t, run.imu.dt, {"accel": run.accel})  # rates, no step column
+    plan = tmp_path / "plan.csv"
+    rows = "\n".join(f"{k},{float(r[0])!r},{float(r[1])!r},{float(r[2])!r}" for k, r in enumerate(run.references))
+    plan.write_text("step,ref_x,ref_y,ref_z\n" + rows + "\n")
+    out = tmp_path / "six.toml"
+    assert main(["calibrate", "accel", str(log), "--plan", str(plan), "-o", str(out)]) == 0
+    c = cal.load_calibration(out)
+    assert c.accel is not None and c.accel.n_equations == 18
+    np.testing.assert_allclose(c.accel.matrix, acc.matrix(), atol=2e-4)
+    np.testing.assert_allclose(c.accel.bias, acc.bias, atol=2e-3)
+
+
+def test_recorded_samples_and_imu_selection(tmp_path: Path) -> None:
+    # .ihlog recordings arrive as ImuSample/MagSample records (ins_hil.runtime.recorder.read_records)
+    from ins_hil.commands.calibrate import log_from_records
+    from ins_hil.types import GnssFix
+
+    recs: list[object] = []
+    for k in range(100):
+        for i in (0, 1):
+            recs.append(ImuSample(t=0.01 * k, dt=0.01, dtheta=np.full(3, 1e-4 * (i + 1)), dvel=np.zeros(3), imu_id=i))
+        recs.append(MagSample(t=0.01 * k, field_b=np.array([2e-5, 0.0, 4e-5])))
+    recs.append(GnssFix(t=0.5, lat=0.8, lon=0.1, h=100.0))
+    with pytest.raises(cal.CalibrationError, match=r"IMUs \[0, 1\]; choose one with --imu-id"):
+        log_from_records(recs)
+    log = log_from_records(recs, imu_id=1)
+    assert log.imu_id == 1 and log.dt == pytest.approx(0.01) and log.gyro is not None and log.mag is not None
+    np.testing.assert_allclose(log.gyro, 0.02)
+    assert log.mag.shape == (100, 3)
+    with pytest.raises(cal.CalibrationError, match="no samples of IMU 3"):
+        log_from_records(recs, imu_id=3)
+    # CSV with an imu_id column: the same selection
+    p = tmp_path / "two.csv"
+    p.write_text("t,gyro_x,gyro_y,gyro_z,imu_id\n0.01,1,2,3,0\n0.01,4,5,6,1\n0.02,1,2,3,0\n0.02,4,5,6,1\n")
+    with pytest.raises(cal.CalibrationError, match="choose one with --imu-id"):
+        read_csv_log(p)
+    one = read_csv_log(p, imu_id=1)
+    assert one.imu_id == 1 and one.gyro is not None
+    np.testing.assert_allclose(one.gyro, [[4, 5, 6], [4, 5, 6]])
+    # a calibration for IMU 1 leaves IMU 0's samples alone
+    c = cal.SensorCalibration(gyro=cal.TriadCalibration(np.eye(3) * 2.0, np.zeros(3)), imu_id=1)
+    s0 = ImuSample(t=0.0, dt=0.01, dtheta=np.ones(3), dvel=np.zeros(3), imu_id=0)
+    assert c.apply(s0) is s0
+    np.testing.assert_allclose(
+        c.apply(ImuSample(t=0.0, dt=0.01, dtheta=np.ones(3), dvel=np.zeros(3), imu_id=1)).dtheta, 0.5
+    )

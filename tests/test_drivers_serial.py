@@ -28,7 +28,7 @@ def _sample(seq: int, t: float, dt: float = 0.001, imu_id: int = 0) -> ImuSample
     )  # fmt: skip
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(
     st.lists(f32, min_size=6, max_size=6),
     st.integers(0, 255),
@@ -38,7 +38,9 @@ def _sample(seq: int, t: float, dt: float = 0.001, imu_id: int = 0) -> ImuSample
     st.floats(-300, 300),
     st.integers(0, 255),
 )
-def test_round_trip_property(v: list[float], imu_id: int, seq: int, t_us: int, dt_us: int, temp: float, flags: int) -> None:
+def test_round_trip_property(
+    v: list[float], imu_id: int, seq: int, t_us: int, dt_us: int, temp: float, flags: int
+) -> None:
     s = ImuSample(
         t=t_us * 1e-6, dt=dt_us * 1e-6, dtheta=np.array(v[:3]), dvel=np.array(v[3:]) * 10, imu_id=imu_id, seq=seq,
         temperature=temp, flags=flags,
@@ -50,7 +52,7 @@ def test_round_trip_property(v: list[float], imu_id: int, seq: int, t_us: int, d
     assert d.temperature == pytest.approx(temp, abs=0.006)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(st.binary(max_size=400), st.integers(1, 64))
 def test_parser_never_crashes_on_garbage(data: bytes, chunk: int) -> None:
     p = sf.FrameParser()
@@ -62,7 +64,7 @@ def test_parser_never_crashes_on_garbage(data: bytes, chunk: int) -> None:
         assert np.all(np.isfinite(s.dtheta)) and np.all(np.isfinite(s.dvel))
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.data())
 def test_every_corrupted_frame_is_counted_and_none_accepted(data: st.DataObject) -> None:
     """Bit flips, truncation and oversize frames in a stream of good frames: each bad frame is

@@ -152,23 +152,7 @@ def test_nhc_and_zupt_bound_a_ground_vehicle_outage():
     """A car (level, turning, stopping): NHC + ZUPT reduce the 20 s outage drift."""
     dt = 0.01
 
-    def car(t):
-        t = np.asarray(t, dtype=np.float64)
-        s, ds, _ = tr._smoothstep((t - 2.0) / 5.0)
-        s2, ds2, _ = tr._smoothstep((t - 40.0) / 5.0)
-        V = 10.0 * (s - s2)
-        dV = 10.0 * (ds / 5.0 - ds2 / 5.0)
-        w = 0.1 * np.sin(0.2 * t)
-        yaw = -0.5 * np.cos(0.2 * t)
-        cy, sy = np.cos(yaw), np.sin(yaw)
-        z = np.zeros_like(t)
-        vel = np.stack([V * cy, V * sy, z], axis=-1)
-        acc = np.stack([dV * cy - V * sy * w, dV * sy + V * cy * w, z], axis=-1)
-        eul = np.stack([z, z, yaw], axis=-1)
-        rate = np.stack([z, z, w], axis=-1)
-        return tr.Kinematics(eul, rate, vel, acc)
-
-    truth = tr.generate(car, 50.0, dt, LAT0, LON0, H0)
+    truth = tr.generate(tr.car_profile(), 50.0, dt, LAT0, LON0, H0)
     rng = np.random.default_rng(1)
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=2).samples()
     fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.5, std_d=1.0, std_vel=0.05, outages=[(25.0, 50.0)]),

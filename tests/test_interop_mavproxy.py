@@ -92,20 +92,22 @@ def test_mavproxy_receives_our_vehicle(tmp_path: Path) -> None:
     assert out.get("rx_messages", 0) > 0
     assert gw.mav_outputs[0].rx_messages.get("HEARTBEAT", 0) > 0
 
-    # values against the simulated truth (error-free IMU, GNSS-initialised: < 1° and < 15 m)
+    # values against the simulated truth. Error-free IMU, GNSS 1 m / 0.1 m/s: the EKF's tilt follows the
+    # noisy GNSS velocity in its first seconds (0.1 m/s over 0.2 s ≈ 3° of tilt information), yaw is
+    # unobservable at rest (σ ≈ 10° from the config): roll/pitch within 2°, yaw within 5°, position 10 m
     truth = next(truth_chunks(cfg.sim))[0]
     rate = cfg.sim.imu_rate
     for a in seen["ATTITUDE"][::10]:
         k = round(a.time_boot_ms * 1e-3 * rate)
         tr = euler_from_quat(truth.q_nb[k])
-        for est, ref in zip((a.roll, a.pitch, a.yaw), tr):
+        for est, ref, tol in zip((a.roll, a.pitch, a.yaw), tr, (2.0, 2.0, 5.0)):
             d = (est - ref + math.pi) % (2 * math.pi) - math.pi
-            assert abs(math.degrees(d)) < 1.0
+            assert abs(math.degrees(d)) < tol
     for g in seen["GLOBAL_POSITION_INT"][::3]:
         k = round(g.time_boot_ms * 1e-3 * rate)
         d = earth.ned_from_geodetic(
             math.radians(g.lat * 1e-7), math.radians(g.lon * 1e-7), g.alt * 1e-3, truth.lat[k], truth.lon[k], truth.h[k]
         )
-        assert np.linalg.norm(d) < 15.0
+        assert np.linalg.norm(d) < 10.0
         v = np.array([g.vx, g.vy, g.vz]) * 0.01
         assert np.linalg.norm(v - truth.vel_ned[k]) < 1.0

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -35,10 +36,21 @@ def _mosquitto() -> str:
 
 
 class Broker:
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, users: dict[str, str] | None = None) -> None:
         self.port = free_port(socket.SOCK_STREAM)
         self.conf = tmp / "mosquitto.conf"
-        self.conf.write_text(f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+        conf = f"listener {self.port} 127.0.0.1\npersistence false\n"
+        if users:
+            pw = tmp / "passwd"
+            pw.write_text("")
+            for u, p in users.items():
+                subprocess.run(["mosquitto_passwd", "-b", str(pw), u, p], check=True, capture_output=True)
+            conf += f"allow_anonymous false\npassword_file {pw}\n"
+            if os.geteuid() == 0:  # as root mosquitto drops to its own user, who cannot read pytest's tmp dir
+                conf += "user root\n"
+        else:
+            conf += "allow_anonymous true\n"
+        self.conf.write_text(conf)
         self.proc: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
@@ -121,7 +133,7 @@ def test_state_and_faults_survive_a_broker_restart(broker: Broker) -> None:
         gw._fault(fault(3.0, "gyro[2]"))
         await asyncio.sleep(1.0)
         gw.request_stop()
-        await task
+        await asyncio.wait_for(task, 30.0)
 
     try:
         asyncio.run(scenario())
@@ -164,3 +176,25 @@ def test_unreachable_broker_does_not_stall_the_loop() -> None:
     assert snap["outputs"]["mqtt"]["state_dropped_offline"] > 10
     assert len(states) == snap["imu_epochs"] > 1000
     assert "queue_full" not in snap["sources"]["imu0"]["dropped"]
+
+
+def test_username_password(tmp_path: Path) -> None:
+    """A broker that requires a login: right credentials publish, wrong ones never connect (and never stall)."""
+    b = Broker(tmp_path, users={"gw": "s3cret"})
+    b.start()
+    try:
+        got = {}
+        for name, pw in (("right", "s3cret"), ("wrong", "nope")):
+            cfg = sim_config(
+                mqtt={"enabled": True, "port": b.port, "topic_prefix": PREFIX, "username": "gw", "password": pw},
+                recorder={"enabled": False},
+            )
+            gw = Gateway(cfg)
+            asyncio.run(gw.run(duration=3.0, signals=False))
+            assert gw.mqtt is not None
+            got[name] = (gw.mqtt.connects, gw.metrics.snapshot()["outputs"]["mqtt"], gw.mqtt.last_error)
+    finally:
+        b.stop()
+    assert got["right"][0] == 1 and got["right"][1].get("states", 0) > 5
+    assert got["wrong"][0] == 0 and got["wrong"][1].get("state_dropped_offline", 0) > 5
+    assert got["wrong"][2]  # the reason is kept for the status view

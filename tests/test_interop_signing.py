@@ -118,6 +118,7 @@ def test_signed_links(tmp_path: Path) -> None:
     assert gw.metrics.snapshot()["sources"]["gnss"]["received"] > 10  # the signed simulator got through
     # nothing of the rejected input reached the pipeline (the bogus fixes are at lat 0)
     fixes = [r for r in read_records(tmp_path / "signed.ihlog") if isinstance(r, GnssFix)]
+    assert KEY not in (tmp_path / "signed.ihlog").read_bytes().decode("latin-1")  # no key in the log header
     assert fixes and all(abs(f.lat) > 0.5 for f in fixes)
     # our output: every message correctly signed with the key
     assert rejected_by_peer == 0 and verifier.signing.goodsig_count > 50

@@ -71,7 +71,8 @@ def test_replay_reproduces_online_states_bit_for_bit(live_run: dict) -> None:
 
 
 def test_live_states_follow_the_simulated_truth(live_run: dict) -> None:
-    """Error-free IMU, initialised from a 1 m GNSS fix: the state stays near the truth."""
+    """Error-free IMU, GNSS 1 m / 0.1 m/s: attitude within 3 σ of the filter's own accuracy, position
+    within the GNSS initialisation error (1 m N/E, 2 m D σ)."""
     states = live_run["states"]
     cfg: SimConfig = live_run["cfg"].sim
     truth = next(truth_chunks(cfg))[0]
@@ -81,9 +82,10 @@ def test_live_states_follow_the_simulated_truth(live_run: dict) -> None:
     for st in states[:: max(1, len(states) // 20)]:
         k = round(st.t * cfg.imu_rate)
         assert abs(truth.t[k] - st.t) < 1e-9
-        assert math.degrees(quat_angle_between(st.q_nb, truth.q_nb[k])) < 1.0
+        err = math.degrees(quat_angle_between(st.q_nb, truth.q_nb[k]))
+        assert err < 3.0 * math.degrees(float(np.linalg.norm(st.std_att))) + 0.5
         d = earth.ned_from_geodetic(st.lat, st.lon, st.h, truth.lat[k], truth.lon[k], truth.h[k])
-        assert np.linalg.norm(d) < 15.0
+        assert np.linalg.norm(d) < 10.0
 
 
 def test_queue_overflow_is_counted_not_silent() -> None:
@@ -206,7 +208,20 @@ def test_status_view_renders_the_live_figures(live_run: dict) -> None:
         con = Console(width=160, record=True, file=devnull)
         con.print(render(live_run["gw"]))
     text = con.export_text()
-    for word in ("imu0", "gnss", "arrival to state", "state to sent", "gcs", "aligned", "test ratios"):
+    for word in ("imu0", "gnss", "arrival to state", "state to sent", "gcs", "align", "test ratios", "FDI"):
         assert word in text, word
     line = _summary_line(live_run["gw"])
     assert "imu0" in line and "arrival→sent" in line
+
+
+def test_ins_hil_replay_command_on_an_ihlog(live_run: dict) -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "ins_hil", "replay", str(live_run["log"]), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    assert f"IMU epochs processed {len(live_run['states'])}," in r.stdout
+    last = live_run["states"][-1]
+    assert f"final state t {last.t:.3f} s" in r.stdout

@@ -8,7 +8,8 @@
  *
  * Rules: C99; the step period is fixed at initialisation; no malloc, no
  * recursion, no global mutable state (every function works on a caller-owned
- * context struct); all loops are bounded by compile-time constants.
+ * context struct); all loops are bounded by compile-time constants (the one
+ * exception, ins_core_run, by the caller's log length n).
  *
  * Scalar type: `ins_real` is double, or float when compiled with
  * -DINS_REF_FLOAT (a compile-time switch; the whole library follows it).
@@ -22,7 +23,9 @@
  * dbg_x dbg_y dbg_z | dba_x dba_y dba_z] with dr, dv = true - computed (m,
  * m/s, NED), psi the attitude error with C_hat = (I + [psi x]) C_true
  * (DIGEST_000 section 9), dbg/dba = true - estimated gyro/accel bias (body,
- * rad/s and m/s^2). The filter feeds back and resets x after each update.
+ * rad/s and m/s^2). The filter feeds back and resets x after each measurement
+ * group. Model, gates and feedback mirror ins_hil.fusion.ekf / ins_hil.core.NavCore
+ * (checked to 1e-9 relative by tests/test_firmware.py).
  */
 #ifndef INS_REF_H
 #define INS_REF_H
@@ -84,8 +87,10 @@ typedef struct {
 } ins_book_att_t;
 
 void ins_book_att_init(ins_book_att_t *a, const ins_real q0[4], ins_real dt);
-/* One step with the body rate w(t_i) (rad/s) sampled at the end of the step. */
+/* One step with the body rate w(t_i) (rad/s) sampled at the end of the step (eq. 2.19, then 2.18). */
 void ins_book_att_step(ins_book_att_t *a, const ins_real w[3]);
+/* One step of eq. 2.18 with given quasi-coordinates th_i (rad), e.g. exact gyro increments. */
+void ins_book_att_step_th(ins_book_att_t *a, const ins_real th[3]);
 /* Normalised copy of the current quaternion. */
 void ins_book_att_quat(const ins_book_att_t *a, ins_real q[4]);
 
@@ -131,6 +136,9 @@ typedef struct {
     ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; /* floors on the reported GNSS sigmas */
     int use_gnss_vel;
     ins_real baro_std;     /* m */
+    int have_baro_offset;  /* 1: baro_offset is given; 0: from the first sample, then calibrated against GNSS */
+    double baro_offset;    /* ellipsoidal height of the baro altitude datum, m */
+    double baro_offset_tau; /* time constant of that calibration, s (<= 0: off) */
 } ins_ekf_cfg_t;
 
 enum { INS_GRP_GNSS_POS = 0, INS_GRP_GNSS_VEL = 1, INS_GRP_BARO = 2, INS_NGRP = 3 };
@@ -146,8 +154,12 @@ typedef struct {
     int gnss_reset_after, use_gnss_vel;
     ins_real min_std[3];    /* GNSS NE, D, vel floors */
     ins_real baro_std;
-    ins_pos baro_offset;    /* ellipsoid - baro datum, fixed at the first baro sample */
-    int have_baro_offset;
+    ins_pos baro_offset;    /* baro datum -> ellipsoid, m (configured, or first sample + GNSS calibration) */
+    int have_baro_offset, baro_offset_fixed;
+    double baro_offset_var, baro_offset_tau, t_baro;
+    double t_gnss_ok;       /* time of the last accepted GNSS position (-1e300: none) */
+    ins_pos h_gnss;         /* its height */
+    double gnss_var_d;
     uint32_t accepted[INS_NGRP], rejected[INS_NGRP], consecutive[INS_NGRP];
     ins_real last_ratio[INS_NGRP];
     uint32_t n_predict;
@@ -203,8 +215,12 @@ void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_
  * The position is shifted by v (t_now - g->t) to the current step. Returns a bit mask of the
  * accepted groups (1 position, 2 velocity). */
 int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g);
-/* Baro altitude (m above its datum; the datum offset is fixed at the first sample). Returns 1 if accepted. */
-int ins_core_fuse_baro(ins_core_t *c, ins_real altitude);
+/* GNSS positions rejected gnss_reset_after times in a row re-initialise the position and velocity sigma
+ * and are then accepted. A fix older than 1.5 steps is taken as valid now (no shift). */
+/* Baro altitude valid at t (m above its datum: the datum is configured, or the first sample's, then
+ * calibrated against accepted GNSS heights with time constant baro_offset_tau; its variance is added to R).
+ * Returns 1 if accepted. */
+int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude);
 void ins_core_output(const ins_core_t *c, ins_out_t *o);
 
 /* ---------------------------------------------------------------------- FDI */

@@ -44,8 +44,16 @@ static void radii(ins_real lat, ins_real *m, ins_real *n) {
     *m = K(INS_A_WGS84) * (K(1.0) - K(INS_E2_WGS84)) / (w2 * w);
 }
 
+/* P block k..k+2 := diag(sd^2), correlations cleared (ErrorStateEKF.set_state_sigma) */
+static void set_state_sigma(ins_ekf_t *e, int k, const ins_real sd[3]) {
+    int i, j;
+    for (i = k; i < k + 3; ++i)
+        for (j = 0; j < INS_NX; ++j) e->P[i][j] = e->P[j][i] = K(0.0);
+    for (i = 0; i < 3; ++i) e->P[k + i][k + i] = sd[i] * sd[i];
+}
+
 /* One measurement group with rows +-e_j (sign sg[i]) of the state, as NavCore._apply:
- * per-component gate, forced acceptance of GNSS positions after a run of rejections,
+ * per-component gate (forced acceptance of a GNSS position after gnss_reset_after rejections),
  * sequential scalar Joseph updates, symmetrise, feedback. Returns 1 if accepted. */
 static int apply_group(ins_core_t *c, int grp, int n, const int *idx, const ins_real *sg, const ins_real *z,
                        const ins_real *r) {
@@ -67,13 +75,6 @@ static int apply_group(ins_core_t *c, int grp, int n, const int *idx, const ins_
     }
     e->accepted[grp]++;
     e->consecutive[grp] = 0;
-    if (force) { /* re-initialise the position uncertainty (kf.set_state_sigma("pos", ...)) */
-        for (i = 0; i < 3; ++i) {
-            const ins_real sd = RS(RFABS(z[i]) * RFABS(z[i]) + r[i]);
-            for (j = 0; j < INS_NX; ++j) e->P[i][j] = e->P[j][i] = K(0.0);
-            e->P[i][i] = sd * sd;
-        }
-    }
     for (i = 0; i < n; ++i) {
         for (j = 0; j < INS_NX; ++j) hv[j] = K(0.0);
         hv[idx[i]] = sg[i];
@@ -90,20 +91,41 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
     static const int ipos[3] = {0, 1, 2}, ivel[3] = {3, 4, 5};
     static const ins_real plus[3] = {1, 1, 1};
     ins_mech_t *m = &c->mech;
-    const ins_ekf_t *e = &c->ekf;
+    ins_ekf_t *e = &c->ekf;
     const ins_real sne = maxr(g->std_ne, e->min_std[0]), sd = maxr(g->std_d, e->min_std[1]);
-    const ins_real lat = (ins_real)m->lat, h = (ins_real)m->h, dtm = (ins_real)(m->t - g->t);
+    const ins_real lat = (ins_real)m->lat, h = (ins_real)m->h;
+    const int have_vel = g->vel[0] == g->vel[0] && g->vel[1] == g->vel[1] && g->vel[2] == g->vel[2];
+    const int assume_now = g->t < m->t - 1.5 * (double)m->dt; /* late fix: valid now, no shift */
+    const ins_real dtm = (ins_real)(m->t - g->t);
     ins_real z[3], r[3], rm, rn;
     int i, mask = 0;
     radii(lat, &rm, &rn);
     /* measured - computed, NED metres (seed 001 eq. 148 in metres), shifted to the step time */
-    z[0] = (ins_real)(g->lat - m->lat) * (rm + h) + m->v[0] * dtm;
-    z[1] = (ins_real)(g->lon - m->lon) * (rn + h) * RCOS(lat) + m->v[1] * dtm;
-    z[2] = -(ins_real)(g->h - m->h) + m->v[2] * dtm;
+    z[0] = (ins_real)(g->lat - m->lat) * (rm + h);
+    z[1] = (ins_real)(g->lon - m->lon) * (rn + h) * RCOS(lat);
+    z[2] = -(ins_real)(g->h - m->h);
+    if (!assume_now)
+        for (i = 0; i < 3; ++i) z[i] = z[i] + m->v[i] * dtm;
     r[0] = r[1] = sne * sne;
     r[2] = sd * sd;
-    if (apply_group(c, INS_GRP_GNSS_POS, 3, ipos, plus, z, r)) mask |= 1;
-    if (e->use_gnss_vel && g->vel[0] == g->vel[0] && g->vel[1] == g->vel[1] && g->vel[2] == g->vel[2]) {
+    if ((int)e->consecutive[INS_GRP_GNSS_POS] >= e->gnss_reset_after) {
+        /* GNSS rejected for too long: the INS has drifted; re-initialise position/velocity sigma */
+        ins_real sp[3], sv[3];
+        for (i = 0; i < 3; ++i) {
+            sp[i] = RS(z[i] * z[i] + r[i]);
+            sv[i] = (have_vel ? RFABS(g->vel[i] - m->v[i]) : K(0.0)) + K(0.1);
+        }
+        set_state_sigma(e, 0, sp);
+        set_state_sigma(e, 3, sv);
+        e->consecutive[INS_GRP_GNSS_VEL] = 0;
+    }
+    if (apply_group(c, INS_GRP_GNSS_POS, 3, ipos, plus, z, r)) {
+        mask |= 1;
+        e->t_gnss_ok = g->t;
+        e->h_gnss = g->h;
+        e->gnss_var_d = (double)(sd * sd);
+    }
+    if (e->use_gnss_vel && have_vel) {
         const ins_real sv = maxr(g->std_vel, e->min_std[2]);
         for (i = 0; i < 3; ++i) {
             z[i] = g->vel[i] - m->v[i];
@@ -114,17 +136,26 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
     return mask;
 }
 
-int ins_core_fuse_baro(ins_core_t *c, ins_real altitude) {
+int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude) {
     static const int ih[1] = {2};
     static const ins_real minus[1] = {-1};
     ins_ekf_t *e = &c->ekf;
     ins_real z, r;
-    if (!e->have_baro_offset) { /* baro datum -> ellipsoid, fixed at the first sample (as NavCore) */
-        e->baro_offset = c->mech.h - (ins_pos)altitude;
+    if (!e->have_baro_offset) { /* baro datum -> ellipsoid: configured, or from the first sample */
+        if (!e->baro_offset_fixed) e->baro_offset = c->mech.h - altitude;
+        e->baro_offset_var = (double)e->P[2][2];
         e->have_baro_offset = 1;
+    } else if (fabs(t - e->t_gnss_ok) < 0.5 && e->baro_offset_tau > 0.0 && !e->baro_offset_fixed) {
+        /* calibrate the datum against the GNSS height while GNSS is accepted (first order, tau) */
+        double a = (t - e->t_baro) / e->baro_offset_tau;
+        if (a < 0.0) a = 0.0;
+        if (a > 1.0) a = 1.0;
+        e->baro_offset += a * (e->h_gnss - altitude - e->baro_offset);
+        e->baro_offset_var = (1.0 - a) * (1.0 - a) * e->baro_offset_var + a * a * e->gnss_var_d;
     }
-    z = (ins_real)(((ins_pos)altitude + e->baro_offset) - c->mech.h); /* h_baro - h = -dr_D (book eq. 3.30) */
-    r = e->baro_std * e->baro_std;
+    e->t_baro = t;
+    z = (ins_real)((altitude + e->baro_offset) - c->mech.h); /* h_baro - h = -dr_D (book eq. 3.30) */
+    r = e->baro_std * e->baro_std + (e->baro_offset_fixed ? K(0.0) : (ins_real)e->baro_offset_var);
     return apply_group(c, INS_GRP_BARO, 1, ih, minus, &z, &r);
 }
 

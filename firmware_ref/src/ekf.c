@@ -43,6 +43,9 @@ void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg) {
     cfg->gnss_min_std_vel = K(0.02);
     cfg->use_gnss_vel = 1;
     cfg->baro_std = K(0.5);
+    cfg->have_baro_offset = 0;
+    cfg->baro_offset = 0.0;
+    cfg->baro_offset_tau = 10.0;
 }
 
 void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
@@ -74,8 +77,15 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->min_std[1] = cfg->gnss_min_std_d;
     e->min_std[2] = cfg->gnss_min_std_vel;
     e->baro_std = cfg->baro_std;
-    e->baro_offset = 0.0;
+    e->baro_offset = cfg->baro_offset;
     e->have_baro_offset = 0;
+    e->baro_offset_fixed = cfg->have_baro_offset;
+    e->baro_offset_var = 0.0;
+    e->baro_offset_tau = cfg->baro_offset_tau;
+    e->t_baro = 0.0;
+    e->t_gnss_ok = -1e300;
+    e->h_gnss = 0.0;
+    e->gnss_var_d = 1.0;
     for (i = 0; i < INS_NGRP; ++i) {
         e->accepted[i] = e->rejected[i] = e->consecutive[i] = 0;
         e->last_ratio[i] = K(0.0);

@@ -112,9 +112,23 @@ void ins_book_att_init(ins_book_att_t *a, const ins_real q0[4], ins_real dt) {
     a->n = 0;
 }
 
+void ins_book_att_step_th(ins_book_att_t *a, const ins_real th[3]) {
+    ins_real d[4], lam[4];
+    const ins_real n2 = th[0] * th[0] + th[1] * th[1] + th[2] * th[2];
+    int i;
+    /* book eq. 2.18: [1 - |th|^2/12 ; th/2 - (th_i x th_{i-1})/24] */
+    d[0] = K(1.0) - n2 / K(12.0);
+    d[1] = K(0.5) * th[0] - (th[1] * a->th_prev[2] - th[2] * a->th_prev[1]) / K(24.0);
+    d[2] = K(0.5) * th[1] - (th[2] * a->th_prev[0] - th[0] * a->th_prev[2]) / K(24.0);
+    d[3] = K(0.5) * th[2] - (th[0] * a->th_prev[1] - th[1] * a->th_prev[0]) / K(24.0);
+    ins_quat_mul(a->lam, d, lam); /* book eq. 2.15/2.16 */
+    for (i = 0; i < 4; ++i) a->lam[i] = lam[i];
+    for (i = 0; i < 3; ++i) a->th_prev[i] = th[i];
+    a->n++;
+}
+
 void ins_book_att_step(ins_book_att_t *a, const ins_real w[3]) {
-    ins_real th[3], d[4], lam[4];
-    ins_real n2;
+    ins_real th[3];
     int i;
     if (a->n == 0) {
         for (i = 0; i < 3; ++i) th[i] = a->dt * w[i]; /* start-up: Euler */
@@ -124,20 +138,11 @@ void ins_book_att_step(ins_book_att_t *a, const ins_real w[3]) {
         for (i = 0; i < 3; ++i) /* book eq. 2.19: quadratic spline over t_{i-2}..t_i */
             th[i] = a->dt / K(12.0) * (K(5.0) * w[i] + K(8.0) * a->w1[i] - a->w2[i]);
     }
-    n2 = th[0] * th[0] + th[1] * th[1] + th[2] * th[2];
-    /* book eq. 2.18: [1 - |th|^2/12 ; th/2 - (th_i x th_{i-1})/24] */
-    d[0] = K(1.0) - n2 / K(12.0);
-    d[1] = K(0.5) * th[0] - (th[1] * a->th_prev[2] - th[2] * a->th_prev[1]) / K(24.0);
-    d[2] = K(0.5) * th[1] - (th[2] * a->th_prev[0] - th[0] * a->th_prev[2]) / K(24.0);
-    d[3] = K(0.5) * th[2] - (th[0] * a->th_prev[1] - th[1] * a->th_prev[0]) / K(24.0);
-    ins_quat_mul(a->lam, d, lam); /* book eq. 2.15/2.16 */
-    for (i = 0; i < 4; ++i) a->lam[i] = lam[i];
+    ins_book_att_step_th(a, th);
     for (i = 0; i < 3; ++i) {
         a->w2[i] = a->w1[i];
         a->w1[i] = w[i];
-        a->th_prev[i] = th[i];
     }
-    a->n++;
 }
 
 void ins_book_att_quat(const ins_book_att_t *a, ins_real q[4]) {

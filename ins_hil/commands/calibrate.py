@@ -25,7 +25,7 @@ import argparse
 import csv
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -34,7 +34,7 @@ import numpy as np
 
 from ins_hil.nav import allan as av
 from ins_hil.nav import calibration as cal
-from ins_hil.types import Vec
+from ins_hil.types import ImuFlags, ImuSample, MagSample, Vec
 
 NAME = "calibrate"
 HELP = "calibrate accelerometers, gyros, magnetometer or run an Allan-variance analysis from a recorded log"
@@ -59,8 +59,11 @@ class LogData:
     imu_id: int | None = None
 
 
-def read_csv_log(path: Path) -> LogData:
-    """Read a calibration CSV (columns in the module doc); CalibrationError names missing columns."""
+def read_csv_log(path: Path, imu_id: int | None = None) -> LogData:
+    """Read a calibration CSV (columns in the module doc); CalibrationError names missing columns.
+
+    With an ``imu_id`` column, ``imu_id`` selects the rows of one IMU (required when there are several).
+    """
     try:
         with path.open(newline="") as f:
             header = next(csv.reader(f), None)
@@ -78,6 +81,14 @@ def read_csv_log(path: Path) -> LogData:
     if data.shape[1] != len(cols):
         raise cal.CalibrationError(f"{path}: {data.shape[1]} values per row but {len(cols)} header names")
     ix = {c: i for i, c in enumerate(cols)}
+    if "imu_id" in ix:
+        ids = sorted(int(i) for i in np.unique(data[:, ix["imu_id"]]))
+        if imu_id is not None:
+            data = data[data[:, ix["imu_id"]] == imu_id]
+            if len(data) == 0:
+                raise cal.CalibrationError(f"{path}: no samples of IMU {imu_id}; the log has IMUs {ids}")
+        elif len(ids) > 1:
+            raise cal.CalibrationError(f"{path}: samples of IMUs {ids}; choose one with --imu-id")
 
     def get3(prefix: str) -> Vec | None:
         names = [f"{prefix}_{a}" for a in "xyz"]
@@ -116,35 +127,78 @@ def read_csv_log(path: Path) -> LogData:
     if "flags" in ix:
         log.flags = data[:, ix["flags"]].astype(np.int64)
     if "imu_id" in ix:
-        ids = np.unique(data[:, ix["imu_id"]].astype(np.int64))
-        if len(ids) > 1:
-            raise cal.CalibrationError(f"{path}: samples of several IMUs {ids.tolist()}; calibrate one IMU per log")
-        log.imu_id = int(ids[0])
+        log.imu_id = int(data[0, ix["imu_id"]])
     return log
 
 
-def _read_ihlog(path: Path) -> LogData:
-    """Hook for the runtime recorder's format: ``ins_hil.runtime.recorder.read_for_calibration``."""
+def log_from_records(records: Iterable[object], imu_id: int | None = None, where: str = "log") -> LogData:
+    """LogData from recorded samples (``ImuSample``/``MagSample``; other records are skipped).
+
+    This is how ``.ihlog`` files of the runtime recorder are read: no step labels (the quiet
+    segments are detected), flags and imu_id from the samples.
+    """
+    imu: list[ImuSample] = []
+    mag: list[MagSample] = []
+    for r in records:
+        if isinstance(r, ImuSample):
+            imu.append(r)
+        elif isinstance(r, MagSample):
+            mag.append(r)
+    ids = sorted({s.imu_id for s in imu})
+    if imu_id is not None:
+        imu = [s for s in imu if s.imu_id == imu_id]
+        if not imu and ids:
+            raise cal.CalibrationError(f"{where}: no samples of IMU {imu_id}; the log has IMUs {ids}")
+    elif len(ids) > 1:
+        raise cal.CalibrationError(f"{where}: samples of IMUs {ids}; choose one with --imu-id")
+    mag_arr = np.array([m.field_b for m in mag], dtype=np.float64).reshape(-1, 3) if mag else None
+    if imu:
+        t = np.array([s.t for s in imu])
+        dts = np.array([s.dt for s in imu])
+        dth = np.array([s.dtheta for s in imu], dtype=np.float64)
+        dv = np.array([s.dvel for s in imu], dtype=np.float64)
+        return LogData(
+            t=t,
+            dt=float(np.median(dts)),
+            gyro=dth / dts[:, None],
+            accel=dv / dts[:, None],
+            dtheta=dth,
+            dvel=dv,
+            mag=mag_arr,
+            flags=np.array([s.flags for s in imu], dtype=np.int64),
+            imu_id=imu[0].imu_id,
+        )
+    if mag_arr is not None:
+        t = np.array([m.t for m in mag])
+        return LogData(t=t, dt=float(np.median(np.diff(t))) if len(t) > 1 else 0.0, mag=mag_arr)
+    raise cal.CalibrationError(f"{where}: no IMU or magnetometer samples")
+
+
+def _read_ihlog(path: Path, imu_id: int | None = None) -> LogData:
+    """The runtime recorder's ``.ihlog`` (``ins_hil.runtime.recorder.read_records``, all parts)."""
     try:
-        from ins_hil.runtime import recorder  # type: ignore[attr-defined]
+        from ins_hil.runtime import recorder  # type: ignore[attr-defined,unused-ignore]
     except ImportError as e:
         raise cal.CalibrationError(
-            f"{path}: .ihlog logs need ins_hil.runtime.recorder (not installed in this build); "
+            f"{path}: .ihlog logs need ins_hil.runtime.recorder (not in this build); "
             "export the log to CSV (columns: docs/calibration.md)"
         ) from e
-    reader: Callable[[Path], LogData] = recorder.read_for_calibration
-    return reader(path)
+    try:
+        records = list(recorder.read_records(path))
+    except (OSError, ValueError) as e:
+        raise cal.CalibrationError(f"{path}: cannot read the recording ({e})") from e
+    return log_from_records(records, imu_id, str(path))
 
 
-#: log readers by file suffix; the runtime recorder registers ``.ihlog`` here
-LOG_READERS: dict[str, Callable[[Path], LogData]] = {".csv": read_csv_log, ".ihlog": _read_ihlog}
+#: log readers by file suffix: (path, imu_id or None) → LogData
+LOG_READERS: dict[str, Callable[[Path, int | None], LogData]] = {".csv": read_csv_log, ".ihlog": _read_ihlog}
 
 
-def read_log(path: Path) -> LogData:
+def read_log(path: Path, imu_id: int | None = None) -> LogData:
     reader = LOG_READERS.get(path.suffix.lower())
     if reader is None:
         raise cal.CalibrationError(f"{path}: unknown log type {path.suffix!r}; known: {sorted(LOG_READERS)}")
-    return reader(path)
+    return reader(path, imu_id)
 
 
 def write_csv_log(path: Path, t: Vec, dt: float, columns: dict[str, Vec]) -> None:
@@ -205,6 +259,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="latitude in deg: gravity magnitude (accel) and vertical Earth rate (gyro) for the references",
     )
+    p.add_argument("--height", type=float, default=0.0, help="accel: ellipsoidal height in m for normal gravity")
     p.add_argument(
         "--max-std",
         type=float,
@@ -234,7 +289,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _plan_refs(args: argparse.Namespace, kind: str) -> Vec:
-    g = 9.80665 if args.lat is None else cal.earth.normal_gravity(math.radians(args.lat))
+    g = 9.80665 if args.lat is None else cal.earth.normal_gravity(math.radians(args.lat), args.height)
     if args.plan == "book":
         if kind == "accel":
             return cal.accel_references(cal.BOOK_ACCEL_POSITIONS, g)
@@ -251,7 +306,12 @@ def _plan_refs(args: argparse.Namespace, kind: str) -> Vec:
         raise cal.CalibrationError(f"--plan {path}: needs columns {list(need)}, has {d.dtype.names}")
     d = np.atleast_1d(d)
     order = np.argsort(d["step"])
-    return np.column_stack([d["ref_x"][order], d["ref_y"][order], d["ref_z"][order]])
+    refs = np.column_stack([d["ref_x"][order], d["ref_y"][order], d["ref_z"][order]])
+    if not np.all(np.isfinite(refs)) or not np.all(np.isfinite(d["step"])):
+        raise cal.CalibrationError(f"--plan {path}: every row needs numeric step, ref_x, ref_y, ref_z")
+    if np.any(np.diff(d["step"][order]) == 0):
+        raise cal.CalibrationError(f"--plan {path}: a step number appears twice")
+    return refs
 
 
 def _limits(args: argparse.Namespace, base: cal.StepLimits) -> cal.StepLimits:
@@ -439,7 +499,7 @@ def _do_allan(args: argparse.Namespace, log: LogData, rep: Path, lines: list[str
         if inc is None:
             raise cal.CalibrationError(f"{args.log}: allan --sensor {s} needs the {s} columns")
         if log.flags is not None:
-            bit = int(cal.ImuFlags.GYRO_SATURATED if s == "gyro" else cal.ImuFlags.ACCEL_SATURATED)
+            bit = int(ImuFlags.GYRO_SATURATED if s == "gyro" else ImuFlags.ACCEL_SATURATED)
             ns = int(np.count_nonzero(log.flags & bit))
             if ns:
                 raise cal.CalibrationError(
@@ -572,7 +632,6 @@ def bench(docs: Path, seed: int) -> int:
 
     from ins_hil.sim import calibration as simcal
     from ins_hil.sim.sensors import mems_accel, mems_gyro
-    from ins_hil.types import ImuSample
 
     rows: list[str] = []
     seeds = [seed + k for k in range(3)]
@@ -716,9 +775,11 @@ def _run(args: argparse.Namespace) -> int:
             args.rates, args.lat = "30,90", 50.45
             print("  (simulated table rates 30 and 90 °/s at latitude 50.45°: using --rates 30,90 --lat 50.45)")
         if args.kind == "accel" and args.plan == "book":
-            args.lat = 50.45
+            args.lat, args.height = 50.45, 100.0
     print(f"reading {args.log} ...", flush=True)
-    log = read_log(args.log)
+    log = read_log(args.log, args.imu_id)
+    if args.output.exists():
+        cal.load_calibration(args.output)  # refuse early (before the work) if the file to update is broken
     rep = args.report if args.report is not None else args.output.with_name(args.output.stem + "_report")
     rep.mkdir(parents=True, exist_ok=True)
     lines: list[str] = [
@@ -738,6 +799,11 @@ def _run(args: argparse.Namespace) -> int:
     new.source = str(args.log)
     if args.output.exists():
         old = cal.load_calibration(args.output)
+        if old.imu_id is not None and new.imu_id is not None and old.imu_id != new.imu_id:
+            raise cal.CalibrationError(
+                f"{args.output} holds the calibration of IMU {old.imu_id}, this log is for IMU {new.imu_id}; "
+                "write it to another --output file"
+            )
         merged = old.merged(new)
         sec = "noise" if args.kind == "allan" else args.kind
         print(f"updating {args.output} ([{sec}] replaced, other sections kept)")

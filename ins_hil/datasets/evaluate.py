@@ -15,7 +15,7 @@ import numpy as np
 
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.nav import earth
-from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat
+from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat, quat_conj, quat_mul, rotvec_from_quat
 from ins_hil.types import GnssFix, ImuSample, Vec
 
 Progress = Callable[[int, int], None]
@@ -37,6 +37,7 @@ class Series:
     ned: list[Vec] = field(default_factory=list)  # estimated position, NED m from the origin
     ref_ned: list[Vec] = field(default_factory=list)
     ratios: list[dict[str, float]] = field(default_factory=list)
+    nees: list[float] = field(default_factory=list)  # 9-dof NEES of (δr, δv, μ) (simulations)
 
     def arrays(self) -> dict[str, Vec]:
         return {k: np.array(v) for k, v in self.__dict__.items() if k != "ratios"}
@@ -152,6 +153,11 @@ def run_truth(
             dp = earth.ned_delta_small(st.lat - truth.lat[i], st.lon - truth.lon[i], st.h - truth.h[i],
                                        truth.lat[i], truth.h[i])  # fmt: skip
             d = euler_from_quat(st.q_nb) - truth.euler[i]
+            # NEES in the filter's conventions: δr, δv = true − computed; Ĉ = (I + [μ×]) C
+            mu = rotvec_from_quat(quat_mul(st.q_nb, quat_conj(truth.q_nb[i])))
+            e = np.concatenate([-dp, truth.vel_ned[i] - st.vel_ned, mu])
+            P9 = core.kf.P[:9, :9]
+            ser.nees.append(float(e @ np.linalg.solve(P9, e)))
             ser.t.append(s.t)
             ser.pos_err.append(dp)
             ser.vel_err.append(st.vel_ned - truth.vel_ned[i])

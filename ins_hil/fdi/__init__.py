@@ -1,1 +1,15 @@
-"""ins_hil.fdi."""
+"""ins_hil.fdi: fault detection and isolation of redundant inertial sensors (book ch. 5).
+
+* :mod:`ins_hil.fdi.parity`: parity space (SVD / QR), SVD isolation with the corrected
+  eq. 5.17, the Lebedev projector form, the determinant procedure (5.32).
+* :mod:`ins_hil.fdi.recursive`: recursive LS / Kalman statistic with cyclic transposition (5.18–5.23).
+* :mod:`ins_hil.fdi.bias`: isolation from the estimated gyro bias (5.24–5.30) and the Ex 5.3 filter.
+* :mod:`ins_hil.fdi.geometry`: redundant configurations (5-gyro cone, skewed six, 2–3 IMUs).
+* :mod:`ins_hil.fdi.thresholds`: χ² thresholds from noise and a false-alarm probability.
+* :mod:`ins_hil.fdi.monitor`: the runtime :class:`~ins_hil.fdi.monitor.FdiMonitor`.
+"""
+
+from ins_hil.fdi.geometry import SensorGeometry, book_cone5, by_name, dual_imu, skewed6, triple_imu
+from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
+
+__all__ = ["FdiConfig", "FdiMonitor", "SensorGeometry", "book_cone5", "by_name", "dual_imu", "skewed6", "triple_imu"]

@@ -67,7 +67,10 @@ class FdiConfig:
     exclude_unit: exclude every row of the failed unit (whole IMU), not only the axis;
     history: pre-isolation residual history kept for classification (s);
     isolation_margin: after a trip, the best candidate's likelihood score must exceed the
-    second best by this much (in χ² units, i.e. a 4-σ separation) before it is excluded.
+    second best by this much (in χ² units, i.e. a 4-σ separation) before it is excluded;
+    compensate_leak: on exclusion, subtract once from the next output what the fault put into the
+    least-squares output since its onset (residual of the excluded sensor against the others,
+    summed over the history, times its column of Z), so the integrated attitude/velocity is repaired.
     """
 
     geometry: SensorGeometry
@@ -83,8 +86,9 @@ class FdiConfig:
     readmit_after: float = 0.0
     stuck_samples: int = 10
     exclude_unit: bool = False
-    history: float = 2.0
+    history: float = 5.0
     isolation_margin: float = 16.0
+    compensate_leak: bool = True
 
     def __post_init__(self) -> None:
         for key in ("dt", "gyro_noise", "accel_noise", "slow_tau", "history"):
@@ -140,6 +144,8 @@ class _Group:
         self.readmit_ema: dict[int, float] = {}
         self.detect_latched = False
         self.est: Vec = np.zeros(3)
+        self.leak: Vec = np.zeros(3)
+        self.leak_on = False
         self._rebuild()
 
     # -- configuration of the healthy subset --------------------------------------------------
@@ -215,9 +221,13 @@ class _Group:
                 tripped = self._trip(t, g * g, self.var_slow, "slow", t - cfg.history, events)
             if tripped:
                 est = self.Z @ y[self.hidx]
-        self.est = np.asarray(est)
         if len(self.hidx) < self.n:
             self._watch_excluded(t, y, est, events)
+        if self.leak_on:
+            est = est - self.leak
+            self.leak[:] = 0.0
+            self.leak_on = False
+        self.est = np.asarray(est)
         return est
 
     def _trip(self, t: float, score: Vec, scale: float, test: str, onset: float, events: list[FaultEvent]) -> bool:
@@ -250,7 +260,16 @@ class _Group:
         sel = np.isfinite(tb) & (tb >= onset - 1e-9)
         Yb = self.buf[order][sel]
         yhat = (Yb[:, others] @ np.linalg.pinv(self.A[others]).T) @ self.A[k]
-        pend = _Pending(k, t, test, list(tb[sel]), list(Yb[:, k]), list(yhat))
+        # classification looks at the last ≤ 2 s before the exclusion (a slow fault's shape), the leak at all of it
+        csel = tb[sel] >= max(onset, t - 2.0) - 1e-9
+        pend = _Pending(k, t, test, list(tb[sel][csel]), list(Yb[csel, k]), list(yhat[csel]))
+        if self.cfg.compensate_leak:
+            # the fault leaked into the output through column k of the LS matrix since the onset:
+            # take it back once from the next output (the navigation integrates increments)
+            pos_k = int(np.searchsorted(self.hidx, k))
+            resid = Yb[:, k] - yhat
+            self.leak += self.Z[:, pos_k] * float(np.nansum(resid))
+            self.leak_on = True
         for r in rows:
             self.healthy[int(r)] = False
         self._rebuild()

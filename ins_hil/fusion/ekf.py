@@ -166,7 +166,11 @@ class ErrorStateEKF:
             if math.isfinite(self._tau[k]):
                 self._F[k, k] = -1.0 / self._tau[k]
         self._eye = np.eye(n)
-        self._g2r = 2.0 * 9.80665 / 6371000.0
+        self._g2r = 2.0 * 9.80665 / 6371000.0  # vertical-channel gravity gradient 2g/R (seed 001 eq. 96)
+        cells = [(3, 7), (3, 8), (4, 6), (4, 8), (5, 6), (5, 7), (3, 4), (3, 5), (4, 3), (4, 5), (5, 3), (5, 4),
+                 (6, 7), (6, 8), (7, 6), (7, 8), (8, 6), (8, 7), (5, 2)]  # fmt: skip
+        self._var_idx = np.array([r * n + c for r, c in cells])
+        self._qd_cache: tuple[float, Vec] = (-1.0, np.zeros((n, n)))
         self._diag = np.arange(n) * (n + 1)
         # accumulation for cov_every > 1
         self._acc_n = 0
@@ -185,6 +189,7 @@ class ErrorStateEKF:
     def set_state_sigma(self, block: str, sigma: Vec | float) -> None:
         """Reset the variance of one block (e.g. "att" after an alignment); clears its correlations."""
         k = int(getattr(self.idx, block))
+        self.P = self.P.copy()  # P is replaced, never mutated in place (NavCore keeps references in snapshots)
         s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (3,))
         self.P[k : k + 3, :] = 0.0
         self.P[:, k : k + 3] = 0.0
@@ -201,33 +206,20 @@ class ErrorStateEKF:
         F = self._F
         i = self.idx
         fN, fE, fD = float(f_ned[0]), float(f_ned[1]), float(f_ned[2])
-        # δv̇ = [f×] μ   (book eq. 3.1, block C)
-        F[3, 7] = -fD
-        F[3, 8] = fE
-        F[4, 6] = fD
-        F[4, 8] = -fN
-        F[5, 6] = -fE
-        F[5, 7] = fN
         if self.cfg.earth_terms:
-            cN = 2.0 * float(w_ie[0]) + float(w_en[0])
-            cE = float(w_en[1])
-            cD = 2.0 * float(w_ie[2]) + float(w_en[2])
-            F[3, 4] = cD  # −[(2ω_ie + ω_en)×]
-            F[3, 5] = -cE
-            F[4, 3] = -cD
-            F[4, 5] = cN
-            F[5, 3] = cE
-            F[5, 4] = -cN
-            oN = float(w_ie[0]) + float(w_en[0])
-            oE = cE
-            oD = float(w_ie[2]) + float(w_en[2])
-            F[6, 7] = oD  # −[ω_in×]
-            F[6, 8] = -oE
-            F[7, 6] = -oD
-            F[7, 8] = oN
-            F[8, 6] = oE
-            F[8, 7] = -oN
-            F[5, 2] = self._g2r  # 2g/R, vertical channel (seed 001 eq. 96, NED sign)
+            iN, iD = float(w_ie[0]), float(w_ie[2])
+            eN, eE, eD = float(w_en[0]), float(w_en[1]), float(w_en[2])
+            cN, cE, cD = 2.0 * iN + eN, eE, 2.0 * iD + eD  # 2ω_ie + ω_en
+            oN, oE, oD = iN + eN, eE, iD + eD  # ω_in
+            g2r = self._g2r
+        else:
+            cN = cE = cD = oN = oE = oD = g2r = 0.0
+        # one vectorised store of the time-varying scalar entries (order of self._var_idx):
+        # [f×] in δv̇/μ (book eq. 3.1, block C), −[(2ω_ie + ω_en)×] on δv, −[ω_in×] on μ, 2g/R on δr_D
+        F.put(
+            self._var_idx,
+            (-fD, fE, fD, -fN, -fE, fN, cD, -cE, -cD, cN, cE, -cN, oD, -oE, -oD, oN, oE, -oN, g2r),
+        )
         if i.bg is not None:
             F[6:9, i.bg : i.bg + 3] = C_bn  # μ̇ = C δb_g   (book eq. 3.40, A^T)
         if i.ba is not None:
@@ -246,10 +238,10 @@ class ErrorStateEKF:
         if ce > 1:
             self._acc_n += 1
             self._acc_dt += dt
-            self._acc_f += f_ned
+            self._acc_f = self._acc_f + f_ned
             if self.idx.sg is not None:
-                self._acc_fb += f_b
-                self._acc_w += w_b
+                self._acc_fb = self._acc_fb + f_b
+                self._acc_w = self._acc_w + w_b
             if self._acc_n < ce:
                 return
             k = self._acc_n
@@ -264,13 +256,14 @@ class ErrorStateEKF:
             self._acc_w = np.zeros(3)
         F = self.build_F(C_bn, f_ned, w_ie, w_en, f_b, w_b, lat, h)
         Phi = F * dt
+        Phi += self._eye
         if self.cfg.second_order:
             Phi += (0.5 * dt * dt) * (F @ F)  # book eq. 3.2: I + FΔt + F²Δt²/2
-        Phi.flat[self._diag] += 1.0
-        self.propagate(Phi, self.qc * dt)
+        self.propagate(Phi, self.qc * dt, dt)
 
-    def propagate(self, Phi: Vec, qd: Vec) -> None:
-        """P ← Φ P Φ^T + diag(qd) (book eq. 3.7/3.19), or the factor form of the configured numerics."""
+    def propagate(self, Phi: Vec, qd: Vec, dt: float | None = None) -> None:
+        """P ← Φ P Φ^T + diag(qd) (book eq. 3.7/3.19), or the factor form of the configured numerics.
+        With ``dt`` the diagonal matrix diag(qd) = diag(qc) dt is cached (fixed IMU rate)."""
         self.n_predict += 1
         if self.factor is not None:
             from ins_hil.fusion import sqrt as sq
@@ -279,7 +272,12 @@ class ErrorStateEKF:
             self.P = sq.factor_cov(self.factor)
             return
         P = np.dot(np.dot(Phi, self.P), Phi.T)
-        P.flat[self._diag] += qd
+        if dt is not None:
+            if self._qd_cache[0] != dt:
+                self._qd_cache = (dt, np.diag(qd))
+            P += self._qd_cache[1]
+        else:
+            P.flat[self._diag] += qd
         self.P = P
 
     # ------------------------------------------------------------------ update

@@ -71,3 +71,18 @@ def quat_from_book_A(A: Vec) -> Vec:
 def yaw_from_course(vel_ned: Vec) -> float:
     """Yaw (rad) from the horizontal GNSS velocity (course over ground)."""
     return math.atan2(float(vel_ned[1]), float(vel_ned[0]))
+
+
+def book_A_classic(psi: float, theta: float, phi: float) -> Vec:
+    """The book's A (fixed → body) from classic z-x-z angles (eqs. 2.2 + 2.5): A = R3(φ) R1(ϑ) R3(ψ)
+    with passive elementary rotations. Example 4.1 uses ψ = ϑ = φ = π/4."""
+
+    def r3(a: float) -> Vec:
+        c, s = math.cos(a), math.sin(a)
+        return np.array(((c, s, 0.0), (-s, c, 0.0), (0.0, 0.0, 1.0)))
+
+    def r1(a: float) -> Vec:
+        c, s = math.cos(a), math.sin(a)
+        return np.array(((1.0, 0.0, 0.0), (0.0, c, s), (0.0, -s, c)))
+
+    return r3(phi) @ r1(theta) @ r3(psi)

@@ -95,6 +95,13 @@ class Gateway:
 
     # -- the core task ---------------------------------------------------------------
     async def _core_task(self) -> None:
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            self._process_queue()
+
+    def _process_queue(self) -> None:
+        """Run the pipeline on everything in the FIFO (synchronous: never awaits)."""
         q = self.queue
         pipe = self.pipeline
         rec = self.recorder
@@ -102,52 +109,49 @@ class Gateway:
         pubs = self.publishers
         mono = time.monotonic_ns
         clock = self.imu_clock
-        while True:
-            await self._wake.wait()
-            self._wake.clear()
-            depth = len(q)
-            if depth > m.queue_depth_max:
-                m.queue_depth_max = depth
-            while q:
-                s, name = q.popleft()
-                if isinstance(s, ImuSample):
-                    clock.update(s.t, s.t_arrival_ns)
-                else:
-                    # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
-                    t = clock.to_sensor(s.t)
-                    if t is None:
-                        m.source(name).drop("before_imu_clock")
-                        continue
-                    s.t = t
-                if rec is not None:
-                    rec.write(s)
-                if isinstance(s, ImuSample):
-                    t0 = mono()
-                    st = pipe.imu(s)
-                    ready = mono()
-                    if st is None:
-                        continue
-                    m.record_state(s.t_arrival_ns, ready, ready - t0)
-                    for p in pubs:
-                        p.offer(st, s.t_arrival_ns, ready)
-                    for cb in self.on_state:
-                        cb(st)
-                    if st.aligned != self._was_aligned:
-                        self._was_aligned = st.aligned
-                        m.aligned = st.aligned
-                        self._text(6 if st.aligned else 4, "INS aligned" if st.aligned else "INS alignment lost")
-                    if st.test_ratios:
-                        m.test_ratios = st.test_ratios
-                else:
-                    pipe.aid(s)
-                    kind = type(s).__name__
-                    m.fused[kind] = m.fused.get(kind, 0) + 1
-                    if isinstance(s, GnssFix):
-                        for e in self.mav_outputs:
-                            e.offer_gnss(s)
-                if pipe.events:
-                    for ev in pipe.drain_events():
-                        self._fault(ev)
+        depth = len(q)
+        if depth > m.queue_depth_max:
+            m.queue_depth_max = depth
+        while q:
+            s, name = q.popleft()
+            if isinstance(s, ImuSample):
+                clock.update(s.t, s.t_arrival_ns)
+            else:
+                # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
+                t = clock.to_sensor(s.t)
+                if t is None:
+                    m.source(name).drop("before_imu_clock")
+                    continue
+                s.t = t
+            if rec is not None:
+                rec.write(s)
+            if isinstance(s, ImuSample):
+                t0 = mono()
+                st = pipe.imu(s)
+                ready = mono()
+                if st is None:
+                    continue
+                m.record_state(s.t_arrival_ns, ready, ready - t0)
+                for p in pubs:
+                    p.offer(st, s.t_arrival_ns, ready)
+                for cb in self.on_state:
+                    cb(st)
+                if st.aligned != self._was_aligned:
+                    self._was_aligned = st.aligned
+                    m.aligned = st.aligned
+                    self._text(6 if st.aligned else 4, "INS aligned" if st.aligned else "INS alignment lost")
+                if st.test_ratios:
+                    m.test_ratios = st.test_ratios
+            else:
+                pipe.aid(s)
+                kind = type(s).__name__
+                m.fused[kind] = m.fused.get(kind, 0) + 1
+                if isinstance(s, GnssFix):
+                    for e in self.mav_outputs:
+                        e.offer_gnss(s)
+            if pipe.events:
+                for ev in pipe.drain_events():
+                    self._fault(ev)
 
     def _text(self, severity: int, text: str) -> None:
         for e in self.mav_outputs:
@@ -215,7 +219,11 @@ class Gateway:
                 path = Path(cfg.recorder.dir) / f"ins-hil-{stamp}.ihlog"
             self.recorder = Recorder(
                 path,
-                header={"config": cfg.to_dict(), "pipeline": cfg.to_dict()["pipeline"], "started": time.time()},
+                header={
+                    "config": _redact(cfg.to_dict()),
+                    "pipeline": cfg.to_dict()["pipeline"],
+                    "started": time.time(),
+                },
                 max_bytes=int(cfg.recorder.max_mb * 1024 * 1024),
                 flush_period=cfg.recorder.flush_period,
             )
@@ -251,6 +259,13 @@ class Gateway:
             self.sim = SimDevices(cfg.sim, ("127.0.0.1", sim_gnss_port))
             await asyncio.get_running_loop().run_in_executor(None, self.sim.start)
         for ic in serial_inputs:
+            if ic.type == "can_imu":
+                from ins_hil.drivers.can_imu import CanImuDriver
+
+                cdrv = CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **ic.options})
+                self.drivers.append(cdrv)
+                self._tasks.append(asyncio.create_task(cdrv.run(self._sink_for(ic.name)), name=ic.name))
+                continue
             dev = self.sim.imu_path if ic.port == "sim" and self.sim else ic.port
             sdrv = SerialImuDriver(dev, ic.baud, name=ic.name)
             self.drivers.append(sdrv)
@@ -271,6 +286,16 @@ class Gateway:
     async def _shutdown(self) -> None:
         if self.sim is not None:
             self.sim.stop()
+        # inputs first, then what they already delivered goes through the pipeline (and the recorder)
+        for t in self._tasks:
+            if t.get_name() in {d.name for d in self.drivers}:
+                t.cancel()
+        for t in self._tasks:
+            if t.get_name() in {d.name for d in self.drivers}:
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await t
+        if self.error is None and self.queue:
+            self._process_queue()
         for t in self._tasks:
             t.cancel()
         for t in self._tasks:
@@ -279,7 +304,7 @@ class Gateway:
         self._tasks.clear()
         for p in self.publishers:
             with contextlib.suppress(Exception):
-                await p.close()
+                await asyncio.wait_for(p.close(), 10.0)
         if self.recorder is not None:
             self.recorder.close()
 
@@ -320,3 +345,15 @@ def _pin_port(url: str) -> str:
             s.bind((parts[1], 0))
             return f"udpin:{parts[1]}:{s.getsockname()[1]}"
     return url
+
+
+_SECRETS = ("signing_key", "sign_key", "password")
+
+
+def _redact(d: Any) -> Any:
+    """The config for the log header without secrets (signing keys, passwords)."""
+    if isinstance(d, dict):
+        return {k: ("<redacted>" if k in _SECRETS and v else _redact(v)) for k, v in d.items()}
+    if isinstance(d, list):
+        return [_redact(v) for v in d]
+    return d

@@ -144,8 +144,8 @@ class MqttPublisher:
         if self._task is not None:
             self._task.cancel()
             try:
-                await self._task
-            except asyncio.CancelledError:
+                await asyncio.wait_for(self._task, 5.0)
+            except (asyncio.CancelledError, TimeoutError):
                 pass
 
     async def _run(self) -> None:
@@ -180,7 +180,7 @@ class MqttPublisher:
                     self.connects += 1
                     backoff = 0.2
                     self.metrics.output(self.name, "connects")
-                    await client.publish(f"{p}/online", b"1", qos=1, retain=True)
+                    await client.publish(f"{p}/online", b"1", qos=1, retain=True, timeout=2.0)
                     await self._serve(client)
             except aiomqtt.MqttError as e:
                 self.last_error = str(e)
@@ -201,20 +201,22 @@ class MqttPublisher:
             self._wake.clear()
             while self._faults:
                 ev = self._faults[0]
-                await client.publish(f"{p}/fault", json.dumps(clean_json(fault_json(ev))), qos=1)
+                await client.publish(f"{p}/fault", json.dumps(clean_json(fault_json(ev))), qos=1, timeout=2.0)
                 self._faults.popleft()
                 self.metrics.output(self.name, "faults")
             st = self._latest
             if st is not None and self._period_ns:
                 self._latest = None
                 self._seq += 1
-                await client.publish(f"{p}/state", json.dumps(clean_json(state_json(st, self._seq))), qos=0)
+                await client.publish(
+                    f"{p}/state", json.dumps(clean_json(state_json(st, self._seq))), qos=0, timeout=2.0
+                )
                 self.metrics.output(self.name, "states")
             now = time.monotonic()
             if now >= next_health:
                 next_health = now + self.cfg.health_period
                 snap = self.metrics.snapshot()
-                await client.publish(f"{p}/health", json.dumps(clean_json(snap)), qos=1, retain=True)
+                await client.publish(f"{p}/health", json.dumps(clean_json(snap)), qos=1, retain=True, timeout=2.0)
                 self.metrics.output(self.name, "health")
 
 

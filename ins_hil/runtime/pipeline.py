@@ -18,6 +18,7 @@ configured state instead.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import math
 from collections import deque
@@ -46,33 +47,72 @@ class Core(Protocol):
 CORE_KINDS = ("python", "c")
 
 
-def check_core(kind: str) -> None:
-    """Raise now (before anything starts) if the core ``kind`` cannot be built."""
+def nav_config(options: dict[str, Any]) -> Any:
+    """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table (``filter`` = FilterConfig fields).
+
+    Raises ValueError naming the bad key."""
+    from ins_hil.core import NavConfig
+    from ins_hil.fusion.ekf import FilterConfig
+
+    known = {f.name: f for f in dataclasses.fields(NavConfig)}
+    kw: dict[str, Any] = {}
+    for k, v in options.items():
+        if k not in known:
+            raise ValueError(f"unknown key 'core.nav.{k}' (known: {', '.join(sorted(known))})")
+        if k == "filter":
+            fk = {f.name for f in dataclasses.fields(FilterConfig)}
+            bad = set(v) - fk if isinstance(v, dict) else {"?"}
+            if bad:
+                raise ValueError(f"core.nav.filter: unknown key(s) {sorted(bad)} (known: {', '.join(sorted(fk))})")
+            v = FilterConfig(**v)
+        elif k in ("gnss_lever_arm_b", "mag_ref_ned"):
+            v = np.array(v, dtype=np.float64)
+            if v.shape != (3,):
+                raise ValueError(f"core.nav.{k} = {options[k]!r}: expected 3 numbers")
+        elif k == "gnss_min_std":
+            v = tuple(float(x) for x in v)
+        kw[k] = v
+    try:
+        return NavConfig(**kw)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"core.nav: {e}") from None
+
+
+def _initial_placeholder() -> StrapdownState:
+    return StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.9, 0.5, 100.0)
+
+
+def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
+    """Raise now (before anything starts) if the core ``kind`` cannot be built with these options."""
     if kind not in CORE_KINDS:
         raise ValueError(f"unknown core {kind!r} (choose from {', '.join(CORE_KINDS)})")
-    if kind == "c":
-        try:
-            mod = importlib.import_module("ins_hil.cref")
-        except ImportError as e:
+    make_core(kind, _initial_placeholder(), nav or {})
+
+
+def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> Core:
+    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore).
+
+    ``filter.cov_every`` is a speed setting of the Python core only: the C core propagates the
+    covariance on every step, so it is dropped for ``c`` (every other setting must be supported)."""
+    opts = dict(nav or {})
+    if kind == "c" and isinstance(opts.get("filter"), dict):
+        opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
+    cfg = nav_config(opts)
+    try:
+        cref = importlib.import_module("ins_hil.cref")
+    except ImportError as e:
+        if kind == "c":
             raise RuntimeError(f"core 'c': the C reference core (ins_hil.cref) is not available: {e}") from e
-        if not hasattr(mod, "CNavCore"):
-            raise RuntimeError("core 'c': ins_hil.cref has no CNavCore")
-
-
-def make_core(kind: str, initial: StrapdownState) -> Core:
-    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore)."""
-    if kind == "python":
         from ins_hil.core import NavCore
 
-        return NavCore(initial)
-    if kind == "c":
-        try:
-            mod = importlib.import_module("ins_hil.cref")
-        except ImportError as e:
-            raise RuntimeError(f"core 'c': the C reference core (ins_hil.cref) is not available: {e}") from e
-        core: Core = mod.CNavCore(initial)
-        return core
-    raise ValueError(f"unknown core {kind!r} (choose from {', '.join(CORE_KINDS)})")
+        return NavCore(initial, cfg)
+    try:
+        core: Core = cref.make_core(kind, initial, cfg)
+    except (ImportError, OSError) as e:
+        raise RuntimeError(f"core {kind!r}: cannot load the C reference core: {e}") from e
+    except ValueError as e:
+        raise RuntimeError(f"core {kind!r}: {e}") from e
+    return core
 
 
 @dataclass
@@ -92,6 +132,7 @@ class PipelineConfig:
     fdi: bool = False
     fdi_options: dict[str, Any] = field(default_factory=dict)
     calibration: str = ""
+    nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig fields
 
 
 def level_attitude(f_b: np.ndarray, yaw: float) -> np.ndarray:
@@ -109,7 +150,7 @@ class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
     def __init__(self, cfg: PipelineConfig) -> None:
-        check_core(cfg.core)
+        check_core(cfg.core, cfg.nav)
         self.cfg = cfg
         self.core: Core | None = None
         self.events: list[FaultEvent] = []
@@ -142,7 +183,7 @@ class Pipeline:
         self.counts[key] = self.counts.get(key, 0) + 1
 
     def _start(self, initial: StrapdownState) -> None:
-        self.core = make_core(self.cfg.core, initial)
+        self.core = make_core(self.cfg.core, initial, self.cfg.nav)
 
     # -- IMU ------------------------------------------------------------------
     def imu(self, s: ImuSample) -> NavState | None:
@@ -246,23 +287,31 @@ class Pipeline:
 
 
 def _load_calibration(path: str) -> Any:
-    """A calibration (``ins_hil.nav.calibration``): an object with ``apply(imu) -> ImuSample``."""
+    """A calibration file (``ins_hil.nav.calibration``): an object with ``apply(imu) -> ImuSample``."""
+    from ins_hil.nav.calibration import load_calibration
+
+    return load_calibration(path)
+
+
+def fdi_monitor(options: dict[str, Any]) -> Any:
+    """``FdiMonitor`` from the ``[fdi.options]`` table: ``geometry`` (a name of
+    ``ins_hil.fdi.geometry.CONFIGS``) plus ``FdiConfig`` fields (dt, gyro_noise, accel_noise, ...)."""
+    from ins_hil.fdi.geometry import by_name
+    from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
+
+    opts = dict(options)
+    known = {f.name for f in dataclasses.fields(FdiConfig)}
+    bad = set(opts) - known
+    if bad:
+        raise ValueError(
+            f"unknown key(s) {sorted('fdi.options.' + b for b in bad)} (known: {', '.join(sorted(known))})"
+        )
     try:
-        mod = importlib.import_module("ins_hil.nav.calibration")
-    except ImportError as e:
-        raise RuntimeError(f"core.calibration = {path!r}: the calibration module is not available ({e})") from e
-    loader = getattr(mod, "load", None) or getattr(mod, "load_calibration", None)
-    if loader is None:
-        raise RuntimeError("ins_hil.nav.calibration has no load()")
-    cal = loader(path)
-    if not hasattr(cal, "apply"):
-        raise RuntimeError(f"calibration {path!r}: loaded object has no apply(imu)")
-    return cal
+        opts["geometry"] = by_name(str(opts.get("geometry", "triple_imu")))
+        return FdiMonitor(FdiConfig(**opts))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"fdi.options: {e}") from None
 
 
 def _make_fdi(cfg: PipelineConfig) -> Any:
-    try:
-        from ins_hil.fdi.monitor import FdiMonitor  # type: ignore[import-not-found,unused-ignore]
-    except ImportError as e:
-        raise RuntimeError(f"fdi.enabled = true: the FDI monitor (ins_hil.fdi.monitor) is not available ({e})") from e
-    return FdiMonitor(**cfg.fdi_options)
+    return fdi_monitor(cfg.fdi_options)

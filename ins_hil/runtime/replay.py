@@ -9,11 +9,13 @@ it in the same order, so it reproduces the online fused states bit for bit
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -56,17 +58,34 @@ def pipeline_config_from_header(header: dict[str, Any], core: str | None = None)
     return cfg
 
 
+@overload
 def replay_log(
     path: str | Path,
     core: str | None = None,
     on_state: Callable[[NavState], None] | None = None,
     keep_states: bool = True,
-) -> ReplayResult:
+) -> ReplayResult: ...
+
+
+@overload
+def replay_log(path: str | Path, core: argparse.Namespace) -> int: ...
+
+
+def replay_log(
+    path: str | Path,
+    core: str | argparse.Namespace | None = None,
+    on_state: Callable[[NavState], None] | None = None,
+    keep_states: bool = True,
+) -> ReplayResult | int:
     """Run the log's inputs through a fresh pipeline; returns every state (``keep_states``) and event.
 
     ``core`` overrides the recorded core kind (``python``/``c``) to compare cores on
     the same inputs; with the recorded kind the states equal the online ones exactly.
+    Called as ``replay_log(path, args)`` with the ``ins-hil replay`` arguments, it prints a
+    summary and returns the exit status (the command's ``.ihlog`` dispatch).
     """
+    if isinstance(core, argparse.Namespace):
+        return replay_cli(path, core)
     header = read_header(path)
     pipe = Pipeline(pipeline_config_from_header(header, core))
     res = ReplayResult(header=header, parts=len(parts_of(path)))
@@ -85,3 +104,35 @@ def replay_log(
             res.events.extend(pipe.drain_events())
     res.counts = dict(pipe.counts)
     return res
+
+
+def replay_cli(path: str | Path, args: argparse.Namespace | None = None) -> int:
+    """``ins-hil replay LOG.ihlog``: replay and print what came out (exit status 0, 2 on a bad log)."""
+    from ins_hil.nav.rotation import euler_from_quat
+
+    seen: list[Any] = [None, 0]  # last state, count
+
+    def keep(st: NavState) -> None:
+        seen[0] = st
+        seen[1] += 1
+
+    try:
+        res = replay_log(path, keep_states=False, on_state=keep)
+    except (OSError, ValueError) as err:
+        print(f"ins-hil replay: {path}: {err}")
+        return 2
+    pipe = res.header.get("pipeline", {})
+    print(f"{path}: {res.records} inputs in {res.parts} part(s), core {pipe.get('core', '?')}")
+    last: NavState | None = seen[0]
+    if last is not None:
+        rpy = [math.degrees(float(x)) for x in euler_from_quat(last.q_nb)]
+        print(
+            f"final state t {last.t:.3f} s: lat {math.degrees(last.lat):.7f} lon {math.degrees(last.lon):.7f} "
+            f"h {last.h:.2f} m, roll/pitch/yaw {rpy[0]:.2f} {rpy[1]:.2f} {rpy[2]:.2f} deg, aligned {last.aligned}"
+        )
+    print(f"IMU epochs processed {seen[1]}, counters {res.counts}")
+    print(f"fault events {len(res.events)}")
+    if not getattr(args, "quiet", False):
+        for ev in res.events[:50]:
+            print(f"  t {ev.t:.3f} {ev.sensor} {ev.mode.name}{' cleared' if ev.cleared else ''} {ev.detail}")
+    return 0

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ins_hil.nav import earth
+from ins_hil.nav.calibration import BOOK_ACCEL_POSITIONS, TABLE_4_1_TILTS, accel_references, gyro_references
 from ins_hil.sim.sensors import ImuErrorModel, ImuSeries, corrupt_imu, earth_field_ned, mag_samples
 from ins_hil.sim.trajectory import Kinematics, Profile, generate
 from ins_hil.types import Vec
@@ -134,8 +135,6 @@ def accel_static_run(
 
     References: the exact specific force f = C_x(φ1) C_y(φ2) [0, 0, −g(lat, h)] of each step.
     """
-    from ins_hil.nav.calibration import BOOK_ACCEL_POSITIONS, accel_references
-
     pos = list(BOOK_ACCEL_POSITIONS if positions is None else positions)
     segs: list[Segment] = []
     prev = (0.0, 0.0)
@@ -165,8 +164,6 @@ def rate_table_run(
     latitude (the horizontal Earth rate averages out only over whole revolutions: choose
     step_time as a multiple of 2π/ω).
     """
-    from ins_hil.nav.calibration import TABLE_4_1_TILTS, gyro_references
-
     tl = list(TABLE_4_1_TILTS if tilts is None else tilts)
     segs: list[Segment] = []
     prev = (0.0, 0.0, 0.0)

@@ -234,3 +234,126 @@ def generate(
     kin_k = profile(t)
     q = np.array([quat_from_euler(*e) for e in kin_k.euler])
     return TruthSeries(t, q, kin_k.euler, kin_k.vel_ned, lat, lon, h, dth, dv, dt)
+
+
+def _rates_by_difference(base: Callable[[Vec], tuple[Vec, Vec, Vec]]) -> Profile:
+    """Profile from closed-form (euler, vel, acc); Euler rates by central differences (step 1e-4 s)."""
+
+    def prof(t: Vec) -> Kinematics:
+        t = np.asarray(t, dtype=np.float64)
+        e, vel, acc = base(t)
+        hh = 1e-4
+        ep, _, _ = base(t + hh)
+        em, _, _ = base(t - hh)
+        d = ep - em
+        d = (d + np.pi) % (2 * np.pi) - np.pi  # yaw wrap
+        return Kinematics(e, d / (2 * hh), vel, acc)
+
+    return prof
+
+
+def circle_profile(
+    period: float = 300.0, speed: float = 60.0, roll_amp: float = 0.3, roll_mult: float = 10.0
+) -> Profile:
+    """The book's Example 3.2 circle (DIGEST_000 §3.8), intended motion.
+
+    Interpretation (DIGEST_000 §10 item 18): the book's classic z-x-z angles with ϑ = 0 are
+    gimbal-locked; we implement the intended manoeuvre with aircraft angles (book eq. 2.9):
+    a level circle of period ``period`` s at ``speed`` m/s, heading ψ = 2πt/T along the
+    tangent (starting north, turning right, radius VT/2π = 2864.79 m), pitch 0, and the
+    roll oscillation φ = 0.3 sin(10ψ) rad superposed (not the coordinated bank). The book's
+    x-South/y-East/z-Zenith frame is replaced by NED.
+    """
+    w = 2 * math.pi / period
+
+    def base(t: Vec) -> tuple[Vec, Vec, Vec]:
+        psi = w * t
+        z = np.zeros_like(t)
+        e = np.stack([roll_amp * np.sin(roll_mult * psi), z, psi], axis=-1)
+        c, s = np.cos(psi), np.sin(psi)
+        vel = np.stack([speed * c, speed * s, z], axis=-1)
+        acc = np.stack([-speed * w * s, speed * w * c, z], axis=-1)
+        return e, vel, acc
+
+    return _rates_by_difference(base)
+
+
+def coning_profile(amplitude: float = 0.05, freq: float = 2.0, phase: float = math.pi / 2) -> Profile:
+    """Coning at rest (DIGEST_001_004 §2.6 setup): yaw 0, pitch a sin ωt, roll a sin(ωt + ε);
+    with ε = 90° the body axis describes a cone (the classic coning motion)."""
+    om = 2 * math.pi * freq
+
+    def prof(t: Vec) -> Kinematics:
+        t = np.asarray(t, dtype=np.float64)
+        z = np.zeros_like(t)
+        e = np.stack([amplitude * np.sin(om * t + phase), amplitude * np.sin(om * t), z], axis=-1)
+        r = np.stack([amplitude * om * np.cos(om * t + phase), amplitude * om * np.cos(om * t), z], axis=-1)
+        zz = np.zeros((len(t), 3))
+        return Kinematics(e, r, zz, zz.copy())
+
+    return prof
+
+
+def _ramp_sum(t: Vec, items: list[tuple[float, float, float]]) -> tuple[Vec, Vec]:
+    """Σ amount·s((t − start)/length) and its time derivative (C² quintic ramps)."""
+    v = np.zeros_like(t)
+    dv = np.zeros_like(t)
+    for start, length, amount in items:
+        s, ds, _ = _smoothstep((t - start) / length)
+        v = v + amount * s
+        dv = dv + amount * ds / length
+    return v, dv
+
+
+def mission_profile(
+    cruise_speed: float = 20.0,
+    climb_rate: float = 3.0,
+    t_takeoff: float = 10.0,
+    g: float = 9.81,
+) -> Profile:
+    """A UAV mission, 240 s: rest until ``t_takeoff``; take-off run and climb at ``climb_rate``
+    to 96 m; cruise at ``cruise_speed`` with a 90° right turn, a 180° left turn and a 90°
+    right turn (coordinated bank φ = atan(V ψ̇ / g)); descent of 60 m at 2 m/s; deceleration and rest.
+    Pitch = flight-path angle. All segments are C² quintic ramps (closed form)."""
+    T0 = t_takeoff
+    speed_items = [(T0, 10.0, 15.0), (T0 + 40.0, 5.0, cruise_speed - 15.0), (T0 + 190.0, 15.0, -cruise_speed)]
+    climb_items = [(T0 + 5.0, 5.0, climb_rate), (T0 + 37.0, 5.0, -climb_rate), (T0 + 150.0, 5.0, -2.0),
+                   (T0 + 180.0, 5.0, 2.0)]  # fmt: skip
+    yaw_items = [(T0 + 55.0, 15.0, math.pi / 2), (T0 + 85.0, 30.0, -math.pi), (T0 + 125.0, 15.0, math.pi / 2)]
+
+    def base(t: Vec) -> tuple[Vec, Vec, Vec]:
+        t = np.asarray(t, dtype=np.float64)
+        V, dV = _ramp_sum(t, speed_items)
+        up, dup = _ramp_sum(t, climb_items)
+        yaw, r = _ramp_sum(t, yaw_items)
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        vel = np.stack([V * cy, V * sy, -up], axis=-1)
+        acc = np.stack([dV * cy - V * sy * r, dV * sy + V * cy * r, -dup], axis=-1)
+        roll = np.arctan(V * r / g)
+        pitch = np.arctan2(up, np.maximum(V, 1.0)) * np.clip(V, 0.0, 1.0)
+        return np.stack([roll, pitch, yaw], axis=-1), vel, acc
+
+    return _rates_by_difference(base)
+
+
+def car_profile(speed: float = 10.0, t_start: float = 2.0, t_stop: float = 40.0, ramp: float = 5.0) -> Profile:
+    """A level ground vehicle: at rest (heading 0), accelerates to ``speed`` (C² ramp of ``ramp`` s) while it
+    starts to weave (yaw a(t)·0.5 sin 0.2(t − t_start), a = the speed ramp), decelerates to rest at
+    ``t_stop``. No sideslip (velocity along body x)."""
+
+    def base(t: Vec) -> tuple[Vec, Vec, Vec]:
+        t = np.asarray(t, dtype=np.float64)
+        s, ds, _ = _smoothstep((t - t_start) / ramp)
+        s2, ds2, _ = _smoothstep((t - t_stop) / ramp)
+        V = speed * (s - s2)
+        dV = speed * (ds - ds2) / ramp
+        A, dA = s - s2, (ds - ds2) / ramp
+        yaw = A * 0.5 * np.sin(0.2 * (t - t_start))
+        w = dA * 0.5 * np.sin(0.2 * (t - t_start)) + A * 0.1 * np.cos(0.2 * (t - t_start))
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        z = np.zeros_like(t)
+        vel = np.stack([V * cy, V * sy, z], axis=-1)
+        acc = np.stack([dV * cy - V * sy * w, dV * sy + V * cy * w, z], axis=-1)
+        return np.stack([z, z, yaw], axis=-1), vel, acc
+
+    return _rates_by_difference(base)

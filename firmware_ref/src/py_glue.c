@@ -1,0 +1,70 @@
+/* Glue for the Python extension only (compiled by firmware_ref/cffi_build.py, not by the Makefile):
+ * double-precision entry points for both scalar builds, and a flat state record. */
+#include "ins_ref.h"
+int cref_scalar_bits(void) { return INS_REF_SCALAR_BITS; }
+void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, double lon, double h, double t,
+               double dt, const ins_ekf_cfg_t *cfg, int filter) {
+    ins_real qq[4], vv[3];
+    int i;
+    for (i = 0; i < 4; ++i) qq[i] = (ins_real)q[i];
+    for (i = 0; i < 3; ++i) vv[i] = (ins_real)v[i];
+    ins_core_init(c, qq, vv, lat, lon, h, t, (ins_real)dt, cfg, filter);
+}
+void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end) {
+#ifdef INS_REF_FLOAT
+    ins_real a[3], u[3];
+    int i;
+    for (i = 0; i < 3; ++i) { a[i] = (ins_real)dth[i]; u[i] = (ins_real)dv[i]; }
+    ins_core_step(c, a, u, t_end);
+#else
+    ins_core_step(c, dth, dv, t_end);
+#endif
+}
+/* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3], omega_b[3], f_b[3] (32 values);
+ * omega_b, f_b: the last bias-compensated increments / dt (rad/s, m/s^2, body) */
+static void put(const ins_core_t *c, double *o, size_t n) {
+    ins_out_t r;
+    double all[32];
+    size_t i;
+    ins_core_output(c, &r);
+    all[0] = r.t;
+    for (i = 0; i < 4; ++i) all[1 + i] = (double)r.q[i];
+    for (i = 0; i < 3; ++i) {
+        all[5 + i] = (double)r.v[i];
+        all[11 + i] = (double)r.bg[i];
+        all[14 + i] = (double)r.ba[i];
+        all[17 + i] = (double)r.std_pos[i];
+        all[20 + i] = (double)r.std_vel[i];
+        all[23 + i] = (double)r.std_att[i];
+        all[26 + i] = (double)(c->mech.dth_prev[i] / c->mech.dt);
+        all[29 + i] = (double)(c->mech.dv_prev[i] / c->mech.dt);
+    }
+    all[8] = r.lat; all[9] = r.lon; all[10] = r.h;
+    for (i = 0; i < n; ++i) o[i] = all[i];
+}
+void cref_state(const ins_core_t *c, double out[32]) { put(c, out, 32); }
+void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride) {
+    size_t k;
+    for (k = 0; k < n; ++k) {
+        cref_step(c, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt);
+        if (out != NULL) put(c, out + out_stride * k, out_stride);
+    }
+}
+int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
+                   double std_d, double std_vel) {
+    ins_gnss_t g;
+    int i;
+    g.t = t; g.lat = lat; g.lon = lon; g.h = h;
+    for (i = 0; i < 3; ++i) g.vel[i] = (ins_real)vel[i];
+    g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
+    return ins_core_fuse_gnss(c, &g);
+}
+int cref_fuse_baro(ins_core_t *c, double t, double altitude) { return ins_core_fuse_baro(c, t, altitude); }
+/* n GNSS updates in one call (benchmark of the update path); returns the number fully accepted */
+int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
+                          double std_d, double std_vel, size_t n) {
+    size_t k;
+    int acc = 0;
+    for (k = 0; k < n; ++k) acc += cref_fuse_gnss(c, c->mech.t, lat, lon, h, vel, std_ne, std_d, std_vel) == 3;
+    return acc;
+}

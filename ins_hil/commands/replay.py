@@ -1,0 +1,521 @@
+"""`ins-hil replay`: run the navigation core offline and report its accuracy.
+
+SOURCE is one of
+* a simulated scenario name (``static``, ``example32``, ``example32_gnss``, ``coning``, ``uav``;
+  see :mod:`ins_hil.sim.scenarios`),
+* ``drive`` or the directory of the real drive (``../shared/data/gnss_imu_drive_0708``):
+  the README's outage protocol with and without ground-vehicle aids plus a run with GNSS
+  all the time,
+* a recorded gateway log (``*.ihlog``), handed to ``ins_hil.runtime.replay.replay_log``.
+
+Writes ``metrics.json`` and PNG plots to ``--out`` and prints a summary table. ``--docs``
+runs the full report (real drive, Example 3.2, UAV mission, Monte-Carlo NEES/NIS, hot-path
+timing) and regenerates ``docs/accuracy.md`` with its plots in ``docs/accuracy/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ins_hil.core import NavConfig, NavCore
+from ins_hil.datasets import drive0708
+from ins_hil.datasets.evaluate import Series, run_drive, run_truth
+from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.sim import scenarios
+
+NAME = "replay"
+HELP = "run the core offline on a simulated scenario, the real drive or a gateway log; write metrics and plots"
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_DRIVE = REPO.parent / "shared" / "data" / "gnss_imu_drive_0708"
+DEG = math.pi / 180.0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", nargs="?", default="drive", help="scenario name, 'drive', a drive directory or a *.ihlog")
+    p.add_argument("--out", type=Path, default=Path("replay_out"), help="output directory (default ./replay_out)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of a simulated scenario")
+    p.add_argument("--duration", type=float, default=None, help="scenario length in s (default: the scenario's)")
+    p.add_argument("--runs", type=int, default=0, help="Monte-Carlo runs for the NEES/NIS check (simulations)")
+    p.add_argument("--no-aids", action="store_true", help="real drive: skip the run with ZUPT/NHC")
+    p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
+    p.add_argument("--docs", action="store_true", help="full report: regenerate docs/accuracy.md and its plots")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+class _Progress:
+    """A minimal progress line on stderr (long runs)."""
+
+    def __init__(self, label: str, quiet: bool) -> None:
+        self.label = label
+        self.quiet = quiet
+        self.t0 = time.perf_counter()
+        self.last = -1
+
+    def __call__(self, k: int, n: int) -> None:
+        if self.quiet:
+            return
+        pct = int(100 * k / max(n, 1))
+        if pct // 5 != self.last // 5 or k == n:
+            self.last = pct
+            bar = "#" * (pct // 5) + "." * (20 - pct // 5)
+            el = time.perf_counter() - self.t0
+            sys.stderr.write(f"\r{self.label:<28} [{bar}] {pct:3d}% {el:6.1f} s")
+            if k == n:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def drive_config(aids: bool, cov_every: int = 1) -> NavConfig:
+    """The NavConfig used on the real drive (car MEMS IMU; noise from the rest period of the log)."""
+    f = FilterConfig(
+        cov_every=cov_every,
+        gyro_arw=0.03 * DEG,  # rad/s/√Hz: the 31 Hz vibration integrates out; residual wander ~0.03 °/√s
+        accel_vrw=0.02,
+        gyro_bias_sigma=0.0002,
+        gyro_bias_tau=300.0,
+        accel_bias_sigma=0.02,
+        accel_bias_tau=300.0,
+    )
+    return NavConfig(
+        filter=f,
+        gnss_lever_arm_b=drive0708.LEVER_GNSS - drive0708.LEVER_IMU,
+        gnss_min_std=(0.03, 0.06, 0.15),  # RTK σ floors; the RTK velocity is noisier than its reported σ
+        gate_gnss=10.0,
+        align="static",
+        nhc=aids,
+        zupt=aids,
+    )
+
+
+def _rms(a: np.ndarray, axis: int = 0) -> np.ndarray:
+    return np.sqrt(np.mean(a**2, axis=axis))
+
+
+def scenario_metrics(ser: Series, t_from: float) -> dict[str, Any]:
+    a = ser.arrays()
+    m = a["t"] >= t_from
+    if not m.any():
+        return {}
+    att = np.degrees(a["att_err"][m])
+    return {
+        "steady_from_s": t_from,
+        "att_rms_deg": _rms(att).round(4).tolist(),
+        "att_max_deg": np.abs(att).max(0).round(4).tolist(),
+        "vel_rms_mps": _rms(a["vel_err"][m]).round(4).tolist(),
+        "vel_max_mps": np.abs(a["vel_err"][m]).max(0).round(4).tolist(),
+        "pos_rms_m": _rms(a["pos_err"][m]).round(3).tolist(),
+        "pos_max_m": np.abs(a["pos_err"][m]).max(0).round(3).tolist(),
+        "nees_mean_9dof": float(np.mean(a["nees"][m])) if len(a["nees"]) else math.nan,
+    }
+
+
+def run_scenario(name: str, seed: int, duration: float | None, quiet: bool) -> tuple[dict[str, Any], Series, NavCore]:
+    sc = scenarios.build(name, seed=seed, duration=duration)
+    core = NavCore(sc.initial, sc.config)
+    core.keep_nis = True
+    t0 = time.perf_counter()
+    ser = run_truth(core, sc.imu, sc.meas, sc.truth, record_every=10, progress=_Progress(f"{name} seed {seed}", quiet))
+    el = time.perf_counter() - t0
+    span = float(sc.truth.t[-1] - sc.truth.t[0])
+    m = scenario_metrics(ser, min(float(sc.info.get("steady_from", 0.25 * span)), 0.5 * span))
+    m.update(
+        {
+            "scenario": name,
+            "seed": seed,
+            "duration_s": span,
+            "realtime_factor": span / el,
+            "aligned": core.state().aligned,
+            "counters": {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
+        }
+    )
+    nis = [(k, n, d) for (_, k, n, d) in core.nis_log]
+    m["nis_mean_over_dof"] = {
+        k: float(np.mean([n for kk, n, _ in nis if kk == k]) / next(d for kk, _, d in nis if kk == k))
+        for k in sorted({k for k, _, _ in nis})
+    }
+    return m, ser, core
+
+
+def monte_carlo(name: str, runs: int, duration: float | None, quiet: bool) -> dict[str, Any]:
+    """Average NEES (9 dof) over ``runs`` seeds vs the two-sided 95 % χ² bounds; mean NIS/dof per sensor."""
+    from scipy.stats import chi2
+
+    nees = []
+    nis: dict[str, list[float]] = {}
+    t_from = 0.0
+    for seed in range(runs):
+        m, ser, core = run_scenario(name, 1000 + seed, duration, quiet)
+        a = ser.arrays()
+        t_from = m.get("steady_from_s", 0.0)
+        nees.append(a["nees"][a["t"] >= t_from])
+        for _, k, n, d in core.nis_log:
+            nis.setdefault(k, []).append(n / d)
+    L = min(len(x) for x in nees)
+    avg = np.mean([x[:L] for x in nees], axis=0)  # ANEES(t)
+    lo, hi = chi2.ppf([0.025, 0.975], 9 * runs) / runs
+    inside = float(np.mean((avg >= lo) & (avg <= hi)))
+    return {
+        "scenario": name,
+        "runs": runs,
+        "anees_mean": float(np.mean(avg)),
+        "anees_bounds_95": [float(lo), float(hi)],
+        "fraction_inside": inside,
+        "nis_mean_over_dof": {k: float(np.mean(v)) for k, v in nis.items()},
+        "from_s": t_from,
+    }
+
+
+def benchmark_hot_path(n: int = 20000) -> dict[str, float]:
+    """µs per IMU step: mechanization alone, + 15-state predict (every step / every 5), full NavCore.step."""
+    from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
+    from ins_hil.types import ImuSample
+
+    st = StrapdownState(np.array([1.0, 0, 0, 0]), np.array([10.0, 0, 0]), 0.7, 0.5, 100.0)
+    dth = np.array([1e-4, -2e-4, 3e-4])
+    dv = np.array([0.01, 0.002, -0.0981])
+    out: dict[str, float] = {}
+    m = StrapdownNED(st.copy())
+    t0 = time.perf_counter()
+    for _ in range(n):
+        m.step(dth, dv, 0.01)
+    out["mechanization_us"] = (time.perf_counter() - t0) / n * 1e6
+    for every in (1, 5):
+        for label, cfg in (
+            (
+                f"core_step_cov_every_{every}_us",
+                NavConfig(filter=FilterConfig(cov_every=every), delay_compensation=False),
+            ),
+            (f"core_step_cov_every_{every}_with_delay_history_us", NavConfig(filter=FilterConfig(cov_every=every))),
+        ):
+            core = NavCore(st.copy(), cfg)
+            samples = [ImuSample(t=0.01 * (k + 1), dt=0.01, dtheta=dth, dvel=dv) for k in range(n)]
+            t0 = time.perf_counter()
+            for s in samples:
+                core.step(s)
+            out[label] = (time.perf_counter() - t0) / n * 1e6
+    kf = NavCore(st.copy(), NavConfig()).kf
+    C = np.eye(3)
+    z3 = np.zeros(3)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        kf.predict(0.01, C, dv / 0.01, z3, z3, z3, z3, 0.7, 100.0)
+    out["predict_15_alone_us"] = (time.perf_counter() - t0) / n * 1e6
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- plots
+def plot_series(
+    ser: Series, title: str, path_prefix: Path, outages: list[tuple[float, float]] | None = None
+) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    a = ser.arrays()
+    if len(a["t"]) == 0:
+        return []
+    t = a["t"] - a["t"][0]
+    t_off = a["t"][0]
+    files = []
+    # trajectory
+    fig, ax = plt.subplots(figsize=(6, 5))
+    ax.plot(a["ref_ned"][:, 1], a["ref_ned"][:, 0], "k-", lw=1, label="reference")
+    ax.plot(a["ned"][:, 1], a["ned"][:, 0], "r-", lw=0.8, label="filter")
+    ax.set_xlabel("East (m)")
+    ax.set_ylabel("North (m)")
+    ax.axis("equal")
+    ax.legend()
+    ax.set_title(f"{title}: trajectory")
+    f = path_prefix.with_name(path_prefix.name + "_trajectory.png")
+    fig.tight_layout()
+    fig.savefig(f, dpi=90)
+    plt.close(fig)
+    files.append(f)
+    # errors with 3σ
+    fig, axs = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    for ax, key, sk, unit, scale in (
+        (axs[0], "pos_err", "std_pos", "m", 1.0),
+        (axs[1], "vel_err", "std_vel", "m/s", 1.0),
+        (axs[2], "att_err", "std_att", "deg", 1 / DEG),
+    ):
+        for i, (c, lab) in enumerate(zip("rgb", "NED" if key != "att_err" else ("roll", "pitch", "yaw"))):
+            ax.plot(t, a[key][:, i] * scale, c, lw=0.7, label=lab)
+            ax.plot(t, 3 * a[sk][:, i] * scale, c + ":", lw=0.6)
+            ax.plot(t, -3 * a[sk][:, i] * scale, c + ":", lw=0.6)
+        if outages:
+            for o0, o1 in outages:
+                ax.axvspan(o0 - t_off, o1 - t_off, color="0.9")
+        ax.set_ylabel(f"{key.split('_')[0]} error ({unit})")
+        ax.legend(loc="upper right", fontsize=7, ncol=3)
+    axs[-1].set_xlabel("time (s)")
+    axs[0].set_title(f"{title}: errors and ±3σ (dotted)")
+    f = path_prefix.with_name(path_prefix.name + "_errors.png")
+    fig.tight_layout()
+    fig.savefig(f, dpi=90)
+    plt.close(fig)
+    files.append(f)
+    # biases and test ratios
+    fig, axs = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    axs[0].plot(t, a["gyro_bias"] / DEG)
+    axs[0].set_ylabel("gyro bias (°/s)")
+    axs[1].plot(t, a["accel_bias"])
+    axs[1].set_ylabel("accel bias (m/s²)")
+    kinds = sorted({k for r in ser.ratios for k in r})
+    for k in kinds:
+        axs[2].semilogy(t, [max(r.get(k, np.nan), 1e-4) for r in ser.ratios], lw=0.7, label=k)
+    axs[2].axhline(1.0, color="k", lw=0.8)
+    axs[2].set_ylabel("test ratio")
+    axs[2].legend(fontsize=7, ncol=3)
+    axs[-1].set_xlabel("time (s)")
+    axs[0].set_title(f"{title}: estimated biases and innovation test ratios (reject > 1)")
+    f = path_prefix.with_name(path_prefix.name + "_biases_ratios.png")
+    fig.tight_layout()
+    fig.savefig(f, dpi=90)
+    plt.close(fig)
+    files.append(f)
+    return files
+
+
+# ---------------------------------------------------------------------------------------------- drive
+def replay_drive(
+    directory: Path, aids_variants: list[bool], quiet: bool, cov_every_trade: bool = False
+) -> tuple[dict[str, Any], dict[str, Series]]:
+    if not (directory / "imu_1934.csv").is_file():
+        raise SystemExit(f"ins-hil replay: {directory} does not hold the drive (imu_1934.csv missing)")
+    dr = drive0708.load_drive(directory)
+    outages = drive0708.outage_windows(dr.pos.t)
+    rtk = [f.fix_type == 6 for f in dr.gnss]
+    duration = float(dr.imu[-1].t - dr.imu[0].t)
+    res: dict[str, Any] = {"imu_samples": len(dr.imu), "gnss_epochs": len(dr.gnss), "outages": len(outages),
+                           "csv_bad_lines": dr.imu_log.bad_lines, "duration_s": duration}  # fmt: skip
+    series: dict[str, Series] = {}
+    for aids in aids_variants:
+        tag = "aids" if aids else "no_aids"
+        for label, outs in ((f"outages_{tag}", outages), (f"gnss_{tag}", [])):
+            t0 = time.perf_counter()
+            m, ser, _ = run_drive(dr.imu, dr.gnss, rtk, drive_config(aids), outs, _Progress(f"drive {label}", quiet))
+            m["realtime_factor"] = duration / (time.perf_counter() - t0)
+            res[label] = m
+            series[label] = ser
+    if cov_every_trade:
+        # cost/accuracy trade of propagating P every 5 IMU steps (with aids, outage protocol)
+        t0 = time.perf_counter()
+        m, _, _ = run_drive(dr.imu, dr.gnss, rtk, drive_config(True, cov_every=5), outages,
+                            _Progress("drive outages cov_every=5", quiet))  # fmt: skip
+        m["realtime_factor"] = duration / (time.perf_counter() - t0)
+        res["outages_aids_cov5"] = m
+    res["outage_windows_s"] = [(a - dr.pos.t[0], b - dr.pos.t[0]) for a, b in outages]
+    return res, series
+
+
+# ---------------------------------------------------------------------------------------------- main
+def _print_table(rows: list[tuple[str, str, str, str]]) -> None:
+    w = [max(len(r[i]) for r in rows) for i in range(4)]
+    for r in rows:
+        print("  ".join(c.ljust(w[i]) for i, c in enumerate(r)))
+
+
+def _fmt(x: Any, nd: int = 3) -> str:
+    if isinstance(x, float):
+        return f"{x:.{nd}f}"
+    if isinstance(x, list):
+        return "[" + ", ".join(_fmt(v, nd) for v in x) + "]"
+    return str(x)
+
+
+def _runtime_replay() -> Any:
+    """The runtime helper's gateway-log replayer (``ins_hil.runtime.replay``), imported on demand."""
+    return importlib.import_module("ins_hil.runtime.replay")
+
+
+def run(args: argparse.Namespace) -> int:
+    src = str(args.source)
+    if src.endswith(".ihlog"):
+        try:
+            mod = _runtime_replay()
+        except ImportError:
+            print("ins-hil replay: gateway-log replay needs ins_hil.runtime.replay (not installed)", file=sys.stderr)
+            return 2
+        return int(mod.replay_log(Path(src), args) or 0)
+    if args.docs:
+        return full_report(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    if src in scenarios.NAMES:
+        m, ser, _ = run_scenario(src, args.seed, args.duration, args.quiet)
+        out: dict[str, Any] = {"scenario": m}
+        if args.runs > 0:
+            out["monte_carlo"] = monte_carlo(src, args.runs, args.duration, args.quiet)
+        if not args.no_plots:
+            out["plots"] = [str(p) for p in plot_series(ser, src, args.out / src)]
+        rows = [("quantity", "N/roll", "E/pitch", "D/yaw")]
+        for k in ("att_rms_deg", "att_max_deg", "vel_rms_mps", "pos_rms_m", "pos_max_m"):
+            if k in m:
+                rows.append((k, _fmt(m[k][0], 4), _fmt(m[k][1], 4), _fmt(m[k][2], 4)))
+        _print_table(rows)
+        print(f"realtime factor {m['realtime_factor']:.1f}x, NEES mean (9 dof) {m['nees_mean_9dof']:.2f}")
+        if "monte_carlo" in out:
+            mc = out["monte_carlo"]
+            lo, hi = mc["anees_bounds_95"]
+            print(f"Monte-Carlo {mc['runs']} runs: ANEES {mc['anees_mean']:.2f} (95 % bounds {lo:.2f}–{hi:.2f}), "
+                  f"inside {mc['fraction_inside']:.0%}")  # fmt: skip
+    else:
+        directory = DEFAULT_DRIVE if src == "drive" else Path(src)
+        if not directory.is_dir():
+            print(f"ins-hil replay: unknown source {src!r} (scenarios: {', '.join(scenarios.NAMES)}, 'drive', "
+                  "a drive directory or a *.ihlog)", file=sys.stderr)  # fmt: skip
+            return 2
+        res, series = replay_drive(directory, [False] if args.no_aids else [True, False], args.quiet)
+        out = {"drive": res}
+        if not args.no_plots:
+            out["plots"] = []
+            t0 = drive0708.read_pos(directory / "gnss_1934_sf.pos").t[0]
+            outs = [(a + t0, b + t0) for a, b in res["outage_windows_s"]]
+            for label, ser in series.items():
+                out["plots"] += [str(p) for p in plot_series(ser, f"drive {label}", args.out / f"drive_{label}", outs)]
+        _print_drive(res)
+    (args.out / "metrics.json").write_text(json.dumps(out, indent=2, default=float))
+    print(f"metrics: {args.out / 'metrics.json'}")
+    return 0
+
+
+def _print_drive(res: dict[str, Any]) -> None:
+    rows = [("run", "outage h RMS / max (m)", "GNSS-present h RMS prior/post (m)", "speed (x real time)")]
+    for tag in ("aids", "no_aids"):
+        o, g = res.get(f"outages_{tag}"), res.get(f"gnss_{tag}")
+        if o is None or g is None:
+            continue
+        rows.append(
+            (tag, f"{o['outage_h_rms_m']:.2f} / {o['outage_h_max_m']:.2f}",
+             f"{g['gnss_h_rms_prior_m']:.3f} / {g['gnss_h_rms_post_m']:.3f}",
+             f"{o['realtime_factor']:.1f}")
+        )  # fmt: skip
+    _print_table(rows)
+
+
+def full_report(args: argparse.Namespace) -> int:
+    """Regenerate docs/accuracy.md and docs/accuracy/*.png."""
+    docs = REPO / "docs"
+    figdir = docs / "accuracy"
+    figdir.mkdir(parents=True, exist_ok=True)
+    quiet = args.quiet
+    report: dict[str, Any] = {}
+    t_start = time.perf_counter()
+    report["hot_path"] = benchmark_hot_path()
+    res, series = replay_drive(DEFAULT_DRIVE, [True, False], quiet, cov_every_trade=True)
+    report["drive"] = res
+    plots: dict[str, list[Path]] = {}
+    t0 = drive0708.read_pos(DEFAULT_DRIVE / "gnss_1934_sf.pos").t[0]
+    outs = [(a + t0, b + t0) for a, b in res["outage_windows_s"]]
+    for label in ("outages_aids", "outages_no_aids", "gnss_aids"):
+        plots[f"drive_{label}"] = plot_series(series[label], f"drive {label}", figdir / f"drive_{label}", outs)
+    sims: dict[str, Any] = {}
+    for name in ("example32_gnss", "example32", "uav", "coning", "static"):
+        m, ser, _ = run_scenario(name, 0, None, quiet)
+        sims[name] = m
+        plots[name] = plot_series(ser, name, figdir / name)
+    report["scenarios"] = sims
+    report["monte_carlo"] = monte_carlo("example32_gnss", 10, 300.0, quiet)
+    report["monte_carlo_uav"] = monte_carlo("uav", 10, 140.0, quiet)
+    report["elapsed_s"] = time.perf_counter() - t_start
+    (figdir / "metrics.json").write_text(json.dumps(report, indent=2, default=float))
+    (docs / "accuracy.md").write_text(render_markdown(report, plots, docs))
+    print(f"wrote {docs / 'accuracy.md'} ({report['elapsed_s']:.0f} s)")
+    return 0
+
+
+def _machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
+    return (f"{os.cpu_count()} CPUs (`nproc`), {cpu}, Python {platform.python_version()}; load average "
+            f"{load[0]:.1f} during the run: other processes (other helpers' builds and tests) were running, "
+            "so timings are pessimistic and noisy")  # fmt: skip
+
+
+def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path) -> str:
+    d = r["drive"]
+    L: list[str] = []
+    a = L.append
+    a("# Accuracy report (generated by `ins-hil replay --docs`)\n")
+    a(f"Machine: {_machine()}.\n")
+    a("All processing is causal (no smoothing, no look-back); GNSS is fused at its time of validity.\n")
+    a("## Real drive (`../shared/data/gnss_imu_drive_0708`)\n")
+    a(f"{d['imu_samples']} IMU samples, {d['gnss_epochs']} GNSS epochs, {d['outages']} outages of 15 s "
+      f"(README protocol), {d['csv_bad_lines']} unparseable csv lines skipped.\n")  # fmt: skip
+    a("| run | outage h RMS (m) | outage h max (m) | outage v RMS (m) | GNSS-present h RMS prior / post (m) |"
+      " replay speed (× real time) |")  # fmt: skip
+    a("|---|---|---|---|---|---|")
+    for tag, name in (("aids", "with ZUPT + NHC"), ("no_aids", "no ground-vehicle aids (UAV-like)")):
+        o, g = d[f"outages_{tag}"], d[f"gnss_{tag}"]
+        a(f"| {name} | {o['outage_h_rms_m']:.2f} | {o['outage_h_max_m']:.2f} | {o['outage_v_rms_m']:.2f} | "
+          f"{g['gnss_h_rms_prior_m']:.3f} / {g['gnss_h_rms_post_m']:.3f} | {o['realtime_factor']:.1f} |")  # fmt: skip
+    c5 = d.get("outages_aids_cov5")
+    if c5:
+        a(f"| with aids, P propagated every 5 IMU steps | {c5['outage_h_rms_m']:.2f} | {c5['outage_h_max_m']:.2f} | "
+          f"{c5['outage_v_rms_m']:.2f} | | {c5['realtime_factor']:.1f} |")  # fmt: skip
+    a("| target | ≤ 1.5 | ≤ 6 | (upstream 0.41) | ≤ 0.05 | ≥ 20 |")
+    a("| upstream filter, causal | 3.09 | 12.8 | 0.41 | | |\n")
+    a("GNSS-present RMS: every RTK-fixed epoch of a run with GNSS all the time, antenna position; 'prior' is the "
+      "state propagated to the epoch before that epoch is fused (what a consumer sees between fixes), 'post' "
+      "after the update.\n")  # fmt: skip
+    for k in ("drive_outages_aids", "drive_outages_no_aids", "drive_gnss_aids"):
+        for p in plots.get(k, []):
+            a(f"![{p.stem}]({p.relative_to(docs)})")
+    a("")
+    a("## Simulations\n")
+    a("| scenario | attitude RMS (°, r/p/y) | attitude max (°) | velocity RMS (m/s) | position RMS (m) |"
+      " position max (m) | mean NEES (9 dof) | × real time |")  # fmt: skip
+    a("|---|---|---|---|---|---|---|---|")
+    for name, m in r["scenarios"].items():
+        if not m.get("att_rms_deg"):
+            continue
+        a(f"| {name} (from {m['steady_from_s']:.0f} s) | {_fmt(m['att_rms_deg'], 3)} | {_fmt(m['att_max_deg'], 3)} | "
+          f"{_fmt(m['vel_rms_mps'], 3)} | {_fmt(m['pos_rms_m'], 2)} | {_fmt(m['pos_max_m'], 2)} | "
+          f"{m['nees_mean_9dof']:.1f} | {m['realtime_factor']:.0f} |")  # fmt: skip
+    a("\nTargets (Example 3.2 steady state): attitude < 0.1°, velocity < 0.1 m/s, position < 1 m "
+      "(book: ~0.2 m/s, < 1 m). `example32` is the book's schedule and sensors (GNSS 50 m / 0.1 m/s every 2 s, "
+      "magnetometer σ_m = 0.0524, altimeter 1 m; GNSS off in [180, 420] s); `example32_gnss` is the same "
+      "motion and IMU with a 5 Hz GNSS (0.5 m, 0.02 m/s). Circle interpretation: DIGEST_000 §10 item 18, "
+      "aircraft angles, level circle with the roll oscillation φ = 0.3 sin(10ψ) superposed.\n")  # fmt: skip
+    for mc in (r["monte_carlo"], r["monte_carlo_uav"]):
+        a(f"Monte-Carlo consistency, `{mc['scenario']}`, {mc['runs']} runs (from {mc['from_s']:.0f} s): "
+          f"average NEES {mc['anees_mean']:.2f} for 9 dof, two-sided 95 % χ² bounds "
+          f"[{mc['anees_bounds_95'][0]:.2f}, {mc['anees_bounds_95'][1]:.2f}], inside the bounds "
+          f"{mc['fraction_inside']:.0%} of the time; mean NIS/dof "
+          + ", ".join(f"{k} {v:.2f}" for k, v in mc["nis_mean_over_dof"].items())
+          + " (1.0 = consistent).\n")  # fmt: skip
+    for name in r["scenarios"]:
+        for p in plots.get(name, []):
+            if p.stem.endswith("errors"):
+                a(f"![{p.stem}]({p.relative_to(docs)})")
+    a("")
+    a("## Hot path (µs per IMU step, Python)\n")
+    a("| measurement | µs |")
+    a("|---|---|")
+    for k, v in r["hot_path"].items():
+        a(f"| {k} | {v:.1f} |")
+    a("\nTarget: mechanization + 15-state predict ≤ 150 µs (mechanization alone ~21 µs on an idle machine). "
+      "`with_delay_history` keeps the state snapshots for delayed GNSS fusion (rollback and forward "
+      "propagation).\n")  # fmt: skip
+    a(f"Report generated in {r['elapsed_s']:.0f} s.\n")
+    return "\n".join(L)

@@ -1,0 +1,72 @@
+"""Real-drive reader: robust csv parsing, RTKLIB time tags and .pos, mounting and the outage protocol."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ins_hil.datasets import drive0708 as dd
+
+
+@pytest.fixture(scope="module")
+def drive_dir(shared_dir: Path) -> Path:
+    d = shared_dir / "data" / "gnss_imu_drive_0708"
+    assert (d / "imu_1934.csv").is_file(), f"{d} lacks imu_1934.csv"
+    return d
+
+
+def test_imu_csv_skips_partial_first_and_last_lines(tmp_path: Path, drive_dir: Path):
+    lines = (drive_dir / "imu_1934.csv").read_text().splitlines()[:50]
+    text = "13,1.013,-0.671\n" + "\n".join(lines) + "\n0.100,0.022,1.0"  # partial first and last line
+    p = tmp_path / "imu.csv"
+    p.write_text(text + "\ngarbage,line,x,1,2,3,4\n")
+    acc, gyro, tick, bad = dd.read_imu_csv(p)
+    assert len(acc) == 50 and bad == 3
+    assert tick[0] == 261906 and np.all(np.diff(tick) > 0)
+    np.testing.assert_allclose(acc[0], (0.119, 0.027, 1.013))
+    np.testing.assert_allclose(gyro[0], (-0.671, 3.082, 0.198))
+    with pytest.raises(ValueError, match="no valid IMU line"):
+        (tmp_path / "empty.csv").write_text("x\n")
+        dd.read_imu_csv(tmp_path / "empty.csv")
+
+
+def test_timetag_and_pos(drive_dir: Path):
+    tag = dd.read_timetag(drive_dir / "imu_1934.csv.tag")
+    assert tag.start == 1752003261  # 2025-07-08 19:34:21 GPST
+    assert 0.0 <= tag.frac < 1.0
+    assert np.all(np.diff(tag.ticks) >= 0) and 548.0 < tag.duration < 549.0
+    pos = dd.read_pos(drive_dir / "gnss_1934_sf.pos")
+    assert len(pos.t) == 2197
+    assert int(np.sum(pos.q == 1)) == 2189 and int(np.sum(pos.q == 2)) == 8
+    np.testing.assert_allclose(np.diff(pos.t), 0.25, atol=1e-3)
+    assert math.degrees(pos.lat[0]) == pytest.approx(40.0966268, abs=1e-7)
+    assert math.degrees(pos.lon[0]) == pytest.approx(-105.1474483, abs=1e-7)
+    # the file's vu is up: NED down velocity is its negative (first epoch vu = 0.009 m/s)
+    assert pos.vel_ned[0, 2] == pytest.approx(-0.009)
+    with pytest.raises(ValueError, match=r"time-tag"):
+        dd.read_timetag(drive_dir / "README.md")
+
+
+def test_load_drive_mounting_time_and_outages(drive_dir: Path):
+    dr = dd.load_drive(drive_dir)
+    assert len(dr.imu) == 54859
+    dts = np.array([s.dt for s in dr.imu])
+    assert abs(np.median(dts) - 0.01) < 5e-4
+    # the IMU covers the GNSS span (IMU time = GPST + offset −0.125 s)
+    assert dr.imu[0].t < dr.gnss[0].t + 5 and dr.imu[-1].t > dr.gnss[-1].t
+    # at rest (first 30 s) gravity is along body down after the mounting rotation: |horizontal| < 0.5 m/s²
+    f = np.array([s.dvel / s.dt for s in dr.imu[:2000]]).mean(axis=0)
+    assert f[2] < -9.7 and math.hypot(f[0], f[1]) < 0.5
+    # without the residual misalignment, x would carry the −6.79° pitch (≈ 1.15 m/s²)
+    R = dd.mounting_dcm(misalign=(0.0, 0.0, 0.0))
+    raw = dr.imu_log.acc[:2000].mean(axis=0) @ dd.mounting_dcm().T.T  # back to sensor axes
+    assert abs((R @ raw)[0]) > 1.0
+    np.testing.assert_allclose(dr.lever_gnss_b, (0.0, -0.05, 0.0))
+    outs = dd.outage_windows(dr.pos.t)
+    assert len(outs) == 11  # README: 11 outages
+    assert outs[0][0] - dr.pos.t[0] == pytest.approx(40.0)
+    assert all(b - a == pytest.approx(15.0) for a, b in outs)
+    assert outs[-1][1] <= dr.pos.t[-1] - 30.0

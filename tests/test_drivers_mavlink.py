@@ -1,0 +1,325 @@
+"""MAVLink input: real UDP sockets against the simulated FC, TCP and serial (pty) links,
+TIMESYNC clock offset, message signing, corruption and fuzzing."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import random
+import time
+import tty
+from collections import Counter
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from ins_hil.drivers.mavlink_in import ClockSync, MavlinkDriver, parse_url, signing_key_from
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from ins_hil.sim.fc import SimFlightController
+from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
+
+G = 9.80665
+
+
+async def _run_pair(
+    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None
+) -> tuple[list, MavlinkDriver, SimFlightController]:
+    drv = MavlinkDriver("udpin:127.0.0.1:0", **(drv_kw or {}))
+    got: list = []
+    task = asyncio.create_task(drv.run(got.append))
+    while drv.local_address is None:
+        await asyncio.sleep(0.005)
+    fc = SimFlightController(target=drv.local_address, **(fc_kw or {}))
+    ft = asyncio.create_task(fc.run())
+    await asyncio.sleep(duration)
+    ft.cancel()
+    task.cancel()
+    await asyncio.gather(ft, task, return_exceptions=True)
+    return got, drv, fc
+
+
+def test_udp_against_simulated_fc() -> None:
+    got, drv, fc = asyncio.run(_run_pair(2.0, {"request": {"GPS_RAW_INT": 10.0}}, {"imu_hz": 200.0, "gps_hz": 10.0}))
+    kinds = Counter(type(s).__name__ for s in got)
+    assert kinds["ImuSample"] >= 300 and kinds["GnssFix"] >= 15 and kinds["BaroSample"] >= 15
+    assert kinds["MagSample"] == kinds["ImuSample"]
+    assert drv.health.errors == {}
+    # stream request reached the FC (MAV_CMD_SET_MESSAGE_INTERVAL, 10 Hz = 100000 µs)
+    assert (24, 100000.0) in fc.interval_requests
+    # TIMESYNC: the FC's boot clock runs ``_boot_ns`` behind our monotonic clock
+    assert drv.clock.synced and fc.timesync_answered >= 2
+    assert drv.clock.offset_ns is not None
+    assert abs(drv.clock.offset_ns + fc._boot_ns) < 5_000_000  # within 5 ms (loopback, loaded machine)
+    imu = [s for s in got if isinstance(s, ImuSample)]
+    # sensor time mapped onto our monotonic base: close to (just before) arrival
+    lat = [s.t_arrival_ns * 1e-9 - s.t for s in imu[len(imu) // 2 :]]
+    assert -0.005 < float(np.median(lat)) < 0.1
+    dts = np.array([s.dt for s in imu[1:]])
+    np.testing.assert_allclose(np.median(dts), 0.005, rtol=0.01)
+    for s in imu[1:]:
+        np.testing.assert_allclose(s.dvel / s.dt, [0, 0, -G], atol=1e-4)  # specific force, FRD, level
+    fix = next(s for s in got if isinstance(s, GnssFix))
+    assert math.degrees(fix.lat) == pytest.approx(50.45, abs=1e-7) and fix.h == pytest.approx(180.0)
+    assert fix.std_ne == pytest.approx(1.5) and fix.vel_ned is None
+    baro = next(s for s in got if isinstance(s, BaroSample))
+    assert baro.pressure == pytest.approx(99_190, rel=0.01)
+    mag = next(s for s in got if isinstance(s, MagSample))
+    np.testing.assert_allclose(mag.field_b, [19e-6, 1e-6, 45e-6], rtol=1e-6)
+
+
+@pytest.mark.parametrize("imu_msg", ["SCALED_IMU", "RAW_IMU"])
+def test_scaled_imu_units(imu_msg: str) -> None:
+    got, drv, _ = asyncio.run(_run_pair(0.8, {}, {"imu_hz": 100.0, "imu_msg": imu_msg}))
+    imu = [s for s in got if isinstance(s, ImuSample)][1:]
+    assert len(imu) >= 40 and drv.health.errors == {}
+    for s in imu:
+        assert s.dt == pytest.approx(0.01, abs=1.5e-3)  # time_boot_ms resolution for SCALED_IMU
+        np.testing.assert_allclose(s.dvel / s.dt, [0, 0, -G], atol=0.01)  # mG resolution
+
+
+def test_signed_link() -> None:
+    key = signing_key_from("ins-hil test key")
+    got, drv, _ = asyncio.run(_run_pair(1.0, {"signing_key": key}, {"signing_key": key, "imu_hz": 100.0}))
+    assert len(got) > 50 and "bad_signature" not in drv.health.errors
+    # an unsigned FC, and one with another key: nothing accepted, every message counted
+    for fc_key in (None, signing_key_from("another key")):
+        got, drv, fc = asyncio.run(_run_pair(0.6, {"signing_key": key}, {"signing_key": fc_key, "imu_hz": 100.0}))
+        assert got == []
+        assert drv.health.errors["bad_signature"] == sum(fc.sent.values())
+
+
+def test_udp_corruption_counted_and_rejected() -> None:
+    rng = random.Random(5)
+    tampered = [0]
+
+    def tamper(buf: bytes) -> bytes:
+        if rng.random() < 0.05:
+            b = bytearray(buf)
+            b[rng.randrange(10, len(b) - 2)] ^= 1 << rng.randrange(8)  # payload bit flip
+            tampered[0] += 1
+            return bytes(b)
+        return buf
+
+    async def main() -> tuple[list, MavlinkDriver, SimFlightController]:
+        drv = MavlinkDriver("udpin:127.0.0.1:0")
+        got: list = []
+        task = asyncio.create_task(drv.run(got.append))
+        while drv.local_address is None:
+            await asyncio.sleep(0.005)
+        fc = SimFlightController(target=drv.local_address, imu_hz=250.0)
+        fc.tamper = tamper
+        ft = asyncio.create_task(fc.run())
+        await asyncio.sleep(1.5)
+        ft.cancel()
+        await asyncio.sleep(0.05)
+        task.cancel()
+        await asyncio.gather(ft, task, return_exceptions=True)
+        return got, drv, fc
+
+    got, drv, fc = asyncio.run(main())
+    assert tampered[0] > 5
+    assert drv.health.errors["crc"] == tampered[0]
+    assert drv.messages == sum(fc.sent.values()) - tampered[0]
+    for s in got:
+        if isinstance(s, ImuSample):
+            np.testing.assert_allclose(s.dvel / s.dt, [0, 0, -G], atol=1e-4)
+
+
+def _stream(mav: Any, n: int) -> bytes:
+    out = b""
+    for i in range(n):
+        out += mav.hil_gps_encode(
+            (i + 1) * 100_000, 3, 504500000, 305200000, 180000, 90, 130, 150, 100, -50, 20, 0, 10, 0, 0
+        ).pack(mav)
+        mav.seq = (mav.seq + 1) % 256
+    return out
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.binary(max_size=600), st.integers(1, 80))
+def test_feed_random_bytes_never_raises(data: bytes, chunk: int) -> None:
+    drv = MavlinkDriver("udpin:127.0.0.1:0")
+    for i in range(0, len(data), chunk):
+        drv.feed(data[i : i + chunk])
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.data())
+def test_feed_mutated_stream(data: st.DataObject) -> None:
+    """Bit flips, truncation, duplicated and inserted bytes in a valid stream: never raises, every
+    accepted fix carries the true values."""
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    buf = bytearray(_stream(mav, 20))
+    for _ in range(data.draw(st.integers(0, 6))):
+        op = data.draw(st.sampled_from(["flip", "cut", "insert", "dup"]))
+        i = data.draw(st.integers(0, len(buf) - 1))
+        if op == "flip":
+            buf[i] ^= 1 << data.draw(st.integers(0, 7))
+        elif op == "cut":
+            del buf[i : i + data.draw(st.integers(1, 30))]
+        elif op == "insert":
+            buf[i:i] = data.draw(st.binary(min_size=1, max_size=20))
+        else:
+            buf[i:i] = buf[i : i + 20]
+        if not buf:
+            buf = bytearray(b"\x00")
+    drv = MavlinkDriver("udpin:127.0.0.1:0")
+    got: list = []
+    drv._sink = got.append
+    step = data.draw(st.integers(1, 64))
+    for i in range(0, len(buf), step):
+        drv.feed(bytes(buf[i : i + step]), now_ns=10**9)
+    for f in got:
+        assert math.degrees(f.lat) == pytest.approx(50.45) and f.vel_ned[2] == pytest.approx(0.2)
+
+
+def test_gnss_messages_bad_values_and_time() -> None:
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    drv = MavlinkDriver("udpin:127.0.0.1:0", system_id=1)
+    got: list = []
+    drv._sink = got.append
+
+    def feed(m: Any, sysid: int = 1) -> None:
+        mav.srcSystem = sysid
+        drv.feed(m.pack(mav), now_ns=50 * 10**9)
+        mav.seq = (mav.seq + 1) % 256
+
+    feed(mav.gps_input_encode(2_000_000, 2, 0, 0, 0, 4, 504500000, 305200000, 181.0, 0.8, 1.2, 1.0, 2.0, -0.5,
+                              0.2, 0.9, 1.4, 14, 0))  # fmt: skip
+    feed(mav.gps2_raw_encode(2_100_000, 3, 504500000, 305200000, 180000, 80, 120, 0, 0, 9, 0, 0, 0, 0, 0, 0, 0, 0))
+    feed(mav.gps_raw_int_encode(2_200_000, 1, 0, 0, 0, 0, 0, 0, 0, 0))  # no fix
+    feed(mav.gps_raw_int_encode(2_300_000, 3, 1_900_000_000, 0, 0, 0, 0, 0, 0, 5))  # lat 190°
+    feed(mav.gps_input_encode(2_400_000, 0, 0, 0, 0, 3, 504500000, 305200000, math.nan, 1, 1, 0, 0, 0, 1, 1, 1, 9, 0))
+    feed(mav.gps_raw_int_encode(2_500_000, 3, 504500000, 305200000, 180000, 0, 0, 0, 0, 5), sysid=7)
+    feed(mav.hil_sensor_encode(3_000_000, 0, 0, -G, 0.1, 0, 0, 0.2, 0, 0.4, 1000, 0, 0, 20, 0x1FF))
+    feed(mav.hil_sensor_encode(3_010_000, 0, 0, -G, 0.1, 0, 0, 0.2, 0, 0.4, 1000, 0, 0, 20, 0x1FF))
+    feed(mav.hil_sensor_encode(3_005_000, 0, 0, -G, 0.1, 0, 0, 0.2, 0, 0.4, 1000, 0, 0, 20, 0x1FF))  # backwards
+    feed(mav.hil_sensor_encode(3_020_000, 0, 0, -G, math.inf, 0, 0, 0.2, 0, 0.4, 1000, 0, 0, 20, 0x1FF))
+    feed(mav.hil_sensor_encode(3_030_000, 0, 0, -G, 100.0, 0, 0, 0.2, 0, 0.4, 1000, 0, 0, 20, 0x1FF))  # 100 rad/s
+    fixes = [s for s in got if isinstance(s, GnssFix)]
+    assert len(fixes) == 2
+    assert fixes[0].source == 2 and fixes[0].std_ne == pytest.approx(0.9) and fixes[0].h == pytest.approx(181.0)
+    np.testing.assert_allclose(fixes[0].vel_ned, [1.0, 2.0, -0.5])
+    assert fixes[1].source == 1 and fixes[1].vel_ned is None
+    e = drv.health.errors
+    assert (e["no_fix"], e["range"], e["nonfinite"], e["unknown_system"], e["time_backwards"]) == (1, 2, 2, 1, 1)
+    imu = [s for s in got if isinstance(s, ImuSample)]
+    assert len(imu) == 2 and imu[1].dt == pytest.approx(0.01)
+    np.testing.assert_allclose(imu[1].dtheta, [0.001, 0, 0])
+    # before any TIMESYNC: the first message's arrival anchors the FC clock (t = arrival)
+    assert fixes[0].t == pytest.approx(50.0)
+    assert imu[1].t - fixes[0].t == pytest.approx(1.01)
+
+
+def test_clock_sync_min_rtt_and_reboot() -> None:
+    c = ClockSync()
+    off = 7_000_000_000
+    now = 100 * 10**9
+    # replies with growing round trip: the shortest wins
+    for k, rtt in enumerate([9_000_000, 1_000_000, 5_000_000]):
+        ts1 = now + k * 10**9
+        c.reply(ts1 + rtt // 2 + off, ts1, ts1 + rtt)
+    assert c.offset_ns == off and c.rtt_ns == 1_000_000
+    assert c.to_local_s(off + 200 * 10**9, 0) == pytest.approx(200.0)
+    c.reply(5 * 10**9, 110 * 10**9, 110 * 10**9 + 10**6)  # FC rebooted: its clock restarted
+    assert c.offset_ns == 5 * 10**9 - 110 * 10**9 - 500_000
+    assert not c.reply(1, 10**9, 0)  # reply from the future: rejected
+
+
+def test_tcp_link_and_reconnect() -> None:
+    """A TCP 'flight controller' that sends 20 HIL_GPS then drops the connection; the driver reconnects."""
+
+    async def main() -> tuple[list, MavlinkDriver, int]:
+        conns = [0]
+
+        async def handle(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+            conns[0] += 1
+            mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+            w.write(_stream(mav, 20))
+            await w.drain()
+            await asyncio.sleep(0.1)
+            w.close()
+
+        srv = await asyncio.start_server(handle, "127.0.0.1", 0)
+        port = srv.sockets[0].getsockname()[1]
+        drv = MavlinkDriver(f"tcp:127.0.0.1:{port}")
+        got: list = []
+        task = asyncio.create_task(drv.run(got.append))
+        for _ in range(200):
+            if conns[0] >= 2 and len(got) >= 40:
+                break
+            await asyncio.sleep(0.02)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        srv.close()
+        return got, drv, conns[0]
+
+    got, drv, conns = asyncio.run(main())
+    assert conns >= 2 and len(got) >= 40
+    assert drv.health.reconnects >= 1 and drv.health.errors["link_lost"] >= 1
+
+
+def test_serial_link_over_pty() -> None:
+    async def main() -> tuple[list, MavlinkDriver]:
+        master, slave = os.openpty()
+        tty.setraw(master)
+        name = os.ttyname(slave)
+        os.close(slave)
+        drv = MavlinkDriver(f"serial:{name}:57600")
+        got: list = []
+        task = asyncio.create_task(drv.run(got.append))
+        while not drv.health.connected:
+            await asyncio.sleep(0.01)
+        mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        data = _stream(mav, 30)
+        for i in range(0, len(data), 17):
+            os.write(master, data[i : i + 17])
+            await asyncio.sleep(0.001)
+        for _ in range(100):
+            if len(got) >= 30:
+                break
+            await asyncio.sleep(0.02)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        os.close(master)
+        return got, drv
+
+    got, drv = asyncio.run(main())
+    assert len(got) == 30 and all(isinstance(s, GnssFix) for s in got) and drv.health.errors == {}
+    assert np.all(np.diff([s.t for s in got]) == pytest.approx(0.1))
+
+
+def test_udp_silence_reopens() -> None:
+    async def main() -> MavlinkDriver:
+        drv = MavlinkDriver("udpout:127.0.0.1:9", stale_s=0.2)  # nobody answers there
+        task = asyncio.create_task(drv.run(lambda s: None))
+        t0 = time.monotonic()
+        while drv.health.errors.get("silence", 0) < 2 and time.monotonic() - t0 < 5:
+            await asyncio.sleep(0.05)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        return drv
+
+    drv = asyncio.run(main())
+    assert drv.health.errors["silence"] >= 2 and drv.health.reconnects >= 1
+
+
+def test_config_and_url_errors() -> None:
+    assert parse_url("udp:0.0.0.0:14550") == ("udpin", "0.0.0.0", 14550)
+    assert parse_url("/dev/ttyACM0") == ("serial", "/dev/ttyACM0", 115200)
+    for bad in ("udpin:14550", "tcp:host:x", "serial:", "bluetooth:a:1"):
+        with pytest.raises(ValueError, match="MAVLink url"):
+            parse_url(bad)
+    with pytest.raises(ValueError, match="'url'"):
+        MavlinkDriver.from_config({"type": "mavlink"})
+    with pytest.raises(ValueError, match="GPS_RAW_INTEGER"):
+        MavlinkDriver.from_config({"url": "udpin:0.0.0.0:14550", "request": {"GPS_RAW_INTEGER": 5}})
+    with pytest.raises(ValueError, match="sigining_key"):
+        MavlinkDriver.from_config({"url": "udpin:0.0.0.0:14550", "sigining_key": "x"})
+    with pytest.raises(ValueError, match="32 bytes"):
+        signing_key_from(b"short")
+    assert signing_key_from("00" * 32) == bytes(32)

@@ -1,0 +1,183 @@
+"""MAVLink output builders: every GCS and flight-controller message decodes with pymavlink to the state sent."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import socket
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+from runtime_helpers import free_port
+
+from ins_hil.nav.rotation import dcm_from_quat, quat_from_euler
+from ins_hil.runtime.mavlink_out import EndpointConfig, MavlinkEndpoint
+from ins_hil.runtime.metrics import RuntimeMetrics
+from ins_hil.types import FixType, GnssFix, NavState
+
+
+def _state(t: float) -> NavState:
+    return NavState(
+        t=t,
+        q_nb=quat_from_euler(math.radians(10), math.radians(-5), math.radians(120)),
+        vel_ned=np.array([3.0, -4.0, 0.5]),
+        lat=math.radians(50.45),
+        lon=math.radians(30.52),
+        h=181.5,
+        std_pos=np.array([0.5, 0.6, 1.2]),
+        std_vel=np.array([0.05, 0.05, 0.1]),
+        std_att=np.radians([0.5, 0.5, 2.0]),
+        omega_b=np.array([0.01, -0.02, 0.03]),
+        accel_b=np.array([0.1, 0.2, -9.8]),
+        aligned=True,
+        test_ratios={"gnss_pos": 0.4, "gnss_vel": 0.2, "baro": 0.1},
+    )
+
+
+def _collect(role: str, rates: dict[str, float]) -> dict[str, list]:
+    port = free_port()
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", port))
+    rx.setblocking(False)
+    metrics = RuntimeMetrics()
+
+    async def go() -> None:
+        ep = MavlinkEndpoint(EndpointConfig(name=role, url=f"udp:127.0.0.1:{port}", role=role, rates=rates), metrics)
+        await ep.start()
+        ep.offer_gnss(GnssFix(1.0, math.radians(50.45), math.radians(30.52), 181.0, np.array([3.0, -4.0, 0.5]),
+                              fix_type=FixType.FIX_3D, num_sats=14))  # fmt: skip
+        ep.statustext(4, "INS fault gyro[1] step_bias")
+        for k in range(30):
+            ep.offer(_state(1.0 + 0.01 * k), 0, 0)
+            await asyncio.sleep(0.01)
+        await ep.close()
+
+    asyncio.run(go())
+    mav = mavlink2.MAVLink(None)
+    out: dict[str, list] = {}
+    while True:
+        try:
+            data = rx.recv(65536)
+        except BlockingIOError:
+            break
+        for m in mav.parse_buffer(data) or []:
+            out.setdefault(m.get_type(), []).append(m)
+    rx.close()
+    assert metrics.outputs[role]["bytes"] > 0
+    return out
+
+
+def test_gcs_messages_decode_to_the_state() -> None:
+    out = _collect("gcs", {"ATTITUDE": 100.0, "GLOBAL_POSITION_INT": 100.0, "ESTIMATOR_STATUS": 100.0})
+    for typ in ("HEARTBEAT", "SYS_STATUS", "ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT",
+                "LOCAL_POSITION_NED", "GPS_RAW_INT", "VFR_HUD", "ESTIMATOR_STATUS", "STATUSTEXT"):  # fmt: skip
+        assert typ in out, typ
+    hb = out["HEARTBEAT"][0]
+    assert hb.get_srcSystem() == 42 and hb.type == mavlink2.MAV_TYPE_QUADROTOR
+    assert hb.system_status == mavlink2.MAV_STATE_ACTIVE
+    a = out["ATTITUDE"][0]
+    assert math.isclose(math.degrees(a.roll), 10, abs_tol=1e-4) and math.isclose(
+        math.degrees(a.pitch), -5, abs_tol=1e-4
+    )
+    assert math.isclose(math.degrees(a.yaw), 120, abs_tol=1e-4) and math.isclose(a.yawspeed, 0.03, rel_tol=1e-6)
+    assert a.time_boot_ms == 1000
+    g = out["GLOBAL_POSITION_INT"][0]
+    assert g.lat == 504500000 and g.lon == 305200000 and g.alt == 181500
+    assert (g.vx, g.vy, g.vz) == (300, -400, 50) and g.hdg == 12000
+    assert len(out["GPS_RAW_INT"]) == 1 and out["GPS_RAW_INT"][0].satellites_visible == 14  # one fix, passed once
+    es = out["ESTIMATOR_STATUS"][0]
+    assert math.isclose(es.pos_horiz_ratio, 0.4, rel_tol=1e-6) and math.isclose(es.vel_ratio, 0.2, rel_tol=1e-6)
+    assert math.isclose(es.pos_horiz_accuracy, math.hypot(0.5, 0.6), rel_tol=1e-6)
+    assert out["STATUSTEXT"][0].text.startswith("INS fault gyro[1]")
+    q = out["ATTITUDE_QUATERNION"][0]
+    assert np.allclose([q.q1, q.q2, q.q3, q.q4], _state(1.0).q_nb, atol=1e-7)
+
+
+def test_flight_controller_messages_decode_to_the_state() -> None:
+    out = _collect("fc", {"ODOMETRY": 100.0, "GPS_INPUT": 100.0, "HIL_STATE_QUATERNION": 100.0})
+    st = _state(1.0)
+    o = out["ODOMETRY"][0]
+    assert o.frame_id == mavlink2.MAV_FRAME_LOCAL_NED and o.child_frame_id == mavlink2.MAV_FRAME_BODY_FRD
+    assert np.allclose(o.q, st.q_nb, atol=1e-7) and (o.x, o.y, o.z) == (0.0, 0.0, 0.0)  # first state = home
+    v_b = dcm_from_quat(st.q_nb).T @ st.vel_ned
+    assert np.allclose([o.vx, o.vy, o.vz], v_b, atol=1e-5)
+    assert math.isclose(o.pose_covariance[0], 0.25, rel_tol=1e-6) and math.isclose(
+        o.pose_covariance[11], 1.44, rel_tol=1e-6
+    )
+    gi = out["GPS_INPUT"][0]
+    assert gi.lat == 504500000 and gi.fix_type == 3 and math.isclose(gi.vn, 3.0) and math.isclose(gi.alt, 181.5)
+    hil = out["HIL_STATE_QUATERNION"][0]
+    assert np.allclose(hil.attitude_quaternion, st.q_nb, atol=1e-7) and hil.alt == 181500 and hil.vx == 300
+    assert out["HEARTBEAT"][0].type == mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
+
+
+def _stream_out(url: str, read: object) -> list[str]:
+    """Run a gcs endpoint on ``url`` for a moment; ``read()`` returns what the peer got."""
+    metrics = RuntimeMetrics()
+
+    async def go() -> None:
+        ep = MavlinkEndpoint(EndpointConfig(name="s", url=url, rates={"ATTITUDE": 100.0}), metrics)
+        await ep.start()
+        for k in range(60):
+            ep.offer(_state(1.0 + 0.01 * k), 0, 0)
+            await asyncio.sleep(0.01)
+        await ep.close()
+
+    asyncio.run(go())
+    mav = mavlink2.MAVLink(None)
+    return [m.get_type() for m in mav.parse_buffer(read()) or []]  # type: ignore[operator]
+
+
+def test_tcp_endpoint_connects_and_streams() -> None:
+    srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    srv.settimeout(10)
+    port = srv.getsockname()[1]
+    conns: list[socket.socket] = []
+
+    def read() -> bytes:
+        c = conns[0]
+        c.setblocking(False)
+        buf = b""
+        while True:
+            try:
+                d = c.recv(65536)
+            except BlockingIOError:
+                return buf
+            if not d:
+                return buf
+            buf += d
+
+    import threading
+
+    th = threading.Thread(target=lambda: conns.append(srv.accept()[0]))
+    th.start()
+    types = _stream_out(f"tcp:127.0.0.1:{port}", read=lambda: (th.join(), read())[1])
+    srv.close()
+    assert "HEARTBEAT" in types and types.count("ATTITUDE") > 10
+
+
+def test_serial_endpoint_writes_to_a_tty() -> None:
+    import os
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+
+    def read() -> bytes:
+        buf = b""
+        while True:
+            try:
+                d = os.read(master, 65536)
+            except BlockingIOError:
+                return buf
+            if not d:
+                return buf
+            buf += d
+
+    types = _stream_out(f"serial:{os.ttyname(slave)}:115200", read=read)
+    os.close(master)
+    os.close(slave)
+    assert "HEARTBEAT" in types and types.count("ATTITUDE") > 10
