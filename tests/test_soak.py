@@ -68,8 +68,9 @@ def test_geometry_names_match_the_monitor_rows() -> None:
     g = geometry_for(2)
     assert g.n == 6 and g.row_name("gyro", 4) == "imu1.gyro.y"
     assert geometry_for(3).n == 9
-    with pytest.raises(ValueError):
-        geometry_for(1)
+    for n in (1, 4):
+        with pytest.raises(ValueError, match="2 \\(dual_imu\\) or 3"):
+            geometry_for(n)
 
 
 def _ev(t: float, sensor: str, mode: str = "STEP_BIAS", isolated: bool = True, cleared: bool = False) -> dict:

@@ -31,7 +31,7 @@ def _floats(text: str, what: str) -> list[float]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, default=1800.0, metavar="S", help="main run length (default 1800 s)")
     p.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="IMU rate (default 1000 Hz)")
-    p.add_argument("--imus", type=int, default=1, metavar="N", help="redundant IMUs (≥ 2 enables FDI; default 1)")
+    p.add_argument("--imus", type=int, default=1, metavar="N", help="IMUs: 1, or 2/3 redundant with FDI (default 1)")
     p.add_argument(
         "--faults",
         default="auto",
@@ -74,8 +74,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.duration <= 0 or args.rate <= 0:
         return bad("--duration and --rate must be positive")
-    if args.imus < 1:
-        return bad(f"--imus {args.imus}: at least one IMU")
+    if not 1 <= args.imus <= 3:
+        return bad(f"--imus {args.imus}: 1, 2 (dual_imu) or 3 (triple_imu)")
     if args.load < 0:
         return bad(f"--load {args.load}: must be ≥ 0")
     faults = args.faults if args.imus > 1 else "none"

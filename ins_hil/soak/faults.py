@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from ins_hil.fdi.geometry import SensorGeometry, dual_imu, imus, triple_imu
+from ins_hil.fdi.geometry import SensorGeometry, dual_imu, triple_imu
 from ins_hil.sim.faults import FaultSpec
 from ins_hil.types import FaultMode
 
@@ -23,14 +23,12 @@ AUTO_ACCEL_STEP = 0.5  # m/s²
 
 
 def geometry_for(n_imus: int) -> SensorGeometry:
-    """The redundant geometry of ``n_imus`` full IMUs (2: dual_imu, 3: triple_imu, more: yaw-rotated)."""
+    """The redundant geometry of ``n_imus`` full IMUs: 2 = dual_imu, 3 = triple_imu (the runtime's named sets)."""
     if n_imus == 2:
         return dual_imu()
     if n_imus == 3:
         return triple_imu()
-    if n_imus > 3:
-        return imus([(54.7356 * (j % 2), 0.0, 360.0 * j / n_imus) for j in range(n_imus)], f"imu{n_imus}")
-    raise ValueError(f"--imus {n_imus}: a redundant geometry needs at least 2 IMUs")
+    raise ValueError(f"--imus {n_imus}: the gateway's FDI takes 2 (dual_imu) or 3 (triple_imu) redundant IMUs")
 
 
 def parse_faults(text: str, duration: float, n_imus: int) -> list[FaultSpec]:

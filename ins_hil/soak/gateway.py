@@ -39,7 +39,11 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
     return {
         "gateway": {"name": "ins-hil-soak", "late_threshold_ms": period_ms, "queue_size": 4096},
         "core": {"kind": a.core, "init": "gnss"},
-        "fdi": {"enabled": a.imus > 1, "imu_ids": list(range(a.imus))},
+        "fdi": {
+            "enabled": a.imus > 1,
+            "imu_ids": list(range(a.imus)),
+            **({"options": fdi_options(a.imus, a.rate)} if a.imus > 1 else {}),
+        },
         "sim": {"enabled": False},
         "inputs": [
             *({"name": f"imu{j}", "type": "serial_imu", "port": p, "baud": 921600} for j, p in enumerate(a.imu)),
@@ -57,17 +61,17 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
 READMIT_S = 2.0
 
 
-def fdi_config(n_imus: int, rate: float) -> Any:
-    """The FDI monitor settings for the simulated sensors (stochastic MEMS errors of ins_hil.sim.redundant)."""
-    from ins_hil.fdi.monitor import FdiConfig
+def fdi_options(n_imus: int, rate: float) -> dict[str, Any]:
+    """``[fdi.options]`` for the simulated sensors (stochastic MEMS errors of ins_hil.sim.redundant)."""
     from ins_hil.sim.sensors import mems_accel, mems_gyro
     from ins_hil.soak.faults import geometry_for
 
     g, ac = mems_gyro(), mems_accel()
     # readmit_after: a unit that dropped out because its frames were lost in transport comes back
     # once healthy again (a faulty sensor's residual never passes, so it stays excluded)
-    return FdiConfig(geometry_for(n_imus), 1.0 / rate, g.noise_density, ac.noise_density,
-                     g.bias_instability, ac.bias_instability, readmit_after=READMIT_S)  # fmt: skip
+    return {"geometry": geometry_for(n_imus).name, "dt": 1.0 / rate, "gyro_noise": g.noise_density,
+            "accel_noise": ac.noise_density, "gyro_bias": g.bias_instability, "accel_bias": ac.bias_instability,
+            "readmit_after": READMIT_S}  # fmt: skip
 
 
 async def _run(a: argparse.Namespace) -> int:
@@ -75,8 +79,6 @@ async def _run(a: argparse.Namespace) -> int:
 
     out = Path(a.out)
     cfg = from_dict(gateway_config(a), source="soak")
-    if a.imus > 1:
-        cfg.pipeline.fdi_options = {"config": fdi_config(a.imus, a.rate)}
     gw = Gateway(cfg, record_path=out / "recording.ihlog" if a.record else None)
     period_ns = round(1e9 / a.rate)
     jitter = LatencyHistogram()  # |period − nominal|

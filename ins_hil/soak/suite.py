@@ -130,6 +130,14 @@ def render(
     ]
     if top["note"]:
         lines += [f"> **Note:** {top['note']}", ""]
+    if max(ma["loadavg"][0], mb["loadavg"][0]) > 0.5:
+        lines += [
+            f"> **Busy machine:** the 1-minute load average was {ma['loadavg'][0]:.2f} at the start and "
+            f"{mb['loadavg'][0]:.2f} at the end on {ma['nproc']} CPUs, so other processes shared the CPUs "
+            "with the pinned soak processes: the timing figures below are contaminated (upper bounds), the "
+            "loss, memory, accuracy and fault figures are not timing-sensitive unless frames were lost.",
+            "",
+        ]
     lines += [
         "Set-up: the simulated sensors (serial IMU frames into one pty per IMU, GNSS GPS_INPUT + baro "
         "SCALED_PRESSURE as MAVLink 2 over UDP) run in their own process pinned to one CPU together with "
