@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         return bad(f"--imus {args.imus}: 1, 2 (dual_imu) or 3 (triple_imu)")
     if args.load < 0:
         return bad(f"--load {args.load}: must be ≥ 0")
+    if args.imus == 1 and args.faults.strip().lower() not in ("auto", "none"):
+        return bad(f"--faults {args.faults!r}: fault detection needs --imus 2 or 3")
     faults = args.faults if args.imus > 1 else "none"
     try:
         parse_faults(faults, args.duration, args.imus)

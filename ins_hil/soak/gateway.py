@@ -57,6 +57,8 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+#: fault events kept for the report (the rest are only counted)
+MAX_EVENTS = 10000
 #: s healthy before an excluded sensor is taken back (FdiConfig.readmit_after)
 READMIT_S = 2.0
 
@@ -86,6 +88,7 @@ async def _run(a: argparse.Namespace) -> int:
     last = [0]
     mono = time.monotonic_ns
     faults: list[dict[str, Any]] = []
+    n_over = [0]
 
     def on_state(_st: NavState) -> None:
         now = mono()
@@ -96,6 +99,9 @@ async def _run(a: argparse.Namespace) -> int:
         last[0] = now
 
     def on_fault(ev: FaultEvent) -> None:
+        if len(faults) >= MAX_EVENTS:  # a flood of events must not grow memory over hours
+            n_over[0] += 1
+            return
         faults.append({"t": ev.t, "sensor": ev.sensor, "mode": ev.mode.name, "isolated": ev.isolated,
                        "cleared": ev.cleared, "detail": ev.detail, "recv_ns": mono()})  # fmt: skip
 
@@ -137,6 +143,7 @@ async def _run(a: argparse.Namespace) -> int:
     snap["loop_jitter"] = jitter.summary()
     snap["loop_jitter_hist"] = {"buckets": jitter.buckets}
     snap["fault_events"] = faults
+    snap["fault_events_not_kept"] = n_over[0]
     snap["wall_s"] = time.monotonic() - t0
     snap["stopped_reason"] = gw.stopped_reason
     from ins_hil.runtime.mqtt_out import clean_json

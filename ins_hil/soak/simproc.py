@@ -171,7 +171,12 @@ def run(a: argparse.Namespace) -> None:
     late = LatencyHistogram()  # emission − scheduled time
     stats: dict[str, Any] = {}
 
+    ppid = os.getppid()
+    stopped = False
+
     def on_term(*_: Any) -> None:
+        nonlocal stopped
+        stopped = True
         raise _Stop
 
     signal.signal(signal.SIGTERM, on_term)
@@ -253,9 +258,10 @@ def run(a: argparse.Namespace) -> None:
         f_em.close()
         f_tr.close()
         _write_stats()
-    # keep the ptys open (closing them discards what the gateway has not read yet) until told to stop
+    # keep the ptys open (closing them discards what the gateway has not read yet) until told to stop,
+    # unless we were stopped already or the parent is gone
     with contextlib.suppress(_Stop, KeyboardInterrupt):
-        while True:
+        while not stopped and os.getppid() == ppid:
             time.sleep(0.2)
 
 
