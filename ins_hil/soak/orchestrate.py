@@ -54,6 +54,17 @@ def cpus() -> tuple[int, int]:
     return avail[0], avail[1] if len(avail) > 1 else avail[0]
 
 
+def allowed_cpus(pid: int) -> str:
+    """The CPUs a process may run on (``Cpus_allowed_list`` of /proc/PID/status), e.g. ``"1"``."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("Cpus_allowed_list:"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "?"
+
+
 def proc_sample(pid: int) -> dict[str, float] | None:
     """CPU seconds, RSS (bytes), open fds and threads of a live process (None if it is gone)."""
     try:
@@ -143,6 +154,9 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
         procs["sim"].stdin.write("go\n")
         procs["sim"].stdin.flush()
         pids = {k: p.pid for k, p in procs.items()}
+        opts = json.loads((out / "options.json").read_text())
+        opts["affinity"] = {k: allowed_cpus(pid) for k, pid in pids.items()}
+        (out / "options.json").write_text(json.dumps(opts, indent=1))
         ts_path = out / "gateway_ts.jsonl"
         while True:
             time.sleep(1.0 - (time.monotonic() - t0) % 1.0)

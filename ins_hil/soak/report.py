@@ -133,7 +133,7 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
     lines.append(
         f"{o['duration']:.0f} s, IMU {o['rate']:.0f} Hz × {o['imus']}, core **{o['core']}**, "
         f"background load {o['load']} busy process(es), faults `{o['faults'] if o['imus'] > 1 else 'none'}`, "
-        f"sensors + ground station on CPU {o['cpu_sensors']}, gateway on CPU {o['cpu_gateway']}. "
+        f"CPUs allowed (measured): {', '.join(f'{k} {v}' for k, v in o.get('affinity', {}).items())}. "
         f"Overall: {_ok(m['pass'])}."
     )
     lines += ["", "| target | measured | limit | result |", "|---|---|---|---|"]

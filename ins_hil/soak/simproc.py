@@ -52,8 +52,11 @@ TRUTH_RATE = 10.0  # Hz
 
 def pin(cpu: int) -> None:
     """Pin this process to one CPU (no-op if it does not exist) and use 1 ns timer slack (Linux)."""
-    if cpu >= 0 and cpu in os.sched_getaffinity(0):
-        os.sched_setaffinity(0, {cpu})
+    if cpu >= 0:
+        try:  # the parent may be pinned elsewhere: any CPU of the machine is allowed
+            os.sched_setaffinity(0, {cpu})
+        except OSError as e:
+            print(f"soak: cannot pin to CPU {cpu}: {e}", file=sys.stderr)
     try:
         ctypes.CDLL(None, use_errno=True).prctl(29, 1, 0, 0, 0)  # PR_SET_TIMERSLACK = 1 ns
     except (OSError, AttributeError):
