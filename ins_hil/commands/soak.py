@@ -61,6 +61,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--docs", metavar="MD", help="also write the report here (e.g. docs/soak.md), plots beside it")
     p.add_argument("--note", default="", help="a note printed at the top of the report (e.g. the machine's state)")
     p.add_argument("--report-only", action="store_true", help="exit 0 even when a target is missed")
+    p.add_argument(
+        "--rerender",
+        metavar="DIR",
+        help="no new run: analyse the raw files of an earlier --out DIR again and rewrite its report (and --docs)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,6 +76,16 @@ def run(args: argparse.Namespace) -> int:
     def bad(msg: str) -> int:
         print(f"ins-hil soak: {msg}", file=sys.stderr)
         return 2
+
+    if args.rerender:
+        from ins_hil.soak.suite import rerender
+
+        try:
+            top = rerender(args.rerender, args.docs)
+        except (RuntimeError, OSError, ValueError, KeyError) as e:
+            return bad(str(e))
+        print(f"[soak] report: {args.rerender}/report.md" + (f" and {args.docs}" if args.docs else ""))
+        return 0 if top["pass"] or args.report_only else 1
 
     if args.duration <= 0 or args.rate <= 0:
         return bad("--duration and --rate must be positive")

@@ -28,6 +28,8 @@ from ins_hil.soak.faults import geometry_for, parse_faults
 TARGETS = {"e2e_p99_us": 1000.0, "e2e_p999_us": 2000.0, "lost_frames": 0, "rss_growth_mib_per_h": 1.0}
 #: RSS growth is judged only when at least this much run is left after warm-up (s)
 RSS_MIN_SPAN_S = 600.0
+#: an error above these (GNSS-aided UAV, MEMS IMU) means the filter diverged, whatever its trend
+DIVERGED = {"m": 50.0, "deg": 20.0}
 #: a fault counts as detected when an isolating event names its sensor within this time (s)
 DETECT_WINDOW_S = 10.0
 
@@ -116,9 +118,12 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2))) if len(x) else float("nan")
 
 
-def accuracy_stability(t: np.ndarray, err: np.ndarray, settle: float, end: float) -> dict[str, Any]:
+def accuracy_stability(
+    t: np.ndarray, err: np.ndarray, settle: float, end: float, limit: float | None = None
+) -> dict[str, Any]:
     """RMS error in the first and last third after ``settle`` s; stable when last ≤ 2·first + 1 (no growth),
-    the error stays finite (no NaN state) and the messages cover the run up to 5 s before ``end``."""
+    the error stays finite (no NaN state) and below ``limit`` (a diverged filter), and the messages cover
+    the run up to 5 s before ``end``."""
     sel = t >= settle
     t, err = t[sel], err[sel]
     if len(t) < 6:
@@ -135,6 +140,8 @@ def accuracy_stability(t: np.ndarray, err: np.ndarray, settle: float, end: float
         "max": float(err.max()),
         "stable": bool(last <= 2 * first + 1.0),
     }
+    if limit is not None and err.max() > limit:
+        out.update(stable=False, note=f"diverged: error above {limit:g}")
     if t[-1] < end - 5.0:
         out.update(stable=False, note=f"messages stop at t = {t[-1]:.1f} s")
     return out
@@ -280,11 +287,11 @@ def analyse(d: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     end = float(opt["duration"])
     acc: dict[str, Any] = {}
     if "horiz_m" in ne:
-        acc["horizontal_m"] = accuracy_stability(ne["pos_t"], ne["horiz_m"], settle, end)
-        acc["vertical_m"] = accuracy_stability(ne["pos_t"], ne["vert_m"], settle, end)
+        acc["horizontal_m"] = accuracy_stability(ne["pos_t"], ne["horiz_m"], settle, end, DIVERGED["m"])
+        acc["vertical_m"] = accuracy_stability(ne["pos_t"], ne["vert_m"], settle, end, DIVERGED["m"])
     if "yaw_rad" in ne:
         for k in ("roll", "pitch", "yaw"):
-            acc[f"{k}_deg"] = accuracy_stability(ne["att_t"], np.degrees(ne[f"{k}_rad"]), settle, end)
+            acc[f"{k}_deg"] = accuracy_stability(ne["att_t"], np.degrees(ne[f"{k}_rad"]), settle, end, DIVERGED["deg"])
     stable = [v["stable"] for v in acc.values() if v.get("stable") is not None]
     # -- faults --------------------------------------------------------------------------
     fc = fault_check(opt, gw.get("fault_events", []))

@@ -25,7 +25,8 @@ def machine() -> dict[str, Any]:
     busy = ""
     try:
         ps = subprocess.run(["ps", "-eo", "pcpu,comm", "--sort=-pcpu"], capture_output=True, text=True, timeout=5)
-        busy = ", ".join(" ".join(x.split()[::-1]) + " %" for x in ps.stdout.splitlines()[1:6])
+        rows = [x.split(None, 1) for x in ps.stdout.splitlines()[1:]]
+        busy = ", ".join([f"{r[1]} {r[0]} %" for r in rows if len(r) == 2 and r[1] != "ps"][:5])
     except (OSError, subprocess.SubprocessError):
         pass
     return {

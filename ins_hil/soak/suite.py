@@ -56,22 +56,71 @@ def campaign(
             if progress:
                 progress(f"[soak] sweep: core {core}, {rate:.0f} Hz, {sweep_duration:.0f} s")
             sm, _ = one(so, None)
-            e = sm["latency"]["end_to_end"]
-            c = sm["checks"]
-            sweep.append({"core": core, "rate": rate, "load": so.load, "p99_us": e["p99_us"], "p999_us": e["p999_us"],
-                          "lost": sm["frames"]["lost"],
-                          "ok": c["e2e_p99"]["ok"] and c["e2e_p999"]["ok"] and c["lost_frames"]["ok"]})  # fmt: skip
+            sweep.append(sweep_row(sm))
     if loaded_duration > 0:
         lo = replace(opt, load=2, duration=loaded_duration, out=str(out / "loaded"))
         if progress:
             progress(f"[soak] loaded run: a busy process on each CPU, {loaded_duration:.0f} s")
         lm, lp = one(lo, progress)
-        runs.append(("loaded", "Under background load (one busy-loop process on each of the 2 CPUs)", lm, lp))
+        runs.append(("loaded", LOADED_TITLE, lm, lp))
     mach = machine()
     top = {"started": started, "machine_at_start": mach_before, "machine_at_end": mach, "note": note,
            "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": runs[0][2]["pass"]}  # fmt: skip
-    (out / "metrics.json").write_text(json.dumps(clean_json(top), indent=1))
     cmd = note_command(opt, sweep_rates, sweep_cores, sweep_duration, loaded_duration, docs)
+    top["command"] = cmd
+    write(out, top, runs, sweep, docs)
+    return top
+
+
+def sweep_row(m: dict[str, Any]) -> dict[str, Any]:
+    """One line of the rate sweep from a run's metrics."""
+    o, e, c = m["options"], m["latency"]["end_to_end"], m["checks"]
+    return {"core": o["core"], "rate": float(o["rate"]), "load": o["load"], "p99_us": e["p99_us"],
+            "p999_us": e["p999_us"], "lost": m["frames"]["lost"],
+            "ok": c["e2e_p99"]["ok"] and c["e2e_p999"]["ok"] and c["lost_frames"]["ok"]}  # fmt: skip
+
+
+def rerender(out: str | Path, docs: str | None) -> dict[str, Any]:
+    """Analyse the raw files of an earlier campaign in ``out`` again and rewrite its report (no new run)."""
+    out = Path(out)
+    try:
+        old = json.loads((out / "metrics.json").read_text())
+    except (OSError, ValueError) as e:
+        raise RuntimeError(f"{out}: not a soak output directory (metrics.json: {e})") from None
+    runs: list[tuple[str, str, dict[str, Any], list[str]]] = []
+    for key, title in (("main", "Main run"), ("loaded", LOADED_TITLE)):
+        if (out / key / "options.json").exists():
+            m, pngs = reanalyse(out / key)
+            runs.append((key, title, m, pngs))
+    sweep = []
+    for d in sorted(out.glob("sweep-*"), key=lambda p: (p.name.split("-")[1], float(p.name.split("-")[2]))):
+        m, _ = reanalyse(d)
+        sweep.append(sweep_row(m))
+    top = {**old, "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": runs[0][2]["pass"]}
+    write(out, top, runs, sweep, docs)
+    return top
+
+
+def reanalyse(d: Path) -> tuple[dict[str, Any], list[str]]:
+    m, series = analyse(d)
+    pngs = plots(d, series)
+    (d / "metrics.json").write_text(json.dumps(clean_json(m), indent=1))
+    return m, pngs
+
+
+LOADED_TITLE = "Under background load (one busy-loop process on each of the 2 CPUs)"
+
+
+def write(
+    out: Path,
+    top: dict[str, Any],
+    runs: list[tuple[str, str, dict[str, Any], list[str]]],
+    sweep: list[dict[str, Any]],
+    docs: str | None,
+) -> None:
+    """metrics.json and report.md in ``out``; with ``docs`` the report there and its plots beside it."""
+    cmd = top.get("command", "")
+    (out / "metrics.json").write_text(json.dumps(clean_json(top), indent=1))
     (out / "report.md").write_text(render(top, runs, sweep, cmd, lambda key: f"{key}/"))
     if docs:
         dp = Path(docs)
@@ -83,7 +132,6 @@ def campaign(
             for png in pngs:
                 shutil.copy(out / key / png, img / f"{key}-{png}")
         dp.write_text(render(top, runs, sweep, cmd, lambda key: f"{dp.stem}/{key}-"))
-    return top
 
 
 def note_command(opt: SoakOptions, rates: list[float], cores: list[str], sd: float, ld: float,
@@ -139,7 +187,8 @@ def render(
             "",
         ]
     lines += [
-        "Set-up: the simulated sensors (serial IMU frames into one pty per IMU, GNSS GPS_INPUT + baro "
+        "Set-up: the simulated sensors (serial IMU frames into a pty — the frames of redundant IMUs "
+        "interleaved on one link by imu_id unless `--imu-links separate` —, GNSS GPS_INPUT + baro "
         "SCALED_PRESSURE as MAVLink 2 over UDP) run in their own process pinned to one CPU together with "
         "the ground-station client (pymavlink, receiving the gateway's MAVLink over UDP); the gateway "
         "(ins_hil.runtime, the same code as `ins-hil run`) runs alone on the other CPU. CAN is not part of "
