@@ -109,5 +109,7 @@ def test_accuracy_stability_flags_growth_divergence_and_silence() -> None:
     nan[4000:] = np.nan
     d = accuracy_stability(t, nan, 30.0, 600.0)
     assert d["stable"] is False and "diverged" in d["note"]
+    big = accuracy_stability(t, flat + 80.0, 30.0, 600.0, limit=50.0)  # flat but far off: a diverged filter
+    assert big["stable"] is False and "above 50" in big["note"]
     quiet = accuracy_stability(t[t < 300], flat[t < 300], 30.0, 600.0)
     assert quiet["stable"] is False and "stop" in quiet["note"]
