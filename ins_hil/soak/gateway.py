@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import ctypes
 import json
-import signal
 import sys
 import time
 from pathlib import Path
@@ -26,7 +24,7 @@ from typing import Any
 
 from ins_hil.config import from_dict
 from ins_hil.runtime.metrics import LatencyHistogram
-from ins_hil.soak.simproc import pin
+from ins_hil.soak.simproc import die_with_parent, pin
 from ins_hil.types import FaultEvent, NavState
 
 
@@ -153,10 +151,7 @@ async def _run(a: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # die with the parent
-    except (OSError, AttributeError):
-        pass
+    die_with_parent()
     ap = argparse.ArgumentParser(description="soak gateway process (see ins_hil.soak.gateway)")
     ap.add_argument("--imu", action="append", required=True, help="IMU link pty (repeat per link)")
     ap.add_argument("--gnss-port", type=int, required=True)

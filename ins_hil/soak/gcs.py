@@ -14,7 +14,6 @@ second, so memory stays flat over hours):
 from __future__ import annotations
 
 import argparse
-import ctypes
 import json
 import math
 import os
@@ -27,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.soak.simproc import pin
+from ins_hil.soak.simproc import die_with_parent, pin
 
 
 class _Stop(Exception):
@@ -104,10 +103,7 @@ def run(a: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # die with the parent
-    except (OSError, AttributeError):
-        pass
+    die_with_parent()
     ap = argparse.ArgumentParser(description="soak ground-station client (see ins_hil.soak.gcs)")
     ap.add_argument("--port", type=int, required=True)
     ap.add_argument("--out", required=True)

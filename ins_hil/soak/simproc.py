@@ -110,6 +110,14 @@ def truth_rows(tr: TruthSeries, rate: float) -> np.ndarray:
     )
 
 
+def die_with_parent() -> None:
+    """Linux: get SIGTERM when the parent (the soak orchestrator) dies (prctl PR_SET_PDEATHSIG)."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
 class _Stop(Exception):
     pass
 
@@ -291,10 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # die with the parent
-    except (OSError, AttributeError):
-        pass
+    die_with_parent()
     run(build_parser().parse_args(argv))
     return 0
 
