@@ -1,0 +1,151 @@
+"""`ins-hil soak`: sensors, gateway and ground station on 2 pinned CPUs for hours; a report with plots."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+NAME = "soak"
+HELP = "soak test: simulated sensors + gateway + ground station on 2 pinned CPUs; latency, loss, memory report"
+DESCRIPTION = (
+    "Run the gateway against simulated sensors over real transports (serial IMU frames over ptys, GNSS/baro "
+    "MAVLink over UDP) with a pymavlink ground-station client, the sensors and client pinned to one CPU and the "
+    "gateway to the other. Measures end-to-end latency per published state (sensor emission → received), loop "
+    "latency and jitter, late samples, frame loss by reason, queue depth, CPU, RSS and fds per process, "
+    "navigation error against truth and fault detection. Writes metrics.json, report.md and PNG plots into "
+    "--out; exits 1 when a target of the main run is missed (p99 ≤ 1 ms, p99.9 ≤ 2 ms, no lost frame, RSS "
+    "growth < 1 MiB/h, stable accuracy, faults isolated without false alarm)."
+)
+
+
+def _floats(text: str, what: str) -> list[float]:
+    try:
+        v = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+    if any(x <= 0 for x in v):
+        raise argparse.ArgumentTypeError(f"{what}: rates must be positive, got {text!r}")
+    return v
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--duration", type=float, default=1800.0, metavar="S", help="main run length (default 1800 s)")
+    p.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="IMU rate (default 1000 Hz)")
+    p.add_argument("--imus", type=int, default=1, metavar="N", help="IMUs: 1, or 2/3 redundant with FDI (default 1)")
+    p.add_argument(
+        "--faults",
+        default="auto",
+        metavar="SPEC",
+        help="fault schedule with --imus ≥ 2: auto (gyro step at 40 %%, accel step at 70 %%), none, or "
+        "T:GROUP:ROW:MODE:SIZE[:DURATION],... (see ins_hil/soak/faults.py)",
+    )
+    p.add_argument("--core", choices=["python", "c"], default="python", help="navigation core (default python)")
+    p.add_argument("--load", type=int, default=0, metavar="N", help="busy-loop background processes (2 = both CPUs)")
+    p.add_argument(
+        "--transports", default="serial,udp", help="serial,udp (CAN is not available: no vcan on this kernel)"
+    )
+    p.add_argument(
+        "--imu-links",
+        choices=["shared", "separate"],
+        default="shared",
+        help="redundant IMUs' frames on one pty (interleaved by imu_id, default) or one pty per IMU",
+    )
+    p.add_argument("--gcs-rate", type=float, default=50.0, metavar="HZ", help="ODOMETRY rate to the ground station")
+    p.add_argument("--no-record", action="store_true", help="do not run the gateway's recorder")
+    p.add_argument("--seed", type=int, default=7)
+    p.add_argument("--out", default="soak-out", metavar="DIR", help="output directory (default soak-out)")
+    p.add_argument("--sweep", default="", metavar="HZ,...", help="also run these IMU rates (highest passing rate)")
+    p.add_argument("--sweep-cores", default="python,c", metavar="CORES", help="cores of the sweep (default python,c)")
+    p.add_argument("--sweep-duration", type=float, default=60.0, metavar="S", help="length of each sweep run")
+    p.add_argument("--loaded-duration", type=float, default=0.0, metavar="S", help="also run under load on both CPUs")
+    p.add_argument("--docs", metavar="MD", help="also write the report here (e.g. docs/soak.md), plots beside it")
+    p.add_argument("--note", default="", help="a note printed at the top of the report (e.g. the machine's state)")
+    p.add_argument("--report-only", action="store_true", help="exit 0 even when a target is missed")
+    p.add_argument(
+        "--rerender",
+        metavar="DIR",
+        help="no new run: analyse the raw files of an earlier --out DIR again and rewrite its report (and --docs)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from ins_hil.soak.faults import parse_faults
+    from ins_hil.soak.orchestrate import SoakOptions
+    from ins_hil.soak.suite import campaign
+
+    def bad(msg: str) -> int:
+        print(f"ins-hil soak: {msg}", file=sys.stderr)
+        return 2
+
+    if args.rerender:
+        from ins_hil.soak.suite import rerender
+
+        try:
+            top = rerender(args.rerender, args.docs)
+        except (RuntimeError, OSError, ValueError, KeyError) as e:
+            return bad(str(e))
+        print(f"[soak] report: {args.rerender}/report.md" + (f" and {args.docs}" if args.docs else ""))
+        return 0 if top["pass"] or args.report_only else 1
+
+    if args.duration <= 0 or args.rate <= 0:
+        return bad("--duration and --rate must be positive")
+    if not 1 <= args.imus <= 3:
+        return bad(f"--imus {args.imus}: 1, 2 (dual_imu) or 3 (triple_imu)")
+    if args.load < 0:
+        return bad(f"--load {args.load}: must be ≥ 0")
+    if args.imus == 1 and args.faults.strip().lower() not in ("auto", "none"):
+        return bad(f"--faults {args.faults!r}: fault detection needs --imus 2 or 3")
+    faults = args.faults if args.imus > 1 else "none"
+    try:
+        parse_faults(faults, args.duration, args.imus)
+        rates = _floats(args.sweep, "--sweep") if args.sweep else []
+        if rates:
+            parse_faults(faults, args.sweep_duration, args.imus)
+    except (ValueError, argparse.ArgumentTypeError) as e:
+        return bad(str(e))
+    cores = [c.strip() for c in args.sweep_cores.split(",") if c.strip()]
+    for c in cores:
+        if c not in ("python", "c"):
+            return bad(f"--sweep-cores: unknown core {c!r} (python, c)")
+    opt = SoakOptions(
+        duration=args.duration,
+        rate=args.rate,
+        imus=args.imus,
+        links=args.imu_links,
+        faults=faults,
+        core=args.core,
+        load=args.load,
+        transports=args.transports,
+        gcs_rate=args.gcs_rate,
+        record=not args.no_record,
+        seed=args.seed,
+        out=args.out,
+    )
+    tty = sys.stderr.isatty()
+
+    def progress(line: str) -> None:
+        if tty:
+            print("\r" + line[:160].ljust(160), end="", file=sys.stderr, flush=True)
+        else:
+            print(line, file=sys.stderr, flush=True)
+
+    try:
+        top = campaign(
+            opt, rates, cores if rates else [], args.sweep_duration, args.loaded_duration, args.note, args.docs,
+            progress,
+        )  # fmt: skip
+    except (RuntimeError, OSError, ValueError) as e:
+        print(f"\nins-hil soak: {e}", file=sys.stderr)
+        return 3
+    if tty:
+        print(file=sys.stderr)
+    main = top["runs"]["main"]
+    lat = main["latency"]["end_to_end"]
+    missed = [k for k, c in main["checks"].items() if c["ok"] is False]
+    print(
+        f"[soak] main run: e2e p50 {lat['p50_us']:.0f} µs p99 {lat['p99_us']:.0f} µs p99.9 {lat['p999_us']:.0f} µs, "
+        f"lost {main['frames']['lost']}, RSS growth {main['checks']['rss_growth']['value_mib_per_h']:.2f} MiB/h, "
+        + ("PASS" if top["pass"] else "targets missed: " + ", ".join(missed))
+    )
+    print(f"[soak] report: {args.out}/report.md" + (f" and {args.docs}" if args.docs else ""))
+    return 0 if top["pass"] or args.report_only else 1

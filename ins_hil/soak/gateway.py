@@ -1,0 +1,173 @@
+"""Soak gateway process: the real :class:`~ins_hil.runtime.loop.Gateway`, pinned, with measurement taps.
+
+Built from a config dict (validated by :func:`ins_hil.config.from_dict`): the serial IMUs
+are the soak simulator's ptys, GNSS/baro a ``udpin:`` MAVLink input, one MAVLink output to
+the ground-station client. With ``--imus`` > 1 the FDI monitor gets an
+:class:`~ins_hil.fdi.monitor.FdiConfig` matching the simulated sensors.
+
+Taps (no change to the runtime): an ``on_state`` callback measures the loop period
+(state-ready to state-ready) and its deviation from 1/rate; ``on_fault`` keeps every
+FaultEvent; a status task samples the metrics and queue depth every second into
+``gateway_ts.jsonl``. At the end ``gateway.json`` holds the final metrics snapshot.
+Prints ``{"ready": true}`` once every transport is open.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from ins_hil.config import from_dict
+from ins_hil.runtime.metrics import LatencyHistogram
+from ins_hil.soak.simproc import die_with_parent, pin
+from ins_hil.types import FaultEvent, NavState
+
+
+def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
+    """The gateway config (TOML layout) of a soak run."""
+    period_ms = 1000.0 / a.rate
+    rates = {"HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "ATTITUDE": 10.0, "ATTITUDE_QUATERNION": 0.0,
+             "GLOBAL_POSITION_INT": 10.0, "LOCAL_POSITION_NED": 0.0, "GPS_RAW_INT": 0.0, "VFR_HUD": 0.0,
+             "ESTIMATOR_STATUS": 0.0, "ODOMETRY": a.gcs_rate}  # fmt: skip
+    return {
+        "gateway": {"name": "ins-hil-soak", "late_threshold_ms": period_ms, "queue_size": 4096},
+        "core": {"kind": a.core, "init": "gnss"},
+        "fdi": {
+            "enabled": a.imus > 1,
+            "imu_ids": list(range(a.imus)),
+            **({"options": fdi_options(a.imus, a.rate)} if a.imus > 1 else {}),
+        },
+        "sim": {"enabled": False},
+        "inputs": [
+            *({"name": f"imu{j}", "type": "serial_imu", "port": p, "baud": 921600} for j, p in enumerate(a.imu)),
+            {"name": "gnss", "type": "mavlink", "url": f"udpin:127.0.0.1:{a.gnss_port}"},
+        ],
+        "outputs": [
+            {"name": "gcs", "type": "mavlink", "url": f"udp:127.0.0.1:{a.gcs_port}", "role": "gcs", "rates": rates}
+        ],
+        "mqtt": {"enabled": False},
+        "recorder": {"enabled": a.record, "dir": str(a.out)},
+    }
+
+
+#: fault events kept for the report (the rest are only counted)
+MAX_EVENTS = 10000
+#: s healthy before an excluded sensor is taken back (FdiConfig.readmit_after)
+READMIT_S = 2.0
+
+
+def fdi_options(n_imus: int, rate: float) -> dict[str, Any]:
+    """``[fdi.options]`` for the simulated sensors (stochastic MEMS errors of ins_hil.sim.redundant)."""
+    from ins_hil.sim.sensors import mems_accel, mems_gyro
+    from ins_hil.soak.faults import geometry_for
+
+    g, ac = mems_gyro(), mems_accel()
+    # readmit_after: a unit that dropped out because its frames were lost in transport comes back
+    # once healthy again (a faulty sensor's residual never passes, so it stays excluded)
+    return {"geometry": geometry_for(n_imus).name, "dt": 1.0 / rate, "gyro_noise": g.noise_density,
+            "accel_noise": ac.noise_density, "gyro_bias": g.bias_instability, "accel_bias": ac.bias_instability,
+            "readmit_after": READMIT_S}  # fmt: skip
+
+
+async def _run(a: argparse.Namespace) -> int:
+    from ins_hil.runtime.loop import Gateway
+
+    out = Path(a.out)
+    cfg = from_dict(gateway_config(a), source="soak")
+    gw = Gateway(cfg, record_path=out / "recording.ihlog" if a.record else None)
+    period_ns = round(1e9 / a.rate)
+    jitter = LatencyHistogram()  # |period − nominal|
+    period = LatencyHistogram()
+    last = [0]
+    mono = time.monotonic_ns
+    faults: list[dict[str, Any]] = []
+    n_over = [0]
+
+    def on_state(_st: NavState) -> None:
+        now = mono()
+        if last[0]:
+            d = now - last[0]
+            period.record(d)
+            jitter.record(abs(d - period_ns))
+        last[0] = now
+
+    def on_fault(ev: FaultEvent) -> None:
+        if len(faults) >= MAX_EVENTS:  # a flood of events must not grow memory over hours
+            n_over[0] += 1
+            return
+        faults.append({"t": ev.t, "sensor": ev.sensor, "mode": ev.mode.name, "isolated": ev.isolated,
+                       "cleared": ev.cleared, "detail": ev.detail, "recv_ns": mono()})  # fmt: skip
+
+    gw.on_state.append(on_state)
+    gw.on_fault.append(on_fault)
+
+    async def sampler(g: Any) -> None:
+        print(json.dumps({"ready": True}), flush=True)
+        with open(out / "gateway_ts.jsonl", "w") as f:
+            k = 0
+            qmax = 0
+            while True:
+                await asyncio.sleep(0.1)
+                qmax = max(qmax, len(g.queue))
+                k += 1
+                if k % 10:
+                    continue
+                s = g.metrics.snapshot()
+                row = {
+                    "mono_ns": mono(),
+                    "epochs": s["imu_epochs"],
+                    "late": s["late"],
+                    "queue_max_1s": qmax,
+                    "queue_depth_max": s["queue_depth_max"],
+                    "received": {n: v["received"] for n, v in s["sources"].items()},
+                    "dropped": g.metrics.dropped_total(),
+                    "aligned": s["aligned"],
+                    "faults": s["faults"],
+                    "window": {kk: s["latency_window"][kk] for kk in ("arrival_to_state", "core_step")},
+                }
+                f.write(json.dumps(row, default=float) + "\n")
+                f.flush()
+                qmax = 0
+
+    t0 = time.monotonic()
+    m = await gw.run(duration=a.duration, signals=True, status=sampler)
+    snap = m.snapshot()
+    snap["loop_period"] = period.summary()
+    snap["loop_jitter"] = jitter.summary()
+    snap["loop_jitter_hist"] = {"buckets": jitter.buckets}
+    snap["fault_events"] = faults
+    snap["fault_events_not_kept"] = n_over[0]
+    snap["wall_s"] = time.monotonic() - t0
+    snap["stopped_reason"] = gw.stopped_reason
+    from ins_hil.runtime.mqtt_out import clean_json
+
+    (out / "gateway.json").write_text(json.dumps(clean_json(snap), indent=1))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    die_with_parent()
+    ap = argparse.ArgumentParser(description="soak gateway process (see ins_hil.soak.gateway)")
+    ap.add_argument("--imu", action="append", required=True, help="IMU link pty (repeat per link)")
+    ap.add_argument("--gnss-port", type=int, required=True)
+    ap.add_argument("--gcs-port", type=int, required=True)
+    ap.add_argument("--gcs-rate", type=float, default=50.0)
+    ap.add_argument("--rate", type=float, default=1000.0)
+    ap.add_argument("--core", default="python")
+    ap.add_argument("--duration", type=float, required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--cpu", type=int, default=-1)
+    ap.add_argument("--record", action="store_true")
+    ap.add_argument("--imus", type=int, default=1, help="redundant IMUs (their frames may share one link)")
+    a = ap.parse_args(argv)
+    pin(a.cpu)
+    return asyncio.run(_run(a))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

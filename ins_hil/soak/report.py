@@ -1,0 +1,264 @@
+"""Markdown report and PNG plots of soak runs (matplotlib, Agg)."""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def machine() -> dict[str, Any]:
+    """nproc, CPU model, load averages, kernel, Python; and other busy processes at report time."""
+    model = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    busy = ""
+    try:
+        ps = subprocess.run(["ps", "-eo", "pcpu,comm", "--sort=-pcpu"], capture_output=True, text=True, timeout=5)
+        rows = [x.split(None, 1) for x in ps.stdout.splitlines()[1:]]
+        busy = ", ".join([f"{r[1]} {r[0]} %" for r in rows if len(r) == 2 and r[1] != "ps"][:5])
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return {
+        "nproc": os.cpu_count(),
+        "cpu_model": model,
+        "loadavg": os.getloadavg(),
+        "kernel": platform.release(),
+        "python": platform.python_version(),
+        "busiest_processes": busy,
+    }
+
+
+def plots(out: Path, series: dict[str, np.ndarray], prefix: str = "") -> list[str]:
+    """latency histogram, latency over time, RSS over time, error over time → PNG files; their names."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = []
+    lat = series.get("e2e_ns", np.zeros(0)) * 1e-3
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    if len(lat):
+        hi = max(10.0, float(np.percentile(lat, 99.99)))
+        ax.hist(lat, bins=list(np.logspace(np.log10(max(1.0, lat.min())), np.log10(hi * 1.05), 80)))
+        ax.set_xscale("log")
+        for p, c in ((99, "tab:orange"), (99.9, "tab:red")):
+            ax.axvline(float(np.percentile(lat, p)), color=c, ls="--", label=f"p{p:g}")
+        ax.axvline(1000, color="k", lw=0.8, label="p99 target 1 ms")
+        ax.legend()
+    ax.set_yscale("log")
+    ax.set(xlabel="end-to-end latency (µs): emission → received at the ground station", ylabel="states")
+    fig.tight_layout()
+    names.append(f"{prefix}latency_hist.png")
+    fig.savefig(out / names[-1], dpi=90)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    if len(lat):
+        ax.plot(series["e2e_t"], lat, ".", ms=1.5, alpha=0.4, label="end to end (each state)")
+    if "ts_t" in series:
+        ax.plot(
+            series["ts_t"],
+            series["ts_a2s_p99_us"],
+            "-",
+            lw=1,
+            color="tab:red",
+            label="arrival → state p99 (5 s window)",
+        )
+    ax.set_yscale("log")
+    ax.set(xlabel="run time (s)", ylabel="latency (µs)")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    names.append(f"{prefix}latency_time.png")
+    fig.savefig(out / names[-1], dpi=90)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for k in ("gateway", "sim", "gcs"):
+        if f"rss_{k}_t" in series:
+            ax.plot(series[f"rss_{k}_t"], series[f"rss_{k}_mib"], label=k)
+    ax.set(xlabel="run time (s)", ylabel="RSS (MiB)")
+    ax.legend()
+    fig.tight_layout()
+    names.append(f"{prefix}rss_time.png")
+    fig.savefig(out / names[-1], dpi=90)
+    plt.close(fig)
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    if "horiz_m" in series:
+        a1.plot(series["pos_t"], series["horiz_m"], lw=0.8, label="horizontal")
+        a1.plot(series["pos_t"], series["vert_m"], lw=0.8, label="vertical")
+        a1.set_yscale("log")
+        a1.legend()
+    a1.set(ylabel="position error (m)")
+    if "yaw_rad" in series:
+        for k in ("roll", "pitch", "yaw"):
+            a2.plot(series["att_t"], np.degrees(series[f"{k}_rad"]), lw=0.8, label=k)
+        a2.set_yscale("log")
+        a2.legend()
+    a2.set(xlabel="sensor time (s)", ylabel="attitude error (°)")
+    fig.tight_layout()
+    names.append(f"{prefix}error_time.png")
+    fig.savefig(out / names[-1], dpi=90)
+    plt.close(fig)
+    return names
+
+
+def _f(v: Any, nd: int = 0) -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, float):
+        return "—" if not math.isfinite(v) else f"{v:,.{nd}f}"
+    return str(v)
+
+
+def _ok(v: Any) -> str:
+    return "n/a" if v is None else ("**pass**" if v else "**FAIL**")
+
+
+def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -> str:
+    """Markdown of one run (figures, checks, plots)."""
+    o, lat, c = m["options"], m["latency"], m["checks"]
+    lines = [f"## {title}", ""]
+    lines.append(
+        f"{o['duration']:.0f} s, IMU {o['rate']:.0f} Hz × {o['imus']}, core **{o['core']}**, "
+        f"background load {o['load']} busy process(es), faults `{o['faults'] if o['imus'] > 1 else 'none'}`, "
+        f"CPUs allowed (measured): {', '.join(f'{k} {v}' for k, v in o.get('affinity', {}).items())}. "
+        f"Overall: {_ok(m['pass'])}."
+    )
+    lines += ["", "| target | measured | limit | result |", "|---|---|---|---|"]
+    lines.append(f"| end-to-end p99 | {_f(c['e2e_p99']['value_us'])} µs | ≤ 1,000 µs | {_ok(c['e2e_p99']['ok'])} |")
+    lines.append(f"| end-to-end p99.9 | {_f(c['e2e_p999']['value_us'])} µs | ≤ 2,000 µs | {_ok(c['e2e_p999']['ok'])} |")
+    lines.append(f"| lost IMU frames | {c['lost_frames']['value']} | 0 | {_ok(c['lost_frames']['ok'])} |")
+    r = c["rss_growth"]
+    lines.append(
+        f"| gateway RSS growth after warm-up | {_f(r['value_mib_per_h'], 2)} MiB/h | < 1 MiB/h | "
+        f"{_ok(r['ok'])}{' (' + r['note'] + ')' if r['note'] else ''} |"
+    )
+    lines.append(
+        f"| navigation accuracy stable | see below | last third ≤ 2× first + 1 | {_ok(c['accuracy_stable']['ok'])} |"
+    )
+    if "faults_isolated" in c:
+        lines.append(
+            f"| injected faults isolated | {sum(x['detected'] for x in m['faults']['injected'])}/"
+            f"{len(m['faults']['injected'])} | all | {_ok(c['faults_isolated']['ok'])} |"
+        )
+    if "no_false_alarm" in c:
+        lines.append(f"| false alarms | {c['no_false_alarm']['value']} | 0 | {_ok(c['no_false_alarm']['ok'])} |")
+    lines += ["", "| latency (µs) | count | p50 | p99 | p99.9 | max |", "|---|---|---|---|---|---|"]
+    names = (
+        ("end_to_end", "sensor emission → state received by the ground station"),
+        ("arrival_to_state", "loop: bytes arrived → state ready"),
+        ("core_step", "core step (FDI + INS/EKF)"),
+        ("state_to_sent", "state ready → MAVLink sent"),
+        ("sensor_send_lateness", "simulator: emission − schedule"),
+    )
+    for k, label in names:
+        s = lat[k]
+        lines.append(
+            f"| {label} | {s['count']} | {_f(s['p50_us'])} | {_f(s['p99_us'])} | {_f(s['p999_us'])} | "
+            f"{_f(s['max_us'])} |"
+        )
+    lp = m["loop"]
+    jit = lp["jitter"] or {}
+    lines += [
+        "",
+        f"Loop period jitter |period − 1/rate|: p50 {_f(jit.get('p50_us'))} µs, p99 "
+        f"{_f(jit.get('p99_us'))} µs, max {_f(jit.get('max_us'))} µs. Late samples (arrival → state > "
+        f"{lp['late_threshold_ms']:.2f} ms, one period): {lp['late']} of {lp['epochs']} epochs. "
+        f"Input queue depth max: {lp['queue_depth_max']}.",
+    ]
+    fr = m["frames"]
+    reasons = ", ".join(f"{k} {v}" for k, v in fr["by_reason"].items() if v) or "none"
+    lines += [
+        "",
+        f"Frames: scheduled {sum(fr['scheduled'])}, written to the ptys {sum(fr['written'])}, received by "
+        f"the gateway {sum(fr['received'])}, lost {fr['lost']}. Counters by reason: {reasons} "
+        "(seq_gap / seq_backwards are the driver's detection of frames lost before it, not extra loss).",
+    ]
+    lines += [
+        "",
+        "| process | CPU % of one core | RSS start → end (max) MiB | RSS growth MiB/h | fds start → end (max) |",
+        "|---|---|---|---|---|",
+    ]
+    for k, v in m["resources"].items():
+        lines.append(
+            f"| {k} | {_f(v['cpu_percent'], 1)} | {_f(v['rss_start_mib'], 1)} → {_f(v['rss_end_mib'], 1)} "
+            f"({_f(v['rss_max_mib'], 1)}) | {_f(v['rss_growth_mib_per_h'], 2)} | {v['fds_start']} → "
+            f"{v['fds_end']} ({v['fds_max']}) |"
+        )
+    lines += [
+        "",
+        "| navigation error (after the settling time) | RMS first third | RMS last third | max | stable |",
+        "|---|---|---|---|---|",
+    ]
+    for k, v in m["accuracy"].items():
+        lines.append(
+            f"| {k.replace('_', ' (')}) | {_f(v['first_rms'], 2)} | {_f(v['last_rms'], 2)} | "
+            f"{_f(v.get('max'), 2)} | {_ok(v['stable'])} {v.get('note', '')} |"
+        )
+    fc = m["faults"]
+    if fc["injected"]:
+        lines += [
+            "",
+            "| injected fault | at (s) | detected and isolated | delay (s) | reported mode |",
+            "|---|---|---|---|---|",
+        ]
+        for x in fc["injected"]:
+            lines.append(
+                f"| {x['mode']} {x['size']:.3g} on {x['sensor']} | {x['t_start']:.0f} | "
+                f"{_ok(x['detected'])} | {_f(x['delay_s'], 3)} | {x['reported_mode'] or '—'} |"
+            )
+    if o["imus"] > 1:
+        lines += [
+            "",
+            f"FDI events {fc['events']}, false alarms {fc['false_alarms']}, DROPOUT events (frames that did not "
+            f"arrive: lost in transport, not false alarms) {fc['dropout_events']}, warning STATUSTEXTs "
+            f"received by the ground station {fc['statustext_at_gcs']}.",
+        ]
+    lines.append("")
+    for p in pngs:
+        lines.append(f"![{p}]({rel}{p})")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def sweep_section(rows: list[dict[str, Any]]) -> str:
+    """Markdown of the rate sweep: the highest rate per core meeting latency and loss targets."""
+    lines = [
+        "## Highest IMU rate meeting the targets",
+        "",
+        "| core | load | IMU rate (Hz) | e2e p99 (µs) | e2e p99.9 (µs) | lost | meets latency + loss |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    best: dict[tuple[str, int], float] = {}
+    for r in rows:
+        ok = bool(r["ok"])
+        lines.append(
+            f"| {r['core']} | {r['load']} | {r['rate']:.0f} | {_f(r['p99_us'])} | {_f(r['p999_us'])} | "
+            f"{r['lost']} | {_ok(ok)} |"
+        )
+        if ok:
+            key = (r["core"], r["load"])
+            best[key] = max(best.get(key, 0.0), r["rate"])
+    lines.append("")
+    for core in sorted({r["core"] for r in rows}):
+        for load in sorted({r["load"] for r in rows if r["core"] == core}):
+            b = best.get((core, load))
+            lines.append(
+                f"- core **{core}**, load {load}: highest rate meeting the targets: "
+                f"{'none of those tried' if b is None else f'{b:.0f} Hz'}"
+            )
+    lines.append("")
+    return "\n".join(lines)

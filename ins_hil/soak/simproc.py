@@ -1,0 +1,308 @@
+"""Soak sensor process: N serial IMUs on ptys + GNSS/baro MAVLink over UDP, every emission stamped.
+
+Like :mod:`ins_hil.sim.devices` (whose MAVLink helpers it reuses) but built for
+measurement: it pins itself to one CPU, waits for ``go`` on stdin before its clock
+starts (so no frame is written before the gateway reads), simulates ``--imus``
+redundant IMUs (:mod:`ins_hil.sim.redundant`, ``imu_id`` = unit; ``--links shared``: all
+frames interleaved on one pty like an IMU hub, ``separate``: one pty per IMU) with
+the fault schedule injected (:mod:`ins_hil.sim.faults`), and writes to ``--out``:
+
+* ``emission.bin``: int64 pairs (sensor time µs, CLOCK_MONOTONIC ns just after the
+  first unit's frame was handed to the pty) for every IMU epoch;
+* ``truth.bin``: float64 rows (t, lat, lon, h, vn, ve, vd, roll, pitch, yaw) at 10 Hz
+  (rad, m, m/s, s of sensor time);
+* ``sim.json``: frames written and dropped (pty full) per link, send lateness.
+
+Sensor time ``t`` = CLOCK_MONOTONIC − start, the same clock as the gateway's
+``t_arrival_ns`` (both processes read the system-wide monotonic clock).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import ctypes
+import errno
+import json
+import math
+import os
+import signal
+import sys
+import threading
+import time
+import tty
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ins_hil.drivers.serial_frame import encode
+from ins_hil.runtime.metrics import LatencyHistogram
+from ins_hil.sim import sensors
+from ins_hil.sim.devices import _answer_timesync, _mavlink, _send_gnss, _UdpWriter
+from ins_hil.sim.faults import inject, inject_imu
+from ins_hil.sim.redundant import simulate
+from ins_hil.sim.trajectory import TruthSeries, generate, static_profile, uav_profile
+from ins_hil.soak.faults import geometry_for, parse_faults
+from ins_hil.types import ImuSample
+
+TRUTH_COLS = ("t", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "yaw")
+TRUTH_RATE = 10.0  # Hz
+
+
+def pin(cpu: int) -> None:
+    """Pin this process to one CPU (no-op if it does not exist) and use 1 ns timer slack (Linux)."""
+    if cpu >= 0:
+        try:  # the parent may be pinned elsewhere: any CPU of the machine is allowed
+            os.sched_setaffinity(0, {cpu})
+        except OSError as e:
+            print(f"soak: cannot pin to CPU {cpu}: {e}", file=sys.stderr)
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(29, 1, 0, 0, 0)  # PR_SET_TIMERSLACK = 1 ns
+    except (OSError, AttributeError):
+        pass
+
+
+def chunks(a: argparse.Namespace) -> Any:
+    """Yield (imu epochs, truth, gnss fixes, baro samples) per ``chunk_s`` (deterministic for a seed).
+
+    imu epochs: (t (N,), dtheta (N, units, 3), dvel (N, units, 3), flags (N, units)) in each unit's frame.
+    """
+    prof = uav_profile() if a.profile == "uav" else static_profile(yaw=0.3)
+    dt = 1.0 / a.rate
+    rng = np.random.default_rng(a.seed)
+    faults = parse_faults(a.faults, a.duration, a.imus)
+    gm = sensors.GnssModel(rate=a.gnss_rate)
+    geo = geometry_for(a.imus) if a.imus > 1 else None
+    gyro, accel = sensors.mems_gyro(rng), sensors.mems_accel(rng)
+    lat, lon, h, t0 = math.radians(a.lat_deg), math.radians(a.lon_deg), a.h, 0.0
+    n_chunk = max(1, round(a.chunk_s / dt))
+    k = 0
+    while True:
+        truth = generate(prof, n_chunk * dt, dt, lat, lon, h, t0=t0)
+        if geo is None:
+            s = sensors.corrupt_imu(truth, gyro, accel, rng)
+            for f in faults:
+                s = inject_imu(s, f, seed=a.seed + k)
+            dth, dv, fl = s.dtheta[:, None, :], s.dvel[:, None, :], np.asarray(s.flags)[:, None]
+            t = s.t
+        else:
+            r = simulate(truth, geo, seed=a.seed * 1000 + k)
+            for f in faults:
+                r = inject(r, f, seed=a.seed + k)
+            n = len(r.t)
+            dth, dv, fl, t = r.gyro.reshape(n, -1, 3), r.accel.reshape(n, -1, 3), r.flags, r.t
+        sub = TruthSeries(truth.t[1:], truth.q_nb[1:], truth.euler[1:], truth.vel_ned[1:], truth.lat[1:],
+                          truth.lon[1:], truth.h[1:], truth.dtheta, truth.dvel, truth.dt)  # fmt: skip
+        fixes = sensors.gnss_fixes(sub, gm, rng)
+        baro = sensors.baro_samples(sub, rate=a.baro_rate, std=0.5, seed=rng)
+        yield (t, dth, dv, fl), sub, fixes, baro
+        lat, lon, h, t0 = float(truth.lat[-1]), float(truth.lon[-1]), float(truth.h[-1]), float(truth.t[-1])
+        k += 1
+
+
+def truth_rows(tr: TruthSeries, rate: float) -> np.ndarray:
+    """Rows (t, lat, lon, h, vn, ve, vd, roll, pitch, yaw) at the sensor times that are multiples of 1/rate."""
+    step = 1.0 / rate
+    sel = np.flatnonzero(np.abs(tr.t / step - np.round(tr.t / step)) < 1e-6)
+    return np.column_stack((tr.t[sel], tr.lat[sel], tr.lon[sel], tr.h[sel], tr.vel_ned[sel], tr.euler[sel])).astype(
+        np.float64
+    )
+
+
+def die_with_parent() -> None:
+    """Linux: get SIGTERM when the parent (the soak orchestrator) dies (prctl PR_SET_PDEATHSIG)."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+class _Stop(Exception):
+    pass
+
+
+def _write(fd: int, frame: bytes, pending: list[bytes], u: int) -> bool:
+    """Write one frame to a non-blocking pty like a UART with a FIFO: whole frames or nothing.
+
+    The rest of a partially written frame waits in ``pending[u]`` and goes first next time;
+    a new frame is dropped (False) while an older one is still waiting (the reader is behind).
+    """
+    if pending[u]:
+        try:
+            n = os.write(fd, pending[u])
+        except OSError as e:
+            if e.errno not in (errno.EAGAIN, errno.EWOULDBLOCK):
+                raise
+            n = 0
+        pending[u] = pending[u][n:]
+        if pending[u]:
+            return False
+    try:
+        n = os.write(fd, frame)
+    except OSError as e:
+        if e.errno not in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise
+        return False
+    if n < len(frame):
+        pending[u] = frame[n:]
+    return True
+
+
+def run(a: argparse.Namespace) -> None:
+    """The process body (see module doc)."""
+    pin(a.cpu)
+    sys.setswitchinterval(0.0005)  # the chunk generator thread must not hold the GIL for long
+    out = Path(a.out)
+    n_links = a.imus if a.links == "separate" else 1
+    masters, slaves, paths = [], [], []
+    for _ in range(n_links):
+        m, s = os.openpty()
+        tty.setraw(s)
+        os.set_blocking(m, False)
+        masters.append(m)
+        slaves.append(s)  # kept open: the pty lives until we exit
+        paths.append(os.ttyname(s))
+    host, port = a.gnss_udp.rsplit(":", 1)
+    writer = _UdpWriter((host, int(port)))
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    mav = _mavlink(writer, 1, mavlink2.MAV_COMP_ID_GPS, "")
+    rx = mavlink2.MAVLink(None)
+    rx.robust_parsing = True
+    gen = chunks(a)
+    nxt: list[Any] = [next(gen)]
+    print(json.dumps({"imu": paths, "pid": os.getpid()}), flush=True)
+    if sys.stdin.readline().strip() != "go":
+        return
+    written = [0] * n_links
+    pending = [b""] * n_links
+    seq = 0
+    dropped = [0] * n_links
+    late = LatencyHistogram()  # emission − scheduled time
+    stats: dict[str, Any] = {}
+
+    ppid = os.getppid()
+    stopped = False
+
+    def on_term(*_: Any) -> None:
+        nonlocal stopped
+        stopped = True
+        raise _Stop
+
+    signal.signal(signal.SIGTERM, on_term)
+    f_em = open(out / "emission.bin", "wb")
+    f_tr = open(out / "truth.bin", "wb")
+    t_start_ns = time.monotonic_ns()
+    t_start = t_start_ns * 1e-9
+    stats["t_start_ns"] = t_start_ns
+    mono = time.monotonic_ns
+    dt = 1.0 / a.rate
+    t_hb = -1.0
+
+    def _write_stats() -> None:
+        stats.update(
+            imus=a.imus,
+            links=n_links,
+            rate_hz=a.rate,
+            written=written,
+            dropped_pty_full=dropped,
+            unsent_pending_bytes=[len(b) for b in pending],
+            udp_send_errors=writer.errors,
+            send_lateness=late.summary(),
+            t_end_ns=time.monotonic_ns(),
+        )
+        (out / "sim.json").write_text(json.dumps(stats, indent=1))
+
+    try:
+        while True:
+            (t_imu, dth, dv, fl), sub, fixes, baro = nxt.pop(0)
+            th = threading.Thread(target=lambda: nxt.append(next(gen)), daemon=True)
+            th.start()
+            truth_rows(sub, TRUTH_RATE).tofile(f_tr)
+            n = len(t_imu)
+            em = np.zeros((n, 2), dtype=np.int64)
+            em[:, 0] = np.round(t_imu * 1e6).astype(np.int64)
+            sched: list[tuple[float, int, int]] = [(float(t_imu[k]), 0, k) for k in range(n)]
+            sched += [(f.t + a.gnss_latency, 1, i) for i, f in enumerate(fixes)]
+            sched += [(b.t, 2, i) for i, b in enumerate(baro)]
+            sched.sort()
+            n_done = 0
+            try:
+                for ts, kind, i in sched:
+                    if ts > a.duration:
+                        raise _Stop
+                    due = t_start_ns + round(ts * 1e9)
+                    delay = (due - mono()) * 1e-9
+                    if delay > 0:
+                        time.sleep(delay)
+                    if kind == 0:
+                        tk = float(t_imu[i])
+                        for u in range(a.imus):
+                            frame = encode(ImuSample(tk, dt, dth[i, u], dv[i, u], u, seq & 0xFFFF, 35.0, int(fl[i, u])))
+                            lk = u if n_links > 1 else 0
+                            if _write(masters[lk], frame, pending, lk):
+                                written[lk] += 1
+                            else:
+                                dropped[lk] += 1
+                            if u == 0:
+                                now = mono()
+                                em[i, 1] = now
+                                late.record(now - due)
+                        n_done = i + 1
+                        seq += 1
+                    elif kind == 1:
+                        _send_gnss(mav, fixes[i])
+                    else:
+                        b = baro[i]
+                        mav.scaled_pressure_send(round(b.t * 1000), b.pressure / 100.0, 0.0, 2000)
+                    _answer_timesync(writer, rx, mav, t_start)
+                    if ts - t_hb >= 1.0:
+                        t_hb = ts
+                        mav.heartbeat_send(mavlink2.MAV_TYPE_GENERIC, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            finally:
+                em[:n_done][em[:n_done, 1] > 0].tofile(f_em)
+            th.join()
+    except (_Stop, KeyboardInterrupt, BrokenPipeError):
+        pass
+    finally:
+        f_em.close()
+        f_tr.close()
+        _write_stats()
+    # keep the ptys open (closing them discards what the gateway has not read yet) until told to stop,
+    # unless we were stopped already or the parent is gone
+    with contextlib.suppress(_Stop, KeyboardInterrupt):
+        while not stopped and os.getppid() == ppid:
+            time.sleep(0.2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description="soak sensor process (see ins_hil.soak.simproc)")
+    ap.add_argument("--gnss-udp", required=True, help="host:port of the gateway's MAVLink input")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--imus", type=int, default=1)
+    ap.add_argument("--links", choices=["shared", "separate"], default="shared")
+    ap.add_argument("--rate", type=float, default=1000.0)
+    ap.add_argument("--duration", type=float, required=True)
+    ap.add_argument("--faults", default="none")
+    ap.add_argument("--cpu", type=int, default=-1)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--profile", default="uav", choices=["uav", "static"])
+    ap.add_argument("--gnss-rate", type=float, default=5.0)
+    ap.add_argument("--gnss-latency", type=float, default=0.05)
+    ap.add_argument("--baro-rate", type=float, default=25.0)
+    ap.add_argument("--chunk-s", type=float, default=10.0)
+    ap.add_argument("--lat-deg", type=float, default=50.45)
+    ap.add_argument("--lon-deg", type=float, default=30.52)
+    ap.add_argument("--h", type=float, default=180.0)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    die_with_parent()
+    run(build_parser().parse_args(argv))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

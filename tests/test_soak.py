@@ -1,0 +1,115 @@
+"""Soak measurement: latency join, memory trend, fault schedule and scoring, accuracy stability (no timing)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ins_hil.soak.analysis import accuracy_stability, end_to_end, fault_check, growth_per_hour, pct
+from ins_hil.soak.faults import AUTO_GYRO_STEP, format_faults, geometry_for, parse_faults
+from ins_hil.types import FaultMode
+
+
+def test_end_to_end_joins_states_to_their_epoch_by_sensor_time() -> None:
+    t_us = np.arange(1000, 101000, 1000, dtype=np.int64)  # 1 kHz epochs
+    emitted = 5_000_000_000 + t_us * 1000 + np.arange(len(t_us)) % 7  # emission ns
+    em = np.column_stack((t_us, emitted))[::-1]  # order must not matter
+    # states received 300 µs + k µs after the emission of epochs 10, 30, 50 and one unknown epoch
+    picks = [9, 29, 49]
+    odo = np.array([[t_us[k], emitted[k] + 300_000 + 1000 * j] for j, k in enumerate(picks)] + [[123, 1]])
+    t, lat, unmatched = end_to_end(em, odo)
+    assert unmatched == 1
+    np.testing.assert_array_equal(lat, [300_000, 301_000, 302_000])
+    np.testing.assert_allclose(t, t_us[picks] * 1e-6)
+
+
+def test_pct_reports_microseconds() -> None:
+    s = pct(np.arange(1, 1001) * 1000)  # 1..1000 µs
+    assert s["count"] == 1000
+    assert s["p50_us"] == pytest.approx(500.5)
+    assert s["p99_us"] == pytest.approx(990.01)
+    assert s["max_us"] == 1000.0
+    assert math.isnan(pct(np.zeros(0))["p99_us"])
+
+
+def test_rss_growth_ignores_warmup_and_scales_to_hours() -> None:
+    t = np.arange(0.0, 3600.0, 1.0)
+    rss = np.where(t < 300, 50 + t * 0.01, 53 + (t - 300) * (0.5 / 3600))  # fast warm-up, then 0.5 MiB/h
+    g, span = growth_per_hour(t, rss, 300.0)
+    assert g == pytest.approx(0.5, rel=1e-6)
+    assert span == pytest.approx(3299.0)
+    g_all, _ = growth_per_hour(t, rss, 0.0)
+    assert g_all > 1.0  # with the warm-up the trend would fail the target
+
+
+def test_fault_schedule_parse_round_trip_and_errors() -> None:
+    auto = parse_faults("auto", 100.0, 2)
+    assert [(f.group, f.sensor, f.mode, f.t_start) for f in auto] == [
+        ("gyro", 1, FaultMode.STEP_BIAS, 40.0),
+        ("accel", 3, FaultMode.STEP_BIAS, 70.0),
+    ]
+    assert auto[0].size == AUTO_GYRO_STEP
+    specs = parse_faults("10:gyro:4:ramp:0.01:5,20:accel:0:noise_burst:0.3", 60.0, 2)
+    assert parse_faults(format_faults(specs), 60.0, 2) == specs
+    assert parse_faults("none", 60.0, 1) == []
+    with pytest.raises(ValueError, match="needs --imus 2"):
+        parse_faults("auto", 60.0, 1)
+    with pytest.raises(ValueError, match=r"row 6 outside 0\.\.5"):
+        parse_faults("10:gyro:6:step_bias:0.1", 60.0, 2)
+    with pytest.raises(ValueError, match="unknown mode 'wobble'"):
+        parse_faults("10:gyro:1:wobble:0.1", 60.0, 2)
+    with pytest.raises(ValueError, match="not inside the run"):
+        parse_faults("70:gyro:1:step_bias:0.1", 60.0, 2)
+
+
+def test_geometry_names_match_the_monitor_rows() -> None:
+    g = geometry_for(2)
+    assert g.n == 6 and g.row_name("gyro", 4) == "imu1.gyro.y"
+    assert geometry_for(3).n == 9
+    for n in (1, 4):
+        with pytest.raises(ValueError, match="2 \\(dual_imu\\) or 3"):
+            geometry_for(n)
+
+
+def _ev(t: float, sensor: str, mode: str = "STEP_BIAS", isolated: bool = True, cleared: bool = False) -> dict:
+    return {"t": t, "sensor": sensor, "mode": mode, "isolated": isolated, "cleared": cleared, "detail": ""}
+
+
+def test_fault_check_scores_detection_false_alarms_and_dropouts() -> None:
+    opt = {"faults": "auto", "duration": 100.0, "imus": 2}  # imu0.gyro.y at 40 s, imu1.accel.x at 70 s
+    events = [
+        _ev(40.02, "imu0.gyro.y"),
+        _ev(41.0, "imu0.gyro.y", "STEP_BIAS"),  # classification follow-up: not a false alarm
+        _ev(12.0, "imu1.gyro.z"),  # nothing injected there: false alarm
+        _ev(5.0, "imu1.gyro", "DROPOUT"),  # frames that did not arrive: counted apart
+        _ev(71.0, "imu1.accel.y"),  # wrong sensor for the accel fault: false alarm, fault missed
+    ]
+    fc = fault_check(opt, events)
+    assert [r["detected"] for r in fc["injected"]] == [True, False]
+    assert fc["injected"][0]["delay_s"] == pytest.approx(0.02)
+    assert fc["all_isolated"] is False
+    assert fc["false_alarms"] == 2
+    assert fc["dropout_events"] == 1
+    ok = fault_check(opt, [_ev(40.1, "imu0.gyro.y"), _ev(70.2, "imu1.accel.x"), _ev(80, "imu1.accel.x", cleared=True)])
+    assert ok["all_isolated"] is True and ok["false_alarms"] == 0
+    late = fault_check(opt, [_ev(55.0, "imu0.gyro.y")])  # outside the detection window
+    assert late["injected"][0]["detected"] is False
+
+
+def test_accuracy_stability_flags_growth_divergence_and_silence() -> None:
+    t = np.arange(0.0, 600.0, 0.1)
+    flat = 0.5 + 0.1 * np.sin(t)
+    s = accuracy_stability(t, flat, 30.0, 600.0)
+    assert s["stable"] is True and s["first_rms"] == pytest.approx(s["last_rms"], rel=0.1)
+    growing = 0.5 + t * 0.02  # 12 m at the end
+    assert accuracy_stability(t, growing, 30.0, 600.0)["stable"] is False
+    nan = flat.copy()
+    nan[4000:] = np.nan
+    d = accuracy_stability(t, nan, 30.0, 600.0)
+    assert d["stable"] is False and "diverged" in d["note"]
+    big = accuracy_stability(t, flat + 80.0, 30.0, 600.0, limit=50.0)  # flat but far off: a diverged filter
+    assert big["stable"] is False and "above 50" in big["note"]
+    quiet = accuracy_stability(t[t < 300], flat[t < 300], 30.0, 600.0)
+    assert quiet["stable"] is False and "stop" in quiet["note"]
