@@ -161,7 +161,10 @@ class AidingMonitor:
     # ---------------------------------------------------------------- public
     def check(self, meas: GnssFix | BaroSample, state: NavState) -> bool:
         """Test one measurement against ``state`` (the navigation state at about ``meas.t``,
-        before the measurement is fused). Returns True if the caller should NOT fuse it."""
+        before the measurement is fused). Returns True if the caller should NOT fuse it.
+        Nothing is tested (False) until ``state.aligned``: the INS is not trustworthy before."""
+        if not state.aligned:
+            return False
         if isinstance(meas, GnssFix):
             self._gnss(meas, state)
             return self.cfg.exclude and self.gnss.faulted
