@@ -243,8 +243,12 @@ class AidingMonitor:
                 which = "position/velocity consistency" if bad_c else "INS innovation CUSUM"
                 axis = int(np.argmax(np.maximum(self._cp, self._cn)))
                 rate = rate_c
-                if not bad_c and axis >= 3:  # velocity shift: Page's estimate (k + S/n)·σ_v
-                    n = max(1.0, self._cn_len[axis] if self._cn[axis] > self._cp[axis] else self._cp_len[axis])
+                n = max(1.0, self._cn_len[axis] if self._cn[axis] > self._cp[axis] else self._cp_len[axis])
+                if not bad_c and axis < 3 and len(self._win) >= 3:
+                    # position pull: slope of the consistency sum since the CUSUM's change point (n fixes)
+                    a = np.array(list(self._win)[-max(3, int(n) + 1) :])
+                    rate = float(np.linalg.norm(_slope(a[:, 0], a[:, 1:4])[0]))
+                elif not bad_c:  # velocity shift: Page's estimate (k + S/n)·σ_v
                     rate = max(rate_c, float((c.cusum_k + cus / n) * self._sv[axis - 3]))
                 det = (
                     f"{which}: χ²={cons:.1f} (thr {self.thr_gnss:.1f})"
