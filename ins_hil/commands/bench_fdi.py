@@ -532,7 +532,7 @@ def bench_aiding(args: argparse.Namespace, lines: list[str]) -> None:
             other = "baro" if sensor == "gnss" else "gnss"
             wrong += any(e.sensor == other and e.mode == FaultMode.DRIFT and not e.cleared for e in ev)
             fa_events += sum(1 for e in ev if e.mode == FaultMode.DRIFT and not e.cleared and e.t < AID_T_FAULT)
-            fa_time += AID_T_FAULT - 10.0
+            fa_time += AID_T_FAULT
             if hit:
                 times.append(hit[0].t - AID_T_FAULT)
         med = f"{np.median(times):.1f} / {max(times):.1f}" if times else "–"
@@ -540,9 +540,16 @@ def bench_aiding(args: argparse.Namespace, lines: list[str]) -> None:
         print(lines[-1])
     lines += [
         "",
-        f"False alarms (DRIFT before the onset, flight from 10 s to {AID_T_FAULT:.0f} s of every run): "
+        f"False alarms (DRIFT before the onset, the first {AID_T_FAULT:.0f} s of every run): "
         f"{fa_events} in {fa_time / 3600:.2f} h of closed-loop flight. The test suite also runs one simulated "
         "hour of fixes against a truth-referenced state with zero DRIFT events (tests/test_fdi_aiding.py).",
+        "",
+        "Tests: GNSS position vs GNSS velocity (LS slope of Σ(Δp − v̄Δt) over the window, χ²₃), two-sided "
+        "CUSUM of the horizontal INS innovations (threshold from Siegmund's ARL₀), baro − GNSS height slope "
+        "(χ²₁); thresholds from P_fa per hour. Limits: a velocity-matched pull as small as the GNSS velocity "
+        "noise (0.1 m/s = 2σ here) is absorbed by the filter and not detected; a pull ramped in through "
+        "acceleration only is not benchmarked; a fast baro drift (1 m/s) drags the filter height so the "
+        'GNSS is sometimes flagged as well ("wrong sensor"); the GNSS lever arm is ignored.',
         AID_END,
         "",
     ]
