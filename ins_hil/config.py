@@ -16,7 +16,7 @@ from typing import Any
 from ins_hil.drivers.mavlink_in import parse_url as mavlink_in_url
 from ins_hil.runtime.mavlink_out import ALL_MESSAGES, EndpointConfig, parse_url
 from ins_hil.runtime.mqtt_out import MqttConfig
-from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig, check_core, fdi_monitor
+from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig, aiding_monitor, check_core, fdi_monitor
 from ins_hil.sim.devices import SimConfig
 
 REPO_CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -184,8 +184,20 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             if not isinstance(v, dict):
                 raise ConfigError(f"fdi.options = {v!r}: expected a table")
             p.fdi_options = dict(v)
+        elif k == "aiding":
+            if not isinstance(v, dict):
+                raise ConfigError(f"fdi.aiding = {v!r}: expected a table")
+            opts = dict(v)
+            en = opts.pop("enabled", True)
+            if not isinstance(en, bool):
+                raise ConfigError(f"fdi.aiding.enabled = {en!r}: expected true or false")
+            try:
+                aiding_monitor(opts)
+            except ValueError as e:
+                raise ConfigError(str(e)) from None
+            p.aiding_fdi, p.aiding_options = en, opts
         else:
-            raise ConfigError(f"unknown key 'fdi.{k}' (known: enabled, imu_ids, options)")
+            raise ConfigError(f"unknown key 'fdi.{k}' (known: enabled, imu_ids, options, aiding)")
 
     if p.fdi:
         try:

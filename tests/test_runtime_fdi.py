@@ -62,3 +62,62 @@ def test_step_fault_isolated_in_the_pipeline_and_replayed(tmp_path: Path) -> Non
     assert len(res.states) == len(states)
     assert all(np.array_equal(a.q_nb, b.q_nb) and a.t == b.t for a, b in zip(states, res.states))
     assert [(e.t, e.sensor, e.mode) for e in res.events] == [(e.t, e.sensor, e.mode) for e in events]
+
+
+def test_gnss_pull_flagged_and_excluded_by_the_pipeline() -> None:
+    """A 1 m/s position-only GNSS pull at t = 30 s: the pipeline's aiding monitor reports a gnss DRIFT event
+    through drain_events within 5 s and stops fusing the GNSS (counted as excluded_GnssFix)."""
+    from ins_hil.sim import sensors as se
+    from ins_hil.sim import trajectory as tr
+    from ins_hil.sim.faults import gnss_drift
+
+    lat, lon, h = math.radians(45.0), 0.5, 100.0
+    truth = tr.generate(tr.uav_profile(t_takeoff=2.0, ramp=8.0, turn_period=40.0), 45.0, 0.01, lat, lon, h)
+    rng = np.random.default_rng(5)
+    imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=6).samples()
+    fixes = gnss_drift(se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.5, std_d=1.0, std_vel=0.05), seed=15),
+                       30.0, (0.7, 0.7, 0.0))  # fmt: skip
+    baro = se.baro_samples(truth, rate=25, std=0.3, seed=25)
+    e = truth.euler[0]
+    cfg = PipelineConfig(
+        init="config", init_lat_deg=45.0, init_lon_deg=math.degrees(lon), init_h=h,
+        init_roll_deg=math.degrees(e[0]), init_pitch_deg=math.degrees(e[1]), init_yaw_deg=math.degrees(e[2]),
+        aiding_options={"baro_std": 0.3}, nav={"filter": {"cov_every": 5}},
+    )  # fmt: skip
+    pipe = Pipeline(cfg)
+    meas = sorted([*fixes, *baro], key=lambda m: m.t)
+    j, events = 0, []
+    for s in imu:
+        while j < len(meas) and meas[j].t <= s.t:
+            pipe.aid(meas[j])
+            j += 1
+        pipe.imu(s)
+        events += pipe.drain_events()
+    drift = [ev for ev in events if ev.mode == FaultMode.DRIFT and not ev.cleared]
+    assert drift and drift[0].sensor == "gnss" and 30.0 <= drift[0].t <= 35.0
+    assert not [ev for ev in events if ev.mode == FaultMode.DRIFT and ev.t < 30.0]
+    assert pipe.counts.get("excluded_GnssFix", 0) > 40
+    assert pipe.counts.get("fused_GnssFix", 0) > 140
+
+
+def test_fdi_aiding_config_table_is_validated() -> None:
+    import pytest
+    from runtime_helpers import sim_config_dict
+
+    from ins_hil.config import ConfigError, from_dict
+
+    d = sim_config_dict()
+    assert from_dict(d).pipeline.aiding_fdi  # on by default
+    d["fdi"] = {"aiding": {"enabled": False, "p_fa_hour": 1e-4}}
+    p = from_dict(d).pipeline
+    assert not p.aiding_fdi and p.aiding_options == {"p_fa_hour": 1e-4}
+    for bad, msg in (
+        ({"p_fa": 1e-3}, "fdi.aiding.p_fa"),
+        ({"p_fa_hour": 3.0}, "p_fa_hour"),
+        ({"window": "long"}, "fdi.aiding.window"),
+        ({"exclude": 1}, "fdi.aiding.exclude"),
+        ({"enabled": "yes"}, "fdi.aiding.enabled"),
+    ):
+        d["fdi"] = {"aiding": bad}
+        with pytest.raises(ConfigError, match=msg):
+            from_dict(d)

@@ -7,9 +7,22 @@
 * :mod:`ins_hil.fdi.geometry`: redundant configurations (5-gyro cone, skewed six, 2–3 IMUs).
 * :mod:`ins_hil.fdi.thresholds`: χ² thresholds from noise and a false-alarm probability.
 * :mod:`ins_hil.fdi.monitor`: the runtime :class:`~ins_hil.fdi.monitor.FdiMonitor`.
+* :mod:`ins_hil.fdi.aiding`: GNSS/baro drift and slow-pull detection (:class:`~ins_hil.fdi.aiding.AidingMonitor`).
 """
 
+from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 from ins_hil.fdi.geometry import SensorGeometry, book_cone5, by_name, dual_imu, skewed6, triple_imu
 from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
 
-__all__ = ["FdiConfig", "FdiMonitor", "SensorGeometry", "book_cone5", "by_name", "dual_imu", "skewed6", "triple_imu"]
+__all__ = [
+    "AidingConfig",
+    "AidingMonitor",
+    "FdiConfig",
+    "FdiMonitor",
+    "SensorGeometry",
+    "book_cone5",
+    "by_name",
+    "dual_imu",
+    "skewed6",
+    "triple_imu",
+]

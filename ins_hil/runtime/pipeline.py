@@ -132,6 +132,8 @@ class PipelineConfig:
     fdi: bool = False
     fdi_options: dict[str, Any] = field(default_factory=dict)
     calibration: str = ""
+    aiding_fdi: bool = True  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
+    aiding_options: dict[str, Any] = field(default_factory=dict)  # AidingConfig fields
     nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig fields
 
 
@@ -164,6 +166,7 @@ class Pipeline:
         self._pending: dict[int, dict[int, ImuSample]] = {}
         self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
+        self._aid_mon = aiding_monitor(cfg.aiding_options) if cfg.aiding_fdi else None
         self.last_state: NavState | None = None
         if cfg.init == "config":
             self._start(
@@ -269,6 +272,15 @@ class Pipeline:
 
     def _fuse(self, m: Aid) -> None:
         assert self.core is not None
+        mon = self._aid_mon
+        if mon is not None and not isinstance(m, MagSample):
+            # the drift monitor sees the state before this measurement is fused (GNSS/baro rate only)
+            excluded = mon.check(m, self.core.state())
+            if mon.events:
+                self.events.extend(mon.drain_events())
+            if excluded:
+                self._count("excluded_" + type(m).__name__)
+                return
         self.core.fuse(m)
         self._count("fused_" + type(m).__name__)
 
@@ -311,6 +323,27 @@ def fdi_monitor(options: dict[str, Any]) -> Any:
         return FdiMonitor(FdiConfig(**opts))
     except (TypeError, ValueError) as e:
         raise ValueError(f"fdi.options: {e}") from None
+
+
+def aiding_monitor(options: dict[str, Any]) -> Any:
+    """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key)."""
+    from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
+
+    known = {f.name for f in dataclasses.fields(AidingConfig)}
+    bad = set(options) - known
+    if bad:
+        raise ValueError(
+            f"unknown key(s) {sorted('fdi.aiding.' + b for b in bad)} (known: enabled, {', '.join(sorted(known))})"
+        )
+    for k, v in options.items():
+        want_bool = isinstance(getattr(AidingConfig(), k), bool)
+        if isinstance(v, bool) != want_bool or not isinstance(v, (int, float)):
+            raise ValueError(f"fdi.aiding.{k} = {v!r}: expected {'true or false' if want_bool else 'a number'}")
+    try:
+        kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
+        return AidingMonitor(AidingConfig(**kw))
+    except ValueError as e:
+        raise ValueError(f"fdi.aiding: {e}") from None
 
 
 def _make_fdi(cfg: PipelineConfig) -> Any:

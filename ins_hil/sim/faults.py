@@ -17,14 +17,16 @@ Deterministic for a given ``seed``. Increments are rate × dt, so a bias b adds 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from ins_hil.nav import earth
 from ins_hil.sim.redundant import RedundantSeries
 from ins_hil.sim.sensors import ImuSeries
-from ins_hil.types import FaultMode, Vec
+from ins_hil.types import BaroSample, FaultMode, GnssFix, Vec
 
 
 @dataclass(frozen=True)
@@ -100,3 +102,61 @@ def inject_imu(series: ImuSeries, spec: FaultSpec, seed: int = 0) -> ImuSeries:
     if spec.group == "gyro":
         return ImuSeries(series.t, series.dt, arr, series.dvel, series.gyro_bias, series.accel_bias, series.flags)
     return ImuSeries(series.t, series.dt, series.dtheta, arr, series.gyro_bias, series.accel_bias, series.flags)
+
+
+# --------------------------------------------------------------------------- aiding sensors
+# GNSS / baro faults on measurement lists (``ins_hil.sim.sensors.gnss_fixes`` / ``baro_samples``).
+# Offsets are NED metres (down positive) applied from ``t_start`` for ``duration`` seconds.
+
+
+def _gnss_offset(f: GnssFix, d_ned: Vec, dv_ned: Vec | None) -> GnssFix:
+    m, n = earth.radii(f.lat)
+    vel = f.vel_ned
+    if dv_ned is not None and vel is not None:
+        vel = np.asarray(vel, dtype=np.float64) + dv_ned
+    return dataclasses.replace(
+        f,
+        lat=f.lat + float(d_ned[0]) / (m + f.h),
+        lon=f.lon + float(d_ned[1]) / ((n + f.h) * math.cos(f.lat)),
+        h=f.h - float(d_ned[2]),
+        vel_ned=vel,
+    )
+
+
+def gnss_jump(fixes: list[GnssFix], t_start: float, offset_ned: Vec, duration: float = math.inf) -> list[GnssFix]:
+    """Copies of ``fixes`` with a constant position offset (m, NED) while t ∈ [t_start, t_start + duration)."""
+    off = np.asarray(offset_ned, dtype=np.float64)
+    return [_gnss_offset(f, off, None) if t_start <= f.t < t_start + duration else f for f in fixes]
+
+
+def gnss_drift(
+    fixes: list[GnssFix],
+    t_start: float,
+    rate_ned: Vec,
+    match_velocity: bool = False,
+    duration: float = math.inf,
+) -> list[GnssFix]:
+    """A slow drift / spoofing-like pull: position offset ``rate_ned``·(t − t_start) (m/s, NED).
+
+    With ``match_velocity`` the reported velocity carries the same ``rate_ned`` (a consistent pull);
+    otherwise only the position moves. After ``duration`` the fixes are healthy again."""
+    r = np.asarray(rate_ned, dtype=np.float64)
+    return [
+        _gnss_offset(f, r * (f.t - t_start), r if match_velocity else None)
+        if t_start <= f.t < t_start + duration
+        else f
+        for f in fixes
+    ]
+
+
+def baro_drift(samples: list[BaroSample], t_start: float, rate: float, duration: float = math.inf) -> list[BaroSample]:
+    """Baro altitude drifting at ``rate`` (m/s, up positive) from ``t_start``; pressure recomputed (ISA)."""
+    from ins_hil.sim.sensors import pressure_from_altitude
+
+    out = []
+    for s in samples:
+        if t_start <= s.t < t_start + duration:
+            alt = s.altitude + rate * (s.t - t_start)
+            s = dataclasses.replace(s, altitude=alt, pressure=pressure_from_altitude(alt))
+        out.append(s)
+    return out

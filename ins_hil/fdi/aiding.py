@@ -1,0 +1,340 @@
+"""Aiding-sensor (GNSS, baro) drift and slow-pull detection from outside the filter.
+
+The filter's per-measurement χ² gate (``NavCore``) catches jumps and outliers, but a
+slow drift or a spoofing-like pull (position moved at 0.1–1 m/s) is followed by the
+filter and never trips a per-sample gate. :class:`AidingMonitor` sees every GNSS fix and
+baro sample together with the navigation state propagated to (about) the measurement
+time *before* the measurement is fused, and runs sequential tests:
+
+* **GNSS position vs GNSS velocity** (receiver-internal consistency, independent of the
+  INS): e_k = Σ (Δp_k − ½(v_{k−1}+v_k)Δt_k) (NED, m) should be constant plus noise; the
+  least-squares slope of e over a sliding window of ``window`` s is the pull rate (m/s)
+  of a pull that moves the position without matching velocity. Its variance is
+  σ_p²/Σ(t−t̄)² (white position noise) + 6·q/(5T) (the trapezoid-integrated velocity
+  noise is a random walk of diffusion q = σ_v²Δt; OLS slope of a Brownian motion over
+  T) + ``rate_floor``² (margin for time-correlated receiver errors). Statistic
+  Σ slope²/var ~ χ²₃.
+* **GNSS vs INS innovations**: the normalised innovations ν/√(σ_ins² + σ_meas²) of
+  position (3) and velocity (3) (horizontal only unless ``vertical_cusum``: with a baro fused, the filter
+  height follows the baro, so a drifting baro would be blamed on the GNSS), with σ_ins from the
+  pre-fusion ``NavState.std_pos`` / ``std_vel``, feed a two-sided CUSUM per axis (Page's test, reference ``cusum_k`` σ).
+  A pull with consistent velocity shows here (the INS disagrees with the GNSS velocity).
+* **Baro vs GNSS height** at every healthy GNSS fix (the latest baro sample moved to the
+  fix time with the GNSS vertical velocity): the LS slope of d = h_baro − h_gnss over the
+  window is the baro drift rate; variance (σ_b² + σ_d²)/Σ(t−t̄)² + ``rate_floor``²; χ²₁.
+
+Thresholds come from ``p_fa_hour`` (false-alarm probability per hour, per sensor), not
+hand-picked constants:
+
+* window tests are evaluated at every GNSS fix and counted as that many trials an hour
+  (conservative: consecutive windows overlap), p = P_fa / (3600·f_gnss);
+* the CUSUM threshold h solves Siegmund's approximation of the in-control average run
+  length ARL₀(h) = (e^{2k(h+1.166)} − 2k(h+1.166) − 1)/(2k²) ≥ (samples an hour × 6 one-sided
+  tests)/P_fa (Siegmund 1985, the standard ARL approximation for a N(0,1) CUSUM).
+
+A fault is reported once as ``FaultEvent(sensor, FaultMode.DRIFT, magnitude=rate m/s)``;
+the event with ``cleared=True`` follows after every statistic has stayed below its
+threshold (and every normalised innovation below ``clear_gate``) for ``clear_time`` s.
+With ``exclude`` the caller should not fuse the sensor while :meth:`AidingMonitor.check`
+returns True. Pure, deterministic, no I/O; O(window) work per GNSS fix, O(1) per baro sample.
+Normalised innovations are clipped at ``jump_gate`` in the CUSUM and a single-epoch position step is
+left out of the consistency sum: a jump is reported first by the filter's own gate (JUMP); only a
+persisting offset accumulates to a DRIFT alarm. Clearing uses hysteresis (``clear_fraction`` of the
+threshold).
+Simplifications: the GNSS lever arm is ignored (the INS position is the antenna position);
+a vertical GNSS pull with matching vertical velocity is blamed on the baro by the
+baro/GNSS test (the GNSS CUSUM usually fires first).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from ins_hil.fdi.thresholds import chi2_threshold
+from ins_hil.nav import earth
+from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, NavState
+
+
+@dataclass(frozen=True)
+class AidingConfig:
+    """Settings of :class:`AidingMonitor` (SI units; times in s; ``cusum_k``/``clear_gate`` in σ).
+
+    ``gnss_rate``/``baro_rate`` (Hz) are the nominal rates used only to count trials an hour
+    for the thresholds. ``baro_std`` (m) is the baro noise (a BaroSample carries no σ).
+    ``min_span`` is the shortest filled window (s) a slope test runs on; ``max_gap`` (s) a
+    GNSS gap that restarts the windows."""
+
+    p_fa_hour: float = 1e-3
+    window: float = 20.0
+    min_span: float = 8.0
+    cusum_k: float = 0.5
+    clear_gate: float = 3.0
+    clear_time: float = 10.0
+    rate_floor: float = 0.005
+    baro_std: float = 0.5
+    gnss_rate: float = 5.0
+    baro_rate: float = 25.0
+    min_std: float = 0.01
+    jump_gate: float = 5.0
+    vertical_cusum: bool = False
+    clear_fraction: float = 0.25
+    max_gap: float = 2.0
+    exclude: bool = True
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.p_fa_hour < 1.0:
+            raise ValueError(f"p_fa_hour = {self.p_fa_hour}: expected a probability in (0, 1)")
+        for name in ("window", "min_span", "cusum_k", "clear_gate", "gnss_rate", "baro_rate", "baro_std", "min_std"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} = {getattr(self, name)}: expected a positive number")
+        if self.min_span > self.window:
+            raise ValueError(f"min_span = {self.min_span} must not exceed window = {self.window}")
+        if self.clear_time < 0 or self.rate_floor < 0 or self.max_gap <= 0:
+            raise ValueError("clear_time and rate_floor must be ≥ 0, max_gap > 0")
+
+
+def cusum_arl0(h: float, k: float) -> float:
+    """Siegmund's approximation of the in-control ARL (samples) of a one-sided N(0,1) CUSUM."""
+    b = 2.0 * k * (h + 1.166)
+    return (math.exp(b) - b - 1.0) / (2.0 * k * k)
+
+
+def cusum_threshold(arl0: float, k: float) -> float:
+    """The CUSUM decision threshold h (σ) with ARL₀(h) = ``arl0`` samples (bisection)."""
+    lo, hi = 0.0, 1.0
+    while cusum_arl0(hi, k) < arl0:
+        hi *= 2.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if cusum_arl0(mid, k) < arl0:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _slope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """OLS slopes of the columns of y (N, m) against t (N,), and Σ(t − t̄)²."""
+    tc = t - t.mean()
+    sxx = float(tc @ tc)
+    return (tc @ (y - y.mean(axis=0))) / sxx, sxx
+
+
+class _Status:
+    __slots__ = ("faulted", "t_fault", "t_ok")
+
+    def __init__(self) -> None:
+        self.faulted = False
+        self.t_fault = 0.0
+        self.t_ok = math.nan  # start of the current healthy stretch while faulted
+
+
+class AidingMonitor:
+    """GNSS / baro drift monitor (see module doc). Call :meth:`check` before fusing."""
+
+    def __init__(self, cfg: AidingConfig | None = None) -> None:
+        c = cfg or AidingConfig()
+        self.cfg = c
+        trials = 3600.0 * c.gnss_rate
+        self.thr_gnss = chi2_threshold(min(0.5, c.p_fa_hour / trials), 3)
+        self.thr_baro = chi2_threshold(min(0.5, c.p_fa_hour / trials), 1)
+        self.h_cusum = cusum_threshold(6.0 * trials / c.p_fa_hour, c.cusum_k)
+        self.events: list[FaultEvent] = []
+        self.gnss = _Status()
+        self.baro = _Status()
+        self.stats: dict[str, float] = {"gnss_consistency": 0.0, "gnss_cusum": 0.0, "baro_slope": 0.0}
+        self._cp = np.zeros(6)  # CUSUM S⁺ (pos N,E,D, vel N,E,D)
+        self._cn = np.zeros(6)  # CUSUM S⁻
+        self._prev: GnssFix | None = None
+        self._e = np.zeros(3)  # accumulated position − integrated velocity (m, NED)
+        self._win: deque[tuple[float, float, float, float, float, float]] = deque()  # t, e(3), σ_p², σ_v²Δt
+        self._cp_len = np.zeros(6)  # samples since S⁺ was last zero
+        self._cn_len = np.zeros(6)
+        self._sv = np.ones(3)  # σ of the velocity innovation (m/s)
+        self._baro_last: BaroSample | None = None
+        self._bwin: deque[tuple[float, float, float]] = deque()  # t, h_baro − h_gnss, var
+
+    # ---------------------------------------------------------------- public
+    def check(self, meas: GnssFix | BaroSample, state: NavState) -> bool:
+        """Test one measurement against ``state`` (the navigation state at about ``meas.t``,
+        before the measurement is fused). Returns True if the caller should NOT fuse it.
+        Nothing is tested (False) until ``state.aligned``: the INS is not trustworthy before."""
+        if not state.aligned:
+            return False
+        if isinstance(meas, GnssFix):
+            self._gnss(meas, state)
+            return self.cfg.exclude and self.gnss.faulted
+        if isinstance(meas, BaroSample):
+            if math.isfinite(meas.altitude):
+                self._baro_last = meas
+            return self.cfg.exclude and self.baro.faulted
+        return False
+
+    def faulted(self, sensor: str) -> bool:
+        """True while ``"gnss"`` or ``"baro"`` is flagged."""
+        return (self.gnss if sensor == "gnss" else self.baro).faulted
+
+    def drain_events(self) -> list[FaultEvent]:
+        """Events raised since the last call."""
+        ev, self.events = self.events, []
+        return ev
+
+    # ---------------------------------------------------------------- GNSS
+    def _gnss(self, g: GnssFix, st: NavState) -> None:
+        c = self.cfg
+        sp_ne, sp_d = max(g.std_ne, c.min_std), max(g.std_d, c.min_std)
+        var_p = np.array((sp_ne * sp_ne, sp_ne * sp_ne, sp_d * sp_d))
+        # --- innovations against the INS (state moved to the fix time with its velocity)
+        dt_s = g.t - st.t
+        nu_p = earth.ned_delta_small(g.lat - st.lat, g.lon - st.lon, g.h - st.h, st.lat, st.h) - st.vel_ned * dt_s
+        s_ins = np.asarray(st.std_pos) ** 2
+        z_p = nu_p / np.sqrt(s_ins + var_p)
+        if g.vel_ned is not None:
+            sv = max(g.std_vel, c.min_std)
+            nu_v = np.asarray(g.vel_ned, dtype=np.float64) - st.vel_ned
+            z_v = nu_v / np.sqrt(np.asarray(st.std_vel) ** 2 + sv * sv)
+        else:
+            sv = math.nan
+            z_v = np.zeros(3)
+        # --- position vs velocity consistency window
+        prev = self._prev
+        if prev is not None and (g.t - prev.t > c.max_gap or g.t <= prev.t):
+            self._reset_windows()
+            prev = None
+        if prev is not None and prev.vel_ned is not None and g.vel_ned is not None:
+            dt = g.t - prev.t
+            dp = earth.ned_delta_small(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h)
+            de = dp - 0.5 * (np.asarray(prev.vel_ned) + np.asarray(g.vel_ned)) * dt
+            if (
+                float(np.max(np.abs(de[:2]))) < c.jump_gate * 1.4142 * sp_ne
+                and abs(de[2]) < c.jump_gate * 1.4142 * sp_d
+            ):
+                self._e = self._e + de  # a single-epoch jump is left to the filter's gate (JUMP)
+            self._win.append((g.t, *self._e, sp_ne * sp_ne, sv * sv * dt))
+        elif g.vel_ned is not None:
+            self._e = np.zeros(3)
+            self._win.append((g.t, 0.0, 0.0, 0.0, sp_ne * sp_ne, 0.0))
+        self._prev = g
+        while self._win and self._win[0][0] < g.t - c.window:
+            self._win.popleft()
+        cons, rate_c = self._consistency(sp_d / sp_ne)
+        self.stats["gnss_consistency"] = cons
+        # --- CUSUM on the normalised innovations (frozen while the GNSS is excluded)
+        z = np.concatenate((z_p, z_v))
+        if not c.vertical_cusum:  # the filter height follows the baro: vertical GNSS checked by the slope tests
+            z[2] = z[5] = 0.0
+        z = np.clip(z, -c.jump_gate, c.jump_gate)  # an outlier adds at most jump_gate − k
+        if not (self.gnss.faulted and c.exclude):
+            self._cp = np.maximum(0.0, self._cp + z - c.cusum_k)
+            self._cn = np.maximum(0.0, self._cn - z - c.cusum_k)
+            self._cp_len = np.where(self._cp > 0, self._cp_len + 1, 0.0)
+            self._cn_len = np.where(self._cn > 0, self._cn_len + 1, 0.0)
+            self._sv = np.sqrt(np.asarray(st.std_vel) ** 2 + (sv * sv if g.vel_ned is not None else 0.0))
+        cus = float(max(self._cp.max(), self._cn.max()))
+        self.stats["gnss_cusum"] = cus
+        bad_c = cons > self.thr_gnss
+        bad_u = cus > self.h_cusum
+        if not self.gnss.faulted:
+            if bad_c or bad_u:
+                which = "position/velocity consistency" if bad_c else "INS innovation CUSUM"
+                axis = int(np.argmax(np.maximum(self._cp, self._cn)))
+                rate = rate_c
+                n = max(1.0, self._cn_len[axis] if self._cn[axis] > self._cp[axis] else self._cp_len[axis])
+                if not bad_c and axis < 3 and len(self._win) >= 3:
+                    # position pull: slope of the consistency sum since the CUSUM's change point (n fixes)
+                    a = np.array(list(self._win)[-max(3, int(n) + 1) :])
+                    rate = float(np.linalg.norm(_slope(a[:, 0], a[:, 1:4])[0]))
+                elif not bad_c:  # velocity shift: Page's estimate (k + S/n)·σ_v
+                    rate = max(rate_c, float((c.cusum_k + cus / n) * self._sv[axis - 3]))
+                det = (
+                    f"{which}: χ²={cons:.1f} (thr {self.thr_gnss:.1f})"
+                    if bad_c
+                    else f"{which}: {('pos', 'vel')[axis // 3]}.{'NED'[axis % 3]} S={cus:.1f} (h {self.h_cusum:.1f})"
+                )
+                self._raise(self.gnss, "gnss", g.t, rate, det)
+        else:
+            healthy = cons < c.clear_fraction * self.thr_gnss and float(np.max(np.abs(z))) < c.clear_gate
+            if not healthy:
+                self.gnss.t_ok = math.nan
+            elif math.isnan(self.gnss.t_ok):
+                self.gnss.t_ok = g.t
+            if healthy and g.t - self.gnss.t_ok >= c.clear_time:
+                self._cp[:] = 0.0
+                self._cn[:] = 0.0
+                self._clear(self.gnss, "gnss", g.t)
+        # --- baro vs GNSS height (only against a healthy GNSS)
+        self._baro_vs_gnss(g, sp_d)
+
+    def _consistency(self, ratio_d: float) -> tuple[float, float]:
+        """χ²₃ statistic of the position-vs-velocity slope and its norm (m/s)."""
+        w = self._win
+        if len(w) < 3 or w[-1][0] - w[0][0] < self.cfg.min_span:
+            return 0.0, 0.0
+        a = np.array(w)
+        t = a[:, 0]
+        b, sxx = _slope(t, a[:, 1:4])
+        span = float(t[-1] - t[0])
+        var_ne = float(a[:, 4].mean()) / sxx
+        q = float(a[1:, 5].sum()) / span  # diffusion of the integrated velocity noise (m²/s)
+        var_v = 1.2 * q / span
+        fl = self.cfg.rate_floor**2
+        var = np.array((var_ne + var_v + fl, var_ne + var_v + fl, var_ne * ratio_d * ratio_d + var_v + fl))
+        return float(np.sum(b * b / var)), float(np.linalg.norm(b))
+
+    def _reset_windows(self) -> None:
+        self._win.clear()
+        self._e = np.zeros(3)
+
+    # ---------------------------------------------------------------- baro
+    def _baro_vs_gnss(self, g: GnssFix, sp_d: float) -> None:
+        c = self.cfg
+        b = self._baro_last
+        if self.gnss.faulted or b is None or abs(b.t - g.t) > 0.25:
+            if self.gnss.faulted:
+                self._bwin.clear()
+            return
+        vd = float(g.vel_ned[2]) if g.vel_ned is not None else 0.0
+        h_b = b.altitude + vd * (b.t - g.t)  # h(t_g) = h(t_b) − ḣ·(t_b − t_g), ḣ = −v_D
+        self._bwin.append((g.t, h_b - g.h, c.baro_std**2 + sp_d * sp_d))
+        while self._bwin and self._bwin[0][0] < g.t - c.window:
+            self._bwin.popleft()
+        stat, rate, tested = 0.0, 0.0, False
+        if len(self._bwin) >= 3 and self._bwin[-1][0] - self._bwin[0][0] >= c.min_span:
+            a = np.array(self._bwin)
+            s, sxx = _slope(a[:, 0], a[:, 1:2])
+            rate = float(s[0])
+            stat = rate * rate / (float(a[:, 2].mean()) / sxx + c.rate_floor**2)
+            tested = True
+        self.stats["baro_slope"] = stat
+        bad = stat > self.thr_baro
+        if not self.baro.faulted:
+            if bad:
+                self._raise(
+                    self.baro, "baro", g.t, abs(rate), f"baro−GNSS height slope χ²={stat:.1f} (thr {self.thr_baro:.1f})"
+                )
+                # the baro pulled the filter height: the GNSS vertical CUSUMs saw the baro, not the GNSS
+                self._cp[[2, 5]] = 0.0
+                self._cn[[2, 5]] = 0.0
+        else:
+            if stat > c.clear_fraction * self.thr_baro or not tested:
+                self.baro.t_ok = math.nan
+            elif math.isnan(self.baro.t_ok):
+                self.baro.t_ok = g.t
+            if not math.isnan(self.baro.t_ok) and g.t - self.baro.t_ok >= c.clear_time:
+                self._clear(self.baro, "baro", g.t)
+
+    # ---------------------------------------------------------------- events
+    def _raise(self, s: _Status, sensor: str, t: float, rate: float, detail: str) -> None:
+        s.faulted, s.t_fault, s.t_ok = True, t, math.nan
+        excl = " (excluded)" if self.cfg.exclude else ""
+        self.events.append(FaultEvent(t, sensor, FaultMode.DRIFT, rate, True, False, detail + excl))
+
+    def _clear(self, s: _Status, sensor: str, t: float) -> None:
+        s.faulted, s.t_ok = False, math.nan
+        self.events.append(
+            FaultEvent(t, sensor, FaultMode.DRIFT, 0.0, True, True, f"healthy again after {t - s.t_fault:.1f} s")
+        )
