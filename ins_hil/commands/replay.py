@@ -82,9 +82,13 @@ def drive_config(aids: bool, cov_every: int = 1) -> NavConfig:
     """The NavConfig used on the real drive (car MEMS IMU; noise from the rest period of the log)."""
     f = FilterConfig(
         cov_every=cov_every,
-        gyro_arw=0.03 * DEG,  # rad/s/√Hz: the 31 Hz vibration integrates out; residual wander ~0.03 °/√s
+        # gyro noise chosen by held-out validation outages (drive0708.cv_outage_windows, never the protocol's):
+        # the car's gyro error wanders much faster than the README's densities (0.0038 °/s/√Hz) say;
+        # validation h RMS 5.31 m at (0.03 °/√s, 2e-4 rad/s) → 1.77 (bias σ 3e-3) → 1.27 (ARW 0.1) → 1.21 (0.15),
+        # 1.23 at 0.2 (docs/accuracy.md, "How the drive settings were chosen")
+        gyro_arw=0.15 * DEG,
         accel_vrw=0.02,
-        gyro_bias_sigma=0.0002,
+        gyro_bias_sigma=0.003,
         gyro_bias_tau=300.0,
         accel_bias_sigma=0.02,
         accel_bias_tau=300.0,
