@@ -61,6 +61,8 @@ class NavConfig:
     nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, optionally also on
     the vertical axis; zero velocity — and zero angular rate on the gyro bias with ``zaru`` — when
     the averaged IMU looks at rest for ``zupt_time`` s and the speed is below ``zupt_max_speed``).
+    nhc_lever_b: IMU → the vehicle point whose lateral/vertical velocity is zero (body FRD, m); with
+    ``filter.mount_states`` the residual IMU → vehicle boresight is estimated (NHC only, needs ``nhc``).
     adaptive: Sage–Husa R on GNSS/baro.
     The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
     taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
@@ -89,6 +91,7 @@ class NavConfig:
     nhc_min_speed: float = 0.5
     nhc_vertical: bool = True
     nhc_std_vertical: float = 0.1
+    nhc_lever_b: Vec = field(default_factory=lambda: np.zeros(3))
     zupt: bool = False
     zupt_std: float = 0.02
     zupt_gyro: float = 0.02
@@ -116,6 +119,10 @@ class NavConfig:
             raise ValueError(f"NavConfig.align={self.align!r}: expected 'given' or 'static'")
         if not 0.0 <= self.max_delay <= 2.0:
             raise ValueError(f"NavConfig.max_delay={self.max_delay}: expected 0..2 s")
+        if self.filter.mount_states and not self.nhc:
+            raise ValueError(
+                "NavConfig.filter.mount_states=True needs nhc=True (the boresight is seen by the NHC only)"
+            )
 
 
 @dataclass
@@ -141,6 +148,7 @@ class NavCore:
         self.ba = np.zeros(3)
         self.sg = np.zeros(3)
         self.sa = np.zeros(3)
+        self.q_mount = np.array((1.0, 0.0, 0.0, 0.0))  # residual IMU body → vehicle rotation (NHC frame)
         self.omega_b = np.zeros(3)
         self.f_b = np.zeros(3)
         self.stats = {k: GateStats() for k in _KINDS}
@@ -262,7 +270,11 @@ class NavCore:
                 self._ema_w = np.zeros(3)
         elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
             C = dcm_from_quat(s.q_nb)
-            z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
+            if self.idx.mnt is not None or np.any(c.nhc_lever_b != 0.0):
+                R = dcm_from_quat(self.q_mount)
+                z, H, _ = mm.nonholonomic_mounted(self.idx, C, s.vel_ned, R, self.omega_b, c.nhc_lever_b)
+            else:
+                z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
             if c.nhc_vertical:
                 self._apply("nhc", z, H, np.array((c.nhc_std**2, c.nhc_std_vertical**2)), c.gate_aux, t)
             else:
@@ -278,6 +290,7 @@ class NavCore:
             st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
             ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
             kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next, self._still_time,
+            self.q_mount,
         )  # fmt: skip
 
     def _restore(self, d: tuple[Any, ...]) -> None:
@@ -286,7 +299,7 @@ class NavCore:
         (st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
          ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
          kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next,
-         self._still_time) = d  # fmt: skip
+         self._still_time, self.q_mount) = d  # fmt: skip
         kf.x = np.zeros(kf.n)
 
     def _fuse_delayed(self, meas: GnssFix | BaroSample | MagSample) -> bool:
@@ -456,6 +469,8 @@ class NavCore:
         if i.sg is not None and i.sa is not None:
             self.sg = self.sg + x[i.sg : i.sg + 3]
             self.sa = self.sa + x[i.sa : i.sa + 3]
+        if i.mnt is not None:
+            self.q_mount = quat_mul(quat_from_rotvec(-x[i.mnt : i.mnt + 3]), self.q_mount)  # R̂ ← (I − [δε×]) R̂
 
     # ------------------------------------------------------------------ alignment
     def _align_step(self, imu: ImuSample) -> None:

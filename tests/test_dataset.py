@@ -70,3 +70,14 @@ def test_load_drive_mounting_time_and_outages(drive_dir: Path):
     assert outs[0][0] - dr.pos.t[0] == pytest.approx(40.0)
     assert all(b - a == pytest.approx(15.0) for a, b in outs)
     assert outs[-1][1] <= dr.pos.t[-1] - 30.0
+
+
+def test_validation_windows_never_overlap_the_protocol(drive_dir: Path):
+    pos = dd.read_pos(drive_dir / "gnss_1934_sf.pos")
+    proto = dd.outage_windows(pos.t)
+    for shift in (15.0, 17.5, 22.5, 27.5, 30.0):
+        val = dd.cv_outage_windows(pos.t, shift)
+        assert len(val) >= 10
+        assert not any(a < d and c < b for a, b in val for c, d in proto)
+    with pytest.raises(ValueError, match="shift"):
+        dd.cv_outage_windows(pos.t, 10.0)

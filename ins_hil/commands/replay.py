@@ -40,6 +40,7 @@ HELP = "run the core offline on a simulated scenario, the real drive or a gatewa
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_DRIVE = REPO.parent / "shared" / "data" / "gnss_imu_drive_0708"
 DEG = math.pi / 180.0
+VALIDATION_SHIFTS = (17.5, 22.5, 27.5)  # s: validation outages inside the protocol's GNSS-present intervals
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -79,12 +80,15 @@ class _Progress:
 
 
 def drive_config(aids: bool, cov_every: int = 1) -> NavConfig:
-    """The NavConfig used on the real drive (car MEMS IMU; noise from the rest period of the log)."""
+    """The NavConfig used on the real drive (car MEMS IMU; gyro noise chosen on held-out validation outages)."""
     f = FilterConfig(
         cov_every=cov_every,
-        gyro_arw=0.03 * DEG,  # rad/s/√Hz: the 31 Hz vibration integrates out; residual wander ~0.03 °/√s
+        # gyro noise chosen on held-out validation outages (drive0708.cv_outage_windows, shifts 17.5/22.5/27.5 s,
+        # never the protocol's windows): validation h RMS 4.46 m with the former (0.03 °/√s, 2e-4 rad/s);
+        # bias σ 3e-3 rad/s and ARW 0.07 / 0.1 / 0.15 °/√s → 2.10 / 1.68 / 1.95 m (docs/accuracy.md)
+        gyro_arw=0.1 * DEG,
+        gyro_bias_sigma=0.003,
         accel_vrw=0.02,
-        gyro_bias_sigma=0.0002,
         gyro_bias_tau=300.0,
         accel_bias_sigma=0.02,
         accel_bias_tau=300.0,
@@ -318,8 +322,59 @@ def replay_drive(
                             _Progress("drive outages cov_every=5", quiet))  # fmt: skip
         m["realtime_factor"] = duration / (time.perf_counter() - t0)
         res["outages_aids_cov5"] = m
+    if cov_every_trade:
+        # held-out validation: the protocol's outages shifted into its GNSS-present intervals (how settings are chosen)
+        for aids in (True, False):
+            sq = n = 0.0
+            mx = 0.0
+            for shift in VALIDATION_SHIFTS:
+                outs_v = drive0708.cv_outage_windows(dr.pos.t, shift)
+                m, _, _ = run_drive(dr.imu, dr.gnss, rtk, drive_config(aids), outs_v,
+                                    _Progress(f"drive validation +{shift:g} s", quiet))  # fmt: skip
+                sq += m["outage_h_rms_m"] ** 2 * m["outage_epochs"]
+                n += m["outage_epochs"]
+                mx = max(mx, m["outage_h_max_m"])
+            res[f"validation_{'aids' if aids else 'no_aids'}"] = {
+                "outage_h_rms_m": math.sqrt(sq / n),
+                "outage_h_max_m": mx,
+            }
     res["outage_windows_s"] = [(a - dr.pos.t[0], b - dr.pos.t[0]) for a, b in outages]
     return res, series
+
+
+CHOICE_NOTE = """### How the drive settings were chosen (without the protocol's outage truth)
+
+Every drive setting changed in this round was chosen on **held-out validation outages**
+(`drive0708.cv_outage_windows`): the protocol's 15 s outages shifted by 17.5, 22.5 and 27.5 s, so each
+lies inside one of the protocol's 30 s GNSS-present intervals and no protocol outage epoch is ever
+scored (asserted). The selection rule is the validation horizontal RMS over the 3 × 11 windows (with
+ZUPT + NHC); the protocol was run once, after the choice, to report.
+
+| drive setting (ZUPT + NHC) | validation h RMS / max (m) |
+|---|---|
+| former: gyro ARW 0.03 °/√s, gyro-bias σ 2e-4 rad/s (τ 300 s), NHC σ 0.1 m/s | 4.46 / 28.5 |
+| gyro-bias σ 1e-3 rad/s | 2.09 / 21.6 |
+| gyro-bias σ 1e-3, ARW 0.06 °/√s | 2.67 / 15.7 |
+| gyro-bias σ 3e-3, ARW 0.15 °/√s, NHC σ 0.1 / 0.05 m/s | 1.95 / 21.7, 1.99 / 21.5 |
+| gyro-bias σ 3e-3, ARW 0.07 °/√s, NHC σ 0.05 | 2.10 / 16.4 |
+| gyro-bias σ 3e-3, ARW 0.1 °/√s, NHC σ 0.05 | 1.79 / 12.8 |
+| **chosen: gyro-bias σ 3e-3 rad/s, ARW 0.1 °/√s, NHC σ 0.1 m/s** | **1.68 / 10.9** |
+
+Screened on the 22.5 s shift only and **not** adopted (validation worse or equal): online IMU → vehicle
+boresight states seen by the NHC (`FilterConfig.mount_states`, 3 extra states, estimated pitch/yaw
+boresight ≈ −0.15° / +0.17°), the NHC reference point at the README's system origin 0.65 m below the IMU
+(`NavConfig.nhc_lever_b`), the 21-state scale factors, faster accelerometer-bias models, a 0.05 m/s GNSS
+velocity floor, ZUPT σ 0.05 m/s. The README's noise densities (gyro 0.0038 °/s/√Hz, gyro bias
+3.8e-5 °/s²/√Hz) are far below what the car's gyro errors do under vibration: on the validation windows
+the filter needs a gyro error model roughly 26× looser in ARW (and a bias random walk ~370× the
+README's) to keep the heading/pitch responsive.
+A side effect on GNSS-present accuracy: prior/post 0.054 / 0.036 m before, now inside the ≤ 0.05 m target.
+
+Honest reading: the validation figure improved from 4.46 m to 1.68 m, but the protocol figure did not
+(1.96 / 6.70 m before, see the table above after): the former settings had been adjusted while looking at
+the protocol's result and do not generalise (4.46 m on the shifted windows). One or two windows dominate
+each figure (e.g. a 10–11 m worst case), so 11 outages are a noisy benchmark; the target is not met.
+"""
 
 
 # ---------------------------------------------------------------------------------------------- main
@@ -473,11 +528,17 @@ def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path)
     if c5:
         a(f"| with aids, P propagated every 5 IMU steps | {c5['outage_h_rms_m']:.2f} | {c5['outage_h_max_m']:.2f} | "
           f"{c5['outage_v_rms_m']:.2f} | | {c5['realtime_factor']:.1f} |")  # fmt: skip
+    for tag, name in (("aids", "with ZUPT + NHC"), ("no_aids", "no aids")):
+        v = d.get(f"validation_{tag}")
+        if v:
+            a(f"| held-out validation outages (3 × 11 shifted windows), {name} | {v['outage_h_rms_m']:.2f} | "
+              f"{v['outage_h_max_m']:.2f} | | | |")  # fmt: skip
     a("| target | ≤ 1.5 | ≤ 6 | (upstream 0.41) | ≤ 0.05 | ≥ 20 |")
     a("| upstream filter, causal | 3.09 | 12.8 | 0.41 | | |\n")
     a("GNSS-present RMS: every RTK-fixed epoch of a run with GNSS all the time, antenna position; 'prior' is the "
       "state propagated to the epoch before that epoch is fused (what a consumer sees between fixes), 'post' "
       "after the update.\n")  # fmt: skip
+    a(CHOICE_NOTE)
     for k in ("drive_outages_aids", "drive_outages_no_aids", "drive_gnss_aids"):
         for p in plots.get(k, []):
             a(f"![{p.stem}]({p.relative_to(docs)})")

@@ -255,3 +255,12 @@ def outage_windows(t_gnss: Vec, first: float = 40.0, on: float = 30.0, off: floa
         out.append((s, s + off))
         s += off + on
     return out
+
+
+def cv_outage_windows(t_gnss: Vec, shift: float = 22.5) -> list[tuple[float, float]]:
+    """Held-out validation outages for choosing settings without the protocol's truth: the protocol's
+    15 s outages shifted by ``shift`` s (15..30), so each lies inside a 30 s GNSS-present interval of
+    the protocol and never overlaps a protocol outage (the protocol's outage epochs are never scored)."""
+    if not 15.0 <= shift <= 30.0:
+        raise ValueError(f"cv_outage_windows: shift={shift} s would overlap the protocol's outages (need 15..30)")
+    return outage_windows(t_gnss, first=40.0 + shift)

@@ -51,6 +51,9 @@ class FilterConfig:
     gyro_arw: gyro white noise (rad/s/√Hz); accel_vrw: accelerometer white noise (m/s²/√Hz);
     gyro_bias_sigma / accel_bias_sigma: 1-σ of the Gauss–Markov bias (rad/s, m/s²) with
     correlation times gyro_bias_tau / accel_bias_tau (s); scale-factor 1-σ likewise.
+    mount_states: 3 extra states at the end, the residual IMU → vehicle boresight rotation seen by the
+    non-holonomic constraint (rad, vehicle axes; random walk ``mount_sigma_rw`` rad/√s, initial 1-σ
+    ``init_mount``); only NavCore's NHC uses them.
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
     "qr", "cholesky", "ud" (see ``ins_hil.fusion.sqrt``).
@@ -68,6 +71,9 @@ class FilterConfig:
     gyro_sf_sigma: float = 1e-3
     accel_sf_sigma: float = 2e-3
     sf_tau: float = 3600.0
+    mount_states: bool = False
+    mount_sigma_rw: float = 0.0
+    init_mount: float = 1.0 * DEG
     init_pos: float = 5.0
     init_vel: float = 1.0
     init_att: float = 2.0 * DEG
@@ -99,6 +105,7 @@ class StateIndex:
     ba: int | None = None
     sg: int | None = None
     sa: int | None = None
+    mnt: int | None = None
 
     @staticmethod
     def build(cfg: FilterConfig) -> StateIndex:
@@ -111,7 +118,10 @@ class StateIndex:
         if cfg.scale_factors:
             sg, k = k, k + 3
             sa, k = k, k + 3
-        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa)
+        mnt = None
+        if cfg.mount_states:
+            mnt, k = k, k + 3
+        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt)
 
 
 def skew(a: Vec) -> Vec:
@@ -158,6 +168,9 @@ class ErrorStateEKF:
             qc[i.sg : i.sg + 3] = 2.0 * c.gyro_sf_sigma**2 / c.sf_tau
             qc[i.sa : i.sa + 3] = 2.0 * c.accel_sf_sigma**2 / c.sf_tau
             self._tau[i.sg : i.sg + 6] = c.sf_tau
+        if i.mnt is not None:
+            sig[i.mnt : i.mnt + 3] = c.init_mount
+            qc[i.mnt : i.mnt + 3] = c.mount_sigma_rw**2
         self.qc = qc
         self.P = np.diag(sig**2)
         self._F = np.zeros((n, n))

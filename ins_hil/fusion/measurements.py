@@ -118,3 +118,26 @@ def zero_velocity(idx: StateIndex, vel: Vec) -> tuple[Vec, Vec]:
     H = np.zeros((3, idx.n))
     H[:, idx.vel : idx.vel + 3] = np.eye(3)
     return -vel, H
+
+
+def nonholonomic_mounted(
+    idx: StateIndex, C_bn: Vec, vel: Vec, R_vb: Vec, omega_b: Vec, lever_b: Vec
+) -> tuple[Vec, Vec, Vec]:
+    """(z, H, u) of the non-holonomic constraint at a reference point of the vehicle (e.g. the rear
+    axle) in vehicle axes: u = R̂ (Ĉ^T v̂ + ω̂ × l), constraint u_y = u_z = 0.
+
+    R_vb: estimated residual rotation IMU body → vehicle axes (R_true = (I − [δε×]) R̂, δε the
+    boresight error state ``idx.mnt`` if estimated); lever_b: IMU → reference point (body FRD, m).
+    Linearisation (δv, μ, δb_g as in :func:`nonholonomic`; ω = ω̂ − δb_g):
+    H_v = R̂ Ĉ^T, H_μ = −R̂ Ĉ^T [v̂×], H_bg = R̂ [l×], H_ε = [u×]  (rows y, z)."""
+    Cnb = C_bn.T
+    A = R_vb @ Cnb
+    u = A @ vel + R_vb @ np.cross(omega_b, lever_b)
+    H = np.zeros((2, idx.n))
+    H[:, idx.vel : idx.vel + 3] = A[1:3]
+    H[:, idx.att : idx.att + 3] = -(A @ skew(vel))[1:3]
+    if idx.bg is not None:
+        H[:, idx.bg : idx.bg + 3] = (R_vb @ skew(lever_b))[1:3]
+    if idx.mnt is not None:
+        H[:, idx.mnt : idx.mnt + 3] = skew(u)[1:3]
+    return -u[1:3], H, u
