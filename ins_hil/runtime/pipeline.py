@@ -219,6 +219,10 @@ class Pipeline:
                 self.events.extend(ev)
         else:
             s = samples[0]
+        if not (math.isfinite(s.dt) and all(map(math.isfinite, s.dtheta)) and all(map(math.isfinite, s.dvel))):
+            # e.g. FDI with too few healthy units left after lost frames: never feed NaN to the core
+            self._count("imu_nonfinite")
+            return None
         if s.t <= self._t_imu:
             self._count("imu_time_backwards")
             return None
