@@ -82,7 +82,7 @@ def test_gnss_pull_flagged_and_excluded_by_the_pipeline() -> None:
     cfg = PipelineConfig(
         init="config", init_lat_deg=45.0, init_lon_deg=math.degrees(lon), init_h=h,
         init_roll_deg=math.degrees(e[0]), init_pitch_deg=math.degrees(e[1]), init_yaw_deg=math.degrees(e[2]),
-        aiding_options={"baro_std": 0.3}, nav={"filter": {"cov_every": 5}},
+        aiding_fdi=True, aiding_options={"baro_std": 0.3}, nav={"filter": {"cov_every": 5}},
     )  # fmt: skip
     pipe = Pipeline(cfg)
     meas = sorted([*fixes, *baro], key=lambda m: m.t)
@@ -107,10 +107,10 @@ def test_fdi_aiding_config_table_is_validated() -> None:
     from ins_hil.config import ConfigError, from_dict
 
     d = sim_config_dict()
-    assert from_dict(d).pipeline.aiding_fdi  # on by default
-    d["fdi"] = {"aiding": {"enabled": False, "p_fa_hour": 1e-4}}
+    assert not from_dict(d).pipeline.aiding_fdi  # off by default (false alarms in the live soak)
+    d["fdi"] = {"aiding": {"enabled": True, "p_fa_hour": 1e-4}}
     p = from_dict(d).pipeline
-    assert not p.aiding_fdi and p.aiding_options == {"p_fa_hour": 1e-4}
+    assert p.aiding_fdi and p.aiding_options == {"p_fa_hour": 1e-4}
     for bad, msg in (
         ({"p_fa": 1e-3}, "fdi.aiding.p_fa"),
         ({"p_fa_hour": 3.0}, "p_fa_hour"),

@@ -132,7 +132,7 @@ class PipelineConfig:
     fdi: bool = False
     fdi_options: dict[str, Any] = field(default_factory=dict)
     calibration: str = ""
-    aiding_fdi: bool = True  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
+    aiding_fdi: bool = False  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
     aiding_options: dict[str, Any] = field(default_factory=dict)  # AidingConfig fields
     nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig fields
 
