@@ -33,3 +33,21 @@ def describe() -> str:
         f"{os.cpu_count()} CPUs (`nproc`), {cpu_model()}, Python {platform.python_version()}, "
         f"load average {l1:.2f}/{l5:.2f}/{l15:.2f}"
     )
+
+
+def load_note(load1: float | None = None, *, own: float = 1.0) -> str:
+    """Whether wall-clock figures are trustworthy: the 1-minute load average against the CPUs.
+
+    ``own``: the load the measuring command itself contributes (about one busy process).
+    """
+    if load1 is None:
+        load1 = load_average()[0]
+    ncpu = os.cpu_count() or 1
+    if load1 != load1:  # NaN: the OS gives no load average
+        return "load average unknown"
+    if load1 <= own + 0.3:
+        return f"load average {load1:.2f} on {ncpu} CPUs: nothing else was running, timings are clean"
+    return (
+        f"load average {load1:.2f} on {ncpu} CPUs: other processes shared the CPUs, "
+        "so wall-clock timings are noisy upper bounds"
+    )

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.machine import cpu_model
+from ins_hil.machine import cpu_model, load_note
 
 NAME = "bench-core"
 HELP = "benchmark the Python core against the C reference core (per step, per GNSS update, callgrind)"
@@ -390,9 +390,8 @@ def _report(rows: dict[str, tuple[float, float]], cg: dict[str, float] | str, ar
         + "` (do not edit by hand).",
         "",
         f"Machine: {mach['cpu']}, `nproc` = {mach['nproc']}, {mach['os']}, Python {mach['python']}, {mach['cc']}.",
-        f"Load average at the end of the run: {mach['load']} — other processes (other helpers' builds and tests)"
-        " were running on the same 2 cores, so wall-clock figures are noisy; each is the minimum of"
-        f" {args.repeat} runs (median in brackets). The callgrind instruction counts are not affected.",
+        f"Load average at the end of the run: {mach['load']} ({load_note()}); each wall-clock figure is the"
+        f" minimum of {args.repeat} runs (median in brackets). The callgrind instruction counts do not depend on load.",
         f"Date: {_dt.datetime.now(_dt.UTC).strftime('%Y-%m-%d %H:%M UTC')}.",
         "",
         f"Workload: simulated UAV flight, {args.duration:g} s at {args.rate:g} Hz ({n} IMU steps), MEMS IMU errors,"

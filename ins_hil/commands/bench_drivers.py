@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.machine import cpu_model
+from ins_hil.machine import cpu_model, load_average, load_note
 from ins_hil.types import ImuSample
 
 NAME = "bench-drivers"
@@ -55,12 +55,10 @@ def _best_of(fn: Any, n_runs: int = 7) -> float:
 
 
 def _machine() -> str:
-    cpu = cpu_model()
-    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    load = load_average()
     return (
-        f"{os.cpu_count()} CPUs (`nproc`), {cpu}; Python {platform.python_version()}; "
-        f"load average {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f} at the start: other processes (other "
-        f"helpers' builds and tests) were running, so timings are noisy upper bounds."
+        f"{os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python {platform.python_version()}; "
+        f"load average {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f} at the start; {load_note(load[0], own=0.0)}."
     )
 
 

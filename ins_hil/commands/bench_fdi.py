@@ -27,7 +27,7 @@ from ins_hil.fdi.bias import bias_isolation, ls_matrix, run_example_5_3
 from ins_hil.fdi.geometry import CONFIGS, SensorGeometry, by_name
 from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
 from ins_hil.fdi.parity import BOOK_CONE_A, determinant_isolation, determinant_scores, parity_basis, svd_isolation
-from ins_hil.fdi.recursive import cyclic_decision, cyclic_isolation
+from ins_hil.fdi.recursive import BOOK_TABLE_5_2, cyclic_decision, cyclic_isolation
 from ins_hil.fdi.thresholds import fast_threshold, slow_threshold
 from ins_hil.machine import cpu_model
 from ins_hil.nav import earth
@@ -44,15 +44,6 @@ HELP = "Monte-Carlo benchmark of inertial-sensor fault detection and isolation (
 
 DEG = math.pi / 180
 LAT0, LON0, H0 = math.radians(50.45), math.radians(30.52), 180.0
-TABLE_5_2 = np.array(
-    [
-        [0.2849, 0.0303, 0.3440, 1.4821, 367.6578],
-        [0.0091, 0.2664, 1.1265, 24.3626, 0.6189],
-        [0.6098, 3.5288, 5.7698, 0.0232, 0.1194],
-        [2.8948, 10.2930, 0.0438, 0.0988, 0.5483],
-        [58.3723, 0.1144, 0.0634, 0.4445, 2.0705],
-    ]
-)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -437,7 +428,7 @@ def book_section(lines: list[str]) -> None:
         "|---|---|---|---|---|---|",
         *[f"| {i + 1} " + r for i, r in enumerate(fmt(D))],
         "",
-        f"Table 5.2 decisions from the printed μ*: i = {[cyclic_decision(r) + 1 for r in TABLE_5_2]} "
+        f"Table 5.2 decisions from the printed μ*: i = {[cyclic_decision(r) + 1 for r in BOOK_TABLE_5_2]} "
         "(book: 1..5). Monte-Carlo correct isolation at σ = 0.1 (uniform noise, ρ = 1, "
         f"{N} draws): recursive LS + cyclic transposition {hits[0] / N:.3f}, SVD/parity {hits[1] / N:.3f}, "
         f"determinant {hits[2] / N:.3f}.",

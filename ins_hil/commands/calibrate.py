@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ins_hil.machine import cpu_model
+from ins_hil.machine import cpu_model, load_average, load_note
 from ins_hil.nav import allan as av
 from ins_hil.nav import calibration as cal
 from ins_hil.types import ImuFlags, ImuSample, MagSample, Vec
@@ -614,9 +614,8 @@ BENCH_END = "<!-- calibrate bench: end -->"
 def _machine() -> str:
     import os
 
-    cpu = cpu_model()
-    load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
-    return f"{os.cpu_count()} CPUs ({cpu}), load average {load} (other processes were running: timings are noisy)"
+    load = ", ".join(f"{x:.1f}" for x in load_average())
+    return f"{os.cpu_count()} CPUs ({cpu_model()}), load average {load} ({load_note()})"
 
 
 def bench(docs: Path, seed: int) -> int:

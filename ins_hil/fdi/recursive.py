@@ -22,6 +22,18 @@ import numpy as np
 
 from ins_hil.types import Vec
 
+# Book Table 5.2: the printed μ* of the five cyclic transpositions (columns r = 0..4) for a failure
+# of sensor i = 1..5 (rows), book §5.3 (DIGEST_000 case 25). Kept here once for tests and bench-fdi.
+BOOK_TABLE_5_2: Vec = np.array(
+    [
+        [0.2849, 0.0303, 0.3440, 1.4821, 367.6578],
+        [0.0091, 0.2664, 1.1265, 24.3626, 0.6189],
+        [0.6098, 3.5288, 5.7698, 0.0232, 0.1194],
+        [2.8948, 10.2930, 0.0438, 0.0988, 0.5483],
+        [58.3723, 0.1144, 0.0634, 0.4445, 2.0705],
+    ]
+)
+
 
 def recursive_ks(y: Vec, A: Vec, sigma: float) -> Vec:
     """k_s of each added equation (eq. 5.22), the LS started on the first r equations."""
