@@ -282,7 +282,9 @@ class Pipeline:
                 self.events.extend(ev)
         else:
             s = samples[0]
-        if not (math.isfinite(s.dt) and all(map(math.isfinite, s.dtheta)) and all(map(math.isfinite, s.dvel))):
+        fin = math.isfinite
+        a, v = s.dtheta, s.dvel
+        if not (fin(s.dt) and fin(a[0]) and fin(a[1]) and fin(a[2]) and fin(v[0]) and fin(v[1]) and fin(v[2])):
             # e.g. FDI with too few healthy units left after lost frames: never feed NaN to the core
             self._count("imu_nonfinite")
             return None
