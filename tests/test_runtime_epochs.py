@@ -16,6 +16,7 @@ import time
 import tty
 
 import numpy as np
+import pytest
 from ins_hil.drivers.serial_frame import encode
 from ins_hil.drivers.serial_imu import SerialImuDriver
 
@@ -191,3 +192,8 @@ def test_two_real_ptys_with_jittered_writers_give_complete_epochs() -> None:
     assert pipe.counts.get("imu_epoch_incomplete", 0) == 0
     assert len(states) == len(eps)
     assert np.all(np.diff(states) > 0)
+
+
+def test_a_bad_epoch_wait_is_rejected_naming_the_key() -> None:
+    with pytest.raises(ValueError, match=r"core\.epoch_wait_periods"):
+        Pipeline(_cfg(wait=0.0))

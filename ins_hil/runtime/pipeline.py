@@ -160,6 +160,8 @@ class Pipeline:
 
     def __init__(self, cfg: PipelineConfig) -> None:
         check_core(cfg.core, cfg.nav)
+        if not (isinstance(cfg.epoch_wait_periods, int | float) and 0 < cfg.epoch_wait_periods < math.inf):
+            raise ValueError(f"core.epoch_wait_periods = {cfg.epoch_wait_periods!r}: must be a number > 0")
         self.cfg = cfg
         self.core: Core | None = None
         self.events: list[FaultEvent] = []
