@@ -197,3 +197,22 @@ def test_two_real_ptys_with_jittered_writers_give_complete_epochs() -> None:
 def test_a_bad_epoch_wait_is_rejected_naming_the_key() -> None:
     with pytest.raises(ValueError, match=r"core\.epoch_wait_periods"):
         Pipeline(_cfg(wait=0.0))
+
+
+def test_a_lost_frame_is_given_up_when_its_unit_delivers_a_later_sample() -> None:
+    """Links deliver in order: unit 1's sample for epoch k+1 arriving first means its k is lost;
+    epoch k runs on that arrival, without waiting for unit 0's k+1 or for the time bound."""
+    eps = _series(0.2)
+    pipe = Pipeline(_cfg(wait=3.0))
+    k = 5
+    for j in range(k):
+        for s in eps[j]:
+            pipe.imu(_stamp(s, round(s.t * 1e9)))
+    arr = round(eps[k][0].t * 1e9)
+    assert pipe.imu(_stamp(eps[k][0], arr)) is None  # unit 1's frame for epoch k is lost
+    st = pipe.imu(_stamp(eps[k + 1][1], arr + 100_000))  # unit 1 goes on with epoch k+1
+    assert st is not None and math.isclose(st.t, eps[k][0].t)
+    assert pipe.counts["imu_epoch_incomplete"] == 1
+    st = pipe.imu(_stamp(eps[k + 1][0], arr + 200_000))
+    assert st is not None and math.isclose(st.t, eps[k + 1][0].t)
+    assert pipe.counts["imu_epoch_incomplete"] == 1

@@ -178,6 +178,7 @@ class Pipeline:
         self._pending: dict[int, tuple[int, dict[int, ImuSample]]] = {}
         self._last_key = -(1 << 62)  # sensor time (µs) of the last epoch run
         self._miss: dict[int, int] = {}  # imu_id → consecutive epochs run without it
+        self._unit_key: dict[int, int] = {}  # imu_id → newest sensor time (µs) it delivered
         self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
         self._aid_mon = aiding_monitor(cfg.aiding_options) if cfg.aiding_fdi else None
@@ -215,8 +216,9 @@ class Pipeline:
         """Redundant IMUs: group samples into epochs by sensor time.
 
         An epoch is complete when every configured imu_id has delivered its sample for that sensor
-        time. Each link delivers in order, so when an epoch completes, older pending epochs can no
-        longer complete: they run first, as they are. An epoch also runs incomplete once a sample
+        time. Each link delivers in order, so once a unit has delivered a later sample, its sample
+        for an older pending epoch is lost: that epoch runs (oldest first) as soon as every unit
+        has delivered it or a later one. An epoch also runs incomplete once a sample
         arrives ``epoch_wait_periods`` IMU periods (arrival time, ``t_arrival_ns``: recorded, so
         replay groups the same way) after its first sample; samples without an arrival stamp use
         the same bound in sensor time. A sample for an epoch that already ran is dropped
@@ -240,15 +242,22 @@ class Pipeline:
             self._count("imu_duplicate")
             return None
         pend[s.imu_id] = s
+        uk = self._unit_key
+        if key > uk.get(s.imu_id, -(1 << 62)):
+            uk[s.imu_id] = key
         out: NavState | None = None
         wait = self.cfg.epoch_wait_periods * s.dt
-        if len(pend) == self._n_ids or (
-            self._miss and all(i in pend or self._miss.get(i, 0) >= GONE_EPOCHS for i in self._ids)
-        ):
-            for k in sorted(pending):
-                if k > key:
-                    break
+        # run, oldest first, every epoch that can no longer gain a sample: each unit has delivered
+        # it, or a later one (links deliver in order: its sample is lost), or is gone
+        miss, ids = self._miss, self._ids
+        for k in sorted(pending):
+            have = pending[k][1]
+            if len(have) == self._n_ids or all(
+                i in have or uk.get(i, k) > k or miss.get(i, 0) >= GONE_EPOCHS for i in ids
+            ):
                 out = self._run_pending(k) or out
+            else:
+                break
         if not pending:
             return out
         now = s.t_arrival_ns
