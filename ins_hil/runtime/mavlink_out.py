@@ -423,7 +423,8 @@ class MavlinkEndpoint:
         v = st.vel_ned
         hdg = math.degrees(self._euler(st)[2]) % 360.0
         rel = st.h - (self._home[2] if self._home else st.h)
-        self._home_ned(st)
+        if self._home is None:  # the first position sets the home (LOCAL_POSITION_NED, ODOMETRY)
+            self._home = (st.lat, st.lon, st.h)
         self.mav.global_position_int_send(
             self._tboot_ms(st),
             round(math.degrees(st.lat) * 1e7),
