@@ -137,7 +137,8 @@ class FrameParser:
             j = buf.find(SYNC, i)
             if j < 0:
                 # keep a trailing 0xA5 that may start a sync word
-                keep = 1 if n and buf[n - 1] == 0xA5 else 0
+                # (only an unconsumed byte: the last byte of a frame just decoded may be 0xA5 too)
+                keep = 1 if n > i and buf[n - 1] == 0xA5 else 0
                 self._count("garbage_bytes", max(0, n - i - keep)) if n - i - keep > 0 else None
                 i = n - keep
                 break

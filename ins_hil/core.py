@@ -183,6 +183,8 @@ class NavCore:
         self._have_pos = self.cfg.align == "given"
         self._last_mag: Vec | None = None
         self.nis_log: list[tuple[float, str, float, int]] = []
+        self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
+        self._sd: Vec = np.zeros(9)
         self.keep_nis = False
 
     # ------------------------------------------------------------------ IMU path
@@ -588,7 +590,11 @@ class NavCore:
     def state(self) -> NavState:
         """The current navigation solution (arrays are fresh: the core never mutates them later)."""
         s = self.ins.state
-        sd = np.sqrt(np.abs(self.kf.P.diagonal()[:9]))
+        P = self.kf.P
+        if P is not self._sd_of:  # P is replaced, never mutated in place: σ only when it changed
+            self._sd_of = P
+            self._sd = np.sqrt(np.abs(P.diagonal()[:9]))
+        sd = self._sd  # shared by the states until P changes (never mutated)
         att_ok = self.phase == "nav" and float(sd[8]) < self.cfg.aligned_yaw_std
         return NavState(
             s.t, s.q_nb, s.vel_ned, s.lat, s.lon, s.h, self.bg, self.ba, sd[0:3], sd[3:6], sd[6:9],

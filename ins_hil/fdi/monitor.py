@@ -51,6 +51,13 @@ from ins_hil.fdi.parity import parity_basis
 from ins_hil.fdi.thresholds import fast_threshold, increment_sigma, slow_threshold, slow_variance
 from ins_hil.types import FaultEvent, FaultMode, ImuSample, Vec
 
+# ufuncs/reductions called directly on the hot path (the ndarray methods add Python-level wrappers)
+_equal = np.equal
+_add_reduce = np.add.reduce
+_max_reduce = np.maximum.reduce
+_any = np.logical_or.reduce
+_isnan = math.isnan
+
 
 @dataclass
 class FdiConfig:
@@ -134,7 +141,10 @@ class _Group:
         self.healthy = np.ones(self.n, dtype=bool)
         self.prev = np.full(self.n, np.nan)
         self.same = np.zeros(self.n, dtype=np.int64)
+        self._same_nz = False  # some entry of ``same`` is non-zero
+        self._one_minus_alpha = 1.0 - self.alpha
         L = max(4, round(cfg.history / cfg.dt))
+        self._L = L
         self.buf = np.full((L, self.n), np.nan)
         self.tbuf = np.full(L, np.nan)
         self.pos = 0
@@ -151,6 +161,7 @@ class _Group:
     # -- configuration of the healthy subset --------------------------------------------------
     def _rebuild(self) -> None:
         self.hidx = np.flatnonzero(self.healthy)
+        self._all_healthy = len(self.hidx) == self.n
         Ah = self.A[self.hidx]
         self.Z = np.linalg.pinv(Ah)  # book eq. 5.26 on the healthy rows
         self.P = np.linalg.inv(Ah.T @ Ah)
@@ -174,34 +185,44 @@ class _Group:
 
     # -- one epoch --------------------------------------------------------------------------------
     def step(self, t: float, y: Vec, events: list[FaultEvent]) -> Vec:
+        # hot path (every IMU epoch, per group): ufuncs called directly, no work for the common case
         cfg = self.cfg
         t = float(t)
-        self.buf[self.pos] = y
-        self.tbuf[self.pos] = t
-        self.pos = (self.pos + 1) % len(self.tbuf)
-        # stuck counter (NaN never compares equal)
+        pos = self.pos
+        self.buf[pos] = y
+        self.tbuf[pos] = t
+        pos += 1
+        self.pos = 0 if pos == self._L else pos
+        # stuck counter (NaN never compares equal): only touched when some output repeats
         same = self.same
-        same += 1
-        same *= y == self.prev
+        eq = _equal(y, self.prev)
         self.prev[:] = y
-        if math.isnan(float(y.sum())):
+        if _any(eq):
+            same += 1
+            same *= eq
+            self._same_nz = True
+        elif self._same_nz:
+            same.fill(0)
+            self._same_nz = False
+        if _isnan(_add_reduce(y)):
             bad = np.flatnonzero(np.isnan(y) & self.healthy)
             if len(bad):
                 self._exclude_now(bad, t, FaultMode.DROPOUT, "no output (dropout)", events)
-        if cfg.stuck_samples and same.max() >= cfg.stuck_samples:
+        if cfg.stuck_samples and self._same_nz and _max_reduce(same) >= cfg.stuck_samples:
             for k in np.flatnonzero((same >= cfg.stuck_samples) & self.healthy):
                 if int(self.healthy.sum()) > 3:
                     self._isolate(int(k), t, "stuck-output", t - cfg.stuck_samples * cfg.dt)
-        yh = y[self.hidx]
+        yh = y if self._all_healthy else y[self.hidx]
         if self.m < 1:
             est = self.Z @ yh
         else:
+            m = self.m
             out = self.M @ yh  # [parity p (whitened, eq. 5.12); LS estimate (eq. 5.26)] in one product
-            p = out[: self.m]
-            est = out[self.m :]
+            p = out[:m]
+            est = out[m:]
             s = float(p @ p)
             ema = self.ema
-            ema *= 1.0 - self.alpha
+            ema *= self._one_minus_alpha
             ema += self.alpha * p
             if s > self.thr_fast:
                 if self.run == 0:
@@ -227,7 +248,7 @@ class _Group:
             est = est - self.leak
             self.leak[:] = 0.0
             self.leak_on = False
-        self.est = np.asarray(est)
+        self.est = est
         return est
 
     def _trip(self, t: float, score: Vec, scale: float, test: str, onset: float, events: list[FaultEvent]) -> bool:
@@ -442,10 +463,11 @@ class FdiMonitor:
         if not samples:
             raise ValueError("FdiMonitor.process: empty epoch")
         yg, ya = self._yg, self._ya
-        yg.fill(math.nan)
-        ya.fill(math.nan)
         us = self.geo.unit_size
         nu = self.geo.units
+        if len(samples) != nu or len({s.imu_id for s in samples}) != nu:
+            yg.fill(math.nan)  # a missing unit is a dropout (NaN); all present: every row is overwritten
+            ya.fill(math.nan)
         t = -math.inf
         for s in samples:
             j = s.imu_id

@@ -170,10 +170,17 @@ TEMPLATE = """# Runtime: the real-time gateway
   < 100 ms, tested), rotated by size (`run.ihlog`, `run.1.ihlog`, …). `replay_log` (and
   `ins-hil replay LOG.ihlog`) rebuilds the same pipeline from the header and reproduces the
   online states **bit for bit** (tested on a live 1 kHz run).
+- **Outputs on the IMU path**: the MAVLink messages that are due go out from the core task right
+  after the state is ready (transport writes never block); the endpoint task only sends STATUSTEXTs.
+  The start-up objects are `gc.freeze()`d so that full collections do not scan them.
 - **Stop**: SIGINT/SIGTERM stop cleanly (simulator stopped, inputs closed, what they delivered
   run through the pipeline, transports closed, recorder flushed); a second SIGINT exits at once.
 - **Pipeline** (`ins_hil/runtime/pipeline.py`, shared with replay): calibration
-  (`core.calibration`, `ins_hil.nav.calibration`) → redundant-IMU epoch grouping (`fdi.imu_ids`)
+  (`core.calibration`, `ins_hil.nav.calibration`) → redundant-IMU epoch grouping (`fdi.imu_ids`:
+  by sensor time; an epoch runs when every unit has delivered its sample, or incomplete, counted
+  `imu_epoch_incomplete`, once samples arrive `core.epoch_wait_periods` = 3 IMU periods of arrival
+  time after its first; a unit missing from 20 epochs in a row is not waited for until it delivers
+  again; a sample for an epoch that already ran is dropped, `imu_epoch_late_sample`)
   → FDI monitor (`[fdi] enabled`, `[fdi.options]`: geometry + `FdiConfig`) → core (`core.kind`:
   `python` = `ins_hil.core.NavCore`, `c` = `ins_hil.cref.CNavCore`, both with the `NavConfig` of
   `[core.nav]`). The core starts at the first 3-D GNSS fix, levelled from the accelerometers.

@@ -3,9 +3,10 @@
 An endpoint owns one transport (``udp:host:port`` sends to a listener such as
 QGroundControl on 14550; ``udpin:host:port`` listens and answers the last
 peer; ``tcp:host:port`` connects, with reconnect; ``serial:/dev/ttyX:baud``)
-and runs as its own task: the loop hands it the newest state with
-:meth:`MavlinkEndpoint.offer` (never blocks; older states are coalesced), the
-task sends every message whose period is due. Messages and rates are
+and the loop hands it the newest state with :meth:`MavlinkEndpoint.offer`
+(never blocks): every message whose period is due is sent right there (the
+transports' writes are non-blocking), the others are coalesced to the newest
+state; the endpoint's own task only sends STATUSTEXTs. Messages and rates are
 configurable per endpoint.
 
 role ``gcs``: HEARTBEAT, SYS_STATUS, ATTITUDE, ATTITUDE_QUATERNION,
@@ -274,6 +275,7 @@ class MavlinkEndpoint:
         self.sent: dict[str, int] = {}
         self._t0_ns = time.monotonic_ns()
         self._task: asyncio.Task[None] | None = None
+        self._next_due_ns = 0  # earliest next_ns of a message that can be sent
 
     # -- file-like for pymavlink ----------------------------------------------
     def write(self, buf: bytes) -> None:
@@ -297,11 +299,15 @@ class MavlinkEndpoint:
 
     # -- called by the loop (never blocks) --------------------------------------
     def offer(self, st: NavState, arrival_ns: int, ready_ns: int) -> None:
+        """The newest state: the messages that are due go out now, from the caller (no task wake-up:
+        the transports' writes never block), the others wait for their period with this state."""
         self._latest = (st, arrival_ns, ready_ns)
-        self._wake.set()
+        if time.monotonic_ns() >= self._next_due_ns:
+            self._send_safely()
 
     def offer_gnss(self, g: GnssFix) -> None:
         self._gnss, self._gnss_new = g, True
+        self._update_next_due()
 
     def statustext(self, severity: int, text: str) -> None:
         self._texts.append((severity, text[:50]))
@@ -325,11 +331,14 @@ class MavlinkEndpoint:
         while True:
             await self._wake.wait()
             self._wake.clear()
-            try:
-                self._send_due()
-            except Exception as e:  # a bad value must not kill the output
-                self.metrics.output(self.name, "encode_error")
-                self.metrics.warn(f"{self.name}: {type(e).__name__}: {e}")
+            self._send_safely()
+
+    def _send_safely(self) -> None:
+        try:
+            self._send_due()
+        except Exception as e:  # a bad value must not kill the output
+            self.metrics.output(self.name, "encode_error")
+            self.metrics.warn(f"{self.name}: {type(e).__name__}: {e}")
 
     def _count(self, typ: str) -> None:
         self.sent[typ] = self.sent.get(typ, 0) + 1
@@ -357,6 +366,12 @@ class MavlinkEndpoint:
             any_sent = True
         if any_sent:
             self.metrics.record_sent(arrival_ns, ready_ns, time.monotonic_ns())
+        self._update_next_due()
+
+    def _update_next_due(self) -> None:
+        """Earliest time a message is due (GPS_RAW_INT only once a new fix is there)."""
+        nxt = self.next_ns
+        self._next_due_ns = min((v for k, v in nxt.items() if k != "GPS_RAW_INT" or self._gnss_new), default=1 << 62)
 
     # -- message builders (units: MAVLink's integer units at the edge) -------------
     def _tboot_ms(self, st: NavState) -> int:
@@ -408,7 +423,8 @@ class MavlinkEndpoint:
         v = st.vel_ned
         hdg = math.degrees(self._euler(st)[2]) % 360.0
         rel = st.h - (self._home[2] if self._home else st.h)
-        self._home_ned(st)
+        if self._home is None:  # the first position sets the home (LOCAL_POSITION_NED, ODOMETRY)
+            self._home = (st.lat, st.lon, st.h)
         self.mav.global_position_int_send(
             self._tboot_ms(st),
             round(math.degrees(st.lat) * 1e7),

@@ -25,6 +25,12 @@ _LOG_RATIO = math.log(_RATIO)
 _NBUCKETS = 460
 
 
+def _bucket(ns: int) -> int:
+    """Bucket index of a duration ns ≥ 0."""
+    k = int(math.log(ns / _BASE_NS) / _LOG_RATIO) if ns > _BASE_NS else 0
+    return k if k < _NBUCKETS else _NBUCKETS - 1
+
+
 class LatencyHistogram:
     """Log-bucketed histogram of durations (ns) with exact count, min, max and mean.
 
@@ -45,9 +51,10 @@ class LatencyHistogram:
         """Add one duration (ns)."""
         if ns < 0:
             ns = 0
-        k = int(math.log(ns / _BASE_NS) / _LOG_RATIO) if ns > _BASE_NS else 0
-        if k >= _NBUCKETS:
-            k = _NBUCKETS - 1
+        self.add(_bucket(ns), ns)
+
+    def add(self, k: int, ns: int) -> None:
+        """Add one duration ``ns`` (≥ 0) whose bucket ``k`` is known (:func:`_bucket`)."""
         self.buckets[k] += 1
         if self.count == 0 or ns < self.min_ns:
             self.min_ns = ns
@@ -159,8 +166,11 @@ class RuntimeMetrics:
         return s
 
     def record(self, key: str, ns: int) -> None:
-        self.hist[key].record(ns)
-        self._cur[key].record(ns)
+        if ns < 0:
+            ns = 0
+        k = _bucket(ns)  # once for the cumulative and the window histogram
+        self.hist[key].add(k, ns)
+        self._cur[key].add(k, ns)
 
     def record_state(self, arrival_ns: int, ready_ns: int, core_ns: int) -> None:
         """One IMU epoch processed: arrival→state latency, core time, late counter."""

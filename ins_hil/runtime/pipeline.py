@@ -129,6 +129,9 @@ class PipelineConfig:
     init_yaw_deg: float = 0.0
     level_samples: int = 200
     imu_ids: list[int] = field(default_factory=lambda: [0])
+    # redundant IMUs: an epoch (one sensor time) waits at most this many IMU periods of arrival time
+    # for the units that have not delivered yet, then runs with what is there (imu_epoch_incomplete)
+    epoch_wait_periods: float = 3.0
     fdi: bool = False
     fdi_options: dict[str, Any] = field(default_factory=dict)
     calibration: str = ""
@@ -148,11 +151,17 @@ def level_attitude(f_b: np.ndarray, yaw: float) -> np.ndarray:
     return quat_from_euler(roll, pitch, yaw)
 
 
+#: a unit missing from this many epochs in a row is not waited for until it delivers again
+GONE_EPOCHS = 20
+
+
 class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
     def __init__(self, cfg: PipelineConfig) -> None:
         check_core(cfg.core, cfg.nav)
+        if not (isinstance(cfg.epoch_wait_periods, int | float) and 0 < cfg.epoch_wait_periods < math.inf):
+            raise ValueError(f"core.epoch_wait_periods = {cfg.epoch_wait_periods!r}: must be a number > 0")
         self.cfg = cfg
         self.core: Core | None = None
         self.events: list[FaultEvent] = []
@@ -163,7 +172,13 @@ class Pipeline:
         self._lvl_sum = np.zeros(3)
         self._lvl_dt = 0.0
         self._multi = len(cfg.imu_ids) > 1
-        self._pending: dict[int, dict[int, ImuSample]] = {}
+        self._ids = frozenset(cfg.imu_ids)
+        self._n_ids = len(self._ids)
+        # epochs waiting for units, by sensor time (µs): (first arrival ns, {imu_id: sample})
+        self._pending: dict[int, tuple[int, dict[int, ImuSample]]] = {}
+        self._last_key = -(1 << 62)  # sensor time (µs) of the last epoch run
+        self._miss: dict[int, int] = {}  # imu_id → consecutive epochs run without it
+        self._unit_key: dict[int, int] = {}  # imu_id → newest sensor time (µs) it delivered
         self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
         self._aid_mon = aiding_monitor(cfg.aiding_options) if cfg.aiding_fdi else None
@@ -195,22 +210,81 @@ class Pipeline:
             s = self._calib.apply(s)
         if not self._multi:
             return self._epoch([s])
+        return self._group(s)
+
+    def _group(self, s: ImuSample) -> NavState | None:
+        """Redundant IMUs: group samples into epochs by sensor time.
+
+        An epoch is complete when every configured imu_id has delivered its sample for that sensor
+        time. Each link delivers in order, so once a unit has delivered a later sample, its sample
+        for an older pending epoch is lost: that epoch runs (oldest first) as soon as every unit
+        has delivered it or a later one. An epoch also runs incomplete once a sample
+        arrives ``epoch_wait_periods`` IMU periods (arrival time, ``t_arrival_ns``: recorded, so
+        replay groups the same way) after its first sample; samples without an arrival stamp use
+        the same bound in sensor time. A sample for an epoch that already ran is dropped
+        (``imu_epoch_late_sample``). A unit missing from ``GONE_EPOCHS`` epochs in a row (dead
+        link) is not waited for until it delivers again, so the others do not each wait the bound."""
+        if s.imu_id not in self._ids:
+            self._count("imu_unknown_id")
+            return None
+        if self._miss:
+            self._miss.pop(s.imu_id, None)  # the unit delivers (again): wait for it
         key = round(s.t * 1e6)
-        pend = self._pending.setdefault(key, {})
+        if key <= self._last_key:
+            self._count("imu_epoch_late_sample")
+            return None
+        pending = self._pending
+        entry = pending.get(key)
+        if entry is None:
+            entry = pending[key] = (s.t_arrival_ns, {})
+        pend = entry[1]
         if s.imu_id in pend:
             self._count("imu_duplicate")
             return None
         pend[s.imu_id] = s
+        uk = self._unit_key
+        if key > uk.get(s.imu_id, -(1 << 62)):
+            uk[s.imu_id] = key
         out: NavState | None = None
-        # epochs older than this one by more than 2 intervals will not complete: run them as they are
-        stale = [k for k in self._pending if k < key - 2.5 * s.dt * 1e6]
-        for k in sorted(stale):
-            self._count("imu_epoch_incomplete")
-            out = self._epoch(list(self._pending.pop(k).values())) or out
-        if len(pend) == len(self.cfg.imu_ids):
-            del self._pending[key]
-            out = self._epoch([pend[i] for i in sorted(pend)]) or out
+        wait = self.cfg.epoch_wait_periods * s.dt
+        # run, oldest first, every epoch that can no longer gain a sample: each unit has delivered
+        # it, or a later one (links deliver in order: its sample is lost), or is gone
+        miss, ids = self._miss, self._ids
+        for k in sorted(pending):
+            have = pending[k][1]
+            if len(have) == self._n_ids or all(
+                i in have or uk.get(i, k) > k or miss.get(i, 0) >= GONE_EPOCHS for i in ids
+            ):
+                out = self._run_pending(k) or out
+            else:
+                break
+        if not pending:
+            return out
+        now = s.t_arrival_ns
+        if now:
+            limit = now - round(wait * 1e9)
+            due = max((k for k, (a, _) in pending.items() if a <= limit), default=None)
+        else:
+            due = max((k for k in pending if k < key - wait * 1e6), default=None)
+        if due is not None:
+            for k in sorted(pending):
+                if k > due:
+                    break
+                out = self._run_pending(k) or out
+        if len(pending) > 64:  # e.g. arrival stamps that never advance: do not grow without bound
+            out = self._run_pending(min(pending)) or out
         return out
+
+    def _run_pending(self, key: int) -> NavState | None:
+        pend = self._pending.pop(key)[1]
+        self._last_key = key
+        if len(pend) < self._n_ids:
+            self._count("imu_epoch_incomplete")
+            miss = self._miss
+            for i in self._ids:
+                if i not in pend:
+                    miss[i] = miss.get(i, 0) + 1
+        return self._epoch([pend[i] for i in sorted(pend)])
 
     def _epoch(self, samples: list[ImuSample]) -> NavState | None:
         if self._fdi is not None:
@@ -219,7 +293,9 @@ class Pipeline:
                 self.events.extend(ev)
         else:
             s = samples[0]
-        if not (math.isfinite(s.dt) and all(map(math.isfinite, s.dtheta)) and all(map(math.isfinite, s.dvel))):
+        fin = math.isfinite
+        a, v = s.dtheta, s.dvel
+        if not (fin(s.dt) and fin(a[0]) and fin(a[1]) and fin(a[2]) and fin(v[0]) and fin(v[1]) and fin(v[2])):
             # e.g. FDI with too few healthy units left after lost frames: never feed NaN to the core
             self._count("imu_nonfinite")
             return None

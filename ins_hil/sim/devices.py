@@ -33,6 +33,7 @@ import sys
 import threading
 import time
 import tty
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -166,56 +167,101 @@ def run_devices(cfg: SimConfig, gnss_addr: tuple[str, int], announce: bool = Tru
         nxt.append(next(chunks))
         ready.set()
 
-    t_start = time.monotonic()
+    t_start_ns = time.monotonic_ns()
     dropped = 0
     pending = bytearray()
     seq = 0
-    t_hb = 0.0
     dt = 1.0 / cfg.imu_rate
+    link = SensorLink(writer, rx, mav, t_start_ns, cfg.duration)
     while True:
         _truth, imu, fixes, baro = nxt.pop(0)
         ready.clear()
         th = threading.Thread(target=prefetch, daemon=True)
         th.start()
-        # the send schedule: (send time, kind, index)
-        sched: list[tuple[float, int, int]] = [(float(imu.t[k]), 0, k) for k in range(len(imu.t))]
-        sched += [(f.t + cfg.gnss_latency, 1, i) for i, f in enumerate(fixes)]
-        sched += [(b.t, 2, i) for i, b in enumerate(baro)]
-        sched.sort()
+
+        def emit_imu(i: int, _due_ns: int, imu: Any = imu) -> None:
+            nonlocal seq, dropped
+            frame = encode(
+                ImuSample(float(imu.t[i]), dt, imu.dtheta[i], imu.dvel[i], 0, seq & 0xFFFF, 35.0, int(imu.flags[i]))
+            )
+            seq += 1
+            # a UART keeps whole frames: queue what the pty cannot take now, drop whole frames
+            # (counted) only when more than ~100 ms is queued, never part of one
+            if len(pending) > 100 * len(frame):
+                dropped += 1
+            else:
+                pending.extend(frame)
+            if pending:
+                try:
+                    n = os.write(master, pending)
+                    del pending[:n]
+                except OSError as e:
+                    if e.errno not in (errno.EAGAIN, errno.EWOULDBLOCK):
+                        raise
+
+        if not link.serve(schedule(imu.t, fixes, baro, cfg.gnss_latency), emit_imu, fixes, baro):
+            return
+        th.join()
+
+
+def schedule(imu_t: Any, fixes: list[Any], baro: list[Any], gnss_latency: float) -> list[tuple[float, int, int]]:
+    """The send schedule of one chunk: (send time s, kind 0 = IMU epoch / 1 = GNSS / 2 = baro, index), sorted.
+
+    GNSS fixes go out ``gnss_latency`` after their time of validity, the rest at their sensor time."""
+    sched: list[tuple[float, int, int]] = [(float(imu_t[k]), 0, k) for k in range(len(imu_t))]
+    sched += [(f.t + gnss_latency, 1, i) for i, f in enumerate(fixes)]
+    sched += [(b.t, 2, i) for i, b in enumerate(baro)]
+    sched.sort()
+    return sched
+
+
+class SensorLink:
+    """The one send loop of the simulated devices (``run_devices`` and the soak's sensor process).
+
+    :meth:`serve` sleeps until each scheduled time (``t_start_ns`` + send time, CLOCK_MONOTONIC),
+    hands IMU epochs to the caller's ``emit_imu(index, due_ns)`` (the frames and their transport:
+    one pty, or several, with emission stamps), sends GNSS (GPS_INPUT) and baro
+    (SCALED_PRESSURE) over MAVLink, answers TIMESYNC and sends a 1 Hz HEARTBEAT."""
+
+    def __init__(self, writer: _UdpWriter, rx: Any, mav: Any, t_start_ns: int, duration: float = 0.0) -> None:
+        self.writer, self.rx, self.mav = writer, rx, mav
+        self.t_start_ns = t_start_ns
+        self.duration = duration
+        self._t_hb = -1.0
+
+    def serve(
+        self,
+        sched: list[tuple[float, int, int]],
+        emit_imu: Callable[[int, int], None],
+        fixes: list[Any],
+        baro: list[Any],
+    ) -> bool:
+        """Send one chunk's schedule; False once ``duration`` (> 0) is reached."""
+        from pymavlink.dialects.v20 import common as mavlink2
+
+        mono = time.monotonic_ns
+        t0 = self.t_start_ns
+        t_start = t0 * 1e-9
+        mav = self.mav
         for ts, kind, i in sched:
-            if cfg.duration and ts > cfg.duration:
-                return
-            delay = t_start + ts - time.monotonic()
+            if self.duration and ts > self.duration:
+                return False
+            due = t0 + round(ts * 1e9)
+            delay = (due - mono()) * 1e-9
             if delay > 0:
                 time.sleep(delay)
             if kind == 0:
-                frame = encode(
-                    ImuSample(float(imu.t[i]), dt, imu.dtheta[i], imu.dvel[i], 0, seq & 0xFFFF, 35.0, int(imu.flags[i]))
-                )
-                seq += 1
-                # a UART keeps whole frames: queue what the pty cannot take now, drop whole frames
-                # (counted) only when more than ~100 ms is queued, never part of one
-                if len(pending) > 100 * len(frame):
-                    dropped += 1
-                else:
-                    pending += frame
-                if pending:
-                    try:
-                        n = os.write(master, pending)
-                        del pending[:n]
-                    except OSError as e:
-                        if e.errno not in (errno.EAGAIN, errno.EWOULDBLOCK):
-                            raise
+                emit_imu(i, due)
             elif kind == 1:
                 _send_gnss(mav, fixes[i])
             else:
                 b = baro[i]
                 mav.scaled_pressure_send(round(b.t * 1000), b.pressure / 100.0, 0.0, 2000)
-            _answer_timesync(writer, rx, mav, t_start)
-            if ts - t_hb >= 1.0:
-                t_hb = ts
+            _answer_timesync(self.writer, self.rx, mav, t_start)
+            if ts - self._t_hb >= 1.0:
+                self._t_hb = ts
                 mav.heartbeat_send(mavlink2.MAV_TYPE_GENERIC, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-        th.join()
+        return True
 
 
 def _answer_timesync(writer: _UdpWriter, rx: Any, mav: Any, t_start: float) -> None:

@@ -36,7 +36,9 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
              "ESTIMATOR_STATUS": 0.0, "ODOMETRY": a.gcs_rate}  # fmt: skip
     return {
         "gateway": {"name": "ins-hil-soak", "late_threshold_ms": period_ms, "queue_size": 4096},
-        "core": {"kind": a.core, "init": "gnss"},
+        # the navigation settings of configs/default.toml (what `ins-hil run` ships: covariance every
+        # 10 steps, no delayed-fusion rollback), not NavConfig's offline defaults
+        "core": {"kind": a.core, "init": "gnss", "nav": default_nav()},
         "fdi": {
             "enabled": a.imus > 1,
             "imu_ids": list(range(a.imus)),
@@ -53,6 +55,17 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
         "mqtt": {"enabled": False},
         "recorder": {"enabled": a.record, "dir": str(a.out)},
     }
+
+
+def default_nav() -> dict[str, Any]:
+    """The ``[core.nav]`` table of configs/default.toml (the shipped speed settings of the 1 kHz loop)."""
+    import tomllib
+
+    from ins_hil.config import default_path
+
+    with open(default_path(), "rb") as f:
+        nav = tomllib.load(f).get("core", {}).get("nav", {})
+    return dict(nav)
 
 
 #: fault events kept for the report (the rest are only counted)

@@ -1,6 +1,7 @@
 """Soak sensor process: N serial IMUs on ptys + GNSS/baro MAVLink over UDP, every emission stamped.
 
-Like :mod:`ins_hil.sim.devices` (whose MAVLink helpers it reuses) but built for
+Like :mod:`ins_hil.sim.devices` (whose send loop :class:`~ins_hil.sim.devices.SensorLink`
+and MAVLink helpers it uses, with its own IMU emitter that stamps every epoch) but built for
 measurement: it pins itself to one CPU, waits for ``go`` on stdin before its clock
 starts (so no frame is written before the gateway reads), simulates ``--imus``
 redundant IMUs (:mod:`ins_hil.sim.redundant`, ``imu_id`` = unit; ``--links shared``: all
@@ -39,7 +40,7 @@ import numpy as np
 from ins_hil.drivers.serial_frame import encode
 from ins_hil.runtime.metrics import LatencyHistogram
 from ins_hil.sim import sensors
-from ins_hil.sim.devices import _answer_timesync, _mavlink, _send_gnss, _UdpWriter
+from ins_hil.sim.devices import SensorLink, _mavlink, _UdpWriter, schedule
 from ins_hil.sim.faults import inject, inject_imu
 from ins_hil.sim.redundant import simulate
 from ins_hil.sim.trajectory import TruthSeries, generate, static_profile, uav_profile
@@ -194,11 +195,10 @@ def run(a: argparse.Namespace) -> None:
     f_em = open(out / "emission.bin", "wb")
     f_tr = open(out / "truth.bin", "wb")
     t_start_ns = time.monotonic_ns()
-    t_start = t_start_ns * 1e-9
     stats["t_start_ns"] = t_start_ns
     mono = time.monotonic_ns
     dt = 1.0 / a.rate
-    t_hb = -1.0
+    link = SensorLink(writer, rx, mav, t_start_ns, a.duration)
 
     def _write_stats() -> None:
         stats.update(
@@ -223,43 +223,31 @@ def run(a: argparse.Namespace) -> None:
             n = len(t_imu)
             em = np.zeros((n, 2), dtype=np.int64)
             em[:, 0] = np.round(t_imu * 1e6).astype(np.int64)
-            sched: list[tuple[float, int, int]] = [(float(t_imu[k]), 0, k) for k in range(n)]
-            sched += [(f.t + a.gnss_latency, 1, i) for i, f in enumerate(fixes)]
-            sched += [(b.t, 2, i) for i, b in enumerate(baro)]
-            sched.sort()
             n_done = 0
-            try:
-                for ts, kind, i in sched:
-                    if ts > a.duration:
-                        raise _Stop
-                    due = t_start_ns + round(ts * 1e9)
-                    delay = (due - mono()) * 1e-9
-                    if delay > 0:
-                        time.sleep(delay)
-                    if kind == 0:
-                        tk = float(t_imu[i])
-                        for u in range(a.imus):
-                            frame = encode(ImuSample(tk, dt, dth[i, u], dv[i, u], u, seq & 0xFFFF, 35.0, int(fl[i, u])))
-                            lk = u if n_links > 1 else 0
-                            if _write(masters[lk], frame, pending, lk):
-                                written[lk] += 1
-                            else:
-                                dropped[lk] += 1
-                            if u == 0:
-                                now = mono()
-                                em[i, 1] = now
-                                late.record(now - due)
-                        n_done = i + 1
-                        seq += 1
-                    elif kind == 1:
-                        _send_gnss(mav, fixes[i])
+
+            def emit_imu(
+                i: int, due: int, t_imu: Any = t_imu, dth: Any = dth, dv: Any = dv, fl: Any = fl, em: Any = em
+            ) -> None:
+                # every unit's frame of epoch i, stamped (CLOCK_MONOTONIC) after the first unit's write
+                nonlocal n_done, seq
+                tk = float(t_imu[i])
+                for u in range(a.imus):
+                    frame = encode(ImuSample(tk, dt, dth[i, u], dv[i, u], u, seq & 0xFFFF, 35.0, int(fl[i, u])))
+                    lk = u if n_links > 1 else 0
+                    if _write(masters[lk], frame, pending, lk):
+                        written[lk] += 1
                     else:
-                        b = baro[i]
-                        mav.scaled_pressure_send(round(b.t * 1000), b.pressure / 100.0, 0.0, 2000)
-                    _answer_timesync(writer, rx, mav, t_start)
-                    if ts - t_hb >= 1.0:
-                        t_hb = ts
-                        mav.heartbeat_send(mavlink2.MAV_TYPE_GENERIC, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                        dropped[lk] += 1
+                    if u == 0:
+                        now = mono()
+                        em[i, 1] = now
+                        late.record(now - due)
+                n_done = i + 1
+                seq += 1
+
+            try:
+                if not link.serve(schedule(t_imu, fixes, baro, a.gnss_latency), emit_imu, fixes, baro):
+                    raise _Stop
             finally:
                 em[:n_done][em[:n_done, 1] > 0].tofile(f_em)
             th.join()
