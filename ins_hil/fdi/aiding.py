@@ -48,9 +48,11 @@ state: a second-order interpolation with no history to keep on the IMU path), or
 ``late_fix_as_current`` (NavCore with ``delay_compensation = false`` fuses a late fix as
 current, so its state lags the truth by ≈ the latency: ≈ 1 m along track at 20 m/s), with the
 current state. What the lag can still cause in manoeuvres (the filter's residual time offset
-is unknown within [0, lag]) is a dead zone of the CUSUM inputs, and the INS velocity σ has a
-floor ``ins_vel_floor`` (the 1 kHz filter fed late fixes shows velocity errors of 0.1 m/s in
-turns against its own σ of 0.02 m/s; measured with tests/test_aiding_live.py's flights).
+is unknown within [0, lag]) is a dead zone of the CUSUM inputs.
+The INS velocity σ in the CUSUM has a floor of ``ins_vel_floor`` × the fix's velocity σ: after
+fusing the GNSS the filter's velocity error is GNSS-driven and correlated over seconds in turns
+(the live 1 kHz flights: RMS 0.03 m/s, close to its σ, but episodes of 0.10 m/s lasting seconds,
+with or without delay compensation), which a white-noise CUSUM at the filter's own σ accumulates.
 Simplifications: the GNSS lever arm is ignored (the INS position is the antenna position);
 a vertical GNSS pull with matching vertical velocity is blamed on the baro by the
 baro/GNSS test (the GNSS CUSUM usually fires first).
@@ -80,7 +82,8 @@ class AidingConfig:
     GNSS gap that restarts the windows. A fix older than the state it is checked against
     (lag ≤ ``max_lag`` s) is compared at its time of validity, or with the current state when
     ``late_fix_as_current`` (the core fuses late fixes as current), with dead zones
-    ``lag_margin``·(½·lag·|a|, lag·|v − v̄|) (``lag_tau``: time constant of v̄); see ``_lag``."""
+    ``lag_margin``·(½·lag·|a|, lag·|v − v̄|) (``lag_tau``: time constant of v̄); see ``_lag``.
+    ``ins_vel_floor``: the INS velocity σ used by the CUSUM is at least this × the fix's σ_vel."""
 
     p_fa_hour: float = 1e-3
     window: float = 20.0
@@ -102,7 +105,7 @@ class AidingConfig:
     lag_tau: float = 10.0
     max_lag: float = 0.5
     late_fix_as_current: bool = False
-    ins_vel_floor: float = 0.1
+    ins_vel_floor: float = 1.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_fa_hour < 1.0:
@@ -236,7 +239,7 @@ class AidingMonitor:
         if g.vel_ned is not None:
             sv = max(g.std_vel, c.min_std)
             nu_v = np.asarray(g.vel_ned, dtype=np.float64) - (v_f - back * a_n)
-            sd_ins = np.maximum(np.asarray(st.std_vel), c.ins_vel_floor)
+            sd_ins = np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv)
             z_v = _dead_zone(nu_v, dz_v) / np.sqrt(sd_ins**2 + sv * sv)
         else:
             sv = math.nan
@@ -274,8 +277,10 @@ class AidingMonitor:
             self._cn = np.maximum(0.0, self._cn - z - c.cusum_k)
             self._cp_len = np.where(self._cp > 0, self._cp_len + 1, 0.0)
             self._cn_len = np.where(self._cn > 0, self._cn_len + 1, 0.0)
-            sd_v = np.maximum(np.asarray(st.std_vel), c.ins_vel_floor)
-            self._sv = np.sqrt(sd_v**2 + (sv * sv if g.vel_ned is not None else 0.0))
+            if g.vel_ned is not None:
+                self._sv = np.sqrt(np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv) ** 2 + sv * sv)
+            else:
+                self._sv = np.asarray(st.std_vel, dtype=np.float64).copy()
         cus = float(max(self._cp.max(), self._cn.max()))
         self.stats["gnss_cusum"] = cus
         bad_c = cons > self.thr_gnss
