@@ -70,3 +70,28 @@ def test_lag_config_errors_name_the_field() -> None:
             AidingConfig(**{k: -1.0})
     with pytest.raises(ValueError, match="lag_tau"):
         AidingConfig(lag_tau=0.0)
+
+
+def test_ins_disturbed_holds_the_ins_cusum_and_readmits_the_gnss() -> None:
+    """An INS 0.3 m/s off (e.g. after lost IMU frames) trips the INS-innovation CUSUM and the GNSS is
+    excluded; ``ins_disturbed`` re-admits it and holds the CUSUM for ``clear_time`` s."""
+    cfg = AidingConfig()
+    mon = AidingMonitor(cfg)
+    t_flag = None
+    for k in range(1, 200):
+        tg = 0.2 * k
+        lat, lon, h, v, _ = _truth(tg)
+        st = _state(tg, tg)
+        st.vel_ned = st.vel_ned + np.array((0.3, 0.0, 0.0))
+        excluded = mon.check(GnssFix(tg, lat, lon, h, v, std_ne=0.5, std_d=1.0, std_vel=0.05), st)
+        if excluded and t_flag is None:
+            t_flag = tg
+            assert "CUSUM" in mon.drain_events()[0].detail
+            mon.ins_disturbed(tg)
+            ev = mon.drain_events()
+            assert [(e.sensor, e.cleared) for e in ev] == [("gnss", True)] and "IMU" in ev[0].detail
+            assert not mon.faulted("gnss")
+        elif t_flag is not None and tg < t_flag + cfg.clear_time:
+            assert not excluded and mon.stats["gnss_cusum"] == 0.0
+    assert t_flag is not None and t_flag < 10.0
+    assert mon.faulted("gnss")  # after the hold the persisting disagreement is flagged again

@@ -194,6 +194,8 @@ class AidingMonitor:
         self._bwin: deque[tuple[float, float, float]] = deque()  # t, h_baro − h_gnss, var
         self._v_ema = np.zeros(3)  # slow average of the state velocity (m/s, NED; time constant lag_tau)
         self._v_t = math.nan
+        self._ins_hold = -math.inf  # INS-innovation CUSUMs held until this time (see ins_disturbed)
+        self._gnss_by_cusum = False
 
     # ---------------------------------------------------------------- public
     def check(self, meas: GnssFix | BaroSample, state: NavState) -> bool:
@@ -210,6 +212,21 @@ class AidingMonitor:
                 self._baro_last = meas
             return self.cfg.exclude and self.baro.faulted
         return False
+
+    def ins_disturbed(self, t: float) -> None:
+        """The INS missed IMU samples at about ``t`` (s) (e.g. lost frames, no FDI output): for
+        ``clear_time`` s its innovations are no evidence against the GNSS, so the INS-innovation
+        CUSUMs restart and hold (the position/velocity and baro slope tests go on). A GNSS flagged
+        by those CUSUMs alone is re-admitted (it may well have been the INS)."""
+        self._cp[:] = 0.0
+        self._cn[:] = 0.0
+        self._ins_hold = max(self._ins_hold, t + self.cfg.clear_time)
+        if self.gnss.faulted and self._gnss_by_cusum:
+            s = self.gnss
+            s.faulted, s.t_ok = False, math.nan
+            self.events.append(
+                FaultEvent(t, "gnss", FaultMode.DRIFT, 0.0, True, True, "re-admitted: the INS lost IMU samples")
+            )
 
     def faulted(self, sensor: str) -> bool:
         """True while ``"gnss"`` or ``"baro"`` is flagged."""
@@ -272,6 +289,8 @@ class AidingMonitor:
         if not c.vertical_cusum:  # the filter height follows the baro: vertical GNSS checked by the slope tests
             z[2] = z[5] = 0.0
         z = np.clip(z, -c.jump_gate, c.jump_gate)  # an outlier adds at most jump_gate − k
+        if g.t < self._ins_hold:
+            z = np.zeros(6)  # the INS lost samples: its innovations are no evidence (ins_disturbed)
         if not (self.gnss.faulted and c.exclude):
             self._cp = np.maximum(0.0, self._cp + z - c.cusum_k)
             self._cn = np.maximum(0.0, self._cn - z - c.cusum_k)
@@ -302,6 +321,7 @@ class AidingMonitor:
                     if bad_c
                     else f"{which}: {('pos', 'vel')[axis // 3]}.{'NED'[axis % 3]} S={cus:.1f} (h {self.h_cusum:.1f})"
                 )
+                self._gnss_by_cusum = not bad_c
                 self._raise(self.gnss, "gnss", g.t, rate, det)
         else:
             healthy = cons < c.clear_fraction * self.thr_gnss and float(np.max(np.abs(z))) < c.clear_gate

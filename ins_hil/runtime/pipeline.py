@@ -167,6 +167,7 @@ class Pipeline:
         self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
         self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, cfg.nav) if cfg.aiding_fdi else None
+        self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
         self.last_state: NavState | None = None
         if cfg.init == "config":
             self._start(
@@ -278,6 +279,12 @@ class Pipeline:
         assert self.core is not None
         mon = self._aid_mon
         if mon is not None and not isinstance(m, MagSample):
+            # IMU epochs skipped since the last check: the INS is not evidence against the GNSS for a while
+            c = self.counts
+            lost = c.get("imu_nonfinite", 0) + c.get("imu_epoch_incomplete", 0) + c.get("imu_time_backwards", 0)
+            if lost != self._aid_lost:
+                self._aid_lost = lost
+                mon.ins_disturbed(m.t)
             # the drift monitor sees the state before this measurement is fused (GNSS/baro rate only)
             excluded = mon.check(m, self.core.state())
             if mon.events:
