@@ -107,7 +107,7 @@ def test_fdi_aiding_config_table_is_validated() -> None:
     from ins_hil.config import ConfigError, from_dict
 
     d = sim_config_dict()
-    assert not from_dict(d).pipeline.aiding_fdi  # off by default (false alarms in the live soak)
+    assert from_dict(d).pipeline.aiding_fdi  # on by default (tests/test_aiding_live.py: no false alarm live)
     d["fdi"] = {"aiding": {"enabled": True, "p_fa_hour": 1e-4}}
     p = from_dict(d).pipeline
     assert p.aiding_fdi and p.aiding_options == {"p_fa_hour": 1e-4}

@@ -41,6 +41,18 @@ Normalised innovations are clipped at ``jump_gate`` in the CUSUM and a single-ep
 left out of the consistency sum: a jump is reported first by the filter's own gate (JUMP); only a
 persisting offset accumulates to a DRIFT alarm. Clearing uses hysteresis (``clear_fraction`` of the
 threshold).
+Late fixes (the live gateway: GNSS delivered 50 ms after its time of validity, checked
+against the current state): the fix is compared with the state the way the core fuses it:
+moved back to the time of validity (p − v·lag + ½a·lag², v − a·lag, a = C_b^n f_b + g of the
+state: a second-order interpolation with no history to keep on the IMU path), or, with
+``late_fix_as_current`` (NavCore with ``delay_compensation = false`` fuses a late fix as
+current, so its state lags the truth by ≈ the latency: ≈ 1 m along track at 20 m/s), with the
+current state. What the lag can still cause in manoeuvres (the filter's residual time offset
+is unknown within [0, lag]) is a dead zone of the CUSUM inputs.
+The INS velocity σ in the CUSUM has a floor of ``ins_vel_floor`` × the fix's velocity σ: after
+fusing the GNSS the filter's velocity error is GNSS-driven and correlated over seconds in turns
+(the live 1 kHz flights: RMS 0.03 m/s, close to its σ, but episodes of 0.10 m/s lasting seconds,
+with or without delay compensation), which a white-noise CUSUM at the filter's own σ accumulates.
 Simplifications: the GNSS lever arm is ignored (the INS position is the antenna position);
 a vertical GNSS pull with matching vertical velocity is blamed on the baro by the
 baro/GNSS test (the GNSS CUSUM usually fires first).
@@ -56,6 +68,7 @@ import numpy as np
 
 from ins_hil.fdi.thresholds import chi2_threshold
 from ins_hil.nav import earth
+from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, NavState
 
 
@@ -66,7 +79,11 @@ class AidingConfig:
     ``gnss_rate``/``baro_rate`` (Hz) are the nominal rates used only to count trials an hour
     for the thresholds. ``baro_std`` (m) is the baro noise (a BaroSample carries no σ).
     ``min_span`` is the shortest filled window (s) a slope test runs on; ``max_gap`` (s) a
-    GNSS gap that restarts the windows."""
+    GNSS gap that restarts the windows. A fix older than the state it is checked against
+    (lag ≤ ``max_lag`` s) is compared at its time of validity, or with the current state when
+    ``late_fix_as_current`` (the core fuses late fixes as current), with dead zones
+    ``lag_margin``·(½·lag·|a|, lag·|v − v̄|) (``lag_tau``: time constant of v̄); see ``_lag``.
+    ``ins_vel_floor``: the INS velocity σ used by the CUSUM is at least this × the fix's σ_vel."""
 
     p_fa_hour: float = 1e-3
     window: float = 20.0
@@ -84,17 +101,29 @@ class AidingConfig:
     clear_fraction: float = 0.25
     max_gap: float = 2.0
     exclude: bool = True
+    lag_margin: float = 1.0
+    lag_tau: float = 10.0
+    max_lag: float = 0.5
+    late_fix_as_current: bool = False
+    ins_vel_floor: float = 1.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p_fa_hour < 1.0:
             raise ValueError(f"p_fa_hour = {self.p_fa_hour}: expected a probability in (0, 1)")
-        for name in ("window", "min_span", "cusum_k", "clear_gate", "gnss_rate", "baro_rate", "baro_std", "min_std"):
+        for name in (
+            "window", "min_span", "cusum_k", "clear_gate", "gnss_rate", "baro_rate", "baro_std", "min_std", "lag_tau",
+        ):  # fmt: skip
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} = {getattr(self, name)}: expected a positive number")
         if self.min_span > self.window:
             raise ValueError(f"min_span = {self.min_span} must not exceed window = {self.window}")
         if self.clear_time < 0 or self.rate_floor < 0 or self.max_gap <= 0:
             raise ValueError("clear_time and rate_floor must be ≥ 0, max_gap > 0")
+        if self.lag_margin < 0 or self.max_lag < 0 or self.ins_vel_floor < 0:
+            raise ValueError(
+                f"lag_margin = {self.lag_margin}, max_lag = {self.max_lag}, "
+                f"ins_vel_floor = {self.ins_vel_floor}: expected ≥ 0"
+            )
 
 
 def cusum_arl0(h: float, k: float) -> float:
@@ -115,6 +144,12 @@ def cusum_threshold(arl0: float, k: float) -> float:
         else:
             hi = mid
     return hi
+
+
+def _dead_zone(x: np.ndarray, dz: np.ndarray) -> np.ndarray:
+    """x shrunk towards 0 by dz ≥ 0 per element (0 inside the zone): a bounded unknown bias
+    within dz adds nothing to a CUSUM, the noise only shrinks (the ARL₀ stays conservative)."""
+    return np.sign(x) * np.maximum(0.0, np.abs(x) - dz)
 
 
 def _slope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
@@ -157,6 +192,10 @@ class AidingMonitor:
         self._sv = np.ones(3)  # σ of the velocity innovation (m/s)
         self._baro_last: BaroSample | None = None
         self._bwin: deque[tuple[float, float, float]] = deque()  # t, h_baro − h_gnss, var
+        self._v_ema = np.zeros(3)  # slow average of the state velocity (m/s, NED; time constant lag_tau)
+        self._v_t = math.nan
+        self._ins_hold = -math.inf  # INS-innovation CUSUMs held until this time (see ins_disturbed)
+        self._gnss_by_cusum = False
 
     # ---------------------------------------------------------------- public
     def check(self, meas: GnssFix | BaroSample, state: NavState) -> bool:
@@ -174,6 +213,21 @@ class AidingMonitor:
             return self.cfg.exclude and self.baro.faulted
         return False
 
+    def ins_disturbed(self, t: float) -> None:
+        """The INS missed IMU samples at about ``t`` (s) (e.g. lost frames, no FDI output): for
+        ``clear_time`` s its innovations are no evidence against the GNSS, so the INS-innovation
+        CUSUMs restart and hold (the position/velocity and baro slope tests go on). A GNSS flagged
+        by those CUSUMs alone is re-admitted (it may well have been the INS)."""
+        self._cp[:] = 0.0
+        self._cn[:] = 0.0
+        self._ins_hold = max(self._ins_hold, t + self.cfg.clear_time)
+        if self.gnss.faulted and self._gnss_by_cusum:
+            s = self.gnss
+            s.faulted, s.t_ok = False, math.nan
+            self.events.append(
+                FaultEvent(t, "gnss", FaultMode.DRIFT, 0.0, True, True, "re-admitted: the INS lost IMU samples")
+            )
+
     def faulted(self, sensor: str) -> bool:
         """True while ``"gnss"`` or ``"baro"`` is flagged."""
         return (self.gnss if sensor == "gnss" else self.baro).faulted
@@ -188,15 +242,22 @@ class AidingMonitor:
         c = self.cfg
         sp_ne, sp_d = max(g.std_ne, c.min_std), max(g.std_d, c.min_std)
         var_p = np.array((sp_ne * sp_ne, sp_ne * sp_ne, sp_d * sp_d))
-        # --- innovations against the INS (state moved to the fix time with its velocity)
-        dt_s = g.t - st.t
-        nu_p = earth.ned_delta_small(g.lat - st.lat, g.lon - st.lon, g.h - st.h, st.lat, st.h) - st.vel_ned * dt_s
+        # --- innovations against the INS at the fix's time of validity
+        lag, a_n, dz_p, dz_v = self._lag(g, st)
+        v_f = np.asarray(st.vel_ned, dtype=np.float64)
+        # p(t_g) = p(t) − v·lag + ½·a·lag², v(t_g) = v(t) − a·lag: the state moved back to the fix time
+        # with its own velocity/acceleration, unless the core fuses late fixes as current (see _lag)
+        back = 0.0 if c.late_fix_as_current else lag
+        nu_p = earth.ned_delta_small(g.lat - st.lat, g.lon - st.lon, g.h - st.h, st.lat, st.h) + (
+            v_f * back - 0.5 * a_n * (back * back)
+        )
         s_ins = np.asarray(st.std_pos) ** 2
-        z_p = nu_p / np.sqrt(s_ins + var_p)
+        z_p = _dead_zone(nu_p, dz_p) / np.sqrt(s_ins + var_p)
         if g.vel_ned is not None:
             sv = max(g.std_vel, c.min_std)
-            nu_v = np.asarray(g.vel_ned, dtype=np.float64) - st.vel_ned
-            z_v = nu_v / np.sqrt(np.asarray(st.std_vel) ** 2 + sv * sv)
+            nu_v = np.asarray(g.vel_ned, dtype=np.float64) - (v_f - back * a_n)
+            sd_ins = np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv)
+            z_v = _dead_zone(nu_v, dz_v) / np.sqrt(sd_ins**2 + sv * sv)
         else:
             sv = math.nan
             z_v = np.zeros(3)
@@ -228,12 +289,17 @@ class AidingMonitor:
         if not c.vertical_cusum:  # the filter height follows the baro: vertical GNSS checked by the slope tests
             z[2] = z[5] = 0.0
         z = np.clip(z, -c.jump_gate, c.jump_gate)  # an outlier adds at most jump_gate − k
+        if g.t < self._ins_hold:
+            z = np.zeros(6)  # the INS lost samples: its innovations are no evidence (ins_disturbed)
         if not (self.gnss.faulted and c.exclude):
             self._cp = np.maximum(0.0, self._cp + z - c.cusum_k)
             self._cn = np.maximum(0.0, self._cn - z - c.cusum_k)
             self._cp_len = np.where(self._cp > 0, self._cp_len + 1, 0.0)
             self._cn_len = np.where(self._cn > 0, self._cn_len + 1, 0.0)
-            self._sv = np.sqrt(np.asarray(st.std_vel) ** 2 + (sv * sv if g.vel_ned is not None else 0.0))
+            if g.vel_ned is not None:
+                self._sv = np.sqrt(np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv) ** 2 + sv * sv)
+            else:
+                self._sv = np.asarray(st.std_vel, dtype=np.float64).copy()
         cus = float(max(self._cp.max(), self._cn.max()))
         self.stats["gnss_cusum"] = cus
         bad_c = cons > self.thr_gnss
@@ -255,6 +321,7 @@ class AidingMonitor:
                     if bad_c
                     else f"{which}: {('pos', 'vel')[axis // 3]}.{'NED'[axis % 3]} S={cus:.1f} (h {self.h_cusum:.1f})"
                 )
+                self._gnss_by_cusum = not bad_c
                 self._raise(self.gnss, "gnss", g.t, rate, det)
         else:
             healthy = cons < c.clear_fraction * self.thr_gnss and float(np.max(np.abs(z))) < c.clear_gate
@@ -268,6 +335,41 @@ class AidingMonitor:
                 self._clear(self.gnss, "gnss", g.t)
         # --- baro vs GNSS height (only against a healthy GNSS)
         self._baro_vs_gnss(g, sp_d)
+
+    def _lag(self, g: GnssFix, st: NavState) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """Lag of the fix behind the state (s, ≥ 0), the state's NED acceleration (m/s²) and the
+        dead zones (m, m/s per NED axis) of the position and velocity innovations that the lag
+        alone can cause.
+
+        A delay-compensating core holds the state at the fix time: the monitor moves the current
+        state back by ``lag`` (p − v·lag + ½a·lag², v − a·lag; a = C_b^n f_b + g from the state,
+        to second order the same as interpolating a state history, at no cost per IMU step).
+        A core that fuses a late fix as current (``NavConfig.delay_compensation = false``:
+        ``NavCore.fuse`` drops the time alignment when the fix is > 1.5 steps late) is pulled
+        towards the fix's past: its state becomes ≈ the truth at t − λ, λ ≤ lag, so there the
+        fix is compared with the current state (``late_fix_as_current``) like the core does.
+        Either way the state's residual time offset is unknown within [0, lag] while the
+        velocity changes (the filter adapts with its own time constant): the innovations get
+        dead zones ``lag_margin``·½·lag·|a| (velocity) and ``lag_margin``·lag·|v − v̄|
+        (position; v̄ = EMA of v over ``lag_tau`` s, the velocity change the filter is still
+        catching up with). With a timely fix (lag ≈ 0) both vanish."""
+        c = self.cfg
+        v = np.asarray(st.vel_ned, dtype=np.float64)
+        if math.isnan(self._v_t):
+            self._v_ema, self._v_t = v.copy(), st.t
+        else:
+            w = 1.0 - math.exp(-max(0.0, st.t - self._v_t) / c.lag_tau)
+            self._v_ema = self._v_ema + w * (v - self._v_ema)
+            self._v_t = st.t
+        lag = st.t - g.t
+        if lag <= 0.0 or lag > c.max_lag:
+            z = np.zeros(3)
+            return 0.0, z, z, z
+        # NED acceleration of the state: C_b^n·f_b + g (Coriolis/transport terms < 0.01 m/s² here)
+        a_n = dcm_from_quat(st.q_nb) @ np.asarray(st.accel_b, dtype=np.float64) + earth.gravity_ned(st.lat, st.h)
+        dz_v = c.lag_margin * 0.5 * lag * np.abs(a_n)
+        dz_p = c.lag_margin * lag * np.abs(v - self._v_ema)
+        return lag, a_n, dz_p, dz_v
 
     def _consistency(self, ratio_d: float) -> tuple[float, float]:
         """χ²₃ statistic of the position-vs-velocity slope and its norm (m/s)."""

@@ -135,7 +135,7 @@ class PipelineConfig:
     fdi: bool = False
     fdi_options: dict[str, Any] = field(default_factory=dict)
     calibration: str = ""
-    aiding_fdi: bool = False  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
+    aiding_fdi: bool = True  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
     aiding_options: dict[str, Any] = field(default_factory=dict)  # AidingConfig fields
     nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig fields
 
@@ -181,7 +181,8 @@ class Pipeline:
         self._unit_key: dict[int, int] = {}  # imu_id → newest sensor time (µs) it delivered
         self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
-        self._aid_mon = aiding_monitor(cfg.aiding_options) if cfg.aiding_fdi else None
+        self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, cfg.nav) if cfg.aiding_fdi else None
+        self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
         self.last_state: NavState | None = None
         if cfg.init == "config":
             self._start(
@@ -354,6 +355,12 @@ class Pipeline:
         assert self.core is not None
         mon = self._aid_mon
         if mon is not None and not isinstance(m, MagSample):
+            # IMU epochs skipped since the last check: the INS is not evidence against the GNSS for a while
+            c = self.counts
+            lost = c.get("imu_nonfinite", 0) + c.get("imu_epoch_incomplete", 0) + c.get("imu_time_backwards", 0)
+            if lost != self._aid_lost:
+                self._aid_lost = lost
+                mon.ins_disturbed(m.t)
             # the drift monitor sees the state before this measurement is fused (GNSS/baro rate only)
             excluded = mon.check(m, self.core.state())
             if mon.events:
@@ -405,8 +412,12 @@ def fdi_monitor(options: dict[str, Any]) -> Any:
         raise ValueError(f"fdi.options: {e}") from None
 
 
-def aiding_monitor(options: dict[str, Any]) -> Any:
-    """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key)."""
+def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | None = None) -> Any:
+    """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key).
+
+    Unless the table sets ``late_fix_as_current``, it follows the core: the Python core with
+    ``[core.nav] delay_compensation = false`` fuses a late GNSS fix as current, so the monitor
+    compares it with the current state; otherwise at the fix's time of validity."""
     from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 
     known = {f.name for f in dataclasses.fields(AidingConfig)}
@@ -421,6 +432,8 @@ def aiding_monitor(options: dict[str, Any]) -> Any:
             raise ValueError(f"fdi.aiding.{k} = {v!r}: expected {'true or false' if want_bool else 'a number'}")
     try:
         kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
+        if "late_fix_as_current" not in kw:
+            kw["late_fix_as_current"] = core == "python" and not bool((nav or {}).get("delay_compensation", True))
         return AidingMonitor(AidingConfig(**kw))
     except ValueError as e:
         raise ValueError(f"fdi.aiding: {e}") from None
