@@ -254,14 +254,16 @@ class NavCore:
         s = self.ins.state
         a = min(1.0, imu.dt / c.zupt_tau)
         self._ema_w = self._ema_w + a * (self.omega_b - self._ema_w)
-        self._ema_f = self._ema_f + a * (self.f_b - self._ema_f)
+        # specific force in NED (not its body magnitude): a start from rest with 1 m/s² changes |f| by only
+        # 0.05 m/s² (second order) but the horizontal specific force by 1 m/s², so the ZUPT stops in time
+        self._ema_f = self._ema_f + a * (self.ins.f_ned - self._ema_f)
         w, f = self._ema_w, self._ema_f
         wn = math.sqrt(float(w[0]) ** 2 + float(w[1]) ** 2 + float(w[2]) ** 2)
-        fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + float(f[2]) ** 2)
+        fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + (float(f[2]) + self._g_local) ** 2)  # |f − (0, 0, −g)|
         vn = s.vel_ned
         slow = float(vn[0]) ** 2 + float(vn[1]) ** 2 + float(vn[2]) ** 2 < c.zupt_max_speed**2
         # constant-velocity driving looks like rest to the IMU: require a low estimated speed too
-        still = slow and wn < c.zupt_gyro and abs(fn - self._g_local) < c.zupt_accel
+        still = slow and wn < c.zupt_gyro and fn < c.zupt_accel
         self._still_time = self._still_time + imu.dt if still else 0.0
         if t < self._nhc_next:
             return
