@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -63,7 +63,9 @@ class NavConfig:
     the averaged IMU looks at rest for ``zupt_time`` s and the speed is below ``zupt_max_speed``).
     nhc_lever_b: IMU → the vehicle point whose lateral/vertical velocity is zero (body FRD, m); with
     ``filter.mount_states`` the residual IMU → vehicle boresight is estimated (NHC only, needs ``nhc``).
-    adaptive: Sage–Husa R on GNSS/baro.
+    adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
+    the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
+    separately at its own time of validity (delayed fusion).
     The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
     taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
     """
@@ -73,6 +75,7 @@ class NavConfig:
     gnss_min_std: tuple[float, float, float] = (0.01, 0.01, 0.02)  # NE, D, vel
     gnss_std_scale: float = 1.0
     use_gnss_vel: bool = True
+    gnss_vel_delay: float = 0.0
     gate_gnss: float = 5.0
     gate_baro: float = 5.0
     gate_mag: float = 5.0
@@ -117,6 +120,10 @@ class NavConfig:
     def __post_init__(self) -> None:
         if self.align not in ("given", "static"):
             raise ValueError(f"NavConfig.align={self.align!r}: expected 'given' or 'static'")
+        if not 0.0 <= self.gnss_vel_delay <= self.max_delay:
+            raise ValueError(
+                f"NavConfig.gnss_vel_delay={self.gnss_vel_delay}: expected 0..max_delay ({self.max_delay} s)"
+            )
         if not 0.0 <= self.max_delay <= 2.0:
             raise ValueError(f"NavConfig.max_delay={self.max_delay}: expected 0..2 s")
         if self.filter.mount_states and not self.nhc:
@@ -249,14 +256,16 @@ class NavCore:
         s = self.ins.state
         a = min(1.0, imu.dt / c.zupt_tau)
         self._ema_w = self._ema_w + a * (self.omega_b - self._ema_w)
-        self._ema_f = self._ema_f + a * (self.f_b - self._ema_f)
+        # specific force in NED (not its body magnitude): a start from rest with 1 m/s² changes |f| by only
+        # 0.05 m/s² (second order) but the horizontal specific force by 1 m/s², so the ZUPT stops in time
+        self._ema_f = self._ema_f + a * (self.ins.f_ned - self._ema_f)
         w, f = self._ema_w, self._ema_f
         wn = math.sqrt(float(w[0]) ** 2 + float(w[1]) ** 2 + float(w[2]) ** 2)
-        fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + float(f[2]) ** 2)
+        fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + (float(f[2]) + self._g_local) ** 2)  # |f − (0, 0, −g)|
         vn = s.vel_ned
         slow = float(vn[0]) ** 2 + float(vn[1]) ** 2 + float(vn[2]) ** 2 < c.zupt_max_speed**2
         # constant-velocity driving looks like rest to the IMU: require a low estimated speed too
-        still = slow and wn < c.zupt_gyro and abs(fn - self._g_local) < c.zupt_accel
+        still = slow and wn < c.zupt_gyro and fn < c.zupt_accel
         self._still_time = self._still_time + imu.dt if still else 0.0
         if t < self._nhc_next:
             return
@@ -341,6 +350,16 @@ class NavCore:
         if self.phase != "nav":
             self._align_meas(meas)
             return
+        if isinstance(meas, GnssFix) and self.cfg.gnss_vel_delay > 0 and meas.vel_ned is not None:
+            # position at t, velocity at its own (earlier) time of validity: two measurements
+            pos_only = replace(meas, vel_ned=None)
+            vel_only = replace(meas, t=meas.t - self.cfg.gnss_vel_delay, lat=math.nan)
+            self._fuse_one(pos_only)
+            self._fuse_one(vel_only)
+            return
+        self._fuse_one(meas)
+
+    def _fuse_one(self, meas: GnssFix | BaroSample | MagSample) -> None:
         t = self.ins.state.t
         if meas.t > t + 0.5 * self._dt:
             self._pending.append(meas)
@@ -357,7 +376,13 @@ class NavCore:
         s = self.ins.state
         C = dcm_from_quat(s.q_nb)
         c = self.cfg
-        if isinstance(meas, GnssFix):
+        if isinstance(meas, GnssFix) and not math.isfinite(meas.lat):  # velocity-only (gnss_vel_delay)
+            if c.use_gnss_vel and meas.vel_ned is not None:
+                std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale
+                z, H = mm.gnss_velocity(self.idx, C, s.vel_ned, self.omega_b, np.asarray(meas.vel_ned),
+                                        c.gnss_lever_arm_b)  # fmt: skip
+                self._apply("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss, meas.t)
+        elif isinstance(meas, GnssFix):
             lever = c.gnss_lever_arm_b
             std_ne = max(meas.std_ne, c.gnss_min_std[0]) * c.gnss_std_scale
             std_d = max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale

@@ -81,3 +81,51 @@ def test_validation_windows_never_overlap_the_protocol(drive_dir: Path):
         assert not any(a < d and c < b for a, b in val for c, d in proto)
     with pytest.raises(ValueError, match="shift"):
         dd.cv_outage_windows(pos.t, 10.0)
+
+
+def test_tag_arrival_counts_crlf_bytes(tmp_path: Path):
+    """The tag offsets count the logged stream's bytes (CRLF line ends); the csv here has LF ends."""
+    lines = [b"0.1,0.0,1.0,0.0,0.0,0.0,1000", b"0.1,0.0,1.0,0.0,0.0,0.0,1010", b"0.1,0.0,1.0,0.0,0.0,0.0,1020"]
+    p = tmp_path / "imu.csv"
+    p.write_bytes(b"\n".join(lines) + b"\n")
+    ends: list[int] = []
+    _, _, tick, _ = dd.read_imu_csv(p, ends)
+    e = np.array(ends, dtype=float).reshape(-1, 2)
+    n = len(lines[0]) + 2  # CRLF line length
+    # records: (tick ms, file position reached): the second line completes at 2n bytes, received at 25 ms
+    tag = dd.TimeTag(0, 0, 0.0, np.array((5.0, 25.0, 40.0)), np.array((n - 5.0, 2.0 * n, 3.0 * n)))
+    arr = dd.tag_arrival_ms(tag, e[:, 0], e[:, 1], p.stat().st_size)
+    np.testing.assert_allclose(arr, (25.0, 25.0, 40.0))
+    t, c = dd.tag_time_map(tag, tick, arr)
+    assert c == pytest.approx(-985.0)  # lower envelope: the third line arrived 20 ms after its tick
+    np.testing.assert_allclose(t, (0.015, 0.025, 0.035))
+    with pytest.raises(ValueError, match="CRLF"):
+        dd.tag_arrival_ms(tag, e[:, 0], e[:, 1], p.stat().st_size - 40)
+
+
+def test_tag_time_map_is_consistent_with_the_rtk_course(drive_dir: Path):
+    """Bug fixed in session 2: the upstream linear tick map assumes the first csv line arrived at the tag
+    start (it arrived 115 ms later), so its time error drifts by ~130 ms over the drive. With the tag map
+    (every line through its arrival tag) the gyro yaw rate matches the course of the RTK positions at one
+    constant latency, the shipped TAG_TIME_OFFSET, in both halves of the drive."""
+    from ins_hil.nav import earth
+
+    lags = {}
+    for tm in ("tags", "linear"):
+        dr = dd.load_drive(drive_dir, time_map=tm)
+        pos, t_imu, wz = dr.pos, dr.imu_log.t, dr.imu_log.gyro[:, 2]
+        ned = np.array([earth.ned_from_geodetic(a, b, c, pos.lat[0], pos.lon[0], pos.h[0])
+                        for a, b, c in zip(pos.lat, pos.lon, pos.h)])  # fmt: skip
+        ch = ned[2:] - ned[:-2]  # chord course at the middle epoch
+        tc = pos.t[1:-1]
+        dcrs = np.diff(np.unwrap(np.arctan2(ch[:, 1], ch[:, 0])))
+        fast = np.hypot(ch[:, 0], ch[:, 1]) > 1.5
+        ok = fast[1:] & fast[:-1]
+        psi = np.concatenate([[0.0], np.cumsum(0.5 * (wz[1:] + wz[:-1]) * np.diff(t_imu))])
+        grid = np.arange(-0.2, 0.2, 0.005)
+        for half, sel in (("first", tc[1:] < tc[len(tc) // 2]), ("second", tc[1:] >= tc[len(tc) // 2])):
+            err = [np.mean((np.diff(np.interp(tc + L, t_imu, psi))[ok & sel] - dcrs[ok & sel]) ** 2) for L in grid]
+            lags[tm, half] = float(grid[int(np.argmin(err))])
+    # residual lag after the shipped offsets: ~0 for the tag map in both halves, drifting for the linear map
+    assert abs(lags["tags", "first"]) <= 0.02 and abs(lags["tags", "second"]) <= 0.02, lags
+    assert abs(lags["linear", "first"] - lags["linear", "second"]) >= 0.05, lags

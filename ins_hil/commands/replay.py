@@ -84,9 +84,9 @@ def drive_config(aids: bool, cov_every: int = 1) -> NavConfig:
     f = FilterConfig(
         cov_every=cov_every,
         # gyro noise chosen on held-out validation outages (drive0708.cv_outage_windows, shifts 17.5/22.5/27.5 s,
-        # never the protocol's windows): validation h RMS 4.46 m with the former (0.03 °/√s, 2e-4 rad/s);
-        # bias σ 3e-3 rad/s and ARW 0.07 / 0.1 / 0.15 °/√s → 2.10 / 1.68 / 1.95 m (docs/accuracy.md)
-        gyro_arw=0.1 * DEG,
+        # never the protocol's windows); session 2, after the timing and ZUPT fixes: ARW 0.07 / 0.1 / 0.15 / 0.2 /
+        # 0.3 °/√s → 1.58 / 1.29 / 1.12 / 1.11 / 1.23 m (docs/accuracy.md)
+        gyro_arw=0.2 * DEG,
         gyro_bias_sigma=0.003,
         accel_vrw=0.02,
         gyro_bias_tau=300.0,
@@ -97,6 +97,7 @@ def drive_config(aids: bool, cov_every: int = 1) -> NavConfig:
         filter=f,
         gnss_lever_arm_b=drive0708.LEVER_GNSS - drive0708.LEVER_IMU,
         gnss_min_std=(0.03, 0.06, 0.15),  # RTK σ floors; the RTK velocity is noisier than its reported σ
+        gnss_vel_delay=0.13,  # the .pos velocity lags its position by 130–135 ms (docs/accuracy.md)
         gate_gnss=10.0,
         align="static",
         nhc=aids,
@@ -159,12 +160,17 @@ def monte_carlo(name: str, runs: int, duration: float | None, quiet: bool) -> di
 
     nees = []
     nis: dict[str, list[float]] = {}
+    yaw_e2: list[float] = []
+    yaw_s2: list[float] = []
     t_from = 0.0
     for seed in range(runs):
         m, ser, core = run_scenario(name, 1000 + seed, duration, quiet)
         a = ser.arrays()
         t_from = m.get("steady_from_s", 0.0)
-        nees.append(a["nees"][a["t"] >= t_from])
+        sel = a["t"] >= t_from
+        nees.append(a["nees"][sel])
+        yaw_e2.append(float(np.mean(a["att_err"][sel, 2] ** 2)))  # yaw error vs the filter's own yaw σ
+        yaw_s2.append(float(np.mean(a["std_att"][sel, 2] ** 2)))
         for _, k, n, d in core.nis_log:
             nis.setdefault(k, []).append(n / d)
     L = min(len(x) for x in nees)
@@ -179,6 +185,8 @@ def monte_carlo(name: str, runs: int, duration: float | None, quiet: bool) -> di
         "fraction_inside": inside,
         "nis_mean_over_dof": {k: float(np.mean(v)) for k, v in nis.items()},
         "from_s": t_from,
+        "yaw_err_rms_deg": math.degrees(math.sqrt(float(np.mean(yaw_e2)))),
+        "yaw_std_rms_deg": math.degrees(math.sqrt(float(np.mean(yaw_s2)))),
     }
 
 
@@ -342,38 +350,107 @@ def replay_drive(
     return res, series
 
 
-CHOICE_NOTE = """### How the drive settings were chosen (without the protocol's outage truth)
+CHOICE_NOTE = """### Session 2: time alignment (a modelling error found, fixed everywhere)
 
-Every drive setting changed in this round was chosen on **held-out validation outages**
-(`drive0708.cv_outage_windows`): the protocol's 15 s outages shifted by 17.5, 22.5 and 27.5 s, so each
-lies inside one of the protocol's 30 s GNSS-present intervals and no protocol outage epoch is ever
-scored (asserted). The selection rule is the validation horizontal RMS over the 3 × 11 windows (with
-ZUPT + NHC); the protocol was run once, after the choice, to report.
+The gyro error model ~26× looser than the README's noise density (session 1) pointed to a systematic error.
+Cross-correlations against the RTK positions (not the outage errors) found three timing errors:
+
+* **The upstream linear tick → GPST map is wrong by a drifting 0–130 ms.** It stretches the csv ticks onto
+  [tag start, tag start + last tag tick], i.e. assumes the first csv line arrived at the tag start. The time
+  tags give every line's arrival (tag record = tick, bytes of the logged stream reached; the stream had CRLF
+  line ends, the csv has LF: the last offset exceeds the file size by exactly the 54,860 lines): the first line
+  arrived 115 ms after the tag start and the IMU's ms clock runs at the tag clock's rate (13 ppm, 7 ms over
+  the drive), so the linear map's error runs from −123 ms at the start to +10 ms at the end. Now
+  (`drive0708.load_drive(time_map="tags")`, default) every csv tick is mapped with the tag clock offset taken
+  causally from the first 10 s of lines (lower envelope of arrival − tick).
+* **The IMU latency is 0.24 s, not 0.125 s, after that map**: gyro yaw rate integrated between GNSS epochs
+  against the course of the RTK position chords (p[k+1] − p[k−1]) gives +240 / +242.5 ms in the two halves
+  of the drive (with the linear map the best lag drifts over the drive; tests/test_dataset.py checks both).
+* **The RTKLIB `.pos` velocity lags its own position by 130–135 ms** (every quarter of the drive; RMS of
+  velocity − position-chord velocity 0.16 m/s at lag 0, 0.05 m/s at 130 ms). The cross-correlation of the
+  gyro with the *velocity* course (+82 ms) and of the forward specific force with the velocity derivative
+  (+140 ms) are biased by this lag, which is why they disagree with the position-based 240 ms.
+  `NavConfig.gnss_vel_delay = 0.13` fuses the velocity separately at its own time of validity (delayed
+  fusion, the same rollback as a delayed GNSS fix).
+
+Validation (held-out shifted outages, `drive0708.cv_outage_windows`, shifts 17.5 / 22.5 / 27.5 s, ZUPT + NHC,
+session-1 noise settings), horizontal RMS / max (m):
+
+| change | validation h RMS / max (m) |
+|---|---|
+| session 1: linear map, offset −0.125 s | 1.68 / 10.91 |
+| tag map, offset −0.125 / −0.10 / −0.075 s | 2.18 / 11.65, 2.48 / 13.51, 2.83 / 15.29 |
+| tag map, offset −0.15 / −0.175 / −0.20 / −0.225 s | 1.89 / 9.89, 1.65 / 8.64, 1.45 / 7.57, 1.38 / 6.91 |
+| **tag map, offset −0.24 s (the cross-correlation value)** | **1.37 / 7.49** |
+| tag map, offset −0.25 s | 1.39 / 7.86 |
+| tag map −0.24 s, **+ GNSS velocity at its own time (0.13 s earlier)**, adopted as a modelling fix | **1.39 / 7.17** |
+| same + GNSS velocity σ floor 0.05 m/s (instead of 0.15), not adopted | 1.38 / 8.06 |
+| tag map, gyro −0.085 s and accelerometer 55 ms later (velocity-based lags), not adopted | 2.72 / 12.79 |
+| tag map −0.24 s, README-like gyro model (ARW 0.03 °/√s, bias σ 1e-3 rad/s), not adopted | 3.04 / 16.65 |
+| tag map −0.24 s + velocity delay, gyro ARW 0.07 °/√s (instead of 0.1), not adopted | 1.60 / 9.50 |
+| same, gyro-bias σ 1e-3 rad/s (instead of 3e-3), not adopted | 1.87 / 9.19 |
+| same, gyro ARW 0.15 °/√s: **diverges** (GNSS-present prior error 7.6 m); the linear map diverges too | 25.40 / 162.3 |
+| same, accelerometer VRW 0.05 m/s/√s: diverges on the 22.5 s shift | 10.01 / 72.2 |
+
+**A ZUPT bug** (found while checking why a looser gyro model diverged): rest was detected on |f| − g, which a
+car pulling away at 1 m/s² changes by only 0.05 m/s² (second order), so the ZUPT kept clamping the velocity for
+up to ~1 s after a start; inside an outage that left metres of error and, with a looser gyro model, the GNSS was
+then rejected after the outage (divergence: the 162 m row above). Rest is now tested on the NED specific force
+(horizontal components included; `tests/test_fusion_aiding.py`). Validation after this fix (tag map −0.24 s,
+velocity delay 0.13 s):
+
+| gyro ARW (°/√s), gyro-bias σ 3e-3 rad/s, NHC σ 0.1 m/s | validation h RMS / max (m) |
+|---|---|
+| 0.07 | 1.58 / 9.52 |
+| 0.1 (session 1's choice) | 1.29 / 7.07 |
+| 0.15 | 1.12 / 6.05 |
+| **0.2 (chosen)** | **1.11 / 5.80** |
+| 0.3 | 1.23 / 6.20 |
+
+The optimum of the latency sweep on the validation windows is the cross-correlation value, which supports the
+fix being physical. The looser gyro model is still needed after the timing fix (a README-like gyro model
+doubles the validation error) and, after the ZUPT fix, the validation optimum moved to an even looser ARW
+(0.15–0.2 °/√s, flat): the remaining gyro error is not a timing artefact: vibration-induced
+gyro errors of the car MEMS IMU (session 1's reading) remain the best explanation; not proven.
+
+Honest reading (protocol run once, after the choice; table at the top): with ZUPT + NHC the protocol went from
+2.13 / 10.99 m (session 1) to the figures above, without aids from 5.06 / 23.08 m; GNSS-present prior/post from
+0.041 / 0.026 m. The validation windows meet the target (1.11 / 5.80 m), the protocol's RMS and worst case do
+not: 11 outages are few and one or two windows dominate the worst case, so the gap between the two sets is
+within what the windows' spread shows (per-shift validation RMS 0.62–1.41 m). Cost: the separate GNSS-velocity
+update rolls the filter back 0.13 s at every epoch, ~40 % more CPU per drive run (≈ 17 s of CPU time for the
+548 s drive, ≈ 32× real time, measured with `time.process_time`; the wall-clock factor in the table was taken
+with other helpers' jobs running).
+
+### Session 1: how the noise settings were chosen (without the protocol's outage truth)
+
+Every drive setting was chosen on the held-out validation outages; the protocol was run once, after the
+choice, to report. Session-1 figures (linear tick map):
 
 | drive setting (ZUPT + NHC) | validation h RMS / max (m) |
 |---|---|
 | former: gyro ARW 0.03 °/√s, gyro-bias σ 2e-4 rad/s (τ 300 s), NHC σ 0.1 m/s | 4.46 / 28.5 |
 | gyro-bias σ 1e-3 rad/s | 2.09 / 21.6 |
-| gyro-bias σ 1e-3, ARW 0.06 °/√s | 2.67 / 15.7 |
-| gyro-bias σ 3e-3, ARW 0.15 °/√s, NHC σ 0.1 / 0.05 m/s | 1.95 / 21.7, 1.99 / 21.5 |
-| gyro-bias σ 3e-3, ARW 0.07 °/√s, NHC σ 0.05 | 2.10 / 16.4 |
 | gyro-bias σ 3e-3, ARW 0.1 °/√s, NHC σ 0.05 | 1.79 / 12.8 |
 | **chosen: gyro-bias σ 3e-3 rad/s, ARW 0.1 °/√s, NHC σ 0.1 m/s** | **1.68 / 10.9** |
 
-Screened on the 22.5 s shift only and **not** adopted (validation worse or equal): online IMU → vehicle
-boresight states seen by the NHC (`FilterConfig.mount_states`, 3 extra states, estimated pitch/yaw
-boresight ≈ −0.15° / +0.17°), the NHC reference point at the README's system origin 0.65 m below the IMU
-(`NavConfig.nhc_lever_b`), the 21-state scale factors, faster accelerometer-bias models, a 0.05 m/s GNSS
-velocity floor, ZUPT σ 0.05 m/s. The README's noise densities (gyro 0.0038 °/s/√Hz, gyro bias
-3.8e-5 °/s²/√Hz) are far below what the car's gyro errors do under vibration: on the validation windows
-the filter needs a gyro error model roughly 26× looser in ARW (and a bias random walk ~370× the
-README's) to keep the heading/pitch responsive.
-A side effect on GNSS-present accuracy: prior/post 0.054 / 0.036 m before, now inside the ≤ 0.05 m target.
+Screened in session 1 and not adopted: IMU → vehicle boresight states (`FilterConfig.mount_states`), the NHC
+reference point 0.65 m below the IMU, the 21-state scale factors, faster accelerometer-bias models, ZUPT σ
+0.05 m/s. Session-1 protocol result: 2.13 / 10.99 m with aids, 5.06 / 23.08 m without.
+"""
 
-Honest reading: the validation figure improved from 4.46 m to 1.68 m, but the protocol figure did not
-(1.96 / 6.70 m before, see the table above after): the former settings had been adjusted while looking at
-the protocol's result and do not generalise (4.46 m on the shifted windows). One or two windows dominate
-each figure (e.g. a 10–11 m worst case), so 11 outages are a noisy benchmark; the target is not met.
+
+EX32_NOTE = """**Example 3.2 yaw (session 2 check).** The steady-state yaw error of `example32_gnss`
+(0.29° RMS on seed 0) misses the issue's < 0.1°.
+The filter's own steady-state yaw σ with the book's sensors (gyro 3 arcmin/s and
+accelerometer 1e-2 m/s² per 20 Hz sample, magnetometer σ_m = 0.0524 ≈ 3°) is the figure above, ≈ 0.18°: the
+target is not reachable with these sensors, by the filter's own covariance. The error is consistent with that σ
+over the Monte-Carlo runs (seed 0 is an unlucky draw; the ratio above is slightly > 1, the filter ≈ 15 %
+optimistic in yaw, not a bug-sized inconsistency). Checked for a systematic cause: the mechanization on the
+exact circle increments (20 Hz, roll oscillation) drifts < 2e-5° in 100 s, so the yaw error is estimation error,
+not a mechanization/truth mismatch. Yaw observability here is the 1.26 m/s² centripetal acceleration seen
+through the GNSS velocity, plus the 3° magnetometer (without it the
+filter's yaw σ is 0.25°, measured on seed 0).
 """
 
 
@@ -564,7 +641,10 @@ def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path)
           f"[{mc['anees_bounds_95'][0]:.2f}, {mc['anees_bounds_95'][1]:.2f}], inside the bounds "
           f"{mc['fraction_inside']:.0%} of the time; mean NIS/dof "
           + ", ".join(f"{k} {v:.2f}" for k, v in mc["nis_mean_over_dof"].items())
-          + " (1.0 = consistent).\n")  # fmt: skip
+          + " (1.0 = consistent); yaw error RMS over the runs "
+          + f"{mc['yaw_err_rms_deg']:.3f}° against the filter's own yaw σ (RMS) "
+          + f"{mc['yaw_std_rms_deg']:.3f}°.\n")  # fmt: skip
+    a(EX32_NOTE)
     for name in r["scenarios"]:
         for p in plots.get(name, []):
             if p.stem.endswith("errors"):

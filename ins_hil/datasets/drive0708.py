@@ -26,7 +26,8 @@ from ins_hil.nav.rotation import dcm_from_euler
 from ins_hil.types import FixType, GnssFix, ImuSample, Vec
 
 DEG = math.pi / 180.0
-IMU_TIME_OFFSET = -0.125
+IMU_TIME_OFFSET = -0.125  # README, for the upstream linear tick map
+TAG_TIME_OFFSET = -0.24  # s, IMU latency after the tag map: gyro yaw rate vs RTK position course (docs/accuracy.md)
 LEVER_IMU = np.array((0.0, 0.0, -0.65))
 LEVER_GNSS = np.array((0.0, -0.05, -0.65))
 MOUNT_EULER = (180.0 * DEG, 0.0, 180.0 * DEG)
@@ -63,13 +64,19 @@ class ImuLog:
     bad_lines: int
 
 
-def read_imu_csv(path: Path) -> tuple[Vec, Vec, Vec, int]:
+def read_imu_csv(path: Path, offsets: list[int] | None = None) -> tuple[Vec, Vec, Vec, int]:
     """Parse the IMU csv robustly: lines that do not have 7 numeric fields (partial first/last
-    lines, garbage) are skipped and counted. Returns (acc g, gyro deg/s, tick ms, bad_lines)."""
+    lines, garbage) are skipped and counted. Returns (acc g, gyro deg/s, tick ms, bad_lines).
+    ``offsets`` (optional list) receives the byte offset of the END of every kept line and the
+    number of lines before it, as ``(end_byte, line_index)`` pairs flattened (for the time tags)."""
     rows = []
     bad = 0
-    with open(path, encoding="ascii", errors="replace") as fh:
-        for line in fh:
+    pos = 0
+    with open(path, "rb") as fb:
+        for index, raw in enumerate(fb):
+            start = pos
+            pos += len(raw)
+            line = raw.decode("ascii", errors="replace")
             parts = line.strip().split(",")
             if len(parts) != 7:
                 bad += 1
@@ -83,6 +90,8 @@ def read_imu_csv(path: Path) -> tuple[Vec, Vec, Vec, int]:
                 bad += 1
                 continue
             rows.append(vals)
+            if offsets is not None:
+                offsets.extend((start + len(raw.rstrip(b"\r\n")), index))
     if not rows:
         raise ValueError(f"{path}: no valid IMU line (expected 'ax,ay,az,gx,gy,gz,tick')")
     a = np.array(rows)
@@ -200,26 +209,83 @@ class Drive:
     lever_gnss_b: Vec  # IMU → antenna, body FRD (m)
 
 
+def tag_arrival_ms(tag: TimeTag, line_end: Vec, line_index: Vec, file_size: int) -> Vec:
+    """Arrival time of every csv line (ms after the tag's start time) from the RTKLIB time tags.
+
+    Each tag record is (tick, byte offset) with the offset the file position reached at that tick (the
+    last record's offset equals the stream's size). A line has arrived at the first record whose offset
+    reaches its last byte. The tags count the bytes of the logged stream, which had CRLF line ends: when
+    the last offset exceeds ``file_size`` by the number of lines, one byte per line is added back."""
+    end = np.asarray(line_end, dtype=np.float64)
+    n_lines = int(np.max(line_index)) + 1 if len(line_index) else 0
+    extra = float(tag.offsets[-1]) - float(file_size)
+    if extra > 0:
+        if abs(extra - n_lines) > 2:
+            raise ValueError(
+                f"time tags: last byte offset {tag.offsets[-1]:.0f} does not match the csv size {file_size} "
+                f"(LF) or its CRLF size {file_size + n_lines}"
+            )
+        end = end + np.asarray(line_index, dtype=np.float64)  # CRLF: one more byte per earlier line
+    k = np.searchsorted(tag.offsets, end, side="left")
+    return tag.ticks[np.clip(k, 0, len(tag.ticks) - 1)]
+
+
+def tag_time_map(tag: TimeTag, tick: Vec, arrival_ms: Vec, calib_s: float = 10.0) -> tuple[Vec, float]:
+    """Causal csv-tick → GPST map: t = t_start + (tick + c) / 1000, with c the smallest
+    (arrival − tick) over the first ``calib_s`` s of lines (the lower envelope = the fastest transfer,
+    IMU clock rate taken as nominal; measured drift vs the tags 13 ppm, 7 ms over the drive).
+    Returns (t GPST s, c ms). The logging latency is a separate offset (``load_drive(time_offset=...)``)."""
+    first = tick - tick[0] <= calib_s * 1000.0
+    c = float(np.min(arrival_ms[first] - tick[first]))
+    return tag.t_start + (tick + c) / 1000.0, c
+
+
 def load_drive(
     directory: Path,
     mounting: str = "misalign_then_mount",
-    time_offset: float = IMU_TIME_OFFSET,
+    time_offset: float | None = None,
     misalign: tuple[float, float, float] = MISALIGN_EULER,
     increments: str = "trapezoid",
+    time_map: str = "tags",
+    accel_lag: float = 0.0,
 ) -> Drive:
     """Load the drive: IMU rotated into the vehicle body frame and time-tagged (GPST + offset),
-    GNSS fixes from the .pos file (only Q ≤ 2 epochs; σ from the file)."""
+    GNSS fixes from the .pos file (only Q ≤ 2 epochs; σ from the file).
+
+    time_map: ``"tags"`` (default) maps every csv line through its arrival time in the RTKLIB time
+    tags (:func:`tag_time_map`), then adds ``time_offset`` (default :data:`TAG_TIME_OFFSET`);
+    ``"linear"`` is the upstream convention, csv ticks stretched linearly onto
+    [start, start + last_tag_tick / 1000] s, plus ``time_offset`` (default the README's −0.125 s). The
+    linear map assumes the first csv line arrived at the tag start; it arrived 115 ms later and the
+    stretch drifts, so the linear map's time error runs from −123 ms to +10 ms over the drive
+    (docs/accuracy.md, cross-correlation of gyro yaw rate with the GNSS course rate)."""
     d = Path(directory)
-    acc_g, gyro_d, tick, bad = read_imu_csv(d / "imu_1934.csv")
+    ends: list[int] = []
+    acc_g, gyro_d, tick, bad = read_imu_csv(d / "imu_1934.csv", ends)
     tag = read_timetag(d / "imu_1934.csv.tag")
-    # linear map of the csv ticks onto [start, start + last_tag_tick/1000] (upstream convention)
     span = float(tick[-1] - tick[0])
     if span <= 0:
         raise ValueError(f"{d}: IMU ticks do not increase")
-    t = tag.t_start + (tick - tick[0]) / span * tag.duration + time_offset
+    if time_map == "tags":
+        e = np.array(ends, dtype=np.float64).reshape(-1, 2)
+        arrival = tag_arrival_ms(tag, e[:, 0], e[:, 1], (d / "imu_1934.csv").stat().st_size)
+        t, _ = tag_time_map(tag, tick, arrival)
+        t = t + (TAG_TIME_OFFSET if time_offset is None else time_offset)
+    elif time_map == "linear":
+        # linear map of the csv ticks onto [start, start + last_tag_tick/1000] (upstream convention)
+        t = tag.t_start + (tick - tick[0]) / span * tag.duration
+        t = t + (IMU_TIME_OFFSET if time_offset is None else time_offset)
+    else:
+        raise ValueError(f"load_drive: time_map={time_map!r}: expected 'tags' or 'linear'")
     R = mounting_dcm(mounting, misalign)
     acc = (acc_g * G0) @ R.T
     gyro = (gyro_d * DEG) @ R.T
+    if accel_lag:
+        # the accelerometer samples lag the gyro samples by ``accel_lag`` s (cross-correlation with the GNSS
+        # velocity, docs/accuracy.md): the specific force valid at t was logged at t + accel_lag. Re-stamping
+        # needs the samples up to t + accel_lag, i.e. a real-time gateway runs that much later (a latency,
+        # handled like the GNSS delay), not a look-ahead.
+        acc = np.column_stack([np.interp(t + accel_lag, t, acc[:, i]) for i in range(3)])
     log = ImuLog(acc, gyro, tick, t, bad)
     samples = []
     for k in range(1, len(t)):
