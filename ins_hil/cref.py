@@ -76,6 +76,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "zupt": cfg.zupt,
         "mag_ref_ned": cfg.mag_ref_ned is not None,
         "align": cfg.align != "given",
+        "gnss_vel_delay": cfg.gnss_vel_delay != 0.0,
     }
     bad = [k for k, v in unsupported.items() if v]
     if bad:
