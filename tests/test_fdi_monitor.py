@@ -48,7 +48,8 @@ LIMIT = {
     FaultMode.STEP_BIAS: 20 * DT,
     FaultMode.RAMP: 3.0,
     FaultMode.STUCK: 12 * DT,
-    FaultMode.DROPOUT: 1 * DT,
+    # a dropout is declared after FdiConfig.dropout_samples missing epochs (shorter gaps are bridged)
+    FaultMode.DROPOUT: FdiConfig.dropout_samples * DT,
     FaultMode.NOISE_BURST: 0.5,
     FaultMode.SATURATION: 2.0,
     FaultMode.SCALE_FACTOR: 2.0,
@@ -146,12 +147,15 @@ def test_process_samples_and_dropout_by_absence(series) -> None:
         dth, dv, _ = m2.process_arrays(s.t[k], DT, s.gyro[k], s.accel[k])
         assert np.array_equal(out.dtheta, dth) and np.array_equal(out.dvel, dv) and out.t == s.t[k]
         assert ev == []
-    ep = s.epoch(200)[:1]  # IMU 1 missing
-    out, ev = m1.process(ep)
+    ev = []
+    for k in range(200, 200 + FdiConfig.dropout_samples):  # IMU 1 missing: bridged, then a DROPOUT
+        out, e = m1.process(s.epoch(k)[:1])
+        assert np.isfinite(out.dtheta).all()
+        ev += e
     assert {e.sensor for e in ev} == {"imu1.gyro", "imu1.accel"} and all(e.mode == FaultMode.DROPOUT for e in ev)
     assert np.isfinite(out.dtheta).all()
     with pytest.raises(ValueError, match="imu_id 7"):
-        bad = s.epoch(201)
+        bad = s.epoch(210)
         bad[0].imu_id = 7
         m1.process(bad)
 
@@ -292,3 +296,33 @@ def test_closed_loop_with_navcore_and_gnss(truth) -> None:
     err = [quat_angle_between(c.state().q_nb, truth.q_nb[-1]) for c in cores]
     assert err[0] <= 1.5 * err[1] + 2e-4  # within 1.5× (plus 0.01°) of the sensor-absent run
     assert err[2] > 3 * err[0]
+
+
+def test_lost_frames_on_separate_links_are_bridged_not_excluded(series, truth) -> None:
+    """Dual IMU on two links: single lost frames (one unit, then the other) exclude nothing and the
+    output stays finite and on the truth; a gap of dropout_samples epochs is a DROPOUT, after which
+    a lost frame of the remaining unit is bridged by the dropped-out unit's sample when it has one."""
+    s = series["dual_imu"]
+    mon = FdiMonitor(config(s.geometry))
+    lost = {400: (0, 1, 2), 401: (3, 4, 5), 600: (3, 4, 5), 900: (0, 1, 2)}  # rows of imu0 / imu1
+    for k in range(1000):
+        yg, ya = s.gyro[k].copy(), s.accel[k].copy()
+        for r in lost.get(k, ()):
+            yg[r] = ya[r] = np.nan
+        g, a, _ = mon.process_arrays(s.t[k], DT, yg, ya)
+        assert np.all(np.isfinite(g)) and np.all(np.isfinite(a)), k
+        if k in lost:
+            assert np.allclose(g / DT, truth.dtheta[k] / DT, atol=0.05), (k, g / DT, truth.dtheta[k] / DT)
+    assert mon.events == [] and mon.excluded == []
+    # imu1 silent for dropout_samples epochs: excluded as DROPOUT ...
+    for k in range(1000, 1000 + FdiConfig.dropout_samples):
+        yg, ya = s.gyro[k].copy(), s.accel[k].copy()
+        yg[3:] = ya[3:] = np.nan
+        mon.process_arrays(s.t[k], DT, yg, ya)
+    assert {e.mode for e in mon.events} == {FaultMode.DROPOUT} and all("imu1" in x for x in mon.excluded)
+    # ... then imu0 loses one frame while imu1 is back: imu1's sample bridges the epoch
+    k = 1000 + FdiConfig.dropout_samples
+    yg, ya = s.gyro[k].copy(), s.accel[k].copy()
+    yg[:3] = ya[:3] = np.nan
+    g, a, _ = mon.process_arrays(s.t[k], DT, yg, ya)
+    assert np.all(np.isfinite(g)) and np.allclose(g / DT, truth.dtheta[k] / DT, atol=0.05)

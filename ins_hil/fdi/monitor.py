@@ -71,6 +71,8 @@ class FdiConfig:
     constant of the slow test (s); classify_time: post-exclusion time used to classify the
     mode (s); readmit_after: healthy time before re-admission (s, 0 = never);
     stuck_samples: identical consecutive outputs that mean STUCK (0 = off);
+    dropout_samples: consecutive missing epochs that mean DROPOUT; a shorter gap (a frame lost
+    on its link) is bridged: that epoch's output is the least-squares estimate of the rows present;
     exclude_unit: exclude every row of the failed unit (whole IMU), not only the axis;
     history: pre-isolation residual history kept for classification (s);
     isolation_margin: after a trip, the best candidate's likelihood score must exceed the
@@ -92,6 +94,7 @@ class FdiConfig:
     classify_time: float = 1.0
     readmit_after: float = 0.0
     stuck_samples: int = 10
+    dropout_samples: int = 3
     exclude_unit: bool = False
     history: float = 5.0
     isolation_margin: float = 16.0
@@ -112,6 +115,8 @@ class FdiConfig:
             raise ValueError(f"FdiConfig.persistence must be ≥ 1, got {self.persistence!r}")
         if self.stuck_samples < 0:
             raise ValueError(f"FdiConfig.stuck_samples must be ≥ 0, got {self.stuck_samples!r}")
+        if self.dropout_samples < 1:
+            raise ValueError(f"FdiConfig.dropout_samples must be ≥ 1, got {self.dropout_samples!r}")
 
 
 @dataclass
@@ -140,6 +145,8 @@ class _Group:
         self.var_slow = slow_variance(cfg.dt, cfg.slow_tau, self.bias_ratio)
         self.healthy = np.ones(self.n, dtype=bool)
         self.prev = np.full(self.n, np.nan)
+        self.miss = np.zeros(self.n, dtype=np.int64)  # consecutive missing epochs per row
+        self._miss_nz = False
         self.same = np.zeros(self.n, dtype=np.int64)
         self._same_nz = False  # some entry of ``same`` is non-zero
         self._one_minus_alpha = 1.0 - self.alpha
@@ -205,9 +212,19 @@ class _Group:
             same.fill(0)
             self._same_nz = False
         if _isnan(_add_reduce(y)):
-            bad = np.flatnonzero(np.isnan(y) & self.healthy)
+            nan = np.isnan(y)
+            miss = self.miss
+            miss += nan
+            miss *= nan
+            self._miss_nz = True
+            bad = np.flatnonzero((miss >= cfg.dropout_samples) & self.healthy)
             if len(bad):
                 self._exclude_now(bad, t, FaultMode.DROPOUT, "no output (dropout)", events)
+            if _any(nan[self.hidx]):
+                return self._bridge(y, nan)
+        elif self._miss_nz:
+            self.miss.fill(0)
+            self._miss_nz = False
         if cfg.stuck_samples and self._same_nz and _max_reduce(same) >= cfg.stuck_samples:
             for k in np.flatnonzero((same >= cfg.stuck_samples) & self.healthy):
                 if int(self.healthy.sum()) > 3:
@@ -250,6 +267,21 @@ class _Group:
             self.leak_on = False
         self.est = est
         return est
+
+    def _bridge(self, y: Vec, nan: Vec) -> Vec:
+        """A healthy row missing for fewer than ``dropout_samples`` epochs (a frame lost on its link):
+        this epoch's output is the least-squares estimate (eq. 5.26) of the rows present, healthy ones
+        first, else those excluded only for a dropout; no parity test this epoch. NaN if < 3 rows."""
+        present = ~nan
+        rows = np.flatnonzero(present & self.healthy)
+        if len(rows) < 3:
+            dropped = np.array([self.mode.get(int(r)) == FaultMode.DROPOUT for r in range(self.n)])
+            rows = np.flatnonzero(present & (self.healthy | dropped))
+        if len(rows) < 3:
+            self.est = np.full(3, np.nan)
+            return self.est
+        self.est = np.linalg.pinv(self.A[rows]) @ y[rows]
+        return self.est
 
     def _trip(self, t: float, score: Vec, scale: float, test: str, onset: float, events: list[FaultEvent]) -> bool:
         """A test has tripped: isolate and exclude if the best candidate is clear; True if excluded."""
