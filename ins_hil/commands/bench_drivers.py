@@ -58,7 +58,7 @@ def _machine() -> str:
     load = load_average()
     return (
         f"{os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python {platform.python_version()}; "
-        f"load average {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f} at the start; {load_note(load[0], own=0.0)}."
+        f"load average {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f} at the start; {load_note(load[0])}."
     )
 
 

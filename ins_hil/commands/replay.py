@@ -32,6 +32,7 @@ from ins_hil.core import NavConfig, NavCore
 from ins_hil.datasets import drive0708
 from ins_hil.datasets.evaluate import Series, run_drive, run_truth
 from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.machine import cpu_model, load_note
 from ins_hil.sim import scenarios
 
 NAME = "replay"
@@ -420,7 +421,7 @@ not: 11 outages are few and one or two windows dominate the worst case, so the g
 within what the windows' spread shows (per-shift validation RMS 0.62–1.41 m). Cost: the separate GNSS-velocity
 update rolls the filter back 0.13 s at every epoch, ~40 % more CPU per drive run (≈ 17 s of CPU time for the
 548 s drive, ≈ 32× real time, measured with `time.process_time`; the wall-clock factor in the table was taken
-with other helpers' jobs running).
+while other jobs shared the CPUs).
 
 ### Session 1: how the noise settings were chosen (without the protocol's outage truth)
 
@@ -570,18 +571,10 @@ def full_report(args: argparse.Namespace) -> int:
 
 
 def _machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
-    return (f"{os.cpu_count()} CPUs (`nproc`), {cpu}, Python {platform.python_version()}; load average "
-            f"{load[0]:.1f} during the run: other processes (other helpers' builds and tests) were running, "
-            "so timings are pessimistic and noisy")  # fmt: skip
+    return (f"{os.cpu_count()} CPUs (`nproc`), {cpu}, Python {platform.python_version()}; "
+            f"during the run: {load_note(load[0])}")  # fmt: skip
 
 
 def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path) -> str:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ins_hil.config import default_path, load
-from ins_hil.machine import cpu_model
+from ins_hil.machine import cpu_model, load_note
 from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.metrics import _BASE_NS, _RATIO, LatencyHistogram
 
@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parent.parent.parent
 def machine() -> str:
     cpu = cpu_model()
     load1 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return f"{os.cpu_count()} CPUs (nproc), {cpu}, Python {platform.python_version()}, load average {load1:.2f}"
+    return f"{os.cpu_count()} CPUs (nproc), {cpu}, Python {platform.python_version()}, {load_note(load1)}"
 
 
 def measure(duration: float, core: str = "python") -> tuple[Gateway, float]:
@@ -218,8 +218,7 @@ The JSON schema is in `ins_hil/runtime/mqtt_out.py`. Username/password and TLS (
 
 ## Measured latency at 1 kHz
 
-Machine: {machine}. Commit {commit}. **Other processes (other engineers' builds and tests) were
-running on the same 2 cores**, so the tails are noisy; the simulator process shares the CPUs too.
+Machine: {machine}. Commit {commit}. The simulator process shares the 2 CPUs with the gateway.
 
 Run: `python -m ins_hil.runtime.bench --duration {duration:.0f}` — `configs/default.toml`
 (1 kHz IMU over a pty, GNSS/baro over UDP, MAVLink out to udp:127.0.0.1:14550, recorder on,
