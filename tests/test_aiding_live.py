@@ -19,7 +19,7 @@ from ins_hil.config import from_dict
 from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 from ins_hil.runtime.pipeline import Pipeline
 from ins_hil.sim import faults as fl
-from ins_hil.sim.devices import truth_chunks
+from ins_hil.sim.devices import schedule, truth_chunks
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, NavState
 
 
@@ -64,16 +64,13 @@ def _fly(duration: float, fault: str = "", rate: float = 0.0, shadow: AidingConf
     for truth, imu, fixes, baro in truth_chunks(sim):
         if fault:
             fixes = fl.gnss_drift(fixes, 60.0, d, match_velocity=fault == "spoof")
-        sched = sorted(
-            [(f.t + sim.gnss_latency, 0, f) for f in fixes] + [(b.t, 1, b) for b in baro], key=lambda x: x[:2]
-        )
-        j = 0
-        for s in imu.samples():
-            while j < len(sched) and sched[j][0] <= s.t:
-                pipe.aid(sched[j][2])
-                j += 1
-            pipe.imu(s)
-            events += pipe.drain_events()
+        samples = list(imu.samples())
+        for _, kind, i in schedule(imu.t, fixes, baro, sim.gnss_latency):  # the devices' send order
+            if kind == 0:
+                pipe.imu(samples[i])
+                events += pipe.drain_events()
+            else:
+                pipe.aid((fixes if kind == 1 else baro)[i])
         if truth.t[-1] >= duration - 1e-9:
             break
     return events, pipe.counts, shadow_mon

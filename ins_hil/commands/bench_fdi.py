@@ -504,7 +504,7 @@ def _aid_live_run(seed: int, fault: str, size: float) -> tuple[list, dict[str, i
     from ins_hil.config import default_path, from_dict
     from ins_hil.runtime.pipeline import Pipeline
     from ins_hil.sim import faults as fl
-    from ins_hil.sim.devices import truth_chunks
+    from ins_hil.sim.devices import schedule, truth_chunks
 
     cfg = from_dict(tomllib.loads(Path(default_path()).read_text()), "bench")
     sim = cfg.sim
@@ -517,15 +517,13 @@ def _aid_live_run(seed: int, fault: str, size: float) -> tuple[list, dict[str, i
             fixes = fl.gnss_drift(fixes, AID_LIVE_T_FAULT, d, match_velocity=fault == "spoof")
         elif fault == "baro":
             baro = fl.baro_drift(baro, AID_LIVE_T_FAULT, size)
-        sched = sorted([(f.t + sim.gnss_latency, 0, f) for f in fixes] + [(b.t, 1, b) for b in baro],
-                       key=lambda x: x[:2])  # fmt: skip
-        j = 0
-        for smp in imu.samples():
-            while j < len(sched) and sched[j][0] <= smp.t:
-                pipe.aid(sched[j][2])
-                j += 1
-            pipe.imu(smp)
-            ev += pipe.drain_events()
+        samples = list(imu.samples())
+        for _, kind, i in schedule(imu.t, fixes, baro, sim.gnss_latency):  # the devices' send order
+            if kind == 0:
+                pipe.imu(samples[i])
+                ev += pipe.drain_events()
+            else:
+                pipe.aid((fixes if kind == 1 else baro)[i])
         if truth.t[-1] >= AID_LIVE_T_END - 1e-9:
             break
     return ev, pipe.counts
