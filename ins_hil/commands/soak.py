@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ins_hil.soak.orchestrate import GCS_RATE
+
 NAME = "soak"
 HELP = "soak test: simulated sensors + gateway + ground station on 2 pinned CPUs; latency, loss, memory report"
 DESCRIPTION = (
@@ -50,8 +52,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="shared",
         help="redundant IMUs' frames on one pty (interleaved by imu_id, default) or one pty per IMU",
     )
-    p.add_argument("--gcs-rate", type=float, default=50.0, metavar="HZ", help="ODOMETRY rate to the ground station")
+    p.add_argument(
+        "--gcs-rate",
+        type=float,
+        default=GCS_RATE,
+        metavar="HZ",
+        help=f"ODOMETRY rate to the ground station (default {GCS_RATE:g}: a period that sweeps every phase of "
+        "the IMU and GNSS schedules)",
+    )
     p.add_argument("--no-record", action="store_true", help="do not run the gateway's recorder")
+    p.add_argument(
+        "--no-rt",
+        action="store_true",
+        help="run every process time-shared (default: SCHED_FIFO for the sensors, gateway and client when "
+        "permitted, like a deployed gateway with gateway.rt_priority)",
+    )
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--out", default="soak-out", metavar="DIR", help="output directory (default soak-out)")
     p.add_argument("--sweep", default="", metavar="HZ,...", help="also run these IMU rates (highest passing rate)")
@@ -118,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         transports=args.transports,
         gcs_rate=args.gcs_rate,
         record=not args.no_record,
+        rt=not args.no_rt,
         seed=args.seed,
         out=args.out,
     )

@@ -315,8 +315,9 @@ class ErrorStateEKF:
                 s = float(h @ ph) + float(r_diag[j])
                 k = ph / s
                 x = x + k * (float(z[j]) - float(h @ x))
-                A = self._eye - np.outer(k, h)
-                P = A @ P @ A.T + float(r_diag[j]) * np.outer(k, k)
+                kc = k[:, None]  # outer products by broadcasting: the same numbers as np.outer, less overhead
+                A = self._eye - kc * h
+                P = A @ P @ A.T + float(r_diag[j]) * (kc * k)
             self.x = x
             self.P = 0.5 * (P + P.T)
             return

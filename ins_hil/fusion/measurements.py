@@ -57,7 +57,10 @@ def gnss_position(
 
 def gnss_velocity(idx: StateIndex, C_bn: Vec, vel: Vec, omega_b: Vec, meas_vel: Vec, lever_b: Vec) -> tuple[Vec, Vec]:
     """(z, H) of a GNSS velocity with the lever-arm rotation term."""
-    wl = C_bn @ np.cross(omega_b, lever_b)
+    w0, w1, w2 = float(omega_b[0]), float(omega_b[1]), float(omega_b[2])
+    l0, l1, l2 = float(lever_b[0]), float(lever_b[1]), float(lever_b[2])
+    # ω × l component-wise (the numbers of np.cross, without its ~50 µs of overhead on 3-vectors)
+    wl = C_bn @ np.array((w1 * l2 - w2 * l1, w2 * l0 - w0 * l2, w0 * l1 - w1 * l0))
     z = meas_vel - (vel + wl)
     H = np.zeros((3, idx.n))
     H[:, idx.vel : idx.vel + 3] = np.eye(3)

@@ -42,8 +42,13 @@ from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.runtime.mqtt_out import MqttPublisher
 from ins_hil.runtime.pipeline import Pipeline
 from ins_hil.runtime.recorder import Recorder
+from ins_hil.runtime.rt import policy, set_realtime
 from ins_hil.sim.devices import SimDevices
 from ins_hil.types import FaultEvent, GnssFix, ImuSample, NavState
+
+#: longest an aiding measurement waits for an IMU state to be published before it is fused anyway
+AID_MAX_WAIT_S = 0.005
+AID_MAX_WAIT_NS = round(AID_MAX_WAIT_S * 1e9)
 
 
 class Gateway:
@@ -76,6 +81,10 @@ class Gateway:
         self.imu_clock = SensorClock()
         self.stopped_reason = ""
         self.error: BaseException | None = None
+        self._aid_wait: list[Any] = []  # aiding samples dequeued, fused after the next published IMU state
+        self._aid_since = 0  # monotonic ns the oldest of them was dequeued
+        self._published = False  # an IMU state was published since the oldest of them arrived
+        self._aid_timer: asyncio.TimerHandle | None = None
 
     # -- sinks (called by drivers, never block) ------------------------------------
     def _sink_for(self, name: str) -> Callable[[Sample], None]:
@@ -102,7 +111,14 @@ class Gateway:
             self._process_queue()
 
     def _process_queue(self) -> None:
-        """Run the pipeline on everything in the FIFO (synchronous: never awaits)."""
+        """Run the pipeline on everything in the FIFO (synchronous: never awaits).
+
+        Aiding measurements (GNSS, baro, magnetometer: a GNSS update costs about a millisecond
+        in the Python core) are not fused the moment they are dequeued but once the FIFO is
+        empty after an IMU state has been published: their cost falls in the slack before
+        the next IMU sample instead of delaying it. Without IMU states they wait at most
+        :data:`AID_MAX_WAIT_S` (a timer). The recorder writes every input in the order it is
+        handed to the pipeline, so replay reproduces the same states."""
         q = self.queue
         pipe = self.pipeline
         rec = self.recorder
@@ -113,28 +129,23 @@ class Gateway:
         depth = len(q)
         if depth > m.queue_depth_max:
             m.queue_depth_max = depth
+        aid_wait = self._aid_wait
         while q:
             s, name = q.popleft()
             if isinstance(s, ImuSample):
                 clock.update(s.t, s.t_arrival_ns)
-            else:
-                # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
-                t = clock.to_sensor(s.t)
-                if t is None:
-                    m.source(name).drop("before_imu_clock")
-                    continue
-                s.t = t
-            if rec is not None:
-                rec.write(s)
-            if isinstance(s, ImuSample):
                 t0 = mono()
                 st = pipe.imu(s)
                 ready = mono()
+                if st is not None:
+                    for p in pubs:  # first: the bookkeeping below is not on the latency path
+                        p.offer(st, s.t_arrival_ns, ready)
+                if rec is not None:
+                    rec.write(s)  # still before the next input reaches the pipeline: replay order kept
                 if st is None:
                     continue
+                self._published = True
                 m.record_state(s.t_arrival_ns, ready, ready - t0)
-                for p in pubs:
-                    p.offer(st, s.t_arrival_ns, ready)
                 for cb in self.on_state:
                     cb(st)
                 if st.aligned != self._was_aligned:
@@ -144,15 +155,48 @@ class Gateway:
                 if st.test_ratios:
                     m.test_ratios = st.test_ratios
             else:
-                pipe.aid(s)
-                kind = type(s).__name__
-                m.fused[kind] = m.fused.get(kind, 0) + 1
+                # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
+                t = clock.to_sensor(s.t)
+                if t is None:
+                    m.source(name).drop("before_imu_clock")
+                    continue
+                s.t = t
                 if isinstance(s, GnssFix):
                     for e in self.mav_outputs:
                         e.offer_gnss(s)
+                if not aid_wait:
+                    self._published = False
+                    self._aid_since = mono()
+                aid_wait.append(s)
+                if mono() - self._aid_since > AID_MAX_WAIT_NS:  # a backlog of IMU samples: do not wait longer
+                    self._fuse_waiting()
             if pipe.events:
                 for ev in pipe.drain_events():
                     self._fault(ev)
+        if aid_wait:
+            if self._published:
+                self._fuse_waiting()
+            elif self._aid_timer is None:
+                self._aid_timer = asyncio.get_running_loop().call_later(AID_MAX_WAIT_S, self._aid_timeout)
+
+    def _fuse_waiting(self) -> None:
+        """Hand the waiting aiding measurements to the pipeline (recorded in this order)."""
+        pipe, rec, m = self.pipeline, self.recorder, self.metrics
+        for s in self._aid_wait:
+            if rec is not None:
+                rec.write(s)
+            pipe.aid(s)
+            kind = type(s).__name__
+            m.fused[kind] = m.fused.get(kind, 0) + 1
+        self._aid_wait.clear()
+        if pipe.events:
+            for ev in pipe.drain_events():
+                self._fault(ev)
+
+    def _aid_timeout(self) -> None:
+        self._aid_timer = None
+        if self._aid_wait:
+            self._fuse_waiting()
 
     def _text(self, severity: int, text: str) -> None:
         for e in self.mav_outputs:
@@ -271,6 +315,11 @@ class Gateway:
             sdrv = SerialImuDriver(dev, ic.baud, name=ic.name)
             self.drivers.append(sdrv)
             self._tasks.append(asyncio.create_task(sdrv.run(self._sink_for(ic.name)), name=ic.name))
+        if cfg.gateway.rt_priority:
+            why = set_realtime(cfg.gateway.rt_priority)
+            if why:
+                self.metrics.warn(f"gateway.rt_priority: {why}; running time-shared")
+        self.metrics.scheduling = policy()
         # everything allocated so far (modules, pymavlink tables, the core) lives for the whole run:
         # move it out of the collector's generations so a full collection does not scan it on the IMU path
         gc.collect()
@@ -301,6 +350,11 @@ class Gateway:
                     await t
         if self.error is None and self.queue:
             self._process_queue()
+        if self._aid_timer is not None:
+            self._aid_timer.cancel()
+            self._aid_timer = None
+        if self.error is None and self._aid_wait:
+            self._fuse_waiting()
         for t in self._tasks:
             t.cancel()
         for t in self._tasks:

@@ -157,6 +157,7 @@ class RuntimeMetrics:
         self.fdi_state = "ok"
         self.queue_depth_max = 0
         self.warnings: list[str] = []
+        self.scheduling = ""  # the gateway process's scheduling policy (ins_hil.runtime.rt.policy)
 
     # -- recording (hot path) ------------------------------------------------
     def source(self, name: str) -> SourceStats:
@@ -234,4 +235,5 @@ class RuntimeMetrics:
             "test_ratios": dict(self.test_ratios),
             "queue_depth_max": self.queue_depth_max,
             "warnings": list(self.warnings),
+            "scheduling": self.scheduling,
         }

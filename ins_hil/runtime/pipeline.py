@@ -415,9 +415,9 @@ def fdi_monitor(options: dict[str, Any]) -> Any:
 def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | None = None) -> Any:
     """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key).
 
-    Unless the table sets ``late_fix_as_current``, it follows the core: the Python core with
-    ``[core.nav] delay_compensation = false`` fuses a late GNSS fix as current, so the monitor
-    compares it with the current state; otherwise at the fix's time of validity."""
+    Unless the table sets ``late_fix_as_current``, it follows the core: the C core, and the Python
+    core with ``[core.nav] delay_compensation = false``, fuse a late GNSS fix as current (shifted by
+    v·Δt), so the monitor compares it with the current state; otherwise at the fix's time of validity."""
     from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 
     known = {f.name for f in dataclasses.fields(AidingConfig)}
@@ -433,7 +433,8 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
     try:
         kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
         if "late_fix_as_current" not in kw:
-            kw["late_fix_as_current"] = core == "python" and not bool((nav or {}).get("delay_compensation", True))
+            # the C core has no roll-back: it always fuses a late fix at the current step, shifted by v·Δt
+            kw["late_fix_as_current"] = core == "c" or not bool((nav or {}).get("delay_compensation", True))
         return AidingMonitor(AidingConfig(**kw))
     except ValueError as e:
         raise ValueError(f"fdi.aiding: {e}") from None

@@ -33,7 +33,7 @@ import sys
 import threading
 import time
 import tty
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -231,7 +231,7 @@ class SensorLink:
 
     def serve(
         self,
-        sched: list[tuple[float, int, int]],
+        sched: Iterable[tuple[float, int, int]],
         emit_imu: Callable[[int, int], None],
         fixes: list[Any],
         baro: list[Any],

@@ -35,7 +35,7 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
              "GLOBAL_POSITION_INT": 10.0, "LOCAL_POSITION_NED": 0.0, "GPS_RAW_INT": 0.0, "VFR_HUD": 0.0,
              "ESTIMATOR_STATUS": 0.0, "ODOMETRY": a.gcs_rate}  # fmt: skip
     return {
-        "gateway": {"name": "ins-hil-soak", "late_threshold_ms": period_ms, "queue_size": 4096},
+        "gateway": {"name": "ins-hil-soak", "late_threshold_ms": period_ms, "queue_size": 4096, "rt_priority": a.rt},
         # the navigation settings of configs/default.toml (what `ins-hil run` ships: covariance every
         # 10 steps, no delayed-fusion rollback), not NavConfig's offline defaults
         "core": {"kind": a.core, "init": "gnss", "nav": default_nav()},
@@ -118,6 +118,7 @@ async def _run(a: argparse.Namespace) -> int:
 
     gw.on_state.append(on_state)
     gw.on_fault.append(on_fault)
+    gc_stats = _gc_probe()
 
     async def sampler(g: Any) -> None:
         print(json.dumps({"ready": True}), flush=True)
@@ -157,10 +158,35 @@ async def _run(a: argparse.Namespace) -> int:
     snap["fault_events_not_kept"] = n_over[0]
     snap["wall_s"] = time.monotonic() - t0
     snap["stopped_reason"] = gw.stopped_reason
+    snap["gc"] = gc_stats
     from ins_hil.runtime.mqtt_out import clean_json
 
     (out / "gateway.json").write_text(json.dumps(clean_json(snap), indent=1))
     return 0
+
+
+def _gc_probe() -> dict[str, Any]:
+    """Time the garbage collector's passes (``gc.callbacks``): per generation count, total and max µs,
+    and the number longer than 1 ms (each one delays whatever IMU sample is being processed)."""
+    import gc
+
+    stats: dict[str, Any] = {str(g): {"count": 0, "total_us": 0.0, "max_us": 0.0, "over_1ms": 0} for g in range(3)}
+    t0 = [0]
+    mono = time.perf_counter_ns
+
+    def cb(phase: str, info: dict[str, Any]) -> None:
+        if phase == "start":
+            t0[0] = mono()
+            return
+        d = (mono() - t0[0]) * 1e-3
+        s = stats[str(info["generation"])]
+        s["count"] += 1
+        s["total_us"] += d
+        s["max_us"] = max(s["max_us"], d)
+        s["over_1ms"] += d > 1000.0
+
+    gc.callbacks.append(cb)
+    return stats
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -169,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--imu", action="append", required=True, help="IMU link pty (repeat per link)")
     ap.add_argument("--gnss-port", type=int, required=True)
     ap.add_argument("--gcs-port", type=int, required=True)
-    ap.add_argument("--gcs-rate", type=float, default=50.0)
+    ap.add_argument("--gcs-rate", type=float, default=47.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--core", default="python")
     ap.add_argument("--duration", type=float, required=True)
@@ -177,6 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cpu", type=int, default=-1)
     ap.add_argument("--record", action="store_true")
     ap.add_argument("--imus", type=int, default=1, help="redundant IMUs (their frames may share one link)")
+    ap.add_argument("--rt", type=int, default=0, help="SCHED_FIFO priority (0 = time-shared)")
     a = ap.parse_args(argv)
     pin(a.cpu)
     return asyncio.run(_run(a))

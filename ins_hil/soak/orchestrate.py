@@ -20,7 +20,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from ins_hil.runtime.rt import PRIO_CLIENT, PRIO_GATEWAY, PRIO_SENSORS, policy
+
 CLK_TCK = os.sysconf("SC_CLK_TCK")
+GCS_RATE = 47.0
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
 
@@ -36,8 +39,13 @@ class SoakOptions:
     core: str = "python"
     load: int = 0  # busy-loop background processes
     transports: str = "serial,udp"
-    gcs_rate: float = 50.0  # ODOMETRY Hz (end-to-end latency samples)
+    # ODOMETRY Hz (the end-to-end latency samples). Not 50: every process here reads one clock, so a
+    # 50 Hz output would sample the same phase of the 200 ms GNSS cycle for a whole run (always, or
+    # never, the epoch after a GNSS update); a period that is no multiple of 1 ms or 200 ms sweeps
+    # every phase, as the independent clocks of a real flight controller and GNSS receiver do.
+    gcs_rate: float = GCS_RATE
     record: bool = True
+    rt: bool = True  # SCHED_FIFO for sensors, gateway and client (ins_hil.runtime.rt priorities)
     seed: int = 7
     out: str = "soak-out"
 
@@ -125,19 +133,21 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
     try:
         os.sched_setaffinity(0, {cpu_s})
         procs["gcs"] = subprocess.Popen(
-            [py, "-m", "ins_hil.soak.gcs", "--port", str(gcs_port), "--out", str(out), "--cpu", str(cpu_s)],
+            [py, "-m", "ins_hil.soak.gcs", "--port", str(gcs_port), "--out", str(out), "--cpu", str(cpu_s),
+             "--rt", str(PRIO_CLIENT if opt.rt else 0)],
             stdout=subprocess.PIPE, text=True)  # fmt: skip
         _line(procs["gcs"], "ground-station client")
         procs["sim"] = subprocess.Popen(
             [py, "-m", "ins_hil.soak.simproc", "--gnss-udp", f"127.0.0.1:{gnss_port}", "--out", str(out),
              "--imus", str(opt.imus), "--links", opt.links, "--rate", str(opt.rate), "--duration", str(opt.duration),
-             "--faults", opt.faults, "--cpu", str(cpu_s), "--seed", str(opt.seed)],
+             "--faults", opt.faults, "--cpu", str(cpu_s), "--seed", str(opt.seed),
+             "--rt", str(PRIO_SENSORS if opt.rt else 0)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
         ptys = _line(procs["sim"], "sensor simulator")["imu"]
         gw_args = [py, "-m", "ins_hil.soak.gateway", "--gnss-port", str(gnss_port), "--gcs-port", str(gcs_port),
                    "--gcs-rate", str(opt.gcs_rate), "--rate", str(opt.rate), "--core", opt.core,
                    "--duration", str(opt.duration + 3.0), "--out", str(out), "--cpu", str(cpu_g),
-                   "--imus", str(opt.imus)]  # fmt: skip
+                   "--imus", str(opt.imus), "--rt", str(PRIO_GATEWAY if opt.rt else 0)]  # fmt: skip
         for p in ptys:
             gw_args += ["--imu", p]
         if opt.record:
@@ -156,6 +166,7 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
         pids = {k: p.pid for k, p in procs.items()}
         opts = json.loads((out / "options.json").read_text())
         opts["affinity"] = {k: allowed_cpus(pid) for k, pid in pids.items()}
+        opts["scheduling"] = {k: policy(pid) for k, pid in pids.items()}
         (out / "options.json").write_text(json.dumps(opts, indent=1))
         ts_path = out / "gateway_ts.jsonl"
         while True:

@@ -134,8 +134,9 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
     lines.append(
         f"{o['duration']:.0f} s, IMU {o['rate']:.0f} Hz × {o['imus']}, core **{o['core']}**, "
         f"background load {o['load']} busy process(es), faults `{o['faults'] if o['imus'] > 1 else 'none'}`, "
-        f"CPUs allowed (measured): {', '.join(f'{k} {v}' for k, v in o.get('affinity', {}).items())}. "
-        f"Overall: {_ok(m['pass'])}."
+        f"CPUs allowed (measured): {', '.join(f'{k} {v}' for k, v in o.get('affinity', {}).items())}; "
+        f"scheduling: {', '.join(f'{k} {v}' for k, v in o.get('scheduling', {}).items()) or 'not recorded'}; "
+        f"ODOMETRY {o.get('gcs_rate', 50.0):g} Hz. Overall: {_ok(m['pass'])}."
     )
     lines += ["", "| target | measured | limit | result |", "|---|---|---|---|"]
     lines.append(f"| end-to-end p99 | {_f(c['e2e_p99']['value_us'])} µs | ≤ 1,000 µs | {_ok(c['e2e_p99']['ok'])} |")

@@ -12,7 +12,13 @@ the fault schedule injected (:mod:`ins_hil.sim.faults`), and writes to ``--out``
   first unit's frame was handed to the pty) for every IMU epoch;
 * ``truth.bin``: float64 rows (t, lat, lon, h, vn, ve, vd, roll, pitch, yaw) at 10 Hz
   (rad, m, m/s, s of sensor time);
-* ``sim.json``: frames written and dropped (pty full) per link, send lateness.
+* ``sim.json``: frames written and dropped (pty full) per link, send lateness, scheduling.
+
+The sensor data (trajectory, sensor errors, faults, encoded frames, send schedule) are made
+by a producer process (:func:`produce`, time-shared at low priority on the same CPU) a few
+10-s chunks ahead into a temporary directory (``/dev/shm``); the emitter maps them and only
+writes, so a long computation never delays an emission. With ``--rt`` the emitter runs
+under SCHED_FIFO (:mod:`ins_hil.runtime.rt`).
 
 Sensor time ``t`` = CLOCK_MONOTONIC − start, the same clock as the gateway's
 ``t_arrival_ns`` (both processes read the system-wide monotonic clock).
@@ -24,21 +30,27 @@ import argparse
 import contextlib
 import ctypes
 import errno
+import gc
 import json
 import math
 import os
+import pickle
+import shutil
 import signal
+import subprocess
 import sys
-import threading
+import tempfile
 import time
 import tty
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ins_hil.drivers.serial_frame import encode
+from ins_hil.drivers.serial_frame import FRAME_LEN, encode
 from ins_hil.runtime.metrics import LatencyHistogram
+from ins_hil.runtime.rt import policy, set_realtime
 from ins_hil.sim import sensors
 from ins_hil.sim.devices import SensorLink, _mavlink, _UdpWriter, schedule
 from ins_hil.sim.faults import inject, inject_imu
@@ -150,11 +162,108 @@ def _write(fd: int, frame: bytes, pending: list[bytes], u: int) -> bool:
     return True
 
 
+#: chunks the producer may have ready ahead of the emitter
+AHEAD = 3
+
+
+def _chunk_path(d: Path, k: int, what: str) -> Path:
+    return d / f"{k:06d}.{what}"
+
+
+def produce(a: argparse.Namespace, d: Path) -> None:
+    """The producer process body: every chunk of :func:`chunks`, ready to send, into directory ``d``.
+
+    Per chunk ``k``: ``t.npy`` (epoch sensor times), ``frames.npy`` (uint8 (N, units, 41): the encoded
+    serial frames, ``seq`` counting epochs over the whole run), ``sched.npy`` (the send schedule of
+    :func:`~ins_hil.sim.devices.schedule` as float64 rows (time, kind, index)), ``aid.pkl`` (the GNSS fixes
+    and baro samples) and then an empty ``ready`` marker; the truth rows go to ``--out``/truth.bin.
+    At most :data:`AHEAD` chunks wait unconsumed (the emitter deletes what it has sent). Runs
+    time-shared at low priority: the emitter (SCHED_FIFO or not) always comes first on the shared CPU.
+    """
+    with contextlib.suppress(OSError, AttributeError):
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    with contextlib.suppress(OSError):
+        os.nice(10)
+    out = Path(a.out)
+    dt = 1.0 / a.rate
+    seq = 0
+    with open(out / "truth.bin", "wb") as f_tr:
+        for k, ((t_imu, dth, dv, fl), sub, fixes, baro) in enumerate(chunks(a)):
+            while _chunk_path(d, k - AHEAD, "ready").exists():
+                time.sleep(0.05)
+            truth_rows(sub, TRUTH_RATE).tofile(f_tr)
+            f_tr.flush()
+            n = len(t_imu)
+            frames = np.empty((n, a.imus, FRAME_LEN), dtype=np.uint8)
+            for i in range(n):
+                tk = float(t_imu[i])
+                for u in range(a.imus):
+                    frame = encode(ImuSample(tk, dt, dth[i, u], dv[i, u], u, seq & 0xFFFF, 35.0, int(fl[i, u])))
+                    frames[i, u] = np.frombuffer(frame, dtype=np.uint8)
+                seq += 1
+            sched = np.array(schedule(t_imu, fixes, baro, a.gnss_latency), dtype=np.float64).reshape(-1, 3)
+            np.save(_chunk_path(d, k, "t.npy"), np.asarray(t_imu, dtype=np.float64))
+            np.save(_chunk_path(d, k, "frames.npy"), frames)
+            np.save(_chunk_path(d, k, "sched.npy"), sched)
+            with open(_chunk_path(d, k, "aid.pkl"), "wb") as f:
+                pickle.dump((fixes, baro), f, protocol=pickle.HIGHEST_PROTOCOL)
+            _chunk_path(d, k, "ready").touch()
+
+
+def _sched_rows(sched: np.ndarray, step: int = 256) -> Iterator[tuple[float, int, int]]:
+    """(time, kind, index) rows, converted to Python numbers a slice at a time (no long pause)."""
+    for j in range(0, len(sched), step):
+        blk = sched[j : j + step]
+        yield from zip(blk[:, 0].tolist(), blk[:, 1].astype(np.int64).tolist(), blk[:, 2].astype(np.int64).tolist())
+
+
+class _Chunks:
+    """The emitter's side of the producer: wait for, map and delete chunk files."""
+
+    def __init__(self, d: Path, producer: subprocess.Popen[bytes]) -> None:
+        self.d, self.producer = d, producer
+
+    def load(self, k: int, timeout: float = 120.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[Any], list[Any]]:
+        t0 = time.monotonic()
+        ready = _chunk_path(self.d, k, "ready")
+        while not ready.exists():
+            if self.producer.poll() is not None:
+                raise RuntimeError(f"the sensor data producer exited (status {self.producer.returncode})")
+            if time.monotonic() - t0 > timeout:
+                raise RuntimeError(f"the sensor data producer did not deliver chunk {k} within {timeout:.0f} s")
+            time.sleep(0.005)
+        t = np.load(_chunk_path(self.d, k, "t.npy"), mmap_mode="r")
+        frames = np.load(_chunk_path(self.d, k, "frames.npy"), mmap_mode="r")
+        sched = np.load(_chunk_path(self.d, k, "sched.npy"), mmap_mode="r")
+        with open(_chunk_path(self.d, k, "aid.pkl"), "rb") as f:
+            fixes, baro = pickle.load(f)
+        return t, frames, sched, fixes, baro
+
+    def done(self, k: int) -> None:
+        for what in ("ready", "t.npy", "frames.npy", "sched.npy", "aid.pkl"):
+            with contextlib.suppress(OSError):
+                _chunk_path(self.d, k, what).unlink()
+
+
 def run(a: argparse.Namespace) -> None:
     """The process body (see module doc)."""
     pin(a.cpu)
-    sys.setswitchinterval(0.0005)  # the chunk generator thread must not hold the GIL for long
     out = Path(a.out)
+    # the sensor data come from a producer process (time-shared, low priority), not from a thread of this
+    # one: a generator thread holding the GIL delayed emissions by milliseconds (tens under SCHED_FIFO)
+    shm = Path("/dev/shm") if Path("/dev/shm").is_dir() else out
+    d = Path(tempfile.mkdtemp(prefix="ins-hil-soak-", dir=shm))
+    producer = subprocess.Popen([sys.executable, "-m", "ins_hil.soak.simproc", "--produce", str(d), *sys.argv[1:]])
+    try:
+        _emit(a, out, _Chunks(d, producer))
+    finally:
+        producer.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            producer.wait(5)
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def _emit(a: argparse.Namespace, out: Path, src: _Chunks) -> None:
     n_links = a.imus if a.links == "separate" else 1
     masters, slaves, paths = [], [], []
     for _ in range(n_links):
@@ -171,17 +280,22 @@ def run(a: argparse.Namespace) -> None:
     mav = _mavlink(writer, 1, mavlink2.MAV_COMP_ID_GPS, "")
     rx = mavlink2.MAVLink(None)
     rx.robust_parsing = True
-    gen = chunks(a)
-    nxt: list[Any] = [next(gen)]
-    print(json.dumps({"imu": paths, "pid": os.getpid()}), flush=True)
+    k = 0
+    cur = src.load(k)
+    why = set_realtime(a.rt)
+    print(json.dumps({"imu": paths, "pid": os.getpid(), "scheduling": policy(), "rt_error": why}), flush=True)
     if sys.stdin.readline().strip() != "go":
         return
+    # measurement apparatus: no collector pause (tens of ms in this process) between two emissions;
+    # the emitter creates no reference cycles, so reference counting frees everything
+    gc.collect()
+    gc.freeze()
+    gc.disable()
     written = [0] * n_links
     pending = [b""] * n_links
-    seq = 0
     dropped = [0] * n_links
     late = LatencyHistogram()  # emission − scheduled time
-    stats: dict[str, Any] = {}
+    stats: dict[str, Any] = {"scheduling": policy(), "rt_error": why}
 
     ppid = os.getppid()
     stopped = False
@@ -193,11 +307,9 @@ def run(a: argparse.Namespace) -> None:
 
     signal.signal(signal.SIGTERM, on_term)
     f_em = open(out / "emission.bin", "wb")
-    f_tr = open(out / "truth.bin", "wb")
     t_start_ns = time.monotonic_ns()
     stats["t_start_ns"] = t_start_ns
     mono = time.monotonic_ns
-    dt = 1.0 / a.rate
     link = SensorLink(writer, rx, mav, t_start_ns, a.duration)
 
     def _write_stats() -> None:
@@ -216,46 +328,49 @@ def run(a: argparse.Namespace) -> None:
 
     try:
         while True:
-            (t_imu, dth, dv, fl), sub, fixes, baro = nxt.pop(0)
-            th = threading.Thread(target=lambda: nxt.append(next(gen)), daemon=True)
-            th.start()
-            truth_rows(sub, TRUTH_RATE).tofile(f_tr)
+            t_imu, frames, sched, fixes, baro = cur
             n = len(t_imu)
             em = np.zeros((n, 2), dtype=np.int64)
             em[:, 0] = np.round(t_imu * 1e6).astype(np.int64)
             n_done = 0
 
-            def emit_imu(
-                i: int, due: int, t_imu: Any = t_imu, dth: Any = dth, dv: Any = dv, fl: Any = fl, em: Any = em
-            ) -> None:
-                # every unit's frame of epoch i, stamped (CLOCK_MONOTONIC) after the first unit's write
-                nonlocal n_done, seq
-                tk = float(t_imu[i])
-                for u in range(a.imus):
-                    frame = encode(ImuSample(tk, dt, dth[i, u], dv[i, u], u, seq & 0xFFFF, 35.0, int(fl[i, u])))
-                    lk = u if n_links > 1 else 0
-                    if _write(masters[lk], frame, pending, lk):
-                        written[lk] += 1
+            def emit_imu(i: int, due: int, frames: Any = frames, em: Any = em) -> None:
+                # every unit's frame of epoch i, stamped (CLOCK_MONOTONIC) after the first write; on a shared
+                # link the epoch's frames go out back to back in one write, as an IMU hub sends them
+                nonlocal n_done
+                row = frames[i]
+                if n_links == 1:
+                    if _write(masters[0], row.tobytes(), pending, 0):
+                        written[0] += a.imus
                     else:
-                        dropped[lk] += 1
-                    if u == 0:
-                        now = mono()
-                        em[i, 1] = now
-                        late.record(now - due)
+                        dropped[0] += a.imus
+                    now = mono()
+                    em[i, 1] = now
+                    late.record(now - due)
+                else:
+                    for u in range(a.imus):
+                        if _write(masters[u], row[u].tobytes(), pending, u):
+                            written[u] += 1
+                        else:
+                            dropped[u] += 1
+                        if u == 0:
+                            now = mono()
+                            em[i, 1] = now
+                            late.record(now - due)
                 n_done = i + 1
-                seq += 1
 
             try:
-                if not link.serve(schedule(t_imu, fixes, baro, a.gnss_latency), emit_imu, fixes, baro):
+                if not link.serve(_sched_rows(sched), emit_imu, fixes, baro):
                     raise _Stop
             finally:
                 em[:n_done][em[:n_done, 1] > 0].tofile(f_em)
-            th.join()
+            src.done(k)
+            k += 1
+            cur = src.load(k)
     except (_Stop, KeyboardInterrupt, BrokenPipeError):
         pass
     finally:
         f_em.close()
-        f_tr.close()
         _write_stats()
     # keep the ptys open (closing them discards what the gateway has not read yet) until told to stop,
     # unless we were stopped already or the parent is gone
@@ -280,6 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--gnss-latency", type=float, default=0.05)
     ap.add_argument("--baro-rate", type=float, default=25.0)
     ap.add_argument("--chunk-s", type=float, default=10.0)
+    ap.add_argument("--rt", type=int, default=0, help="SCHED_FIFO priority of the emitter (0 = time-shared)")
+    ap.add_argument("--produce", metavar="DIR", help=argparse.SUPPRESS)  # internal: the producer process
     ap.add_argument("--lat-deg", type=float, default=50.45)
     ap.add_argument("--lon-deg", type=float, default=30.52)
     ap.add_argument("--h", type=float, default=180.0)
@@ -288,7 +405,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     die_with_parent()
-    run(build_parser().parse_args(argv))
+    a = build_parser().parse_args(argv)
+    if a.produce:
+        with contextlib.suppress(KeyboardInterrupt):
+            produce(a, Path(a.produce))
+        return 0
+    run(a)
     return 0
 
 

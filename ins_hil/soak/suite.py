@@ -202,7 +202,11 @@ def render(
         "(ins_hil.runtime, the same code as `ins-hil run`) runs alone on the other CPU. CAN is not part of "
         "the soak: this kernel has no vcan module. End-to-end latency = ground-station receive time − the "
         "simulator's emission stamp of the IMU epoch named by the message's sensor time (ODOMETRY "
-        "time_usec), both CLOCK_MONOTONIC.",
+        "time_usec), both CLOCK_MONOTONIC. The ODOMETRY rate (47 Hz by default) is no multiple of the IMU "
+        "or GNSS periods, so the measured epochs sweep every phase of the 200 ms GNSS cycle (at 50 Hz, with "
+        "one clock for every process, a run would sample one fixed phase). Unless `--no-rt`, the sensors, "
+        "the gateway (`gateway.rt_priority`) and the client run under SCHED_FIFO (60/50/40), as a deployed "
+        "gateway would; the sensor data are made ahead of time by a low-priority producer process.",
         "",
         "Targets (1 kHz, Python core, 2 CPUs): end-to-end p99 ≤ 1 ms, p99.9 ≤ 2 ms, no lost frames, gateway "
         "RSS growth < 1 MiB/h after warm-up (judged on ≥ 10 min after a 5-min warm-up), navigation accuracy "
