@@ -326,3 +326,20 @@ def test_lost_frames_on_separate_links_are_bridged_not_excluded(series, truth) -
     yg[:3] = ya[:3] = np.nan
     g, a, _ = mon.process_arrays(s.t[k], DT, yg, ya)
     assert np.all(np.isfinite(g)) and np.allclose(g / DT, truth.dtheta[k] / DT, atol=0.05)
+
+
+@pytest.mark.parametrize("cname", [*sorted(CONFIGS), "cone4"])
+@pytest.mark.parametrize("exclude_unit", [False, True])
+def test_warm_up_exercises_the_exclusion_path_and_leaves_the_monitor_untouched(cname: str, exclude_unit: bool) -> None:
+    """FdiMonitor runs its isolation/classification path once at construction on a throwaway group
+    (so the first real fault pages in no new code); it must run on every configuration and touch nothing."""
+    from ins_hil.fdi.monitor import _warm_up
+
+    a4 = cone_geometry(4)
+    geo = SensorGeometry("cone4", "array", a4, a4.copy()) if cname == "cone4" else by_name(cname)
+    for classify_time in (0.0, 1.0):
+        cfg = FdiConfig(geo, DT, G.noise_density, A.noise_density, exclude_unit=exclude_unit,
+                        classify_time=classify_time)  # fmt: skip
+        assert _warm_up(cfg, geo.gyro_axes, cfg.gyro_noise, cfg.gyro_bias) == 2  # both history layouts
+        mon = FdiMonitor(cfg)
+        assert mon.excluded == [] and mon.events == [] and not mon.gyro.pending and not mon.gyro.leak_on

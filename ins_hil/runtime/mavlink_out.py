@@ -7,7 +7,16 @@ and the loop hands it the newest state with :meth:`MavlinkEndpoint.offer`
 (never blocks): every message whose period is due is sent right there (the
 transports' writes are non-blocking), the others are coalesced to the newest
 state; the endpoint's own task only sends STATUSTEXTs. Messages and rates are
-configurable per endpoint.
+configurable per endpoint. When several messages are due at the same state the
+highest-rate one goes first (e.g. ODOMETRY at 50 Hz before ATTITUDE at 10 Hz and
+HEARTBEAT at 1 Hz), so the latency-critical stream is not queued behind the slow ones.
+
+Cost on the IMU path: the hot messages (ODOMETRY, ATTITUDE, ATTITUDE_QUATERNION,
+GLOBAL_POSITION_INT, LOCAL_POSITION_NED, HEARTBEAT, SYS_STATUS) are computed in scalar
+floats (no numpy in the per-message path: the home's ECEF point and NED rotation are
+cached when the home is set) and, on an unsigned link, framed by :class:`_Frame`,
+a precompiled packer whose bytes are identical to pymavlink's (tested for random
+values in ``tests/test_mavlink_out_fast.py``); a signed link uses pymavlink's sender.
 
 role ``gcs``: HEARTBEAT, SYS_STATUS, ATTITUDE, ATTITUDE_QUATERNION,
 GLOBAL_POSITION_INT, LOCAL_POSITION_NED, GPS_RAW_INT (pass-through of the
@@ -24,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import struct
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -120,6 +130,58 @@ def parse_url(url: str) -> tuple[str, str, int]:
     if scheme != "serial" and not 0 <= p <= 65535:
         raise ValueError(f"bad endpoint {url!r}: port {p} out of range")
     return scheme, host, p
+
+
+_HEADER = struct.Struct("<BBBBBB")  # len, incompat_flags, compat_flags, seq, sysid, compid
+
+
+class _Frame:
+    """Precompiled MAVLink 2 framing of one message type for an UNSIGNED link.
+
+    :meth:`frame` takes the field values in wire order (pymavlink's ``ordered_fieldnames``,
+    arrays flattened) and returns the same bytes as pymavlink's ``MAVLink.send`` of that
+    message: payload packed with the message's own ``struct`` format, trailing zero bytes
+    trimmed (MAVLink 2, at least one byte kept), header 0xFD·len·0·0·seq·sysid·compid·msgid(24 bit),
+    CRC-16/MCRF4XX over header (without 0xFD) + payload + ``crc_extra``. Signed links must use
+    pymavlink (the signature is not produced here).
+    """
+
+    __slots__ = ("_crc", "_extra", "_msgid", "_pack")
+
+    def __init__(self, cls: Any) -> None:
+        mavlink = mavlink_module()
+        self._pack = cls.unpacker.pack
+        mid = int(cls.id)
+        self._msgid = bytes((mid & 0xFF, (mid >> 8) & 0xFF, mid >> 16))
+        self._extra = bytes((int(cls.crc_extra),))
+        mc = getattr(mavlink, "mcrf4xx", None)  # fastcrc's CRC-16/MCRF4XX, as pymavlink's x25crc uses
+        self._crc = (lambda b: mc(b, 0xFFFF)) if mc is not None else (lambda b: mavlink.x25crc(b).crc)
+
+    def frame(self, mav: Any, *values: Any) -> bytes:
+        payload = self._pack(*values).rstrip(b"\x00") or b"\x00"
+        body = _HEADER.pack(len(payload), 0, 0, mav.seq, mav.srcSystem, mav.srcComponent) + self._msgid + payload
+        crc = self._crc(body + self._extra)
+        return b"\xfd" + body + crc.to_bytes(2, "little")
+
+
+_FRAMES: dict[str, _Frame] = {}
+
+
+def _frame_of(typ: str) -> _Frame:
+    """The cached :class:`_Frame` of a message type name (e.g. ``"ODOMETRY"``)."""
+    f = _FRAMES.get(typ)
+    if f is None:
+        cls = mavlink_module().mavlink_map[getattr(mavlink_module(), "MAVLINK_MSG_ID_" + typ)]
+        f = _FRAMES[typ] = _Frame(cls)
+    return f
+
+
+def _floats(a: Any) -> list[float]:
+    """Python floats of a small vector (ndarray.tolist is the cheap path)."""
+    try:
+        return a.tolist()
+    except AttributeError:
+        return [float(x) for x in a]
 
 
 @dataclass
@@ -252,7 +314,9 @@ class MavlinkEndpoint:
         self.metrics = metrics
         self.rates = cfg.effective_rates()
         self.period_ns = {k: round(1e9 / v) for k, v in self.rates.items()}
-        self.next_ns = dict.fromkeys(self.rates, 0)
+        # highest rate first (stable for equal rates): the first message of a state is the fastest stream
+        order = sorted(self.rates, key=lambda k: -self.rates[k])
+        self.next_ns = dict.fromkeys(order, 0)
         key = bytes.fromhex(cfg.signing_key) if cfg.signing_key else None
         self.rx = MavReceiver(key)
         self.rx_messages: dict[str, int] = {}
@@ -266,12 +330,18 @@ class MavlinkEndpoint:
             self.mav.signing.timestamp = signing_timestamp()
             self.mav.signing.sign_outgoing = True
         self.mav_type = getattr(mavlink, "MAV_TYPE_" + cfg.mav_type)
+        self._m = mavlink
+        # unsigned link: the hot messages are framed by _Frame (bytes identical to pymavlink's)
+        self._fast = key is None
+        self._senders = [(typ, getattr(self, "_send_" + typ.lower()), self.period_ns[typ]) for typ in order]
         self._latest: tuple[NavState, int, int] | None = None
         self._wake = asyncio.Event()
         self._texts: deque[tuple[int, str]] = deque(maxlen=32)
         self._gnss: GnssFix | None = None
         self._gnss_new = False
         self._home: tuple[float, float, float] | None = None
+        self._home_ecef = (0.0, 0.0, 0.0)  # ECEF point of the home (m)
+        self._home_cen: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)  # C_e^n at home, row-major
         self.sent: dict[str, int] = {}
         self._t0_ns = time.monotonic_ns()
         self._task: asyncio.Task[None] | None = None
@@ -283,6 +353,15 @@ class MavlinkEndpoint:
             self.metrics.output(self.name, "bytes", len(buf))
         else:
             self.metrics.output(self.name, "not_sent")
+
+    def _emit(self, frame: _Frame, *values: Any) -> None:
+        """Send one message framed by ``frame`` (values in wire order), with pymavlink's bookkeeping."""
+        mav = self.mav
+        buf = frame.frame(mav, *values)
+        self.write(buf)
+        mav.seq = (mav.seq + 1) % 256
+        mav.total_packets_sent += 1
+        mav.total_bytes_sent += len(buf)
 
     def _on_data(self, data: bytes) -> None:
         before = dict(self.rx.counts)
@@ -345,28 +424,35 @@ class MavlinkEndpoint:
         self.metrics.output(self.name, typ)
 
     def _send_due(self) -> None:
+        """Send every message that is due with the newest state, highest rate first, then queued STATUSTEXTs.
+
+        Latency metric: ``RuntimeMetrics.record_sent`` is called once per state that sends anything,
+        at the moment the FIRST due message (the highest-rate one, e.g. ODOMETRY) has been handed
+        to the transport, so ``state_to_sent`` = state ready → first message of that state sent
+        (before, it was measured after the last due message).
+        """
+        latest = self._latest
+        if latest is not None:
+            st, arrival_ns, ready_ns = latest
+            now = time.monotonic_ns()
+            nxt = self.next_ns
+            first = True
+            for typ, send, period in self._senders:
+                due = nxt[typ]
+                if now < due or (typ == "GPS_RAW_INT" and not self._gnss_new):
+                    continue
+                nxt[typ] = max(due + period, now)
+                send(st)
+                self._count(typ)
+                if first:
+                    self.metrics.record_sent(arrival_ns, ready_ns, time.monotonic_ns())
+                    first = False
         while self._texts:
             sev, text = self._texts.popleft()
             self.mav.statustext_send(sev, text.encode())
             self._count("STATUSTEXT")
-        latest = self._latest
-        if latest is None:
-            return
-        st, arrival_ns, ready_ns = latest
-        now = time.monotonic_ns()
-        any_sent = False
-        for typ, due in self.next_ns.items():
-            if now < due:
-                continue
-            if typ == "GPS_RAW_INT" and not self._gnss_new:
-                continue
-            self.next_ns[typ] = max(due + self.period_ns[typ], now)
-            getattr(self, "_send_" + typ.lower())(st)
-            self._count(typ)
-            any_sent = True
-        if any_sent:
-            self.metrics.record_sent(arrival_ns, ready_ns, time.monotonic_ns())
-        self._update_next_due()
+        if latest is not None:
+            self._update_next_due()
 
     def _update_next_due(self) -> None:
         """Earliest time a message is due (GPS_RAW_INT only once a new fix is there)."""
@@ -378,15 +464,19 @@ class MavlinkEndpoint:
         return round(st.t * 1000) & 0xFFFFFFFF
 
     def _send_heartbeat(self, st: NavState) -> None:
-        m = mavlink_module()
+        m = self._m
         status = m.MAV_STATE_ACTIVE if st.aligned else m.MAV_STATE_CALIBRATING
         if self.cfg.role == "gcs":
-            self.mav.heartbeat_send(self.mav_type, m.MAV_AUTOPILOT_GENERIC, 0, 0, status)
+            typ, ap = self.mav_type, m.MAV_AUTOPILOT_GENERIC
         else:
-            self.mav.heartbeat_send(m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_AUTOPILOT_INVALID, 0, 0, status)
+            typ, ap = m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_AUTOPILOT_INVALID
+        if self._fast:  # wire order: custom_mode, type, autopilot, base_mode, system_status, mavlink_version
+            self._emit(_frame_of("HEARTBEAT"), 0, typ, ap, 0, status, 3)
+        else:
+            self.mav.heartbeat_send(typ, ap, 0, 0, status)
 
     def _send_sys_status(self, st: NavState) -> None:
-        m = mavlink_module()
+        m = self._m
         bits = (
             m.MAV_SYS_STATUS_SENSOR_3D_GYRO
             | m.MAV_SYS_STATUS_SENSOR_3D_ACCEL
@@ -400,49 +490,88 @@ class MavlinkEndpoint:
             else bits & ~(m.MAV_SYS_STATUS_SENSOR_3D_GYRO | m.MAV_SYS_STATUS_SENSOR_3D_ACCEL)
         )
         drops = min(10000, self.metrics.dropped_total())
-        self.mav.sys_status_send(bits, bits, health, 0, 0, -1, -1, drops, 0, 0, 0, 0, 0)
+        if self._fast:  # wire order: present, enabled, health, load, voltage, current, drop_rate, errors ×5,
+            # battery_remaining, then the three *_extended fields
+            self._emit(_frame_of("SYS_STATUS"), bits, bits, health, 0, 0, -1, drops, 0, 0, 0, 0, 0, -1, 0, 0, 0)
+        else:
+            self.mav.sys_status_send(bits, bits, health, 0, 0, -1, -1, drops, 0, 0, 0, 0, 0)
 
-    def _euler(self, st: NavState) -> Any:
-        return euler_from_quat(st.q_nb)
+    def _euler(self, st: NavState) -> list[float]:
+        """(roll, pitch, yaw) rad of the state's q_nb as Python floats."""
+        return euler_from_quat(st.q_nb).tolist()
 
     def _send_attitude(self, st: NavState) -> None:
         r, p, y = self._euler(st)
-        w = st.omega_b
-        self.mav.attitude_send(self._tboot_ms(st), r, p, y, float(w[0]), float(w[1]), float(w[2]))
+        wx, wy, wz = _floats(st.omega_b)
+        if self._fast:
+            self._emit(_frame_of("ATTITUDE"), self._tboot_ms(st), r, p, y, wx, wy, wz)
+        else:
+            self.mav.attitude_send(self._tboot_ms(st), r, p, y, wx, wy, wz)
 
     def _send_attitude_quaternion(self, st: NavState) -> None:
-        q, w = st.q_nb, st.omega_b
-        self.mav.attitude_quaternion_send(self._tboot_ms(st), *(float(x) for x in q), *(float(x) for x in w))
+        q, w = _floats(st.q_nb), _floats(st.omega_b)
+        if self._fast:  # repr_offset_q (extension) = zeros, as pymavlink's default
+            self._emit(_frame_of("ATTITUDE_QUATERNION"), self._tboot_ms(st), *q, *w, 0.0, 0.0, 0.0, 0.0)
+        else:
+            self.mav.attitude_quaternion_send(self._tboot_ms(st), *q, *w)
 
-    def _home_ned(self, st: NavState) -> np.ndarray:
+    def _set_home(self, st: NavState) -> None:
+        """The first position is the home of LOCAL_POSITION_NED/ODOMETRY (and GLOBAL_POSITION_INT's
+        relative altitude); its ECEF point and C_e^n are cached here as floats."""
+        self._home = (st.lat, st.lon, st.h)
+        self._home_ecef = tuple(earth.geodetic_to_ecef(st.lat, st.lon, st.h).tolist())
+        self._home_cen = tuple(earth.dcm_ecef_to_ned(st.lat, st.lon).ravel().tolist())
+
+    def _home_ned(self, st: NavState) -> tuple[float, float, float]:
+        """Exact NED offset (m) of the state from the home: earth.ned_from_geodetic's formula
+        (C_e^n(home) · (r_e − r_e,home)) in scalar floats with the home's terms cached."""
         if self._home is None:
-            self._home = (st.lat, st.lon, st.h)
-        return earth.ned_from_geodetic(st.lat, st.lon, st.h, *self._home)
+            self._set_home(st)
+        lat, h = st.lat, st.h
+        _, n = earth.radii(lat)  # seed 001 eq. 3
+        cl, sl = math.cos(lat), math.sin(lat)
+        # ECEF of the state: the same expression as earth.geodetic_to_ecef
+        x = (n + h) * cl * math.cos(st.lon)
+        y = (n + h) * cl * math.sin(st.lon)
+        z = (n * (1.0 - earth.E2_WGS84) + h) * sl
+        x0, y0, z0 = self._home_ecef
+        dx, dy, dz = x - x0, y - y0, z - z0
+        c = self._home_cen
+        return (
+            c[0] * dx + c[1] * dy + c[2] * dz,
+            c[3] * dx + c[4] * dy + c[5] * dz,
+            c[6] * dx + c[7] * dy + c[8] * dz,
+        )
 
     def _send_global_position_int(self, st: NavState) -> None:
-        v = st.vel_ned
+        vn, ve, vd = _floats(st.vel_ned)
         hdg = math.degrees(self._euler(st)[2]) % 360.0
         rel = st.h - (self._home[2] if self._home else st.h)
         if self._home is None:  # the first position sets the home (LOCAL_POSITION_NED, ODOMETRY)
-            self._home = (st.lat, st.lon, st.h)
-        self.mav.global_position_int_send(
+            self._set_home(st)
+        vals = (
             self._tboot_ms(st),
             round(math.degrees(st.lat) * 1e7),
             round(math.degrees(st.lon) * 1e7),
             round(st.h * 1000),
             round(rel * 1000),
-            _i16(v[0] * 100),
-            _i16(v[1] * 100),
-            _i16(v[2] * 100),
+            _i16(vn * 100),
+            _i16(ve * 100),
+            _i16(vd * 100),
             round(hdg * 100) % 36000,
         )
+        if self._fast:  # wire order = argument order
+            self._emit(_frame_of("GLOBAL_POSITION_INT"), *vals)
+        else:
+            self.mav.global_position_int_send(*vals)
 
     def _send_local_position_ned(self, st: NavState) -> None:
         d = self._home_ned(st)
-        v = st.vel_ned
-        self.mav.local_position_ned_send(
-            self._tboot_ms(st), float(d[0]), float(d[1]), float(d[2]), float(v[0]), float(v[1]), float(v[2])
-        )
+        v = _floats(st.vel_ned)
+        if self._fast:
+            self._emit(_frame_of("LOCAL_POSITION_NED"), self._tboot_ms(st), *d, *v)
+        else:
+            self.mav.local_position_ned_send(self._tboot_ms(st), *d, *v)
 
     def _send_gps_raw_int(self, st: NavState) -> None:
         g = self._gnss
@@ -510,42 +639,40 @@ class MavlinkEndpoint:
         )
 
     def _send_odometry(self, st: NavState) -> None:
-        m = mavlink_module()
+        m = self._m
         d = self._home_ned(st)
-        q, w = st.q_nb, st.omega_b
-        v_b = dcm_from_quat(q).T @ st.vel_ned  # child frame body FRD (MAVLink ODOMETRY convention)
-        nan21 = [float("nan")] + [0.0] * 20
-        pc = list(nan21)
-        vc = list(nan21)
-        sp, sv, sa = st.std_pos, st.std_vel, st.std_att
-        if float(np.max(sp)) > 0:
-            # upper-right triangle, row-major: diagonal at 0, 6, 11, 15, 18, 20
+        q = _floats(st.q_nb)
+        wx, wy, wz = _floats(st.omega_b)
+        # child frame body FRD (MAVLink ODOMETRY convention): v_b = (C_b^n)ᵀ v_n, C_b^n from rotation.dcm_from_quat
+        c = dcm_from_quat(st.q_nb).tolist()
+        vn, ve, vd = _floats(st.vel_ned)
+        vbx = c[0][0] * vn + c[1][0] * ve + c[2][0] * vd
+        vby = c[0][1] * vn + c[1][1] * ve + c[2][1] * vd
+        vbz = c[0][2] * vn + c[1][2] * ve + c[2][2] * vd
+        sp0, sp1, sp2 = _floats(st.std_pos)
+        if (sp0 > 0.0 or sp1 > 0.0 or sp2 > 0.0) and not (math.isnan(sp0) or math.isnan(sp1) or math.isnan(sp2)):
+            # (that is max(std_pos) > 0) upper-right triangle, row-major: diagonal at 0, 6, 11, 15, 18, 20
+            sa0, sa1, sa2 = _floats(st.std_att)
+            sv0, sv1, sv2 = _floats(st.std_vel)
             pc = [0.0] * 21
-            for i, val in zip((0, 6, 11, 15, 18, 20), (sp[0], sp[1], sp[2], sa[0], sa[1], sa[2])):
-                pc[i] = float(val) ** 2
+            pc[0], pc[6], pc[11], pc[15], pc[18], pc[20] = sp0**2, sp1**2, sp2**2, sa0**2, sa1**2, sa2**2
             vc = [0.0] * 21
-            for i, val in zip((0, 6, 11), (sv[0], sv[1], sv[2])):
-                vc[i] = float(val) ** 2
-        self.mav.odometry_send(
-            round(st.t * 1e6),
-            m.MAV_FRAME_LOCAL_NED,
-            m.MAV_FRAME_BODY_FRD,
-            float(d[0]),
-            float(d[1]),
-            float(d[2]),
-            [float(x) for x in q],
-            float(v_b[0]),
-            float(v_b[1]),
-            float(v_b[2]),
-            float(w[0]),
-            float(w[1]),
-            float(w[2]),
-            pc,
-            vc,
-            0,
-            m.MAV_ESTIMATOR_TYPE_NAIVE,
-            100 if st.aligned else 0,
-        )
+            vc[0], vc[6], vc[11] = sv0**2, sv1**2, sv2**2
+        else:  # unknown: NaN first element
+            pc = [math.nan] + [0.0] * 20
+            vc = list(pc)
+        t_us = round(st.t * 1e6)
+        quality = 100 if st.aligned else 0
+        if self._fast:  # wire order: time, x, y, z, q, v, rates, covariances, frame ids, reset, estimator, quality
+            self._emit(
+                _frame_of("ODOMETRY"), t_us, *d, *q, vbx, vby, vbz, wx, wy, wz, *pc, *vc,
+                m.MAV_FRAME_LOCAL_NED, m.MAV_FRAME_BODY_FRD, 0, m.MAV_ESTIMATOR_TYPE_NAIVE, quality,
+            )  # fmt: skip
+        else:
+            self.mav.odometry_send(
+                t_us, m.MAV_FRAME_LOCAL_NED, m.MAV_FRAME_BODY_FRD, *d, q, vbx, vby, vbz, wx, wy, wz, pc, vc,
+                0, m.MAV_ESTIMATOR_TYPE_NAIVE, quality,
+            )  # fmt: skip
 
     def _send_gps_input(self, st: NavState) -> None:
         v, sp, sv = st.vel_ned, st.std_pos, st.std_vel
