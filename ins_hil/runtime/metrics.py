@@ -184,6 +184,8 @@ class RuntimeMetrics:
         self.record("core_step", core_ns)
 
     def record_sent(self, arrival_ns: int, ready_ns: int, sent_ns: int) -> None:
+        """A state went out: state ready → the first (highest-rate) MAVLink message of that state handed
+        to the transport (``state_to_sent``), and IMU arrival → that moment (``arrival_to_sent``)."""
         self.record("state_to_sent", sent_ns - ready_ns)
         if arrival_ns:
             self.record("arrival_to_sent", sent_ns - arrival_ns)

@@ -162,7 +162,7 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
         ("end_to_end", "sensor emission → state received by the ground station"),
         ("arrival_to_state", "loop: bytes arrived → state ready"),
         ("core_step", "core step (FDI + INS/EKF)"),
-        ("state_to_sent", "state ready → MAVLink sent"),
+        ("state_to_sent", "state ready → first MAVLink message sent"),
         ("sensor_send_lateness", "simulator: emission − schedule"),
     )
     for k, label in names:
