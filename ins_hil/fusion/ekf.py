@@ -54,6 +54,9 @@ class FilterConfig:
     mount_states: 3 extra states at the end, the residual IMU → vehicle boresight rotation seen by the
     non-holonomic constraint (rad, vehicle axes; random walk ``mount_sigma_rw`` rad/√s, initial 1-σ
     ``init_mount``); only NavCore's NHC uses them.
+    gyro_gsens: 9 states after the scale factors, the gyro g-sensitivity matrix G (rad/s per m/s², row =
+    gyro axis, column = specific-force axis; ω̃ = ω + b_g + G f^b), a random walk ``gsens_sigma_rw``
+    (rad/s/(m/s²)/√s) from an initial 1-σ ``init_gsens`` (a MEMS gyro: ~0.01–0.1 °/s/g ≈ 2e-5–2e-4).
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
     "qr", "cholesky", "ud" (see ``ins_hil.fusion.sqrt``).
@@ -71,6 +74,9 @@ class FilterConfig:
     gyro_sf_sigma: float = 1e-3
     accel_sf_sigma: float = 2e-3
     sf_tau: float = 3600.0
+    gyro_gsens: bool = False
+    gsens_sigma_rw: float = 0.0
+    init_gsens: float = 3e-4
     mount_states: bool = False
     mount_sigma_rw: float = 0.0
     init_mount: float = 1.0 * DEG
@@ -106,6 +112,7 @@ class StateIndex:
     sg: int | None = None
     sa: int | None = None
     mnt: int | None = None
+    gs: int | None = None  # 9 states: gyro g-sensitivity G row-major
 
     @staticmethod
     def build(cfg: FilterConfig) -> StateIndex:
@@ -118,10 +125,13 @@ class StateIndex:
         if cfg.scale_factors:
             sg, k = k, k + 3
             sa, k = k, k + 3
+        gs = None
+        if cfg.gyro_gsens:
+            gs, k = k, k + 9
         mnt = None
         if cfg.mount_states:
             mnt, k = k, k + 3
-        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt)
+        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs)
 
 
 def skew(a: Vec) -> Vec:
@@ -168,6 +178,9 @@ class ErrorStateEKF:
             qc[i.sg : i.sg + 3] = 2.0 * c.gyro_sf_sigma**2 / c.sf_tau
             qc[i.sa : i.sa + 3] = 2.0 * c.accel_sf_sigma**2 / c.sf_tau
             self._tau[i.sg : i.sg + 6] = c.sf_tau
+        if i.gs is not None:
+            sig[i.gs : i.gs + 9] = c.init_gsens
+            qc[i.gs : i.gs + 9] = c.gsens_sigma_rw**2
         if i.mnt is not None:
             sig[i.mnt : i.mnt + 3] = c.init_mount
             qc[i.mnt : i.mnt + 3] = c.mount_sigma_rw**2
@@ -240,6 +253,9 @@ class ErrorStateEKF:
         if i.sg is not None and i.sa is not None:
             F[6:9, i.sg : i.sg + 3] = C_bn * w_b[None, :]
             F[3:6, i.sa : i.sa + 3] = -C_bn * f_b[None, :]
+        if i.gs is not None:
+            # ω̂ − ω = δb_g + δG f^b: μ̇ gains C δG f^b, ∂/∂G_jk = C[:, j] f_k (the bias column scaled by f_k)
+            F[6:9, i.gs : i.gs + 9] = np.kron(C_bn, f_b[None, :])
         return F
 
     def predict(
@@ -252,7 +268,7 @@ class ErrorStateEKF:
             self._acc_n += 1
             self._acc_dt += dt
             self._acc_f = self._acc_f + f_ned
-            if self.idx.sg is not None:
+            if self.idx.sg is not None or self.idx.gs is not None:
                 self._acc_fb = self._acc_fb + f_b
                 self._acc_w = self._acc_w + w_b
             if self._acc_n < ce:
