@@ -63,7 +63,6 @@ class NavConfig:
     the averaged IMU looks at rest for ``zupt_time`` s and the speed is below ``zupt_max_speed``).
     nhc_pitch_per_accel: suspension pitch per forward acceleration (rad per m/s², nose-up when accelerating):
     the vertical NHC is applied in the road frame, the body pitched by k a_x from it (squat/dive).
-    nhc_max_rate: no NHC while the averaged angular rate exceeds this (rad/s; sideslip in sharp turns).
     nhc_lever_b: IMU → the vehicle point whose lateral/vertical velocity is zero (body FRD, m); with
     ``filter.mount_states`` the residual IMU → vehicle boresight is estimated (NHC only, needs ``nhc``).
     adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
@@ -98,7 +97,6 @@ class NavConfig:
     nhc_vertical: bool = True
     nhc_std_vertical: float = 0.1
     nhc_lever_b: Vec = field(default_factory=lambda: np.zeros(3))
-    nhc_max_rate: float = math.inf
     nhc_pitch_per_accel: float = 0.0
     zupt: bool = False
     zupt_std: float = 0.02
@@ -287,7 +285,7 @@ class NavCore:
                 H[:, self.idx.bg : self.idx.bg + 3] = -np.eye(3)
                 self._apply("zupt", -w, H, np.full(3, c.zaru_std**2), c.gate_aux, t)
                 self._ema_w = np.zeros(3)
-        elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed and wn < c.nhc_max_rate:
+        elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
             C = dcm_from_quat(s.q_nb)
             if self.idx.mnt is not None or np.any(c.nhc_lever_b != 0.0) or c.nhc_pitch_per_accel != 0.0:
                 R = dcm_from_quat(self.q_mount)

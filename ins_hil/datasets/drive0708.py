@@ -248,7 +248,6 @@ def load_drive(
     increments: str = "trapezoid",
     time_map: str = "tags",
     accel_lag: float = 0.0,
-    lowpass_hz: float = 0.0,
 ) -> Drive:
     """Load the drive: IMU rotated into the vehicle body frame and time-tagged (GPST + offset),
     GNSS fixes from the .pos file (only Q ≤ 2 epochs; σ from the file).
@@ -287,15 +286,6 @@ def load_drive(
         # needs the samples up to t + accel_lag, i.e. a real-time gateway runs that much later (a latency,
         # handled like the GNSS delay), not a look-ahead.
         acc = np.column_stack([np.interp(t + accel_lag, t, acc[:, i]) for i in range(3)])
-    if lowpass_hz > 0:
-        # causal first-order low-pass of the rates (y += a (x − y), a = dt/(τ + dt), τ = 1/(2π f_c)): a
-        # real-time pre-filter (the upstream's is zero-phase, non-causal); it delays the signal by ≈ τ
-        tau = 1.0 / (2.0 * math.pi * lowpass_hz)
-        acc, gyro = acc.copy(), gyro.copy()
-        for k in range(1, len(t)):
-            a = min(1.0, max(0.0, float(t[k] - t[k - 1])) / (tau + max(0.0, float(t[k] - t[k - 1]))))
-            acc[k] = acc[k - 1] + a * (acc[k] - acc[k - 1])
-            gyro[k] = gyro[k - 1] + a * (gyro[k] - gyro[k - 1])
     log = ImuLog(acc, gyro, tick, t, bad)
     samples = []
     for k in range(1, len(t)):
