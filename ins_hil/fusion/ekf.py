@@ -17,7 +17,7 @@ seed 001 eqs. 83–98 reduced to the terms that matter for MEMS):
 
     δṙ = δv
     δv̇ = [f^n×] μ − (2ω_ie + ω_en) × δv − C δb_a − C diag(f^b) δs_a + (2g/R) δr_D e_D
-    μ̇  = −ω_in × μ + C δb_g + C diag(ω^b) δs_g
+    μ̇  = −ω_in × μ + C δb_g + C diag(ω^b) δs_g (+ C δG f^b with the g-sensitivity states)
     δḃ = −δb / τ + w      (first-order Gauss–Markov, seed 001 eqs. 87/88)
 
 Discretisation Φ = I + F Δt + ½ (F Δt)² (book eq. 3.2/3.41), propagated every
@@ -26,8 +26,8 @@ diagonal (the noise is isotropic, so C σ² I C^T = σ² I).
 
 The state layout is configurable (``FilterConfig``): 9 states (book §3.1:
 μ, δv, δr), 12 (book §3.3: + gyro bias, ``accel_bias=False``), 15 (default:
-+ accelerometer bias), 21 (+ gyro and accelerometer scale factors).
-Index order here is [δr, δv, μ, δb_g, δb_a, δs_g, δs_a].
++ accelerometer bias), 21 (+ gyro and accelerometer scale factors), + 9 gyro g-sensitivity states,
++ 3 boresight states. Index order here is [δr, δv, μ, δb_g, δb_a, δs_g, δs_a, δG, δε].
 
 Pure and deterministic: no I/O, no clock.
 """
