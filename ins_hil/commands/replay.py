@@ -385,7 +385,8 @@ Screened on the validation windows (ZUPT + NHC, session-2 settings as the base; 
 | scale factors + gyro ARW 0.15 °/√s (instead of 0.2) | 1.08 / 5.75 | 0.70/2.69, 1.10/5.63, 1.35/5.75 |
 
 Reading: the only change that improves each of the three shifts (RMS and worst case) is the 21-state model, and
-only by 3 %; it is adopted (physically motivated, issue bullet "optional scale-factor states", +7 % CPU). The
+only by 3 %; it is adopted (physically motivated, issue bullet "optional scale-factor states"; cost: +16 % CPU,
+15.8 → 18.4 s of `time.process_time` per 549 s drive run, 30× real time). The
 suspension-pitch term (the body pitches nose-up by k·a_x on the suspension when the car accelerates, so the
 velocity is not along the body x axis; the plain vertical NHC turns that into a pitch error and a gravity leak
 along the track) has the physical sign (−0.004 is clearly worse, +0.004/+0.008 lower the RMS by 10 %, the 27.5 s
