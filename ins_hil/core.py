@@ -61,6 +61,8 @@ class NavConfig:
     nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, optionally also on
     the vertical axis; zero velocity — and zero angular rate on the gyro bias with ``zaru`` — when
     the averaged IMU looks at rest for ``zupt_time`` s and the speed is below ``zupt_max_speed``).
+    nhc_pitch_per_accel: suspension pitch per forward acceleration (rad per m/s², nose-up when accelerating):
+    the vertical NHC is applied in the road frame, the body pitched by k a_x from it (squat/dive).
     nhc_lever_b: IMU → the vehicle point whose lateral/vertical velocity is zero (body FRD, m); with
     ``filter.mount_states`` the residual IMU → vehicle boresight is estimated (NHC only, needs ``nhc``).
     adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
@@ -95,6 +97,7 @@ class NavConfig:
     nhc_vertical: bool = True
     nhc_std_vertical: float = 0.1
     nhc_lever_b: Vec = field(default_factory=lambda: np.zeros(3))
+    nhc_pitch_per_accel: float = 0.0
     zupt: bool = False
     zupt_std: float = 0.02
     zupt_gyro: float = 0.02
@@ -155,6 +158,7 @@ class NavCore:
         self.ba = np.zeros(3)
         self.sg = np.zeros(3)
         self.sa = np.zeros(3)
+        self.G = np.zeros((3, 3))  # gyro g-sensitivity (rad/s per m/s², FilterConfig.gyro_gsens)
         self.q_mount = np.array((1.0, 0.0, 0.0, 0.0))  # residual IMU body → vehicle rotation (NHC frame)
         self.omega_b = np.zeros(3)
         self.f_b = np.zeros(3)
@@ -212,6 +216,8 @@ class NavCore:
         dt = imu.dt
         dth = imu.dtheta - self.bg * dt
         dv = imu.dvel - self.ba * dt
+        if self.idx.gs is not None:
+            dth = dth - self.G @ imu.dvel  # gyro g-sensitivity: ω̃ = ω + b_g + G f^b (FilterConfig.gyro_gsens)
         if self.idx.sg is not None:
             dth = dth / (1.0 + self.sg)
             dv = dv / (1.0 + self.sa)
@@ -281,8 +287,16 @@ class NavCore:
                 self._ema_w = np.zeros(3)
         elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
             C = dcm_from_quat(s.q_nb)
-            if self.idx.mnt is not None or np.any(c.nhc_lever_b != 0.0):
+            if self.idx.mnt is not None or np.any(c.nhc_lever_b != 0.0) or c.nhc_pitch_per_accel != 0.0:
                 R = dcm_from_quat(self.q_mount)
+                if c.nhc_pitch_per_accel != 0.0:
+                    # suspension pitch (squat/dive): the body pitches nose-up by θ = k a_x relative to the road
+                    # when accelerating forward, so the velocity has v_b,z = v θ; the constraint holds in the
+                    # road frame u = R_y(θ) v_b (a_x: averaged kinematic acceleration, body x)
+                    ax = float(C[0, 0] * f[0] + C[1, 0] * f[1] + C[2, 0] * (float(f[2]) + self._g_local))
+                    th = c.nhc_pitch_per_accel * ax
+                    ct, st_ = math.cos(th), math.sin(th)
+                    R = R @ np.array(((ct, 0.0, st_), (0.0, 1.0, 0.0), (-st_, 0.0, ct)))
                 z, H, _ = mm.nonholonomic_mounted(self.idx, C, s.vel_ned, R, self.omega_b, c.nhc_lever_b)
             else:
                 z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
@@ -301,7 +315,7 @@ class NavCore:
             st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
             ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
             kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next, self._still_time,
-            self.q_mount,
+            self.q_mount, self.G,
         )  # fmt: skip
 
     def _restore(self, d: tuple[Any, ...]) -> None:
@@ -310,7 +324,7 @@ class NavCore:
         (st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
          ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
          kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next,
-         self._still_time, self.q_mount) = d  # fmt: skip
+         self._still_time, self.q_mount, self.G) = d  # fmt: skip
         kf.x = np.zeros(kf.n)
 
     def _fuse_delayed(self, meas: GnssFix | BaroSample | MagSample) -> bool:
@@ -496,6 +510,8 @@ class NavCore:
         if i.sg is not None and i.sa is not None:
             self.sg = self.sg + x[i.sg : i.sg + 3]
             self.sa = self.sa + x[i.sa : i.sa + 3]
+        if i.gs is not None:
+            self.G = self.G + x[i.gs : i.gs + 9].reshape(3, 3)
         if i.mnt is not None:
             self.q_mount = quat_mul(quat_from_rotvec(-x[i.mnt : i.mnt + 3]), self.q_mount)  # R̂ ← (I − [δε×]) R̂
 

@@ -66,6 +66,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "filter.gyro_bias": not f.gyro_bias,
         "filter.accel_bias": not f.accel_bias,
         "filter.scale_factors": f.scale_factors,
+        "filter.gyro_gsens": f.gyro_gsens,
         "filter.numerics": f.numerics != "joseph",
         "filter.cov_every": f.cov_every != 1,
         "filter.earth_terms": not f.earth_terms,

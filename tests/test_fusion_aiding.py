@@ -12,7 +12,7 @@ from ins_hil.core import NavConfig, NavCore
 from ins_hil.fusion.ekf import FilterConfig
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownState
-from ins_hil.nav.rotation import quat_from_euler
+from ins_hil.nav.rotation import euler_from_quat, quat_from_euler
 from ins_hil.sim import sensors as se
 from ins_hil.sim import trajectory as tr
 from ins_hil.types import FaultMode, ImuSample
@@ -257,3 +257,69 @@ def test_zupt_releases_when_a_car_starts_from_rest():
     assert st.accepted + st.rejected - at_rest <= 2
     v = core.state().vel_ned
     assert v[0] == pytest.approx(a_x * n_go * dt, abs=0.02)  # 3 m/s after 3 s (before: 2.946)
+
+
+def test_nhc_suspension_pitch_keeps_the_pitch_of_an_accelerating_car():
+    """``nhc_pitch_per_accel`` (session 3): a car at 10 m/s on a level road starts to accelerate at 1.5 m/s²
+    (ramp 0.5 s) and its body pitches nose-up on the suspension by k a = 0.6° (velocity below the body x axis,
+    v_b,z = v θ). No GNSS. The plain vertical NHC reads the squat as an attitude/velocity error and rotates
+    the pitch toward the velocity: gravity leaks into the along-track acceleration. With the suspension pitch
+    modelled, the pitch and the speed stay close to the truth."""
+    lat, h, dt, a_x, k = LAT0, H0, 0.01, 1.5, 0.007
+    g = earth.normal_gravity(lat, h)
+    th = k * a_x
+
+    def f_body(p: float, a: float) -> np.ndarray:
+        C = np.array(((math.cos(p), 0.0, math.sin(p)), (0.0, 1.0, 0.0), (-math.sin(p), 0.0, math.cos(p))))
+        return C.T @ np.array((a, 0.0, -g))  # C = C_b^n of a pure pitch p
+
+    err = {}
+    for kk in (0.0, k):
+        core = NavCore(StrapdownState(quat_from_euler(0.0, 0.0, 0.0), np.array((10.0, 0.0, 0.0)), lat, LON0, h),
+                       NavConfig(nhc=True, nhc_pitch_per_accel=kk))  # fmt: skip
+        v = 10.0
+        p = 0.0
+        for n in range(600):
+            a, w = (0.0, 0.0) if n < 200 else (a_x * (n - 199) / 50, th / 0.5) if n < 250 else (a_x, 0.0)
+            p_new = p + w * dt
+            core.step(ImuSample(t=(n + 1) * dt, dt=dt, dtheta=np.array((0.0, w * dt, 0.0)),
+                                dvel=f_body(0.5 * (p + p_new), a) * dt))  # fmt: skip
+            p, v = p_new, v + a * dt
+        st = core.state()
+        assert core.stats["nhc"].accepted > 40
+        err[kk] = (abs(euler_from_quat(st.q_nb)[1] - p), abs(st.vel_ned[0] - v))
+    # measured: pitch 0.023 → 0.004 rad, speed 2.1 → 0.36 m/s
+    assert err[k][0] < 0.3 * err[0.0][0]
+    assert err[k][1] < 0.3 * err[0.0][1]
+
+
+def test_gyro_g_sensitivity_states_estimate_g_and_hold_the_yaw():
+    """``FilterConfig.gyro_gsens`` (session 3): a car (accelerating, weaving, braking) whose yaw gyro reads
+    G f^b in addition (G_zx = −2e-3, G_zy = 3e-3 rad/s per m/s²), GNSS 5 Hz then a 15 s outage. The 9 g-sensitivity
+    states recover G's yaw row and the yaw error at the end is several times smaller than without them."""
+    dt = 0.01
+    truth = tr.generate(tr.car_profile(), 50.0, dt, LAT0, LON0, H0)
+    G = np.zeros((3, 3))
+    G[2, 0], G[2, 1] = -2e-3, 3e-3
+    imu = [ImuSample(t=float(truth.t[k + 1]), dt=dt, dtheta=truth.dtheta[k] + G @ truth.dvel[k], dvel=truth.dvel[k])
+           for k in range(len(truth.dtheta))]  # fmt: skip
+    fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.1, std_d=0.2, std_vel=0.02, outages=[(35.0, 50.0)]),
+                          seed=3)  # fmt: skip
+    yaw_err = {}
+    for gs in (False, True):
+        core, _, _ = _run(truth, imu, fixes, NavConfig(filter=FilterConfig(gyro_gsens=gs, init_gsens=3e-3)))
+        yaw_err[gs] = abs(euler_from_quat(core.state().q_nb)[2] - truth.euler[-1][2])
+        if gs:
+            # measured: (−1.8e-3, 3.5e-3)
+            assert core.G[2, 0] == pytest.approx(G[2, 0], abs=1e-3)
+            assert core.G[2, 1] == pytest.approx(G[2, 1], abs=1e-3)
+    assert yaw_err[True] < 0.3 * yaw_err[False]  # measured 0.0075 vs 0.063 rad
+
+
+def test_c_core_refuses_the_gyro_g_sensitivity_states():
+    """The C reference core has no g-sensitivity states: it refuses the option by name (like gnss_vel_delay)."""
+    from ins_hil.cref import CNavCore
+
+    init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
+    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.gyro_gsens"):
+        CNavCore(init, NavConfig(filter=FilterConfig(gyro_gsens=True)))

@@ -17,7 +17,7 @@ seed 001 eqs. 83–98 reduced to the terms that matter for MEMS):
 
     δṙ = δv
     δv̇ = [f^n×] μ − (2ω_ie + ω_en) × δv − C δb_a − C diag(f^b) δs_a + (2g/R) δr_D e_D
-    μ̇  = −ω_in × μ + C δb_g + C diag(ω^b) δs_g
+    μ̇  = −ω_in × μ + C δb_g + C diag(ω^b) δs_g (+ C δG f^b with the g-sensitivity states)
     δḃ = −δb / τ + w      (first-order Gauss–Markov, seed 001 eqs. 87/88)
 
 Discretisation Φ = I + F Δt + ½ (F Δt)² (book eq. 3.2/3.41), propagated every
@@ -26,8 +26,8 @@ diagonal (the noise is isotropic, so C σ² I C^T = σ² I).
 
 The state layout is configurable (``FilterConfig``): 9 states (book §3.1:
 μ, δv, δr), 12 (book §3.3: + gyro bias, ``accel_bias=False``), 15 (default:
-+ accelerometer bias), 21 (+ gyro and accelerometer scale factors).
-Index order here is [δr, δv, μ, δb_g, δb_a, δs_g, δs_a].
++ accelerometer bias), 21 (+ gyro and accelerometer scale factors), + 9 gyro g-sensitivity states,
++ 3 boresight states. Index order here is [δr, δv, μ, δb_g, δb_a, δs_g, δs_a, δG, δε].
 
 Pure and deterministic: no I/O, no clock.
 """
@@ -54,6 +54,9 @@ class FilterConfig:
     mount_states: 3 extra states at the end, the residual IMU → vehicle boresight rotation seen by the
     non-holonomic constraint (rad, vehicle axes; random walk ``mount_sigma_rw`` rad/√s, initial 1-σ
     ``init_mount``); only NavCore's NHC uses them.
+    gyro_gsens: 9 states after the scale factors, the gyro g-sensitivity matrix G (rad/s per m/s², row =
+    gyro axis, column = specific-force axis; ω̃ = ω + b_g + G f^b), a random walk ``gsens_sigma_rw``
+    (rad/s/(m/s²)/√s) from an initial 1-σ ``init_gsens`` (a MEMS gyro: ~0.01–0.1 °/s/g ≈ 2e-5–2e-4).
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
     "qr", "cholesky", "ud" (see ``ins_hil.fusion.sqrt``).
@@ -71,6 +74,9 @@ class FilterConfig:
     gyro_sf_sigma: float = 1e-3
     accel_sf_sigma: float = 2e-3
     sf_tau: float = 3600.0
+    gyro_gsens: bool = False
+    gsens_sigma_rw: float = 0.0
+    init_gsens: float = 3e-4
     mount_states: bool = False
     mount_sigma_rw: float = 0.0
     init_mount: float = 1.0 * DEG
@@ -106,6 +112,7 @@ class StateIndex:
     sg: int | None = None
     sa: int | None = None
     mnt: int | None = None
+    gs: int | None = None  # 9 states: gyro g-sensitivity G row-major
 
     @staticmethod
     def build(cfg: FilterConfig) -> StateIndex:
@@ -118,10 +125,13 @@ class StateIndex:
         if cfg.scale_factors:
             sg, k = k, k + 3
             sa, k = k, k + 3
+        gs = None
+        if cfg.gyro_gsens:
+            gs, k = k, k + 9
         mnt = None
         if cfg.mount_states:
             mnt, k = k, k + 3
-        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt)
+        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs)
 
 
 def skew(a: Vec) -> Vec:
@@ -168,6 +178,9 @@ class ErrorStateEKF:
             qc[i.sg : i.sg + 3] = 2.0 * c.gyro_sf_sigma**2 / c.sf_tau
             qc[i.sa : i.sa + 3] = 2.0 * c.accel_sf_sigma**2 / c.sf_tau
             self._tau[i.sg : i.sg + 6] = c.sf_tau
+        if i.gs is not None:
+            sig[i.gs : i.gs + 9] = c.init_gsens
+            qc[i.gs : i.gs + 9] = c.gsens_sigma_rw**2
         if i.mnt is not None:
             sig[i.mnt : i.mnt + 3] = c.init_mount
             qc[i.mnt : i.mnt + 3] = c.mount_sigma_rw**2
@@ -240,6 +253,9 @@ class ErrorStateEKF:
         if i.sg is not None and i.sa is not None:
             F[6:9, i.sg : i.sg + 3] = C_bn * w_b[None, :]
             F[3:6, i.sa : i.sa + 3] = -C_bn * f_b[None, :]
+        if i.gs is not None:
+            # ω̂ − ω = δb_g + δG f^b: μ̇ gains C δG f^b, ∂/∂G_jk = C[:, j] f_k (the bias column scaled by f_k)
+            F[6:9, i.gs : i.gs + 9] = np.kron(C_bn, f_b[None, :])
         return F
 
     def predict(
@@ -252,7 +268,7 @@ class ErrorStateEKF:
             self._acc_n += 1
             self._acc_dt += dt
             self._acc_f = self._acc_f + f_ned
-            if self.idx.sg is not None:
+            if self.idx.sg is not None or self.idx.gs is not None:
                 self._acc_fb = self._acc_fb + f_b
                 self._acc_w = self._acc_w + w_b
             if self._acc_n < ce:
