@@ -159,6 +159,45 @@ def _slope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     return (tc @ (y - y.mean(axis=0))) / sxx, sxx
 
 
+class _RowWindow:
+    """FIFO of fixed-width float rows kept in one numpy buffer, oldest first: :meth:`array` is a view
+    with the layout ``np.array(list_of_rows)`` would have (the same numbers from the same sums), without
+    building an array from ~100 tuples at every fix (~0.2 ms on the GNSS path of the live loop)."""
+
+    def __init__(self, width: int, capacity: int = 128) -> None:
+        self._buf = np.empty((capacity, width))
+        self._i0 = 0
+        self._i1 = 0
+
+    def __len__(self) -> int:
+        return self._i1 - self._i0
+
+    def append(self, row: tuple[float, ...]) -> None:
+        if self._i1 == len(self._buf):
+            n = len(self)
+            if 2 * n > len(self._buf):
+                buf = np.empty((2 * len(self._buf), self._buf.shape[1]))
+                buf[:n] = self._buf[self._i0 : self._i1]
+                self._buf = buf
+            else:
+                self._buf[:n] = self._buf[self._i0 : self._i1].copy()
+            self._i0, self._i1 = 0, n
+        self._buf[self._i1] = row
+        self._i1 += 1
+
+    def popleft(self) -> None:
+        self._i0 += 1
+
+    def first_t(self) -> float:
+        return float(self._buf[self._i0, 0])
+
+    def clear(self) -> None:
+        self._i0 = self._i1 = 0
+
+    def array(self) -> np.ndarray:
+        return self._buf[self._i0 : self._i1]
+
+
 class _Status:
     __slots__ = ("faulted", "t_fault", "t_ok")
 
@@ -186,7 +225,7 @@ class AidingMonitor:
         self._cn = np.zeros(6)  # CUSUM S⁻
         self._prev: GnssFix | None = None
         self._e = np.zeros(3)  # accumulated position − integrated velocity (m, NED)
-        self._win: deque[tuple[float, float, float, float, float, float]] = deque()  # t, e(3), σ_p², σ_v²Δt
+        self._win = _RowWindow(6)  # rows t, e(3), σ_p², σ_v²Δt
         self._cp_len = np.zeros(6)  # samples since S⁺ was last zero
         self._cn_len = np.zeros(6)
         self._sv = np.ones(3)  # σ of the velocity innovation (m/s)
@@ -280,7 +319,7 @@ class AidingMonitor:
             self._e = np.zeros(3)
             self._win.append((g.t, 0.0, 0.0, 0.0, sp_ne * sp_ne, 0.0))
         self._prev = g
-        while self._win and self._win[0][0] < g.t - c.window:
+        while self._win and self._win.first_t() < g.t - c.window:
             self._win.popleft()
         cons, rate_c = self._consistency(sp_d / sp_ne)
         self.stats["gnss_consistency"] = cons
@@ -312,7 +351,7 @@ class AidingMonitor:
                 n = max(1.0, self._cn_len[axis] if self._cn[axis] > self._cp[axis] else self._cp_len[axis])
                 if not bad_c and axis < 3 and len(self._win) >= 3:
                     # position pull: slope of the consistency sum since the CUSUM's change point (n fixes)
-                    a = np.array(list(self._win)[-max(3, int(n) + 1) :])
+                    a = self._win.array()[-max(3, int(n) + 1) :]
                     rate = float(np.linalg.norm(_slope(a[:, 0], a[:, 1:4])[0]))
                 elif not bad_c:  # velocity shift: Page's estimate (k + S/n)·σ_v
                     rate = max(rate_c, float((c.cusum_k + cus / n) * self._sv[axis - 3]))
@@ -374,9 +413,11 @@ class AidingMonitor:
     def _consistency(self, ratio_d: float) -> tuple[float, float]:
         """χ²₃ statistic of the position-vs-velocity slope and its norm (m/s)."""
         w = self._win
-        if len(w) < 3 or w[-1][0] - w[0][0] < self.cfg.min_span:
+        if len(w) < 3:
             return 0.0, 0.0
-        a = np.array(w)
+        a = w.array()
+        if a[-1, 0] - a[0, 0] < self.cfg.min_span:
+            return 0.0, 0.0
         t = a[:, 0]
         b, sxx = _slope(t, a[:, 1:4])
         span = float(t[-1] - t[0])
