@@ -12,7 +12,7 @@ from runtime_helpers import sim_config, sim_config_dict
 from ins_hil.config import ConfigError, from_dict
 from ins_hil.runtime.loop import AID_MAX_WAIT_S, Gateway
 from ins_hil.runtime.pipeline import aiding_monitor
-from ins_hil.runtime.rt import policy, set_realtime
+from ins_hil.runtime.rt import lock_memory, policy, set_realtime
 from ins_hil.types import BaroSample, GnssFix, ImuSample
 
 G = 9.80665
@@ -39,12 +39,13 @@ def test_set_realtime_range_and_time_sharing() -> None:
 
 
 def test_set_realtime_in_a_child_process() -> None:
-    # SCHED_FIFO in a forked child (root here; elsewhere the reason is returned, never an exception)
+    # SCHED_FIFO and locked memory in a forked child (root here; elsewhere the reason is returned, never raised)
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:  # pragma: no cover - child
-        why = set_realtime(10)
-        os.write(w, (why or policy()).encode())
+        why = set_realtime(10) or lock_memory()
+        locked = any(ln.startswith("VmLck:") and ln.split()[1] != "0" for ln in open("/proc/self/status"))
+        os.write(w, (why or (policy() if locked else "not locked")).encode())
         os._exit(0)
     os.close(w)
     os.waitpid(pid, 0)

@@ -113,3 +113,20 @@ def test_accuracy_stability_flags_growth_divergence_and_silence() -> None:
     assert big["stable"] is False and "above 50" in big["note"]
     quiet = accuracy_stability(t[t < 300], flat[t < 300], 30.0, 600.0)
     assert quiet["stable"] is False and "stop" in quiet["note"]
+
+
+def test_steal_summary_counts_slow_samples_in_seconds_with_host_steal() -> None:
+    from ins_hil.soak.analysis import CLK_TCK, steal_summary
+    from ins_hil.soak.orchestrate import steal_ticks
+
+    # cumulative steal ticks of (sensor CPU, gateway CPU) sampled once a second; steal only in (2, 3]
+    proc = [{"t": float(k), "steal": [0, 0] if k < 3 else [CLK_TCK // 100, 2 * CLK_TCK // 100]} for k in range(6)]
+    t_e2e = np.array([0.5, 2.5, 2.6, 4.5])
+    lat = np.array([3e6, 3e6, 1e6, 3e6])  # ns: three over 2 ms, one of them at 2.5 s
+    s = steal_summary(proc, t_e2e, lat, 10.0)
+    assert s["seconds_per_cpu"] == [0.01, 0.02]
+    assert s["intervals_with_steal"] == 1 and s["intervals"] == 5
+    assert s["e2e_over_2ms"] == 3 and s["e2e_over_2ms_in_steal_seconds"] == 1
+    assert steal_summary(proc[:1], t_e2e, lat, 10.0) == {}
+    live = steal_ticks((0,))  # this machine's /proc/stat
+    assert len(live) == 1 and live[0] >= 0

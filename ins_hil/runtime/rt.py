@@ -41,6 +41,22 @@ def set_realtime(priority: int) -> str:
     return ""
 
 
+def lock_memory() -> str:
+    """``mlockall(MCL_CURRENT | MCL_FUTURE)``: keep every page of this process resident, so the IMU path
+    never waits for a page fault (standard practice for a real-time process; needs root, CAP_IPC_LOCK
+    or a large enough RLIMIT_MEMLOCK). Returns ``""`` on success, else why not."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        if libc.mlockall(1 | 2) != 0:  # MCL_CURRENT | MCL_FUTURE
+            return f"mlockall: {os.strerror(ctypes.get_errno())}"
+    except (OSError, AttributeError) as e:
+        return f"mlockall: {e}"
+    return ""
+
+
 def policy(pid: int = 0) -> str:
     """A process's (0: this one) scheduling policy and priority, e.g. ``"SCHED_FIFO 50"`` or ``"SCHED_OTHER"``."""
     if not hasattr(os, "sched_getscheduler"):

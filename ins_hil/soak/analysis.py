@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ from ins_hil.nav.earth import radii
 from ins_hil.soak.faults import geometry_for, parse_faults
 
 #: the issue's targets (1 kHz, Python core, 2 cores)
+CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 TARGETS = {"e2e_p99_us": 1000.0, "e2e_p999_us": 2000.0, "lost_frames": 0, "rss_growth_mib_per_h": 1.0}
 #: RSS growth is judged only when at least this much run is left after warm-up (s)
 RSS_MIN_SPAN_S = 600.0
@@ -67,6 +69,29 @@ def end_to_end(emission: np.ndarray, odo: np.ndarray) -> tuple[np.ndarray, np.nd
     ok = et[i] == odo[:, 0]
     lat = odo[ok, 1] - en[i[ok]]
     return odo[ok, 0] * 1e-6, lat, int((~ok).sum())
+
+
+def steal_summary(proc: list[dict[str, Any]], t_e2e: np.ndarray, lat_ns: np.ndarray, duration: float) -> dict[str, Any]:
+    """Host steal time per CPU over the run (s; /proc/stat, 10 ms resolution) and how many of the
+    end-to-end samples over 2 ms fall in a second in which either CPU had steal time."""
+    rows = [r for r in proc if r.get("steal") and r["t"] <= duration]
+    if len(rows) < 2:
+        return {}
+    t = np.array([r["t"] for r in rows])
+    st = np.array([r["steal"] for r in rows], dtype=float) / CLK_TCK  # s, cumulative, (n, cpus)
+    d = np.diff(st, axis=0)  # per interval
+    any_steal = d.sum(axis=1) > 0
+    slow = t_e2e[lat_ns > 2e6] if len(lat_ns) else np.zeros(0)
+    k = np.searchsorted(t, slow) - 1  # interval (t[k], t[k+1]] of each slow sample
+    ok = (k >= 0) & (k < len(d))
+    in_steal = int(np.count_nonzero(any_steal[k[ok]]))
+    return {
+        "seconds_per_cpu": [float(x) for x in (st[-1] - st[0])],
+        "intervals_with_steal": int(np.count_nonzero(any_steal)),
+        "intervals": len(d),
+        "e2e_over_2ms": len(slow),
+        "e2e_over_2ms_in_steal_seconds": in_steal,
+    }
 
 
 def growth_per_hour(t: np.ndarray, v: np.ndarray, warmup: float) -> tuple[float, float]:
@@ -277,6 +302,8 @@ def analyse(d: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
             "fds_max": int(fds[run].max()),
         }
         series[f"rss_{k}_t"], series[f"rss_{k}_mib"] = t, rss
+    # -- host steal time (virtual machines) ------------------------------------------------
+    steal = steal_summary(proc, t_e2e, lat, float(opt["duration"]))
     # -- queue, per-second gateway windows ---------------------------------------------
     if ts:
         t0 = proc[0]["mono_ns"] - proc[0]["t"] * 1e9 if proc else ts[0]["mono_ns"]
@@ -358,6 +385,7 @@ def analyse(d: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
             "by_reason": by_reason,
         },
         "resources": res,
+        "steal": steal,
         "accuracy": acc,
         "faults": fc,
         "gcs_messages": gcs["messages"],

@@ -73,6 +73,21 @@ def allowed_cpus(pid: int) -> str:
     return "?"
 
 
+def steal_ticks(cpus: tuple[int, ...]) -> list[int]:
+    """Cumulative steal time (USER_HZ ticks, /proc/stat) of these CPUs: time the hypervisor ran
+    something else on our virtual CPUs, which no priority inside the guest can prevent ([] if unknown)."""
+    try:
+        lines = Path("/proc/stat").read_text().splitlines()
+    except OSError:
+        return []
+    by_cpu = {}
+    for line in lines:
+        f = line.split()
+        if f and f[0].startswith("cpu") and f[0] != "cpu" and len(f) > 8:
+            by_cpu[int(f[0][3:])] = int(f[8])
+    return [by_cpu.get(c, 0) for c in cpus]
+
+
 def proc_sample(pid: int) -> dict[str, float] | None:
     """CPU seconds, RSS (bytes), open fds and threads of a live process (None if it is gone)."""
     try:
@@ -172,7 +187,7 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
         while True:
             time.sleep(1.0 - (time.monotonic() - t0) % 1.0)
             el = time.monotonic() - t0
-            row: dict[str, Any] = {"t": el, "mono_ns": time.monotonic_ns()}
+            row: dict[str, Any] = {"t": el, "mono_ns": time.monotonic_ns(), "steal": steal_ticks((cpu_s, cpu_g))}
             for k, pid in pids.items():
                 s = proc_sample(pid)
                 if s is not None:

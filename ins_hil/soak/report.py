@@ -199,6 +199,17 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
             f"({_f(v['rss_max_mib'], 1)}) | {_f(v['rss_growth_mib_per_h'], 2)} | {v['fds_start']} → "
             f"{v['fds_end']} ({v['fds_max']}) |"
         )
+    st = m.get("steal") or {}
+    if st:
+        sec = st["seconds_per_cpu"]
+        lines += [
+            "",
+            f"Host steal time (/proc/stat, 10 ms resolution: the hypervisor ran something else on this virtual "
+            f"machine's CPUs, which no priority inside it can prevent): sensor CPU {sec[0]:.2f} s, gateway CPU "
+            f"{sec[-1]:.2f} s, in {st['intervals_with_steal']} of {st['intervals']} one-second intervals; "
+            f"{st['e2e_over_2ms_in_steal_seconds']} of the {st['e2e_over_2ms']} end-to-end samples over 2 ms "
+            "fell in such an interval.",
+        ]
     lines += [
         "",
         "| navigation error (after the settling time) | RMS first third | RMS last third | max | stable |",
