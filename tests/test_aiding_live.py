@@ -19,8 +19,8 @@ from ins_hil.config import from_dict
 from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 from ins_hil.runtime.pipeline import Pipeline
 from ins_hil.sim import faults as fl
-from ins_hil.sim.devices import schedule, truth_chunks
-from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, NavState
+from ins_hil.sim.devices import send_order
+from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState
 
 
 class _Shadow:
@@ -61,18 +61,16 @@ def _fly(duration: float, fault: str = "", rate: float = 0.0, shadow: AidingConf
         pipe._aid_mon = _Shadow(mon, shadow_mon)
     d = rate * np.array((0.6, 0.8, 0.0))
     events: list[FaultEvent] = []
-    for truth, imu, fixes, baro in truth_chunks(sim):
-        if fault:
-            fixes = fl.gnss_drift(fixes, 60.0, d, match_velocity=fault == "spoof")
-        samples = list(imu.samples())
-        for _, kind, i in schedule(imu.t, fixes, baro, sim.gnss_latency):  # the devices' send order
-            if kind == 0:
-                pipe.imu(samples[i])
-                events += pipe.drain_events()
-            else:
-                pipe.aid((fixes if kind == 1 else baro)[i])
-        if truth.t[-1] >= duration - 1e-9:
-            break
+
+    def alter(fixes: list, baro: list) -> tuple[list, list]:
+        return (fl.gnss_drift(fixes, 60.0, d, match_velocity=fault == "spoof") if fault else fixes), baro
+
+    for s in send_order(sim, duration, alter):  # the devices' send order
+        if isinstance(s, ImuSample):
+            pipe.imu(s)
+            events += pipe.drain_events()
+        else:
+            pipe.aid(s)
     return events, pipe.counts, shadow_mon
 
 

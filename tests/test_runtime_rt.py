@@ -64,7 +64,7 @@ def test_the_c_core_fuses_late_fixes_as_current_for_the_drift_monitor() -> None:
 def test_aiding_is_fused_after_the_next_published_imu_state() -> None:
     cfg = sim_config(core={"init": "config", "init_lat_deg": 50.0, "init_lon_deg": 30.0, "init_h": 100.0})
 
-    async def go() -> tuple[list[str], list[str]]:
+    async def go() -> tuple[list[str], list[str], list[str]]:
         gw = Gateway(cfg)
         order: list[str] = []
         gw.on_state.append(lambda st: order.append(f"state {st.t:.3f}"))
@@ -81,13 +81,24 @@ def test_aiding_is_fused_after_the_next_published_imu_state() -> None:
         gw._process_queue()
         first = list(order)
         order.clear()
+        # a backlog: the aiding has already waited longer than AID_MAX_WAIT_S when the next IMU state is
+        # published, so it is fused right then, before the IMU samples still in the queue
+        gw.queue.append((BaroSample(t=0.0055, pressure=1e5), "gnss"))
+        gw.queue.append((_imu(6), "imu0"))
+        gw.queue.append((_imu(7), "imu0"))
+        gw._aid_wait.append(gw.queue.popleft()[0])
+        gw._aid_since, gw._published = 0, False
+        gw._process_queue()
+        backlog = list(order)
+        order.clear()
         # no IMU sample follows: fused by the timer after at most AID_MAX_WAIT_S
         gw.queue.append((GnssFix(t=0.0045, lat=0.87, lon=0.52, h=100.0), "gnss"))
         gw._process_queue()
         assert order == [] and gw._aid_wait
         await asyncio.sleep(AID_MAX_WAIT_S + 0.02)
-        return first, order
+        return first, backlog, order
 
-    first, second = asyncio.run(go())
+    first, backlog, second = asyncio.run(go())
+    assert backlog == ["state 0.006", "aid BaroSample", "state 0.007"]
     assert first == ["state 0.001", "state 0.002", "state 0.003", "state 0.004", "state 0.005", "aid BaroSample"]
     assert second == ["aid GnssFix"]

@@ -504,7 +504,7 @@ def _aid_live_run(seed: int, fault: str, size: float) -> tuple[list, dict[str, i
     from ins_hil.config import default_path, from_dict
     from ins_hil.runtime.pipeline import Pipeline
     from ins_hil.sim import faults as fl
-    from ins_hil.sim.devices import schedule, truth_chunks
+    from ins_hil.sim.devices import send_order
 
     cfg = from_dict(tomllib.loads(Path(default_path()).read_text()), "bench")
     sim = cfg.sim
@@ -512,20 +512,20 @@ def _aid_live_run(seed: int, fault: str, size: float) -> tuple[list, dict[str, i
     pipe = Pipeline(cfg.pipeline)
     d = size * np.array((math.cos(0.3 * seed), math.sin(0.3 * seed), 0.0))
     ev: list = []
-    for truth, imu, fixes, baro in truth_chunks(sim):
+
+    def alter(fixes: list, baro: list) -> tuple[list, list]:
         if fault in ("pull", "spoof"):
             fixes = fl.gnss_drift(fixes, AID_LIVE_T_FAULT, d, match_velocity=fault == "spoof")
         elif fault == "baro":
             baro = fl.baro_drift(baro, AID_LIVE_T_FAULT, size)
-        samples = list(imu.samples())
-        for _, kind, i in schedule(imu.t, fixes, baro, sim.gnss_latency):  # the devices' send order
-            if kind == 0:
-                pipe.imu(samples[i])
-                ev += pipe.drain_events()
-            else:
-                pipe.aid((fixes if kind == 1 else baro)[i])
-        if truth.t[-1] >= AID_LIVE_T_END - 1e-9:
-            break
+        return fixes, baro
+
+    for s in send_order(sim, AID_LIVE_T_END, alter):
+        if isinstance(s, ImuSample):
+            pipe.imu(s)
+            ev += pipe.drain_events()
+        else:
+            pipe.aid(s)
     return ev, pipe.counts
 
 

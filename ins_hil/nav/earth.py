@@ -82,11 +82,16 @@ def geodetic_rates(lat: float, h: float, v_ned: Vec) -> tuple[float, float, floa
     )
 
 
-def geodetic_to_ecef(lat: float, lon: float, h: float) -> Vec:
-    """ECEF position (m) of a geodetic point."""
+def ecef_xyz(lat: float, lon: float, h: float) -> tuple[float, float, float]:
+    """ECEF position (m) of a geodetic point as Python floats (no array: the per-message MAVLink path)."""
     _, n = radii(lat)
     cl, sl = math.cos(lat), math.sin(lat)
-    return np.array([(n + h) * cl * math.cos(lon), (n + h) * cl * math.sin(lon), (n * (1.0 - E2_WGS84) + h) * sl])
+    return (n + h) * cl * math.cos(lon), (n + h) * cl * math.sin(lon), (n * (1.0 - E2_WGS84) + h) * sl
+
+
+def geodetic_to_ecef(lat: float, lon: float, h: float) -> Vec:
+    """ECEF position (m) of a geodetic point."""
+    return np.array(ecef_xyz(lat, lon, h))
 
 
 def ecef_to_geodetic(r: Vec) -> tuple[float, float, float]:

@@ -154,6 +154,8 @@ class Gateway:
                     self._text(6 if st.aligned else 4, "INS aligned" if st.aligned else "INS alignment lost")
                 if st.test_ratios:
                     m.test_ratios = st.test_ratios
+                if aid_wait and ready - self._aid_since > AID_MAX_WAIT_NS:
+                    self._fuse_waiting()  # a backlog of IMU samples: the aiding does not wait longer
             else:
                 # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
                 t = clock.to_sensor(s.t)
@@ -168,8 +170,6 @@ class Gateway:
                     self._published = False
                     self._aid_since = mono()
                 aid_wait.append(s)
-                if mono() - self._aid_since > AID_MAX_WAIT_NS:  # a backlog of IMU samples: do not wait longer
-                    self._fuse_waiting()
             if pipe.events:
                 for ev in pipe.drain_events():
                     self._fault(ev)

@@ -340,7 +340,7 @@ class MavlinkEndpoint:
         self._gnss: GnssFix | None = None
         self._gnss_new = False
         self._home: tuple[float, float, float] | None = None
-        self._home_ecef = (0.0, 0.0, 0.0)  # ECEF point of the home (m)
+        self._home_ecef: tuple[float, float, float] = (0.0, 0.0, 0.0)  # ECEF point of the home (m)
         self._home_cen: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)  # C_e^n at home, row-major
         self.sent: dict[str, int] = {}
         self._t0_ns = time.monotonic_ns()
@@ -519,7 +519,7 @@ class MavlinkEndpoint:
         """The first position is the home of LOCAL_POSITION_NED/ODOMETRY (and GLOBAL_POSITION_INT's
         relative altitude); its ECEF point and C_e^n are cached here as floats."""
         self._home = (st.lat, st.lon, st.h)
-        self._home_ecef = tuple(earth.geodetic_to_ecef(st.lat, st.lon, st.h).tolist())
+        self._home_ecef = earth.ecef_xyz(st.lat, st.lon, st.h)
         self._home_cen = tuple(earth.dcm_ecef_to_ned(st.lat, st.lon).ravel().tolist())
 
     def _home_ned(self, st: NavState) -> tuple[float, float, float]:
@@ -527,13 +527,7 @@ class MavlinkEndpoint:
         (C_e^n(home) · (r_e − r_e,home)) in scalar floats with the home's terms cached."""
         if self._home is None:
             self._set_home(st)
-        lat, h = st.lat, st.h
-        _, n = earth.radii(lat)  # seed 001 eq. 3
-        cl, sl = math.cos(lat), math.sin(lat)
-        # ECEF of the state: the same expression as earth.geodetic_to_ecef
-        x = (n + h) * cl * math.cos(st.lon)
-        y = (n + h) * cl * math.sin(st.lon)
-        z = (n * (1.0 - earth.E2_WGS84) + h) * sl
+        x, y, z = earth.ecef_xyz(st.lat, st.lon, st.h)
         x0, y0, z0 = self._home_ecef
         dx, dy, dz = x - x0, y - y0, z - z0
         c = self._home_cen

@@ -33,7 +33,7 @@ import sys
 import threading
 import time
 import tty
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -213,6 +213,22 @@ def schedule(imu_t: Any, fixes: list[Any], baro: list[Any], gnss_latency: float)
     sched += [(b.t, 2, i) for i, b in enumerate(baro)]
     sched.sort()
     return sched
+
+
+def send_order(
+    cfg: SimConfig, duration: float, alter: Callable[[list[Any], list[Any]], tuple[list[Any], list[Any]]] | None = None
+) -> Iterator[Any]:
+    """Every simulated input (ImuSample, GnssFix, BaroSample) of :func:`truth_chunks` in the devices'
+    send order (:func:`schedule`) for ``duration`` s, without real time: the offline stand-in for a live
+    run. ``alter(fixes, baro) -> (fixes, baro)`` may inject aiding faults chunk by chunk."""
+    for truth, imu, fixes, baro in truth_chunks(cfg):
+        if alter is not None:
+            fixes, baro = alter(fixes, baro)
+        samples = list(imu.samples())
+        for _, kind, i in schedule(imu.t, fixes, baro, cfg.gnss_latency):
+            yield samples[i] if kind == 0 else (fixes if kind == 1 else baro)[i]
+        if truth.t[-1] >= duration - 1e-9:
+            return
 
 
 class SensorLink:

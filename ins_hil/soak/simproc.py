@@ -15,8 +15,8 @@ the fault schedule injected (:mod:`ins_hil.sim.faults`), and writes to ``--out``
 * ``sim.json``: frames written and dropped (pty full) per link, send lateness, scheduling.
 
 The sensor data (trajectory, sensor errors, faults, encoded frames, send schedule) are made
-by a producer process (:func:`produce`, time-shared at low priority on the same CPU) a few
-10-s chunks ahead into a temporary directory (``/dev/shm``); the emitter maps them and only
+by a producer process (:func:`produce`, SCHED_IDLE on the same CPU) up to 64 10-s chunks
+ahead (16 before the start) into a temporary directory (``/dev/shm``); the emitter maps them and only
 writes, so a long computation never delays an emission. With ``--rt`` the emitter runs
 under SCHED_FIFO (:mod:`ins_hil.runtime.rt`).
 
