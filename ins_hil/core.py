@@ -65,6 +65,8 @@ class NavConfig:
     the vertical NHC is applied in the road frame, the body pitched by k a_x from it (squat/dive).
     nhc_lever_b: IMU → the vehicle point whose lateral/vertical velocity is zero (body FRD, m); with
     ``filter.mount_states`` the residual IMU → vehicle boresight is estimated (NHC only, needs ``nhc``).
+    nhc_omega_lp_hz: corner (Hz) of a causal first-order low-pass of the body rate used in the NHC lever-arm
+    term ω × l only (0 = the raw rate, which on a car carries the engine/road vibration).
     adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
     the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
     separately at its own time of validity (delayed fusion).
@@ -98,6 +100,7 @@ class NavConfig:
     nhc_std_vertical: float = 0.1
     nhc_lever_b: Vec = field(default_factory=lambda: np.zeros(3))
     nhc_pitch_per_accel: float = 0.0
+    nhc_omega_lp_hz: float = 0.0
     zupt: bool = False
     zupt_std: float = 0.02
     zupt_gyro: float = 0.02
@@ -129,6 +132,8 @@ class NavConfig:
             )
         if not 0.0 <= self.max_delay <= 2.0:
             raise ValueError(f"NavConfig.max_delay={self.max_delay}: expected 0..2 s")
+        if self.nhc_omega_lp_hz < 0.0:
+            raise ValueError(f"NavConfig.nhc_omega_lp_hz={self.nhc_omega_lp_hz}: expected >= 0 (0 = raw rate)")
         if self.filter.mount_states and not self.nhc:
             raise ValueError(
                 "NavConfig.filter.mount_states=True needs nhc=True (the boresight is seen by the NHC only)"
@@ -176,6 +181,10 @@ class NavCore:
         self._still_time = 0.0
         self._ema_w = np.zeros(3)
         self._ema_f = np.array((0.0, 0.0, -9.80665))
+        self._w_lp = np.zeros(3)  # low-passed body rate for the NHC lever-arm term (nhc_omega_lp_hz)
+        self._lever_on = bool(np.any(self.cfg.nhc_lever_b != 0.0))
+        self._lever_lp = self.cfg.nhc_omega_lp_hz > 0.0 and self._lever_on
+        self._mounted = self.idx.mnt is not None or self._lever_on or self.cfg.nhc_pitch_per_accel != 0.0
         self._g_local = 9.80665
         self._baro_offset: float | None = None
         self._t_baro = 0.0
@@ -266,6 +275,9 @@ class NavCore:
         # 0.05 m/s² (second order) but the horizontal specific force by 1 m/s², so the ZUPT stops in time
         self._ema_f = self._ema_f + a * (self.ins.f_ned - self._ema_f)
         w, f = self._ema_w, self._ema_f
+        if self._lever_lp:
+            b = 1.0 - math.exp(-2.0 * math.pi * c.nhc_omega_lp_hz * imu.dt)  # first-order IIR, causal
+            self._w_lp = self._w_lp + b * (self.omega_b - self._w_lp)
         wn = math.sqrt(float(w[0]) ** 2 + float(w[1]) ** 2 + float(w[2]) ** 2)
         fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + (float(f[2]) + self._g_local) ** 2)  # |f − (0, 0, −g)|
         vn = s.vel_ned
@@ -287,7 +299,7 @@ class NavCore:
                 self._ema_w = np.zeros(3)
         elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
             C = dcm_from_quat(s.q_nb)
-            if self.idx.mnt is not None or np.any(c.nhc_lever_b != 0.0) or c.nhc_pitch_per_accel != 0.0:
+            if self._mounted:
                 R = dcm_from_quat(self.q_mount)
                 if c.nhc_pitch_per_accel != 0.0:
                     # suspension pitch (squat/dive): the body pitches nose-up by θ = k a_x relative to the road
@@ -297,7 +309,8 @@ class NavCore:
                     th = c.nhc_pitch_per_accel * ax
                     ct, st_ = math.cos(th), math.sin(th)
                     R = R @ np.array(((ct, 0.0, st_), (0.0, 1.0, 0.0), (-st_, 0.0, ct)))
-                z, H, _ = mm.nonholonomic_mounted(self.idx, C, s.vel_ned, R, self.omega_b, c.nhc_lever_b)
+                w_l = self._w_lp if self._lever_lp else self.omega_b
+                z, H, _ = mm.nonholonomic_mounted(self.idx, C, s.vel_ned, R, w_l, c.nhc_lever_b)
             else:
                 z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
             if c.nhc_vertical:
@@ -315,7 +328,7 @@ class NavCore:
             st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
             ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
             kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next, self._still_time,
-            self.q_mount, self.G,
+            self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp,
         )  # fmt: skip
 
     def _restore(self, d: tuple[Any, ...]) -> None:
@@ -324,7 +337,7 @@ class NavCore:
         (st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
          ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
          kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next,
-         self._still_time, self.q_mount, self.G) = d  # fmt: skip
+         self._still_time, self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp) = d  # fmt: skip
         kf.x = np.zeros(kf.n)
 
     def _fuse_delayed(self, meas: GnssFix | BaroSample | MagSample) -> bool:

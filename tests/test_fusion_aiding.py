@@ -323,3 +323,80 @@ def test_c_core_refuses_the_gyro_g_sensitivity_states():
     init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
     with pytest.raises(ValueError, match=r"not supported by the C core: filter\.gyro_gsens"):
         CNavCore(init, NavConfig(filter=FilterConfig(gyro_gsens=True)))
+
+
+def test_delayed_fusion_rollback_restores_the_ground_aid_averages():
+    """Bug fixed in session 4: the snapshots for delayed fusion did not hold the exponentially averaged rate
+    and specific force of the ZUPT rest detector (also the suspension-pitch a_x), so every rollback fed the
+    replayed IMU samples into the averages a second time. A rollback for a measurement that changes nothing
+    (a velocity-only GNSS record without a velocity, 0.2 s late) must leave the core exactly as it was."""
+    from ins_hil.types import GnssFix
+
+    dt = 0.01
+    truth = tr.generate(tr.car_profile(t_start=1.0, ramp=3.0), 8.0, dt, LAT0, LON0, H0)
+    rng = np.random.default_rng(1)
+    imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=2).samples()
+    core = NavCore(_init(truth), NavConfig(nhc=True, zupt=True, max_delay=0.3))
+    for s in imu:
+        core.step(s)
+    before = (core._ema_f.copy(), core._ema_w.copy(), core.state().vel_ned.copy())
+    assert core.stats["zupt"].accepted > 10 and core.stats["nhc"].accepted > 10
+    core.fuse(GnssFix(t=imu[-1].t - 0.2, lat=math.nan, lon=math.nan, h=math.nan))  # rollback + replay, no update
+    assert np.array_equal(core._ema_f, before[0])  # before the fix: differed by ~1e-3 m/s²
+    assert np.array_equal(core._ema_w, before[1])
+    assert np.array_equal(core.state().vel_ned, before[2])
+
+
+def test_nhc_lever_arm_uses_a_low_passed_rate():
+    """``nhc_omega_lp_hz`` (session 4): the NHC at a point 1.5 m behind the IMU adds ω × l to the IMU velocity.
+    A car at 10 m/s on a straight level road whose gyro also reads a 12 Hz mount vibration (0.2 rad/s about y,
+    zero mean; not a motion of the car), aligned (small initial σ), no GNSS: with the raw rate, ω × l carries
+    0.3 m/s of vertical 'velocity' that the 10 Hz NHC aliases into the pitch and the vertical velocity; the
+    low-passed rate (1 Hz) mostly removes it."""
+    lat, h, dt = LAT0, H0, 0.005
+    g = earth.normal_gravity(lat, h)
+    wv, fv = 0.2, 12.0
+    err = {}
+    for hz in (0.0, 1.0):
+        f = FilterConfig(init_gyro_bias=0.01, init_att=0.01, init_yaw=0.01, init_vel=0.1)
+        cfg = NavConfig(nhc=True, nhc_lever_b=np.array((-1.5, 0.0, 0.0)), nhc_omega_lp_hz=hz, filter=f)
+        core = NavCore(StrapdownState(np.array([1.0, 0, 0, 0]), np.array((10.0, 0.0, 0.0)), lat, LON0, h), cfg)
+        pitch = []
+        for n in range(2000):
+            t0, t1 = n * dt, (n + 1) * dt
+            dth_y = wv / (2 * math.pi * fv) * (math.sin(2 * math.pi * fv * t1) - math.sin(2 * math.pi * fv * t0))
+            core.step(ImuSample(t=t1, dt=dt, dtheta=np.array((0.0, dth_y, 0.0)), dvel=np.array((0.0, 0.0, -g)) * dt))
+            pitch.append(euler_from_quat(core.state().q_nb)[1])
+        assert core.stats["nhc"].accepted > 90  # 10 Hz for 10 s
+        v = core.state().vel_ned
+        err[hz] = (float(np.sqrt(np.mean(np.square(pitch[1000:])))), abs(float(v[2])))
+    # measured: pitch RMS 0.0146 → 0.0070 rad, vertical velocity 0.21 → 0.05 m/s
+    assert err[1.0][0] < 0.7 * err[0.0][0]
+    assert err[1.0][1] < 0.5 * err[0.0][1]
+    with pytest.raises(ValueError, match="nhc_omega_lp_hz"):
+        NavConfig(nhc_omega_lp_hz=-1.0)
+
+
+def test_per_axis_accelerometer_scale_factor_prior_learns_a_forward_scale_factor():
+    """``FilterConfig.init_accel_sf`` (session 4): a car whose forward accelerometer reads 2 % high (a MEMS
+    scale-factor error) accelerates to 10 m/s with GNSS, then brakes to rest in a 10 s GNSS outage. With the
+    default 0.2 % prior the x scale factor is barely learnt; with a 3 % prior on x only it is, and the speed error
+    after the braking (0.02 × 10 m/s if not compensated) is smaller."""
+    dt = 0.01
+    truth = tr.generate(tr.car_profile(speed=10.0, t_start=2.0, t_stop=30.0, ramp=5.0), 40.0, dt, LAT0, LON0, H0)
+    sf = np.array((1.02, 1.0, 1.0))
+    imu = [ImuSample(t=float(truth.t[k + 1]), dt=dt, dtheta=truth.dtheta[k], dvel=sf * truth.dvel[k])
+           for k in range(len(truth.dtheta))]  # fmt: skip
+    fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.1, std_d=0.2, std_vel=0.02, outages=[(28.0, 40.0)]),
+                          seed=3)  # fmt: skip
+    res = {}
+    for prior in (None, (0.03, 0.002, 0.002)):
+        f = FilterConfig(scale_factors=True, init_accel_sf=prior)
+        core, _, _ = _run(truth, imu, fixes, NavConfig(filter=f, gnss_min_std=(0.1, 0.2, 0.02)))
+        res[prior is not None] = (float(core.sa[0]), float(np.linalg.norm(core.state().vel_ned - truth.vel_ned[-1])))
+        if prior is not None:
+            assert core.kf.P[core.idx.sa, core.idx.sa] < 0.03**2  # the x prior was used and then reduced
+            assert core.kf.P[core.idx.sa + 1, core.idx.sa + 1] <= 0.002**2 + 1e-12
+    assert res[True][0] == pytest.approx(0.02, abs=0.006)
+    assert abs(res[False][0] - 0.02) > 2 * abs(res[True][0] - 0.02)
+    assert res[True][1] < 0.7 * res[False][1]  # measured 0.011 vs 0.018 m/s

@@ -58,6 +58,7 @@ class FilterConfig:
     gyro axis, column = specific-force axis; ω̃ = ω + b_g + G f^b), a random walk ``gsens_sigma_rw``
     (rad/s/(m/s²)/√s) from an initial 1-σ ``init_gsens`` (a MEMS gyro: ~0.01–0.1 °/s/g ≈ 2e-5–2e-4).
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
+    init_accel_sf: per-axis initial 1-σ of the accelerometer scale factors (x, y, z; None = ``init_sf``).
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
     "qr", "cholesky", "ud" (see ``ins_hil.fusion.sqrt``).
     """
@@ -87,6 +88,7 @@ class FilterConfig:
     init_gyro_bias: float = 0.3 * DEG
     init_accel_bias: float = 0.3
     init_sf: float = 2e-3
+    init_accel_sf: tuple[float, float, float] | None = None
     cov_every: int = 1
     second_order: bool = True
     earth_terms: bool = True
@@ -174,7 +176,7 @@ class ErrorStateEKF:
             self._tau[i.ba : i.ba + 3] = c.accel_bias_tau
         if i.sg is not None and i.sa is not None:
             sig[i.sg : i.sg + 3] = c.init_sf
-            sig[i.sa : i.sa + 3] = c.init_sf
+            sig[i.sa : i.sa + 3] = c.init_sf if c.init_accel_sf is None else np.asarray(c.init_accel_sf)
             qc[i.sg : i.sg + 3] = 2.0 * c.gyro_sf_sigma**2 / c.sf_tau
             qc[i.sa : i.sa + 3] = 2.0 * c.accel_sf_sigma**2 / c.sf_tau
             self._tau[i.sg : i.sg + 6] = c.sf_tau
