@@ -382,7 +382,7 @@ Base: the session-3 settings with one bug fixed (below): validation 1.08 / 5.64 
 | fixed NHC boresight pitch −5 / +5 mrad (temporary code) | 1.20 / 6.49, 1.22 / 7.92 | 0.77/2.56, 1.22/5.70, 1.49/6.49 |
 | x SF prior 1 % + lateral row 0.73 m below | 1.03 / 5.61 | 0.48/1.85, 1.17/4.54, 1.27/5.61 |
 | x SF prior 1 % + both rows | 1.03 / 5.20 | 0.57/2.56, 1.11/4.58, 1.27/5.20 |
-| x SF prior 1 % + suspension pitch 0.002 / 0.004 rad per m/s² | 0.98 / 5.32, 0.97 / 5.79 | 0.51/2.20, 1.13/5.32, 1.18/4.85 |
+| x SF 1 % + suspension pitch 0.002 / 0.004 rad per m/s² | 0.98 / 5.32, 0.97 / 5.79 | 0.51/2.20, 1.13/5.32, 1.18/4.85 |
 
 **Bug (fixed, tested):** the delayed-fusion snapshots did not hold the ZUPT rest detector's averaged rate and
 specific force (also used for the suspension-pitch a_x): every rollback (at every GNSS epoch, for the 0.13 s
