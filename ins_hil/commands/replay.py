@@ -423,8 +423,11 @@ screened variants of it are in the session-3 table.
 
 Cost: `NavCore.step` unchanged within the noise (default config 101–115 µs on `main` and 103–115 µs on this
 branch, `time.process_time`, 20 000 steps, best of 3, loaded machine); the drive run's CPU time is unchanged
-(≈ 16–19 s per 549 s run). Protocol, run once after the choice: table at the top; before (session 3)
-1.74 / 10.36 m with ZUPT + NHC and 4.10 / 22.97 m without.
+(≈ 16–19 s per 549 s run). Protocol, run once after the choice (table at the top): 1.74 / 10.36 → 1.73 / 10.31 m
+with ZUPT + NHC, 4.10 / 22.97 m without (unchanged): the protocol target (≤ 1.5 / ≤ 6 m) is still missed.
+This report was generated under the idle scheduler (`chrt -i 0`, another job measured latency at the same
+time): its wall-clock columns (replay speed, hot path) are upper bounds, e.g. the 4.9× of the no-aids row is
+the time the job waited for the CPU, not its cost (the drive run's CPU time is ≈ 18 s, 30× real time).
 """
 
 
