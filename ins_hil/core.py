@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -361,6 +362,13 @@ class NavCore:
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
         """Apply an aiding measurement valid at ``meas.t`` (queued if in the future, fused
         on the past step's snapshot if delayed and ``delay_compensation``)."""
+        for _ in self.fuse_steps(meas):
+            pass
+
+    def fuse_steps(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
+        """:meth:`fuse` in parts, for a real-time caller: yields between the GNSS position and
+        velocity updates (each about 0.2 ms in Python), so that they can run in separate gaps
+        between IMU steps. Exhausted with no step in between, it is exactly :meth:`fuse`."""
         if self.phase != "nav":
             self._align_meas(meas)
             return
@@ -368,12 +376,13 @@ class NavCore:
             # position at t, velocity at its own (earlier) time of validity: two measurements
             pos_only = replace(meas, vel_ned=None)
             vel_only = replace(meas, t=meas.t - self.cfg.gnss_vel_delay, lat=math.nan)
-            self._fuse_one(pos_only)
-            self._fuse_one(vel_only)
+            yield from self._fuse_one(pos_only)
+            yield
+            yield from self._fuse_one(vel_only)
             return
-        self._fuse_one(meas)
+        yield from self._fuse_one(meas)
 
-    def _fuse_one(self, meas: GnssFix | BaroSample | MagSample) -> None:
+    def _fuse_one(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
         t = self.ins.state.t
         if meas.t > t + 0.5 * self._dt:
             self._pending.append(meas)
@@ -382,11 +391,17 @@ class NavCore:
             if self._fuse_delayed(meas):
                 return
         # uncompensated (or beyond the history): treat a late measurement as valid now
-        self._fuse_now(meas, assume_now=meas.t < t - 1.5 * self._dt)
+        step_n = self._step_n
+        yield from self._fuse_now_steps(meas, assume_now=meas.t < t - 1.5 * self._dt)
         if self.cfg.delay_compensation and self.cfg.max_delay > 0:
-            self._log.append((self._step_n, "meas", meas))
+            self._log.append((step_n, "meas", meas))
 
     def _fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
+        for _ in self._fuse_now_steps(meas, assume_now):
+            pass
+
+    def _fuse_now_steps(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> Iterator[None]:
+        """Fuse at the current step; yields once between a GNSS fix's position and velocity updates."""
         s = self.ins.state
         C = dcm_from_quat(s.q_nb)
         c = self.cfg
@@ -415,6 +430,7 @@ class NavCore:
                 self._h_gnss = meas.h + float((C @ lever)[2])  # IMU height from the antenna height
                 self._gnss_var_d = std_d**2
             if c.use_gnss_vel and meas.vel_ned is not None:
+                yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
                 s = self.ins.state
                 C = dcm_from_quat(s.q_nb)
                 std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale

@@ -144,7 +144,7 @@ TEMPLATE = """# Runtime: the real-time gateway
  GNSS (GPS_INPUT 5 Hz), baro (SCALED_PRESSURE     MavlinkDriver ───┼─> bounded FIFO ─> core task:
  25 Hz) MAVLink 2 ──> UDP ──────────────────────>  (TIMESYNC)      ┘    calibration → FDI → NavCore.step
                                                                         ├─> MAVLink (GCS / FC), sent inline
-                                                                        ├─> record; then aiding (GNSS/baro) fused
+                                                                        ├─> record; then one aiding segment per gap
                                                                         └─> mailbox ─> MQTT task (aiomqtt)
                                                  recorder flush task (50 ms), housekeeping (rates, windows, warnings)
 ```
@@ -155,10 +155,13 @@ TEMPLATE = """# Runtime: the real-time gateway
   on the IMU's clock. The MAVLink driver maps the GNSS/baro times onto the host clock (TIMESYNC);
   the runtime maps them onto the IMU clock with the windowed minimum of (arrival − sensor time) of
   the IMU samples (`ins_hil/runtime/clock.py`): about 1 ms of alignment error in the simulated setup.
-  Aiding measurements later than the IMU time are held until the IMU reaches them. An aiding
-  measurement taken from the FIFO is fused once the FIFO is empty after the next IMU state has been
-  published (at most 5 ms later without IMU): a GNSS update costs ~0.5 ms in the Python core and
-  falls in the slack before the next IMU sample instead of delaying it.
+  Aiding measurements later than the IMU time are held until the IMU reaches them. The fusion of
+  an aiding measurement is split into segments, one per gap between IMU epochs, each run once the
+  FIFO is empty after an IMU state has been published: a GNSS fix (about 1 ms in the Python core)
+  goes in three (drift-monitor check | position update | velocity update, 0.2–0.4 ms each), so it
+  falls in the slack before the next IMU samples instead of delaying one. The schedule depends only
+  on the input order (a segment not run in its gap runs at the next epoch's start), so replay of a
+  recording performs the same operations (`Pipeline.work`).
 - **Latency** per sample: arrival → state ready (after the core returns), state ready → the first
   (highest-rate) MAVLink message of that state handed to the transport, and the sum; log-bucketed histograms (4 %
   resolution) and counters in `RuntimeMetrics`, read by the status view, MQTT health and
