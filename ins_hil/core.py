@@ -198,10 +198,13 @@ class NavCore:
         self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
         self._sd: Vec = np.zeros(9)
         self.keep_nis = False
+        self._pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
         """Propagate with one IMU interval; returns the current state."""
+        if self._pending_end is not None:
+            self.step_end()
         if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0 and self.phase == "nav":
             self._log.append((self._step_n, "imu", imu))
         self._dt = imu.dt
@@ -213,7 +216,38 @@ class NavCore:
             self._after_step()
         return self.state()
 
+    def step_begin(self, imu: ImuSample) -> NavState:
+        """The first part of :meth:`step` for a real-time caller: the strapdown mechanization only.
+        Returns the propagated state at once (its σ are those of the previous step); the caller must
+        call :meth:`step_end` (the filter time update, ground-vehicle aids, delayed-fusion history)
+        before anything else touches the core. ``step_begin`` + ``step_end`` = :meth:`step`, bit for bit,
+        except the σ of the returned state."""
+        if self._pending_end is not None:
+            self.step_end()
+        if self.phase != "nav":
+            return self.step(imu)
+        if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0:
+            self._log.append((self._step_n, "imu", imu))
+        self._dt = imu.dt
+        self._mechanize(imu)
+        self._pending_end = imu
+        return self.state()
+
+    def step_end(self) -> None:
+        """Finish the step begun by :meth:`step_begin` (no-op if none is pending)."""
+        imu = self._pending_end
+        if imu is None:
+            return
+        self._pending_end = None
+        self._time_update(imu)
+        if not self._replaying:
+            self._after_step()
+
     def _propagate(self, imu: ImuSample) -> None:
+        self._mechanize(imu)
+        self._time_update(imu)
+
+    def _mechanize(self, imu: ImuSample) -> None:
         dt = imu.dt
         dth = imu.dtheta - self.bg * dt
         dv = imu.dvel - self.ba * dt
@@ -228,9 +262,12 @@ class NavCore:
         self.omega_b = dth / dt
         self.f_b = dv / dt
         self._step_n += 1
+
+    def _time_update(self, imu: ImuSample) -> None:
+        ins = self.ins
         C = dcm_from_quat(ins.state.q_nb)
         self.kf.predict(
-            dt, C, ins.f_ned, ins.omega_ie, ins.omega_en, self.f_b, self.omega_b, ins.state.lat, ins.state.h
+            imu.dt, C, ins.f_ned, ins.omega_ie, ins.omega_en, self.f_b, self.omega_b, ins.state.lat, ins.state.h
         )
         self._ground_aids(imu)
 
@@ -369,6 +406,8 @@ class NavCore:
         """:meth:`fuse` in parts, for a real-time caller: yields between the GNSS position and
         velocity updates (each about 0.2 ms in Python), so that they can run in separate gaps
         between IMU steps. Exhausted with no step in between, it is exactly :meth:`fuse`."""
+        if self._pending_end is not None:
+            self.step_end()
         if self.phase != "nav":
             self._align_meas(meas)
             return

@@ -93,16 +93,16 @@ def test_queue_overflow_is_counted_not_silent() -> None:
     cfg = sim_config()
     cfg.gateway.queue_size = 3
 
-    async def go() -> Gateway:
+    async def go() -> tuple[Gateway, int]:
         gw = Gateway(cfg)
         sink = gw._sink_for("imu0")
-        for k in range(10):
+        for k in range(10):  # faster than the core runs (it is scheduled, not run, by the sink)
             sink(ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=np.zeros(3)))
-        return gw
+        return gw, len(gw.queue)
 
-    gw = asyncio.run(go())
+    gw, depth = asyncio.run(go())
     st = gw.metrics.snapshot()["sources"]["imu0"]
-    assert st["received"] == 10 and st["dropped"] == {"queue_full": 7} and len(gw.queue) == 3
+    assert st["received"] == 10 and st["dropped"] == {"queue_full": 7} and depth == 3
 
 
 def test_pipeline_holds_aiding_until_its_time_of_validity() -> None:

@@ -2,7 +2,8 @@
 
 Drivers call a per-source ``sink`` (non-blocking): the sample goes into one
 bounded FIFO (arrival order); when it is full the sample is dropped and
-counted (``queue_full``) — never silently. The core task drains the FIFO and
+counted (``queue_full``) — never silently. The core (a callback the sink
+schedules when the FIFO was empty) drains the FIFO and
 calls the synchronous :class:`~ins_hil.runtime.pipeline.Pipeline` on every
 sample (nothing on this path awaits I/O), records the sample (recorder:
 in-memory buffer, flushed by a 50 ms task), measures arrival → state ready,
@@ -62,7 +63,7 @@ class Gateway:
         self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.queue: deque[tuple[Sample, str]] = deque()
         self.queue_size = cfg.gateway.queue_size
-        self._wake = asyncio.Event()
+        self._scheduled = False  # _run_queue is scheduled on the event loop
         self._stop = asyncio.Event()
         self.drivers: list[Any] = []
         self.mav_outputs = [MavlinkEndpoint(e, self.metrics) for e in cfg.outputs]
@@ -83,7 +84,8 @@ class Gateway:
         stats = self.metrics.source(name)
         q = self.queue
         cap = self.queue_size
-        wake = self._wake
+        call_soon = asyncio.get_running_loop().call_soon
+        run = self._run_queue
 
         def sink(s: Sample) -> None:
             stats.received += 1
@@ -91,16 +93,24 @@ class Gateway:
                 stats.drop("queue_full")
                 return
             q.append((s, name))
-            wake.set()
+            if not self._scheduled:
+                self._scheduled = True
+                call_soon(run)
 
         return sink
 
-    # -- the core task ---------------------------------------------------------------
-    async def _core_task(self) -> None:
-        while True:
-            await self._wake.wait()
-            self._wake.clear()
+    # -- the core callback ---------------------------------------------------------
+    def _run_queue(self) -> None:
+        """The core, scheduled by the first sample put into an empty FIFO (a plain callback, not a
+        task: no future or task step per sample). A failure stops the gateway with the error."""
+        self._scheduled = False
+        if self.error is not None:
+            return
+        try:
             self._process_queue()
+        except Exception as e:
+            self.error = e
+            self.request_stop(f"core failed: {type(e).__name__}: {e}")
 
     def _process_queue(self) -> None:
         """Run the pipeline on everything in the FIFO (synchronous: never awaits).
@@ -297,10 +307,9 @@ class Gateway:
         # move it out of the collector's generations so a full collection does not scan it on the IMU path
         gc.collect()
         gc.freeze()
-        for coro, name in ((self._core_task(), "core"), (self._housekeeping(), "housekeeping")):
-            t = asyncio.create_task(coro, name=name)
-            t.add_done_callback(self._task_done)
-            self._tasks.append(t)
+        t = asyncio.create_task(self._housekeeping(), name="housekeeping")
+        t.add_done_callback(self._task_done)
+        self._tasks.append(t)
 
     def _task_done(self, t: asyncio.Task[Any]) -> None:
         if t.cancelled():

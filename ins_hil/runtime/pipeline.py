@@ -19,6 +19,13 @@ runs the segment of a gap right after publishing the epoch's state
 runs at its start. The schedule depends only on the input order, so replay
 (which never calls :meth:`work`) performs the same operations in the same order.
 
+The IMU step itself is split the same way when the core offers it (``NavCore.step_begin`` /
+``step_end``): the strapdown mechanization runs on the IMU path and its state is published;
+the filter's time update (covariance propagation, ground-vehicle aids, about 0.1 ms) runs
+after publishing, before anything else touches the core. The published state is the
+mechanized state: its σ are those of the previous step (1 ms older at 1 kHz), and a
+ground-vehicle aid (NHC/ZUPT) applied in this step's time update shows in the next state.
+
 Initialisation (until the core aligns itself): the core is created at the
 first 3-D GNSS fix, at its position and velocity, with roll/pitch levelled
 from the mean specific force of the last ``level_samples`` IMU intervals
@@ -202,6 +209,9 @@ class Pipeline:
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
         self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
         self._gap_free = False  # no aiding segment has run since the last IMU step
+        self._step_begin: Any = None  # core.step_begin / step_end when the core splits its step
+        self._step_end: Any = None
+        self._end_step: Any = None  # the pending second half of the last step (core.step_end)
         self.last_state: NavState | None = None
         if cfg.init == "config":
             self._start(
@@ -222,6 +232,9 @@ class Pipeline:
 
     def _start(self, initial: StrapdownState) -> None:
         self.core = make_core(self.cfg.core, initial, self.cfg.nav)
+        # a core that splits its step (NavCore): mechanization on the IMU path, the time update after publishing
+        self._step_begin = getattr(self.core, "step_begin", None)
+        self._step_end = getattr(self.core, "step_end", None)
 
     # -- IMU ------------------------------------------------------------------
     def imu(self, s: ImuSample) -> NavState | None:
@@ -307,6 +320,8 @@ class Pipeline:
         return self._epoch([pend[i] for i in sorted(pend)])
 
     def _epoch(self, samples: list[ImuSample]) -> NavState | None:
+        if self._end_step is not None:
+            self._finish_step()
         if self._jobs:
             if self._gap_free:  # the loop had no slack in this gap: the segment runs now
                 self._segment()
@@ -333,7 +348,11 @@ class Pipeline:
             self._level_add(s)
             self._count("imu_before_init")
             return None
-        st = core.step(s)
+        if self._step_begin is not None:
+            st = self._step_begin(s)  # mechanization only: the state goes out before the filter time update
+            self._end_step = self._step_end
+        else:
+            st = core.step(s)
         self._gap_free = True
         if self._new_jobs:
             self._jobs.extend(self._new_jobs)
@@ -353,6 +372,8 @@ class Pipeline:
         """Run one segment of queued aiding work in the current gap between IMU epochs (at most one
         per gap; the live loop calls this when it has published a state and has nothing waiting).
         Returns True when a segment ran."""
+        if self._end_step is not None:
+            self._finish_step()
         if not (self._gap_free and self._jobs):
             return False
         self._segment()
@@ -364,12 +385,29 @@ class Pipeline:
 
     def flush(self) -> None:
         """Finish every queued aiding fusion now (end of a run or of a replay)."""
+        if self._end_step is not None:
+            self._finish_step()
         self._jobs.extend(self._new_jobs)
         self._new_jobs.clear()
         while self._jobs:
             self._segment()
 
+    def _finish_step(self) -> None:
+        """The rest of the last IMU step (the filter time update, ``core.step_end``): runs before
+        anything else touches the core, after the state has been published."""
+        end = self._end_step
+        self._end_step = None
+        assert end is not None
+        end()
+        drain = getattr(self.core, "drain_events", None)
+        if drain is not None:
+            ev = drain()
+            if ev:
+                self.events.extend(ev)
+
     def _segment(self) -> None:
+        if self._end_step is not None:
+            self._finish_step()
         self._gap_free = False
         job = self._jobs[0]
         if next(job, _DONE) is _DONE:
