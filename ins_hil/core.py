@@ -249,18 +249,38 @@ class NavCore:
 
     def _mechanize(self, imu: ImuSample) -> None:
         dt = imu.dt
-        dth = imu.dtheta - self.bg * dt
-        dv = imu.dvel - self.ba * dt
-        if self.idx.gs is not None:
-            dth = dth - self.G @ imu.dvel  # gyro g-sensitivity: ω̃ = ω + b_g + G f^b (FilterConfig.gyro_gsens)
-        if self.idx.sg is not None:
-            dth = dth / (1.0 + self.sg)
-            dv = dv / (1.0 + self.sa)
         ins = self.ins
-        ins.step(dth, dv, dt)
+        if self.idx.gs is not None:
+            dth = imu.dtheta - self.bg * dt
+            dv = imu.dvel - self.ba * dt
+            dth = dth - self.G @ imu.dvel  # gyro g-sensitivity: ω̃ = ω + b_g + G f^b (FilterConfig.gyro_gsens)
+            if self.idx.sg is not None:
+                dth = dth / (1.0 + self.sg)
+                dv = dv / (1.0 + self.sa)
+            ins.step(dth, dv, dt)
+            self.omega_b = dth / dt
+            self.f_b = dv / dt
+        else:
+            # the same element-wise numbers as the array expressions above, in scalar floats (hot path)
+            a, v, bg, ba = imu.dtheta, imu.dvel, self.bg, self.ba
+            x0, x1, x2 = (
+                float(a[0]) - float(bg[0]) * dt,
+                float(a[1]) - float(bg[1]) * dt,
+                float(a[2]) - float(bg[2]) * dt,
+            )
+            u0, u1, u2 = (
+                float(v[0]) - float(ba[0]) * dt,
+                float(v[1]) - float(ba[1]) * dt,
+                float(v[2]) - float(ba[2]) * dt,
+            )
+            if self.idx.sg is not None:
+                sg, sa = self.sg, self.sa
+                x0, x1, x2 = x0 / (1.0 + float(sg[0])), x1 / (1.0 + float(sg[1])), x2 / (1.0 + float(sg[2]))
+                u0, u1, u2 = u0 / (1.0 + float(sa[0])), u1 / (1.0 + float(sa[1])), u2 / (1.0 + float(sa[2]))
+            ins.step(np.array((x0, x1, x2)), np.array((u0, u1, u2)), dt)
+            self.omega_b = np.array((x0 / dt, x1 / dt, x2 / dt))
+            self.f_b = np.array((u0 / dt, u1 / dt, u2 / dt))
         ins.state.t = imu.t
-        self.omega_b = dth / dt
-        self.f_b = dv / dt
         self._step_n += 1
 
     def _time_update(self, imu: ImuSample) -> None:
