@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -206,10 +207,13 @@ class NavCore:
         self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
         self._sd: Vec = np.zeros(9)
         self.keep_nis = False
+        self._pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
         """Propagate with one IMU interval; returns the current state."""
+        if self._pending_end is not None:
+            self.step_end()
         if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0 and self.phase == "nav":
             self._log.append((self._step_n, "imu", imu))
         self._dt = imu.dt
@@ -221,24 +225,78 @@ class NavCore:
             self._after_step()
         return self.state()
 
+    def step_begin(self, imu: ImuSample) -> NavState:
+        """The first part of :meth:`step` for a real-time caller: the strapdown mechanization only.
+        Returns the propagated state at once (its σ are those of the previous step); the caller must
+        call :meth:`step_end` (the filter time update, ground-vehicle aids, delayed-fusion history)
+        before anything else touches the core. ``step_begin`` + ``step_end`` = :meth:`step`, bit for bit,
+        except the σ of the returned state."""
+        if self._pending_end is not None:
+            self.step_end()
+        if self.phase != "nav":
+            return self.step(imu)
+        if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0:
+            self._log.append((self._step_n, "imu", imu))
+        self._dt = imu.dt
+        self._mechanize(imu)
+        self._pending_end = imu
+        return self.state()
+
+    def step_end(self) -> None:
+        """Finish the step begun by :meth:`step_begin` (no-op if none is pending)."""
+        imu = self._pending_end
+        if imu is None:
+            return
+        self._pending_end = None
+        self._time_update(imu)
+        if not self._replaying:
+            self._after_step()
+
     def _propagate(self, imu: ImuSample) -> None:
+        self._mechanize(imu)
+        self._time_update(imu)
+
+    def _mechanize(self, imu: ImuSample) -> None:
         dt = imu.dt
-        dth = imu.dtheta - self.bg * dt
-        dv = imu.dvel - self.ba * dt
-        if self.idx.gs is not None:
-            dth = dth - self.G @ imu.dvel  # gyro g-sensitivity: ω̃ = ω + b_g + G f^b (FilterConfig.gyro_gsens)
-        if self.idx.sg is not None:
-            dth = dth / (1.0 + self.sg)
-            dv = dv / (1.0 + self.sa)
         ins = self.ins
-        ins.step(dth, dv, dt)
+        if self.idx.gs is not None:
+            dth = imu.dtheta - self.bg * dt
+            dv = imu.dvel - self.ba * dt
+            dth = dth - self.G @ imu.dvel  # gyro g-sensitivity: ω̃ = ω + b_g + G f^b (FilterConfig.gyro_gsens)
+            if self.idx.sg is not None:
+                dth = dth / (1.0 + self.sg)
+                dv = dv / (1.0 + self.sa)
+            ins.step(dth, dv, dt)
+            self.omega_b = dth / dt
+            self.f_b = dv / dt
+        else:
+            # the same element-wise numbers as the array expressions above, in scalar floats (hot path)
+            a, v, bg, ba = imu.dtheta, imu.dvel, self.bg, self.ba
+            x0, x1, x2 = (
+                float(a[0]) - float(bg[0]) * dt,
+                float(a[1]) - float(bg[1]) * dt,
+                float(a[2]) - float(bg[2]) * dt,
+            )
+            u0, u1, u2 = (
+                float(v[0]) - float(ba[0]) * dt,
+                float(v[1]) - float(ba[1]) * dt,
+                float(v[2]) - float(ba[2]) * dt,
+            )
+            if self.idx.sg is not None:
+                sg, sa = self.sg, self.sa
+                x0, x1, x2 = x0 / (1.0 + float(sg[0])), x1 / (1.0 + float(sg[1])), x2 / (1.0 + float(sg[2]))
+                u0, u1, u2 = u0 / (1.0 + float(sa[0])), u1 / (1.0 + float(sa[1])), u2 / (1.0 + float(sa[2]))
+            ins.step(np.array((x0, x1, x2)), np.array((u0, u1, u2)), dt)
+            self.omega_b = np.array((x0 / dt, x1 / dt, x2 / dt))
+            self.f_b = np.array((u0 / dt, u1 / dt, u2 / dt))
         ins.state.t = imu.t
-        self.omega_b = dth / dt
-        self.f_b = dv / dt
         self._step_n += 1
+
+    def _time_update(self, imu: ImuSample) -> None:
+        ins = self.ins
         C = dcm_from_quat(ins.state.q_nb)
         self.kf.predict(
-            dt, C, ins.f_ned, ins.omega_ie, ins.omega_en, self.f_b, self.omega_b, ins.state.lat, ins.state.h
+            imu.dt, C, ins.f_ned, ins.omega_ie, ins.omega_en, self.f_b, self.omega_b, ins.state.lat, ins.state.h
         )
         self._ground_aids(imu)
 
@@ -374,6 +432,15 @@ class NavCore:
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
         """Apply an aiding measurement valid at ``meas.t`` (queued if in the future, fused
         on the past step's snapshot if delayed and ``delay_compensation``)."""
+        for _ in self.fuse_steps(meas):
+            pass
+
+    def fuse_steps(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
+        """:meth:`fuse` in parts, for a real-time caller: yields between the GNSS position and
+        velocity updates (each about 0.2 ms in Python), so that they can run in separate gaps
+        between IMU steps. Exhausted with no step in between, it is exactly :meth:`fuse`."""
+        if self._pending_end is not None:
+            self.step_end()
         if self.phase != "nav":
             self._align_meas(meas)
             return
@@ -381,12 +448,13 @@ class NavCore:
             # position at t, velocity at its own (earlier) time of validity: two measurements
             pos_only = replace(meas, vel_ned=None)
             vel_only = replace(meas, t=meas.t - self.cfg.gnss_vel_delay, lat=math.nan)
-            self._fuse_one(pos_only)
-            self._fuse_one(vel_only)
+            yield from self._fuse_one(pos_only)
+            yield
+            yield from self._fuse_one(vel_only)
             return
-        self._fuse_one(meas)
+        yield from self._fuse_one(meas)
 
-    def _fuse_one(self, meas: GnssFix | BaroSample | MagSample) -> None:
+    def _fuse_one(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
         t = self.ins.state.t
         if meas.t > t + 0.5 * self._dt:
             self._pending.append(meas)
@@ -395,11 +463,17 @@ class NavCore:
             if self._fuse_delayed(meas):
                 return
         # uncompensated (or beyond the history): treat a late measurement as valid now
-        self._fuse_now(meas, assume_now=meas.t < t - 1.5 * self._dt)
+        step_n = self._step_n
+        yield from self._fuse_now_steps(meas, assume_now=meas.t < t - 1.5 * self._dt)
         if self.cfg.delay_compensation and self.cfg.max_delay > 0:
-            self._log.append((self._step_n, "meas", meas))
+            self._log.append((step_n, "meas", meas))
 
     def _fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
+        for _ in self._fuse_now_steps(meas, assume_now):
+            pass
+
+    def _fuse_now_steps(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> Iterator[None]:
+        """Fuse at the current step; yields once between a GNSS fix's position and velocity updates."""
         s = self.ins.state
         C = dcm_from_quat(s.q_nb)
         c = self.cfg
@@ -428,6 +502,7 @@ class NavCore:
                 self._h_gnss = meas.h + float((C @ lever)[2])  # IMU height from the antenna height
                 self._gnss_var_d = std_d**2
             if c.use_gnss_vel and meas.vel_ned is not None:
+                yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
                 s = self.ins.state
                 C = dcm_from_quat(s.q_nb)
                 std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale

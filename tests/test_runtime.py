@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -92,16 +93,16 @@ def test_queue_overflow_is_counted_not_silent() -> None:
     cfg = sim_config()
     cfg.gateway.queue_size = 3
 
-    async def go() -> Gateway:
+    async def go() -> tuple[Gateway, int]:
         gw = Gateway(cfg)
         sink = gw._sink_for("imu0")
-        for k in range(10):
+        for k in range(10):  # faster than the core runs (it is scheduled, not run, by the sink)
             sink(ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=np.zeros(3)))
-        return gw
+        return gw, len(gw.queue)
 
-    gw = asyncio.run(go())
+    gw, depth = asyncio.run(go())
     st = gw.metrics.snapshot()["sources"]["imu0"]
-    assert st["received"] == 10 and st["dropped"] == {"queue_full": 7} and len(gw.queue) == 3
+    assert st["received"] == 10 and st["dropped"] == {"queue_full": 7} and depth == 3
 
 
 def test_pipeline_holds_aiding_until_its_time_of_validity() -> None:
@@ -110,21 +111,29 @@ def test_pipeline_holds_aiding_until_its_time_of_validity() -> None:
     p = Pipeline(PipelineConfig(init="config", init_lat_deg=50.0, init_lon_deg=30.0, init_h=100.0))
     fused: list[float] = []
     assert p.core is not None
-    p.core.fuse = lambda m: fused.append(m.t)  # type: ignore[method-assign]
+
+    def fuse_steps(m: BaroSample | GnssFix) -> Iterator[None]:
+        fused.append(m.t)
+        yield from ()
+
+    p.core.fuse_steps = fuse_steps  # type: ignore[attr-defined]
     g = 9.80665
     dv = np.array([0.0, 0.0, -g * 1e-3])
     for k in range(1, 4):
         p.imu(ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=dv))
-    p.aid(BaroSample(t=0.0025, pressure=1e5))  # in the past: fused now
+    p.aid(BaroSample(t=0.0025, pressure=1e5))  # in the past: fused in the gap after the next epoch
     p.aid(GnssFix(t=0.0051, lat=0.87, lon=0.52, h=100.0))  # in the future: held
     p.aid(BaroSample(t=0.0045, pressure=1e5))
-    assert fused == [0.0025]
+    assert not p.work() and fused == [] and p.pending_work() == 1  # handed over in this gap: not yet
     p.imu(ImuSample(t=0.004, dt=1e-3, dtheta=np.zeros(3), dvel=dv))
-    assert fused == [0.0025]
+    assert fused == [] and p.work() and fused == [0.0025]
+    assert not p.work()  # one segment per gap between IMU epochs
     p.imu(ImuSample(t=0.005, dt=1e-3, dtheta=np.zeros(3), dvel=dv))
-    assert fused == [0.0025, 0.0045]
-    p.imu(ImuSample(t=0.006, dt=1e-3, dtheta=np.zeros(3), dvel=dv))
-    assert fused == [0.0025, 0.0045, 0.0051]
+    assert fused == [0.0025] and p.pending_work() == 1  # 0.0045 became due at 0.005: fused in this gap
+    p.imu(ImuSample(t=0.006, dt=1e-3, dtheta=np.zeros(3), dvel=dv))  # no work() call: runs at this epoch's start
+    assert fused == [0.0025, 0.0045] and p.pending_work() == 1  # 0.0051 became due at 0.006
+    p.flush()
+    assert fused == [0.0025, 0.0045, 0.0051] and p.pending_work() == 0
 
 
 def test_histogram_percentiles() -> None:

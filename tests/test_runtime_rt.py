@@ -10,7 +10,7 @@ import pytest
 from runtime_helpers import sim_config, sim_config_dict
 
 from ins_hil.config import ConfigError, from_dict
-from ins_hil.runtime.loop import AID_MAX_WAIT_S, Gateway
+from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.pipeline import aiding_monitor
 from ins_hil.runtime.rt import lock_memory, policy, set_realtime
 from ins_hil.types import BaroSample, GnssFix, ImuSample
@@ -61,44 +61,90 @@ def test_the_c_core_fuses_late_fixes_as_current_for_the_drift_monitor() -> None:
     assert not aiding_monitor({}, "python", {}).cfg.late_fix_as_current
 
 
-def test_aiding_is_fused_after_the_next_published_imu_state() -> None:
+def test_aiding_is_fused_in_segments_one_per_gap_after_the_published_state() -> None:
     cfg = sim_config(core={"init": "config", "init_lat_deg": 50.0, "init_lon_deg": 30.0, "init_h": 100.0})
 
-    async def go() -> tuple[list[str], list[str], list[str]]:
+    async def go() -> tuple[list[str], list[str], dict[str, int]]:
         gw = Gateway(cfg)
         order: list[str] = []
         gw.on_state.append(lambda st: order.append(f"state {st.t:.3f}"))
-        fuse = gw.pipeline.aid
-        gw.pipeline.aid = lambda m: (order.append(f"aid {type(m).__name__}"), fuse(m))[1]  # type: ignore[method-assign]
+        core = gw.pipeline.core
+        assert core is not None
+        fuse_steps = core.fuse_steps
+
+        def traced(m: object) -> object:
+            order.append(f"update {type(m).__name__}")
+            for _ in fuse_steps(m):  # type: ignore[arg-type]
+                order.append("gap")
+                yield
+            order.append(f"fused {type(m).__name__}")
+
+        core.fuse_steps = traced  # type: ignore[method-assign,assignment]
+        mon = gw.pipeline._aid_mon
+        assert mon is not None
+        check = mon.check
+        mon.check = lambda m, st: (order.append(f"check {type(m).__name__}"), check(m, st))[1]  # type: ignore[method-assign]
         gw.imu_clock.update(0.0, 1)
         for k in range(1, 4):
             gw.queue.append((_imu(k), "imu0"))
         gw._process_queue()
-        # a baro sample with IMU samples behind it in the queue: fused once the queue is empty
-        gw.queue.append((BaroSample(t=0.0035, pressure=1e5), "gnss"))
+        # a GNSS fix with an IMU sample right behind it in the queue: its first segment (the drift
+        # monitor's check) is in the gap after that sample's state, then one segment per gap
+        # (check | position update | velocity update), each once the queue is empty
+        gw.queue.append((GnssFix(t=0.0035, lat=0.87, lon=0.52, h=100.0, vel_ned=(0.0, 0.0, 0.0)), "gnss"))
         gw.queue.append((_imu(4), "imu0"))
-        gw.queue.append((_imu(5), "imu0"))
         gw._process_queue()
+        for k in (5, 6, 7, 8):
+            gw.queue.append((_imu(k), "imu0"))
+            gw._process_queue()
         first = list(order)
         order.clear()
-        # a backlog: the aiding has already waited longer than AID_MAX_WAIT_S when the next IMU state is
-        # published, so it is fused right then, before the IMU samples still in the queue
-        gw.queue.append((BaroSample(t=0.0055, pressure=1e5), "gnss"))
-        gw.queue.append((_imu(6), "imu0"))
-        gw.queue.append((_imu(7), "imu0"))
-        gw._aid_wait.append(gw.queue.popleft()[0])
-        gw._aid_since, gw._published = 0, False
+        # a backlog (an IMU sample already queued when a state is published: no slack in that gap):
+        # the gap's segment runs at the start of the next epoch
+        gw.queue.append((BaroSample(t=0.0085, pressure=1e5), "gnss"))
+        for k in (9, 10, 11):
+            gw.queue.append((_imu(k), "imu0"))
         gw._process_queue()
-        backlog = list(order)
-        order.clear()
-        # no IMU sample follows: fused by the timer after at most AID_MAX_WAIT_S
-        gw.queue.append((GnssFix(t=0.0045, lat=0.87, lon=0.52, h=100.0), "gnss"))
-        gw._process_queue()
-        assert order == [] and gw._aid_wait
-        await asyncio.sleep(AID_MAX_WAIT_S + 0.02)
-        return first, backlog, order
+        return first, order, dict(gw.pipeline.counts)
 
-    first, backlog, second = asyncio.run(go())
-    assert backlog == ["state 0.006", "aid BaroSample", "state 0.007"]
-    assert first == ["state 0.001", "state 0.002", "state 0.003", "state 0.004", "state 0.005", "aid BaroSample"]
-    assert second == ["aid GnssFix"]
+    first, backlog, counts = asyncio.run(go())
+    assert first == [
+        "state 0.001", "state 0.002", "state 0.003", "state 0.004",
+        "check GnssFix",  # gap after 0.004
+        "state 0.005", "update GnssFix", "gap",  # gap after 0.005: position update
+        "state 0.006", "fused GnssFix",  # gap after 0.006: velocity update
+        "state 0.007", "state 0.008",
+    ]  # fmt: skip
+    assert backlog == [
+        "state 0.009", "check BaroSample", "update BaroSample", "fused BaroSample", "state 0.010", "state 0.011"
+    ]  # fmt: skip
+    assert counts["fused_GnssFix"] == 1 and counts["fused_BaroSample"] == 1
+
+
+def test_live_and_replay_run_the_same_aiding_segments() -> None:
+    """The pipeline's segment schedule depends only on the input order: a log replay (no work() calls)
+    reproduces the live loop's states bit for bit, with the aiding work split over gaps."""
+    from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
+
+    def run(live: bool) -> list[tuple[float, ...]]:
+        p = Pipeline(PipelineConfig(init="config", init_lat_deg=50.0, init_lon_deg=30.0, init_h=100.0))
+        out = []
+        rng = np.random.default_rng(3)
+        for k in range(1, 400):
+            s = _imu(k)
+            s.dvel = s.dvel + rng.normal(0.0, 1e-4, 3)
+            st = p.imu(s)
+            assert st is not None
+            out.append((*st.vel_ned, st.lat, st.lon, st.h, *st.q_nb))
+            if k % 50 == 0:
+                p.aid(GnssFix(t=k * 1e-3, lat=0.8726646 + 1e-7, lon=0.5235988, h=101.0, vel_ned=(0.1, 0.0, 0.0)))
+            if k % 20 == 0:
+                p.aid(BaroSample(t=k * 1e-3, pressure=1e5))
+            if live:
+                p.work()
+        p.flush()
+        assert p.counts.get("fused_GnssFix") == 7 and p.pending_work() == 0
+        return out
+
+    live, replay = run(True), run(False)
+    assert live == replay

@@ -130,3 +130,23 @@ def test_steal_summary_counts_slow_samples_in_seconds_with_host_steal() -> None:
     assert steal_summary(proc[:1], t_e2e, lat, 10.0) == {}
     live = steal_ticks((0,))  # this machine's /proc/stat
     assert len(live) == 1 and live[0] >= 0
+
+
+def test_cyclictest_histogram_statistics() -> None:
+    from ins_hil.soak.baseline import parse_histogram, section
+
+    # 1 µs bins, two CPUs; 1000 wake-ups each; CPU 1 has 2 overflows beyond the last bin (max 5000 µs)
+    lines = ["# comment"]
+    for us in range(0, 100):
+        c0 = 990 if us == 20 else (10 if us == 99 else 0)
+        c1 = 985 if us == 30 else (13 if us == 50 else 0)
+        lines.append(f"{us:06d} {c0:06d}\t{c1:06d}")
+    lines += ["# Total: 000001000 000000998", "# Max Latencies: 00099 05000", "# Histogram Overflows: 00000 00002"]
+    st = parse_histogram("\n".join(lines), [0, 1])
+    assert st[0]["n"] == 1000 and st[0]["p50_us"] == 20 and st[0]["p99_us"] == 20 and st[0]["p999_us"] == 99
+    assert st[0]["max_us"] == 99 and st[0]["over_1ms"] == 0
+    assert st[1]["n"] == 1000 and st[1]["p50_us"] == 30 and st[1]["p99_us"] == 50 and st[1]["p999_us"] == 5000
+    assert st[1]["over_1ms"] == 2 and st[1]["over_2ms"] == 2
+    table = section({"available": True, "priority": 80, "interval_us": 1000, "duration_s": 1, "cpus": st})
+    assert "| 1 | 1000 | 30 | 50 | 5000 |" in table
+    assert "not measured: x" in section({"available": False, "why": "x"})

@@ -27,7 +27,7 @@ RATE = 500.0
 def soak(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("soak")
     cmd = [sys.executable, "-m", "ins_hil", "soak", "--duration", str(DURATION), "--rate", str(RATE),
-           "--imus", "2", "--faults", "auto", "--out", str(out), "--report-only"]  # fmt: skip
+           "--imus", "2", "--faults", "auto", "--out", str(out), "--report-only", "--baseline", "3"]  # fmt: skip
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=DURATION + 120)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "[soak] main run:" in r.stdout
@@ -88,6 +88,12 @@ def test_soak_resources_accuracy_faults_and_report(soak: Path) -> None:
         assert acc["horizontal_m"]["last_rms"] < 5.0
     report = (soak / "report.md").read_text()
     assert "## Main run" in report and "end-to-end p99" in report
+    # the platform baseline (cyclictest, installed by scripts/test.d/45-rt-tests.sh): 3 s at 1 kHz per CPU
+    base = json.loads((soak / "metrics.json").read_text())["platform_baseline"]
+    assert base["available"], base
+    for st in base["cpus"].values():
+        assert 2500 <= st["n"] <= 3100 and 0 < st["p50_us"] <= st["p99_us"] <= st["p999_us"] <= st["max_us"]
+    assert "Platform baseline" in report and "cyclictest -m -p 80 -i 1000" in report
     for png in ("latency_hist.png", "latency_time.png", "rss_time.png", "error_time.png"):
         assert (d / png).stat().st_size > 5000
         assert f"main/{png}" in report

@@ -74,6 +74,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sweep-duration", type=float, default=60.0, metavar="S", help="length of each sweep run")
     p.add_argument("--loaded-duration", type=float, default=0.0, metavar="S", help="also run under load on both CPUs")
     p.add_argument("--docs", metavar="MD", help="also write the report here (e.g. docs/soak.md), plots beside it")
+    p.add_argument(
+        "--baseline",
+        type=float,
+        default=30.0,
+        metavar="S",
+        help="first measure the platform's own wake-up latency with cyclictest (rt-tests) for S s (0 = skip)",
+    )
     p.add_argument("--note", default="", help="a note printed at the top of the report (e.g. the machine's state)")
     p.add_argument("--report-only", action="store_true", help="exit 0 even when a target is missed")
     p.add_argument(
@@ -148,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         top = campaign(
             opt, rates, cores if rates else [], args.sweep_duration, args.loaded_duration, args.note, args.docs,
-            progress,
+            progress, baseline_s=max(0.0, args.baseline),
         )  # fmt: skip
     except (RuntimeError, OSError, ValueError) as e:
         print(f"\nins-hil soak: {e}", file=sys.stderr)

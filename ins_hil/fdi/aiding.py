@@ -61,7 +61,6 @@ baro/GNSS test (the GNSS CUSUM usually fires first).
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -152,11 +151,15 @@ def _dead_zone(x: np.ndarray, dz: np.ndarray) -> np.ndarray:
     return np.sign(x) * np.maximum(0.0, np.abs(x) - dz)
 
 
+_sum = np.add.reduce  # the reduction ``ndarray.mean``/``sum`` call, without their Python-level wrappers
+
+
 def _slope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     """OLS slopes of the columns of y (N, m) against t (N,), and Σ(t − t̄)²."""
-    tc = t - t.mean()
+    n = len(t)
+    tc = t - _sum(t) / n  # the numbers of t.mean(), y.mean(axis=0)
     sxx = float(tc @ tc)
-    return (tc @ (y - y.mean(axis=0))) / sxx, sxx
+    return (tc @ (y - _sum(y, axis=0) / n)) / sxx, sxx
 
 
 class _RowWindow:
@@ -230,7 +233,7 @@ class AidingMonitor:
         self._cn_len = np.zeros(6)
         self._sv = np.ones(3)  # σ of the velocity innovation (m/s)
         self._baro_last: BaroSample | None = None
-        self._bwin: deque[tuple[float, float, float]] = deque()  # t, h_baro − h_gnss, var
+        self._bwin = _RowWindow(3)  # rows t, h_baro − h_gnss, var
         self._v_ema = np.zeros(3)  # slow average of the state velocity (m/s, NED; time constant lag_tau)
         self._v_t = math.nan
         self._ins_hold = -math.inf  # INS-innovation CUSUMs held until this time (see ins_disturbed)
@@ -421,12 +424,14 @@ class AidingMonitor:
         t = a[:, 0]
         b, sxx = _slope(t, a[:, 1:4])
         span = float(t[-1] - t[0])
-        var_ne = float(a[:, 4].mean()) / sxx
-        q = float(a[1:, 5].sum()) / span  # diffusion of the integrated velocity noise (m²/s)
+        var_ne = float(_sum(a[:, 4]) / len(a)) / sxx
+        q = float(_sum(a[1:, 5])) / span  # diffusion of the integrated velocity noise (m²/s)
         var_v = 1.2 * q / span
         fl = self.cfg.rate_floor**2
-        var = np.array((var_ne + var_v + fl, var_ne + var_v + fl, var_ne * ratio_d * ratio_d + var_v + fl))
-        return float(np.sum(b * b / var)), float(np.linalg.norm(b))
+        b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
+        v_h = var_ne + var_v + fl
+        stat = b0 * b0 / v_h + b1 * b1 / v_h + b2 * b2 / (var_ne * ratio_d * ratio_d + var_v + fl)
+        return stat, math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
 
     def _reset_windows(self) -> None:
         self._win.clear()
@@ -442,15 +447,16 @@ class AidingMonitor:
             return
         vd = float(g.vel_ned[2]) if g.vel_ned is not None else 0.0
         h_b = b.altitude + vd * (b.t - g.t)  # h(t_g) = h(t_b) − ḣ·(t_b − t_g), ḣ = −v_D
-        self._bwin.append((g.t, h_b - g.h, c.baro_std**2 + sp_d * sp_d))
-        while self._bwin and self._bwin[0][0] < g.t - c.window:
-            self._bwin.popleft()
+        bw = self._bwin
+        bw.append((g.t, h_b - g.h, c.baro_std**2 + sp_d * sp_d))
+        while bw and bw.first_t() < g.t - c.window:
+            bw.popleft()
         stat, rate, tested = 0.0, 0.0, False
-        if len(self._bwin) >= 3 and self._bwin[-1][0] - self._bwin[0][0] >= c.min_span:
-            a = np.array(self._bwin)
+        if len(bw) >= 3 and g.t - bw.first_t() >= c.min_span:
+            a = bw.array()
             s, sxx = _slope(a[:, 0], a[:, 1:2])
             rate = float(s[0])
-            stat = rate * rate / (float(a[:, 2].mean()) / sxx + c.rate_floor**2)
+            stat = rate * rate / (float(_sum(a[:, 2]) / len(a)) / sxx + c.rate_floor**2)
             tested = True
         self.stats["baro_slope"] = stat
         bad = stat > self.thr_baro

@@ -186,6 +186,9 @@ class _Group:
         self.srun = 0
         self.score = np.zeros(len(self.hidx))
         self.onset = math.nan
+        # excluded rows and the σ of their residual against the healthy solution (re-admission test)
+        self._excl = [int(k) for k in np.flatnonzero(~self.healthy)]
+        self._resid_sig = {k: self.sig * math.sqrt(1.0 + float(self.A[k] @ self.P @ self.A[k])) for k in self._excl}
         thr1 = fast_threshold(self.cfg.p_false_alarm, self.cfg.dt, self.cfg.persistence, 1)
         self.thr_fast1 = thr1
         self.thr_slow1 = slow_threshold(self.cfg.p_false_alarm, self.cfg.slow_tau, 1) * self.var_slow
@@ -380,16 +383,15 @@ class _Group:
                 )
         if cfg.readmit_after <= 0:
             return
-        waiting = {p.row for p in self.pending}
-        for kk in np.flatnonzero(~self.healthy):
-            k = int(kk)
+        waiting = {p.row for p in self.pending} if self.pending else ()
+        for k in self._excl:
             if k in waiting:
                 continue
             a = self.A[k]
             r = float(y[k] - a @ est)
             ok = math.isfinite(r) and (cfg.stuck_samples == 0 or self.same[k] < cfg.stuck_samples)
             if ok:
-                z = r / (self.sig * math.sqrt(1.0 + float(a @ self.P @ a)))
+                z = r / self._resid_sig[k]
                 e = self.readmit_ema[k] + self.alpha * (z - self.readmit_ema[k])
                 self.readmit_ema[k] = e
                 ok = z * z < self.thr_fast1 and e * e < self.thr_slow1

@@ -141,31 +141,35 @@ TEMPLATE = """# Runtime: the real-time gateway
  simulator process (ins_hil.sim.devices)         gateway process (ins_hil.runtime)
  ─────────────────────────────────────           ─────────────────────────────────────────────────────
  IMU 1 kHz serial frames ──> pty ───────────────> SerialImuDriver ─┐
- GNSS (GPS_INPUT 5 Hz), baro (SCALED_PRESSURE     MavlinkDriver ───┼─> bounded FIFO ─> core task:
+ GNSS (GPS_INPUT 5 Hz), baro (SCALED_PRESSURE     MavlinkDriver ───┼─> bounded FIFO ─> core:
  25 Hz) MAVLink 2 ──> UDP ──────────────────────>  (TIMESYNC)      ┘    calibration → FDI → NavCore.step
                                                                         ├─> MAVLink (GCS / FC), sent inline
-                                                                        ├─> record; then aiding (GNSS/baro) fused
+                                                                        ├─> record; then one aiding segment per gap
                                                                         └─> mailbox ─> MQTT task (aiomqtt)
                                                  recorder flush task (50 ms), housekeeping (rates, windows, warnings)
 ```
 
-- **One core task**, called for every sample taken from the FIFO; it never awaits I/O. Drivers
+- **One core**, a plain event-loop callback scheduled by the sink when the FIFO was empty (no
+  task or future per sample), runs every sample taken from the FIFO; it never awaits I/O. Drivers
   call a non-blocking sink; a full FIFO drops the sample and counts it (`queue_full`), never silently.
 - **Time.** Every sample carries its sensor time and its monotonic arrival time (ns). The core runs
   on the IMU's clock. The MAVLink driver maps the GNSS/baro times onto the host clock (TIMESYNC);
   the runtime maps them onto the IMU clock with the windowed minimum of (arrival − sensor time) of
   the IMU samples (`ins_hil/runtime/clock.py`): about 1 ms of alignment error in the simulated setup.
-  Aiding measurements later than the IMU time are held until the IMU reaches them. An aiding
-  measurement taken from the FIFO is fused once the FIFO is empty after the next IMU state has been
-  published (at most 5 ms later without IMU): a GNSS update costs ~0.5 ms in the Python core and
-  falls in the slack before the next IMU sample instead of delaying it.
+  Aiding measurements later than the IMU time are held until the IMU reaches them. The fusion of
+  an aiding measurement is split into segments, one per gap between IMU epochs, each run once the
+  FIFO is empty after an IMU state has been published: a GNSS fix (about 1 ms in the Python core)
+  goes in three (drift-monitor check | position update | velocity update, 0.2–0.4 ms each), so it
+  falls in the slack before the next IMU samples instead of delaying one. The schedule depends only
+  on the input order (a segment not run in its gap runs at the next epoch's start), so replay of a
+  recording performs the same operations (`Pipeline.work`).
 - **Latency** per sample: arrival → state ready (after the core returns), state ready → the first
   (highest-rate) MAVLink message of that state handed to the transport, and the sum; log-bucketed histograms (4 %
   resolution) and counters in `RuntimeMetrics`, read by the status view, MQTT health and
   `Gateway.metrics.snapshot()` (the API for the soak test). A sample is *late* when arrival →
   state exceeds `gateway.late_threshold_ms` (5 ms); the loop warns at most once a second.
 - **Outputs** are rate-limited per message and coalesced to the newest state; MQTT is its own task
-  with a mailbox holding only the newest state. A broker outage never touches the core task (the MQTT
+  with a mailbox holding only the newest state. A broker outage never touches the core (the MQTT
   client reconnects with backoff 0.2…5 s; states due while offline are counted as
   `state_dropped_offline`; fault events wait in a bounded queue and go out after the reconnect).
 - **Recorder** (`.ihlog`): every input in the order the core consumed it, float64, with both
@@ -173,7 +177,7 @@ TEMPLATE = """# Runtime: the real-time gateway
   < 100 ms, tested), rotated by size (`run.ihlog`, `run.1.ihlog`, …). `replay_log` (and
   `ins-hil replay LOG.ihlog`) rebuilds the same pipeline from the header and reproduces the
   online states **bit for bit** (tested on a live 1 kHz run).
-- **Outputs on the IMU path**: the MAVLink messages that are due go out from the core task right
+- **Outputs on the IMU path**: the MAVLink messages that are due go out from the core right
   after the state is ready (transport writes never block), highest rate first, before the sample
   is recorded; hot messages are framed by a precompiled packer tested byte-identical to pymavlink
   (ODOMETRY ≈ 25 µs); the endpoint task only sends STATUSTEXTs. The start-up objects are

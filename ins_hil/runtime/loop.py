@@ -2,7 +2,8 @@
 
 Drivers call a per-source ``sink`` (non-blocking): the sample goes into one
 bounded FIFO (arrival order); when it is full the sample is dropped and
-counted (``queue_full``) — never silently. The core task drains the FIFO and
+counted (``queue_full``) — never silently. The core (a callback the sink
+schedules when the FIFO was empty) drains the FIFO and
 calls the synchronous :class:`~ins_hil.runtime.pipeline.Pipeline` on every
 sample (nothing on this path awaits I/O), records the sample (recorder:
 in-memory buffer, flushed by a 50 ms task), measures arrival → state ready,
@@ -46,10 +47,6 @@ from ins_hil.runtime.rt import lock_memory, policy, set_realtime
 from ins_hil.sim.devices import SimDevices
 from ins_hil.types import FaultEvent, GnssFix, ImuSample, NavState
 
-#: longest an aiding measurement waits for an IMU state to be published before it is fused anyway
-AID_MAX_WAIT_S = 0.005
-AID_MAX_WAIT_NS = round(AID_MAX_WAIT_S * 1e9)
-
 
 class Gateway:
     """One gateway run built from a validated :class:`~ins_hil.config.Config`.
@@ -66,7 +63,7 @@ class Gateway:
         self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.queue: deque[tuple[Sample, str]] = deque()
         self.queue_size = cfg.gateway.queue_size
-        self._wake = asyncio.Event()
+        self._scheduled = False  # _run_queue is scheduled on the event loop
         self._stop = asyncio.Event()
         self.drivers: list[Any] = []
         self.mav_outputs = [MavlinkEndpoint(e, self.metrics) for e in cfg.outputs]
@@ -81,17 +78,14 @@ class Gateway:
         self.imu_clock = SensorClock()
         self.stopped_reason = ""
         self.error: BaseException | None = None
-        self._aid_wait: list[Any] = []  # aiding samples dequeued, fused after the next published IMU state
-        self._aid_since = 0  # monotonic ns the oldest of them was dequeued
-        self._published = False  # an IMU state was published since the oldest of them arrived
-        self._aid_timer: asyncio.TimerHandle | None = None
 
     # -- sinks (called by drivers, never block) ------------------------------------
     def _sink_for(self, name: str) -> Callable[[Sample], None]:
         stats = self.metrics.source(name)
         q = self.queue
         cap = self.queue_size
-        wake = self._wake
+        call_soon = asyncio.get_running_loop().call_soon
+        run = self._run_queue
 
         def sink(s: Sample) -> None:
             stats.received += 1
@@ -99,26 +93,35 @@ class Gateway:
                 stats.drop("queue_full")
                 return
             q.append((s, name))
-            wake.set()
+            if not self._scheduled:
+                self._scheduled = True
+                call_soon(run)
 
         return sink
 
-    # -- the core task ---------------------------------------------------------------
-    async def _core_task(self) -> None:
-        while True:
-            await self._wake.wait()
-            self._wake.clear()
+    # -- the core callback ---------------------------------------------------------
+    def _run_queue(self) -> None:
+        """The core, scheduled by the first sample put into an empty FIFO (a plain callback, not a
+        task: no future or task step per sample). A failure stops the gateway with the error."""
+        self._scheduled = False
+        if self.error is not None:
+            return
+        try:
             self._process_queue()
+        except Exception as e:
+            self.error = e
+            self.request_stop(f"core failed: {type(e).__name__}: {e}")
 
     def _process_queue(self) -> None:
         """Run the pipeline on everything in the FIFO (synchronous: never awaits).
 
-        Aiding measurements (GNSS, baro, magnetometer: a GNSS update costs about a millisecond
-        in the Python core) are not fused the moment they are dequeued but once the FIFO is
-        empty after an IMU state has been published: their cost falls in the slack before
-        the next IMU sample instead of delaying it. Without IMU states they wait at most
-        :data:`AID_MAX_WAIT_S` (a timer). The recorder writes every input in the order it is
-        handed to the pipeline, so replay reproduces the same states."""
+        Aiding measurements (GNSS, baro, magnetometer) are handed to the pipeline (and recorded)
+        when dequeued; the pipeline splits their fusion into segments, one per gap between IMU
+        epochs (:meth:`Pipeline.work`; a GNSS update costs about a millisecond in the Python
+        core). The segment of a gap runs here once the FIFO is empty after an IMU state has been
+        published, so its cost falls in the slack before the next IMU sample instead of delaying
+        it. The recorder writes every input in the order it is handed to the pipeline, so replay
+        reproduces the same states."""
         q = self.queue
         pipe = self.pipeline
         rec = self.recorder
@@ -129,7 +132,6 @@ class Gateway:
         depth = len(q)
         if depth > m.queue_depth_max:
             m.queue_depth_max = depth
-        aid_wait = self._aid_wait
         while q:
             s, name = q.popleft()
             if isinstance(s, ImuSample):
@@ -144,7 +146,6 @@ class Gateway:
                     rec.write(s)  # still before the next input reaches the pipeline: replay order kept
                 if st is None:
                     continue
-                self._published = True
                 m.record_state(s.t_arrival_ns, ready, ready - t0)
                 for cb in self.on_state:
                     cb(st)
@@ -154,8 +155,6 @@ class Gateway:
                     self._text(6 if st.aligned else 4, "INS aligned" if st.aligned else "INS alignment lost")
                 if st.test_ratios:
                     m.test_ratios = st.test_ratios
-                if aid_wait and ready - self._aid_since > AID_MAX_WAIT_NS:
-                    self._fuse_waiting()  # a backlog of IMU samples: the aiding does not wait longer
             else:
                 # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
                 t = clock.to_sensor(s.t)
@@ -166,37 +165,17 @@ class Gateway:
                 if isinstance(s, GnssFix):
                     for e in self.mav_outputs:
                         e.offer_gnss(s)
-                if not aid_wait:
-                    self._published = False
-                    self._aid_since = mono()
-                aid_wait.append(s)
+                if rec is not None:
+                    rec.write(s)
+                pipe.aid(s)
+                kind = type(s).__name__
+                m.fused[kind] = m.fused.get(kind, 0) + 1
             if pipe.events:
                 for ev in pipe.drain_events():
                     self._fault(ev)
-        if aid_wait:
-            if self._published:
-                self._fuse_waiting()
-            elif self._aid_timer is None:
-                self._aid_timer = asyncio.get_running_loop().call_later(AID_MAX_WAIT_S, self._aid_timeout)
-
-    def _fuse_waiting(self) -> None:
-        """Hand the waiting aiding measurements to the pipeline (recorded in this order)."""
-        pipe, rec, m = self.pipeline, self.recorder, self.metrics
-        for s in self._aid_wait:
-            if rec is not None:
-                rec.write(s)
-            pipe.aid(s)
-            kind = type(s).__name__
-            m.fused[kind] = m.fused.get(kind, 0) + 1
-        self._aid_wait.clear()
-        if pipe.events:
+        if pipe.work() and pipe.events:  # this gap's aiding segment, in the slack after the last state
             for ev in pipe.drain_events():
                 self._fault(ev)
-
-    def _aid_timeout(self) -> None:
-        self._aid_timer = None
-        if self._aid_wait:
-            self._fuse_waiting()
 
     def _text(self, severity: int, text: str) -> None:
         for e in self.mav_outputs:
@@ -328,10 +307,9 @@ class Gateway:
         # move it out of the collector's generations so a full collection does not scan it on the IMU path
         gc.collect()
         gc.freeze()
-        for coro, name in ((self._core_task(), "core"), (self._housekeeping(), "housekeeping")):
-            t = asyncio.create_task(coro, name=name)
-            t.add_done_callback(self._task_done)
-            self._tasks.append(t)
+        t = asyncio.create_task(self._housekeeping(), name="housekeeping")
+        t.add_done_callback(self._task_done)
+        self._tasks.append(t)
 
     def _task_done(self, t: asyncio.Task[Any]) -> None:
         if t.cancelled():
@@ -354,11 +332,10 @@ class Gateway:
                     await t
         if self.error is None and self.queue:
             self._process_queue()
-        if self._aid_timer is not None:
-            self._aid_timer.cancel()
-            self._aid_timer = None
-        if self.error is None and self._aid_wait:
-            self._fuse_waiting()
+        if self.error is None:
+            self.pipeline.flush()  # what was handed over is fused (replay flushes at its end too)
+            for ev in self.pipeline.drain_events():
+                self._fault(ev)
         for t in self._tasks:
             t.cancel()
         for t in self._tasks:

@@ -2,10 +2,29 @@
 
 calibration → (redundant-IMU epoch grouping →) FDI monitor → core.step, and
 aiding measurements held until the IMU time reaches their time of validity,
-then ``core.fuse``. Pure and deterministic: no I/O, no clock, no asyncio.
-The loop records every input in the order it hands them to
-:meth:`Pipeline.imu` / :meth:`Pipeline.aid`; replaying that order through a
-fresh pipeline built from the same config gives the same states bit for bit.
+then checked by the drift monitor and fused (``core.fuse``). Pure and
+deterministic: no I/O, no clock, no asyncio. The loop records every input in
+the order it hands them to :meth:`Pipeline.imu` / :meth:`Pipeline.aid`;
+replaying that order through a fresh pipeline built from the same config gives
+the same states bit for bit.
+
+Aiding work is split into segments run one per gap between IMU epochs: a GNSS
+fix costs about 1 ms in the Python core (drift-monitor check, position update,
+velocity update, each 0.2–0.4 ms), more than the slack of a 1 kHz loop, so it is
+spread over three gaps instead of delaying the next IMU sample. A measurement
+handed over in one gap has its first segment in the next (after the next
+epoch), so an IMU sample already queued behind it is not delayed. The live loop
+runs the segment of a gap right after publishing the epoch's state
+(:meth:`Pipeline.work`); one that has not run by the next epoch (a backlog)
+runs at its start. The schedule depends only on the input order, so replay
+(which never calls :meth:`work`) performs the same operations in the same order.
+
+The IMU step itself is split the same way when the core offers it (``NavCore.step_begin`` /
+``step_end``): the strapdown mechanization runs on the IMU path and its state is published;
+the filter's time update (covariance propagation, ground-vehicle aids, about 0.1 ms) runs
+after publishing, before anything else touches the core. The published state is the
+mechanized state: its σ are those of the previous step (1 ms older at 1 kHz), and a
+ground-vehicle aid (NHC/ZUPT) applied in this step's time update shows in the next state.
 
 Initialisation (until the core aligns itself): the core is created at the
 first 3-D GNSS fix, at its position and velocity, with roll/pitch levelled
@@ -22,6 +41,7 @@ import dataclasses
 import importlib
 import math
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -32,6 +52,7 @@ from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import BaroSample, FaultEvent, FixType, GnssFix, ImuSample, MagSample, NavState
 
 Aid = GnssFix | BaroSample | MagSample
+_DONE = object()
 
 
 class Core(Protocol):
@@ -153,6 +174,8 @@ def level_attitude(f_b: np.ndarray, yaw: float) -> np.ndarray:
 
 #: a unit missing from this many epochs in a row is not waited for until it delivers again
 GONE_EPOCHS = 20
+#: aiding jobs queued beyond this many run at the next epoch without waiting for a gap each
+MAX_AID_JOBS = 8
 
 
 class Pipeline:
@@ -183,6 +206,12 @@ class Pipeline:
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
         self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, cfg.nav) if cfg.aiding_fdi else None
         self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
+        self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
+        self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
+        self._gap_free = False  # no aiding segment has run since the last IMU step
+        self._step_begin: Any = None  # core.step_begin / step_end when the core splits its step
+        self._step_end: Any = None
+        self._end_step: Any = None  # the pending second half of the last step (core.step_end)
         self.last_state: NavState | None = None
         if cfg.init == "config":
             self._start(
@@ -203,6 +232,9 @@ class Pipeline:
 
     def _start(self, initial: StrapdownState) -> None:
         self.core = make_core(self.cfg.core, initial, self.cfg.nav)
+        # a core that splits its step (NavCore): mechanization on the IMU path, the time update after publishing
+        self._step_begin = getattr(self.core, "step_begin", None)
+        self._step_end = getattr(self.core, "step_end", None)
 
     # -- IMU ------------------------------------------------------------------
     def imu(self, s: ImuSample) -> NavState | None:
@@ -288,6 +320,13 @@ class Pipeline:
         return self._epoch([pend[i] for i in sorted(pend)])
 
     def _epoch(self, samples: list[ImuSample]) -> NavState | None:
+        if self._end_step is not None:
+            self._finish_step()
+        if self._jobs:
+            if self._gap_free:  # the loop had no slack in this gap: the segment runs now
+                self._segment()
+            while len(self._jobs) > MAX_AID_JOBS:
+                self._segment()
         if self._fdi is not None:
             s, ev = self._fdi.process(samples)
             if ev:
@@ -309,7 +348,15 @@ class Pipeline:
             self._level_add(s)
             self._count("imu_before_init")
             return None
-        st = core.step(s)
+        if self._step_begin is not None:
+            st = self._step_begin(s)  # mechanization only: the state goes out before the filter time update
+            self._end_step = self._step_end
+        else:
+            st = core.step(s)
+        self._gap_free = True
+        if self._new_jobs:
+            self._jobs.extend(self._new_jobs)
+            self._new_jobs.clear()
         drain = getattr(core, "drain_events", None)
         if drain is not None:
             ev2 = drain()
@@ -317,10 +364,55 @@ class Pipeline:
                 self.events.extend(ev2)
         if self._held:
             while self._held and self._held[0].t <= s.t:
-                self._fuse(self._held.pop(0))
-            st = core.state()
+                self._jobs.append(self._fuse(self._held.pop(0)))
         self.last_state = st
         return st
+
+    def work(self) -> bool:
+        """Run one segment of queued aiding work in the current gap between IMU epochs (at most one
+        per gap; the live loop calls this when it has published a state and has nothing waiting).
+        Returns True when a segment ran."""
+        if self._end_step is not None:
+            self._finish_step()
+        if not (self._gap_free and self._jobs):
+            return False
+        self._segment()
+        return True
+
+    def pending_work(self) -> int:
+        """Aiding measurements handed over but not completely fused yet."""
+        return len(self._jobs) + len(self._new_jobs)
+
+    def flush(self) -> None:
+        """Finish every queued aiding fusion now (end of a run or of a replay)."""
+        if self._end_step is not None:
+            self._finish_step()
+        self._jobs.extend(self._new_jobs)
+        self._new_jobs.clear()
+        while self._jobs:
+            self._segment()
+
+    def _finish_step(self) -> None:
+        """The rest of the last IMU step (the filter time update, ``core.step_end``): runs before
+        anything else touches the core, after the state has been published."""
+        end = self._end_step
+        self._end_step = None
+        assert end is not None
+        end()
+        drain = getattr(self.core, "drain_events", None)
+        if drain is not None:
+            ev = drain()
+            if ev:
+                self.events.extend(ev)
+
+    def _segment(self) -> None:
+        if self._end_step is not None:
+            self._finish_step()
+        self._gap_free = False
+        job = self._jobs[0]
+        if next(job, _DONE) is _DONE:
+            self._jobs.popleft()
+            return
 
     def _level_add(self, s: ImuSample) -> None:
         if len(self._lvl) == self._lvl.maxlen:
@@ -341,7 +433,7 @@ class Pipeline:
                 self._count("aid_before_init")
             return
         if m.t <= self._t_imu:
-            self._fuse(m)
+            self._new_jobs.append(self._fuse(m))
             return
         i = len(self._held)
         while i > 0 and self._held[i - 1].t > m.t:
@@ -351,8 +443,11 @@ class Pipeline:
             self._held.pop(0)
             self._count("aid_held_overflow")
 
-    def _fuse(self, m: Aid) -> None:
-        assert self.core is not None
+    def _fuse(self, m: Aid) -> Iterator[None]:
+        """The fusion of one measurement as a job of segments (see the module doc): the drift
+        monitor's check, then the core's update(s) (``core.fuse_steps`` when the core has it)."""
+        core = self.core
+        assert core is not None
         mon = self._aid_mon
         if mon is not None and not isinstance(m, MagSample):
             # IMU epochs skipped since the last check: the INS is not evidence against the GNSS for a while
@@ -362,13 +457,19 @@ class Pipeline:
                 self._aid_lost = lost
                 mon.ins_disturbed(m.t)
             # the drift monitor sees the state before this measurement is fused (GNSS/baro rate only)
-            excluded = mon.check(m, self.core.state())
+            excluded = mon.check(m, core.state())
             if mon.events:
                 self.events.extend(mon.drain_events())
             if excluded:
                 self._count("excluded_" + type(m).__name__)
                 return
-        self.core.fuse(m)
+            if isinstance(m, GnssFix):
+                yield  # the check of a fix (O(window) work) and its update in separate gaps
+        steps = getattr(core, "fuse_steps", None)
+        if steps is None:
+            core.fuse(m)
+        else:
+            yield from steps(m)
         self._count("fused_" + type(m).__name__)
 
     def _init_from_gnss(self, g: GnssFix) -> None:

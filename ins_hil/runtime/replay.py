@@ -102,6 +102,9 @@ def replay_log(
             pipe.aid(rec)
         if pipe.events:
             res.events.extend(pipe.drain_events())
+    pipe.flush()  # as the live loop does at its end
+    if pipe.events:
+        res.events.extend(pipe.drain_events())
     res.counts = dict(pipe.counts)
     return res
 

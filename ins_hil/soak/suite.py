@@ -8,6 +8,7 @@ is also written there (PNG plots copied next to it in ``<docs stem>/``).
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
 from collections.abc import Callable
@@ -17,6 +18,8 @@ from typing import Any
 
 from ins_hil.runtime.mqtt_out import clean_json
 from ins_hil.soak.analysis import analyse
+from ins_hil.soak.baseline import cyclictest
+from ins_hil.soak.baseline import section as baseline_section
 from ins_hil.soak.orchestrate import SoakOptions, run_soak
 from ins_hil.soak.report import machine, plots, run_section, sweep_section
 
@@ -39,12 +42,19 @@ def campaign(
     note: str,
     docs: str | None,
     progress: Callable[[str], None] | None = None,
+    baseline_s: float = 0.0,
 ) -> dict[str, Any]:
-    """Every run of the campaign and the report; returns the top-level metrics (``pass`` = main run)."""
+    """Every run of the campaign and the report; returns the top-level metrics (``pass`` = main run).
+    ``baseline_s`` > 0: first measure the platform's wake-up latency (cyclictest) on the soak's CPUs."""
     out = Path(opt.out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
     mach_before = machine()
+    base: dict[str, Any] | None = None
+    if baseline_s > 0:
+        if progress:
+            progress(f"[soak] platform baseline: cyclictest on both CPUs, {baseline_s:.0f} s")
+        base = cyclictest(baseline_s, list(range(min(2, os.cpu_count() or 1))))
     runs: list[tuple[str, str, dict[str, Any], list[str]]] = []
     main_opt = replace(opt, out=str(out / "main"))
     m, p = one(main_opt, progress)
@@ -65,8 +75,9 @@ def campaign(
         runs.append(("loaded", LOADED_TITLE, lm, lp))
     mach = machine()
     top = {"started": started, "machine_at_start": mach_before, "machine_at_end": mach, "note": note,
-           "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": runs[0][2]["pass"]}  # fmt: skip
-    cmd = note_command(opt, sweep_rates, sweep_cores, sweep_duration, loaded_duration, docs)
+           "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": runs[0][2]["pass"],
+           "platform_baseline": base}  # fmt: skip
+    cmd = note_command(opt, sweep_rates, sweep_cores, sweep_duration, loaded_duration, docs, baseline_s)
     top["command"] = cmd
     write(out, top, runs, sweep, docs)
     return top
@@ -135,9 +146,10 @@ def write(
 
 
 def note_command(opt: SoakOptions, rates: list[float], cores: list[str], sd: float, ld: float,
-                 docs: str | None) -> str:  # fmt: skip
+                 docs: str | None, baseline_s: float = 0.0) -> str:  # fmt: skip
     """The command line that reproduces this campaign."""
     parts = [f"scripts/soak --duration {opt.duration:g} --rate {opt.rate:g} --imus {opt.imus} --core {opt.core}"]
+    parts.append(f"--baseline {baseline_s:g}")
     if opt.imus > 1:
         parts.append(f"--faults {opt.faults}")
     if opt.load:
@@ -214,6 +226,9 @@ def render(
         f"**Main run: {'pass' if main['pass'] else 'FAIL'}.**",
         "",
     ]
+    bs = baseline_section(top.get("platform_baseline"))
+    if bs:
+        lines.append(bs)
     for key, title, m, pngs in runs:
         lines.append(run_section(m, pngs, title, rel(key)))
     if sweep:
