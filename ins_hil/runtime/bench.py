@@ -90,7 +90,7 @@ def _table(gw: Gateway) -> str:
     return "| path | samples | p50 µs | p99 µs | p99.9 µs | max µs |\n|---|---:|---:|---:|---:|---:|\n" + rows
 
 
-def report(gw: Gateway, wall: float, duration: float, gw_c: Gateway | None = None) -> str:
+def report(gw: Gateway, wall: float, duration: float, gw_c: Gateway | None = None, steal_s: float | None = None) -> str:
     snap = gw.metrics.snapshot()
     lat = snap["latency"]
     imu = snap["sources"]["imu0"]
@@ -106,7 +106,13 @@ def report(gw: Gateway, wall: float, duration: float, gw_c: Gateway | None = Non
     )
     drops = ", ".join(f"{k} {v}" for k, v in imu["dropped"].items()) or "none"
     return TEMPLATE.format(
-        machine=machine(),
+        machine=machine()
+        + (
+            ""
+            if steal_s is None
+            else f"; host steal time during the runs {steal_s:.2f} s over the {os.cpu_count()} CPUs (/proc/stat: "
+            "the hypervisor ran other work on this virtual machine's CPUs, which no priority inside it prevents)"
+        ),
         commit=commit.strip() or "?",
         duration=duration,
         wall=wall,
@@ -271,6 +277,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(REPO / "docs" / "runtime.md"), help="report file ('' = print only)")
     a = ap.parse_args(argv)
     print(f"ins-hil bench: {a.duration:.0f} s of configs/default.toml at 1 kHz …", flush=True)
+    from ins_hil.soak.orchestrate import steal_ticks
+
+    cpus = tuple(range(os.cpu_count() or 1))
+    st0 = sum(steal_ticks(cpus))
     gw, wall = measure(a.duration, "python")
     gw_c = None
     if not a.no_c:
@@ -279,7 +289,8 @@ def main(argv: list[str] | None = None) -> int:
             gw_c, _ = measure(a.duration, "c")
         except RuntimeError as e:
             print(f"C core not measured: {e}")
-    text = report(gw, wall, a.duration, gw_c)
+    steal_s = (sum(steal_ticks(cpus)) - st0) / (os.sysconf("SC_CLK_TCK") or 100)
+    text = report(gw, wall, a.duration, gw_c, steal_s)
     table = text[text.index("| path |") : text.index("\n\nArrival")]
     print(table)
     if gw_c is not None:
