@@ -127,6 +127,8 @@ def test_steal_summary_counts_slow_samples_in_seconds_with_host_steal() -> None:
     assert s["seconds_per_cpu"] == [0.01, 0.02]
     assert s["intervals_with_steal"] == 1 and s["intervals"] == 5
     assert s["e2e_over_2ms"] == 3 and s["e2e_over_2ms_in_steal_seconds"] == 1
+    ns = s["e2e_in_intervals_without_steal"]  # the samples at 0.5 and 4.5 s (2.5, 2.6 s: steal)
+    assert ns["n"] == 2 and ns["p50_us"] == 3000.0
     assert steal_summary(proc[:1], t_e2e, lat, 10.0) == {}
     live = steal_ticks((0,))  # this machine's /proc/stat
     assert len(live) == 1 and live[0] >= 0
