@@ -212,17 +212,8 @@ class NavCore:
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
         """Propagate with one IMU interval; returns the current state."""
-        if self._pending_end is not None:
+        if self._begin(imu):
             self.step_end()
-        if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0 and self.phase == "nav":
-            self._log.append((self._step_n, "imu", imu))
-        self._dt = imu.dt
-        if self.phase != "nav":
-            self._align_step(imu)
-            return self.state()
-        self._propagate(imu)
-        if not self._replaying:
-            self._after_step()
         return self.state()
 
     def step_begin(self, imu: ImuSample) -> NavState:
@@ -231,16 +222,22 @@ class NavCore:
         call :meth:`step_end` (the filter time update, ground-vehicle aids, delayed-fusion history)
         before anything else touches the core. ``step_begin`` + ``step_end`` = :meth:`step`, bit for bit,
         except the σ of the returned state."""
+        self._begin(imu)
+        return self.state()
+
+    def _begin(self, imu: ImuSample) -> bool:
+        """Mechanization (or an alignment step); True when a time update (:meth:`step_end`) is pending."""
         if self._pending_end is not None:
             self.step_end()
-        if self.phase != "nav":
-            return self.step(imu)
-        if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0:
+        if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0 and self.phase == "nav":
             self._log.append((self._step_n, "imu", imu))
         self._dt = imu.dt
+        if self.phase != "nav":
+            self._align_step(imu)
+            return False
         self._mechanize(imu)
         self._pending_end = imu
-        return self.state()
+        return True
 
     def step_end(self) -> None:
         """Finish the step begun by :meth:`step_begin` (no-op if none is pending)."""
@@ -257,38 +254,31 @@ class NavCore:
         self._time_update(imu)
 
     def _mechanize(self, imu: ImuSample) -> None:
+        """Compensate the increments (bias, g-sensitivity, scale factor) and run the strapdown step, in
+        scalar floats on the hot path (the same element-wise numbers as the array expressions)."""
         dt = imu.dt
-        ins = self.ins
+        a, v, bg, ba = imu.dtheta, imu.dvel, self.bg, self.ba
+        x0, x1, x2 = (
+            float(a[0]) - float(bg[0]) * dt,
+            float(a[1]) - float(bg[1]) * dt,
+            float(a[2]) - float(bg[2]) * dt,
+        )
+        u0, u1, u2 = (
+            float(v[0]) - float(ba[0]) * dt,
+            float(v[1]) - float(ba[1]) * dt,
+            float(v[2]) - float(ba[2]) * dt,
+        )
         if self.idx.gs is not None:
-            dth = imu.dtheta - self.bg * dt
-            dv = imu.dvel - self.ba * dt
-            dth = dth - self.G @ imu.dvel  # gyro g-sensitivity: ω̃ = ω + b_g + G f^b (FilterConfig.gyro_gsens)
-            if self.idx.sg is not None:
-                dth = dth / (1.0 + self.sg)
-                dv = dv / (1.0 + self.sa)
-            ins.step(dth, dv, dt)
-            self.omega_b = dth / dt
-            self.f_b = dv / dt
-        else:
-            # the same element-wise numbers as the array expressions above, in scalar floats (hot path)
-            a, v, bg, ba = imu.dtheta, imu.dvel, self.bg, self.ba
-            x0, x1, x2 = (
-                float(a[0]) - float(bg[0]) * dt,
-                float(a[1]) - float(bg[1]) * dt,
-                float(a[2]) - float(bg[2]) * dt,
-            )
-            u0, u1, u2 = (
-                float(v[0]) - float(ba[0]) * dt,
-                float(v[1]) - float(ba[1]) * dt,
-                float(v[2]) - float(ba[2]) * dt,
-            )
-            if self.idx.sg is not None:
-                sg, sa = self.sg, self.sa
-                x0, x1, x2 = x0 / (1.0 + float(sg[0])), x1 / (1.0 + float(sg[1])), x2 / (1.0 + float(sg[2]))
-                u0, u1, u2 = u0 / (1.0 + float(sa[0])), u1 / (1.0 + float(sa[1])), u2 / (1.0 + float(sa[2]))
-            ins.step(np.array((x0, x1, x2)), np.array((u0, u1, u2)), dt)
-            self.omega_b = np.array((x0 / dt, x1 / dt, x2 / dt))
-            self.f_b = np.array((u0 / dt, u1 / dt, u2 / dt))
+            g = self.G @ v  # gyro g-sensitivity: ω̃ = ω + b_g + G f^b (FilterConfig.gyro_gsens)
+            x0, x1, x2 = x0 - float(g[0]), x1 - float(g[1]), x2 - float(g[2])
+        if self.idx.sg is not None:
+            sg, sa = self.sg, self.sa
+            x0, x1, x2 = x0 / (1.0 + float(sg[0])), x1 / (1.0 + float(sg[1])), x2 / (1.0 + float(sg[2]))
+            u0, u1, u2 = u0 / (1.0 + float(sa[0])), u1 / (1.0 + float(sa[1])), u2 / (1.0 + float(sa[2]))
+        ins = self.ins
+        ins.step(np.array((x0, x1, x2)), np.array((u0, u1, u2)), dt)
+        self.omega_b = np.array((x0 / dt, x1 / dt, x2 / dt))
+        self.f_b = np.array((u0 / dt, u1 / dt, u2 / dt))
         ins.state.t = imu.t
         self._step_n += 1
 

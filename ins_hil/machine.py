@@ -6,6 +6,24 @@ import os
 import platform
 from pathlib import Path
 
+#: USER_HZ: the unit of the CPU times in /proc (ticks per second)
+CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def steal_ticks(cpus: tuple[int, ...]) -> list[int]:
+    """Cumulative steal time (USER_HZ ticks, /proc/stat) of these CPUs: time the hypervisor ran
+    something else on our virtual CPUs, which no priority inside the guest can prevent ([] if unknown)."""
+    try:
+        lines = Path("/proc/stat").read_text().splitlines()
+    except OSError:
+        return []
+    by_cpu = {}
+    for line in lines:
+        f = line.split()
+        if f and f[0].startswith("cpu") and f[0] != "cpu" and len(f) > 8:
+            by_cpu[int(f[0][3:])] = int(f[8])
+    return [by_cpu.get(c, 0) for c in cpus]
+
 
 def cpu_model() -> str:
     """The CPU model name from /proc/cpuinfo (or what platform knows)."""

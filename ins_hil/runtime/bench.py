@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ins_hil.config import default_path, load
-from ins_hil.machine import cpu_model, load_note
+from ins_hil.machine import CLK_TCK, cpu_model, load_note, steal_ticks
 from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.metrics import _BASE_NS, _RATIO, LatencyHistogram
 
@@ -277,8 +277,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(REPO / "docs" / "runtime.md"), help="report file ('' = print only)")
     a = ap.parse_args(argv)
     print(f"ins-hil bench: {a.duration:.0f} s of configs/default.toml at 1 kHz …", flush=True)
-    from ins_hil.soak.orchestrate import steal_ticks
-
     cpus = tuple(range(os.cpu_count() or 1))
     st0 = sum(steal_ticks(cpus))
     gw, wall = measure(a.duration, "python")
@@ -289,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             gw_c, _ = measure(a.duration, "c")
         except RuntimeError as e:
             print(f"C core not measured: {e}")
-    steal_s = (sum(steal_ticks(cpus)) - st0) / (os.sysconf("SC_CLK_TCK") or 100)
+    steal_s = (sum(steal_ticks(cpus)) - st0) / CLK_TCK
     text = report(gw, wall, a.duration, gw_c, steal_s)
     table = text[text.index("| path |") : text.index("\n\nArrival")]
     print(table)

@@ -167,9 +167,7 @@ class Gateway:
                         e.offer_gnss(s)
                 if rec is not None:
                     rec.write(s)
-                pipe.aid(s)
-                kind = type(s).__name__
-                m.fused[kind] = m.fused.get(kind, 0) + 1
+                pipe.aid(s)  # fused / excluded counts: the pipeline's, copied by the housekeeping task
             if pipe.events:
                 for ev in pipe.drain_events():
                     self._fault(ev)

@@ -43,7 +43,7 @@ import math
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -63,6 +63,14 @@ class Core(Protocol):
     def fuse(self, meas: Aid) -> Any: ...
 
     def state(self) -> NavState: ...
+
+
+class SplitCore(Core, Protocol):
+    """A core whose step runs in two parts (NavCore): the state first, the filter time update after."""
+
+    def step_begin(self, imu: ImuSample) -> NavState: ...
+
+    def step_end(self) -> None: ...
 
 
 CORE_KINDS = ("python", "c")
@@ -209,9 +217,9 @@ class Pipeline:
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
         self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
         self._gap_free = False  # no aiding segment has run since the last IMU step
-        self._step_begin: Any = None  # core.step_begin / step_end when the core splits its step
-        self._step_end: Any = None
-        self._end_step: Any = None  # the pending second half of the last step (core.step_end)
+        self._split: SplitCore | None = None  # the core, when it splits its step
+        self._step_pending = False  # core.step_end of the last step has not run yet
+        self._drain: Any = None  # core.drain_events, when the core has it
         self.last_state: NavState | None = None
         if cfg.init == "config":
             self._start(
@@ -233,8 +241,9 @@ class Pipeline:
     def _start(self, initial: StrapdownState) -> None:
         self.core = make_core(self.cfg.core, initial, self.cfg.nav)
         # a core that splits its step (NavCore): mechanization on the IMU path, the time update after publishing
-        self._step_begin = getattr(self.core, "step_begin", None)
-        self._step_end = getattr(self.core, "step_end", None)
+        split = hasattr(self.core, "step_begin") and hasattr(self.core, "step_end")
+        self._split = cast(SplitCore, self.core) if split else None
+        self._drain = getattr(self.core, "drain_events", None)
 
     # -- IMU ------------------------------------------------------------------
     def imu(self, s: ImuSample) -> NavState | None:
@@ -320,7 +329,7 @@ class Pipeline:
         return self._epoch([pend[i] for i in sorted(pend)])
 
     def _epoch(self, samples: list[ImuSample]) -> NavState | None:
-        if self._end_step is not None:
+        if self._step_pending:
             self._finish_step()
         if self._jobs:
             if self._gap_free:  # the loop had no slack in this gap: the segment runs now
@@ -348,18 +357,17 @@ class Pipeline:
             self._level_add(s)
             self._count("imu_before_init")
             return None
-        if self._step_begin is not None:
-            st = self._step_begin(s)  # mechanization only: the state goes out before the filter time update
-            self._end_step = self._step_end
+        if self._split is not None:
+            st = self._split.step_begin(s)  # mechanization only: published before the time update
+            self._step_pending = True
         else:
             st = core.step(s)
         self._gap_free = True
         if self._new_jobs:
             self._jobs.extend(self._new_jobs)
             self._new_jobs.clear()
-        drain = getattr(core, "drain_events", None)
-        if drain is not None:
-            ev2 = drain()
+        if self._drain is not None:
+            ev2 = self._drain()
             if ev2:
                 self.events.extend(ev2)
         if self._held:
@@ -372,7 +380,7 @@ class Pipeline:
         """Run one segment of queued aiding work in the current gap between IMU epochs (at most one
         per gap; the live loop calls this when it has published a state and has nothing waiting).
         Returns True when a segment ran."""
-        if self._end_step is not None:
+        if self._step_pending:
             self._finish_step()
         if not (self._gap_free and self._jobs):
             return False
@@ -385,7 +393,7 @@ class Pipeline:
 
     def flush(self) -> None:
         """Finish every queued aiding fusion now (end of a run or of a replay)."""
-        if self._end_step is not None:
+        if self._step_pending:
             self._finish_step()
         self._jobs.extend(self._new_jobs)
         self._new_jobs.clear()
@@ -395,18 +403,16 @@ class Pipeline:
     def _finish_step(self) -> None:
         """The rest of the last IMU step (the filter time update, ``core.step_end``): runs before
         anything else touches the core, after the state has been published."""
-        end = self._end_step
-        self._end_step = None
-        assert end is not None
-        end()
-        drain = getattr(self.core, "drain_events", None)
-        if drain is not None:
-            ev = drain()
+        self._step_pending = False
+        assert self._split is not None
+        self._split.step_end()
+        if self._drain is not None:
+            ev = self._drain()
             if ev:
                 self.events.extend(ev)
 
     def _segment(self) -> None:
-        if self._end_step is not None:
+        if self._step_pending:
             self._finish_step()
         self._gap_free = False
         job = self._jobs[0]

@@ -16,17 +16,16 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ins_hil.machine import CLK_TCK
 from ins_hil.nav.earth import radii
 from ins_hil.soak.faults import geometry_for, parse_faults
 
 #: the issue's targets (1 kHz, Python core, 2 cores)
-CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 TARGETS = {"e2e_p99_us": 1000.0, "e2e_p999_us": 2000.0, "lost_frames": 0, "rss_growth_mib_per_h": 1.0}
 #: RSS growth is judged only when at least this much run is left after warm-up (s)
 RSS_MIN_SPAN_S = 600.0

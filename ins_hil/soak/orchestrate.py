@@ -20,9 +20,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from ins_hil.machine import CLK_TCK, steal_ticks
 from ins_hil.runtime.rt import PRIO_CLIENT, PRIO_GATEWAY, PRIO_SENSORS, policy
 
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 GCS_RATE = 47.0
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
@@ -71,21 +71,6 @@ def allowed_cpus(pid: int) -> str:
     except OSError:
         pass
     return "?"
-
-
-def steal_ticks(cpus: tuple[int, ...]) -> list[int]:
-    """Cumulative steal time (USER_HZ ticks, /proc/stat) of these CPUs: time the hypervisor ran
-    something else on our virtual CPUs, which no priority inside the guest can prevent ([] if unknown)."""
-    try:
-        lines = Path("/proc/stat").read_text().splitlines()
-    except OSError:
-        return []
-    by_cpu = {}
-    for line in lines:
-        f = line.split()
-        if f and f[0].startswith("cpu") and f[0] != "cpu" and len(f) > 8:
-            by_cpu[int(f[0][3:])] = int(f[8])
-    return [by_cpu.get(c, 0) for c in cpus]
 
 
 def proc_sample(pid: int) -> dict[str, float] | None:
