@@ -8,7 +8,6 @@ is also written there (PNG plots copied next to it in ``<docs stem>/``).
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import time
 from collections.abc import Callable
@@ -20,7 +19,7 @@ from ins_hil.runtime.mqtt_out import clean_json
 from ins_hil.soak.analysis import analyse
 from ins_hil.soak.baseline import cyclictest
 from ins_hil.soak.baseline import section as baseline_section
-from ins_hil.soak.orchestrate import SoakOptions, run_soak
+from ins_hil.soak.orchestrate import SoakOptions, cpus, run_soak
 from ins_hil.soak.report import machine, plots, run_section, sweep_section
 
 
@@ -54,7 +53,7 @@ def campaign(
     if baseline_s > 0:
         if progress:
             progress(f"[soak] platform baseline: cyclictest on both CPUs, {baseline_s:.0f} s")
-        base = cyclictest(baseline_s, list(range(min(2, os.cpu_count() or 1))))
+        base = cyclictest(baseline_s, sorted(set(cpus())))  # the soak's sensor and gateway CPUs
     runs: list[tuple[str, str, dict[str, Any], list[str]]] = []
     main_opt = replace(opt, out=str(out / "main"))
     m, p = one(main_opt, progress)
