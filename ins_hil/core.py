@@ -116,12 +116,14 @@ class NavConfig:
     align: str = "given"
     align_time: float = 2.0
     align_level_only: bool = False
+    level_tilt_prior: bool = True
     still_speed: float = 0.3
     still_delay: float = 1.5
     align_gyro_bias_std: float = 0.02 * DEG
     mag_yaw_std: float = 3.0 * DEG
     gnss_yaw_speed: float = 1.0
     gnss_yaw_std: float = 3.0 * DEG
+    gnss_yaw_vel_floor: float = 0.0
     aligned_yaw_std: float = 5.0 * DEG
 
     def __post_init__(self) -> None:
@@ -201,6 +203,9 @@ class NavCore:
         self._lev_t = 0.0
         self._moving = False
         self._lev_pending: deque[ImuSample] = deque()
+        self._lev_fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²)
+        self._lev_T = 0.0  # its length (s)
+        self._lev_t_end = 0.0  # the time of its last sample
         self._have_pos = self.cfg.align == "given"
         self._last_mag: Vec | None = None
         self.nis_log: list[tuple[float, str, float, int]] = []
@@ -646,6 +651,8 @@ class NavCore:
         s.q_nb = quat_from_euler(roll, pitch, yaw)
         s.vel_ned = np.zeros(3)
         self.ins.reset_history()
+        self._lev_fb, self._lev_T = f, self._lev_t
+        self._lev_t_end = self._lev_pending[0].t - self._lev_pending[0].dt if self._lev_pending else s.t
         # bring the attitude from the end of the window to now with the delayed samples
         t_now = s.t
         for old in self._lev_pending:
@@ -689,7 +696,7 @@ class NavCore:
                 s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
                 s.h = meas.h + d[2]
                 self.ins.state.t = max(s.t, meas.t)
-                std_v = max(meas.std_vel, self.cfg.gnss_min_std[2])
+                std_v = max(meas.std_vel, self.cfg.gnss_yaw_vel_floor)
                 self._enter_nav(yaw_std=self.cfg.gnss_yaw_std + 2.0 * std_v / sp)
 
     def _enter_nav(self, yaw_std: float | None = None) -> None:
@@ -699,6 +706,13 @@ class NavCore:
         if yaw_std is not None:
             c = self.cfg.filter
             self.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))
+            if self.cfg.level_tilt_prior and self._lev_fb is not None:
+                # the levelled tilt holds the horizontal accelerometer error (book §4.1.1): correlated prior;
+                # what the levelling leaves: the window's accelerometer noise and the gyro drift since the window
+                since = max(0.0, s.t - self._lev_t_end)
+                sig = math.hypot(c.accel_vrw / math.sqrt(max(self._lev_T, 1e-3)) / self._g_local,
+                                 self.cfg.align_gyro_bias_std * since)  # fmt: skip
+                self.kf.level_tilt(dcm_from_quat(s.q_nb), self._lev_fb, sig)
 
     # ------------------------------------------------------------------ outputs
     def drain_events(self) -> list[FaultEvent]:

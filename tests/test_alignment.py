@@ -136,3 +136,69 @@ def test_navcore_in_motion_yaw_from_gnss_course():
 def test_quat_from_euler_roundtrip_used_by_alignment():
     q = quat_from_euler(0.1, -0.2, 2.0)
     np.testing.assert_allclose(euler_from_quat(q), (0.1, -0.2, 2.0), atol=1e-12)
+
+
+@pytest.mark.parametrize("scale_factors", [False, True])
+def test_level_tilt_prior_predicts_the_tilt_a_biased_accelerometer_leaves(scale_factors: bool):
+    """Levelling a biased accelerometer at rest leaves a tilt μ_NE that makes the computed horizontal
+    specific force zero (book §4.1.1). After ``ErrorStateEKF.level_tilt`` the covariance's regression of μ_NE
+    on the accelerometer bias error must give that tilt (sign and size), and the filter's horizontal
+    specific-force error σ must be the small levelling residual, not g·σ_tilt."""
+    from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
+    from ins_hil.nav.rotation import dcm_from_quat
+
+    g = 9.80665
+    roll, pitch, yaw = 0.05, -0.12, 2.2
+    C = dcm_from_euler(roll, pitch, yaw)  # true C_b^n
+    f_true = C.T @ np.array((0.0, 0.0, -g))
+    b = np.array((0.12, -0.07, 0.03))  # accelerometer bias (m/s²); the filter's estimate is 0, so δb_a = b
+    r, p = alignment.coarse_level(f_true + b)
+    C_hat = dcm_from_quat(quat_from_euler(r, p, yaw))
+    mu_x = C_hat @ C.T - np.eye(3)  # Ĉ = (I + [μ×]) C
+    mu = np.array((mu_x[2, 1], mu_x[0, 2], mu_x[1, 0]))
+    kf = ErrorStateEKF(FilterConfig(scale_factors=scale_factors))
+    kf.level_tilt(C_hat, f_true + b, 1e-4)
+    i = kf.idx
+    P = kf.P
+    ba = slice(i.ba, i.ba + 3)
+    A = P[6:8, ba] @ np.linalg.inv(P[ba, ba])
+    if scale_factors:  # regress on bias and scale factor together; δs_a = 0 here
+        X = np.r_[i.ba : i.ba + 3, i.sa : i.sa + 3]
+        A = (P[6:8][:, X] @ np.linalg.inv(P[np.ix_(X, X)]))[:, :3]
+    np.testing.assert_allclose(A @ b, mu[:2], atol=2e-4)  # |μ| ≈ 0.014 rad: linearization error only
+    # the horizontal specific-force error δf_h = [f×]μ − C δb_a − C diag(f) δs_a has σ ≈ g·1e-4
+    F = kf.build_F(C_hat, C_hat @ (f_true + b), np.zeros(3), np.zeros(3), f_true + b, np.zeros(3), 0.7, 0.0)
+    S = F[3:5] @ P @ F[3:5].T
+    assert np.sqrt(np.diag(S)).max() < 2 * g * 1e-4
+    assert np.sqrt(P[6, 6]) > 0.01  # the tilt itself is as uncertain as the bias allows (0.3 m/s² / g)
+
+
+def test_in_motion_yaw_sigma_uses_the_receiver_velocity_sigma():
+    """The course of a velocity with σ_v at speed V has σ ≈ σ_v/V: the in-motion yaw σ uses the receiver's σ_v,
+    not the fusion floor ``gnss_min_std[2]`` (that floor covers the velocity's lag), unless
+    ``gnss_yaw_vel_floor`` asks for one."""
+    dt = 0.01
+    truth = tr.generate(tr.car_profile(t_start=5.0), 12.0, dt, math.radians(40.0), -1.8, 1600.0)
+    imu = se.corrupt_imu(truth, se.mems_gyro(), se.mems_accel(), seed=5).samples()
+    fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.02, std_d=0.04, std_vel=0.03), seed=6)
+    yaw_sd = {}
+    for floor in (0.0, 0.15):
+        cfg = NavConfig(align="static", nhc=True, gnss_min_std=(0.03, 0.06, 0.15), gnss_yaw_vel_floor=floor)
+        core = NavCore(None, cfg)
+        j = 0
+        for s in imu:
+            core.step(s)
+            while j < len(fixes) and fixes[j].t <= s.t + 1e-9:
+                was = core.phase
+                core.fuse(fixes[j])
+                if was != "nav" and core.phase == "nav":
+                    v = fixes[j].vel_ned
+                    speed = math.hypot(v[0], v[1])
+                    yaw_sd[floor] = (math.sqrt(core.kf.P[8, 8]), speed)
+                j += 1
+            if floor in yaw_sd:
+                break
+    sd0, v0 = yaw_sd[0.0]
+    assert sd0 == pytest.approx(math.radians(3.0) + 2 * 0.03 / v0, rel=1e-9)
+    sd1, v1 = yaw_sd[0.15]
+    assert sd1 == pytest.approx(math.radians(3.0) + 2 * 0.15 / v1, rel=1e-9)

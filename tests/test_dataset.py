@@ -129,3 +129,20 @@ def test_tag_time_map_is_consistent_with_the_rtk_course(drive_dir: Path):
     # residual lag after the shipped offsets: ~0 for the tag map in both halves, drifting for the linear map
     assert abs(lags["tags", "first"]) <= 0.02 and abs(lags["tags", "second"]) <= 0.02, lags
     assert abs(lags["linear", "first"] - lags["linear", "second"]) >= 0.05, lags
+
+
+def test_startup_validation_is_a_fresh_alignment_outside_the_protocol(drive_dir: Path):
+    """The held-out start-up outage: a restart during the 200.8–209.5 s stop, the outage from 0.25 s after the
+    first fix at ≥ 1 m/s, ending where the protocol's next outage begins (its epochs are never scored)."""
+    dr = dd.load_drive(drive_dir)
+    imu, gnss, outs = dd.startup_validation(dr)
+    t0 = dr.pos.t[0]
+    assert imu[0].t >= t0 + 201.0 and gnss[0].t >= t0 + 201.0
+    (a, b), = outs
+    assert 209.5 < a - t0 < 213.0 and b - t0 == pytest.approx(220.0)
+    first_moving = next(f for f in gnss if math.hypot(f.vel_ned[0], f.vel_ned[1]) >= 1.0)
+    assert a == pytest.approx(first_moving.t + 0.25)
+    proto = dd.outage_windows(dr.pos.t)
+    assert not any(a < d and c < b for c, d in proto)
+    with pytest.raises(ValueError, match="departure"):
+        dd.startup_validation(dr, restart=531.0, score_until=545.0)  # the final stop: no departure

@@ -108,6 +108,9 @@ def drive_config(aids: bool, cov_every: int = 1) -> NavConfig:
         gnss_vel_delay=0.13,  # the .pos velocity lags its position by 130–135 ms (docs/accuracy.md)
         gate_gnss=10.0,
         align="static",
+        # session 5: level on the whole rest before the drive (37 s; at most 30 s), not its last 2 s: the gyro
+        # bias from a 30 s mean (the idling engine shakes the pitch gyro by 1.4 °/s RMS); validation 1.02 → 0.97 m
+        align_time=30.0,
         nhc=aids,
         zupt=aids,
     )
@@ -354,8 +357,75 @@ def replay_drive(
                 "outage_h_rms_m": math.sqrt(sq / n),
                 "outage_h_max_m": mx,
             }
+        # held-out start-up outage (a fresh alignment, like the protocol's first outage; never its epochs)
+        imu_s, gnss_s, outs_s = drive0708.startup_validation(dr)
+        m, _, _ = run_drive(imu_s, gnss_s, [f.fix_type == 6 for f in gnss_s], drive_config(True), outs_s,
+                            _Progress("drive start-up validation", quiet))  # fmt: skip
+        res["startup_aids"] = {k: m[k] for k in ("outage_h_rms_m", "outage_h_max_m")}
+        res["startup_window_s"] = [outs_s[0][0] - dr.pos.t[0], outs_s[0][1] - dr.pos.t[0]]
     res["outage_windows_s"] = [(a - dr.pos.t[0], b - dr.pos.t[0]) for a, b in outages]
+    if "outages_aids" in series:
+        res["per_window_aids"] = per_window(series["outages_aids"], outages)
     return res, series
+
+
+def per_window(ser: Series, outages: list[tuple[float, float]]) -> list[dict[str, float]]:
+    """Horizontal RMS / max (m) of the antenna error inside each outage (every scored epoch)."""
+    t = np.array(ser.t)
+    e = np.array(ser.pos_err)
+    rows = []
+    for a, b in outages:
+        h = np.hypot(e[(t >= a) & (t < b), 0], e[(t >= a) & (t < b), 1])
+        if len(h):
+            rows.append({"rms_m": float(np.sqrt(np.mean(h**2))), "max_m": float(h.max())})
+    return rows
+
+
+SESSION5_NOTE = """### Session 5: the start-up (levelling on the rest, correlated tilt prior, yaw σ from the receiver)
+
+**Where the protocol's error was.** Per outage (session-4 settings): 3.30/5.33, **4.08/10.31**, 1.10/3.54, then
+0.35–1.03 m RMS and ≤ 2.2 m worst in the other eight. The first two outages come while the filter is still young:
+the car stands for 37 s, starts at 37.5 s, the core takes its yaw from the GNSS course at 39.75 s, and the first
+outage begins 0.25 s later. The validation windows (from 57.5 s on) never test that, so a held-out **start-up
+outage** was added: the replay restarts during the stop at 200.8–209.5 s and the outage runs from 0.25 s after
+the in-motion yaw alignment to 220 s (where the protocol's next outage begins; its epochs are never scored).
+Three things were wrong at a fresh alignment:
+
+* the levelling used only the last 2 s (`align_time`) of the 37 s rest; the idling engine shakes the pitch gyro
+  by 1.4 °/s RMS (y; x 0.27, z 0.09 °/s), so a 2 s mean leaves a gyro-bias error of order 0.1 °/s. The drive now
+  levels on up to 30 s of rest (`align_time = 30`);
+* the tilt after levelling was given an independent 2° σ, but levelling makes the computed horizontal specific
+  force zero: the tilt holds the horizontal accelerometer error (book §4.1.1). `ErrorStateEKF.level_tilt` sets
+  μ_NE = A x + ε with A from δv̇ = [f×]μ − C δb_a − C diag(f) δs_a (`NavConfig.level_tilt_prior`, default on;
+  tested against the tilt a biased static accelerometer really leaves);
+* the in-motion yaw σ used the fusion floor of the GNSS velocity σ (0.15 m/s, there for the velocity's lag):
+  3° + 2·0.15/1.16 = 18° at the drive's first fix at ≥ 1 m/s. The course accuracy is the receiver's (0.06 m/s):
+  `gnss_yaw_vel_floor` (default 0) → 9°.
+
+| variant (ZUPT + NHC) | validation h RMS / max (m) | per shift 17.5 / 22.5 / 27.5 s | start-up outage h RMS / max (m) |
+|---|---|---|---|
+| base (session 4) | 1.02 / 5.48 | 0.49/2.02, 1.13/4.80, 1.28/5.48 | 2.46 / 4.68 |
+| tilt prior correlated with the accelerometer error | 1.02 / 5.47 | 0.49/2.02, 1.12/4.83, 1.28/5.47 | 2.44 / 4.88 |
+| levelling on up to 30 s of rest | 0.97 / 5.47 | 0.54/2.02, 1.04/4.82, 1.21/5.47 | 2.45 / 4.68 |
+| both | 0.97 / 5.47 | 0.54/2.02, 1.04/4.83, 1.21/5.47 | 2.39 / 4.75 |
+| **both + yaw σ from the receiver σ_v** | **0.97 / 5.47** | 0.54/2.02, 1.04/4.83, 1.21/5.47 | **2.00 / 3.80** |
+| same, base yaw σ 1° instead of 3° (a tuned constant: not adopted) | | | 1.95 / 3.67 |
+| GNSS velocity fusion floor 0.06 m/s, not 0.15 (changes every fusion; session 2: worse) | | | 2.01 / 3.84 |
+| yaw-axis gyro ARW 0.15 / 0.1 / 0.05 °/√s (temp. code) | 0.97/5.44, 0.98/5.41, 0.98/5.39 | 0.55/2.00, 1.05/5.03, … | |
+| session-4 base with coning/sculling off; with end-of-interval increments | 1.02 / 5.49; 1.08 / 5.88 | | |
+
+Simulated check (no real data): a car at rest 20 s with a MEMS IMU (20 mg accelerometer, 0.2 °/s gyro turn-on
+biases), then driving off into a 15 s outage from 0.25 s after the yaw alignment, 12 seeds: horizontal error at
+the end of the outage 4.65 → 4.45 m RMS with the correlated tilt prior.
+
+**What is left: the second outage.** Its error is along-track and grows as t³ (velocity error −0.05, −0.17, −0.45,
+−0.74, −1.06, −1.64 m/s at 0, 3, … 14.75 s): a pitch that drifts at ≈ 1.4 mrad/s, i.e. a pitch-gyro bias ≈ 0.08 °/s
+off after only 30 s of GNSS with one turn. The gyro means at the four stops are stable (y: −67, −71, −47, −43 m°/s),
+but the filter's in-motion y-bias estimate at the outage starts ranges from −17 to −147 m°/s: the loose bias
+model (chosen on the validation windows; tighter is worse, sessions 1–4) lets it wander with the speed-dependent
+vibration (pitch-gyro high-frequency content 1.0 °/s at rest, 2.6 °/s at 3–7 m/s, 4.9 °/s above 11 m/s). Only a
+sensor that sees the forward speed (odometer) or pitch directly would hold it through the outage.
+"""
 
 
 SESSION4_NOTE = """### Session 4: NHC reference point, accelerometer scale factor, tilt (validation windows only)
@@ -731,11 +801,24 @@ def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path)
         if v:
             a(f"| held-out validation outages (3 × 11 shifted windows), {name} | {v['outage_h_rms_m']:.2f} | "
               f"{v['outage_h_max_m']:.2f} | | | |")  # fmt: skip
+    su = d.get("startup_aids")
+    if su:
+        w = d["startup_window_s"]
+        a(f"| held-out start-up outage (restart at 201 s, outage {w[0]:.2f}–{w[1]:.2f} s), with ZUPT + NHC | "
+          f"{su['outage_h_rms_m']:.2f} | {su['outage_h_max_m']:.2f} | | | |")  # fmt: skip
     a("| target | ≤ 1.5 | ≤ 6 | (upstream 0.41) | ≤ 0.05 | ≥ 20 |")
     a("| upstream filter, causal | 3.09 | 12.8 | 0.41 | | |\n")
     a("GNSS-present RMS: every RTK-fixed epoch of a run with GNSS all the time, antenna position; 'prior' is the "
       "state propagated to the epoch before that epoch is fused (what a consumer sees between fixes), 'post' "
       "after the update.\n")  # fmt: skip
+    pw = d.get("per_window_aids")
+    if pw:
+        a(
+            "Per protocol outage, with ZUPT + NHC (h RMS / max, m): "
+            + ", ".join(f"{w[0]:.0f} s {r['rms_m']:.2f}/{r['max_m']:.2f}" for w, r in zip(d["outage_windows_s"], pw))
+            + ".\n"
+        )
+    a(SESSION5_NOTE)
     a(SESSION4_NOTE)
     a(SESSION3_NOTE)
     a(CHOICE_NOTE)

@@ -330,3 +330,24 @@ def cv_outage_windows(t_gnss: Vec, shift: float = 22.5) -> list[tuple[float, flo
     if not 15.0 <= shift <= 30.0:
         raise ValueError(f"cv_outage_windows: shift={shift} s would overlap the protocol's outages (need 15..30)")
     return outage_windows(t_gnss, first=40.0 + shift)
+
+
+def startup_validation(
+    drive: Drive, restart: float = 201.0, score_until: float = 220.0, yaw_speed: float = 1.0
+) -> tuple[list[ImuSample], list[GnssFix], list[tuple[float, float]]]:
+    """A held-out start-up outage (the protocol's first outage comes 0.25 s after the in-motion yaw
+    alignment, so the validation windows, which start 57.5 s in, never test a fresh alignment): the
+    replay restarts at ``restart`` s after the first GNSS epoch (during the stop at 200.8–209.5 s), and the
+    outage runs from 0.25 s after the first fix at ≥ ``yaw_speed`` m/s (when the core enters navigation)
+    to ``score_until`` s, where the protocol's next outage begins (its epochs are never scored).
+    Returns (IMU samples, fixes, [outage])."""
+    t0 = float(drive.pos.t[0])
+    a = t0 + restart
+    imu = [s for s in drive.imu if s.t >= a]
+    gnss = [f for f in drive.gnss if f.t >= a]
+    moving = [
+        f.t for f in gnss if f.vel_ned is not None and math.hypot(float(f.vel_ned[0]), float(f.vel_ned[1])) >= yaw_speed
+    ]
+    if not moving or moving[0] + 0.25 >= t0 + score_until:
+        raise ValueError(f"startup_validation: no departure between {restart} s and {score_until} s")
+    return imu, gnss, [(moving[0] + 0.25, t0 + score_until)]

@@ -227,6 +227,44 @@ class ErrorStateEKF:
 
             self.factor = sq.factor_from_cov(self.cfg.numerics, self.P)
 
+    def level_tilt(self, C_bn: Vec, f_b: Vec, sigma: float) -> None:
+        """Tilt prior after accelerometer levelling at rest (book §4.1.1): the levelled attitude makes
+        the computed horizontal specific force zero, so the tilt error absorbs the horizontal
+        accelerometer error instead of being independent of it.
+
+        From δv̇ = [f^n×] μ − C δb_a − C diag(f^b) δs_a (module doc), zero horizontal δv̇ at the levelling
+        gives μ_NE = A x + ε with x the accelerometer error states (bias, scale factor), A = −M⁻¹ B,
+        M = [f^n×] (rows N, E; columns μ_N, μ_E), B the x columns; ε ~ N(0, ``sigma``²) (rad) is what the
+        levelling leaves (window noise, drift since the window). The yaw row and x keep their variances;
+        μ_NE's correlations with x (and through x with everything else) follow."""
+        i = self.idx
+        cols: list[int] = []
+        blocks: list[Vec] = []
+        if i.ba is not None:
+            cols += range(i.ba, i.ba + 3)
+            blocks.append(-C_bn[0:2, :])
+        if i.sa is not None:
+            cols += range(i.sa, i.sa + 3)
+            blocks.append(-(C_bn * f_b[None, :])[0:2, :])
+        f_n = C_bn @ f_b
+        P = self.P.copy()  # replaced, never mutated in place
+        r = slice(6, 8)
+        P[r, :] = 0.0
+        P[:, r] = 0.0
+        if cols:
+            M = np.array(((0.0, -float(f_n[2])), (float(f_n[2]), 0.0)))  # [f^n×] rows N, E; columns μ_N, μ_E
+            A = -np.linalg.solve(M, np.hstack(blocks))
+            X = np.array(cols)
+            P[r, :] = A @ P[X, :]
+            P[:, r] = P[r, :].T
+            P[r, r] = A @ P[np.ix_(X, X)] @ A.T
+        P[r, r] += np.eye(2) * sigma**2
+        self.P = P
+        if self.factor is not None:
+            from ins_hil.fusion import sqrt as sq
+
+            self.factor = sq.factor_from_cov(self.cfg.numerics, self.P)
+
     def build_F(self, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, f_b: Vec, w_b: Vec, lat: float, h: float) -> Vec:
         """Continuous error-dynamics matrix F (n×n) at the current nominal state (see module doc).
 
