@@ -25,9 +25,11 @@ Alignment (``NavConfig.align``): ``"given"`` trusts the initial state;
 ``"static"`` levels from the mean specific force over ``align_time`` s at rest
 (book §4.1.1), takes yaw from the magnetometer (refined alignment, §4.1.2,
 Example 4.1) when a field reference is configured, or else from the GNSS course
-once the speed exceeds ``gnss_yaw_speed`` (in-motion yaw). ``state().aligned``
-stays False until the attitude is known and the filter's yaw σ is below
-``aligned_yaw_std``.
+once the speed exceeds ``gnss_yaw_speed`` (in-motion yaw; yaw σ = ``gnss_yaw_std`` ⊕ σ_v/V with the
+receiver's σ_v, floored at ``gnss_yaw_vel_floor``). With ``level_tilt_prior`` the levelled tilt's prior
+is correlated with the accelerometer error states (the levelling absorbs the horizontal accelerometer
+error, :meth:`ErrorStateEKF.level_tilt`). ``state().aligned`` stays False until the attitude is known
+and the filter's yaw σ is below ``aligned_yaw_std``.
 """
 
 from __future__ import annotations
@@ -697,7 +699,8 @@ class NavCore:
                 s.h = meas.h + d[2]
                 self.ins.state.t = max(s.t, meas.t)
                 std_v = max(meas.std_vel, self.cfg.gnss_yaw_vel_floor)
-                self._enter_nav(yaw_std=self.cfg.gnss_yaw_std + 2.0 * std_v / sp)
+                # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V), independent
+                self._enter_nav(yaw_std=math.hypot(self.cfg.gnss_yaw_std, std_v / sp))
 
     def _enter_nav(self, yaw_std: float | None = None) -> None:
         self.phase = "nav"

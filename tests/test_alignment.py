@@ -176,7 +176,7 @@ def test_level_tilt_prior_predicts_the_tilt_a_biased_accelerometer_leaves(scale_
 def test_in_motion_yaw_sigma_uses_the_receiver_velocity_sigma():
     """The course of a velocity with σ_v at speed V has σ ≈ σ_v/V: the in-motion yaw σ uses the receiver's σ_v,
     not the fusion floor ``gnss_min_std[2]`` (that floor covers the velocity's lag), unless
-    ``gnss_yaw_vel_floor`` asks for one."""
+    ``gnss_yaw_vel_floor`` asks for one; it adds to ``gnss_yaw_std`` (course ≠ heading) in quadrature."""
     dt = 0.01
     truth = tr.generate(tr.car_profile(t_start=5.0), 12.0, dt, math.radians(40.0), -1.8, 1600.0)
     imu = se.corrupt_imu(truth, se.mems_gyro(), se.mems_accel(), seed=5).samples()
@@ -199,6 +199,6 @@ def test_in_motion_yaw_sigma_uses_the_receiver_velocity_sigma():
             if floor in yaw_sd:
                 break
     sd0, v0 = yaw_sd[0.0]
-    assert sd0 == pytest.approx(math.radians(3.0) + 2 * 0.03 / v0, rel=1e-9)
+    assert sd0 == pytest.approx(math.hypot(math.radians(3.0), 0.03 / v0), rel=1e-9)  # 1-σ terms add in quadrature
     sd1, v1 = yaw_sd[0.15]
-    assert sd1 == pytest.approx(math.radians(3.0) + 2 * 0.15 / v1, rel=1e-9)
+    assert sd1 == pytest.approx(math.hypot(math.radians(3.0), 0.15 / v1), rel=1e-9)
