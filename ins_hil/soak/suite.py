@@ -25,11 +25,7 @@ from ins_hil.soak.report import machine, plots, run_section, sweep_section
 
 def one(opt: SoakOptions, progress: Callable[[str], None] | None) -> tuple[dict[str, Any], list[str]]:
     """Run, analyse and plot one soak; (metrics, PNG names in opt.out)."""
-    d = run_soak(opt, progress)
-    m, series = analyse(d)
-    pngs = plots(d, series)
-    (d / "metrics.json").write_text(json.dumps(clean_json(m), indent=1))
-    return m, pngs
+    return reanalyse(run_soak(opt, progress))
 
 
 def campaign(
@@ -112,8 +108,9 @@ def rerender(out: str | Path, docs: str | None) -> dict[str, Any]:
 
 
 def reanalyse(d: Path) -> tuple[dict[str, Any], list[str]]:
+    """Analyse and plot the raw files of one run in ``d``; (metrics, PNG names), metrics.json written."""
     m, series = analyse(d)
-    pngs = plots(d, series)
+    pngs = plots(d, series, relay=m["gateway"] == "relay")
     (d / "metrics.json").write_text(json.dumps(clean_json(m), indent=1))
     return m, pngs
 
@@ -148,6 +145,8 @@ def note_command(opt: SoakOptions, rates: list[float], cores: list[str], sd: flo
                  docs: str | None, baseline_s: float = 0.0) -> str:  # fmt: skip
     """The command line that reproduces this campaign."""
     parts = [f"scripts/soak --duration {opt.duration:g} --rate {opt.rate:g} --imus {opt.imus} --core {opt.core}"]
+    if opt.gateway != "ins-hil":
+        parts.append(f"--gateway {opt.gateway}")
     parts.append(f"--baseline {baseline_s:g}")
     if opt.imus > 1:
         parts.append(f"--faults {opt.faults}")
