@@ -11,13 +11,15 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
+from ins_hil.cli import main as cli_main
 from ins_hil.runtime import mavlink_out
 from ins_hil.runtime.mavlink_out import GCS_RATES, EndpointConfig, MavlinkEndpoint
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.soak.analysis import analyse
 from ins_hil.soak.orchestrate import RELAY_LABEL, SoakOptions, run_soak
 from ins_hil.soak.relay import Epochs, Schedule, odometry_message
-from ins_hil.soak.report import run_section
+from ins_hil.soak.report import floor_comparison, run_section
+from ins_hil.soak.suite import RELAY_TITLE, note_command, relay_summary
 from ins_hil.types import ImuSample, NavState
 
 DURATION = 4.0
@@ -143,7 +145,7 @@ def test_relay_soak_measures_end_to_end_latency(relay_run: tuple[Path, dict[str,
     assert json.loads((d / "gcs.json").read_text())["messages"] == {"ODOMETRY": len(odo)}
 
 
-def test_relay_report_says_not_applicable(
+def test_relay_report_says_not_applicable_and_compares_with_the_gateway(
     relay_run: tuple[Path, dict[str, Any]],
 ) -> None:
     _, m = relay_run
@@ -151,7 +153,21 @@ def test_relay_report_says_not_applicable(
     assert c["accuracy_stable"]["ok"] is None and c["rss_growth"]["ok"] is None
     assert c["accuracy_stable"]["note"].startswith("not applicable")
     assert isinstance(c["e2e_p99"]["ok"], bool) and c["lost_frames"]["ok"] is True
-    md = run_section(m, [], "Null relay")
-    assert RELAY_LABEL.capitalize() in md
+    md = run_section(m, [], RELAY_TITLE)
+    assert "## Platform floor: null relay" in md and RELAY_LABEL.capitalize() in md
     assert "not applicable: null relay (no navigation)" in md
     assert "navigation error (after" not in md
+    # a campaign's comparison: the gateway's run beside the floor (here the same run: differences 0)
+    gw = {**m, "gateway": "ins-hil"}
+    assert "| gateway − floor | | 0 | 0 | 0 | 0 |" in floor_comparison(gw, m)
+    s = relay_summary([("main", "Main run", gw, []), ("relay", RELAY_TITLE, m, [])])
+    assert s is not None and s["end_to_end"] == m["latency"]["end_to_end"]
+    assert s["gateway_minus_floor_us"]["p99_us"] == 0
+
+
+def test_campaign_command_line_names_the_relay_run(capsys: pytest.CaptureFixture[str]) -> None:
+    cmd = note_command(SoakOptions(duration=1800, out="soak-out"), [], [], 60.0, 0.0, None, 30.0, 600.0)
+    assert "--relay-duration 600" in cmd and "--gateway" not in cmd
+    assert "--gateway relay" in note_command(SoakOptions(gateway="relay"), [], [], 60.0, 0.0, None)
+    assert cli_main(["soak", "--gateway", "relay", "--relay-duration", "5"]) == 2  # the main run is the relay
+    assert "already" in capsys.readouterr().err

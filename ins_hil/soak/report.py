@@ -138,22 +138,25 @@ def _check(c: dict[str, Any]) -> str:
     return _ok(c["ok"]) + (f" ({note})" if note else "")
 
 
-def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -> str:
-    """Markdown of one run (figures, checks, plots)."""
+def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "", preface: str = "") -> str:
+    """Markdown of one run (figures, checks, plots); ``preface`` goes right under the heading."""
     o, lat, c = m["options"], m["latency"], m["checks"]
     relay = m.get("gateway") == "relay"
     lines = [f"## {title}", ""]
     if relay:
         lines += [
             f"**{m['label'].capitalize()}.** The null relay (`--gateway relay`, ins_hil/soak/relay.py) takes the "
-            "gateway's place: the same CPU, SCHED_FIFO priority, ptys (pyserial at the same baud rate) and UDP "
+            "gateway's place: the same CPU and scheduling, ptys (pyserial at the same baud rate) and UDP "
             "ports; a plain blocking read loop decodes the IMU frames with the gateway's frame parser and sends "
             "one ODOMETRY (the gateway's packer, time_usec = the epoch's sensor time) whenever the gateway would "
-            "(the same 47 Hz due rule, on the monotonic clock at the decoded epoch); GNSS is drained and dropped. "
+            "(the same due rule at the ODOMETRY rate, on the monotonic clock at the decoded epoch); GNSS is drained "
+            "and dropped. "
             "Its end-to-end latency is the floor of this platform (emitter → pty kernel worker → relay → UDP → "
             "client) under any gateway; the navigation, fault and gateway-memory targets are not applicable.",
             "",
         ]
+    if preface:
+        lines += [preface, ""]
     lines.append(
         f"{o['duration']:.0f} s, IMU {o['rate']:.0f} Hz × {o['imus']}, "
         + ("**null relay** in the gateway's place, " if relay else f"core **{o['core']}**, ")
@@ -296,6 +299,24 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
     for p in pngs:
         lines.append(f"![{p}]({rel}{p})")
     lines.append("")
+    return "\n".join(lines)
+
+
+def floor_comparison(gw: dict[str, Any], relay: dict[str, Any]) -> str:
+    """Markdown: the gateway run's end-to-end latency beside the null relay's (the platform floor) and
+    the difference (what the gateway adds above the floor; a percentile difference, not a per-sample one)."""
+    a, b = gw["latency"]["end_to_end"], relay["latency"]["end_to_end"]
+    keys = ("p50_us", "p99_us", "p999_us", "max_us")
+    lines = [
+        f"Back to back with the main run ({gw['duration_s']:.0f} s) under the same settings, the relay "
+        f"for {relay['duration_s']:.0f} s:",
+        "",
+        "| end-to-end latency (µs) | count | p50 | p99 | p99.9 | max |",
+        "|---|---|---|---|---|---|",
+        f"| gateway (main run) | {a['count']} | " + " | ".join(_f(a[k]) for k in keys) + " |",
+        f"| null relay (platform floor) | {b['count']} | " + " | ".join(_f(b[k]) for k in keys) + " |",
+        "| gateway − floor | | " + " | ".join(_f(a[k] - b[k]) for k in keys) + " |",
+    ]
     return "\n".join(lines)
 
 
