@@ -16,7 +16,9 @@ DESCRIPTION = (
     "latency and jitter, late samples, frame loss by reason, queue depth, CPU, RSS and fds per process, "
     "navigation error against truth and fault detection. Writes metrics.json, report.md and PNG plots into "
     "--out; exits 1 when a target of the main run is missed (p99 ≤ 1 ms, p99.9 ≤ 2 ms, no lost frame, RSS "
-    "growth < 1 MiB/h, stable accuracy, faults isolated without false alarm)."
+    "growth < 1 MiB/h, stable accuracy, faults isolated without false alarm). --gateway relay puts the null "
+    "relay in the gateway's place (no navigation: the end-to-end latency floor of the transport and wake-up "
+    "chain); --relay-duration S runs it right after the main run, back to back with the gateway."
 )
 
 
@@ -42,6 +44,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "T:GROUP:ROW:MODE:SIZE[:DURATION],... (see ins_hil/soak/faults.py)",
     )
     p.add_argument("--core", choices=["python", "c"], default="python", help="navigation core (default python)")
+    p.add_argument(
+        "--gateway",
+        choices=["ins-hil", "relay"],
+        default="ins-hil",
+        help="what runs on the gateway CPU: ins-hil (the real gateway, default) or relay (the null relay: same "
+        "CPU, priority, ptys and UDP ports, decodes the IMU frames and sends ODOMETRY at the gateway's rate, no "
+        "navigation; its end-to-end latency is the platform floor of the transport and wake-up chain)",
+    )
     p.add_argument("--load", type=int, default=0, metavar="N", help="busy-loop background processes (2 = both CPUs)")
     p.add_argument(
         "--transports", default="serial,udp", help="serial,udp (CAN is not available: no vcan on this kernel)"
@@ -73,6 +83,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sweep-cores", default="python,c", metavar="CORES", help="cores of the sweep (default python,c)")
     p.add_argument("--sweep-duration", type=float, default=60.0, metavar="S", help="length of each sweep run")
     p.add_argument("--loaded-duration", type=float, default=0.0, metavar="S", help="also run under load on both CPUs")
+    p.add_argument(
+        "--relay-duration",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="right after the main run, also run the null relay (--gateway relay) for S s with the same settings: "
+        "the platform floor, measured back to back with the gateway (report section 'Platform floor: null relay')",
+    )
     p.add_argument("--docs", metavar="MD", help="also write the report here (e.g. docs/soak.md), plots beside it")
     p.add_argument(
         "--baseline",
@@ -115,6 +133,10 @@ def run(args: argparse.Namespace) -> int:
         return bad(f"--imus {args.imus}: 1, 2 (dual_imu) or 3 (triple_imu)")
     if args.load < 0:
         return bad(f"--load {args.load}: must be ≥ 0")
+    if args.relay_duration < 0:
+        return bad(f"--relay-duration {args.relay_duration}: must be ≥ 0")
+    if args.relay_duration > 0 and args.gateway == "relay":
+        return bad("--relay-duration: the main run is the null relay already (--gateway relay)")
     if args.imus == 1 and args.faults.strip().lower() not in ("auto", "none"):
         return bad(f"--faults {args.faults!r}: fault detection needs --imus 2 or 3")
     faults = args.faults if args.imus > 1 else "none"
@@ -141,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
         gcs_rate=args.gcs_rate,
         record=not args.no_record,
         rt=not args.no_rt,
+        gateway=args.gateway,
         seed=args.seed,
         out=args.out,
     )
@@ -155,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         top = campaign(
             opt, rates, cores if rates else [], args.sweep_duration, args.loaded_duration, args.note, args.docs,
-            progress, baseline_s=max(0.0, args.baseline),
+            progress, baseline_s=max(0.0, args.baseline), relay_duration=args.relay_duration,
         )  # fmt: skip
     except (RuntimeError, OSError, ValueError) as e:
         print(f"\nins-hil soak: {e}", file=sys.stderr)
@@ -166,9 +189,16 @@ def run(args: argparse.Namespace) -> int:
     lat = main["latency"]["end_to_end"]
     missed = [k for k, c in main["checks"].items() if c["ok"] is False]
     print(
-        f"[soak] main run: e2e p50 {lat['p50_us']:.0f} µs p99 {lat['p99_us']:.0f} µs p99.9 {lat['p999_us']:.0f} µs, "
+        f"[soak] main run{' (null relay)' if args.gateway == 'relay' else ''}: e2e p50 {lat['p50_us']:.0f} µs "
+        f"p99 {lat['p99_us']:.0f} µs p99.9 {lat['p999_us']:.0f} µs max {lat['max_us']:.0f} µs, "
         f"lost {main['frames']['lost']}, RSS growth {main['checks']['rss_growth']['value_mib_per_h']:.2f} MiB/h, "
         + ("PASS" if top["pass"] else "targets missed: " + ", ".join(missed))
     )
+    if "relay" in top["runs"]:
+        r = top["runs"]["relay"]["latency"]["end_to_end"]
+        print(
+            f"[soak] platform floor (null relay): e2e p50 {r['p50_us']:.0f} µs p99 {r['p99_us']:.0f} µs "
+            f"p99.9 {r['p999_us']:.0f} µs max {r['max_us']:.0f} µs, lost {top['runs']['relay']['frames']['lost']}"
+        )
     print(f"[soak] report: {args.out}/report.md" + (f" and {args.docs}" if args.docs else ""))
     return 0 if top["pass"] or args.report_only else 1

@@ -176,6 +176,14 @@ def _frame_of(typ: str) -> _Frame:
     return f
 
 
+def advance_due(due_ns: int, period_ns: int, now_ns: int) -> int:
+    """The next due time of a stream that was due at ``due_ns`` and is sent at ``now_ns``: one period
+    after the due time (the rate holds on average, whatever the phase of the states), never in the past
+    (a state that comes late does not start a burst of catch-up messages). The first due time is 0: the
+    first state goes out at once. (Also the null relay's ODOMETRY schedule, :mod:`ins_hil.soak.relay`.)"""
+    return max(due_ns + period_ns, now_ns)
+
+
 def _floats(a: Any) -> list[float]:
     """Python floats of a small vector (ndarray.tolist is the cheap path)."""
     try:
@@ -441,7 +449,7 @@ class MavlinkEndpoint:
                 due = nxt[typ]
                 if now < due or (typ == "GPS_RAW_INT" and not self._gnss_new):
                     continue
-                nxt[typ] = max(due + period, now)
+                nxt[typ] = advance_due(due, period, now)
                 send(st)
                 self._count(typ)
                 if first:

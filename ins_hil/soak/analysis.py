@@ -10,6 +10,11 @@ of the IMU epoch whose sensor time the message carries (ODOMETRY ``time_usec``),
 CLOCK_MONOTONIC. Frame loss = epochs the simulator scheduled − samples the gateway
 received, with the reasons counted where they happen. Navigation error = received
 GLOBAL_POSITION_INT / ATTITUDE − truth at the message's sensor time.
+
+A null-relay run (``options.gateway == "relay"``, :mod:`ins_hil.soak.relay`) has the same files
+(its ``gateway.json`` in the gateway's layout): its end-to-end latency is the platform floor;
+the navigation, fault-isolation and gateway-memory targets are not applicable to it (``ok`` None
+with a note), latency and loss are judged as for the gateway.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import numpy as np
 from ins_hil.machine import CLK_TCK
 from ins_hil.nav.earth import radii
 from ins_hil.soak.faults import geometry_for, parse_faults
+from ins_hil.soak.orchestrate import RELAY_LABEL
 
 #: the issue's targets (1 kHz, Python core, 2 cores)
 TARGETS = {"e2e_p99_us": 1000.0, "e2e_p999_us": 2000.0, "lost_frames": 0, "rss_growth_mib_per_h": 1.0}
@@ -36,6 +42,8 @@ SETTLE_S = 30.0
 DIVERGED = {"m": 50.0, "deg": 20.0}
 #: a fault counts as detected when an isolating event names its sensor within this time (s)
 DETECT_WINDOW_S = 10.0
+#: the note of a target that a null-relay run does not judge
+NOT_APPLICABLE = "not applicable: null relay (no navigation)"
 
 
 def pct(x: np.ndarray) -> dict[str, float]:
@@ -335,7 +343,12 @@ def analyse(d: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
             acc[f"{k}_deg"] = accuracy_stability(ne["att_t"], np.degrees(ne[f"{k}_rad"]), settle, end, DIVERGED["deg"])
     stable = [v["stable"] for v in acc.values() if v.get("stable") is not None]
     # -- faults --------------------------------------------------------------------------
-    fc = fault_check(opt, gw.get("fault_events", []))
+    relay = opt.get("gateway", "ins-hil") == "relay"
+    if relay:
+        fc = {"injected": [], "events": 0, "all_isolated": None, "false_alarms": 0, "dropout_events": 0,
+              "not_applicable": True}  # fmt: skip
+    else:
+        fc = fault_check(opt, gw.get("fault_events", []))
     fc["statustext_at_gcs"] = len([x for x in texts if x["severity"] <= 4])
     # -- verdict ---------------------------------------------------------------------------
     e2e = pct(lat)
@@ -362,13 +375,23 @@ def analyse(d: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         },
         "accuracy_stable": {"ok": all(stable) if stable else None},
     }
-    if n_imus > 1 and fc["injected"]:
-        checks["faults_isolated"] = {"ok": bool(fc["all_isolated"])}
-    if n_imus > 1:
-        checks["no_false_alarm"] = {"value": fc["false_alarms"], "ok": fc["false_alarms"] == 0}
+    if relay:
+        checks["rss_growth"].update(ok=None, note="not applicable: null relay (the target is the gateway's memory)")
+        checks["accuracy_stable"] = {"ok": None, "note": NOT_APPLICABLE}
+        if n_imus > 1:
+            no_fdi = "not applicable: null relay (no FDI)"
+            checks["faults_isolated"] = {"ok": None, "note": no_fdi}
+            checks["no_false_alarm"] = {"value": None, "ok": None, "note": no_fdi}
+    else:
+        if n_imus > 1 and fc["injected"]:
+            checks["faults_isolated"] = {"ok": bool(fc["all_isolated"])}
+        if n_imus > 1:
+            checks["no_false_alarm"] = {"value": fc["false_alarms"], "ok": fc["false_alarms"] == 0}
     judged = [c["ok"] for c in checks.values() if c["ok"] is not None]
     metrics = {
         "options": opt,
+        "gateway": "relay" if relay else "ins-hil",
+        "label": RELAY_LABEL if relay else "",
         "duration_s": float(opt["duration"]),
         "latency": {
             "end_to_end": e2e,

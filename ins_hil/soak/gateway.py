@@ -189,9 +189,9 @@ def _gc_probe() -> dict[str, Any]:
     return stats
 
 
-def main(argv: list[str] | None = None) -> int:
-    die_with_parent()
-    ap = argparse.ArgumentParser(description="soak gateway process (see ins_hil.soak.gateway)")
+def build_parser(description: str = "soak gateway process (see ins_hil.soak.gateway)") -> argparse.ArgumentParser:
+    """The command line of the gateway process (the null relay, :mod:`ins_hil.soak.relay`, takes the same)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--imu", action="append", required=True, help="IMU link pty (repeat per link)")
     ap.add_argument("--gnss-port", type=int, required=True)
     ap.add_argument("--gcs-port", type=int, required=True)
@@ -204,7 +204,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--record", action="store_true")
     ap.add_argument("--imus", type=int, default=1, help="redundant IMUs (their frames may share one link)")
     ap.add_argument("--rt", type=int, default=0, help="SCHED_FIFO priority (0 = time-shared)")
-    a = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    die_with_parent()
+    a = build_parser().parse_args(argv)
     pin(a.cpu)
     return asyncio.run(_run(a))
 

@@ -1,10 +1,11 @@
 """Start the three soak processes pinned to their CPUs, sample /proc, stop them in order.
 
 Layout on a 2-core machine: CPU A = sensors + ground station (+ this sampler),
-CPU B = the gateway alone. Background load: ``load`` busy-loop processes, one per
-CPU in turn (``load=2`` loads both). Per second the sampler records, for each
-process, CPU time (utime+stime), RSS and open file descriptors into ``proc.jsonl``
-and prints a progress line (``progress`` callback).
+CPU B = the gateway alone (or the null relay in its place, ``gateway="relay"``).
+Background load: ``load`` busy-loop processes, one per CPU in turn (``load=2`` loads
+both). Per second the sampler records, for each process, CPU time (utime+stime), RSS
+and open file descriptors into ``proc.jsonl`` and prints a progress line (``progress``
+callback).
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ from ins_hil.runtime.rt import PRIO_CLIENT, PRIO_GATEWAY, PRIO_SENSORS, policy
 
 GCS_RATE = 47.0
 PAGE = os.sysconf("SC_PAGE_SIZE")
+#: what runs on the gateway CPU: the real gateway, or the null relay (the platform floor, ins_hil.soak.relay)
+GATEWAYS = {"ins-hil": "ins_hil.soak.gateway", "relay": "ins_hil.soak.relay"}
+RELAY_LABEL = "null relay: no navigation, the transport and wake-up chain alone"
 
 
 @dataclass
@@ -46,6 +50,9 @@ class SoakOptions:
     gcs_rate: float = GCS_RATE
     record: bool = True
     rt: bool = True  # SCHED_FIFO for sensors, gateway and client (ins_hil.runtime.rt priorities)
+    # ins-hil: the real gateway; relay: the null relay in its place (same CPU, priority and transports,
+    # no navigation: the end-to-end latency floor of the transport and wake-up chain, ins_hil.soak.relay)
+    gateway: str = "ins-hil"
     seed: int = 7
     out: str = "soak-out"
 
@@ -122,6 +129,8 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
         )
     if transports != {"serial", "udp"}:
         raise RuntimeError(f"--transports {opt.transports!r}: the soak needs serial (IMU) and udp (GNSS/MAVLink)")
+    if opt.gateway not in GATEWAYS:
+        raise RuntimeError(f"--gateway {opt.gateway!r}: one of {', '.join(GATEWAYS)}")
     cpu_s, cpu_g = cpus()
     (out / "options.json").write_text(json.dumps({**asdict(opt), "cpu_sensors": cpu_s, "cpu_gateway": cpu_g}, indent=1))
     py = sys.executable
@@ -144,13 +153,13 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
              "--rt", str(PRIO_SENSORS if opt.rt else 0)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
         ptys = _line(procs["sim"], "sensor simulator")["imu"]
-        gw_args = [py, "-m", "ins_hil.soak.gateway", "--gnss-port", str(gnss_port), "--gcs-port", str(gcs_port),
+        gw_args = [py, "-m", GATEWAYS[opt.gateway], "--gnss-port", str(gnss_port), "--gcs-port", str(gcs_port),
                    "--gcs-rate", str(opt.gcs_rate), "--rate", str(opt.rate), "--core", opt.core,
                    "--duration", str(opt.duration + 3.0), "--out", str(out), "--cpu", str(cpu_g),
                    "--imus", str(opt.imus), "--rt", str(PRIO_GATEWAY if opt.rt else 0)]  # fmt: skip
         for p in ptys:
             gw_args += ["--imu", p]
-        if opt.record:
+        if opt.record and opt.gateway == "ins-hil":
             gw_args.append("--record")
         procs["gateway"] = subprocess.Popen(gw_args, stdout=subprocess.PIPE, text=True)
         _line(procs["gateway"], "gateway")

@@ -39,8 +39,9 @@ def machine() -> dict[str, Any]:
     }
 
 
-def plots(out: Path, series: dict[str, np.ndarray], prefix: str = "") -> list[str]:
-    """latency histogram, latency over time, RSS over time, error over time → PNG files; their names."""
+def plots(out: Path, series: dict[str, np.ndarray], prefix: str = "", relay: bool = False) -> list[str]:
+    """latency histogram, latency over time, RSS over time, error over time → PNG files; their names.
+    ``relay``: a null-relay run (no navigation: no error plot; its own read → decoded window)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -74,7 +75,7 @@ def plots(out: Path, series: dict[str, np.ndarray], prefix: str = "") -> list[st
             "-",
             lw=1,
             color="tab:red",
-            label="arrival → state p99 (5 s window)",
+            label="relay: read → decoded p99 (5 s window)" if relay else "arrival → state p99 (5 s window)",
         )
     ax.set_yscale("log")
     ax.set(xlabel="run time (s)", ylabel="latency (µs)")
@@ -94,6 +95,8 @@ def plots(out: Path, series: dict[str, np.ndarray], prefix: str = "") -> list[st
     names.append(f"{prefix}rss_time.png")
     fig.savefig(out / names[-1], dpi=90)
     plt.close(fig)
+    if relay:
+        return names
 
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
     if "horiz_m" in series:
@@ -127,13 +130,37 @@ def _ok(v: Any) -> str:
     return "n/a" if v is None else ("**pass**" if v else "**FAIL**")
 
 
-def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -> str:
-    """Markdown of one run (figures, checks, plots)."""
+def _check(c: dict[str, Any]) -> str:
+    """A check's result, with its note when it was not judged (a null relay's: "not applicable: ...")."""
+    note = c.get("note") or ""
+    if c["ok"] is None and note.startswith("not applicable"):
+        return note
+    return _ok(c["ok"]) + (f" ({note})" if note else "")
+
+
+def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "", preface: str = "") -> str:
+    """Markdown of one run (figures, checks, plots); ``preface`` goes right under the heading."""
     o, lat, c = m["options"], m["latency"], m["checks"]
+    relay = m.get("gateway") == "relay"
     lines = [f"## {title}", ""]
+    if relay:
+        lines += [
+            f"**{m['label'].capitalize()}.** The null relay (`--gateway relay`, ins_hil/soak/relay.py) takes the "
+            "gateway's place: the same CPU and scheduling, ptys (pyserial at the same baud rate) and UDP "
+            "ports; a plain blocking read loop decodes the IMU frames with the gateway's frame parser and sends "
+            "one ODOMETRY (the gateway's packer, time_usec = the epoch's sensor time) whenever the gateway would "
+            "(the same due rule at the ODOMETRY rate, on the monotonic clock at the decoded epoch); GNSS is drained "
+            "and dropped. "
+            "Its end-to-end latency is the floor of this platform (emitter → pty kernel worker → relay → UDP → "
+            "client) under any gateway; the navigation, fault and gateway-memory targets are not applicable.",
+            "",
+        ]
+    if preface:
+        lines += [preface, ""]
     lines.append(
-        f"{o['duration']:.0f} s, IMU {o['rate']:.0f} Hz × {o['imus']}, core **{o['core']}**, "
-        f"background load {o['load']} busy process(es), faults `{o['faults'] if o['imus'] > 1 else 'none'}`, "
+        f"{o['duration']:.0f} s, IMU {o['rate']:.0f} Hz × {o['imus']}, "
+        + ("**null relay** in the gateway's place, " if relay else f"core **{o['core']}**, ")
+        + f"background load {o['load']} busy process(es), faults `{o['faults'] if o['imus'] > 1 else 'none'}`, "
         f"CPUs allowed (measured): {', '.join(f'{k} {v}' for k, v in o.get('affinity', {}).items())}; "
         f"scheduling: {', '.join(f'{k} {v}' for k, v in o.get('scheduling', {}).items()) or 'not recorded'}; "
         f"ODOMETRY {o.get('gcs_rate', 50.0):g} Hz. Overall: {_ok(m['pass'])}."
@@ -144,27 +171,35 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
     lines.append(f"| lost IMU frames | {c['lost_frames']['value']} | 0 | {_ok(c['lost_frames']['ok'])} |")
     r = c["rss_growth"]
     lines.append(
-        f"| gateway RSS growth after warm-up | {_f(r['value_mib_per_h'], 2)} MiB/h | < 1 MiB/h | "
-        f"{_ok(r['ok'])}{' (' + r['note'] + ')' if r['note'] else ''} |"
+        f"| gateway RSS growth after warm-up | {_f(r['value_mib_per_h'], 2)} MiB/h | < 1 MiB/h | {_check(r)} |"
     )
+    acc_value = "—" if relay else "see below"
     lines.append(
-        f"| navigation accuracy stable | see below | last third ≤ 2× first + 1 | {_ok(c['accuracy_stable']['ok'])} |"
+        f"| navigation accuracy stable | {acc_value} | last third ≤ 2× first + 1 | {_check(c['accuracy_stable'])} |"
     )
     if "faults_isolated" in c:
-        lines.append(
-            f"| injected faults isolated | {sum(x['detected'] for x in m['faults']['injected'])}/"
-            f"{len(m['faults']['injected'])} | all | {_ok(c['faults_isolated']['ok'])} |"
-        )
+        inj = m["faults"]["injected"]
+        n_ok = "—" if relay else f"{sum(x['detected'] for x in inj)}/{len(inj)}"
+        lines.append(f"| injected faults isolated | {n_ok} | all | {_check(c['faults_isolated'])} |")
     if "no_false_alarm" in c:
-        lines.append(f"| false alarms | {c['no_false_alarm']['value']} | 0 | {_ok(c['no_false_alarm']['ok'])} |")
+        lines.append(
+            f"| false alarms | {_f(c['no_false_alarm']['value'])} | 0 | {_check(c['no_false_alarm'])} |"
+        )
     lines += ["", "| latency (µs) | count | p50 | p99 | p99.9 | max |", "|---|---|---|---|---|---|"]
-    names = (
+    names: tuple[tuple[str, str], ...] = (
         ("end_to_end", "sensor emission → state received by the ground station"),
         ("arrival_to_state", "loop: bytes arrived → state ready"),
         ("core_step", "core step (FDI + INS/EKF)"),
         ("state_to_sent", "state ready → first MAVLink message sent"),
         ("sensor_send_lateness", "simulator: emission − schedule"),
     )
+    if relay:
+        names = (
+            ("end_to_end", "sensor emission → ODOMETRY received by the ground station: the platform floor"),
+            ("arrival_to_state", "relay: bytes read → epoch decoded"),
+            ("state_to_sent", "relay: epoch decoded → ODOMETRY handed to the socket (packing + UDP send)"),
+            ("sensor_send_lateness", "simulator: emission − schedule"),
+        )
     for k, label in names:
         s = lat[k]
         lines.append(
@@ -173,19 +208,27 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
         )
     lp = m["loop"]
     jit = lp["jitter"] or {}
-    lines += [
-        "",
-        f"Loop period jitter |period − 1/rate|: p50 {_f(jit.get('p50_us'))} µs, p99 "
-        f"{_f(jit.get('p99_us'))} µs, max {_f(jit.get('max_us'))} µs. Late samples (arrival → state > "
-        f"{lp['late_threshold_ms']:.2f} ms, one period): {lp['late']} of {lp['epochs']} epochs. "
-        f"Input queue depth max: {lp['queue_depth_max']}.",
-    ]
+    if relay:
+        lines += [
+            "",
+            f"Epochs decoded more than one period after their bytes were read (> {lp['late_threshold_ms']:.2f} "
+            f"ms): {lp['late']} of {lp['epochs']}.",
+        ]
+    else:
+        lines += [
+            "",
+            f"Loop period jitter |period − 1/rate|: p50 {_f(jit.get('p50_us'))} µs, p99 "
+            f"{_f(jit.get('p99_us'))} µs, max {_f(jit.get('max_us'))} µs. Late samples (arrival → state > "
+            f"{lp['late_threshold_ms']:.2f} ms, one period): {lp['late']} of {lp['epochs']} epochs. "
+            f"Input queue depth max: {lp['queue_depth_max']}.",
+        ]
     fr = m["frames"]
     reasons = ", ".join(f"{k} {v}" for k, v in fr["by_reason"].items() if v) or "none"
     lines += [
         "",
         f"Frames: scheduled {sum(fr['scheduled'])}, written to the ptys {sum(fr['written'])}, received by "
-        f"the gateway {sum(fr['received'])}, lost {fr['lost']}. Counters by reason: {reasons} "
+        f"the {'relay' if relay else 'gateway'} {sum(fr['received'])}, lost {fr['lost']}. Counters by reason: "
+        f"{reasons} "
         "(seq_gap / seq_backwards are the driver's detection of frames lost before it, not extra loss).",
     ]
     lines += [
@@ -194,8 +237,9 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
         "|---|---|---|---|---|",
     ]
     for k, v in m["resources"].items():
+        who = "null relay (gateway CPU)" if relay and k == "gateway" else k
         lines.append(
-            f"| {k} | {_f(v['cpu_percent'], 1)} | {_f(v['rss_start_mib'], 1)} → {_f(v['rss_end_mib'], 1)} "
+            f"| {who} | {_f(v['cpu_percent'], 1)} | {_f(v['rss_start_mib'], 1)} → {_f(v['rss_end_mib'], 1)} "
             f"({_f(v['rss_max_mib'], 1)}) | {_f(v['rss_growth_mib_per_h'], 2)} | {v['fds_start']} → "
             f"{v['fds_end']} ({v['fds_max']}) |"
         )
@@ -217,6 +261,11 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
                 f"p50 {ns['p50_us']:.0f} µs, p99 {ns['p99_us']:.0f} µs, p99.9 {ns['p999_us']:.0f} µs (a steal tick "
                 "is 10 ms: shorter host preemptions mostly go uncounted, so these intervals are not free of them)."
             )
+    if relay:
+        lines += ["", "Navigation error and fault isolation: not applicable (null relay: no navigation).", ""]
+        lines += [f"![{p}]({rel}{p})" for p in pngs]
+        lines.append("")
+        return "\n".join(lines)
     lines += [
         "",
         "| navigation error (after the settling time) | RMS first third | RMS last third | max | stable |",
@@ -250,6 +299,24 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "") -
     for p in pngs:
         lines.append(f"![{p}]({rel}{p})")
     lines.append("")
+    return "\n".join(lines)
+
+
+def floor_comparison(gw: dict[str, Any], relay: dict[str, Any]) -> str:
+    """Markdown: the gateway run's end-to-end latency beside the null relay's (the platform floor) and
+    the difference (what the gateway adds above the floor; a percentile difference, not a per-sample one)."""
+    a, b = gw["latency"]["end_to_end"], relay["latency"]["end_to_end"]
+    keys = ("p50_us", "p99_us", "p999_us", "max_us")
+    lines = [
+        f"Back to back with the main run ({gw['duration_s']:.0f} s) under the same settings, the relay "
+        f"for {relay['duration_s']:.0f} s:",
+        "",
+        "| end-to-end latency (µs) | count | p50 | p99 | p99.9 | max |",
+        "|---|---|---|---|---|---|",
+        f"| gateway (main run) | {a['count']} | " + " | ".join(_f(a[k]) for k in keys) + " |",
+        f"| null relay (platform floor) | {b['count']} | " + " | ".join(_f(b[k]) for k in keys) + " |",
+        "| gateway − floor | | " + " | ".join(_f(a[k] - b[k]) for k in keys) + " |",
+    ]
     return "\n".join(lines)
 
 

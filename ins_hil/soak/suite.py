@@ -1,7 +1,8 @@
-"""A soak campaign: the main run, optional rate sweep per core and loaded run, one report.
+"""A soak campaign: the main run, optional null-relay run, rate sweep per core and loaded run, one report.
 
-Layout of ``out``: ``main/`` (raw files + plots of the main run), ``sweep-<core>-<rate>/``,
-``loaded/``, and at the top ``metrics.json`` and ``report.md``. With ``docs`` the report
+Layout of ``out``: ``main/`` (raw files + plots of the main run), ``relay/`` (the null relay right
+after the main run with the same settings: the platform floor, :mod:`ins_hil.soak.relay`),
+``sweep-<core>-<rate>/``, ``loaded/``, and at the top ``metrics.json`` and ``report.md``. With ``docs`` the report
 is also written there (PNG plots copied next to it in ``<docs stem>/``).
 """
 
@@ -20,16 +21,12 @@ from ins_hil.soak.analysis import analyse
 from ins_hil.soak.baseline import cyclictest
 from ins_hil.soak.baseline import section as baseline_section
 from ins_hil.soak.orchestrate import SoakOptions, cpus, run_soak
-from ins_hil.soak.report import machine, plots, run_section, sweep_section
+from ins_hil.soak.report import floor_comparison, machine, plots, run_section, sweep_section
 
 
 def one(opt: SoakOptions, progress: Callable[[str], None] | None) -> tuple[dict[str, Any], list[str]]:
     """Run, analyse and plot one soak; (metrics, PNG names in opt.out)."""
-    d = run_soak(opt, progress)
-    m, series = analyse(d)
-    pngs = plots(d, series)
-    (d / "metrics.json").write_text(json.dumps(clean_json(m), indent=1))
-    return m, pngs
+    return reanalyse(run_soak(opt, progress))
 
 
 def campaign(
@@ -42,9 +39,12 @@ def campaign(
     docs: str | None,
     progress: Callable[[str], None] | None = None,
     baseline_s: float = 0.0,
+    relay_duration: float = 0.0,
 ) -> dict[str, Any]:
     """Every run of the campaign and the report; returns the top-level metrics (``pass`` = main run).
-    ``baseline_s`` > 0: first measure the platform's wake-up latency (cyclictest) on the soak's CPUs."""
+    ``baseline_s`` > 0: first measure the platform's wake-up latency (cyclictest) on the soak's CPUs.
+    ``relay_duration`` > 0: right after the main run, the null relay in the gateway's place for that
+    long with the same settings (the platform floor; ``runs.relay``, compared in ``relay``)."""
     out = Path(opt.out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
@@ -58,6 +58,12 @@ def campaign(
     main_opt = replace(opt, out=str(out / "main"))
     m, p = one(main_opt, progress)
     runs.append(("main", "Main run", m, p))
+    if relay_duration > 0 and opt.gateway != "relay":
+        ro = replace(opt, gateway="relay", duration=relay_duration, out=str(out / "relay"))
+        if progress:
+            progress(f"[soak] platform floor: the null relay in the gateway's place, {relay_duration:.0f} s")
+        rm, rp = one(ro, progress)
+        runs.append(("relay", RELAY_TITLE, rm, rp))
     sweep: list[dict[str, Any]] = []
     for core in sweep_cores:
         for rate in sweep_rates:
@@ -75,11 +81,25 @@ def campaign(
     mach = machine()
     top = {"started": started, "machine_at_start": mach_before, "machine_at_end": mach, "note": note,
            "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": runs[0][2]["pass"],
-           "platform_baseline": base}  # fmt: skip
-    cmd = note_command(opt, sweep_rates, sweep_cores, sweep_duration, loaded_duration, docs, baseline_s)
+           "platform_baseline": base, "relay": relay_summary(runs)}  # fmt: skip
+    cmd = note_command(opt, sweep_rates, sweep_cores, sweep_duration, loaded_duration, docs, baseline_s,
+                       relay_duration)  # fmt: skip
     top["command"] = cmd
     write(out, top, runs, sweep, docs)
     return top
+
+
+def relay_summary(runs: list[tuple[str, str, dict[str, Any], list[str]]]) -> dict[str, Any] | None:
+    """``relay`` of metrics.json: the null relay's end-to-end latency (the platform floor) beside the main
+    run's, and the difference per percentile (µs); None without a relay run after a gateway main run."""
+    by = {k: m for k, _, m, _ in runs}
+    if "relay" not in by or by["main"].get("gateway") == "relay":
+        return None
+    a, b = by["main"]["latency"]["end_to_end"], by["relay"]["latency"]["end_to_end"]
+    keys = ("p50_us", "p99_us", "p999_us", "max_us")
+    return {"label": by["relay"]["label"], "duration_s": by["relay"]["duration_s"], "end_to_end": b,
+            "gateway_end_to_end": a, "gateway_minus_floor_us": {k: a[k] - b[k] for k in keys},
+            "lost_frames": by["relay"]["frames"]["lost"], "pass": by["relay"]["pass"]}  # fmt: skip
 
 
 def sweep_row(m: dict[str, Any]) -> dict[str, Any]:
@@ -98,7 +118,7 @@ def rerender(out: str | Path, docs: str | None) -> dict[str, Any]:
     except (OSError, ValueError) as e:
         raise RuntimeError(f"{out}: not a soak output directory (metrics.json: {e})") from None
     runs: list[tuple[str, str, dict[str, Any], list[str]]] = []
-    for key, title in (("main", "Main run"), ("loaded", LOADED_TITLE)):
+    for key, title in (("main", "Main run"), ("relay", RELAY_TITLE), ("loaded", LOADED_TITLE)):
         if (out / key / "options.json").exists():
             m, pngs = reanalyse(out / key)
             runs.append((key, title, m, pngs))
@@ -106,19 +126,22 @@ def rerender(out: str | Path, docs: str | None) -> dict[str, Any]:
     for d in sorted(out.glob("sweep-*"), key=lambda p: (p.name.split("-")[1], float(p.name.split("-")[2]))):
         m, _ = reanalyse(d)
         sweep.append(sweep_row(m))
-    top = {**old, "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": runs[0][2]["pass"]}
+    top = {**old, "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": runs[0][2]["pass"],
+           "relay": relay_summary(runs)}  # fmt: skip
     write(out, top, runs, sweep, docs)
     return top
 
 
 def reanalyse(d: Path) -> tuple[dict[str, Any], list[str]]:
+    """Analyse and plot the raw files of one run in ``d``; (metrics, PNG names), metrics.json written."""
     m, series = analyse(d)
-    pngs = plots(d, series)
+    pngs = plots(d, series, relay=m["gateway"] == "relay")
     (d / "metrics.json").write_text(json.dumps(clean_json(m), indent=1))
     return m, pngs
 
 
 LOADED_TITLE = "Under background load (one busy-loop process on each of the 2 CPUs)"
+RELAY_TITLE = "Platform floor: null relay"
 
 
 def write(
@@ -145,10 +168,14 @@ def write(
 
 
 def note_command(opt: SoakOptions, rates: list[float], cores: list[str], sd: float, ld: float,
-                 docs: str | None, baseline_s: float = 0.0) -> str:  # fmt: skip
+                 docs: str | None, baseline_s: float = 0.0, relay_s: float = 0.0) -> str:  # fmt: skip
     """The command line that reproduces this campaign."""
     parts = [f"scripts/soak --duration {opt.duration:g} --rate {opt.rate:g} --imus {opt.imus} --core {opt.core}"]
+    if opt.gateway != "ins-hil":
+        parts.append(f"--gateway {opt.gateway}")
     parts.append(f"--baseline {baseline_s:g}")
+    if relay_s > 0 and opt.gateway == "ins-hil":
+        parts.append(f"--relay-duration {relay_s:g}")
     if opt.imus > 1:
         parts.append(f"--faults {opt.faults}")
     if opt.load:
@@ -229,7 +256,8 @@ def render(
     if bs:
         lines.append(bs)
     for key, title, m, pngs in runs:
-        lines.append(run_section(m, pngs, title, rel(key)))
+        cmp = floor_comparison(main, m) if key == "relay" and main.get("gateway") != "relay" else ""
+        lines.append(run_section(m, pngs, title, rel(key), preface=cmp))
     if sweep:
         lines.append(sweep_section(sweep))
     return "\n".join(lines)
