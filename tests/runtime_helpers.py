@@ -10,6 +10,17 @@ from typing import Any
 from ins_hil.config import Config, default_path, from_dict
 
 
+class BufferSink:
+    """Transport stand-in for a MAVLink endpoint: keeps every buffer written."""
+
+    def __init__(self) -> None:
+        self.bufs: list[bytes] = []
+
+    def write(self, b: bytes) -> bool:
+        self.bufs.append(bytes(b))
+        return True
+
+
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))

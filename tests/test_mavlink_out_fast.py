@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+from runtime_helpers import BufferSink
 
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat, quat_normalize
@@ -30,15 +31,6 @@ _INT_RANGES = {
 }
 
 
-class _Sink:
-    """Transport stand-in: keeps every buffer written."""
-
-    def __init__(self) -> None:
-        self.bufs: list[bytes] = []
-
-    def write(self, b: bytes) -> bool:
-        self.bufs.append(bytes(b))
-        return True
 
 
 def _random_value(rng: np.random.Generator, typ: str, zero: bool) -> Any:
@@ -97,9 +89,9 @@ def _random_state(rng: np.random.Generator, t: float, lat0: float = 0.6, lon0: f
     )
 
 
-def _endpoint(role: str, key: str = "") -> tuple[MavlinkEndpoint, _Sink]:
+def _endpoint(role: str, key: str = "") -> tuple[MavlinkEndpoint, BufferSink]:
     ep = MavlinkEndpoint(EndpointConfig(role=role, signing_key=key), RuntimeMetrics())
-    sink = _Sink()
+    sink = BufferSink()
     ep.tr = sink  # type: ignore[assignment]
     return ep, sink
 
@@ -204,7 +196,7 @@ def test_highest_rate_message_goes_first_and_latency_is_taken_at_it() -> None:
     }  # fmt: skip  (the soak's gcs endpoint)
     metrics = RuntimeMetrics()
     ep = MavlinkEndpoint(EndpointConfig(rates=rates), metrics)
-    sink = _Sink()
+    sink = BufferSink()
     ep.tr = sink  # type: ignore[assignment]
     at_record: list[int] = []
     orig = metrics.record_sent

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
+from runtime_helpers import BufferSink
 
 from ins_hil.cli import main as cli_main
 from ins_hil.runtime import mavlink_out
@@ -26,20 +27,13 @@ DURATION = 4.0
 GCS_RATE = 47.0
 
 
-class _Sink:
-    def __init__(self) -> None:
-        self.bufs: list[bytes] = []
-
-    def write(self, b: bytes) -> bool:
-        self.bufs.append(bytes(b))
-        return True
 
 
-def _odometry_endpoint() -> tuple[MavlinkEndpoint, _Sink]:
+def _odometry_endpoint() -> tuple[MavlinkEndpoint, BufferSink]:
     """A gateway ground-station endpoint that sends ODOMETRY alone, at the soak's rate."""
     rates = {**dict.fromkeys(GCS_RATES, 0.0), "ODOMETRY": GCS_RATE}
     ep = MavlinkEndpoint(EndpointConfig(role="gcs", rates=rates), RuntimeMetrics())
-    sink = _Sink()
+    sink = BufferSink()
     ep.tr = sink  # type: ignore[assignment]
     return ep, sink
 
