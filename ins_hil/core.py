@@ -47,7 +47,14 @@ from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
 from ins_hil.nav import alignment, earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
-from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
+from ins_hil.nav.rotation import (
+    dcm_from_euler,
+    dcm_from_quat,
+    euler_from_quat,
+    quat_from_euler,
+    quat_from_rotvec,
+    quat_mul,
+)
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 DEG = math.pi / 180.0
@@ -206,6 +213,7 @@ class NavCore:
         self._moving = False
         self._lev_pending: deque[ImuSample] = deque()
         self._lev_fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²)
+        self._lev_C = np.eye(3)  # the levelled attitude C_b^n, its yaw as the filter holds it (level_tilt_prior)
         self._lev_T = 0.0  # its length (s)
         self._lev_t_end = 0.0  # the time of its last sample
         self._have_pos = self.cfg.align == "given"
@@ -653,7 +661,7 @@ class NavCore:
         s.q_nb = quat_from_euler(roll, pitch, yaw)
         s.vel_ned = np.zeros(3)
         self.ins.reset_history()
-        self._lev_fb, self._lev_T = f, self._lev_t
+        self._lev_fb, self._lev_T, self._lev_C = f, self._lev_t, dcm_from_quat(s.q_nb)
         self._lev_t_end = self._lev_pending[0].t - self._lev_pending[0].dt if self._lev_pending else s.t
         # bring the attitude from the end of the window to now with the delayed samples
         t_now = s.t
@@ -687,9 +695,11 @@ class NavCore:
             v = np.asarray(meas.vel_ned)
             sp = math.hypot(float(v[0]), float(v[1]))
             if sp >= self.cfg.gnss_yaw_speed:
-                roll, pitch, _ = euler_from_quat(s.q_nb)
+                roll, pitch, yaw_was = euler_from_quat(s.q_nb)
                 yaw = alignment.yaw_from_course(v)  # in-motion yaw = GNSS course (no sideslip)
                 s.q_nb = quat_from_euler(roll, pitch, yaw)
+                # the yaw reset turns the computed frame about down: the levelled tilt (fixed in NED) turns with it
+                self._lev_C = dcm_from_euler(0.0, 0.0, yaw - yaw_was) @ self._lev_C
                 s.vel_ned = v.copy()
                 C = dcm_from_quat(s.q_nb)
                 d = C @ self.cfg.gnss_lever_arm_b
@@ -715,7 +725,7 @@ class NavCore:
                 since = max(0.0, s.t - self._lev_t_end)
                 sig = math.hypot(c.accel_vrw / math.sqrt(max(self._lev_T, 1e-3)) / self._g_local,
                                  self.cfg.align_gyro_bias_std * since)  # fmt: skip
-                self.kf.level_tilt(dcm_from_quat(s.q_nb), self._lev_fb, sig)
+                self.kf.level_tilt(self._lev_C, self._lev_fb, sig)
 
     # ------------------------------------------------------------------ outputs
     def drain_events(self) -> list[FaultEvent]:

@@ -9,10 +9,18 @@ import pytest
 
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.nav import alignment, earth
-from ins_hil.nav.rotation import book_A, dcm_from_euler, euler_from_quat, quat_angle_between, quat_from_euler
+from ins_hil.nav.rotation import (
+    book_A,
+    dcm_from_euler,
+    dcm_from_quat,
+    euler_from_quat,
+    quat_angle_between,
+    quat_from_euler,
+)
 from ins_hil.sim import scenarios
 from ins_hil.sim import sensors as se
 from ins_hil.sim import trajectory as tr
+from ins_hil.types import ImuSample
 
 A_BOOK = np.array(((0.1464, 0.8536, 0.5000), (-0.8536, -0.1464, 0.5000), (0.5000, -0.5000, 0.7071)))
 A_TILDE_BOOK = np.array(((0.1410, 0.8516, 0.5048), (-0.8549, -0.1523, 0.4959), (0.4992, -0.5015, 0.7066)))
@@ -145,29 +153,28 @@ def test_level_tilt_prior_predicts_the_tilt_a_biased_accelerometer_leaves(scale_
     on the accelerometer bias error must give that tilt (sign and size), and the filter's horizontal
     specific-force error σ must be the small levelling residual, not g·σ_tilt."""
     from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
-    from ins_hil.nav.rotation import dcm_from_quat
 
     g = 9.80665
     roll, pitch, yaw = 0.05, -0.12, 2.2
     C = dcm_from_euler(roll, pitch, yaw)  # true C_b^n
     f_true = C.T @ np.array((0.0, 0.0, -g))
     b = np.array((0.12, -0.07, 0.03))  # accelerometer bias (m/s²); the filter's estimate is 0, so δb_a = b
-    r, p = alignment.coarse_level(f_true + b)
+    sf = np.array((0.02, -0.015, 0.01)) if scale_factors else np.zeros(3)  # f̃ = (1 + s) f + b; δs_a = s
+    f_meas = (1.0 + sf) * f_true + b
+    r, p = alignment.coarse_level(f_meas)
     C_hat = dcm_from_quat(quat_from_euler(r, p, yaw))
     mu_x = C_hat @ C.T - np.eye(3)  # Ĉ = (I + [μ×]) C
     mu = np.array((mu_x[2, 1], mu_x[0, 2], mu_x[1, 0]))
     kf = ErrorStateEKF(FilterConfig(scale_factors=scale_factors))
-    kf.level_tilt(C_hat, f_true + b, 1e-4)
+    kf.level_tilt(C_hat, f_meas, 1e-4)
     i = kf.idx
     P = kf.P
-    ba = slice(i.ba, i.ba + 3)
-    A = P[6:8, ba] @ np.linalg.inv(P[ba, ba])
-    if scale_factors:  # regress on bias and scale factor together; δs_a = 0 here
-        X = np.r_[i.ba : i.ba + 3, i.sa : i.sa + 3]
-        A = (P[6:8][:, X] @ np.linalg.inv(P[np.ix_(X, X)]))[:, :3]
-    np.testing.assert_allclose(A @ b, mu[:2], atol=2e-4)  # |μ| ≈ 0.014 rad: linearization error only
+    X = np.r_[i.ba : i.ba + 3, i.sa : i.sa + 3] if scale_factors else np.r_[i.ba : i.ba + 3]
+    A = P[6:8][:, X] @ np.linalg.inv(P[np.ix_(X, X)])  # the prior's regression of μ_NE on the accelerometer errors
+    x = np.r_[b, sf] if scale_factors else b
+    np.testing.assert_allclose(A @ x, mu[:2], atol=2e-4)  # |μ| ≈ 0.014 rad: linearization error only
     # the horizontal specific-force error δf_h = [f×]μ − C δb_a − C diag(f) δs_a has σ ≈ g·1e-4
-    F = kf.build_F(C_hat, C_hat @ (f_true + b), np.zeros(3), np.zeros(3), f_true + b, np.zeros(3), 0.7, 0.0)
+    F = kf.build_F(C_hat, C_hat @ f_meas, np.zeros(3), np.zeros(3), f_meas, np.zeros(3), 0.7, 0.0)
     S = F[3:5] @ P @ F[3:5].T
     assert np.sqrt(np.diag(S)).max() < 2 * g * 1e-4
     assert np.sqrt(P[6, 6]) > 0.01  # the tilt itself is as uncertain as the bias allows (0.3 m/s² / g)
@@ -182,7 +189,7 @@ def test_in_motion_yaw_sigma_uses_the_receiver_velocity_sigma():
     imu = se.corrupt_imu(truth, se.mems_gyro(), se.mems_accel(), seed=5).samples()
     fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.02, std_d=0.04, std_vel=0.03), seed=6)
     yaw_sd = {}
-    for floor in (0.0, 0.15):
+    for floor in (0.0, 0.10):
         cfg = NavConfig(align="static", nhc=True, gnss_min_std=(0.03, 0.06, 0.15), gnss_yaw_vel_floor=floor)
         core = NavCore(None, cfg)
         j = 0
@@ -200,5 +207,59 @@ def test_in_motion_yaw_sigma_uses_the_receiver_velocity_sigma():
                 break
     sd0, v0 = yaw_sd[0.0]
     assert sd0 == pytest.approx(math.hypot(math.radians(3.0), 0.03 / v0), rel=1e-9)  # 1-σ terms add in quadrature
-    sd1, v1 = yaw_sd[0.15]
-    assert sd1 == pytest.approx(math.hypot(math.radians(3.0), 0.15 / v1), rel=1e-9)
+    sd1, v1 = yaw_sd[0.10]  # the floor asked for, not the fusion floor gnss_min_std[2] = 0.15
+    assert sd1 == pytest.approx(math.hypot(math.radians(3.0), 0.10 / v1), rel=1e-9)
+
+
+def test_level_tilt_prior_without_accelerometer_states_keeps_the_tilt_prior():
+    """A 9- or 12-state filter has no accelerometer error to correlate: the tilt keeps its prior variance
+    (not the tiny levelling residual, which would make the filter overconfident by b/g)."""
+    from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
+
+    kf = ErrorStateEKF(FilterConfig(accel_bias=False))
+    before = kf.P.copy()
+    kf.level_tilt(np.eye(3), np.array((0.0, 0.0, -9.8)), 1e-4)
+    np.testing.assert_array_equal(kf.P, before)
+
+
+def test_level_tilt_prior_follows_a_turn_between_levelling_and_the_course_fix():
+    """NavCore end to end: a car levels at rest with a biased accelerometer (heading 0.5 rad, computed yaw 0),
+    pivots by 90° on the spot, then drives off; the yaw is reset to the GNSS course above 1 m/s. The tilt is
+    fixed in NED while the bias turns with the body, and the reset rotates the computed frame: at the entry
+    into navigation the prior's regression of μ_NE on the accelerometer errors must give the tilt the
+    levelling really left (with the attitude at entry instead, the prediction would be 90° off)."""
+    dt = 0.01
+    truth = tr.generate(tr.pivot_profile(yaw0=0.5, turn=math.pi / 2), 12.0, dt, math.radians(40.0), -1.8, 1600.0)
+    b = np.array((0.15, -0.1, 0.05))
+    imu = [ImuSample(t=float(truth.t[k + 1]), dt=dt, dtheta=truth.dtheta[k], dvel=truth.dvel[k] + b * dt)
+           for k in range(len(truth.dtheta))]  # fmt: skip
+    fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.01, std_d=0.02, std_vel=0.02), seed=1)
+    for f in fixes:  # exact fixes: the course is the heading
+        k = round((f.t - truth.t[0]) / dt)
+        f.vel_ned = truth.vel_ned[k].copy()
+    core = NavCore(None, NavConfig(align="static", align_level_only=True, nhc=False))
+    j = 0
+    k_nav = None
+    for k, s in enumerate(imu):
+        core.step(s)
+        while j < len(fixes) and fixes[j].t <= s.t + 1e-9:
+            core.fuse(fixes[j])
+            j += 1
+            if core.phase == "nav":
+                k_nav = k + 1
+                break
+        if k_nav is not None:
+            break
+    assert k_nav is not None and truth.t[k_nav] > 8.0  # navigation starts after the pivot, once driving
+    C_true = dcm_from_quat(truth.q_nb[k_nav])
+    C_hat = dcm_from_quat(core.ins.state.q_nb)
+    mu_x = C_hat @ C_true.T - np.eye(3)
+    mu = np.array((mu_x[2, 1], mu_x[0, 2], mu_x[1, 0]))
+    assert abs(mu[2]) < 2e-3  # the course reset left no yaw error to speak of
+    i = core.idx
+    P = core.kf.P
+    X = np.r_[i.ba : i.ba + 3]
+    A = P[6:8][:, X] @ np.linalg.inv(P[np.ix_(X, X)])
+    pred = A @ (b - core.ba)
+    assert np.linalg.norm(mu[:2]) > 0.01  # ≈ |b_h| / g
+    np.testing.assert_allclose(pred, mu[:2], atol=1.5e-3)  # the horizontal Earth rate leaks ~5e-4 rad in 8 s

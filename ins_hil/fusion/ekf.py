@@ -217,11 +217,16 @@ class ErrorStateEKF:
     def set_state_sigma(self, block: str, sigma: Vec | float) -> None:
         """Reset the variance of one block (e.g. "att" after an alignment); clears its correlations."""
         k = int(getattr(self.idx, block))
-        self.P = self.P.copy()  # P is replaced, never mutated in place (NavCore keeps references in snapshots)
+        P = self.P.copy()  # P is replaced, never mutated in place (NavCore keeps references in snapshots)
         s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (3,))
-        self.P[k : k + 3, :] = 0.0
-        self.P[:, k : k + 3] = 0.0
-        self.P[k : k + 3, k : k + 3] = np.diag(s**2)
+        P[k : k + 3, :] = 0.0
+        P[:, k : k + 3] = 0.0
+        P[k : k + 3, k : k + 3] = np.diag(s**2)
+        self._reset_P(P)
+
+    def _reset_P(self, P: Vec) -> None:
+        """Install a new covariance (and the factor of the square-root numerics) outside the update/predict."""
+        self.P = P
         if self.factor is not None:
             from ins_hil.fusion import sqrt as sq
 
@@ -236,7 +241,10 @@ class ErrorStateEKF:
         gives μ_NE = A x + ε with x the accelerometer error states (bias, scale factor), A = −M⁻¹ B,
         M = [f^n×] (rows N, E; columns μ_N, μ_E), B the x columns; ε ~ N(0, ``sigma``²) (rad) is what the
         levelling leaves (window noise, drift since the window). The yaw row and x keep their variances;
-        μ_NE's correlations with x (and through x with everything else) follow."""
+        μ_NE's correlations with x (and through x with everything else) follow. ``C_bn`` is the levelled
+        attitude (with its yaw as the filter now holds it: the tilt is fixed in NED, x in the body). Without
+        accelerometer error states there is nothing to correlate and the tilt keeps its prior.
+        After a two-vector (magnetometer) alignment the relation is approximate: gravity dominates its tilt."""
         i = self.idx
         cols: list[int] = []
         blocks: list[Vec] = []
@@ -246,24 +254,20 @@ class ErrorStateEKF:
         if i.sa is not None:
             cols += range(i.sa, i.sa + 3)
             blocks.append(-(C_bn * f_b[None, :])[0:2, :])
+        if not cols:
+            return
         f_n = C_bn @ f_b
         P = self.P.copy()  # replaced, never mutated in place
         r = slice(6, 8)
         P[r, :] = 0.0
         P[:, r] = 0.0
-        if cols:
-            M = np.array(((0.0, -float(f_n[2])), (float(f_n[2]), 0.0)))  # [f^n×] rows N, E; columns μ_N, μ_E
-            A = -np.linalg.solve(M, np.hstack(blocks))
-            X = np.array(cols)
-            P[r, :] = A @ P[X, :]
-            P[:, r] = P[r, :].T
-            P[r, r] = A @ P[np.ix_(X, X)] @ A.T
-        P[r, r] += np.eye(2) * sigma**2
-        self.P = P
-        if self.factor is not None:
-            from ins_hil.fusion import sqrt as sq
-
-            self.factor = sq.factor_from_cov(self.cfg.numerics, self.P)
+        M = np.array(((0.0, -float(f_n[2])), (float(f_n[2]), 0.0)))  # [f^n×] rows N, E; columns μ_N, μ_E
+        A = -np.linalg.solve(M, np.hstack(blocks))
+        X = np.array(cols)
+        P[r, :] = A @ P[X, :]
+        P[:, r] = P[r, :].T
+        P[r, r] = A @ P[np.ix_(X, X)] @ A.T + np.eye(2) * sigma**2
+        self._reset_P(P)
 
     def build_F(self, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, f_b: Vec, w_b: Vec, lat: float, h: float) -> Vec:
         """Continuous error-dynamics matrix F (n×n) at the current nominal state (see module doc).

@@ -357,3 +357,23 @@ def car_profile(speed: float = 10.0, t_start: float = 2.0, t_stop: float = 40.0,
         return np.stack([z, z, yaw], axis=-1), vel, acc
 
     return _rates_by_difference(base)
+
+
+def pivot_profile(
+    yaw0: float = 0.5, turn: float = math.pi / 2, t_turn: float = 4.0, t_drive: float = 8.0, speed: float = 5.0
+) -> Profile:
+    """A level ground vehicle at rest (heading ``yaw0``), pivoting on the spot by ``turn`` rad (C² ramp over
+    [t_turn, t_turn + 2 s]), then accelerating straight ahead to ``speed`` (ramp over [t_drive, t_drive + 4 s])."""
+
+    def base(t: Vec) -> tuple[Vec, Vec, Vec]:
+        t = np.asarray(t, dtype=np.float64)
+        s, _, _ = _smoothstep((t - t_turn) / 2.0)
+        v, dv, _ = _smoothstep((t - t_drive) / 4.0)
+        yaw = yaw0 + turn * s
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        z = np.zeros_like(t)
+        V, A = speed * v, speed * dv / 4.0
+        vel, acc = np.stack([V * cy, V * sy, z], axis=-1), np.stack([A * cy, A * sy, z], axis=-1)
+        return np.stack([z, z, yaw], axis=-1), vel, acc
+
+    return _rates_by_difference(base)
