@@ -43,7 +43,7 @@ from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.runtime.mqtt_out import MqttPublisher
 from ins_hil.runtime.pipeline import Pipeline
 from ins_hil.runtime.recorder import Recorder
-from ins_hil.runtime.rt import lock_memory, policy, set_realtime
+from ins_hil.runtime.rt import enter_realtime, policy
 from ins_hil.sim.devices import SimDevices
 from ins_hil.types import FaultEvent, GnssFix, ImuSample, NavState
 
@@ -293,13 +293,9 @@ class Gateway:
             self.drivers.append(sdrv)
             self._tasks.append(asyncio.create_task(sdrv.run(self._sink_for(ic.name)), name=ic.name))
         if cfg.gateway.rt_priority:
-            why = set_realtime(cfg.gateway.rt_priority)
+            why = enter_realtime(cfg.gateway.rt_priority)
             if why:
-                self.metrics.warn(f"gateway.rt_priority: {why}; running time-shared")
-            else:
-                why = lock_memory()
-                if why:
-                    self.metrics.warn(f"gateway.rt_priority: {why}; pages may be faulted in on the IMU path")
+                self.metrics.warn(f"gateway.rt_priority: {why}")
         self.metrics.scheduling = policy()
         # everything allocated so far (modules, pymavlink tables, the core) lives for the whole run:
         # move it out of the collector's generations so a full collection does not scan it on the IMU path

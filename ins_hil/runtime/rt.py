@@ -58,6 +58,18 @@ def lock_memory() -> str:
     return ""
 
 
+def enter_realtime(priority: int) -> str:
+    """How a real-time process starts: :func:`set_realtime` at ``priority``, then :func:`lock_memory`.
+    Returns ``""`` on success, else a warning that says what the process runs with instead."""
+    why = set_realtime(priority)
+    if why:
+        return f"{why}; running time-shared"
+    why = lock_memory()
+    if why:
+        return f"{why}; pages may be faulted in on the IMU path"
+    return ""
+
+
 def policy(pid: int = 0) -> str:
     """A process's (0: this one) scheduling policy and priority, e.g. ``"SCHED_FIFO 50"`` or ``"SCHED_OTHER"``."""
     if not hasattr(os, "sched_getscheduler"):

@@ -132,7 +132,10 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
     if opt.gateway not in GATEWAYS:
         raise RuntimeError(f"--gateway {opt.gateway!r}: one of {', '.join(GATEWAYS)}")
     cpu_s, cpu_g = cpus()
-    (out / "options.json").write_text(json.dumps({**asdict(opt), "cpu_sensors": cpu_s, "cpu_gateway": cpu_g}, indent=1))
+    recorded = opt.record and opt.gateway == "ins-hil"  # the relay records nothing
+    (out / "options.json").write_text(
+        json.dumps({**asdict(opt), "record": recorded, "cpu_sensors": cpu_s, "cpu_gateway": cpu_g}, indent=1)
+    )
     py = sys.executable
     gnss_port, gcs_port = free_udp_port(), free_udp_port()
     procs: dict[str, subprocess.Popen[str]] = {}
@@ -159,7 +162,7 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
                    "--imus", str(opt.imus), "--rt", str(PRIO_GATEWAY if opt.rt else 0)]  # fmt: skip
         for p in ptys:
             gw_args += ["--imu", p]
-        if opt.record and opt.gateway == "ins-hil":
+        if recorded:
             gw_args.append("--record")
         procs["gateway"] = subprocess.Popen(gw_args, stdout=subprocess.PIPE, text=True)
         _line(procs["gateway"], "gateway")

@@ -15,7 +15,8 @@ address, ODOMETRY rate, MAVLink system/component ids) and then does the least a 
   the gateway decides on the monotonic clock when a state is ready, not on sensor time), ``time_usec``
   = the epoch's sensor time as the gateway encodes it (``round(t·1e6)``), framed by the gateway's
   packer (:func:`~ins_hil.runtime.mavlink_out._frame_of`); the message carries no navigation (zero
-  position, identity attitude, unknown covariance) and is the same size as the gateway's;
+  position, identity attitude, unknown covariance) and is the size of the gateway's before it is
+  aligned (quality 0; an aligned gateway's quality 100 makes its message one byte longer);
 * drains the GNSS/baro UDP input (so the simulator's datagrams are received) and does nothing with it.
 
 No navigation, no FDI, no recorder, no other MAVLink stream: the end-to-end latency the analysis
@@ -51,7 +52,7 @@ from ins_hil.config import from_dict
 from ins_hil.drivers.serial_frame import FrameParser
 from ins_hil.runtime.mavlink_out import _frame_of, advance_due, mavlink_module, parse_url
 from ins_hil.runtime.metrics import RuntimeMetrics
-from ins_hil.runtime.rt import lock_memory, policy, set_realtime
+from ins_hil.runtime.rt import enter_realtime, policy
 from ins_hil.soak.gateway import build_parser, gateway_config
 from ins_hil.soak.orchestrate import RELAY_LABEL
 from ins_hil.soak.simproc import die_with_parent, pin
@@ -219,6 +220,7 @@ class Relay:
             key = "refused" if e.errno == errno.ECONNREFUSED else "send_error"
             self.send_errors[key] = self.send_errors.get(key, 0) + 1
             m.output(self.out_name, "not_sent")
+            self._slack()  # the GNSS drain and the once-a-second rows go on while the client is away
             return
         m.record_sent(arrival_ns, ready, time.monotonic_ns())
         self.sent += 1
@@ -322,13 +324,9 @@ def run(a: argparse.Namespace) -> int:
     pin(a.cpu)
     r = Relay(a)
     if r.rt_priority:
-        why = set_realtime(r.rt_priority)
+        why = enter_realtime(r.rt_priority)
         if why:
-            r.metrics.warn(f"rt priority: {why}; running time-shared")
-        else:
-            why = lock_memory()
-            if why:
-                r.metrics.warn(f"rt priority: {why}; pages may be faulted in on the IMU path")
+            r.metrics.warn(f"rt priority: {why}")
     r.metrics.scheduling = policy()
 
     def on_stop(signum: int, _frame: Any) -> None:
