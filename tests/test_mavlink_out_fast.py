@@ -31,8 +31,6 @@ _INT_RANGES = {
 }
 
 
-
-
 def _random_value(rng: np.random.Generator, typ: str, zero: bool) -> Any:
     if zero:
         return 0.0 if typ == "float" else 0

@@ -27,8 +27,6 @@ DURATION = 4.0
 GCS_RATE = 47.0
 
 
-
-
 def _odometry_endpoint() -> tuple[MavlinkEndpoint, BufferSink]:
     """A gateway ground-station endpoint that sends ODOMETRY alone, at the soak's rate."""
     rates = {**dict.fromkeys(GCS_RATES, 0.0), "ODOMETRY": GCS_RATE}
@@ -154,6 +152,20 @@ def test_relay_report_says_not_applicable_and_compares_with_the_gateway(
     # a campaign's comparison: the gateway's run beside the floor (here the same run: differences 0)
     gw = {**m, "gateway": "ins-hil"}
     assert "| gateway − floor | | 0 | 0 | 0 | 0 |" in floor_comparison(gw, m)
+    # and over the seconds without host steal, when the analysis found any (a real run's steal figures)
+    q = m["steal"]["e2e_in_intervals_without_steal"]
+    md = floor_comparison(gw, m)
+    if q.get("n"):
+        assert f"| null relay (platform floor) | {q['n']} |" in md and "without steal (µs)" in md
+    calm = {"n": 10, "p50_us": 1.0, "p99_us": 2.0, "p999_us": 3.0}
+    st = {
+        "seconds_per_cpu": [0.5, 0.25],
+        "intervals_with_steal": 3,
+        "intervals": 60,
+        "e2e_in_intervals_without_steal": calm,
+    }
+    md = floor_comparison({**gw, "steal": st}, {**m, "steal": st})
+    assert "| gateway (main run) | 10 | 1 | 2 | 3 |" in md and "0.50 / 0.25 s of steal" in md and "3 of 60 s" in md
     s = relay_summary([("main", "Main run", gw, []), ("relay", RELAY_TITLE, m, [])])
     assert s is not None and s["end_to_end"] == m["latency"]["end_to_end"]
     assert s["gateway_minus_floor_us"]["p99_us"] == 0
