@@ -212,9 +212,8 @@ class NavCore:
         self._lev_t = 0.0
         self._moving = False
         self._lev_pending: deque[ImuSample] = deque()
-        self._lev_fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²)
+        self._lev_fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²; its length _lev_t)
         self._lev_C = np.eye(3)  # the levelled attitude C_b^n, its yaw as the filter holds it (level_tilt_prior)
-        self._lev_T = 0.0  # its length (s)
         self._lev_t_end = 0.0  # the time of its last sample
         self._have_pos = self.cfg.align == "given"
         self._last_mag: Vec | None = None
@@ -661,7 +660,7 @@ class NavCore:
         s.q_nb = quat_from_euler(roll, pitch, yaw)
         s.vel_ned = np.zeros(3)
         self.ins.reset_history()
-        self._lev_fb, self._lev_T, self._lev_C = f, self._lev_t, dcm_from_quat(s.q_nb)
+        self._lev_fb, self._lev_C = f, dcm_from_quat(s.q_nb)
         self._lev_t_end = self._lev_pending[0].t - self._lev_pending[0].dt if self._lev_pending else s.t
         # bring the attitude from the end of the window to now with the delayed samples
         t_now = s.t
@@ -723,7 +722,7 @@ class NavCore:
                 # the levelled tilt holds the horizontal accelerometer error (book §4.1.1): correlated prior;
                 # what the levelling leaves: the window's accelerometer noise and the gyro drift since the window
                 since = max(0.0, s.t - self._lev_t_end)
-                sig = math.hypot(c.accel_vrw / math.sqrt(max(self._lev_T, 1e-3)) / self._g_local,
+                sig = math.hypot(c.accel_vrw / math.sqrt(max(self._lev_t, 1e-3)) / self._g_local,
                                  self.cfg.align_gyro_bias_std * since)  # fmt: skip
                 self.kf.level_tilt(self._lev_C, self._lev_fb, sig)
 

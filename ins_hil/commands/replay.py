@@ -359,22 +359,19 @@ def replay_drive(
             }
         # held-out start-up outage (a fresh alignment, like the protocol's first outage; never its epochs)
         cfg = drive_config(True)
-        imu_s, gnss_s, outs_s = drive0708.startup_validation(dr, STARTUP_RESTART_S, yaw_speed=cfg.gnss_yaw_speed)
+        imu_s, gnss_s, outs_s = drive0708.startup_validation(dr, yaw_speed=cfg.gnss_yaw_speed)
         m, _, _ = run_drive(imu_s, gnss_s, [f.fix_type == 6 for f in gnss_s], cfg, outs_s,
                             _Progress("drive start-up validation", quiet))  # fmt: skip
         res["startup_aids"] = {k: m[k] for k in ("outage_h_rms_m", "outage_h_max_m", "outage_epochs")}
         # the core must have entered navigation at the fix that opens the outage (0.25 s before it)
         res["startup_aids"]["t_aligned_s"] = m["t_aligned_s"] + gnss_s[0].t - dr.pos.t[0]
         res["startup_window_s"] = [outs_s[0][0] - dr.pos.t[0], outs_s[0][1] - dr.pos.t[0]]
-        res["startup_restart_s"] = STARTUP_RESTART_S
+        res["startup_restart_s"] = drive0708.STARTUP_RESTART
     res["outage_windows_s"] = [(a - dr.pos.t[0], b - dr.pos.t[0]) for a, b in outages]
     if "outages_aids" in series:
         fixed = {f.t for f, ok in zip(dr.gnss, rtk, strict=True) if ok}
         res["per_window_aids"] = per_window(series["outages_aids"], outages, fixed)
     return res, series
-
-
-STARTUP_RESTART_S = 201.0  # the start-up validation restarts during the stop at 200.8–209.5 s
 
 
 def per_window(ser: Series, outages: list[tuple[float, float]], scored: set[float]) -> list[dict[str, float]]:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ins_hil.core import NavConfig
 from ins_hil.nav.earth import G0
 from ins_hil.nav.rotation import dcm_from_euler
 from ins_hil.types import FixType, GnssFix, ImuSample, Vec
@@ -332,8 +333,14 @@ def cv_outage_windows(t_gnss: Vec, shift: float = 22.5) -> list[tuple[float, flo
     return outage_windows(t_gnss, first=40.0 + shift)
 
 
+STARTUP_RESTART = 201.0  # s after the first GNSS epoch: during the stop at 200.8–209.5 s
+
+
 def startup_validation(
-    drive: Drive, restart: float = 201.0, score_until: float = 220.0, yaw_speed: float = 1.0
+    drive: Drive,
+    restart: float = STARTUP_RESTART,
+    score_until: float = 220.0,
+    yaw_speed: float = NavConfig.gnss_yaw_speed,
 ) -> tuple[list[ImuSample], list[GnssFix], list[tuple[float, float]]]:
     """A held-out start-up outage (the protocol's first outage comes 0.25 s after the in-motion yaw
     alignment, so the validation windows, which start 57.5 s in, never test a fresh alignment): the

@@ -206,9 +206,7 @@ class Gateway:
             now = time.monotonic()
             m.tick()
             for d in self.drivers:
-                st = m.source(d.name)
-                for k, v in d.health.errors.items():
-                    st.dropped["driver_" + k] = v
+                m.source(d.name).driver_drops(d.health.errors)
             for k, v in self.pipeline.counts.items():
                 m.fused[k] = v
             if now - last_roll >= 5.0:

@@ -119,6 +119,13 @@ class SourceStats:
     def drop(self, reason: str, n: int = 1) -> None:
         self.dropped[reason] = self.dropped.get(reason, 0) + n
 
+    def driver_drops(self, errors: dict[str, int]) -> None:
+        """A driver's (or frame parser's) cumulative error counters as the drops ``driver_<reason>``
+        (its count of accepted ``frames``, if any, is no drop)."""
+        for k, v in errors.items():
+            if k != "frames":
+                self.dropped["driver_" + k] = v
+
     def tick_rate(self, now_ns: int) -> None:
         """Update ``rate_hz`` over ~1 s windows (called from the status tick)."""
         if self._win_t0 == 0:

@@ -147,9 +147,10 @@ class Epochs:
             pend[key] = k
             return False
         pend.pop(key, None)
-        for old in [o for o in pend if o < key]:
-            del pend[old]
-            self.incomplete += 1
+        if pend:  # older epochs still missing a unit are given up (no list built on the common path)
+            for old in [o for o in pend if o < key]:
+                del pend[old]
+                self.incomplete += 1
         self.last_key = key
         return True
 
@@ -262,10 +263,8 @@ class Relay:
 
     def _copy_counts(self) -> None:
         """The parsers' counters as the gateway's ``driver_*`` drops (Gateway._housekeeping)."""
-        for st, p in zip(self.stats, self.parsers):
-            for k, v in p.counts.items():
-                if k != "frames":
-                    st.dropped["driver_" + k] = v
+        for st, p in zip(self.stats, self.parsers, strict=True):
+            st.driver_drops(p.counts)
 
     # -- the loop ---------------------------------------------------------------------------
     def loop(self) -> None:
