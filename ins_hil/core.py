@@ -390,7 +390,7 @@ class NavCore:
             st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
             ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
             kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next, self._still_time,
-            self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp,
+            self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp, kf.vib_prev, kf.vib_var, kf._acc_qv,
         )  # fmt: skip
 
     def _restore(self, d: tuple[Any, ...]) -> None:
@@ -399,7 +399,8 @@ class NavCore:
         (st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
          ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
          kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next,
-         self._still_time, self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp) = d  # fmt: skip
+         self._still_time, self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp, kf.vib_prev, kf.vib_var,
+         kf._acc_qv) = d  # fmt: skip
         kf.x = np.zeros(kf.n)
 
     def _fuse_delayed(self, meas: GnssFix | BaroSample | MagSample) -> bool:

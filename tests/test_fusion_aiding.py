@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ins_hil.core import NavConfig, NavCore
-from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import euler_from_quat, quat_from_euler
@@ -336,15 +336,18 @@ def test_delayed_fusion_rollback_restores_the_ground_aid_averages():
     truth = tr.generate(tr.car_profile(t_start=1.0, ramp=3.0), 8.0, dt, LAT0, LON0, H0)
     rng = np.random.default_rng(1)
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=2).samples()
-    core = NavCore(_init(truth), NavConfig(nhc=True, zupt=True, max_delay=0.3))
+    # with the vibration noise (session 6): its E[Δω²] is in the snapshots too
+    core = NavCore(_init(truth), NavConfig(nhc=True, zupt=True, max_delay=0.3, filter=FilterConfig(gyro_vib_gain=0.4)))
     for s in imu:
         core.step(s)
-    before = (core._ema_f.copy(), core._ema_w.copy(), core.state().vel_ned.copy())
+    before = (core._ema_f.copy(), core._ema_w.copy(), core.state().vel_ned.copy(), np.array(core.kf.vib_var))
+    assert np.all(before[3] > 0.0)
     assert core.stats["zupt"].accepted > 10 and core.stats["nhc"].accepted > 10
     core.fuse(GnssFix(t=imu[-1].t - 0.2, lat=math.nan, lon=math.nan, h=math.nan))  # rollback + replay, no update
     assert np.array_equal(core._ema_f, before[0])  # before the fix: differed by ~1e-3 m/s²
     assert np.array_equal(core._ema_w, before[1])
     assert np.array_equal(core.state().vel_ned, before[2])
+    assert np.array_equal(core.kf.vib_var, before[3])
 
 
 def test_nhc_lever_arm_uses_a_low_passed_rate():
@@ -400,3 +403,54 @@ def test_per_axis_accelerometer_scale_factor_prior_learns_a_forward_scale_factor
     assert res[True][0] == pytest.approx(0.02, abs=0.006)
     assert abs(res[False][0] - 0.02) > 2 * abs(res[True][0] - 0.02)
     assert res[True][1] < 0.7 * res[False][1]  # measured 0.011 vs 0.018 m/s
+
+
+def test_vibration_noise_follows_the_sample_to_sample_rate_change():
+    """``gyro_vib_gain`` (session 6): per step the attitude block gets C diag((gain·dt)² E[Δω²]) C^T on top of
+    the ARW, E[Δω²] the exponential average (τ = gyro_vib_tau) of the squared change of the compensated body
+    rate between samples. A pitch rate alternating ±A changes by 2A every step: E[Δω²] = (2A)²(1 − (1 − b)^k)
+    after k changes, b = dt/τ; from a zero covariance one predict adds exactly that noise, turned to NED."""
+    dt, A, gain, tau = 0.01, 0.05, 0.4, 1.0
+    cfg = FilterConfig(gyro_vib_gain=gain, gyro_vib_tau=tau)
+    kf = ErrorStateEKF(cfg)
+    from ins_hil.nav.rotation import dcm_from_euler
+
+    C = dcm_from_euler(0.1, 0.2, 0.5)
+    z3 = np.zeros(3)
+    f_ned = np.array((0.0, 0.0, -9.8))
+    k = 300
+    for n in range(k + 1):  # k + 1 samples: k changes
+        w = np.array((0.0, A if n % 2 else -A, 0.0))
+        kf.predict(dt, C, f_ned, z3, z3, C.T @ f_ned, w, LAT0, H0)
+    b = dt / tau
+    var_y = (2 * A) ** 2 * (1 - (1 - b) ** k)
+    np.testing.assert_allclose(kf.vib_var, (0.0, var_y, 0.0), rtol=1e-12, atol=1e-18)
+    # one more step from P = 0: the attitude block is exactly ARW + the vibration term of this step
+    kf._reset_P(np.zeros((kf.n, kf.n)))
+    w = np.array((0.0, A if (k + 1) % 2 else -A, 0.0))
+    kf.predict(dt, C, f_ned, z3, z3, C.T @ f_ned, w, LAT0, H0)
+    var_y = var_y + b * ((2 * A) ** 2 - var_y)
+    expect = np.eye(3) * cfg.gyro_arw**2 * dt + (gain * dt) ** 2 * var_y * np.outer(C[:, 1], C[:, 1])
+    np.testing.assert_allclose(kf.P[6:9, 6:9], expect, rtol=1e-10, atol=1e-24)
+    assert np.abs(expect - np.diag(np.diag(expect))).max() > 1e-12  # not isotropic: off-diagonal terms in NED
+    # a steady rate (a turn, a bias) adds nothing
+    kf2 = ErrorStateEKF(cfg)
+    for _ in range(50):
+        kf2.predict(dt, C, f_ned, z3, z3, C.T @ f_ned, np.array((0.1, -0.2, 0.3)), LAT0, H0)
+    assert kf2.vib_var == (0.0, 0.0, 0.0)
+
+
+def test_vibration_noise_config_errors():
+    for kw in ({"gyro_vib_gain": -0.1}, {"gyro_vib_gain": math.nan}, {"gyro_vib_tau": 0.0}):
+        with pytest.raises(ValueError, match="gyro_vib"):
+            FilterConfig(**kw)
+    with pytest.raises(ValueError, match="numerics='ud'"):
+        FilterConfig(gyro_vib_gain=0.4, numerics="ud")
+
+
+def test_c_core_refuses_the_vibration_noise():
+    from ins_hil.cref import CNavCore
+
+    init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
+    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.gyro_vib_gain"):
+        CNavCore(init, NavConfig(filter=FilterConfig(gyro_vib_gain=0.4)))

@@ -57,6 +57,12 @@ class FilterConfig:
     gyro_gsens: 9 states after the scale factors, the gyro g-sensitivity matrix G (rad/s per m/s², row =
     gyro axis, column = specific-force axis; ω̃ = ω + b_g + G f^b), a random walk ``gsens_sigma_rw``
     (rad/s/(m/s²)/√s) from an initial 1-σ ``init_gsens`` (a MEMS gyro: ~0.01–0.1 °/s/g ≈ 2e-5–2e-4).
+    gyro_vib_gain: attitude process noise from the measured vibration, on top of ``gyro_arw``: the rate
+    is known only at the samples, so the angle over one IMU interval is uncertain by about the change of
+    the rate across it; per body axis the added variance per step is (gain · dt)² · E[Δω²], with Δω the
+    sample-to-sample change of the compensated rate and E[·] an exponential average over ``gyro_vib_tau``
+    s (a car's roof IMU: 3–10 °/s of pitch vibration on rough road, almost none at a stop). Rotated to
+    NED (the noise is not isotropic). 0 = off; not with the UD numerics (needs a diagonal Q).
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     init_accel_sf: per-axis initial 1-σ of the accelerometer scale factors (x, y, z; None = ``init_sf``).
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
@@ -81,6 +87,8 @@ class FilterConfig:
     mount_states: bool = False
     mount_sigma_rw: float = 0.0
     init_mount: float = 1.0 * DEG
+    gyro_vib_gain: float = 0.0
+    gyro_vib_tau: float = 1.0
     init_pos: float = 5.0
     init_vel: float = 1.0
     init_att: float = 2.0 * DEG
@@ -99,6 +107,12 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
         if self.cov_every < 1:
             raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
+        if not (math.isfinite(self.gyro_vib_gain) and self.gyro_vib_gain >= 0.0):
+            raise ValueError(f"FilterConfig.gyro_vib_gain={self.gyro_vib_gain!r}: expected a finite value >= 0")
+        if not (math.isfinite(self.gyro_vib_tau) and self.gyro_vib_tau > 0.0):
+            raise ValueError(f"FilterConfig.gyro_vib_tau={self.gyro_vib_tau!r}: expected a finite value > 0 (s)")
+        if self.gyro_vib_gain > 0.0 and self.numerics == "ud":
+            raise ValueError("FilterConfig.gyro_vib_gain > 0 needs a full process-noise root: not with numerics='ud'")
 
 
 @dataclass
@@ -206,6 +220,10 @@ class ErrorStateEKF:
         self._acc_f = np.zeros(3)
         self._acc_w = np.zeros(3)
         self._acc_fb = np.zeros(3)
+        self._acc_qv = np.zeros((3, 3))
+        # vibration noise (gyro_vib_gain): the previous compensated rate and E[Δω²] per body axis
+        self.vib_prev: tuple[float, float, float] | None = None
+        self.vib_var: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.n_predict = 0
         self.factor: tuple | None = None  # square-root/UD factor when numerics is qr/cholesky/ud
         if c.numerics in ("qr", "cholesky", "ud"):
@@ -308,7 +326,10 @@ class ErrorStateEKF:
         """Time update over one IMU interval dt (s); every ``cov_every`` calls the covariance is
         propagated with F at the current state and the specific force/rates averaged over the block."""
         ce = self.cfg.cov_every
+        qv = self._vibration_noise(dt, C_bn, w_b) if self.cfg.gyro_vib_gain > 0.0 else None
         if ce > 1:
+            if qv is not None:
+                self._acc_qv = self._acc_qv + qv
             self._acc_n += 1
             self._acc_dt += dt
             self._acc_f = self._acc_f + f_ned
@@ -327,21 +348,46 @@ class ErrorStateEKF:
             self._acc_f = np.zeros(3)
             self._acc_fb = np.zeros(3)
             self._acc_w = np.zeros(3)
+            if qv is not None:
+                qv = self._acc_qv
+                self._acc_qv = np.zeros((3, 3))
         F = self.build_F(C_bn, f_ned, w_ie, w_en, f_b, w_b, lat, h)
         Phi = F * dt
         Phi += self._eye
         if self.cfg.second_order:
             Phi += (0.5 * dt * dt) * (F @ F)  # book eq. 3.2: I + FΔt + F²Δt²/2
-        self.propagate(Phi, self.qc * dt, dt)
+        self.propagate(Phi, self.qc * dt, dt, qv)
 
-    def propagate(self, Phi: Vec, qd: Vec, dt: float | None = None) -> None:
+    def _vibration_noise(self, dt: float, C_bn: Vec, w_b: Vec) -> Vec:
+        """The attitude noise of one step from the vibration (``gyro_vib_gain``): updates E[Δω²] (body axes,
+        (rad/s)²) with this step's rate change and returns C diag((gain·dt)² E[Δω²]) C^T (NED, rad²).
+        Scalar floats (hot path); ``vib_prev``/``vib_var`` are immutable tuples (kept by the snapshots)."""
+        w0, w1, w2 = float(w_b[0]), float(w_b[1]), float(w_b[2])
+        prev = self.vib_prev
+        v0, v1, v2 = self.vib_var
+        if prev is not None:
+            b = min(1.0, dt / self.cfg.gyro_vib_tau)
+            d0, d1, d2 = w0 - prev[0], w1 - prev[1], w2 - prev[2]
+            v0, v1, v2 = v0 + b * (d0 * d0 - v0), v1 + b * (d1 * d1 - v1), v2 + b * (d2 * d2 - v2)
+            self.vib_var = (v0, v1, v2)
+        self.vib_prev = (w0, w1, w2)
+        g = self.cfg.gyro_vib_gain * dt
+        gg = g * g
+        return np.dot(C_bn * np.array((gg * v0, gg * v1, gg * v2)), C_bn.T)
+
+    def propagate(self, Phi: Vec, qd: Vec, dt: float | None = None, q_att: Vec | None = None) -> None:
         """P ← Φ P Φ^T + diag(qd) (book eq. 3.7/3.19), or the factor form of the configured numerics.
-        With ``dt`` the diagonal matrix diag(qd) = diag(qc) dt is cached (fixed IMU rate)."""
+        With ``dt`` the diagonal matrix diag(qd) = diag(qc) dt is cached (fixed IMU rate). ``q_att`` (3×3)
+        is added to the attitude block of the process noise (the vibration noise, NED rad²)."""
         self.n_predict += 1
         if self.factor is not None:
             from ins_hil.fusion import sqrt as sq
 
-            self.factor = sq.factor_predict(self.factor, Phi, qd)
+            root = None
+            if q_att is not None:  # a root of diag(qd) with the attitude block diag(qd_att) + q_att
+                root = np.diag(np.sqrt(qd))
+                root[6:9, 6:9] = np.linalg.cholesky(np.diag(qd[6:9]) + q_att + np.eye(3) * 1e-30)
+            self.factor = sq.factor_predict(self.factor, Phi, qd, root)
             self.P = sq.factor_cov(self.factor)
             return
         P = np.dot(np.dot(Phi, self.P), Phi.T)
@@ -351,6 +397,8 @@ class ErrorStateEKF:
             P += self._qd_cache[1]
         else:
             P.flat[self._diag] += qd
+        if q_att is not None:
+            P[6:9, 6:9] += q_att  # P is the new array from the products above, not a snapshot's
         self.P = P
 
     # ------------------------------------------------------------------ update

@@ -170,12 +170,15 @@ def factor_cov(f: Factor) -> Vec:
     return S @ S.T
 
 
-def factor_predict(f: Factor, Phi: Vec, qd: Vec) -> Factor:
-    """Time update of a factor with diagonal process noise qd."""
+def factor_predict(f: Factor, Phi: Vec, qd: Vec, root: Vec | None = None) -> Factor:
+    """Time update of a factor with diagonal process noise qd, or (QR/Cholesky factors) with a full
+    process noise given by its root (Q = root rootᵀ)."""
     if f[0] == "ud":
+        if root is not None:
+            raise ValueError("factor_predict: the UD (Thornton) update takes a diagonal process noise only")
         U, d = thornton_predict(f[1], f[2], Phi, qd)
         return ("ud", U, d)
-    return (f[0], qr_predict(f[1], Phi, np.diag(np.sqrt(qd))))
+    return (f[0], qr_predict(f[1], Phi, np.diag(np.sqrt(qd)) if root is None else root))
 
 
 def factor_update(f: Factor, x: Vec, z: Vec, H: Vec, r_diag: Vec) -> tuple[Vec, Factor]:
