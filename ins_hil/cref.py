@@ -68,6 +68,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "filter.scale_factors": f.scale_factors,
         "filter.gyro_gsens": f.gyro_gsens,
         "filter.gyro_vib_gain": f.gyro_vib_gain != 0.0,
+        "filter.accel_vib_gain": f.accel_vib_gain != 0.0,
         "filter.numerics": f.numerics != "joseph",
         "filter.cov_every": f.cov_every != 1,
         "filter.earth_terms": not f.earth_terms,

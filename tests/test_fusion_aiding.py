@@ -337,7 +337,10 @@ def test_delayed_fusion_rollback_restores_the_ground_aid_averages():
     rng = np.random.default_rng(1)
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=2).samples()
     # with the vibration noise (session 6): its E[Δω²] is in the snapshots too
-    core = NavCore(_init(truth), NavConfig(nhc=True, zupt=True, max_delay=0.3, filter=FilterConfig(gyro_vib_gain=0.4)))
+    core = NavCore(
+        _init(truth),
+        NavConfig(nhc=True, zupt=True, max_delay=0.3, filter=FilterConfig(gyro_vib_gain=0.4, accel_vib_gain=0.6)),
+    )
     for s in imu:
         core.step(s)
     before = (core._ema_f.copy(), core._ema_w.copy(), core.state().vel_ned.copy(), np.array(core.kf.vib_var))
@@ -405,47 +408,69 @@ def test_per_axis_accelerometer_scale_factor_prior_learns_a_forward_scale_factor
     assert res[True][1] < 0.7 * res[False][1]  # measured 0.011 vs 0.018 m/s
 
 
-def test_vibration_noise_follows_the_sample_to_sample_rate_change():
-    """``gyro_vib_gain`` (session 6): per step the attitude block gets C diag((gain·dt)² E[Δω²]) C^T on top of
-    the ARW, E[Δω²] the exponential average (τ = gyro_vib_tau) of the squared change of the compensated body
-    rate between samples. A pitch rate alternating ±A changes by 2A every step: E[Δω²] = (2A)²(1 − (1 − b)^k)
-    after k changes, b = dt/τ; from a zero covariance one predict adds exactly that noise, turned to NED."""
-    dt, A, gain, tau = 0.01, 0.05, 0.4, 1.0
-    cfg = FilterConfig(gyro_vib_gain=gain, gyro_vib_tau=tau)
-    kf = ErrorStateEKF(cfg)
+def test_vibration_noise_follows_the_sample_to_sample_change():
+    """``gyro_vib_gain`` / ``accel_vib_gain`` (session 6): per step the attitude (velocity) block gets
+    C diag((gain·dt)² E[Δx²]) C^T on top of the ARW (VRW), E[Δx²] the exponential average (τ = vib_tau) of the
+    squared change of the compensated body rate (specific force) between samples. A pitch rate alternating ±A
+    and a forward specific force alternating ±B change by 2A, 2B every step: E = (2A)²(1 − (1 − b)^k) after k
+    changes, b = dt/τ; from a zero covariance one predict adds exactly that noise, turned to NED."""
     from ins_hil.nav.rotation import dcm_from_euler
 
+    dt, A, B, gw, gf, tau = 0.01, 0.05, 0.3, 0.4, 0.6, 1.0
+    cfg = FilterConfig(gyro_vib_gain=gw, accel_vib_gain=gf, vib_tau=tau)
+    kf = ErrorStateEKF(cfg)
     C = dcm_from_euler(0.1, 0.2, 0.5)
     z3 = np.zeros(3)
     f_ned = np.array((0.0, 0.0, -9.8))
+
+    def inputs(n):
+        sgn = 1.0 if n % 2 else -1.0
+        return np.array((0.0, sgn * A, 0.0)), C.T @ f_ned + np.array((sgn * B, 0.0, 0.0))
+
     k = 300
     for n in range(k + 1):  # k + 1 samples: k changes
-        w = np.array((0.0, A if n % 2 else -A, 0.0))
-        kf.predict(dt, C, f_ned, z3, z3, C.T @ f_ned, w, LAT0, H0)
+        w, fb = inputs(n)
+        kf.predict(dt, C, f_ned, z3, z3, fb, w, LAT0, H0)
     b = dt / tau
-    var_y = (2 * A) ** 2 * (1 - (1 - b) ** k)
-    np.testing.assert_allclose(kf.vib_var, (0.0, var_y, 0.0), rtol=1e-12, atol=1e-18)
-    # one more step from P = 0: the attitude block is exactly ARW + the vibration term of this step
+    grow = 1 - (1 - b) ** k
+    vw, vf = (2 * A) ** 2 * grow, (2 * B) ** 2 * grow
+    np.testing.assert_allclose(kf.vib_var, (0.0, vw, 0.0, vf, 0.0, 0.0), rtol=1e-9, atol=1e-15)
+    # one more step from P = 0: the attitude/velocity blocks are exactly ARW/VRW + this step's vibration term
     kf._reset_P(np.zeros((kf.n, kf.n)))
-    w = np.array((0.0, A if (k + 1) % 2 else -A, 0.0))
-    kf.predict(dt, C, f_ned, z3, z3, C.T @ f_ned, w, LAT0, H0)
-    var_y = var_y + b * ((2 * A) ** 2 - var_y)
-    expect = np.eye(3) * cfg.gyro_arw**2 * dt + (gain * dt) ** 2 * var_y * np.outer(C[:, 1], C[:, 1])
-    np.testing.assert_allclose(kf.P[6:9, 6:9], expect, rtol=1e-10, atol=1e-24)
-    assert np.abs(expect - np.diag(np.diag(expect))).max() > 1e-12  # not isotropic: off-diagonal terms in NED
-    # a steady rate (a turn, a bias) adds nothing
+    w, fb = inputs(k + 1)
+    kf.predict(dt, C, f_ned, z3, z3, fb, w, LAT0, H0)
+    vw, vf = vw + b * ((2 * A) ** 2 - vw), vf + b * ((2 * B) ** 2 - vf)
+    att = np.eye(3) * cfg.gyro_arw**2 * dt + (gw * dt) ** 2 * vw * np.outer(C[:, 1], C[:, 1])
+    vel = np.eye(3) * cfg.accel_vrw**2 * dt + (gf * dt) ** 2 * vf * np.outer(C[:, 0], C[:, 0])
+    np.testing.assert_allclose(kf.P[6:9, 6:9], att, rtol=1e-9, atol=1e-24)
+    np.testing.assert_allclose(kf.P[3:6, 3:6], vel, rtol=1e-9, atol=1e-24)
+    assert np.abs(att - np.diag(np.diag(att))).max() > 1e-12  # not isotropic: off-diagonal terms in NED
+    # a steady rate and specific force (a turn, a bias, gravity) add nothing
     kf2 = ErrorStateEKF(cfg)
     for _ in range(50):
-        kf2.predict(dt, C, f_ned, z3, z3, C.T @ f_ned, np.array((0.1, -0.2, 0.3)), LAT0, H0)
-    assert kf2.vib_var == (0.0, 0.0, 0.0)
+        kf2.predict(dt, C, f_ned, z3, z3, np.array((0.5, 0.1, -9.7)), np.array((0.1, -0.2, 0.3)), LAT0, H0)
+    assert kf2.vib_var == (0.0,) * 6
+    # P every 5 steps (cov_every): the five steps' vibration terms are summed into the block's noise
+    kf5 = ErrorStateEKF(replace(cfg, cov_every=5))
+    for n in range(300):  # 60 whole blocks
+        w, fb = inputs(n)
+        kf5.predict(dt, C, f_ned, z3, z3, fb, w, LAT0, H0)
+    kf5._reset_P(np.zeros((kf5.n, kf5.n)))
+    qsum = np.zeros(3)
+    for n in range(300, 305):
+        w, fb = inputs(n)
+        kf5.predict(dt, C, f_ned, z3, z3, fb, w, LAT0, H0)
+        qsum += np.array(kf5.vib_var[:3])
+    att5 = np.eye(3) * cfg.gyro_arw**2 * 5 * dt + (gw * dt) ** 2 * qsum[1] * np.outer(C[:, 1], C[:, 1])
+    np.testing.assert_allclose(kf5.P[6:9, 6:9], att5, rtol=1e-9, atol=1e-24)
 
 
 def test_vibration_noise_config_errors():
-    for kw in ({"gyro_vib_gain": -0.1}, {"gyro_vib_gain": math.nan}, {"gyro_vib_tau": 0.0}):
-        with pytest.raises(ValueError, match="gyro_vib"):
+    for kw in ({"gyro_vib_gain": -0.1}, {"accel_vib_gain": math.nan}, {"vib_tau": 0.0}):
+        with pytest.raises(ValueError, match="vib"):
             FilterConfig(**kw)
     with pytest.raises(ValueError, match="numerics='ud'"):
-        FilterConfig(gyro_vib_gain=0.4, numerics="ud")
+        FilterConfig(accel_vib_gain=0.4, numerics="ud")
 
 
 def test_c_core_refuses_the_vibration_noise():
@@ -454,3 +479,5 @@ def test_c_core_refuses_the_vibration_noise():
     init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
     with pytest.raises(ValueError, match=r"not supported by the C core: filter\.gyro_vib_gain"):
         CNavCore(init, NavConfig(filter=FilterConfig(gyro_vib_gain=0.4)))
+    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.accel_vib_gain"):
+        CNavCore(init, NavConfig(filter=FilterConfig(accel_vib_gain=0.6)))

@@ -140,7 +140,12 @@ def test_navcore_numerics_give_the_same_estimates(numerics, vib):
     def run(num: str):
         init = StrapdownState(quat_from_euler(e[0] + 0.01, e[1], e[2] + 0.03), truth.vel_ned[0].copy(),
                               truth.lat[0], truth.lon[0], truth.h[0], 0.0)  # fmt: skip
-        core = NavCore(init, NavConfig(filter=FilterConfig(numerics=num, gyro_vib_gain=vib), delay_compensation=False))
+        core = NavCore(
+            init,
+            NavConfig(
+                filter=FilterConfig(numerics=num, gyro_vib_gain=vib, accel_vib_gain=vib), delay_compensation=False
+            ),
+        )
         j = 0
         for s in imu:
             core.step(s)

@@ -57,12 +57,14 @@ class FilterConfig:
     gyro_gsens: 9 states after the scale factors, the gyro g-sensitivity matrix G (rad/s per m/s², row =
     gyro axis, column = specific-force axis; ω̃ = ω + b_g + G f^b), a random walk ``gsens_sigma_rw``
     (rad/s/(m/s²)/√s) from an initial 1-σ ``init_gsens`` (a MEMS gyro: ~0.01–0.1 °/s/g ≈ 2e-5–2e-4).
-    gyro_vib_gain: attitude process noise from the measured vibration, on top of ``gyro_arw``: the rate
-    is known only at the samples, so the angle over one IMU interval is uncertain by about the change of
-    the rate across it; per body axis the added variance per step is (gain · dt)² · E[Δω²], with Δω the
-    sample-to-sample change of the compensated rate and E[·] an exponential average over ``gyro_vib_tau``
-    s (a car's roof IMU: 3–10 °/s of pitch vibration on rough road, almost none at a stop). Rotated to
-    NED (the noise is not isotropic). 0 = off; not with the UD numerics (needs a diagonal Q).
+    gyro_vib_gain / accel_vib_gain: process noise from the measured vibration, on top of ``gyro_arw`` /
+    ``accel_vrw``: the rate and the specific force are known only at the samples, so the angle and the
+    velocity change over one IMU interval are uncertain by about the change of the signal across it. Per
+    body axis the added variance per step is (gain · dt)² · E[Δx²], with Δx the sample-to-sample change
+    of the compensated rate (attitude block) or specific force (velocity block) and E[·] an exponential
+    average over ``vib_tau`` s (a car's roof IMU: 3–10 °/s of pitch vibration on rough road, almost none
+    at a stop). Rotated to NED (the noise is not isotropic). 0 = off; not with the UD numerics (they take
+    a diagonal Q only).
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     init_accel_sf: per-axis initial 1-σ of the accelerometer scale factors (x, y, z; None = ``init_sf``).
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
@@ -88,7 +90,8 @@ class FilterConfig:
     mount_sigma_rw: float = 0.0
     init_mount: float = 1.0 * DEG
     gyro_vib_gain: float = 0.0
-    gyro_vib_tau: float = 1.0
+    accel_vib_gain: float = 0.0
+    vib_tau: float = 1.0
     init_pos: float = 5.0
     init_vel: float = 1.0
     init_att: float = 2.0 * DEG
@@ -107,12 +110,20 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
         if self.cov_every < 1:
             raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
-        if not (math.isfinite(self.gyro_vib_gain) and self.gyro_vib_gain >= 0.0):
-            raise ValueError(f"FilterConfig.gyro_vib_gain={self.gyro_vib_gain!r}: expected a finite value >= 0")
-        if not (math.isfinite(self.gyro_vib_tau) and self.gyro_vib_tau > 0.0):
-            raise ValueError(f"FilterConfig.gyro_vib_tau={self.gyro_vib_tau!r}: expected a finite value > 0 (s)")
-        if self.gyro_vib_gain > 0.0 and self.numerics == "ud":
-            raise ValueError("FilterConfig.gyro_vib_gain > 0 needs a full process-noise root: not with numerics='ud'")
+        for name in ("gyro_vib_gain", "accel_vib_gain"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"FilterConfig.{name}={v!r}: expected a finite value >= 0")
+        if not (math.isfinite(self.vib_tau) and self.vib_tau > 0.0):
+            raise ValueError(f"FilterConfig.vib_tau={self.vib_tau!r}: expected a finite value > 0 (s)")
+        if self.vibration and self.numerics == "ud":
+            raise ValueError("FilterConfig: the vibration noise (gyro_vib_gain/accel_vib_gain > 0) needs a full "
+                             "process-noise root: not with numerics='ud'")  # fmt: skip
+
+    @property
+    def vibration(self) -> bool:
+        """True if a vibration noise term is on."""
+        return self.gyro_vib_gain > 0.0 or self.accel_vib_gain > 0.0
 
 
 @dataclass
@@ -220,10 +231,13 @@ class ErrorStateEKF:
         self._acc_f = np.zeros(3)
         self._acc_w = np.zeros(3)
         self._acc_fb = np.zeros(3)
-        self._acc_qv = np.zeros((3, 3))
-        # vibration noise (gyro_vib_gain): the previous compensated rate and E[Δω²] per body axis
-        self.vib_prev: tuple[float, float, float] | None = None
-        self.vib_var: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._acc_qv: Vec | None = None
+        self._vib_idx = np.array([r * n + col for k in (6, 3) for r in range(k, k + 3) for col in range(k, k + 3)])
+        # vibration noise (FilterConfig.gyro_vib_gain/accel_vib_gain): the previous compensated rate and
+        # specific force (body) and E[Δω²], E[Δf²] per body axis, as immutable 6-tuples (kept by the snapshots)
+        self.vib_prev: tuple[float, ...] | None = None
+        self.vib_var: tuple[float, ...] = (0.0,) * 6
+        self._vib = c.vibration
         self.n_predict = 0
         self.factor: tuple | None = None  # square-root/UD factor when numerics is qr/cholesky/ud
         if c.numerics in ("qr", "cholesky", "ud"):
@@ -326,10 +340,11 @@ class ErrorStateEKF:
         """Time update over one IMU interval dt (s); every ``cov_every`` calls the covariance is
         propagated with F at the current state and the specific force/rates averaged over the block."""
         ce = self.cfg.cov_every
-        qv = self._vibration_noise(dt, C_bn, w_b) if self.cfg.gyro_vib_gain > 0.0 else None
+        qv = self._vibration_noise(dt, C_bn, w_b, f_b) if self._vib else None
         if ce > 1:
             if qv is not None:
-                self._acc_qv = self._acc_qv + qv
+                acc = self._acc_qv
+                self._acc_qv = qv if acc is None else acc + qv
             self._acc_n += 1
             self._acc_dt += dt
             self._acc_f = self._acc_f + f_ned
@@ -350,7 +365,7 @@ class ErrorStateEKF:
             self._acc_w = np.zeros(3)
             if qv is not None:
                 qv = self._acc_qv
-                self._acc_qv = np.zeros((3, 3))
+                self._acc_qv = None
         F = self.build_F(C_bn, f_ned, w_ie, w_en, f_b, w_b, lat, h)
         Phi = F * dt
         Phi += self._eye
@@ -358,35 +373,42 @@ class ErrorStateEKF:
             Phi += (0.5 * dt * dt) * (F @ F)  # book eq. 3.2: I + FΔt + F²Δt²/2
         self.propagate(Phi, self.qc * dt, dt, qv)
 
-    def _vibration_noise(self, dt: float, C_bn: Vec, w_b: Vec) -> Vec:
-        """The attitude noise of one step from the vibration (``gyro_vib_gain``): updates E[Δω²] (body axes,
-        (rad/s)²) with this step's rate change and returns C diag((gain·dt)² E[Δω²]) C^T (NED, rad²).
-        Scalar floats (hot path); ``vib_prev``/``vib_var`` are immutable tuples (kept by the snapshots)."""
-        w0, w1, w2 = float(w_b[0]), float(w_b[1]), float(w_b[2])
+    def _vibration_noise(self, dt: float, C_bn: Vec, w_b: Vec, f_b: Vec) -> Vec:
+        """The attitude and velocity noise of one step from the vibration (``FilterConfig.gyro_vib_gain`` /
+        ``accel_vib_gain``): updates E[Δω²] ((rad/s)²) and E[Δf²] ((m/s²)²), body axes, with this step's
+        changes and returns [C diag((g_ω dt)² E[Δω²]) C^T, C diag((g_f dt)² E[Δf²]) C^T] (2×3×3, NED; rad², (m/s)²).
+        Scalar floats on the hot path."""
+        x0, x1, x2 = float(w_b[0]), float(w_b[1]), float(w_b[2])
+        x3, x4, x5 = float(f_b[0]), float(f_b[1]), float(f_b[2])
         prev = self.vib_prev
-        v0, v1, v2 = self.vib_var
+        v0, v1, v2, v3, v4, v5 = self.vib_var
         if prev is not None:
-            b = min(1.0, dt / self.cfg.gyro_vib_tau)
-            d0, d1, d2 = w0 - prev[0], w1 - prev[1], w2 - prev[2]
+            b = min(1.0, dt / self.cfg.vib_tau)
+            p0, p1, p2, p3, p4, p5 = prev
+            d0, d1, d2, d3, d4, d5 = x0 - p0, x1 - p1, x2 - p2, x3 - p3, x4 - p4, x5 - p5
             v0, v1, v2 = v0 + b * (d0 * d0 - v0), v1 + b * (d1 * d1 - v1), v2 + b * (d2 * d2 - v2)
-            self.vib_var = (v0, v1, v2)
-        self.vib_prev = (w0, w1, w2)
-        g = self.cfg.gyro_vib_gain * dt
-        gg = g * g
-        return np.dot(C_bn * np.array((gg * v0, gg * v1, gg * v2)), C_bn.T)
+            v3, v4, v5 = v3 + b * (d3 * d3 - v3), v4 + b * (d4 * d4 - v4), v5 + b * (d5 * d5 - v5)
+            self.vib_var = (v0, v1, v2, v3, v4, v5)
+        self.vib_prev = (x0, x1, x2, x3, x4, x5)
+        gw = self.cfg.gyro_vib_gain * dt
+        gf = self.cfg.accel_vib_gain * dt
+        gw, gf = gw * gw, gf * gf
+        d = np.array(((gw * v0, gw * v1, gw * v2), (gf * v3, gf * v4, gf * v5)))
+        return np.matmul(C_bn * d[:, None, :], C_bn.T)
 
-    def propagate(self, Phi: Vec, qd: Vec, dt: float | None = None, q_att: Vec | None = None) -> None:
+    def propagate(self, Phi: Vec, qd: Vec, dt: float | None = None, q_vib: Vec | None = None) -> None:
         """P ← Φ P Φ^T + diag(qd) (book eq. 3.7/3.19), or the factor form of the configured numerics.
-        With ``dt`` the diagonal matrix diag(qd) = diag(qc) dt is cached (fixed IMU rate). ``q_att`` (3×3)
-        is added to the attitude block of the process noise (the vibration noise, NED rad²)."""
+        With ``dt`` the diagonal matrix diag(qd) = diag(qc) dt is cached (fixed IMU rate). ``q_vib``
+        (2×3×3, NED) is added to the attitude and velocity blocks (the vibration noise)."""
         self.n_predict += 1
         if self.factor is not None:
             from ins_hil.fusion import sqrt as sq
 
             root = None
-            if q_att is not None:  # a root of diag(qd) with the attitude block diag(qd_att) + q_att
+            if q_vib is not None:  # a root of diag(qd) with the blocks diag(qd_blk) + q_blk
                 root = np.diag(np.sqrt(qd))
-                root[6:9, 6:9] = np.linalg.cholesky(np.diag(qd[6:9]) + q_att + np.eye(3) * 1e-30)
+                for k, q in ((6, q_vib[0]), (3, q_vib[1])):
+                    root[k : k + 3, k : k + 3] = np.linalg.cholesky(np.diag(qd[k : k + 3]) + q + np.eye(3) * 1e-30)
             self.factor = sq.factor_predict(self.factor, Phi, qd, root)
             self.P = sq.factor_cov(self.factor)
             return
@@ -397,8 +419,8 @@ class ErrorStateEKF:
             P += self._qd_cache[1]
         else:
             P.flat[self._diag] += qd
-        if q_att is not None:
-            P[6:9, 6:9] += q_att  # P is the new array from the products above, not a snapshot's
+        if q_vib is not None:  # P is the new array from the products above, not a snapshot's
+            P.flat[self._vib_idx] += q_vib.ravel()
         self.P = P
 
     # ------------------------------------------------------------------ update
