@@ -396,6 +396,138 @@ def per_window(ser: Series, outages: list[tuple[float, float]], scored: set[floa
     return rows
 
 
+SESSION6_ROWS = (
+    (
+        "base (session 5)",
+        "0.97 / 5.47",
+        "0.54/2.02, 1.04/4.83, 1.21/5.47",
+        "1.90 / 3.55",
+    ),
+    (
+        "gyro term on the deviation from a 0.2 s mean, ARW 0.2 °/√s kept, gain 0.2 / 0.4 / 0.8",
+        "0.99/5.31, 1.05/5.54, 1.17/6.50",
+        "",
+        "1.87/3.49, 1.82/3.35, 1.72/3.13",
+    ),
+    (
+        "same, ARW 0.1 °/√s, gain 0.3 / 0.4 / 0.5 / 0.8",
+        "0.96/5.30, 0.96/5.38, 0.99/5.47, 1.08/5.91",
+        "",
+        "1.74/3.22, 1.71/3.14, 1.68/3.08, 1.62/2.97",
+    ),
+    (
+        "ARW 0.1 °/√s alone",
+        "1.23 / 6.37",
+        "1.07/6.11, 1.15/5.96, 1.44/6.37",
+        "1.80 / 3.36",
+    ),
+    (
+        "same term, README ARW, gain 0.4 / 0.5",
+        "0.93/5.33, 0.94/5.40",
+        "0.74/2.74, 0.85/4.87, 1.16/5.33 (0.4)",
+        "1.64/2.99, 1.61/2.95",
+    ),
+    (
+        "**sample-to-sample change, README ARW, gain 0.2 / 0.3 / 0.4 / 0.5 / 0.6**",
+        "1.07/5.69, 0.90/5.13, **0.89/5.20**, 0.92/5.27, 0.96/5.33",
+        "0.61/2.83, 0.87/4.49, 1.12/5.20 (0.4)",
+        "1.68/3.07, 1.65/3.00, **1.62/2.93**, 1.59/2.87, 1.56/2.82",
+    ),
+    (
+        "gain 0.4, average over 3 s / 0.3 s instead of 1 s",
+        "0.89/5.30, 0.92/5.10",
+        "",
+        "1.64/2.97, 1.60/2.89",
+    ),
+    (
+        "**implemented (gyro 0.4), E[Δω²] in the snapshots**",
+        "**0.88 / 5.29**",
+        "0.61/2.87, 0.87/4.50, 1.10/5.29",
+        "**1.63 / 2.95**",
+    ),
+    (
+        "+ gyro-bias σ 1e-3 / 1.5e-3 / 6e-3 rad/s (instead of 3e-3)",
+        "0.88/5.87, 0.88/5.41, 0.98/5.65",
+        "",
+        "1.61/2.90, 1.61/2.91, 1.63/2.99",
+    ),
+    (
+        "+ accelerometer term on top of 0.02 m/s²/√Hz, gain 0.2 / 0.4 / 0.8 / 1.2 (gyro term on)",
+        "0.89/5.24, 0.89/5.13, 0.98/4.78, 1.20/6.24",
+        "",
+        "1.62/2.93, 1.62/2.94, 1.64/3.00, 1.65/3.04",
+    ),
+    (
+        "README accelerometer density, no accelerometer term (gyro term on)",
+        "1.16 / 6.67",
+        "0.98/4.71, 1.19/5.00, 1.29/6.67",
+        "1.58 / 2.83",
+    ),
+    (
+        "**README density + accelerometer term, gain 0.4 / 0.5 / 0.6 / 0.7 / 0.8 / 1.0**",
+        "0.94/5.29, 0.91/4.85, **0.90/4.58**, 0.91/4.39, 0.94/4.36, 1.05/4.37",
+        "0.70/2.70, 0.95/4.41, 1.02/4.58 (0.6)",
+        "1.59/2.86, 1.59/2.87, **1.59/2.89**, 1.60/2.90, 1.60/2.92, 1.61/2.95",
+    ),
+    (
+        "**implemented (gyro 0.4 + accelerometer 0.6, adopted)**",
+        "**0.90 / 4.45**",
+        "0.70/2.70, 0.95/4.41, 1.03/4.45",
+        "**1.59 / 2.88**",
+    ),
+    (
+        "gyro gain 0.3 / 0.5 with accelerometer 0.6",
+        "0.96/4.65, 0.91/4.65",
+        "",
+        "1.62/2.95, 1.56/2.83",
+    ),
+    (
+        "session-5 base, increments with the nominal 10 ms interval, the stamps kept",
+        "1.03 / 6.29",
+        "0.59/2.20, 1.06/4.97, 1.31/6.29",
+        "1.91 / 3.62",
+    ),
+)
+
+SESSION6_NOTE = """### Session 6: sensor noise from the measured vibration
+
+**What the second outage is.** The protocol's 85–100 s outage (the worst, 9.9 m in session 5) was compared with a
+run that keeps GNSS all the time: the outage run's pitch leaves the GNSS-aided pitch by 0.14° at 86 s, 0.29° at
+88 s, 0.48° at 92 s and stays near 0.5°. It does not drift like a bias: most of it comes in the first 3 s, while
+the pitch gyro shakes hardest (85.0–85.5 s: 10 °/s standard deviation in half a second, peaks of 28 °/s; the drive's
+pitch gyro shakes by 3–10 °/s on rough road, 1 °/s at a stop). The rate is known only at 100 Hz samples, so the
+angle over each 10 ms interval is uncertain by about the change of the rate across it, and the error walks
+with the vibration. Sessions 1–5 covered that with a fixed ARW of 0.2 °/√s, 50× the README's 0.0038 °/s/√Hz,
+the same on smooth and rough road.
+
+**The model** (`FilterConfig.gyro_vib_gain`, `accel_vib_gain`, `vib_tau`; default off): per body axis the
+attitude (velocity) block gets (gain · dt)² · E[Δx²] per step, on top of the white noise, with Δx the
+sample-to-sample change of the compensated rate (specific force), E[·] an exponential average over 1 s, turned to
+NED (not isotropic). It is in the delayed-fusion snapshots (a rollback that fuses nothing leaves the core
+bit-identical, tested), QR/Cholesky take the root of the full block (same estimates as Joseph, tested), UD and the
+C core refuse it by name. Cost with both terms: the 21-state predict 18.3 → 26.5 µs (best of 15 × 2000 calls,
+this machine). The drive uses the README's noise densities (gyro 0.0038 °/s/√Hz, accelerometer 70 µg/√Hz) plus
+gyro gain 0.4 and accelerometer gain 0.6, instead of 0.2 °/√s and 0.02 m/s²/√Hz.
+
+Chosen on the validation windows and the start-up outage (temporary patch code for the screening, then the
+implementation; per shift RMS / max in m):
+
+{table}
+
+The accelerometer term trades validation RMS (0.88 → 0.90 m) for the worst case (5.29 → 4.45 m; better on the
+27.5 s shift in both, the other two shifts trade RMS for worst case) and improves the start-up outage: adopted,
+because the worst case is the target that is missed. The protocol was run twice: once when the gyro term alone was
+the choice (1.27 / 8.51 m), and once after the accelerometer term was added (the table at the top). The second is
+worse on the protocol in both figures; the choice was not changed back, because that would choose on the protocol.
+
+**What is left.** The second outage stays the worst. During it the filter's own pitch σ (μ_N, heading east) grows
+from 0.23° to 0.69°, and the pitch error is about 0.5°: the filter is consistent, but a pitch walk of that size
+is a 9 m along-track error after 15 s. No state can predict it. Nothing in this data set measures pitch or the
+forward speed during an outage. The vertical NHC ties pitch to the vertical velocity, which is free without a
+height reference. An odometer, wheel speeds or a barometer would hold it.
+"""
+
+
 SESSION5_NOTE = """### Session 5: the start-up (levelling on the rest, correlated tilt prior, yaw σ from the receiver)
 
 **Where the protocol's error was.** Per outage (session-4 settings): 3.30/5.33, **4.08/10.31**, 1.10/3.54, then
@@ -807,6 +939,13 @@ def _machine() -> str:
             f"during the run: {load_note(load[0])}")  # fmt: skip
 
 
+def _md_table(head: tuple[str, ...], rows: tuple[tuple[str, ...], ...]) -> str:
+    """A markdown table."""
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
 def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path) -> str:
     d = r["drive"]
     L: list[str] = []
@@ -850,6 +989,9 @@ def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path)
             + ", ".join(f"{w[0]:.0f} s {r['rms_m']:.2f}/{r['max_m']:.2f}" for w, r in zip(d["outage_windows_s"], pw))
             + ".\n"
         )
+    a(SESSION6_NOTE.format(table=_md_table(
+        ("variant (ZUPT + NHC)", "validation h RMS / max (m)", "per shift 17.5 / 22.5 / 27.5 s",
+         "start-up outage h RMS / max (m)"), SESSION6_ROWS)))  # fmt: skip
     a(SESSION5_NOTE)
     a(SESSION4_NOTE)
     a(SESSION3_NOTE)
