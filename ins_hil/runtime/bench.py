@@ -28,9 +28,8 @@ REPO = Path(__file__).resolve().parent.parent.parent
 
 
 def machine() -> str:
-    cpu = cpu_model()
-    load1 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return f"{os.cpu_count()} CPUs (nproc), {cpu}, Python {platform.python_version()}, {load_note(load1)}"
+    """One line: CPUs, model, Python and whether the load allowed clean timings."""
+    return f"{os.cpu_count()} CPUs (nproc), {cpu_model()}, Python {platform.python_version()}, {load_note()}"
 
 
 def measure(duration: float, core: str = "python") -> tuple[Gateway, float]:

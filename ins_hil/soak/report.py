@@ -11,17 +11,11 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.machine import cpu_model, load_average
+
 
 def machine() -> dict[str, Any]:
     """nproc, CPU model, load averages, kernel, Python; and other busy processes at report time."""
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
     busy = ""
     try:
         ps = subprocess.run(["ps", "-eo", "pcpu,comm", "--sort=-pcpu"], capture_output=True, text=True, timeout=5)
@@ -31,8 +25,8 @@ def machine() -> dict[str, Any]:
         pass
     return {
         "nproc": os.cpu_count(),
-        "cpu_model": model,
-        "loadavg": os.getloadavg(),
+        "cpu_model": cpu_model(),
+        "loadavg": load_average(),
         "kernel": platform.release(),
         "python": platform.python_version(),
         "busiest_processes": busy,
@@ -184,9 +178,7 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "", p
         n_ok = "—" if relay else f"{sum(x['detected'] for x in inj)}/{len(inj)}"
         lines.append(f"| injected faults isolated | {n_ok} | all | {_check(c['faults_isolated'])} |")
     if "no_false_alarm" in c:
-        lines.append(
-            f"| false alarms | {_f(c['no_false_alarm']['value'])} | 0 | {_check(c['no_false_alarm'])} |"
-        )
+        lines.append(f"| false alarms | {_f(c['no_false_alarm']['value'])} | 0 | {_check(c['no_false_alarm'])} |")
     lines += ["", "| latency (µs) | count | p50 | p99 | p99.9 | max |", "|---|---|---|---|---|---|"]
     names: tuple[tuple[str, str], ...] = (
         ("end_to_end", "sensor emission → state received by the ground station"),
