@@ -152,3 +152,14 @@ def test_cyclictest_histogram_statistics() -> None:
     table = section({"available": True, "priority": 80, "interval_us": 1000, "duration_s": 1, "cpus": st})
     assert "| 1 | 1000 | 30 | 50 | 5000 |" in table
     assert "not measured: x" in section({"available": False, "why": "x"})
+
+
+def test_soak_report_load_note_idle_busy_and_unknown() -> None:
+    """The report's machine-load note: idle, busy, and (no load average from the OS: NaN) unknown."""
+    from ins_hil.soak.suite import load_lines
+
+    assert "Idle machine" in load_lines({"loadavg": (0.4, 0.5, 0.6), "nproc": 2})[0]
+    busy = load_lines({"loadavg": (1.7, 0.5, 0.6), "nproc": 2})[0]
+    assert "Busy machine" in busy and "1.70" in busy
+    unknown = load_lines({"loadavg": (float("nan"),) * 3, "nproc": 2})[0]
+    assert "unknown" in unknown and "nan" not in unknown

@@ -191,6 +191,31 @@ def note_command(opt: SoakOptions, rates: list[float], cores: list[str], sd: flo
     return " ".join(parts)
 
 
+def load_lines(ma: dict[str, Any]) -> list[str]:
+    """The report's note on the machine load before the soak (``ma``: ``report.machine()`` at the start)."""
+    # The load at the end includes the soak's own processes (~1) and, after a loaded run, its busy
+    # loops (+2): only the load before the soak started says whether something else was running.
+    lines: list[str] = []
+    l1 = float(ma["loadavg"][0])
+    if l1 != l1:  # NaN: the OS gives no load average (ins_hil.machine.load_average)
+        lines += ["> **Machine load unknown:** the OS gives no load average.", ""]
+    elif l1 > 1.0:  # a decaying 1-min average: < 1 on 2 CPUs is a recently finished job
+        lines += [
+            f"> **Busy machine:** the 1-minute load average was {l1:.2f} before the soak "
+            f"started on {ma['nproc']} CPUs, so other processes shared the CPUs "
+            "with the pinned soak processes: the timing figures below are contaminated (upper bounds), the "
+            "loss, memory, accuracy and fault figures are not timing-sensitive unless frames were lost.",
+            "",
+        ]
+    else:
+        lines += [
+            f"> **Idle machine:** load average {l1:.2f} before the soak started; the load at "
+            "the end is the soak's own processes (and the loaded run's busy loops, if any).",
+            "",
+        ]
+    return lines
+
+
 def render(
     top: dict[str, Any],
     runs: list[tuple[str, str, dict[str, Any], list[str]]],
@@ -216,22 +241,7 @@ def render(
     ]
     if top["note"]:
         lines += [f"> **Note:** {top['note']}", ""]
-    # The load at the end includes the soak's own processes (~1) and, after a loaded run, its busy
-    # loops (+2): only the load before the soak started says whether something else was running.
-    if ma["loadavg"][0] > 1.0:  # a decaying 1-min average: < 1 on 2 CPUs is a recently finished job
-        lines += [
-            f"> **Busy machine:** the 1-minute load average was {ma['loadavg'][0]:.2f} before the soak "
-            f"started on {ma['nproc']} CPUs, so other processes shared the CPUs "
-            "with the pinned soak processes: the timing figures below are contaminated (upper bounds), the "
-            "loss, memory, accuracy and fault figures are not timing-sensitive unless frames were lost.",
-            "",
-        ]
-    else:
-        lines += [
-            f"> **Idle machine:** load average {ma['loadavg'][0]:.2f} before the soak started; the load at "
-            "the end is the soak's own processes (and the loaded run's busy loops, if any).",
-            "",
-        ]
+    lines += load_lines(ma)
     lines += [
         "Set-up: the simulated sensors (serial IMU frames into a pty — the frames of redundant IMUs "
         "interleaved on one link by imu_id unless `--imu-links separate` —, GNSS GPS_INPUT + baro "
