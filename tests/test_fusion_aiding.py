@@ -325,32 +325,39 @@ def test_c_core_refuses_the_gyro_g_sensitivity_states():
         CNavCore(init, NavConfig(filter=FilterConfig(gyro_gsens=True)))
 
 
-def test_delayed_fusion_rollback_restores_the_ground_aid_averages():
+@pytest.mark.parametrize("cov_every", [1, 5])
+def test_delayed_fusion_rollback_restores_the_ground_aid_averages(cov_every):
     """Bug fixed in session 4: the snapshots for delayed fusion did not hold the exponentially averaged rate
     and specific force of the ZUPT rest detector (also the suspension-pitch a_x), so every rollback fed the
     replayed IMU samples into the averages a second time. A rollback for a measurement that changes nothing
-    (a velocity-only GNSS record without a velocity, 0.2 s late) must leave the core exactly as it was."""
+    (a velocity-only GNSS record without a velocity, 0.2 s late) must leave the core exactly as it was:
+    also the vibration noise's averages and, with P propagated every 5 steps, its partial block sum."""
     from ins_hil.types import GnssFix
 
     dt = 0.01
     truth = tr.generate(tr.car_profile(t_start=1.0, ramp=3.0), 8.0, dt, LAT0, LON0, H0)
     rng = np.random.default_rng(1)
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=2).samples()
-    # with the vibration noise (session 6): its E[Δω²] is in the snapshots too
-    core = NavCore(
-        _init(truth),
-        NavConfig(nhc=True, zupt=True, max_delay=0.3, filter=FilterConfig(gyro_vib_gain=0.4, accel_vib_gain=0.6)),
-    )
-    for s in imu:
+    f = FilterConfig(gyro_vib_gain=0.4, accel_vib_gain=0.6, cov_every=cov_every)
+    core = NavCore(_init(truth), NavConfig(nhc=True, zupt=True, max_delay=0.3, filter=f))
+    n_end = len(imu) - 2 if cov_every > 1 else len(imu)  # end inside a covariance block (3 of 5 steps)
+    for s in imu[:n_end]:
         core.step(s)
-    before = (core._ema_f.copy(), core._ema_w.copy(), core.state().vel_ned.copy(), np.array(core.kf.vib_var))
-    assert np.all(before[3] > 0.0)
+    kf = core.kf
+    if cov_every > 1:
+        assert kf._acc_n == 3 and kf._acc_qv is not None
+    before = (core._ema_f.copy(), core._ema_w.copy(), core.state().vel_ned.copy(), kf.vib_var, kf.vib_prev,
+              kf.P.copy(), None if kf._acc_qv is None else kf._acc_qv.copy())  # fmt: skip
+    assert np.all(np.array(kf.vib_var) > 0.0)
     assert core.stats["zupt"].accepted > 10 and core.stats["nhc"].accepted > 10
-    core.fuse(GnssFix(t=imu[-1].t - 0.2, lat=math.nan, lon=math.nan, h=math.nan))  # rollback + replay, no update
+    core.fuse(GnssFix(t=imu[n_end - 1].t - 0.2, lat=math.nan, lon=math.nan, h=math.nan))  # rollback + replay
     assert np.array_equal(core._ema_f, before[0])  # before the fix: differed by ~1e-3 m/s²
     assert np.array_equal(core._ema_w, before[1])
     assert np.array_equal(core.state().vel_ned, before[2])
-    assert np.array_equal(core.kf.vib_var, before[3])
+    assert kf.vib_var == before[3] and kf.vib_prev == before[4]
+    assert np.array_equal(kf.P, before[5])
+    if cov_every > 1:
+        assert np.array_equal(kf._acc_qv, before[6])
 
 
 def test_nhc_lever_arm_uses_a_low_passed_rate():

@@ -159,3 +159,27 @@ def test_navcore_numerics_give_the_same_estimates(numerics, vib):
     np.testing.assert_allclose(other.ins.state.vel_ned, ref.ins.state.vel_ned, atol=1e-8)
     np.testing.assert_allclose(other.bg, ref.bg, atol=1e-10)
     np.testing.assert_allclose(other.kf.P, ref.kf.P, rtol=1e-6, atol=1e-12)
+
+
+@pytest.mark.parametrize("numerics", ["qr", "cholesky"])
+def test_vibration_noise_root_with_a_rank_deficient_block(numerics):
+    """Review finding (session 6): with no white noise on an axis block (gyro_arw = accel_vrw = 0) and the
+    vibration on one body axis only, the attitude/velocity noise blocks are rank 1; their root must not need a
+    Cholesky factor (that raised 'not positive definite'). The factor filter matches the Joseph covariance."""
+    cfg = dict(gyro_arw=0.0, accel_vrw=0.0, gyro_vib_gain=0.4, accel_vib_gain=0.6)
+    kj = ErrorStateEKF(FilterConfig(**cfg))
+    kq = ErrorStateEKF(FilterConfig(numerics=numerics, **cfg))
+    C = dcm_from_euler(0.1, -0.2, 1.0)
+    z3 = np.zeros(3)
+    f_ned = np.array((0.0, 0.0, -9.8))
+    H = np.zeros((3, kj.n))
+    H[:, 0:3] = np.eye(3)
+    for n in range(40):
+        w = np.array((0.0, 0.05 if n % 2 else -0.05, 0.0))
+        fb = C.T @ f_ned + np.array((0.3 if n % 3 else -0.3, 0.0, 0.0))
+        for kf in (kj, kq):
+            kf.predict(0.01, C, f_ned, z3, z3, fb, w, 0.7, 0.0)
+            if n % 10 == 9:
+                kf.update(np.array((0.1, -0.2, 0.05)), H, np.full(3, 0.25))
+    np.testing.assert_allclose(kq.P, kj.P, rtol=1e-7, atol=1e-14)
+    np.testing.assert_allclose(kq.x, kj.x, rtol=1e-7, atol=1e-12)

@@ -405,10 +405,15 @@ class ErrorStateEKF:
             from ins_hil.fusion import sqrt as sq
 
             root = None
-            if q_vib is not None:  # a root of diag(qd) with the blocks diag(qd_blk) + q_blk
-                root = np.diag(np.sqrt(qd))
-                for k, q in ((6, q_vib[0]), (3, q_vib[1])):
-                    root[k : k + 3, k : k + 3] = np.linalg.cholesky(np.diag(qd[k : k + 3]) + q + np.eye(3) * 1e-30)
+            if q_vib is not None:
+                # a wider root [diag(√qd), E] (qr_predict stacks it beside Φ p): E E^T puts q_att, q_vel in
+                # their blocks; E from the eigen-decomposition of each 3×3 (PSD, possibly rank-deficient)
+                n = self.n
+                E = np.zeros((n, 6))
+                for k, j, q in ((6, 0, q_vib[0]), (3, 3, q_vib[1])):
+                    lam, V = np.linalg.eigh(q)
+                    E[k : k + 3, j : j + 3] = V * np.sqrt(np.clip(lam, 0.0, None))
+                root = np.hstack([np.diag(np.sqrt(qd)), E])
             self.factor = sq.factor_predict(self.factor, Phi, qd, root)
             self.P = sq.factor_cov(self.factor)
             return

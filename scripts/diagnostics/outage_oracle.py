@@ -6,8 +6,9 @@ there the outage is replayed with four corrections of the start state: a rotatio
 (pitch, mrad), the gyro-y bias (mrad/s), the accelerometer-x bias (cm/s²) and the forward velocity
 (0.1 m/s). For each bound (default 6 m and 3 m) Nelder–Mead finds the smallest correction, measured as a
 Mahalanobis distance in the filter's own covariance at the start, that keeps the outage's horizontal error
-(RTK-fixed epochs) under the bound. A distance of 1–2 σ (4 degrees of freedom: median 1.83) means that the
-filter's own start uncertainty explains the outage's error.
+(RTK-fixed epochs) under the bound. The error depends mostly on one combination of the four, so read the
+distance as a 1-D normal deviate (1.83 σ: a one-sided 3 % tail): a small one means the start uncertainty alone
+explains the error; a large one means the error builds up inside the outage (or the start σ is too small).
 
     .venv/bin/python scripts/diagnostics/outage_oracle.py 2 [bound_m ...]
 
