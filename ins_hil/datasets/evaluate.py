@@ -43,7 +43,9 @@ class Series:
         return {k: np.array(v) for k, v in self.__dict__.items() if k != "ratios"}
 
 
-def _antenna_ned(core: NavCore, lever: Vec, t: float, origin: tuple[float, float, float]) -> Vec:
+def antenna_ned(core: NavCore, lever: Vec, t: float, origin: tuple[float, float, float]) -> Vec:
+    """The core's GNSS antenna position (NED m from ``origin`` = (lat rad, lon rad, h m)) at time ``t`` s:
+    the state's position plus the body lever arm ``lever`` (m), moved on with its velocity to ``t``."""
     s = core.ins.state
     p = earth.ned_from_geodetic(s.lat, s.lon, s.h, *origin)
     return p + dcm_from_quat(s.q_nb) @ lever + s.vel_ned * (t - s.t)
@@ -79,7 +81,7 @@ def run_drive(
             inside = any(a <= f.t < b for a, b in outages)
             if core.phase == "nav":
                 ref = earth.ned_from_geodetic(f.lat, f.lon, f.h, *origin)
-                e = _antenna_ned(core, lever, f.t, origin) - ref
+                e = antenna_ned(core, lever, f.t, origin) - ref
                 if rtk_fixed[j - 1]:
                     (out_err if inside else prior_err).append(e)
                 ser.t.append(f.t)
@@ -99,7 +101,7 @@ def run_drive(
                 core.fuse(f)
                 if core.phase == "nav" and rtk_fixed[j - 1]:
                     ref = earth.ned_from_geodetic(f.lat, f.lon, f.h, *origin)
-                    post_err.append(_antenna_ned(core, lever, f.t, origin) - ref)
+                    post_err.append(antenna_ned(core, lever, f.t, origin) - ref)
             if core.phase == "nav" and math.isnan(t_aligned):
                 t_aligned = f.t
         if progress is not None and (k % 2000 == 0 or k == n - 1):

@@ -27,7 +27,7 @@ from scipy.optimize import minimize
 from ins_hil.commands.replay import DEFAULT_DRIVE, drive_config
 from ins_hil.core import NavCore
 from ins_hil.datasets import drive0708
-from ins_hil.datasets.evaluate import _antenna_ned
+from ins_hil.datasets.evaluate import antenna_ned
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
 from ins_hil.types import FixType
@@ -91,7 +91,7 @@ def main(argv: list[str]) -> int:
         for s in seg:
             c.step(s)
             while i < len(fixes) and fixes[i].t <= s.t:
-                e = _antenna_ned(c, cfg.gnss_lever_arm_b, fixes[i].t, origin) - refs[i]
+                e = antenna_ned(c, cfg.gnss_lever_arm_b, fixes[i].t, origin) - refs[i]
                 err.append(math.hypot(float(e[0]), float(e[1])))
                 i += 1
         return np.array(err)
