@@ -159,6 +159,15 @@ class _Snap:
     data: tuple[Any, ...]
 
 
+def _baro_altitude(meas: BaroSample) -> float:
+    """Barometric altitude (m above the baro datum): the sample's, else from its static pressure (Pa)."""
+    if math.isfinite(meas.altitude):
+        return meas.altitude
+    from ins_hil.sim.sensors import altitude_from_pressure
+
+    return altitude_from_pressure(meas.pressure)
+
+
 class NavCore:
     """Strapdown INS + error-state EKF (+ alignment, gating, adaptive R, delayed fusion)."""
 
@@ -514,22 +523,14 @@ class NavCore:
                 z, H = mm.gnss_velocity(self.idx, C, s.vel_ned, self.omega_b, np.asarray(meas.vel_ned), lever)
                 self._apply("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss, meas.t)
         elif isinstance(meas, BaroSample):
-            alt = meas.altitude
-            if not math.isfinite(alt):
-                from ins_hil.sim.sensors import altitude_from_pressure
-
-                alt = altitude_from_pressure(meas.pressure)
+            alt = _baro_altitude(meas)
             if self._baro_offset is None:
-                # baro datum → ellipsoid: configured, or from the first sample
+                # no datum learnt during the alignment: configured, or from the first sample
                 self._baro_offset = c.baro_offset if c.baro_offset is not None else s.h - alt
                 self._baro_offset_var = float(self.kf.P[2, 2])
-            elif abs(meas.t - self._t_gnss_ok) < 0.5 and c.baro_offset_tau > 0 and c.baro_offset is None:
-                # while GNSS is healthy, calibrate the datum against the GNSS height (first-order filter,
-                # τ = baro_offset_tau; against GNSS, not the filter height, which the baro itself drives)
-                a = min(1.0, max(0.0, meas.t - self._t_baro) / c.baro_offset_tau)
-                self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
-                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * self._gnss_var_d
-            self._t_baro = meas.t
+                self._t_baro = meas.t
+            else:
+                self._learn_baro_datum(meas.t, alt)
             z, H = mm.baro_height(self.idx, s.h, alt + self._baro_offset)
             # the uncertainty of a learnt datum is added to R (it is slowly varying, not white: approximate)
             r_b = c.baro_std**2 + (self._baro_offset_var if c.baro_offset is None else 0.0)
@@ -678,13 +679,36 @@ class NavCore:
         else:
             self.phase = "heading"
 
+    def _learn_baro_datum(self, t: float, alt: float) -> None:
+        """While GNSS is healthy (fused, or received within 0.5 s before navigation), learn the baro datum
+        (baro altitude → ellipsoidal height, m) against the GNSS height: a first-order filter, τ = baro_offset_tau;
+        against GNSS, not the filter height, which the baro itself drives. Before navigation the first sample with
+        a GNSS height starts it, so that the baro holds the height from the first navigation step."""
+        c = self.cfg
+        if c.baro_offset is None and c.baro_offset_tau > 0 and abs(t - self._t_gnss_ok) < 0.5:
+            if self._baro_offset is None:
+                self._baro_offset, self._baro_offset_var = self._h_gnss - alt, self._gnss_var_d
+            else:
+                a = min(1.0, max(0.0, t - self._t_baro) / c.baro_offset_tau)
+                self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
+                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * self._gnss_var_d
+        self._t_baro = t
+
     def _align_meas(self, meas: GnssFix | BaroSample | MagSample) -> None:
         s = self.ins.state
         if isinstance(meas, MagSample):
             self._last_mag = np.asarray(meas.field_b)
             return
+        if isinstance(meas, BaroSample):
+            # learn the datum before navigation starts, so that the baro holds the height from the first step
+            self._learn_baro_datum(meas.t, _baro_altitude(meas))
+            return
         if not isinstance(meas, GnssFix):
             return
+        if math.isfinite(meas.h):
+            lever_d = float((dcm_from_quat(s.q_nb) @ self.cfg.gnss_lever_arm_b)[2])
+            self._t_gnss_ok, self._h_gnss = meas.t, meas.h + lever_d  # IMU height from the antenna height
+            self._gnss_var_d = (max(meas.std_d, self.cfg.gnss_min_std[1]) * self.cfg.gnss_std_scale) ** 2
         if self.phase == "level":
             s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
             self._have_pos = True
