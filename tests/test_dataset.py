@@ -146,3 +146,23 @@ def test_startup_validation_is_a_fresh_alignment_outside_the_protocol(drive_dir:
     assert not any(a < d and c < b for c, d in proto)
     with pytest.raises(ValueError, match="departure"):
         dd.startup_validation(dr, restart=531.0, score_until=545.0)  # the final stop: no departure
+
+
+def test_synthetic_baro_is_the_rtk_height_plus_seeded_noise(drive_dir: Path):
+    """The what-if barometer: RTK-fixed epochs only, RTK height − datum + white noise σ + random walk, per seed."""
+    dr = dd.load_drive(drive_dir)
+    ok = dr.pos.q == 1
+    b0 = dd.synthetic_baro(dr.pos, 0.0, 0.0, seed=0)
+    assert len(b0) == int(ok.sum())
+    assert np.allclose([b.altitude for b in b0], dr.pos.h[ok] - 1601.0)
+    assert [b.t for b in b0] == list(dr.pos.t[ok])
+    w = np.array([b.altitude for b in dd.synthetic_baro(dr.pos, 0.5, 0.0, seed=3)]) - (dr.pos.h[ok] - 1601.0)
+    assert 0.45 < w.std() < 0.55 and abs(w.mean()) < 0.05
+    d = np.array([b.altitude for b in dd.synthetic_baro(dr.pos, 0.0, 0.05, seed=3)]) - (dr.pos.h[ok] - 1601.0)
+    span = dr.pos.t[ok][-1] - dr.pos.t[ok][0]
+    assert np.std(np.diff(d)) == pytest.approx(0.05 * math.sqrt(span / (len(d) - 1)), rel=0.1)  # m per epoch
+    again = [b.altitude for b in dd.synthetic_baro(dr.pos, 0.5, 0.05, seed=3)]
+    assert again == [b.altitude for b in dd.synthetic_baro(dr.pos, 0.5, 0.05, seed=3)]
+    assert again != [b.altitude for b in dd.synthetic_baro(dr.pos, 0.5, 0.05, seed=4)]
+    with pytest.raises(ValueError, match="must be ≥ 0"):
+        dd.synthetic_baro(dr.pos, -0.1, 0.0, seed=0)

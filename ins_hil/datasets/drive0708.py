@@ -24,7 +24,7 @@ import numpy as np
 from ins_hil.core import NavConfig
 from ins_hil.nav.earth import G0
 from ins_hil.nav.rotation import dcm_from_euler
-from ins_hil.types import FixType, GnssFix, ImuSample, Vec
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, Vec
 
 DEG = math.pi / 180.0
 IMU_TIME_OFFSET = -0.125  # README, for the upstream linear tick map
@@ -358,3 +358,21 @@ def startup_validation(
     if not moving or moving[0] + 0.25 >= t0 + score_until:
         raise ValueError(f"startup_validation: no departure between {restart} s and {score_until} s")
     return imu, gnss, [(moving[0] + 0.25, t0 + score_until)]
+
+
+# (label, white noise σ m per 4 Hz sample, drift random walk m/√s) of the synthetic barometers of the what-if
+WHATIF_BAROS = (("good", 0.1, 0.01), ("poor", 0.5, 0.05))
+
+
+def synthetic_baro(pos: PosLog, white: float, drift: float, seed: int, datum: float = 1601.0) -> list[BaroSample]:
+    """A barometer the drive does not have, made from the truth for a what-if study (never a protocol
+    figure): at every RTK-fixed (Q = 1) epoch, the RTK ellipsoidal height minus ``datum`` (m) plus white noise
+    σ ``white`` (m) and a random-walk drift ``drift`` (m/√s); deterministic for a ``seed``."""
+    if white < 0 or drift < 0:
+        raise ValueError(f"synthetic_baro: white={white} m and drift={drift} m/√s must be ≥ 0")
+    rng = np.random.default_rng(seed)
+    ok = pos.q == 1
+    t, h = pos.t[ok], pos.h[ok]
+    walk = np.cumsum(rng.normal(0.0, 1.0, len(t)) * drift * np.sqrt(np.diff(t, prepend=t[:1])))
+    alt = h - datum + walk + rng.normal(0.0, 1.0, len(t)) * white
+    return [BaroSample(float(ti), math.nan, altitude=float(a)) for ti, a in zip(t, alt, strict=True)]

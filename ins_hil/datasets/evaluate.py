@@ -16,7 +16,7 @@ import numpy as np
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat, quat_conj, quat_mul, rotvec_from_quat
-from ins_hil.types import GnssFix, ImuSample, Vec
+from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
 
 Progress = Callable[[int, int], None]
 
@@ -58,10 +58,12 @@ def run_drive(
     cfg: NavConfig,
     outages: Sequence[tuple[float, float]],
     progress: Progress | None = None,
+    aux: Sequence[BaroSample | MagSample] = (),
 ) -> tuple[dict[str, float], Series, NavCore]:
     """Replay with GNSS removed inside ``outages``; score the antenna position at every RTK-fixed
     epoch: inside outages (the README protocol) and, with GNSS present, the a-priori error
-    (before that epoch is fused) and the a-posteriori one."""
+    (before that epoch is fused) and the a-posteriori one. ``aux`` (baro/magnetometer samples, sorted
+    by ``t`` s) are fused after the IMU step that reaches their time, inside outages too."""
     core = NavCore(None, cfg)
     lever = cfg.gnss_lever_arm_b
     g0 = gnss[0]
@@ -70,11 +72,14 @@ def run_drive(
     out_err: list[Vec] = []
     prior_err: list[Vec] = []
     post_err: list[Vec] = []
-    j = 0
+    j = ja = 0
     n = len(imu)
     t_aligned = math.nan
     for k, s in enumerate(imu):
         core.step(s)
+        while ja < len(aux) and aux[ja].t <= s.t:
+            core.fuse(aux[ja])
+            ja += 1
         while j < len(gnss) and gnss[j].t <= s.t:
             f = gnss[j]
             j += 1
