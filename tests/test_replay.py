@@ -57,14 +57,19 @@ def test_replay_bad_source_and_gateway_log_dispatch(tmp_path: Path, monkeypatch,
     assert "ins_hil.runtime.replay" in capsys.readouterr().err
 
 
-def test_drive_replay_first_outage(shared_dir: Path):
-    """The first 100 s of the real drive with the protocol's first outage (40–55 s): causal replay."""
+def _drive_head(shared_dir: Path, seconds: float) -> tuple[dd.Drive, list, list, list[bool]]:
+    """The real drive's first ``seconds`` s after its first GNSS epoch: (drive, IMU samples, fixes, RTK-fixed)."""
     dr = dd.load_drive(shared_dir / "data" / "gnss_imu_drive_0708")
     t0 = dr.pos.t[0]
-    imu = [s for s in dr.imu if s.t < t0 + 100.0]
-    gnss = [f for f in dr.gnss if f.t < t0 + 100.0]
+    gnss = [f for f in dr.gnss if f.t < t0 + seconds]
+    return dr, [s for s in dr.imu if s.t < t0 + seconds], gnss, [f.fix_type == 6 for f in gnss]
+
+
+def test_drive_replay_first_outage(shared_dir: Path):
+    """The first 100 s of the real drive with the protocol's first outage (40–55 s): causal replay."""
+    dr, imu, gnss, rtk = _drive_head(shared_dir, 100.0)
     outs = dd.outage_windows(dr.pos.t)[:1]
-    m, ser, core = run_drive(imu, gnss, [f.fix_type == 6 for f in gnss], rp.drive_config(True), outs)
+    m, ser, core = run_drive(imu, gnss, rtk, rp.drive_config(True), outs)
     assert core.state().aligned
     assert 50 <= m["outage_epochs"] <= 60  # 15 s at 4 Hz, RTK-fixed epochs only
     assert m["outage_h_max_m"] < 10.0
@@ -78,11 +83,7 @@ def test_drive_replay_fuses_aux_baro_inside_outages(shared_dir: Path):
     """``run_drive(aux=...)``: baro samples are fused at their time, inside outages too. Late in the 85–100 s
     outage, a baro made from the RTK height holds the height error near zero, and one that reads 1.5 m high from
     the outage's start (3 σ: inside the gate) pulls the height up by about 1.5 m (NED down −1.5 m)."""
-    dr = dd.load_drive(shared_dir / "data" / "gnss_imu_drive_0708")
-    t0 = dr.pos.t[0]
-    imu = [s for s in dr.imu if s.t < t0 + 101.0]
-    gnss = [f for f in dr.gnss if f.t < t0 + 101.0]
-    rtk = [f.fix_type == 6 for f in gnss]
+    dr, imu, gnss, rtk = _drive_head(shared_dir, 101.0)
     outs = dd.outage_windows(dr.pos.t)[:2]
     a, b = outs[1]  # the datum is learnt against GNSS in 55–85 s
 
@@ -110,11 +111,8 @@ def test_baro_datum_is_learnt_during_the_alignment(shared_dir: Path):
     """The drive's first outage starts 0.25 s after the core enters navigation. The baro datum is learnt against
     GNSS during the 37 s rest, so a baro made from the RTK height is weighted fully inside that outage (with the
     datum taken at the first navigation sample instead, its σ would be the start's height σ and the baro weak)."""
-    dr = dd.load_drive(shared_dir / "data" / "gnss_imu_drive_0708")
+    dr, imu, gnss, rtk = _drive_head(shared_dir, 56.0)
     t0 = dr.pos.t[0]
-    imu = [s for s in dr.imu if s.t < t0 + 56.0]
-    gnss = [f for f in dr.gnss if f.t < t0 + 56.0]
-    rtk = [f.fix_type == 6 for f in gnss]
     outs = dd.outage_windows(dr.pos.t)[:1]
     a, b = outs[0]
     h_err = {}
