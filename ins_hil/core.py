@@ -512,9 +512,7 @@ class NavCore:
                 self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
                 self.stats["gnss_vel"].consecutive_rejects = 0
             if self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t):
-                self._t_gnss_ok = meas.t
-                self._h_gnss = meas.h + float((C @ lever)[2])  # IMU height from the antenna height
-                self._gnss_var_d = std_d**2
+                self._gnss_height(meas, C, std_d)
             if c.use_gnss_vel and meas.vel_ned is not None:
                 yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
                 s = self.ins.state
@@ -679,6 +677,13 @@ class NavCore:
         else:
             self.phase = "heading"
 
+    def _gnss_height(self, meas: GnssFix, C: Vec, std_d: float) -> None:
+        """Note a healthy GNSS height for the baro datum: the IMU height (m, antenna height + lever arm turned
+        by ``C`` = C_b^n), its time and variance (``std_d`` m, the fused σ)."""
+        self._t_gnss_ok = meas.t
+        self._h_gnss = meas.h + float((C @ self.cfg.gnss_lever_arm_b)[2])
+        self._gnss_var_d = std_d * std_d
+
     def _learn_baro_datum(self, t: float, alt: float) -> None:
         """While GNSS is healthy (fused, or received within 0.5 s before navigation), learn the baro datum
         (baro altitude → ellipsoidal height, m) against the GNSS height: a first-order filter, τ = baro_offset_tau;
@@ -706,9 +711,9 @@ class NavCore:
         if not isinstance(meas, GnssFix):
             return
         if math.isfinite(meas.h):
-            lever_d = float((dcm_from_quat(s.q_nb) @ self.cfg.gnss_lever_arm_b)[2])
-            self._t_gnss_ok, self._h_gnss = meas.t, meas.h + lever_d  # IMU height from the antenna height
-            self._gnss_var_d = (max(meas.std_d, self.cfg.gnss_min_std[1]) * self.cfg.gnss_std_scale) ** 2
+            self._gnss_height(
+                meas, dcm_from_quat(s.q_nb), max(meas.std_d, self.cfg.gnss_min_std[1]) * self.cfg.gnss_std_scale
+            )
         if self.phase == "level":
             s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
             self._have_pos = True

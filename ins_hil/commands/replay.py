@@ -330,6 +330,7 @@ def replay_drive(
     dr = drive0708.load_drive(directory)
     outages = drive0708.outage_windows(dr.pos.t)
     rtk = [f.fix_type == 6 for f in dr.gnss]
+    fixed = {f.t for f, ok in zip(dr.gnss, rtk, strict=True) if ok}  # the scored (RTK-fixed) epochs
     duration = float(dr.imu[-1].t - dr.imu[0].t)
     res: dict[str, Any] = {"imu_samples": len(dr.imu), "gnss_epochs": len(dr.gnss), "outages": len(outages),
                            "csv_bad_lines": dr.imu_log.bad_lines, "duration_s": duration}  # fmt: skip
@@ -377,7 +378,6 @@ def replay_drive(
         res["startup_restart_s"] = drive0708.STARTUP_RESTART
         # what-if (session 7): the protocol with a synthetic barometer made from the RTK height (uses the truth:
         # a sensor study, never a protocol figure), two noise levels × two seeds
-        fixed_t = {f.t for f, ok in zip(dr.gnss, rtk, strict=True) if ok}
         res["whatif_baro"] = []
         for name, white, drift in drive0708.WHATIF_BAROS:
             for seed in (0, 1):
@@ -387,10 +387,9 @@ def replay_drive(
                                       _Progress(f"drive what-if {name} baro seed {seed}", quiet), aux=aux)  # fmt: skip
                 res["whatif_baro"].append({"baro": name, "white_m": white, "drift_m_sqrt_s": drift, "seed": seed,
                                            **{k: m[k] for k in ("outage_h_rms_m", "outage_h_max_m", "outage_v_rms_m")},
-                                           "per_window": per_window(ser, outages, fixed_t)})  # fmt: skip
+                                           "per_window": per_window(ser, outages, fixed)})  # fmt: skip
     res["outage_windows_s"] = [(a - dr.pos.t[0], b - dr.pos.t[0]) for a, b in outages]
     if "outages_aids" in series:
-        fixed = {f.t for f, ok in zip(dr.gnss, rtk, strict=True) if ok}
         res["per_window_aids"] = per_window(series["outages_aids"], outages, fixed)
     return res, series
 
@@ -972,17 +971,21 @@ def _machine() -> str:
             f"during the run: {load_note(load[0])}")  # fmt: skip
 
 
+def _per_outage(pw: list[dict[str, float]]) -> str:
+    """'RMS/max, …' (m) of each outage, as the report's tables give them."""
+    return ", ".join(f"{x['rms_m']:.2f}/{x['max_m']:.2f}" for x in pw)
+
+
 def _whatif_baro_md(
     wb: list[dict[str, Any]], pw: list[dict[str, float]], windows: list[list[float]], base: dict[str, Any]
 ) -> str:
     """The session-7 what-if section: the protocol with a synthetic barometer (rows from ``replay_drive``)."""
     rows = [("none (the protocol, table above)", "", f"{base['outage_h_rms_m']:.2f} / {base['outage_h_max_m']:.2f}",
-             f"{base['outage_v_rms_m']:.2f}", ", ".join(f"{x['rms_m']:.2f}/{x['max_m']:.2f}" for x in pw))]  # fmt: skip
+             f"{base['outage_v_rms_m']:.2f}", _per_outage(pw))]  # fmt: skip
     for r in wb:
-        per = r["per_window"]
         rows.append((f"{r['baro']}: {r['white_m']:g} m white, {r['drift_m_sqrt_s']:g} m/√s drift", str(r["seed"]),
                      f"{r['outage_h_rms_m']:.2f} / {r['outage_h_max_m']:.2f}", f"{r['outage_v_rms_m']:.2f}",
-                     ", ".join(f"{x['rms_m']:.2f}/{x['max_m']:.2f}" for x in per)))  # fmt: skip
+                     _per_outage(r["per_window"])))  # fmt: skip
     w = max(range(len(pw)), key=lambda i: pw[i]["max_m"])
     with_b = [r["per_window"][w]["max_m"] for r in wb]
     meets = all(r["outage_h_rms_m"] <= 1.5 and r["outage_h_max_m"] <= 6.0 for r in wb)

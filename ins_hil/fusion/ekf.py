@@ -232,7 +232,8 @@ class ErrorStateEKF:
         self._acc_w = np.zeros(3)
         self._acc_fb = np.zeros(3)
         self._acc_qv: Vec | None = None
-        self._vib_idx = np.array([r * n + col for k in (6, 3) for r in range(k, k + 3) for col in range(k, k + 3)])
+        ia, iv = self.idx.att, self.idx.vel
+        self._vib_idx = np.array([r * n + col for k in (ia, iv) for r in range(k, k + 3) for col in range(k, k + 3)])
         # vibration noise (FilterConfig.gyro_vib_gain/accel_vib_gain): the previous compensated rate and
         # specific force (body) and E[Δω²], E[Δf²] per body axis, as immutable 6-tuples (kept by the snapshots)
         self.vib_prev: tuple[float, ...] | None = None
@@ -410,7 +411,7 @@ class ErrorStateEKF:
                 # their blocks; E from the eigen-decomposition of each 3×3 (PSD, possibly rank-deficient)
                 n = self.n
                 E = np.zeros((n, 6))
-                for k, j, q in ((6, 0, q_vib[0]), (3, 3, q_vib[1])):
+                for k, j, q in ((self.idx.att, 0, q_vib[0]), (self.idx.vel, 3, q_vib[1])):
                     lam, V = np.linalg.eigh(q)
                     E[k : k + 3, j : j + 3] = V * np.sqrt(np.clip(lam, 0.0, None))
                 root = np.hstack([np.diag(np.sqrt(qd)), E])
