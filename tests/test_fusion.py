@@ -229,3 +229,19 @@ def test_21_state_filter_estimates_gyro_scale_factors():
         res[sf] = (float(np.sqrt(np.mean(np.square(errs)))), core.sg.copy())
     assert res[True][0] < 0.75 * res[False][0]
     np.testing.assert_allclose(res[True][1], (3e-3, -3e-3, 5e-3), atol=1.5e-3)
+
+
+def test_sage_husa_scale_converges_to_the_true_noise_scale():
+    """Innovations ν ~ N(0, HPHᵀ + s·R_nom) with HPHᵀ as large as R_nom: the bounded Sage–Husa estimate of s
+    converges to s (DIGEST_001_004 §4.4 form: E[ν²] − HPHᵀ = s R_nom). With the sign of the HPHᵀ term
+    flipped it would converge to s + 2·HPHᵀ/R_nom = s + 2 instead."""
+    from ins_hil.fusion.innovation import SageHusa
+
+    rng = np.random.default_rng(3)
+    hph, r_nom = np.array([1.0, 1.0]), np.array([1.0, 1.0])
+    for s_true in (0.5, 3.0):
+        est = SageHusa(b=0.999)
+        for _ in range(20000):
+            nu = rng.normal(0.0, np.sqrt(hph + s_true * r_nom))
+            est.update(nu, hph, r_nom)
+        assert est.scale == pytest.approx(s_true, rel=0.1)

@@ -39,6 +39,7 @@ def _run(truth, imu, meas, cfg, delay=0.0, t_from=0.0):
     """Run; measurements delivered ``delay`` s after their validity. Returns (core, pos errors, vel errors)
     after t_from."""
     core = NavCore(_init(truth), cfg)
+    core.keep_nis = True  # the accepted innovations' NIS, for the consistency checks
     meas = sorted(meas, key=lambda m: m.t)
     j = 0
     pe, ve = [], []
@@ -92,7 +93,12 @@ def test_gating_rejects_multipath_outliers_and_reports_events(scen):
     assert any(not e.cleared for e in ev) and any(e.cleared for e in ev)
     assert core.drain_events() == []
     ratios = core.state().test_ratios
-    assert set(ratios) >= {"gnss_pos", "gnss_vel"} and all(r >= 0 for r in ratios.values())
+    assert set(ratios) >= {"gnss_pos", "gnss_vel"}
+    # the accepted position innovations are consistent: NIS/dof near 1 (the outliers are gated away, so it is
+    # not inflated by them), and most of them far inside the gate
+    nis = np.array([n / d for _, k, n, d in core.nis_log if k == "gnss_pos"])
+    assert len(nis) == st.accepted
+    assert 0.6 <= float(np.mean(nis)) <= 1.5, float(np.mean(nis))
 
 
 def test_adaptive_r_tracks_a_gnss_noise_change(scen):

