@@ -22,6 +22,7 @@ running), or rejected with ``ValueError`` (``on_dt_mismatch="raise"``).
 
 from __future__ import annotations
 
+import importlib
 import math
 from typing import Any, Literal
 
@@ -36,12 +37,9 @@ Precision = Literal["double", "float"]
 
 def _lib(precision: Precision) -> tuple[Any, Any]:
     try:
-        if precision == "double":
-            from ins_hil import _cref as mod  # type: ignore[attr-defined]
-        elif precision == "float":
-            from ins_hil import _cref_f32 as mod  # type: ignore[attr-defined]
-        else:
+        if precision not in ("double", "float"):
             raise ValueError(f"precision must be 'double' or 'float', not {precision!r}")
+        mod: Any = importlib.import_module("ins_hil._cref" if precision == "double" else "ins_hil._cref_f32")
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise ImportError(
             "the C reference core extension (ins_hil._cref) is not built: reinstall the package "
