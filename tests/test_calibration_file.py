@@ -101,6 +101,7 @@ def test_csv_reader_errors(tmp_path: Path) -> None:
         read_csv_log(p)
 
 
+@pytest.mark.slow
 def test_command_accel_then_mag_writes_a_calibration_the_gateway_applies(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -152,6 +153,7 @@ def test_command_refuses_bad_data_and_writes_nothing(tmp_path: Path, capsys: pyt
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_command_allan(tmp_path: Path) -> None:
     dt = 0.1
     gy = simcal.static_noise_record(3000.0, dt, 1e-3, 0.0, 1e-4, seed=2)

@@ -91,6 +91,7 @@ def test_cli_rejects_bad_config_before_starting_anything(tmp_path: Path) -> None
     assert not (tmp_path / "recordings").exists()  # nothing half-started: no recorder file, no simulator
 
 
+@pytest.mark.slow
 def test_cli_core_c_fails_cleanly_or_runs(tmp_path: Path) -> None:
     """``--core c`` either runs (C core built) or stops before starting with a clear message."""
     r = subprocess.run(

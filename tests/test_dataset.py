@@ -103,6 +103,7 @@ def test_tag_arrival_counts_crlf_bytes(tmp_path: Path):
         dd.tag_arrival_ms(tag, e[:, 0], e[:, 1], p.stat().st_size - 40)
 
 
+@pytest.mark.slow
 def test_tag_time_map_is_consistent_with_the_rtk_course(drive_dir: Path):
     """Bug fixed in session 2: the upstream linear tick map assumes the first csv line arrived at the tag
     start (it arrived 115 ms later), so its time error drifts by ~130 ms over the drive. With the tag map

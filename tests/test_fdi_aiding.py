@@ -93,6 +93,7 @@ def test_nominal_flight_has_no_drift_alarm(scen):
     assert [e for e in ev if e.mode == FaultMode.DRIFT] == []
 
 
+@pytest.mark.slow
 def test_nominal_hour_truth_referenced_has_no_false_alarm():
     """One simulated hour of GNSS (5 Hz) + baro against a truth state with a 0.3 m / 0.03 m/s σ
     (the INS error stated in the state and injected as white noise): no DRIFT event."""

@@ -172,6 +172,7 @@ def _sd(st: NavState) -> np.ndarray:
     return np.r_[st.std_pos, st.std_vel, st.std_att]
 
 
+@pytest.mark.slow
 def test_c_filter_matches_python_navcore_with_gnss_and_baro_10min(flight10: Flight) -> None:
     """NavCore (ins_hil.fusion EKF) and CNavCore on the same IMU + 5 Hz GNSS + 10 Hz baro stream.
 

@@ -39,6 +39,7 @@ def test_golden_digest_sees_one_bit():
     assert gr.digest(rows) != gr.digest(moved)
 
 
+@pytest.mark.slow
 def test_drive_protocol_headline_figures(shared_dir: Path):
     """The drive's outage protocol (ZUPT + NHC) against the figures in docs/accuracy/metrics.json (±2 %)."""
     doc = json.loads((REPO / "docs" / "accuracy" / "metrics.json").read_text())["drive"]["outages_aids"]

@@ -8,6 +8,7 @@ import types
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ins_hil.cli import main
 from ins_hil.commands import replay as rp
@@ -30,6 +31,7 @@ def test_replay_scenario_writes_metrics_and_plots(tmp_path: Path, capsys):
     assert "att_rms_deg" in out and "realtime factor" in out
 
 
+@pytest.mark.slow
 def test_replay_monte_carlo_nees(tmp_path: Path):
     """The 9-dof NEES of the simulated UAV with only the modelled errors, averaged over 4 seeds from 60 s on,
     lies inside its two-sided 95 % χ² band, and every sensor's NIS/dof is near 1 (a filter that is over- or
@@ -84,6 +86,7 @@ def test_drive_replay_first_outage(shared_dir: Path):
     assert np.all(np.isfinite(a["pos_err"]))
 
 
+@pytest.mark.slow
 def test_drive_replay_fuses_aux_baro_inside_outages(shared_dir: Path):
     """``run_drive(aux=...)``: baro samples are fused at their time, inside outages too. Late in the 85–100 s
     outage, a baro made from the RTK height holds the height error near zero, and one that reads 1.5 m high from
