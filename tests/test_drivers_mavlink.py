@@ -222,15 +222,24 @@ def test_clock_sync_min_rtt_and_reboot() -> None:
     c = ClockSync()
     off = 7_000_000_000
     now = 100 * 10**9
-    # replies with growing round trip: the shortest wins
-    for k, rtt in enumerate([9_000_000, 1_000_000, 5_000_000]):
-        ts1 = now + k * 10**9
-        c.reply(ts1 + rtt // 2 + off, ts1, ts1 + rtt)
-    assert c.offset_ns == off and c.rtt_ns == 1_000_000
+
+    def answer(ts1: int, rtt: int, offset: int = off) -> str:
+        c.sent(ts1)
+        return c.reply(ts1 + rtt // 2 + offset, ts1, ts1 + rtt)
+
+    # three consistent replies make the first estimate; the shortest round trip wins
+    verdicts = [answer(now + k * 10**9, rtt) for k, rtt in enumerate([9_000_000, 1_000_000, 5_000_000])]
+    assert verdicts == ["pending", "pending", "synced"]
+    assert c.offset_ns == off and c.rtt_ns == 1_000_000 and c.synced
     assert c.to_local_s(off + 200 * 10**9, 0) == pytest.approx(200.0)
-    c.reply(5 * 10**9, 110 * 10**9, 110 * 10**9 + 10**6)  # FC rebooted: its clock restarted
-    assert c.offset_ns == 5 * 10**9 - 110 * 10**9 - 500_000
-    assert not c.reply(1, 10**9, 0)  # reply from the future: rejected
+    assert answer(now + 3 * 10**9, 2_000_000) == "accepted"
+    # the FC rebooted (its clock restarted): held twice, followed at the third consistent reply
+    boot = 5 * 10**9 - 110 * 10**9
+    assert [answer((110 + k) * 10**9, 1_000_000, boot) for k in range(3)] == ["outlier", "outlier", "reset"]
+    assert c.offset_ns == boot and c.resets == 1 and c.outliers == 3
+    c.sent(10**9)
+    assert c.reply(1, 10**9, 0) == "invalid"  # reply from the future
+    assert c.reply(off, 123, 10**9) == "unmatched"  # not one of our requests
 
 
 def test_tcp_link_and_reconnect() -> None:
@@ -312,8 +321,10 @@ def test_udp_silence_reopens() -> None:
 
 
 def test_config_and_url_errors() -> None:
-    assert parse_url("udp:0.0.0.0:14550") == ("udpin", "0.0.0.0", 14550)
+    assert parse_url("udpin:0.0.0.0:14550") == ("udpin", "0.0.0.0", 14550)
     assert parse_url("/dev/ttyACM0") == ("serial", "/dev/ttyACM0", 115200)
+    with pytest.raises(ValueError, match="write 'udpin:0.0.0.0:14550' to listen or 'udpout:0.0.0.0:14550' to send"):
+        parse_url("udp:0.0.0.0:14550")
     for bad in ("udpin:14550", "tcp:host:x", "serial:", "bluetooth:a:1"):
         with pytest.raises(ValueError, match="MAVLink url"):
             parse_url(bad)
