@@ -78,7 +78,8 @@ def test_bad_toml_names_the_file(tmp_path: Path) -> None:
 
 def test_cli_rejects_bad_config_before_starting_anything(tmp_path: Path) -> None:
     bad = tmp_path / "bad.toml"
-    bad.write_text(default_path().read_text().replace('url = "udpout:127.0.0.1:14550"', 'url = "udpout:127.0.0.1:99999"'))
+    text = default_path().read_text()
+    bad.write_text(text.replace('url = "udpout:127.0.0.1:14550"', 'url = "udpout:127.0.0.1:99999"'))
     r = subprocess.run(
         [sys.executable, "-m", "ins_hil", "run", "--config", str(bad), "--no-status", "--duration", "5"],
         cwd=tmp_path,

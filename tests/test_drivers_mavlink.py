@@ -323,7 +323,7 @@ def test_udp_silence_reopens() -> None:
 def test_config_and_url_errors() -> None:
     assert parse_url("udpin:0.0.0.0:14550") == ("udpin", "0.0.0.0", 14550)
     assert parse_url("/dev/ttyACM0") == ("serial", "/dev/ttyACM0", 115200)
-    with pytest.raises(ValueError, match="write 'udpin:0.0.0.0:14550' to listen or 'udpout:0.0.0.0:14550' to send"):
+    with pytest.raises(ValueError, match=r"write 'udpin:0\.0\.0\.0:14550' to listen or 'udpout:0\.0\.0\.0:14550'"):
         parse_url("udp:0.0.0.0:14550")
     for bad in ("udpin:14550", "tcp:host:x", "serial:", "bluetooth:a:1"):
         with pytest.raises(ValueError, match="MAVLink url"):

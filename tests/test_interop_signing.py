@@ -14,12 +14,12 @@ import socket
 from pathlib import Path
 from typing import Any
 
+from ins_hil.drivers.mavlink_link import signing_timestamp
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from runtime_helpers import free_port, sim_config
 
 from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.recorder import read_records
-from ins_hil.drivers.mavlink_link import signing_timestamp
 from ins_hil.types import GnssFix
 
 KEY = "a1" * 32
