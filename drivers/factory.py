@@ -8,7 +8,7 @@
                 nodes, node_id, dbc {dbc, gyro_message, gyro_signals, accel_message, accel_signals,
                 status_message, counter_signal, crc_signal, rate_hz}, name, stale_s
     mavlink:    url, system_id, source_system, source_component, signing_key, request {MSG: Hz},
-                emit [gnss, baro, imu, mag], imu_dt, timesync_s, name, stale_s
+                emit [gnss, baro, imu, mag], imu_dt, timesync_s, max_skew_s, name, stale_s
 """
 
 from __future__ import annotations

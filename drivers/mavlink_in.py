@@ -1,14 +1,15 @@
 """MAVLink input from a flight controller (pymavlink parser fed from asyncio transports).
 
-Connections (``url``), as flight controllers offer them:
+Connections (``url``): the link layer's grammar (:mod:`ins_hil.drivers.mavlink_link`, the
+same for inputs and outputs, MAVProxy's):
 
-- ``udpin:HOST:PORT`` (alias ``udp:``): listen; replies go to the last sender;
+- ``udpin:HOST:PORT``: listen; replies go to the last sender of valid MAVLink;
 - ``udpout:HOST:PORT``: send to the FC's port (our HEARTBEAT opens the link);
-- ``tcp:HOST:PORT``: connect (e.g. SITL's 5760);
-- ``serial:DEVICE[:BAUD]`` or a bare ``/dev/...`` path (default 115200 baud).
+- ``tcp:HOST:PORT``: connect (e.g. SITL's 5760); ``tcpin:HOST:PORT``: wait for the FC;
+- ``serial:DEVICE[:BAUD]`` or ``/dev/DEVICE[,BAUD]`` (default 115200 baud).
 
-Bytes from the transport are fed to pymavlink's ``MAVLink.parse_buffer`` in
-the loop's callback: no thread, no blocking read.
+Bytes from the transport are fed to pymavlink's parser in the loop's callback: no thread,
+no blocking read.
 
 Messages → samples (``ins_hil.types``, SI, body FRD as MAVLink's IMU
 messages are):
@@ -32,35 +33,43 @@ messages are):
   (gauss → T) when present/updated.
 
 Time: the FC's ``time_boot_ms``/``time_usec`` are mapped onto our time base
-(``time.monotonic()`` seconds, the base of ``t_arrival_ns``) with a clock
-offset estimated by TIMESYNC (we send ``tc1=0, ts1=now_ns`` each
-``timesync_s``; the FC answers ``tc1=fc_ns``; offset = tc1 − (ts1+now)/2,
-keeping the reply with the smallest round trip of the last 8). Until the
-first reply the offset comes from the first message's arrival (latency
-biased). ``time_usec`` values past year 2001 (> 1e15 µs) are UNIX time and
-are mapped with the host's wall clock. FC TIMESYNC requests are answered.
+(``time.monotonic()`` seconds, the base of ``t_arrival_ns``) with a clock offset
+estimated from TIMESYNC (:class:`ClockSync`): we send ``tc1=0, ts1=now_ns`` each
+``timesync_s`` (every 0.1 s while the offset is unknown or in doubt), the FC answers
+``tc1=fc_ns``; a reply counts only for one of our outstanding requests with a round trip
+of at most 1 s, and only when its offset agrees with the running estimate (within 10 ms +
+half the round trips); the others are counted (``timesync_outlier``) and held, and three
+mutually consistent ones replace the estimate (an FC reboot: ``timesync_reset``), so one
+hostile or corrupted reply never moves the mapping. Until the first estimate the offset
+comes from the first message's arrival (latency biased), re-anchored (``clock_reanchor``)
+after three consecutive messages that disagree with it. ``time_usec`` values past year 2001
+(> 1e15 µs) are UNIX time and are mapped with the host's wall clock. A sample whose mapped
+time is more than ``max_skew_s`` (5 s) from its arrival is dropped (``time_implausible``),
+never delivered. FC TIMESYNC requests are answered.
 
-Signing: with ``signing_key`` (32 bytes) only correctly signed MAVLink 2
-messages are accepted; unsigned or wrongly signed ones count as
-``bad_signature``; our own messages are signed.
+Signing: with ``signing_key`` (32 bytes, 64 hex digits or a passphrase) only correctly
+signed MAVLink 2 messages are accepted; unsigned or wrongly signed ones count as
+``bad_signature``; our own messages are signed (the link layer's
+:func:`~ins_hil.drivers.mavlink_link.configure_signing`).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import hashlib
 import math
 import time
 from collections import deque
 from typing import Any
 
 import numpy as np
-import serial_asyncio_fast
 from ins_hil.drivers.base import Backoff, DriverHealth, Sample, Sink
+from ins_hil.drivers.mavlink_link import Link, MavReceiver, configure_signing, parse_url, signing_key_from
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample
+
+__all__ = ["ClockSync", "MavlinkDriver", "parse_url", "signing_key_from"]
 
 UNIX_US = 10**15  # time_usec beyond this is UNIX epoch time (after 2001-09-09)
 MAX_GYRO = 40.0  # rad/s
@@ -69,106 +78,141 @@ MAX_MAG_GAUSS = 20.0
 DEFAULT_REQUEST = {"GPS_RAW_INT": 5.0, "SCALED_PRESSURE": 10.0}
 
 
-def signing_key_from(value: str | bytes) -> bytes:
-    """A 32-byte MAVLink 2 key: raw 32 bytes, 64 hex digits, or a passphrase (SHA-256, as MAVProxy's)."""
-    if isinstance(value, bytes):
-        if len(value) != 32:
-            raise ValueError(f"MAVLink signing key must be 32 bytes, got {len(value)}")
-        return value
-    v = value.strip()
-    if len(v) == 64:
-        with contextlib.suppress(ValueError):
-            return bytes.fromhex(v)
-    if not v:
-        raise ValueError("MAVLink signing key is empty")
-    return hashlib.sha256(v.encode()).digest()
-
-
-def parse_url(url: str) -> tuple[str, str, int]:
-    """``udpin:H:P`` / ``udpout:H:P`` / ``tcp:H:P`` / ``serial:DEV[:BAUD]`` → (kind, host-or-device, port-or-baud)."""
-    if url.startswith("/"):
-        url = "serial:" + url
-    kind, _, rest = url.partition(":")
-    kind = {"udp": "udpin"}.get(kind, kind)
-    if kind in ("udpin", "udpout", "tcp"):
-        host, _, port = rest.rpartition(":")
-        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-            raise ValueError(f"MAVLink url {url!r}: expected {kind}:HOST:PORT")
-        return kind, host, int(port)
-    if kind == "serial":
-        dev, _, baud = rest.partition(":")
-        if not dev:
-            raise ValueError(f"MAVLink url {url!r}: expected serial:DEVICE[:BAUD]")
-        if baud and not baud.isdigit():
-            raise ValueError(f"MAVLink url {url!r}: baud {baud!r} is not a number")
-        return kind, dev, int(baud or 115200)
-    raise ValueError(f"MAVLink url {url!r}: unknown kind {kind!r} (udpin, udpout, tcp, serial)")
-
-
 class ClockSync:
-    """FC clock ↔ our monotonic clock (ns): ``fc_ns = our_ns + offset_ns``."""
+    """FC clock ↔ our monotonic clock (ns): ``fc_ns = our_ns + offset_ns``, robust to wild replies.
 
-    def __init__(self, window: int = 8) -> None:
+    A TIMESYNC round trip (request sent at our ``ts1``, FC time ``tc1``, reply at our ``now``)
+    gives rtt = now − ts1 and offset = tc1 − (ts1 + now)/2, whose error is at most rtt/2
+    whatever the path asymmetry (the FC stamped tc1 between ts1 and now). Two samples agree when
+    |o_i − o_j| ≤ ``tol_ns`` + (rtt_i + rtt_j)/2 (``tol_ns`` covers the clocks' drift).
+
+    - A reply counts only when ``ts1`` is an outstanding request (:meth:`sent`) and
+      0 ≤ rtt ≤ ``max_rtt_ns``; each request yields one accepted sample.
+    - Accepted: it agrees with the estimate; it joins the last ``window`` samples and the
+      estimate is the offset of their shortest round trip.
+    - Otherwise it is held as a candidate (an outlier when an estimate exists); when
+      ``confirm`` candidates agree with each other with no accepted sample in between, they
+      become the window: the first sync, or a reset (the FC rebooted, its clock restarted).
+
+    Before the first sync :meth:`map_ns` anchors the offset on the first message's arrival
+    and re-anchors it after ``confirm`` consecutive messages that all map further than
+    ``max_skew_ns`` from their arrival and agree with each other (also when TIMESYNC replies
+    stopped for ``sync_timeout_ns``).
+    """
+
+    def __init__(
+        self,
+        window: int = 8,
+        confirm: int = 3,
+        tol_ns: int = 10_000_000,
+        max_rtt_ns: int = 1_000_000_000,
+        max_skew_ns: int = 5_000_000_000,
+        sync_timeout_ns: int = 10_000_000_000,
+    ) -> None:
+        self.window, self.confirm, self.tol_ns = window, confirm, tol_ns
+        self.max_rtt_ns, self.max_skew_ns, self.sync_timeout_ns = max_rtt_ns, max_skew_ns, sync_timeout_ns
         self.offset_ns: int | None = None
-        self.synced = False
         self.rtt_ns: int | None = None
-        self._hist: deque[tuple[int, int]] = deque(maxlen=window)  # (rtt, offset)
+        self.synced = False
+        self.outliers = 0  # replies that disagreed with the estimate
+        self.resets = 0  # estimate replaced by a consistent set of new replies
+        self.reanchors = 0  # arrival-based anchor moved
+        self.last_sync_ns = 0  # our time of the last accepted reply
+        self._acc: deque[tuple[int, int]] = deque(maxlen=window)  # accepted (rtt, offset)
+        self._cand: dict[int, tuple[int, int]] = {}  # ts1 -> (rtt, offset), insertion ordered
+        self._pending: deque[int] = deque(maxlen=32)  # ts1 of our outstanding requests
+        self._rough: int | None = None
+        self._odd: deque[int] = deque(maxlen=confirm)  # offsets of consecutive implausible messages
 
-    def reply(self, tc1: int, ts1: int, now_ns: int) -> bool:
-        """A TIMESYNC answer (tc1 = FC ns, ts1 = our ns when sent). False if implausible."""
+    @property
+    def unsure(self) -> bool:
+        """No estimate yet, or replies that disagree with it are waiting for confirmation."""
+        return not self.synced or bool(self._cand)
+
+    def sent(self, ts1: int) -> None:
+        """A TIMESYNC request went out with our time ``ts1`` (ns)."""
+        self._pending.append(ts1)
+
+    def _agree(self, a: tuple[int, int], b: tuple[int, int]) -> bool:
+        return abs(a[1] - b[1]) <= self.tol_ns + (a[0] + b[0]) // 2
+
+    def reply(self, tc1: int, ts1: int, now_ns: int) -> str:
+        """A TIMESYNC answer (tc1 = FC ns, ts1 = our ns when sent). The verdict: ``accepted``,
+        ``synced`` (first estimate), ``reset`` (estimate replaced), ``outlier`` or ``pending``
+        (held), ``invalid`` (round trip or tc1 implausible), ``unmatched`` (not our request)."""
+        if ts1 not in self._pending:
+            return "unmatched"
         rtt = now_ns - ts1
-        if not 0 <= rtt < 2_000_000_000 or tc1 <= 0:
-            return False
-        off = tc1 - (ts1 + now_ns) // 2
-        if self._hist and abs(off - min(self._hist)[1]) > 1_000_000_000:
-            self._hist.clear()  # the FC rebooted: its clock restarted
-        self._hist.append((rtt, off))
-        self.rtt_ns, self.offset_ns = min(self._hist)
+        if not 0 <= rtt <= self.max_rtt_ns or tc1 <= 0:
+            return "invalid"
+        smp = (rtt, tc1 - (ts1 + now_ns) // 2)
+        if self.offset_ns is not None and self.rtt_ns is not None and self._agree(smp, (self.rtt_ns, self.offset_ns)):
+            self._pending.remove(ts1)
+            self._cand.clear()
+            self._acc.append(smp)
+            self.rtt_ns, self.offset_ns = min(self._acc)
+            self.last_sync_ns = now_ns
+            return "accepted"
+        had = self.offset_ns is not None
+        if had:
+            self.outliers += 1
+        self._cand.pop(ts1, None)
+        self._cand[ts1] = smp
+        while len(self._cand) > self.window:
+            del self._cand[next(iter(self._cand))]
+        group = [(k, c) for k, c in self._cand.items() if self._agree(c, smp)]
+        if len(group) < self.confirm:
+            return "outlier" if had else "pending"
+        for k, _ in group:
+            with contextlib.suppress(ValueError):
+                self._pending.remove(k)
+        self._cand.clear()
+        self._acc.clear()
+        self._acc.extend(c for _, c in group)
+        self.rtt_ns, self.offset_ns = min(self._acc)
         self.synced = True
-        return True
+        self.last_sync_ns = now_ns
+        self._odd.clear()
+        if had:
+            self.resets += 1
+            return "reset"
+        return "synced"
 
-    def rough(self, fc_ns: int, now_ns: int) -> None:
-        """Seed the offset from a message's arrival before TIMESYNC answers."""
-        if not self.synced and self.offset_ns is None:
-            self.offset_ns = fc_ns - now_ns
+    def map_ns(self, fc_ns: int, now_ns: int) -> int | None:
+        """FC time → our monotonic ns, or None when it lands more than ``max_skew_ns`` from
+        ``now_ns`` (the sample's arrival)."""
+        if self.synced and self.offset_ns is not None:
+            off = self.offset_ns
+        else:
+            if self._rough is None:
+                self._rough = fc_ns - now_ns
+            off = self._rough
+        t = fc_ns - off
+        if abs(t - now_ns) <= self.max_skew_ns:
+            self._odd.clear()
+            return t
+        o = fc_ns - now_ns
+        odd = self._odd
+        odd.append(o)
+        if (
+            len(odd) >= self.confirm
+            and max(odd) - min(odd) <= self.max_skew_ns
+            and (not self.synced or now_ns - self.last_sync_ns > self.sync_timeout_ns)
+        ):
+            self.synced = False  # TIMESYNC went quiet: fall back to the arrival anchor
+            self._rough = o
+            self.reanchors += 1
+            odd.clear()
+            return now_ns
+        return None
 
     def to_local_s(self, fc_ns: int, now_ns: int) -> float:
-        if self.offset_ns is None:
-            self.rough(fc_ns, now_ns)
-        assert self.offset_ns is not None
-        return (fc_ns - self.offset_ns) * 1e-9
-
-
-class _Stream(asyncio.Protocol, asyncio.DatagramProtocol):
-    """One asyncio protocol for UDP, TCP and serial: bytes → driver.feed."""
-
-    def __init__(self, drv: MavlinkDriver) -> None:
-        self.drv = drv
-        self.lost: asyncio.Future[str] = asyncio.get_running_loop().create_future()
-        self.transport: Any = None
-        self.peer: Any = None
-
-    def connection_made(self, transport: Any) -> None:
-        self.transport = transport
-
-    def data_received(self, data: bytes) -> None:
-        self.drv.feed(data)
-
-    def datagram_received(self, data: bytes, addr: Any) -> None:
-        if self.drv.kind == "udpin":
-            old = self.peer
-            self.peer = addr  # reply to the last sender of valid MAVLink
-            if not self.drv.feed(data):
-                self.peer = old or addr
-        else:
-            self.drv.feed(data)
-
-    def error_received(self, exc: Exception) -> None:  # UDP: ICMP port unreachable etc.
-        self.drv.health.count("socket_error")
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        if not self.lost.done():
-            self.lost.set_result(f"connection lost: {exc}")
+        """FC time → our monotonic seconds, without the plausibility bound (the offset in use)."""
+        if self.synced and self.offset_ns is not None:
+            return (fc_ns - self.offset_ns) * 1e-9
+        if self._rough is None:
+            self._rough = fc_ns - now_ns
+        return (fc_ns - self._rough) * 1e-9
 
 
 class MavlinkDriver:
@@ -187,8 +231,10 @@ class MavlinkDriver:
         imu_dt: float = 0.01,
         timesync_s: float = 1.0,
         stale_s: float = 3.0,
+        max_skew_s: float = 5.0,
     ) -> None:
-        self.kind, self.host, self.port = parse_url(url)
+        self.link_url = parse_url(url)
+        self.kind, self.host, self.port = self.link_url
         self.url = url
         self.name = name
         self.health = DriverHealth(name)
@@ -205,18 +251,29 @@ class MavlinkDriver:
                 raise ValueError(f"MAVLink: 'request' rate of {k} must be > 0 Hz, got {hz!r}")
         if not imu_dt > 0:
             raise ValueError(f"MAVLink: 'imu_dt' must be positive, got {imu_dt!r}")
+        if not timesync_s > 0:
+            raise ValueError(f"MAVLink: 'timesync_s' must be positive, got {timesync_s!r}")
+        if not 0 < max_skew_s < math.inf:
+            raise ValueError(f"MAVLink: 'max_skew_s' must be a positive number of seconds, got {max_skew_s!r}")
         self.imu_dt = imu_dt
         self.timesync_s = timesync_s
         self.stale_s = stale_s
+        self.max_skew_s = max_skew_s
         self.key = signing_key_from(signing_key) if signing_key is not None else None
-        self.mav = self._new_parser(source_system, source_component)
-        self.clock = ClockSync()
+        self.mav = mavlink.MAVLink(None, srcSystem=source_system, srcComponent=source_component)
+        configure_signing(self.mav, self.key, link_id=1)
+        self.rx = MavReceiver(self.key, on_reject=self._rejected)
+        self.clock = ClockSync(
+            max_skew_ns=round(max_skew_s * 1e9), sync_timeout_ns=round(max(5.0, 10 * timesync_s) * 1e9)
+        )
+        self._reanchors = 0
+        self._fast_sync = 0  # TIMESYNC requests still to send at the fast cadence
         self.fc: tuple[int, int] | None = None  # (sysid, compid) of the FC once its HEARTBEAT is seen
         self.local_address: Any = None
         self.counts_by_type: dict[str, int] = {}  # handled messages by type
         self.messages = 0  # every valid message (any type) from the accepted system
         self._sink: Sink | None = None
-        self._proto: _Stream | None = None
+        self._link: Link | None = None
         self._last_seq: dict[tuple[int, int], int] = {}
         self._last_imu: dict[tuple[str, int], int] = {}  # (stream, id) -> FC time ns
         self._last_rx_ns = 0
@@ -237,29 +294,21 @@ class MavlinkDriver:
             "HEARTBEAT": self._heartbeat,
         }
 
-    def _new_parser(self, sysid: int, compid: int) -> Any:
-        mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
-        mav.robust_parsing = True
-        if self.key is not None:
-            mav.signing.secret_key = self.key
-            mav.signing.link_id = 1
-            mav.signing.sign_outgoing = True
-            # 10 µs units since 2015-01-01 (MAVLink signing spec)
-            mav.signing.timestamp = int((time.time() - 1420070400) * 100_000)
-            mav.signing.allow_unsigned_callback = None
-        return mav
+    def _rejected(self, reason: str, n: int) -> None:
+        """A frame the link layer's receiver rejected (unsigned counts as ``bad_signature`` here)."""
+        self.health.count("bad_signature" if reason == "unsigned" else reason, n)
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> MavlinkDriver:
-        """``{"type": "mavlink", "url": "udpin:0.0.0.0:14550", "system_id": 1, "signing_key": "...",
+        """``{"type": "mavlink", "url": "udpin:127.0.0.1:14550", "system_id": 1, "signing_key": "...",
         "request": {"GPS_RAW_INT": 5}, "emit": ["gnss", "baro"], "imu_dt": 0.01, "stale_s": 3}``."""
         known = {"type", "url", "name", "system_id", "source_system", "source_component", "signing_key"}
-        known |= {"request", "emit", "imu_dt", "timesync_s", "stale_s"}
+        known |= {"request", "emit", "imu_dt", "timesync_s", "stale_s", "max_skew_s"}
         bad = set(cfg) - known
         if bad:
             raise ValueError(f"MAVLink config: unknown key(s) {sorted(bad)} (known: {sorted(known)})")
         if "url" not in cfg:
-            raise ValueError("MAVLink config: missing key 'url' (e.g. 'udpin:0.0.0.0:14550')")
+            raise ValueError("MAVLink config: missing key 'url' (e.g. 'udpin:127.0.0.1:14550')")
         kw: dict[str, Any] = {k: v for k, v in cfg.items() if k not in ("type", "url")}
         if "emit" in kw:
             kw["emit"] = set(kw["emit"])
@@ -270,32 +319,12 @@ class MavlinkDriver:
         """Parse bytes from the transport; deliver samples. True if a valid message was in them."""
         now = time.monotonic_ns() if now_ns is None else now_ns
         h = self.health
-        try:
-            msgs = self.mav.parse_buffer(data)
-        except Exception as e:  # pymavlink raises on some malformed input even when robust
-            h.count("parse_error")
-            h.last_error = f"{type(e).__name__}: {e}"
-            self.mav.buf = bytearray()
-            self.mav.buf_index = 0
-            return False
+        msgs = self.rx.feed(data)  # rejected frames are counted by _rejected
         if not msgs:
             return False
         good = False
         for m in msgs:
             t = m.get_type()
-            if t == "BAD_DATA":
-                reason = str(getattr(m, "reason", ""))
-                if "signature" in reason:
-                    h.count("bad_signature")
-                elif "CRC" in reason:
-                    h.count("crc")
-                elif "prefix" in reason:
-                    h.count("garbage_bytes", len(m.get_msgbuf()))
-                elif "length" in reason:
-                    h.count("length")
-                else:
-                    h.count("bad_data")
-                continue
             if t == "UNKNOWN" or t.startswith("UNKNOWN"):
                 h.count("unknown_message")
                 continue
@@ -336,10 +365,26 @@ class MavlinkDriver:
             except Exception:
                 self.health.count("sink_error")
 
-    def _time_s(self, fc_us: int, now: int) -> float:
+    def _time_s(self, fc_us: int, now: int) -> float | None:
+        """FC time (µs since boot, or UNIX µs) → our monotonic seconds; None (counted
+        ``time_implausible``) when that is more than ``max_skew_s`` from the arrival ``now``."""
         if fc_us > UNIX_US:  # UNIX epoch µs: map through the wall clock
-            return fc_us * 1e-6 - (time.time() - time.monotonic())
-        return self.clock.to_local_s(fc_us * 1000, now)
+            t = fc_us * 1e-6 - (time.time() - time.monotonic())
+            if abs(t - now * 1e-9) <= self.max_skew_s:
+                return t
+            skew = t - now * 1e-9
+        else:
+            c = self.clock
+            t_ns = c.map_ns(fc_us * 1000, now)
+            if c.reanchors != self._reanchors:
+                self.health.count("clock_reanchor", c.reanchors - self._reanchors)
+                self._reanchors = c.reanchors
+            if t_ns is not None:
+                return t_ns * 1e-9
+            skew = c.to_local_s(fc_us * 1000, now) - now * 1e-9
+        self.health.count("time_implausible")
+        self.health.last_error = f"FC time {skew:+.3g} s from arrival (beyond max_skew_s = {self.max_skew_s} s)"
+        return None
 
     def _gnss(
         self, now: int, t_us: int, fix: int, lat: float, lon: float, h: float, vel: Any, std: tuple, sats: int, src: int
@@ -360,10 +405,13 @@ class MavlinkDriver:
         ):
             self.health.count("range")
             return
+        t = self._time_s(t_us, now)
+        if t is None:
+            return
         ft = FixType(min(fix, 6)) if fix <= 6 else FixType.FIX_3D
         self._deliver(
             GnssFix(
-                t=self._time_s(t_us, now), lat=math.radians(lat), lon=math.radians(lon), h=h, vel_ned=vel,
+                t=t, lat=math.radians(lat), lon=math.radians(lon), h=h, vel_ned=vel,
                 std_ne=std[0], std_d=std[1], std_vel=std[2], fix_type=ft, num_sats=sats, source=src,
                 t_arrival_ns=now,
             ),
@@ -412,8 +460,11 @@ class MavlinkDriver:
         if not 100.0 <= p <= 120_000.0:
             self.health.count("range")
             return
+        t = self._time_s(m.time_boot_ms * 1000, now)
+        if t is None:
+            return
         self._deliver(
-            BaroSample(t=self.clock.to_local_s(m.time_boot_ms * 1_000_000, now), pressure=p,
+            BaroSample(t=t, pressure=p,
                        temperature=m.temperature * 0.01, t_arrival_ns=now),
             now,
         )  # fmt: skip
@@ -454,6 +505,8 @@ class MavlinkDriver:
                 self.health.count("time_jump")
         self._last_imu[key] = fc_ns
         t = self._time_s(t_us, now)
+        if t is None:
+            return
         if "imu" in self.emit:
             # point samples → increments by the rectangular rule: Δθ = ω·dt, Δv = f·dt
             self._deliver(
@@ -482,6 +535,8 @@ class MavlinkDriver:
     def _imu_mag_only(self, m: Any, mag: tuple, now: int) -> None:
         if all(math.isfinite(x) for x in mag) and max(abs(x) for x in mag) <= MAX_MAG_GAUSS:
             t = self._time_s(m.time_usec, now)
+            if t is None:
+                return
             self._deliver(
                 MagSample(t=t, field_b=np.array(mag) * 1e-4, source=getattr(m, "id", 0), t_arrival_ns=now), now
             )
@@ -501,8 +556,25 @@ class MavlinkDriver:
     def _timesync(self, m: Any, now: int) -> None:
         if m.tc1 == 0:  # the FC asks: answer with our clock
             self.send(self.mav.timesync_encode(now, m.ts1))
-        elif not self.clock.reply(m.tc1, m.ts1, now):
-            self.health.count("timesync_bad")
+            return
+        v = self.clock.reply(m.tc1, m.ts1, now)
+        if v in ("accepted", "synced"):
+            return
+        if v == "pending":
+            self._fast_sync = max(self._fast_sync, 10)
+        elif v in ("outlier", "reset"):
+            self.health.count("timesync_outlier")
+            self._fast_sync = max(self._fast_sync, 10)  # confirm or refute it quickly
+            if v == "reset":
+                self.health.count("timesync_reset")
+                self.health.last_error = "TIMESYNC: the FC clock jumped (reboot?); offset re-estimated"
+        else:
+            self.health.count("timesync_bad" if v == "invalid" else "timesync_unmatched")
+
+    def _send_timesync(self) -> None:
+        ts1 = time.monotonic_ns()
+        self.clock.sent(ts1)
+        self.send(self.mav.timesync_encode(0, ts1))
 
     def _heartbeat(self, m: Any, now: int) -> None:
         if (
@@ -517,22 +589,18 @@ class MavlinkDriver:
 
     # ------------------------------------------------------------ output
     def send(self, msg: Any) -> None:
-        p = self._proto
-        if p is None or p.transport is None:
+        """Send one message on the link (signed when a key is set); never blocks."""
+        link = self._link
+        if link is None:
             return
         try:
             buf = msg.pack(self.mav)
-            self.mav.seq = (self.mav.seq + 1) % 256
-            if self.kind == "udpin":
-                if p.peer is not None:
-                    p.transport.sendto(buf, p.peer)
-            elif self.kind == "udpout":
-                p.transport.sendto(buf)
-            else:
-                p.transport.write(buf)
         except Exception as e:
             self.health.count("tx_error")
             self.health.last_error = f"send: {e}"
+            return
+        self.mav.seq = (self.mav.seq + 1) % 256
+        link.write(buf)  # its failures are counted through _link_error
 
     def request_streams(self) -> None:
         """Ask the FC for the messages we need (MAV_CMD_SET_MESSAGE_INTERVAL each)."""
@@ -547,45 +615,41 @@ class MavlinkDriver:
             )
 
     async def _periodic(self) -> None:
+        """HEARTBEAT and TIMESYNC each ``timesync_s``; TIMESYNC every 0.1 s while the clock
+        offset is unknown or in doubt (at most 10 in a row once nothing answers)."""
         n = 0
+        self._fast_sync = 10
+        loop = asyncio.get_running_loop()
         while True:
             self.send(
                 self.mav.heartbeat_encode(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
             )
-            self.send(self.mav.timesync_encode(0, time.monotonic_ns()))
+            self._send_timesync()
             n += 1
             if n % 10 == 0:  # re-request: FCs forget after a reboot
                 self.request_streams()
-            await asyncio.sleep(self.timesync_s)
+            end = loop.time() + self.timesync_s
+            while (left := end - loop.time()) > 0:
+                fast = self.clock.unsure and self._fast_sync > 0
+                await asyncio.sleep(min(left, 0.1) if fast else left)
+                if fast and end - loop.time() > 0.05:
+                    self._fast_sync -= 1
+                    self._send_timesync()
 
     # ------------------------------------------------------------ run
-    async def _open(self, loop: asyncio.AbstractEventLoop) -> _Stream:
-        tr: Any
-        pr: Any
-        if self.kind == "udpin":
-            tr, pr = await loop.create_datagram_endpoint(lambda: _Stream(self), local_addr=(self.host, self.port))
-        elif self.kind == "udpout":
-            tr, pr = await loop.create_datagram_endpoint(lambda: _Stream(self), remote_addr=(self.host, self.port))
-        elif self.kind == "tcp":
-            tr, pr = await loop.create_connection(lambda: _Stream(self), self.host, self.port)
-        else:
-            tr, pr = await serial_asyncio_fast.create_serial_connection(
-                loop, lambda: _Stream(self), self.host, baudrate=self.port
-            )
-        proto: _Stream = pr
-        proto.transport = tr
-        with contextlib.suppress(Exception):
-            self.local_address = tr.get_extra_info("sockname")
-        return proto
+    def _link_error(self, reason: str) -> None:
+        self.health.count(reason)
+        if self._link is not None and self._link.last_error:
+            self.health.last_error = self._link.last_error
 
     async def run(self, sink: Sink) -> None:
         """Connect, parse, deliver; re-open with backoff on loss or silence, until cancelled."""
         self._sink = sink
-        loop = asyncio.get_running_loop()
         first = True
         while True:
+            link = Link(self.link_url, self.feed, on_error=self._link_error)
             try:
-                proto = await self._open(loop)
+                await link.connect()
             except Exception as e:
                 self.health.count("open_failed")
                 self.health.last_error = f"open {self.url}: {e}"
@@ -594,30 +658,32 @@ class MavlinkDriver:
             if not first:
                 self.health.reconnects += 1
             first = False
-            self._proto = proto
+            self._link = link
+            self.local_address = link.local_address
             self.health.connected = True
             self._last_rx_ns = time.monotonic_ns()
             n0 = self.health.samples
             periodic = asyncio.create_task(self._periodic())
+            lost = link.lost
+            assert lost is not None
             try:
-                while not proto.lost.done():
-                    await asyncio.wait([proto.lost], timeout=min(0.5, self.stale_s))
+                while not lost.done():
+                    await asyncio.wait([lost], timeout=min(0.5, self.stale_s))
                     if self.stale_s > 0 and (time.monotonic_ns() - self._last_rx_ns) * 1e-9 > self.stale_s:
                         self.health.count("silence")
                         self.health.last_error = f"no MAVLink for {self.stale_s} s"
                         break
                 else:
                     self.health.count("link_lost")
-                    self.health.last_error = proto.lost.result()
+                    self.health.last_error = lost.result()
             finally:
                 periodic.cancel()
                 with contextlib.suppress(BaseException):
                     await periodic
                 self.health.connected = False
-                self._proto = None
+                self._link = None
                 self.fc = None
-                with contextlib.suppress(Exception):
-                    proto.transport.close()
+                link.close()
             if self.health.samples > n0:
                 self._backoff.reset()
             await self._backoff.wait()

@@ -13,8 +13,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ins_hil.drivers.mavlink_in import parse_url as mavlink_in_url
-from ins_hil.runtime.mavlink_out import ALL_MESSAGES, EndpointConfig, parse_url
+from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
+from ins_hil.drivers.mavlink_link import parse_url
+from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
+from ins_hil.runtime.mavlink_out import ALL_MESSAGES, EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
 from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig, aiding_monitor, check_core, fdi_monitor
 from ins_hil.sim.devices import SimConfig
@@ -267,7 +269,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             raise ConfigError(f"{where}.type = {typ!r}: must be 'mavlink' (MQTT is the [mqtt] table)")
         ec = EndpointConfig(name=f"mav{i}")
         _fill(ec, t, where)
-        _url(f"{where}.url", ec.url, ("udp", "udpin", "tcp", "serial"))
+        _url(f"{where}.url", ec.url, MAVLINK_SCHEMES)
         _choice(f"{where}.role", ec.role, ("gcs", "fc"))
         _choice(f"{where}.mav_type", ec.mav_type, MAV_TYPES)
         _key(f"{where}.signing_key", ec.signing_key)

@@ -23,7 +23,7 @@ def test_shipped_configs_load(path: Path) -> None:
 def test_default_is_the_simulated_setup() -> None:
     cfg = load(default_path())
     assert cfg.sim_enabled and cfg.sim.imu_rate == 1000.0
-    assert [o.url for o in cfg.outputs] == ["udp:127.0.0.1:14550"]
+    assert [o.url for o in cfg.outputs] == ["udpout:127.0.0.1:14550"]
     assert cfg.mqtt.enabled and cfg.recorder.enabled and cfg.pipeline.core == "python"
 
 
@@ -35,8 +35,8 @@ def test_default_is_the_simulated_setup() -> None:
         ({"mqtt": {"enabled": True, "port": 70000}}, "mqtt.port = 70000"),
         ({"core": {"kind": "rust"}}, "core.kind = 'rust': must be one of 'python', 'c'"),
         ({"sim": {"imu_rate": -5.0}}, "sim.imu_rate = -5.0: must be > 0"),
-        ({"outputs": [{"url": "udp:localhost"}]}, "outputs[0].url = 'udp:localhost'"),
-        ({"outputs": [{"url": "udp:127.0.0.1:14550", "role": "autopilot"}]}, "outputs[0].role = 'autopilot'"),
+        ({"outputs": [{"url": "udpout:localhost"}]}, "outputs[0].url = 'udpout:localhost'"),
+        ({"outputs": [{"url": "udpout:127.0.0.1:14550", "role": "autopilot"}]}, "outputs[0].role = 'autopilot'"),
         ({"outputs": [{"signing_key": "abc"}]}, "outputs[0].signing_key = 'abc'"),
         ({"outputs": [{"rates": {"ATTITUDE_EULER": 10}}]}, "outputs[0].rates.ATTITUDE_EULER: unknown message"),
         ({"outputs": [{"rates": {"ATTITUDE": -1}}]}, "outputs[0].rates.ATTITUDE = -1"),
@@ -78,7 +78,8 @@ def test_bad_toml_names_the_file(tmp_path: Path) -> None:
 
 def test_cli_rejects_bad_config_before_starting_anything(tmp_path: Path) -> None:
     bad = tmp_path / "bad.toml"
-    bad.write_text(default_path().read_text().replace('url = "udp:127.0.0.1:14550"', 'url = "udp:127.0.0.1:99999"'))
+    text = default_path().read_text()
+    bad.write_text(text.replace('url = "udpout:127.0.0.1:14550"', 'url = "udpout:127.0.0.1:99999"'))
     r = subprocess.run(
         [sys.executable, "-m", "ins_hil", "run", "--config", str(bad), "--no-status", "--duration", "5"],
         cwd=tmp_path,
@@ -87,7 +88,7 @@ def test_cli_rejects_bad_config_before_starting_anything(tmp_path: Path) -> None
         timeout=60,
     )
     assert r.returncode == 2
-    assert "outputs[0].url = 'udp:127.0.0.1:99999'" in r.stderr and "port 99999 out of range" in r.stderr
+    assert "outputs[0].url = 'udpout:127.0.0.1:99999'" in r.stderr and "port 99999 out of range" in r.stderr
     assert not (tmp_path / "recordings").exists()  # nothing half-started: no recorder file, no simulator
 
 

@@ -222,15 +222,24 @@ def test_clock_sync_min_rtt_and_reboot() -> None:
     c = ClockSync()
     off = 7_000_000_000
     now = 100 * 10**9
-    # replies with growing round trip: the shortest wins
-    for k, rtt in enumerate([9_000_000, 1_000_000, 5_000_000]):
-        ts1 = now + k * 10**9
-        c.reply(ts1 + rtt // 2 + off, ts1, ts1 + rtt)
-    assert c.offset_ns == off and c.rtt_ns == 1_000_000
+
+    def answer(ts1: int, rtt: int, offset: int = off) -> str:
+        c.sent(ts1)
+        return c.reply(ts1 + rtt // 2 + offset, ts1, ts1 + rtt)
+
+    # three consistent replies make the first estimate; the shortest round trip wins
+    verdicts = [answer(now + k * 10**9, rtt) for k, rtt in enumerate([9_000_000, 1_000_000, 5_000_000])]
+    assert verdicts == ["pending", "pending", "synced"]
+    assert c.offset_ns == off and c.rtt_ns == 1_000_000 and c.synced
     assert c.to_local_s(off + 200 * 10**9, 0) == pytest.approx(200.0)
-    c.reply(5 * 10**9, 110 * 10**9, 110 * 10**9 + 10**6)  # FC rebooted: its clock restarted
-    assert c.offset_ns == 5 * 10**9 - 110 * 10**9 - 500_000
-    assert not c.reply(1, 10**9, 0)  # reply from the future: rejected
+    assert answer(now + 3 * 10**9, 2_000_000) == "accepted"
+    # the FC rebooted (its clock restarted): held twice, followed at the third consistent reply
+    boot = 5 * 10**9 - 110 * 10**9
+    assert [answer((110 + k) * 10**9, 1_000_000, boot) for k in range(3)] == ["outlier", "outlier", "reset"]
+    assert c.offset_ns == boot and c.resets == 1 and c.outliers == 3
+    c.sent(10**9)
+    assert c.reply(1, 10**9, 0) == "invalid"  # reply from the future
+    assert c.reply(off, 123, 10**9) == "unmatched"  # not one of our requests
 
 
 def test_tcp_link_and_reconnect() -> None:
@@ -312,8 +321,10 @@ def test_udp_silence_reopens() -> None:
 
 
 def test_config_and_url_errors() -> None:
-    assert parse_url("udp:0.0.0.0:14550") == ("udpin", "0.0.0.0", 14550)
+    assert parse_url("udpin:0.0.0.0:14550") == ("udpin", "0.0.0.0", 14550)
     assert parse_url("/dev/ttyACM0") == ("serial", "/dev/ttyACM0", 115200)
+    with pytest.raises(ValueError, match=r"write 'udpin:0\.0\.0\.0:14550' to listen or 'udpout:0\.0\.0\.0:14550'"):
+        parse_url("udp:0.0.0.0:14550")
     for bad in ("udpin:14550", "tcp:host:x", "serial:", "bluetooth:a:1"):
         with pytest.raises(ValueError, match="MAVLink url"):
             parse_url(bad)
@@ -326,3 +337,136 @@ def test_config_and_url_errors() -> None:
     with pytest.raises(ValueError, match="32 bytes"):
         signing_key_from(b"short")
     assert signing_key_from("00" * 32) == bytes(32)
+
+
+def _deliveries_near_arrival(got: list, bound_s: float = 5.0) -> bool:
+    """Every delivered sample's time is finite and within ``bound_s`` of its arrival."""
+    return all(math.isfinite(s.t) and abs(s.t - s.t_arrival_ns * 1e-9) <= bound_s for s in got)
+
+
+def test_wild_timesync_reply_does_not_move_the_mapping() -> None:
+    """TIMESYNC replies with tc1 = 2^63−1 from another UDP sender posing as the FC (three that
+    answer our requests before the FC does, three that answer none): the offset stays, they are
+    counted, every sample's time stays finite and near its arrival."""
+
+    async def main() -> tuple[list, MavlinkDriver, SimFlightController, int]:
+        drv = MavlinkDriver("udpin:127.0.0.1:0", timesync_s=0.2)
+        got: list = []
+        task = asyncio.create_task(drv.run(got.append))
+        while drv.local_address is None:
+            await asyncio.sleep(0.005)
+        loop = asyncio.get_running_loop()
+        tx, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol, remote_addr=drv.local_address)
+        atk = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)  # posing as the FC
+        armed = [0]
+
+        def wild(ts1: int) -> None:
+            tx.sendto(atk.timesync_encode(2**63 - 1, ts1).pack(atk))
+            atk.seq = (atk.seq + 1) % 256
+
+        fc = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0)
+        fc_received = fc._received
+
+        def race(data: bytes, addr: tuple[str, int]) -> None:  # on the path: answer before the FC
+            for m in mavlink.MAVLink(None).parse_buffer(data) or []:
+                if m.get_type() == "TIMESYNC" and m.tc1 == 0 and armed[0] > 0:
+                    armed[0] -= 1
+                    wild(m.ts1)
+            fc_received(data, addr)
+
+        fc._received = race  # type: ignore[method-assign]
+        ft = asyncio.create_task(fc.run())
+        for _ in range(200):
+            if drv.clock.synced:
+                break
+            await asyncio.sleep(0.02)
+        off0 = drv.clock.offset_ns
+        assert off0 is not None
+        armed[0] = 3
+        for _ in range(3):
+            wild(time.monotonic_ns() - 1_000_000)  # a plausible round trip, but no request of ours
+            await asyncio.sleep(0.3)
+        await asyncio.sleep(0.4)
+        tx.close()
+        ft.cancel()
+        task.cancel()
+        await asyncio.gather(ft, task, return_exceptions=True)
+        return got, drv, fc, off0
+
+    got, drv, fc, off0 = asyncio.run(main())
+    assert _deliveries_near_arrival(got, 0.5)
+    assert drv.clock.offset_ns is not None and abs(drv.clock.offset_ns - off0) < 5_000_000
+    assert abs(drv.clock.offset_ns + fc._boot_ns) < 5_000_000
+    e = drv.health.errors
+    assert e.get("timesync_outlier") == 3 and e.get("timesync_unmatched") == 3 and "timesync_reset" not in e
+    assert sum(isinstance(s, GnssFix) for s in got) > 10
+
+
+def test_fc_reboot_is_followed_within_a_few_replies() -> None:
+    """The FC restarts (a new boot clock, 1231.5 s behind the old one): samples stamped with the new
+    clock are never delivered at the old offset; the estimate follows within a few TIMESYNC replies."""
+
+    async def main() -> tuple[list, MavlinkDriver, SimFlightController, int]:
+        drv = MavlinkDriver("udpin:127.0.0.1:0", timesync_s=0.5)
+        got: list = []
+        task = asyncio.create_task(drv.run(got.append))
+        while drv.local_address is None:
+            await asyncio.sleep(0.005)
+        a = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0)
+        at = asyncio.create_task(a.run())
+        for _ in range(200):
+            if drv.clock.synced:
+                break
+            await asyncio.sleep(0.02)
+        await asyncio.sleep(0.3)
+        at.cancel()
+        await asyncio.gather(at, return_exceptions=True)
+        n_before = len(got)
+        b = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0, boot_offset_s=3.0)
+        bt = asyncio.create_task(b.run())
+        await asyncio.sleep(2.0)
+        bt.cancel()
+        await asyncio.sleep(0.05)
+        task.cancel()
+        await asyncio.gather(bt, task, return_exceptions=True)
+        return got, drv, b, n_before
+
+    got, drv, b, n_before = asyncio.run(main())
+    assert _deliveries_near_arrival(got, 0.5)
+    c = drv.clock
+    assert c.synced and c.offset_ns is not None and abs(c.offset_ns + b._boot_ns) < 5_000_000
+    e = drv.health.errors
+    assert e["timesync_reset"] == 1 and e["timesync_outlier"] <= 3  # confirm = 3 replies
+    assert e.get("time_implausible", 0) > 0  # the rebooted FC's samples before the re-sync: dropped, counted
+    after = got[n_before:]
+    assert sum(isinstance(s, GnssFix) for s in after) >= 10  # navigation data flows again
+
+
+def test_wild_or_rebooted_fc_times_without_timesync() -> None:
+    """No TIMESYNC answers: one message with a wild time costs that message; three consecutive ones
+    on a new clock (an FC reboot) re-anchor the arrival-based offset; UNIX times far from the host's
+    clock are dropped. Nothing is delivered far from its arrival."""
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    drv = MavlinkDriver("udpin:127.0.0.1:0")
+    got: list = []
+    drv._sink = got.append
+
+    def feed(t_fc_s: float, now_s: float, usec: int | None = None) -> None:
+        us = round(t_fc_s * 1e6) if usec is None else usec
+        m = mav.gps_raw_int_encode(us, 3, 504500000, 305200000, 180000, 80, 120, 0, 0, 12)
+        drv.feed(m.pack(mav), now_ns=round(now_s * 1e9))
+        mav.seq = (mav.seq + 1) % 256
+
+    for k in range(5):
+        feed(1000.0 + 0.2 * k, 50.0 + 0.2 * k)
+    feed(1e9, 51.2)  # one wild time (1e9 s of FC uptime)
+    feed(1001.2, 51.4)
+    assert len(got) == 6 and drv.health.errors == {"time_implausible": 1}
+    for k in range(4):  # the FC rebooted: its clock restarts at 1.0 s
+        feed(1.0 + 0.2 * k, 51.6 + 0.2 * k)
+    assert drv.health.errors["clock_reanchor"] == 1 and drv.health.errors["time_implausible"] == 3
+    assert [round(s.t - s.t_arrival_ns * 1e-9, 6) for s in got[6:]] == [0.0, 0.0]
+    feed(0.0, 53.0, usec=2**63 - 1)  # "UNIX time" far from the host's clock
+    feed(0.0, 53.2, usec=round((time.time() - 3600) * 1e6))  # an hour off
+    assert drv.health.errors["time_implausible"] == 5 and len(got) == 8
+    assert _deliveries_near_arrival(got, 0.5)

@@ -58,7 +58,7 @@ def test_mavproxy_receives_our_vehicle(tmp_path: Path) -> None:
         time.sleep(1.5)  # MAVProxy binds its UDP port
         cfg = sim_config(
             sim={"imu_errors": "none"},
-            outputs=[{"name": "gcs", "url": f"udp:127.0.0.1:{port}", "role": "gcs", "sysid": SYSID}],
+            outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{port}", "role": "gcs", "sysid": SYSID}],
             recorder={"enabled": False},
         )
         gw = Gateway(cfg)

@@ -14,12 +14,12 @@ import socket
 from pathlib import Path
 from typing import Any
 
+from ins_hil.drivers.mavlink_link import signing_timestamp
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from runtime_helpers import free_port, sim_config
 
 from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.recorder import read_records
-from ins_hil.sim.devices import signing_timestamp
 from ins_hil.types import GnssFix
 
 KEY = "a1" * 32
@@ -61,7 +61,7 @@ def test_signed_links(tmp_path: Path) -> None:
             {"name": "imu0", "type": "serial_imu", "port": "sim"},
             {"name": "gnss", "type": "mavlink", "url": "udpin:127.0.0.1:0", "signing_key": KEY},
         ],
-        outputs=[{"name": "gcs", "url": f"udp:127.0.0.1:{peer.getsockname()[1]}", "signing_key": KEY}],
+        outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{peer.getsockname()[1]}", "signing_key": KEY}],
     )
     gw = Gateway(cfg, record_path=tmp_path / "signed.ihlog")
     verifier = mavlink2.MAVLink(None)

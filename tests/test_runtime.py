@@ -31,7 +31,7 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """One 5 s live run at 1 kHz with every state kept."""
     tmp = tmp_path_factory.mktemp("live")
     port = free_port()  # nobody listens: the endpoint sends anyway and counts what the socket refuses
-    cfg = sim_config(sim={"imu_errors": "none"}, outputs=[{"name": "gcs", "url": f"udp:127.0.0.1:{port}"}])
+    cfg = sim_config(sim={"imu_errors": "none"}, outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{port}"}])
     gw = Gateway(cfg, record_path=tmp / "live.ihlog")
     states: list[NavState] = []
     gw.on_state.append(states.append)

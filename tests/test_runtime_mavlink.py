@@ -42,7 +42,7 @@ def _collect(role: str, rates: dict[str, float]) -> dict[str, list]:
     metrics = RuntimeMetrics()
 
     async def go() -> None:
-        ep = MavlinkEndpoint(EndpointConfig(name=role, url=f"udp:127.0.0.1:{port}", role=role, rates=rates), metrics)
+        ep = MavlinkEndpoint(EndpointConfig(name=role, url=f"udpout:127.0.0.1:{port}", role=role, rates=rates), metrics)
         await ep.start()
         ep.offer_gnss(GnssFix(1.0, math.radians(50.45), math.radians(30.52), 181.0, np.array([3.0, -4.0, 0.5]),
                               fix_type=FixType.FIX_3D, num_sats=14))  # fmt: skip

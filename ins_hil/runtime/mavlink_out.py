@@ -1,9 +1,10 @@
 """MAVLink 2 output endpoints: to a ground station (as its own vehicle) or to a flight controller.
 
-An endpoint owns one transport (``udp:host:port`` sends to a listener such as
-QGroundControl on 14550; ``udpin:host:port`` listens and answers the last
-peer; ``tcp:host:port`` connects, with reconnect; ``serial:/dev/ttyX:baud``)
-and the loop hands it the newest state with :meth:`MavlinkEndpoint.offer`
+An endpoint owns one link of the MAVLink link layer (:mod:`ins_hil.drivers.mavlink_link`,
+the URL grammar of the inputs too: ``udpout:host:port`` sends to a listener such as
+QGroundControl on 14550; ``udpin:host:port`` listens and answers the last peer;
+``tcp:host:port`` connects, with reconnect; ``tcpin:host:port`` serves TCP clients;
+``serial:/dev/ttyX:baud``) and the loop hands it the newest state with :meth:`MavlinkEndpoint.offer`
 (never blocks): every message whose period is due is sent right there (the
 transports' writes are non-blocking), the others are coalesced to the newest
 state; the endpoint's own task only sends STATUSTEXTs. Messages and rates are
@@ -41,6 +42,8 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.drivers.mavlink_link import Link, MavReceiver, configure_signing, signing_key_from
+from ins_hil.drivers.mavlink_link import parse_url as parse_url  # re-exported: the one URL grammar
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat
 from ins_hil.runtime.metrics import RuntimeMetrics
@@ -52,53 +55,6 @@ def mavlink_module() -> Any:
     from pymavlink.dialects.v20 import ardupilotmega
 
     return ardupilotmega
-
-
-class MavReceiver:
-    """Parse MAVLink 2 bytes; with ``key`` (32 bytes) accept only correctly signed messages.
-
-    ``counts``: messages, unsigned, bad_signature, bad_data.
-    """
-
-    def __init__(self, key: bytes | None = None, link_id: int = 0) -> None:
-        mavlink = mavlink_module()
-        self.mav = mavlink.MAVLink(None, srcSystem=0, srcComponent=0)
-        self.counts: dict[str, int] = {"messages": 0, "unsigned": 0, "bad_signature": 0, "bad_data": 0}
-        if key is not None:
-            from ins_hil.sim.devices import signing_timestamp
-
-            s = self.mav.signing
-            s.secret_key = key
-            s.link_id = link_id
-            s.timestamp = signing_timestamp()
-            s.allow_unsigned_callback = None  # unsigned → rejected
-
-    def feed(self, data: bytes) -> list[Any]:
-        out: list[Any] = []
-        mavlink = mavlink_module()
-        chunk: bytes = data
-        while True:
-            s = self.mav.signing
-            bad0, rej0 = s.badsig_count, s.reject_count
-            try:
-                m = self.mav.parse_char(chunk)
-            except mavlink.MAVError as e:
-                if s.badsig_count > bad0:
-                    self.counts["bad_signature"] += 1
-                elif s.reject_count > rej0 or "Invalid signature" in str(e):
-                    self.counts["unsigned"] += 1
-                else:
-                    self.counts["bad_data"] += 1
-                chunk = b""
-                continue
-            chunk = b""
-            if m is None:
-                return out
-            if m.get_type() == "BAD_DATA":
-                self.counts["bad_data"] += 1
-                continue
-            self.counts["messages"] += 1
-            out.append(m)
 
 
 GCS_RATES = {
@@ -114,24 +70,6 @@ GCS_RATES = {
 }
 FC_RATES = {"HEARTBEAT": 1.0, "ODOMETRY": 30.0, "GPS_INPUT": 5.0, "HIL_STATE_QUATERNION": 0.0}
 ALL_MESSAGES = sorted(set(GCS_RATES) | set(FC_RATES))
-SCHEMES = ("udp", "udpin", "tcp", "serial")
-
-
-def parse_url(url: str) -> tuple[str, str, int]:
-    """``udp:host:port`` → (scheme, host, port); ``serial:/dev/ttyUSB0:921600`` → (serial, path, baud)."""
-    parts = url.split(":")
-    if len(parts) != 3 or parts[0] not in SCHEMES:
-        raise ValueError(f"bad endpoint {url!r}: expected one of {', '.join(s + ':HOST:PORT' for s in SCHEMES)}")
-    scheme, host, port = parts
-    try:
-        p = int(port)
-    except ValueError:
-        raise ValueError(f"bad endpoint {url!r}: port/baud {port!r} is not a number") from None
-    if scheme != "serial" and not 0 <= p <= 65535:
-        raise ValueError(f"bad endpoint {url!r}: port {p} out of range")
-    return scheme, host, p
-
-
 _HEADER = struct.Struct("<BBBBBB")  # len, incompat_flags, compat_flags, seq, sysid, compid
 
 
@@ -197,7 +135,7 @@ class EndpointConfig:
     """One MAVLink output (the ``[[outputs]]`` tables of type mavlink)."""
 
     name: str = "gcs"
-    url: str = "udp:127.0.0.1:14550"
+    url: str = "udpout:127.0.0.1:14550"
     role: str = "gcs"  # gcs | fc
     sysid: int = 42
     compid: int = 1
@@ -209,107 +147,6 @@ class EndpointConfig:
         base = dict(GCS_RATES if self.role == "gcs" else FC_RATES)
         base.update(self.rates)
         return {k: v for k, v in base.items() if v > 0}
-
-
-class _Transport:
-    """Non-blocking byte sink over asyncio; ``write`` never awaits."""
-
-    def __init__(self, url: str, on_data: Any) -> None:
-        self.scheme, self.host, self.port = parse_url(url)
-        self.on_data = on_data
-        self.tr: Any = None
-        self.peer: Any = None
-        self.errors: dict[str, int] = {}
-        self.connected = False
-        self._task: asyncio.Task[None] | None = None
-
-    def _err(self, k: str) -> None:
-        self.errors[k] = self.errors.get(k, 0) + 1
-
-    async def open(self) -> None:
-        loop = asyncio.get_running_loop()
-        outer = self
-        if self.scheme in ("udp", "udpin"):
-
-            class _U(asyncio.DatagramProtocol):
-                def datagram_received(self, data: bytes, addr: Any) -> None:
-                    outer.peer = addr
-                    outer.on_data(data)
-
-                def error_received(self, exc: Exception) -> None:
-                    outer._err("refused" if isinstance(exc, ConnectionRefusedError) else "send_error")
-
-            if self.scheme == "udp":
-                self.tr, _ = await loop.create_datagram_endpoint(_U, remote_addr=(self.host, self.port))
-                self.connected = True
-            else:
-                self.tr, _ = await loop.create_datagram_endpoint(_U, local_addr=(self.host, self.port))
-                self.port = self.tr.get_extra_info("sockname")[1]
-        else:
-            self._task = asyncio.create_task(self._stream_loop())
-
-    async def _stream_loop(self) -> None:
-        loop = asyncio.get_running_loop()
-        outer = self
-        backoff = 0.2
-
-        class _S(asyncio.Protocol):
-            def __init__(self) -> None:
-                self.lost: asyncio.Future[None] = loop.create_future()
-
-            def data_received(self, data: bytes) -> None:
-                outer.on_data(data)
-
-            def connection_lost(self, exc: Exception | None) -> None:
-                if not self.lost.done():
-                    self.lost.set_result(None)
-
-        while True:
-            tr: Any
-            proto: Any
-            try:
-                if self.scheme == "tcp":
-                    tr, proto = await loop.create_connection(_S, self.host, self.port)
-                else:
-                    import serial_asyncio_fast
-
-                    tr, proto = await serial_asyncio_fast.create_serial_connection(
-                        loop, _S, self.host, baudrate=self.port
-                    )
-            except (OSError, ValueError):
-                self._err("connect_failed")
-                await asyncio.sleep(backoff)
-                backoff = min(5.0, backoff * 2)
-                continue
-            self.tr, self.connected, backoff = tr, True, 0.2
-            await proto.lost
-            self.connected = False
-            self.tr = None
-            self._err("disconnected")
-
-    def write(self, data: bytes) -> bool:
-        tr = self.tr
-        if tr is None:
-            return False
-        if self.scheme == "udp":
-            tr.sendto(data)
-        elif self.scheme == "udpin":
-            if self.peer is None:
-                return False
-            tr.sendto(data, self.peer)
-        else:
-            if tr.get_write_buffer_size() > 65536:  # slow link: drop rather than buffer without bound
-                self._err("backpressure")
-                return False
-            tr.write(data)
-        return True
-
-    def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-        if self.tr is not None:
-            self.tr.close()
-            self.tr = None
 
 
 class MavlinkEndpoint:
@@ -325,18 +162,12 @@ class MavlinkEndpoint:
         # highest rate first (stable for equal rates): the first message of a state is the fastest stream
         order = sorted(self.rates, key=lambda k: -self.rates[k])
         self.next_ns = dict.fromkeys(order, 0)
-        key = bytes.fromhex(cfg.signing_key) if cfg.signing_key else None
+        key = signing_key_from(cfg.signing_key) if cfg.signing_key else None
         self.rx = MavReceiver(key)
         self.rx_messages: dict[str, int] = {}
-        self.tr = _Transport(cfg.url, self._on_data)
+        self.tr = Link(cfg.url, self._on_data, on_error=lambda why: metrics.output(cfg.name, "link_" + why))
         self.mav = mavlink.MAVLink(self, srcSystem=cfg.sysid, srcComponent=cfg.compid)
-        if key is not None:
-            from ins_hil.sim.devices import signing_timestamp
-
-            self.mav.signing.secret_key = key
-            self.mav.signing.link_id = 0
-            self.mav.signing.timestamp = signing_timestamp()
-            self.mav.signing.sign_outgoing = True
+        configure_signing(self.mav, key, link_id=0)
         self.mav_type = getattr(mavlink, "MAV_TYPE_" + cfg.mav_type)
         self._m = mavlink
         # unsigned link: the hot messages are framed by _Frame (bytes identical to pymavlink's)

@@ -39,18 +39,11 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.drivers.mavlink_link import signing_timestamp
 from ins_hil.drivers.serial_frame import encode
 from ins_hil.sim import sensors
 from ins_hil.sim.trajectory import TruthSeries, generate, static_profile, uav_profile
 from ins_hil.types import ImuSample
-
-#: seconds between 2015-01-01 and the Unix epoch start (MAVLink signing timestamps count from 2015)
-SIGNING_EPOCH = 1420070400
-
-
-def signing_timestamp() -> int:
-    """Current MAVLink signing timestamp (10 µs units since 2015-01-01 UTC)."""
-    return int((time.time() - SIGNING_EPOCH) * 1e5)
 
 
 @dataclass

@@ -50,7 +50,7 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
             {"name": "gnss", "type": "mavlink", "url": f"udpin:127.0.0.1:{a.gnss_port}"},
         ],
         "outputs": [
-            {"name": "gcs", "type": "mavlink", "url": f"udp:127.0.0.1:{a.gcs_port}", "role": "gcs", "rates": rates}
+            {"name": "gcs", "type": "mavlink", "url": f"udpout:127.0.0.1:{a.gcs_port}", "role": "gcs", "rates": rates}
         ],
         "mqtt": {"enabled": False},
         "recorder": {"enabled": a.record, "dir": str(a.out)},

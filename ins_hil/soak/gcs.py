@@ -1,6 +1,6 @@
 """Soak ground-station client: receives the gateway's MAVLink on UDP and stamps every message.
 
-Binds ``127.0.0.1:--port`` (the gateway's ``udp:`` output), parses with pymavlink and
+Binds ``127.0.0.1:--port`` (the gateway's ``udpout:`` output), parses with pymavlink and
 stamps CLOCK_MONOTONIC right after ``recvfrom``. Writes to ``--out`` (flushed every
 second, so memory stays flat over hours):
 

@@ -49,8 +49,9 @@ from pathlib import Path
 from typing import Any
 
 from ins_hil.config import from_dict
+from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.serial_frame import FrameParser
-from ins_hil.runtime.mavlink_out import _frame_of, advance_due, mavlink_module, parse_url
+from ins_hil.runtime.mavlink_out import _frame_of, advance_due, mavlink_module
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.runtime.rt import enter_realtime, policy
 from ins_hil.soak.gateway import build_parser, gateway_config
@@ -181,7 +182,7 @@ class Relay:
         self.gnss_datagrams = self.gnss_bytes = 0
         _, host, port = parse_url(ep.url)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.connect((host, port))  # as the gateway's udp: output (a connected datagram socket)
+        self.sock.connect((host, port))  # as the gateway's udpout: output (a connected datagram socket)
         self.sock.setblocking(False)
         self.mav = mavlink_module().MAVLink(None, srcSystem=ep.sysid, srcComponent=ep.compid)
         self.tail = odometry_tail()
