@@ -221,6 +221,7 @@ class _Transport:
         self.peer: Any = None
         self.errors: dict[str, int] = {}
         self.connected = False
+        self.last_error = ""  # why the last open/connect failed (shown once by the gateway)
         self._task: asyncio.Task[None] | None = None
 
     def _err(self, k: str) -> None:
@@ -276,8 +277,9 @@ class _Transport:
                     tr, proto = await serial_asyncio_fast.create_serial_connection(
                         loop, _S, self.host, baudrate=self.port
                     )
-            except (OSError, ValueError):
+            except (OSError, ValueError) as e:
                 self._err("connect_failed")
+                self.last_error = f"open {self.host}: {e}" if self.scheme == "serial" else f"connect: {e}"
                 await asyncio.sleep(backoff)
                 backoff = min(5.0, backoff * 2)
                 continue
