@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
     log.propagate = False
     try:
         asyncio.run(gw.run(duration=args.duration, status=status))
-    except (OSError, RuntimeError) as e:
+    except (OSError, RuntimeError, ValueError) as e:  # e.g. a device or URL that cannot be opened
         print(f"ins-hil run: {e}", file=sys.stderr)
         return 1
     finally:

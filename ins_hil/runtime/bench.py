@@ -193,7 +193,15 @@ TEMPLATE = """# Runtime: the real-time gateway
   CAP_SYS_NICE; a warning and time-sharing otherwise): a busy neighbour or a low-priority job can
   then no longer hold an IMU sample back by a scheduler slice (`ins-hil soak` measures both).
 - **Stop**: SIGINT/SIGTERM stop cleanly (simulator stopped, inputs closed, what they delivered
-  run through the pipeline, transports closed, recorder flushed); a second SIGINT exits at once.
+  run through the pipeline, transports closed, MQTT `online` set to `0`, recorder flushed); a
+  second SIGINT exits at once.
+- **What it tells you**: at start one line per input (device or URL), per MAVLink output (URL,
+  role, system id), for the MQTT broker and the recording file. An input or output that fails (a
+  port that does not open, a lost link) is reported once with its own error text and its config
+  path (`inputs[0] (imu0): open /dev/ttyUSB0: …`) in the log, the live view and the `--no-status`
+  output, like MQTT connecting or losing the broker and every other warning. `ins-hil run` exits
+  with status 3, naming the input, when an input delivered nothing within `gateway.input_timeout`
+  (10 s; 0 = wait for ever).
 - **Pipeline** (`ins_hil/runtime/pipeline.py`, shared with replay): calibration
   (`core.calibration`, `ins_hil.nav.calibration`) → redundant-IMU epoch grouping (`fdi.imu_ids`:
   by sensor time; an epoch runs when every unit has delivered its sample, or incomplete, counted

@@ -281,8 +281,11 @@ class Gateway:
                 max_bytes=int(cfg.recorder.max_mb * 1024 * 1024),
                 flush_period=cfg.recorder.flush_period,
             )
-        for p in self.publishers:
-            await p.start()
+        for i, p in enumerate(self.publishers):
+            try:
+                await p.start()
+            except OSError as e:  # e.g. a host that does not resolve: the config path and the URL
+                raise RuntimeError(f"outputs[{i}] ({p.name}): cannot open {p.cfg.url}: {e}") from e
         sim_gnss_port = 0
         serial_inputs = []
         for ic in cfg.inputs:
@@ -302,7 +305,7 @@ class Gateway:
                         break
                     await asyncio.sleep(0.01)
                 if drv.local_address is None:
-                    raise RuntimeError(f"input {ic.name}: cannot open {ic.url}: {drv.health.last_error}")
+                    raise RuntimeError(f"{self.input_paths[ic.name]}: cannot open {ic.url}: {drv.health.last_error}")
                 if not sim_gnss_port:
                     sim_gnss_port = int(drv.local_address[1])
             else:
