@@ -218,13 +218,13 @@ def test_clean_stop_publishes_offline_and_health_has_wall_clock_time(broker: Bro
     """The real `ins-hil run`: online "1" while running; after the broker drops and returns, publishing
     resumes; SIGINT (a clean stop) leaves online "0" retained (not only the will of a killed process) and
     the retained health carries the host's wall-clock time; connecting and losing the broker are said."""
-    from test_run_errors import write_config
+    from test_run_errors import udp_out, write_config
 
     cfg = write_config(
         tmp_path,
         mqtt={"enabled": True, "port": broker.port, "topic_prefix": PREFIX},
         recorder={"enabled": False},
-        outputs=[{"name": "gcs", "type": "mavlink", "url": f"udp:127.0.0.1:{free_port()}", "role": "gcs"}],
+        outputs=[{"name": "gcs", "type": "mavlink", "url": udp_out(free_port()), "role": "gcs"}],
     )
     sub = Subscriber(broker.port)
     p = subprocess.Popen(

@@ -101,25 +101,30 @@ def render(gw: Any) -> Any:
         ratios = "  ".join(f"{k} {v:.2f}" for k, v in snap["test_ratios"].items()) or "—"
         nav.add_row("test ratios", ratios, f"late {snap['late']}", f"queue max {snap['queue_depth_max']}")
     parts.append(nav)
-    problems = [f"{path}: {text}" for path, text in getattr(gw, "problems", {}).items()]
-    for line in problems:  # unresolved input/output errors, each with its own text
-        parts.append(Text(line, style="red"))
-    if snap["warnings"] and snap["warnings"][-1] not in problems:
-        parts.append(Text(snap["warnings"][-1], style="yellow"))
+    if snap["warnings"]:
+        parts.append(Text(snap["warnings"][-1], style="yellow"))  # (Text: brackets in a warning are no markup)
+    last = snap["warnings"][-1] if snap["warnings"] else ""
+    for path, text in getattr(gw, "problems", {}).items():  # unresolved input/output errors, each with its text
+        if f"{path}: {text}" != last:
+            parts.append(Text(f"{path}: {text}", style="red"))
     return Group(*parts)
 
 
-def _summary_line(gw: Any, final: bool = False) -> str:
-    """One status line (every 5 s with ``--no-status``); ``final``: the summary printed once at the end."""
+def _summary_line(gw: Any) -> str:
     s = gw.metrics.snapshot()
     lat = s["latency"]["arrival_to_sent"]
     rates = " ".join(f"{n} {v['rate_hz']:.0f}Hz" for n, v in s["sources"].items())
-    head = f"summary (stopped: {gw.stopped_reason or 'stop'}) after " if final else ""
     return (
-        f"[ins-hil] {head}{s['uptime_s']:.0f} s  {rates}  epochs {s['imu_epochs']}  late {s['late']}  "
+        f"[ins-hil] {s['uptime_s']:.0f} s  {rates}  epochs {s['imu_epochs']}  late {s['late']}  "
         f"dropped {gw.metrics.dropped_total()}  arrival→sent p50 {_fmt(lat['p50_us'])} µs "
         f"p99 {_fmt(lat['p99_us'])} µs  aligned {s['aligned']}  faults {s['faults']}"
     )
+
+
+def _final_line(gw: Any) -> str:
+    """The summary printed once at the end: the status line with why the run stopped."""
+    why = gw.stopped_reason or "stop"
+    return _summary_line(gw).replace("[ins-hil] ", f"[ins-hil] summary (stopped: {why}) after ", 1)
 
 
 async def _status_live(gw: Any) -> None:
@@ -210,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         log.removeHandler(handler)
         log.propagate = True
-    print(_summary_line(gw, final=True), file=sys.stderr)
+    print(_final_line(gw), file=sys.stderr)
     if gw.recorder is not None:
         print(f"[ins-hil] recorded {gw.recorder.records} inputs to {gw.recorder.paths[0]}", file=sys.stderr)
     if args.json:
