@@ -192,3 +192,38 @@ def test_the_live_view_shows_the_drivers_error_text() -> None:
     assert f"inputs[0] (imu0): open {MISSING_IMU}" in seen["text"], seen["text"]
     assert "No such file or directory" in seen["text"]
     assert any(f"inputs[0] (imu0): open {MISSING_IMU}" in w for w in gw.metrics.warnings)
+
+
+def test_a_device_that_appears_later_clears_the_problem(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The IMU's device path does not exist at start (reported once), then appears (a symlink to the
+    simulator's pty): the driver re-opens, samples flow, the problem is cleared and logged as up."""
+    link = tmp_path / "ttyIMU"
+    cfg = sim_config(inputs=[_imu(str(link)), _GNSS], recorder={"enabled": False})
+    gw = Gateway(cfg)
+    got: dict[str, Any] = {}
+
+    async def scenario() -> None:
+        task = asyncio.create_task(gw.run(duration=None, signals=False))
+        for _ in range(200):
+            await asyncio.sleep(0.05)
+            if getattr(gw, "problems", None):
+                break
+        got["before"] = dict(gw.problems)
+        assert gw.sim is not None
+        link.symlink_to(gw.sim.imu_path)
+        for _ in range(200):
+            await asyncio.sleep(0.05)
+            if not gw.problems and gw.metrics.source("imu0").received > 100:
+                break
+        got["after"] = dict(gw.problems)
+        gw.request_stop()
+        await asyncio.wait_for(task, 30.0)
+
+    with caplog.at_level("INFO", logger="ins_hil"):
+        asyncio.run(scenario())
+    assert list(got["before"]) == ["inputs[0] (imu0)"] and str(link) in got["before"]["inputs[0] (imu0)"]
+    assert got["after"] == {}
+    assert gw.metrics.source("imu0").received > 100
+    msgs = [r.getMessage() for r in caplog.records if r.name == "ins_hil"]
+    assert sum(m.startswith(f"inputs[0] (imu0): open {link}") for m in msgs) == 1, msgs
+    assert "inputs[0] (imu0): up" in msgs

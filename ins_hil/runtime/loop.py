@@ -236,12 +236,13 @@ class Gateway:
             self._watch(f"outputs[{i}] ({e.name})", text, not tr.connected, tr.connected, 0)
 
     def _watch(self, path: str, text: str, down: bool, ok: bool, mark: int) -> None:
-        if path in self.problems:
-            if ok:
-                del self.problems[path]
-                self._reported[path] = ""
-                self.log.info("%s: up", path)
-        elif text and down and text != self._reported.get(path):
+        """One source: its last error ``text``, ``down`` (not open now), ``ok`` (working since the report);
+        ``mark``: what ``ok`` is measured from (an input's received count)."""
+        if path in self.problems and ok:
+            del self.problems[path]
+            self._reported[path] = ""
+            self.log.info("%s: up", path)
+        elif text and down and text != self._reported.get(path):  # a new error, or the same one again after up
             self._reported[path] = self.problems[path] = text
             self._marks[path] = mark
             self.metrics.warn(f"{path}: {text}")
