@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 
 def test_help_lists_commands() -> None:
     out = subprocess.run([sys.executable, "-m", "ins_hil", "--help"], capture_output=True, text=True, check=True)
@@ -30,6 +32,7 @@ def test_bad_argument_is_a_clear_error() -> None:
     assert out.returncode != 0 and "positive" in out.stderr
 
 
+@pytest.mark.slow  # two 1 s bench runs, ~20 s with the start-up
 def test_runtime_bench_writes_nothing_unless_asked(tmp_path: Path) -> None:
     """`python -m ins_hil.runtime.bench` prints the figures; only --out (or --docs) writes a report."""
     docs = Path(__file__).resolve().parent.parent / "docs"
