@@ -38,6 +38,7 @@ class GatewaySettings:
     queue_size: int = 4096
     status_period: float = 0.5
     rt_priority: int = 0  # SCHED_FIFO priority of the gateway process (1-99; 0 = time-sharing)
+    input_timeout: float = 10.0  # s: `ins-hil run` fails when an input delivered nothing by then (0 = wait for ever)
 
 
 @dataclass
@@ -149,6 +150,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     _positive("gateway.late_threshold_ms", g.late_threshold_ms)
     _positive("gateway.queue_size", g.queue_size)
     _positive("gateway.status_period", g.status_period)
+    _positive("gateway.input_timeout", g.input_timeout, allow_zero=True)
     if isinstance(g.rt_priority, bool) or not isinstance(g.rt_priority, int) or not 0 <= g.rt_priority <= 99:
         raise ConfigError(f"gateway.rt_priority = {g.rt_priority!r}: must be an integer 0 (off) to 99 (SCHED_FIFO)")
 

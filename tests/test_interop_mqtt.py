@@ -9,11 +9,14 @@ during the outage delivered after the reconnect.
 from __future__ import annotations
 
 import asyncio
+import datetime
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -198,3 +201,73 @@ def test_username_password(tmp_path: Path) -> None:
     assert got["right"][0] == 1 and got["right"][1].get("states", 0) > 5
     assert got["wrong"][0] == 0 and got["wrong"][1].get("state_dropped_offline", 0) > 5
     assert got["wrong"][2]  # the reason is kept for the status view
+
+
+def _retained(port: int, wait: float = 2.0) -> dict[str, tuple[bytes, bool]]:
+    """What a newly connecting subscriber gets under PREFIX/#: the broker's retained messages."""
+    sub = Subscriber(port)
+    try:
+        time.sleep(wait)
+        with sub.lock:
+            return {top: (p, r) for _, top, p, r in sub.msgs}
+    finally:
+        sub.close()
+
+
+def test_clean_stop_publishes_offline_and_health_has_wall_clock_time(broker: Broker, tmp_path: Path) -> None:
+    """The real `ins-hil run`: online "1" while running; after the broker drops and returns, publishing
+    resumes; SIGINT (a clean stop) leaves online "0" retained (not only the will of a killed process) and
+    the retained health carries the host's wall-clock time; connecting and losing the broker are said."""
+    from test_run_errors import udp_out, write_config
+
+    cfg = write_config(
+        tmp_path,
+        mqtt={"enabled": True, "port": broker.port, "topic_prefix": PREFIX},
+        recorder={"enabled": False},
+        outputs=[{"name": "gcs", "type": "mavlink", "url": udp_out(free_port()), "role": "gcs"}],
+    )
+    sub = Subscriber(broker.port)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "ins_hil", "run", "--config", str(cfg), "--no-status"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+    def online(after: float) -> list[bytes]:
+        with sub.lock:
+            return [pl for ts, top, pl, _ in sub.msgs if top == f"{PREFIX}/online" and ts > after]
+
+    def wait_for(cond: object, timeout: float = 20.0) -> None:
+        t0 = time.monotonic()
+        while not cond():  # type: ignore[operator]
+            assert time.monotonic() - t0 < timeout and p.poll() is None, "gateway did not get there"
+            time.sleep(0.05)
+
+    try:
+        wait_for(lambda: online(0.0) == [b"1"] and sub.topic("health"))
+        broker.stop()
+        time.sleep(1.0)
+        t_back = time.monotonic()
+        broker.start()
+        wait_for(lambda: online(t_back) == [b"1"] and any(ts > t_back for ts, _ in sub.topic("health")))
+        t_stop = time.time()
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=30)
+    finally:
+        sub.close()
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err
+    got = _retained(broker.port)
+    assert got[f"{PREFIX}/online"] == (b"0", True)
+    health, retained = got[f"{PREFIX}/health"]
+    h = json.loads(health)
+    assert retained and h["sources"]["imu0"]["received"] > 0
+    t_utc = datetime.datetime.fromisoformat(h["time_utc"].replace("Z", "+00:00"))
+    assert h["time_utc"].endswith("Z") and t_utc.utcoffset() == datetime.timedelta(0)
+    assert abs(t_utc.timestamp() - h["time_unix"]) < 1e-3
+    assert t_stop - 5.0 < h["time_unix"] < time.time()  # the health published at the stop
+    lines = err.splitlines()
+    assert sum(f"mqtt: connected to 127.0.0.1:{broker.port}" in ln for ln in lines) == 2, err
+    assert sum(f"mqtt: lost the broker 127.0.0.1:{broker.port}" in ln for ln in lines) == 1, err

@@ -5,9 +5,12 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import logging
 import math
 import sys
 from typing import Any
+
+EXIT_NO_INPUT = 3  # an input delivered nothing within gateway.input_timeout
 
 NAME = "run"
 HELP = "run the gateway (default: configs/default.toml, simulated sensors, MAVLink to udp:127.0.0.1:14550)"
@@ -15,7 +18,11 @@ DESCRIPTION = (
     "Run the real-time gateway. With no arguments it runs configs/default.toml: simulated IMU (1 kHz serial "
     "frames over a pty), GNSS and baro (MAVLink over UDP), publishing MAVLink to udp:127.0.0.1:14550 "
     "(QGroundControl) and MQTT to 127.0.0.1:1883 when a broker is running, with a live status view. "
-    "Ctrl-C stops cleanly (recorder flushed); a second Ctrl-C exits at once."
+    "At start it says where each input comes from, where MAVLink goes, the MQTT broker and the recording; "
+    "an input or output that fails is reported once with its error (config path, e.g. inputs[0] (imu0)). "
+    "Ctrl-C stops cleanly (recorder flushed); a second Ctrl-C exits at once. Exit status: 0 after a clean "
+    "stop, 1 on a runtime error, 2 on a bad config or argument, 3 when an input delivered nothing within "
+    "gateway.input_timeout (default 10 s; 0 = wait for ever)."
 )
 
 
@@ -23,7 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="TOML", help="configuration file (default: configs/default.toml)")
     p.add_argument("--core", choices=["python", "c"], help="navigation core (overrides core.kind)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
-    p.add_argument("--no-status", action="store_true", help="no live view: one summary line every 5 s")
+    p.add_argument(
+        "--no-status", action="store_true", help="no live view: one status line every 5 s, warnings as they occur"
+    )
     p.add_argument("--record", metavar="PATH", help="recorder file (default: recorder.dir/ins-hil-<time>.ihlog)")
     p.add_argument("--no-mqtt", action="store_true", help="do not publish MQTT")
     p.add_argument("--json", metavar="PATH", help="write the final metrics snapshot as JSON")
@@ -37,6 +46,7 @@ def render(gw: Any) -> Any:
     """The rich status view of a running gateway."""
     from rich.console import Group
     from rich.table import Table
+    from rich.text import Text
 
     snap = gw.metrics.snapshot()
     st = gw.pipeline.last_state
@@ -92,7 +102,11 @@ def render(gw: Any) -> Any:
         nav.add_row("test ratios", ratios, f"late {snap['late']}", f"queue max {snap['queue_depth_max']}")
     parts.append(nav)
     if snap["warnings"]:
-        parts.append("[yellow]" + snap["warnings"][-1] + "[/yellow]")
+        parts.append(Text(snap["warnings"][-1], style="yellow"))  # (Text: brackets in a warning are no markup)
+    last = snap["warnings"][-1] if snap["warnings"] else ""
+    for path, text in getattr(gw, "problems", {}).items():  # unresolved input/output errors, each with its text
+        if f"{path}: {text}" != last:
+            parts.append(Text(f"{path}: {text}", style="red"))
     return Group(*parts)
 
 
@@ -107,6 +121,12 @@ def _summary_line(gw: Any) -> str:
     )
 
 
+def _final_line(gw: Any) -> str:
+    """The summary printed once at the end: the status line with why the run stopped."""
+    why = gw.stopped_reason or "stop"
+    return _summary_line(gw).replace("[ins-hil] ", f"[ins-hil] summary (stopped: {why}) after ", 1)
+
+
 async def _status_live(gw: Any) -> None:
     from rich.live import Live
 
@@ -117,9 +137,40 @@ async def _status_live(gw: Any) -> None:
 
 
 async def _status_lines(gw: Any) -> None:
+    """``--no-status``: a status line every 5 s (warnings are logged as they occur, see :class:`_Stderr`)."""
     while True:
         await asyncio.sleep(5.0)
+        if gw.stopped_reason:  # stopping: the summary follows
+            return
         print(_summary_line(gw), file=sys.stderr, flush=True)
+
+
+async def _watch_inputs(gw: Any, timeout: float, missing: list[str]) -> None:
+    """After ``timeout`` s (``gateway.input_timeout``; 0 = never), every configured input that delivered
+    nothing goes to ``missing`` (its config path; its error, if any, was reported when it occurred) and
+    the gateway is stopped."""
+    if timeout <= 0:
+        return
+    await asyncio.sleep(timeout)
+    for i, ic in enumerate(gw.cfg.inputs):
+        src = gw.metrics.sources.get(ic.name)
+        if src is None or src.received == 0:
+            path = f"inputs[{i}] ({ic.name})"
+            missing.append(path if path in gw.problems else f"{path} (no error, nothing received)")
+    if missing:
+        gw.request_stop(f"no data from {len(missing)} input(s) within {timeout:g} s")
+
+
+class _Stderr(logging.Handler):
+    """The gateway's log (logger ``ins_hil``) on the current ``sys.stderr``: under the live view that is
+    rich's redirection, so a line appears above the view instead of breaking it."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            level = "" if record.levelno < logging.WARNING else record.levelname.lower() + ": "
+            print(f"[ins-hil] {level}{record.getMessage()}", file=sys.stderr, flush=True)
+        except Exception:
+            self.handleError(record)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -145,13 +196,26 @@ def run(args: argparse.Namespace) -> int:
         print(f"ins-hil run: {e}", file=sys.stderr)
         return 2
     interactive = not args.no_status and sys.stdout.isatty()
-    status = _status_live if interactive else _status_lines
+    view = _status_live if interactive else _status_lines
+    missing: list[str] = []
+
+    async def status(g: Any) -> None:
+        await asyncio.gather(view(g), _watch_inputs(g, cfg.gateway.input_timeout, missing))
+
+    log = logging.getLogger("ins_hil")
+    handler = _Stderr()
+    log.addHandler(handler)
+    log.setLevel(logging.INFO)
+    log.propagate = False
     try:
         asyncio.run(gw.run(duration=args.duration, status=status))
-    except (OSError, RuntimeError) as e:
+    except (OSError, RuntimeError, ValueError) as e:  # e.g. a device or URL that cannot be opened
         print(f"ins-hil run: {e}", file=sys.stderr)
         return 1
-    print(_summary_line(gw), file=sys.stderr)
+    finally:
+        log.removeHandler(handler)
+        log.propagate = True
+    print(_final_line(gw), file=sys.stderr)
     if gw.recorder is not None:
         print(f"[ins-hil] recorded {gw.recorder.records} inputs to {gw.recorder.paths[0]}", file=sys.stderr)
     if args.json:
@@ -159,4 +223,8 @@ def run(args: argparse.Namespace) -> int:
 
         with open(args.json, "w") as f:
             json.dump(clean_json(gw.metrics.snapshot()), f, indent=1)
+    if missing:
+        t = cfg.gateway.input_timeout
+        print(f"ins-hil run: no data within gateway.input_timeout = {t:g} s from {', '.join(missing)}", file=sys.stderr)
+        return EXIT_NO_INPUT
     return 0

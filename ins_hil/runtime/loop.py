@@ -207,6 +207,7 @@ class Gateway:
             m.tick()
             for d in self.drivers:
                 m.source(d.name).driver_drops(d.health.errors)
+            self._watch_errors()
             for k, v in self.pipeline.counts.items():
                 m.fused[k] = v
             if now - last_roll >= 5.0:
@@ -218,6 +219,33 @@ class Gateway:
                     n_late = m.late - late_seen
                     m.warn(f"core behind: {n_late} late samples in the last second, queue {len(self.queue)}")
                     late_seen = m.late
+
+    def _watch_errors(self) -> None:
+        """Each input's and output's error text (a port that does not open, a lost link) reported once
+        as a warning (log, status view, MQTT health) under its config path, e.g. ``inputs[0] (imu0): open
+        /dev/ttyUSB0: ...``; ``problems`` holds those not yet resolved (the input delivered a sample since,
+        the output's link is open), and a resolved one is logged as up."""
+        m = self.metrics
+        for d in self.drivers:
+            path = self.input_paths.get(d.name, d.name)
+            n = m.source(d.name).received
+            self._watch(path, d.health.last_error, not d.health.connected, n > self._marks.get(path, n), n)
+        for i, e in enumerate(self.mav_outputs):
+            tr = e.tr
+            text = getattr(tr, "last_error", "") or ("cannot open" if tr.errors.get("connect_failed") else "")
+            self._watch(f"outputs[{i}] ({e.name})", text, not tr.connected, tr.connected, 0)
+
+    def _watch(self, path: str, text: str, down: bool, ok: bool, mark: int) -> None:
+        """One source: its last error ``text``, ``down`` (not open now), ``ok`` (working since the report);
+        ``mark``: what ``ok`` is measured from (an input's received count)."""
+        if path in self.problems and ok:
+            del self.problems[path]
+            self._reported[path] = ""
+            self.log.info("%s: up", path)
+        elif text and down and text != self._reported.get(path):  # a new error, or the same one again after up
+            self._reported[path] = self.problems[path] = text
+            self._marks[path] = mark
+            self.metrics.warn(f"{path}: {text}")
 
     # -- start / stop ------------------------------------------------------------------
     def request_stop(self, reason: str = "stop") -> None:
@@ -232,6 +260,13 @@ class Gateway:
 
     async def _start(self) -> None:
         cfg = self.cfg
+        self.input_paths = {ic.name: f"inputs[{i}] ({ic.name})" for i, ic in enumerate(cfg.inputs)}
+        self.problems: dict[str, str] = {}  # config path → error text not yet resolved (status view)
+        self._reported: dict[str, str] = {}
+        self._marks: dict[str, int] = {}  # an input's received count when its error was reported
+        import logging
+
+        self.log = logging.getLogger("ins_hil")
         if cfg.recorder.enabled:
             path = self.record_path
             if path is None:
@@ -247,8 +282,11 @@ class Gateway:
                 max_bytes=int(cfg.recorder.max_mb * 1024 * 1024),
                 flush_period=cfg.recorder.flush_period,
             )
-        for p in self.publishers:
-            await p.start()
+        for i, p in enumerate(self.publishers):
+            try:
+                await p.start()
+            except OSError as e:  # e.g. a host that does not resolve: the config path and the URL
+                raise RuntimeError(f"outputs[{i}] ({p.name}): cannot open {p.cfg.url}: {e}") from e
         sim_gnss_port = 0
         serial_inputs = []
         for ic in cfg.inputs:
@@ -268,7 +306,7 @@ class Gateway:
                         break
                     await asyncio.sleep(0.01)
                 if drv.local_address is None:
-                    raise RuntimeError(f"input {ic.name}: cannot open {ic.url}: {drv.health.last_error}")
+                    raise RuntimeError(f"{self.input_paths[ic.name]}: cannot open {ic.url}: {drv.health.last_error}")
                 if not sim_gnss_port:
                     sim_gnss_port = int(drv.local_address[1])
             else:
@@ -295,6 +333,7 @@ class Gateway:
             if why:
                 self.metrics.warn(f"gateway.rt_priority: {why}")
         self.metrics.scheduling = policy()
+        self._announce()
         # everything allocated so far (modules, pymavlink tables, the core) lives for the whole run:
         # move it out of the collector's generations so a full collection does not scan it on the IMU path
         gc.collect()
@@ -302,6 +341,32 @@ class Gateway:
         t = asyncio.create_task(self._housekeeping(), name="housekeeping")
         t.add_done_callback(self._task_done)
         self._tasks.append(t)
+
+    def _announce(self) -> None:
+        """Log where everything goes: inputs, each MAVLink output's URL and role, MQTT, the recording."""
+        log = self.log
+        drivers = {d.name: d for d in self.drivers}
+        for ic in self.cfg.inputs:
+            url = getattr(drivers.get(ic.name), "url", ic.url)  # udpin:HOST:0 pinned to the port it listens on
+            where = {"mavlink": url, "can_imu": str(ic.options.get("channel", ""))}.get(ic.type, ic.port)
+            if where == "sim" and self.sim is not None:
+                where = f"the simulator's pty {self.sim.imu_path}"
+            log.info("%s: %s %s", self.input_paths[ic.name], ic.type, where)
+        for i, e in enumerate(self.mav_outputs):
+            c = e.cfg
+            signed = ", signed" if c.signing_key else ""
+            log.info("MAVLink outputs[%d] (%s): %s, role %s, sysid %d%s", i, c.name, c.url, c.role, c.sysid, signed)
+        if not self.mav_outputs:
+            log.info("MAVLink: no outputs")
+        mq = self.cfg.mqtt
+        if self.mqtt is not None:
+            tls = " (TLS)" if mq.tls else ""
+            link = "connected" if self.mqtt.connected else "offline, retrying" if self.mqtt.last_error else "connecting"
+            log.info("mqtt: broker %s:%d%s, topics %s/...: %s", mq.host, mq.port, tls, mq.topic_prefix, link)
+        else:
+            log.info("mqtt: off")
+        rec = self.recorder
+        log.info("recording to %s", rec.paths[0] if rec is not None and rec.paths else "nowhere (recorder off)")
 
     def _task_done(self, t: asyncio.Task[Any]) -> None:
         if t.cancelled():

@@ -13,6 +13,7 @@ Latencies are in nanoseconds of ``time.monotonic_ns()``:
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -204,6 +205,8 @@ class RuntimeMetrics:
         d[what] = d.get(what, 0) + n
 
     def warn(self, text: str) -> None:
+        """A warning for a person: kept (the last 20: status view, MQTT health) and logged (``ins_hil``)."""
+        logging.getLogger("ins_hil").warning(text)
         self.warnings.append(text)
         del self.warnings[:-20]
 

@@ -22,18 +22,27 @@ Topics under ``topic_prefix`` (default ``ins_hil``):
      "isolated": true, "cleared": false, "detail": ""}
 
 - ``<prefix>/health``: JSON, QoS 1, retained, every second: the runtime
-  metrics snapshot (rates, latencies, counters, FDI state).
-- ``<prefix>/online``: retained ``"1"``, and ``"0"`` as the last will.
+  metrics snapshot (rates, latencies, counters, FDI state) with the host's
+  wall-clock time of publication, ``"time_utc"`` (ISO 8601 UTC, e.g.
+  ``"2026-01-05T12:00:00.123Z"``) and ``"time_unix"`` (s since 1970, UTC).
+- ``<prefix>/online``: retained ``"1"`` while running; ``"0"`` on a clean stop
+  (published before disconnecting) and as the last will (process killed,
+  link lost).
 
 The publisher is its own task: a broker outage never touches the IMU path.
 It reconnects with exponential backoff (0.2 s … 5 s); states due while
-disconnected are counted as ``state_dropped_offline``.
+disconnected are counted as ``state_dropped_offline``. Connecting, losing
+the broker and each new connect error are reported once (log and
+``metrics.warn``), not on every retry.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import datetime
 import json
+import logging
 import math
 import ssl
 import time
@@ -44,6 +53,8 @@ from typing import Any
 from ins_hil.nav.rotation import euler_from_quat
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.types import FaultEvent, NavState
+
+_log = logging.getLogger("ins_hil")
 
 
 @dataclass
@@ -88,6 +99,14 @@ def state_json(st: NavState, seq: int) -> dict[str, Any]:
     }
 
 
+def wall_clock(t: float | None = None) -> dict[str, Any]:
+    """The host's wall-clock time ``t`` (s since 1970, UTC; default now) as the health fields
+    ``time_utc`` (ISO 8601, UTC, ms) and ``time_unix`` (s)."""
+    t = time.time() if t is None else t
+    iso = datetime.datetime.fromtimestamp(t, datetime.UTC).isoformat(timespec="milliseconds")
+    return {"time_utc": iso.replace("+00:00", "Z"), "time_unix": t}
+
+
 def fault_json(ev: FaultEvent) -> dict[str, Any]:
     mag = ev.magnitude
     return {
@@ -118,6 +137,8 @@ class MqttPublisher:
         self._next_ns = 0
         self._task: asyncio.Task[None] | None = None
         self.last_error = ""
+        self._closing = False  # close() asked the connected client to say online "0" and disconnect
+        self._reported = ""  # the connect error last reported (once per distinct text)
 
     def offer(self, st: NavState, arrival_ns: int, ready_ns: int) -> None:
         self._latest = st
@@ -141,12 +162,30 @@ class MqttPublisher:
         self._task = asyncio.create_task(self._run(), name="mqtt")
 
     async def close(self) -> None:
-        if self._task is not None:
+        """Stop: when connected, publish the last health and ``online`` = "0" (retained) and disconnect
+        cleanly (at most ~3 s); else just stop retrying."""
+        if self._task is None:
+            return
+        if self.connected and not self._task.done():
+            self._closing = True
+            self._wake.set()
+            with contextlib.suppress(TimeoutError, asyncio.CancelledError):
+                await asyncio.wait_for(asyncio.shield(self._task), 3.0)
+        if not self._task.done():
             self._task.cancel()
-            try:
-                await asyncio.wait_for(self._task, 5.0)
-            except (asyncio.CancelledError, TimeoutError):
-                pass
+        with contextlib.suppress(asyncio.CancelledError, TimeoutError):
+            await asyncio.wait_for(self._task, 5.0)
+
+    def _offline(self, err: str) -> None:
+        """A connect failure or a lost broker: reported once per distinct error text."""
+        self.last_error = err
+        was = self.connected
+        self.connected = False
+        if was or err != self._reported:
+            self._reported = err
+            c = self.cfg
+            what = "lost the broker" if was else "cannot connect to"
+            self.metrics.warn(f"mqtt: {what} {c.host}:{c.port}: {err} (retrying)")
 
     async def _run(self) -> None:
         import aiomqtt
@@ -178,14 +217,20 @@ class MqttPublisher:
                 ) as client:
                     self.connected = True
                     self.connects += 1
+                    self._reported = ""
                     backoff = 0.2
                     self.metrics.output(self.name, "connects")
+                    _log.info("mqtt: connected to %s:%d (topics %s/...)", c.host, c.port, p)
                     await client.publish(f"{p}/online", b"1", qos=1, retain=True, timeout=2.0)
                     await self._serve(client)
-            except aiomqtt.MqttError as e:
-                self.last_error = str(e)
-            except OSError as e:
-                self.last_error = str(e)
+                    if self._closing:  # online "0" published: leave (the context disconnects cleanly)
+                        self.connected = False
+                        return
+            except (aiomqtt.MqttError, OSError) as e:
+                if self._closing:
+                    self.connected = False
+                    return
+                self._offline(str(e) or type(e).__name__)
             self.connected = False
             await asyncio.sleep(backoff)
             backoff = min(5.0, backoff * 2)
@@ -199,6 +244,7 @@ class MqttPublisher:
             except TimeoutError:
                 pass
             self._wake.clear()
+            closing = self._closing
             while self._faults:
                 ev = self._faults[0]
                 await client.publish(f"{p}/fault", json.dumps(clean_json(fault_json(ev))), qos=1, timeout=2.0)
@@ -213,11 +259,15 @@ class MqttPublisher:
                 )
                 self.metrics.output(self.name, "states")
             now = time.monotonic()
-            if now >= next_health:
+            if now >= next_health or closing:
                 next_health = now + self.cfg.health_period
-                snap = self.metrics.snapshot()
+                snap = {**self.metrics.snapshot(), **wall_clock()}
                 await client.publish(f"{p}/health", json.dumps(clean_json(snap)), qos=1, retain=True, timeout=2.0)
                 self.metrics.output(self.name, "health")
+            if closing:
+                await client.publish(f"{p}/online", b"0", qos=1, retain=True, timeout=2.0)
+                self.metrics.output(self.name, "offline_sent")
+                return
 
 
 def clean_json(x: Any) -> Any:

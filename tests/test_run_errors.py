@@ -1,0 +1,229 @@
+"""What a person running `ins-hil run` sees: the errors of inputs and outputs that do not open (once, with
+the config path), start-up lines saying where everything goes, warnings in `--no-status` mode, one final
+summary, and a non-zero exit when an input never delivers within `gateway.input_timeout`.
+
+The real command runs in a subprocess on small configs derived from configs/default.toml (the simulator
+where a working input is needed); missing devices are paths that do not exist.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from runtime_helpers import free_port, sim_config, sim_config_dict
+
+from ins_hil.config import ConfigError, from_dict
+from ins_hil.runtime.loop import Gateway
+
+MISSING_IMU = "/nonexistent/ttyUSB9"
+MISSING_OUT = "/nonexistent/ttyAMA9"
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"no TOML for {v!r}")
+
+
+def _is_tables(v: Any) -> bool:
+    return isinstance(v, list) and bool(v) and all(isinstance(x, dict) for x in v)
+
+
+def to_toml(d: dict[str, Any], prefix: str = "") -> str:
+    """A config dict as TOML (scalars, arrays, tables and arrays of tables: what the gateway config uses)."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in d.items() if not isinstance(v, dict) and not _is_tables(v)]
+    for k, v in d.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            lines += ["", f"[{name}]", to_toml(v, name + ".")]
+        elif _is_tables(v):
+            for item in v:
+                lines += ["", f"[[{name}]]", to_toml(item, name + ".")]
+    return "\n".join(lines)
+
+
+def write_config(tmp: Path, **over: Any) -> Path:
+    """configs/default.toml with tables overridden (runtime_helpers.sim_config_dict) as a file in ``tmp``."""
+    p = tmp / "gw.toml"
+    p.write_text(to_toml(sim_config_dict(**over)) + "\n")
+    return p
+
+
+def ins_hil_run(config: Path, *args: str, timeout: float = 60.0) -> tuple[subprocess.CompletedProcess[str], float]:
+    """The real `ins-hil run --no-status` on ``config``; returns the result and the wall time (s)."""
+    t0 = time.monotonic()
+    r = subprocess.run(
+        [sys.executable, "-m", "ins_hil", "run", "--config", str(config), "--no-status", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    return r, time.monotonic() - t0
+
+
+def udp_out(port: int) -> str:
+    """The URL of a MAVLink output sending to 127.0.0.1:port (``udpout:`` in MAVProxy's grammar, else ``udp:``)."""
+    url = f"udpout:127.0.0.1:{port}"
+    try:
+        from_dict(sim_config_dict(outputs=[{"name": "gcs", "type": "mavlink", "url": url}]))
+    except ConfigError:
+        url = f"udp:127.0.0.1:{port}"
+    return url
+
+
+def _gcs(port: int) -> dict[str, Any]:
+    return {"name": "gcs", "type": "mavlink", "url": udp_out(port), "role": "gcs", "sysid": 42}
+
+
+def _imu(port: str) -> dict[str, Any]:
+    return {"name": "imu0", "type": "serial_imu", "port": port, "baud": 921600}
+
+
+_GNSS = {"name": "gnss", "type": "mavlink", "url": "udpin:127.0.0.1:0"}
+
+
+def test_missing_imu_and_output_are_reported_once_and_the_run_fails(tmp_path: Path) -> None:
+    gcs_port = free_port()
+    cfg = write_config(
+        tmp_path,
+        gateway={"input_timeout": 3.0},
+        inputs=[_imu(MISSING_IMU), _GNSS],  # the simulator still sends GNSS/baro: one input works
+        outputs=[
+            _gcs(gcs_port),
+            {"name": "fc", "type": "mavlink", "url": f"serial:{MISSING_OUT}:921600", "role": "fc", "sysid": 1},
+        ],
+    )
+    rec = tmp_path / "run.ihlog"
+    r, wall = ins_hil_run(cfg, "--duration", "40", "--record", str(rec))
+    err = r.stderr
+    assert r.returncode == 3, err
+    assert wall < 30, wall  # stopped at the input timeout, not at --duration
+    lines = err.splitlines()
+    # the driver's own error text, with the input's config path, exactly once (not on every re-open)
+    imu_err = [ln for ln in lines if f"inputs[0] (imu0): open {MISSING_IMU}" in ln]
+    assert len(imu_err) == 1, err
+    assert "No such file or directory" in imu_err[0]
+    out_err = [ln for ln in lines if "outputs[1] (fc): " in ln and MISSING_OUT in ln and "No such file" in ln]
+    assert len(out_err) == 1, err
+    # the failure names the input that never came up, and not the one that worked
+    last = lines[-1]
+    assert last.startswith("ins-hil run: no data within gateway.input_timeout = 3 s from inputs[0] (imu0)"), last
+    assert "gnss" not in last
+    # one summary at the end
+    assert sum("summary" in ln for ln in lines) == 1, err
+    # start-up lines: where MAVLink goes (URL and role) and where the recording is written, before any summary
+    start = err.index(f"MAVLink outputs[0] (gcs): {udp_out(gcs_port)}, role gcs")
+    assert err.index(f"MAVLink outputs[1] (fc): serial:{MISSING_OUT}:921600, role fc") > 0
+    assert err.index(f"recording to {rec}") < err.index("summary")
+    assert start < err.index("summary")
+
+
+def test_no_status_prints_the_warnings_and_a_working_run_exits_0(tmp_path: Path) -> None:
+    broker = free_port(socket.SOCK_STREAM)  # nothing listens here: MQTT stays offline
+    cfg = write_config(
+        tmp_path,
+        gateway={"input_timeout": 3.0, "late_threshold_ms": 0.001},  # every IMU sample is "late"
+        mqtt={"enabled": True, "port": broker},
+        outputs=[_gcs(free_port())],
+        recorder={"enabled": False},
+    )
+    r, _ = ins_hil_run(cfg, "--duration", "5")
+    err = r.stderr
+    assert r.returncode == 0, err  # every input delivered within the timeout
+    lines = err.splitlines()
+    mqtt_off = [ln for ln in lines if f"mqtt: cannot connect to 127.0.0.1:{broker}" in ln]
+    assert len(mqtt_off) == 1, err  # once, not on every retry
+    assert any("warning: core behind:" in ln for ln in lines), err
+    assert "recording to nowhere (recorder off)" in err
+    assert f"mqtt: broker 127.0.0.1:{broker}" in err
+    assert sum("summary (stopped: duration)" in ln for ln in lines) == 1, err
+
+
+def test_input_timeout_is_validated_and_0_waits(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"gateway.input_timeout = -1.0: must be ≥ 0"):
+        from_dict(sim_config_dict(gateway={"input_timeout": -1.0}))
+    cfg = write_config(
+        tmp_path, gateway={"input_timeout": 0.0}, inputs=[_imu(MISSING_IMU), _GNSS], recorder={"enabled": False}
+    )
+    r, _ = ins_hil_run(cfg, "--duration", "2")
+    assert r.returncode == 0, r.stderr  # 0 = wait for ever: the run ends at --duration
+    assert sum(f"inputs[0] (imu0): open {MISSING_IMU}" in ln for ln in r.stderr.splitlines()) == 1, r.stderr
+
+
+def test_the_live_view_shows_the_drivers_error_text() -> None:
+    from rich.console import Console
+
+    from ins_hil.commands.run import render
+
+    cfg = sim_config(inputs=[_imu(MISSING_IMU), _GNSS], recorder={"enabled": False})
+    gw = Gateway(cfg)
+    seen: dict[str, str] = {}
+
+    async def scenario() -> None:
+        task = asyncio.create_task(gw.run(duration=None, signals=False))
+        for _ in range(100):
+            await asyncio.sleep(0.05)
+            if gw.drivers and any(d.health.last_error for d in gw.drivers):
+                await asyncio.sleep(0.2)  # a housekeeping tick
+                break
+        with open(os.devnull, "w") as devnull:
+            con = Console(width=240, record=True, file=devnull)
+            con.print(render(gw))
+        seen["text"] = con.export_text()
+        gw.request_stop()
+        await asyncio.wait_for(task, 30.0)
+
+    asyncio.run(scenario())
+    assert f"inputs[0] (imu0): open {MISSING_IMU}" in seen["text"], seen["text"]
+    assert "No such file or directory" in seen["text"]
+    assert any(f"inputs[0] (imu0): open {MISSING_IMU}" in w for w in gw.metrics.warnings)
+
+
+def test_a_device_that_appears_later_clears_the_problem(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The IMU's device path does not exist at start (reported once), then appears (a symlink to the
+    simulator's pty): the driver re-opens, samples flow, the problem is cleared and logged as up."""
+    link = tmp_path / "ttyIMU"
+    cfg = sim_config(inputs=[_imu(str(link)), _GNSS], recorder={"enabled": False})
+    gw = Gateway(cfg)
+    got: dict[str, Any] = {}
+
+    async def scenario() -> None:
+        task = asyncio.create_task(gw.run(duration=None, signals=False))
+        for _ in range(200):
+            await asyncio.sleep(0.05)
+            if getattr(gw, "problems", None):
+                break
+        got["before"] = dict(gw.problems)
+        assert gw.sim is not None
+        link.symlink_to(gw.sim.imu_path)
+        for _ in range(200):
+            await asyncio.sleep(0.05)
+            if not gw.problems and gw.metrics.source("imu0").received > 100:
+                break
+        got["after"] = dict(gw.problems)
+        gw.request_stop()
+        await asyncio.wait_for(task, 30.0)
+
+    with caplog.at_level("INFO", logger="ins_hil"):
+        asyncio.run(scenario())
+    assert list(got["before"]) == ["inputs[0] (imu0)"] and str(link) in got["before"]["inputs[0] (imu0)"]
+    assert got["after"] == {}
+    assert gw.metrics.source("imu0").received > 100
+    msgs = [r.getMessage() for r in caplog.records if r.name == "ins_hil"]
+    assert sum(m.startswith(f"inputs[0] (imu0): open {link}") for m in msgs) == 1, msgs
+    assert "inputs[0] (imu0): up" in msgs
