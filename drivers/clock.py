@@ -16,8 +16,8 @@ Rules, per sample (raw counter ``raw``, optional sequence number ``seq``, interv
 
 1. **Consistent** with the last accepted sample (``el`` = counter step, ``d`` = sequence step,
    ``hs`` = host time elapsed): ``el > 0``, ``d > 0`` and either
-   ``|el − d·dt| ≤ max(jump_tol_s, 10·d·dt)`` or ``|el − hs| ≤ max(jump_tol_s, 5 %·hs)``
-   (a long stall with the sensor clock running); and, when the host time is known,
+   ``|el − d·dt| ≤ max(jump_tol_s, 10·dt, 5 %·d·dt)`` or ``el > d·dt`` and ``|el − hs| ≤
+   max(jump_tol_s, 5 %·hs)`` (a long stall with the sensor clock running); and, when the host time is known,
    ``el ≤ hs + jump_tol_s`` (a sensor cannot advance further than the host saw time pass:
    this rejects a lone frame with its sequence and time far ahead). Accepted; the output
    is the unwrapped counter plus the current anchor offset.
@@ -189,16 +189,16 @@ class SourceClock:
     def _slow(self, raw: int, seq: int, dt: int, host_ns: int) -> float | None:
         if not self.started:
             return self._start(raw, seq, dt, host_ns)
+        el = (raw - self.last_raw) & self.mask
         if self.seq_mod:
             d = (seq - self.last_seq) & self.seq_mask
-            if d == 0:
+            if d == 0 and el == 0:  # the same frame again
                 self._count("duplicate")
                 return None
             if d >= self.seq_half:
                 d = -1
         else:
             d = 1
-        el = (raw - self.last_raw) & self.mask
         hs = (host_ns - self.last_host) * 1e-9 if host_ns and self.last_host else _NO_HOST
         tick = self.tick
         if hs > self.half_s:  # more than half a counter period passed: the host counts the wraps
@@ -208,17 +208,14 @@ class SourceClock:
         elif el >= self.half:
             el -= self.mod
         if d > 0 and el > 0:
-            e = d * dt
+            e_s = d * dt * tick
             el_s = el * tick
-            tol = 10 * e * tick
-            if tol < self.jump_tol:
-                tol = self.jump_tol
-            ok = abs(el_s - e * tick) <= tol
+            ok = abs(el_s - e_s) <= self._tol(e_s, dt)
             if hs >= 0.0:
                 if el_s > hs + self.jump_tol:
                     ok = False
-                elif not ok and abs(el_s - hs) <= max(self.jump_tol, 0.05 * hs):
-                    ok = True
+                elif not ok and el_s > e_s and abs(el_s - hs) <= max(self.jump_tol, 0.05 * hs):
+                    ok = True  # a stall: the sensor's clock ran on while it sent nothing
             if ok:
                 return self._advance(raw, seq, el, d, host_ns)
         return self._inconsistent(raw, seq, dt, host_ns, d, el, hs)
@@ -260,7 +257,7 @@ class SourceClock:
             if 0 < dc < (self.seq_half or 2) and 0 < elc < self.half:
                 e = dc * dt * self.tick
                 elc_s = elc * self.tick
-                ok = abs(elc_s - e) <= max(self.jump_tol, 10 * e)
+                ok = abs(elc_s - e) <= self._tol(e, dt)
                 if host_ns and chost and elc_s > (host_ns - chost) * 1e-9 + self.jump_tol:
                     ok = False
                 if ok:
@@ -268,7 +265,9 @@ class SourceClock:
                     return self._reanchor(raw, seq, dt, host_ns, hs, kind, elc + dt)
         if self.hint:
             return self._reanchor(raw, seq, dt, host_ns, hs, "reboot", dt)
-        if d < 0:
+        if d == 0:
+            self._count("duplicate")  # the same sequence number with another time: kept as a candidate
+        elif d < 0:
             self._count("seq_backwards" if self.seq_mod else self.back_key)
         elif el == 0:
             self._count(self.same_key)
@@ -280,6 +279,11 @@ class SourceClock:
         if d > 0 and (self.seq_mod or self.gaps_from_time):
             self._reject_at(d if self.seq_mod else el)
         return None
+
+    def _tol(self, e_s: float, dt: int) -> float:
+        """How far a counter step may differ from the step the sequence expects (``e_s``, s):
+        max(jump_tol_s, 10 intervals, 5 % of the step)."""
+        return max(self.jump_tol, 10 * dt * self.tick, 0.05 * e_s)
 
     def _went_back(self, raw: int, seq: int) -> bool:
         if self.seq_mod and ((seq - self.last_seq) & self.seq_mask) >= self.seq_half:

@@ -545,8 +545,8 @@ class DroneCanDecoder:
         if r is None:
             return None
         dtid, src, tid, payload = r
-        if not self._transfer_id((src, dtid), tid, now_ns):
-            return None
+        if dtid != DTID_NODE_STATUS and not self._transfer_id((src, dtid), tid, now_ns):
+            return None  # (a NodeStatus is read even when its id repeats: a restarted node starts again at 0)
         try:
             vals = decode_payload(dtid, payload)
         except Exception:
@@ -671,7 +671,7 @@ class DroneCanDecoder:
             m = self._hostmap.get(src)
             if m is not None:
                 m.reset()
-            for key in [k for k in self._last_tid if k[0] == src and k[1] != DTID_NODE_STATUS]:
+            for key in [k for k in self._last_tid if k[0] == src]:
                 del self._last_tid[key]
         return None
 
