@@ -98,7 +98,7 @@ class SourceClock:
         "stall_s",
         "started",
         "tick",
-    )  # fmt: skip
+    )
 
     def __init__(
         self,
@@ -172,7 +172,7 @@ class SourceClock:
                 self._count("clock_wrap")
             if self.rej:
                 self.rej.clear()
-            if self.cand is not None:
+            if self.cand is not None or self.hint:
                 self.cand = None
                 self.hint = False
             self.last_raw = raw

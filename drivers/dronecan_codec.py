@@ -580,7 +580,7 @@ class DroneCanDecoder:
         nom = self._nominal.get(src)
         if nom is None:
             self._nominal[src] = dt
-        else:
+        elif dt != nom:
             r = math.log(dt / nom)
             self._nominal[src] = nom * math.exp(max(-_LOG4, min(_LOG4, r)) * 0.25)
             if abs(r) > _LOG4:

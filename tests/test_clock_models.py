@@ -497,3 +497,17 @@ def test_serial_parser_property(stream: tuple) -> None:
         accepted += [(s.t, seg) for s in p.feed(imu.encode(seq, raw), host)]
     check_stream(accepted, samples, events, p.counts)
     assert p.counts.get("frames", 0) == len(accepted)
+
+
+def test_a_reopen_hint_does_not_outlive_the_next_good_sample() -> None:
+    """After a re-open the device kept its clock: the hint is spent on that first good frame, so a
+    later lone glitch is dropped as usual and does not move the time base."""
+    imu = SerialSensor()
+    p = sf.FrameParser()
+    feed(p, imu.frames(20))
+    p.reopen()
+    feed(p, imu.frames(5))
+    glitch = (imu.encode(imu.seq + 1, imu.t_us + 7_000_000), imu.host_ns + 500_000)
+    after = feed(p, [glitch, *imu.frames(20)])
+    assert after[0] is None and all(s is not None for s in after[1:])
+    assert p.counts["time_jump"] == 1 and not any(k.startswith("clock_reanchor") for k in p.counts)
