@@ -127,6 +127,8 @@ class DbcImuDecoder:
             for s in sigs:
                 if s not in names:
                     raise ValueError(f"DBC profile: signal {s!r} not in message {m.name} of {p.dbc}")
+        if not (isinstance(p.rate_hz, int | float) and 0 < p.rate_hz < math.inf):
+            raise ValueError(f"DBC profile: 'rate_hz' must be a finite number > 0 (Hz), got {p.rate_hz!r}")
         self.dt = 1.0 / p.rate_hz
         self._pending: tuple[int, tuple[float, float, float], int] | None = None
         self.clock = SourceClock(

@@ -225,6 +225,8 @@ def test_dbc_config_errors() -> None:
         DbcImuDecoder(DbcProfile(gyro_signals=("NoSuch", "GyroY", "GyroZ")))
     with pytest.raises(ValueError, match="protocol"):
         CanImuDriver.from_config({"interface": "virtual", "protocol": "j1939"})
+    with pytest.raises(ValueError, match="rate_hz"):  # dt = 0 would stop the core
+        DbcImuDecoder(DbcProfile(rate_hz=math.inf))
 
 
 # ---------------------------------------------------------------- driver: virtual (unit) and slcan over a pty
