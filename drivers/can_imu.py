@@ -12,7 +12,10 @@ Reading never blocks the event loop: buses with a file descriptor
 (socketcan) are read with ``loop.add_reader``; others (slcan, gs_usb) by one
 reader thread that hands frames to the loop in batches. Error frames,
 bus-off, the interface vanishing or ``stale_s`` of silence close the bus;
-it is re-opened with exponential backoff.
+it is re-opened with exponential backoff. Sensor times go through one clock
+model per source (:mod:`ins_hil.drivers.clock`), kept across re-opens, so
+samples stay strictly increasing in time through node reboots, bus re-opens,
+counter wraps, jumps and stalls (the ``clock_*`` counters in ``health``).
 """
 
 from __future__ import annotations
@@ -115,7 +118,7 @@ class CanImuDriver:
             h.count("not_classic_data_frame")
             return
         if self.dbc is not None:
-            s: Any = self.dbc.feed(msg.arbitration_id, msg.data, now_ns)
+            s: Any = self.dbc.feed(msg.arbitration_id, msg.data, now_ns, msg.is_extended_id)
             counts = self.dbc.counts
         else:
             s = self.dronecan.feed(msg.arbitration_id, msg.data, msg.is_extended_id, now_ns)
@@ -166,6 +169,11 @@ class CanImuDriver:
                 continue
             if not first:
                 self.health.reconnects += 1
+                # partial transfers / half pairs and transfer ids start afresh; the sensors' time bases
+                # are kept (the output continues) and re-anchor at once on a node that restarted meanwhile
+                self.dronecan.reopen()
+                if self.dbc is not None:
+                    self.dbc.reopen()
             first = False
             self._bus = bus
             self.health.connected = True

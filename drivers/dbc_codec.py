@@ -11,6 +11,12 @@ Rates → increments: such IMUs output sampled (already filtered) rates, so
 integration: exact for constant rates, error O(dt²·ω̇) per sample). Time
 ``t`` = arrival time of the first sample + unwrapped counter × dt, so it is
 as regular as the IMU's own clock (the counter), not as jittery as the bus.
+The counter goes through a :class:`~ins_hil.drivers.clock.SourceClock` (8 bits,
+tick = dt): the host arrival time counts the counter's wraps (after a 10 s
+stall at 200 Hz the time advances 10 s, not the 8-bit remainder), and a reset
+or jump of the counter re-anchors so the time never goes back. Frames are
+matched on their id *and* their id format (a 29-bit frame is never the 11-bit
+message of the same number).
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from typing import Any
 
 import cantools
 import numpy as np
+from ins_hil.drivers.clock import SourceClock
 
 from ins_hil.types import ImuSample
 
@@ -86,9 +93,11 @@ class DbcProfile:
 class DbcImuDecoder:
     """CAN frames in, ImuSamples out, every drop counted in ``counts``.
 
-    Reasons: unknown_id (frame id not in the profile; not an error, counted
-    as ``ignored``), length, crc, decode, nonfinite, range, duplicate,
-    seq_gap, unpaired (a gyro frame whose accel frame never came).
+    Reasons: unknown_id (frame id or id format not in the profile; not an
+    error, counted as ``ignored``), length, crc, decode, nonfinite, range,
+    duplicate, seq_backwards, time_jump, seq_gap (samples of which no frame
+    came), unpaired (a gyro frame whose accel frame never came, or the
+    reverse), and the ``clock_*`` events of :mod:`ins_hil.drivers.clock`.
     """
 
     profile: DbcProfile = field(default_factory=DbcProfile)
@@ -110,16 +119,23 @@ class DbcImuDecoder:
             self.status = self.db.get_message_by_name(p.status_message) if p.status_message else None
         except KeyError as e:
             raise ValueError(f"DBC profile: message {e} not in {p.dbc}") from e
+        self._extended = bool(self.gyro.is_extended_frame)
+        if bool(self.accel.is_extended_frame) != self._extended:
+            raise ValueError(f"DBC profile: {p.gyro_message} and {p.accel_message} must both use 11-bit or 29-bit ids")
         for m, sigs in ((self.gyro, p.gyro_signals), (self.accel, p.accel_signals)):
             names = {s.name for s in m.signals}
             for s in sigs:
                 if s not in names:
                     raise ValueError(f"DBC profile: signal {s!r} not in message {m.name} of {p.dbc}")
+        if not (isinstance(p.rate_hz, int | float) and 0 < p.rate_hz < math.inf):
+            raise ValueError(f"DBC profile: 'rate_hz' must be a finite number > 0 (Hz), got {p.rate_hz!r}")
         self.dt = 1.0 / p.rate_hz
         self._pending: tuple[int, tuple[float, float, float], int] | None = None
-        self._last_counter: int | None = None
-        self._n = 0  # unwrapped sample count
-        self._t0: float | None = None
+        self.clock = SourceClock(
+            8, self.dt, self.counts, gaps_from_time=True, anchor_host=True, same_key="duplicate",
+            back_key="seq_backwards", jump_tol_s=max(0.1, 4 * self.dt),
+        )  # fmt: skip
+        self._n = 0  # samples seen (the time base of a profile without a counter)
         self.temperature = float("nan")
         self.flags = 0
 
@@ -140,9 +156,17 @@ class DbcImuDecoder:
             self._count("decode")
             return None
 
-    def feed(self, can_id: int, data: bytes, now_ns: int) -> ImuSample | None:
-        """One CAN frame; returns an ImuSample when a gyro/accel pair is complete."""
+    def reopen(self) -> None:
+        """The bus was re-opened: forget a half pair; the time base is kept (the output continues)."""
+        self._pending = None
+        self.clock.reopen()
+
+    def feed(self, can_id: int, data: bytes, now_ns: int, extended: bool = False) -> ImuSample | None:
+        """One CAN frame (``extended``: 29-bit id); returns an ImuSample when a gyro/accel pair is complete."""
         p = self.profile
+        if extended != self._extended:
+            self._count("ignored")
+            return None
         if can_id == self.gyro.frame_id:
             v = self._decode(self.gyro, data)
             if v is None:
@@ -151,6 +175,7 @@ class DbcImuDecoder:
             c = int(v[p.counter_signal]) if p.counter_signal else -1
             if self._pending is not None:
                 self._count("unpaired")
+                self.clock.rejected(self._pending[0])
             self._pending = (c, w, now_ns)
             return None
         if can_id == self.accel.frame_id:
@@ -162,6 +187,10 @@ class DbcImuDecoder:
             pend = self._pending
             if pend is None or pend[0] != c:
                 self._count("unpaired")
+                if pend is not None:
+                    self._count("unpaired")  # the gyro frame waiting for its accel frame, too
+                    self.clock.rejected(pend[0])
+                self.clock.rejected(c)
                 self._pending = None
                 return None
             self._pending = None
@@ -179,35 +208,29 @@ class DbcImuDecoder:
     def _sample(
         self, c: int, w: tuple[float, float, float], a: tuple[float, float, float], now_ns: int
     ) -> ImuSample | None:
+        clk = self.clock
+        if c < 0:  # no counter in the profile: one interval per sample (the host bounds a stall)
+            c = self._n & 0xFF
+            self._n += 1
         if not all(math.isfinite(x) for x in (*w, *a)):
             self._count("nonfinite")
+            clk.rejected(c)
             return None
         if (
             max(abs(w[0]), abs(w[1]), abs(w[2])) > self.max_rate
             or max(abs(a[0]), abs(a[1]), abs(a[2])) > self.max_accel
         ):
             self._count("range")
+            clk.rejected(c)
             return None
-        if c >= 0 and self._last_counter is not None:
-            d = (c - self._last_counter) & 0xFF
-            if d == 0:
-                self._count("duplicate")
-                return None
-            if d > 0x80:
-                self._count("seq_backwards")
-                return None
-            if d > 1:
-                self._count("seq_gap", d - 1)
-            self._n += d
-        elif self._last_counter is not None:
-            self._n += 1
-        self._last_counter = c
-        if self._t0 is None:
-            self._t0 = now_ns * 1e-9 - self._n * self.dt
+        t = clk.accept(c, 0, 1, now_ns)
+        if t is None:
+            return None
         dt = self.dt
         return ImuSample(
-            t=self._t0 + self._n * dt, dt=dt, dtheta=np.array(w) * dt, dvel=np.array(a) * dt, imu_id=self.imu_id,
-            seq=self._n & 0xFFFF, temperature=self.temperature, flags=self.flags, t_arrival_ns=now_ns,
+            t=t, dt=dt, dtheta=np.array(w) * dt, dvel=np.array(a) * dt, imu_id=self.imu_id,
+            seq=(clk.last_raw + clk.base) & 0xFFFF, temperature=self.temperature, flags=self.flags,
+            t_arrival_ns=now_ns,
         )  # fmt: skip
 
 

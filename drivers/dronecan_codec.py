@@ -18,12 +18,23 @@ Sample mapping (SI, body FRD as DroneCAN's ahrs types use it):
 
 - ``uavcan.equipment.ahrs.RawIMU`` (1003): ImuSample with ``dtheta`` =
   ``rate_gyro_integral`` (rad), ``dvel`` = ``accelerometer_integral`` (m/s),
-  ``dt`` = ``integration_interval`` (s), ``t`` = ``timestamp.usec`` (node
-  clock, s; arrival time if 0); ``imu_id`` = source node id.
-- ``uavcan.equipment.gnss.Fix2`` (1063): GnssFix (deg·1e8 → rad, mm → m).
+  ``dt`` = ``integration_interval`` (s: 1e-5..1 s and within 4× of the node's
+  running nominal period, else ``range``), ``t`` = ``timestamp.usec`` through the
+  node's clock model (:class:`~ins_hil.drivers.clock.SourceClock`, 56-bit µs:
+  node time, re-anchored after a reboot or jump so it never goes back; a sample
+  with ``usec = 0``, "unknown", gets host time for that sample only);
+  ``imu_id`` = source node id.
+- ``uavcan.equipment.gnss.Fix2`` (1063): GnssFix (deg·1e8 → rad, mm → m);
+  status NO_FIX / TIME_ONLY is not a fix (``no_fix``, as on the MAVLink path);
+  ``t`` = node time mapped onto host monotonic time
+  (:class:`~ins_hil.drivers.clock.HostTimeMap`, from the node's RawIMU and Fix2
+  stamps), as every aiding time the runtime receives.
 - ``uavcan.equipment.ahrs.MagneticFieldStrength2`` (1002) and
-  ``MagneticFieldStrength`` (1001): MagSample, gauss → tesla (×1e-4).
-- ``uavcan.equipment.air_data.StaticPressure`` (1028): BaroSample (Pa).
+  ``MagneticFieldStrength`` (1001): MagSample, gauss → tesla (×1e-4), host time.
+- ``uavcan.equipment.air_data.StaticPressure`` (1028): BaroSample (Pa), host time.
+- ``uavcan.protocol.NodeStatus`` (341): an uptime going back is a node restart
+  (``clock_node_restart``): its transfer ids and time map start afresh and its
+  IMU clock re-anchors on the first sample of the new time base.
 """
 
 from __future__ import annotations
@@ -38,6 +49,7 @@ from typing import Any
 
 import dronecan
 import numpy as np
+from ins_hil.drivers.clock import HostTimeMap, SourceClock
 
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample
 
@@ -404,6 +416,8 @@ class Reassembler:
 
 # ---------------------------------------------------------------- payload → samples
 _FIX_STATUS = {0: FixType.NO_FIX, 1: FixType.NO_FIX, 2: FixType.FIX_2D, 3: FixType.FIX_3D}
+_LOG4 = math.log(4.0)
+MIN_DT = 1e-5  # s: the shortest RawIMU integration interval taken as physical
 
 
 @dataclass
@@ -412,26 +426,82 @@ class DroneCanDecoder:
 
     ``nodes``: accepted source node ids (None = any); frames of other nodes
     count as ``unknown_node``. Per (node, type) the 5-bit transfer id gives
-    ``duplicate`` and ``seq_gap``; RawIMU node time must advance
-    (``time_backwards``, ``time_jump``). Values: ``nonfinite``, ``range``,
-    ``decode`` (payload too short/long for its type). Frames of types we do
-    not use count as ``ignored`` (not an error). Standard-id, remote and
-    error frames count as ``not_dronecan``.
+    ``duplicate`` (the same id again within 16 of the source's transfer periods,
+    at most ``tid_timeout_s``) and ``seq_gap`` (transfers missing; a gap of 32
+    or more is counted from the host time elapsed). RawIMU node time goes
+    through one clock model per node (``time_backwards``, ``time_jump`` and the
+    ``clock_*`` events of :mod:`ins_hil.drivers.clock`). Values: ``nonfinite``,
+    ``range``, ``decode`` (payload too short/long for its type), ``no_fix``.
+    Frames of types we do not use count as ``ignored`` (not an error).
+    Standard-id, remote and error frames count as ``not_dronecan``.
+    ``reopen()`` after a bus re-open forgets partial transfers and transfer ids.
     """
 
     nodes: frozenset[int] | None = None
     max_abs_dtheta: float = 1.0  # rad per interval
     max_abs_dvel: float = 50.0  # m/s per interval
-    max_time_jump_s: float = 0.5
+    max_time_jump_s: float = 0.1  # node-time step off (interval) and off the host time elapsed: a jump
+    tid_timeout_s: float = 2.0  # the same transfer id after this long is a new transfer (DroneCAN's default)
     counts: dict[str, int] = field(default_factory=dict)
     reasm: Reassembler = field(default_factory=Reassembler)
 
     def __post_init__(self) -> None:
         self.reasm.counts = self.counts  # one counter dict for frames and transfers
 
-    _last_tid: dict[tuple[int, int], int] = field(default_factory=dict)
-    _last_t: dict[int, float] = field(default_factory=dict)
+    _last_tid: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)  # (tid, host ns)
+    _period: dict[tuple[int, int], float] = field(default_factory=dict)  # ns between transfers, running mean
+    clocks: dict[int, SourceClock] = field(default_factory=dict)
+    _hostmap: dict[int, HostTimeMap] = field(default_factory=dict)
+    _nominal: dict[int, float] = field(default_factory=dict)  # RawIMU integration interval per node (s)
+    _uptime: dict[int, int] = field(default_factory=dict)
     _seq: dict[int, int] = field(default_factory=dict)
+
+    def reopen(self) -> None:
+        """The bus was re-opened: partial transfers and transfer ids start afresh; the nodes' time
+        bases are kept (the output continues) and re-anchor at once if a node restarted meanwhile."""
+        self.reasm._open.clear()
+        self._last_tid.clear()
+        self._period.clear()
+        for c in self.clocks.values():
+            c.reopen()
+
+    def _clock(self, src: int) -> SourceClock:
+        c = self.clocks.get(src)
+        if c is None:
+            c = self.clocks[src] = SourceClock(56, 1e-6, self.counts, jump_tol_s=self.max_time_jump_s)
+        return c
+
+    def _map(self, src: int) -> HostTimeMap:
+        m = self._hostmap.get(src)
+        if m is None:
+            m = self._hostmap[src] = HostTimeMap()
+        return m
+
+    def _transfer_id(self, key: tuple[int, int], tid: int, now_ns: int) -> bool:
+        """Transfer-id check of one complete transfer; False if it is a duplicate."""
+        last = self._last_tid.get(key)
+        if last is not None:
+            d = (tid - last[0]) & 0x1F
+            el = now_ns - last[1]
+            per = self._period.get(key, 0.0)
+            if d == 0:
+                window = self.tid_timeout_s * 1e9
+                if 0 < per and 16 * per < window:
+                    window = 16 * per
+                if el < window:
+                    self._count("duplicate")
+                    return False
+            k = 0
+            if per > 0:  # whole rounds of 32 transfer ids that went by unseen, from the host time
+                k = max(0, round((el / per - d) / 32))
+            if d == 0:
+                k = max(k, 1)
+            if d + 32 * k > 1:
+                self._count("seq_gap", d + 32 * k - 1)
+            else:  # the mean spacing of consecutive transfers (arrivals in one batch count as 0)
+                self._period[key] = el if per == 0 else per + (el - per) * 0.125
+        self._last_tid[key] = (tid, now_ns)
+        return True
 
     def _count(self, key: str, n: int = 1) -> None:
         self.counts[key] = self.counts.get(key, 0) + n
@@ -475,16 +545,8 @@ class DroneCanDecoder:
         if r is None:
             return None
         dtid, src, tid, payload = r
-        key = (src, dtid)
-        last = self._last_tid.get(key)
-        if last is not None:
-            d = (tid - last) & 0x1F
-            if d == 0:
-                self._count("duplicate")
-                return None
-            if d > 1:
-                self._count("seq_gap", d - 1)
-        self._last_tid[key] = tid
+        if dtid != DTID_NODE_STATUS and not self._transfer_id((src, dtid), tid, now_ns):
+            return None  # (a NodeStatus is read even when its id repeats: a restarted node starts again at 0)
         try:
             vals = decode_payload(dtid, payload)
         except Exception:
@@ -503,7 +565,7 @@ class DroneCanDecoder:
             return None
         mx, mv = self.max_abs_dtheta, self.max_abs_dvel
         if (
-            not 0.0 < dt <= 1.0
+            not MIN_DT <= dt <= 1.0
             or abs(a[0]) > mx
             or abs(a[1]) > mx
             or abs(a[2]) > mx
@@ -513,16 +575,26 @@ class DroneCanDecoder:
         ):
             self._count("range")
             return None
-        usec = v["timestamp.usec"]
-        t = usec * 1e-6 if usec else now_ns * 1e-9
-        lt = self._last_t.get(src)
-        if lt is not None:
-            if t <= lt:
-                self._count("time_backwards")
+        # the interval within 4x of the node's nominal period (a running log-mean that follows a real
+        # rate change in a few samples, a lone outlier moving it by at most 4^(1/4) = 1.41x)
+        nom = self._nominal.get(src)
+        if nom is None:
+            self._nominal[src] = dt
+        elif dt != nom:
+            r = math.log(dt / nom)
+            self._nominal[src] = nom * math.exp(max(-_LOG4, min(_LOG4, r)) * 0.25)
+            if abs(r) > _LOG4:
+                self._count("range")
                 return None
-            if t - lt > self.max_time_jump_s:
-                self._count("time_jump")  # counted, accepted: a node's long silence looks the same
-        self._last_t[src] = t
+        usec = v["timestamp.usec"]
+        clk = self._clock(src)
+        if usec:
+            self._map(src).update(usec * 1e-6, now_ns)
+            t = clk.accept(usec, 0, max(1, round(dt * 1e6)), now_ns)
+            if t is None:
+                return None
+        else:  # DSDL: 0 = time unknown: host time for this sample only
+            t = clk.host_sample(dt, now_ns)
         seq = self._seq.get(src, -1) + 1
         self._seq[src] = seq
         return ImuSample(
@@ -549,14 +621,19 @@ class DroneCanDecoder:
             std_d = math.sqrt(max(diag[2], 0.0)) or std_d
             std_vel = math.sqrt(max(diag[3], diag[4], diag[5], 0.0)) or std_vel
         status = v["status"]
+        if status < 2:  # NO_FIX, TIME_ONLY: not a position (the MAVLink path drops these too)
+            self._count("no_fix")
+            return None
         ft = _FIX_STATUS.get(status, FixType.NO_FIX)
         if status == 3 and v["mode"] == 1:
             ft = FixType.DGPS
         elif status == 3 and v["mode"] == 2:
             ft = FixType.RTK_FIXED if v["sub_mode"] == 1 else FixType.RTK_FLOAT
         usec = v["timestamp.usec"]
+        # node time → host monotonic (the runtime takes every aiding time as host time)
+        t = self._map(src).to_host(usec * 1e-6, now_ns) if usec else now_ns * 1e-9
         return GnssFix(
-            t=usec * 1e-6 if usec else now_ns * 1e-9, lat=math.radians(lat), lon=math.radians(lon), h=h,
+            t=t, lat=math.radians(lat), lon=math.radians(lon), h=h,
             vel_ned=np.array(vel, dtype=float), std_ne=std_ne, std_d=std_d, std_vel=std_vel, fix_type=ft,
             num_sats=v["sats_used"], source=src, t_arrival_ns=now_ns,
         )  # fmt: skip
@@ -581,6 +658,23 @@ class DroneCanDecoder:
             return None
         return BaroSample(t=now_ns * 1e-9, pressure=p, source=src, t_arrival_ns=now_ns)
 
+    def _status(self, src: int, v: dict[str, Any], now_ns: int) -> None:
+        """NodeStatus: an uptime going back is a node restart (nothing is delivered)."""
+        up = v["uptime_sec"]
+        last = self._uptime.get(src)
+        self._uptime[src] = up
+        if last is not None and up < last:
+            self._count("clock_node_restart")
+            c = self.clocks.get(src)
+            if c is not None:
+                c.hint_reset()
+            m = self._hostmap.get(src)
+            if m is not None:
+                m.reset()
+            for key in [k for k in self._last_tid if k[0] == src]:
+                del self._last_tid[key]
+        return None
+
 
 _HANDLERS: dict[int, Callable[[DroneCanDecoder, int, dict[str, Any], int], Sample | None]] = {
     DTID_RAW_IMU: DroneCanDecoder._imu,
@@ -588,6 +682,7 @@ _HANDLERS: dict[int, Callable[[DroneCanDecoder, int, dict[str, Any], int], Sampl
     DTID_MAG: DroneCanDecoder._mag,
     DTID_MAG2: DroneCanDecoder._mag,
     DTID_STATIC_PRESSURE: DroneCanDecoder._baro,
+    DTID_NODE_STATUS: DroneCanDecoder._status,
 }
 
 

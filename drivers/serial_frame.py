@@ -13,6 +13,7 @@ import struct
 from dataclasses import dataclass, field
 
 import numpy as np
+from ins_hil.drivers.clock import SourceClock
 
 from ins_hil.types import ImuSample
 
@@ -102,13 +103,14 @@ def decode(frame: bytes | memoryview, t_arrival_ns: int = 0) -> ImuSample:
 class FrameParser:
     """Streaming parser: ``feed(bytes)`` returns the good samples, in order.
 
-    Sensor time is unwrapped per imu_id (32-bit µs counter). Counters (in
-    ``counts``): frames (accepted), garbage_bytes, crc, version, nonfinite,
-    range, seq_gap (frames missing), duplicate, seq_backwards,
-    time_backwards, time_jump, time_reset.
-    Duplicates, backwards-in-time and time-jumped frames are dropped; gaps
-    are counted; a sensor clock reset (two consecutive frames agreeing on a
-    new time base) re-anchors the time.
+    Sensor time goes through one :class:`~ins_hil.drivers.clock.SourceClock` per imu_id
+    (32-bit µs counter, 16-bit sequence): unwrapped, re-anchored after a sensor reboot, a
+    forward jump or a stall, never backwards (SERIAL_FRAME.md, "Receiver clock model").
+    Counters (in ``counts``): frames (accepted), garbage_bytes, crc, version, nonfinite,
+    range, seq_gap (frames that never arrived), duplicate, seq_backwards, time_backwards,
+    time_jump, and the clock events clock_wrap, clock_reanchor_reboot, clock_reanchor_jump,
+    clock_reanchor_stall. Every CRC-valid frame is accepted or counted once.
+    ``reopen()`` after a re-plug keeps the time bases, so the output continues.
     """
 
     max_abs_dtheta: float = 1.0  # rad per interval (≈ 57 °/interval): beyond is not physical
@@ -116,15 +118,27 @@ class FrameParser:
     max_time_jump_us: int = 100_000  # sensor-time step beyond (seq step × dt) that counts as a jump
     counts: dict[str, int] = field(default_factory=dict)
     _buf: bytearray = field(default_factory=bytearray)
-    _last_seq: dict[int, int] = field(default_factory=dict)
-    _last_tus: dict[int, int] = field(default_factory=dict)
-    _wraps: dict[int, int] = field(default_factory=dict)
-    _pending: dict[int, tuple[int, int]] = field(default_factory=dict)
+    clocks: dict[int, SourceClock] = field(default_factory=dict)
 
     def _count(self, key: str, n: int = 1) -> None:
         self.counts[key] = self.counts.get(key, 0) + n
 
+    def clock(self, iid: int) -> SourceClock:
+        """The clock model of one imu_id (created on its first frame)."""
+        c = self.clocks.get(iid)
+        if c is None:
+            tol = self.max_time_jump_us * 1e-6
+            c = self.clocks[iid] = SourceClock(32, 1e-6, self.counts, seq_bits=16, jump_tol_s=tol)
+        return c
+
+    def reopen(self) -> None:
+        """The link was re-opened (re-plug): drop partial bytes, keep every imu_id's time base."""
+        self._buf.clear()
+        for c in self.clocks.values():
+            c.reopen()
+
     def feed(self, data: bytes, t_arrival_ns: int = 0) -> list[ImuSample]:
+        """Bytes in (``t_arrival_ns``: host monotonic arrival, 0 = unknown), accepted samples out."""
         buf = self._buf
         buf += data
         out: list[ImuSample] = []
@@ -133,6 +147,8 @@ class FrameParser:
         mv = memoryview(buf)
         mth, mdv = self.max_abs_dtheta, self.max_abs_dvel
         crc_hqx, unpack_body, isfinite, nan = binascii.crc_hqx, _BODY.unpack_from, math.isfinite, math.nan
+        clocks = self.clocks
+        counts = self.counts
         while True:
             j = buf.find(SYNC, i)
             if j < 0:
@@ -160,8 +176,12 @@ class FrameParser:
                 self._count("garbage_bytes", 1)
                 i = j + 1
                 continue
+            clk = clocks.get(iid)
+            if clk is None:
+                clk = self.clock(iid)
             if not (isfinite(a0) and isfinite(a1) and isfinite(a2) and isfinite(v0) and isfinite(v1) and isfinite(v2)):
                 self._count("nonfinite")
+                clk.rejected(seq)
                 continue
             if (
                 dt_us == 0
@@ -173,9 +193,11 @@ class FrameParser:
                 or abs(v2) > mdv
             ):
                 self._count("range")
+                clk.rejected(seq)
                 continue
-            t = self._accept(iid, seq, t_us, dt_us)
+            t = clk.accept(t_us, seq, dt_us, t_arrival_ns)
             if t is not None:
+                counts["frames"] = counts.get("frames", 0) + 1
                 out.append(
                     ImuSample(
                         t, dt_us * 1e-6, np.array((a0, a1, a2)), np.array((v0, v1, v2)), iid, seq,
@@ -185,53 +207,3 @@ class FrameParser:
         mv.release()
         del buf[:i]
         return out
-
-    def _accept(self, iid: int, seq: int, t_us: int, dt_us: int) -> float | None:
-        """Sequence/time checks of one CRC-valid frame; its unwrapped time (s), or None to drop it."""
-        last = self._last_seq.get(iid)
-        d = 1
-        if last is not None:
-            d = (seq - last) & 0xFFFF
-            if d == 0:
-                self._count("duplicate")
-                return None
-            if d > 0x8000:  # older than the previous one
-                self._count("seq_backwards")
-                return None
-        lt = self._last_tus.get(iid)
-        wraps = self._wraps.get(iid, 0)
-        if lt is not None:
-            el = (t_us - lt) & 0xFFFFFFFF
-            if el == 0 or el > 0x80000000:
-                self._count("time_backwards")
-                return None
-            # sensor time must advance by about (seq step × dt): a jump beyond
-            # max(0.1 s, 10 intervals) is a clock glitch. A lone glitch is dropped;
-            # if the next frame agrees with the jumped one, the clock was reset:
-            # re-anchor there (counted as time_reset).
-            if abs(el - d * dt_us) > max(self.max_time_jump_us, 10 * d * dt_us):
-                pend = self._pending.get(iid)
-                self._pending[iid] = (seq, t_us)
-                if pend is not None:
-                    pel = (t_us - pend[1]) & 0xFFFFFFFF
-                    pd = (seq - pend[0]) & 0xFFFF
-                    if 0 < pel <= max(self.max_time_jump_us, 10 * pd * dt_us) and 0 < pd < 0x8000:
-                        self._count("time_reset")
-                        del self._pending[iid]
-                        self._wraps[iid] = wraps = 0
-                        self._last_tus[iid] = t_us
-                        self._last_seq[iid] = seq
-                        self._count("frames")
-                        return t_us * 1e-6
-                self._count("time_jump")
-                return None
-            if t_us < lt:
-                wraps += 1
-        self._pending.pop(iid, None)
-        if d > 1:
-            self._count("seq_gap", d - 1)
-        self._last_seq[iid] = seq
-        self._last_tus[iid] = t_us
-        self._wraps[iid] = wraps
-        self._count("frames")
-        return (t_us + wraps * 0x100000000) * 1e-6

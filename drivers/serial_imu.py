@@ -42,8 +42,9 @@ class SerialImuDriver:
     ``baudrate``: up to 921600; ``stale_s``: re-open the port after this many
     seconds without a byte (0 = never). Error counters (``health.errors``):
     the parser's (crc, sync/garbage_bytes, version, nonfinite, range,
-    seq_gap, duplicate, seq_backwards, time_backwards, time_jump,
-    time_reset) plus open_failed, port_lost, silence, sink_error.
+    seq_gap, duplicate, seq_backwards, time_backwards, time_jump) and
+    clock events (clock_wrap, clock_reanchor_reboot/jump/stall: see
+    SERIAL_FRAME.md) plus open_failed, port_lost, silence, sink_error.
     """
 
     def __init__(self, port: str, baudrate: int = 921600, name: str = "serial_imu", stale_s: float = 2.0) -> None:
@@ -95,8 +96,9 @@ class SerialImuDriver:
         loop = asyncio.get_running_loop()
         first = True
         while True:
-            # a re-plugged device restarts its sequence and clock: fresh stream state, same counters
-            self.parser = FrameParser(counts=self.parser.counts)
+            # a re-plugged device may restart its sequence and clock: the parser keeps every imu_id's
+            # time base (its clock model re-anchors on the new clock), so the output time continues
+            self.parser.reopen()
             try:
                 transport, proto_ = await serial_asyncio_fast.create_serial_connection(
                     loop, lambda: _Proto(self, sink), self.port, baudrate=self.baudrate

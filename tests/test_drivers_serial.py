@@ -113,10 +113,11 @@ def test_nan_out_of_range_duplicates_and_time_faults() -> None:
     assert [s.seq for s in out] == [0, 1, 2, 3, 4, 5, 9]
     c = p.counts
     assert (c["duplicate"], c["nonfinite"], c["range"], c["time_backwards"], c["time_jump"]) == (1, 2, 1, 1, 1)
-    # a real clock reset: two frames agree on the new time base → re-anchored
+    # a real clock jump: two frames agree on the new time base → re-anchored, the output continues
+    # after the last accepted time (2.009 s) by the intervals the sensor counted (no host times here)
     out = p.feed(sf.encode(_sample(10, 100.0)) + sf.encode(_sample(11, 100.001)) + sf.encode(_sample(12, 100.002)))
-    assert [s.seq for s in out] == [11, 12] and p.counts["time_reset"] == 1
-    assert out[-1].t == pytest.approx(100.002)
+    assert [s.seq for s in out] == [11, 12] and p.counts["clock_reanchor_jump"] == 1
+    assert out[0].t == pytest.approx(2.011) and out[-1].t == pytest.approx(2.012)
 
 
 def test_time_unwraps_over_32bit_counter() -> None:
@@ -219,9 +220,66 @@ def test_pty_vanishes_and_comes_back(tmp_path: Path) -> None:
 
     got, drv = asyncio.run(main())
     assert len(got) == 100
+    # the new device restarted its clock and sequence: the driver kept the time base, so the output
+    # continues (the pipeline drops any sample not after the previous one)
+    t = np.array([s.t for s in got])
+    assert np.all(np.diff(t) > 0)
+    assert drv.health.errors["clock_reanchor_reboot"] == 1
     assert drv.health.reconnects >= 1
     assert drv.health.errors.get("open_failed", 0) >= 1
     assert drv.health.errors.get("port_lost", 0) + drv.health.errors.get("silence", 0) >= 1
+
+
+def test_pty_sensor_clock_restarts_mid_stream_navigation_resumes() -> None:
+    """The sensor on the other end of a real pty reboots after 30 min of uptime, the link staying
+    open: its clock restarts at 0 and its sequence at 0. The driver's clock model re-anchors (one
+    frame lost: the bound is max(3 periods, 50 ms)), and the pipeline navigates on through it (it
+    drops any sample whose time is not after the previous one)."""
+    from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
+
+    n1, n2, rate = 400, 400, 1000.0
+
+    async def writer(master: int) -> None:
+        t0 = time.monotonic()
+        for i0 in range(0, n1 + n2, 10):
+            buf = b""
+            for i in range(i0, i0 + 10):
+                if i < n1:
+                    buf += sf.encode(_sample(1000 + i, 1800.0 + i / rate))
+                else:
+                    buf += sf.encode(_sample(i - n1, (i - n1 + 1) / rate))  # rebooted: t from 1 ms, seq from 0
+            os.write(master, buf)
+            await asyncio.sleep(max(0.0, t0 + (i0 + 10) / rate - time.monotonic()))
+
+    async def main() -> tuple[list[ImuSample], SerialImuDriver]:
+        master, name = _open_pty()
+        drv = SerialImuDriver(name, 921600)
+        got: list[ImuSample] = []
+        task = asyncio.create_task(drv.run(got.append))  # type: ignore[arg-type]
+        while not drv.health.connected:
+            await asyncio.sleep(0.01)
+        await writer(master)
+        for _ in range(100):
+            if len(got) >= n1 + n2 - 1:
+                break
+            await asyncio.sleep(0.02)
+        task.cancel()
+        os.close(master)
+        return got, drv
+
+    got, drv = asyncio.run(main())
+    after = [s for s in got if s.seq < 1000]
+    assert len(got) - len(after) == n1
+    assert after[0].seq <= 1 and [s.seq for s in after] == list(range(after[0].seq, n2))
+    assert (n2 - len(after)) / rate <= max(3 / rate, 0.05)
+    assert np.all(np.diff([s.t for s in got]) > 0)
+    assert drv.health.errors["clock_reanchor_reboot"] == 1
+    pipe = Pipeline(
+        PipelineConfig(init="config", init_lat_deg=50.0, init_lon_deg=30.0, init_h=100.0, level_samples=100)
+    )
+    states = [pipe.imu(s) for s in got]
+    assert all(st is not None for st in states[len(got) - len(after) :])  # navigation goes on after the reboot
+    assert pipe.counts.get("imu_time_backwards", 0) == 0
 
 
 def test_config_errors_name_the_key() -> None:
