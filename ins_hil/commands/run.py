@@ -13,10 +13,10 @@ from typing import Any
 EXIT_NO_INPUT = 3  # an input delivered nothing within gateway.input_timeout
 
 NAME = "run"
-HELP = "run the gateway (default: configs/default.toml, simulated sensors, MAVLink to udp:127.0.0.1:14550)"
+HELP = "run the gateway (default: configs/default.toml, simulated sensors, MAVLink to udpout:127.0.0.1:14550)"
 DESCRIPTION = (
     "Run the real-time gateway. With no arguments it runs configs/default.toml: simulated IMU (1 kHz serial "
-    "frames over a pty), GNSS and baro (MAVLink over UDP), publishing MAVLink to udp:127.0.0.1:14550 "
+    "frames over a pty), GNSS and baro (MAVLink over UDP), publishing MAVLink to udpout:127.0.0.1:14550 "
     "(QGroundControl) and MQTT to 127.0.0.1:1883 when a broker is running, with a live status view. "
     "At start it says where each input comes from, where MAVLink goes, the MQTT broker and the recording; "
     "an input or output that fails is reported once with its error (config path, e.g. inputs[0] (imu0)). "

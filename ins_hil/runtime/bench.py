@@ -1,7 +1,7 @@
 """Latency report of the real-time loop at 1 kHz: ``python -m ins_hil.runtime.bench``.
 
 Runs configs/default.toml (simulated 1 kHz IMU over a pty, GNSS/baro over
-UDP, MAVLink out to udp:127.0.0.1:14550, recorder on, MQTT off) for
+UDP, MAVLink out to udpout:127.0.0.1:14550, recorder on, MQTT off) for
 ``--duration`` seconds and prints the latency figures. Only when asked it
 writes the report: ``--docs`` regenerates ``docs/runtime.md`` (the runtime
 note with the measured table) and ``docs/runtime_latency.png`` (the latency
@@ -249,7 +249,7 @@ The JSON schema is in `ins_hil/runtime/mqtt_out.py`. Username/password and TLS (
 Machine: {machine}. Commit {commit}. The simulator process shares the 2 CPUs with the gateway.
 
 Run: `python -m ins_hil.runtime.bench --docs --duration {duration:.0f}` — `configs/default.toml`
-(1 kHz IMU over a pty, GNSS/baro over UDP, MAVLink out to udp:127.0.0.1:14550, recorder on,
+(1 kHz IMU over a pty, GNSS/baro over UDP, MAVLink out to udpout:127.0.0.1:14550, recorder on,
 MQTT off), {wall:.1f} s wall, {received} IMU samples received ({rate:.0f} Hz), {epochs} IMU
 epochs processed, {late} late (> {late_ms:.0f} ms), drops: {drops}, largest FIFO depth {qmax},
 {sent} ATTITUDE messages sent.
