@@ -113,6 +113,7 @@ class SourceStats:
     name: str
     received: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
+    clock_events: dict[str, int] = field(default_factory=dict)  # driver clock re-anchors/wraps (not drops)
     rate_hz: float = 0.0
     _win_n: int = 0
     _win_t0: int = 0
@@ -122,9 +123,12 @@ class SourceStats:
 
     def driver_drops(self, errors: dict[str, int]) -> None:
         """A driver's (or frame parser's) cumulative error counters as the drops ``driver_<reason>``
-        (its count of accepted ``frames``, if any, is no drop)."""
+        (its count of accepted ``frames``, if any, is no drop; its ``clock_*`` events — a wrap or a
+        re-anchor of the sensor clock, drivers/clock.py — go to ``clock_events``)."""
         for k, v in errors.items():
-            if k != "frames":
+            if k.startswith("clock_"):
+                self.clock_events[k] = v
+            elif k != "frames":
                 self.dropped["driver_" + k] = v
 
     def tick_rate(self, now_ns: int) -> None:
@@ -233,7 +237,8 @@ class RuntimeMetrics:
             "late": self.late,
             "late_threshold_ms": self.late_threshold_ns * 1e-6,
             "sources": {
-                n: {"received": s.received, "rate_hz": s.rate_hz, "dropped": dict(s.dropped)}
+                n: {"received": s.received, "rate_hz": s.rate_hz, "dropped": dict(s.dropped),
+                    "clock_events": dict(s.clock_events)}
                 for n, s in self.sources.items()
             },
             "fused": dict(self.fused),
