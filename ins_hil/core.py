@@ -163,9 +163,7 @@ def _baro_altitude(meas: BaroSample) -> float:
     """Barometric altitude (m above the baro datum): the sample's, else from its static pressure (Pa)."""
     if math.isfinite(meas.altitude):
         return meas.altitude
-    from ins_hil.sim.sensors import altitude_from_pressure
-
-    return altitude_from_pressure(meas.pressure)
+    return earth.altitude_from_pressure(meas.pressure)
 
 
 class NavCore:

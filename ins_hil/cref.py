@@ -243,7 +243,7 @@ class CNavCore:
             if not math.isfinite(alt):
                 if not meas.pressure > 0.0:
                     return None
-                from ins_hil.sim.sensors import altitude_from_pressure
+                from ins_hil.nav.earth import altitude_from_pressure
 
                 alt = altitude_from_pressure(meas.pressure)
             self._lib_.cref_fuse_baro(self._core, meas.t, alt)

@@ -137,3 +137,13 @@ def ned_delta_small(dlat: float, dlon: float, dh: float, lat: float, h: float) -
     """Linearised NED displacement for small geodetic differences (seed 001 eqs. 6, 7)."""
     m, n = radii(lat)
     return np.array([(m + h) * dlat, (n + h) * math.cos(lat) * dlon, -dh])
+
+
+def pressure_from_altitude(h: float) -> float:
+    """ISA static pressure (Pa) at geopotential-like altitude h (m), troposphere."""
+    return 101325.0 * (1.0 - 2.25577e-5 * h) ** 5.25588
+
+
+def altitude_from_pressure(p: float) -> float:
+    """Inverse of :func:`pressure_from_altitude` (m): ISA troposphere altitude of a static pressure p (Pa)."""
+    return (1.0 - (p / 101325.0) ** (1.0 / 5.25588)) / 2.25577e-5

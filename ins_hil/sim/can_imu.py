@@ -78,7 +78,7 @@ class DroneCanImuNode:
             t=0.0, lat=math.radians(self.lat_deg), lon=math.radians(self.lon_deg), h=self.h_m,
             vel_ned=np.zeros(3), num_sats=12,
         )  # fmt: skip
-        from ins_hil.sim.sensors import pressure_from_altitude
+        from ins_hil.nav.earth import pressure_from_altitude
 
         usec = round(self.t0_us + self._n * 1e6 / self.rate_hz)
         out = self._frames(dc.DTID_FIX2, dc.fix2_payload(fix, usec))

@@ -151,7 +151,7 @@ def gnss_drift(
 
 def baro_drift(samples: list[BaroSample], t_start: float, rate: float, duration: float = math.inf) -> list[BaroSample]:
     """Baro altitude drifting at ``rate`` (m/s, up positive) from ``t_start``; pressure recomputed (ISA)."""
-    from ins_hil.sim.sensors import pressure_from_altitude
+    from ins_hil.nav.earth import pressure_from_altitude
 
     out = []
     for s in samples:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ins_hil.sim.sensors import pressure_from_altitude
+from ins_hil.nav.earth import pressure_from_altitude
 
 G = 9.80665
 

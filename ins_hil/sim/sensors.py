@@ -229,16 +229,6 @@ def gnss_fixes(truth: TruthSeries, model: GnssModel, seed: int | np.random.Gener
     return out
 
 
-def pressure_from_altitude(h: float) -> float:
-    """ISA static pressure (Pa) at geopotential-like altitude h (m), troposphere."""
-    return 101325.0 * (1.0 - 2.25577e-5 * h) ** 5.25588
-
-
-def altitude_from_pressure(p: float) -> float:
-    """Inverse of :func:`pressure_from_altitude` (m)."""
-    return (1.0 - (p / 101325.0) ** (1.0 / 5.25588)) / 2.25577e-5
-
-
 def baro_samples(
     truth: TruthSeries,
     rate: float = 25.0,
@@ -256,7 +246,7 @@ def baro_samples(
     out = []
     for j, k in enumerate(idx):
         alt = float(truth.h[k]) + bias + float(drift[j]) + rng.normal(0, std)
-        out.append(BaroSample(t=float(truth.t[k]), pressure=pressure_from_altitude(alt), altitude=alt))
+        out.append(BaroSample(t=float(truth.t[k]), pressure=earth.pressure_from_altitude(alt), altitude=alt))
     return out
 
 
