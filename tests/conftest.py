@@ -22,7 +22,7 @@ def shared_dir() -> Path:
 #: integration tier (`scripts/test` runs it; `scripts/test --quick` leaves it out)
 INTEGRATION_MODULES = frozenset({
     "test_aiding_live", "test_cli", "test_interop_mavproxy", "test_interop_mqtt", "test_interop_signing",
-    "test_run_errors", "test_runtime", "test_soak_relay", "test_soak_smoke", "test_gcs_protocols",
+    "test_run_errors", "test_runtime", "test_sim_restart", "test_soak_relay", "test_soak_smoke", "test_gcs_protocols",
 })  # fmt: skip
 
 

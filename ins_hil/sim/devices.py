@@ -23,13 +23,16 @@ starts and stops that process for the gateway and the tests.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import json
 import math
 import os
+import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import tty
@@ -308,13 +311,18 @@ def _send_gnss(mav: Any, f: Any) -> None:
 
 
 class SimDevices:
-    """Start/stop the device process; ``imu_path`` is the pty the serial driver opens."""
+    """Start/stop the device process. ``imu_path`` is the path the serial driver opens: a stable symlink
+    (in a private temporary folder) to the process's pty, so :meth:`restart` — a new process with a new
+    pty whose sensor clock and sequence start again at 0, like a power-cycled IMU — is a re-plug at the
+    same device path for the gateway."""
 
     def __init__(self, cfg: SimConfig, gnss_addr: tuple[str, int]) -> None:
         self.cfg = cfg
         self.gnss_addr = gnss_addr
         self.proc: subprocess.Popen[str] | None = None
         self.imu_path = ""
+        self.pty_path = ""
+        self._dir = ""
 
     def start(self, timeout: float = 30.0) -> str:
         args = [sys.executable, "-m", "ins_hil.sim.devices", "--gnss-udp", f"{self.gnss_addr[0]}:{self.gnss_addr[1]}"]
@@ -327,10 +335,30 @@ class SimDevices:
         if not line:
             rc = self.proc.wait(timeout=max(0.1, timeout - (time.monotonic() - t0)))
             raise RuntimeError(f"simulated devices exited (status {rc}) before announcing the IMU pty")
-        self.imu_path = json.loads(line)["imu"]
+        self.pty_path = json.loads(line)["imu"]
+        if not self._dir:
+            self._dir = tempfile.mkdtemp(prefix="ins-hil-sim-")
+        link = os.path.join(self._dir, "imu")
+        tmp = link + ".new"
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        os.symlink(self.pty_path, tmp)
+        os.replace(tmp, link)  # atomic: the driver sees the old pty or the new one, never no path
+        self.imu_path = link
         return self.imu_path
 
+    def restart(self, timeout: float = 30.0) -> str:
+        """Stop the device process and start a fresh one (sensor clocks from 0) behind the same ``imu_path``."""
+        self._stop_process()
+        return self.start(timeout)
+
     def stop(self) -> None:
+        self._stop_process()
+        if self._dir:
+            shutil.rmtree(self._dir, ignore_errors=True)
+            self._dir = ""
+
+    def _stop_process(self) -> None:
         p = self.proc
         if p is None:
             return
