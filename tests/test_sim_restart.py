@@ -5,6 +5,7 @@ restarts too. Navigation resumes within max(3 IMU periods, 50 ms) and no fault i
 from __future__ import annotations
 
 import asyncio
+import itertools
 import time
 
 from runtime_helpers import sim_config
@@ -47,7 +48,7 @@ def test_simulator_restart_navigation_resumes_within_the_bound(tmp_path):
 
     asyncio.run(scenario())
     t = [s for _, s in states]
-    assert all(b > a for a, b in zip(t, t[1:])), "sensor time of the states went backwards"
+    assert all(b > a for a, b in itertools.pairwise(t)), "sensor time of the states went backwards"
     assert marks["new_samples"] > 4000  # the restarted IMU delivered at 1 kHz
     # every sample after the restart gave a state, but for at most 50 ms (50 samples at 1 kHz)
     assert marks["new_states"] >= marks["new_samples"] - 50, marks
