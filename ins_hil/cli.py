@@ -77,7 +77,7 @@ def _one_line(e: BaseException) -> str:
 
 
 #: exceptions that mean a bad input (a config, a log, a file that cannot be read or decoded): exit status 2
-INPUT_ERRORS: tuple[type[BaseException], ...] = (OSError, UnicodeError, EOFError, struct.error)
+INPUT_ERRORS: tuple[type[BaseException], ...] = (OSError, ValueError, EOFError, struct.error)
 
 
 def report_error(prog: str, e: BaseException) -> int:
@@ -91,7 +91,8 @@ def report_error(prog: str, e: BaseException) -> int:
         where = f"{e.filename}: " if e.filename else ""
         print(f"{prog}: {where}{e.strerror}", file=sys.stderr)
         return 2
-    print(f"{prog}: {type(e).__name__}: {_one_line(e)} (run with --debug for the traceback)", file=sys.stderr)
+    name = type(e).__name__ if type(e).__name__ != "error" else f"{type(e).__module__}.error"
+    print(f"{prog}: {name}: {_one_line(e)} (run with --debug for the traceback)", file=sys.stderr)
     return 2 if isinstance(e, INPUT_ERRORS) else 1
 
 

@@ -161,7 +161,10 @@ def _can_options(ic: InputConfig, where: str) -> None:
     try:
         drv = CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **opts})
     except ValueError as e:
-        raise ConfigError(f"{where}.options: {e}") from None
+        if str(e).startswith(("CAN IMU", "DBC profile")):
+            raise ConfigError(f"{where}.options: {e}") from None
+        path = (dbc or {}).get("dbc", "")
+        raise ConfigError(f"{where}.options.dbc.dbc = {path!r}: not a DBC file ({e})") from None
     except Exception as e:  # the DBC parser's own errors (a file that is not a DBC)
         path = (dbc or {}).get("dbc", "")
         raise ConfigError(f"{where}.options.dbc.dbc = {path!r}: not a DBC file ({type(e).__name__}: {e})") from None
@@ -317,7 +320,8 @@ def load(path: str | Path) -> Config:
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise ConfigError(f"{p}: not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start})") from None
+        line = raw[: e.start].count(b"\n") + 1
+        raise ConfigError(f"{p}: not UTF-8 text (byte 0x{raw[e.start]:02x} on line {line}, offset {e.start})") from None
     try:
         d = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

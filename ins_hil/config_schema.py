@@ -217,7 +217,7 @@ class Key:
                 raise bad()
             return xs
         if t == "list[int]":
-            ok = isinstance(v, list) and (v or not self.nonempty)
+            ok = isinstance(v, list) and (bool(v) or not self.nonempty)
             ok = ok and all(isinstance(x, int) and not isinstance(x, bool) and x in self.interval for x in v)
             if not ok or (self.unique and len(set(v)) != len(v)):
                 raise bad()
