@@ -253,6 +253,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         where = f"inputs[{i}]"
         if ic.options and ic.type != "can_imu":
             raise ConfigError(f"{where}.options: only for type = 'can_imu' (this input is {ic.type!r})")
+        _choice(f"{where}.type", ic.type, INPUT_TYPES)
         if ic.type == "mavlink":
             try:
                 mavlink_in_url(ic.url)
@@ -281,10 +282,12 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         if typ != "mavlink":
             raise ConfigError(f"{where}.type = {typ!r}: must be 'mavlink' (MQTT is the [mqtt] table)")
         ec = EndpointConfig(name=f"mav{i}")
-        vals = _fill(ec, t, where, "outputs[]")
+        _fill(ec, t, where)
         _url(f"{where}.url", ec.url, ("udp", "udpin", "tcp", "serial"))
+        _choice(f"{where}.role", ec.role, ("gcs", "fc"))
+        _choice(f"{where}.mav_type", ec.mav_type, MAV_TYPES)
         _key(f"{where}.signing_key", ec.signing_key)
-        ec.rates = schema.validate("outputs[].rates", vals.get("rates", {}), f"{where}.rates")
+        ec.rates = schema.validate("outputs[].rates", t.get("rates", {}), f"{where}.rates")
         cfg.outputs.append(ec)
 
     if "mqtt" in d:

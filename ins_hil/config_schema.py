@@ -101,6 +101,7 @@ TYPES = {
     "str|int": "a string or an integer",
     "vec3": "3 numbers",
     "list[int]": "a list of integers",
+    "list[float]": "a list of numbers",
     "list[str]": "a list of strings",
     "table": "a table",
     "any": "a string, number, boolean or list",
@@ -140,15 +141,20 @@ class Key:
         t = self.type
         iv = self.interval
         what = TYPES[t]
-        if t in ("float", "int", "vec3", "list[int]"):
+        if t in ("float", "int", "vec3", "list[int]", "list[float]"):
             integer = t in ("int", "list[int]")
             rng = iv.text(integer)
             if t == "vec3":
                 what = "3 finite numbers" if not self.nonfinite else what
                 what += f" each {rng}" if rng != "any" else ""
                 what += " (not all 0)" if self.nonzero else ""
-            elif t == "list[int]":
-                what = ("a non-empty " if self.nonempty else "a ") + "list of integers"
+            elif t in ("list[int]", "list[float]"):
+                n = f"{self.length} " if self.length else ""
+                what = (
+                    ("a non-empty " if self.nonempty else "a ")
+                    + f"list of {n}"
+                    + ("integers" if integer else "finite numbers")
+                )
                 what += f" {rng}" if rng != "any" else ""
                 what += " (no duplicates)" if self.unique else ""
             else:
@@ -162,7 +168,7 @@ class Key:
                 what = "the path of an existing file" + ("" if self.nonempty else " ('' = none)")
             elif self.nonempty:
                 what = "a non-empty " + what[2:]
-        if self.unit and t in ("float", "int", "vec3"):
+        if self.unit and t in ("float", "int", "vec3", "list[int]", "list[float]"):
             what += f" {self.unit}"
         return what
 
@@ -222,6 +228,12 @@ class Key:
             if not ok or (self.unique and len(set(v)) != len(v)):
                 raise bad()
             return list(v)
+        if t == "list[float]":
+            ok = isinstance(v, list) and (bool(v) or not self.nonempty) and (not self.length or len(v) == self.length)
+            ok = ok and all(isinstance(x, int | float) and not isinstance(x, bool) and abs(x) < 1e300 for x in v)
+            if not ok or not all(math.isfinite(float(x)) and float(x) in self.interval for x in v):
+                raise bad()
+            return [float(x) for x in v]
         if t == "list[str]":
             ok = isinstance(v, list) and all(isinstance(x, str) and x for x in v)
             if not ok or (self.length and len(v) != self.length) or (self.nonempty and not v):
@@ -294,7 +306,9 @@ def _infer(default: Any, annotation: str) -> tuple[str, bool]:
                                      all(isinstance(x, float) for x in default)):  # fmt: skip
         return "vec3", False
     if isinstance(default, list | tuple):
-        return ("list[str]" if default and isinstance(default[0], str) else "list[int]"), False
+        if default and isinstance(default[0], str):
+            return "list[str]", False
+        return ("list[float]" if any(isinstance(x, float) for x in default) else "list[int]"), False
     a = str(annotation).replace(" ", "")
     optional = default is None
     if "tuple[float" in a or a.startswith("Vec") or "ndarray" in a:

@@ -203,6 +203,7 @@ def test_a_new_dataclass_field_is_a_key_with_its_metadata() -> None:
         max_dt: float = dataclasses.field(default=0.1, metadata={"unit": "s", "gt": 0, "max": 1})
         plain: float = 1.0
         count: int = 3
+        band: tuple[float, float] = dataclasses.field(default=(0.5, 2.0), metadata={"range": "(0, 10]"})
 
     keys = config_schema.dataclass_keys(Guard, "core")
     assert keys["max_rate"].unit == "rad/s" and keys["max_rate"].allowed() == "a finite number in (0, 100] rad/s"
@@ -215,6 +216,9 @@ def test_a_new_dataclass_field_is_a_key_with_its_metadata() -> None:
         keys["plain"].check(INF, "core.plain")
     with pytest.raises(ConfigError, match=r"core\.count = 3.0: expected an integer"):
         keys["count"].check(3.0, "core.count")
+    assert keys["band"].type == "list[float]" and keys["band"].check([1, 3.0], "core.band") == [1.0, 3.0]
+    with pytest.raises(ConfigError, match=r"core\.band = \[0, 1\]: expected a list of finite numbers in \(0, 10\]"):
+        keys["band"].check([0, 1], "core.band")
 
 
 def test_every_pipeline_field_is_a_core_key() -> None:
