@@ -129,6 +129,7 @@ class Key:
     unique: bool = False  # lists: no entry twice
     nonzero: bool = False  # vectors: not all zero
     doc_default: str = ""  # the default as shown in the docs (when the value is machine-specific)
+    hex_bytes: int = 0  # a string of 2 × this many hex digits, or ''
 
     @property
     def interval(self) -> Interval:
@@ -162,7 +163,9 @@ class Key:
                     what = "a finite number"
                 what += f" {rng}" if rng != "any" else ""
         elif t in ("str", "list[str]"):
-            if self.length:
+            if self.hex_bytes:
+                what = f"'' or {2 * self.hex_bytes} hex digits"
+            elif self.length:
                 what = f"a list of {self.length} strings"
             elif self.file:
                 what = "the path of an existing file" + ("" if self.nonempty else " ('' = none)")
@@ -208,6 +211,13 @@ class Key:
                 raise bad()
             if self.choices and v not in self.choices:
                 raise bad()
+            if self.hex_bytes and v:
+                try:
+                    ok = len(bytes.fromhex(v)) == self.hex_bytes and len(v) == 2 * self.hex_bytes
+                except ValueError:
+                    ok = False
+                if not ok:
+                    raise bad()
             if self.file and v and not Path(v).is_file():
                 raise ConfigError(f"{where} = {_show(v)}: file not found (or not a regular file)")
             return v
@@ -371,7 +381,7 @@ def dataclass_keys(cls: type, section: str, rename: dict[str, str] | None = None
 # the section tables: unit, range and help of each key (the dataclasses give the types and defaults)
 
 PI = "3.1416"
-HEX_KEY = M(help="MAVLink 2 signing key: 64 hex digits (32 bytes); '' = unsigned")
+HEX_KEY = M(help="MAVLink 2 signing key (32 bytes); '' = unsigned", hex_bytes=32)
 
 TABLES: dict[str, dict[str, dict[str, Any]]] = {
     "gateway": {
@@ -602,7 +612,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "sign_key": HEX_KEY,
     },
     "inputs[]": {
-        "name": M(help="the input's name (status view, counters); default input<N>", nonempty=True),
+        "name": M(help="the input's name (status view, counters)", nonempty=True, doc_default="input<N>"),
         "type": M(
             help="serial_imu: IMU frames on a serial port; mavlink: GNSS/baro from MAVLink; can_imu: CAN IMU",
             choices=("serial_imu", "mavlink", "can_imu"),
@@ -612,7 +622,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "url": M(
             help="mavlink: udpin:HOST:PORT (0 = any free port), udpout:HOST:PORT, tcp:HOST:PORT, serial:DEV[:BAUD]"
         ),
-        "signing_key": M(help="mavlink: 64 hex digits: accept only messages signed with this key; '' = any"),
+        "signing_key": M(help="mavlink: accept only messages signed with this key (32 bytes); '' = any", hex_bytes=32),
         "sysid": M("", "[0, 255]", "mavlink: take GNSS/baro only from this system id; 0 = any"),
         "options": M(help="can_imu: the [inputs.options] table"),
     },
@@ -632,7 +642,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
     },
     "outputs[]": {
         "type": M(help="mavlink (MQTT is the [mqtt] table)", choices=("mavlink",), type="str", default="mavlink"),
-        "name": M(help="the output's name (status view, counters); default mav<N>", nonempty=True),
+        "name": M(help="the output's name (status view, counters)", nonempty=True, doc_default="mav<N>"),
         "url": M(
             help="udp:HOST:PORT (send to), udpin:HOST:PORT (listen, answer the last sender), "
             "tcp:HOST:PORT, serial:DEVICE:BAUD"
@@ -891,7 +901,7 @@ def markdown() -> str:
             if k.unit and allowed.endswith(" " + k.unit):
                 allowed = allowed[: -len(k.unit) - 1]
             name = "*(other)*" if k.name == "*" else f"`{k.name}`"
-            lines.append(f"| {name} | {k.type} | {_md(k.unit)} | {_md(k.shown_default())} | {_md(allowed)} | "
+            lines.append(f"| {name} | {_md(k.type)} | {_md(k.unit)} | {_md(k.shown_default())} | {_md(allowed)} | "
                          f"{_md(k.help)} |")  # fmt: skip
         lines.append("")
     return "\n".join(lines)
