@@ -38,6 +38,11 @@ class ConfigError(ValueError):
         super().__init__(" ".join(str(msg).split()))
 
 
+def _scalar(x: Any) -> bool:
+    """A string, boolean, integer or finite float."""
+    return isinstance(x, str | bool | int) or (isinstance(x, float) and math.isfinite(x))
+
+
 def _show(v: Any) -> str:
     s = repr(v)
     return s if len(s) <= 60 else s[:57] + "..."
@@ -104,7 +109,7 @@ TYPES = {
     "list[float]": "a list of numbers",
     "list[str]": "a list of strings",
     "table": "a table",
-    "any": "a string, number, boolean or list",
+    "any": "a string, finite number, boolean, or a list of them or of tables of them",
 }
 
 
@@ -256,7 +261,8 @@ class Key:
         if t == "any":
             if (isinstance(v, float) and not math.isfinite(v)) or isinstance(v, dict):
                 raise bad()
-            if isinstance(v, list) and not all(isinstance(x, str | int | float | bool) for x in v):
+            if isinstance(v, list) and not all(_scalar(x) or (isinstance(x, dict) and all(map(_scalar, x.values())))
+                                               for x in v):  # fmt: skip
                 raise bad()
             return v
         raise AssertionError(f"schema: unknown type {t!r} of {where}")
@@ -722,7 +728,9 @@ CAN_OPTIONS = {
         "bitrate", "int", None, optional=True, unit="bit/s", range="[1000, 10000000]", help="bus bit rate (python-can)"
     ),
     "dbc": Key("dbc", "table", None, optional=True, help="dbc: the [inputs.options.dbc] table"),
-    "*": Key("*", "any", None, optional=True, help="any other key is passed to python-can's can.Bus"),
+    "*": Key(
+        "*", "any", None, optional=True, help="any other key is passed to python-can's can.Bus (e.g. fd, can_filters)"
+    ),
 }
 
 FDI_KEYS = {
