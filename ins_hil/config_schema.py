@@ -375,6 +375,8 @@ def dataclass_keys(cls: type, section: str, rename: dict[str, str] | None = None
             default = None
             attrs.setdefault("required", True)
         default = attrs.pop("default", default)
+        if dataclasses.is_dataclass(default):  # a nested settings object is its own section (e.g. core.nav.filter)
+            continue
         typ, optional = _infer(default, str(f.type))
         attrs.setdefault("type", typ)
         if optional:

@@ -227,7 +227,8 @@ def test_every_pipeline_field_is_a_core_key() -> None:
     core = config_schema.section("core").keys
     loader = {"imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options"}  # set from the [fdi] tables
     attrs = {k.attr for k in core.values()}
-    assert {f.name for f in dataclasses.fields(PipelineConfig)} - loader <= attrs
+    missing = {f.name for f in dataclasses.fields(PipelineConfig)} - loader - attrs
+    assert not missing, f"PipelineConfig fields that are no [core] key (a nested dataclass needs a section): {missing}"
 
 
 def test_docs_are_generated_from_the_schema() -> None:
