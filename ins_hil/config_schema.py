@@ -35,7 +35,7 @@ class ConfigError(ValueError):
     """A configuration problem; a single line naming the file, the dotted key, the value and what is allowed."""
 
     def __init__(self, msg: object = "") -> None:
-        super().__init__(" ".join(str(msg).split()))
+        super().__init__(re.sub(r"\s*[\r\n]+\s*", " ", str(msg)).strip())
 
 
 def _scalar(x: Any) -> bool:
