@@ -325,15 +325,14 @@ def mutated(draw: st.DrawFn) -> dict[str, Any]:
         if op == "delete":
             del parent[last]
         elif op == "add" and isinstance(parent, dict):
-            parent[draw(st.sampled_from(["x", "kind", "enabled", "dbc", "nodes", "rates", "filter", "type"]))] = draw(
-                VALUES
-            )
+            name = draw(st.sampled_from(["x", "kind", "enabled", "dbc", "nodes", "rates", "filter", "type"]))
+            parent[name] = copy.deepcopy(draw(VALUES))  # a copy: VALUES' lists and tables are shared
         elif op == "wrap":
             parent[last] = [parent[last]]
         elif op == "str":
             parent[last] = str(parent[last])
         else:
-            parent[last] = draw(VALUES)
+            parent[last] = copy.deepcopy(draw(VALUES))
     return d
 
 
