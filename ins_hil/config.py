@@ -280,7 +280,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         t = dict(t) if isinstance(t, dict) else _bad(where, t, "a table")
         typ = t.pop("type", "mavlink")
         if typ != "mavlink":
-            raise ConfigError(f"{where}.type = {typ!r}: must be 'mavlink' (MQTT is the [mqtt] table)")
+            raise ConfigError(f"{where}.type = {schema.show(typ)}: must be 'mavlink' (MQTT is the [mqtt] table)")
         ec = EndpointConfig(name=f"mav{i}")
         _fill(ec, t, where)
         _url(f"{where}.url", ec.url, ("udp", "udpin", "tcp", "serial"))
@@ -301,7 +301,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
 
 
 def _bad(key: str, v: Any, what: str) -> Any:
-    raise ConfigError(f"{key} = {v!r}: expected {what}")
+    raise ConfigError(f"{key} = {schema.show(v)}: expected {what}")
 
 
 def _url(key: str, v: str, schemes: tuple[str, ...]) -> None:

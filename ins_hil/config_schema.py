@@ -43,8 +43,12 @@ def _scalar(x: Any) -> bool:
     return isinstance(x, str | bool | int) or (isinstance(x, float) and math.isfinite(x))
 
 
-def _show(v: Any) -> str:
-    s = repr(v)
+def show(v: Any) -> str:
+    """The value as in the file, shortened to one short line."""
+    try:
+        s = repr(v)
+    except ValueError:  # an integer of more than 4300 digits
+        s = f"<an integer of {v.bit_length()} bits>" if isinstance(v, int) else f"<a {type(v).__name__}>"
     return s if len(s) <= 60 else s[:57] + "..."
 
 
@@ -185,7 +189,7 @@ class Key:
         t = self.type
 
         def bad() -> ConfigError:
-            return ConfigError(f"{where} = {_show(v)}: expected {self.allowed()}")
+            return ConfigError(f"{where} = {show(v)}: expected {self.allowed()}")
 
         if t == "bool":
             if not isinstance(v, bool):
@@ -224,7 +228,7 @@ class Key:
                 if not ok:
                     raise bad()
             if self.file and v and not Path(v).is_file():
-                raise ConfigError(f"{where} = {_show(v)}: file not found (or not a regular file)")
+                raise ConfigError(f"{where} = {show(v)}: file not found (or not a regular file)")
             return v
         if t == "vec3":
             ok = isinstance(v, list) and len(v) == 3
@@ -560,7 +564,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         ),
         "gyro_bias": M("rad/s", "[0, 1]", "1-σ residual bias of one gyro after calibration"),
         "accel_bias": M("m/s²", "[0, 10]", "1-σ residual bias of one accelerometer after calibration"),
-        "p_false_alarm": M("per hour", "(0, 1)", "false-alarm probability per hour and test"),
+        "p_false_alarm": M("per hour", "[1e-12, 1)", "false-alarm probability per hour and test"),
         "persistence": M("samples", "[1, 1000000]", "consecutive exceedances to trip"),
         "slow_tau": M("s", "(0, 3600]", "averaging time constant of the slow test"),
         "classify_time": M("s", "[0, 3600]", "post-exclusion time used to classify the failure mode"),
@@ -574,7 +578,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
     },
     "fdi.aiding": {
         "enabled": M(help="the GNSS/baro drift and slow-pull monitor (ins_hil.fdi.aiding)"),
-        "p_fa_hour": M("per hour", "(0, 1)", "false-alarm probability per hour (thresholds are derived from it)"),
+        "p_fa_hour": M("per hour", "[1e-12, 1)", "false-alarm probability per hour (thresholds are derived from it)"),
         "window": M("s", "(0, 3600]", "sliding window of the slope tests"),
         "min_span": M("s", "(0, 3600]", "shortest filled window a slope test runs on (≤ window)"),
         "cusum_k": M("σ", "(0, 100]", "CUSUM allowance"),
@@ -851,7 +855,7 @@ def validate(name: str, table: Any, where: str | None = None) -> dict[str, Any]:
     """
     where = where or name
     if not isinstance(table, dict):
-        raise ConfigError(f"{where}: expected a table, got {_show(table)}")
+        raise ConfigError(f"{where}: expected a table, got {show(table)}")
     sec = section(name)
     out: dict[str, Any] = {}
     for k, v in table.items():
