@@ -581,7 +581,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "p_fa_hour": M("per hour", "[1e-12, 1)", "false-alarm probability per hour (thresholds are derived from it)"),
         "window": M("s", "(0, 3600]", "sliding window of the slope tests"),
         "min_span": M("s", "(0, 3600]", "shortest filled window a slope test runs on (≤ window)"),
-        "cusum_k": M("σ", "(0, 100]", "CUSUM allowance"),
+        "cusum_k": M("σ", "[0.01, 100]", "CUSUM allowance"),
         "clear_gate": M("σ", "(0, 100]", "a flag clears below this"),
         "clear_time": M("s", "[0, 3600]", "time below clear_gate to clear"),
         "rate_floor": M("m/s", "[0, 100]", "floor of the drift-rate σ (time-correlated receiver errors)"),

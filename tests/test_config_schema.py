@@ -120,6 +120,7 @@ FINDINGS = [
     (SIM, "fdi.aiding.window", INF, "fdi.aiding.window = inf"),
     (SIM, "fdi.aiding.p_fa_hour", 1e-300, "fdi.aiding.p_fa_hour = 1e-300: expected a finite number in [1e-12, 1)"),
     (fdi_doc(), "fdi.options.p_false_alarm", 1e-300, "fdi.options.p_false_alarm = 1e-300"),
+    (SIM, "fdi.aiding.cusum_k", 1e-300, "fdi.aiding.cusum_k = 1e-300"),
     (SIM, "core.nav.mag_ref_ned", [0, 0, 0], "core.nav.mag_ref_ned = [0, 0, 0]: expected 3 finite numbers"),
     (SIM, "sim.lat_deg", 90.0, "sim.lat_deg = 90.0"),
     # the CAN IMU's options (float node ids were truncated; rate_hz = inf gave dt = 0)
