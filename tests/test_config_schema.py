@@ -439,3 +439,38 @@ def test_main_maps_a_bad_input_file_to_exit_2(tmp_path: Path, capsys: pytest.Cap
     assert main(["config", "--check", str(p)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"ins-hil config: {p}: not UTF-8 text (byte 0xff on line 2, offset 18)"]
+
+
+def _ends(k: config_schema.Key) -> list[Any]:
+    """The extreme values a numeric key accepts (just inside an open end; ±1e12 for an unbounded one)."""
+    iv, out = k.interval, []
+    for x, closed, up in ((iv.lo, iv.lo_closed, 1), (iv.hi, iv.hi_closed, -1)):
+        x = math.copysign(1e12, x) if math.isinf(x) else x
+        if not closed:
+            x += up * (1e-300 if x == 0 else abs(x) * 1e-9)
+        out.append(int(x) if k.type == "int" else [x] * 3 if k.type == "vec3" else x)
+    return out
+
+
+def test_every_numeric_key_starts_at_the_ends_of_its_range() -> None:
+    """Each number at its smallest and largest allowed value gives a config that starts (or a one-line error
+    where keys constrain each other, e.g. gnss_vel_delay ≤ max_delay)."""
+    bases = dict.fromkeys(("fdi.aiding", "sim", "gateway", "recorder", "outputs[]", "outputs[].rates"), SIM)
+    bases.update(dict.fromkeys(("core", "core.nav", "core.nav.filter"), CONFIG_INIT))
+    bases.update(
+        {"fdi.options": fdi_doc(), "inputs[].options": _doc("dronecan_imu.toml"), "inputs[].options.dbc": dbc_doc()}
+    )
+    where = {"inputs[].options.dbc": "inputs.0.options.dbc", "inputs[].options": "inputs.0.options",
+             "outputs[].rates": "outputs.0.rates", "outputs[]": "outputs.0"}  # fmt: skip
+    n = 0
+    for sec in config_schema.sections():
+        for k in sec.keys.values() if sec.name in bases else ():
+            if k.type in ("float", "int", "vec3") and not k.choices:
+                for v in _ends(k):
+                    _outcome(
+                        lambda k=k, v=v, sec=sec: from_dict(
+                            _set(bases[sec.name], f"{where.get(sec.name, sec.name)}.{k.name}", v)
+                        )
+                    )
+                    n += 1
+    assert n > 250  # 288 values over the sections above
