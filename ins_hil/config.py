@@ -1,8 +1,11 @@
 """Gateway configuration: load a TOML file, validate every key, build typed settings.
 
-Errors name the file, the key (dotted path, e.g. ``outputs[1].url``) and the
-bad value, and are raised before anything starts (nothing half-starts).
-See ``configs/default.toml`` for every key with its meaning.
+Every key is checked against the schema (:mod:`ins_hil.config_schema`: type, unit, range; NaN and
+infinities rejected), then what start-up builds is built once (the pipeline, the MAVLink endpoints,
+the MQTT publisher, the input drivers, without opening a device), so a file that loads starts.
+Errors are one line naming the file, the key (dotted path, e.g. ``outputs[1].url``), the bad value
+and what is allowed, and are raised before anything starts (nothing half-starts).
+``docs/configuration.md`` lists every key; ``configs/default.toml`` is a commented example.
 """
 
 from __future__ import annotations
@@ -13,22 +16,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ins_hil import config_schema as schema
+from ins_hil.config_schema import ConfigError
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
-from ins_hil.runtime.mavlink_out import ALL_MESSAGES, EndpointConfig
+from ins_hil.runtime.mavlink_out import EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
-from ins_hil.runtime.pipeline import CORE_KINDS, PipelineConfig, aiding_monitor, check_core, fdi_monitor
+from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor
 from ins_hil.sim.devices import SimConfig
 
 REPO_CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 INPUT_TYPES = ("serial_imu", "mavlink", "can_imu")
 MAV_TYPES = ("QUADROTOR", "FIXED_WING", "HELICOPTER", "HEXAROTOR", "OCTOROTOR", "VTOL_FIXEDROTOR", "GROUND_ROVER",
              "SURFACE_BOAT", "GENERIC", "ONBOARD_CONTROLLER")  # fmt: skip
-
-
-class ConfigError(ValueError):
-    """A configuration problem; the message names the key and the value."""
 
 
 @dataclass
@@ -82,50 +83,22 @@ class Config:
         return dataclasses.asdict(self)
 
 
-def _fill(obj: Any, table: Any, where: str, extra: tuple[str, ...] = ()) -> set[str]:
-    """Set dataclass fields from a TOML table, checking key names and value types."""
-    if not isinstance(table, dict):
-        raise ConfigError(f"{where}: expected a table, got {table!r}")
-    fields = {f.name: f for f in dataclasses.fields(obj)}
-    seen = set()
-    for k, v in table.items():
-        key = f"{where}.{k}"
-        if k in extra:
-            seen.add(k)
-            continue
-        if k not in fields:
-            raise ConfigError(f"unknown key {key!r} (known: {', '.join(sorted(set(fields) | set(extra)))})")
-        cur = getattr(obj, k)
-        if isinstance(cur, bool):
-            ok = isinstance(v, bool)
-        elif isinstance(cur, int):
-            ok = isinstance(v, int) and not isinstance(v, bool)
-        elif isinstance(cur, float):
-            ok = isinstance(v, int | float) and not isinstance(v, bool)
-            v = float(v) if ok else v
-        elif isinstance(cur, str):
-            ok = isinstance(v, str)
-        elif isinstance(cur, list):
-            ok = isinstance(v, list)
-        elif isinstance(cur, dict):
-            ok = isinstance(v, dict)
-        else:
-            ok = True
-        if not ok:
-            raise ConfigError(f"{key} = {v!r}: expected a {type(cur).__name__}")
-        setattr(obj, k, v)
-        seen.add(k)
-    return seen
+def _fill(obj: Any, table: Any, where: str, section: str | None = None) -> dict[str, Any]:
+    """Set dataclass fields from a TOML table checked against the schema (type, range, unit).
+
+    Returns every key present with its converted value (also those the loader handles itself)."""
+    vals = schema.validate(section or where, table, where)
+    keys = schema.section(section or where).keys
+    for k, v in vals.items():
+        attr = keys[k].attr if k in keys else None
+        if attr is not None:
+            setattr(obj, attr, v)
+    return vals
 
 
 def _choice(key: str, v: Any, options: tuple[str, ...]) -> None:
     if v not in options:
         raise ConfigError(f"{key} = {v!r}: must be one of {', '.join(repr(o) for o in options)}")
-
-
-def _positive(key: str, v: float, allow_zero: bool = False) -> None:
-    if not (v > 0 or (allow_zero and v == 0)):
-        raise ConfigError(f"{key} = {v!r}: must be {'≥ 0' if allow_zero else '> 0'}")
 
 
 def _key(key: str, v: str) -> None:
@@ -138,32 +111,125 @@ def _key(key: str, v: str) -> None:
             raise ConfigError(f"{key}: must be 64 hex digits (32 bytes), got {len(v)} characters")
 
 
+def _nav(nav: dict[str, Any]) -> dict[str, Any]:
+    """The ``[core.nav]`` table (and ``[core.nav.filter]``) checked key by key."""
+    out = schema.validate("core.nav", nav)
+    if "filter" in out:
+        out["filter"] = schema.validate("core.nav.filter", out["filter"])
+    return out
+
+
+def _fdi(cfg: Config, fdi: Any) -> None:
+    p = cfg.pipeline
+    vals = schema.validate("fdi", fdi)
+    p.fdi = vals.get("enabled", p.fdi)
+    p.imu_ids = vals.get("imu_ids", p.imu_ids)
+    if "options" in vals:
+        p.fdi_options = schema.validate("fdi.options", vals["options"])
+    if "aiding" in vals:
+        opts = schema.validate("fdi.aiding", vals["aiding"])
+        en = opts.pop("enabled", True)
+        try:
+            aiding_monitor(opts)
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+        p.aiding_fdi, p.aiding_options = en, opts
+    if p.fdi:
+        try:
+            mon = fdi_monitor(p.fdi_options)
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+        if len(p.imu_ids) != mon.geo.units:
+            raise ConfigError(f"fdi.imu_ids = {p.imu_ids}: the geometry {mon.geo.name!r} has {mon.geo.units} IMUs")
+
+
+def _can_options(ic: InputConfig, where: str) -> None:
+    """A can_imu input's ``[inputs.options]``: checked, then the driver is built (the DBC file loaded)."""
+    from ins_hil.drivers.can_imu import CanImuDriver
+
+    opts = schema.validate("inputs[].options", ic.options, f"{where}.options")
+    for k in ("name", "type"):
+        if k in opts:
+            raise ConfigError(f"{where}.options.{k}: set it in the [[inputs]] table, not in its options")
+    if opts.get("protocol", "dronecan") == "dronecan" and "dbc" in opts:
+        raise ConfigError(f"{where}.options.dbc: only with protocol = 'dbc'")
+    dbc = None
+    if "dbc" in opts:
+        dbc = schema.validate("inputs[].options.dbc", opts["dbc"], f"{where}.options.dbc")
+        for k in ("status_message", "counter_signal", "crc_signal"):  # "" = none
+            if dbc.get(k) == "":
+                dbc[k] = None
+        opts["dbc"] = dbc
+    ic.options = opts
+    try:
+        drv = CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **opts})
+    except ValueError as e:
+        if str(e).startswith(("CAN IMU", "DBC profile")):
+            raise ConfigError(f"{where}.options: {e}") from None
+        path = (dbc or {}).get("dbc", "")
+        raise ConfigError(f"{where}.options.dbc.dbc = {path!r}: not a DBC file ({e})") from None
+    except Exception as e:  # the DBC parser's own errors (a file that is not a DBC)
+        path = (dbc or {}).get("dbc", "")
+        raise ConfigError(f"{where}.options.dbc.dbc = {path!r}: not a DBC file ({type(e).__name__}: {e})") from None
+    dec = drv.dbc
+    if dec is not None:
+        prof = dec.profile
+        for k in ("counter_signal", "crc_signal"):
+            sig = getattr(prof, k)
+            for m in (dec.gyro, dec.accel):
+                names = sorted(s.name for s in m.signals)
+                if sig is not None and sig not in names:
+                    raise ConfigError(f"{where}.options.dbc.{k} = {sig!r}: not a signal of {m.name} "
+                                      f"(signals: {', '.join(names)}; '' = none)")  # fmt: skip
+
+
+def _startable(cfg: Config) -> None:
+    """Build what start-up builds (no device opened): a config that loads must start."""
+    from ins_hil.drivers.mavlink_in import MavlinkDriver
+    from ins_hil.drivers.serial_imu import SerialImuDriver
+    from ins_hil.runtime.mavlink_out import MavlinkEndpoint
+    from ins_hil.runtime.metrics import RuntimeMetrics
+    from ins_hil.runtime.mqtt_out import MqttPublisher
+    from ins_hil.runtime.pipeline import Pipeline
+
+    try:
+        Pipeline(cfg.pipeline)
+    except (ValueError, RuntimeError) as e:
+        msg = str(e)
+        raise ConfigError(msg if msg.startswith(("core", "fdi")) else f"core: {msg}") from None
+    metrics = RuntimeMetrics(cfg.gateway.late_threshold_ms * 1e-3)
+    for i, ec in enumerate(cfg.outputs):
+        try:
+            MavlinkEndpoint(ec, metrics)
+        except (ValueError, RuntimeError) as e:
+            raise ConfigError(f"outputs[{i}]: {e}") from None
+    if cfg.mqtt.enabled:
+        MqttPublisher(cfg.mqtt, metrics)
+    for i, ic in enumerate(cfg.inputs):
+        try:
+            if ic.type == "serial_imu":
+                SerialImuDriver(ic.port, ic.baud, name=ic.name)
+            elif ic.type == "mavlink":
+                MavlinkDriver(ic.url, name=ic.name, system_id=ic.sysid or None, signing_key=ic.signing_key or None,
+                              emit={"gnss", "baro"})  # fmt: skip
+        except ValueError as e:
+            raise ConfigError(f"inputs[{i}]: {e}") from None
+
+
 def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     """Validate a parsed TOML document into a Config (raises ConfigError)."""
     cfg = Config(source=source)
+    if not isinstance(d, dict):
+        raise ConfigError(f"expected a TOML document (a table), got {type(d).__name__}")
     known = {"gateway", "core", "fdi", "sim", "inputs", "outputs", "mqtt", "recorder"}
     for k in d:
         if k not in known:
             raise ConfigError(f"unknown section {k!r} (known: {', '.join(sorted(known))})")
     _fill(cfg.gateway, d.get("gateway", {}), "gateway")
-    g = cfg.gateway
-    _positive("gateway.late_threshold_ms", g.late_threshold_ms)
-    _positive("gateway.queue_size", g.queue_size)
-    _positive("gateway.status_period", g.status_period)
-    _positive("gateway.input_timeout", g.input_timeout, allow_zero=True)
-    if isinstance(g.rt_priority, bool) or not isinstance(g.rt_priority, int) or not 0 <= g.rt_priority <= 99:
-        raise ConfigError(f"gateway.rt_priority = {g.rt_priority!r}: must be an integer 0 (off) to 99 (SCHED_FIFO)")
 
-    core = dict(d.get("core", {}))
-    if "kind" in core:
-        core["core"] = core.pop("kind")
-    _fill(cfg.pipeline, core, "core", extra=())
+    core = _fill(cfg.pipeline, d.get("core", {}), "core")
     p = cfg.pipeline
-    _choice("core.kind", p.core, CORE_KINDS)
-    _choice("core.init", p.init, ("gnss", "config"))
-    _positive("core.level_samples", p.level_samples)
-    if p.calibration and not Path(p.calibration).is_file():
-        raise ConfigError(f"core.calibration = {p.calibration!r}: file not found")
+    p.nav = _nav(core.get("nav", {}))
     if p.calibration:
         from ins_hil.nav.calibration import load_calibration
 
@@ -175,58 +241,11 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         check_core(p.core, p.nav)
     except (ValueError, RuntimeError) as e:
         raise ConfigError(str(e)) from None
-    fdi = d.get("fdi", {})
-    if not isinstance(fdi, dict):
-        raise ConfigError(f"fdi: expected a table, got {fdi!r}")
-    for k, v in fdi.items():
-        if k == "enabled":
-            if not isinstance(v, bool):
-                raise ConfigError(f"fdi.enabled = {v!r}: expected true or false")
-            p.fdi = v
-        elif k == "imu_ids":
-            if not (isinstance(v, list) and v and all(isinstance(i, int) and 0 <= i < 256 for i in v)):
-                raise ConfigError(f"fdi.imu_ids = {v!r}: expected a non-empty list of IMU ids 0..255")
-            p.imu_ids = list(v)
-        elif k == "options":
-            if not isinstance(v, dict):
-                raise ConfigError(f"fdi.options = {v!r}: expected a table")
-            p.fdi_options = dict(v)
-        elif k == "aiding":
-            if not isinstance(v, dict):
-                raise ConfigError(f"fdi.aiding = {v!r}: expected a table")
-            opts = dict(v)
-            en = opts.pop("enabled", True)
-            if not isinstance(en, bool):
-                raise ConfigError(f"fdi.aiding.enabled = {en!r}: expected true or false")
-            try:
-                aiding_monitor(opts)
-            except ValueError as e:
-                raise ConfigError(str(e)) from None
-            p.aiding_fdi, p.aiding_options = en, opts
-        else:
-            raise ConfigError(f"unknown key 'fdi.{k}' (known: enabled, imu_ids, options, aiding)")
+    _fdi(cfg, d.get("fdi", {}))
 
-    if p.fdi:
-        try:
-            mon = fdi_monitor(p.fdi_options)
-        except ValueError as e:
-            raise ConfigError(str(e)) from None
-        if len(p.imu_ids) != mon.geo.units:
-            raise ConfigError(f"fdi.imu_ids = {p.imu_ids}: the geometry {mon.geo.name!r} has {mon.geo.units} IMUs")
-
-    sim = dict(d.get("sim", {}))
-    en = sim.pop("enabled", False)
-    if not isinstance(en, bool):
-        raise ConfigError(f"sim.enabled = {en!r}: expected true or false")
-    cfg.sim_enabled = en
-    _fill(cfg.sim, sim, "sim")
-    s = cfg.sim
-    _choice("sim.profile", s.profile, ("uav", "static"))
-    _choice("sim.imu_errors", s.imu_errors, ("mems", "none"))
-    for k in ("imu_rate", "gnss_rate", "baro_rate", "chunk_s"):
-        _positive(f"sim.{k}", getattr(s, k))
-    _positive("sim.duration", s.duration, allow_zero=True)
-    _key("sim.sign_key", s.sign_key)
+    sim = _fill(cfg.sim, d.get("sim", {}), "sim")
+    cfg.sim_enabled = sim.get("enabled", False)
+    _key("sim.sign_key", cfg.sim.sign_key)
 
     inputs = d.get("inputs", [])
     if not isinstance(inputs, list):
@@ -235,6 +254,8 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         ic = InputConfig(name=f"input{i}")
         _fill(ic, t, f"inputs[{i}]")
         where = f"inputs[{i}]"
+        if ic.options and ic.type != "can_imu":
+            raise ConfigError(f"{where}.options: only for type = 'can_imu' (this input is {ic.type!r})")
         _choice(f"{where}.type", ic.type, INPUT_TYPES)
         if ic.type == "mavlink":
             try:
@@ -243,16 +264,10 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
                 raise ConfigError(f"{where}.url = {ic.url!r}: {e}") from None
             _key(f"{where}.signing_key", ic.signing_key)
         elif ic.type == "can_imu":
-            from ins_hil.drivers.can_imu import CanImuDriver
-
-            try:
-                CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **ic.options})
-            except (ValueError, TypeError) as e:
-                raise ConfigError(f"{where}.options: {e}") from None
+            _can_options(ic, where)
         else:
             if ic.port == "sim" and not cfg.sim_enabled:
                 raise ConfigError(f"{where}.port = 'sim' needs [sim] enabled = true")
-            _positive(f"{where}.baud", ic.baud)
         cfg.inputs.append(ic)
     names = [i.name for i in cfg.inputs]
     if len(set(names)) != len(names):
@@ -268,46 +283,28 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         t = dict(t) if isinstance(t, dict) else _bad(where, t, "a table")
         typ = t.pop("type", "mavlink")
         if typ != "mavlink":
-            raise ConfigError(f"{where}.type = {typ!r}: must be 'mavlink' (MQTT is the [mqtt] table)")
+            raise ConfigError(f"{where}.type = {schema.show(typ)}: must be 'mavlink' (MQTT is the [mqtt] table)")
         ec = EndpointConfig(name=f"mav{i}")
         _fill(ec, t, where)
         _url(f"{where}.url", ec.url, MAVLINK_SCHEMES)
         _choice(f"{where}.role", ec.role, ("gcs", "fc"))
         _choice(f"{where}.mav_type", ec.mav_type, MAV_TYPES)
         _key(f"{where}.signing_key", ec.signing_key)
-        if not 1 <= ec.sysid <= 255:
-            raise ConfigError(f"{where}.sysid = {ec.sysid}: must be 1..255")
-        if not 0 <= ec.compid <= 255:
-            raise ConfigError(f"{where}.compid = {ec.compid}: must be 0..255")
-        for m, r in ec.rates.items():
-            if m not in ALL_MESSAGES:
-                raise ConfigError(f"{where}.rates.{m}: unknown message (known: {', '.join(ALL_MESSAGES)})")
-            if not isinstance(r, int | float) or isinstance(r, bool) or r < 0:
-                raise ConfigError(f"{where}.rates.{m} = {r!r}: must be a rate in Hz ≥ 0 (0 = off)")
-            ec.rates[m] = float(r)
+        ec.rates = schema.validate("outputs[].rates", t.get("rates", {}), f"{where}.rates")
         cfg.outputs.append(ec)
 
     if "mqtt" in d:
         cfg.mqtt = MqttConfig()
         _fill(cfg.mqtt, d["mqtt"], "mqtt")
-        if not 0 < cfg.mqtt.port < 65536:
-            raise ConfigError(f"mqtt.port = {cfg.mqtt.port}: must be 1..65535")
-        _positive("mqtt.state_rate", cfg.mqtt.state_rate, allow_zero=True)
-        _positive("mqtt.health_period", cfg.mqtt.health_period)
-        for k in ("tls_ca", "tls_cert", "tls_key"):
-            v = getattr(cfg.mqtt, k)
-            if v and not Path(v).is_file():
-                raise ConfigError(f"mqtt.{k} = {v!r}: file not found")
+        if any(c in cfg.mqtt.topic_prefix for c in "+#"):
+            raise ConfigError(f"mqtt.topic_prefix = {cfg.mqtt.topic_prefix!r}: must not hold the wildcards + or #")
     _fill(cfg.recorder, d.get("recorder", {}), "recorder")
-    _positive("recorder.max_mb", cfg.recorder.max_mb)
-    _positive("recorder.flush_period", cfg.recorder.flush_period)
-    if cfg.recorder.flush_period > 0.1:
-        raise ConfigError(f"recorder.flush_period = {cfg.recorder.flush_period}: must be ≤ 0.1 s")
+    _startable(cfg)
     return cfg
 
 
 def _bad(key: str, v: Any, what: str) -> Any:
-    raise ConfigError(f"{key} = {v!r}: expected {what}")
+    raise ConfigError(f"{key} = {schema.show(v)}: expected {what}")
 
 
 def _url(key: str, v: str, schemes: tuple[str, ...]) -> None:
@@ -323,13 +320,20 @@ def load(path: str | Path) -> Config:
     """Read and validate a TOML config file."""
     p = Path(path)
     try:
-        text = p.read_text()
+        raw = p.read_bytes()
     except OSError as e:
         raise ConfigError(f"cannot read config {p}: {e.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw[: e.start].count(b"\n") + 1
+        raise ConfigError(f"{p}: not UTF-8 text (byte 0x{raw[e.start]:02x} on line {line}, offset {e.start})") from None
     try:
         d = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{p}: not valid TOML: {e}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: not valid TOML: nested too deeply") from None
     try:
         return from_dict(d, str(p))
     except ConfigError as e:

@@ -68,8 +68,8 @@ def read_csv_log(path: Path, imu_id: int | None = None) -> LogData:
     try:
         with path.open(newline="") as f:
             header = next(csv.reader(f), None)
-    except OSError as e:
-        raise cal.CalibrationError(f"{path}: cannot read ({e.strerror})") from e
+    except (OSError, UnicodeDecodeError) as e:
+        raise cal.CalibrationError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from e
     if not header:
         raise cal.CalibrationError(f"{path}: empty file; a header row with column names is required")
     cols = [h.strip() for h in header]
