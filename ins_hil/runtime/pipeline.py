@@ -498,6 +498,9 @@ class Pipeline:
         self._new_jobs.clear()
         while self._jobs:
             self._segment()
+        core = self.core
+        if core is not None and not state_ok(core.state()):  # the last time update, unchecked until now
+            self._core_fault(self._t_imu, "core time update: non-finite or implausible state", "state")
 
     def _finish_step(self) -> None:
         """The rest of the last IMU step (the filter time update, ``core.step_end``): runs before
