@@ -288,8 +288,9 @@ def test_second_core_failure_before_clearing_realigns_from_gnss(core: str) -> No
 
 
 def test_exception_in_a_gnss_update_is_recovered_from() -> None:
-    """A GNSS update after a denormal dt (LinAlgError inside the filter before the validation boundary):
-    the same with the dt band opened up reaches the core; the guard recovers."""
+    """The shortest interval the validation boundary lets through (its 1e-5 s floor, the dt band opened up)
+    and a GNSS update right after it (a denormal dt made this update raise LinAlgError): the state stays
+    finite and navigation continues."""
     r = Run("python", imu_dt_min_periods=1e-9)
     r.run(2.0)
     r.imu(dt=1.1e-5)  # the floor of the validation boundary: the core must cope or be recovered

@@ -26,6 +26,17 @@ after publishing, before anything else touches the core. The published state is 
 mechanized state: its σ are those of the previous step (1 ms older at 1 kHz), and a
 ground-vehicle aid (NHC/ZUPT) applied in this step's time update shows in the next state.
 
+Every sample passes the validation boundary first (:class:`ins_hil.validation.SampleValidator`,
+limits from the ``[core]`` keys ``gyro_range_dps``, ``accel_range_g``, ...): a rejected sample is
+counted once as ``reject_<reason>`` and never reaches the core. The core guard: after every core
+step and fusion segment the state is checked (:func:`state_ok`: finite and plausible position and
+velocity, |q| = 1, σ finite and ≥ 0); a failed check or any exception inside the core is counted
+(``core_bad_state`` / ``core_exception``), reported as a ``FaultEvent`` with sensor ``core`` (cleared
+after ``FAULT_CLEAR_S`` of good states), and recovered from: the core restarts from the last good
+state with the initial covariance (``core_restart``), or re-aligns from the next 3-D GNSS fix
+(``core_realign``) when there is none or a second fault comes before the first cleared.
+:meth:`Pipeline.imu` and :meth:`Pipeline.aid` never raise (anything else: ``pipeline_error``).
+
 Initialisation (until the core aligns itself): the core is created at the
 first 3-D GNSS fix, at its position and velocity, with roll/pitch levelled
 from the mean specific force of the last ``level_samples`` IMU intervals
