@@ -34,6 +34,7 @@ and the filter's yaw σ is below ``aligned_yaw_std``.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from collections.abc import Iterator
@@ -58,6 +59,8 @@ from ins_hil.nav.rotation import (
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 DEG = math.pi / 180.0
+#: a GNSS reset needs every rejected fix within this many gates of the INS (NavCore._gnss_reset_ok)
+RESET_GATE_FACTOR = 20.0
 _KINDS = ("gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt")
 
 
@@ -77,6 +80,9 @@ class NavConfig:
     ``filter.mount_states`` the residual IMU → vehicle boresight is estimated (NHC only, needs ``nhc``).
     nhc_omega_lp_hz: corner (Hz) of a causal first-order low-pass of the body rate used in the NHC lever-arm
     term ω × l only (0 = the raw rate, which on a car carries the engine/road vibration).
+    gnss_reset_after: a GNSS position rejected this many times in a row may reset the position/velocity σ and be
+    accepted over its gate, only when the rejected fixes pass a consistency test of their own
+    (:meth:`NavCore._gnss_reset_ok`).
     adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
     the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
     separately at its own time of validity (delayed fusion).
@@ -229,6 +235,9 @@ class NavCore:
         self._sd: Vec = np.zeros(9)
         self.keep_nis = False
         self._pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
+        # GNSS reset: the consecutive rejected fixes with their test ratios (see _gnss_reset_ok)
+        self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, self.cfg.gnss_reset_after))
+        self._gnss_accepted = False  # a GNSS position has been accepted since the start
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
@@ -502,14 +511,23 @@ class NavCore:
             shift = None if assume_now else s.vel_ned * (s.t - meas.t)  # time alignment to the step
             z, H = mm.gnss_position(self.idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, lever, shift)
             r = np.array((std_ne**2, std_ne**2, std_d**2))
-            force = self.stats["gnss_pos"].consecutive_rejects >= c.gnss_reset_after
+            force = self.stats["gnss_pos"].consecutive_rejects >= c.gnss_reset_after and self._gnss_reset_ok(
+                meas, z, H, r
+            )
             if force:
                 # GNSS rejected for too long: the INS has drifted, re-initialise position/velocity σ
                 self.kf.set_state_sigma("pos", np.sqrt(z * z + r))
                 zv = np.zeros(3) if meas.vel_ned is None else np.asarray(meas.vel_ned) - s.vel_ned
                 self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
                 self.stats["gnss_vel"].consecutive_rejects = 0
-            if self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t):
+            accepted = self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t, force)
+            if not self._replaying:
+                if accepted:
+                    self._rejected.clear()
+                    self._gnss_accepted = True
+                else:
+                    self._rejected.append((meas, self.stats["gnss_pos"].last_ratio))
+            if accepted:
                 self._gnss_height(meas, C, std_d)
             if c.use_gnss_vel and meas.vel_ned is not None:
                 yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
@@ -540,8 +558,66 @@ class NavCore:
         else:
             raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
 
-    def _apply(self, kind: str, z: Vec, H: Vec, r: Vec, gate: float, t: float) -> bool:
-        """Gate, (adapt R), update, feed back. Returns True if accepted."""
+    def _gnss_reset_ok(self, meas: GnssFix, z: Vec, H: Vec, r: Vec) -> bool:
+        """May a GNSS position rejected ``gnss_reset_after`` times in a row reset the filter (be accepted over
+        its gate, position/velocity σ re-initialised)? Only when the rejected fixes pass a consistency test
+        of their own, so that junk cannot trigger a reset:
+
+        1. the last ``gnss_reset_after`` rejected fixes and this one agree with each other: each position
+           follows the previous one by their mean velocity × Δt (or, without velocities, lies on the
+           straight line through its neighbours), within ``gate_gnss`` σ of their own σ (NE, D; m);
+        2. each of them is within ``RESET_GATE_FACTOR`` × the gate of the INS (test ratio ≤ factor²): an
+           INS whose position has drifted beyond the gate, not one ``RESET_GATE_FACTOR`` times beyond it —
+           unless no GNSS position has been accepted yet (a wrong configured start).
+        """
+        c = self.cfg
+        fixes = [(f, q) for f, q in self._rejected if f.t < meas.t]
+        if len(fixes) < c.gnss_reset_after:
+            return False
+        S = H @ self.kf.P @ H.T + np.diag(r)
+        ratio, _ = test_ratio(z, S, c.gate_gnss)
+        fixes.append((meas, ratio))
+        if self._gnss_accepted and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
+            return False
+        g2 = c.gate_gnss**2
+        sc = c.gnss_std_scale
+        mn = c.gnss_min_std
+
+        def sig(f: GnssFix) -> tuple[float, float, float]:
+            return max(f.std_ne, mn[0]) * sc, max(f.std_d, mn[1]) * sc, max(f.std_vel, mn[2]) * sc
+
+        m, n = earth.radii(meas.lat)
+
+        def ned(f: GnssFix) -> tuple[float, float, float]:
+            return ((f.lat - meas.lat) * (m + meas.h), (f.lon - meas.lon) * (n + meas.h) * math.cos(meas.lat),
+                    meas.h - f.h)  # fmt: skip
+
+        pts = [(f.t, ned(f), sig(f), None if f.vel_ned is None else np.asarray(f.vel_ned, dtype=float))
+               for f, _ in fixes]  # fmt: skip
+        if all(p[3] is not None for p in pts):
+            for (t0, p0, s0, v0), (t1, p1, s1, v1) in itertools.pairwise(pts):
+                dt = t1 - t0
+                assert v0 is not None and v1 is not None
+                for k in range(3):
+                    e = p1[k] - p0[k] - 0.5 * (float(v0[k]) + float(v1[k])) * dt
+                    sp = s0[0 if k < 2 else 1] ** 2 + s1[0 if k < 2 else 1] ** 2
+                    if not e * e <= g2 * (sp + 0.25 * (s0[2] ** 2 + s1[2] ** 2) * dt * dt):
+                        return False
+            return True
+        if len(pts) < 3:
+            return False
+        for (t0, p0, s0, _), (t1, p1, s1, _), (t2, p2, s2, _) in zip(pts, pts[1:], pts[2:], strict=False):
+            w = (t1 - t0) / (t2 - t0)
+            for k in range(3):
+                e = p1[k] - (p0[k] + w * (p2[k] - p0[k]))
+                j = 0 if k < 2 else 1
+                if not e * e <= g2 * (s0[j] ** 2 + s1[j] ** 2 + s2[j] ** 2):
+                    return False
+        return True
+
+    def _apply(self, kind: str, z: Vec, H: Vec, r: Vec, gate: float, t: float, force: bool = False) -> bool:
+        """Gate, (adapt R), update, feed back. Returns True if accepted (``force``: over the gate, a GNSS
+        reset that passed :meth:`_gnss_reset_ok`)."""
         kf = self.kf
         HPHt = H @ kf.P @ H.T
         ad = self.adapt.get(kind) if self.cfg.adaptive else None
@@ -554,9 +630,6 @@ class NavCore:
         self._ratios = dict(self._ratios)
         self._ratios[kind] = ratio
         st.last_nis = nis
-        force = kind == "gnss_pos" and st.consecutive_rejects >= self.cfg.gnss_reset_after
-        if kind == "gnss_vel" and self.stats["gnss_pos"].consecutive_rejects > 0:
-            force = False  # velocity follows the position decision below
         if ratio > 1.0 and not force:
             if not self._replaying:
                 st.rejected += 1

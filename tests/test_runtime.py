@@ -234,3 +234,57 @@ def test_ins_hil_replay_command_on_an_ihlog(live_run: dict) -> None:
     assert f"IMU epochs processed {len(live_run['states'])}," in r.stdout
     last = live_run["states"][-1]
     assert f"final state t {last.t:.3f} s" in r.stdout
+
+
+def test_a_failing_sample_does_not_stop_the_gateway() -> None:
+    """A sample the loop cannot process (an IMU sample whose time is not a number at all) is counted as
+    ``pipeline_error`` under its source with one warning; the samples queued behind it are processed."""
+    cfg = sim_config()
+
+    async def go() -> Gateway:
+        gw = Gateway(cfg)
+        sink = gw._sink_for("imu0")
+        dv = np.array([0.0, 0.0, -9.80665e-3])
+        for k in range(1, 6):
+            sink(ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=dv, t_arrival_ns=k * 10**6))
+        sink(ImuSample(t=None, dt=1e-3, dtheta=np.zeros(3), dvel=dv, t_arrival_ns=6 * 10**6))  # type: ignore[arg-type]
+        for k in range(7, 12):
+            sink(ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=dv, t_arrival_ns=k * 10**6))
+        await asyncio.sleep(0.05)  # the core callback runs
+        return gw
+
+    gw = asyncio.run(go())
+    assert gw.error is None and not gw._stop.is_set() and gw.stopped_reason == ""
+    assert gw.metrics.snapshot()["sources"]["imu0"]["dropped"] == {"pipeline_error": 1}
+    assert gw.pipeline.counts["imu_before_init"] == 10  # every other sample reached the pipeline
+    assert len([w for w in gw.metrics.warnings if "pipeline error" in w]) == 1
+
+
+def test_rejections_are_reproduced_by_the_replay_of_a_recording(tmp_path: Path) -> None:
+    """The recorder writes every input, the rejected ones too; the replay's pipeline counts the same
+    rejections (the live view and the MQTT health show the pipeline's counts)."""
+    from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
+    from ins_hil.runtime.recorder import Recorder
+
+    cfg = PipelineConfig(init="config", init_lat_deg=50.0, init_lon_deg=30.0, init_h=100.0)
+    live = Pipeline(cfg)
+    rec = Recorder(tmp_path / "r.ihlog", header={"pipeline": dict(cfg.__dict__)})
+    dv = np.array([0.0, 0.0, -9.80665e-3])
+    inputs: list = [ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=dv) for k in range(1, 50)]
+    inputs[20] = ImuSample(t=0.021, dt=0.0, dtheta=np.zeros(3), dvel=dv)
+    inputs[30] = ImuSample(t=0.031, dt=1e-3, dtheta=np.array((1e30, 0.0, 0.0)), dvel=dv)
+    inputs.insert(40, GnssFix(t=0.039, lat=0.87, lon=0.52, h=math.nan))
+    inputs.insert(41, BaroSample(t=0.039, pressure=math.nan))
+    for s in inputs:
+        rec.write(s)
+        if isinstance(s, ImuSample):
+            live.imu(s)
+        else:
+            live.aid(s)
+    rec.close()
+    live.flush()
+    res = replay_log(tmp_path / "r.ihlog")
+    rej = {k: v for k, v in res.counts.items() if k.startswith("reject_")}
+    assert rej == {"reject_imu_dt": 1, "reject_imu_rate": 1, "reject_gnss_nonfinite": 1, "reject_baro_nonfinite": 1}
+    assert res.counts == live.counts
+    assert all(math.isfinite(s.lat) and math.isfinite(s.h) for s in res.states)

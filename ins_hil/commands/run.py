@@ -101,6 +101,9 @@ def render(gw: Any) -> Any:
         ratios = "  ".join(f"{k} {v:.2f}" for k, v in snap["test_ratios"].items()) or "—"
         nav.add_row("test ratios", ratios, f"late {snap['late']}", f"queue max {snap['queue_depth_max']}")
     parts.append(nav)
+    bad = _rejections(snap)
+    if bad:
+        parts.append("rejected / recovered: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
     if snap["warnings"]:
         parts.append(Text(snap["warnings"][-1], style="yellow"))  # (Text: brackets in a warning are no markup)
     last = snap["warnings"][-1] if snap["warnings"] else ""
@@ -108,6 +111,12 @@ def render(gw: Any) -> Any:
         if f"{path}: {text}" != last:
             parts.append(Text(f"{path}: {text}", style="red"))
     return Group(*parts)
+
+
+def _rejections(snap: dict[str, Any]) -> dict[str, int]:
+    """The pipeline's validation rejections (``reject_*``) and core recoveries (``core_*``, ``pipeline_error``)."""
+    return {k: v for k, v in sorted(snap.get("fused", {}).items())
+            if v and (k.startswith(("reject_", "core_")) or k == "pipeline_error")}  # fmt: skip
 
 
 def _summary_line(gw: Any) -> str:
@@ -118,6 +127,7 @@ def _summary_line(gw: Any) -> str:
         f"[ins-hil] {s['uptime_s']:.0f} s  {rates}  epochs {s['imu_epochs']}  late {s['late']}  "
         f"dropped {gw.metrics.dropped_total()}  arrival→sent p50 {_fmt(lat['p50_us'])} µs "
         f"p99 {_fmt(lat['p99_us'])} µs  aligned {s['aligned']}  faults {s['faults']}"
+        f"  rejected {sum(v for k, v in _rejections(s).items() if k.startswith('reject_'))}"
     )
 
 

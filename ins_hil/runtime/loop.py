@@ -78,6 +78,8 @@ class Gateway:
         self.imu_clock = SensorClock()
         self.stopped_reason = ""
         self.error: BaseException | None = None
+        self._current = ""  # source of the sample being processed (pipeline_error counts)
+        self._err_warned = -1e9  # monotonic time (s) of the last pipeline-error warning
 
     # -- sinks (called by drivers, never block) ------------------------------------
     def _sink_for(self, name: str) -> Callable[[Sample], None]:
@@ -102,15 +104,24 @@ class Gateway:
     # -- the core callback ---------------------------------------------------------
     def _run_queue(self) -> None:
         """The core, scheduled by the first sample put into an empty FIFO (a plain callback, not a
-        task: no future or task step per sample). A failure stops the gateway with the error."""
+        task: no future or task step per sample). An exception (the pipeline catches the core's own)
+        does not stop the gateway: the sample is counted as ``pipeline_error`` under its source, a
+        warning is given at most once a second, and the rest of the FIFO is processed."""
         self._scheduled = False
         if self.error is not None:
             return
-        try:
-            self._process_queue()
-        except Exception as e:
-            self.error = e
-            self.request_stop(f"core failed: {type(e).__name__}: {e}")
+        while True:
+            try:
+                self._process_queue()
+                return
+            except Exception as e:
+                self.metrics.source(self._current).drop("pipeline_error")
+                now = time.monotonic()
+                if now - self._err_warned >= 1.0:
+                    self._err_warned = now
+                    self.metrics.warn(f"pipeline error on a {self._current} sample: {type(e).__name__}: {e}")
+                if not self.queue:
+                    return
 
     def _process_queue(self) -> None:
         """Run the pipeline on everything in the FIFO (synchronous: never awaits).
@@ -134,6 +145,7 @@ class Gateway:
             m.queue_depth_max = depth
         while q:
             s, name = q.popleft()
+            self._current = name
             if isinstance(s, ImuSample):
                 clock.update(s.t, s.t_arrival_ns)
                 t0 = mono()
@@ -388,7 +400,7 @@ class Gateway:
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await t
         if self.error is None and self.queue:
-            self._process_queue()
+            self._run_queue()
         if self.error is None:
             self.pipeline.flush()  # what was handed over is fused (replay flushes at its end too)
             for ev in self.pipeline.drain_events():

@@ -26,6 +26,17 @@ after publishing, before anything else touches the core. The published state is 
 mechanized state: its σ are those of the previous step (1 ms older at 1 kHz), and a
 ground-vehicle aid (NHC/ZUPT) applied in this step's time update shows in the next state.
 
+Every sample passes the validation boundary first (:class:`ins_hil.validation.SampleValidator`,
+limits from the ``[core]`` keys ``gyro_range_dps``, ``accel_range_g``, ...): a rejected sample is
+counted once as ``reject_<reason>`` and never reaches the core. The core guard: after every core
+step and fusion segment the state is checked (:func:`state_ok`: finite and plausible position and
+velocity, |q| = 1, σ finite and ≥ 0); a failed check or any exception inside the core is counted
+(``core_bad_state`` / ``core_exception``), reported as a ``FaultEvent`` with sensor ``core`` (cleared
+after ``FAULT_CLEAR_S`` of good states), and recovered from: the core restarts from the last good
+state with the initial covariance (``core_restart``), or re-aligns from the next 3-D GNSS fix
+(``core_realign``) when there is none or a second fault comes before the first cleared.
+:meth:`Pipeline.imu` and :meth:`Pipeline.aid` never raise (anything else: ``pipeline_error``).
+
 Initialisation (until the core aligns itself): the core is created at the
 first 3-D GNSS fix, at its position and velocity, with roll/pitch levelled
 from the mean specific force of the last ``level_samples`` IMU intervals
@@ -49,7 +60,8 @@ import numpy as np
 
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
-from ins_hil.types import BaroSample, FaultEvent, FixType, GnssFix, ImuSample, MagSample, NavState
+from ins_hil.types import BaroSample, FaultEvent, FaultMode, FixType, GnssFix, ImuSample, MagSample, NavState
+from ins_hil.validation import Limits, SampleValidator
 
 Aid = GnssFix | BaroSample | MagSample
 _DONE = object()
@@ -167,6 +179,31 @@ class PipelineConfig:
     aiding_fdi: bool = True  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
     aiding_options: dict[str, Any] = field(default_factory=dict)  # AidingConfig fields
     nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig fields
+    # the validation boundary (ins_hil.validation.Limits): every sample is checked at the pipeline's entry
+    gyro_range_dps: float = 2000.0  # per-axis full scale of the gyros (°/s)
+    accel_range_g: float = 16.0  # per-axis full scale of the accelerometers (g = 9.80665 m/s²)
+    range_margin: float = 1.5  # a reading is rejected beyond range × this
+    imu_period_s: float = 0.0  # nominal IMU interval (s); 0 = learnt per IMU id (median of its first 8)
+    imu_dt_min_periods: float = 0.2  # accepted dt band, in nominal periods (never outside 1e-5..1 s)
+    imu_dt_max_periods: float = 5.0
+    gnss_min_fix_type: int = 3  # MAVLink GPS_FIX_TYPE: 3 = 3-D
+    gnss_h_min_m: float = -1000.0
+    gnss_h_max_m: float = 50000.0
+    gnss_speed_max_mps: float = 600.0
+    gnss_std_max_m: float = 1000.0  # reported σ of position above this: rejected
+    gnss_std_vel_max_mps: float = 100.0
+    baro_pressure_min_pa: float = 1000.0
+    baro_pressure_max_pa: float = 120000.0
+    baro_alt_min_m: float = -1000.0
+    baro_alt_max_m: float = 50000.0
+    mag_max_t: float = 1e-3
+
+
+def limits_of(cfg: PipelineConfig) -> Limits:
+    """The validation limits of a pipeline config (ValueError names the bad ``core.*`` key)."""
+    lim = Limits(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(Limits)})
+    lim.check("core")
+    return lim
 
 
 def level_attitude(f_b: np.ndarray, yaw: float) -> np.ndarray:
@@ -184,6 +221,39 @@ def level_attitude(f_b: np.ndarray, yaw: float) -> np.ndarray:
 GONE_EPOCHS = 20
 #: aiding jobs queued beyond this many run at the next epoch without waiting for a gap each
 MAX_AID_JOBS = 8
+#: a restarted core is trusted again (its fault cleared) after this long of good states (s, sensor time);
+#: a second fault before that re-aligns from the next GNSS fix instead of restarting again
+FAULT_CLEAR_S = 1.0
+#: plausibility of a navigation state (the core guard): speed (m/s), height (m), |q| − 1
+STATE_SPEED_MAX = 1.0e4
+STATE_H_MIN, STATE_H_MAX = -1.0e5, 1.0e6
+QNORM_TOL = 1e-3
+_INF = math.inf
+
+
+def state_ok(st: NavState) -> bool:
+    """The core guard: position, velocity finite and plausible, |q_nb| = 1 (± QNORM_TOL), every σ finite and ≥ 0.
+
+    A few float comparisons (NaN fails each of them)."""
+    try:
+        q0, q1, q2, q3 = st.q_nb.tolist()
+        v0, v1, v2 = st.vel_ned.tolist()
+        p0, p1, p2 = st.std_pos.tolist()
+        u0, u1, u2 = st.std_vel.tolist()
+        a0, a1, a2 = st.std_att.tolist()
+    except (AttributeError, TypeError, ValueError):
+        return False
+    lat, h = st.lat, st.h
+    return bool(
+        abs(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3 - 1.0) < QNORM_TOL
+        and v0 * v0 + v1 * v1 + v2 * v2 < STATE_SPEED_MAX * STATE_SPEED_MAX
+        and -1.5707963267948966 <= lat <= 1.5707963267948966
+        and -1e3 < st.lon < 1e3
+        and STATE_H_MIN < h < STATE_H_MAX
+        and 0.0 <= p0 < _INF and 0.0 <= p1 < _INF and 0.0 <= p2 < _INF
+        and 0.0 <= u0 < _INF and 0.0 <= u1 < _INF and 0.0 <= u2 < _INF
+        and 0.0 <= a0 < _INF and 0.0 <= a1 < _INF and 0.0 <= a2 < _INF
+    )  # fmt: skip
 
 
 class Pipeline:
@@ -194,6 +264,13 @@ class Pipeline:
         if not (isinstance(cfg.epoch_wait_periods, int | float) and 0 < cfg.epoch_wait_periods < math.inf):
             raise ValueError(f"core.epoch_wait_periods = {cfg.epoch_wait_periods!r}: must be a number > 0")
         self.cfg = cfg
+        self.validator = SampleValidator(limits_of(cfg))  # the one validation boundary (ValueError: bad limit)
+        self._val_imu = self.validator.imu
+        self._imu_rejects = 0  # IMU samples rejected by the validator
+        self._core_faults = 0  # core exceptions / bad states recovered from
+        self._good: NavState | None = None  # the last state that passed the core guard
+        self._fault_open = False  # a core fault is reported and not cleared yet
+        self._fault_clear_t = _INF  # sensor time (s) at which it clears
         self.core: Core | None = None
         self.events: list[FaultEvent] = []
         self.counts: dict[str, int] = {}
@@ -212,6 +289,8 @@ class Pipeline:
         self._unit_key: dict[int, int] = {}  # imu_id → newest sensor time (µs) it delivered
         self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
+        # the validator checked the raw sample: only calibration or FDI can make it non-finite again
+        self._recheck = self._calib is not None or self._fdi is not None
         self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, cfg.nav) if cfg.aiding_fdi else None
         self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
@@ -238,8 +317,14 @@ class Pipeline:
     def _count(self, key: str) -> None:
         self.counts[key] = self.counts.get(key, 0) + 1
 
-    def _start(self, initial: StrapdownState) -> None:
-        self.core = make_core(self.cfg.core, initial, self.cfg.nav)
+    def _reject(self, why: str) -> None:
+        """Count a sample the validation boundary rejected (``reject_<reason>``, once per sample)."""
+        self._count("reject_" + why)
+        if why.startswith("imu"):
+            self._imu_rejects += 1
+
+    def _start(self, initial: StrapdownState, nav: dict[str, Any] | None = None) -> None:
+        self.core = make_core(self.cfg.core, initial, self.cfg.nav if nav is None else nav)
         # a core that splits its step (NavCore): mechanization on the IMU path, the time update after publishing
         split = hasattr(self.core, "step_begin") and hasattr(self.core, "step_end")
         self._split = cast(SplitCore, self.core) if split else None
@@ -247,12 +332,25 @@ class Pipeline:
 
     # -- IMU ------------------------------------------------------------------
     def imu(self, s: ImuSample) -> NavState | None:
-        """Consume one IMU sample; returns the new state when an epoch was processed."""
-        if self._calib is not None:
-            s = self._calib.apply(s)
-        if not self._multi:
-            return self._epoch([s])
-        return self._group(s)
+        """Consume one IMU sample; returns the new state when an epoch was processed.
+
+        The sample passes the validation boundary first (a rejection is counted as ``reject_<reason>``);
+        an exception inside the core is caught and recovered from (:meth:`_core_fault`); any other
+        exception is counted (``pipeline_error``) and the sample dropped: this never raises."""
+        why = self._val_imu(s)
+        if why is not None:
+            self._reject(why)
+            return None
+        try:
+            if self._calib is not None:
+                s = self._calib.apply(s)
+            if not self._multi:
+                return self._epoch([s])
+            return self._group(s)
+        except Exception as e:  # counted; the gateway keeps running
+            self._count("pipeline_error")
+            self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+            return None
 
     def _group(self, s: ImuSample) -> NavState | None:
         """Redundant IMUs: group samples into epochs by sensor time.
@@ -342,12 +440,13 @@ class Pipeline:
                 self.events.extend(ev)
         else:
             s = samples[0]
-        fin = math.isfinite
-        a, v = s.dtheta, s.dvel
-        if not (fin(s.dt) and fin(a[0]) and fin(a[1]) and fin(a[2]) and fin(v[0]) and fin(v[1]) and fin(v[2])):
-            # e.g. FDI with too few healthy units left after lost frames: never feed NaN to the core
-            self._count("imu_nonfinite")
-            return None
+        if self._recheck:
+            fin = math.isfinite
+            a, v = s.dtheta, s.dvel
+            if not (fin(s.dt) and fin(a[0]) and fin(a[1]) and fin(a[2]) and fin(v[0]) and fin(v[1]) and fin(v[2])):
+                # e.g. FDI with too few healthy units left after lost frames: never feed NaN to the core
+                self._count("imu_nonfinite")
+                return None
         if s.t <= self._t_imu:
             self._count("imu_time_backwards")
             return None
@@ -357,11 +456,22 @@ class Pipeline:
             self._level_add(s)
             self._count("imu_before_init")
             return None
-        if self._split is not None:
-            st = self._split.step_begin(s)  # mechanization only: published before the time update
-            self._step_pending = True
-        else:
-            st = core.step(s)
+        try:
+            if self._split is not None:
+                st = self._split.step_begin(s)  # mechanization only: published before the time update
+                self._step_pending = True
+            else:
+                st = core.step(s)
+        except Exception as e:  # e.g. a singular update: recovered, never fatal
+            self._core_fault(s.t, f"core step: {type(e).__name__}: {e}")
+            return None
+        if not state_ok(st):
+            self._core_fault(s.t, "core step: non-finite or implausible state", "state")
+            return None
+        self._good = st
+        if self._fault_open and s.t >= self._fault_clear_t:
+            self._fault_open = False
+            self.events.append(FaultEvent(s.t, "core", FaultMode.JUMP, math.nan, True, True, "core recovered"))
         self._gap_free = True
         if self._new_jobs:
             self._jobs.extend(self._new_jobs)
@@ -399,13 +509,20 @@ class Pipeline:
         self._new_jobs.clear()
         while self._jobs:
             self._segment()
+        core = self.core
+        if core is not None and not state_ok(core.state()):  # the last time update, unchecked until now
+            self._core_fault(self._t_imu, "core time update: non-finite or implausible state", "state")
 
     def _finish_step(self) -> None:
         """The rest of the last IMU step (the filter time update, ``core.step_end``): runs before
         anything else touches the core, after the state has been published."""
         self._step_pending = False
         assert self._split is not None
-        self._split.step_end()
+        try:
+            self._split.step_end()
+        except Exception as e:  # the next state is guarded; the core is restarted now
+            self._core_fault(self._t_imu, f"core time update: {type(e).__name__}: {e}")
+            return
         if self._drain is not None:
             ev = self._drain()
             if ev:
@@ -416,9 +533,16 @@ class Pipeline:
             self._finish_step()
         self._gap_free = False
         job = self._jobs[0]
-        if next(job, _DONE) is _DONE:
-            self._jobs.popleft()
+        try:
+            done = next(job, _DONE) is _DONE
+        except Exception as e:  # e.g. LinAlgError in an update: recovered, never fatal
+            self._core_fault(self._t_imu, f"aiding update: {type(e).__name__}: {e}")
             return
+        if done:
+            self._jobs.popleft()
+        core = self.core
+        if core is not None and not state_ok(core.state()):
+            self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
 
     def _level_add(self, s: ImuSample) -> None:
         if len(self._lvl) == self._lvl.maxlen:
@@ -431,10 +555,24 @@ class Pipeline:
 
     # -- aiding -------------------------------------------------------------------
     def aid(self, m: Aid) -> None:
-        """Consume one aiding measurement: fused now if its time of validity has passed, else held."""
+        """Consume one aiding measurement: fused now if its time of validity has passed, else held.
+
+        It passes the validation boundary first (``reject_<reason>``); never raises."""
+        try:
+            why = self.validator.check(m)
+        except Exception:  # not a sample at all
+            why = "aid_malformed"
+        if why is not None:
+            self._reject(why)
+            return
         if self.core is None:
             if isinstance(m, GnssFix) and m.fix_type >= FixType.FIX_3D and self._lvl_dt > 0:
-                self._init_from_gnss(m)
+                try:
+                    self._init_from_gnss(m)
+                except Exception as e:
+                    self.core = None
+                    self._count("pipeline_error")
+                    self._core_fault(m.t, f"initialisation: {type(e).__name__}: {e}", "pipeline")
             else:
                 self._count("aid_before_init")
             return
@@ -459,6 +597,7 @@ class Pipeline:
             # IMU epochs skipped since the last check: the INS is not evidence against the GNSS for a while
             c = self.counts
             lost = c.get("imu_nonfinite", 0) + c.get("imu_epoch_incomplete", 0) + c.get("imu_time_backwards", 0)
+            lost += self._imu_rejects + self._core_faults
             if lost != self._aid_lost:
                 self._aid_lost = lost
                 mon.ins_disturbed(m.t)
@@ -486,6 +625,63 @@ class Pipeline:
             yaw = math.atan2(vel[1], vel[0])
         self._start(StrapdownState(level_attitude(f_b, yaw), vel, g.lat, g.lon, g.h, self._t_imu))
         self._count("init_gnss")
+        if self._fault_open:  # re-aligned after a core fault: cleared after FAULT_CLEAR_S of good states
+            self._fault_clear_t = self._t_imu + FAULT_CLEAR_S
+
+    # -- the core guard -------------------------------------------------------------------
+    def _core_fault(self, t: float, what: str, kind: str = "exception") -> None:
+        """An exception inside the core (``kind="exception"``) or a state that failed :func:`state_ok`
+        (``"state"``): count it (``core_exception`` / ``core_bad_state``), report a ``FaultEvent``
+        (sensor ``core``) when no core fault is open, drop the aiding work bound to the failed core, and
+        recover: restart the core from the last good state (its position, velocity and attitude, with
+        the initial covariance) or, with no usable good state or a second fault before the first
+        cleared, re-align from the next 3-D GNSS fix (levelling on the IMU samples from now on).
+        ``"pipeline"``: an error outside the core (counted ``pipeline_error`` by the caller): the core
+        is kept unless its state is bad."""
+        if kind == "pipeline":
+            core = self.core
+            try:
+                if core is None or state_ok(core.state()):
+                    return
+            except Exception:
+                pass
+            kind = "state"
+        self._count("core_exception" if kind == "exception" else "core_bad_state")
+        self._core_faults += 1
+        if not self._fault_open:
+            self.events.append(FaultEvent(t, "core", FaultMode.JUMP, math.nan, True, False, what))
+        dropped = len(self._jobs) + len(self._new_jobs)
+        if dropped:
+            self.counts["aid_dropped_core_fault"] = self.counts.get("aid_dropped_core_fault", 0) + dropped
+        self._jobs.clear()
+        self._new_jobs.clear()
+        self._step_pending = False
+        if self._aid_mon is not None:
+            self._aid_mon.ins_disturbed(t)
+        g = self._good
+        nav = dict(self.cfg.nav)
+        restart = g is not None and not self._fault_open and (g.aligned or nav.get("align", "given") == "given")
+        self._fault_open = True
+        self._fault_clear_t = t + FAULT_CLEAR_S
+        if restart:
+            assert g is not None
+            q = np.array(g.q_nb, dtype=np.float64)
+            nav["align"] = "given"
+            try:
+                self._start(StrapdownState(q / math.sqrt(float(q @ q)), np.array(g.vel_ned, dtype=np.float64),
+                                           g.lat, g.lon, g.h, g.t), nav)  # fmt: skip
+                self._count("core_restart")
+                return
+            except Exception:  # fall back to a re-alignment
+                pass
+        self.core = None
+        self._split = None
+        self._drain = None
+        self._good = None
+        self._lvl.clear()
+        self._lvl_sum = np.zeros(3)
+        self._lvl_dt = 0.0
+        self._count("core_realign")
 
     def drain_events(self) -> list[FaultEvent]:
         ev, self.events = self.events, []

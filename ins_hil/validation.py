@@ -1,0 +1,293 @@
+"""The validation boundary: one physical-range check for every sample that leaves a driver.
+
+:class:`SampleValidator` decides, for each IMU, GNSS, baro and magnetometer sample, whether it is a
+physically possible reading, and returns the reason when it is not (``None`` when it is). The
+pipeline calls it at its entry (:meth:`ins_hil.runtime.pipeline.Pipeline.imu` / ``aid``), which the
+live loop and the replay both use, so a rejection made there is counted once and reproduced from a
+recording; drivers and the simulator can call the same routine (:meth:`SampleValidator.check`).
+
+Checks (limits in :class:`Limits`, SI units inside, configured with units in their names):
+
+- IMU (increment form, ``dtheta`` rad and ``dvel`` m/s over ``dt`` s): every component finite; the
+  mean rate |dθ_i|/dt and specific force |dv_i|/dt of each axis within the sensor range (a per-axis
+  full scale, ``gyro_range_dps``, ``accel_range_g``) × ``range_margin``; ``dt`` within
+  [``imu_dt_min_periods``, ``imu_dt_max_periods``] × the nominal period (configured ``imu_period_s``, or
+  learnt per IMU id as the median of its first 8 intervals) and never outside [1e-5 s, 1 s]; the
+  sensor time strictly increasing per IMU id.
+- GNSS: fix type ≥ ``gnss_min_fix_type`` (3 = 3-D); lat in [−90°, 90°], lon in [−180°, 180°],
+  height in [``gnss_h_min_m``, ``gnss_h_max_m``]; the velocity (when present) finite with
+  |v| < ``gnss_speed_max_mps``; σ (``std_ne``, ``std_d`` m, ``std_vel`` m/s) finite, > 0 and below
+  ``gnss_std_max_m`` / ``gnss_std_vel_max_mps``; the time strictly increasing per receiver
+  (``source``): a re-sent fix is not fused twice.
+- Baro: the altitude, when carried (not NaN), finite and in [``baro_alt_min_m``, ``baro_alt_max_m``];
+  the pressure, when carried (not NaN), in [``baro_pressure_min_pa``, ``baro_pressure_max_pa``]; at
+  least one of them carried.
+- Magnetometer: finite, |B| < ``mag_max_t`` (T).
+
+Reasons are short names (``imu_rate``, ``gnss_fix_type``, ...); the pipeline counts them as
+``reject_<reason>``. The IMU check is a few float comparisons, no allocation (after the learning
+of the nominal period).
+
+Pure: imports only :mod:`ins_hil.types`, the standard library and numpy.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
+
+#: absolute bounds of an IMU interval (s), whatever the nominal period
+DT_FLOOR = 1e-5
+DT_CEIL = 1.0
+#: IMU intervals the nominal period is learnt from (their median) when it is not configured
+LEARN_SAMPLES = 8
+G0 = 9.80665  # m/s² per g
+_INF = math.inf
+
+#: every reason a sample can be rejected for (counted as ``reject_<reason>``)
+REASONS = (
+    "imu_nonfinite", "imu_dt", "imu_rate", "imu_accel", "imu_time",
+    "gnss_fix_type", "gnss_nonfinite", "gnss_position", "gnss_height", "gnss_velocity", "gnss_std",
+    "gnss_time",
+    "baro_nonfinite", "baro_range",
+    "mag_nonfinite", "mag_range",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Physical ranges of the validation boundary (units in the names; see the module doc)."""
+
+    gyro_range_dps: float = 2000.0
+    accel_range_g: float = 16.0
+    range_margin: float = 1.5
+    imu_period_s: float = 0.0  # 0: learnt per IMU id
+    imu_dt_min_periods: float = 0.2
+    imu_dt_max_periods: float = 5.0
+    gnss_min_fix_type: int = 3
+    gnss_h_min_m: float = -1000.0
+    gnss_h_max_m: float = 50000.0
+    gnss_speed_max_mps: float = 600.0
+    gnss_std_max_m: float = 1000.0
+    gnss_std_vel_max_mps: float = 100.0
+    baro_pressure_min_pa: float = 1000.0
+    baro_pressure_max_pa: float = 120000.0
+    baro_alt_min_m: float = -1000.0
+    baro_alt_max_m: float = 50000.0
+    mag_max_t: float = 1e-3
+
+    def check(self, where: str = "") -> None:
+        """Raise ValueError (one line naming the key, its value and what is allowed) for a bad limit."""
+        pre = f"{where}." if where else ""
+
+        def need(name: str, ok: bool, allowed: str) -> None:
+            v = getattr(self, name)
+            if not ok:
+                raise ValueError(f"{pre}{name} = {v!r}: must be {allowed}")
+
+        def num(name: str) -> float:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ValueError(f"{pre}{name} = {v!r}: must be a finite number")
+            return float(v)
+
+        for name in self.__dataclass_fields__:
+            num(name)
+        for name in ("gyro_range_dps", "accel_range_g", "gnss_speed_max_mps", "gnss_std_max_m",
+                     "gnss_std_vel_max_mps", "mag_max_t"):  # fmt: skip
+            need(name, num(name) > 0, "> 0")
+        need("range_margin", num("range_margin") >= 1.0, ">= 1")
+        need("imu_period_s", num("imu_period_s") == 0 or DT_FLOOR <= num("imu_period_s") <= DT_CEIL,
+             f"0 (learnt) or in [{DT_FLOOR:g}, {DT_CEIL:g}] s")  # fmt: skip
+        need("imu_dt_min_periods", 0 < num("imu_dt_min_periods") <= 1.0, "in (0, 1]")
+        need("imu_dt_max_periods", num("imu_dt_max_periods") >= 1.0, ">= 1")
+        need("gnss_min_fix_type", isinstance(self.gnss_min_fix_type, int) and 2 <= self.gnss_min_fix_type <= 6,
+             "an integer 2 (2-D) to 6 (RTK fixed)")  # fmt: skip
+        need("gnss_h_max_m", num("gnss_h_max_m") > num("gnss_h_min_m"), "> gnss_h_min_m")
+        need("baro_pressure_min_pa", num("baro_pressure_min_pa") > 0, "> 0")
+        need("baro_pressure_max_pa", num("baro_pressure_max_pa") > num("baro_pressure_min_pa"),
+             "> baro_pressure_min_pa")  # fmt: skip
+        need("baro_alt_max_m", num("baro_alt_max_m") > num("baro_alt_min_m"), "> baro_alt_min_m")
+
+
+class _Imu:
+    """Per-IMU-id state: last accepted time (s), nominal period (s, 0 while learning), dt band (s)."""
+
+    __slots__ = ("hi", "learn", "lo", "t")
+
+    def __init__(self, period: float, lo_k: float, hi_k: float) -> None:
+        self.t = -math.inf
+        self.learn: list[float] | None = None if period > 0 else []
+        if period > 0:
+            self.lo, self.hi = max(DT_FLOOR, lo_k * period), min(DT_CEIL, hi_k * period)
+        else:
+            self.lo, self.hi = DT_FLOOR, DT_CEIL
+
+
+class SampleValidator:
+    """The one validation routine for every sample kind (see the module doc).
+
+    :meth:`imu` / :meth:`gnss` / :meth:`baro` / :meth:`mag` return ``None`` for a sample that may be
+    used, else the reason; :meth:`check` dispatches on the type. An accepted IMU sample or GNSS fix
+    advances its per-id time (a rejected one does not), so call each sample once. ``reset_time``
+    forgets the per-source times (a source whose clock the runtime has re-anchored backwards).
+    """
+
+    def __init__(self, limits: Limits | None = None) -> None:
+        lim = limits if limits is not None else Limits()
+        lim.check()
+        self.limits = lim
+        self._w = lim.gyro_range_dps * math.pi / 180.0 * lim.range_margin  # rad/s per axis
+        self._f = lim.accel_range_g * G0 * lim.range_margin  # m/s² per axis
+        self._imus: dict[int, _Imu] = {}
+        self._gnss_t: dict[int, float] = {}
+        self._lat = math.pi / 2
+        self._lon = math.pi
+        self._v2 = lim.gnss_speed_max_mps**2
+        self._b2 = lim.mag_max_t**2
+
+    def reset_time(self, source: int | None = None) -> None:
+        """Forget the last time of every IMU id and GNSS receiver (``source``: only that id)."""
+        if source is None:
+            for st in self._imus.values():
+                st.t = -math.inf
+            self._gnss_t.clear()
+        else:
+            if source in self._imus:
+                self._imus[source].t = -math.inf
+            self._gnss_t.pop(source, None)
+
+    def check(self, s: ImuSample | GnssFix | BaroSample | MagSample) -> str | None:
+        """The reason ``s`` is rejected, or None (any sample kind)."""
+        if isinstance(s, ImuSample):
+            return self.imu(s)
+        if isinstance(s, GnssFix):
+            return self.gnss(s)
+        if isinstance(s, BaroSample):
+            return self.baro(s)
+        if isinstance(s, MagSample):
+            return self.mag(s)
+        raise TypeError(f"SampleValidator: unsupported sample {type(s).__name__}")
+
+    # -- IMU (the hot path: comparisons only) -----------------------------------------
+    def imu(self, s: ImuSample) -> str | None:
+        """None if the IMU sample is possible, else ``imu_nonfinite`` / ``imu_dt`` / ``imu_rate`` /
+        ``imu_accel`` / ``imu_time``."""
+        st = self._imus.get(s.imu_id)
+        if st is None:
+            lim = self.limits
+            st = self._imus[s.imu_id] = _Imu(lim.imu_period_s, lim.imu_dt_min_periods, lim.imu_dt_max_periods)
+        dt = s.dt
+        t = s.t
+        # NaN fails every comparison below, so the fast path also rejects non-finite values
+        if st.lo <= dt <= st.hi and st.t < t < _INF:
+            try:
+                a0, a1, a2 = s.dtheta.tolist()
+                v0, v1, v2 = s.dvel.tolist()
+            except (AttributeError, TypeError, ValueError):
+                return self._imu_slow(s, st)  # not numpy 3-vectors: the general path
+            w, f = self._w * dt, self._f * dt
+            if (
+                -w <= a0 <= w and -w <= a1 <= w and -w <= a2 <= w
+                and -f <= v0 <= f and -f <= v1 <= f and -f <= v2 <= f
+            ):  # fmt: skip
+                st.t = t
+                if st.learn is not None:
+                    self._learn(st, dt)
+                return None
+        return self._imu_slow(s, st)
+
+    def _learn(self, st: _Imu, dt: float) -> None:
+        """Nominal period = median of the first LEARN_SAMPLES accepted intervals; then the band."""
+        learn = st.learn
+        assert learn is not None
+        learn.append(dt)
+        if len(learn) >= LEARN_SAMPLES:
+            p = sorted(learn)[LEARN_SAMPLES // 2]
+            lim = self.limits
+            st.lo, st.hi = max(DT_FLOOR, lim.imu_dt_min_periods * p), min(DT_CEIL, lim.imu_dt_max_periods * p)
+            st.learn = None
+
+    def _imu_slow(self, s: ImuSample, st: _Imu) -> str | None:
+        """The same test as :meth:`imu` for any sequence type; names the first failed check."""
+        fin = math.isfinite
+        try:
+            a = [float(x) for x in s.dtheta]
+            v = [float(x) for x in s.dvel]
+        except (TypeError, ValueError):
+            return "imu_nonfinite"
+        if not (fin(s.t) and fin(s.dt) and len(a) == 3 and len(v) == 3 and all(map(fin, a)) and all(map(fin, v))):
+            return "imu_nonfinite"
+        if not st.lo <= s.dt <= st.hi:
+            return "imu_dt"
+        if not s.t > st.t:
+            return "imu_time"
+        w, f = self._w * s.dt, self._f * s.dt
+        if any(abs(x) > w for x in a):
+            return "imu_rate"
+        if any(abs(x) > f for x in v):
+            return "imu_accel"
+        st.t = s.t
+        if st.learn is not None:
+            self._learn(st, s.dt)
+        return None
+
+    # -- aiding ------------------------------------------------------------------------
+    def gnss(self, g: GnssFix) -> str | None:
+        """None if the fix may be fused, else ``gnss_fix_type`` / ``gnss_nonfinite`` / ``gnss_position``
+        / ``gnss_height`` / ``gnss_velocity`` / ``gnss_std`` / ``gnss_time``."""
+        lim = self.limits
+        if not g.fix_type >= lim.gnss_min_fix_type:
+            return "gnss_fix_type"
+        fin = math.isfinite
+        if not (fin(g.t) and fin(g.lat) and fin(g.lon) and fin(g.h)):
+            return "gnss_nonfinite"
+        if not (-self._lat <= g.lat <= self._lat and -self._lon <= g.lon <= self._lon):
+            return "gnss_position"
+        if not lim.gnss_h_min_m <= g.h <= lim.gnss_h_max_m:
+            return "gnss_height"
+        v = g.vel_ned
+        if v is not None:
+            try:
+                v0, v1, v2 = (float(x) for x in v)
+            except (TypeError, ValueError):
+                return "gnss_velocity"
+            if not v0 * v0 + v1 * v1 + v2 * v2 < self._v2:  # NaN/inf fail too
+                return "gnss_velocity"
+        smax = lim.gnss_std_max_m
+        if not (0 < g.std_ne < smax and 0 < g.std_d < smax and 0 < g.std_vel < lim.gnss_std_vel_max_mps):
+            return "gnss_std"
+        last = self._gnss_t.get(g.source, -math.inf)
+        if not g.t > last:
+            return "gnss_time"
+        self._gnss_t[g.source] = g.t
+        return None
+
+    def baro(self, b: BaroSample) -> str | None:
+        """None if the sample may be fused, else ``baro_nonfinite`` / ``baro_range``."""
+        lim = self.limits
+        alt, p = b.altitude, b.pressure
+        if not math.isfinite(b.t):
+            return "baro_nonfinite"
+        has_alt, has_p = not math.isnan(alt), not math.isnan(p)
+        if not (has_alt or has_p) or (has_alt and not math.isfinite(alt)) or (has_p and not math.isfinite(p)):
+            return "baro_nonfinite"
+        if has_alt and not lim.baro_alt_min_m <= alt <= lim.baro_alt_max_m:
+            return "baro_range"
+        if has_p and not lim.baro_pressure_min_pa <= p <= lim.baro_pressure_max_pa:
+            return "baro_range"
+        return None
+
+    def mag(self, m: MagSample) -> str | None:
+        """None if the sample may be fused, else ``mag_nonfinite`` / ``mag_range``."""
+        try:
+            b0, b1, b2 = (float(x) for x in m.field_b)
+        except (TypeError, ValueError):
+            return "mag_nonfinite"
+        if not (math.isfinite(m.t) and math.isfinite(b0) and math.isfinite(b1) and math.isfinite(b2)):
+            return "mag_nonfinite"
+        if not b0 * b0 + b1 * b1 + b2 * b2 < self._b2:
+            return "mag_range"
+        return None
