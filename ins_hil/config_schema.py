@@ -433,6 +433,23 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "epoch_wait_periods": M(
             "IMU periods", "(0, 1000]", "redundant IMUs: how long an epoch waits (arrival time) for a missing unit"
         ),
+        "gyro_range_dps": M("°/s", "(0, 100000]", "per-axis gyro full scale; beyond range × range_margin: rejected"),
+        "accel_range_g": M("g", "(0, 1000]", "per-axis accelerometer full scale (g = 9.80665 m/s²)"),
+        "range_margin": M("", "[1, 100]", "factor on the full scales before a reading is rejected"),
+        "imu_period_s": M("s", "[0, 1]", "nominal IMU interval; 0 = learnt per IMU id (median of its first 8)"),
+        "imu_dt_min_periods": M("", "(0, 1]", "shortest accepted dt, in nominal periods (never below 1e-5 s)"),
+        "imu_dt_max_periods": M("", "[1, 1000]", "longest accepted dt, in nominal periods (never above 1 s)"),
+        "gnss_min_fix_type": M("", "[0, 8]", "lowest GNSS fix type fused (MAVLink GPS_FIX_TYPE: 3 = 3-D)"),
+        "gnss_h_min_m": M("m", "[-100000, 100000]", "lowest plausible GNSS ellipsoidal height"),
+        "gnss_h_max_m": M("m", "[-100000, 1000000]", "highest plausible GNSS ellipsoidal height"),
+        "gnss_speed_max_mps": M("m/s", "(0, 100000]", "highest plausible GNSS speed"),
+        "gnss_std_max_m": M("m", "(0, 1000000]", "a fix reporting a larger position σ is rejected"),
+        "gnss_std_vel_max_mps": M("m/s", "(0, 100000]", "a fix reporting a larger velocity σ is rejected"),
+        "baro_pressure_min_pa": M("Pa", "[0, 1000000]", "lowest plausible static pressure"),
+        "baro_pressure_max_pa": M("Pa", "(0, 10000000]", "highest plausible static pressure"),
+        "baro_alt_min_m": M("m", "[-100000, 100000]", "lowest plausible barometric altitude"),
+        "baro_alt_max_m": M("m", "[-100000, 1000000]", "highest plausible barometric altitude"),
+        "mag_max_t": M("T", "(0, 1]", "a magnetometer reading with a larger field magnitude is rejected"),
         "calibration": M(
             help="IMU calibration file (ins-hil calibrate; ins_hil.nav.calibration); '' = none", file=True
         ),
