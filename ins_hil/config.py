@@ -59,6 +59,8 @@ class RecorderConfig:
     dir: str = "recordings"
     max_mb: float = 256.0
     flush_period: float = 0.05
+    total_mb: float = 8192.0  # MiB: all parts of one run; its oldest parts deleted first (≈ 25 h at 1 kHz)
+    dir_total_mb: float = 0.0  # MiB: every .ihlog in dir (other runs' oldest files deleted first); 0 = no limit
 
 
 @dataclass
@@ -297,6 +299,8 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     _fill(cfg.recorder, d.get("recorder", {}), "recorder")
     _positive("recorder.max_mb", cfg.recorder.max_mb)
     _positive("recorder.flush_period", cfg.recorder.flush_period)
+    _positive("recorder.total_mb", cfg.recorder.total_mb)
+    _positive("recorder.dir_total_mb", cfg.recorder.dir_total_mb, allow_zero=True)
     if cfg.recorder.flush_period > 0.1:
         raise ConfigError(f"recorder.flush_period = {cfg.recorder.flush_period}: must be ≤ 0.1 s")
     return cfg

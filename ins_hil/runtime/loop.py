@@ -246,6 +246,9 @@ class Gateway:
                 },
                 max_bytes=int(cfg.recorder.max_mb * 1024 * 1024),
                 flush_period=cfg.recorder.flush_period,
+                max_total_bytes=int(cfg.recorder.total_mb * 1024 * 1024),
+                dir_max_bytes=int(cfg.recorder.dir_total_mb * 1024 * 1024),
+                on_message=self.metrics.warn,
             )
         for p in self.publishers:
             await p.start()
