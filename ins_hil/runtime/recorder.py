@@ -660,7 +660,16 @@ class LogReader:
                             if more and last:
                                 self._problem(f"{p}: part {k}: says a next part follows, none on disk", k, None)
                             return
-                        rec = decode_record(kind, view[pos + 4 : end])
+                        try:
+                            rec = decode_record(kind, view[pos + 4 : end])
+                        except ValueError as e:  # a CRC-valid frame this version cannot decode
+                            self._problem(f"{p}: part {k}: undecodable record at byte {pos} ({e})", k, pos)
+                            if s.stopped:
+                                return
+                            s.damaged += 1
+                            s.skipped_bytes += end + 4 - pos
+                            pos = end + 4
+                            continue
                         if not s.records:
                             s.t_first = rec.t
                         s.t_last = rec.t
@@ -727,7 +736,14 @@ class LogReader:
                 else:
                     self._problem(f"{p}: part {k}: cut at byte {off} inside a record", k, off)
                 return
-            rec = decode_record(kind, view[off + 1 : off + 1 + sz])
+            try:
+                rec = decode_record(kind, view[off + 1 : off + 1 + sz])
+            except ValueError as e:
+                self._problem(f"{p}: part {k}: undecodable record at byte {off} ({e}; format 1: no resync)", k, off)
+                if not s.stopped:
+                    s.damaged += 1
+                    s.skipped_bytes += n - off
+                return
             if not s.records:
                 s.t_first = rec.t
             s.t_last = rec.t
