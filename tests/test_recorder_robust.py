@@ -317,6 +317,8 @@ def test_retention_deletes_this_runs_oldest_parts_only(tmp_path: Path) -> None:
     reader = LogReader(kept[-1])
     got = [_key(r) for r in reader]
     assert reader.message() == "" and "not on disk" in reader.stats.notes[0]
+    res = replay_log(kept[0])
+    assert res.read_error == "" and "not on disk" in res.read_notes[0] and res.records == len(got)
     assert got == [_key(s) for s in src[len(src) - len(got) :]]
     rec2, _ = _rotated(tmp_path, name="counted.ihlog", max_parts=3)
     assert [q for q in rec2.paths if q.exists()] == rec2.paths[-3:]

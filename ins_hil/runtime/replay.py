@@ -35,6 +35,7 @@ class ReplayResult:
     counts: dict[str, int] = field(default_factory=dict)
     parts: int = 1
     read_error: str = ""  # the reader's one line when the log is damaged, cut or has a missing part
+    read_notes: list[str] = field(default_factory=list)  # not damage: a kill's cut tail, parts deleted by retention
 
     def arrays(self) -> dict[str, np.ndarray]:
         """t (N,), q_nb (N,4), vel_ned (N,3), lat/lon/h (N,) of the states."""
@@ -109,6 +110,7 @@ def replay_log(
         res.events.extend(pipe.drain_events())
     res.counts = dict(pipe.counts)
     res.read_error = reader.message()
+    res.read_notes = list(reader.stats.notes)
     return res
 
 
@@ -138,6 +140,8 @@ def replay_cli(path: str | Path, args: argparse.Namespace | None = None) -> int:
         )
     print(f"IMU epochs processed {seen[1]}, counters {res.counts}")
     print(f"fault events {len(res.events)}")
+    for note in res.read_notes:
+        print(f"note: {note}")
     if res.read_error:
         print(f"ins-hil replay: {res.read_error}")
     if not getattr(args, "quiet", False):
