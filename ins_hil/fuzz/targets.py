@@ -168,8 +168,10 @@ def _dronecan(rng: random.Random) -> Step:
             dec = dc.DroneCanDecoder()  # a bus re-open: node clocks pushed ahead by junk start afresh
         st["t"] += 0.005
         dtid, make = rng.choice(gen_payload)
-        if dtid in (dc.DTID_FIX2, dc.DTID_NODE_STATUS) and dtid in cache and rng.random() < 0.9:
-            payload = bytearray(cache[dtid])  # the dronecan packer is slow: reuse, mutate
+        if dtid in cache and rng.random() < 0.95:
+            payload = bytearray(cache[dtid])  # the DSDL packer is slow: reuse the template, mutate
+            if dtid in (dc.DTID_RAW_IMU, dc.DTID_FIX2):  # both start with timestamp.usec (uint56)
+                payload[:7] = round(st["t"] * 1e6).to_bytes(7, "little")
         else:
             payload = bytearray(make())
             cache[dtid] = bytes(payload)
