@@ -334,6 +334,10 @@ def test_directory_limit_deletes_other_runs_oldest_first(tmp_path: Path) -> None
     _rotated(tmp_path, name="z-now.ihlog", n=100, dir_max_bytes=3 * 4096 + size, on_message=msgs.append)
     assert not old.exists() and new.exists()
     assert any("another run's oldest file" in m and "a-old.ihlog" in m for m in msgs)
+    # a limit already exceeded when a run starts is applied at its start
+    msgs.clear()
+    Recorder(tmp_path / "later.ihlog", dir_max_bytes=1, on_message=msgs.append).close()
+    assert not new.exists() and (tmp_path / "later.ihlog").exists() and len(msgs) >= 1
 
 
 def test_retention_config_default_holds_a_day_at_1_khz(tmp_path: Path) -> None:

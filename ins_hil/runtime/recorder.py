@@ -270,8 +270,7 @@ class Recorder:
         self._part_records = 0
         self.paths.append(path)
         self.kept.append(path)
-        if part:
-            self._retain()
+        self._retain()  # at the start too: a directory limit already exceeded by older runs
 
     def write(self, s: Record) -> None:
         """Buffer one record (hot path: no I/O)."""
