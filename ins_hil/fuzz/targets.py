@@ -519,10 +519,10 @@ def _recorder(rng: random.Random) -> Step:
 
 TARGETS: list[Target] = [
     # weights: shares of the budget, set so every decoder gets about the same number of inputs
-    Target("serial_frame", "ins_hil.drivers.serial_frame.FrameParser.feed", _serial, 0.3, nav=True),
-    Target("dronecan", "ins_hil.drivers.dronecan_codec.DroneCanDecoder.feed", _dronecan, 1.4, nav=True),
-    Target("dbc", "ins_hil.drivers.dbc_codec.DbcImuDecoder.feed", _dbc, 0.8, nav=True),
-    Target("mavlink_in", "ins_hil.drivers.mavlink_in.MavlinkDriver.feed", _mavlink, 1.6, nav=True),
+    Target("serial_frame", "ins_hil.drivers.serial_frame.FrameParser.feed", _serial, 0.45, nav=True),
+    Target("dronecan", "ins_hil.drivers.dronecan_codec.DroneCanDecoder.feed", _dronecan, 1.5, nav=True),
+    Target("dbc", "ins_hil.drivers.dbc_codec.DbcImuDecoder.feed", _dbc, 0.7, nav=True),
+    Target("mavlink_in", "ins_hil.drivers.mavlink_in.MavlinkDriver.feed", _mavlink, 1.35, nav=True),
     Target("config", "ins_hil.config.from_dict / load (mutated configs/*.toml)", _config, 0.5, decoder=False),
     Target("recorder_reader", "ins_hil.runtime.recorder.read_records", _recorder, 0.5, decoder=False),
 ]
