@@ -63,6 +63,8 @@ class RecorderConfig:
     dir: str = "recordings"
     max_mb: float = 256.0
     flush_period: float = 0.05
+    total_mb: float = 8192.0  # MiB: all parts of one run; its oldest parts deleted first (≈ 25 h at 1 kHz)
+    dir_total_mb: float = 0.0  # MiB: every .ihlog in dir (other runs' oldest files deleted first); 0 = no limit
 
 
 @dataclass

@@ -710,6 +710,12 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "dir": M(help="directory of the recordings (ins-hil-<time>.ihlog)", nonempty=True),
         "max_mb": M("MiB", "[0.01, 1048576]", "rotate files at this size"),
         "flush_period": M("s", "(0, 0.1]", "a killed process loses at most about this much"),
+        "total_mb": M(
+            "MiB", "[0.01, 16777216]", "all parts of one run; its oldest parts are deleted first (8192 ≈ 25 h at 1 kHz)"
+        ),
+        "dir_total_mb": M(
+            "MiB", "[0, 16777216]", "every .ihlog in dir; other runs' oldest files deleted first; 0 = no limit"
+        ),
     },
 }
 

@@ -58,7 +58,7 @@ def test_truncated_last_record_is_ignored(tmp_path: Path) -> None:
     rec = Recorder(tmp_path / "t.ihlog")
     for s in _samples():
         rec.write(s)
-    rec.close()
+    rec.flush()  # killed: flushed, never closed (no end frame)
     data = (tmp_path / "t.ihlog").read_bytes()
     (tmp_path / "t.ihlog").write_bytes(data[:-7])  # killed in the middle of the last record
     assert len(list(read_records(tmp_path / "t.ihlog"))) == len(_samples()) - 1

@@ -293,6 +293,9 @@ class Gateway:
                 },
                 max_bytes=int(cfg.recorder.max_mb * 1024 * 1024),
                 flush_period=cfg.recorder.flush_period,
+                max_total_bytes=int(cfg.recorder.total_mb * 1024 * 1024),
+                dir_max_bytes=int(cfg.recorder.dir_total_mb * 1024 * 1024),
+                on_message=self.metrics.warn,
             )
         for i, p in enumerate(self.publishers):
             try:

@@ -20,7 +20,7 @@ from typing import Any, overload
 import numpy as np
 
 from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
-from ins_hil.runtime.recorder import parts_of, read_header, read_records
+from ins_hil.runtime.recorder import LogReader, parts_of, read_header
 from ins_hil.types import FaultEvent, ImuSample, NavState
 
 
@@ -34,6 +34,8 @@ class ReplayResult:
     records: int = 0
     counts: dict[str, int] = field(default_factory=dict)
     parts: int = 1
+    read_error: str = ""  # the reader's one line when the log is damaged, cut or has a missing part
+    read_notes: list[str] = field(default_factory=list)  # not damage: a kill's cut tail, parts deleted by retention
 
     def arrays(self) -> dict[str, np.ndarray]:
         """t (N,), q_nb (N,4), vel_ned (N,3), lat/lon/h (N,) of the states."""
@@ -89,7 +91,8 @@ def replay_log(
     header = read_header(path)
     pipe = Pipeline(pipeline_config_from_header(header, core))
     res = ReplayResult(header=header, parts=len(parts_of(path)))
-    for rec in read_records(path):
+    reader = LogReader(path)  # stops at the first damaged record: the intact prefix is replayed
+    for rec in reader:
         res.records += 1
         if isinstance(rec, ImuSample):
             st = pipe.imu(rec)
@@ -106,6 +109,8 @@ def replay_log(
     if pipe.events:
         res.events.extend(pipe.drain_events())
     res.counts = dict(pipe.counts)
+    res.read_error = reader.message()
+    res.read_notes = list(reader.stats.notes)
     return res
 
 
@@ -135,7 +140,11 @@ def replay_cli(path: str | Path, args: argparse.Namespace | None = None) -> int:
         )
     print(f"IMU epochs processed {seen[1]}, counters {res.counts}")
     print(f"fault events {len(res.events)}")
+    for note in res.read_notes:
+        print(f"note: {note}")
+    if res.read_error:
+        print(f"ins-hil replay: {res.read_error}")
     if not getattr(args, "quiet", False):
         for ev in res.events[:50]:
             print(f"  t {ev.t:.3f} {ev.sensor} {ev.mode.name}{' cleared' if ev.cleared else ''} {ev.detail}")
-    return 0
+    return 2 if res.read_error else 0
