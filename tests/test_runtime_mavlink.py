@@ -16,6 +16,9 @@ from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.types import FixType, GnssFix, NavState
 
 
+KYIV_N = 25.25  # EGM96 geoid undulation (m) at 50.45° N 30.52° E, the egm96 package's full 5' grid node
+
+
 def _state(t: float) -> NavState:
     return NavState(
         t=t,
@@ -82,7 +85,9 @@ def test_gcs_messages_decode_to_the_state() -> None:
     assert math.isclose(math.degrees(a.yaw), 120, abs_tol=1e-4) and math.isclose(a.yawspeed, 0.03, rel_tol=1e-6)
     assert a.time_boot_ms == 1000
     g = out["GLOBAL_POSITION_INT"][0]
-    assert g.lat == 504500000 and g.lon == 305200000 and g.alt == 181500
+    assert g.lat == 504500000 and g.lon == 305200000
+    # MSL: the ellipsoidal 181.5 m less the EGM96 undulation at 50.45° N 30.52° E (25.25 m on the 5' grid)
+    assert abs(g.alt * 1e-3 - (181.5 - KYIV_N)) < 0.3 and g.relative_alt == 0
     assert (g.vx, g.vy, g.vz) == (300, -400, 50) and g.hdg == 12000
     assert len(out["GPS_RAW_INT"]) == 1 and out["GPS_RAW_INT"][0].satellites_visible == 14  # one fix, passed once
     es = out["ESTIMATOR_STATUS"][0]
@@ -105,9 +110,11 @@ def test_flight_controller_messages_decode_to_the_state() -> None:
         o.pose_covariance[11], 1.44, rel_tol=1e-6
     )
     gi = out["GPS_INPUT"][0]
-    assert gi.lat == 504500000 and gi.fix_type == 3 and math.isclose(gi.vn, 3.0) and math.isclose(gi.alt, 181.5)
+    assert gi.lat == 504500000 and gi.fix_type == 3 and math.isclose(gi.vn, 3.0)
+    assert abs(gi.alt - (181.5 - KYIV_N)) < 0.3  # MSL
     hil = out["HIL_STATE_QUATERNION"][0]
-    assert np.allclose(hil.attitude_quaternion, st.q_nb, atol=1e-7) and hil.alt == 181500 and hil.vx == 300
+    assert np.allclose(hil.attitude_quaternion, st.q_nb, atol=1e-7) and hil.vx == 300
+    assert abs(hil.alt * 1e-3 - (181.5 - KYIV_N)) < 0.3  # PX4 reads it as AMSL
     assert out["HEARTBEAT"][0].type == mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
 
 
