@@ -466,6 +466,7 @@ class MavlinkEndpoint:
             wake.clear()
             self._send_safely()
             try:
+                self._send_replies()
                 self._beat()
             except Exception as e:  # a bad value must not kill the output
                 self.metrics.output(self.name, "encode_error")
@@ -802,7 +803,7 @@ class MavlinkEndpoint:
         self.params: Any = None  # ins_hil.runtime.mavlink_params.ParamStore (attached by the gateway)
         self.params_index = 0
         self._latest_ns = 0  # monotonic time of the newest state
-        self._reply_pending: list[str] = []  # messages to send once from the task (HOME_POSITION)
+        self._reply_pending: list[Any] = []  # messages to send once, after the ACK / off the IMU path
         self._geoid_at = (math.inf, math.inf)
         self._geoid_n = 0.0
         self.rx_ignored = 0  # messages addressed to another system
@@ -834,8 +835,8 @@ class MavlinkEndpoint:
         Per sensor kind (RuntimeMetrics.sensors): present = configured or seen, enabled = present,
         healthy = arriving at its rate; the IMU bits are unhealthy while FDI reports a fault; AHRS
         healthy = valid solution. system_status: STANDBY before the first aligned solution, ACTIVE
-        when the solution is valid and every present sensor healthy, CRITICAL after a solution when
-        it is invalid (IMU lost, no state for 0.5 s) or a sensor is lost (dead reckoning)."""
+        when the solution is valid and every present sensor healthy, CRITICAL when the IMU is lost,
+        or after a solution when it is invalid (no state for 0.5 s) or a sensor is lost (dead reckoning)."""
         m = self._m
         present = health = 0
         all_ok = True
@@ -854,9 +855,10 @@ class MavlinkEndpoint:
         if valid:
             health |= m.MAV_SYS_STATUS_AHRS
             self._had_solution = True
+        imu = self.metrics.sensors["imu"]
         if valid and all_ok:
             status = m.MAV_STATE_ACTIVE
-        elif self._had_solution:
+        elif self._had_solution or (imu.count and not imu.healthy):  # solution lost, or the IMU lost
             status = m.MAV_STATE_CRITICAL
         else:
             status = m.MAV_STATE_STANDBY
@@ -979,8 +981,7 @@ class MavlinkEndpoint:
             if typ is None:
                 result = m.MAV_RESULT_DENIED
             else:
-                hz = self.rates.get(typ, 0.0)
-                self.mav.message_interval_send(int(p[0]), round(1e6 / hz) if hz > 0 else -1)
+                self._reply_pending.append(("MESSAGE_INTERVAL", int(p[0])))  # after the ACK
                 result = m.MAV_RESULT_ACCEPTED
         elif cmd == m.MAV_CMD_PREFLIGHT_STORAGE:
             result = self._storage(int(p[0]))
@@ -1067,7 +1068,11 @@ class MavlinkEndpoint:
     def _send_replies(self) -> None:
         while self._reply_pending:
             typ = self._reply_pending.pop(0)
-            if typ == "AUTOPILOT_VERSION":
+            if isinstance(typ, tuple):  # ("MESSAGE_INTERVAL", message id): −1 = not streamed
+                hz = self.rates.get(_MSG_NAMES.get(typ[1], ""), 0.0)
+                self.mav.message_interval_send(typ[1], round(1e6 / hz) if hz > 0 else -1)
+                typ = typ[0]
+            elif typ == "AUTOPILOT_VERSION":
                 self._send_autopilot_version()
             elif typ == "HOME_POSITION":
                 self._send_home_position()

@@ -159,6 +159,9 @@ class ParamStore:
         self.base = cfg
         self.cfg = cfg
         self.doc = config_document(cfg)
+        # what the override file is the difference to (copies: the running pipeline's dict is changed live)
+        self._base_doc = copy.deepcopy(self.doc)
+        self._base_rates = [o.effective_rates() for o in cfg.outputs]
         self.writable = True
         self.why_readonly = ""
         try:  # the document must give back exactly this configuration, else sets would change other keys
@@ -218,9 +221,10 @@ class ParamStore:
         if not self.writable:
             raise ParamError(self.why_readonly)
         if ptype not in (want, 0) and not (want == INT32 and ptype in (1, 2, 3, 4, 5, 6)):
-            raise ParamError(f"{name}: wrong type {ptype} (expected {'INT32' if want == INT32 else 'REAL32'})")
+            raise ParamError(f"{name}: wrong type ({'INT32' if want == INT32 else 'REAL32'} expected)")
         if not math.isfinite(value):
             raise ParamError(f"{name}: not a finite number")
+        value = _f32_decimal(value)
         doc = copy.deepcopy(self.doc)
         p = _NAV_BY_NAME.get(name)
         if p is not None:
@@ -237,7 +241,7 @@ class ParamStore:
         else:
             msg = next(m for m, n in RATE_PARAM.items() if n == name)
             if value < 0:
-                raise ParamError(f"{name}: a rate must be ≥ 0 Hz")
+                raise ParamError(f"{name}: a rate is ≥ 0 Hz")
             self._ep_doc(doc, ep_index)["rates"][msg] = float(value)
         try:
             new = self._validate(doc)
@@ -258,17 +262,17 @@ class ParamStore:
         if not self.endpoints:  # not running (loading the override file): the core starts with it
             return
         if not p.live:
-            raise ParamError(f"{p.name}: shapes the filter at its start: set it in the config and restart")
+            raise ParamError(f"{p.name}: needs a restart (set it in the config)")
         pipe = self.pipeline
         core = getattr(pipe, "core", None) if pipe is not None else None
         if pipe is not None and pipe.cfg.core != "python":
-            raise ParamError(f"{p.name}: the C core takes its settings at start only")
+            raise ParamError(f"{p.name}: C core: needs a restart")
         if core is not None:
             from ins_hil.runtime.pipeline import nav_config
 
             ncfg = getattr(core, "cfg", None)
             if ncfg is None or type(ncfg).__name__ != "NavConfig":
-                raise ParamError(f"{p.name}: this core cannot change its settings while running")
+                raise ParamError(f"{p.name}: this core: needs a restart")
             fresh = nav_config(new.pipeline.nav)
             core.cfg = dataclasses.replace(ncfg, **{p.key.split("[")[0]: getattr(fresh, p.key.split("[")[0])})
         if pipe is not None:
@@ -289,14 +293,14 @@ class ParamStore:
     def overrides(self) -> dict[str, Any]:
         """The values that differ from the configuration given at start, as the override document."""
         out: dict[str, Any] = {}
-        base = config_document(self.base)
+        base = self._base_doc
         for p in NAV_PARAMS:
             a = _nav_get(base["core"]["nav"], p.key, self._nav_default)
             b = _nav_get(self.doc["core"]["nav"], p.key, self._nav_default)
             if a != b:
                 out[p.name] = int(b) if p.ptype == INT32 else float(b)
         for i, o in enumerate(self.cfg.outputs):
-            r0, r1 = self.base.outputs[i].effective_rates(), o.effective_rates()
+            r0, r1 = self._base_rates[i], o.effective_rates()
             for m, n in RATE_PARAM.items():
                 if r0.get(m, 0.0) != r1.get(m, 0.0):
                     out.setdefault(o.name, {})[n] = float(r1.get(m, 0.0))
@@ -348,6 +352,14 @@ class ParamStore:
             except ParamError as e:
                 raise ConfigError(f"{path}: {e}") from None
         self.changed.clear()
+
+
+def _f32_decimal(x: float) -> float:
+    """The shortest decimal of a float32 wire value (PARAM_SET 0.8 arrives as 0.800000011920929): the
+    value a user typed, for the configuration and the override file."""
+    import numpy as np
+
+    return float(str(np.float32(x)))
 
 
 def _toml_key(k: str) -> str:
