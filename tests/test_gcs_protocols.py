@@ -60,8 +60,9 @@ class Vehicle:
         while not self._stop.is_set():
             if self.states:
                 if k == 0:
-                    self.ep.offer_gnss(GnssFix(1.0, math.radians(50.45), math.radians(30.52), 181.0,
-                                               np.array([3.0, -4.0, 0.5]), fix_type=FixType.FIX_3D, num_sats=9))  # fmt: skip
+                    lat, lon = math.radians(50.45), math.radians(30.52)
+                    v = np.array([3.0, -4.0, 0.5])
+                    self.ep.offer_gnss(GnssFix(1.0, lat, lon, 181.0, v, fix_type=FixType.FIX_3D, num_sats=9))
                 self.ep.offer(_state(1.0 + 0.01 * k), 0, 0)
                 k += 1
             await asyncio.sleep(0.01)
@@ -69,7 +70,8 @@ class Vehicle:
 
     def __enter__(self) -> Vehicle:
         # the ground station listens where the endpoint sends (MAVProxy's --master=udpin:…)
-        self.gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=255, dialect="ardupilotmega")
+        url = f"udpin:127.0.0.1:{self.port}"
+        self.gcs = mavutil.mavlink_connection(url, source_system=255, dialect="ardupilotmega")
         self._th.start()
         assert self._ready.wait(5)
         self.wait("HEARTBEAT")  # the endpoint's address is known to the GCS from its first datagram
@@ -127,7 +129,8 @@ def test_param_request_list_returns_every_index_with_the_count(tmp_path: Path) -
     assert all(len(k) <= 16 for k in names)
     assert math.isclose(names["SR_ATTITUDE"].param_value, 50.0) and names["SR_ATTITUDE"].param_type == 9
     assert math.isclose(names["NAV_GATE_GNSS"].param_value, 5.0)
-    assert names["NAV_DELAY_COMP"].param_type == M.MAV_PARAM_TYPE_INT32 and names["NAV_DELAY_COMP"].param_value in (0, 1)
+    dc = names["NAV_DELAY_COMP"]
+    assert dc.param_type == M.MAV_PARAM_TYPE_INT32 and dc.param_value in (0, 1)
 
 
 def test_param_read_set_good_bad_and_other_system(tmp_path: Path) -> None:

@@ -464,8 +464,8 @@ class MavlinkEndpoint:
                 except TimeoutError:
                     pass
             wake.clear()
-            self._send_safely()
             try:
+                self._send_texts()  # the state's messages go out from offer() only: never a stale state again
                 self._send_replies()
                 self._beat()
             except Exception as e:  # a bad value must not kill the output
@@ -507,12 +507,15 @@ class MavlinkEndpoint:
                 if first:
                     self.metrics.record_sent(arrival_ns, ready_ns, time.monotonic_ns())
                     first = False
+        self._send_texts()
+        if latest is not None:
+            self._update_next_due()
+
+    def _send_texts(self) -> None:
         while self._texts:
             sev, text = self._texts.popleft()
             self.mav.statustext_send(sev, text.encode())
             self._count("STATUSTEXT")
-        if latest is not None:
-            self._update_next_due()
 
     def _update_next_due(self) -> None:
         """Earliest time a message is due (GPS_RAW_INT only once a new fix is there)."""
@@ -807,8 +810,8 @@ class MavlinkEndpoint:
         self._geoid_at = (math.inf, math.inf)
         self._geoid_n = 0.0
         self.rx_ignored = 0  # messages addressed to another system
-        self._had_solution = False
-        self._write_ok = True  # the last write reached the transport  # a valid solution was seen (then CRITICAL when it is lost)
+        self._had_solution = False  # a valid solution was seen (then CRITICAL when it is lost)
+        self._write_ok = True  # the last write reached the transport
 
     def _msl(self, lat: float, lon: float, h: float) -> float:
         """Height above MSL (m, EGM96) of ``h`` (WGS84); the undulation is re-evaluated when the point
