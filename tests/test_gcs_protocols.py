@@ -152,7 +152,8 @@ def test_param_read_set_good_bad_and_other_system(tmp_path: Path) -> None:
         for name, value, ptype, old in (
             ("SR_ATTITUDE", -3.0, 9, 50.0),  # negative rate
             ("NAV_USE_GNSS_V", 0.5, M.MAV_PARAM_TYPE_INT32, 1.0),  # not an integer
-            ("NAV_USE_GNSS_V", 0.0, M.MAV_PARAM_TYPE_REAL32, 1.0),  # wrong type for an INT32 parameter
+            ("NAV_GATE_GNSS", 3.0, M.MAV_PARAM_TYPE_INT32, 4.0),  # wrong type for a REAL32 parameter
+            ("NAV_USE_GNSS_V", 0.0, M.MAV_PARAM_TYPE_REAL32, 1.0),  # right type (C cast), but needs a restart
             ("FLT_GYRO_ARW", 1e-3, 9, _default_arw()),  # shapes the filter at start: refused live
         ):
             r = _param_set(v, name, value, ptype)
@@ -279,3 +280,76 @@ def test_shipped_configs_round_trip_through_their_document(name: str) -> None:
 
     store = ParamStore(load(REPO_CONFIGS / name), path=None)
     assert store.writable, store.why_readonly
+
+
+def _mavproxy() -> list[str]:
+    import shutil
+    import sys
+
+    exe = shutil.which("mavproxy.py", path=str(Path(sys.executable).parent)) or shutil.which("mavproxy.py")
+    if exe is None:
+        raise RuntimeError("mavproxy.py not found: MAVProxy is in the dev extras (pip install -e .[dev])")
+    return [sys.executable, exe]
+
+
+@pytest.mark.slow
+def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
+    """MAVProxy (interactive, commands on stdin): ``param fetch`` lists every parameter, ``param set``
+    of a good value is applied, of a non-integer to an INT32 parameter refused (MAVProxy reports the
+    failure with the value we echoed), and the refusal's STATUSTEXT is shown."""
+    import re
+    import subprocess
+
+    v = Vehicle(tmp_path)
+    mp = subprocess.Popen(
+        [*_mavproxy(), f"--master=udpin:127.0.0.1:{v.port}", f"--state-basedir={tmp_path}",
+         "--default-modules=param", "--mav20"],
+        cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    lines: list[str] = []
+    out = mp.stdout
+    assert out is not None
+    threading.Thread(target=lambda: lines.extend(iter(out.readline, "")), daemon=True).start()
+
+    def wait_for(pattern: str, timeout: float = 10.0) -> re.Match[str] | None:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for ln in list(lines):
+                if (m := re.search(pattern, ln)) is not None:
+                    return m
+            time.sleep(0.1)
+        return None
+
+    def cmd(c: str) -> None:
+        assert mp.stdin is not None
+        mp.stdin.write(c + "\n")
+        mp.stdin.flush()
+
+    n = len(NAV_PARAMS) + len(RATE_PARAM)
+    try:
+        time.sleep(1.0)  # MAVProxy binds its UDP port
+        v._th.start()
+        assert v._ready.wait(5)
+        assert wait_for(r"Detected vehicle 42:1") is not None, "".join(lines)
+        lines.clear()
+        cmd("param fetch")
+        got = wait_for(r"Received (\d+) parameters")
+        assert got is not None and int(got.group(1)) == n, "".join(lines)
+        cmd("param set SR_VFR_HUD 2")
+        cmd("param set NAV_USE_GNSS_V 0.5")
+        assert wait_for(r"Failed to set NAV_USE_GNSS_V to 0.5 \(invalid returned value 1.0\)") is not None, lines
+        assert wait_for(r"NAV_USE_GNSS_V: wrong type") is not None  # our STATUSTEXT, shown by MAVProxy
+        cmd("param show SR_VFR_HUD")
+        assert wait_for(r"SR_VFR_HUD\s+2\.0") is not None, "".join(lines)
+    finally:
+        mp.terminate()
+        try:
+            mp.wait(5)
+        except subprocess.TimeoutExpired:
+            mp.kill()
+            mp.wait()
+        v._stop.set()
+        v._th.join(5)
+    assert v.ep.rates["VFR_HUD"] == 2.0 and v.pipeline.core.cfg.use_gnss_vel is True
+    saved = (tmp_path / "mav_42_1.parm").read_text().split("\n")
+    assert len([s for s in saved if s.strip()]) == n  # MAVProxy's own copy of the parameter list

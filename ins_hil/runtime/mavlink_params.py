@@ -220,8 +220,12 @@ class ParamStore:
         want = self.get(ep_index, name)[1]
         if not self.writable:
             raise ParamError(self.why_readonly)
-        if ptype not in (want, 0) and not (want == INT32 and ptype in (1, 2, 3, 4, 5, 6)):
+        # REAL32 parameters take REAL32 only; INT32 ones any integer type or REAL32 with an integral value
+        # (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST: the value is the float of the integer, as MAVProxy sends)
+        if (want == REAL32 and ptype != REAL32) or (want == INT32 and ptype not in (1, 2, 3, 4, 5, 6, 7, 8, REAL32)):
             raise ParamError(f"{name}: wrong type ({'INT32' if want == INT32 else 'REAL32'} expected)")
+        if want == INT32 and math.isfinite(value) and value != int(value):
+            raise ParamError(f"{name}: wrong type ({value:g} is no integer)")
         if not math.isfinite(value):
             raise ParamError(f"{name}: not a finite number")
         value = _f32_decimal(value)
