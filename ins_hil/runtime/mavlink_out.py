@@ -234,6 +234,8 @@ class EndpointConfig:
     signing_key: str = ""  # 64 hex digits
     rates: dict[str, float] = field(default_factory=dict)
     params_file: str = ""  # parameter override file (default: <config>.params.toml), ins_hil.runtime.mavlink_params
+    # ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only LOCAL_FRD; same values: x north)
+    odometry_frame: str = "LOCAL_NED"
 
     def effective_rates(self) -> dict[str, float]:
         base = dict(GCS_RATES if self.role == "gcs" else FC_RATES)
@@ -730,15 +732,16 @@ class MavlinkEndpoint:
             vc = list(pc)
         t_us = round(st.t * 1e6)
         quality = 100 if st.aligned else 0
+        # estimator_type VIO: PX4 reads the covariances only when it is not NAIVE (an inertial + aided estimate)
         if self._fast:  # wire order: time, x, y, z, q, v, rates, covariances, frame ids, reset, estimator, quality
             self._emit(
                 _frame_of("ODOMETRY"), t_us, *d, *q, vbx, vby, vbz, wx, wy, wz, *pc, *vc,
-                m.MAV_FRAME_LOCAL_NED, m.MAV_FRAME_BODY_FRD, 0, m.MAV_ESTIMATOR_TYPE_NAIVE, quality,
+                self._odom_frame, m.MAV_FRAME_BODY_FRD, 0, m.MAV_ESTIMATOR_TYPE_VIO, quality,
             )  # fmt: skip
         else:
             self.mav.odometry_send(
-                t_us, m.MAV_FRAME_LOCAL_NED, m.MAV_FRAME_BODY_FRD, *d, q, vbx, vby, vbz, wx, wy, wz, pc, vc,
-                0, m.MAV_ESTIMATOR_TYPE_NAIVE, quality,
+                t_us, self._odom_frame, m.MAV_FRAME_BODY_FRD, *d, q, vbx, vby, vbz, wx, wy, wz, pc, vc,
+                0, m.MAV_ESTIMATOR_TYPE_VIO, quality,
             )  # fmt: skip
 
     def _send_gps_input(self, st: NavState) -> None:
@@ -810,6 +813,10 @@ class MavlinkEndpoint:
         self._geoid_at = (math.inf, math.inf)
         self._geoid_n = 0.0
         self.rx_ignored = 0  # messages addressed to another system
+        frames = {"LOCAL_NED": self._m.MAV_FRAME_LOCAL_NED, "LOCAL_FRD": self._m.MAV_FRAME_LOCAL_FRD}
+        if self.cfg.odometry_frame not in frames:
+            raise ValueError(f"{self.name}.odometry_frame = {self.cfg.odometry_frame!r}: LOCAL_NED or LOCAL_FRD")
+        self._odom_frame = frames[self.cfg.odometry_frame]
         self._had_solution = False  # a valid solution was seen (then CRITICAL when it is lost)
         self._write_ok = True  # the last write reached the transport
 
