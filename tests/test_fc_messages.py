@@ -125,3 +125,17 @@ def test_fc_heartbeat_is_an_onboard_controller() -> None:
     hb = _send("HEARTBEAT")
     assert hb.type == mav.MAV_TYPE_ONBOARD_CONTROLLER and hb.autopilot == mav.MAV_AUTOPILOT_INVALID
     assert hb.mavlink_version == 3
+
+
+class _FixWithTime(GnssFix):
+    """A fix whose source reports GPS time and DOP (GnssFix itself carries neither)."""
+
+
+def test_gps_time_and_dop_are_passed_where_the_source_gives_them() -> None:
+    g = _FixWithTime(2.0, math.radians(50.45), math.radians(30.52), 181.0, np.array([3.0, -4.0, 0.5]), num_sats=8)
+    g.gps_week, g.gps_tow, g.hdop, g.vdop = 2345, 123456.789, 0.9, 1.4  # type: ignore[attr-defined]
+    gi = _send("GPS_INPUT", gnss=g)
+    assert gi.time_week == 2345 and gi.time_week_ms == 123456789 and gi.ignore_flags == 0
+    assert math.isclose(gi.hdop, 0.9, rel_tol=1e-6) and math.isclose(gi.vdop, 1.4, rel_tol=1e-6)
+    raw = _send("GPS_RAW_INT", gnss=g)
+    assert (raw.eph, raw.epv) == (90, 140)  # HDOP/VDOP × 100
