@@ -95,27 +95,42 @@ _NAV_BY_NAME = {p.name: p for p in NAV_PARAMS}
 
 
 def config_document(cfg: Any) -> dict[str, Any]:
-    """The TOML document (sections as in ``configs/*.toml``) of a validated ``Config``:
-    ``ins_hil.config.from_dict`` of it gives the same configuration (checked by :class:`ParamStore`)."""
+    """The TOML document (sections as in ``configs/*.toml``) of a validated ``Config``, with only the
+    keys that differ from their defaults (plus names and types): ``ins_hil.config.from_dict`` of it
+    gives the same configuration (checked by :class:`ParamStore`)."""
+    from ins_hil.config import Config, InputConfig
+    from ins_hil.runtime.mavlink_out import EndpointConfig
+    from ins_hil.runtime.mqtt_out import MqttConfig
+
     d = cfg.to_dict()
+    ref = Config().to_dict()
+
+    def diff(table: dict[str, Any], default: dict[str, Any], keep: tuple[str, ...] = ()) -> dict[str, Any]:
+        return {k: v for k, v in table.items() if k in keep or k not in default or v != default[k]}
+
     p = dict(d["pipeline"])
-    fdi = {
-        "enabled": p.pop("fdi"),
-        "imu_ids": p.pop("imu_ids"),
-        "options": p.pop("fdi_options"),
-        "aiding": {"enabled": p.pop("aiding_fdi"), **p.pop("aiding_options")},
-    }
+    fdi: dict[str, Any] = {"enabled": p.pop("fdi"), "imu_ids": p.pop("imu_ids"), "options": p.pop("fdi_options")}
+    fdi = diff(fdi, {"enabled": False, "imu_ids": [0], "options": {}})
+    aiding = {"enabled": p.pop("aiding_fdi"), **p.pop("aiding_options")}
+    if aiding != {"enabled": True}:
+        fdi["aiding"] = aiding
     p["kind"] = p.pop("core")
-    outputs = [{"type": "mavlink", **o} for o in d["outputs"]]
+    pref = dict(ref["pipeline"], kind=ref["pipeline"]["core"])
+    core = diff(p, pref, keep=("nav",))
+    inputs = [diff(i, dataclasses.asdict(InputConfig(name=i["name"])), keep=("name", "type")) for i in d["inputs"]]
+    outputs = [
+        {"type": "mavlink", **diff(o, dataclasses.asdict(EndpointConfig(name=o["name"])), keep=("name",))}
+        for o in d["outputs"]
+    ]
     return {
-        "gateway": d["gateway"],
-        "core": p,
-        "fdi": fdi,
-        "sim": {"enabled": d["sim_enabled"], **d["sim"]},
-        "inputs": d["inputs"],
+        "gateway": diff(d["gateway"], ref["gateway"]),
+        "core": core,
+        **({"fdi": fdi} if fdi else {}),
+        "sim": {"enabled": d["sim_enabled"], **diff(d["sim"], ref["sim"])},
+        "inputs": inputs,
         "outputs": outputs,
-        "mqtt": d["mqtt"],
-        "recorder": d["recorder"],
+        "mqtt": diff(d["mqtt"], dataclasses.asdict(MqttConfig()), keep=("enabled",)),
+        "recorder": diff(d["recorder"], ref["recorder"]),
     }
 
 
@@ -211,7 +226,7 @@ class ParamStore:
             if n == name:
                 o = self._ep_doc(self.doc, ep_index)
                 role_rates = self.cfg.outputs[ep_index].effective_rates()
-                return float(o["rates"].get(m, role_rates.get(m, 0.0))), REAL32
+                return float(o.get("rates", {}).get(m, role_rates.get(m, 0.0))), REAL32
         raise KeyError(name)
 
     def set(self, ep_index: int, name: str, value: float, ptype: int) -> float:
@@ -246,7 +261,7 @@ class ParamStore:
             msg = next(m for m, n in RATE_PARAM.items() if n == name)
             if value < 0:
                 raise ParamError(f"{name}: a rate is ≥ 0 Hz")
-            self._ep_doc(doc, ep_index)["rates"][msg] = float(value)
+            self._ep_doc(doc, ep_index).setdefault("rates", {})[msg] = float(value)
         try:
             new = self._validate(doc)
         except Exception as e:
