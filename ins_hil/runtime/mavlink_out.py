@@ -20,9 +20,17 @@ values in ``tests/test_mavlink_out_fast.py``); a signed link uses pymavlink's se
 
 role ``gcs``: HEARTBEAT, SYS_STATUS, ATTITUDE, ATTITUDE_QUATERNION,
 GLOBAL_POSITION_INT, LOCAL_POSITION_NED, GPS_RAW_INT (pass-through of the
-last GNSS fix), VFR_HUD, ESTIMATOR_STATUS, STATUSTEXT (faults, alignment).
-role ``fc``: HEARTBEAT, ODOMETRY (external navigation), GPS_INPUT,
-HIL_STATE_QUATERNION (PX4 HIL).
+last GNSS fix), VFR_HUD, ESTIMATOR_STATUS, STATUSTEXT (faults, alignment, sensors lost/back),
+HOME_POSITION. role ``fc``: HEARTBEAT, ODOMETRY (external navigation), GPS_INPUT,
+HIL_STATE_QUATERNION (PX4 HIL). Altitudes in MSL fields are EGM96 (:mod:`ins_hil.runtime.geoid`).
+
+The vehicle is always there: the endpoint's task sends HEARTBEAT (and SYS_STATUS,
+ESTIMATOR_STATUS) at their rate when no state did within 50 ms of their due time (no IMU, no
+solution yet), with the sensor health of :class:`~ins_hil.runtime.metrics.SensorHealth`. It
+answers a ground station (messages to this system id or broadcast): the parameter protocol
+(:mod:`ins_hil.runtime.mavlink_params`), COMMAND_LONG/COMMAND_INT (always a COMMAND_ACK),
+MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_/GET_MESSAGE_INTERVAL, MAV_CMD_PREFLIGHT_STORAGE,
+MISSION_REQUEST_LIST (MISSION_COUNT 0) and MAVLink FTP (a NAK). See docs/flight_controller.md.
 
 Signing (MAVLink 2): with a 32-byte key every outgoing message is signed and
 incoming messages on the endpoint are accepted only when correctly signed
