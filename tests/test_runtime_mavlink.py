@@ -299,3 +299,37 @@ def test_imu_stopped_heartbeat_goes_on_and_the_status_follows() -> None:
     es = [m for t, m in got if m.get_type() == "ESTIMATOR_STATUS" and t > t_stop + 1.0]
     assert es and all(m.flags == 0 for m in es)
     assert gw.metrics.aligned is False and gw.metrics.snapshot()["sensors"]["imu"]["healthy"] is False
+
+
+def test_sensor_health_lost_and_back_events_follow_the_arrivals() -> None:
+    """RuntimeMetrics' per-sensor health on its own clock: a 1 kHz IMU and a 5 Hz GNSS arrive, stop
+    (lost after 0.5 s and 1 s: 5 periods), come back ("back" after a full second at their rate, once),
+    and an IMU trickling at a fifth of its rate is lost once, without flapping."""
+    m = RuntimeMetrics()
+    m.expect_inputs([("imu0", "serial_imu"), ("fc", "mavlink")])
+    imu = m.source("imu0")
+    fix = GnssFix(0.0, 0.9, 0.5, 100.0)
+    t = 1_000_000_000
+    step = 50_000_000  # the housekeeping period
+
+    def run(seconds: float, imu_per_step: int, gnss_on: bool) -> list[tuple[int, str]]:
+        nonlocal t
+        for k in range(round(seconds * 1e9 / step)):
+            imu.received += imu_per_step
+            if gnss_on and k % 4 == 0:
+                m.aid_seen(fix)
+            t += step
+            m.tick(t)
+        return m.drain_sensor_events()
+
+    assert run(3.0, 50, True) == []
+    assert m.sensors["imu"].healthy and m.sensors["gnss"].healthy and not m.sensors["mag"].present
+    assert m.sensors["baro"].present and not m.sensors["baro"].healthy  # configured (mavlink input), never seen
+    assert run(0.45, 0, True) == [] and m.sensors["imu"].healthy
+    assert run(0.2, 0, True) == [(3, "IMU lost: no data")] and not m.sensors["imu"].healthy
+    assert run(1.2, 50, False) == [(3, "GNSS lost: no data")]
+    assert run(2.5, 50, True) == [(5, "IMU back"), (5, "GNSS back")]
+    assert run(3.0, 50, True) == []
+    assert run(6.0, 10, True) == [(3, "IMU lost: no data")]  # 200 Hz of 1 kHz
+    snap = m.snapshot()["sensors"]
+    assert not snap["imu"]["healthy"] and round(snap["imu"]["expected_hz"]) == 1000

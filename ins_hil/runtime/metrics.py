@@ -165,13 +165,20 @@ class SensorHealth:
     lost_events: int = 0
     _win_n: int = 0
     _win_t0: int = 0
+    _rate_t0: int = 0  # start of the window rate_hz was measured over (ns)
+    _fresh_since: int = 0  # first sample after the source was last not fresh (ns), 0 = not fresh
 
     @property
     def present(self) -> bool:
         return self.configured or self.count > 0
 
     def update(self, count: int, now_ns: int) -> str:
-        """New cumulative ``count`` at ``now_ns``; returns "lost", "back" or "" (a transition)."""
+        """New cumulative ``count`` at ``now_ns``; returns "lost", "back" or "" (a transition).
+
+        Fresh: the newest sample within max(LOST_AFTER_S, LOST_PERIODS / expected_hz). Healthy:
+        fresh, and the last full ~1 s window that began after the source became fresh again
+        has a rate ≥ half the expected one (a window holding the gap is not judged, so a
+        source that comes back is "back" after its first full window, without flapping)."""
         if count != self.count:
             self.count, self.last_ns = count, now_ns
         if self._win_t0 == 0:
@@ -180,13 +187,22 @@ class SensorHealth:
         if el >= 1.0:
             self.rate_hz = (count - self._win_n) / el
             self.expected_hz = max(self.expected_hz, self.rate_hz)
+            self._rate_t0 = self._win_t0
             self._win_t0, self._win_n = now_ns, count
         if self.count == 0:
             return ""
         timeout = LOST_AFTER_S if self.expected_hz <= 0 else max(LOST_AFTER_S, LOST_PERIODS / self.expected_hz)
-        ok = (now_ns - self.last_ns) * 1e-9 <= timeout and (
-            self.expected_hz <= 0 or self.rate_hz >= 0.5 * self.expected_hz
-        )
+        fresh = (now_ns - self.last_ns) * 1e-9 <= timeout
+        if not fresh:
+            self._fresh_since = 0
+        elif self._fresh_since == 0:
+            self._fresh_since = self.last_ns
+        judged = self.expected_hz > 0 and self._rate_t0 >= self._fresh_since
+        rate_ok = self.rate_hz >= 0.5 * self.expected_hz
+        if self.healthy:
+            ok = fresh and (rate_ok or not judged)
+        else:
+            ok = fresh and (self.expected_hz <= 0 or (judged and rate_ok))
         was, self.healthy = self.healthy, ok
         if was and not ok:
             self.lost_events += 1
