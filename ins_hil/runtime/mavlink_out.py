@@ -433,10 +433,8 @@ class MavlinkEndpoint:
     def offer(self, st: NavState, arrival_ns: int, ready_ns: int) -> None:
         """The newest state: the messages that are due go out now, from the caller (no task wake-up:
         the transports' writes never block), the others wait for their period with this state."""
-        now = time.monotonic_ns()
         self._latest = (st, arrival_ns, ready_ns)
-        self._latest_ns = now
-        if now >= self._next_due_ns:
+        if time.monotonic_ns() >= self._next_due_ns:
             self._send_safely()
 
     def offer_gnss(self, g: GnssFix) -> None:
@@ -816,7 +814,8 @@ class MavlinkEndpoint:
     def _init_vehicle(self) -> None:
         self.params: Any = None  # ins_hil.runtime.mavlink_params.ParamStore (attached by the gateway)
         self.params_index = 0
-        self._latest_ns = 0  # monotonic time of the newest state
+        self._seen: Any = None  # the newest state as last seen by _state_age_ns, and when (monotonic ns)
+        self._seen_ns = 0
         self._reply_pending: list[Any] = []  # messages to send once, after the ACK / off the IMU path
         self._geoid_at = (math.inf, math.inf)
         self._geoid_n = 0.0
@@ -837,12 +836,23 @@ class MavlinkEndpoint:
             self._geoid_n = undulation(lat, lon)
         return h - self._geoid_n
 
+    def _state_age_ns(self, lt: tuple[NavState, int, int]) -> int:
+        """Age of the newest state: from its ready time (the loop's monotonic stamp), or, without one
+        (0, tests and tools), from when this endpoint first saw it here (1–2 Hz checks; nothing is
+        added to :meth:`offer`)."""
+        now = time.monotonic_ns()
+        if lt[2]:
+            return now - lt[2]
+        if lt is not self._seen:
+            self._seen, self._seen_ns = lt, now
+        return now - self._seen_ns
+
     def _solution_valid(self) -> bool:
         """A state within the last ``SOLUTION_TIMEOUT_S`` that is aligned, and the IMU not lost."""
         lt = self._latest
         if lt is None or not lt[0].aligned:
             return False
-        if time.monotonic_ns() - self._latest_ns > SOLUTION_TIMEOUT_S * 1e9:
+        if self._state_age_ns(lt) > SOLUTION_TIMEOUT_S * 1e9:
             return False
         imu = self.metrics.sensors["imu"]
         return not (imu.present and imu.count and not imu.healthy)
