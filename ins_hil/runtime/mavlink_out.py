@@ -121,15 +121,6 @@ GCS_RATES = {
 }
 FC_RATES = {"HEARTBEAT": 1.0, "ODOMETRY": 30.0, "GPS_INPUT": 5.0, "HIL_STATE_QUATERNION": 0.0}
 ALL_MESSAGES = sorted(set(GCS_RATES) | set(FC_RATES))
-#: a state older than this (s) is no valid solution (IMU lost): ESTIMATOR_STATUS flags drop, CRITICAL
-SOLUTION_TIMEOUT_S = 0.5
-_BEAT_GRACE_NS = 50_000_000  # the task sends the 1 Hz group when no state has sent it 50 ms after it was due
-_BEAT_RETRY_NS = 100_000_000  # a heartbeat the link could not take is tried again after 0.1 s
-_HANDLED = frozenset(
-    ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET", "COMMAND_LONG", "COMMAND_INT",
-     "MISSION_REQUEST_LIST", "FILE_TRANSFER_PROTOCOL")
-)  # fmt: skip
-_FTP_ERR_UNKNOWN_COMMAND = 7  # MAVLink FTP error code UnknownCommand
 SCHEMES = ("udp", "udpin", "tcp", "serial")
 
 
@@ -190,6 +181,17 @@ def _frame_of(typ: str) -> _Frame:
         cls = mavlink_module().mavlink_map[getattr(mavlink_module(), "MAVLINK_MSG_ID_" + typ)]
         f = _FRAMES[typ] = _Frame(cls)
     return f
+
+
+#: a state older than this (s) is no valid solution (IMU lost): ESTIMATOR_STATUS flags drop, CRITICAL
+SOLUTION_TIMEOUT_S = 0.5
+_BEAT_GRACE_NS = 50_000_000  # the task sends the 1 Hz group when no state has sent it 50 ms after it was due
+_BEAT_RETRY_NS = 100_000_000  # a heartbeat the link could not take is tried again after 0.1 s
+_HANDLED = frozenset(
+    ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET", "COMMAND_LONG", "COMMAND_INT",
+     "MISSION_REQUEST_LIST", "FILE_TRANSFER_PROTOCOL")
+)  # fmt: skip
+_FTP_ERR_UNKNOWN_COMMAND = 7  # MAVLink FTP error code UnknownCommand
 
 
 def _msg_names() -> dict[int, str]:
