@@ -296,14 +296,15 @@ def _mavproxy() -> list[str]:
 def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
     """MAVProxy (interactive, commands on stdin): ``param fetch`` lists every parameter, ``param set``
     of a good value is applied, of a non-integer to an INT32 parameter refused (MAVProxy reports the
-    failure with the value we echoed), and the refusal's STATUSTEXT is shown."""
+    failure with the value we echoed), and the refusal's STATUSTEXT is shown; ``wp list`` gets an
+    empty mission, ``arm throttle`` a DENIED and an unknown command an UNSUPPORTED COMMAND_ACK."""
     import re
     import subprocess
 
     v = Vehicle(tmp_path)
     mp = subprocess.Popen(
         [*_mavproxy(), f"--master=udpin:127.0.0.1:{v.port}", f"--state-basedir={tmp_path}",
-         "--default-modules=param", "--mav20"],
+         "--default-modules=param,wp,arm,cmdlong", "--mav20"],
         cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     lines: list[str] = []
@@ -341,6 +342,12 @@ def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
         assert wait_for(r"NAV_USE_GNSS_V: wrong type") is not None  # our STATUSTEXT, shown by MAVProxy
         cmd("param show SR_VFR_HUD")
         assert wait_for(r"SR_VFR_HUD\s+2\.0") is not None, "".join(lines)
+        cmd("wp list")
+        assert wait_for(r"Requesting 0 waypoints") is not None, "".join(lines)
+        cmd("arm throttle")
+        assert wait_for(r"COMMAND_ACK: COMPONENT_ARM_DISARM: DENIED") is not None, "".join(lines)
+        cmd("long DO_SET_SERVO 1 1500")
+        assert wait_for(r"COMMAND_ACK: DO_SET_SERVO: UNSUPPORTED") is not None, "".join(lines)
     finally:
         mp.terminate()
         try:
