@@ -121,10 +121,10 @@ def test_hil_state_quaternion_units_as_px4_reads_them() -> None:
     assert (h.xacc, h.yacc, h.zacc) == tuple(round(a / 9.80665 * 1000) for a in st.accel_b)  # mG
 
 
-def test_fc_heartbeat_is_an_onboard_controller() -> None:
-    hb = _send("HEARTBEAT")
+def test_fc_heartbeat_is_an_onboard_controller_in_standby_without_a_solution() -> None:
+    hb = _send("HEARTBEAT")  # built without any state offered to the endpoint: no solution yet
     assert hb.type == mav.MAV_TYPE_ONBOARD_CONTROLLER and hb.autopilot == mav.MAV_AUTOPILOT_INVALID
-    assert hb.mavlink_version == 3
+    assert hb.mavlink_version == 3 and hb.system_status == mav.MAV_STATE_STANDBY
 
 
 class _FixWithTime(GnssFix):
