@@ -687,6 +687,11 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "mav_type": M(help="HEARTBEAT vehicle type (MAV_TYPE_*)"),
         "signing_key": HEX_KEY,
         "rates": M(help="the [outputs.rates] table"),
+        "params_file": M(help="parameter override file (MAV_CMD_PREFLIGHT_STORAGE); '' = <config>.params.toml"),
+        "odometry_frame": M(
+            help="ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only this)",
+            choices=("LOCAL_NED", "LOCAL_FRD"),
+        ),
     },
     "mqtt": {
         "enabled": M(help="publish state/fault/health to an MQTT broker (reconnects with backoff)"),

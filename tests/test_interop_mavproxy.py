@@ -21,6 +21,7 @@ from runtime_helpers import free_port, sim_config
 
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import euler_from_quat
+from ins_hil.runtime.geoid import undulation
 from ins_hil.runtime.loop import Gateway
 from ins_hil.sim.devices import truth_chunks
 
@@ -105,9 +106,9 @@ def test_mavproxy_receives_our_vehicle(tmp_path: Path) -> None:
             assert abs(math.degrees(d)) < tol
     for g in seen["GLOBAL_POSITION_INT"][::3]:
         k = round(g.time_boot_ms * 1e-3 * rate)
-        d = earth.ned_from_geodetic(
-            math.radians(g.lat * 1e-7), math.radians(g.lon * 1e-7), g.alt * 1e-3, truth.lat[k], truth.lon[k], truth.h[k]
-        )
+        lat, lon = math.radians(g.lat * 1e-7), math.radians(g.lon * 1e-7)
+        h = g.alt * 1e-3 + undulation(lat, lon)  # alt is MSL (EGM96): back to the ellipsoidal height of the truth
+        d = earth.ned_from_geodetic(lat, lon, h, truth.lat[k], truth.lon[k], truth.h[k])
         assert np.linalg.norm(d) < 10.0
         v = np.array([g.vx, g.vy, g.vz]) * 0.01
         assert np.linalg.norm(v - truth.vel_ned[k]) < 1.0

@@ -221,7 +221,7 @@ def test_corrupt_record_type_replays_the_prefix_or_skips_and_counts(tmp_path: Pa
     assert res.records == 20  # the intact prefix was replayed, not discarded
     assert f"part 0: damaged record at byte {off}" in res.read_error and "20 records used" in res.read_error
     assert replay_cli(p, None) == 2
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err  # the one-line damage message goes to stderr
     line = next(x for x in out.splitlines() if "damaged" in x)
     assert str(p) in line and f"byte {off}" in line and "sensor time 0.000–" in line
     reader = LogReader(p, skip_damaged=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import math
 import socket
+import time
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -14,6 +15,8 @@ from ins_hil.nav.rotation import dcm_from_quat, quat_from_euler
 from ins_hil.runtime.mavlink_out import EndpointConfig, MavlinkEndpoint
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.types import FixType, GnssFix, NavState
+
+KYIV_N = 25.25  # EGM96 geoid undulation (m) at 50.45° N 30.52° E, the egm96 package's full 5' grid node
 
 
 def _state(t: float) -> NavState:
@@ -82,7 +85,9 @@ def test_gcs_messages_decode_to_the_state() -> None:
     assert math.isclose(math.degrees(a.yaw), 120, abs_tol=1e-4) and math.isclose(a.yawspeed, 0.03, rel_tol=1e-6)
     assert a.time_boot_ms == 1000
     g = out["GLOBAL_POSITION_INT"][0]
-    assert g.lat == 504500000 and g.lon == 305200000 and g.alt == 181500
+    assert g.lat == 504500000 and g.lon == 305200000
+    # MSL: the ellipsoidal 181.5 m less the EGM96 undulation at 50.45° N 30.52° E (25.25 m on the 5' grid)
+    assert abs(g.alt * 1e-3 - (181.5 - KYIV_N)) < 0.3 and g.relative_alt == 0
     assert (g.vx, g.vy, g.vz) == (300, -400, 50) and g.hdg == 12000
     assert len(out["GPS_RAW_INT"]) == 1 and out["GPS_RAW_INT"][0].satellites_visible == 14  # one fix, passed once
     es = out["ESTIMATOR_STATUS"][0]
@@ -105,9 +110,11 @@ def test_flight_controller_messages_decode_to_the_state() -> None:
         o.pose_covariance[11], 1.44, rel_tol=1e-6
     )
     gi = out["GPS_INPUT"][0]
-    assert gi.lat == 504500000 and gi.fix_type == 3 and math.isclose(gi.vn, 3.0) and math.isclose(gi.alt, 181.5)
+    assert gi.lat == 504500000 and gi.fix_type == 3 and math.isclose(gi.vn, 3.0)
+    assert abs(gi.alt - (181.5 - KYIV_N)) < 0.3  # MSL
     hil = out["HIL_STATE_QUATERNION"][0]
-    assert np.allclose(hil.attitude_quaternion, st.q_nb, atol=1e-7) and hil.alt == 181500 and hil.vx == 300
+    assert np.allclose(hil.attitude_quaternion, st.q_nb, atol=1e-7) and hil.vx == 300
+    assert abs(hil.alt * 1e-3 - (181.5 - KYIV_N)) < 0.3  # PX4 reads it as AMSL
     assert out["HEARTBEAT"][0].type == mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
 
 
@@ -181,3 +188,148 @@ def test_serial_endpoint_writes_to_a_tty() -> None:
     os.close(master)
     os.close(slave)
     assert "HEARTBEAT" in types and types.count("ATTITUDE") > 10
+
+
+def _listen(port: int) -> socket.socket:
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", port))
+    rx.setblocking(False)
+    return rx
+
+
+def _drain(rx: socket.socket, mav: object, out: list) -> None:
+    while True:
+        try:
+            data = rx.recv(65536)
+        except BlockingIOError:
+            return
+        for m in mav.parse_buffer(data) or []:  # type: ignore[attr-defined]
+            out.append((time.monotonic(), m))
+
+
+def _run_gateway(cfg_dict: dict, seconds: float, port: int, kill_sim_at: float = 0.0) -> tuple[list, object]:
+    """Run a Gateway for ``seconds`` while a UDP listener on ``port`` collects (arrival time, message);
+    with ``kill_sim_at`` the simulator process is killed (SIGKILL) that many seconds after the start."""
+    from ins_hil.config import from_dict
+    from ins_hil.runtime.loop import Gateway
+
+    rx = _listen(port)
+    mav = mavlink2.MAVLink(None)
+    got: list = []
+    gw = Gateway(from_dict(cfg_dict, "test"))
+
+    async def go() -> None:
+        async def pump() -> None:
+            while True:
+                _drain(rx, mav, got)
+                await asyncio.sleep(0.02)
+
+        async def kill() -> None:
+            await asyncio.sleep(kill_sim_at)
+            if gw.sim is not None and gw.sim.proc is not None:
+                gw.sim.proc.kill()
+
+        t = asyncio.create_task(pump())
+        k = asyncio.create_task(kill()) if kill_sim_at else None
+        await gw.run(duration=seconds, signals=False)
+        if k is not None:
+            k.cancel()
+        await asyncio.sleep(0.1)
+        _drain(rx, mav, got)
+        t.cancel()
+
+    asyncio.run(go())
+    rx.close()
+    return got, gw
+
+
+def test_heartbeat_at_1hz_without_any_sensor() -> None:
+    """flight_controller.toml without hardware: no IMU, no state — the vehicle is still there (STANDBY),
+    its SYS_STATUS says the IMU and GNSS are configured but not healthy, the battery unknown."""
+    from runtime_helpers import sim_config_dict
+
+    port = free_port()
+    d = sim_config_dict(
+        sim={"enabled": False},
+        inputs=[{"name": "imu0", "type": "serial_imu", "port": "/dev/ins-hil-no-such-tty"},
+                {"name": "fc", "type": "mavlink", "url": "udpin:127.0.0.1:0"}],
+        outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{port}", "role": "gcs", "sysid": 42}],
+        recorder={"enabled": False},
+    )  # fmt: skip
+    got, _ = _run_gateway(d, 3.3, port)
+    hb = [m for _, m in got if m.get_type() == "HEARTBEAT"]
+    assert len(hb) >= 3 and {m.system_status for m in hb} == {mavlink2.MAV_STATE_STANDBY}
+    ss = [m for _, m in got if m.get_type() == "SYS_STATUS"][-1]
+    imu = mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    gps = mavlink2.MAV_SYS_STATUS_SENSOR_GPS
+    assert ss.onboard_control_sensors_present & imu == imu and ss.onboard_control_sensors_present & gps
+    assert ss.onboard_control_sensors_health & (imu | gps | mavlink2.MAV_SYS_STATUS_AHRS) == 0
+    assert ss.voltage_battery == 65535 and ss.current_battery == -1 and ss.battery_remaining == -1
+    es = [m for _, m in got if m.get_type() == "ESTIMATOR_STATUS"]
+    assert es and all(m.flags == 0 for m in es)
+
+
+def test_imu_stopped_heartbeat_goes_on_and_the_status_follows() -> None:
+    """The simulator is killed after 4 s: the heartbeat goes on at 1 Hz, the IMU/GNSS/baro health
+    bits drop, STATUSTEXT says they are lost, system_status turns CRITICAL, ESTIMATOR_STATUS flags clear."""
+    from runtime_helpers import sim_config_dict
+
+    port = free_port()
+    d = sim_config_dict(
+        sim={"imu_errors": "none"},
+        outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{port}", "role": "gcs", "sysid": 42}],
+        recorder={"enabled": False},
+    )
+    got, gw = _run_gateway(d, 8.5, port, kill_sim_at=4.0)
+    att = [t for t, m in got if m.get_type() == "ATTITUDE"]
+    assert len(att) > 50
+    t_stop = att[-1]  # the last state
+    hb_after = [m for t, m in got if m.get_type() == "HEARTBEAT" and t > t_stop + 0.2]
+    assert len(hb_after) >= 3  # ≈ 4.5 s without states
+    assert hb_after[-1].system_status == mavlink2.MAV_STATE_CRITICAL
+    imu = mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    ss = [m for t, m in got if m.get_type() == "SYS_STATUS"]
+    before = [m for m in ss if m.onboard_control_sensors_health & imu == imu]
+    assert before, "the IMU was healthy while the simulator ran"
+    last = ss[-1]
+    assert last.onboard_control_sensors_present & imu == imu and last.onboard_control_sensors_health & imu == 0
+    assert last.onboard_control_sensors_health & mavlink2.MAV_SYS_STATUS_SENSOR_GPS == 0
+    texts = [m.text for _, m in got if m.get_type() == "STATUSTEXT"]
+    assert "IMU lost: no data" in texts and "GNSS lost: no data" in texts, texts
+    es = [m for t, m in got if m.get_type() == "ESTIMATOR_STATUS" and t > t_stop + 1.0]
+    assert es and all(m.flags == 0 for m in es)
+    assert gw.metrics.aligned is False and gw.metrics.snapshot()["sensors"]["imu"]["healthy"] is False
+
+
+def test_sensor_health_lost_and_back_events_follow_the_arrivals() -> None:
+    """RuntimeMetrics' per-sensor health on its own clock: a 1 kHz IMU and a 5 Hz GNSS arrive, stop
+    (lost after 0.5 s and 1 s: 5 periods), come back ("back" after a full second at their rate, once),
+    and an IMU trickling at a fifth of its rate is lost once, without flapping."""
+    m = RuntimeMetrics()
+    m.expect_inputs([("imu0", "serial_imu"), ("fc", "mavlink")])
+    imu = m.source("imu0")
+    fix = GnssFix(0.0, 0.9, 0.5, 100.0)
+    t = 1_000_000_000
+    step = 50_000_000  # the housekeeping period
+
+    def run(seconds: float, imu_per_step: int, gnss_on: bool) -> list[tuple[int, str]]:
+        nonlocal t
+        for k in range(round(seconds * 1e9 / step)):
+            imu.received += imu_per_step
+            if gnss_on and k % 4 == 0:
+                m.aid_seen(fix)
+            t += step
+            m.tick(t)
+        return m.drain_sensor_events()
+
+    assert run(3.0, 50, True) == []
+    assert m.sensors["imu"].healthy and m.sensors["gnss"].healthy and not m.sensors["mag"].present
+    assert m.sensors["baro"].present and not m.sensors["baro"].healthy  # configured (mavlink input), never seen
+    assert run(0.45, 0, True) == [] and m.sensors["imu"].healthy
+    assert run(0.2, 0, True) == [(3, "IMU lost: no data")] and not m.sensors["imu"].healthy
+    assert run(1.2, 50, False) == [(3, "GNSS lost: no data")]
+    assert run(2.5, 50, True) == [(5, "IMU back"), (5, "GNSS back")]
+    assert run(3.0, 50, True) == []
+    assert run(6.0, 10, True) == [(3, "IMU lost: no data")]  # 200 Hz of 1 kHz
+    snap = m.snapshot()["sensors"]
+    assert not snap["imu"]["healthy"] and round(snap["imu"]["expected_hz"]) == 1000

@@ -39,6 +39,7 @@ from ins_hil.drivers.mavlink_in import MavlinkDriver
 from ins_hil.drivers.serial_imu import SerialImuDriver
 from ins_hil.runtime.clock import SensorClock
 from ins_hil.runtime.mavlink_out import MavlinkEndpoint, fault_text
+from ins_hil.runtime.mavlink_params import ParamStore
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.runtime.mqtt_out import MqttPublisher
 from ins_hil.runtime.pipeline import Pipeline
@@ -56,8 +57,10 @@ class Gateway:
     """
 
     def __init__(self, cfg: Config, record_path: str | Path | None = None) -> None:
-        self.cfg = cfg
+        self.params = ParamStore(cfg)  # MAVLink parameters; the override file (<config>.params.toml) applied
+        self.cfg = cfg = self.params.cfg
         self.metrics = RuntimeMetrics(cfg.gateway.late_threshold_ms * 1e-3)
+        self.metrics.expect_inputs([(i.name, i.type) for i in cfg.inputs])  # SYS_STATUS sensor bits
         self.pipeline = Pipeline(cfg.pipeline)  # may raise: before anything starts
         self.on_state: list[Callable[[NavState], None]] = []
         self.on_fault: list[Callable[[FaultEvent], None]] = []
@@ -67,6 +70,7 @@ class Gateway:
         self._stop = asyncio.Event()
         self.drivers: list[Any] = []
         self.mav_outputs = [MavlinkEndpoint(e, self.metrics) for e in cfg.outputs]
+        self.params.attach(self.mav_outputs, self.pipeline)
         self.mqtt = MqttPublisher(cfg.mqtt, self.metrics) if cfg.mqtt.enabled else None
         self.publishers: list[Any] = [*self.mav_outputs, *([self.mqtt] if self.mqtt else [])]
         self.sim: SimDevices | None = None
@@ -168,6 +172,7 @@ class Gateway:
                 if st.test_ratios:
                     m.test_ratios = st.test_ratios
             else:
+                m.aid_seen(s)  # sensor health (SYS_STATUS), before any drop
                 # aiding times arrive on the host monotonic clock (MAVLink driver, TIMESYNC): to the IMU clock
                 t = clock.to_sensor(s.t)
                 if t is None:
@@ -217,6 +222,12 @@ class Gateway:
                 rec.flush()
             now = time.monotonic()
             m.tick()
+            for sev, text in m.drain_sensor_events():  # a source lost or back → STATUSTEXT
+                self._text(sev, text)
+            imu = m.sensors["imu"]
+            if self._was_aligned and imu.count and not imu.healthy:  # no states: the solution is gone
+                self._was_aligned = m.aligned = False
+                self._text(4, "INS alignment lost: no IMU data")
             for d in self.drivers:
                 m.source(d.name).driver_drops(d.health.errors)
             self._watch_errors()

@@ -142,6 +142,81 @@ class SourceStats:
             self._win_t0, self._win_n = now_ns, self.received
 
 
+#: sensor kinds of SYS_STATUS / the health view; aiding sample class → kind
+SENSOR_KINDS = ("imu", "gnss", "baro", "mag")
+_AID_KIND = {"GnssFix": "gnss", "BaroSample": "baro", "MagSample": "mag"}
+#: a source with no sample for max(this, ``LOST_PERIODS`` periods at its learnt rate) is lost (s)
+LOST_AFTER_S = 0.5
+LOST_PERIODS = 5.0
+
+
+@dataclass
+class SensorHealth:
+    """Arrival health of one sensor kind (all inputs of that kind together).
+
+    ``configured``: an input that delivers this kind is in the config; ``present``: configured or
+    seen. ``rate_hz``: samples/s over the last ~1 s window; ``expected_hz``: the highest window rate
+    seen (the source's own rate). ``healthy``: samples arrive, the newest within
+    max(LOST_AFTER_S, LOST_PERIODS / expected_hz), and the last window's rate is ≥ half the expected.
+    """
+
+    kind: str
+    configured: bool = False
+    count: int = 0
+    last_ns: int = 0
+    rate_hz: float = 0.0
+    expected_hz: float = 0.0
+    healthy: bool = False
+    lost_events: int = 0
+    _win_n: int = 0
+    _win_t0: int = 0
+    _rate_t0: int = 0  # start of the window rate_hz was measured over (ns)
+    _fresh_since: int = 0  # first sample after the source was last not fresh (ns), 0 = not fresh
+
+    @property
+    def present(self) -> bool:
+        return self.configured or self.count > 0
+
+    def update(self, count: int, now_ns: int) -> str:
+        """New cumulative ``count`` at ``now_ns``; returns "lost", "back" or "" (a transition).
+
+        Fresh: the newest sample within max(LOST_AFTER_S, LOST_PERIODS / expected_hz). Healthy:
+        fresh, and the last full ~1 s window that began after the source became fresh again
+        has a rate ≥ half the expected one (a window holding the gap is not judged, so a
+        source that comes back is "back" after its first full window, without flapping)."""
+        if count != self.count:
+            self.count, self.last_ns = count, now_ns
+        if self._win_t0 == 0:
+            self._win_t0, self._win_n = now_ns, count
+        el = (now_ns - self._win_t0) * 1e-9
+        if el >= 1.0:
+            self.rate_hz = (count - self._win_n) / el
+            self.expected_hz = max(self.expected_hz, self.rate_hz)
+            self._rate_t0 = self._win_t0
+            self._win_t0, self._win_n = now_ns, count
+        if self.count == 0:
+            return ""
+        timeout = LOST_AFTER_S if self.expected_hz <= 0 else max(LOST_AFTER_S, LOST_PERIODS / self.expected_hz)
+        fresh = (now_ns - self.last_ns) * 1e-9 <= timeout
+        if not fresh:
+            self._fresh_since = 0
+        elif self._fresh_since == 0:
+            self._fresh_since = self.last_ns
+        judged = self.expected_hz > 0 and self._rate_t0 >= self._fresh_since
+        rate_ok = self.rate_hz >= 0.5 * self.expected_hz
+        if self.healthy:
+            ok = fresh and (rate_ok or not judged)
+        else:
+            ok = fresh and (self.expected_hz <= 0 or (judged and rate_ok))
+        was, self.healthy = self.healthy, ok
+        if was and not ok:
+            self.lost_events += 1
+            return "lost"
+        if ok and not was and self.lost_events:
+            return "back"
+        return ""
+
+
 class RuntimeMetrics:
     """All counters and histograms of one gateway run (the API read by status, MQTT and soak).
 
@@ -170,6 +245,10 @@ class RuntimeMetrics:
         self.queue_depth_max = 0
         self.warnings: list[str] = []
         self.scheduling = ""  # the gateway process's scheduling policy (ins_hil.runtime.rt.policy)
+        self.sensors: dict[str, SensorHealth] = {k: SensorHealth(k) for k in SENSOR_KINDS}
+        self.sensor_events: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) of lost/back transitions
+        self._imu_sources: list[str] = []
+        self._aid_counts: dict[str, int] = dict.fromkeys(SENSOR_KINDS, 0)
 
     # -- recording (hot path) ------------------------------------------------
     def source(self, name: str) -> SourceStats:
@@ -177,6 +256,20 @@ class RuntimeMetrics:
         if s is None:
             s = self.sources[name] = SourceStats(name)
         return s
+
+    def expect_inputs(self, inputs: list[tuple[str, str]]) -> None:
+        """The configured inputs as (name, type): IMU counts come from the IMU inputs' ``received``
+        (no extra work on the IMU path); a ``mavlink`` input is expected to deliver GNSS and baro."""
+        self._imu_sources = [n for n, t in inputs if t in ("serial_imu", "can_imu")]
+        self.sensors["imu"].configured = bool(self._imu_sources)
+        if any(t == "mavlink" for _, t in inputs):
+            self.sensors["gnss"].configured = self.sensors["baro"].configured = True
+
+    def aid_seen(self, s: object) -> None:
+        """An aiding sample (GnssFix, BaroSample, MagSample) arrived (aiding rate only)."""
+        k = _AID_KIND.get(type(s).__name__)
+        if k is not None:
+            self._aid_counts[k] += 1
 
     def record(self, key: str, ns: int) -> None:
         if ns < 0:
@@ -224,6 +317,24 @@ class RuntimeMetrics:
         now = time.monotonic_ns() if now_ns is None else now_ns
         for s in self.sources.values():
             s.tick_rate(now)
+        self._tick_sensors(now)
+
+    def _tick_sensors(self, now: int) -> None:
+        """Sensor health (:class:`SensorHealth`) and its lost/back transitions as ``sensor_events``."""
+        counts = dict(self._aid_counts)
+        src = self.sources
+        counts["imu"] = sum(src[n].received for n in self._imu_sources if n in src)
+        for k, h in self.sensors.items():
+            ev = h.update(counts[k], now)
+            if ev == "lost":
+                self.sensor_events.append((3, f"{k.upper()} lost: no data"))  # MAV_SEVERITY_ERROR
+            elif ev == "back":
+                self.sensor_events.append((5, f"{k.upper()} back"))  # MAV_SEVERITY_NOTICE
+        del self.sensor_events[:-20]
+
+    def drain_sensor_events(self) -> list[tuple[int, str]]:
+        ev, self.sensor_events = self.sensor_events, []
+        return ev
 
     # -- reading ------------------------------------------------------------------
     def dropped_total(self) -> int:
@@ -253,4 +364,8 @@ class RuntimeMetrics:
             "queue_depth_max": self.queue_depth_max,
             "warnings": list(self.warnings),
             "scheduling": self.scheduling,
+            "sensors": {
+                k: {"present": h.present, "healthy": h.healthy, "rate_hz": h.rate_hz, "expected_hz": h.expected_hz}
+                for k, h in self.sensors.items()
+            },
         }

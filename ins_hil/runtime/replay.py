@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -127,7 +128,7 @@ def replay_cli(path: str | Path, args: argparse.Namespace | None = None) -> int:
     try:
         res = replay_log(path, keep_states=False, on_state=keep)
     except (OSError, ValueError) as err:
-        print(f"ins-hil replay: {path}: {err}")
+        print(f"ins-hil replay: {path}: {err}", file=sys.stderr)
         return 2
     pipe = res.header.get("pipeline", {})
     print(f"{path}: {res.records} inputs in {res.parts} part(s), core {pipe.get('core', '?')}")
@@ -143,7 +144,7 @@ def replay_cli(path: str | Path, args: argparse.Namespace | None = None) -> int:
     for note in res.read_notes:
         print(f"note: {note}")
     if res.read_error:
-        print(f"ins-hil replay: {res.read_error}")
+        print(f"ins-hil replay: {res.read_error}", file=sys.stderr)
     if not getattr(args, "quiet", False):
         for ev in res.events[:50]:
             print(f"  t {ev.t:.3f} {ev.sensor} {ev.mode.name}{' cleared' if ev.cleared else ''} {ev.detail}")

@@ -1,0 +1,385 @@
+"""The gateway's tunable configuration as MAVLink parameters (PARAM_REQUEST_LIST / READ / SET).
+
+Every MAVLink output endpoint serves the same navigation parameters (``NAV_*``, ``FLT_*``) and
+its own message rates (``SR_*``, Hz; 0 = off). A PARAM_SET is checked by the config file's own
+validation — :func:`ins_hil.config.from_dict` on the configuration document with that one value
+changed — and then:
+
+- ``SR_*``: applied at once to that endpoint's stream (like MAV_CMD_SET_MESSAGE_INTERVAL);
+- ``live`` navigation values (gates, measurement σ: read by the Python core at each update):
+  applied to the running core between two pipeline calls (a plain attribute swap of its
+  ``NavConfig``; the C core copies its configuration at start, so it refuses them). The
+  recording's header keeps the configuration of the start: a replay of that run uses the
+  start values (a warning says so);
+- everything else (noise densities, aids, delay compensation: they shape the filter at its
+  start) is refused at run time: set them in the config file.
+
+A refused set is answered with PARAM_VALUE carrying the unchanged value (the MAVLink
+parameter protocol's way to say no) and a STATUSTEXT with the reason. MAV_CMD_PREFLIGHT_STORAGE
+(param1 = 1) writes the values that differ from the config file to the override file
+(``<config>.params.toml`` beside the config, or an endpoint's ``params_file``); it is loaded at
+start, validated the same way (a bad entry is a ConfigError naming the file and the parameter).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ins_hil.runtime.mavlink_out import ALL_MESSAGES
+
+#: MAV_PARAM_TYPE values used here
+REAL32 = 9
+INT32 = 6
+
+#: stream rate parameter name per message (≤ 16 characters)
+RATE_PARAM = {
+    "HEARTBEAT": "SR_HEARTBEAT",
+    "SYS_STATUS": "SR_SYS_STATUS",
+    "ATTITUDE": "SR_ATTITUDE",
+    "ATTITUDE_QUATERNION": "SR_ATTITUDE_Q",
+    "GLOBAL_POSITION_INT": "SR_GLOBAL_POS",
+    "LOCAL_POSITION_NED": "SR_LOCAL_POS",
+    "GPS_RAW_INT": "SR_GPS_RAW_INT",
+    "VFR_HUD": "SR_VFR_HUD",
+    "ESTIMATOR_STATUS": "SR_EST_STATUS",
+    "ODOMETRY": "SR_ODOMETRY",
+    "GPS_INPUT": "SR_GPS_INPUT",
+    "HIL_STATE_QUATERNION": "SR_HIL_STATE_Q",
+}
+assert set(RATE_PARAM) == set(ALL_MESSAGES)
+
+
+@dataclass(frozen=True)
+class NavParam:
+    """One navigation parameter: its name, the ``[core.nav]`` key (``filter.x`` for FilterConfig,
+    ``key[i]`` for an element of a tuple), the MAV_PARAM_TYPE and whether it applies live."""
+
+    name: str
+    key: str
+    ptype: int = REAL32
+    live: bool = False
+    doc: str = ""
+
+
+NAV_PARAMS: tuple[NavParam, ...] = (
+    NavParam("NAV_GATE_GNSS", "gate_gnss", live=True, doc="GNSS innovation gate (σ)"),
+    NavParam("NAV_GATE_BARO", "gate_baro", live=True, doc="baro innovation gate (σ)"),
+    NavParam("NAV_GATE_MAG", "gate_mag", live=True, doc="magnetometer innovation gate (σ)"),
+    NavParam("NAV_GATE_AUX", "gate_aux", live=True, doc="NHC/ZUPT innovation gate (σ)"),
+    NavParam("NAV_BARO_STD", "baro_std", live=True, doc="baro height σ (m)"),
+    NavParam("NAV_MAG_STD", "mag_std", live=True, doc="magnetometer σ (unit-vector component)"),
+    NavParam("NAV_GNSS_SCALE", "gnss_std_scale", live=True, doc="factor on the receiver's σ"),
+    NavParam("NAV_GNSS_MIN_NE", "gnss_min_std[0]", live=True, doc="floor on the GNSS horizontal σ (m)"),
+    NavParam("NAV_GNSS_MIN_D", "gnss_min_std[1]", live=True, doc="floor on the GNSS vertical σ (m)"),
+    NavParam("NAV_GNSS_MIN_V", "gnss_min_std[2]", live=True, doc="floor on the GNSS velocity σ (m/s)"),
+    NavParam("NAV_NHC_STD", "nhc_std", live=True, doc="non-holonomic constraint σ (m/s)"),
+    NavParam("NAV_ZUPT_STD", "zupt_std", live=True, doc="zero-velocity update σ (m/s)"),
+    NavParam("NAV_USE_GNSS_V", "use_gnss_vel", INT32, doc="fuse the GNSS velocity (0/1)"),
+    NavParam("NAV_DELAY_COMP", "delay_compensation", INT32, doc="fuse late aids at their time (0/1)"),
+    NavParam("NAV_NHC", "nhc", INT32, doc="non-holonomic constraint (0/1)"),
+    NavParam("NAV_ZUPT", "zupt", INT32, doc="zero-velocity updates (0/1)"),
+    NavParam("NAV_ADAPTIVE", "adaptive", INT32, doc="Sage–Husa adaptive R (0/1)"),
+    NavParam("FLT_GYRO_ARW", "filter.gyro_arw", doc="gyro white noise (rad/s/√Hz)"),
+    NavParam("FLT_ACCEL_VRW", "filter.accel_vrw", doc="accelerometer white noise (m/s²/√Hz)"),
+    NavParam("FLT_GB_SIGMA", "filter.gyro_bias_sigma", doc="gyro bias Gauss–Markov σ (rad/s)"),
+    NavParam("FLT_AB_SIGMA", "filter.accel_bias_sigma", doc="accelerometer bias Gauss–Markov σ (m/s²)"),
+    NavParam("FLT_COV_EVERY", "filter.cov_every", INT32, doc="covariance propagation every N IMU steps"),
+)
+_NAV_BY_NAME = {p.name: p for p in NAV_PARAMS}
+
+
+def config_document(cfg: Any) -> dict[str, Any]:
+    """The TOML document (sections as in ``configs/*.toml``) of a validated ``Config``, with only the
+    keys that differ from their defaults (plus names and types): ``ins_hil.config.from_dict`` of it
+    gives the same configuration (checked by :class:`ParamStore`)."""
+    from ins_hil.config import Config, InputConfig
+    from ins_hil.runtime.mavlink_out import EndpointConfig
+    from ins_hil.runtime.mqtt_out import MqttConfig
+
+    d = cfg.to_dict()
+    ref = Config().to_dict()
+
+    def diff(table: dict[str, Any], default: dict[str, Any], keep: tuple[str, ...] = ()) -> dict[str, Any]:
+        return {k: v for k, v in table.items() if k in keep or k not in default or v != default[k]}
+
+    p = dict(d["pipeline"])
+    fdi: dict[str, Any] = {"enabled": p.pop("fdi"), "imu_ids": p.pop("imu_ids"), "options": p.pop("fdi_options")}
+    fdi = diff(fdi, {"enabled": False, "imu_ids": [0], "options": {}})
+    aiding = {"enabled": p.pop("aiding_fdi"), **p.pop("aiding_options")}
+    if aiding != {"enabled": True}:
+        fdi["aiding"] = aiding
+    p["kind"] = p.pop("core")
+    pref = dict(ref["pipeline"], kind=ref["pipeline"]["core"])
+    core = diff(p, pref, keep=("nav",))
+    inputs = [diff(i, dataclasses.asdict(InputConfig(name=i["name"])), keep=("name", "type")) for i in d["inputs"]]
+    outputs = [
+        {"type": "mavlink", **diff(o, dataclasses.asdict(EndpointConfig(name=o["name"])), keep=("name",))}
+        for o in d["outputs"]
+    ]
+    return {
+        "gateway": diff(d["gateway"], ref["gateway"]),
+        "core": core,
+        **({"fdi": fdi} if fdi else {}),
+        "sim": {"enabled": d["sim_enabled"], **diff(d["sim"], ref["sim"])},
+        "inputs": inputs,
+        "outputs": outputs,
+        "mqtt": diff(d["mqtt"], dataclasses.asdict(MqttConfig()), keep=("enabled",)),
+        "recorder": diff(d["recorder"], ref["recorder"]),
+    }
+
+
+def _nav_get(nav: dict[str, Any], key: str, default: Any) -> Any:
+    """A ``[core.nav]`` value by parameter key (``filter.x``, ``k[i]``), else the NavConfig default."""
+    if key.startswith("filter."):
+        return (nav.get("filter") or {}).get(key[7:], getattr(default.filter, key[7:]))
+    if key.endswith("]"):
+        k, i = key[:-1].split("[")
+        return tuple(nav.get(k, getattr(default, k)))[int(i)]
+    return nav.get(key, getattr(default, key))
+
+
+def _nav_set(nav: dict[str, Any], key: str, value: Any, default: Any) -> None:
+    if key.startswith("filter."):
+        nav["filter"] = {**(nav.get("filter") or {}), key[7:]: value}
+    elif key.endswith("]"):
+        k, i = key[:-1].split("[")
+        t = list(nav.get(k, getattr(default, k)))
+        t[int(i)] = value
+        nav[k] = t
+    else:
+        nav[key] = value
+
+
+class ParamError(ValueError):
+    """A refused parameter change (the message says why)."""
+
+
+class ParamStore:
+    """The parameters of one gateway (see the module docstring).
+
+    ``cfg``: the configuration to run, i.e. the given one with the override file applied.
+    :meth:`attach` connects the running endpoints and pipeline (rates, live navigation values).
+    """
+
+    def __init__(self, cfg: Any, path: str | Path | None = None) -> None:
+        from ins_hil.core import NavConfig
+
+        self._nav_default = NavConfig()
+        self.base = cfg
+        self.cfg = cfg
+        self.doc = config_document(cfg)
+        # what the override file is the difference to (copies: the running pipeline's dict is changed live)
+        self._base_doc = copy.deepcopy(self.doc)
+        self._base_rates = [o.effective_rates() for o in cfg.outputs]
+        self.writable = True
+        self.why_readonly = ""
+        try:  # the document must give back exactly this configuration, else sets would change other keys
+            back = self._validate(self.doc)
+            if back.to_dict() != cfg.to_dict():
+                raise ValueError("the configuration does not round-trip through its document")
+        except Exception as e:
+            self.writable, self.why_readonly = False, f"parameters read-only: {e}"
+        self.path = Path(path) if path else self._default_path(cfg)
+        self.endpoints: list[Any] = []
+        self.pipeline: Any = None
+        self.warnings: list[str] = []
+        self.changed: dict[str, Any] = {}  # name (``SR_X@endpoint`` for rates) → value set at run time
+        if self.path is not None and self.path.is_file():
+            self._load(self.path)
+
+    @staticmethod
+    def _default_path(cfg: Any) -> Path | None:
+        for o in cfg.outputs:
+            if getattr(o, "params_file", ""):
+                return Path(o.params_file)
+        src = Path(cfg.source) if cfg.source else None
+        if src is not None and src.suffix == ".toml" and src.is_file():
+            return src.with_name(src.stem + ".params.toml")
+        return None
+
+    def _validate(self, doc: dict[str, Any]) -> Any:
+        from ins_hil import config
+
+        return config.from_dict(copy.deepcopy(doc), self.base.source or "<params>")
+
+    # -- the parameter table of one endpoint ------------------------------------------
+    def names(self, ep_index: int) -> list[str]:
+        """Parameter names served on endpoint ``ep_index`` (navigation first, then its rates)."""
+        return [p.name for p in NAV_PARAMS] + [RATE_PARAM[m] for m in ALL_MESSAGES]
+
+    def _ep_doc(self, doc: dict[str, Any], ep_index: int) -> dict[str, Any]:
+        return doc["outputs"][ep_index]
+
+    def get(self, ep_index: int, name: str) -> tuple[float, int]:
+        """(value, MAV_PARAM_TYPE) of a parameter; KeyError when unknown."""
+        p = _NAV_BY_NAME.get(name)
+        if p is not None:
+            v = _nav_get(self.doc["core"]["nav"], p.key, self._nav_default)
+            return (float(int(v)) if p.ptype == INT32 else float(v)), p.ptype
+        for m, n in RATE_PARAM.items():
+            if n == name:
+                o = self._ep_doc(self.doc, ep_index)
+                role_rates = self.cfg.outputs[ep_index].effective_rates()
+                return float(o.get("rates", {}).get(m, role_rates.get(m, 0.0))), REAL32
+        raise KeyError(name)
+
+    def set(self, ep_index: int, name: str, value: float, ptype: int) -> float:
+        """Validate and apply a PARAM_SET; returns the value now in force. Raises ParamError
+        (the reason) or KeyError (unknown name); nothing changes then."""
+        want = self.get(ep_index, name)[1]
+        if not self.writable:
+            raise ParamError(self.why_readonly)
+        # REAL32 parameters take REAL32 only; INT32 ones any integer type or REAL32 with an integral value
+        # (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST: the value is the float of the integer, as MAVProxy sends)
+        if (want == REAL32 and ptype != REAL32) or (want == INT32 and ptype not in (1, 2, 3, 4, 5, 6, 7, 8, REAL32)):
+            raise ParamError(f"{name}: wrong type ({'INT32' if want == INT32 else 'REAL32'} expected)")
+        if want == INT32 and math.isfinite(value) and value != int(value):
+            raise ParamError(f"{name}: wrong type ({value:g} is no integer)")
+        if not math.isfinite(value):
+            raise ParamError(f"{name}: not a finite number")
+        value = _f32_decimal(value)
+        doc = copy.deepcopy(self.doc)
+        p = _NAV_BY_NAME.get(name)
+        if p is not None:
+            if p.ptype == INT32:
+                if value != int(value):
+                    raise ParamError(f"{name}: {value} is not an integer")
+                kind = type(_nav_get(doc["core"]["nav"], p.key, self._nav_default))
+                v: Any = bool(int(value)) if kind is bool else int(value)
+                if kind is bool and int(value) not in (0, 1):
+                    raise ParamError(f"{name}: {int(value)} must be 0 or 1")
+            else:
+                v = float(value)
+            _nav_set(doc["core"]["nav"], p.key, v, self._nav_default)
+        else:
+            msg = next(m for m, n in RATE_PARAM.items() if n == name)
+            if value < 0:
+                raise ParamError(f"{name}: a rate is ≥ 0 Hz")
+            self._ep_doc(doc, ep_index).setdefault("rates", {})[msg] = float(value)
+        try:
+            new = self._validate(doc)
+        except Exception as e:
+            raise ParamError(f"{name}: {e}") from None
+        if p is not None and v != _nav_get(self.doc["core"]["nav"], p.key, self._nav_default):
+            self._apply_nav(p, new)
+        self.doc, self.cfg = doc, new
+        if p is None and self.endpoints:
+            ep = self.endpoints[ep_index]
+            ep.set_rate(msg, float(value))
+        key = name if p is not None else f"{name}@{self.cfg.outputs[ep_index].name}"
+        self.changed[key] = self.get(ep_index, name)[0]
+        return self.get(ep_index, name)[0]
+
+    def _apply_nav(self, p: NavParam, new: Any) -> None:
+        """A navigation value on the running core (between two pipeline calls: a safe point)."""
+        if not self.endpoints:  # not running (loading the override file): the core starts with it
+            return
+        if not p.live:
+            raise ParamError(f"{p.name}: needs a restart (set it in the config)")
+        pipe = self.pipeline
+        core = getattr(pipe, "core", None) if pipe is not None else None
+        if pipe is not None and pipe.cfg.core != "python":
+            raise ParamError(f"{p.name}: C core: needs a restart")
+        if core is not None:
+            from ins_hil.runtime.pipeline import nav_config
+
+            ncfg = getattr(core, "cfg", None)
+            if ncfg is None or type(ncfg).__name__ != "NavConfig":
+                raise ParamError(f"{p.name}: this core: needs a restart")
+            fresh = nav_config(new.pipeline.nav)
+            core.cfg = dataclasses.replace(ncfg, **{p.key.split("[")[0]: getattr(fresh, p.key.split("[")[0])})
+        if pipe is not None:
+            pipe.cfg.nav.clear()
+            pipe.cfg.nav.update(copy.deepcopy(new.pipeline.nav))
+        self.warnings.append(f"{p.name} applied to the running core (a replay of the recording uses the start value)")
+
+    # -- running gateway ---------------------------------------------------------------
+    def attach(self, endpoints: list[Any], pipeline: Any = None) -> None:
+        """Serve the parameters on ``endpoints`` (index = position in ``cfg.outputs``)."""
+        self.endpoints = list(endpoints)
+        self.pipeline = pipeline
+        for i, ep in enumerate(self.endpoints):
+            ep.params = self
+            ep.params_index = i
+
+    # -- override file -------------------------------------------------------------------
+    def overrides(self) -> dict[str, Any]:
+        """The values that differ from the configuration given at start, as the override document."""
+        out: dict[str, Any] = {}
+        base = self._base_doc
+        for p in NAV_PARAMS:
+            a = _nav_get(base["core"]["nav"], p.key, self._nav_default)
+            b = _nav_get(self.doc["core"]["nav"], p.key, self._nav_default)
+            if a != b:
+                out[p.name] = int(b) if p.ptype == INT32 else float(b)
+        for i, o in enumerate(self.cfg.outputs):
+            r0, r1 = self._base_rates[i], o.effective_rates()
+            for m, n in RATE_PARAM.items():
+                if r0.get(m, 0.0) != r1.get(m, 0.0):
+                    out.setdefault(o.name, {})[n] = float(r1.get(m, 0.0))
+        return out
+
+    def save(self) -> Path:
+        """Write the override file (raises OSError or ParamError when there is no path)."""
+        if self.path is None:
+            raise ParamError("no override file: the config is not a file and no endpoint sets params_file")
+        lines = [f"# ins-hil parameter overrides of {self.base.source or 'the config'} (MAV_CMD_PREFLIGHT_STORAGE)"]
+        lines.append("[params]")
+        ov = self.overrides()
+        for k, v in ov.items():
+            if not isinstance(v, dict):
+                lines.append(f"{k} = {v!r}")
+        for k, v in ov.items():
+            if isinstance(v, dict):
+                lines.append(f"[params.{_toml_key(k)}]")
+                lines.extend(f"{n} = {x!r}" for n, x in v.items())
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        tmp.write_text("\n".join(lines) + "\n")
+        tmp.replace(self.path)
+        return self.path
+
+    def _load(self, path: Path) -> None:
+        from ins_hil.config import ConfigError
+
+        try:
+            d = tomllib.loads(path.read_text()).get("params", {})
+        except (OSError, tomllib.TOMLDecodeError) as e:
+            raise ConfigError(f"{path}: {e}") from None
+        names = {o.name: i for i, o in enumerate(self.cfg.outputs)}
+        items: list[tuple[int, str, Any]] = []
+        for k, v in d.items():
+            if isinstance(v, dict):
+                if k not in names:
+                    raise ConfigError(f"{path}: [params.{k}]: no MAVLink output named {k!r}")
+                items.extend((names[k], n, x) for n, x in v.items())
+            else:
+                items.append((0, k, v))
+        for i, n, v in items:
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise ConfigError(f"{path}: {n} = {v!r}: expected a number")
+            try:
+                ptype = self.get(i, n)[1]
+                self.set(i, n, float(v), ptype)
+            except KeyError:
+                raise ConfigError(f"{path}: unknown parameter {n!r}") from None
+            except ParamError as e:
+                raise ConfigError(f"{path}: {e}") from None
+        self.changed.clear()
+
+
+def _f32_decimal(x: float) -> float:
+    """The shortest decimal of a float32 wire value (PARAM_SET 0.8 arrives as 0.800000011920929): the
+    value a user typed, for the configuration and the override file."""
+    import numpy as np
+
+    return float(str(np.float32(x)))
+
+
+def _toml_key(k: str) -> str:
+    return k if k.replace("_", "").replace("-", "").isalnum() else '"' + k.replace('"', '\\"') + '"'

@@ -1,0 +1,362 @@
+"""The GCS protocols a vehicle answers, with pymavlink as the ground station over real UDP.
+
+The gateway side is a real MavlinkEndpoint with its ParamStore (and a real Pipeline for the
+navigation values) on an asyncio loop in a thread, offered aligned states at 100 Hz; the ground
+station is ``mavutil.mavlink_connection('udpin:…')`` where the endpoint sends.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+from runtime_helpers import free_port, sim_config
+from test_runtime_mavlink import _state
+
+from ins_hil.config import ConfigError
+from ins_hil.runtime.mavlink_out import MavlinkEndpoint
+from ins_hil.runtime.mavlink_params import NAV_PARAMS, RATE_PARAM, ParamStore
+from ins_hil.runtime.metrics import RuntimeMetrics
+from ins_hil.runtime.pipeline import Pipeline
+from ins_hil.types import FixType, GnssFix
+
+SYSID = 42
+M = mavutil.mavlink
+
+
+class Vehicle:
+    """A gcs endpoint + ParamStore (+ Pipeline) served on a background asyncio loop."""
+
+    def __init__(self, tmp: Path, states: bool = True, **cfg_over: Any) -> None:
+        self.port = free_port()
+        over: dict[str, Any] = {
+            "outputs": [{"name": "gcs", "url": f"udpout:127.0.0.1:{self.port}", "role": "gcs", "sysid": SYSID}],
+            "recorder": {"enabled": False},
+            "core": {"init": "config", "init_lat_deg": 50.45, "init_lon_deg": 30.52, "init_h": 181.5},
+        }
+        over.update(cfg_over)
+        self.cfg = sim_config(**over)
+        self.params = ParamStore(self.cfg, tmp / "params.toml")
+        self.metrics = RuntimeMetrics()
+        self.pipeline = Pipeline(self.params.cfg.pipeline)
+        self.ep = MavlinkEndpoint(self.params.cfg.outputs[0], self.metrics)
+        self.params.attach([self.ep], self.pipeline)
+        self.states = states
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._th = threading.Thread(target=lambda: asyncio.run(self._main()), daemon=True)
+
+    async def _main(self) -> None:
+        await self.ep.start()
+        self._ready.set()
+        k = 0
+        while not self._stop.is_set():
+            if self.states:
+                if k == 0:
+                    lat, lon = math.radians(50.45), math.radians(30.52)
+                    v = np.array([3.0, -4.0, 0.5])
+                    self.ep.offer_gnss(GnssFix(1.0, lat, lon, 181.0, v, fix_type=FixType.FIX_3D, num_sats=9))
+                self.ep.offer(_state(1.0 + 0.01 * k), 0, 0)
+                k += 1
+            await asyncio.sleep(0.01)
+        await self.ep.close()
+
+    def __enter__(self) -> Vehicle:
+        # the ground station listens where the endpoint sends (MAVProxy's --master=udpin:…)
+        url = f"udpin:127.0.0.1:{self.port}"
+        self.gcs = mavutil.mavlink_connection(url, source_system=255, dialect="ardupilotmega")
+        self._th.start()
+        assert self._ready.wait(5)
+        self.wait("HEARTBEAT")  # the endpoint's address is known to the GCS from its first datagram
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._th.join(5)
+        self.gcs.close()
+
+    def wait(self, typ: str | list[str], timeout: float = 3.0, cond: Any = None) -> Any:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self.gcs.recv_match(type=typ, blocking=True, timeout=0.2)
+            if m is not None and m.get_srcSystem() == SYSID and (cond is None or cond(m)):
+                return m
+        return None
+
+    def collect(self, typ: str, seconds: float) -> list[Any]:
+        out = []
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            m = self.gcs.recv_match(type=typ, blocking=True, timeout=0.1)
+            if m is not None and m.get_srcSystem() == SYSID:
+                out.append(m)
+        return out
+
+    def command(self, cmd: int, *p: float, target: int = SYSID) -> Any:
+        params = [*p, *([0.0] * (7 - len(p)))]
+        self.gcs.mav.command_long_send(target, 1, cmd, 0, *params)
+        return self.wait("COMMAND_ACK", cond=lambda a: a.command == cmd)
+
+
+def _param_set(v: Vehicle, name: str, value: float, ptype: int = M.MAV_PARAM_TYPE_REAL32) -> Any:
+    v.gcs.mav.param_set_send(SYSID, 1, name.encode(), value, ptype)
+    return v.wait("PARAM_VALUE", cond=lambda m: m.param_id == name)
+
+
+def test_param_request_list_returns_every_index_with_the_count(tmp_path: Path) -> None:
+    with Vehicle(tmp_path) as v:
+        v.gcs.mav.param_request_list_send(SYSID, 1)
+        got: dict[int, Any] = {}
+        end = time.monotonic() + 5
+        while time.monotonic() < end:
+            m = v.gcs.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.3)
+            if m is None:
+                if got:
+                    break
+                continue
+            got[m.param_index] = m
+    n = len(NAV_PARAMS) + len(RATE_PARAM)
+    assert sorted(got) == list(range(n))
+    assert {m.param_count for m in got.values()} == {n}
+    names = {m.param_id: m for m in got.values()}
+    assert all(len(k) <= 16 for k in names)
+    assert math.isclose(names["SR_ATTITUDE"].param_value, 50.0) and names["SR_ATTITUDE"].param_type == 9
+    assert math.isclose(names["NAV_GATE_GNSS"].param_value, 5.0)
+    dc = names["NAV_DELAY_COMP"]
+    assert dc.param_type == M.MAV_PARAM_TYPE_INT32 and dc.param_value in (0, 1)
+
+
+def test_param_read_set_good_bad_and_other_system(tmp_path: Path) -> None:
+    with Vehicle(tmp_path) as v:
+        v.gcs.mav.param_request_read_send(SYSID, 1, b"NAV_GATE_BARO", -1)
+        r = v.wait("PARAM_VALUE", cond=lambda m: m.param_id == "NAV_GATE_BARO")
+        assert r is not None and math.isclose(r.param_value, 5.0) and r.param_count == len(NAV_PARAMS) + 12
+
+        # a good value: applied to the running core at once, echoed
+        ok = _param_set(v, "NAV_GATE_GNSS", 4.0)
+        assert ok is not None and math.isclose(ok.param_value, 4.0)
+        assert v.pipeline.core is not None and v.pipeline.core.cfg.gate_gnss == 4.0
+        assert v.pipeline.cfg.nav["gate_gnss"] == 4.0
+        # a rate: applied to the stream
+        r = _param_set(v, "SR_VFR_HUD", 2.0)
+        assert r is not None and math.isclose(r.param_value, 2.0) and v.ep.rates["VFR_HUD"] == 2.0
+
+        # bad values: refused, the old value echoed, a STATUSTEXT says why
+        for name, value, ptype, old in (
+            ("SR_ATTITUDE", -3.0, 9, 50.0),  # negative rate
+            ("NAV_USE_GNSS_V", 0.5, M.MAV_PARAM_TYPE_INT32, 1.0),  # not an integer
+            ("NAV_GATE_GNSS", 3.0, M.MAV_PARAM_TYPE_INT32, 4.0),  # wrong type for a REAL32 parameter
+            ("NAV_USE_GNSS_V", 0.0, M.MAV_PARAM_TYPE_REAL32, 1.0),  # right type (C cast), but needs a restart
+            ("FLT_GYRO_ARW", 1e-3, 9, _default_arw()),  # shapes the filter at start: refused live
+        ):
+            r = _param_set(v, name, value, ptype)
+            assert r is not None and math.isclose(r.param_value, old, rel_tol=1e-6), (name, r)
+        assert v.ep.rates["ATTITUDE"] == 50.0 and v.pipeline.core.cfg.use_gnss_vel is True
+        t = v.wait("STATUSTEXT", cond=lambda m: "FLT_GYRO_ARW" in m.text)
+        assert t is not None and "restart" in t.text
+
+        # addressed to another system: ignored (no PARAM_VALUE), counted
+        v.gcs.mav.param_set_send(7, 1, b"SR_ATTITUDE", 5.0, 9)
+        assert v.wait("PARAM_VALUE", timeout=1.0) is None
+        assert v.ep.rates["ATTITUDE"] == 50.0 and v.ep.rx_ignored >= 1
+
+
+def _default_arw() -> float:
+    from ins_hil.fusion.ekf import FilterConfig
+
+    return float(np.float32(FilterConfig().gyro_arw))
+
+
+def test_commands_are_acknowledged(tmp_path: Path) -> None:
+    with Vehicle(tmp_path) as v:
+        a = v.command(M.MAV_CMD_DO_SET_SERVO, 1, 1500)  # not handled
+        assert a is not None and a.result == M.MAV_RESULT_UNSUPPORTED and a.target_system == 255
+        a = v.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        assert a is not None and a.result == M.MAV_RESULT_DENIED
+        # COMMAND_INT too
+        v.gcs.mav.command_int_send(SYSID, 1, 0, M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+        a = v.wait("COMMAND_ACK", cond=lambda m: m.command == M.MAV_CMD_DO_SET_HOME)
+        assert a is not None and a.result == M.MAV_RESULT_UNSUPPORTED
+
+        a = v.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+        av = v.wait("AUTOPILOT_VERSION")
+        assert a.result == M.MAV_RESULT_ACCEPTED and av is not None
+        caps = M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+        assert av.capabilities & caps == caps and av.capabilities & M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+        assert not av.capabilities & M.MAV_PROTOCOL_CAPABILITY_FTP
+
+        a = v.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_HOME_POSITION)
+        hp = v.wait("HOME_POSITION")
+        assert a.result == M.MAV_RESULT_ACCEPTED and hp is not None
+        assert hp.latitude == 504500000 and hp.longitude == 305200000
+        assert abs(hp.altitude * 1e-3 - (181.5 - 25.25)) < 0.3  # MSL: EGM96 undulation 25.25 m there
+
+        a = v.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_GPS_RAW_INT)  # a streamed message, once
+        g = v.wait("GPS_RAW_INT")
+        assert a.result == M.MAV_RESULT_ACCEPTED and g is not None and g.satellites_visible == 9
+
+        a = v.command(M.MAV_CMD_GET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE)
+        mi = v.wait("MESSAGE_INTERVAL")
+        assert a.result == M.MAV_RESULT_ACCEPTED and mi.message_id == M.MAVLINK_MSG_ID_ATTITUDE
+        assert mi.interval_us == 20000
+
+        # another system's command: no ACK at all
+        assert v.command(M.MAV_CMD_DO_SET_SERVO, 1, 1500, target=9) is None
+
+
+def test_set_message_interval_changes_the_measured_rate(tmp_path: Path) -> None:
+    with Vehicle(tmp_path) as v:
+        before = v.collect("ATTITUDE", 1.0)
+        a = v.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, 200000)  # 5 Hz
+        assert a is not None and a.result == M.MAV_RESULT_ACCEPTED
+        v.collect("ATTITUDE", 0.3)
+        after = v.collect("ATTITUDE", 1.0)
+        # the state times (time_boot_ms) of consecutive messages: 20 ms at 50 Hz, 200 ms at 5 Hz
+        gaps_before = np.diff([m.time_boot_ms for m in before])
+        gaps_after = np.diff([m.time_boot_ms for m in after])
+        assert np.median(gaps_before) <= 30 and np.median(gaps_after) >= 150
+        assert len(after) < len(before) / 3
+        # the rate parameter follows
+        v.gcs.mav.param_request_read_send(SYSID, 1, b"SR_ATTITUDE", -1)
+        r = v.wait("PARAM_VALUE", cond=lambda m: m.param_id == "SR_ATTITUDE")
+        assert r is not None and math.isclose(r.param_value, 5.0)
+        a = v.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, -1)  # off
+        assert a.result == M.MAV_RESULT_ACCEPTED and "ATTITUDE" not in v.ep.rates
+
+
+def test_mission_and_ftp_get_final_answers(tmp_path: Path) -> None:
+    with Vehicle(tmp_path) as v:
+        v.gcs.mav.mission_request_list_send(SYSID, 1, M.MAV_MISSION_TYPE_FENCE)
+        mc = v.wait("MISSION_COUNT")
+        assert mc is not None and mc.count == 0 and mc.mission_type == M.MAV_MISSION_TYPE_FENCE
+        assert mc.target_system == 255
+        # FTP ListDirectory (opcode 3), seq 17: NAK (129) of that opcode, error UnknownCommand (7), seq 18
+        req = bytes([17, 0, 0, 3, 1, 0, 0, 0, 0, 0, 0, 0]) + b"/"
+        v.gcs.mav.file_transfer_protocol_send(0, SYSID, 1, list(req.ljust(251, b"\x00")))
+        f = v.wait("FILE_TRANSFER_PROTOCOL")
+        assert f is not None
+        p = bytes(f.payload)
+        assert int.from_bytes(p[0:2], "little") == 18 and p[3] == 129 and p[4] == 1 and p[5] == 3 and p[12] == 7
+
+
+def test_parameters_saved_and_loaded_at_start(tmp_path: Path) -> None:
+    with Vehicle(tmp_path) as v:
+        assert _param_set(v, "SR_GLOBAL_POS", 3.0) is not None
+        assert _param_set(v, "NAV_BARO_STD", 0.8) is not None
+        a = v.command(M.MAV_CMD_PREFLIGHT_STORAGE, 1)
+        assert a is not None and a.result == M.MAV_RESULT_ACCEPTED
+        a = v.command(M.MAV_CMD_PREFLIGHT_STORAGE, 2)  # reset to defaults: not offered
+        assert a is not None and a.result == M.MAV_RESULT_UNSUPPORTED
+    text = (tmp_path / "params.toml").read_text()
+    assert "NAV_BARO_STD = 0.8" in text and "[params.gcs]" in text and "SR_GLOBAL_POS = 3.0" in text
+    # a new start with the file: the values are in the configuration it runs
+    store = ParamStore(sim_config(**_outputs(v.port)), tmp_path / "params.toml")
+    assert store.cfg.pipeline.nav["baro_std"] == 0.8
+    assert store.cfg.outputs[0].effective_rates()["GLOBAL_POSITION_INT"] == 3.0
+    # a bad file is a config error naming the file and the parameter (the config's own validation)
+    (tmp_path / "bad.toml").write_text("[params]\nFLT_COV_EVERY = 0\n")
+    with pytest.raises(ConfigError, match=r"bad\.toml.*cov_every"):
+        ParamStore(sim_config(**_outputs(v.port)), tmp_path / "bad.toml")
+    (tmp_path / "bad2.toml").write_text("[params]\nNO_SUCH = 1\n")
+    with pytest.raises(ConfigError, match="NO_SUCH"):
+        ParamStore(sim_config(**_outputs(v.port)), tmp_path / "bad2.toml")
+
+
+def _outputs(port: int) -> dict[str, Any]:
+    return {"outputs": [{"name": "gcs", "url": f"udpout:127.0.0.1:{port}", "role": "gcs", "sysid": SYSID}]}
+
+
+@pytest.mark.parametrize("name", ["default.toml", "flight_controller.toml", "hil_px4.toml", "dronecan_imu.toml"])
+def test_shipped_configs_round_trip_through_their_document(name: str) -> None:
+    """PARAM_SET validates the whole document: every shipped config must come back unchanged."""
+    from ins_hil.config import REPO_CONFIGS, load
+
+    store = ParamStore(load(REPO_CONFIGS / name), path=None)
+    assert store.writable, store.why_readonly
+
+
+def _mavproxy() -> list[str]:
+    import shutil
+    import sys
+
+    exe = shutil.which("mavproxy.py", path=str(Path(sys.executable).parent)) or shutil.which("mavproxy.py")
+    if exe is None:
+        raise RuntimeError("mavproxy.py not found: MAVProxy is in the dev extras (pip install -e .[dev])")
+    return [sys.executable, exe]
+
+
+@pytest.mark.slow
+def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
+    """MAVProxy (interactive, commands on stdin): ``param fetch`` lists every parameter, ``param set``
+    of a good value is applied, of a non-integer to an INT32 parameter refused (MAVProxy reports the
+    failure with the value we echoed), and the refusal's STATUSTEXT is shown; ``wp list`` gets an
+    empty mission, ``arm throttle`` a DENIED and an unknown command an UNSUPPORTED COMMAND_ACK."""
+    import re
+    import subprocess
+
+    v = Vehicle(tmp_path)
+    mp = subprocess.Popen(
+        [*_mavproxy(), f"--master=udpin:127.0.0.1:{v.port}", f"--state-basedir={tmp_path}",
+         "--default-modules=param,wp,arm,cmdlong", "--mav20"],
+        cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    lines: list[str] = []
+    out = mp.stdout
+    assert out is not None
+    threading.Thread(target=lambda: lines.extend(iter(out.readline, "")), daemon=True).start()
+
+    def wait_for(pattern: str, timeout: float = 10.0) -> re.Match[str] | None:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for ln in list(lines):
+                if (m := re.search(pattern, ln)) is not None:
+                    return m
+            time.sleep(0.1)
+        return None
+
+    def cmd(c: str) -> None:
+        assert mp.stdin is not None
+        mp.stdin.write(c + "\n")
+        mp.stdin.flush()
+
+    n = len(NAV_PARAMS) + len(RATE_PARAM)
+    try:
+        time.sleep(1.0)  # MAVProxy binds its UDP port
+        v._th.start()
+        assert v._ready.wait(5)
+        assert wait_for(r"Detected vehicle 42:1") is not None, "".join(lines)
+        lines.clear()
+        cmd("param fetch")
+        got = wait_for(r"Received (\d+) parameters")
+        assert got is not None and int(got.group(1)) == n, "".join(lines)
+        cmd("param set SR_VFR_HUD 2")
+        cmd("param set NAV_USE_GNSS_V 0.5")
+        assert wait_for(r"Failed to set NAV_USE_GNSS_V to 0.5 \(invalid returned value 1.0\)") is not None, lines
+        assert wait_for(r"NAV_USE_GNSS_V: wrong type") is not None  # our STATUSTEXT, shown by MAVProxy
+        cmd("param show SR_VFR_HUD")
+        assert wait_for(r"SR_VFR_HUD\s+2\.0") is not None, "".join(lines)
+        cmd("wp list")
+        assert wait_for(r"Requesting 0 waypoints") is not None, "".join(lines)
+        cmd("arm throttle")
+        assert wait_for(r"COMMAND_ACK: COMPONENT_ARM_DISARM: DENIED") is not None, "".join(lines)
+        cmd("long DO_SET_SERVO 1 1500")
+        assert wait_for(r"COMMAND_ACK: DO_SET_SERVO: UNSUPPORTED") is not None, "".join(lines)
+    finally:
+        mp.terminate()
+        try:
+            mp.wait(5)
+        except subprocess.TimeoutExpired:
+            mp.kill()
+            mp.wait()
+        v._stop.set()
+        v._th.join(5)
+    assert v.ep.rates["VFR_HUD"] == 2.0 and v.pipeline.core.cfg.use_gnss_vel is True
+    saved = (tmp_path / "mav_42_1.parm").read_text().split("\n")
+    assert len([s for s in saved if s.strip()]) == n  # MAVProxy's own copy of the parameter list
