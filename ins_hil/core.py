@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -197,7 +197,7 @@ class NavCore:
         self._log: deque[tuple[int, str, Any]] = deque()
         self._log_sorted = 0  # the log's first entries already in replay order (see _sort_log)
         self._replaying = False
-        self._rb_gen: Iterator[None] | None = None  # a roll-back that may be suspended between two segments
+        self._rb_gen: Generator[None, None, bool] | None = None  # a roll-back, maybe suspended between segments
         self._rb_new: list[tuple[int, str, Any]] | None = None  # while one runs: IMU steps logged meanwhile
         self._nhc_next = 0.0
         self._still_time = 0.0
@@ -436,7 +436,7 @@ class NavCore:
             except StopIteration as stop:
                 return bool(stop.value)
 
-    def _fuse_delayed_steps(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
+    def _fuse_delayed_steps(self, meas: GnssFix | BaroSample | MagSample) -> Generator[None, None, bool]:
         """:meth:`_fuse_delayed` in segments (returns its result): the roll-back and the fusion, then the
         replay of the logged IMU steps and measurements up to now, ``REPLAY_SEGMENT`` steps per segment.
 
@@ -494,7 +494,9 @@ class NavCore:
         self._sort_log(t_step)
         return True
 
-    def _rb_pause(self, live: tuple[tuple[Any, ...], int], replaying: bool) -> Iterator[None]:
+    def _rb_pause(
+        self, live: tuple[tuple[Any, ...], int], replaying: bool
+    ) -> Generator[None, None, tuple[tuple[Any, ...], int]]:
         """Suspend a roll-back between two segments: the live state back in, the roll-back's aside; on
         resume (after any IMU steps the caller ran) the other way round. Returns the live state."""
         mine = (self._snapshot(), self._step_n)

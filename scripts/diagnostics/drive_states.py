@@ -37,8 +37,20 @@ def dump(path: Path, seconds: float) -> None:
                 if not any(a <= f.t < b for a, b in outages):
                     core.fuse(f)
             st = core.state()
-            rows.append(np.concatenate(([st.t, st.lat, st.lon, st.h], st.q_nb, st.vel_ned, st.gyro_bias,
-                                        st.accel_bias, st.std_pos, st.std_vel, st.std_att)))
+            rows.append(
+                np.concatenate(
+                    (
+                        [st.t, st.lat, st.lon, st.h],
+                        st.q_nb,
+                        st.vel_ned,
+                        st.gyro_bias,
+                        st.accel_bias,
+                        st.std_pos,
+                        st.std_vel,
+                        st.std_att,
+                    )
+                )
+            )
         out[f"aids_{int(aids)}"] = np.array(rows)
         print(f"aids={aids}: {len(rows)} states, final t {rows[-1][0]:.3f}")
     np.savez(path, **out)

@@ -86,8 +86,12 @@ def run(dc: bool, seconds: float) -> dict[str, float]:
                 wrap(pipe.core)
         pipe.work()
     pipe.flush()
-    return {"step": np.array(step_t[1000:]), "gnss": np.array(fix_t["GnssFix"]),  # from the 2nd s of navigation
-            "baro": np.array(fix_t["BaroSample"]), "seg": np.array(segs)}
+    return {
+        "step": np.array(step_t[1000:]),
+        "gnss": np.array(fix_t["GnssFix"]),  # from the 2nd s of navigation
+        "baro": np.array(fix_t["BaroSample"]),
+        "seg": np.array(segs),
+    }
 
 
 def best_of(runs: list[dict[str, np.ndarray]]) -> dict[str, float]:
@@ -95,10 +99,17 @@ def best_of(runs: list[dict[str, np.ndarray]]) -> dict[str, float]:
     then the median/mean over the calls, in µs: what the work costs without the other load of the machine."""
     b = {k: np.min([r[k] for r in runs], axis=0) / 1e3 for k in runs[0]}
     n_meas = len(b["gnss"]) + len(b["baro"])
-    return {"step_med": float(np.median(b["step"])), "step_mean": float(np.mean(b["step"])),
-            "gnss_med": float(np.median(b["gnss"])), "gnss_max": float(np.max(b["gnss"])),
-            "baro_med": float(np.median(b["baro"])), "seg_max": float(np.max(b["seg"])),
-            "segs_per_meas": len(b["seg"]) / n_meas, "steps": len(b["step"]), "fixes": len(b["gnss"])}
+    return {
+        "step_med": float(np.median(b["step"])),
+        "step_mean": float(np.mean(b["step"])),
+        "gnss_med": float(np.median(b["gnss"])),
+        "gnss_max": float(np.max(b["gnss"])),
+        "baro_med": float(np.median(b["baro"])),
+        "seg_max": float(np.max(b["seg"])),
+        "segs_per_meas": len(b["seg"]) / n_meas,
+        "steps": len(b["step"]),
+        "fixes": len(b["gnss"]),
+    }
 
 
 def main() -> int:
@@ -108,11 +119,13 @@ def main() -> int:
     a = ap.parse_args()
     for dc in (False, True):
         best = best_of([run(dc, a.seconds) for _ in range(a.repeat)])
-        print(f"delay_compensation={str(dc).lower():5}: IMU step median {best['step_med']:.1f} µs"
-              f" (mean {best['step_mean']:.1f}), GNSS fix median {best['gnss_med']:.0f} µs"
-              f" (max {best['gnss_max']:.0f}), baro median {best['baro_med']:.0f} µs;"
-              f" longest segment {best['seg_max']:.0f} µs, {best['segs_per_meas']:.1f} segments per measurement;"
-              f" {best['steps']:.0f} steps, {best['fixes']:.0f} fixes (best of {a.repeat})")
+        print(
+            f"delay_compensation={str(dc).lower():5}: IMU step median {best['step_med']:.1f} µs"
+            f" (mean {best['step_mean']:.1f}), GNSS fix median {best['gnss_med']:.0f} µs"
+            f" (max {best['gnss_max']:.0f}), baro median {best['baro_med']:.0f} µs;"
+            f" longest segment {best['seg_max']:.0f} µs, {best['segs_per_meas']:.1f} segments per measurement;"
+            f" {best['steps']:.0f} steps, {best['fixes']:.0f} fixes (best of {a.repeat})"
+        )
     return 0
 
 
