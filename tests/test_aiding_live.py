@@ -47,9 +47,11 @@ def _fly(duration: float, fault: str = "", rate: float = 0.0, shadow: AidingConf
 
     ``fault``: "" | "pull" (position only) | "spoof" (velocity-matched) GNSS pull of ``rate`` m/s
     (north-east) from t = 60 s. Returns (pipeline events, counts, shadow monitor or None)."""
-    cfg = from_dict(sim_config_dict())
+    d = sim_config_dict()
+    d["core"]["nav"]["delay_compensation"] = False  # late fixes fused as current (as the C core always does)
+    cfg = from_dict(d)
     p, sim = cfg.pipeline, cfg.sim
-    # the live configuration this test is about (fails loudly if the defaults change)
+    # the configuration this test is about (fails loudly if it changes)
     assert p.core == "python" and p.nav.get("delay_compensation") is False and p.aiding_fdi
     assert sim.imu_rate == 1000.0 and sim.gnss_latency == 0.05 and sim.profile == "uav"
     pipe = Pipeline(p)
