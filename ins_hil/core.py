@@ -214,6 +214,8 @@ class NavCore:
         self._h_gnss = 0.0
         self._gnss_var_d = 1.0
         self._baro_offset_var = 0.0
+        self._baro_dt = 0.04  # s between baro samples (the last interval seen)
+        self._gnss_dt = 1.0  # s between GNSS heights (the last interval seen, ≤ 1 s)
         # alignment
         self.phase = "nav" if self.cfg.align == "given" else "level"
         self._lev_buf: deque[tuple[float, Vec, Vec]] = deque()
@@ -404,7 +406,8 @@ class NavCore:
     # ------------------------------------------------------------------ snapshots (delayed fusion)
     def _snapshot(self) -> tuple[Any, ...]:
         """References only: every array below is replaced, never mutated in place, by the mechanization,
-        the filter and the feedback (a cheap per-step snapshot for delayed fusion)."""
+        the filter and the feedback (a cheap per-step snapshot for delayed fusion). With the baro datum and
+        the GNSS height it learns from: a replay re-fuses the logged baro samples from the same datum."""
         ins, kf = self.ins, self.kf
         st = ins.state
         return (
@@ -412,6 +415,8 @@ class NavCore:
             ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
             kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next, self._still_time,
             self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp, kf.vib_prev, kf.vib_var, kf._acc_qv,
+            self._baro_offset, self._baro_offset_var, self._t_baro, self._baro_dt, self._t_gnss_ok, self._h_gnss,
+            self._gnss_var_d, self._gnss_dt,
         )  # fmt: skip
 
     def _restore(self, d: tuple[Any, ...]) -> None:
@@ -421,7 +426,8 @@ class NavCore:
          ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
          kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next,
          self._still_time, self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp, kf.vib_prev, kf.vib_var,
-         kf._acc_qv) = d  # fmt: skip
+         kf._acc_qv, self._baro_offset, self._baro_offset_var, self._t_baro, self._baro_dt, self._t_gnss_ok,
+         self._h_gnss, self._gnss_var_d, self._gnss_dt) = d  # fmt: skip
         kf.x = np.zeros(kf.n)
 
     #: IMU steps a roll-back replays per segment of :meth:`fuse_steps` (about 0.3 ms in Python)
@@ -628,8 +634,12 @@ class NavCore:
             else:
                 self._learn_baro_datum(meas.t, alt)
             z, H = mm.baro_height(self.idx, s.h, alt + self._baro_offset)
-            # the uncertainty of a learnt datum is added to R (it is slowly varying, not white: approximate)
-            r_b = c.baro_std**2 + (self._baro_offset_var if c.baro_offset is None else 0.0)
+            # a learnt datum's error is common to the samples within its correlation time (≈ baro_offset_tau, the
+            # learning's time constant): fused as white noise it enters R with the variance it has over the
+            # 2τ/Δt samples it spans (the equivalent information of correlated noise), not once per sample
+            r_b = c.baro_std**2
+            if c.baro_offset is None:
+                r_b += self._baro_offset_var * max(1.0, 2.0 * c.baro_offset_tau / max(self._baro_dt, 1e-3))
             self._apply("baro", z, H, np.array((r_b,)), c.gate_baro, meas.t)
         elif isinstance(meas, MagSample):
             self._last_mag = np.asarray(meas.field_b)
@@ -778,6 +788,8 @@ class NavCore:
     def _gnss_height(self, meas: GnssFix, C: Vec, std_d: float) -> None:
         """Note a healthy GNSS height for the baro datum: the IMU height (m, antenna height + lever arm turned
         by ``C`` = C_b^n), its time and variance (``std_d`` m, the fused σ)."""
+        if meas.t > self._t_gnss_ok:
+            self._gnss_dt = min(meas.t - self._t_gnss_ok, 1.0)  # the GNSS interval (s; ≤ 1 s)
         self._t_gnss_ok = meas.t
         self._h_gnss = meas.h + float((C @ self.cfg.gnss_lever_arm_b)[2])
         self._gnss_var_d = std_d * std_d
@@ -792,9 +804,16 @@ class NavCore:
             if self._baro_offset is None:
                 self._baro_offset, self._baro_offset_var = self._h_gnss - alt, self._gnss_var_d
             else:
-                a = min(1.0, max(0.0, t - self._t_baro) / c.baro_offset_tau)
+                dt = max(0.0, t - self._t_baro)
+                a = min(1.0, dt / c.baro_offset_tau)
                 self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
-                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * self._gnss_var_d
+                # each GNSS height is used by the k baro samples until the next one: its error enters k times
+                # coherently, (k a)² σ_g² per k samples; the baro noise once per sample
+                k = max(1.0, self._gnss_dt / dt) if dt > 0.0 else 1.0
+                var_in = c.baro_std**2 + k * self._gnss_var_d
+                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * var_in
+                if dt > 0.0:
+                    self._baro_dt = dt
         self._t_baro = t
 
     def _align_meas(self, meas: GnssFix | BaroSample | MagSample) -> None:
