@@ -133,5 +133,6 @@ def test_baro_datum_is_learnt_during_the_alignment(shared_dir: Path):
         h_err[with_baro] = float(np.sqrt(np.mean(e[late, 2] ** 2)))
     assert core._baro_offset_var < 0.01  # learnt against the RTK height (σ floor 0.06 m), not the start σ
     # vertical RMS late in the outage: 0.27 m without a baro, 0.26 m with the datum from the first navigation
-    # sample (the rule before the alignment learnt it), 0.20 m now
-    assert h_err[True] < 0.8 * h_err[False]
+    # sample (the rule before the alignment learnt it), 0.22 m now (0.20 m before the learnt datum's error was
+    # weighted as correlated over its time constant)
+    assert h_err[True] < 0.85 * h_err[False]

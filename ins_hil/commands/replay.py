@@ -6,7 +6,9 @@ SOURCE is one of
 * ``drive`` or the directory of the real drive (``../shared/data/gnss_imu_drive_0708``):
   the README's outage protocol with and without ground-vehicle aids plus a run with GNSS
   all the time,
-* a recorded gateway log (``*.ihlog``), handed to ``ins_hil.runtime.replay.replay_log``.
+* a recorded gateway log (``*.ihlog``), handed to ``ins_hil.runtime.replay.replay_log``,
+* ``sim``: the ``[sim]`` flight of ``--config`` (default ``configs/default.toml``) through its pipeline,
+  offline, over ``--runs`` seeds: bias, RMS, NEES, 3σ coverage (``ins_hil.runtime.replay.sim_cli``).
 
 Writes ``metrics.json`` and PNG plots to ``--out`` and prints a summary table. ``--docs``
 runs the full report (real drive, Example 3.2, UAV mission, Monte-Carlo NEES/NIS, hot-path
@@ -46,7 +48,8 @@ VALIDATION_SHIFTS = (17.5, 22.5, 27.5)  # s: validation outages inside the proto
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", nargs="?", default="drive", help="scenario name, 'drive', a drive directory or a *.ihlog")
+    p.add_argument("source", nargs="?", default="drive",
+                   help="scenario name, 'drive', a drive directory, 'sim' or a *.ihlog")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("replay_out"), help="output directory (default ./replay_out)")
     p.add_argument("--seed", type=int, default=0, help="random seed of a simulated scenario")
     p.add_argument("--duration", type=float, default=None, help="scenario length in s (default: the scenario's)")
@@ -55,6 +58,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--docs", action="store_true", help="full report: regenerate docs/accuracy.md and its plots")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "--config", type=Path, default=None, help="source 'sim': the config whose [sim] flight is flown (default.toml)"
+    )
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -429,6 +435,8 @@ def run(args: argparse.Namespace) -> int:
             print("ins-hil replay: gateway-log replay needs ins_hil.runtime.replay (not installed)", file=sys.stderr)
             return 2
         return int(mod.replay_log(Path(src), args) or 0)
+    if src == "sim":  # the [sim] flight of a config through its pipeline, over --runs seeds from --seed
+        return int(_runtime_replay().sim_cli(args))
     if args.docs:
         return full_report(args)
     args.out.mkdir(parents=True, exist_ok=True)

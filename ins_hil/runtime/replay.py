@@ -5,6 +5,14 @@ pipeline, as float64, and stores the pipeline config in the log header; the
 replay builds the same :class:`~ins_hil.runtime.pipeline.Pipeline` and calls
 it in the same order, so it reproduces the online fused states bit for bit
 (the live loop only adds timing and I/O around these calls).
+
+A log of a simulated run (``[sim] enabled`` in the header's config) is also scored against the
+simulator's truth, regenerated from the header's ``[sim]`` table (the simulator is seeded and
+deterministic): :func:`sim_truth`, :func:`score`. :func:`fly_sim` runs a config's simulated flight
+offline (no real time, the devices' send order) and :func:`monte_carlo_sim` scores it over seeds:
+position bias along track, horizontal RMS, NEES of position and velocity from the published per-axis
+σ against the χ² band, and the fraction of epochs with the horizontal error inside 3σ (σ_h =
+hypot(σ_N, σ_E), the ``pos_horiz_accuracy`` of ESTIMATOR_STATUS).
 """
 
 from __future__ import annotations
@@ -16,13 +24,16 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, overload
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
 from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
-from ins_hil.runtime.recorder import LogReader, parts_of, read_header
+from ins_hil.runtime.recorder import LogReader, parts_of, read_header, read_records
 from ins_hil.types import FaultEvent, ImuSample, NavState
+
+if TYPE_CHECKING:
+    from ins_hil.sim.devices import SimConfig
 
 
 @dataclass
@@ -120,10 +131,13 @@ def replay_cli(path: str | Path, args: argparse.Namespace | None = None) -> int:
     from ins_hil.nav.rotation import euler_from_quat
 
     seen: list[Any] = [None, 0]  # last state, count
+    scored: list[NavState] = []  # every SCORE_EVERY-th state (the truth comparison of a simulated run)
 
     def keep(st: NavState) -> None:
         seen[0] = st
         seen[1] += 1
+        if seen[1] % SCORE_EVERY == 0:
+            scored.append(st)
 
     try:
         res = replay_log(path, keep_states=False, on_state=keep)
@@ -148,4 +162,297 @@ def replay_cli(path: str | Path, args: argparse.Namespace | None = None) -> int:
     if not getattr(args, "quiet", False):
         for ev in res.events[:50]:
             print(f"  t {ev.t:.3f} {ev.sensor} {ev.mode.name}{' cleared' if ev.cleared else ''} {ev.detail}")
+    sim = sim_config_from_header(res.header)
+    if sim is not None and scored:
+        for line in truth_report(path, sim, scored):
+            print(line)
     return 2 if res.read_error else 0
+
+
+#: a simulated run's states are scored at this decimation (1 kHz → 10 Hz) ...
+SCORE_EVERY = 100
+#: ... from this long after the first state (the rest before the default flight's take-off, yaw unobservable)
+SETTLE_S = 10.0
+
+
+def sim_config_from_header(header: dict[str, Any]) -> SimConfig | None:
+    """The ``[sim]`` table of a log header's config when the run used the simulator, else None."""
+    from ins_hil.sim.devices import SimConfig
+
+    conf = header.get("config")
+    if not isinstance(conf, dict) or not conf.get("sim_enabled") or not isinstance(conf.get("sim"), dict):
+        return None
+    names = {f.name for f in dataclasses.fields(SimConfig)}
+    return SimConfig(**{k: v for k, v in conf["sim"].items() if k in names and k != "sign_key"})
+
+
+def truth_report(path: str | Path, sim: SimConfig, states: list[NavState]) -> list[str]:
+    """Lines for ``ins-hil replay LOG`` of a simulated run: the recorded IMU samples against the regenerated
+    ones, then the error of ``states`` against the regenerated truth (:func:`score`)."""
+    truth = sim_truth(sim, states[-1].t + 1.0)
+    imu = [r for r in read_records(path) if isinstance(r, ImuSample)]
+    chk = check_imu(truth, imu)
+    same = "all equal" if chk["equal"] == chk["samples"] else f"{chk['samples'] - chk['equal']} differ"
+    out = [
+        f"simulated run (profile {sim.profile}, seed {sim.seed}): truth regenerated from the header's [sim]; "
+        f"recorded IMU samples against the regenerated ones: {chk['matched']}/{chk['samples']} matched, {same} "
+        f"(max |difference| {chk['max_abs_diff']:.3g})"
+    ]
+    t0 = states[0].t + SETTLE_S
+    sel = [s for s in states if s.t >= t0]
+    if not sel:
+        return [*out, f"error against truth: no state {SETTLE_S:g} s after the first (run too short)"]
+    m = score(errors(sel, truth))
+    out.append(
+        f"error against truth, t {sel[0].t:.1f}–{sel[-1].t:.1f} s ({m['epochs']} epochs at "
+        f"{sim.imu_rate / SCORE_EVERY:g} Hz): along-track bias {m['along_bias_m']:+.3f} m, horizontal RMS "
+        f"{m['horiz_rms_m']:.3f} m (published σ_h RMS {m['horiz_sigma_rms_m']:.3f} m), NEES position "
+        f"{m['nees_pos']:.2f} velocity {m['nees_vel']:.2f} (3 when σ is consistent), horizontal error inside "
+        f"3σ_h {100 * m['cover_3sigma']:.1f} % of epochs"
+    )
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- truth
+@dataclass
+class SimTruth:
+    """The simulator's truth at its IMU rate (row k at ``t = t0 + k / rate``), and its IMU samples as
+    the devices emit them (float32 increments of the serial frame, µs time stamps)."""
+
+    rate: float
+    t: np.ndarray  # (N,) s
+    lat: np.ndarray  # (N,) rad
+    lon: np.ndarray
+    h: np.ndarray  # m
+    vel_ned: np.ndarray  # (N, 3) m/s
+    imu_t: np.ndarray  # (M,) s: the end time of each IMU interval
+    imu_dtheta: np.ndarray  # (M, 3) rad
+    imu_dvel: np.ndarray  # (M, 3) m/s
+
+    def rows(self, t: np.ndarray) -> np.ndarray:
+        """The truth rows of times ``t`` (s); ValueError if a time is outside or off the IMU grid."""
+        k = np.rint((np.asarray(t) - self.t[0]) * self.rate).astype(np.int64)
+        if len(k) and (k.min() < 0 or k.max() >= len(self.t)):
+            raise ValueError(f"time outside the regenerated truth ({self.t[0]:.3f}..{self.t[-1]:.3f} s)")
+        if len(k) and float(np.max(np.abs(self.t[k] - t))) > 0.25 / self.rate:
+            raise ValueError("state times are not on the simulator's IMU grid")
+        return k
+
+
+def sim_truth(sim: SimConfig, duration: float) -> SimTruth:
+    """Regenerate the truth of ``sim`` (``ins_hil.sim.devices.truth_chunks``) for ``duration`` s."""
+    from ins_hil.sim.devices import truth_chunks
+
+    parts: list[tuple[np.ndarray, ...]] = []
+    imu: list[tuple[np.ndarray, ...]] = []
+    for truth, ser, _fixes, _baro in truth_chunks(sim):
+        k0 = 1 if parts else 0  # row 0 of a chunk is the last row of the previous one
+        parts.append((truth.t[k0:], truth.lat[k0:], truth.lon[k0:], truth.h[k0:], truth.vel_ned[k0:]))
+        imu.append((ser.t, ser.dtheta, ser.dvel))
+        if truth.t[-1] >= duration - 1e-9:
+            break
+    t, lat, lon, h, vel = (np.concatenate([p[i] for p in parts]) for i in range(5))
+    it, ith, iv = (np.concatenate([p[i] for p in imu]) for i in range(3))
+    # the serial frame carries float32 increments and a µs time stamp (ins_hil.drivers.serial_frame)
+    return SimTruth(
+        sim.imu_rate, t, lat, lon, h, vel, np.rint(it * 1e6) * 1e-6,
+        ith.astype(np.float32).astype(np.float64), iv.astype(np.float32).astype(np.float64),
+    )  # fmt: skip
+
+
+def check_imu(truth: SimTruth, samples: list[ImuSample]) -> dict[str, Any]:
+    """Compare recorded IMU samples with the regenerated ones: matched by time stamp, the increments must be
+    equal (bit for bit after the frame's float32). Returns counts and the largest difference."""
+    if not samples:
+        return {"samples": 0, "matched": 0, "equal": 0, "max_abs_diff": 0.0}
+    t = np.array([s.t for s in samples])
+    k = np.rint((t - truth.imu_t[0]) * truth.rate).astype(np.int64)
+    ok = (k >= 0) & (k < len(truth.imu_t))
+    ok[ok] &= np.abs(truth.imu_t[k[ok]] - t[ok]) < 0.25 / truth.rate
+    th = np.array([s.dtheta for s in samples])[ok]
+    dv = np.array([s.dvel for s in samples])[ok]
+    kk = k[ok]
+    eq = np.all(th == truth.imu_dtheta[kk], axis=1) & np.all(dv == truth.imu_dvel[kk], axis=1)
+    d = max(float(np.max(np.abs(th - truth.imu_dtheta[kk]), initial=0.0)),
+            float(np.max(np.abs(dv - truth.imu_dvel[kk]), initial=0.0)))  # fmt: skip
+    return {"samples": len(samples), "matched": int(ok.sum()), "equal": int(eq.sum()), "max_abs_diff": d}
+
+
+@dataclass
+class Errors:
+    """State − truth at the scored states: position NED (m), velocity NED (m/s), their published σ, the
+    truth velocity (m/s) for the along-track direction."""
+
+    t: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+    std_pos: np.ndarray
+    std_vel: np.ndarray
+    vel_true: np.ndarray
+
+
+def errors(states: list[NavState], truth: SimTruth) -> Errors:
+    """The errors of ``states`` against ``truth`` (local NED at the truth position)."""
+    from ins_hil.nav import earth
+
+    t = np.array([s.t for s in states])
+    k = truth.rows(t)
+    lat = np.array([s.lat for s in states])
+    lon = np.array([s.lon for s in states])
+    h = np.array([s.h for s in states])
+    sl = np.sin(truth.lat[k])
+    w2 = 1.0 - earth.E2_WGS84 * sl * sl
+    n = earth.A_WGS84 / np.sqrt(w2)  # earth.radii, element-wise
+    m = n * (1.0 - earth.E2_WGS84) / w2
+    # small differences of geodetic coordinates to NED metres (the errors are metres, not kilometres)
+    pos = np.stack([(lat - truth.lat[k]) * (m + truth.h[k]),
+                    (lon - truth.lon[k]) * (n + truth.h[k]) * np.cos(truth.lat[k]),
+                    -(h - truth.h[k])], axis=1)  # fmt: skip
+    vel = np.array([s.vel_ned for s in states]) - truth.vel_ned[k]
+    return Errors(t, pos, vel, np.array([s.std_pos for s in states]), np.array([s.std_vel for s in states]),
+                  truth.vel_ned[k])  # fmt: skip
+
+
+def score(e: Errors, min_speed: float = 5.0) -> dict[str, float]:
+    """Accuracy and consistency of one run: ``along_bias_m`` (mean position error along the truth's
+    horizontal velocity, epochs faster than ``min_speed`` m/s; negative = behind), ``horiz_rms_m``,
+    ``nees_pos`` / ``nees_vel`` (mean of Σ (e_i/σ_i)² over N, E, D: 3 for a consistent filter),
+    ``cover_3sigma`` (fraction of epochs with |e_NE| ≤ 3 hypot(σ_N, σ_E)), ``epochs``."""
+    vh = e.vel_true[:, :2]
+    sp = np.hypot(vh[:, 0], vh[:, 1])
+    mv = sp > min_speed
+    along = np.sum(e.pos[mv, :2] * vh[mv], axis=1) / sp[mv]
+    eh = np.hypot(e.pos[:, 0], e.pos[:, 1])
+    sh = np.hypot(e.std_pos[:, 0], e.std_pos[:, 1])
+    return {
+        "epochs": len(e.t),
+        "along_bias_m": float(np.mean(along)) if len(along) else math.nan,
+        "horiz_rms_m": float(np.sqrt(np.mean(eh**2))),
+        "horiz_sigma_rms_m": float(np.sqrt(np.mean(sh**2))),
+        "nees_pos": float(np.mean(np.sum((e.pos / e.std_pos) ** 2, axis=1))),
+        "nees_vel": float(np.mean(np.sum((e.vel / e.std_vel) ** 2, axis=1))),
+        "cover_3sigma": float(np.mean(eh <= 3.0 * sh)),
+    }
+
+
+def fly_sim(
+    config: dict[str, Any], seed: int | None = None, duration: float = 60.0, every: int = 100
+) -> tuple[list[NavState], SimTruth, dict[str, int]]:
+    """Fly the ``[sim]`` flight of ``config`` (a config file as a dict) offline through its pipeline, in
+    the devices' send order (``ins_hil.sim.devices.send_order``; no real time, no transports: the
+    samples are not quantised by the frames). ``seed`` overrides ``[sim] seed``. Returns every
+    ``every``-th state, the truth and the pipeline's counters."""
+    import copy
+
+    from ins_hil.config import from_dict
+    from ins_hil.sim.devices import send_order
+
+    d = copy.deepcopy(config)
+    d.setdefault("sim", {})["enabled"] = True
+    if seed is not None:
+        d["sim"]["seed"] = seed
+    cfg = from_dict(d, "sim flight")
+    pipe = Pipeline(cfg.pipeline)
+    states: list[NavState] = []
+    n = 0
+    for s in send_order(cfg.sim, duration):
+        if isinstance(s, ImuSample):
+            st = pipe.imu(s)
+            if st is not None:
+                n += 1
+                if n % every == 0:
+                    states.append(st)
+        else:
+            pipe.aid(s)
+    pipe.flush()
+    return states, sim_truth(cfg.sim, duration), dict(pipe.counts)
+
+
+def monte_carlo_sim(
+    config: dict[str, Any], seeds: list[int], duration: float = 60.0, t_from: float = 20.0
+) -> dict[str, Any]:
+    """:func:`fly_sim` over ``seeds``, scored from ``t_from`` s: per seed :func:`score`; over the runs the
+    mean along-track bias, the RMS, the mean NEES (position, velocity) with the two-sided 95 % band of
+    χ²(3 R)/R for R runs (the mean over runs at each epoch, averaged over the epochs), and the coverage."""
+    from scipy.stats import chi2
+
+    runs = []
+    nees: dict[str, list[np.ndarray]] = {}
+    for seed in seeds:
+        states, truth, _ = fly_sim(config, seed, duration)
+        e = errors([s for s in states if s.t >= t_from], truth)
+        runs.append({"seed": seed, **score(e)})
+        for name, err, sd in (("pos", e.pos, e.std_pos), ("vel", e.vel, e.std_vel)):
+            q = (err / sd) ** 2
+            nees.setdefault(name, []).append(np.sum(q, axis=1))
+            nees.setdefault(name + "_ne", []).append(q[:, 0] + q[:, 1])
+            nees.setdefault(name + "_d", []).append(q[:, 2])
+    r = len(seeds)
+    L = min(len(x) for x in nees["pos"])
+    out: dict[str, Any] = {
+        "seeds": list(seeds),
+        "duration_s": duration,
+        "from_s": t_from,
+        "along_bias_m": float(np.mean([x["along_bias_m"] for x in runs])),
+        "horiz_rms_m": float(np.sqrt(np.mean([x["horiz_rms_m"] ** 2 for x in runs]))),
+        "cover_3sigma": float(np.mean([x["cover_3sigma"] for x in runs])),
+        "cover_3sigma_min": float(np.min([x["cover_3sigma"] for x in runs])),
+    }
+    for name, per_run in nees.items():
+        dof = 2 if name.endswith("_ne") else 1 if name.endswith("_d") else 3
+        avg = np.mean([x[:L] for x in per_run], axis=0)  # over the runs at each epoch
+        lo, hi = (float(x) for x in chi2.ppf([0.025, 0.975], dof * r) / r)
+        out[f"nees_{name}"] = float(np.mean(avg))
+        out[f"nees_{name}_band_95"] = [lo, hi]
+        out[f"nees_{name}_inside"] = float(np.mean((avg >= lo) & (avg <= hi)))
+    out["runs"] = runs
+    return out
+
+
+def mc_lines(r: dict[str, Any]) -> list[str]:
+    """The figures of :func:`monte_carlo_sim` as text lines."""
+
+    def nees(name: str, label: str) -> str:
+        lo, hi = r[f"nees_{name}_band_95"]
+        return f"{label} {r[f'nees_{name}']:.2f} (band {lo:.2f}–{hi:.2f})"
+
+    return [
+        f"simulated flight, seeds {r['seeds'][0]}..{r['seeds'][-1]} ({len(r['seeds'])} runs of {r['duration_s']:g} s, "
+        f"scored from {r['from_s']:g} s): along-track bias {r['along_bias_m']:+.3f} m, horizontal RMS "
+        f"{r['horiz_rms_m']:.3f} m, horizontal error inside 3σ_h {100 * r['cover_3sigma']:.2f} % of epochs "
+        f"(worst run {100 * r['cover_3sigma_min']:.2f} %)",
+        "mean NEES over the runs against the two-sided 95 % χ² band: "
+        + ", ".join((nees("pos", "position (3 dof)"), nees("pos_ne", "N/E"), nees("pos_d", "D"))),
+        "  " + ", ".join((nees("vel", "velocity (3 dof)"), nees("vel_ne", "N/E"), nees("vel_d", "D"))),
+    ]
+
+
+def sim_cli(args: argparse.Namespace) -> int:
+    """``ins-hil replay sim [--config C] [--runs N] [--seed S] [--duration D]``: :func:`monte_carlo_sim` of the
+    config's ``[sim]`` flight over seeds S..S+N−1 (D s each, default 60, scored from 20 s or D/2); prints the
+    figures, writes ``metrics.json`` to ``--out``. Exit status 2 on a bad config."""
+    import json
+    import tomllib
+
+    from ins_hil.config import default_path
+
+    path = Path(args.config) if getattr(args, "config", None) else default_path()
+    try:
+        d = tomllib.loads(Path(path).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as err:
+        print(f"ins-hil replay sim: {path}: {err}")
+        return 2
+    duration = float(args.duration) if args.duration else 60.0
+    seeds = list(range(int(args.seed), int(args.seed) + max(1, int(args.runs))))
+    try:
+        r = monte_carlo_sim(d, seeds, duration, min(20.0, 0.5 * duration))
+    except ValueError as err:
+        print(f"ins-hil replay sim: {path}: {err}")
+        return 2
+    for line in mc_lines(r):
+        print(line)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps({"sim": r, "config": str(path)}, indent=2))
+    print(f"metrics: {out / 'metrics.json'}")
+    return 0

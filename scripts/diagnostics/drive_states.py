@@ -1,0 +1,87 @@
+"""Dump the navigation states of the first T s of the real drive replay (outage protocol, with and without
+aids) to an .npz, or compare two dumps exactly: the bit-identity check for changes in the core.
+
+    python scripts/diagnostics/drive_states.py dump before.npz [--seconds 120]
+    python scripts/diagnostics/drive_states.py compare before.npz after.npz
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ins_hil.commands.replay import DEFAULT_DRIVE, drive_config
+from ins_hil.core import NavCore
+from ins_hil.datasets import drive0708
+
+
+def dump(path: Path, seconds: float) -> None:
+    dr = drive0708.load_drive(DEFAULT_DRIVE)
+    outages = drive0708.outage_windows(dr.pos.t)
+    t_end = dr.imu[0].t + seconds
+    imu = [s for s in dr.imu if s.t <= t_end]
+    gnss = [f for f in dr.gnss if f.t <= t_end]
+    out: dict[str, np.ndarray] = {}
+    for aids in (False, True):
+        core = NavCore(None, drive_config(aids))
+        rows = []
+        j = 0
+        for s in imu:  # the fuse order of ins_hil.datasets.evaluate.run_drive
+            core.step(s)
+            while j < len(gnss) and gnss[j].t <= s.t:
+                f = gnss[j]
+                j += 1
+                if not any(a <= f.t < b for a, b in outages):
+                    core.fuse(f)
+            st = core.state()
+            rows.append(
+                np.concatenate(
+                    (
+                        [st.t, st.lat, st.lon, st.h],
+                        st.q_nb,
+                        st.vel_ned,
+                        st.gyro_bias,
+                        st.accel_bias,
+                        st.std_pos,
+                        st.std_vel,
+                        st.std_att,
+                    )
+                )
+            )
+        out[f"aids_{int(aids)}"] = np.array(rows)
+        print(f"aids={aids}: {len(rows)} states, final t {rows[-1][0]:.3f}")
+    np.savez(path, **out)
+
+
+def compare(a: Path, b: Path) -> int:
+    da, db = np.load(a), np.load(b)
+    bad = 0
+    for k in da.files:
+        x, y = da[k], db[k]
+        same = x.shape == y.shape and np.array_equal(x, y)
+        print(f"{k}: {x.shape} {'BIT-IDENTICAL' if same else 'DIFFERENT'}")
+        if not same and x.shape == y.shape:
+            d = np.argwhere(x != y)
+            k = d[0][0]
+            print(f"  first difference at state {k} (t {x[k, 0]:.3f}), max |diff| {np.max(np.abs(x - y)):.3e}")
+        bad += not same
+    return 1 if bad else 0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("cmd", choices=("dump", "compare"))
+    ap.add_argument("files", nargs="+", type=Path)
+    ap.add_argument("--seconds", type=float, default=120.0)
+    a = ap.parse_args()
+    if a.cmd == "dump":
+        dump(a.files[0], a.seconds)
+        return 0
+    return compare(a.files[0], a.files[1])
+
+
+if __name__ == "__main__":
+    sys.exit(main())
