@@ -35,7 +35,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _row(r: TargetResult) -> str:
     rate = r.inputs / r.seconds if r.seconds else 0.0
     return (
-        f"| {r.name} | {r.inputs:,} | {rate:,.0f} | {r.escaped} | {r.accepted:,} | {r.accepted_bad:,} | "
+        f"| {r.name} | {r.inputs:,} | {rate:,.0f} | {r.escaped} | {r.accepted:,} | {r.decoded_bad:,} | "
+        f"{r.accepted_bad:,} | "
         f"{r.nav_fed:,} | {r.nav_states:,} | {r.nan_states} | {r.nav_exceptions} | {r.nav_stalls} |"
     )
 
@@ -43,7 +44,8 @@ def _row(r: TargetResult) -> str:
 def _line(r: TargetResult) -> str:
     return (
         f"{r.name:16s} {r.inputs:>10,} inputs in {r.seconds:6.1f} s: escaped {r.escaped}, accepted {r.accepted:,}, "
-        f"accepted-bad {r.accepted_bad:,}, NaN states {r.nan_states} (of {r.nav_states:,}), "
+        f"decoded out of range {r.decoded_bad:,}, accepted-bad {r.accepted_bad:,}, "
+        f"NaN states {r.nan_states} (of {r.nav_states:,}), "
         f"pipeline exceptions {r.nav_exceptions}, stalls {r.nav_stalls}"
     )
 
@@ -76,15 +78,17 @@ def report(results: list[TargetResult], budget: float, seed: int, command: str, 
         "",
         "## Per target",
         "",
-        "| target | inputs | inputs/s | escaped exceptions | accepted samples | accepted-bad | "
+        "| target | inputs | inputs/s | escaped exceptions | accepted samples | decoded out of range | accepted-bad | "
         "IMU samples to the pipeline | states | NaN states | pipeline exceptions | pipeline stalls |",
-        "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|",
+        "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|",
         *(_row(r) for r in results),
         "",
         "- **escaped exceptions**: anything raised out of the target (for the config loader anything but",
         "  `ConfigError`, for the recorder reader anything but `RecordError`);",
-        "- **accepted-bad**: a delivered sample outside the physical ranges below (for the recorder reader: a",
-        "  record read back that was not the one recorded);",
+        "- **decoded out of range**: a sample the decoder delivered outside the physical ranges below, which",
+        "  the gateway's validation boundary (`ins_hil.validation.SampleValidator`, default limits) must stop;",
+        "- **accepted-bad**: such a sample that the validation boundary let through too (what would reach the",
+        "  core; for the recorder reader: a record read back that was not the one recorded);",
         "- **NaN states**: the accepted IMU samples of a decoder go, per IMU id, through two pipelines",
         "  (`Pipeline` with the default `PipelineConfig`, a fixed 3-D GNSS fix every 100th sample): one as",
         "  delivered, one retimed 5 ms apart (their dt kept) so the values reach the core even when the",

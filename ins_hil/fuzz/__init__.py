@@ -129,7 +129,8 @@ class TargetResult:
     inputs: int = 0
     escaped: int = 0
     accepted: int = 0
-    accepted_bad: int = 0
+    decoded_bad: int = 0  # delivered by the decoder outside the physical ranges (the validation boundary's job)
+    accepted_bad: int = 0  # ... and passed by the validation boundary too (what would reach the core)
     nav_fed: int = 0  # samples fed, counted once per pipeline (each sample goes to two)
     nav_states: int = 0
     nan_states: int = 0
@@ -229,6 +230,9 @@ def _run_target(t: Target, seconds: float, seed: int, nav_share: float) -> Targe
     rng = random.Random(seed)
     res = TargetResult(t.name, t.what, decoder=t.decoder)
     step = t.setup(rng)
+    from ins_hil.validation import SampleValidator
+
+    boundary = SampleValidator()  # the gateway's one validation boundary, default limits (ins_hil.validation)
     # two pipelines per IMU id (its own clock): as delivered and retimed
     navs: dict[int, tuple[NavCheck, NavCheck]] | None = {} if t.nav else None
     if navs is not None:
@@ -253,9 +257,19 @@ def _run_target(t: Target, seconds: float, seed: int, nav_share: float) -> Targe
             res.accepted += len(out)
             for s in out:
                 why = bad_sample(s)
-                if why:
+                if not why:
+                    if not isinstance(s, Wrong):
+                        boundary.check(s)  # keeps its per-source times in step with the stream
+                    continue
+                if isinstance(s, Wrong):  # a recorder misread has no boundary behind it
                     res.accepted_bad += 1
                     res.note(f"accepted-bad {why}", repr(s))
+                    continue
+                res.decoded_bad += 1
+                res.note(f"decoded out of range {why}", repr(s))
+                if boundary.check(s) is None:
+                    res.accepted_bad += 1
+                    res.note(f"accepted-bad {why} (passed the validation boundary)", repr(s))
             if navs is not None and nav_s <= nav_share * (now - t0 + 1e-3):
                 n0 = mono()
                 for s in out:
