@@ -67,7 +67,7 @@ from ins_hil.drivers.base import Backoff, DriverHealth, Sample, Sink
 from ins_hil.drivers.mavlink_link import Link, MavReceiver, configure_signing, parse_url, signing_key_from
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, gps_from_unix
 
 __all__ = ["ClockSync", "MavlinkDriver", "parse_url", "signing_key_from"]
 
@@ -387,8 +387,9 @@ class MavlinkDriver:
         return None
 
     def _gnss(
-        self, now: int, t_us: int, fix: int, lat: float, lon: float, h: float, vel: Any, std: tuple, sats: int, src: int
-    ) -> None:
+        self, now: int, t_us: int, fix: int, lat: float, lon: float, h: float, vel: Any, std: tuple, sats: int,
+        src: int, week: int = 0, tow: float = math.nan, hdop: float = math.nan, vdop: float = math.nan,
+    ) -> None:  # fmt: skip
         if "gnss" not in self.emit:
             return
         if fix < 2:
@@ -413,7 +414,7 @@ class MavlinkDriver:
             GnssFix(
                 t=t, lat=math.radians(lat), lon=math.radians(lon), h=h, vel_ned=vel,
                 std_ne=std[0], std_d=std[1], std_vel=std[2], fix_type=ft, num_sats=sats, source=src,
-                t_arrival_ns=now,
+                t_arrival_ns=now, gps_week=week, gps_tow=tow, hdop=hdop, vdop=vdop,
             ),
             now,
         )  # fmt: skip
@@ -426,9 +427,11 @@ class MavlinkDriver:
             m.vel_acc * 1e-3 if getattr(m, "vel_acc", 0) else 0.3,
         )
         src = 1 if m.get_type() == "GPS2_RAW" else 0
+        week, tow = gps_from_unix(m.time_usec * 1e-6) if m.time_usec > UNIX_US else (0, math.nan)
         self._gnss(
-            now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, h_mm * 1e-3, None, std, m.satellites_visible, src
-        )
+            now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, h_mm * 1e-3, None, std, m.satellites_visible, src,
+            week, tow, _dop(m.eph), _dop(m.epv),
+        )  # fmt: skip
 
     def _gps_input(self, m: Any, now: int) -> None:
         ig = m.ignore_flags
@@ -438,17 +441,23 @@ class MavlinkDriver:
             m.vert_accuracy if not ig & 128 and m.vert_accuracy > 0 else 5.0,
             m.speed_accuracy if not ig & 32 and m.speed_accuracy > 0 else 0.3,
         )
+        week, tow = (m.time_week, m.time_week_ms * 1e-3) if m.time_week > 0 else (0, math.nan)
+        hdop = m.hdop if not ig & 2 and m.hdop > 0 else math.nan
+        vdop = m.vdop if not ig & 4 and m.vdop > 0 else math.nan
         self._gnss(
-            now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, m.alt, vel, std, m.satellites_visible, m.gps_id
-        )
+            now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, m.alt, vel, std, m.satellites_visible, m.gps_id,
+            week, tow, hdop, vdop,
+        )  # fmt: skip
 
     def _hil_gps(self, m: Any, now: int) -> None:
         vel = np.array([m.vn, m.ve, m.vd], dtype=float) * 0.01
         std = (m.eph * 0.01 if 0 < m.eph < 65535 else 2.5, m.epv * 0.01 if 0 < m.epv < 65535 else 5.0, 0.3)
         src = getattr(m, "id", 0)
+        week, tow = gps_from_unix(m.time_usec * 1e-6) if m.time_usec > UNIX_US else (0, math.nan)
         self._gnss(
-            now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3, vel, std, m.satellites_visible, src
-        )
+            now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3, vel, std, m.satellites_visible, src,
+            week, tow, _dop(m.eph), _dop(m.epv),
+        )  # fmt: skip
 
     def _pressure(self, m: Any, now: int) -> None:
         if "baro" not in self.emit:
@@ -687,3 +696,8 @@ class MavlinkDriver:
             if self.health.samples > n0:
                 self._backoff.reset()
             await self._backoff.wait()
+
+
+def _dop(x100: int) -> float:
+    """A dilution of precision from its MAVLink ×100 integer (UINT16_MAX or 0 = unknown: NaN)."""
+    return x100 * 0.01 if 0 < x100 < 0xFFFF else math.nan

@@ -8,6 +8,7 @@ clock-offset correction by the runtime) and the monotonic arrival time
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
 from typing import Any, TypeAlias
@@ -80,7 +81,9 @@ class GnssFix:
     """A GNSS position/velocity solution valid at sensor time ``t`` (s).
 
     lat/lon in rad (WGS84), h ellipsoidal height (m); vel_ned m/s or None.
-    Standard deviations in m and m/s.
+    Standard deviations in m and m/s. ``gps_week``/``gps_tow`` (s of the week) are the GPS time of the
+    fix where the receiver gives it (week 0 = unknown); ``hdop``/``vdop`` its dilutions of precision
+    (NaN = unknown). They go to the outputs only (GPS_INPUT, SYSTEM_TIME, GPS_RAW_INT), never to the core.
     """
 
     t: float
@@ -95,6 +98,10 @@ class GnssFix:
     num_sats: int = 0
     source: int = 0
     t_arrival_ns: int = 0
+    gps_week: int = 0
+    gps_tow: float = math.nan
+    hdop: float = math.nan
+    vdop: float = math.nan
 
 
 @dataclass(slots=True)
@@ -177,3 +184,21 @@ class FaultEvent:
     isolated: bool = True
     cleared: bool = False
     detail: str = ""
+
+
+#: GPS time − UTC (s), the leap seconds since 1980 (constant since 2017-01-01)
+GPS_UTC_LEAP_S = 18
+#: UNIX time (s) of the GPS epoch, 1980-01-06 00:00:00 UTC
+GPS_EPOCH_UNIX_S = 315_964_800
+
+
+def gps_from_unix(unix_s: float) -> tuple[int, float]:
+    """(GPS week, seconds of week) of a UNIX time (s, UTC)."""
+    g = unix_s - GPS_EPOCH_UNIX_S + GPS_UTC_LEAP_S
+    week = int(g // 604_800)
+    return week, g - week * 604_800
+
+
+def unix_from_gps(week: int, tow: float) -> float:
+    """UNIX time (s, UTC) of a GPS week and seconds of week."""
+    return GPS_EPOCH_UNIX_S + week * 604_800 + tow - GPS_UTC_LEAP_S

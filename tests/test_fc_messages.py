@@ -15,7 +15,7 @@ from test_runtime_mavlink import KYIV_N, _state
 from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.runtime.mavlink_out import EndpointConfig, MavlinkEndpoint
 from ins_hil.runtime.metrics import RuntimeMetrics
-from ins_hil.types import FixType, GnssFix
+from ins_hil.types import FixType, GnssFix, gps_from_unix
 
 
 def _send(typ: str, st: Any = None, gnss: GnssFix | None = None, **cfg: Any) -> Any:
@@ -127,15 +127,65 @@ def test_fc_heartbeat_is_an_onboard_controller_in_standby_without_a_solution() -
     assert hb.mavlink_version == 3 and hb.system_status == mav.MAV_STATE_STANDBY
 
 
-class _FixWithTime(GnssFix):
-    """A fix whose source reports GPS time and DOP (GnssFix itself carries neither)."""
-
-
 def test_gps_time_and_dop_are_passed_where_the_source_gives_them() -> None:
-    g = _FixWithTime(2.0, math.radians(50.45), math.radians(30.52), 181.0, np.array([3.0, -4.0, 0.5]), num_sats=8)
-    g.gps_week, g.gps_tow, g.hdop, g.vdop = 2345, 123456.789, 0.9, 1.4  # type: ignore[attr-defined]
-    gi = _send("GPS_INPUT", gnss=g)
+    g = GnssFix(2.0, math.radians(50.45), math.radians(30.52), 181.0, np.array([3.0, -4.0, 0.5]), num_sats=8,
+                gps_week=2345, gps_tow=123456.789, hdop=0.9, vdop=1.4)  # fmt: skip
+    gi = _send("GPS_INPUT", gnss=g)  # the state at the fix's time
     assert gi.time_week == 2345 and gi.time_week_ms == 123456789 and gi.ignore_flags == 0
+    gi = _send("GPS_INPUT", _state(2.5), gnss=g)  # 0.5 s later: the fix's GPS time moved on to the state's
+    assert gi.time_week == 2345 and gi.time_week_ms == 123457289
     assert math.isclose(gi.hdop, 0.9, rel_tol=1e-6) and math.isclose(gi.vdop, 1.4, rel_tol=1e-6)
     raw = _send("GPS_RAW_INT", gnss=g)
     assert (raw.eph, raw.epv) == (90, 140)  # HDOP/VDOP × 100
+
+
+def test_system_time_with_the_heartbeat_once_gps_time_is_known() -> None:
+    """SYSTEM_TIME (UNIX µs, from the fix's GPS time moved on to the state's time; GPS − UTC = 18 s) goes out
+    with the 1 Hz HEARTBEAT once the GNSS gives GPS time, and not before."""
+    ep = MavlinkEndpoint(EndpointConfig(role="gcs", sysid=42), RuntimeMetrics())
+    sink = BufferSink()
+    ep.tr = sink  # type: ignore[assignment]
+    ep._send_heartbeat(_state(2.0))
+    assert [m.get_type() for b in sink.bufs for m in mav.MAVLink(None).parse_buffer(b) or []] == ["HEARTBEAT"]
+    week, tow = gps_from_unix(1_700_000_000.0)  # 2023-11-14 22:13:20 UTC
+    assert (week, tow) == (2288, 252818.0)  # GPS week 2288 began on 2023-11-12
+    ep.offer_gnss(GnssFix(1.5, 0.88, 0.53, 181.0, gps_week=week, gps_tow=tow))
+    sink.bufs.clear()
+    ep._send_heartbeat(_state(2.0))
+    msgs = [m for b in sink.bufs for m in mav.MAVLink(None).parse_buffer(b) or []]
+    assert [m.get_type() for m in msgs] == ["HEARTBEAT", "SYSTEM_TIME"]
+    assert msgs[1].time_unix_usec == 1_700_000_000_500_000 and msgs[1].time_boot_ms == 2000
+
+
+def test_mavlink_driver_reads_gps_time_and_dop() -> None:
+    """GPS_INPUT's week and ms of week and its DOP (unless ignored), GPS_RAW_INT's UNIX time and eph/epv (DOP ×
+    100) reach the fix; a week of 0 or an unknown DOP stays unknown."""
+    from ins_hil.drivers.mavlink_in import MavlinkDriver
+
+    out: list[Any] = []
+    drv = MavlinkDriver("udpin:127.0.0.1:0", name="fc", emit={"gnss"})
+    drv._sink = out.append
+    m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    m.robust_parsing = True
+    import time as _time
+
+    t_us = round(_time.time() * 1e6)  # GPS_RAW_INT with UNIX time: the driver maps it by the wall clock
+    msgs = [
+        m.gps_input_encode(5_000_000, 0, 0, 252818_250, 2288, 3, 504500000, 305200000, 180.0, 0.9, 1.3, 0, 0, 0,
+                           0.1, 0.8, 1.5, 12),
+        m.gps_input_encode(5_200_000, 0, 2 | 4, 0, 0, 3, 504500000, 305200000, 180.0, 0.9, 1.3, 0, 0, 0,
+                           0.1, 0.8, 1.5, 12),
+        m.gps_raw_int_encode(t_us, 3, 504500000, 305200000, 180000, 120, 65535, 0, 0, 12),
+    ]  # fmt: skip
+    now = _time.monotonic_ns()
+    for msg in msgs:
+        drv.feed(msg.pack(m), now)
+        m.seq = (m.seq + 1) % 256
+    fixes = [f for f in out if isinstance(f, GnssFix)]
+    assert len(fixes) == 3, drv.health.errors
+    a, b, c = fixes
+    assert a.gps_week == 2288 and a.gps_tow == 252818.25
+    assert math.isclose(a.hdop, 0.9, rel_tol=1e-6) and math.isclose(a.vdop, 1.3, rel_tol=1e-6)
+    assert b.gps_week == 0 and math.isnan(b.gps_tow) and math.isnan(b.hdop) and math.isnan(b.vdop)
+    assert (c.gps_week, c.gps_tow) == gps_from_unix(t_us * 1e-6)
+    assert math.isclose(c.hdop, 1.2) and math.isnan(c.vdop)

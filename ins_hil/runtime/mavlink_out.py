@@ -54,7 +54,7 @@ from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat, euler_from_quat
 from ins_hil.runtime.geoid import undulation
 from ins_hil.runtime.metrics import RuntimeMetrics
-from ins_hil.types import FaultEvent, GnssFix, NavState
+from ins_hil.types import FaultEvent, GnssFix, NavState, unix_from_gps
 
 
 def mavlink_module() -> Any:
@@ -380,6 +380,20 @@ class MavlinkEndpoint:
             self.mav.heartbeat_send(typ, ap, 0, 0, status)
         if not self._write_ok and "HEARTBEAT" in self.next_ns:  # link not up yet (TCP, serial, udpin: no peer)
             self.next_ns["HEARTBEAT"] = time.monotonic_ns() + _BEAT_RETRY_NS
+        elif self._gnss is not None and self._gnss.gps_week > 0:
+            self._send_system_time(st)  # with the 1 Hz HEARTBEAT, once the GNSS gives GPS time
+
+    def _send_system_time(self, st: NavState | None) -> bool:
+        """SYSTEM_TIME: UNIX time (µs) from the last fix's GPS time moved on to the state's time (the fix's
+        own time without a state); time_boot_ms the state's. False (nothing sent) without GPS time."""
+        g = self._gnss
+        if g is None or g.gps_week <= 0 or not math.isfinite(g.gps_tow):
+            return False
+        t = st.t if st is not None else g.t
+        unix = unix_from_gps(g.gps_week, g.gps_tow + (t - g.t))
+        self.mav.system_time_send(round(unix * 1e6), round(t * 1000) & 0xFFFFFFFF)
+        self._count("SYSTEM_TIME")
+        return True
 
     def _send_sys_status(self, st: NavState | None) -> None:
         present, enabled, health, _, _ = self._vehicle_status()
@@ -479,7 +493,7 @@ class MavlinkEndpoint:
             cog = round((math.degrees(math.atan2(v[1], v[0])) % 360.0) * 100) % 36000 if gs > 0.2 else 0xFFFF
         else:
             vel = cog = 0xFFFF  # unknown
-        # eph/epv are HDOP/VDOP × 100: GnssFix carries no DOP → UINT16_MAX (unknown); the accuracies go
+        # eph/epv are HDOP/VDOP × 100 where the source gave them, else UINT16_MAX (unknown); the accuracies go
         # to h_acc/v_acc (mm) and vel_acc (mm/s). alt is MSL (EGM96), alt_ellipsoid the WGS84 height.
         hdop, vdop = _dop(g, "hdop"), _dop(g, "vdop")
         sats = g.num_sats if g.num_sats > 0 else 255  # 0 with a fix: not reported by the source
@@ -584,10 +598,10 @@ class MavlinkEndpoint:
             )  # fmt: skip
 
     def _send_gps_input(self, st: NavState) -> None:
-        """The fused state as a MAVLink GPS (ArduPilot GPS1_TYPE = 14). The navigation state has no DOP:
-        hdop/vdop UINT16_MAX with GPS_INPUT_IGNORE_FLAG_HDOP|VDOP; GPS time is not known to the gateway
-        (GnssFix carries none): time_week = time_week_ms = 0, which ArduPilot takes as "no GPS time"
-        (it uses the week only when > 0); satellites from the last fix, 0 when the source gives none.
+        """The fused state as a MAVLink GPS (ArduPilot GPS1_TYPE = 14). hdop/vdop from the last fix where its
+        source gave them, else UINT16_MAX with GPS_INPUT_IGNORE_FLAG_HDOP|VDOP; time_week/time_week_ms: the
+        GPS time of the last fix moved on to the state's time, or 0/0 (which ArduPilot takes as "no GPS
+        time") while the source gives none; satellites from the last fix, 0 when the source gives none.
         alt: MSL (EGM96)."""
         m = self._m
         v, sp, sv = st.vel_ned, st.std_pos, st.std_vel
@@ -598,7 +612,7 @@ class MavlinkEndpoint:
             hdop, ignore = _dop(g, "hdop") * 0.01, ignore & ~m.GPS_INPUT_IGNORE_FLAG_HDOP
         if g is not None and _dop(g, "vdop") != 0xFFFF:
             vdop, ignore = _dop(g, "vdop") * 0.01, ignore & ~m.GPS_INPUT_IGNORE_FLAG_VDOP
-        week, week_ms = _gps_week(g)
+        week, week_ms = _gps_week(g, st.t)
         self.mav.gps_input_send(
             round(st.t * 1e6),
             0,
@@ -897,6 +911,11 @@ class MavlinkEndpoint:
                 return int(m.MAV_RESULT_TEMPORARILY_REJECTED)  # no position yet
             self._reply_pending.append("HOME_POSITION")
             return int(m.MAV_RESULT_ACCEPTED)
+        if msg_id == m.MAVLINK_MSG_ID_SYSTEM_TIME:
+            if self._gnss is None or self._gnss.gps_week <= 0:
+                return int(m.MAV_RESULT_TEMPORARILY_REJECTED)  # no GPS time yet
+            self._reply_pending.append("SYSTEM_TIME")
+            return int(m.MAV_RESULT_ACCEPTED)
         typ = _MSG_NAMES.get(msg_id)
         if typ is None:
             return int(m.MAV_RESULT_UNSUPPORTED)  # includes PROTOCOL_VERSION (not in the dialect)
@@ -937,6 +956,9 @@ class MavlinkEndpoint:
                 self._send_autopilot_version()
             elif typ == "HOME_POSITION":
                 self._send_home_position()
+            elif typ == "SYSTEM_TIME":
+                self._send_system_time(self._latest[0] if self._latest is not None else None)
+                continue  # counted by the builder
             else:
                 st = self._latest[0] if self._latest is not None else None
                 if st is None and typ not in ("HEARTBEAT", "SYS_STATUS", "ESTIMATOR_STATUS"):
@@ -987,14 +1009,14 @@ def _dop(g: GnssFix, name: str) -> int:
     return min(0xFFFE, round(v * 100))
 
 
-def _gps_week(g: GnssFix | None) -> tuple[int, int]:
-    """(GPS week, ms of week) of a fix whose source gives GPS time (``gps_week``, ``gps_tow`` s), else
-    (0, 0): :class:`~ins_hil.types.GnssFix` carries only the sensor-clock time ``t``, not GPS time."""
-    week = getattr(g, "gps_week", None) if g is not None else None
-    tow = getattr(g, "gps_tow", None) if g is not None else None
-    if not week or tow is None or not math.isfinite(tow):
+def _gps_week(g: GnssFix | None, t: float | None = None) -> tuple[int, int]:
+    """(GPS week, ms of week) at sensor time ``t`` (s; default the fix's own) from a fix whose source gives
+    GPS time (``gps_week`` > 0, ``gps_tow`` s), else (0, 0): ArduPilot takes week 0 as "no GPS time"."""
+    if g is None or g.gps_week <= 0 or not math.isfinite(g.gps_tow):
         return 0, 0
-    return int(week), round(tow * 1000) % 604_800_000
+    total = g.gps_week * 604_800 + g.gps_tow + ((t - g.t) if t is not None else 0.0)
+    week = int(total // 604_800)
+    return week, round((total - week * 604_800) * 1000) % 604_800_000
 
 
 def _param_name(pid: Any) -> str:

@@ -46,7 +46,7 @@ from ins_hil.drivers.mavlink_link import signing_timestamp
 from ins_hil.drivers.serial_frame import encode
 from ins_hil.sim import sensors
 from ins_hil.sim.trajectory import TruthSeries, generate, static_profile, uav_profile
-from ins_hil.types import ImuSample
+from ins_hil.types import ImuSample, gps_from_unix
 
 
 @dataclass
@@ -240,6 +240,9 @@ class SensorLink:
         self.t_start_ns = t_start_ns
         self.duration = duration
         self._t_hb = -1.0
+        # GPS time at sensor time 0: the wall clock at the start (GPS time goes to the outputs only)
+        week, tow = gps_from_unix(time.time())
+        self.gps0 = week * 604_800 + tow
 
     def serve(
         self,
@@ -265,7 +268,7 @@ class SensorLink:
             if kind == 0:
                 emit_imu(i, due)
             elif kind == 1:
-                _send_gnss(mav, fixes[i])
+                _send_gnss(mav, fixes[i], self.gps0)
             else:
                 b = baro[i]
                 mav.scaled_pressure_send(round(b.t * 1000), b.pressure / 100.0, 0.0, 2000)
@@ -286,14 +289,17 @@ def _answer_timesync(writer: _UdpWriter, rx: Any, mav: Any, t_start: float) -> N
             mav.timesync_send(int((time.monotonic() - t_start) * 1e9), m.ts1)
 
 
-def _send_gnss(mav: Any, f: Any) -> None:
+def _send_gnss(mav: Any, f: Any, gps0: float = 0.0) -> None:
+    """One fix as GPS_INPUT; ``gps0``: GPS time (s since the GPS epoch) at sensor time 0 (0 = no GPS time)."""
     v = f.vel_ned
+    g = gps0 + f.t
+    week = int(g // 604_800) if gps0 else 0
     mav.gps_input_send(
         round(f.t * 1e6),  # time_usec: the shared sensor clock
         0,  # gps_id
         0,  # ignore_flags: all fields valid
-        0,
-        0,  # time_week_ms, time_week
+        round((g - week * 604_800) * 1000) if gps0 else 0,  # time_week_ms
+        week,  # time_week
         int(f.fix_type),
         round(math.degrees(f.lat) * 1e7),
         round(math.degrees(f.lon) * 1e7),
