@@ -420,6 +420,10 @@ _LOG4 = math.log(4.0)
 MIN_DT = 1e-5  # s: the shortest RawIMU integration interval taken as physical
 
 
+#: the shortest transfer period (ns) the lost-transfer count from host time assumes (10 kHz)
+MIN_PERIOD_NS = 100_000.0
+
+
 @dataclass
 class DroneCanDecoder:
     """Frames in, samples out, every drop counted (``counts``).
@@ -493,13 +497,14 @@ class DroneCanDecoder:
                     return False
             k = 0
             if per > 0:  # whole rounds of 32 transfer ids that went by unseen, from the host time
-                k = max(0, round((el / per - d) / 32))
+                k = max(0, round((el / max(per, MIN_PERIOD_NS) - d) / 32))
             if d == 0:
                 k = max(k, 1)
             if d + 32 * k > 1:
                 self._count("seq_gap", d + 32 * k - 1)
-            else:  # the mean spacing of consecutive transfers (arrivals in one batch count as 0)
-                self._period[key] = el if per == 0 else per + (el - per) * 0.125
+            elif el > 0:  # the mean spacing of consecutive transfers; frames handed over in one batch (one
+                # host stamp, el = 0) say nothing about it and would pull it towards 0
+                self._period[key] = float(el) if per == 0 else per + (el - per) * 0.125
         self._last_tid[key] = (tid, now_ns)
         return True
 

@@ -304,6 +304,22 @@ def test_dronecan_32_lost_transfers_are_not_a_duplicate() -> None:
     assert send(dec, again, node.host_ns + 100_000) is None and dec.counts["duplicate"] == 1
 
 
+def test_dronecan_batched_arrivals_keep_the_transfer_period_sane() -> None:
+    """A CAN driver hands frames over in batches with one host stamp (the gap between transfers is 0):
+    the transfer period is learnt from real gaps only, so a later gap neither overflows the lost-transfer
+    count (it decayed towards 0 and raised OverflowError, counted as internal) nor invents lost transfers."""
+    node = CanNode(rate_hz=1000.0)
+    dec = dc.DroneCanDecoder()
+    got = []
+    for batch in range(200):  # 200 batches of 10 transfers, 10 ms apart, each batch under one stamp
+        stamp = node.host_ns
+        for _ in range(10):
+            got.append(send(dec, node.imu(), stamp))
+    assert all(isinstance(s, ImuSample) for s in got[1:])
+    assert dec.counts.get("internal", 0) == 0 and dec.counts.get("seq_gap", 0) == 0, dec.counts
+    assert dec.counts.get("duplicate", 0) == 0
+
+
 def test_dronecan_fix2_no_fix_and_time_only_are_not_fixes() -> None:
     node = CanNode(node_id=12)
     dec = dc.DroneCanDecoder()
