@@ -55,6 +55,7 @@ class SoakOptions:
     gateway: str = "ins-hil"
     seed: int = 7
     out: str = "soak-out"
+    profile: bool = False  # cProfile the gateway (profile.pstats; slows it: for the cost table, not timing)
 
 
 def free_udp_port() -> int:
@@ -120,7 +121,7 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
     out = Path(opt.out)
     out.mkdir(parents=True, exist_ok=True)
     for f in out.glob("*"):
-        if f.is_file() and f.suffix in (".bin", ".jsonl", ".json", ".ihlog", ".png", ".md"):
+        if f.is_file() and f.suffix in (".bin", ".jsonl", ".json", ".ihlog", ".png", ".md", ".pstats"):
             f.unlink()
     transports = {t.strip() for t in opt.transports.split(",") if t.strip()}
     if "can" in transports:
@@ -164,6 +165,8 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
             gw_args += ["--imu", p]
         if recorded:
             gw_args.append("--record")
+        if opt.profile and opt.gateway == "ins-hil":
+            gw_args.append("--profile")
         procs["gateway"] = subprocess.Popen(gw_args, stdout=subprocess.PIPE, text=True)
         _line(procs["gateway"], "gateway")
         for i in range(opt.load):
