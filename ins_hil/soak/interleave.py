@@ -226,6 +226,8 @@ def analyse_blocks(out: Path, reanalyse: Reanalyse) -> dict[str, Any]:
             "sigma": sigma, "profile": prof, "pass": all(c["ok"] for c in checks.values() if c["ok"] is not None),
             "options": gw[0]["options"] if gw else metrics[0][1]["options"],
             "steal": [m.get("steal", {}) for _, m in metrics],
+            "unmatched": {side: sum(int(m["latency"]["end_to_end_unmatched"]) for sd, m in metrics if sd == side)
+                          for side in SIDES},
             "blocks": [{"side": side, "dir": str(d), "lost": m["frames"]["lost"]}
                        for (side, m), (_, d) in zip(metrics, block_dirs(out), strict=True)]}  # fmt: skip
 

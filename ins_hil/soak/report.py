@@ -425,6 +425,14 @@ def interleave_section(m: dict[str, Any]) -> str:
         f"| gateway RSS growth | — | < 1 MiB/h | {_check(c['rss_growth'])} |",
         "",
     ]
+    um = m.get("unmatched") or {}
+    if any(um.values()):
+        lines += [
+            f"**States not joined to an emitted epoch** (their ODOMETRY time_usec names no IMU epoch the simulator "
+            f"sent, e.g. after the driver's clock model re-anchored on a stall): gateway {um.get('gateway', 0)}, "
+            f"floor {um.get('floor', 0)}; they are missing from the latency figures below.",
+            "",
+        ]
     for key, title in (("all", "all seconds"), ("steal_free", "seconds without host steal on either CPU")):
         x = s[key]
         lines += [
