@@ -56,7 +56,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--load", type=int, default=0, metavar="N", help="busy-loop background processes (2 = both CPUs)")
     p.add_argument(
-        "--transports", default="serial,udp", help="serial,udp (CAN is not available: no vcan on this kernel)"
+        "--transports",
+        default="serial,udp",
+        help="serial,udp (IMU serial frames on a pty) or can,udp (each IMU a DroneCAN node, RawIMU at the IMU rate "
+        "+ NodeStatus, as slcan lines on one pty read by python-can's slcan interface: no kernel CAN needed)",
     )
     p.add_argument(
         "--imu-links",

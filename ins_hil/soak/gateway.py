@@ -26,7 +26,7 @@ from typing import Any
 
 from ins_hil.config import from_dict
 from ins_hil.runtime.metrics import LatencyHistogram
-from ins_hil.soak.simproc import die_with_parent, pin
+from ins_hil.soak.simproc import CAN_NODE_BASE, die_with_parent, pin
 from ins_hil.types import FaultEvent, NavState
 
 
@@ -43,12 +43,12 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
         "core": {"kind": a.core, "init": "gnss", "nav": default_nav()},
         "fdi": {
             "enabled": a.imus > 1,
-            "imu_ids": list(range(a.imus)),
+            "imu_ids": [CAN_NODE_BASE + u for u in range(a.imus)] if a.imu_transport == "can" else list(range(a.imus)),
             **({"options": fdi_options(a.imus, a.rate)} if a.imus > 1 else {}),
         },
         "sim": {"enabled": False},
         "inputs": [
-            *({"name": f"imu{j}", "type": "serial_imu", "port": p, "baud": 921600} for j, p in enumerate(a.imu)),
+            *(imu_inputs(a)),
             {"name": "gnss", "type": "mavlink", "url": f"udpin:127.0.0.1:{a.gnss_port}"},
         ],
         "outputs": [
@@ -57,6 +57,18 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
         "mqtt": {"enabled": False},
         "recorder": {"enabled": a.record, "dir": str(a.out)},
     }
+
+
+def imu_inputs(a: argparse.Namespace) -> list[dict[str, Any]]:
+    """The IMU ``[[inputs]]``: one serial IMU per link, or (``--imu-transport can``) one CAN IMU driver on
+    the slcan pty, listen-only (no node id of its own: nothing is written back to the simulator), taking
+    the DroneCAN nodes of the simulated units (``imu_id`` = node id)."""
+    if a.imu_transport == "can":
+        nodes = [CAN_NODE_BASE + u for u in range(a.imus)]
+        opts = {"interface": "slcan", "channel": a.imu[0], "sleep_after_open": 0, "bitrate": 1000000,
+                "protocol": "dronecan", "nodes": nodes, "node_id": None}  # fmt: skip
+        return [{"name": "imu0", "type": "can_imu", "options": opts}]
+    return [{"name": f"imu{j}", "type": "serial_imu", "port": p, "baud": 921600} for j, p in enumerate(a.imu)]
 
 
 def default_nav() -> dict[str, Any]:
@@ -229,6 +241,7 @@ def build_parser(description: str = "soak gateway process (see ins_hil.soak.gate
     ap.add_argument("--record", action="store_true")
     ap.add_argument("--imus", type=int, default=1, help="redundant IMUs (their frames may share one link)")
     ap.add_argument("--rt", type=int, default=0, help="SCHED_FIFO priority (0 = time-shared)")
+    ap.add_argument("--imu-transport", choices=["serial", "can"], default="serial", help="serial frames or slcan")
     ap.add_argument("--profile", action="store_true", help="cProfile the gateway run into profile.pstats")
     return ap
 
