@@ -214,3 +214,39 @@ def test_report_sections_show_ratios_and_the_sweep_picks_the_highest_passing_rat
         rows.append(sweep_point(mi))
     assert [r["ok"] for r in rows] == [True, True, False]
     assert "core **c**: highest rate meeting the ratio targets: 1000 Hz" in sweep_interleaved_section(rows)
+
+
+def test_slcan_nodes_round_trip_through_the_relays_parser() -> None:
+    from ins_hil.soak.relay import SlcanParser
+    from ins_hil.soak.simproc import CAN_NODE_BASE, SlcanNodes
+
+    n, units = 1500, 2
+    t = np.arange(1, n + 1) * 1e-3
+    rng = np.random.default_rng(5)
+    dth, dv = rng.normal(0, 1e-5, (n, units, 3)), rng.normal(0, 1e-3, (n, units, 3))
+    frames, lens = SlcanNodes(units).chunk(t, dth, dv, 1e-3)
+    # NodeStatus once a second of sensor time per node (at t = 1 ms and 1 s): those rows are longer
+    assert sorted(set(lens[:, 0].tolist())) == [lens[1, 0], lens[0, 0]] and lens[999, 0] == lens[0, 0]
+    p = SlcanParser([CAN_NODE_BASE + u for u in range(units)])
+    got = []
+    for i in range(n):  # one read per epoch, as the relay's blocking read sees an epoch written at once
+        data = b"".join(frames[i, u, : lens[i, u]].tobytes() for u in range(units))
+        got += p.feed(data[:50], 1_000_000 * (i + 1))  # split mid-line: the rest completes it
+        got += p.feed(data[50:], 1_000_000 * (i + 1))
+    assert len(got) == n * units and [s.imu_id for s in got[:2]] == [CAN_NODE_BASE, CAN_NODE_BASE + 1]
+    assert [round(s.t * 1e6) for s in got[::2]] == [round(x * 1e6) for x in t]  # sensor time = RawIMU usec
+    assert np.allclose(got[2 * 7 + 1].dtheta, dth[7, 1], rtol=1e-6)
+    assert not p.counts.get("malformed") and not p.counts.get("internal")
+    assert p.feed(b"Tzz\r\r", 1) == [] and p.counts["malformed"] == 1  # a bare CR (an ack) is not counted
+
+
+def test_cli_rejects_inconsistent_interleave_options(capsys: pytest.CaptureFixture[str]) -> None:
+    from ins_hil.cli import main as cli_main
+    from ins_hil.soak.orchestrate import SoakOptions
+    from ins_hil.soak.suite import note_command
+
+    assert cli_main(["soak", "--interleave", "60", "--gateway", "relay"]) == 2
+    assert cli_main(["soak", "--continuous", "600"]) == 2
+    assert "--interleave" in capsys.readouterr().err
+    cmd = note_command(SoakOptions(duration=1800, imus=2), [], [], 60.0, 0.0, "docs/soak.md", 30.0, 0.0, 60.0, 900.0)
+    assert "--interleave 60 --continuous 900" in cmd and "--relay-duration" not in cmd
