@@ -103,7 +103,11 @@ def test_verdict_judges_ratios_steal_free_tail_loss_faults_and_sigma() -> None:
     assert c["loop_p999_steal_free"]["ok"] is False and c["lost_frames"]["ok"] is False
     assert c["no_false_alarm"]["ok"] is False and c["nav_sigma_coverage"]["ok"] is False and c["nav_rms"]["ok"] is False
     s = summarise([_block("gateway", 2500.0 + floor), _block("floor", floor)])
-    assert verdict(s, [_metrics()], [_metrics()], loop_ok, sig)["e2e_p999_steal_free"]["ok"] is False
+    e = verdict(s, [_metrics()], [_metrics()], loop_ok, sig)["e2e_p999_steal_free"]
+    assert e["ok"] is False and e["platform_decided"] is False  # the floor met 2 ms: the gateway missed it
+    s = summarise([_block("gateway", 3.0 * floor), _block("floor", 2.5 * floor)])  # floor p99.9 ~2.5 ms
+    e = verdict(s, [_metrics()], [_metrics()], loop_ok, sig)["e2e_p999_steal_free"]
+    assert e["ok"] is False and e["platform_decided"] is True
 
 
 def test_sigma_check_fails_a_steady_bias_the_old_stability_check_passed() -> None:

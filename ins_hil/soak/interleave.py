@@ -132,11 +132,14 @@ def verdict(s: dict[str, Any], gw_blocks: list[dict[str, Any]], floor_blocks: li
     for k, lim in RATIO_TARGETS.items():
         r = a["ratio"][k]
         checks[f"ratio_{k[:-3]}"] = {"value": r, "target": lim, "ok": bool(r <= lim) if math.isfinite(r) else None}
-    g999 = sf["gateway"]["p999_us"]
+    g999, f999 = sf["gateway"]["p999_us"], sf["floor"]["p999_us"]
     checks["e2e_p999_steal_free"] = {
         "value_us": g999,
         "target_us": TARGETS["e2e_p999_us"],
         "ok": bool(g999 <= TARGETS["e2e_p999_us"]) if math.isfinite(g999) else None,
+        # the null relay itself over the limit: the platform, not the gateway, decided this target
+        "floor_value_us": f999,
+        "platform_decided": bool(f999 > TARGETS["e2e_p999_us"]) if math.isfinite(f999) else None,
     }
     lp = loop.get("arrival_to_state", {}).get("steal_free", {}).get("p999_us", math.nan)
     checks["loop_p999_steal_free"] = {

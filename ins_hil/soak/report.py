@@ -425,6 +425,14 @@ def interleave_section(m: dict[str, Any]) -> str:
         f"| gateway RSS growth | — | < 1 MiB/h | {_check(c['rss_growth'])} |",
         "",
     ]
+    e = c["e2e_p999_steal_free"]
+    if e.get("platform_decided"):
+        lines += [
+            f"**Decided by the platform:** the null relay itself had an e2e p99.9 of {_f(e['floor_value_us'])} µs "
+            "in the steal-free seconds, over the 2 ms limit: no program on this machine could meet that absolute "
+            "target in this run; the ratios are the gateway's own figure.",
+            "",
+        ]
     um = m.get("unmatched") or {}
     if any(um.values()):
         lines += [
