@@ -120,6 +120,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="also one gateway run of S s under cProfile: the loop's cost by stage (not used for timing)",
     )
+    p.add_argument(
+        "--can-duration",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="with --interleave: also the CAN path, S s per side (one DroneCAN IMU over slcan on a pty, "
+        "interleaved against the null relay decoding the same frames; targets 0 lost, p99 ≤ 1.2 × floor)",
+    )
     p.add_argument("--docs", metavar="MD", help="also write the report here (e.g. docs/soak.md), plots beside it")
     p.add_argument(
         "--baseline",
@@ -170,6 +178,8 @@ def run(args: argparse.Namespace) -> int:
         return bad("--interleave runs the null relay in its own blocks: no --gateway relay / --relay-duration")
     if args.continuous > 0 and args.interleave == 0:
         return bad("--continuous: only with --interleave (without it the main run is continuous)")
+    if args.can_duration < 0 or (args.can_duration > 0 and args.interleave == 0):
+        return bad("--can-duration: a positive length, with --interleave")
     if args.relay_duration > 0 and args.gateway == "relay":
         return bad("--relay-duration: the main run is the null relay already (--gateway relay)")
     if args.imus == 1 and args.faults.strip().lower() not in ("auto", "none"):
@@ -215,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
             opt, rates, cores if rates else [], args.sweep_duration, args.loaded_duration, args.note, args.docs,
             progress, baseline_s=max(0.0, args.baseline), relay_duration=args.relay_duration,
             interleave=args.interleave, continuous=args.continuous, profile_duration=args.profile_duration,
+            can_duration=args.can_duration,
         )  # fmt: skip
     except (RuntimeError, OSError, ValueError) as e:
         print(f"\nins-hil soak: {e}", file=sys.stderr)
@@ -230,6 +241,13 @@ def run(args: argparse.Namespace) -> int:
             f"µs, floor p99 {a['floor']['p99_us']:.0f} µs p99.9 {a['floor']['p999_us']:.0f} µs, ratios "
             f"{a['ratio']['p99_us']:.2f} / {a['ratio']['p999_us']:.2f}, lost {c['lost_frames']['value']}, "
             + ("PASS" if inter["pass"] else "targets missed: " + ", ".join(missed))
+        )
+    if top.get("can") is not None:
+        a, c = top["can"]["summary"]["all"], top["can"]["checks"]
+        print(
+            f"[soak] DroneCAN over slcan: gateway e2e p99 {a['gateway']['p99_us']:.0f} µs, floor p99 "
+            f"{a['floor']['p99_us']:.0f} µs, ratio {a['ratio']['p99_us']:.2f}, lost {c['lost_frames']['value']}, "
+            + ("PASS" if top["can"]["pass"] else "FAIL")
         )
     if "main" not in top["runs"]:
         print(f"[soak] report: {args.out}/report.md" + (f" and {args.docs}" if args.docs else ""))

@@ -57,6 +57,7 @@ def campaign(
     interleave: float = 0.0,
     continuous: float = 0.0,
     profile_duration: float = 0.0,
+    can_duration: float = 0.0,
 ) -> dict[str, Any]:
     """Every run of the campaign and the report; returns the top-level metrics (``pass`` = main run).
     ``baseline_s`` > 0: first measure the platform's wake-up latency (cyclictest) on the soak's CPUs.
@@ -86,6 +87,16 @@ def campaign(
         main_opt = replace(opt, out=str(out / "main"))
         m, p = one(main_opt, progress)
         runs.append(("main", "Main run", m, p))
+    can: dict[str, Any] | None = None
+    if can_duration > 0 and interleave > 0:
+        if progress:
+            progress(f"[soak] DroneCAN over slcan, interleaved against its floor: {can_duration:.0f} s per side")
+        co = replace(opt, transports="can,udp", imus=1, faults="none", links="shared", duration=can_duration,
+                     out=str(out / "can"))  # fmt: skip
+        cd = run_blocks(co, min(interleave, can_duration), None)
+        can = analyse_blocks(cd, analyse_only)
+        can["pass"] = bool(can["checks"]["ratio_p99"]["ok"] and can["checks"]["lost_frames"]["ok"])
+        dump(cd, can)
     if profile_duration > 0:
         if progress:
             progress(f"[soak] profiled gateway run (cProfile: the loop's cost by stage): {profile_duration:.0f} s")
@@ -123,12 +134,14 @@ def campaign(
     mach = machine()
     passed = [inter["pass"]] if inter is not None else []
     passed += [m["pass"] for k, _, m, _ in runs if k == "main"]
+    if can is not None:
+        passed.append(can["pass"])
     top = {"started": started, "machine_at_start": mach_before, "machine_at_end": mach, "note": note,
            "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": all(passed),
            "platform_baseline": base, "relay": relay_summary(runs), "interleave": inter,
-           "profile": prof_table}  # fmt: skip
+           "profile": prof_table, "can": can}  # fmt: skip
     cmd = note_command(opt, sweep_rates, sweep_cores, sweep_duration, loaded_duration, docs, baseline_s,
-                       relay_duration, interleave, continuous, profile_duration)  # fmt: skip
+                       relay_duration, interleave, continuous, profile_duration, can_duration)  # fmt: skip
     top["command"] = cmd
     write(out, top, runs, sweep, docs)
     return top
@@ -188,10 +201,18 @@ def rerender(out: str | Path, docs: str | None) -> dict[str, Any]:
     if block_dirs(out / "interleave"):
         inter = analyse_blocks(out / "interleave", analyse_only)
         dump(out / "interleave", inter)
+    old.pop("can", None)
+    if block_dirs(out / "can"):
+        can = analyse_blocks(out / "can", analyse_only)
+        can["pass"] = bool(can["checks"]["ratio_p99"]["ok"] and can["checks"]["lost_frames"]["ok"])
+        dump(out / "can", can)
+        old["can"] = can
     if (out / "profile" / "options.json").exists():
         old["profile"] = analyse(out / "profile")[0].get("profile")
     passed = [inter["pass"]] if inter is not None else []
     passed += [m["pass"] for k, _, m, _ in runs if k == "main"]
+    if old.get("can") is not None:
+        passed.append(old["can"]["pass"])
     top = {**old, "runs": {k: m for k, _, m, _ in runs}, "sweep": sweep, "pass": all(passed),
            "relay": relay_summary(runs), "interleave": inter}  # fmt: skip
     write(out, top, runs, sweep, docs)
@@ -208,6 +229,7 @@ def reanalyse(d: Path) -> tuple[dict[str, Any], list[str]]:
 
 LOADED_TITLE = "Under background load (one busy-loop process on each of the 2 CPUs)"
 RELAY_TITLE = "Platform floor: null relay"
+CAN_TITLE = "DroneCAN over slcan: the CAN path against its floor"
 CONTINUOUS_TITLE = "Continuous gateway run (memory trend, accuracy over one long flight)"
 
 
@@ -236,13 +258,15 @@ def write(
 
 def note_command(opt: SoakOptions, rates: list[float], cores: list[str], sd: float, ld: float,
                  docs: str | None, baseline_s: float = 0.0, relay_s: float = 0.0, interleave: float = 0.0,
-                 continuous: float = 0.0, profile_s: float = 0.0) -> str:  # fmt: skip
+                 continuous: float = 0.0, profile_s: float = 0.0, can_s: float = 0.0) -> str:  # fmt: skip
     """The command line that reproduces this campaign."""
     parts = [f"scripts/soak --duration {opt.duration:g} --rate {opt.rate:g} --imus {opt.imus} --core {opt.core}"]
     if interleave > 0:
         parts.append(f"--interleave {interleave:g}")
         if continuous > 0:
             parts.append(f"--continuous {continuous:g}")
+        if can_s > 0:
+            parts.append(f"--can-duration {can_s:g}")
     if profile_s > 0:
         parts.append(f"--profile-duration {profile_s:g}")
     if opt.gateway != "ins-hil":
@@ -349,6 +373,8 @@ def render(
         lines.append(bs)
     if inter is not None:
         lines.append(interleave_section(inter))
+    if top.get("can") is not None:
+        lines.append(interleave_section(top["can"], CAN_TITLE, can=True))
     prof = top.get("profile")
     if prof:
         lines.append(profile_section(prof))
