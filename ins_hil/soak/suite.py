@@ -271,6 +271,8 @@ def note_command(opt: SoakOptions, rates: list[float], cores: list[str], sd: flo
         parts.append(f"--profile-duration {profile_s:g}")
     if opt.gateway != "ins-hil":
         parts.append(f"--gateway {opt.gateway}")
+    if opt.transports.replace(" ", "") != "serial,udp":
+        parts.append(f"--transports {opt.transports}")
     parts.append(f"--baseline {baseline_s:g}")
     if relay_s > 0 and opt.gateway == "ins-hil":
         parts.append(f"--relay-duration {relay_s:g}")
