@@ -86,6 +86,20 @@ def test_soak_resources_accuracy_faults_and_report(soak: Path) -> None:
         assert fc["statustext_at_gcs"] >= 2  # the fault announcements reached the ground station
         assert all(v["stable"] for v in acc.values()), acc
         assert acc["horizontal_m"]["last_rms"] < 5.0
+    # the navigation check uses the σ the gateway published: ODOMETRY covariance received by the client
+    std = np.fromfile(d / "gcs_odometry_std.bin").reshape(-1, 4)
+    odo = np.fromfile(d / "gcs_odometry.bin", dtype=np.int64).reshape(-1, 2)
+    assert len(std) == len(odo) and np.array_equal(std[:, 0], odo[:, 0] * 1e-6)
+    known = np.isfinite(std[:, 1])
+    assert known[-1] and np.all(std[known, 1:3] > 0) and np.all(std[known, 1:3] < 50)
+    sg = m["sigma"]
+    assert sg["epochs"] > 0 and 0.0 <= sg["coverage"] <= 1.0 and sg["rms_m"] > 0
+    assert m["checks"]["nav_sigma_coverage"]["ok"] is not None and m["checks"]["nav_rms"]["ok"] is not None
+    # the loop histograms per second: their counts add up to the run's
+    lb = m["loop_budget"]
+    assert lb["arrival_to_state"]["all"]["count"] <= m["latency"]["arrival_to_state"]["count"]
+    assert lb["arrival_to_state"]["all"]["count"] >= 0.9 * m["latency"]["arrival_to_state"]["count"]
+    assert lb["steal_free_seconds"] <= lb["seconds"]
     report = (soak / "report.md").read_text()
     assert "## Main run" in report and "end-to-end p99" in report
     # the platform baseline (cyclictest, installed by scripts/test.d/45-rt-tests.sh): 3 s at 1 kHz per CPU

@@ -8,7 +8,9 @@ the ground-station client. With ``--imus`` > 1 the FDI monitor gets an
 Taps (no change to the runtime): an ``on_state`` callback measures the loop period
 (state-ready to state-ready) and its deviation from 1/rate; ``on_fault`` keeps every
 FaultEvent; a status task samples the metrics and queue depth every second into
-``gateway_ts.jsonl``. At the end ``gateway.json`` holds the final metrics snapshot.
+``gateway_ts.jsonl`` (with the per-second bucket deltas of the loop histograms, :data:`HIST_KEYS`).
+At the end ``gateway.json`` holds the final metrics snapshot; with ``--profile`` a cProfile of the
+whole run goes to ``profile.pstats`` (the loop's cost by function, :mod:`ins_hil.soak.budget`).
 Prints ``{"ready": true}`` once every transport is open.
 """
 
@@ -24,7 +26,7 @@ from typing import Any
 
 from ins_hil.config import from_dict
 from ins_hil.runtime.metrics import LatencyHistogram
-from ins_hil.soak.simproc import die_with_parent, pin
+from ins_hil.soak.simproc import CAN_NODE_BASE, die_with_parent, pin
 from ins_hil.types import FaultEvent, NavState
 
 
@@ -41,12 +43,12 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
         "core": {"kind": a.core, "init": "gnss", "nav": default_nav()},
         "fdi": {
             "enabled": a.imus > 1,
-            "imu_ids": list(range(a.imus)),
+            "imu_ids": [CAN_NODE_BASE + u for u in range(a.imus)] if a.imu_transport == "can" else list(range(a.imus)),
             **({"options": fdi_options(a.imus, a.rate)} if a.imus > 1 else {}),
         },
         "sim": {"enabled": False},
         "inputs": [
-            *({"name": f"imu{j}", "type": "serial_imu", "port": p, "baud": 921600} for j, p in enumerate(a.imu)),
+            *(imu_inputs(a)),
             {"name": "gnss", "type": "mavlink", "url": f"udpin:127.0.0.1:{a.gnss_port}"},
         ],
         "outputs": [
@@ -55,6 +57,18 @@ def gateway_config(a: argparse.Namespace) -> dict[str, Any]:
         "mqtt": {"enabled": False},
         "recorder": {"enabled": a.record, "dir": str(a.out)},
     }
+
+
+def imu_inputs(a: argparse.Namespace) -> list[dict[str, Any]]:
+    """The IMU ``[[inputs]]``: one serial IMU per link, or (``--imu-transport can``) one CAN IMU driver on
+    the slcan pty, listen-only (no node id of its own: nothing is written back to the simulator), taking
+    the DroneCAN nodes of the simulated units (``imu_id`` = node id)."""
+    if a.imu_transport == "can":
+        nodes = [CAN_NODE_BASE + u for u in range(a.imus)]
+        opts = {"interface": "slcan", "channel": a.imu[0], "sleep_after_open": 0, "bitrate": 1000000,
+                "protocol": "dronecan", "nodes": nodes, "node_id": None}  # fmt: skip
+        return [{"name": "imu0", "type": "can_imu", "options": opts}]
+    return [{"name": f"imu{j}", "type": "serial_imu", "port": p, "baud": 921600} for j, p in enumerate(a.imu)]
 
 
 def default_nav() -> dict[str, Any]:
@@ -122,6 +136,7 @@ async def _run(a: argparse.Namespace) -> int:
 
     async def sampler(g: Any) -> None:
         print(json.dumps({"ready": True}), flush=True)
+        prev = {key: list(g.metrics.hist[key].buckets) for key in HIST_KEYS}
         with open(out / "gateway_ts.jsonl", "w") as f:
             k = 0
             qmax = 0
@@ -143,13 +158,23 @@ async def _run(a: argparse.Namespace) -> int:
                     "aligned": s["aligned"],
                     "faults": s["faults"],
                     "window": {kk: s["latency_window"][kk] for kk in ("arrival_to_state", "core_step")},
+                    "hist": {key: _delta(g.metrics.hist[key].buckets, prev[key]) for key in HIST_KEYS},
                 }
                 f.write(json.dumps(row, default=float) + "\n")
                 f.flush()
                 qmax = 0
 
     t0 = time.monotonic()
+    prof = None
+    if a.profile:
+        import cProfile
+
+        prof = cProfile.Profile()
+        prof.enable()
     m = await gw.run(duration=a.duration, signals=True, status=sampler)
+    if prof is not None:
+        prof.disable()
+        prof.dump_stats(str(out / "profile.pstats"))
     snap = m.snapshot()
     snap["loop_period"] = period.summary()
     snap["loop_jitter"] = jitter.summary()
@@ -163,6 +188,18 @@ async def _run(a: argparse.Namespace) -> int:
 
     (out / "gateway.json").write_text(json.dumps(clean_json(snap), indent=1))
     return 0
+
+
+#: the loop histograms written per second (bucket deltas) into gateway_ts.jsonl, so that the analysis can
+#: take their quantiles over the seconds without host steal (ins_hil.soak.analysis.loop_budget)
+HIST_KEYS = ("arrival_to_state", "state_to_sent", "core_step")
+
+
+def _delta(now: list[int], prev: list[int]) -> dict[str, int]:
+    """The buckets that grew since ``prev`` (sparse: bucket index → count), and ``prev`` set to ``now``."""
+    d = {str(i): c - p for i, (c, p) in enumerate(zip(now, prev)) if c != p}
+    prev[:] = now
+    return d
 
 
 def _gc_probe() -> dict[str, Any]:
@@ -204,6 +241,8 @@ def build_parser(description: str = "soak gateway process (see ins_hil.soak.gate
     ap.add_argument("--record", action="store_true")
     ap.add_argument("--imus", type=int, default=1, help="redundant IMUs (their frames may share one link)")
     ap.add_argument("--rt", type=int, default=0, help="SCHED_FIFO priority (0 = time-shared)")
+    ap.add_argument("--imu-transport", choices=["serial", "can"], default="serial", help="serial frames or slcan")
+    ap.add_argument("--profile", action="store_true", help="cProfile the gateway run into profile.pstats")
     return ap
 
 

@@ -5,6 +5,8 @@ stamps CLOCK_MONOTONIC right after ``recvfrom``. Writes to ``--out`` (flushed ev
 second, so memory stays flat over hours):
 
 * ``gcs_odometry.bin``: int64 (time_usec = the state's sensor time, receive ns);
+* ``gcs_odometry_std.bin``: float64 (t s, σ north, σ east, σ down m) from the ODOMETRY pose covariance
+  diagonal (NaN when the gateway marks it unknown): the σ the navigation check judges the error by;
 * ``gcs_position.bin``: float64 (t s, receive ns, lat rad, lon rad, h m) from GLOBAL_POSITION_INT;
 * ``gcs_attitude.bin``: float64 (t s, receive ns, roll, pitch, yaw rad) from ATTITUDE;
 * ``gcs_text.jsonl``: STATUSTEXT (receive ns, severity, text) — the fault announcements;
@@ -35,6 +37,11 @@ class _Stop(Exception):
     pass
 
 
+def _std(var: float) -> float:
+    """σ (m) of a covariance diagonal element; NaN when unknown (NaN) or negative."""
+    return math.sqrt(var) if var >= 0.0 else math.nan
+
+
 def run(a: argparse.Namespace) -> None:
     pin(a.cpu)
     why = set_realtime(a.rt)
@@ -47,10 +54,11 @@ def run(a: argparse.Namespace) -> None:
     mav = mavlink2.MAVLink(None)
     mav.robust_parsing = True
     odo: list[tuple[int, int]] = []
+    odo_std: list[tuple[float, ...]] = []
     pos: list[tuple[float, ...]] = []
     att: list[tuple[float, ...]] = []
     counts: dict[str, int] = {}
-    files = {k: open(out / f"gcs_{k}.bin", "wb") for k in ("odometry", "position", "attitude")}
+    files = {k: open(out / f"gcs_{k}.bin", "wb") for k in ("odometry", "odometry_std", "position", "attitude")}
     f_text = open(out / "gcs_text.jsonl", "w")
 
     def on_term(*_: Any) -> None:
@@ -70,7 +78,7 @@ def run(a: argparse.Namespace) -> None:
         if odo:
             np.array(odo, dtype=np.int64).tofile(files["odometry"])
             odo.clear()
-        for key, rows in (("position", pos), ("attitude", att)):
+        for key, rows in (("odometry_std", odo_std), ("position", pos), ("attitude", att)):
             if rows:
                 np.array(rows, dtype=np.float64).tofile(files[key])
                 rows.clear()
@@ -90,6 +98,8 @@ def run(a: argparse.Namespace) -> None:
                     counts[typ] = counts.get(typ, 0) + 1
                     if typ == "ODOMETRY":
                         odo.append((m.time_usec, now))
+                        pc = m.pose_covariance  # upper triangle, row-major: N, E, D variances at 0, 6, 11
+                        odo_std.append((m.time_usec * 1e-6, *(_std(pc[i]) for i in (0, 6, 11))))
                     elif typ == "GLOBAL_POSITION_INT":
                         pos.append((m.time_boot_ms * 1e-3, float(now), math.radians(m.lat * 1e-7),
                                     math.radians(m.lon * 1e-7), m.alt * 1e-3))  # fmt: skip

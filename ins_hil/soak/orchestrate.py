@@ -55,6 +55,7 @@ class SoakOptions:
     gateway: str = "ins-hil"
     seed: int = 7
     out: str = "soak-out"
+    profile: bool = False  # cProfile the gateway (profile.pstats; slows it: for the cost table, not timing)
 
 
 def free_udp_port() -> int:
@@ -120,15 +121,17 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
     out = Path(opt.out)
     out.mkdir(parents=True, exist_ok=True)
     for f in out.glob("*"):
-        if f.is_file() and f.suffix in (".bin", ".jsonl", ".json", ".ihlog", ".png", ".md"):
+        if f.is_file() and f.suffix in (".bin", ".jsonl", ".json", ".ihlog", ".png", ".md", ".pstats"):
             f.unlink()
     transports = {t.strip() for t in opt.transports.split(",") if t.strip()}
-    if "can" in transports:
+    if transports not in ({"serial", "udp"}, {"can", "udp"}):
         raise RuntimeError(
-            "--transports can: this soak has no CAN path yet (the kernel here has no vcan module); use serial,udp"
+            f"--transports {opt.transports!r}: serial,udp or can,udp (the IMU over serial frames or DroneCAN over "
+            "slcan on a pty; GNSS/MAVLink over UDP)"
         )
-    if transports != {"serial", "udp"}:
-        raise RuntimeError(f"--transports {opt.transports!r}: the soak needs serial (IMU) and udp (GNSS/MAVLink)")
+    imu_transport = "can" if "can" in transports else "serial"
+    if imu_transport == "can" and opt.links != "shared":
+        raise RuntimeError("--transports can: every DroneCAN node is on one bus (--imu-links shared)")
     if opt.gateway not in GATEWAYS:
         raise RuntimeError(f"--gateway {opt.gateway!r}: one of {', '.join(GATEWAYS)}")
     cpu_s, cpu_g = cpus()
@@ -153,17 +156,20 @@ def run_soak(opt: SoakOptions, progress: Callable[[str], None] | None = None) ->
             [py, "-m", "ins_hil.soak.simproc", "--gnss-udp", f"127.0.0.1:{gnss_port}", "--out", str(out),
              "--imus", str(opt.imus), "--links", opt.links, "--rate", str(opt.rate), "--duration", str(opt.duration),
              "--faults", opt.faults, "--cpu", str(cpu_s), "--seed", str(opt.seed),
-             "--rt", str(PRIO_SENSORS if opt.rt else 0)],
+             "--rt", str(PRIO_SENSORS if opt.rt else 0), "--imu-transport", imu_transport],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
         ptys = _line(procs["sim"], "sensor simulator")["imu"]
         gw_args = [py, "-m", GATEWAYS[opt.gateway], "--gnss-port", str(gnss_port), "--gcs-port", str(gcs_port),
                    "--gcs-rate", str(opt.gcs_rate), "--rate", str(opt.rate), "--core", opt.core,
                    "--duration", str(opt.duration + 3.0), "--out", str(out), "--cpu", str(cpu_g),
-                   "--imus", str(opt.imus), "--rt", str(PRIO_GATEWAY if opt.rt else 0)]  # fmt: skip
+                   "--imus", str(opt.imus), "--rt", str(PRIO_GATEWAY if opt.rt else 0),
+                   "--imu-transport", imu_transport]  # fmt: skip
         for p in ptys:
             gw_args += ["--imu", p]
         if recorded:
             gw_args.append("--record")
+        if opt.profile and opt.gateway == "ins-hil":
+            gw_args.append("--profile")
         procs["gateway"] = subprocess.Popen(gw_args, stdout=subprocess.PIPE, text=True)
         _line(procs["gateway"], "gateway")
         for i in range(opt.load):

@@ -156,6 +156,43 @@ class Epochs:
         return True
 
 
+class SlcanParser:
+    """slcan (Lawicel) lines in, DroneCAN IMU samples out, with the gateway's decoder
+    (:class:`~ins_hil.drivers.dronecan_codec.DroneCanDecoder`: reassembly, CRC, DSDL, clock model);
+    a line that is no extended data frame counts as ``malformed``. ``counts``: the decoder's counters."""
+
+    def __init__(self, nodes: list[int] | None = None) -> None:
+        from ins_hil.drivers.dronecan_codec import DroneCanDecoder
+
+        self.dec = DroneCanDecoder(nodes=frozenset(nodes) if nodes else None)
+        self.counts = self.dec.counts
+        self.buf = b""
+
+    def feed(self, data: bytes, arrival_ns: int) -> list[ImuSample]:
+        """Bytes read at ``arrival_ns``; the IMU samples of the RawIMU transfers they complete."""
+        buf = self.buf + data
+        lines = buf.split(b"\r")
+        self.buf = lines.pop()
+        out: list[ImuSample] = []
+        feed = self.dec.feed
+        for ln in lines:
+            try:
+                if ln[:1] != b"T":
+                    raise ValueError
+                n = int(ln[9:10])
+                s = feed(int(ln[1:9], 16), bytes.fromhex(ln[10 : 10 + 2 * n].decode()), True, arrival_ns)
+            except (ValueError, UnicodeDecodeError):
+                if ln.strip():  # a bare CR is an slcan acknowledgement
+                    self.counts["malformed"] = self.counts.get("malformed", 0) + 1
+                continue
+            except Exception:  # as the gateway's CAN driver: one frame never stops the reader, it is counted
+                self.counts["internal"] = self.counts.get("internal", 0) + 1
+                continue
+            if isinstance(s, ImuSample):
+                out.append(s)
+        return out
+
+
 class Relay:
     """The relay's state: links, parsers, epoch assembly, the ODOMETRY schedule and the metrics."""
 
@@ -165,15 +202,17 @@ class Relay:
         self.n_imus = int(a.imus)
         self.metrics = RuntimeMetrics(cfg.gateway.late_threshold_ms * 1e-3)
         self.rt_priority = cfg.gateway.rt_priority
-        imus = [ic for ic in cfg.inputs if ic.type == "serial_imu"]
+        imus = [ic for ic in cfg.inputs if ic.type in ("serial_imu", "can_imu")]
         gnss = next(ic for ic in cfg.inputs if ic.type == "mavlink")
         ep = next(e for e in cfg.outputs if e.role == "gcs")
         self.out_name = ep.name
         self.schedule = Schedule(ep.effective_rates()["ODOMETRY"])
         self.names = [ic.name for ic in imus]
-        self.serials = [open_link(ic.port, ic.baud) for ic in imus]
+        self.serials = [open_link(ic.options["channel"] if ic.type == "can_imu" else ic.port, ic.baud) for ic in imus]
         self.fds = [s.fileno() for s in self.serials]
-        self.parsers = [FrameParser() for _ in imus]
+        self.parsers: list[Any] = [
+            SlcanParser(ic.options.get("nodes")) if ic.type == "can_imu" else FrameParser() for ic in imus
+        ]
         self.stats = [self.metrics.source(n) for n in self.names]
         _, host, port = parse_url(gnss.url)
         self.gnss = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -162,17 +162,23 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "", p
         f"ODOMETRY {o.get('gcs_rate', 50.0):g} Hz. Overall: {_ok(m['pass'])}."
     )
     lines += ["", "| target | measured | limit | result |", "|---|---|---|---|"]
-    lines.append(f"| end-to-end p99 | {_f(c['e2e_p99']['value_us'])} µs | ≤ 1,000 µs | {_ok(c['e2e_p99']['ok'])} |")
-    lines.append(f"| end-to-end p99.9 | {_f(c['e2e_p999']['value_us'])} µs | ≤ 2,000 µs | {_ok(c['e2e_p999']['ok'])} |")
+    lines.append(f"| end-to-end p99 (all seconds) | {_f(c['e2e_p99']['value_us'])} µs | informational | — |")
+    lines.append(f"| end-to-end p99.9 (all seconds) | {_f(c['e2e_p999']['value_us'])} µs | informational | — |")
+    e = c["e2e_p999_steal_free"]
+    lines.append(f"| end-to-end p99.9, steal-free seconds | {_f(e['value_us'])} µs | ≤ 2,000 µs | {_check(e)} |")
+    lp = c["loop_p999_steal_free"]
+    lines.append(f"| loop arrival → state p99.9, steal-free seconds | {_f(lp['value_us'])} µs | ≤ 1,000 µs | "
+                 f"{_check(lp)} |")  # fmt: skip
     lines.append(f"| lost IMU frames | {c['lost_frames']['value']} | 0 | {_ok(c['lost_frames']['ok'])} |")
     r = c["rss_growth"]
     lines.append(
         f"| gateway RSS growth after warm-up | {_f(r['value_mib_per_h'], 2)} MiB/h | < 1 MiB/h | {_check(r)} |"
     )
-    acc_value = "—" if relay else "see below"
-    lines.append(
-        f"| navigation accuracy stable | {acc_value} | last third ≤ 2× first + 1 | {_check(c['accuracy_stable'])} |"
-    )
+    sc, sr = c["nav_sigma_coverage"], c["nav_rms"]
+    cov = "—" if relay else f"{_f(100 * sc['value'], 2)} %"
+    lines.append(f"| horizontal error inside 3σ (per axis, σ from ODOMETRY) | {cov} | ≥ 99 % | {_check(sc)} |")
+    rms = "—" if relay else f"{_f(sr['value_m'], 3)} m"
+    lines.append(f"| horizontal RMS error | {rms} | ≤ 0.3 m | {_check(sr)} |")
     if "faults_isolated" in c:
         inj = m["faults"]["injected"]
         n_ok = "—" if relay else f"{sum(x['detected'] for x in inj)}/{len(inj)}"
@@ -260,9 +266,18 @@ def run_section(m: dict[str, Any], pngs: list[str], title: str, rel: str = "", p
         lines += [f"![{p}]({rel}{p})" for p in pngs]
         lines.append("")
         return "\n".join(lines)
+    sg = m.get("sigma") or {}
+    if sg.get("epochs"):
+        lines += [
+            "",
+            f"Navigation judged by the filter's σ over {sg['epochs']} GLOBAL_POSITION_INT epochs after the first "
+            f"30 s: median σ north {_f(sg['median_sigma_n_m'], 3)} m, east {_f(sg['median_sigma_e_m'], 3)} m (the "
+            "ODOMETRY pose covariance the ground station received, interpolated at each epoch); epochs without a "
+            f"known σ (counted as outside): {sg['unknown_sigma']}.",
+        ]
     lines += [
         "",
-        "| navigation error (after the settling time) | RMS first third | RMS last third | max | stable |",
+        "| navigation error (after the settling time, information) | RMS first third | RMS last third | max | stable |",
         "|---|---|---|---|---|",
     ]
     for k, v in m["accuracy"].items():
@@ -363,5 +378,197 @@ def sweep_section(rows: list[dict[str, Any]]) -> str:
                 f"- core **{core}**, load {load}: highest rate meeting the targets: "
                 f"{'none of those tried' if b is None else f'{b:.0f} Hz'}"
             )
+    lines.append("")
+    return "\n".join(lines)
+
+
+def _q(d: dict[str, Any], keys: tuple[str, ...] = ("p50_us", "p99_us", "p999_us", "max_us"), nd: int = 0) -> str:
+    return " | ".join(_f(d[k], nd) for k in keys)
+
+
+def interleave_section(
+    m: dict[str, Any], title: str = "Interleaved: the gateway against its platform floor", can: bool = False
+) -> str:
+    """Markdown of an interleaved A/B run (:func:`ins_hil.soak.interleave.analyse_blocks`); ``can``: the
+    DroneCAN-over-slcan run (its targets: 0 lost transfers, e2e p99 ≤ 1.2 × its floor)."""
+    s, c, o = m["summary"], m["checks"], m["options"]
+    n_g = sum(1 for b in s["blocks"] if b["side"] == "gateway")
+    n_f = len(s["blocks"]) - n_g
+    lines = [f"## {title}", ""]
+    if can:
+        lines += [
+            "The simulated IMU is a DroneCAN node (RawIMU at the IMU rate, 7 frames per transfer, + NodeStatus "
+            "once a second) whose frames go as slcan lines into a pty; the gateway reads them with its CAN driver "
+            "over python-can's `slcan` interface, the null relay decodes the same lines with the gateway's "
+            "DroneCAN decoder. Targets: 0 lost transfers, e2e p99 ≤ 1.2 × the floor's (the other rows are "
+            f"information). CAN path: {_ok(m.get('pass'))}.",
+            "",
+        ]
+    lines += [
+        f"{n_g} gateway blocks and {n_f} null-relay blocks of {m['block_s']:.0f} s, in ABBA order (G R R G G R …), "
+        f"IMU {o['rate']:.0f} Hz × {o['imus']}, core **{o['core']}**: the same CPUs, priorities, pty layout, UDP "
+        "path and ground-station client; the two blocks of a pair replay the same sensor data. Each block starts "
+        "fresh processes (the gateway aligns again: its first 30 s are not judged for accuracy; memory is judged "
+        "in the continuous run). Ratio = gateway quantile / floor quantile; added = gateway − floor (a difference "
+        f"of quantiles, not per sample). Overall: {_ok(m['pass'])}.",
+        "",
+        "| target | measured | limit | result |",
+        "|---|---|---|---|",
+        f"| e2e p99 ratio gateway / floor | {_f(c['ratio_p99']['value'], 2)} | ≤ 1.2 | {_check(c['ratio_p99'])} |",
+        f"| e2e p99.9 ratio gateway / floor | {_f(c['ratio_p999']['value'], 2)} | ≤ 1.5 | {_check(c['ratio_p999'])} |",
+        f"| gateway e2e p99.9, steal-free seconds | {_f(c['e2e_p999_steal_free']['value_us'])} µs | ≤ 2,000 µs | "
+        f"{_check(c['e2e_p999_steal_free'])} |",
+        f"| loop arrival → state p99.9, steal-free seconds | {_f(c['loop_p999_steal_free']['value_us'])} µs | "
+        f"≤ 1,000 µs | {_check(c['loop_p999_steal_free'])} |",
+        f"| lost IMU frames (gateway blocks; floor blocks: {c['lost_frames']['floor_value']}) | "
+        f"{c['lost_frames']['value']} | 0 | {_check(c['lost_frames'])} |",
+    ]
+    if "faults_isolated" in c:
+        lines.append(f"| injected faults isolated | {c['faults_isolated']['value']} | all | "
+                     f"{_check(c['faults_isolated'])} |")  # fmt: skip
+    if "no_false_alarm" in c:
+        lines.append(f"| false alarms | {c['no_false_alarm']['value']} | 0 | {_check(c['no_false_alarm'])} |")
+    sg = m["sigma"]
+    lines += [
+        f"| horizontal error inside 3σ (per axis) | {_f(100 * sg['coverage'], 2)} % of {sg['epochs']} epochs | "
+        f"≥ 99 % | {_check(c['nav_sigma_coverage'])} |",
+        f"| horizontal RMS error | {_f(sg['rms_m'], 3)} m | ≤ 0.3 m | {_check(c['nav_rms'])} |",
+        f"| gateway RSS growth | — | < 1 MiB/h | {_check(c['rss_growth'])} |",
+        "",
+    ]
+    e = c["e2e_p999_steal_free"]
+    if e.get("platform_decided"):
+        lines += [
+            f"**Decided by the platform:** the null relay itself had an e2e p99.9 of {_f(e['floor_value_us'])} µs "
+            "in the steal-free seconds, over the 2 ms limit: no program on this machine could meet that absolute "
+            "target in this run; the ratios are the gateway's own figure.",
+            "",
+        ]
+    um = m.get("unmatched") or {}
+    if any(um.values()):
+        lines += [
+            f"**States not joined to an emitted epoch** (their ODOMETRY time_usec names no IMU epoch the simulator "
+            f"sent, e.g. after the driver's clock model re-anchored on a stall): gateway {um.get('gateway', 0)}, "
+            f"floor {um.get('floor', 0)}; they are missing from the latency figures below.",
+            "",
+        ]
+    for key, title in (("all", "all seconds"), ("steal_free", "seconds without host steal on either CPU")):
+        x = s[key]
+        lines += [
+            f"End-to-end latency (µs), {title}:",
+            "",
+            "| | count | p50 | p99 | p99.9 | max |",
+            "|---|---|---|---|---|---|",
+            f"| gateway | {x['gateway']['count']} | {_q(x['gateway'])} |",
+            f"| null relay (floor) | {x['floor']['count']} | {_q(x['floor'])} |",
+            f"| ratio gateway / floor | | {_q(x['ratio'], nd=2)} |",
+            f"| added by the gateway | | {_q(x['added_us'])} |",
+            "",
+        ]
+    sp = s["spread"]
+    lines += [
+        "Block-level spread (per-block quantiles, µs): whether one noisy block decides the figure.",
+        "",
+        "| | per-block p99 min / median / max | per-block p99.9 min / median / max |",
+        "|---|---|---|",
+    ]
+    for side, label in (("gateway", "gateway"), ("floor", "null relay (floor)")):
+        a, b = sp[side]["p99_us"], sp[side]["p999_us"]
+        lines.append(f"| {label} | {_f(a['min'])} / {_f(a['median'])} / {_f(a['max'])} | "
+                     f"{_f(b['min'])} / {_f(b['median'])} / {_f(b['max'])} |")  # fmt: skip
+    w = s.get("without_worst")
+    if w:
+        lines += [
+            "",
+            f"Without the worst block of each side (by p99.9: gateway block {s['worst_block']['gateway']}, floor "
+            f"block {s['worst_block']['floor']}): gateway p99 {_f(w['gateway']['p99_us'])} µs, p99.9 "
+            f"{_f(w['gateway']['p999_us'])} µs; floor p99 {_f(w['floor']['p99_us'])} µs, p99.9 "
+            f"{_f(w['floor']['p999_us'])} µs; ratios {_f(w['ratio']['p99_us'], 2)} / {_f(w['ratio']['p999_us'], 2)}.",
+        ]
+    lines += [
+        "",
+        "| block | side | count | p50 | p99 | p99.9 | max | steal-free share |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for b in s["blocks"]:
+        lines.append(
+            f"| {b['index']} | {b['side']} | {b['count']} | {_q(b)} | {_f(100 * b['steal_free_share'], 0)} % |"
+        )
+    lines += ["", budget_section(m["loop_budget"]), ""]
+    return "\n".join(lines)
+
+
+def budget_section(loop: dict[str, Any]) -> str:
+    """Markdown: the loop's own latency budget (its histograms, all and steal-free seconds)."""
+    if not loop or "arrival_to_state" not in loop:
+        return ""
+    labels = (("arrival_to_state", "arrival → state ready"), ("core_step", "core step (FDI + INS/EKF)"),
+              ("state_to_sent", "state ready → first MAVLink message"))  # fmt: skip
+    lines = [
+        "The loop's own budget (the runtime's histograms, 4 % buckets; target arrival → state p99.9 ≤ 1 ms in "
+        "steal-free seconds):",
+        "",
+        "| loop stage (µs) | count | p50 | p99 | p99.9 | steal-free count | p50 | p99 | p99.9 |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    k3 = ("p50_us", "p99_us", "p999_us")
+    for k, label in labels:
+        a, b = loop[k]["all"], loop[k]["steal_free"]
+        lines.append(f"| {label} | {a['count']} | {_q(a, k3)} | {b['count']} | {_q(b, k3)} |")
+    a2s, core = loop["arrival_to_state"]["steal_free"], loop["core_step"]["steal_free"]
+    if a2s["count"] and core["count"] and a2s["p50_us"] > 0:
+        lines += ["", f"Core step share of arrival → state (steal-free): {100 * core['p50_us'] / a2s['p50_us']:.0f} % "
+                  f"at the median, {100 * core['p999_us'] / a2s['p999_us']:.0f} % at p99.9."]  # fmt: skip
+    return "\n".join(lines)
+
+
+def profile_section(p: dict[str, Any] | None, duration: float | None = None) -> str:
+    """Markdown: the loop's cost by stage from the profiled run (cProfile own time per IMU epoch)."""
+    if not p:
+        return ""
+    lines = [
+        "## The loop's cost by stage (profile)",
+        "",
+        f"cProfile of one gateway run{f' of {duration:.0f} s' if duration else ''} ({p['epochs']} IMU epochs, "
+        "the same settings): the functions' own time summed by the module they live in, per IMU epoch. cProfile "
+        "slows every Python call, so the column to read is the share, not the µs. Waiting in poll is idle time.",
+        "",
+        "| stage | s | share of busy time | µs per epoch (profiled) | costliest function |",
+        "|---|---|---|---|---|",
+    ]
+    for r in p["rows"]:
+        share = "—" if not math.isfinite(r["share"]) else f"{100 * r['share']:.1f} %"
+        lines.append(
+            f"| {r['stage']} | {r['seconds']:.2f} | {share} | {r['us_per_epoch']:.1f} | `{r['top_function']}` |"
+        )
+    big = next((r for r in p["rows"] if r["stage"] == p["largest"]), None)
+    if big:
+        lines += ["", f"Largest item: **{big['stage']}** ({100 * big['share']:.0f} % of the busy time)."]
+    return "\n".join(lines) + "\n"
+
+
+def sweep_interleaved_section(rows: list[dict[str, Any]]) -> str:
+    """Markdown of the interleaved rate sweep: the highest rate per core meeting the ratio targets."""
+    lines = [
+        "## Highest IMU rate meeting the ratio targets (each rate interleaved against its floor)",
+        "",
+        "| core | IMU rate (Hz) | gateway p99 | floor p99 | ratio | gateway p99.9 | floor p99.9 | ratio | lost | "
+        "meets ratios + loss |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    best: dict[str, float] = {}
+    for r in rows:
+        lines.append(
+            f"| {r['core']} | {r['rate']:.0f} | {_f(r['gateway_p99_us'])} | {_f(r['floor_p99_us'])} | "
+            f"{_f(r['ratio_p99'], 2)} | {_f(r['gateway_p999_us'])} | {_f(r['floor_p999_us'])} | "
+            f"{_f(r['ratio_p999'], 2)} | {r['lost']} | {_ok(r['ok'])} |"
+        )
+        if r["ok"]:
+            best[r["core"]] = max(best.get(r["core"], 0.0), r["rate"])
+    lines.append("")
+    for core in sorted({r["core"] for r in rows}):
+        b = best.get(core)
+        lines.append(f"- core **{core}**: highest rate meeting the ratio targets: "
+                     f"{'none of those tried' if b is None else f'{b:.0f} Hz'}")  # fmt: skip
     lines.append("")
     return "\n".join(lines)

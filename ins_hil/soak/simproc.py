@@ -123,6 +123,59 @@ def truth_rows(tr: TruthSeries, rate: float) -> np.ndarray:
     )
 
 
+#: DroneCAN node id of simulated IMU unit u: CAN_NODE_BASE + u (the gateway's imu_id)
+CAN_NODE_BASE = 10
+
+
+def slcan_line(can_id: int, data: bytes) -> bytes:
+    """One extended CAN frame as an slcan (Lawicel) line: ``T`` + 8 hex id + dlc + hex data + CR."""
+    return b"T%08X%d%s\r" % (can_id, len(data), data.hex().upper().encode())
+
+
+class SlcanNodes:
+    """The simulated IMUs as DroneCAN nodes ``CAN_NODE_BASE + u``: per epoch one RawIMU transfer per node
+    (``timestamp.usec`` = the epoch's sensor time), and a NodeStatus per node once a second of sensor time,
+    each frame an slcan line (the bytes an slcan adapter puts on its serial line)."""
+
+    def __init__(self, n_units: int) -> None:
+        from ins_hil.drivers import dronecan_codec as dc
+
+        self.dc, self.n = dc, n_units
+        self.tid = {(u, k): 0 for u in range(n_units) for k in (dc.DTID_RAW_IMU, dc.DTID_NODE_STATUS)}
+        self.next_status = 0.0  # s of sensor time
+
+    def _transfer(self, u: int, dtid: int, payload: bytes, priority: int) -> bytes:
+        dc = self.dc
+        cid = dc.message_can_id(dtid, CAN_NODE_BASE + u, priority)
+        t = self.tid[(u, dtid)]
+        self.tid[(u, dtid)] = (t + 1) & 0x1F
+        return b"".join(slcan_line(cid, f) for f in dc.split_transfer(dtid, payload, t))
+
+    def chunk(self, t: np.ndarray, dth: np.ndarray, dv: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(uint8 (N, units, W) rows of slcan bytes, int32 (N, units) bytes used per row) of one chunk."""
+        dc = self.dc
+        rows: list[list[bytes]] = []
+        for i in range(len(t)):
+            tk = float(t[i])
+            row = []
+            for u in range(self.n):
+                b = self._transfer(u, dc.DTID_RAW_IMU, dc.raw_imu_payload(ImuSample(tk, dt, dth[i, u], dv[i, u])), 16)
+                if tk >= self.next_status:
+                    b += self._transfer(u, dc.DTID_NODE_STATUS, dc.node_status_payload(int(tk)), 24)
+                row.append(b)
+            if tk >= self.next_status:
+                self.next_status = math.floor(tk) + 1.0
+            rows.append(row)
+        w = max(len(b) for r in rows for b in r)
+        frames = np.zeros((len(t), self.n, w), dtype=np.uint8)
+        lens = np.zeros((len(t), self.n), dtype=np.int32)
+        for i, r in enumerate(rows):
+            for u, b in enumerate(r):
+                frames[i, u, : len(b)] = np.frombuffer(b, dtype=np.uint8)
+                lens[i, u] = len(b)
+        return frames, lens
+
+
 def die_with_parent() -> None:
     """Linux: get SIGTERM when the parent (the soak orchestrator) dies (prctl PR_SET_PDEATHSIG)."""
     try:
@@ -191,6 +244,7 @@ def produce(a: argparse.Namespace, d: Path) -> None:
     out = Path(a.out)
     dt = 1.0 / a.rate
     seq = 0
+    can_node = SlcanNodes(a.imus) if a.imu_transport == "can" else None
     with open(out / "truth.bin", "wb") as f_tr:
         for k, ((t_imu, dth, dv, fl), sub, fixes, baro) in enumerate(chunks(a)):
             while _chunk_path(d, k - AHEAD, "ready").exists():
@@ -198,13 +252,19 @@ def produce(a: argparse.Namespace, d: Path) -> None:
             truth_rows(sub, TRUTH_RATE).tofile(f_tr)
             f_tr.flush()
             n = len(t_imu)
-            frames = np.empty((n, a.imus, FRAME_LEN), dtype=np.uint8)
-            for i in range(n):
-                tk = float(t_imu[i])
-                for u in range(a.imus):
-                    frame = encode(ImuSample(tk, dt, dth[i, u], dv[i, u], u, seq & 0xFFFF, 35.0, int(fl[i, u])))
-                    frames[i, u] = np.frombuffer(frame, dtype=np.uint8)
-                seq += 1
+            lens = None
+            if can_node is not None:
+                frames, lens = can_node.chunk(t_imu, dth, dv, dt)
+            else:
+                frames = np.empty((n, a.imus, FRAME_LEN), dtype=np.uint8)
+                for i in range(n):
+                    tk = float(t_imu[i])
+                    for u in range(a.imus):
+                        frame = encode(ImuSample(tk, dt, dth[i, u], dv[i, u], u, seq & 0xFFFF, 35.0, int(fl[i, u])))
+                        frames[i, u] = np.frombuffer(frame, dtype=np.uint8)
+                    seq += 1
+            if lens is not None:
+                np.save(_chunk_path(d, k, "lens.npy"), lens)
             sched = np.array(schedule(t_imu, fixes, baro, a.gnss_latency), dtype=np.float64).reshape(-1, 3)
             np.save(_chunk_path(d, k, "t.npy"), np.asarray(t_imu, dtype=np.float64))
             np.save(_chunk_path(d, k, "frames.npy"), frames)
@@ -226,6 +286,7 @@ class _Chunks:
 
     def __init__(self, d: Path, producer: subprocess.Popen[bytes]) -> None:
         self.d, self.producer = d, producer
+        self.lens: np.ndarray | None = None  # CAN: bytes used of each (epoch, unit) row of the last chunk
 
     def load(self, k: int, timeout: float = 120.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[Any], list[Any]]:
         t0 = time.monotonic()
@@ -241,10 +302,12 @@ class _Chunks:
         sched = np.load(_chunk_path(self.d, k, "sched.npy"), mmap_mode="r")
         with open(_chunk_path(self.d, k, "aid.pkl"), "rb") as f:
             fixes, baro = pickle.load(f)
+        lens_path = _chunk_path(self.d, k, "lens.npy")
+        self.lens = np.load(lens_path) if lens_path.exists() else None
         return t, frames, sched, fixes, baro
 
     def done(self, k: int) -> None:
-        for what in ("ready", "t.npy", "frames.npy", "sched.npy", "aid.pkl"):
+        for what in ("ready", "t.npy", "frames.npy", "lens.npy", "sched.npy", "aid.pkl"):
             with contextlib.suppress(OSError):
                 _chunk_path(self.d, k, what).unlink()
 
@@ -268,6 +331,8 @@ def run(a: argparse.Namespace) -> None:
 
 
 def _emit(a: argparse.Namespace, out: Path, src: _Chunks) -> None:
+    if a.imu_transport == "can" and a.links == "separate":
+        raise SystemExit("soak simulator: --imu-transport can puts every node on one bus (--links shared)")
     n_links = a.imus if a.links == "separate" else 1
     masters, slaves, paths = [], [], []
     for _ in range(n_links):
@@ -297,6 +362,7 @@ def _emit(a: argparse.Namespace, out: Path, src: _Chunks) -> None:
     gc.freeze()
     gc.disable()
     written = [0] * n_links
+    units = range(a.imus)
     pending = [b""] * n_links
     dropped = [0] * n_links
     late = LatencyHistogram()  # emission − scheduled time
@@ -339,13 +405,16 @@ def _emit(a: argparse.Namespace, out: Path, src: _Chunks) -> None:
             em[:, 0] = np.round(t_imu * 1e6).astype(np.int64)
             n_done = 0
 
-            def emit_imu(i: int, due: int, frames: Any = frames, em: Any = em) -> None:
+            lens = src.lens
+
+            def emit_imu(i: int, due: int, frames: Any = frames, em: Any = em, lens: Any = lens) -> None:
                 # every unit's frame of epoch i, stamped (CLOCK_MONOTONIC) after the first write; on a shared
                 # link the epoch's frames go out back to back in one write, as an IMU hub sends them
                 nonlocal n_done
                 row = frames[i]
                 if n_links == 1:
-                    if _write(masters[0], row.tobytes(), pending, 0):
+                    data = row.tobytes() if lens is None else b"".join(row[u, : lens[i, u]].tobytes() for u in units)
+                    if _write(masters[0], data, pending, 0):
                         written[0] += a.imus
                     else:
                         dropped[0] += a.imus
@@ -399,6 +468,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--gnss-rate", type=float, default=5.0)
     ap.add_argument("--gnss-latency", type=float, default=0.05)
     ap.add_argument("--baro-rate", type=float, default=25.0)
+    ap.add_argument(
+        "--imu-transport",
+        choices=["serial", "can"],
+        default="serial",
+        help="serial frames, or DroneCAN nodes (RawIMU + NodeStatus) as slcan lines on the pty",
+    )
     ap.add_argument("--chunk-s", type=float, default=10.0)
     ap.add_argument("--rt", type=int, default=0, help="SCHED_FIFO priority of the emitter (0 = time-shared)")
     ap.add_argument("--produce", metavar="DIR", help=argparse.SUPPRESS)  # internal: the producer process
