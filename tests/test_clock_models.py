@@ -311,7 +311,7 @@ def test_dronecan_batched_arrivals_keep_the_transfer_period_sane() -> None:
     node = CanNode(rate_hz=1000.0)
     dec = dc.DroneCanDecoder()
     got = []
-    for batch in range(200):  # 200 batches of 10 transfers, 10 ms apart, each batch under one stamp
+    for _batch in range(200):  # 200 batches of 10 transfers, 10 ms apart, each batch under one stamp
         stamp = node.host_ns
         for _ in range(10):
             got.append(send(dec, node.imu(), stamp))
