@@ -66,15 +66,15 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
     "dataset": {"name": str, "format": str, "path": str, "position_deg": list, "description": str},
     "sensor": {"grade": str},  # + FilterConfig fields
     "mounting": {"imu_to_body_deg": list, "gnss_lever_arm_m": list, "reference_lever_arm_m": list,
-                 "imu_time_offset_s": (int, float), "gnss_time_offset_s": (int, float)},  # fmt: skip
+                 "imu_time_offset_s": (int, float), "gnss_time_offset_s": (int, float)},
     "aiding": {"gnss": bool, "baro": bool, "mag": bool, "mag_reference": (str, list), "declination_deg": (int, float),
                "no_gnss_hold": bool, "hold_std_m": (int, float), "hold_vel_std_mps": (int, float),
-               "hold_rate_hz": (int, float)},  # fmt: skip
+               "hold_rate_hz": (int, float)},
     "nav": {},  # NavConfig fields
     "outages": {"relative_to": str, "start_s": (int, float), "on_s": (int, float), "off_s": (int, float),
-                "end_s": (int, float)},  # fmt: skip
+                "end_s": (int, float)},
     "score": {"against": list, "settle_s": (int, float)},
-}
+}  # fmt: skip
 
 
 class DatasetConfigError(ValueError):
@@ -152,9 +152,9 @@ class DatasetConfig:
         return cfg
 
 
-def _vec3(where: str, v: Any) -> Vec:
+def _vec3(where: str, v: Any, source: str) -> Vec:
     if not (isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) for x in v)):
-        raise DatasetConfigError(f"{where} = {v!r}: expected 3 numbers")
+        raise DatasetConfigError(f"{source}: {where} = {v!r}: expected 3 numbers")
     return np.array(v, dtype=np.float64)
 
 
@@ -191,7 +191,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
     if "path" in ds:
         c.path = (base / ds["path"]) if base is not None else Path(ds["path"])
     if "position_deg" in ds:
-        p = _vec3("dataset.position_deg", ds["position_deg"])
+        p = _vec3("dataset.position_deg", ds["position_deg"], source)
         c.position = (p[0] * DEG, p[1] * DEG, float(p[2]))
     s = d.get("sensor", {})
     c.grade = s.get("grade", "mems")
@@ -199,16 +199,16 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
         raise DatasetConfigError(f"{source}: sensor.grade = {c.grade!r}: expected one of {', '.join(GRADES)}")
     c.filter_overrides = {k: v for k, v in s.items() if k != "grade"}
     m = d.get("mounting", {})
-    c.imu_to_body = _vec3("mounting.imu_to_body_deg", m.get("imu_to_body_deg", [0, 0, 0])) * DEG
-    c.gnss_lever_arm = _vec3("mounting.gnss_lever_arm_m", m.get("gnss_lever_arm_m", [0, 0, 0]))
-    c.reference_lever_arm = _vec3("mounting.reference_lever_arm_m", m.get("reference_lever_arm_m", [0, 0, 0]))
+    c.imu_to_body = _vec3("mounting.imu_to_body_deg", m.get("imu_to_body_deg", [0, 0, 0]), source) * DEG
+    c.gnss_lever_arm = _vec3("mounting.gnss_lever_arm_m", m.get("gnss_lever_arm_m", [0, 0, 0]), source)
+    c.reference_lever_arm = _vec3("mounting.reference_lever_arm_m", m.get("reference_lever_arm_m", [0, 0, 0]), source)
     c.imu_time_offset = float(m.get("imu_time_offset_s", 0.0))
     c.gnss_time_offset = float(m.get("gnss_time_offset_s", 0.0))
     a = d.get("aiding", {})
     c.use_gnss, c.use_baro, c.use_mag = a.get("gnss", True), a.get("baro", True), a.get("mag", True)
     mr = a.get("mag_reference", "wmm")
     if isinstance(mr, list):
-        c.mag_reference = _vec3("aiding.mag_reference", mr)
+        c.mag_reference = _vec3("aiding.mag_reference", mr, source)
     elif mr not in ("wmm", "rest"):
         raise DatasetConfigError(f"{source}: aiding.mag_reference = {mr!r}: expected 'wmm', 'rest' or [N, E, D] µT")
     else:

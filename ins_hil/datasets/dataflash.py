@@ -26,7 +26,8 @@ from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
 
 DF_HEAD = b"\xa3\x95"
-#: a crash: specific force above this (m/s², ≈ 4 g) or a rate above ``CRASH_RATE`` rad/s (≈ 170 °/s, beyond a multicopter's normal envelope)
+#: a crash: specific force above this (m/s², ≈ 4 g) or a rate above ``CRASH_RATE`` rad/s (≈ 170 °/s, beyond a
+#: multicopter's normal envelope)
 CRASH_ACCEL = 40.0
 CRASH_RATE = 3.0
 
@@ -46,7 +47,8 @@ def end_of_valid_data(t: Vec, gyro: Vec, acc: Vec, t_last_gps: float | None) -> 
     if not np.any(bad):
         return None, ""
     k = int(np.argmax(bad))
-    why = (f"loss of control from {t[k]:.2f} s (|f| {np.linalg.norm(acc[k]):.0f} m/s², |ω| {np.linalg.norm(gyro[k]):.1f} rad/s)"
+    why = (f"loss of control from {t[k]:.2f} s (|f| {np.linalg.norm(acc[k]):.0f} m/s², "
+           f"|ω| {np.linalg.norm(gyro[k]):.1f} rad/s)"
            + (f"; last GNSS fix {t_last_gps:.2f} s" if t_last_gps is not None else ""))  # fmt: skip
     return float(t[k]) - 0.5, why
 
@@ -120,8 +122,9 @@ def read_dataflash(path: Path) -> Dataset:
     wk = [d for d in rows["GPS"] if d.get("GWk", 0) > 0]
     if wk:  # GPS time (s since 1980-01-06) → UNIX s (leap seconds ignored: a field-model date)
         utc = 315964800.0 + wk[0]["GWk"] * 604800.0 + wk[0]["GMS"] * 1e-3
-    ds.meta.update({"source": str(path), "format": "ardupilot-bin", "vehicle": "ArduPilot", "notes": [],
-                    "utc_start_s": utc})
+    ds.meta.update(
+        {"source": str(path), "format": "ardupilot-bin", "vehicle": "ArduPilot", "notes": [], "utc_start_s": utc}
+    )
     return ds
 
 

@@ -9,7 +9,8 @@ Topics (instance 0; conventions in ``../shared/data/uav/README.md``):
   where logged; σ: ``eph`` (per horizontal axis, as EKF2 uses it), ``epv``, ``s_variance_m_s``;
 * ``vehicle_air_data.baro_alt_meter``; ``vehicle_magnetometer.magnetometer_ga`` (gauss → tesla);
 * EKF2's output as the onboard estimate: ``vehicle_attitude.q``, ``vehicle_local_position``
-  (NED about ``ref_lat``/``ref_lon``/``ref_alt``; x/y only where ``xy_valid``, vx/vy where ``v_xy_valid``), else ``estimator_states``;
+  (NED about ``ref_lat``/``ref_lon``/``ref_alt``; x/y only where ``xy_valid``, vx/vy where
+  ``v_xy_valid``), else ``estimator_states``;
 * ``vehicle_land_detected``: take-off / landing events.
 
 In a ``ulog2csv`` folder a topic's file is found by the topic name inside the file name
@@ -76,7 +77,8 @@ def imu_from_sensor_combined(t: Topic) -> list[ImuSample]:
     out: list[ImuSample] = []
     last = -math.inf
     for k in range(len(tt)):
-        if not (dtg[k] > 0 and dta[k] > 0 and tt[k] > last) or not (np.all(np.isfinite(g[k])) and np.all(np.isfinite(a[k]))):
+        finite = np.all(np.isfinite(g[k])) and np.all(np.isfinite(a[k]))
+        if not (dtg[k] > 0 and dta[k] > 0 and tt[k] > last and finite):
             continue
         fl = 0
         if clip_a is not None and clip_a[k] != 0:
@@ -99,6 +101,7 @@ def gnss_from_gps(t: Topic) -> list[GnssFix]:
         if la is None or lo is None:
             raise DatasetError("vehicle_gps_position: expected lat/lon or latitude_deg/longitude_deg")
         lat, lon = la * 1e-7, lo * 1e-7
+    assert lon is not None
     if h is None:
         he = _col(t, "alt_ellipsoid", "alt")
         h = he * 1e-3 if he is not None else np.zeros_like(lat)
@@ -219,8 +222,14 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
         ds.mag = mag_from_magnetometer(topics["vehicle_magnetometer"])
     ds.onboard = onboard_from_ekf2(topics)
     ds.events = land_events(topics.get("vehicle_land_detected"))
-    ds.meta = {"source": source, "format": fmt, "vehicle": "PX4", "topics": sorted(topics), "notes": notes,
-               "utc_start_s": utc_start}
+    ds.meta = {
+        "source": source,
+        "format": fmt,
+        "vehicle": "PX4",
+        "topics": sorted(topics),
+        "notes": notes,
+        "utc_start_s": utc_start,
+    }
     return ds
 
 

@@ -29,7 +29,9 @@ def load(path: Path, cfg: DatasetConfig) -> Dataset:
     return read_dataset(path, cfg.format)
 
 
-def replay(ds: Dataset, cfg: DatasetConfig, progress: ProgressFactory | None = None) -> tuple[dict[str, Any], dict[str, RunResult]]:
+def replay(
+    ds: Dataset, cfg: DatasetConfig, progress: ProgressFactory | None = None
+) -> tuple[dict[str, Any], dict[str, RunResult]]:
     """Run ``ds`` through the core with ``cfg``; (metrics, runs by label)."""
     p = prepare(ds, cfg)
     prog = progress or (lambda label: None)
@@ -40,8 +42,13 @@ def replay(ds: Dataset, cfg: DatasetConfig, progress: ProgressFactory | None = N
         "format": ds.meta.get("format"),
         "vehicle": ds.meta.get("vehicle"),
         "rates_hz": ds.meta.get("rates_hz"),
-        "samples": {"imu": len(p.imu), "gnss": len(p.gnss), "baro": sum(1 for a in p.aux if not hasattr(a, "field_b")),
-                    "mag": sum(1 for a in p.aux if hasattr(a, "field_b")), "hold": len(p.hold)},
+        "samples": {
+            "imu": len(p.imu),
+            "gnss": len(p.gnss),
+            "hold": len(p.hold),
+            "baro": sum(1 for a in p.aux if not hasattr(a, "field_b")),
+            "mag": sum(1 for a in p.aux if hasattr(a, "field_b")),
+        },
         "events": [[round(t, 3), e] for t, e in ds.events],
         "t0_s": p.t0,
         "t1_s": p.t1,
@@ -61,7 +68,9 @@ def replay(ds: Dataset, cfg: DatasetConfig, progress: ProgressFactory | None = N
     m["warnings"] = [f"{k}: the gates rejected {v['rejected']} of {v['tested']} ({v['rate']:.1%})"
                      for k, v in m["rejection"].items() if v["rate"] > REJECT_WARN]  # fmt: skip
     if not math.isfinite(r.t_nav):
-        m["warnings"].append("the core never left its alignment (no GNSS speed ≥ gnss_yaw_speed and no magnetometer reference)")
+        m["warnings"].append(
+            "the core never left its alignment (no GNSS speed ≥ gnss_yaw_speed and no magnetometer reference)"
+        )
     t_from = (r.t_nav if math.isfinite(r.t_nav) else p.t1) + cfg.settle_s
     if "gnss" in cfg.score:
         m["gnss"] = gnss_scores(r, p.gnss) if p.gnss else "no GNSS fix in the log"
@@ -100,7 +109,9 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
     rows.append(("navigating from", f"{tn:.2f} s" if tn is not None else "never", ""))
     g = m.get("gnss")
     if isinstance(g, dict):
-        rows.append(("GNSS present: h error prior (m)", f"{g['gnss_h_rms_prior_m']:.3f}", f"{g['gnss_h_max_prior_m']:.3f}"))
+        rows.append(
+            ("GNSS present: h error prior (m)", f"{g['gnss_h_rms_prior_m']:.3f}", f"{g['gnss_h_max_prior_m']:.3f}")
+        )
         rows.append(("GNSS present: h error post (m)", f"{g['gnss_h_rms_post_m']:.3f}", ""))
     elif g:
         rows.append(("GNSS", str(g), ""))
@@ -216,3 +227,40 @@ def jsonable(m: Any) -> Any:
     if isinstance(m, float) and not math.isfinite(m):
         return None
     return m
+
+
+def replay_to_dir(
+    source: Path | None, config: Path | None, out: Path, plots: bool = True, progress: ProgressFactory | None = None
+) -> tuple[dict[str, Any], str]:
+    """``ins-hil replay FILE|DIR [--dataset CONFIG]``: read, replay, write ``metrics.json`` and the plots into
+    ``out``; (metrics, the summary text). ``source`` None: the config's ``dataset.path``. DatasetError /
+    DatasetConfigError (one line) on bad input."""
+    import json
+
+    from ins_hil.datasets.config import DatasetConfig, DatasetConfigError
+    from ins_hil.datasets.config import load as load_config
+
+    if config is not None:
+        cfg = load_config(config)
+    else:
+        cfg = DatasetConfig(name=Path(source).stem if source is not None else "dataset")
+    path = source if source is not None else cfg.path
+    if path is None:
+        raise DatasetConfigError(f"{config}: no dataset.path and no FILE|DIR given")
+    ds = load(Path(path), cfg)
+    m, runs = replay(ds, cfg, progress)
+    out.mkdir(parents=True, exist_ok=True)
+    if plots:
+        m["plots"] = [str(p) for p in plot(m, runs, ds, out)]
+    (out / "metrics.json").write_text(json.dumps(jsonable(m), indent=2))
+    lines = [f"{cfg.name}: {ds.meta.get('source')} ({ds.meta.get('format')}, sensor grade {cfg.grade}"
+             + (", default dataset config" if config is None else f", {config}") + ")"]  # fmt: skip
+    lines += [f"note: {n}" for n in m.get("notes", [])]
+    if m.get("end_of_valid_data"):
+        lines.append(f"end of valid data: {m['end_of_valid_data']}")
+    if m.get("mag_reference"):
+        lines.append(f"magnetic reference: {m['mag_reference']}")
+    lines.append(format_table(summary(m)))
+    lines += [f"WARNING: {w}" for w in m.get("warnings", [])]
+    lines.append(f"metrics: {out / 'metrics.json'}")
+    return m, "\n".join(lines)

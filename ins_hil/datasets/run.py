@@ -69,7 +69,8 @@ def wmm_field(lat: float, lon: float, h: float, year: float) -> tuple[Vec, str]:
     r = GeoMag(coefficients_file=f"wmm/{cof}").calculate(
         glat=math.degrees(lat), glon=math.degrees(lon), alt=h / 1000.0, time=year
     )
-    return np.array((r.x, r.y, r.z)) * 1e-9, f"WMM {cof[:-4]} at {math.degrees(lat):.4f}°, {math.degrees(lon):.4f}°, {year:.2f}"
+    where = f"{math.degrees(lat):.4f}°, {math.degrees(lon):.4f}°, {year:.2f}"
+    return np.array((r.x, r.y, r.z)) * 1e-9, f"WMM {cof[:-4]} at {where}"
 
 
 def field_at_rest(imu: list[ImuSample], mag: list[MagSample], t_from: float, t_to: float, decl: float) -> Vec | None:
@@ -93,8 +94,8 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     rot = bool(np.any(cfg.imu_to_body != 0.0))
     off = cfg.imu_time_offset
     t1 = ds.t1
-    imu = [dataclasses.replace(s, t=s.t + off, dtheta=R @ s.dtheta if rot else s.dtheta, dvel=R @ s.dvel if rot else s.dvel)
-           for s in ds.imu if s.t <= t1]  # fmt: skip
+    imu = [dataclasses.replace(s, t=s.t + off, dtheta=R @ s.dtheta, dvel=R @ s.dvel) if rot else
+           dataclasses.replace(s, t=s.t + off) for s in ds.imu if s.t <= t1]  # fmt: skip
     gnss = [dataclasses.replace(f, t=f.t + cfg.gnss_time_offset) for f in ds.gnss] if cfg.use_gnss else []
     mag = [dataclasses.replace(m, field_b=R @ m.field_b) if rot else m for m in ds.mag] if cfg.use_mag else []
     baro = list(ds.baro) if cfg.use_baro else []
@@ -124,7 +125,9 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
         else:
             t_to = ds.event("takeoff") or (p.t0 + 5.0)
             ref = field_at_rest(imu, mag, p.t0, min(t_to, p.t0 + 10.0) - 0.5, cfg.declination)
-            p.mag_ref_source = (f"levelled field at rest before take-off, declination {math.degrees(cfg.declination):.2f}°")
+            p.mag_ref_source = (
+                f"levelled field at rest before take-off, declination {math.degrees(cfg.declination):.2f}°"
+            )
             if ref is None:
                 notes.append("magnetometer not used: no rest before take-off to measure the field")
         if ref is not None:
@@ -140,9 +143,11 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
         v0 = np.zeros(3) if cfg.hold_vel_std > 0 else None
         p.hold = [GnssFix(p.t0 + k / cfg.hold_rate, origin[0], origin[1], origin[2], v0, cfg.hold_std,
                           cfg.hold_std, cfg.hold_vel_std, FixType.NO_FIX) for k in range(n)]  # fmt: skip
-        notes.append(f"no GNSS fix in the log: constant-position hold fixes (σ {cfg.hold_std:g} m"
-                     + (f", zero velocity σ {cfg.hold_vel_std:g} m/s" if v0 is not None else "")
-                     + f", {cfg.hold_rate:g} Hz) keep the tilt observable (EKF2's no-aiding mode)")
+        notes.append(
+            f"no GNSS fix in the log: constant-position hold fixes (σ {cfg.hold_std:g} m"
+            + (f", zero velocity σ {cfg.hold_vel_std:g} m/s" if v0 is not None else "")
+            + f", {cfg.hold_rate:g} Hz) keep the tilt observable (EKF2's no-aiding mode)"
+        )
     return p
 
 
@@ -298,7 +303,7 @@ def outage_scores(r: RunResult, fixes: list[GnssFix]) -> dict[str, Any]:
         allh.append(eh)
         allc.append(ec)
         alln.append(nees)
-    cat = (lambda x: np.vstack(x) if x else np.zeros((0, 3)))  # noqa: E731
+    cat = lambda x: np.vstack(x) if x else np.zeros((0, 3))
     F, H, C = cat(allf), cat(allh), cat(allc)
     return {
         "windows": rows,
@@ -331,4 +336,3 @@ def euler_series(q: Vec) -> Vec:
     pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
     yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return np.column_stack([roll, pitch, yaw])
-
