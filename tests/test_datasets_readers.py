@@ -167,3 +167,15 @@ def test_unsupported_and_wrong_files(tmp_path: Path, uav: Path):
     empty.mkdir()
     with pytest.raises(DatasetError, match="not a supported dataset"):
         read_dataset(empty)
+
+
+def test_px4_logging_gaps_bridged_or_reported(tmp_path: Path):
+    cols = _sensor_combined(30, 5000)
+    ts = cols["timestamp"]
+    ts[10:] = [x + 5000 for x in ts[10:]]  # one dropped message (5 ms): bridged
+    ts[20:] = [x + 200_000 for x in ts[20:]]  # 200 ms of lost data: not integrated, reported
+    _write_topic(tmp_path / "sensor_combined_0.csv", cols)
+    ds = read_dataset(tmp_path)
+    assert ds.imu[10].dt == pytest.approx(0.010) and ds.imu[10].dtheta[0] == pytest.approx(0.001)
+    assert ds.imu[20].dt == pytest.approx(0.005)
+    assert any("2 logging gaps" in n and "1 longer (up to 0.20 s)" in n for n in ds.meta["notes"]), ds.meta["notes"]

@@ -31,6 +31,8 @@ from ins_hil.types import BaroSample, FixType, GnssFix, ImuFlags, ImuSample, Mag
 
 Topic = dict[str, Vec]
 ULOG_MAGIC = b"ULog\x01\x12\x35"
+#: logging gaps in sensor_combined up to this long (s) are bridged with the next sample's mean rate
+MAX_BRIDGE = 0.05
 TOPICS = ("sensor_combined", "vehicle_gps_position", "sensor_gps", "vehicle_air_data", "vehicle_magnetometer",
           "vehicle_attitude", "vehicle_local_position", "vehicle_global_position", "estimator_states",
           "vehicle_land_detected")  # fmt: skip
@@ -57,8 +59,12 @@ def _dt_seconds(dt: Vec) -> Vec:
     return dt * 1e-6 if float(np.nanmedian(dt)) > 1.0 else dt
 
 
-def imu_from_sensor_combined(t: Topic) -> list[ImuSample]:
-    """Increments (rad, m/s, body FRD) stamped at the interval end; samples with a non-positive dt skipped."""
+def imu_from_sensor_combined(t: Topic, gaps: list[float] | None = None) -> list[ImuSample]:
+    """Increments (rad, m/s, body FRD) stamped at the interval end; samples with a non-positive dt skipped.
+    Where the logger dropped messages (a timestamp step > 1.5 × the integral dt, up to ``MAX_BRIDGE``) the
+    sample spans the whole gap; the missing time (s) of every gap is appended to ``gaps``."""
+    if gaps is None:
+        gaps = []
     ts = _col(t, "timestamp")
     if ts is None or "gyro_rad[0]" not in t or "accelerometer_m_s2[0]" not in t:
         raise DatasetError("sensor_combined: expected timestamp, gyro_rad[0..2], accelerometer_m_s2[0..2]")
@@ -85,7 +91,16 @@ def imu_from_sensor_combined(t: Topic) -> list[ImuSample]:
             fl |= ImuFlags.ACCEL_SATURATED
         if clip_g is not None and clip_g[k] != 0:
             fl |= ImuFlags.GYRO_SATURATED
-        out.append(ImuSample(float(tt[k]), float(dtg[k]), g[k] * dtg[k], a[k] * dta[k], seq=k, flags=fl))
+        gap = tt[k] - last
+        if out and gap > 1.5 * dtg[k]:
+            gaps.append(float(gap - dtg[k]))
+        if out and 1.5 * dtg[k] < gap <= MAX_BRIDGE:
+            # messages the logger dropped: the interval since the previous logged sample is integrated with this
+            # sample's mean rate and specific force (else the attitude would miss the rotation of the gap); a longer
+            # gap is lost data: the sample keeps its own interval and the core's time jumps (reported)
+            out.append(ImuSample(float(tt[k]), float(gap), g[k] * gap, a[k] * gap, seq=k, flags=fl))
+        else:
+            out.append(ImuSample(float(tt[k]), float(dtg[k]), g[k] * dtg[k], a[k] * dta[k], seq=k, flags=fl))
         last = tt[k]
     return out
 
@@ -205,9 +220,21 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
     sc = topics.get("sensor_combined")
     if sc is None:
         raise DatasetError(f"{source}: no sensor_combined topic (the PX4 readers need the IMU in it)")
-    ds = Dataset(imu_from_sensor_combined(sc))
+    gaps: list[float] = []
+    ds = Dataset(imu_from_sensor_combined(sc, gaps))
     gps = topics.get("vehicle_gps_position", topics.get("sensor_gps"))
     notes: list[str] = []
+    if gaps:
+        long = [g for g in gaps if g > MAX_BRIDGE]
+        notes.append(
+            f"sensor_combined: {len(gaps)} logging gaps ({sum(gaps):.2f} s); {len(gaps) - len(long)} up to "
+            f"{MAX_BRIDGE * 1e3:.0f} ms bridged with the next sample's mean"
+            + (
+                f"; {len(long)} longer (up to {max(long):.2f} s): IMU data lost, the INS does not propagate across them"
+                if long
+                else ""
+            )
+        )
     utc_start = None
     if gps is not None:
         ds.gnss = gnss_from_gps(gps)
