@@ -9,7 +9,8 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
     [mounting] imu_to_body_deg = [roll, pitch, yaw] (IMU axes → body FRD), gnss_lever_arm_m (IMU → antenna,
                body FRD, m), reference_lever_arm_m, imu_time_offset_s (added to the IMU times),
                gnss_time_offset_s (added to the GNSS times, e.g. −0.11 for PX4's EKF2_GPS_DELAY)
-    [aiding]   gnss, baro, mag (bool); mag_reference = "wmm" | "rest" | [N, E, D] (µT);
+    [aiding]   gnss, baro, mag (bool); mag_heading_only (bool, default true: the magnetometer corrects the heading
+               only, levelled with the current attitude as EKF2 does in flight); mag_reference = "wmm" | "rest" | [N, E, D] (µT);
                declination_deg (with "rest"); no_gnss_hold (bool), hold_std_m, hold_vel_std_mps (0 = position
                only), hold_rate_hz
     [nav]      ins_hil.core.NavConfig fields (``[nav.filter]``: FilterConfig fields), as ``[core.nav]`` of the
@@ -67,7 +68,7 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
     "sensor": {"grade": str},  # + FilterConfig fields
     "mounting": {"imu_to_body_deg": list, "gnss_lever_arm_m": list, "reference_lever_arm_m": list,
                  "imu_time_offset_s": (int, float), "gnss_time_offset_s": (int, float)},
-    "aiding": {"gnss": bool, "baro": bool, "mag": bool, "mag_reference": (str, list), "declination_deg": (int, float),
+    "aiding": {"gnss": bool, "baro": bool, "mag": bool, "mag_heading_only": bool, "mag_reference": (str, list), "declination_deg": (int, float),
                "no_gnss_hold": bool, "hold_std_m": (int, float), "hold_vel_std_mps": (int, float),
                "hold_rate_hz": (int, float)},
     "nav": {},  # NavConfig fields
@@ -121,6 +122,7 @@ class DatasetConfig:
     use_gnss: bool = True
     use_baro: bool = True
     use_mag: bool = True
+    mag_heading_only: bool = True
     mag_reference: str | Vec = "wmm"  # "wmm" | "rest" | NED µT
     declination: float = 0.0  # rad
     no_gnss_hold: bool = True
@@ -189,7 +191,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
         if c.format not in READERS:
             raise DatasetConfigError(f"{source}: dataset.format = {c.format!r}: expected one of {', '.join(READERS)}")
     if "path" in ds:
-        c.path = (base / ds["path"]) if base is not None else Path(ds["path"])
+        c.path = (base / ds["path"]).resolve() if base is not None else Path(ds["path"])
     if "position_deg" in ds:
         p = _vec3("dataset.position_deg", ds["position_deg"], source)
         c.position = (p[0] * DEG, p[1] * DEG, float(p[2]))
@@ -206,6 +208,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
     c.gnss_time_offset = float(m.get("gnss_time_offset_s", 0.0))
     a = d.get("aiding", {})
     c.use_gnss, c.use_baro, c.use_mag = a.get("gnss", True), a.get("baro", True), a.get("mag", True)
+    c.mag_heading_only = a.get("mag_heading_only", True)
     mr = a.get("mag_reference", "wmm")
     if isinstance(mr, list):
         c.mag_reference = _vec3("aiding.mag_reference", mr, source)

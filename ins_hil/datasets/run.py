@@ -24,7 +24,7 @@ from ins_hil.datasets.config import DatasetConfig
 from ins_hil.datasets.dataset import Dataset
 from ins_hil.datasets.evaluate import antenna_ned
 from ins_hil.nav import alignment, earth
-from ins_hil.nav.rotation import dcm_from_euler
+from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
 
 Progress = Callable[[int, int], None]
@@ -47,6 +47,7 @@ class Prepared:
     notes: list[str] = field(default_factory=list)
     mag_ref_ned_T: Vec | None = None
     mag_ref_source: str = ""
+    mag_heading_only: bool = True
 
 
 def _decimal_year(unix_s: float) -> float:
@@ -136,6 +137,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
         else:
             mag = []
     p.nav = nav
+    p.mag_heading_only = cfg.mag_heading_only
     p.aux = sorted([*baro, *mag], key=lambda m: m.t)
     if not gnss and cfg.no_gnss_hold:
         # no absolute aiding in the log: constant-position pseudo-fixes with a large σ (EKF2's fake position)
@@ -149,6 +151,22 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
             + f", {cfg.hold_rate:g} Hz) keep the tilt observable (EKF2's no-aiding mode)"
         )
     return p
+
+
+def heading_only(m: MagSample, q_nb: Vec, ref_ned: Vec | None) -> MagSample:
+    """The magnetometer as a heading measurement only (EKF2's heading fusion): the reading is levelled with the
+    current attitude estimate ``q_nb``, its magnetic heading taken, and replaced by the reference field turned by
+    the heading difference, expressed in body axes with the same attitude. The core's field update then sees a
+    pure rotation about down: a dip or field error of the magnetometer (motor currents, residual hard iron) no
+    longer tilts the solution."""
+    if ref_ned is None:
+        return m
+    C = dcm_from_quat(q_nb)  # body → NED
+    mn = C @ m.field_b
+    d = math.atan2(float(mn[1]), float(mn[0])) - math.atan2(float(ref_ned[1]), float(ref_ned[0]))
+    cd, sd = math.cos(d), math.sin(d)
+    Rz = np.array(((cd, -sd, 0.0), (sd, cd, 0.0), (0.0, 0.0, 1.0)))
+    return dataclasses.replace(m, field_b=C.T @ (Rz @ np.asarray(ref_ned)))
 
 
 @dataclass
@@ -208,6 +226,8 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
             _, kind, m = meas[j]
             j += 1
             if kind != 0:
+                if p.mag_heading_only and isinstance(m, MagSample) and core.phase == "nav":
+                    m = heading_only(m, core.ins.state.q_nb, p.nav.mag_ref_ned)
                 core.fuse(m)
                 continue
             inside = any(a <= m.t < b for a, b in outages)
