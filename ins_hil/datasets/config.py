@@ -10,7 +10,8 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
                body FRD, m), reference_lever_arm_m, imu_time_offset_s (added to the IMU times),
                gnss_time_offset_s (added to the GNSS times, e.g. −0.11 for PX4's EKF2_GPS_DELAY)
     [aiding]   gnss, baro, mag (bool); mag_heading_only (bool, default true: the magnetometer corrects the heading
-               only, levelled with the current attitude as EKF2 does in flight); mag_reference = "wmm" | "rest" | [N, E, D] (µT);
+               only, levelled with the current attitude as EKF2 does in flight);
+               mag_reference = "wmm" | "rest" | [N, E, D] (µT);
                declination_deg (with "rest"); no_gnss_hold (bool), hold_std_m, hold_vel_std_mps (0 = position
                only), hold_rate_hz
     [nav]      ins_hil.core.NavConfig fields (``[nav.filter]``: FilterConfig fields), as ``[core.nav]`` of the
@@ -68,7 +69,8 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
     "sensor": {"grade": str},  # + FilterConfig fields
     "mounting": {"imu_to_body_deg": list, "gnss_lever_arm_m": list, "reference_lever_arm_m": list,
                  "imu_time_offset_s": (int, float), "gnss_time_offset_s": (int, float)},
-    "aiding": {"gnss": bool, "baro": bool, "mag": bool, "mag_heading_only": bool, "mag_reference": (str, list), "declination_deg": (int, float),
+    "aiding": {"gnss": bool, "baro": bool, "mag": bool, "mag_heading_only": bool,
+               "mag_reference": (str, list), "declination_deg": (int, float),
                "no_gnss_hold": bool, "hold_std_m": (int, float), "hold_vel_std_mps": (int, float),
                "hold_rate_hz": (int, float)},
     "nav": {},  # NavConfig fields
