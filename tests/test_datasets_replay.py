@@ -169,3 +169,17 @@ def test_heading_only_magnetometer_keeps_the_tilt():
     assert mn[2] == pytest.approx(ref[2])  # the dip is the reference's: no tilt information
     yaw = math.degrees(math.atan2(mn[1], mn[0]) - math.atan2(ref[1], ref[0]))
     assert yaw == pytest.approx(math.degrees(math.atan2(bad[1], bad[0]) - math.atan2(ref[1], ref[0])))
+
+
+@pytest.mark.slow
+def test_replay_ardupilot_against_nkf1_to_the_crash(tmp_path: Path):
+    out = tmp_path / "ardu"
+    cfgp = REPO / "configs" / "datasets" / "ardupilot_copter.toml"
+    assert main(["replay", "--dataset", str(cfgp), "--out", str(out), "--quiet", "--no-plots"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert "loss of control" in m["end_of_valid_data"] and m["t1_s"] < 370.2
+    assert m["mag_reference"].startswith("WMM WMM_2015v2")
+    att = m["onboard"]["attitude_deg"]
+    # the targets against NKF1 with the field from the magnetic model
+    assert att["roll"]["rms"] <= 1.0 and att["pitch"]["rms"] <= 1.5 and att["yaw"]["rms"] <= 2.0, att
+    assert all(v["rate"] < 0.03 for v in m["rejection"].values()) and m["warnings"] == []
