@@ -49,7 +49,11 @@ VALIDATION_SHIFTS = (17.5, 22.5, 27.5)  # s: validation outages inside the proto
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", nargs="?", default="drive",
-                   help="scenario name, 'drive', a drive directory, 'sim' or a *.ihlog")  # fmt: skip
+                   help="scenario name, 'drive', a drive directory, 'sim', a *.ihlog, or a flight log / dataset "
+                   "file or folder (PX4 .ulg, PX4 ulog2csv folder, ArduPilot .bin, ins-hil dataset CSV)")  # fmt: skip
+    p.add_argument("--dataset", type=Path, default=None, metavar="CONFIG",
+                   help="dataset config (configs/datasets/*.toml): format, mounting, lever arms, time offsets, "
+                   "sensor grade, [nav] overrides, outage protocol")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("replay_out"), help="output directory (default ./replay_out)")
     p.add_argument("--seed", type=int, default=0, help="random seed of a simulated scenario")
     p.add_argument("--duration", type=float, default=None, help="scenario length in s (default: the scenario's)")
@@ -439,6 +443,8 @@ def run(args: argparse.Namespace) -> int:
         return int(_runtime_replay().sim_cli(args))
     if args.docs:
         return full_report(args)
+    if _is_dataset(src, args):
+        return _replay_dataset(src, args)
     args.out.mkdir(parents=True, exist_ok=True)
     if src in scenarios.NAMES:
         m, ser, _ = run_scenario(src, args.seed, args.duration, args.quiet)
@@ -475,6 +481,36 @@ def run(args: argparse.Namespace) -> int:
         _print_drive(res)
     (args.out / "metrics.json").write_text(json.dumps(out, indent=2, default=float))
     print(f"metrics: {args.out / 'metrics.json'}")
+    return 0
+
+
+def _is_dataset(src: str, args: argparse.Namespace) -> bool:
+    """A flight log / dataset source: a --dataset config, or a file/folder that a dataset reader detects."""
+    if getattr(args, "dataset", None) is not None:
+        return True
+    if src in scenarios.NAMES or src == "drive" or not Path(src).exists():
+        return False
+    from ins_hil.datasets.dataset import DatasetError, detect_format
+
+    try:
+        detect_format(Path(src))
+    except DatasetError:
+        return Path(src).is_file()  # a file that no reader takes: the dataset path says what is expected
+    return True
+
+
+def _replay_dataset(src: str, args: argparse.Namespace) -> int:
+    from ins_hil.datasets import report
+    from ins_hil.datasets.dataset import DatasetError
+
+    source = None if (args.dataset is not None and src == "drive") else Path(src)
+    try:
+        _, text = report.replay_to_dir(source, args.dataset, args.out, not args.no_plots,
+                                       lambda label: _Progress(label, args.quiet))  # fmt: skip
+    except (DatasetError, ValueError) as e:
+        print(f"ins-hil replay: {e}", file=sys.stderr)
+        return 2
+    print(text)
     return 0
 
 

@@ -1,0 +1,258 @@
+"""The dataset config (``configs/datasets/*.toml``): what a replay of one recording needs besides the data.
+
+Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md``)::
+
+    [dataset]  name, format (a reader of ins_hil.datasets.dataset.READERS; detected if absent),
+               path (the recording, relative to this file), position_deg = [lat, lon, h] (where the log has
+               no GNSS: the start point for the no-GNSS hold and the field model)
+    [sensor]   grade = "mems" | "tactical"; any FilterConfig noise field to override the preset
+    [mounting] imu_to_body_deg = [roll, pitch, yaw] (IMU axes → body FRD), gnss_lever_arm_m (IMU → antenna,
+               body FRD, m), reference_lever_arm_m, imu_time_offset_s (added to the IMU times),
+               gnss_time_offset_s (added to the GNSS times, e.g. −0.11 for PX4's EKF2_GPS_DELAY)
+    [aiding]   gnss, baro, mag (bool); mag_heading_only (bool, default true: the magnetometer corrects the heading
+               only, levelled with the current attitude as EKF2 does in flight);
+               mag_reference = "wmm" | "rest" | [N, E, D] (µT);
+               declination_deg (with "rest"); no_gnss_hold (bool), hold_std_m, hold_vel_std_mps (0 = position
+               only), hold_rate_hz
+    [nav]      ins_hil.core.NavConfig fields (``[nav.filter]``: FilterConfig fields), as ``[core.nav]`` of the
+               gateway config (``ins_hil.runtime.pipeline.nav_config``)
+    [outages]  relative_to = "takeoff" | "start", start_s, on_s, off_s, end_s (s from ``relative_to``)
+    [score]    against = ["gnss", "onboard", "reference"], settle_s (s after the core starts navigating)
+
+Errors are one line naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ins_hil.core import NavConfig
+from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.types import Vec
+
+DEG = math.pi / 180.0
+G0 = 9.80665
+
+#: noise presets by sensor grade (FilterConfig fields). ``mems``: a consumer MEMS IMU on a vehicle with
+#: motors (datasheet-class white noise: gyro 0.01 °/s/√Hz, accelerometer 150 µg/√Hz; bias instability of a
+#: few °/h and mg drifting with temperature: Gauss–Markov 0.2 °/s and 5 mg over 300 s; large initial biases:
+#: 0.5 °/s and 0.3 m/s²; vibration added from the measured sample-to-sample change, the same model as on
+#: the car drive). ``tactical``: FilterConfig's defaults. :data:`GRADE_NAV`: NavConfig fields of the grade
+#: (``mems``: the field direction of an uncompensated MEMS magnetometer near motors is good to ~0.15 per
+#: unit-vector component, ≈ 9°: a residual hard iron of ~0.06 G against a 0.4–0.5 G field).
+GRADES: dict[str, dict[str, Any]] = {
+    "mems": {
+        "gyro_arw": 0.01 * DEG,
+        "accel_vrw": 150e-6 * G0,
+        "gyro_bias_sigma": 0.2 * DEG,
+        "gyro_bias_tau": 300.0,
+        "accel_bias_sigma": 5e-3 * G0,
+        "accel_bias_tau": 300.0,
+        "init_gyro_bias": 0.5 * DEG,
+        "init_accel_bias": 0.3,
+        "gyro_vib_gain": 0.4,
+        "accel_vib_gain": 0.6,
+    },
+    "tactical": {},
+}
+
+GRADE_NAV: dict[str, dict[str, Any]] = {"mems": {"mag_std": 0.15}, "tactical": {}}
+
+SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
+    "dataset": {"name": str, "format": str, "path": str, "position_deg": list, "description": str},
+    "sensor": {"grade": str},  # + FilterConfig fields
+    "mounting": {"imu_to_body_deg": list, "gnss_lever_arm_m": list, "reference_lever_arm_m": list,
+                 "imu_time_offset_s": (int, float), "gnss_time_offset_s": (int, float)},
+    "aiding": {"gnss": bool, "baro": bool, "mag": bool, "mag_heading_only": bool,
+               "mag_reference": (str, list), "declination_deg": (int, float),
+               "no_gnss_hold": bool, "hold_std_m": (int, float), "hold_vel_std_mps": (int, float),
+               "hold_rate_hz": (int, float)},
+    "nav": {},  # NavConfig fields
+    "outages": {"relative_to": str, "start_s": (int, float), "on_s": (int, float), "off_s": (int, float),
+                "end_s": (int, float)},
+    "score": {"against": list, "settle_s": (int, float)},
+}  # fmt: skip
+
+
+class DatasetConfigError(ValueError):
+    """A bad dataset config (one line: file, key, what was expected)."""
+
+
+@dataclass
+class OutageProtocol:
+    """GNSS outages of ``on_s`` s every ``on_s + off_s`` s from ``start_s`` to ``end_s`` (s after the event
+    ``relative_to``: "takeoff" or "start" of the data; ``end_s`` None = the landing or the end)."""
+
+    relative_to: str = "takeoff"
+    start_s: float = 20.0
+    on_s: float = 10.0
+    off_s: float = 20.0
+    end_s: float | None = None
+
+    def windows(self, t_ref: float, t_end: float) -> list[tuple[float, float]]:
+        """The outage windows (absolute s) that end before ``t_end``."""
+        out = []
+        a = t_ref + self.start_s
+        stop = t_end if self.end_s is None else min(t_end, t_ref + self.end_s)
+        while a + self.on_s <= stop:
+            out.append((a, a + self.on_s))
+            a += self.on_s + self.off_s
+        return out
+
+
+@dataclass
+class DatasetConfig:
+    """A loaded dataset config (see the module docstring)."""
+
+    name: str = "dataset"
+    source: Path | None = None
+    format: str | None = None
+    path: Path | None = None
+    position: tuple[float, float, float] | None = None  # rad, rad, m
+    grade: str = "mems"
+    imu_to_body: Vec = field(default_factory=lambda: np.zeros(3))  # rad
+    gnss_lever_arm: Vec = field(default_factory=lambda: np.zeros(3))
+    reference_lever_arm: Vec = field(default_factory=lambda: np.zeros(3))
+    imu_time_offset: float = 0.0
+    gnss_time_offset: float = 0.0
+    use_gnss: bool = True
+    use_baro: bool = True
+    use_mag: bool = True
+    mag_heading_only: bool = True
+    mag_reference: str | Vec = "wmm"  # "wmm" | "rest" | NED µT
+    declination: float = 0.0  # rad
+    no_gnss_hold: bool = True
+    hold_std: float = 10.0
+    hold_vel_std: float = 1.0
+    hold_rate: float = 5.0
+    nav: dict[str, Any] = field(default_factory=dict)
+    filter_overrides: dict[str, Any] = field(default_factory=dict)
+    outages: OutageProtocol | None = None
+    score: tuple[str, ...] = ("gnss", "onboard", "reference")
+    settle_s: float = 0.0
+
+    def nav_config(self) -> NavConfig:
+        """The NavConfig: the grade's preset, then ``[sensor]`` overrides, then ``[nav]`` (``[nav.filter]``)."""
+        from ins_hil.runtime.pipeline import nav_config
+
+        fk = dict(GRADES[self.grade])
+        fk.update(self.filter_overrides)
+        nav = {"align": "static", **GRADE_NAV[self.grade], **{k: v for k, v in self.nav.items() if k != "filter"}}
+        fk.update(self.nav.get("filter", {}))
+        nav["filter"] = fk
+        if "gnss_lever_arm_b" not in nav:
+            nav["gnss_lever_arm_b"] = list(self.gnss_lever_arm)
+        try:
+            cfg = nav_config(nav)
+        except ValueError as e:
+            raise DatasetConfigError(f"{self.source or self.name}: {str(e).replace('core.nav', 'nav')}") from None
+        assert isinstance(cfg.filter, FilterConfig)
+        return cfg
+
+
+def _vec3(where: str, v: Any, source: str) -> Vec:
+    if not (isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) for x in v)):
+        raise DatasetConfigError(f"{source}: {where} = {v!r}: expected 3 numbers")
+    return np.array(v, dtype=np.float64)
+
+
+def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = None) -> DatasetConfig:
+    """Validate and build a DatasetConfig; DatasetConfigError (one line) on a bad key or value."""
+    from dataclasses import fields
+
+    filt = {f.name for f in fields(FilterConfig)}
+    navk = {f.name for f in fields(NavConfig)}
+    for tab, v in d.items():
+        if tab not in SCHEMA:
+            raise DatasetConfigError(f"{source}: unknown table [{tab}] (known: {', '.join(SCHEMA)})")
+        if not isinstance(v, dict):
+            raise DatasetConfigError(f"{source}: {tab} must be a table [{tab}]")
+        extra = filt if tab == "sensor" else navk if tab == "nav" else set()
+        for k, x in v.items():
+            want = SCHEMA[tab].get(k)
+            if want is None and k not in extra:
+                known = sorted(set(SCHEMA[tab]) | extra)
+                raise DatasetConfigError(f"{source}: unknown key {tab}.{k} (known: {', '.join(known)})")
+            if want is not None and (not isinstance(x, want) or (want == (int, float) and isinstance(x, bool))):
+                raise DatasetConfigError(f"{source}: {tab}.{k} = {x!r}: wrong type")
+    ds = d.get("dataset")
+    if ds is None or "name" not in ds:
+        raise DatasetConfigError(f"{source}: missing key dataset.name (every dataset config names its data set)")
+    c = DatasetConfig(name=ds["name"], source=Path(source) if source != "<dict>" else None)
+    c.format = ds.get("format")
+    if c.format is not None:
+        from ins_hil.datasets.dataset import READERS, _load_builtin
+
+        _load_builtin()
+        if c.format not in READERS:
+            raise DatasetConfigError(f"{source}: dataset.format = {c.format!r}: expected one of {', '.join(READERS)}")
+    if "path" in ds:
+        c.path = (base / ds["path"]).resolve() if base is not None else Path(ds["path"])
+    if "position_deg" in ds:
+        p = _vec3("dataset.position_deg", ds["position_deg"], source)
+        c.position = (p[0] * DEG, p[1] * DEG, float(p[2]))
+    s = d.get("sensor", {})
+    c.grade = s.get("grade", "mems")
+    if c.grade not in GRADES:
+        raise DatasetConfigError(f"{source}: sensor.grade = {c.grade!r}: expected one of {', '.join(GRADES)}")
+    c.filter_overrides = {k: v for k, v in s.items() if k != "grade"}
+    m = d.get("mounting", {})
+    c.imu_to_body = _vec3("mounting.imu_to_body_deg", m.get("imu_to_body_deg", [0, 0, 0]), source) * DEG
+    c.gnss_lever_arm = _vec3("mounting.gnss_lever_arm_m", m.get("gnss_lever_arm_m", [0, 0, 0]), source)
+    c.reference_lever_arm = _vec3("mounting.reference_lever_arm_m", m.get("reference_lever_arm_m", [0, 0, 0]), source)
+    c.imu_time_offset = float(m.get("imu_time_offset_s", 0.0))
+    c.gnss_time_offset = float(m.get("gnss_time_offset_s", 0.0))
+    a = d.get("aiding", {})
+    c.use_gnss, c.use_baro, c.use_mag = a.get("gnss", True), a.get("baro", True), a.get("mag", True)
+    c.mag_heading_only = a.get("mag_heading_only", True)
+    mr = a.get("mag_reference", "wmm")
+    if isinstance(mr, list):
+        c.mag_reference = _vec3("aiding.mag_reference", mr, source)
+    elif mr not in ("wmm", "rest"):
+        raise DatasetConfigError(f"{source}: aiding.mag_reference = {mr!r}: expected 'wmm', 'rest' or [N, E, D] µT")
+    else:
+        c.mag_reference = mr
+    c.declination = float(a.get("declination_deg", 0.0)) * DEG
+    c.no_gnss_hold = a.get("no_gnss_hold", True)
+    c.hold_std = float(a.get("hold_std_m", 10.0))
+    c.hold_rate = float(a.get("hold_rate_hz", 5.0))
+    c.hold_vel_std = float(a.get("hold_vel_std_mps", 1.0))
+    if c.hold_std <= 0 or c.hold_rate <= 0 or c.hold_vel_std < 0:
+        raise DatasetConfigError(f"{source}: aiding.hold_std_m, hold_rate_hz must be > 0, hold_vel_std_mps >= 0")
+    c.nav = dict(d.get("nav", {}))
+    if "outages" in d:
+        o = d["outages"]
+        c.outages = OutageProtocol(o.get("relative_to", "takeoff"), float(o.get("start_s", 20.0)),
+                                   float(o.get("on_s", 10.0)), float(o.get("off_s", 20.0)),
+                                   float(o["end_s"]) if "end_s" in o else None)  # fmt: skip
+        if c.outages.relative_to not in ("takeoff", "start"):
+            raise DatasetConfigError(f"{source}: outages.relative_to = {c.outages.relative_to!r}: "
+                                     "expected 'takeoff' or 'start'")  # fmt: skip
+        if c.outages.on_s <= 0 or c.outages.off_s < 0:
+            raise DatasetConfigError(f"{source}: outages.on_s must be > 0 and off_s >= 0")
+    sc = d.get("score", {})
+    c.score = tuple(sc.get("against", ["gnss", "onboard", "reference"]))
+    bad = set(c.score) - {"gnss", "onboard", "reference"}
+    if bad:
+        raise DatasetConfigError(f"{source}: score.against: unknown {sorted(bad)} (expected gnss, onboard, reference)")
+    c.settle_s = float(sc.get("settle_s", 0.0))
+    c.nav_config()  # every [nav] / [sensor] key checked now
+    return c
+
+
+def load(path: str | Path) -> DatasetConfig:
+    """Load and validate a dataset TOML."""
+    p = Path(path)
+    try:
+        d = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise DatasetConfigError(f"{p}: no such dataset config") from None
+    except tomllib.TOMLDecodeError as e:
+        raise DatasetConfigError(f"{p}: not valid TOML ({e})") from None
+    return from_dict(d, str(p), p.resolve().parent)

@@ -1,0 +1,131 @@
+"""ArduPilot DataFlash reader (``*.bin``, with ``pymavlink.DFReader``).
+
+* ``IMU`` (the first IMU): GyrX..Z (rad/s), AccX..Z (m/s²), body FRD, ``TimeUS``; logged samples of the
+  rate, so the increments are rate × the IMU's own interval (the ``TimeUS`` difference to the previous
+  sample), stamped at the sample;
+* ``GPS`` with Status ≥ 3 (3-D): Lat/Lng (deg), Alt (m MSL, used as the height), Spd/GCrs (ground speed,
+  course deg) and VZ (m/s down) as the NED velocity; σ from ``GPA`` (HAcc, VAcc, SAcc) where logged;
+* ``BARO`` Alt (m); ``MAG`` MagX..Z (milligauss → tesla);
+* the EKF output ``NKF1`` (EKF2) or ``XKF1`` (EKF3) as the onboard estimate: Roll/Pitch/Yaw (deg), VN/VE/VD,
+  PN/PE/PD (m about the EKF origin, which the log does not hold unless ``ORGN`` is there).
+
+The end of valid data (:func:`end_of_valid_data`): a log that ends in a crash has an impact at the end
+(saturated or huge specific force, tumbling rates); the data end before the first such sample.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, register
+from ins_hil.nav.rotation import quat_from_euler
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
+
+DF_HEAD = b"\xa3\x95"
+#: a crash: specific force above this (m/s², ≈ 4 g) or a rate above ``CRASH_RATE`` rad/s (≈ 170 °/s, beyond a
+#: multicopter's normal envelope)
+CRASH_ACCEL = 40.0
+CRASH_RATE = 3.0
+
+
+def _is_dataflash(path: Path) -> bool:
+    if not path.is_file():
+        return False
+    with path.open("rb") as f:
+        head = f.read(3)
+    return head[:2] == DF_HEAD and head[2:3] == b"\x80"  # the first message is an FMT (id 128)
+
+
+def end_of_valid_data(t: Vec, gyro: Vec, acc: Vec, t_last_gps: float | None) -> tuple[float | None, str]:
+    """(t s, why) of the end of valid data: 0.5 s before the first IMU sample with |f| > CRASH_ACCEL or
+    |ω| > CRASH_RATE (an impact or a tumble), else None. ``t_last_gps``: the last GNSS sample, reported with it."""
+    bad = (np.linalg.norm(acc, axis=1) > CRASH_ACCEL) | (np.linalg.norm(gyro, axis=1) > CRASH_RATE)
+    if not np.any(bad):
+        return None, ""
+    k = int(np.argmax(bad))
+    why = (f"loss of control from {t[k]:.2f} s (|f| {np.linalg.norm(acc[k]):.0f} m/s², "
+           f"|ω| {np.linalg.norm(gyro[k]):.1f} rad/s)"
+           + (f"; last GNSS fix {t_last_gps:.2f} s" if t_last_gps is not None else ""))  # fmt: skip
+    return float(t[k]) - 0.5, why
+
+
+def read_dataflash(path: Path) -> Dataset:
+    """Read an ArduPilot DataFlash ``.bin``."""
+    from pymavlink import DFReader
+
+    if not _is_dataflash(path):
+        raise DatasetError(f"{path}: not an ArduPilot DataFlash .bin (expected the 0xA3 0x95 FMT header)")
+    try:
+        r = DFReader.DFReader_binary(str(path), zero_time_base=True)
+    except Exception as e:
+        raise DatasetError(f"{path}: cannot parse as DataFlash ({e})") from None
+    want = {"IMU", "GPS", "GPA", "BARO", "MAG", "NKF1", "XKF1", "ORGN"}
+    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
+    while True:
+        m = r.recv_match(type=list(want))
+        if m is None:
+            break
+        rows[m.get_type()].append(m.to_dict())
+    if not rows["IMU"]:
+        raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
+    ti = np.array([d["TimeUS"] for d in rows["IMU"]], dtype=np.float64) * 1e-6
+    g = np.array([[d["GyrX"], d["GyrY"], d["GyrZ"]] for d in rows["IMU"]], dtype=np.float64)
+    a = np.array([[d["AccX"], d["AccY"], d["AccZ"]] for d in rows["IMU"]], dtype=np.float64)
+    imu: list[ImuSample] = []
+    for k in range(1, len(ti)):
+        dt = ti[k] - ti[k - 1]
+        if dt <= 0:
+            continue
+        imu.append(ImuSample(float(ti[k]), float(dt), g[k] * dt, a[k] * dt, seq=k))
+    gpa = {d["TimeUS"]: d for d in rows["GPA"]}
+    gnss: list[GnssFix] = []
+    for d in rows["GPS"]:
+        if d["Status"] < 3:
+            continue
+        c = math.radians(d["GCrs"])
+        acc = gpa.get(d["TimeUS"], {})
+        gnss.append(GnssFix(
+            d["TimeUS"] * 1e-6, math.radians(d["Lat"]), math.radians(d["Lng"]), float(d["Alt"]),
+            np.array((d["Spd"] * math.cos(c), d["Spd"] * math.sin(c), d["VZ"])),
+            std_ne=float(acc.get("HAcc", 2.5)), std_d=float(acc.get("VAcc", 5.0)), std_vel=float(acc.get("SAcc", 0.3)),
+            fix_type=FixType(min(int(d["Status"]), 6)), num_sats=int(d.get("NSats", 0)),
+        ))  # fmt: skip
+    baro = [BaroSample(d["TimeUS"] * 1e-6, float(d.get("Press", math.nan)), float(d["Alt"])) for d in rows["BARO"]]
+    mag = [MagSample(d["TimeUS"] * 1e-6, np.array((d["MagX"], d["MagY"], d["MagZ"]), dtype=np.float64) * 1e-7)
+           for d in rows["MAG"]]  # fmt: skip
+    ekf_rows, name = (rows["XKF1"], "XKF1 (EKF3)") if rows["XKF1"] else (rows["NKF1"], "NKF1 (EKF2)")
+    onboard = None
+    if ekf_rows:
+        # EKF3 logs one XKF1 per core (field C): keep the first core
+        ekf_rows = [d for d in ekf_rows if d.get("C", 0) == 0]
+        te = np.array([d["TimeUS"] for d in ekf_rows], dtype=np.float64) * 1e-6
+        q = np.array([quat_from_euler(math.radians(d["Roll"]), math.radians(d["Pitch"]), math.radians(d["Yaw"]))
+                      for d in ekf_rows])  # fmt: skip
+        v = np.array([[d["VN"], d["VE"], d["VD"]] for d in ekf_rows], dtype=np.float64)
+        p = np.array([[d["PN"], d["PE"], d["PD"]] for d in ekf_rows], dtype=np.float64)
+        origin = None
+        if rows["ORGN"]:
+            o = rows["ORGN"][-1]
+            origin = (math.radians(o["Lat"]), math.radians(o["Lng"]), float(o["Alt"]))
+        onboard = Trajectory(name, te, q, te, v, te, p, origin)
+    t_end, why = end_of_valid_data(ti, g, a, gnss[-1].t if gnss else None)
+    ds = Dataset(imu, gnss, baro, mag, None, onboard, t_end)
+    if t_end is not None:
+        ds.events.append((t_end, "end of valid data"))
+        imu_n = sum(1 for s in imu if s.t > t_end)
+        ds.meta["end_of_valid_data"] = f"{why}; {imu_n} IMU samples after {t_end:.2f} s not used"
+    utc = None
+    wk = [d for d in rows["GPS"] if d.get("GWk", 0) > 0]
+    if wk:  # GPS time (s since 1980-01-06) → UNIX s (leap seconds ignored: a field-model date)
+        utc = 315964800.0 + wk[0]["GWk"] * 604800.0 + wk[0]["GMS"] * 1e-3
+    ds.meta.update(
+        {"source": str(path), "format": "ardupilot-bin", "vehicle": "ArduPilot", "notes": [], "utc_start_s": utc}
+    )
+    return ds
+
+
+register(Reader("ardupilot-bin", "an ArduPilot DataFlash .bin", _is_dataflash, read_dataflash))

@@ -1,0 +1,153 @@
+"""The ``Dataset`` a reader returns, and the registry of readers (chosen by format or detected from the path).
+
+Everything inside is in the project's conventions: SI units, body FRD, NED, Hamilton scalar-first q_nb
+(body → NED), times in s on the log's own clock (the flight controller's time since boot for PX4 and
+ArduPilot). IMU samples are increments over the interval stamped at the interval END
+(:class:`ins_hil.types.ImuSample`); GNSS fixes are stamped at their time of validity.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
+
+
+class DatasetError(ValueError):
+    """A file or folder that no reader accepts, or a reader that cannot use it (one-line message)."""
+
+
+@dataclass
+class Trajectory:
+    """A time series of navigation states: a reference trajectory, or a flight controller's own estimate.
+
+    ``t`` (N,) s. Any of the blocks may be None. ``q_nb`` (N, 4) body → NED at the times ``t_att``;
+    ``vel_ned`` (N, 3) m/s at ``t_vel``; ``pos_ned`` (N, 3) m about ``origin`` = (lat rad, lon rad, h m)
+    at ``t_pos``; ``origin`` None when the estimator's origin is not in the log (positions are then
+    compared after removing the mean offset). ``lever_b``: body FRD lever arm (m) from the IMU to the point
+    the positions refer to. ``name``: e.g. "EKF2", "NKF1 (EKF2)".
+    """
+
+    name: str
+    t_att: Vec | None = None
+    q_nb: Vec | None = None
+    t_vel: Vec | None = None
+    vel_ned: Vec | None = None
+    t_pos: Vec | None = None
+    pos_ned: Vec | None = None
+    origin: tuple[float, float, float] | None = None
+    lever_b: Vec = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass
+class Dataset:
+    """One recording, read by a reader of :data:`READERS`.
+
+    imu / gnss / baro / mag: time-ordered samples (see the module docstring). ``reference``: an
+    independent reference trajectory (None for a flight log). ``onboard``: the flight controller's own
+    estimate (EKF2, EKF3; None if not logged). ``t_end_valid``: the end of the valid data (s; e.g. the
+    last sample before a crash), None = the end of the log. ``events``: (t s, text) flight events
+    (take-off, landing, crash). ``meta``: source, format, vehicle, sensor rates (Hz), notes.
+    """
+
+    imu: list[ImuSample]
+    gnss: list[GnssFix] = field(default_factory=list)
+    baro: list[BaroSample] = field(default_factory=list)
+    mag: list[MagSample] = field(default_factory=list)
+    reference: Trajectory | None = None
+    onboard: Trajectory | None = None
+    t_end_valid: float | None = None
+    events: list[tuple[float, str]] = field(default_factory=list)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def t0(self) -> float:
+        return self.imu[0].t if self.imu else 0.0
+
+    @property
+    def t1(self) -> float:
+        end = self.imu[-1].t if self.imu else 0.0
+        return min(end, self.t_end_valid) if self.t_end_valid is not None else end
+
+    def event(self, name: str) -> float | None:
+        """The time (s) of the first event called ``name`` (e.g. "takeoff"), None if none."""
+        return next((t for t, e in self.events if e == name), None)
+
+    def rates(self) -> dict[str, float]:
+        """Mean sample rate (Hz) of each stream."""
+
+        def rate(ts: list[float]) -> float:
+            return (len(ts) - 1) / (ts[-1] - ts[0]) if len(ts) > 1 and ts[-1] > ts[0] else 0.0
+
+        return {k: round(rate([s.t for s in v]), 2) for k, v in
+                (("imu", self.imu), ("gnss", self.gnss), ("baro", self.baro), ("mag", self.mag))}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Reader:
+    """A registered reader: ``detect(path) -> bool`` (cheap), ``read(path) -> Dataset``; ``expects``
+    describes what it reads (for the error message)."""
+
+    name: str
+    expects: str
+    detect: Callable[[Path], bool]
+    read: Callable[[Path], Dataset]
+
+
+READERS: dict[str, Reader] = {}
+
+
+def register(reader: Reader) -> Reader:
+    READERS[reader.name] = reader
+    return reader
+
+
+def _load_builtin() -> None:
+    # the readers register themselves on import
+    from ins_hil.datasets import dataflash, generic_csv, px4  # noqa: F401
+
+
+def expected() -> str:
+    """One line naming the accepted inputs."""
+    _load_builtin()
+    return "; ".join(f"{r.name}: {r.expects}" for r in READERS.values())
+
+
+def detect_format(path: Path) -> str:
+    """The name of the reader that accepts ``path``; DatasetError naming what is expected otherwise."""
+    _load_builtin()
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path}: no such file or directory")
+    for r in READERS.values():
+        try:
+            if r.detect(path):
+                return r.name
+        except OSError as e:
+            raise DatasetError(f"{path}: cannot read ({e.strerror or e})") from None
+    raise DatasetError(f"{path}: not a supported dataset (expected {expected()})")
+
+
+def read_dataset(path: Path, fmt: str | None = None) -> Dataset:
+    """Read ``path`` with the reader ``fmt`` (a name of :data:`READERS`), detected when None."""
+    _load_builtin()
+    path = Path(path)
+    if fmt is None:
+        fmt = detect_format(path)
+    elif fmt not in READERS:
+        raise DatasetError(f"unknown dataset format {fmt!r} (known: {', '.join(READERS)})")
+    elif not path.exists():
+        raise DatasetError(f"{path}: no such file or directory")
+    r = READERS[fmt]
+    ds = r.read(path)
+    if not ds.imu:
+        raise DatasetError(f"{path}: no IMU samples ({r.name} expects {r.expects})")
+    ds.meta.setdefault("source", str(path))
+    ds.meta.setdefault("format", r.name)
+    ds.meta["rates_hz"] = ds.rates()
+    return ds

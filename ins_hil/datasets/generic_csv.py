@@ -1,0 +1,128 @@
+"""The generic dataset CSV (one file; layout in ``docs/datasets.md``).
+
+The first line is ``# ins-hil dataset csv 1``; then one record per line, the kind first::
+
+    imu,t,dt,gx,gy,gz,ax,ay,az              mean rate (rad/s), mean specific force (m/s²), body FRD,
+                                            t = END of the interval dt (s)
+    gnss,t,lat,lon,h,vn,ve,vd,std_ne,std_d,std_vel,fix_type
+                                            deg, deg, m (ellipsoidal); m/s NED (empty = none); σ m, m, m/s;
+                                            fix type 3 = 3-D … 6 = RTK fixed (empty = 3)
+    baro,t,alt                              barometric altitude (m)
+    mag,t,mx,my,mz                          magnetic field, body FRD (µT)
+    ref,t,lat,lon,h,vn,ve,vd,roll,pitch,yaw reference trajectory (deg, deg, m, m/s, deg; empty = none)
+    onboard,t,…                             the flight controller's estimate, as ``ref``
+
+Lines starting with ``#`` and empty lines are skipped; any other line that does not parse is an error
+naming its line number.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, register
+from ins_hil.nav import earth
+from ins_hil.nav.rotation import quat_from_euler
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample
+
+MAGIC = "# ins-hil dataset csv 1"
+FIELDS = {"imu": 8, "gnss": 11, "baro": 1, "mag": 3, "ref": 9, "onboard": 9}
+#: the minimum number of fields after ``t`` that must be given
+REQUIRED = {"imu": 7, "gnss": 3, "baro": 1, "mag": 3, "ref": 3, "onboard": 3}
+
+
+def _is_generic(path: Path) -> bool:
+    if not path.is_file():
+        return False
+    with path.open("rb") as f:
+        return f.read(len(MAGIC)).decode("ascii", "replace") == MAGIC
+
+
+def _num(s: str) -> float:
+    s = s.strip()
+    return float(s) if s else math.nan
+
+
+def _trajectory(name: str, rows: list[list[float]]) -> Trajectory:
+    a = np.array(sorted(rows, key=lambda r: r[0]), dtype=np.float64)
+    t = a[:, 0]
+    origin = (math.radians(a[0, 1]), math.radians(a[0, 2]), float(a[0, 3]))
+    pos = np.array([earth.ned_from_geodetic(math.radians(r[1]), math.radians(r[2]), r[3], *origin) for r in a])
+    tr = Trajectory(name, t_pos=t, pos_ned=pos, origin=origin)
+    if np.all(np.isfinite(a[:, 4:7])):
+        tr.t_vel, tr.vel_ned = t, a[:, 4:7]
+    if np.all(np.isfinite(a[:, 7:10])):
+        tr.t_att = t
+        tr.q_nb = np.array([quat_from_euler(*np.radians(r[7:10])) for r in a])
+    return tr
+
+
+def read_generic_csv(path: Path) -> Dataset:
+    """Read the generic dataset CSV."""
+    if not _is_generic(path):
+        raise DatasetError(f"{path}: not an ins-hil dataset CSV (expected the first line {MAGIC!r})")
+    recs: dict[str, list[list[float]]] = {k: [] for k in FIELDS}
+    with path.open() as f:
+        for n, line in enumerate(f, 1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            kind, *vals = line.split(",")
+            if kind not in FIELDS:
+                raise DatasetError(f"{path}:{n}: unknown record kind {kind!r} (expected one of {', '.join(FIELDS)})")
+            want = FIELDS[kind] + 1
+            try:
+                row = [_num(v) for v in vals] + [math.nan] * (want - len(vals))
+            except ValueError:
+                raise DatasetError(f"{path}:{n}: {kind}: a field is not a number: {line!r}") from None
+            if len(vals) > want or any(math.isnan(x) for x in row[: REQUIRED[kind] + 1]):
+                raise DatasetError(f"{path}:{n}: {kind}: expected t and {FIELDS[kind]} fields "
+                                   f"(at least {REQUIRED[kind]} given): {line!r}")  # fmt: skip
+            recs[kind].append(row)
+    imu = []
+    for r in sorted(recs["imu"], key=lambda r: r[0]):
+        dt = r[1]
+        if not dt > 0:
+            raise DatasetError(f"{path}: imu record at t={r[0]} s has dt={dt} (expected > 0 s)")
+        imu.append(ImuSample(r[0], dt, np.array(r[2:5]) * dt, np.array(r[5:8]) * dt))
+    gnss = []
+    for r in sorted(recs["gnss"], key=lambda r: r[0]):
+        vel = np.array(r[4:7]) if all(math.isfinite(x) for x in r[4:7]) else None
+
+        def sd(x: float, d: float) -> float:
+            return x if math.isfinite(x) else d
+
+        gnss.append(GnssFix(r[0], math.radians(r[1]), math.radians(r[2]), r[3], vel, sd(r[7], 2.5), sd(r[8], 5.0),
+                            sd(r[9], 0.3), FixType(int(r[10]) if math.isfinite(r[10]) else 3)))  # fmt: skip
+    baro = [BaroSample(r[0], math.nan, r[1]) for r in sorted(recs["baro"], key=lambda r: r[0])]
+    mag = [MagSample(r[0], np.array(r[1:4]) * 1e-6) for r in sorted(recs["mag"], key=lambda r: r[0])]
+    ds = Dataset(imu, gnss, baro, mag)
+    if recs["ref"]:
+        ds.reference = _trajectory("reference", recs["ref"])
+    if recs["onboard"]:
+        ds.onboard = _trajectory("onboard", recs["onboard"])
+    ds.meta = {"source": str(path), "format": "csv", "vehicle": "", "notes": []}
+    return ds
+
+
+def write_generic_csv(path: Path, ds: Dataset) -> None:
+    """Write ``ds`` (IMU, GNSS, baro, magnetometer) in the generic layout (the reader's inverse)."""
+    lines = [MAGIC]
+    for s in ds.imu:
+        w, f = s.dtheta / s.dt, s.dvel / s.dt
+        lines.append(f"imu,{s.t:.6f},{s.dt:.6f}," + ",".join(f"{x:.9g}" for x in (*w, *f)))
+    for g in ds.gnss:
+        v = ",".join(f"{x:.4f}" for x in g.vel_ned) if g.vel_ned is not None else ",,"
+        lines.append(f"gnss,{g.t:.6f},{math.degrees(g.lat):.9f},{math.degrees(g.lon):.9f},{g.h:.4f},{v},"
+                     f"{g.std_ne:.3f},{g.std_d:.3f},{g.std_vel:.3f},{int(g.fix_type)}")  # fmt: skip
+    for b in ds.baro:
+        lines.append(f"baro,{b.t:.6f},{b.altitude:.4f}")
+    for m in ds.mag:
+        lines.append(f"mag,{m.t:.6f}," + ",".join(f"{x * 1e6:.4f}" for x in m.field_b))
+    path.write_text("\n".join(lines) + "\n")
+
+
+register(Reader("csv", f"an ins-hil dataset CSV starting with {MAGIC!r}", _is_generic, read_generic_csv))

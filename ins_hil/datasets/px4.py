@@ -1,0 +1,337 @@
+"""PX4 readers: a ULog file (``*.ulg``, with pyulog) and a ``ulog2csv`` folder (one CSV per topic).
+
+Topics (instance 0; conventions in ``../shared/data/uav/README.md``):
+
+* ``sensor_combined``: ``gyro_rad`` mean rate (rad/s) over ``gyro_integral_dt``, ``accelerometer_m_s2``
+  mean specific force (m/s²) over ``accelerometer_integral_dt``; dt in µs (float s in PX4 ≤ 1.7 logs,
+  told apart by size); increments = mean × dt, stamped at ``timestamp`` (the last gyro sample);
+* ``vehicle_gps_position`` (or ``sensor_gps``): fixes with fix type ≥ 3, stamped at ``timestamp_sample``
+  where logged; σ: ``eph`` (per horizontal axis, as EKF2 uses it), ``epv``, ``s_variance_m_s``;
+* ``vehicle_air_data.baro_alt_meter``; ``vehicle_magnetometer.magnetometer_ga`` (gauss → tesla);
+* EKF2's output as the onboard estimate: ``vehicle_attitude.q``, ``vehicle_local_position``
+  (NED about ``ref_lat``/``ref_lon``/``ref_alt``; x/y only where ``xy_valid``, vx/vy where
+  ``v_xy_valid``), else ``estimator_states``;
+* ``vehicle_land_detected``: take-off / landing events.
+
+In a ``ulog2csv`` folder a topic's file is found by the topic name inside the file name
+(``log_376_..._sensor_combined_0.csv`` or ``sensor_combined_0.csv``).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, register
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuFlags, ImuSample, MagSample, Vec
+
+Topic = dict[str, Vec]
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+#: logging gaps in sensor_combined up to this long (s) are bridged with the next sample's mean rate
+MAX_BRIDGE = 0.05
+TOPICS = ("sensor_combined", "vehicle_gps_position", "sensor_gps", "vehicle_air_data", "vehicle_magnetometer",
+          "vehicle_attitude", "vehicle_local_position", "vehicle_global_position", "estimator_states",
+          "vehicle_land_detected")  # fmt: skip
+
+
+def _col(t: Topic, *names: str) -> Vec | None:
+    for n in names:
+        if n in t:
+            return np.asarray(t[n], dtype=np.float64)
+    return None
+
+
+def _time(t: Topic) -> Vec:
+    """Time of validity (s): ``timestamp_sample`` where logged, else ``timestamp`` (µs since boot)."""
+    ts = _col(t, "timestamp_sample")
+    if ts is None or not np.all(np.isfinite(ts)) or np.all(ts == 0):
+        ts = _col(t, "timestamp")
+    assert ts is not None
+    return ts * 1e-6
+
+
+def _dt_seconds(dt: Vec) -> Vec:
+    """An integral dt column in s: integer µs in current logs, float s in old ones (told apart by size)."""
+    return dt * 1e-6 if float(np.nanmedian(dt)) > 1.0 else dt
+
+
+def imu_from_sensor_combined(t: Topic, gaps: list[float] | None = None) -> list[ImuSample]:
+    """Increments (rad, m/s, body FRD) stamped at the interval end; samples with a non-positive dt skipped.
+    Where the logger dropped messages (a timestamp step > 1.5 × the integral dt, up to ``MAX_BRIDGE``) the
+    sample spans the whole gap; the missing time (s) of every gap is appended to ``gaps``."""
+    if gaps is None:
+        gaps = []
+    ts = _col(t, "timestamp")
+    if ts is None or "gyro_rad[0]" not in t or "accelerometer_m_s2[0]" not in t:
+        raise DatasetError("sensor_combined: expected timestamp, gyro_rad[0..2], accelerometer_m_s2[0..2]")
+    g = np.column_stack([t[f"gyro_rad[{i}]"] for i in range(3)]).astype(np.float64)
+    a = np.column_stack([t[f"accelerometer_m_s2[{i}]"] for i in range(3)]).astype(np.float64)
+    dtg = _col(t, "gyro_integral_dt")
+    dta = _col(t, "accelerometer_integral_dt")
+    tt = ts * 1e-6
+    if dtg is None:
+        dtg = np.diff(tt, prepend=tt[0] - float(np.median(np.diff(tt))))
+    else:
+        dtg = _dt_seconds(dtg)
+    dta = dtg if dta is None else _dt_seconds(dta)
+    clip_a = _col(t, "accelerometer_clipping")
+    clip_g = _col(t, "gyro_clipping")
+    out: list[ImuSample] = []
+    last = -math.inf
+    for k in range(len(tt)):
+        finite = np.all(np.isfinite(g[k])) and np.all(np.isfinite(a[k]))
+        if not (dtg[k] > 0 and dta[k] > 0 and tt[k] > last and finite):
+            continue
+        fl = 0
+        if clip_a is not None and clip_a[k] != 0:
+            fl |= ImuFlags.ACCEL_SATURATED
+        if clip_g is not None and clip_g[k] != 0:
+            fl |= ImuFlags.GYRO_SATURATED
+        gap = tt[k] - last
+        if out and gap > 1.5 * dtg[k]:
+            gaps.append(float(gap - dtg[k]))
+        if out and 1.5 * dtg[k] < gap <= MAX_BRIDGE:
+            # messages the logger dropped: the interval since the previous logged sample is integrated with this
+            # sample's mean rate and specific force (else the attitude would miss the rotation of the gap); a longer
+            # gap is lost data: the sample keeps its own interval and the core's time jumps (reported)
+            out.append(ImuSample(float(tt[k]), float(gap), g[k] * gap, a[k] * gap, seq=k, flags=fl))
+        else:
+            out.append(ImuSample(float(tt[k]), float(dtg[k]), g[k] * dtg[k], a[k] * dta[k], seq=k, flags=fl))
+        last = tt[k]
+    return out
+
+
+def gnss_from_gps(t: Topic) -> list[GnssFix]:
+    """Fixes with fix type ≥ 3 (3-D): lat/lon (1e-7 deg or ``latitude_deg``), ellipsoidal height (mm or m)."""
+    ts = _time(t)
+    lat = _col(t, "latitude_deg")
+    lon = _col(t, "longitude_deg")
+    h = _col(t, "altitude_ellipsoid_m")
+    if lat is None:
+        la, lo = _col(t, "lat"), _col(t, "lon")
+        if la is None or lo is None:
+            raise DatasetError("vehicle_gps_position: expected lat/lon or latitude_deg/longitude_deg")
+        lat, lon = la * 1e-7, lo * 1e-7
+    assert lon is not None
+    if h is None:
+        he = _col(t, "alt_ellipsoid", "alt")
+        h = he * 1e-3 if he is not None else np.zeros_like(lat)
+    fix = _col(t, "fix_type")
+    eph, epv, sv = _col(t, "eph"), _col(t, "epv"), _col(t, "s_variance_m_s")
+    vn, ve, vd = _col(t, "vel_n_m_s"), _col(t, "vel_e_m_s"), _col(t, "vel_d_m_s")
+    vok = _col(t, "vel_ned_valid")
+    sats = _col(t, "satellites_used")
+    out: list[GnssFix] = []
+    for k in range(len(ts)):
+        ft = int(fix[k]) if fix is not None else 3
+        if ft < 3 or not (math.isfinite(lat[k]) and math.isfinite(lon[k])) or (lat[k] == 0 and lon[k] == 0):
+            continue
+        vel = None
+        if vn is not None and ve is not None and vd is not None and (vok is None or vok[k] != 0):
+            vel = np.array((vn[k], ve[k], vd[k]))
+        out.append(GnssFix(
+            float(ts[k]), math.radians(lat[k]), math.radians(lon[k]), float(h[k]), vel,
+            std_ne=float(eph[k]) if eph is not None else 2.5, std_d=float(epv[k]) if epv is not None else 5.0,
+            std_vel=float(sv[k]) if sv is not None else 0.3, fix_type=FixType(min(ft, 6)),
+            num_sats=int(sats[k]) if sats is not None else 0,
+        ))  # fmt: skip
+    return out
+
+
+def baro_from_air_data(t: Topic) -> list[BaroSample]:
+    ts = _time(t)
+    alt = _col(t, "baro_alt_meter")
+    p = _col(t, "baro_pressure_pa")
+    if alt is None:
+        raise DatasetError("vehicle_air_data: expected baro_alt_meter")
+    return [BaroSample(float(ts[k]), float(p[k]) if p is not None else math.nan, float(alt[k]))
+            for k in range(len(ts)) if math.isfinite(alt[k])]  # fmt: skip
+
+
+def mag_from_magnetometer(t: Topic) -> list[MagSample]:
+    ts = _time(t)
+    if "magnetometer_ga[0]" not in t:
+        raise DatasetError("vehicle_magnetometer: expected magnetometer_ga[0..2]")
+    m = np.column_stack([t[f"magnetometer_ga[{i}]"] for i in range(3)]).astype(np.float64) * 1e-4  # G → T
+    return [MagSample(float(ts[k]), m[k]) for k in range(len(ts)) if np.all(np.isfinite(m[k]))]
+
+
+def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
+    """EKF2's output: attitude (``vehicle_attitude`` or ``estimator_states``), velocity and position."""
+    tr = Trajectory("EKF2")
+    att = topics.get("vehicle_attitude")
+    es = topics.get("estimator_states")
+    if att is not None and "q[0]" in att:
+        tr.t_att = _time(att)
+        tr.q_nb = np.column_stack([att[f"q[{i}]"] for i in range(4)]).astype(np.float64)
+    elif es is not None and "states[0]" in es:
+        tr.t_att = _time(es)
+        tr.q_nb = np.column_stack([es[f"states[{i}]"] for i in range(4)]).astype(np.float64)
+    lp = topics.get("vehicle_local_position")
+    if lp is not None and "vx" in lp:
+        t = _time(lp)
+        tr.t_vel = tr.t_pos = t
+        tr.vel_ned = np.column_stack([lp["vx"], lp["vy"], lp["vz"]]).astype(np.float64)
+        vxy = _col(lp, "v_xy_valid")
+        if vxy is not None:
+            tr.vel_ned[vxy == 0, :2] = math.nan  # EKF2 dead-reckoning without aiding: not a valid velocity
+        pos = np.column_stack([lp["x"], lp["y"], lp["z"]]).astype(np.float64)
+        xy = _col(lp, "xy_valid")
+        if xy is not None:
+            pos[xy == 0, :2] = math.nan
+        tr.pos_ned = pos
+        glob = _col(lp, "xy_global")
+        rl, rlo, ra = _col(lp, "ref_lat"), _col(lp, "ref_lon"), _col(lp, "ref_alt")
+        if rl is not None and rlo is not None and ra is not None and (glob is None or glob[-1] != 0):
+            if xy is not None and np.any(xy != 0) and abs(float(rl[-1])) > 1e-9:
+                tr.origin = (math.radians(float(rl[-1])), math.radians(float(rlo[-1])), float(ra[-1]))
+    elif es is not None and "states[4]" in es:
+        t = _time(es)
+        tr.t_vel = tr.t_pos = t
+        tr.vel_ned = np.column_stack([es[f"states[{i}]"] for i in (4, 5, 6)]).astype(np.float64)
+        tr.pos_ned = np.column_stack([es[f"states[{i}]"] for i in (7, 8, 9)]).astype(np.float64)
+    if tr.q_nb is None and tr.vel_ned is None:
+        return None
+    return tr
+
+
+def land_events(t: Topic | None) -> list[tuple[float, str]]:
+    """Take-off (landed 1 → 0) and landing (0 → 1) from ``vehicle_land_detected``."""
+    if t is None or "landed" not in t:
+        return []
+    ts = _col(t, "timestamp")
+    assert ts is not None
+    landed = np.asarray(t["landed"]) != 0
+    ev: list[tuple[float, str]] = []
+    for k in range(1, len(landed)):
+        if landed[k - 1] and not landed[k]:
+            ev.append((float(ts[k]) * 1e-6, "takeoff"))
+        elif not landed[k - 1] and landed[k]:
+            ev.append((float(ts[k]) * 1e-6, "landing"))
+    return ev
+
+
+def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Dataset:
+    """A Dataset from PX4 topics (name → column → array)."""
+    sc = topics.get("sensor_combined")
+    if sc is None:
+        raise DatasetError(f"{source}: no sensor_combined topic (the PX4 readers need the IMU in it)")
+    gaps: list[float] = []
+    ds = Dataset(imu_from_sensor_combined(sc, gaps))
+    gps = topics.get("vehicle_gps_position", topics.get("sensor_gps"))
+    notes: list[str] = []
+    if gaps:
+        long = [g for g in gaps if g > MAX_BRIDGE]
+        notes.append(
+            f"sensor_combined: {len(gaps)} logging gaps ({sum(gaps):.2f} s); {len(gaps) - len(long)} up to "
+            f"{MAX_BRIDGE * 1e3:.0f} ms bridged with the next sample's mean"
+            + (
+                f"; {len(long)} longer (up to {max(long):.2f} s): IMU data lost, the INS does not propagate across them"
+                if long
+                else ""
+            )
+        )
+    utc_start = None
+    if gps is not None:
+        ds.gnss = gnss_from_gps(gps)
+        utc = _col(gps, "time_utc_usec")
+        if utc is not None and np.any(utc > 1e15):
+            utc_start = float(utc[utc > 1e15][0]) * 1e-6  # UNIX s
+        if not ds.gnss:
+            notes.append(f"GNSS receiver logged ({len(gps['timestamp'])} messages) but never had a 3-D fix")
+    if "vehicle_air_data" in topics:
+        ds.baro = baro_from_air_data(topics["vehicle_air_data"])
+    if "vehicle_magnetometer" in topics:
+        ds.mag = mag_from_magnetometer(topics["vehicle_magnetometer"])
+    ds.onboard = onboard_from_ekf2(topics)
+    ds.events = land_events(topics.get("vehicle_land_detected"))
+    ds.meta = {
+        "source": source,
+        "format": fmt,
+        "vehicle": "PX4",
+        "topics": sorted(topics),
+        "notes": notes,
+        "utc_start_s": utc_start,
+    }
+    return ds
+
+
+# ---------------------------------------------------------------------------------------------- ULog
+def _is_ulog(path: Path) -> bool:
+    if not path.is_file():
+        return False
+    with path.open("rb") as f:
+        return f.read(7) == ULOG_MAGIC
+
+
+def read_ulog(path: Path) -> Dataset:
+    """Read a PX4 ``.ulg`` with pyulog (instance 0 of each topic)."""
+    from pyulog import ULog
+
+    if not _is_ulog(path):
+        raise DatasetError(f"{path}: not a PX4 ULog file (expected the 'ULog' header)")
+    try:
+        u = ULog(str(path), list(TOPICS))
+    except Exception as e:  # pyulog raises plain Exceptions on corrupt files
+        raise DatasetError(f"{path}: cannot parse as ULog ({e})") from None
+    topics: dict[str, Topic] = {}
+    for d in sorted(u.data_list, key=lambda d: d.multi_id):
+        topics.setdefault(d.name, dict(d.data))
+    ds = dataset_from_topics(topics, str(path), "px4-ulog")
+    ds.meta["params"] = {k: v for k, v in u.initial_parameters.items() if k.startswith(("EKF2_", "SENS_", "CAL_MAG"))}
+    return ds
+
+
+# ---------------------------------------------------------------------------------------------- ulog2csv folder
+def topic_files(folder: Path) -> dict[str, Path]:
+    """Topic name → CSV file (instance 0 preferred) in a ulog2csv folder; found by the name inside the file name."""
+    files = sorted(folder.glob("*.csv"))
+    out: dict[str, Path] = {}
+    for topic in TOPICS:
+        pat = re.compile(rf"(^|_){topic}_(\d+)\.csv$")
+        hits = sorted((int(m.group(2)), f.name, f) for f in files if (m := pat.search(f.name)))
+        if hits:
+            out[topic] = hits[0][2]
+    return out
+
+
+def read_topic_csv(path: Path) -> Topic:
+    """One ulog2csv file: a header of field names, then numbers (``inf``/``nan`` allowed)."""
+    with path.open(newline="") as f:
+        rd = csv.reader(f)
+        try:
+            head = next(rd)
+        except StopIteration:
+            raise DatasetError(f"{path}: empty CSV (expected a ulog2csv header line)") from None
+        if "timestamp" not in head:
+            raise DatasetError(f"{path}: no 'timestamp' column (expected a PX4 ulog2csv file)")
+        try:
+            data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=np.float64)
+        except ValueError as e:
+            raise DatasetError(f"{path}: non-numeric data ({e})") from None
+    if data.size == 0:
+        data = np.zeros((0, len(head)))
+    return {name: data[:, i] for i, name in enumerate(head)}
+
+
+def _is_px4_csv_dir(path: Path) -> bool:
+    return path.is_dir() and "sensor_combined" in topic_files(path)
+
+
+def read_px4_csv(path: Path) -> Dataset:
+    """Read a PX4 ``ulog2csv`` folder."""
+    if not path.is_dir():
+        raise DatasetError(f"{path}: not a folder (expected a PX4 ulog2csv folder with *sensor_combined*.csv)")
+    files = topic_files(path)
+    if "sensor_combined" not in files:
+        raise DatasetError(f"{path}: no *sensor_combined*.csv (expected a PX4 ulog2csv folder)")
+    topics = {k: read_topic_csv(p) for k, p in files.items()}
+    return dataset_from_topics(topics, str(path), "px4-csv")
+
+
+register(Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog))
+register(Reader("px4-csv", "a PX4 ulog2csv folder with *sensor_combined*.csv", _is_px4_csv_dir, read_px4_csv))

@@ -1,0 +1,266 @@
+"""Replay a dataset with its config and report: metrics (JSON), a summary table, PNG plots.
+
+:func:`replay` runs GNSS present (and, with an outage protocol, the protocol), compares with the onboard
+estimate and a reference where the log has them, and returns the metrics; :func:`summary` formats the
+table; :func:`plot` writes the figures (ours overlaid on the flight controller's).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ins_hil.datasets import compare as cmp
+from ins_hil.datasets.config import DatasetConfig
+from ins_hil.datasets.dataset import Dataset, read_dataset
+from ins_hil.datasets.run import RunResult, euler_series, gnss_scores, outage_scores, prepare, rejection, run_dataset
+
+#: warn when the gates reject more than this fraction of a kind of measurement
+REJECT_WARN = 0.03
+ProgressFactory = Callable[[str], Callable[[int, int], None] | None]
+
+
+def load(path: Path, cfg: DatasetConfig) -> Dataset:
+    """Read the recording at ``path`` with the config's format (detected when it names none)."""
+    return read_dataset(path, cfg.format)
+
+
+def replay(
+    ds: Dataset, cfg: DatasetConfig, progress: ProgressFactory | None = None
+) -> tuple[dict[str, Any], dict[str, RunResult]]:
+    """Run ``ds`` through the core with ``cfg``; (metrics, runs by label)."""
+    p = prepare(ds, cfg)
+    prog = progress or (lambda label: None)
+    runs: dict[str, RunResult] = {}
+    m: dict[str, Any] = {
+        "dataset": cfg.name,
+        "source": ds.meta.get("source"),
+        "format": ds.meta.get("format"),
+        "vehicle": ds.meta.get("vehicle"),
+        "rates_hz": ds.meta.get("rates_hz"),
+        "samples": {
+            "imu": len(p.imu),
+            "gnss": len(p.gnss),
+            "hold": len(p.hold),
+            "baro": sum(1 for a in p.aux if not hasattr(a, "field_b")),
+            "mag": sum(1 for a in p.aux if hasattr(a, "field_b")),
+        },
+        "events": [[round(t, 3), e] for t, e in ds.events],
+        "t0_s": p.t0,
+        "t1_s": p.t1,
+        "duration_s": p.t1 - p.t0,
+        "sensor_grade": cfg.grade,
+        "mag_reference": p.mag_ref_source or None,
+        "mag_reference_ned_uT": (p.mag_ref_ned_T * 1e6).round(3).tolist() if p.mag_ref_ned_T is not None else None,
+    }
+    if ds.meta.get("end_of_valid_data"):
+        m["end_of_valid_data"] = ds.meta["end_of_valid_data"]
+    r = run_dataset(p, [], "gnss", prog("replay (GNSS present)" if p.gnss else "replay"))
+    runs["gnss"] = r
+    m["notes"] = r.notes
+    m["t_nav_s"] = r.t_nav - p.t0 if math.isfinite(r.t_nav) else None
+    m["realtime_factor"] = (p.t1 - p.t0) / max(r.elapsed_s, 1e-9)
+    m["rejection"] = rejection(r)
+    m["warnings"] = [f"{k}: the gates rejected {v['rejected']} of {v['tested']} ({v['rate']:.1%})"
+                     for k, v in m["rejection"].items() if v["rate"] > REJECT_WARN]  # fmt: skip
+    if not math.isfinite(r.t_nav):
+        m["warnings"].append(
+            "the core never left its alignment (no GNSS speed ≥ gnss_yaw_speed and no magnetometer reference)"
+        )
+    t_from = (r.t_nav if math.isfinite(r.t_nav) else p.t1) + cfg.settle_s
+    if "gnss" in cfg.score:
+        m["gnss"] = gnss_scores(r, p.gnss) if p.gnss else "no GNSS fix in the log"
+    if cfg.outages is not None and p.gnss:
+        t_ref = ds.event("takeoff") if cfg.outages.relative_to == "takeoff" else p.t0
+        if t_ref is None:
+            m["outages"] = "no take-off event in the log (set outages.relative_to = 'start')"
+        else:
+            land = ds.event("landing")
+            wins = cfg.outages.windows(t_ref, min(p.t1, land) if land is not None else p.t1)
+            ro = run_dataset(p, wins, "outages", prog("replay (outage protocol)"))
+            runs["outages"] = ro
+            m["outages"] = outage_scores(ro, p.gnss)
+            m["outages"]["protocol"] = {"relative_to": cfg.outages.relative_to, "t_ref_s": t_ref - p.t0,
+                                        "start_s": cfg.outages.start_s, "on_s": cfg.outages.on_s,
+                                        "off_s": cfg.outages.off_s}  # fmt: skip
+            m["outages"]["rejection"] = rejection(ro)
+    if "onboard" in cfg.score:
+        if ds.onboard is None:
+            m["onboard"] = "no onboard estimate in the log"
+        else:
+            m["onboard"] = cmp.compare(r, ds.onboard, t_from, p.t1)
+    if "reference" in cfg.score:
+        if ds.reference is None:
+            m["reference"] = "no reference"
+        else:
+            m["reference"] = cmp.compare(r, ds.reference, t_from, p.t1)
+    return m, runs
+
+
+def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table (quantity, value / RMS, max) of :func:`replay`'s metrics."""
+    rows: list[tuple[str, str, str]] = [("quantity", "RMS / value", "max")]
+    rows.append(("data", f"{m['format']}, {m['duration_s']:.1f} s", ""))
+    tn = m.get("t_nav_s")
+    rows.append(("navigating from", f"{tn:.2f} s" if tn is not None else "never", ""))
+    g = m.get("gnss")
+    if isinstance(g, dict):
+        rows.append(
+            ("GNSS present: h error prior (m)", f"{g['gnss_h_rms_prior_m']:.3f}", f"{g['gnss_h_max_prior_m']:.3f}")
+        )
+        rows.append(("GNSS present: h error post (m)", f"{g['gnss_h_rms_post_m']:.3f}", ""))
+    elif g:
+        rows.append(("GNSS", str(g), ""))
+    o = m.get("outages")
+    if isinstance(o, dict):
+        rows.append((f"outages ({o['outages_scored']} scored): h error (m)", f"{o['outage_h_rms_m']:.2f}",
+                     f"{o['outage_h_max_m']:.2f}"))  # fmt: skip
+        rows.append(("  hold the last fix (m)", f"{o['hold_h_rms_m']:.2f}", f"{o['hold_h_max_m']:.2f}"))
+        rows.append(("  constant-velocity extrapolation (m)", f"{o['cv_h_rms_m']:.2f}", f"{o['cv_h_max_m']:.2f}"))
+        rows.append(("  NEES (2 dof, mean)", f"{o['nees_2dof_mean']:.2f}", ""))
+        rows.append(("  below both predictors in every outage", "yes" if o["beats_both_in_every_outage"] else "no", ""))
+    elif o:
+        rows.append(("outages", str(o), ""))
+    for key in ("onboard", "reference"):
+        c = m.get(key)
+        if isinstance(c, dict):
+            rows += [(f"vs {c['against']}: {a}", b, x) for a, b, x in cmp.summary_rows(c)]
+        elif c:
+            rows.append((key, str(c), ""))
+    for k, v in m.get("rejection", {}).items():
+        rows.append((f"gate rejections {k}", f"{v['rejected']} / {v['tested']} ({v['rate']:.1%})", ""))
+    rows.append(("replay speed", f"{m['realtime_factor']:.0f}x real time", ""))
+    return rows
+
+
+def format_table(rows: list[tuple[str, str, str]]) -> str:
+    w = [max(len(r[i]) for r in rows) for i in range(3)]
+    return "\n".join("  ".join(c.ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in rows)
+
+
+def plot(m: dict[str, Any], runs: dict[str, RunResult], ds: Dataset, out: Path) -> list[Path]:
+    """PNG plots into ``out``: attitude and velocity, ours over the onboard estimate; the GNSS error with the
+    outages. No error curves against a reference the log does not have."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    r = runs["gnss"]
+    paths: list[Path] = []
+    if not len(r.t):
+        return paths
+    t0 = m["t0_s"]
+    tt = r.t - t0
+    eul = np.degrees(euler_series(r.q_nb))
+    c = m.get("onboard") if isinstance(m.get("onboard"), dict) else None
+    s = c["_series"] if c else {}
+    fig, ax = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    for k, name in enumerate(("roll", "pitch", "yaw")):
+        ax[k].plot(tt, eul[:, k], lw=0.8, label="ins_hil")
+        if "att_t" in s:
+            ax[k].plot(s["att_t"] - t0, s["att_theirs_deg"][:, k], lw=0.8, label=c["against"])  # type: ignore[index]
+        ax[k].set_ylabel(f"{name} (°)")
+        ax[k].grid(alpha=0.3)
+    ax[0].legend(loc="upper right")
+    ax[0].set_title(f"{m['dataset']}: attitude" + ("" if c else " (no onboard estimate in the log)"))
+    ax[2].set_xlabel("time from the start of the log (s)")
+    paths.append(out / "attitude.png")
+    fig.tight_layout()
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    for k, name in enumerate(("north", "east", "down")):
+        ax[k].plot(tt, r.vel_ned[:, k], lw=0.8, label="ins_hil")
+        if "vel_t" in s:
+            ax[k].plot(s["vel_t"] - t0, s["vel_theirs"][:, k], lw=0.8, label=c["against"])  # type: ignore[index]
+        ax[k].set_ylabel(f"v {name} (m/s)")
+        ax[k].grid(alpha=0.3)
+    ax[0].legend(loc="upper right")
+    ax[0].set_title(f"{m['dataset']}: velocity")
+    ax[2].set_xlabel("time from the start of the log (s)")
+    paths.append(out / "velocity.png")
+    fig.tight_layout()
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    ro = runs.get("outages")
+    if ro is not None and len(ro.gnss_t):
+        fig, ax = plt.subplots(2, 1, figsize=(10, 7))
+        h = np.hypot(ro.gnss_err[:, 0], ro.gnss_err[:, 1])
+        ax[0].plot(ro.gnss_t - t0, h, ".", ms=2, label="ins_hil, prior to each fix")
+        for a, b in ro.outages:
+            ax[0].axvspan(a - t0, b - t0, color="0.85")
+        ax[0].set_ylabel("horizontal error vs GNSS (m)")
+        ax[0].set_xlabel("time from the start of the log (s)")
+        ax[0].set_title(f"{m['dataset']}: outage protocol (grey: GNSS removed)")
+        ax[0].grid(alpha=0.3)
+        ax[0].legend()
+        ax[1].plot(ro.gnss_ref[:, 1], ro.gnss_ref[:, 0], "k.", ms=2, label="GNSS")
+        ax[1].plot(ro.ned[:, 1], ro.ned[:, 0], lw=0.8, label="ins_hil (outage protocol)")
+        ax[1].set_xlabel("east (m)")
+        ax[1].set_ylabel("north (m)")
+        ax[1].axis("equal")
+        ax[1].grid(alpha=0.3)
+        ax[1].legend()
+        paths.append(out / "outages.png")
+        fig.tight_layout()
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+    return paths
+
+
+def jsonable(m: Any) -> Any:
+    """The metrics without the plot series (``_series``), numbers as plain floats."""
+    if isinstance(m, dict):
+        return {k: jsonable(v) for k, v in m.items() if not k.startswith("_")}
+    if isinstance(m, (list, tuple)):
+        return [jsonable(v) for v in m]
+    if isinstance(m, (np.floating, np.integer)):
+        return m.item()
+    if isinstance(m, np.ndarray):
+        return m.tolist()
+    if isinstance(m, float) and not math.isfinite(m):
+        return None
+    return m
+
+
+def replay_to_dir(
+    source: Path | None, config: Path | None, out: Path, plots: bool = True, progress: ProgressFactory | None = None
+) -> tuple[dict[str, Any], str]:
+    """``ins-hil replay FILE|DIR [--dataset CONFIG]``: read, replay, write ``metrics.json`` and the plots into
+    ``out``; (metrics, the summary text). ``source`` None: the config's ``dataset.path``. DatasetError /
+    DatasetConfigError (one line) on bad input."""
+    import json
+
+    from ins_hil.datasets.config import DatasetConfig, DatasetConfigError
+    from ins_hil.datasets.config import load as load_config
+
+    if config is not None:
+        cfg = load_config(config)
+    else:
+        cfg = DatasetConfig(name=Path(source).stem if source is not None else "dataset")
+    path = source if source is not None else cfg.path
+    if path is None:
+        raise DatasetConfigError(f"{config}: no dataset.path and no FILE|DIR given")
+    ds = load(Path(path), cfg)
+    m, runs = replay(ds, cfg, progress)
+    out.mkdir(parents=True, exist_ok=True)
+    if plots:
+        m["plots"] = [str(p) for p in plot(m, runs, ds, out)]
+    (out / "metrics.json").write_text(json.dumps(jsonable(m), indent=2))
+    lines = [f"{cfg.name}: {ds.meta.get('source')} ({ds.meta.get('format')}, sensor grade {cfg.grade}"
+             + (", default dataset config" if config is None else f", {config}") + ")"]  # fmt: skip
+    lines += [f"note: {n}" for n in m.get("notes", [])]
+    if m.get("end_of_valid_data"):
+        lines.append(f"end of valid data: {m['end_of_valid_data']}")
+    if m.get("mag_reference"):
+        lines.append(f"magnetic reference: {m['mag_reference']}")
+    lines.append(format_table(summary(m)))
+    lines += [f"WARNING: {w}" for w in m.get("warnings", [])]
+    lines.append(f"metrics: {out / 'metrics.json'}")
+    return m, "\n".join(lines)

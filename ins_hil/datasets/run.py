@@ -1,0 +1,358 @@
+"""Replay a :class:`~ins_hil.datasets.dataset.Dataset` causally through ``NavCore`` (pure: no I/O, no plots).
+
+:func:`prepare` applies the dataset config (IMU → body mounting, time offsets, which aids) and resolves the
+magnetic reference; :func:`run_dataset` steps the core sample by sample, fusing every measurement after the
+IMU step that reaches its time, scores each GNSS fix before it is fused (the a-priori antenna error) and
+after, removes GNSS inside the outage windows and scores the core there against the fixes it did not get,
+with the two trivial predictors ("hold the last fix", "constant-velocity extrapolation") beside it. The
+onboard-estimator comparison is :mod:`ins_hil.datasets.compare`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ins_hil.core import NavConfig, NavCore
+from ins_hil.datasets.config import DatasetConfig
+from ins_hil.datasets.dataset import Dataset
+from ins_hil.datasets.evaluate import antenna_ned
+from ins_hil.nav import alignment, earth
+from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
+
+Progress = Callable[[int, int], None]
+#: WMM coefficient files shipped with pygeomag, by the first year of their epoch
+WMM_EPOCHS = ((2025, "WMM_2025.COF"), (2020, "WMM_2020.COF"), (2015, "WMM_2015v2.COF"), (2010, "WMM_2010.COF"))
+
+
+@dataclass
+class Prepared:
+    """The dataset after the config: streams to fuse, the hold fixes, the NavConfig and notes."""
+
+    imu: list[ImuSample]
+    gnss: list[GnssFix]
+    aux: list[BaroSample | MagSample]
+    hold: list[GnssFix]
+    nav: NavConfig
+    t0: float
+    t1: float
+    origin: tuple[float, float, float]
+    notes: list[str] = field(default_factory=list)
+    mag_ref_ned_T: Vec | None = None
+    mag_ref_source: str = ""
+    mag_heading_only: bool = True
+
+
+def _decimal_year(unix_s: float) -> float:
+    import datetime as _dt
+
+    d = _dt.datetime.fromtimestamp(unix_s, _dt.UTC)
+    y0 = _dt.datetime(d.year, 1, 1, tzinfo=_dt.UTC)
+    y1 = _dt.datetime(d.year + 1, 1, 1, tzinfo=_dt.UTC)
+    return d.year + (d - y0).total_seconds() / (y1 - y0).total_seconds()
+
+
+def wmm_field(lat: float, lon: float, h: float, year: float) -> tuple[Vec, str]:
+    """The World Magnetic Model field (NED, tesla) at lat/lon (rad), h (m), decimal ``year``, with pygeomag's
+    coefficient file of that epoch (offline); ValueError outside the shipped epochs."""
+    from pygeomag import GeoMag
+
+    cof = next((f for y0, f in WMM_EPOCHS if y0 <= year < y0 + 5), None)
+    if cof is None:
+        raise ValueError(f"no WMM epoch for {year:.2f} (pygeomag ships 2010–2030)")
+    r = GeoMag(coefficients_file=f"wmm/{cof}").calculate(
+        glat=math.degrees(lat), glon=math.degrees(lon), alt=h / 1000.0, time=year
+    )
+    where = f"{math.degrees(lat):.4f}°, {math.degrees(lon):.4f}°, {year:.2f}"
+    return np.array((r.x, r.y, r.z)) * 1e-9, f"WMM {cof[:-4]} at {where}"
+
+
+def field_at_rest(imu: list[ImuSample], mag: list[MagSample], t_from: float, t_to: float, decl: float) -> Vec | None:
+    """A magnetic reference (NED, the readings' unit) from the data at rest in [t_from, t_to] s: the mean field
+    levelled with the mean specific force (book §4.1.1) gives the dip and the strength; its direction in the
+    horizontal plane is set to the declination ``decl`` (rad)."""
+    f = [s.dvel / s.dt for s in imu if t_from <= s.t <= t_to]
+    m = [x.field_b for x in mag if t_from <= x.t <= t_to]
+    if len(f) < 10 or not m:
+        return None
+    roll, pitch = alignment.coarse_level(np.mean(f, axis=0))
+    mn = dcm_from_euler(roll, pitch, 0.0) @ np.mean(m, axis=0)
+    hz = math.hypot(float(mn[0]), float(mn[1]))
+    return np.array((hz * math.cos(decl), hz * math.sin(decl), float(mn[2])))
+
+
+def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
+    """Apply the dataset config to ``ds`` (causal streams for the core; nothing from the onboard estimate)."""
+    notes: list[str] = list(ds.meta.get("notes", []))
+    R = dcm_from_euler(*cfg.imu_to_body)  # IMU axes → body FRD
+    rot = bool(np.any(cfg.imu_to_body != 0.0))
+    off = cfg.imu_time_offset
+    t1 = ds.t1
+    imu = [dataclasses.replace(s, t=s.t + off, dtheta=R @ s.dtheta, dvel=R @ s.dvel) if rot else
+           dataclasses.replace(s, t=s.t + off) for s in ds.imu if s.t <= t1]  # fmt: skip
+    gnss = [dataclasses.replace(f, t=f.t + cfg.gnss_time_offset) for f in ds.gnss] if cfg.use_gnss else []
+    mag = [dataclasses.replace(m, field_b=R @ m.field_b) if rot else m for m in ds.mag] if cfg.use_mag else []
+    baro = list(ds.baro) if cfg.use_baro else []
+    nav = cfg.nav_config()
+    if gnss:
+        origin = (gnss[0].lat, gnss[0].lon, gnss[0].h)
+    elif cfg.position is not None:
+        origin = cfg.position
+    else:
+        origin = (0.0, 0.0, 0.0)
+    p = Prepared(imu, gnss, [], [], nav, imu[0].t, imu[-1].t, origin, notes)
+    if mag and "mag_ref_ned" not in cfg.nav:
+        ref: Vec | None = None
+        if isinstance(cfg.mag_reference, np.ndarray):
+            ref, p.mag_ref_source = cfg.mag_reference * 1e-6, "the dataset config"
+        elif cfg.mag_reference == "wmm":
+            utc = ds.meta.get("utc_start_s")
+            have_pos = bool(gnss) or cfg.position is not None
+            if utc is None or not have_pos:
+                notes.append("magnetometer not used: the WMM needs the log's position and date "
+                             f"({'no date' if utc is None else 'no position'}); set aiding.mag_reference")  # fmt: skip
+            else:
+                try:
+                    ref, p.mag_ref_source = wmm_field(*origin, _decimal_year(float(utc)))
+                except ValueError as e:
+                    notes.append(f"magnetometer not used: {e}")
+        else:
+            t_to = ds.event("takeoff") or (p.t0 + 5.0)
+            ref = field_at_rest(imu, mag, p.t0, min(t_to, p.t0 + 10.0) - 0.5, cfg.declination)
+            p.mag_ref_source = (
+                f"levelled field at rest before take-off, declination {math.degrees(cfg.declination):.2f}°"
+            )
+            if ref is None:
+                notes.append("magnetometer not used: no rest before take-off to measure the field")
+        if ref is not None:
+            p.mag_ref_ned_T = ref
+            nav = dataclasses.replace(nav, mag_ref_ned=ref)
+        else:
+            mag = []
+    p.nav = nav
+    p.mag_heading_only = cfg.mag_heading_only
+    p.aux = sorted([*baro, *mag], key=lambda m: m.t)
+    if not gnss and cfg.no_gnss_hold:
+        # no absolute aiding in the log: constant-position pseudo-fixes with a large σ (EKF2's fake position)
+        n = int((p.t1 - p.t0) * cfg.hold_rate)
+        v0 = np.zeros(3) if cfg.hold_vel_std > 0 else None
+        p.hold = [GnssFix(p.t0 + k / cfg.hold_rate, origin[0], origin[1], origin[2], v0, cfg.hold_std,
+                          cfg.hold_std, cfg.hold_vel_std, FixType.NO_FIX) for k in range(n)]  # fmt: skip
+        notes.append(
+            f"no GNSS fix in the log: constant-position hold fixes (σ {cfg.hold_std:g} m"
+            + (f", zero velocity σ {cfg.hold_vel_std:g} m/s" if v0 is not None else "")
+            + f", {cfg.hold_rate:g} Hz) keep the tilt observable (EKF2's no-aiding mode)"
+        )
+    return p
+
+
+def heading_only(m: MagSample, q_nb: Vec, ref_ned: Vec | None) -> MagSample:
+    """The magnetometer as a heading measurement only (EKF2's heading fusion): the reading is levelled with the
+    current attitude estimate ``q_nb``, its magnetic heading taken, and replaced by the reference field turned by
+    the heading difference, expressed in body axes with the same attitude. The core's field update then sees a
+    pure rotation about down: a dip or field error of the magnetometer (motor currents, residual hard iron) no
+    longer tilts the solution."""
+    if ref_ned is None:
+        return m
+    C = dcm_from_quat(q_nb)  # body → NED
+    mn = C @ m.field_b
+    d = math.atan2(float(mn[1]), float(mn[0])) - math.atan2(float(ref_ned[1]), float(ref_ned[0]))
+    cd, sd = math.cos(d), math.sin(d)
+    Rz = np.array(((cd, -sd, 0.0), (sd, cd, 0.0), (0.0, 0.0, 1.0)))
+    return dataclasses.replace(m, field_b=C.T @ (Rz @ np.asarray(ref_ned)))
+
+
+@dataclass
+class RunResult:
+    """A replay's record: the state at every navigating IMU step and the GNSS scores."""
+
+    label: str
+    origin: tuple[float, float, float]
+    t: Vec
+    q_nb: Vec
+    vel_ned: Vec
+    ned: Vec  # IMU position, m from ``origin``
+    std_pos: Vec
+    std_att: Vec
+    t_nav: float  # first navigating step (s), NaN if never
+    gnss_t: Vec  # fixes scored (s)
+    gnss_err: Vec  # a-priori antenna error vs the fix (NED m)
+    gnss_post: Vec  # a-posteriori (fused fixes; NaN inside outages)
+    gnss_inside: Vec  # bool: inside an outage
+    gnss_std: Vec  # the core's σ (NED m) at the prior
+    gnss_ref: Vec  # the fix (NED m)
+    outages: list[tuple[float, float]]
+    stats: dict[str, dict[str, int]]
+    elapsed_s: float
+    notes: list[str] = field(default_factory=list)
+
+
+def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
+                progress: Progress | None = None) -> RunResult:  # fmt: skip
+    """Replay ``p`` causally; GNSS inside ``outages`` (s, absolute) is scored, never fused."""
+    core = NavCore(None, p.nav)
+    lever = p.nav.gnss_lever_arm_b
+    origin = p.origin
+    meas: list[tuple[float, int, Any]] = [(f.t, 0, f) for f in p.gnss]
+    meas += [(f.t, 1, f) for f in p.hold] + [(m.t, 2, m) for m in p.aux]
+    meas.sort(key=lambda x: (x[0], x[1]))
+    T: list[float] = []
+    Q: list[Vec] = []
+    V: list[Vec] = []
+    P: list[Vec] = []
+    SP: list[Vec] = []
+    SA: list[Vec] = []
+    gt: list[float] = []
+    ge: list[Vec] = []
+    gp: list[Vec] = []
+    gi: list[bool] = []
+    gs: list[Vec] = []
+    gr: list[Vec] = []
+    j = 0
+    n = len(p.imu)
+    t_nav = math.nan
+    nan3 = np.full(3, math.nan)
+    t_start = time.perf_counter()
+    for k, s in enumerate(p.imu):
+        core.step(s)
+        while j < len(meas) and meas[j][0] <= s.t:
+            _, kind, m = meas[j]
+            j += 1
+            if kind != 0:
+                if p.mag_heading_only and isinstance(m, MagSample) and core.phase == "nav":
+                    m = heading_only(m, core.ins.state.q_nb, p.nav.mag_ref_ned)
+                core.fuse(m)
+                continue
+            inside = any(a <= m.t < b for a, b in outages)
+            ref = earth.ned_from_geodetic(m.lat, m.lon, m.h, *origin)
+            nav = core.phase == "nav"
+            if nav:
+                gt.append(m.t)
+                ge.append(antenna_ned(core, lever, m.t, origin) - ref)
+                gs.append(core.state().std_pos)
+                gi.append(inside)
+                gr.append(ref)
+            if not inside:
+                core.fuse(m)
+            if nav:
+                gp.append(nan3 if inside else antenna_ned(core, lever, m.t, origin) - ref)
+        if core.phase == "nav":
+            st = core.ins.state
+            if math.isnan(t_nav):
+                t_nav = s.t
+            T.append(s.t)
+            Q.append(st.q_nb)
+            V.append(st.vel_ned)
+            P.append(earth.ned_from_geodetic(st.lat, st.lon, st.h, *origin))
+            sd = core.state()
+            SP.append(sd.std_pos)
+            SA.append(sd.std_att)
+        if progress is not None and (k % 2000 == 0 or k == n - 1):
+            progress(k + 1, n)
+
+    def arr(x: list[Any], w: int) -> Vec:
+        return np.array(x, dtype=np.float64) if x else np.zeros((0, w) if w else 0)
+
+    return RunResult(
+        label, origin, arr(T, 0), arr(Q, 4), arr(V, 3), arr(P, 3), arr(SP, 3), arr(SA, 3), t_nav, arr(gt, 0),
+        arr(ge, 3), arr(gp, 3), np.array(gi, dtype=bool), arr(gs, 3), arr(gr, 3), list(outages),
+        {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
+        time.perf_counter() - t_start, list(p.notes),
+    )  # fmt: skip
+
+
+def hrms(e: Vec) -> float:
+    """Horizontal RMS (m) of NED errors (N, 3); NaN for none."""
+    return float(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2))) if len(e) else math.nan
+
+
+def hmax(e: Vec) -> float:
+    return float(np.max(np.hypot(e[:, 0], e[:, 1]))) if len(e) else math.nan
+
+
+def gnss_scores(r: RunResult, fixes: list[GnssFix]) -> dict[str, Any]:
+    """GNSS-present scores: the a-priori and a-posteriori horizontal antenna error (m) outside outages."""
+    out = ~r.gnss_inside
+    pr, po = r.gnss_err[out], r.gnss_post[out]
+    return {
+        "gnss_epochs": int(out.sum()),
+        "gnss_h_rms_prior_m": hrms(pr),
+        "gnss_h_max_prior_m": hmax(pr),
+        "gnss_v_rms_prior_m": float(np.sqrt(np.mean(pr[:, 2] ** 2))) if len(pr) else math.nan,
+        "gnss_h_rms_post_m": hrms(po),
+    }
+
+
+def outage_scores(r: RunResult, fixes: list[GnssFix]) -> dict[str, Any]:
+    """Per outage window: the core's horizontal error at each fix it did not get, against the two trivial
+    predictors built from the last fix before the window (hold it; extrapolate it with its velocity), and
+    the 2-dof NEES of the horizontal error with the core's σ. A window that opens before the core navigates
+    is reported as not scored."""
+    rows = []
+    allf, allh, allc, alln = [], [], [], []
+    ft = np.array([f.t for f in fixes])
+    for a, b in r.outages:
+        row: dict[str, Any] = {"window_s": [a, b]}
+        i = np.nonzero(r.gnss_inside & (r.gnss_t >= a) & (r.gnss_t < b))[0]
+        kl = int(np.searchsorted(ft, a, "left")) - 1  # the last fix before the window
+        if not len(i) or kl < 0 or not (r.t_nav <= a):
+            row["scored"] = False
+            rows.append(row)
+            continue
+        last = fixes[kl]
+        p_last = earth.ned_from_geodetic(last.lat, last.lon, last.h, *r.origin)
+        v_last = last.vel_ned if last.vel_ned is not None else np.zeros(3)
+        e = r.gnss_err[i]
+        eh = r.gnss_ref[i] - p_last
+        ec = r.gnss_ref[i] - (p_last + np.outer(r.gnss_t[i] - last.t, v_last))
+        sd = r.gnss_std[i]
+        nees = (e[:, 0] / sd[:, 0]) ** 2 + (e[:, 1] / sd[:, 1]) ** 2
+        row.update({"scored": True, "epochs": len(i), "h_rms_m": hrms(e), "h_max_m": hmax(e),
+                    "hold_h_rms_m": hrms(eh), "hold_h_max_m": hmax(eh), "cv_h_rms_m": hrms(ec), "cv_h_max_m": hmax(ec),
+                    "nees_2dof": float(np.mean(nees))})  # fmt: skip
+        row["beats_both"] = row["h_rms_m"] < row["hold_h_rms_m"] and row["h_rms_m"] < row["cv_h_rms_m"]
+        rows.append(row)
+        allf.append(e)
+        allh.append(eh)
+        allc.append(ec)
+        alln.append(nees)
+    cat = lambda x: np.vstack(x) if x else np.zeros((0, 3))
+    F, H, C = cat(allf), cat(allh), cat(allc)
+    return {
+        "windows": rows,
+        "outages_scored": len(allf),
+        "outage_h_rms_m": hrms(F),
+        "outage_h_max_m": hmax(F),
+        "hold_h_rms_m": hrms(H),
+        "hold_h_max_m": hmax(H),
+        "cv_h_rms_m": hrms(C),
+        "cv_h_max_m": hmax(C),
+        "nees_2dof_mean": float(np.mean(np.concatenate(alln))) if alln else math.nan,
+        "beats_both_in_every_outage": bool(allf) and all(w.get("beats_both", True) for w in rows if w["scored"]),
+    }
+
+
+def rejection(r: RunResult) -> dict[str, Any]:
+    """The innovation gates' rejection rate per kind (fraction of the measurements tested)."""
+    out = {}
+    for k, v in r.stats.items():
+        n = v["accepted"] + v["rejected"]
+        if n:
+            out[k] = {"tested": n, "rejected": v["rejected"], "rate": v["rejected"] / n}
+    return out
+
+
+def euler_series(q: Vec) -> Vec:
+    """(N, 3) roll, pitch, yaw (rad) of quaternions (N, 4), aerospace ZYX."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return np.column_stack([roll, pitch, yaw])

@@ -1,0 +1,181 @@
+"""Dataset readers: the shipped PX4 ULog, PX4 ulog2csv folder and ArduPilot DataFlash logs, folders and CSVs
+the tests write, detection and the one-line errors."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ins_hil.datasets import dataset as dsm
+from ins_hil.datasets import generic_csv, px4
+from ins_hil.datasets.dataset import Dataset, DatasetError, read_dataset
+from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
+
+
+@pytest.fixture(scope="module")
+def uav(shared_dir: Path) -> Path:
+    d = shared_dir / "data" / "uav"
+    assert (d / "px4_hover_92s" / "hover.ulg").is_file(), f"{d} lacks the UAV logs"
+    return d
+
+
+def test_px4_ulog_hover(uav: Path):
+    ds = read_dataset(uav / "px4_hover_92s" / "hover.ulg")
+    assert ds.meta["format"] == "px4-ulog"
+    r = ds.meta["rates_hz"]
+    assert 210 < r["imu"] < 230 and 4.5 < r["baro"] < 5.5 and 1.8 < r["mag"] < 2.2
+    assert ds.gnss == [] and any("never had a 3-D fix" in n for n in ds.meta["notes"])
+    # increments over µs dt, level at rest: Δv_z ≈ −g dt
+    s = ds.imu[0]
+    assert 0.003 < s.dt < 0.006 and s.dvel[2] / s.dt == pytest.approx(-9.78, abs=0.1)
+    assert all(b.t > a.t for a, b in zip(ds.imu[:500], ds.imu[1:501]))
+    m = np.linalg.norm(ds.mag[0].field_b)
+    assert 2e-5 < m < 7e-5  # gauss → tesla
+    ob = ds.onboard
+    assert ob is not None and ob.q_nb is not None and ob.pos_ned is not None
+    np.testing.assert_allclose(np.linalg.norm(ob.q_nb, axis=1), 1.0, atol=1e-4)
+    assert np.all(np.isnan(ob.pos_ned[:, :2])) and np.all(np.isfinite(ob.pos_ned[:, 2]))  # horizontal invalid
+    assert ds.event("takeoff") is not None and ds.event("landing") > ds.event("takeoff")
+
+
+def test_px4_csv_folder_quad(uav: Path):
+    ds = read_dataset(uav / "px4_quad_157s")
+    assert ds.meta["format"] == "px4-csv"
+    assert 235 < ds.meta["rates_hz"]["imu"] < 245 and 4.5 < ds.meta["rates_hz"]["gnss"] < 5.0
+    assert ds.mag == [] and ds.onboard is None
+    f = ds.gnss[0]
+    assert int(f.fix_type) == 4 and f.vel_ned is not None and 0.3 < f.std_ne < 1.0
+    assert math.degrees(f.lat) == pytest.approx(29.8044569, abs=1e-6)
+    assert f.h == pytest.approx(220.999, abs=1e-3)  # alt_ellipsoid in mm
+    assert ds.event("takeoff") - ds.t0 == pytest.approx(3.6, abs=0.5)
+
+
+def _write_topic(path: Path, cols: dict[str, list[float]]) -> None:
+    names = list(cols)
+    rows = zip(*cols.values())
+    path.write_text(",".join(names) + "\n" + "\n".join(",".join(repr(x) for x in r) for r in rows) + "\n")
+
+
+def _sensor_combined(n: int, dt_field: float) -> dict[str, list[float]]:
+    return {"timestamp": [1_000_000 + 5000 * k for k in range(n)], "gyro_rad[0]": [0.1] * n, "gyro_rad[1]": [0.0] * n,
+            "gyro_rad[2]": [-0.2] * n, "gyro_integral_dt": [dt_field] * n, "accelerometer_timestamp_relative": [0] * n,
+            "accelerometer_m_s2[0]": [0.5] * n, "accelerometer_m_s2[1]": [0.0] * n,
+            "accelerometer_m_s2[2]": [-9.8] * n, "accelerometer_integral_dt": [dt_field] * n}  # fmt: skip
+
+
+def test_px4_csv_folder_written_topic_names_and_dt_units(tmp_path: Path):
+    a, b = tmp_path / "new", tmp_path / "old"
+    a.mkdir()
+    b.mkdir()
+    _write_topic(a / "log_7_2024-1-1-10-00-00_sensor_combined_0.csv", _sensor_combined(20, 5000))  # µs
+    _write_topic(b / "sensor_combined_0.csv", _sensor_combined(20, 0.005))  # float s (PX4 ≤ 1.7)
+    # a setpoint topic whose name contains 'vehicle_attitude' must not be read as the attitude
+    _write_topic(a / "log_7_2024-1-1-10-00-00_vehicle_attitude_setpoint_0.csv",
+                 {"timestamp": [1_000_000], "q_d[0]": [1.0]})  # fmt: skip
+    assert px4.topic_files(a) == {"sensor_combined": a / "log_7_2024-1-1-10-00-00_sensor_combined_0.csv"}
+    da, db = read_dataset(a), read_dataset(b)
+    assert da.onboard is None and len(da.imu) == len(db.imu) == 20
+    for x, y in zip(da.imu, db.imu):
+        assert x.dt == pytest.approx(0.005) and y.dt == pytest.approx(0.005)
+        np.testing.assert_allclose(x.dtheta, (0.0005, 0.0, -0.001))
+        np.testing.assert_allclose(x.dvel, y.dvel)
+    assert da.imu[0].t == pytest.approx(1.0)  # µs since boot → s, the interval end
+
+
+def test_ardupilot_dataflash_crash_is_end_of_valid_data(uav: Path):
+    ds = read_dataset(uav / "ardupilot_copter_150s" / "flight.bin")
+    assert ds.meta["format"] == "ardupilot-bin"
+    assert 24 < ds.meta["rates_hz"]["imu"] < 26 and 4.5 < ds.meta["rates_hz"]["gnss"] < 5.5
+    assert ds.t_end_valid is not None and ds.t_end_valid < ds.gnss[-1].t < ds.imu[-1].t
+    assert ds.t1 == ds.t_end_valid and "loss of control" in ds.meta["end_of_valid_data"]
+    # before the end, the flight is inside the normal envelope
+    w = np.array([np.linalg.norm(s.dtheta / s.dt) for s in ds.imu if s.t < ds.t_end_valid])
+    assert w.max() < 3.0
+    assert 3e-5 < np.linalg.norm(ds.mag[0].field_b) < 7e-5  # milligauss → tesla
+    ob = ds.onboard
+    assert ob is not None and ob.name.startswith("NKF1") and ob.origin is None and len(ob.t_att) > 1000
+    assert ds.meta["utc_start_s"] == pytest.approx(1.4823e9, abs=1e6)  # GPS week 1928: December 2016
+
+
+def _synthetic() -> Dataset:
+    imu = [ImuSample(0.01 * k, 0.01, np.array((1e-4, -2e-4, 3e-4)), np.array((0.001, 0.002, -0.098)))
+           for k in range(1, 101)]  # fmt: skip
+    gnss = [GnssFix(0.2 * k, math.radians(45.0), math.radians(7.0), 300.0, np.array((0.1, -0.2, 0.0)), 1.5, 3.0, 0.2)
+            for k in range(5)]  # fmt: skip
+    gnss.append(GnssFix(1.0, math.radians(45.0), math.radians(7.0), 300.0, None, 1.5, 3.0, 0.2))
+    return Dataset(imu, gnss, [BaroSample(0.1, math.nan, 12.5)], [MagSample(0.1, np.array((2e-5, 1e-6, 4e-5)))])
+
+
+def test_generic_csv_round_trip(tmp_path: Path):
+    ds = _synthetic()
+    p = tmp_path / "mine.csv"
+    generic_csv.write_generic_csv(p, ds)
+    assert dsm.detect_format(p) == "csv"
+    back = read_dataset(p)
+    assert len(back.imu) == 100 and len(back.gnss) == 6 and back.reference is None
+    for a, b in zip(ds.imu, back.imu):
+        assert b.t == pytest.approx(a.t) and b.dt == pytest.approx(a.dt)
+        np.testing.assert_allclose(b.dtheta, a.dtheta, rtol=1e-6)
+        np.testing.assert_allclose(b.dvel, a.dvel, rtol=1e-6)
+    assert back.gnss[-1].vel_ned is None and back.gnss[0].lat == pytest.approx(ds.gnss[0].lat, abs=1e-10)
+    np.testing.assert_allclose(back.mag[0].field_b, ds.mag[0].field_b, rtol=1e-5)
+    assert back.baro[0].altitude == pytest.approx(12.5)
+
+
+def test_generic_csv_reference_and_onboard(tmp_path: Path):
+    p = tmp_path / "ref.csv"
+    p.write_text(generic_csv.MAGIC + "\nimu,0.01,0.01,0,0,0,0,0,-9.8\nref,0.0,45,7,300,1,0,0,0,0,90\n"
+                 "ref,1.0,45.00001,7,300,1,0,0,0,0,90\nonboard,0.5,45,7,300,,,,1,2,3\n")  # fmt: skip
+    ds = read_dataset(p)
+    assert ds.reference is not None and ds.reference.pos_ned[1, 0] == pytest.approx(1.11, abs=0.01)
+    assert ds.reference.q_nb is not None and ds.onboard is not None and ds.onboard.vel_ned is None
+
+
+@pytest.mark.parametrize(
+    "body, match",
+    [
+        ("imu,0.01,0.01,0,0,0\n", r":2: imu: expected t and 8 fields"),
+        ("imu,0.01,0.01,0,0,0,0,0,x\n", r":2: imu: a field is not a number"),
+        ("attitude,0.01,1\n", r":2: unknown record kind 'attitude'"),
+        ("imu,0.01,0,0,0,0,0,0,-9.8\n", r"dt=0.0 \(expected > 0 s\)"),
+    ],
+)
+def test_generic_csv_errors_name_the_line(tmp_path: Path, body: str, match: str):
+    p = tmp_path / "bad.csv"
+    p.write_text(generic_csv.MAGIC + "\n" + body)
+    with pytest.raises(DatasetError, match=match):
+        read_dataset(p)
+
+
+def test_unsupported_and_wrong_files(tmp_path: Path, uav: Path):
+    p = tmp_path / "notes.txt"
+    p.write_text("hello\n")
+    with pytest.raises(DatasetError, match=r"not a supported dataset \(expected .*PX4 \.ulg.*DataFlash"):
+        read_dataset(p)
+    with pytest.raises(DatasetError, match="not a PX4 ULog file"):
+        read_dataset(p, "px4-ulog")
+    with pytest.raises(DatasetError, match="not an ArduPilot DataFlash"):
+        read_dataset(uav / "px4_hover_92s" / "hover.ulg", "ardupilot-bin")
+    with pytest.raises(DatasetError, match="unknown dataset format 'rosbag'"):
+        read_dataset(p, "rosbag")
+    with pytest.raises(DatasetError, match="no such file"):
+        read_dataset(tmp_path / "missing.ulg")
+    empty = tmp_path / "empty_dir"
+    empty.mkdir()
+    with pytest.raises(DatasetError, match="not a supported dataset"):
+        read_dataset(empty)
+
+
+def test_px4_logging_gaps_bridged_or_reported(tmp_path: Path):
+    cols = _sensor_combined(30, 5000)
+    ts = cols["timestamp"]
+    ts[10:] = [x + 5000 for x in ts[10:]]  # one dropped message (5 ms): bridged
+    ts[20:] = [x + 200_000 for x in ts[20:]]  # 200 ms of lost data: not integrated, reported
+    _write_topic(tmp_path / "sensor_combined_0.csv", cols)
+    ds = read_dataset(tmp_path)
+    assert ds.imu[10].dt == pytest.approx(0.010) and ds.imu[10].dtheta[0] == pytest.approx(0.001)
+    assert ds.imu[20].dt == pytest.approx(0.005)
+    assert any("2 logging gaps" in n and "1 longer (up to 0.20 s)" in n for n in ds.meta["notes"]), ds.meta["notes"]
