@@ -84,13 +84,17 @@ class Row:
 
 
 def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
-    from . import book_ch2, book_ch5, gyrofree, seed001, seed002, seed004
+    from . import book_ch2, book_ch5, gyrofree, seed001, seed001_frames, seed002, seed004
 
     return [
         ("Book ch. 2: rotational mechanization (DIGEST_000 §8 cases 1–11)", book_ch2.rows),
         ("Book §2.4: gyro-free INS (DIGEST_000 §8 cases 12–13, 32–33)", gyrofree.rows),
         ("Seed 002: one-step algorithms under coning (DIGEST_001_004 §6 cases 13–23)", seed002.rows),
         ("Seed 001: Schuler oscillation (DIGEST_001_004 §6 cases 6–7)", seed001.rows),
+        (
+            "Seed 001: gravity series, ENU/y-x-z conventions, coarse alignment (DIGEST_001_004 §6 cases 3, 8, 10)",
+            seed001_frames.rows,
+        ),
         ("Book Ex 5.3: isolation from the estimated gyro bias (units of a₁)", book_ch5.rows),
         ("Seed 004: platform INS with precession-angle sensors (DIGEST_001_004 §6 cases 28–31)", seed004.rows),
     ]
