@@ -39,7 +39,7 @@ BOOK_CASES: tuple[tuple[str, str, str, str], ...] = (
     ("1–11", "chapter 2 tables 2.1–2.4, Ex 2.1–2.3", ROW, "Book ch. 2"),
     ("12–13", "Ex 2.4 / 2.5 constants; Ex 2.5/2.6 runs", ROW, "Book §2.4 (Ex 2.6 with λ = 7: discrepancy)"),
     ("14–15", "chapter 3 scenario constants, WMM example", NOT, "not yet a reproduction row"),
-    ("16", "operation counts 516 / 29 154 (3.24)/(3.25)", NOT, "not yet a reproduction row"),
+    ("16", "operation counts 516 / 29 154 (3.24)/(3.25)", ROW, "Book §3.1 (MATLAB flops figures not reproducible)"),
     ("17–19", "Ex 4.1, Tables 4.1–4.2", NOT, "not yet a reproduction row"),
     ("20", "accelerometer calibration results", NOT, "not reproducible: no raw data"),
     ("21–25", "Ex 5.1–5.3 isolation tables", NOT, "not yet reproduction rows (Ex 5.3 closed loop: case 27)"),
@@ -48,7 +48,9 @@ BOOK_CASES: tuple[tuple[str, str, str, str], ...] = (
     ("28", "chapter 6 results", NOT, "not reproducible: no data (analogues not yet compared)"),
     ("29–31", "chapter 2 identities", NOT, "identities, not rows"),
     ("32–33", "gyro-free identities", ROW, "Book §2.4"),
-    ("34–39", "QR / square-root / magnetometer / calibration / FDI identities", NOT, "identities, not rows"),
+    ("34–35", "QR-form and Φ identities", NOT, "identities, not rows"),
+    ("36", "QR / singular-r / Joseph / conventional agree", ROW, "Book §3.1 (singular-r variant)"),
+    ("37–39", "magnetometer, calibration, FDI identities", NOT, "identities, not rows"),
 )
 
 
