@@ -11,6 +11,7 @@ from ins_hil.nav import enu
 from ins_hil.nav.alignment import coarse_alignment_enu
 from ins_hil.nav.rotation import euler_from_dcm
 from ins_hil.reproduce import seed001_frames as s1
+from ins_hil.reproduce import seed001_jacobian as s1k
 
 
 def test_somigliana_table_1() -> None:
@@ -55,3 +56,17 @@ def test_coarse_alignment_refuses_at_the_pole() -> None:
 
 def test_rows_pass() -> None:
     assert all(r.status == "pass" for r in s1.rows())
+
+
+def test_error_model_F_matches_finite_differences() -> None:
+    """001-K: the corrected F blocks agree with the numerical Jacobian of eq. (59); the printed F31/F32 signs do not."""
+    c = s1k.compare()
+    assert c["worst"] < 1e-5
+    assert c["printed_att"] > 0.5
+    assert c["f21_33"] == pytest.approx(c["f21_33_ref"], rel=0.01)
+
+
+def test_F_detects_a_wrong_entry() -> None:
+    Fa, Fn = s1k.analytic_F(), s1k.numerical_F()
+    Fa[1, 0] *= -1.0  # F11(2,1) = λ̇ tan φ with the wrong sign
+    assert abs(Fa[1, 0] - Fn[1, 0]) > 0.5 * abs(Fn[1, 0])

@@ -22,7 +22,12 @@ SEED_CASES: tuple[tuple[str, str, str, str], ...] = (
         ROW,
         "Seed 001: `alignment.coarse_alignment_enu` (not a NavCore option)",
     ),
-    ("001-K", "error-model Jacobian F", NOT, "not yet a reproduction row (F against seed 001's sub-matrices not done)"),
+    (
+        "001-K",
+        "error-model Jacobian F",
+        ROW,
+        "Seed 001: F vs finite differences (ENU, in `reproduce`; not the core's F)",
+    ),
     ("001-L", "Kalman update forms", NOT, "not yet a reproduction row"),
     ("002-A", "code ≡ formula", NOT, "identity, not a row"),
     ("002-B…002-I", "coning drift laws and ratios", ROW, "Seed 002 coning drift"),
