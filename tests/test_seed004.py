@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from ins_hil.nav import platform_ins as pi
-from ins_hil.nav import platform_testbed as tb
+from ins_hil.platform_ins import model as pi
+from ins_hil.platform_ins import testbed as tb
+from ins_hil.platform_ins.adaptive import AdaptiveKF
 from ins_hil.reproduce import seed004
 
 LAT = math.radians(55.0)
@@ -155,12 +156,12 @@ def test_reduced_measurements_recover_a_sequence() -> None:
     np.testing.assert_allclose(y, np.array(xs)[:-2], rtol=1e-6, atol=1e-12)
 
 
-def _kf_run(r_true: float, r_nom: float, q_scale_true: float, adapt: bool, n: int = 3000) -> pi.AdaptiveKF:
+def _kf_run(r_true: float, r_nom: float, q_scale_true: float, adapt: bool, n: int = 3000) -> AdaptiveKF:
     rng = np.random.default_rng(1)
     F = np.array([[1.0, 1.0], [0.0, 1.0]])
     H = np.array([[1.0, 0.0]])
     q_nom = np.array([1e-4, 1e-6])
-    kf = pi.AdaptiveKF(F, H, q_nom, [r_nom], np.zeros(2), np.eye(2), adapt=adapt)
+    kf = AdaptiveKF(F, H, q_nom, [r_nom], np.zeros(2), np.eye(2), adapt=adapt)
     x = np.zeros(2)
     for _ in range(n):
         x = F @ x + np.sqrt(q_scale_true * q_nom) * rng.standard_normal(2)

@@ -34,7 +34,8 @@ import numpy as np
 
 from ins_hil.types import Vec
 
-from . import platform_ins as pi
+from . import model as pi
+from .adaptive import AdaptiveKF
 
 
 @dataclass(frozen=True)
@@ -182,7 +183,7 @@ def simulate(cfg: TestbedConfig = TestbedConfig()) -> TestbedResult:
 
     # classical: z = a_y^p = Φ_E g + δa_y, level unaccelerated flight only (eqs. 8–10)
     for name, gated in (("classical", True), ("classical, ungated", False)):
-        kf = pi.AdaptiveKF(
+        kf = AdaptiveKF(
             F, np.array([[0.0, pi.G, 0.0]]), q_nom, [(cfg.sigma_accel**2 / win)], np.zeros(3), P0.copy(), adapt=False
         )
         xs = np.empty((len(idx), 3))
@@ -198,7 +199,7 @@ def simulate(cfg: TestbedConfig = TestbedConfig()) -> TestbedResult:
     y = pi.reduced_measurements(z_phi, T, beta=cfg.beta)
     r_nom = Si @ (cfg.sigma_z_nom**2 * np.eye(3)) @ Si.T
     for name, adapt in (("reduced adaptive", True), ("reduced non-adaptive", False)):
-        kf = pi.AdaptiveKF(F, np.eye(3), q_nom, r_nom, np.zeros(3), P0.copy(), adapt=adapt)
+        kf = AdaptiveKF(F, np.eye(3), q_nom, r_nom, np.zeros(3), P0.copy(), adapt=adapt)
         xs = np.full((len(idx), 3), np.nan)
         xs[0] = kf.x
         for k in range(1, len(y)):
