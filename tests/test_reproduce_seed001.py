@@ -70,3 +70,9 @@ def test_F_detects_a_wrong_entry() -> None:
     Fa, Fn = s1k.analytic_F(), s1k.numerical_F()
     Fa[1, 0] *= -1.0  # F11(2,1) = λ̇ tan φ with the wrong sign
     assert abs(Fa[1, 0] - Fn[1, 0]) > 0.5 * abs(Fn[1, 0])
+
+
+def test_earth_rows_check_the_core_earth_model() -> None:
+    rows = s1._earth_rows()
+    assert len(rows) == 11
+    assert all(r.status == "pass" for r in rows)

@@ -7,11 +7,11 @@ ROW = "row"
 NOT = "not a row"
 
 SEED_CASES: tuple[tuple[str, str, str, str], ...] = (
-    ("001-A", "WGS84 derived constants", NOT, "not yet a reproduction row"),
-    ("001-B", "Somigliana normal gravity", NOT, "not yet a reproduction row"),
+    ("001-A", "WGS84 derived constants", ROW, "Seed 001: WGS84, gravity, Earth rate (the core's nav.earth)"),
+    ("001-B", "Somigliana normal gravity", ROW, "Seed 001: WGS84, gravity, Earth rate (the core's nav.earth)"),
     ("001-C", "series vs Somigliana gravity", ROW, "Seed 001: gravity series (printed β₁ = f²/4 shown as a typo)"),
-    ("001-D", "height-dependent gravity", NOT, "not yet a reproduction row"),
-    ("001-E", "Earth rate 15.041 °/h", NOT, "not yet a reproduction row"),
+    ("001-D", "height-dependent gravity", ROW, "Seed 001: WGS84, gravity, Earth rate (the core's nav.earth)"),
+    ("001-E", "Earth rate 15.041 °/h", ROW, "Seed 001: WGS84, gravity, Earth rate (the core's nav.earth)"),
     ("001-F", "Schuler period", ROW, "Seed 001 Schuler oscillation"),
     ("001-G", "Schuler response", ROW, "Seed 001 Schuler oscillation"),
     ("001-H", "Euler/DCM/quaternion (ENU, y-x-z)", ROW, "Seed 001: converters `ins_hil.nav.enu` (the core stays NED)"),

@@ -1,6 +1,7 @@
-"""Seed 001: series normal gravity (001-C), ENU / y-x-z Euler conventions (001-H), coarse alignment (001-J).
+"""Seed 001: WGS84 and gravity (001-A…E), ENU / y-x-z Euler conventions (001-H), coarse alignment (001-J).
 
-DIGEST_001_004 §1.3, §1.4, §1.8 and §6 cases 3, 8, 10. The conventions are converters at the edges
+DIGEST_001_004 §1.2–1.4, §1.8 and §6 cases 1–5, 8, 10. 001-A, B, D, E check the core's own
+:mod:`ins_hil.nav.earth`. The conventions are converters at the edges
 (:mod:`ins_hil.nav.enu`); the core stays NED.
 """
 
@@ -11,7 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ins_hil.nav import enu
+from ins_hil.nav import earth, enu
 from ins_hil.nav.alignment import coarse_alignment_enu
 from ins_hil.nav.rotation import dcm_from_quat, euler_from_dcm, quat_from_dcm
 
@@ -92,9 +93,48 @@ def alignment_case(printed_sign: bool = False) -> tuple[float, float]:
     return float(np.max(np.abs(Rh - R))), float(np.max(np.abs(Rh @ Rh.T - np.eye(3))))
 
 
+SOMIGLIANA_TABLE = {  # DIGEST_001_004 §1.3 (derived from eq. 12 and Table 1), m/s²
+    0: 9.7803253359,
+    15: 9.7837849623,
+    30: 9.7932472692,
+    45: 9.8061977693,
+    60: 9.8191769531,
+    75: 9.8286966274,
+    90: 9.8321849378,
+}
+
+
+def _earth_rows() -> list[Row]:
+    g = "001-A/B/D/E WGS84, normal gravity and Earth rate of ins_hil.nav.earth"
+    out = [
+        Row(g, "b = a(1 − f) [m]", None, earth.B_WGS84, 1e-4, "abs", 6356752.3142, "001-A, digest value"),
+        Row(g, "e² = f(2 − f)", None, earth.E2_WGS84, 1e-15, "abs", 0.006694379990141, "001-A"),
+    ]
+    for deg, val in SOMIGLIANA_TABLE.items():
+        out.append(
+            Row(g, f"γ₀({deg}°) [m/s²]", None, earth.normal_gravity(math.radians(deg)), 1e-9, "abs", val, "001-B")
+        )
+    out.append(
+        Row(
+            g,
+            "γ(45°, h = 1000 m) [m/s²]",
+            None,
+            earth.normal_gravity(math.radians(45), 1000.0),
+            1e-7,
+            "abs",
+            9.80311299,
+            "001-D",
+        )
+    )
+    out.append(
+        Row(g, "Earth rate [°/h]", 15.041, math.degrees(OMEGA_E) * 3600.0, 0.05, "abs", note="001-E: '≈ 15 °/h'")
+    )
+    return out
+
+
 @lru_cache(maxsize=1)
 def rows() -> list[Row]:
-    out: list[Row] = []
+    out: list[Row] = _earth_rows()
     g = "001-C series normal gravity (eq. 13–15) vs Somigliana (eq. 12)"
     beta, beta1 = series_coefficients()
     out.append(Row(g, "β (eq. 14)", None, beta, 1e-9, "rel", 5.302441393e-3, "digest value"))
