@@ -74,5 +74,11 @@ def test_F_detects_a_wrong_entry() -> None:
 
 def test_earth_rows_check_the_core_earth_model() -> None:
     rows = s1._earth_rows()
-    assert len(rows) == 11
+    assert len(rows) == 11  # 001-A (2), 001-B (7), 001-D, 001-E
     assert all(r.status == "pass" for r in rows)
+
+
+def test_attitude_update_and_kalman_forms() -> None:
+    """001-I and 001-L."""
+    assert s1.attitude_update_error() < 1e-12
+    assert s1.kalman_forms_error() < 1e-10

@@ -92,7 +92,7 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         ("Seed 002: one-step algorithms under coning (DIGEST_001_004 §6 cases 13–23)", seed002.rows),
         ("Seed 001: Schuler oscillation (DIGEST_001_004 §6 cases 6–7)", seed001.rows),
         (
-            "Seed 001: WGS84, gravity, ENU/y-x-z, coarse alignment (DIGEST_001_004 §6 cases 1–5, 8, 10)",
+            "Seed 001: WGS84, gravity, frames, attitude, alignment, KF forms (DIGEST_001_004 §6 cases 1–5, 8–10, 12)",
             seed001_frames.rows,
         ),
         ("Seed 001: error-model F vs finite differences (DIGEST_001_004 §6 case 11)", seed001_jacobian.rows),

@@ -15,7 +15,7 @@ SEED_CASES: tuple[tuple[str, str, str, str], ...] = (
     ("001-F", "Schuler period", ROW, "Seed 001 Schuler oscillation"),
     ("001-G", "Schuler response", ROW, "Seed 001 Schuler oscillation"),
     ("001-H", "Euler/DCM/quaternion (ENU, y-x-z)", ROW, "Seed 001: converters `ins_hil.nav.enu` (the core stays NED)"),
-    ("001-I", "attitude update", NOT, "not yet a reproduction row"),
+    ("001-I", "attitude update", ROW, "Seed 001: eq. 61/63 with the core's quaternion functions"),
     (
         "001-J",
         "static coarse alignment eqs. 64–69",
@@ -28,7 +28,7 @@ SEED_CASES: tuple[tuple[str, str, str, str], ...] = (
         ROW,
         "Seed 001: F vs finite differences (ENU, in `reproduce`; not the core's F)",
     ),
-    ("001-L", "Kalman update forms", NOT, "not yet a reproduction row"),
+    ("001-L", "Kalman update forms", ROW, "Seed 001: information vs covariance form"),
     ("002-A", "code ≡ formula", NOT, "identity, not a row"),
     ("002-B…002-I", "coning drift laws and ratios", ROW, "Seed 002 coning drift"),
     ("002-J", "phase dependence", NOT, "figure-only claim, not a row"),

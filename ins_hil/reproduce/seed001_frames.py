@@ -11,10 +11,12 @@ import math
 from functools import lru_cache
 
 import numpy as np
+from scipy.linalg import expm
 
+from ins_hil.fusion.sqrt import conventional_update
 from ins_hil.nav import earth, enu
 from ins_hil.nav.alignment import coarse_alignment_enu
-from ins_hil.nav.rotation import dcm_from_quat, euler_from_dcm, quat_from_dcm
+from ins_hil.nav.rotation import dcm_from_quat, euler_from_dcm, quat_from_dcm, quat_from_rotvec, quat_mul, skew
 
 from . import Row
 
@@ -132,9 +134,55 @@ def _earth_rows() -> list[Row]:
     return out
 
 
+def attitude_update_error(seed: int = 9) -> float:
+    """001-I: max over random R_k, α (‖α‖ = 1e-9…1 rad) of |(61) − R_k expm([α×])| and |DCM(q_k ∘ q(α)) − (61)|.
+
+    (61): R_{k+1} = R_k (I + sin a/a [α×] + (1 − cos a)/a² [α×]²), a = ‖α‖ (series below 1e-6)."""
+    rng = np.random.default_rng(seed)
+    worst = 0.0
+    for a in np.logspace(-9, 0, 28):
+        qk = rng.normal(size=4)
+        qk /= np.linalg.norm(qk)
+        Rk = dcm_from_quat(qk)
+        u = rng.normal(size=3)
+        alpha = a * u / np.linalg.norm(u)
+        S = skew(alpha)
+        if a < 1e-6:
+            s1, s2 = 1.0 - a * a / 6.0, 0.5 - a * a / 24.0
+        else:
+            s1, s2 = math.sin(a) / a, (1.0 - math.cos(a)) / (a * a)
+        R61 = Rk @ (np.eye(3) + s1 * S + s2 * S @ S)
+        worst = max(worst, float(np.max(np.abs(R61 - Rk @ expm(S)))))
+        worst = max(worst, float(np.max(np.abs(dcm_from_quat(quat_mul(qk, quat_from_rotvec(alpha))) - R61))))
+    return worst
+
+
+def kalman_forms_error(seed: int = 12) -> float:
+    """001-L: max |information form − covariance form| of P(+) and x(+) (eqs. 143–144), 15 states, H = [I₆ 0]."""
+    rng = np.random.default_rng(seed)
+    A_ = rng.normal(size=(15, 15))
+    P = A_ @ A_.T + 15 * np.eye(15)
+    B_ = rng.normal(size=(6, 6))
+    R = B_ @ B_.T + 6 * np.eye(6)
+    H = np.hstack([np.eye(6), np.zeros((6, 9))])
+    x, z = rng.normal(size=15), rng.normal(size=6)
+    xc, Pc = conventional_update(x, P, z, H, R)
+    Ri = np.linalg.inv(R)
+    Pi = np.linalg.inv(np.linalg.inv(P) + H.T @ Ri @ H)  # (143)
+    xi = Pi @ (np.linalg.inv(P) @ x + H.T @ Ri @ z)  # (144), with H^T Σ_z^{-1} z
+    return max(float(np.max(np.abs(Pi - Pc))), float(np.max(np.abs(xi - xc))))
+
+
 @lru_cache(maxsize=1)
 def rows() -> list[Row]:
     out: list[Row] = _earth_rows()
+    g = "001-I / 001-L attitude update (eq. 61, 63) and Kalman update forms (eq. 143–144)"
+    out.append(
+        Row(
+            g, "max |(61) − R_k expm([α×])|, |DCM(q_k ∘ q(α)) − (61)|", None, attitude_update_error(), 1e-12, "abs", 0.0
+        )
+    )
+    out.append(Row(g, "max |information − covariance form| (P⁺, x̂⁺)", None, kalman_forms_error(), 1e-10, "abs", 0.0))
     g = "001-C series normal gravity (eq. 13–15) vs Somigliana (eq. 12)"
     beta, beta1 = series_coefficients()
     out.append(Row(g, "β (eq. 14)", None, beta, 1e-9, "rel", 5.302441393e-3, "digest value"))
