@@ -45,3 +45,13 @@ def test_coverage_names_every_seed_004_case() -> None:
     cases = {c[0] for c in coverage.SEED_CASES}
     assert {"004-A", "004-B", "004-C", "004-D", "001-C", "001-H", "001-J", "001-K"} <= cases
     assert "not yet a reproduction row" in coverage.markdown()
+
+
+def test_seed002_phase_dependence_rows() -> None:
+    """002-J: drifts ∝ sin ε, anti-phase, largest at ±90°."""
+    from ins_hil.reproduce.seed002 import phase_dependence, phase_rows
+
+    d = phase_dependence("revers1h")
+    assert abs(d[0]) < 1e-12 and abs(d[180]) < 1e-12
+    assert d[90] == pytest.approx(-d[-90], rel=1e-9)
+    assert all(r.status == "pass" for r in phase_rows())
