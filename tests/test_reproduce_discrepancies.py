@@ -55,3 +55,15 @@ def test_seed002_phase_dependence_rows() -> None:
     assert abs(d[0]) < 1e-12 and abs(d[180]) < 1e-12
     assert d[90] == pytest.approx(-d[-90], rel=1e-9)
     assert all(r.status == "pass" for r in phase_rows())
+
+
+def test_seed002_norm_growth() -> None:
+    """002-K: Revers1h's step quaternion grows by h²(|ω0|² + |ω1|²)/16, RK21's only by h²|ω1 − ω0|²/16 + O(h⁴)."""
+    from ins_hil.reproduce.seed002 import norm_growth, norm_rows
+
+    d, law = norm_growth("revers1h", 1e-3)
+    assert d == pytest.approx(law, rel=1e-5)
+    d2, law2 = norm_growth("rk21", 1e-3)
+    assert d2 == pytest.approx(law2, rel=1e-8)
+    assert d2 < 0.5 * d
+    assert all(r.status == "pass" for r in norm_rows())

@@ -233,6 +233,7 @@ def rows() -> list[Row]:
         )
     )
     out += phase_rows()
+    out += norm_rows()
     return out
 
 
@@ -256,4 +257,28 @@ def phase_rows() -> list[Row]:
     out.append(
         Row(g, "opposite signs at every ε ≠ 0°, 180° (1 = yes)", None, float(opp), 0.0, "abs", 1.0, "'anti-phase'")
     )
+    return out
+
+
+def norm_growth(kind: str, h: float, seed: int = 0) -> tuple[float, float]:
+    """(|N|² − 1, the digest's law) for one step with random ω0, ω1 (002-K).
+
+    Revers1h: h²(|ω0|² + |ω1|²)/16 + O(h⁴); RK21: h²|ω1 − ω0|²/16 + h⁴|ω0|²|ω1|²/64 (exact)."""
+    rng = np.random.default_rng(seed)
+    w0, w1 = rng.normal(size=3), rng.normal(size=3)
+    n = increments(w0, w1, h, kind)
+    if kind == "revers1h":
+        law = h * h * (w0 @ w0 + w1 @ w1) / 16.0
+    else:
+        law = h * h * ((w1 - w0) @ (w1 - w0)) / 16.0 + h**4 * (w0 @ w0) * (w1 @ w1) / 64.0
+    return float(n @ n - 1.0), float(law)
+
+
+def norm_rows() -> list[Row]:
+    """002-K: the step quaternion's norm growth (the claim 'steady' for RK21, growing for Revers1h)."""
+    g = "Seed 002 normalisation (002-K, one step, random ω0, ω1, h = 1e-3 s)"
+    out = []
+    for kind, name, tol in (("revers1h", "Revers1h", 1e-5), ("rk21", "RK21", 1e-8)):
+        d, law = norm_growth(kind, 1e-3)
+        out.append(Row(g, f"{name}: (|N|² − 1) / law", None, d / law, tol, "abs", 1.0, "DIGEST_001_004 §6 case 22"))
     return out
