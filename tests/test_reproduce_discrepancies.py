@@ -67,3 +67,14 @@ def test_seed002_norm_growth() -> None:
     assert d2 == pytest.approx(law2, rel=1e-8)
     assert d2 < 0.5 * d
     assert all(r.status == "pass" for r in norm_rows())
+
+
+def test_seed003_guards() -> None:
+    """003-A…D: the printed DCM is not orthogonal, i∘j = +k, J2 (not 1.09e-10) gives γ_a/γ_b, Table 1.1 corrected."""
+    from ins_hil.reproduce import seed003
+
+    P = seed003.dcm_printed(0.3, 0.2, 0.1)
+    assert abs((P @ P.T)[0, 1]) > 0.4
+    eq, pole = seed003.j2_gravity(seed003.J2)
+    assert eq == pytest.approx(9.78028, abs=2e-4) and pole == pytest.approx(9.83207, abs=2e-4)
+    assert all(r.status == "pass" for r in seed003.rows())

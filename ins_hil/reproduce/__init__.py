@@ -84,7 +84,18 @@ class Row:
 
 
 def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
-    from . import book_ch2, book_ch3, book_ch5, gyrofree, seed001, seed001_frames, seed001_jacobian, seed002, seed004
+    from . import (
+        book_ch2,
+        book_ch3,
+        book_ch5,
+        gyrofree,
+        seed001,
+        seed001_frames,
+        seed001_jacobian,
+        seed002,
+        seed003,
+        seed004,
+    )
 
     return [
         ("Book ch. 2: rotational mechanization (DIGEST_000 §8 cases 1–11)", book_ch2.rows),
@@ -97,6 +108,7 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         ),
         ("Seed 001: error-model F vs finite differences (DIGEST_001_004 §6 case 11)", seed001_jacobian.rows),
         ("Book §3.1: square-root QR with a singular r, operation counts (DIGEST_000 §8 cases 16, 36)", book_ch3.rows),
+        ("Seed 003: derived guards against its typos (DIGEST_001_004 §6 cases 24–27)", seed003.rows),
         ("Book Ex 5.3: isolation from the estimated gyro bias (units of a₁)", book_ch5.rows),
         ("Seed 004: platform INS with precession-angle sensors (DIGEST_001_004 §6 cases 28–31)", seed004.rows),
     ]

@@ -33,7 +33,7 @@ SEED_CASES: tuple[tuple[str, str, str, str], ...] = (
     ("002-B…002-I", "coning drift laws and ratios", ROW, "Seed 002 coning drift"),
     ("002-J", "phase dependence", ROW, "Seed 002 phase dependence"),
     ("002-K", "normalisation", ROW, "Seed 002 normalisation (norm growth per step)"),
-    ("003-A…003-D", "derived guards against seed 003's typos", NOT, "the seed prints no results; not rows"),
+    ("003-A…003-D", "derived guards against seed 003's typos", ROW, "Seed 003 (the thesis prints no results)"),
     ("004-A", "reduced measurements eqs. 19–21", ROW, "Seed 004"),
     ("004-B", "platform-angle reconstruction eqs. 3–5", ROW, "Seed 004"),
     ("004-C", "level-flight accelerometer measurement eqs. 6–8", ROW, "Seed 004"),
