@@ -19,16 +19,20 @@ def _table_lines(text: str) -> list[str]:
 def test_reproduce_command_writes_the_report(tmp_path: Path, capsys) -> None:
     out = tmp_path / "sub" / "reproduction.md"
     assert main(["reproduce", "--output", str(out), "--quiet"]) == 0
-    for png in ("reproduction_coning.png", "reproduction_schuler.png"):
+    for png in ("reproduction_coning.png", "reproduction_schuler.png", "reproduction_seed004.png"):
         assert (out.parent / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f"![{png}]({png})" in out.read_text(encoding="utf-8")
-    assert "rows pass; report written to" in capsys.readouterr().out
+    assert "discrepancies; report written to" in capsys.readouterr().out
     text = out.read_text(encoding="utf-8")
     rows = all_rows()
-    lines = _table_lines(text)
+    lines = _table_lines(text.split("\n## Seed 004: simulated test bed")[0])
     assert len(lines) == len(rows)
-    assert all(ln.split(" | ")[7] == "pass" for ln in lines)
-    assert f"**{len(rows)} of {len(rows)} rows pass.**" in text
+    disc = [r for r in rows if r.discrepancy]
+    assert all(ln.split(" | ")[7] == "pass" or ln.split(" | ")[7].startswith("**discrepancy**") for ln in lines)
+    assert sum(ln.split(" | ")[7].startswith("**discrepancy**") for ln in lines) == len(disc) >= 9
+    n_pass = len(rows) - len(disc)
+    assert f"**{n_pass} of {len(rows)} rows pass, {len(disc)} are reported as discrepancies" in text
+    assert "## Digest cases: covered and not covered" in text
     n_typo = sum(r.typo for r in rows)
     assert n_typo >= 6 and text.count("**typo**") == n_typo + 1  # + the legend
     # every published value sits beside ours (the book's Table 2.1 typo 25.7 and its corrected 25.27)

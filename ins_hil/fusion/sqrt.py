@@ -76,6 +76,29 @@ def qr_update(x: Vec, m: Vec, z: Vec, H: Vec, r: Vec) -> tuple[Vec, Vec]:
     return x + K @ (z - H @ x), p
 
 
+def qr_update_singular_r(x: Vec, m: Vec, z: Vec, H: Vec, r: Vec) -> tuple[Vec, Vec]:
+    """The book's QR measurement update without inverting r (§3.1.2, R = r r^T may be singular).
+
+    [Y; 0] = Ω m^T H^T (QR, Y p × p, assumed invertible: H m of full row rank), W̃ = diag{r^T Y^{−1}, I},
+    Ñ = [W̃ Ω, [I; 0]], [R̃; 0] = Ũ Ñ^T (QR) and p = m Ω^T W̃^T R̃^{−1}, with the upper-triangular R̃
+    (the book writes S̃; DIGEST_000 §10 item 28). N = Ω^T W̃^{−1} Ñ reproduces (3.10)'s factor, so
+    P(+) = p p^T equals (3.8). Gain K = m A (A^T A + r r^T)^{−1}, A = m^T H^T (= P(−) H^T (H P(−) H^T + R)^{−1}),
+    since (3.54)'s R^{−1} does not exist here. Returns (x(+), p)."""
+    n = m.shape[0]
+    A = m.T @ H.T  # n × p
+    k = A.shape[1]
+    Q, Rfull = np.linalg.qr(A, mode="complete")  # A = Q [Y; 0]  ⇒  Ω = Q^T
+    Om = Q.T
+    Y = Rfull[:k, :k]
+    W = np.eye(n)
+    W[:k, :k] = np.linalg.solve(Y.T, r).T  # r^T Y^{-1}
+    Nt = np.hstack([W @ Om, np.vstack([np.eye(k), np.zeros((n - k, k))])])  # Ñ, n × (n + p)
+    Rt = np.asarray(np.linalg.qr(Nt.T, mode="r"))[:n, :n]  # [R̃; 0] = Ũ Ñ^T
+    p = np.linalg.solve(Rt.T, (m @ Om.T @ W.T).T).T  # p = m Ω^T W̃^T R̃^{-1}
+    K = m @ A @ np.linalg.inv(A.T @ A + r @ r.T)
+    return x + K @ (z - H @ x), p
+
+
 def qr_predict(p: Vec, Phi: Vec, q: Vec) -> Vec:
     """Book eqs. (3.13)–(3.15): m_{k+1} = tria([Φ p, q])."""
     return tria(np.hstack([Phi @ p, q]))

@@ -86,3 +86,20 @@ def book_A_classic(psi: float, theta: float, phi: float) -> Vec:
         return np.array(((1.0, 0.0, 0.0), (0.0, c, s), (0.0, -s, c)))
 
     return r3(phi) @ r1(theta) @ r3(psi)
+
+
+def coarse_alignment_enu(f_b: Vec, w_b: Vec, lat: float, g: float) -> Vec:
+    """Seed 001 eqs. (64)–(69): R_b^l (body → ENU) from mean specific force f_b [m/s²] and rate w_b [rad/s] at rest.
+
+    Row 3 (Up in body axes) = +f_b/g: the sign for specific-force accelerometers (a static IMU measures
+    f^l = (0, 0, +g) in ENU); the printed (65) has −f/g, which holds only if the output has gravity's
+    sign (DIGEST_001_004 §1.8). Row 2 (North) by (68), row 1 (East) = North × Up by (69). Raises
+    ValueError near the poles (cos φ → 0), where Earth rate has no horizontal component to resolve.
+    """
+    c = math.cos(lat)
+    if abs(c) < 1e-3:
+        raise ValueError("gyrocompass alignment needs |latitude| < 89.9°: Earth rate has no horizontal component")
+    up = np.asarray(f_b, dtype=float) / g
+    north = np.asarray(w_b, dtype=float) / (7.292115e-5 * c) - math.tan(lat) * up
+    east = np.cross(north, up)
+    return np.vstack([east, north, up])

@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-__all__ = ["Row", "all_rows", "groups"]
+__all__ = ["Row", "all_rows", "groups", "notes"]
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,8 @@ class Row:
     ``check``: ``"rel"`` |ours − ref| ≤ tol·|ref|; ``"abs"`` |ours − ref| ≤ tol;
     ``"le"`` ours ≤ ref; ``"ge"`` ours ≥ ref (bounds). ``published`` is None
     when the source prints no number (the reference then comes from the digest).
+    ``discrepancy`` names why a row is reported rather than passed (a parameter we had to
+    change, a unit the source does not state): such a row never counts as a pass.
     """
 
     group: str
@@ -35,6 +37,14 @@ class Row:
     reference: float | None = None
     note: str = ""
     typo: bool = False
+    discrepancy: str = ""  # non-empty: the reason our result differs (a changed parameter, a reading); never a pass
+
+    @property
+    def status(self) -> str:
+        """Return "pass", "fail" or "discrepancy" (reported with its reason: neither a pass nor a fail)."""
+        if self.discrepancy:
+            return "discrepancy"
+        return "pass" if self.passed else "fail"
 
     @property
     def ref(self) -> float:
@@ -74,14 +84,41 @@ class Row:
 
 
 def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
-    from . import book_ch2, gyrofree, seed001, seed002
+    from . import (
+        book_ch2,
+        book_ch3,
+        book_ch5,
+        gyrofree,
+        seed001,
+        seed001_frames,
+        seed001_jacobian,
+        seed002,
+        seed003,
+        seed004,
+    )
 
     return [
         ("Book ch. 2: rotational mechanization (DIGEST_000 §8 cases 1–11)", book_ch2.rows),
         ("Book §2.4: gyro-free INS (DIGEST_000 §8 cases 12–13, 32–33)", gyrofree.rows),
         ("Seed 002: one-step algorithms under coning (DIGEST_001_004 §6 cases 13–23)", seed002.rows),
         ("Seed 001: Schuler oscillation (DIGEST_001_004 §6 cases 6–7)", seed001.rows),
+        (
+            "Seed 001: WGS84, gravity, frames, attitude, alignment, KF forms (DIGEST_001_004 §6 cases 1–5, 8–10, 12)",
+            seed001_frames.rows,
+        ),
+        ("Seed 001: error-model F vs finite differences (DIGEST_001_004 §6 case 11)", seed001_jacobian.rows),
+        ("Book §3.1: square-root QR with a singular r, operation counts (DIGEST_000 §8 cases 16, 36)", book_ch3.rows),
+        ("Seed 003: derived guards against its typos (DIGEST_001_004 §6 cases 24–27)", seed003.rows),
+        ("Book Ex 5.3: isolation from the estimated gyro bias (units of a₁)", book_ch5.rows),
+        ("Seed 004: platform INS with precession-angle sensors (DIGEST_001_004 §6 cases 28–31)", seed004.rows),
     ]
+
+
+def notes() -> list[str]:
+    """Markdown sections written after the tables: the seed-004 test-bed comparison and the coverage list."""
+    from . import coverage, seed004
+
+    return [seed004.comparison_markdown(), coverage.markdown()]
 
 
 def all_rows() -> list[Row]:

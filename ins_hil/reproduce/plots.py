@@ -76,4 +76,37 @@ def write_figures(directory: Path) -> list[Path]:
     return [
         coning_figure(directory / "reproduction_coning.png"),
         schuler_figure(directory / "reproduction_schuler.png"),
+        seed004_figure(directory / "reproduction_seed004.png"),
     ]
+
+
+def seed004_figure(path: Path) -> Path:
+    """Seed-004 test bed (manoeuvres): true north-channel errors and the corrections' estimates."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from . import seed004
+
+    res, _ = seed004.testbed()
+    tm = res.t_k / 60.0
+    scale = (1.0, 1e6, 180.0 / np.pi * 3600.0)
+    labels = ("δv_N [m/s]", "Φ_E [µrad]", "ω_E^dr [°/h]")
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for i, ax in enumerate(axes):
+        ax.plot(tm, res.x_true[:, i] * scale[i], "k", lw=1.5, label="true error (uncorrected output)")
+        for name, style in (("classical", "C0-"), ("reduced adaptive", "C3-"), ("reduced non-adaptive", "C2:")):
+            ax.plot(tm, res.est[name][:, i] * scale[i], style, lw=1, label=f"estimate: {name}")
+        ax.set_ylabel(labels[i])
+        ax.grid(alpha=0.3)
+    for t0, d, _, _ in res.cfg.pulses:
+        for ax in axes:
+            ax.axvspan(t0 / 60, (t0 + 2 * d) / 60, color="0.85", lw=0)
+    axes[0].legend(fontsize=7, loc="upper left")
+    axes[-1].set_xlabel("time [min] (grey: manoeuvres)")
+    fig.suptitle("Seed 004: platform-INS north channel, simulated test bed")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

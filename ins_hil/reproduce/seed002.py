@@ -232,4 +232,53 @@ def rows() -> list[Row]:
             "from the fitted laws 0.0416 μ² / 7.64e-3 μ⁴ (DIGEST_001_004 §2.7)",
         )
     )
+    out += phase_rows()
+    out += norm_rows()
+    return out
+
+
+def phase_dependence(kind: str, mu: float = 0.1) -> dict[int, float]:
+    """δ(ε) (signed) for ε = −180°…180° in 15° steps (002-J)."""
+    return {e: coning_drift(kind, mu, eps=math.radians(e)) for e in range(-180, 181, 15)}
+
+
+def phase_rows() -> list[Row]:
+    """002-J: Revers1h and RK21 drifts ∝ sin ε, of opposite sign, zero at 0°/180°, largest at ±90° (μ = 0.1)."""
+    g = "Seed 002 phase dependence (002-J, μ = 0.1, ε = −180°…180° step 15°)"
+    out: list[Row] = []
+    dr, dk = phase_dependence("revers1h"), phase_dependence("rk21")
+    for name, d in (("Revers1h", dr), ("RK21", dk)):
+        amp = d[90]
+        dev = max(abs(v - amp * math.sin(math.radians(e))) for e, v in d.items()) / abs(amp)
+        out.append(Row(g, f"{name}: max |δ(ε) − δ(90°) sin ε| / |δ(90°)|", None, dev, 1e-3, "abs", 0.0, "'∝ sin ε'"))
+        argmax = max(d, key=lambda e: abs(d[e]))
+        out.append(Row(g, f"{name}: |ε| of the largest drift [deg]", None, float(abs(argmax)), 0.0, "abs", 90.0))
+    opp = all(dr[e] * dk[e] < 0 for e in dr if e % 180)
+    out.append(
+        Row(g, "opposite signs at every ε ≠ 0°, 180° (1 = yes)", None, float(opp), 0.0, "abs", 1.0, "'anti-phase'")
+    )
+    return out
+
+
+def norm_growth(kind: str, h: float, seed: int = 0) -> tuple[float, float]:
+    """(|N|² − 1, the digest's law) for one step with random ω0, ω1 (002-K).
+
+    Revers1h: h²(|ω0|² + |ω1|²)/16 + O(h⁴); RK21: h²|ω1 − ω0|²/16 + h⁴|ω0|²|ω1|²/64 (exact)."""
+    rng = np.random.default_rng(seed)
+    w0, w1 = rng.normal(size=3), rng.normal(size=3)
+    n = increments(w0, w1, h, kind)
+    if kind == "revers1h":
+        law = h * h * (w0 @ w0 + w1 @ w1) / 16.0
+    else:
+        law = h * h * ((w1 - w0) @ (w1 - w0)) / 16.0 + h**4 * (w0 @ w0) * (w1 @ w1) / 64.0
+    return float(n @ n - 1.0), float(law)
+
+
+def norm_rows() -> list[Row]:
+    """002-K: the step quaternion's norm growth (the claim 'steady' for RK21, growing for Revers1h)."""
+    g = "Seed 002 normalisation (002-K, one step, random ω0, ω1, h = 1e-3 s)"
+    out = []
+    for kind, name, tol in (("revers1h", "Revers1h", 1e-5), ("rk21", "RK21", 1e-8)):
+        d, law = norm_growth(kind, 1e-3)
+        out.append(Row(g, f"{name}: (|N|² − 1) / law", None, d / law, tol, "abs", 1.0, "DIGEST_001_004 §6 case 22"))
     return out

@@ -1,0 +1,197 @@
+"""Seed 001 case 001-K: the 15-state error model F (eqs. 90–101, corrected) against finite differences.
+
+The nonlinear l-frame (ENU) mechanization eq. (59) — ṙ = D⁻¹v, v̇ = R_b^l f^b − (2ω_ie + ω_el) × v + g,
+Ṙ_b^l = R_b^l(Ω_ib^b − Ω_il^b) — is differentiated numerically with respect to δr = (δφ, δλ, δh), δv,
+the misalignment ε of eq. (85) (R̃ = (I + E)R, δ = computed − true), the gyro drift d and the
+accelerometer bias b (body axes). The chapter's neglected terms are frozen or excluded, as the digest
+says: M and N are held at the nominal latitude (no ∂M/∂φ, ∂N/∂φ), γ does not depend on φ, and the
+δh column of the velocity rows (eq. 95) is left out except F21(3,3) = 2γ/R_e, compared on its own.
+Convention (DIGEST_001_004 §1.9): F23 = −[f×], F31 = −(printed F31), F32 = −(printed F32), F34 = +R_b^l.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from ins_hil.nav import earth
+from ins_hil.nav.enu import dcm_enu_from_euler_yxz
+
+from . import Row
+
+OMEGA_E = 7.292115e-5
+R_MEAN = 6371000.0
+LAT, H0 = math.radians(45.0), 100.0
+V0 = np.array([100.0, 50.0, 1.0])
+F_L = np.array([0.5, -0.3, 9.8])  # specific force in ENU
+ATT = (math.radians(3.0), math.radians(-2.0), math.radians(40.0))
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def _vee(S: np.ndarray) -> np.ndarray:
+    return 0.5 * np.array([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]])
+
+
+def _gamma(h: float) -> float:
+    from .seed001_frames import somigliana
+
+    s2 = math.sin(LAT) ** 2
+    return somigliana(LAT) - (3.0877e-6 - 4.4e-9 * s2) * h + 0.72e-12 * h * h  # eq. (16), φ frozen
+
+
+class _Mech:
+    """Eq. (59) with the radii frozen at the nominal latitude."""
+
+    def __init__(self) -> None:
+        self.M, self.N = earth.radii(LAT)
+        self.R = dcm_enu_from_euler_yxz(*ATT)
+        self.fb = self.R.T @ F_L
+        self.wib = self.R.T @ (self.w_il(np.array([LAT, 0.0, H0]), V0)) + np.array([0.01, -0.02, 0.03])
+
+    def w_il(self, r: np.ndarray, v: np.ndarray) -> np.ndarray:
+        phi, _, h = r
+        return np.array(
+            [
+                -v[1] / (self.M + h),
+                OMEGA_E * math.cos(phi) + v[0] / (self.N + h),
+                OMEGA_E * math.sin(phi) + v[0] * math.tan(phi) / (self.N + h),
+            ]
+        )
+
+    def rates(self, r: np.ndarray, v: np.ndarray, R: np.ndarray, d: np.ndarray, b: np.ndarray) -> tuple:
+        phi, _, h = r
+        rdot = np.array([v[1] / (self.M + h), v[0] / ((self.N + h) * math.cos(phi)), v[2]])
+        w_ie = np.array([0.0, OMEGA_E * math.cos(phi), OMEGA_E * math.sin(phi)])
+        w_el = self.w_il(r, v) - w_ie
+        vdot = R @ (self.fb + b) - np.cross(2 * w_ie + w_el, v) + np.array([0.0, 0.0, -_gamma(h)])
+        Rdot = R @ (_skew(self.wib + d) - _skew(R.T @ self.w_il(r, v)))
+        return rdot, vdot, Rdot
+
+    def error_rates(self, dx: np.ndarray) -> np.ndarray:
+        """(δṙ, δv̇, ε̇) for the error state dx (15) about the nominal point."""
+        r0, v0 = np.array([LAT, 0.0, H0]), V0
+        E = _skew(dx[6:9])
+        rt, vt, Rt = self.rates(r0, v0, self.R, np.zeros(3), np.zeros(3))
+        Rc = (np.eye(3) + E) @ self.R
+        rc, vc, Rcd = self.rates(r0 + dx[0:3], v0 + dx[3:6], Rc, dx[9:12], dx[12:15])
+        Edot = (Rcd - Rt - E @ Rt) @ self.R.T  # from R̃ = (I + E) R
+        return np.concatenate([rc - rt, vc - vt, _vee(Edot)])
+
+
+def numerical_F() -> np.ndarray:
+    """9 × 15 central-difference Jacobian of (δṙ, δv̇, ε̇)."""
+    m = _Mech()
+    steps = np.array([1e-7, 1e-7, 1.0] + [1e-3] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-4] * 3)
+    J = np.empty((9, 15))
+    for j in range(15):
+        e = np.zeros(15)
+        e[j] = steps[j]
+        J[:, j] = (m.error_rates(e) - m.error_rates(-e)) / (2 * steps[j])
+    return J
+
+
+def analytic_F() -> np.ndarray:
+    """Rows 1–9 of F (eq. 101) from the corrected sub-matrices (eqs. 90–98)."""
+    m = _Mech()
+    M, N, h, phi = m.M, m.N, H0, LAT
+    ve, vn, vu = V0
+    s, c, t = math.sin(phi), math.cos(phi), math.tan(phi)
+    we = OMEGA_E
+    phid, lamd = vn / (M + h), ve / ((N + h) * c)
+    g = _gamma(h)
+    F11 = np.array([[0, 0, -phid / (M + h)], [lamd * t, 0, -lamd / (N + h)], [0, 0, 0]])
+    F12 = np.array([[0, 1 / (M + h), 0], [1 / ((N + h) * c), 0, 0], [0, 0, 1]])
+    F21 = np.array(
+        [
+            [2 * we * (vu * s + vn * c) + vn * lamd / c, 0, 0],
+            [-2 * we * ve * c - ve * lamd / c, 0, 0],
+            [-2 * we * ve * s, 0, 2 * g / R_MEAN],
+        ]
+    )
+    F22 = np.array(
+        [
+            [(vn * t - vu) / (N + h), (2 * we + lamd) * s, -(2 * we + lamd) * c],
+            [-2 * (we + lamd) * s, -vu / (M + h), -phid],
+            [2 * (we + lamd) * c, 2 * phid, 0],
+        ]
+    )
+    fe, fn, fu = F_L
+    F23 = np.array([[0, fu, -fn], [-fu, 0, fe], [fn, -fe, 0]])
+    F31p = np.array(
+        [[0, 0, phid / (M + h)], [-we * s, 0, -lamd * c / (N + h)], [we * c + lamd / c, 0, -lamd * s / (N + h)]]
+    )
+    F32p = np.array([[0, -1 / (M + h), 0], [1 / (N + h), 0, 0], [t / (N + h), 0, 0]])
+    F33 = np.array([[0, (we + lamd) * s, -(we + lamd) * c], [-(we + lamd) * s, 0, -phid], [(we + lamd) * c, phid, 0]])
+    Z = np.zeros((3, 3))
+    R = m.R
+    return np.block(
+        [
+            [F11, F12, Z, Z, Z],
+            [F21, F22, F23, Z, R],
+            [-F31p, -F32p, F33, R, Z],
+        ]
+    )
+
+
+def compare() -> dict[str, float]:
+    """Max relative error per block (|ΔF| / max |F_block|), the printed attitude signs, and F21(3,3)."""
+    Fn, Fa = numerical_F(), analytic_F()
+    mask = np.ones_like(Fa, dtype=bool)
+    mask[3:6, 2] = False  # δh column of the velocity rows: neglected by eq. (95)
+    worst = 0.0
+    for bi in range(3):
+        for bj in range(5):
+            sl = (slice(3 * bi, 3 * bi + 3), slice(3 * bj, 3 * bj + 3))
+            a, n_, mk = Fa[sl], Fn[sl], mask[sl]
+            scale = max(float(np.max(np.abs(a))), float(np.max(np.abs(n_))))
+            if scale == 0.0:
+                continue
+            worst = max(worst, float(np.max(np.abs((a - n_)[mk]))) / scale)
+    printed = Fa.copy()
+    printed[6:9, 0:6] *= -1.0  # the printed F31, F32
+    att = Fn[6:9, 0:6]
+    printed_err = float(np.max(np.abs(printed[6:9, 0:6] - att)) / np.max(np.abs(att)))
+    return {"worst": worst, "printed_att": printed_err, "f21_33": float(Fn[5, 2]), "f21_33_ref": float(Fa[5, 2])}
+
+
+@lru_cache(maxsize=1)
+def rows() -> list[Row]:
+    g = "001-K error-model F vs finite differences of eq. (59) (φ = 45°, h = 100 m, v = (100, 50, 1) m/s)"
+    c = compare()
+    return [
+        Row(
+            g,
+            "max relative block error, corrected F (rows δr, δv, ε)",
+            None,
+            c["worst"],
+            1e-5,
+            "abs",
+            0.0,
+            "F11 (λ̇ tan φ, +), F12 = D⁻¹, F21, F22 (φ̇), F23, F25, F31/F32 = −printed, F33, F34",
+        ),
+        Row(
+            g,
+            "relative error of the attitude rows with the printed F31, F32",
+            None,
+            c["printed_att"],
+            check="ge",
+            reference=0.5,
+            note="the printed signs are the opposite of R̃ = (I + E)R's",
+            typo=True,
+        ),
+        Row(
+            g,
+            "F21(3,3) = 2γ/R_e vs −∂γ/∂h of eq. (16) [1/s²]",
+            None,
+            c["f21_33"],
+            0.01,
+            "rel",
+            c["f21_33_ref"],
+            "mean-radius approximation of the normal-gravity gradient",
+        ),
+    ]

@@ -1,0 +1,149 @@
+"""Seed 003 derived guards (DIGEST_001_004 §3, §6 cases 24–27): the thesis prints no results, so these
+rows check that its typos are not copied: the DCM (003-A), the quaternion product (003-B), the J2
+gravity constant (003-C) and Table 1.1 (003-D)."""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from ins_hil.nav.rotation import quat_mul
+
+from . import Row
+
+GM, A_E, J2, OMEGA_E = 3.986004418e14, 6378137.0, 1.0826e-3, 7.292115e-5
+B_E = A_E * (1.0 - 1.0 / 298.257223563)
+MU_PRINTED = 1.09e-10
+
+
+def dcm_printed(psi: float, th: float, ga: float) -> np.ndarray:
+    """The thesis' DCM as printed (line 688)."""
+    cs, ss, ct, st, cg, sg = math.cos(psi), math.sin(psi), math.cos(th), math.sin(th), math.cos(ga), math.sin(ga)
+    return np.array(
+        [
+            [ct * cs, cg * cs * st + sg * ss, sg * cs * st + cg * ss],
+            [st, cg * ct, sg * ct],
+            [-ct * ss, cg * ss * st + sg * cs, -sg * ss * st + cg * cs],
+        ]
+    )
+
+
+def dcm_corrected(psi: float, th: float, ga: float) -> np.ndarray:
+    """C = R_y(ψ) R_z(θ) R_x(γ) (DIGEST_001_004 §3.4, corrected)."""
+    cs, ss, ct, st, cg, sg = math.cos(psi), math.sin(psi), math.cos(th), math.sin(th), math.cos(ga), math.sin(ga)
+    return np.array(
+        [
+            [cs * ct, -cs * st * cg + ss * sg, cs * st * sg + ss * cg],
+            [st, ct * cg, -ct * sg],
+            [-ss * ct, ss * st * cg + cs * sg, -ss * st * sg + cs * cg],
+        ]
+    )
+
+
+def angles_from_dcm(C: np.ndarray) -> tuple[float, float, float]:
+    """ψ = arctg(−c31/c11), θ = arcsin c21, γ = arctg(−c23/c22) (the printed arcsin corrected to arctg)."""
+    return math.atan2(-C[2, 0], C[0, 0]), math.asin(C[1, 0]), math.atan2(-C[1, 2], C[1, 1])
+
+
+def j2_gravity(mu: float) -> tuple[float, float]:
+    """|g_r| − ω_e² a at the equator (r = a) and |g_r| at the pole (r = b), eq. (1.9)."""
+
+    def gr(r: float, phi: float) -> float:
+        return GM / r**2 * (1.0 + 1.5 * mu * (A_E / r) ** 2 * (1.0 - 3.0 * math.sin(phi) ** 2))
+
+    return gr(A_E, 0.0) - OMEGA_E**2 * A_E, gr(B_E, math.pi / 2)
+
+
+def table_1_1(phi: float, lam: float, eps: float) -> np.ndarray:
+    """Corrected Table 1.1 (Greenwich → orthodromic direction cosines)."""
+    sf, cf, sl, cl, se, ce = math.sin(phi), math.cos(phi), math.sin(lam), math.cos(lam), math.sin(eps), math.cos(eps)
+    return np.array(
+        [
+            [-sf * cl * se - sl * ce, -sf * sl * se + cl * ce, cf * se],
+            [-sf * cl * ce + sl * se, -sf * sl * ce - cl * se, cf * ce],
+            [cf * cl, cf * sl, sf],
+        ]
+    )
+
+
+@lru_cache(maxsize=1)
+def rows() -> list[Row]:
+    out: list[Row] = []
+    g = "003-A…D seed 003 guards (derived; the thesis prints no results)"
+    P = dcm_printed(0.3, 0.2, 0.1)
+    C = dcm_corrected(0.3, 0.2, 0.1)
+    out.append(
+        Row(
+            g,
+            "printed DCM: (C Cᵀ)₁₂ at (0.3, 0.2, 0.1)",
+            None,
+            float((P @ P.T)[0, 1]),
+            1e-3,
+            "abs",
+            0.4296,
+            "003-A: the printed matrix is not orthogonal",
+            typo=True,
+        )
+    )
+    out.append(
+        Row(g, "corrected DCM: max |C Cᵀ − I|", None, float(np.max(np.abs(C @ C.T - np.eye(3)))), 1e-12, "abs", 0.0)
+    )
+    back = angles_from_dcm(C)
+    out.append(
+        Row(
+            g,
+            "angles from the corrected DCM: max error [rad]",
+            None,
+            max(abs(a - b) for a, b in zip(back, (0.3, 0.2, 0.1), strict=True)),
+            1e-12,
+            "abs",
+            0.0,
+        )
+    )
+    i, j = np.array([0.0, 1, 0, 0]), np.array([0.0, 0, 1, 0])
+    out.append(
+        Row(
+            g,
+            "003-B: k-component of i∘j (Hamilton, ins_hil quat_mul)",
+            None,
+            float(quat_mul(i, j)[3]),
+            0.0,
+            "abs",
+            1.0,
+            "the printed k-component gives −k",
+        )
+    )
+    eq, pole = j2_gravity(J2)
+    eq_p, pole_p = j2_gravity(MU_PRINTED)
+    out.append(Row(g, "003-C: equator |g_r| − ω²a, μ = J2 [m/s²]", None, eq, 2e-4, "abs", 9.78028, "γ_a = 9.78033"))
+    out.append(Row(g, "003-C: pole |g_r|, μ = J2 [m/s²]", None, pole, 2e-4, "abs", 9.83207, "γ_b = 9.83218"))
+    out.append(
+        Row(
+            g,
+            "003-C: equator with the printed μ = 1.09e-10 [m/s²]",
+            None,
+            eq_p,
+            2e-4,
+            "abs",
+            9.7644,
+            "off by 0.016 from γ_a",
+            typo=True,
+        )
+    )
+    out.append(
+        Row(g, "003-C: pole with the printed μ [m/s²]", None, pole_p, 2e-4, "abs", 9.8643, "off by 0.032", typo=True)
+    )
+    rng = np.random.default_rng(27)
+    worst = 0.0
+    up_err = 0.0
+    for _ in range(50):
+        phi, lam, eps = rng.uniform(-1.5, 1.5), rng.uniform(-math.pi, math.pi), rng.uniform(-math.pi, math.pi)
+        T = table_1_1(phi, lam, eps)
+        worst = max(worst, float(np.max(np.abs(T @ T.T - np.eye(3)))))
+        up = np.array([math.cos(phi) * math.cos(lam), math.cos(phi) * math.sin(lam), math.sin(phi)])
+        up_err = max(up_err, float(np.max(np.abs(T[2] - up))))
+    out.append(Row(g, "003-D: corrected Table 1.1, max |C Cᵀ − I|", None, worst, 1e-12, "abs", 0.0))
+    out.append(Row(g, "003-D: row ζ₀ − geodetic Up, max", None, up_err, 1e-15, "abs", 0.0))
+    return out
