@@ -687,41 +687,7 @@ class NavCore:
         fixes.append((meas, ratio))
         if self._gnss_accepted and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
             return False
-        g2 = c.gate_gnss**2
-        sc = c.gnss_std_scale
-        mn = c.gnss_min_std
-
-        def sig(f: GnssFix) -> tuple[float, float, float]:
-            return max(f.std_ne, mn[0]) * sc, max(f.std_d, mn[1]) * sc, max(f.std_vel, mn[2]) * sc
-
-        m, n = earth.radii(meas.lat)
-
-        def ned(f: GnssFix) -> tuple[float, float, float]:
-            return ((f.lat - meas.lat) * (m + meas.h), (f.lon - meas.lon) * (n + meas.h) * math.cos(meas.lat),
-                    meas.h - f.h)  # fmt: skip
-
-        pts = [(f.t, ned(f), sig(f), None if f.vel_ned is None else np.asarray(f.vel_ned, dtype=float))
-               for f, _ in fixes]  # fmt: skip
-        if all(p[3] is not None for p in pts):
-            for (t0, p0, s0, v0), (t1, p1, s1, v1) in itertools.pairwise(pts):
-                dt = t1 - t0
-                assert v0 is not None and v1 is not None
-                for k in range(3):
-                    e = p1[k] - p0[k] - 0.5 * (float(v0[k]) + float(v1[k])) * dt
-                    sp = s0[0 if k < 2 else 1] ** 2 + s1[0 if k < 2 else 1] ** 2
-                    if not e * e <= g2 * (sp + 0.25 * (s0[2] ** 2 + s1[2] ** 2) * dt * dt):
-                        return False
-            return True
-        if len(pts) < 3:
-            return False
-        for (t0, p0, s0, _), (t1, p1, s1, _), (t2, p2, s2, _) in zip(pts, pts[1:], pts[2:], strict=False):
-            w = (t1 - t0) / (t2 - t0)
-            for k in range(3):
-                e = p1[k] - (p0[k] + w * (p2[k] - p0[k]))
-                j = 0 if k < 2 else 1
-                if not e * e <= g2 * (s0[j] ** 2 + s1[j] ** 2 + s2[j] ** 2):
-                    return False
-        return True
+        return gnss_fixes_agree([f for f, _ in fixes], c)
 
     def _apply(self, kind: str, z: Vec, H: Vec, r: Vec, gate: float, t: float, force: bool = False) -> bool:
         """Gate, (adapt R), update, feed back. Returns True if accepted (``force``: over the gate, a GNSS
@@ -963,3 +929,46 @@ class NavCore:
             s.t, s.q_nb, s.vel_ned, s.lat, s.lon, s.h, self.bg, self.ba, sd[0:3], sd[3:6], sd[6:9],
             self.omega_b, self.f_b, att_ok, self._ratios,
         )  # fmt: skip
+
+
+def gnss_fixes_agree(fixes: list[GnssFix], c: NavConfig) -> bool:
+    """Do consecutive GNSS fixes (time order) agree with each other? Each position follows the previous one
+    by their mean velocity × Δt (or, without velocities, lies on the straight line through its neighbours),
+    within ``gate_gnss`` σ of their own σ (NE, D; m): the consistency test a GNSS reset needs
+    (:meth:`NavCore._gnss_reset_ok`, and ``ins_hil.cref.CNavCore`` for the C core), so junk cannot trigger one."""
+    g2 = c.gate_gnss**2
+    sc = c.gnss_std_scale
+    mn = c.gnss_min_std
+
+    def sig(f: GnssFix) -> tuple[float, float, float]:
+        return max(f.std_ne, mn[0]) * sc, max(f.std_d, mn[1]) * sc, max(f.std_vel, mn[2]) * sc
+
+    meas = fixes[-1]
+    m, n = earth.radii(meas.lat)
+
+    def ned(f: GnssFix) -> tuple[float, float, float]:
+        return ((f.lat - meas.lat) * (m + meas.h), (f.lon - meas.lon) * (n + meas.h) * math.cos(meas.lat),
+                meas.h - f.h)  # fmt: skip
+
+    pts = [(f.t, ned(f), sig(f), None if f.vel_ned is None else np.asarray(f.vel_ned, dtype=float))
+           for f in fixes]  # fmt: skip
+    if all(p[3] is not None for p in pts):
+        for (t0, p0, s0, v0), (t1, p1, s1, v1) in itertools.pairwise(pts):
+            dt = t1 - t0
+            assert v0 is not None and v1 is not None
+            for k in range(3):
+                e = p1[k] - p0[k] - 0.5 * (float(v0[k]) + float(v1[k])) * dt
+                sp = s0[0 if k < 2 else 1] ** 2 + s1[0 if k < 2 else 1] ** 2
+                if not e * e <= g2 * (sp + 0.25 * (s0[2] ** 2 + s1[2] ** 2) * dt * dt):
+                    return False
+        return True
+    if len(pts) < 3:
+        return False
+    for (t0, p0, s0, _), (t1, p1, s1, _), (t2, p2, s2, _) in zip(pts, pts[1:], pts[2:], strict=False):
+        w = (t1 - t0) / (t2 - t0)
+        for k in range(3):
+            e = p1[k] - (p0[k] + w * (p2[k] - p0[k]))
+            j = 0 if k < 2 else 1
+            if not e * e <= g2 * (s0[j] ** 2 + s1[j] ** 2 + s2[j] ** 2):
+                return False
+    return True

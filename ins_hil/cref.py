@@ -24,11 +24,12 @@ from __future__ import annotations
 
 import importlib
 import math
+from collections import deque
 from typing import Any, Literal
 
 import numpy as np
 
-from ins_hil.core import NavConfig
+from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
@@ -165,6 +166,9 @@ class CNavCore:
         self._cfg = _c_config(self._ffi, self.cfg)
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
+        # the last rejected GNSS positions with their test ratios: the C core's forced acceptance after
+        # gnss_reset_after rejections is let through only when they pass NavCore's consistency test
+        self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, int(self.cfg.gnss_reset_after)))
         self.dt: float | None = None
         if dt is not None:
             self._init(dt)
@@ -226,6 +230,7 @@ class CNavCore:
                 sd = getattr(meas, name)
                 if not sd >= 0.0:
                     raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
+            self._hold_reset(meas)
             self._lib_.cref_fuse_gnss(
                 self._core,
                 meas.t,
@@ -238,6 +243,10 @@ class CNavCore:
                 meas.std_vel,
             )
             groups = (0, 1) if meas.vel_ned is not None and self.cfg.use_gnss_vel else (0,)
+            if int(e.rejected[0]) > before[0]:
+                self._rejected.append((meas, float(e.last_ratio[0])))
+            else:
+                self._rejected.clear()
         elif isinstance(meas, BaroSample):
             alt = meas.altitude
             if not math.isfinite(alt):
@@ -267,6 +276,24 @@ class CNavCore:
                 )  # fmt: skip
         self._ratios = ratios
         return None
+
+    def _hold_reset(self, meas: GnssFix) -> None:
+        """Before a fix reaches the C core: when its count of rejected positions would force this one in (a
+        GNSS reset), allow it only if the rejected fixes and this one pass the consistency test of the Python
+        core (``ins_hil.core.gnss_fixes_agree``, each rejected one within ``RESET_GATE_FACTOR`` gates unless
+        no position was ever accepted); otherwise hold the count one below the reset, so the fix is gated."""
+        e = self._core.ekf
+        n = int(self.cfg.gnss_reset_after)
+        if int(e.consecutive[0]) < n:
+            return
+        fixes = [(f, q) for f, q in self._rejected if f.t < meas.t]
+        ok = len(fixes) >= n
+        if ok and int(e.accepted[0]) > 0 and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
+            ok = False
+        if ok:
+            ok = gnss_fixes_agree([f for f, _ in fixes] + [meas], self.cfg)
+        if not ok:
+            e.consecutive[0] = n - 1
 
     def drain_events(self) -> list[FaultEvent]:
         """GNSS/baro fault events raised by the innovation gates since the last call."""

@@ -160,6 +160,7 @@ typedef struct {
     double t_gnss_ok;       /* time of the last accepted GNSS position (-1e300: none) */
     ins_pos h_gnss;         /* its height */
     double gnss_var_d;
+    double baro_dt, gnss_dt; /* the last baro and GNSS-height intervals, s (for the datum's error in R) */
     uint32_t accepted[INS_NGRP], rejected[INS_NGRP], consecutive[INS_NGRP];
     ins_real last_ratio[INS_NGRP];
     uint32_t n_predict;

@@ -121,6 +121,7 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
     }
     if (apply_group(c, INS_GRP_GNSS_POS, 3, ipos, plus, z, r)) {
         mask |= 1;
+        if (g->t > e->t_gnss_ok) e->gnss_dt = g->t - e->t_gnss_ok < 1.0 ? g->t - e->t_gnss_ok : 1.0;
         e->t_gnss_ok = g->t;
         e->h_gnss = g->h;
         e->gnss_var_d = (double)(sd * sd);
@@ -146,16 +147,27 @@ int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude) {
         e->baro_offset_var = (double)e->P[2][2];
         e->have_baro_offset = 1;
     } else if (fabs(t - e->t_gnss_ok) < 0.5 && e->baro_offset_tau > 0.0 && !e->baro_offset_fixed) {
-        /* calibrate the datum against the GNSS height while GNSS is accepted (first order, tau) */
-        double a = (t - e->t_baro) / e->baro_offset_tau;
-        if (a < 0.0) a = 0.0;
+        /* calibrate the datum against the GNSS height while GNSS is accepted (first order, tau); each GNSS
+         * height is used by the k baro samples until the next one: its error enters k times coherently,
+         * the baro noise once per sample (as NavCore._learn_baro_datum) */
+        const double dt = t - e->t_baro > 0.0 ? t - e->t_baro : 0.0;
+        const double k = dt > 0.0 && e->gnss_dt / dt > 1.0 ? e->gnss_dt / dt : 1.0;
+        const double var_in = (double)e->baro_std * (double)e->baro_std + k * e->gnss_var_d;
+        double a = dt / e->baro_offset_tau;
         if (a > 1.0) a = 1.0;
         e->baro_offset += a * (e->h_gnss - altitude - e->baro_offset);
-        e->baro_offset_var = (1.0 - a) * (1.0 - a) * e->baro_offset_var + a * a * e->gnss_var_d;
+        e->baro_offset_var = (1.0 - a) * (1.0 - a) * e->baro_offset_var + a * a * var_in;
+        if (dt > 0.0) e->baro_dt = dt;
     }
     e->t_baro = t;
     z = (ins_real)((altitude + e->baro_offset) - c->mech.h); /* h_baro - h = -dr_D (book eq. 3.30) */
-    r = e->baro_std * e->baro_std + (e->baro_offset_fixed ? K(0.0) : (ins_real)e->baro_offset_var);
+    /* a learnt datum's error is common to the samples of its correlation time: it enters R with the variance
+     * it has over the 2 tau / dt samples it spans (NavCore's baro fusion) */
+    r = e->baro_std * e->baro_std;
+    if (!e->baro_offset_fixed) {
+        const double n = 2.0 * e->baro_offset_tau / (e->baro_dt > 1e-3 ? e->baro_dt : 1e-3);
+        r += (ins_real)(e->baro_offset_var * (n > 1.0 ? n : 1.0));
+    }
     return apply_group(c, INS_GRP_BARO, 1, ih, minus, &z, &r);
 }
 

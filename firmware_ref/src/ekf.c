@@ -86,6 +86,8 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->t_gnss_ok = -1e300;
     e->h_gnss = 0.0;
     e->gnss_var_d = 1.0;
+    e->baro_dt = 0.04;
+    e->gnss_dt = 1.0;
     for (i = 0; i < INS_NGRP; ++i) {
         e->accepted[i] = e->rejected[i] = e->consecutive[i] = 0;
         e->last_ratio[i] = K(0.0);
