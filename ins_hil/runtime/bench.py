@@ -211,9 +211,10 @@ TEMPLATE = """# Runtime: the real-time gateway
   → FDI monitor (`[fdi] enabled`, `[fdi.options]`: geometry + `FdiConfig`) → core (`core.kind`:
   `python` = `ins_hil.core.NavCore`, `c` = `ins_hil.cref.CNavCore`, both with the `NavConfig` of
   `[core.nav]`). The core starts at the first 3-D GNSS fix, levelled from the accelerometers.
-  At 1 kHz the Python core runs with `delay_compensation = false` and `filter.cov_every = 10`
-  (configs/default.toml): with the rollback snapshots and a per-step covariance it needs more
-  than the 1 ms a sample allows on this machine. The C core propagates every step.
+  At 1 kHz the Python core runs with `delay_compensation = true` (late fixes fused at their time of
+  validity; the roll-back runs in pieces of a few IMU steps, one per gap between samples:
+  `docs/delayed_fusion.md`) and `filter.cov_every = 10` (configs/default.toml). The C core
+  propagates every step and fuses a late fix as current, shifted by v·Δt.
 - **Inputs**: `serial_imu` (pty or UART, `ins_hil.drivers.serial_imu`), `can_imu` (SocketCAN,
   DroneCAN RawIMU or DBC frames, `ins_hil.drivers.can_imu`; `[inputs.options]`), `mavlink`
   (GNSS/baro from a flight controller over UDP/TCP/serial, TIMESYNC, signing;
