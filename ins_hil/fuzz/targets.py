@@ -162,10 +162,9 @@ def _dronecan(rng: random.Random) -> Step:
     n = [0]
 
     def step() -> tuple[int, list[Any]]:
-        nonlocal dec
         n[0] += 1
         if n[0] % 500 == 0:
-            dec = dc.DroneCanDecoder()  # a bus re-open: node clocks pushed ahead by junk start afresh
+            dec.reopen()  # a bus re-open, as the CAN driver does it: the node clocks re-anchor, their output continues
         st["t"] += 0.005
         dtid, make = rng.choice(gen_payload)
         if dtid in cache and rng.random() < 0.95:
