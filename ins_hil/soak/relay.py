@@ -85,11 +85,11 @@ def open_link(port: str, baud: int) -> Any:
 def odometry_tail() -> tuple[Any, ...]:
     """The ODOMETRY fields after ``time_usec``, in wire order: no navigation (position 0, identity
     quaternion, zero velocity and rates, unknown covariances = NaN first element, as the gateway sends
-    before its covariance is known), LOCAL_NED / BODY_FRD, estimator NAIVE, quality 0."""
+    before its covariance is known), LOCAL_NED / BODY_FRD, estimator VIO (as the gateway), quality 0."""
     m = mavlink_module()
     cov = (math.nan, *([0.0] * 20))
     return (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *cov, *cov,
-            m.MAV_FRAME_LOCAL_NED, m.MAV_FRAME_BODY_FRD, 0, m.MAV_ESTIMATOR_TYPE_NAIVE, 0)  # fmt: skip
+            m.MAV_FRAME_LOCAL_NED, m.MAV_FRAME_BODY_FRD, 0, m.MAV_ESTIMATOR_TYPE_VIO, 0)  # fmt: skip
 
 
 def odometry_message(mav: Any, t: float, tail: tuple[Any, ...] | None = None) -> bytes:
