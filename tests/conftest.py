@@ -23,6 +23,7 @@ def shared_dir() -> Path:
 INTEGRATION_MODULES = frozenset({
     "test_aiding_live", "test_cli", "test_interop_mavproxy", "test_interop_mqtt", "test_interop_signing",
     "test_run_errors", "test_runtime", "test_sim_restart", "test_soak_relay", "test_soak_smoke", "test_gcs_protocols",
+    "test_soak_interleave", "test_sigma_consistency", "test_delayed_default", "test_datasets_replay",
 })  # fmt: skip
 
 

@@ -452,6 +452,7 @@ def _ends(k: config_schema.Key) -> list[Any]:
     return out
 
 
+@pytest.mark.slow
 def test_every_numeric_key_starts_at_the_ends_of_its_range() -> None:
     """Each number at its smallest and largest allowed value gives a config that starts (or a one-line error
     where keys constrain each other, e.g. gnss_vel_delay ≤ max_delay)."""

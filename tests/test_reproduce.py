@@ -6,6 +6,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
+
 from ins_hil.cli import main
 from ins_hil.reproduce import all_rows
 
@@ -16,6 +18,7 @@ def _table_lines(text: str) -> list[str]:
     return [ln for ln in text.splitlines() if ln.startswith("| ") and not ln.startswith("| group")]
 
 
+@pytest.mark.slow
 def test_reproduce_command_writes_the_report(tmp_path: Path, capsys) -> None:
     out = tmp_path / "sub" / "reproduction.md"
     assert main(["reproduce", "--output", str(out), "--quiet"]) == 0

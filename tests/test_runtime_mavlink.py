@@ -8,6 +8,7 @@ import socket
 import time
 
 import numpy as np
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from runtime_helpers import free_port
 
@@ -243,6 +244,7 @@ def _run_gateway(cfg_dict: dict, seconds: float, port: int, kill_sim_at: float =
     return got, gw
 
 
+@pytest.mark.slow
 def test_heartbeat_at_1hz_without_any_sensor() -> None:
     """flight_controller.toml without hardware: no IMU, no state — the vehicle is still there (STANDBY),
     its SYS_STATUS says the IMU and GNSS are configured but not healthy, the battery unknown."""
@@ -269,6 +271,7 @@ def test_heartbeat_at_1hz_without_any_sensor() -> None:
     assert es and all(m.flags == 0 for m in es)
 
 
+@pytest.mark.slow
 def test_imu_stopped_heartbeat_goes_on_and_the_status_follows() -> None:
     """The simulator is killed after 4 s: the heartbeat goes on at 1 Hz, the IMU/GNSS/baro health
     bits drop, STATUSTEXT says they are lost, system_status turns CRITICAL, ESTIMATOR_STATUS flags clear."""
