@@ -9,6 +9,10 @@ with one frame per record::
 
     sync A9 1E | type u8 | length u8 | payload (length bytes) | u32 CRC-32 of all before it
 
+The CRC-32 of a frame is seeded with the four bytes before it: the previous frame's CRC, or the
+header's for the first frame of a part. So the records are chained: a valid record copied or moved
+elsewhere (a splice, a duplicated block) fails at its new place, not only a damaged byte.
+
 The payload is a fixed struct per type (below); floats are float64, so every
 value (and the order of the calls) is exactly what the online pipeline saw:
 :func:`ins_hil.runtime.replay.replay_log` reproduces the fused states bit for
@@ -115,8 +119,9 @@ def bytes_per_hour(imu_hz: float, gnss_hz: float = 0.0, baro_hz: float = 0.0, ma
     return 3600.0 * per_s
 
 
-def encode_record(s: Record) -> bytes:
-    """One format-2 frame (sync, type, length, payload, CRC-32) for a sample."""
+def encode_record(s: Record, prev: int = 0) -> bytes:
+    """One format-2 frame (sync, type, length, payload, CRC-32 seeded with ``prev``, the CRC of the frame
+    before it or the header's) for a sample."""
     if isinstance(s, ImuSample):
         a, v = s.dtheta, s.dvel
         f = _IMU_F.pack(
@@ -170,12 +175,25 @@ def encode_record(s: Record) -> bytes:
         )
     else:
         raise TypeError(f"cannot record {type(s).__name__}")
-    return f + _U32.pack(zlib.crc32(f))
+    return f + _U32.pack(zlib.crc32(f, prev))
 
 
-def _end_frame(part_records: int, total_records: int, more: bool) -> bytes:
+def _end_frame(part_records: int, total_records: int, more: bool, prev: int) -> bytes:
     f = _END_F.pack(SYNC, T_END, _END.size, part_records, total_records, int(more))
-    return f + _U32.pack(zlib.crc32(f))
+    return f + _U32.pack(zlib.crc32(f, prev))
+
+
+def _rechain(data: bytes, seed: int) -> tuple[bytes, int]:
+    """Whole frames re-chained from ``seed`` (their CRCs recomputed: the first part of a rotation's tail now
+    follows the new part's header), and the last CRC (``seed`` for no frame)."""
+    out = bytearray(data)
+    i, n, crc = 0, len(out), seed
+    while i < n:
+        sz = _FRAME_SIZE[out[i + 2]]
+        crc = zlib.crc32(memoryview(out)[i : i + sz - 4], crc)
+        _U32.pack_into(out, i + sz - 4, crc)
+        i += sz
+    return bytes(out), crc
 
 
 def decode_record(kind: int, body: bytes | memoryview) -> Record:
@@ -250,6 +268,8 @@ class Recorder:
         self._file_bytes = self._head_len = 0
         self._written = 0  # records in the files
         self._part_records = 0
+        self._crc = 0  # CRC of the last frame buffered (the next one's seed)
+        self._file_crc = 0  # CRC of the last frame (or header) written to the current part
         self.paths: list[Path] = []  # every part written (deleted ones included)
         self.kept: list[Path] = []  # the parts still on disk
         self.deleted: list[Path] = []
@@ -258,7 +278,7 @@ class Recorder:
 
     def _open(self, part: int) -> None:
         if self._fd >= 0:
-            self._write(_end_frame(self._part_records, self._written, True))
+            self._write(_end_frame(self._part_records, self._written, True, self._file_crc))
             os.close(self._fd)
         self.part = part
         path = part_path(self.base, part)
@@ -266,6 +286,7 @@ class Recorder:
         prev = part_path(self.base, part - 1).name if part else None
         head = _head_bytes({**self.header, "format": FORMAT, "part": part, "prev": prev, "prev_records": self._written})
         os.write(self._fd, head)
+        self._file_crc = self._crc = _U32.unpack_from(head, len(head) - 4)[0]
         self._file_bytes = self._head_len = len(head)
         self._part_records = 0
         self.paths.append(path)
@@ -274,7 +295,9 @@ class Recorder:
 
     def write(self, s: Record) -> None:
         """Buffer one record (hot path: no I/O)."""
-        self._buf += encode_record(s)
+        fr = encode_record(s, self._crc)
+        self._crc = _U32.unpack_from(fr, len(fr) - 4)[0]
+        self._buf += fr
         self.records += 1
 
     def flush(self) -> None:
@@ -295,7 +318,7 @@ class Recorder:
             self._written += nrec
             pending -= nrec
             self._open(self.part + 1)
-            data = data[cut:]
+            data, self._crc = _rechain(data[cut:], self._file_crc)  # the tail now follows the new header
         if data:
             self._write(data)
         self._part_records += pending
@@ -303,6 +326,8 @@ class Recorder:
         self.flushes += 1
 
     def _write(self, data: bytes) -> None:
+        if len(data) >= 4:
+            self._file_crc = _U32.unpack_from(data, len(data) - 4)[0]
         view = memoryview(data)
         while view:
             n = os.write(self._fd, view)
@@ -354,7 +379,7 @@ class Recorder:
         """Flush, write the end frame (no next part) and close."""
         if self._fd >= 0:
             self.flush()
-            self._write(_end_frame(self._part_records, self._written, False))
+            self._write(_end_frame(self._part_records, self._written, False, self._file_crc))
             os.close(self._fd)
             self._fd = -1
 
@@ -646,7 +671,7 @@ class LogReader:
                     end = pos + 4 + size
                     if end + 4 > n:
                         bad = "cut"
-                    elif crc32(view[pos:end]) == u32(data, end)[0]:
+                    elif crc32(view[pos:end], u32(data, pos - 4)[0]) == u32(data, end)[0]:
                         if kind == T_END:
                             in_part, total, more = _END.unpack_from(data, pos + 4)
                             self._part_total = total
@@ -710,7 +735,8 @@ class LogReader:
             size = _SIZES_V2.get(data[i + 2])
             if size is not None and data[i + 3] == size:
                 end = i + 4 + size
-                if end + 4 <= n and zlib.crc32(view[i:end]) == _U32.unpack_from(data, end)[0]:
+                seed = _U32.unpack_from(data, i - 4)[0] if i >= 4 else 0
+                if end + 4 <= n and zlib.crc32(view[i:end], seed) == _U32.unpack_from(data, end)[0]:
                     return i
             i = data.find(SYNC, i + 1)
         return n
