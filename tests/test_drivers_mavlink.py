@@ -44,6 +44,7 @@ async def _run_pair(
     return got, drv, fc
 
 
+@pytest.mark.slow
 def test_udp_against_simulated_fc() -> None:
     drv_kw = {"request": {"GPS_RAW_INT": 10.0}, "timesync_s": 0.4}
     got, drv, fc = asyncio.run(_run_pair(2.0, drv_kw, {"imu_hz": 200.0, "gps_hz": 10.0}))
@@ -84,6 +85,7 @@ def test_scaled_imu_units(imu_msg: str) -> None:
         np.testing.assert_allclose(s.dvel / s.dt, [0, 0, -G], atol=0.01)  # mG resolution
 
 
+@pytest.mark.slow
 def test_signed_link() -> None:
     key = signing_key_from("ins-hil test key")
     got, drv, _ = asyncio.run(_run_pair(1.0, {"signing_key": key}, {"signing_key": key, "imu_hz": 100.0}))
@@ -402,6 +404,7 @@ def test_wild_timesync_reply_does_not_move_the_mapping() -> None:
     assert sum(isinstance(s, GnssFix) for s in got) > 10
 
 
+@pytest.mark.slow
 def test_fc_reboot_is_followed_within_a_few_replies() -> None:
     """The FC restarts (a new boot clock, 1231.5 s behind the old one): samples stamped with the new
     clock are never delivered at the old offset; the estimate follows within a few TIMESYNC replies."""

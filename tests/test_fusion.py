@@ -62,6 +62,7 @@ def _init(truth, datt=(0.01, -0.01, 0.05)):
                           truth.lat[0], truth.lon[0], truth.h[0], truth.t[0])  # fmt: skip
 
 
+@pytest.mark.slow
 def test_gnss_aided_converges_and_estimates_biases(uav_run):
     truth, imu, fixes = uav_run
     core = NavCore(_init(truth), NavConfig())

@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ins_hil.runtime.pipeline import PipelineConfig
 from ins_hil.runtime.recorder import Recorder, parts_of, read_header, read_records
@@ -79,6 +80,7 @@ def _sim_inputs(seconds: float) -> list:
     return out
 
 
+@pytest.mark.slow
 def test_rotation_by_size_and_replay_across_parts(tmp_path: Path) -> None:
     inputs = _sim_inputs(20.0)
     header = {"pipeline": PipelineConfig().__dict__}

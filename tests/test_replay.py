@@ -17,6 +17,7 @@ from ins_hil.datasets.evaluate import run_drive
 from ins_hil.types import BaroSample
 
 
+@pytest.mark.slow
 def test_replay_scenario_writes_metrics_and_plots(tmp_path: Path, capsys):
     rc = main(["replay", "uav", "--duration", "20", "--out", str(tmp_path), "--quiet"])
     assert rc == 0
@@ -72,6 +73,7 @@ def _drive_head(shared_dir: Path, seconds: float) -> tuple[dd.Drive, list, list,
     return dr, [s for s in dr.imu if s.t < t0 + seconds], gnss, [f.fix_type == 6 for f in gnss]
 
 
+@pytest.mark.slow
 def test_drive_replay_first_outage(shared_dir: Path):
     """The first 100 s of the real drive with the protocol's first outage (40–55 s): causal replay."""
     dr, imu, gnss, rtk = _drive_head(shared_dir, 100.0)
@@ -115,6 +117,7 @@ def test_drive_replay_fuses_aux_baro_inside_outages(shared_dir: Path):
     assert abs(high_baro - true_baro + 1.5) < 0.5  # the step (the vertical velocity it implies overshoots a little)
 
 
+@pytest.mark.slow
 def test_baro_datum_is_learnt_during_the_alignment(shared_dir: Path):
     """The drive's first outage starts 0.25 s after the core enters navigation. The baro datum is learnt against
     GNSS during the 37 s rest, so a baro made from the RTK height is weighted fully inside that outage (with the

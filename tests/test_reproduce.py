@@ -42,6 +42,7 @@ def test_reproduce_command_writes_the_report(tmp_path: Path, capsys) -> None:
     assert re.search(r"\| n=6, δλ¹ \(q=0\) \| 25\.7 \| 25\.2686 \| 25\.27 \|", text)
 
 
+@pytest.mark.slow
 def test_committed_report_is_current(tmp_path: Path) -> None:
     out = tmp_path / "r.md"
     assert main(["reproduce", "--output", str(out), "--quiet", "--no-plots"]) == 0

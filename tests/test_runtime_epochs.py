@@ -141,6 +141,7 @@ def _writer(fd: int, frames: list[bytes], seed: int, stop: threading.Event) -> N
         k += burst
 
 
+@pytest.mark.slow
 def test_two_real_ptys_with_jittered_writers_give_complete_epochs() -> None:
     eps = _series(3.0, seed=5)
     pipe = Pipeline(_cfg(wait=40.0))  # 200 ms: far above the writers' jitter, even on a busy machine
