@@ -205,7 +205,7 @@ def truth_report(path: str | Path, sim: SimConfig, states: list[NavState]) -> li
     m = score(errors(sel, truth))
     out.append(
         f"error against truth, t {sel[0].t:.1f}–{sel[-1].t:.1f} s ({m['epochs']} epochs at "
-        f"{sim.imu_rate / SCORE_EVERY:g} Hz): along-track bias {m['along_bias_m']:+.3f} m, horizontal RMS "
+        f"{sim.imu_rate / SCORE_EVERY:g} Hz): along-track bias {_bias(m['along_bias_m'])}, horizontal RMS "
         f"{m['horiz_rms_m']:.3f} m (published σ_h RMS {m['horiz_sigma_rms_m']:.3f} m), NEES position "
         f"{m['nees_pos']:.2f} velocity {m['nees_vel']:.2f} (3 when σ is consistent), horizontal error inside "
         f"3σ_h {100 * m['cover_3sigma']:.1f} % of epochs"
@@ -456,3 +456,8 @@ def sim_cli(args: argparse.Namespace) -> int:
     (out / "metrics.json").write_text(json.dumps({"sim": r, "config": str(path)}, indent=2))
     print(f"metrics: {out / 'metrics.json'}")
     return 0
+
+
+def _bias(b: float) -> str:
+    """The along-track bias for a report line ("n/a" when the truth never moved: no track to be along)."""
+    return f"{b:+.3f} m" if math.isfinite(b) else "n/a (the vehicle did not move)"
