@@ -18,6 +18,7 @@ from ins_hil.drivers.mavlink_in import MavlinkDriver
 from ins_hil.drivers.mavlink_link import Link, LinkUrl, MavReceiver, parse_url, signing_key_from
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from runtime_helpers import sim_config_dict
+from test_drivers_mavlink import _stream  # n HIL_GPS messages
 
 from ins_hil import config
 from ins_hil.runtime.mavlink_out import EndpointConfig, MavlinkEndpoint
@@ -282,16 +283,6 @@ def test_output_endpoint_serves_tcp_clients_signed() -> None:
     assert rx.counts["unsigned"] == 0 and rx.counts["bad_signature"] == 0 and rx.counts["messages"] > 10
 
 
-def _hil_gps(mav: Any, n: int) -> bytes:
-    out = b""
-    for i in range(n):
-        out += mav.hil_gps_encode(
-            (i + 1) * 100_000, 3, 504500000, 305200000, 180000, 90, 130, 150, 100, -50, 20, 0, 10, 0, 0
-        ).pack(mav)
-        mav.seq = (mav.seq + 1) % 256
-    return out
-
-
 def test_input_driver_on_tcpin_and_udpout() -> None:
     """The input driver on the two schemes it could not use before: a flight controller that
     connects to our TCP server, and one we send to over UDP (our HEARTBEAT opens the link)."""
@@ -302,7 +293,7 @@ def test_input_driver_on_tcpin_and_udpout() -> None:
         task = asyncio.create_task(drv.run(got.append))
         await _until(lambda: drv.local_address is not None)
         r, w = await asyncio.open_connection("127.0.0.1", drv.local_address[1])
-        w.write(_hil_gps(mavlink2.MAVLink(None, srcSystem=1, srcComponent=1), 10))
+        w.write(_stream(mavlink2.MAVLink(None, srcSystem=1, srcComponent=1), 10))
         await w.drain()
         hb = await asyncio.wait_for(r.read(4096), 3.0)  # our HEARTBEAT/TIMESYNC reach the FC
         await _until(lambda: len(got) == 10)
@@ -319,7 +310,7 @@ def test_input_driver_on_tcpin_and_udpout() -> None:
         task2 = asyncio.create_task(drv2.run(got2.append))
         loop = asyncio.get_running_loop()
         _, addr = await asyncio.wait_for(loop.sock_recvfrom(fc_sock, 4096), 3.0)
-        await loop.sock_sendto(fc_sock, _hil_gps(mavlink2.MAVLink(None, srcSystem=1, srcComponent=1), 5), addr)
+        await loop.sock_sendto(fc_sock, _stream(mavlink2.MAVLink(None, srcSystem=1, srcComponent=1), 5), addr)
         await _until(lambda: len(got2) == 5)
         task2.cancel()
         await asyncio.gather(task2, return_exceptions=True)

@@ -133,13 +133,23 @@ class SourceStats:
 
     def tick_rate(self, now_ns: int) -> None:
         """Update ``rate_hz`` over ~1 s windows (called from the status tick)."""
-        if self._win_t0 == 0:
-            self._win_t0, self._win_n = now_ns, self.received
-            return
-        el = (now_ns - self._win_t0) * 1e-9
-        if el >= 1.0:
-            self.rate_hz = (self.received - self._win_n) / el
-            self._win_t0, self._win_n = now_ns, self.received
+        r = _window_rate(self, self.received, now_ns)
+        if r is not None:
+            self.rate_hz = r
+
+
+def _window_rate(w: Any, count: int, now_ns: int) -> float | None:
+    """The one ~1 s rate window of ``SourceStats`` and ``SensorHealth`` (fields ``_win_t0`` ns, ``_win_n``):
+    the rate (1/s) of cumulative ``count`` over a window that closes at ``now_ns``, else None."""
+    if w._win_t0 == 0:
+        w._win_t0, w._win_n = now_ns, count
+        return None
+    el = (now_ns - w._win_t0) * 1e-9
+    if el < 1.0:
+        return None
+    r = (count - w._win_n) / el
+    w._win_t0, w._win_n = now_ns, count
+    return r
 
 
 #: sensor kinds of SYS_STATUS / the health view; aiding sample class → kind
@@ -186,14 +196,12 @@ class SensorHealth:
         source that comes back is "back" after its first full window, without flapping)."""
         if count != self.count:
             self.count, self.last_ns = count, now_ns
-        if self._win_t0 == 0:
-            self._win_t0, self._win_n = now_ns, count
-        el = (now_ns - self._win_t0) * 1e-9
-        if el >= 1.0:
-            self.rate_hz = (count - self._win_n) / el
-            self.expected_hz = max(self.expected_hz, self.rate_hz)
-            self._rate_t0 = self._win_t0
-            self._win_t0, self._win_n = now_ns, count
+        t0 = self._win_t0
+        r = _window_rate(self, count, now_ns)
+        if r is not None:
+            self.rate_hz = r
+            self.expected_hz = max(self.expected_hz, r)
+            self._rate_t0 = t0
         if self.count == 0:
             return ""
         timeout = LOST_AFTER_S if self.expected_hz <= 0 else max(LOST_AFTER_S, LOST_PERIODS / self.expected_hz)
