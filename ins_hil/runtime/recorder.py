@@ -122,6 +122,11 @@ def bytes_per_hour(imu_hz: float, gnss_hz: float = 0.0, baro_hz: float = 0.0, ma
 def encode_record(s: Record, prev: int = 0) -> bytes:
     """One format-2 frame (sync, type, length, payload, CRC-32 seeded with ``prev``, the CRC of the frame
     before it or the header's) for a sample."""
+    return _frame(s, prev)[0]
+
+
+def _frame(s: Record, prev: int) -> tuple[bytes, int]:
+    """:func:`encode_record`'s frame and its CRC (the next frame's seed)."""
     if isinstance(s, ImuSample):
         a, v = s.dtheta, s.dvel
         f = _IMU_F.pack(
@@ -175,7 +180,8 @@ def encode_record(s: Record, prev: int = 0) -> bytes:
         )
     else:
         raise TypeError(f"cannot record {type(s).__name__}")
-    return f + _U32.pack(zlib.crc32(f, prev))
+    c = zlib.crc32(f, prev)
+    return f + _U32.pack(c), c
 
 
 def _end_frame(part_records: int, total_records: int, more: bool, prev: int) -> bytes:
@@ -295,8 +301,7 @@ class Recorder:
 
     def write(self, s: Record) -> None:
         """Buffer one record (hot path: no I/O)."""
-        fr = encode_record(s, self._crc)
-        self._crc = _U32.unpack_from(fr, len(fr) - 4)[0]
+        fr, self._crc = _frame(s, self._crc)
         self._buf += fr
         self.records += 1
 
