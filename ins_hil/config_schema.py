@@ -557,6 +557,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "cov_every": M("IMU steps", "[1, 1000]", "propagate the covariance every N IMU steps (Python core only)"),
         "second_order": M(help="second-order transition matrix"),
         "earth_terms": M(help="Earth rate and transport rate terms in the error model"),
+        "omega_rv_terms": M(help="∂ω/∂r, ∂ω/∂v terms of Earth and transport rate in F (seed 001 F21/F22/F31/F32)"),
         "numerics": M(
             help="measurement update form (ins_hil.fusion.sqrt)",
             choices=("joseph", "conventional", "qr", "cholesky", "ud"),

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ins_hil.nav import earth
 from ins_hil.types import Vec
 
 DEG = math.pi / 180.0
@@ -65,6 +66,9 @@ class FilterConfig:
     average over ``vib_tau`` s (a car's roof IMU: 3–10 °/s of pitch vibration on rough road, almost none
     at a stop). Rotated to NED (the noise is not isotropic). 0 = off; not with the UD numerics (they take
     a diagonal Q only).
+    omega_rv_terms: add the dependence of Earth rate and transport rate on position and velocity to F
+    (seed 001 F21/F22/F31/F32, digest 001-K): μ̇ += ∂ω_in/∂r δr + ∂ω_in/∂v δv and
+    δv̇ += v × (∂(2ω_ie + ω_en)/∂r δr + ∂ω_en/∂v δv); needs ``earth_terms``; off keeps the reduced model.
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     init_accel_sf: per-axis initial 1-σ of the accelerometer scale factors (x, y, z; None = ``init_sf``).
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
@@ -103,6 +107,7 @@ class FilterConfig:
     cov_every: int = 1
     second_order: bool = True
     earth_terms: bool = True
+    omega_rv_terms: bool = False
     numerics: str = "joseph"
 
     def __post_init__(self) -> None:
@@ -333,7 +338,53 @@ class ErrorStateEKF:
         if i.gs is not None:
             # ω̂ − ω = δb_g + δG f^b: μ̇ gains C δG f^b, ∂/∂G_jk = C[:, j] f_k (the bias column scaled by f_k)
             F[6:9, i.gs : i.gs + 9] = np.kron(C_bn, f_b[None, :])
+        if self.cfg.omega_rv_terms and self.cfg.earth_terms:
+            self._omega_rv_terms(F, w_ie, w_en, lat, h, (cN, cE, cD), g2r)
         return F
+
+    @staticmethod
+    def _omega_rv_terms(F: Vec, w_ie: Vec, w_en: Vec, lat: float, h: float, c: tuple, g2r: float) -> None:
+        """The ∂ω/∂r and ∂ω/∂v terms of F (``FilterConfig.omega_rv_terms``; seed 001 eqs. 94–98 in NED).
+
+        ω_ie = (Ω cos φ, 0, −Ω sin φ), ω_en = (v_E/(N+h), −v_N/(M+h), −v_E tan φ/(N+h)); δr = (δN, δE, δD)
+        metres with ∂/∂δN = (1/(M+h)) ∂/∂φ, ∂/∂δD = −∂/∂h; M, N held constant (seed 001 neglects ∂M/∂φ,
+        ∂N/∂φ). δ = true − computed, so μ̇ = C δb_g − δω_in − ω_in × μ gains +J_in δx and the Coriolis
+        term −(2ω_ie + ω_en) × v gains v × J_c δx. v_N, v_E come from ω_en; v_D enters these terms only
+        through products of order v_D/R (< 1e-6 /s) and is taken as 0."""
+        M, N = earth.radii(lat)
+        rm, rn = M + h, N + h
+        iN, iD = float(w_ie[0]), float(w_ie[2])  # Ω cos φ, −Ω sin φ
+        eN, eE, eD = float(w_en[0]), float(w_en[1]), float(w_en[2])
+        vN, vE = -eE * rm, eN * rn
+        cl = math.cos(lat)
+        t = math.tan(lat)
+        # ∂ω_ie/∂δN = (−Ω sin φ, 0, −Ω cos φ)/(M+h) = (iD, 0, −iN)/(M+h); ∂ω_en,D/∂δN = −v_E/((N+h) cos²φ (M+h))
+        en_dN = -vE / (rn * cl * cl * rm)
+        # ∂ω_en/∂δD = +ω_en/(R+h) per axis
+        en_D = (eN / rn, eE / rm, eD / rn)
+        # ∂ω_en/∂v: rows N, E, D; columns v_N, v_E (v_D: none)
+        a, b, d = 1.0 / rn, -1.0 / rm, -t / rn
+        # attitude rows: J_in (ω_in = ω_ie + ω_en)
+        F[6, 0], F[6, 1], F[6, 2] = iD / rm, 0.0, en_D[0]
+        F[7, 0], F[7, 1], F[7, 2] = 0.0, 0.0, en_D[1]
+        F[8, 0], F[8, 1], F[8, 2] = -iN / rm + en_dN, 0.0, en_D[2]
+        F[6, 3], F[6, 4], F[6, 5] = 0.0, a, 0.0
+        F[7, 3], F[7, 4], F[7, 5] = b, 0.0, 0.0
+        F[8, 3], F[8, 4], F[8, 5] = 0.0, d, 0.0
+        # velocity rows: v × J_c, J_c = ∂(2ω_ie + ω_en)/∂x, v = (v_N, v_E, 0)
+        kN = (2.0 * iD / rm, 0.0, en_D[0])
+        kE = (0.0, 0.0, en_D[1])
+        kD = (-2.0 * iN / rm + en_dN, 0.0, en_D[2])
+        for j in range(3):
+            F[3, j] = vE * kD[j]  # (v × k)_N = v_E k_D − v_D k_E
+            F[4, j] = -vN * kD[j]  # (v × k)_E = v_D k_N − v_N k_D
+            F[5, j] = vN * kE[j] - vE * kN[j]  # (v × k)_D = v_N k_E − v_E k_N
+        F[5, 2] += g2r
+        cN, cE, cD = c
+        # δv block: −[(2ω_ie + ω_en)×] + v × ∂ω_en/∂v (columns v_N, v_E)
+        F[3, 3], F[3, 4], F[3, 5] = 0.0, cD + vE * d, -cE
+        F[4, 3], F[4, 4], F[4, 5] = -cD, -vN * d, cN
+        F[5, 3], F[5, 4], F[5, 5] = cE + vN * b, -cN - vE * a, 0.0
 
     def predict(
         self, dt: float, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, f_b: Vec, w_b: Vec, lat: float, h: float

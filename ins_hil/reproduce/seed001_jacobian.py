@@ -194,4 +194,161 @@ def rows() -> list[Row]:
             c["f21_33_ref"],
             "mean-radius approximation of the normal-gravity gradient",
         ),
+        *core_rows(),
     ]
+
+
+def core_attitude_vs_seed001() -> tuple[float, float]:
+    """Max relative error of build_F's μ ← δr and μ ← δv blocks (``omega_rv_terms``) against seed 001's
+    corrected F31, F32 mapped to NED (:func:`seed001_attitude_blocks_ned`), at the seed-001 point."""
+    from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
+
+    Jr, Jv = seed001_attitude_blocks_ned()
+    v_ned = np.array([V0[1], V0[0], -V0[2]])
+    kf = ErrorStateEKF(FilterConfig(omega_rv_terms=True))
+    F = kf.build_F(
+        np.eye(3), np.array([0.0, 0.0, -9.8]), earth.earth_rate_ned(LAT), earth.transport_rate_ned(LAT, H0, v_ned),
+        np.zeros(3), np.zeros(3), LAT, H0,
+    )  # fmt: skip
+    er = float(np.max(np.abs(F[6:9, 0:3] - Jr)) / np.max(np.abs(Jr)))
+    ev = float(np.max(np.abs(F[6:9, 3:6] - Jv)) / np.max(np.abs(Jv)))
+    return er, ev
+
+
+@lru_cache(maxsize=1)
+def core_rows() -> list[Row]:
+    g = "001-K in the core: ErrorStateEKF.build_F (NED, 15 states) vs finite differences (φ = 50.45°, v = (30, −20, 0))"
+    on, _ = core_F_compare(True)
+    _, off_att = core_F_compare(False)
+    er, ev = core_attitude_vs_seed001()
+    return [
+        Row(
+            g,
+            "max relative block error, rows δv, μ, with filter.omega_rv_terms",
+            None,
+            on,
+            1e-5,
+            "abs",
+            0.0,
+            "∂ω_ie/∂r, ∂ω_en/∂r, ∂ω_en/∂v in μ̇ and v × ∂(2ω_ie + ω_en) in δv̇; M, N frozen as seed 001 does",
+        ),
+        Row(
+            g,
+            "relative error of the μ ← (δr, δv) blocks without the option (the default)",
+            None,
+            off_att,
+            check="ge",
+            reference=0.5,
+            note="the default model leaves these terms out (bit-identical golden replay); their measured effect below",
+        ),
+        Row(
+            g,
+            "μ ← δr vs seed 001's corrected F31 mapped to NED (φ = 45°)",
+            None,
+            er,
+            1e-9,
+            "abs",
+            0.0,
+            "J = −T F31 D: T the ENU → NED swap, D metres → (δφ, δλ, δh), δ = true − computed",
+        ),
+        Row(
+            g, "μ ← δv vs seed 001's corrected F32 mapped to NED (φ = 45°)", None, ev, 1e-9, "abs", 0.0, "J = −T F32 T"
+        ),
+    ]
+
+
+# --- 001-K in the core's frames: the NED error-state F of ins_hil.fusion.ekf against finite differences ---
+
+_LAT_N, _H_N = math.radians(50.45), 180.0
+_V_N = np.array([30.0, -20.0, 0.0])  # NED m/s; v_D = 0 (build_F takes v_D as 0 in the ∂ω terms)
+_F_B = np.array([0.8, -0.4, -9.6])  # body specific force, m/s²
+_ATT_N = (math.radians(4.0), math.radians(-3.0), math.radians(120.0))
+_W_B = np.array([0.02, -0.01, 0.05])  # body rate, rad/s
+
+
+class _MechNED:
+    """NED mechanization v̇ = C f − (2ω_ie + ω_en) × v + g, Ċ = C[ω_ib×] − [ω_in×]C with M, N held at the
+    nominal latitude and normal gravity g_D = g₀(1 − 2h/R) (the core's 2g/R gradient)."""
+
+    def __init__(self) -> None:
+        from ins_hil.nav.rotation import dcm_from_euler
+
+        self.M, self.N = earth.radii(_LAT_N)
+        self.C = np.asarray(dcm_from_euler(*_ATT_N))
+
+    def omegas(self, phi: float, h: float, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w_ie = np.array([OMEGA_E * math.cos(phi), 0.0, -OMEGA_E * math.sin(phi)])
+        rn, rm = self.N + h, self.M + h
+        w_en = np.array([v[1] / rn, -v[0] / rm, -v[1] * math.tan(phi) / rn])
+        return w_ie, w_en
+
+    def rates(self, phi: float, h: float, v: np.ndarray, C: np.ndarray, bg: np.ndarray, ba: np.ndarray) -> tuple:
+        w_ie, w_en = self.omegas(phi, h, v)
+        g = np.array([0.0, 0.0, 9.80665 * (1.0 - 2.0 * h / 6371000.0)])
+        vdot = C @ (_F_B + ba) - np.cross(2 * w_ie + w_en, v) + g
+        Cdot = C @ _skew(_W_B + bg) - _skew(w_ie + w_en) @ C
+        return vdot, Cdot
+
+    def error_rates(self, dx: np.ndarray) -> np.ndarray:
+        """(δv̇, μ̇) for the core's error state (δr NED m, δv, μ, δb_g, δb_a): δ = true − computed,
+        Ĉ = (I + [μ×]) C, ω̂ = ω + δb_g, f̂ = f + δb_a."""
+        rm = self.M + _H_N
+        dN, dE, dD = dx[0:3]
+        phi_c, h_c = _LAT_N - dN / rm, _H_N + dD  # computed = true − δ; δh = −δD
+        del dE  # longitude enters nothing
+        E = _skew(dx[6:9])
+        vt, Ct = self.rates(_LAT_N, _H_N, _V_N, self.C, np.zeros(3), np.zeros(3))
+        Cc = (np.eye(3) + E) @ self.C
+        vc, Ccd = self.rates(phi_c, h_c, _V_N - dx[3:6], Cc, dx[9:12], dx[12:15])
+        Edot = (Ccd - (np.eye(3) + E) @ Ct) @ self.C.T
+        return np.concatenate([vt - vc, _vee(Edot)])
+
+
+def core_F_numerical() -> np.ndarray:
+    """6 × 15 central-difference Jacobian of the core's (δv̇, μ̇)."""
+    m = _MechNED()
+    steps = np.array([10.0] * 3 + [1e-3] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-4] * 3)
+    J = np.empty((6, 15))
+    for j in range(15):
+        e = np.zeros(15)
+        e[j] = steps[j]
+        J[:, j] = (m.error_rates(e) - m.error_rates(-e)) / (2 * steps[j])
+    return J
+
+
+def core_F_analytic(omega_rv_terms: bool) -> np.ndarray:
+    """Rows δv, μ of ``ErrorStateEKF.build_F`` (15 states) at the same point."""
+    from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
+
+    m = _MechNED()
+    w_ie, w_en = m.omegas(_LAT_N, _H_N, _V_N)
+    kf = ErrorStateEKF(FilterConfig(omega_rv_terms=omega_rv_terms))
+    F = kf.build_F(m.C, m.C @ _F_B, w_ie, w_en, _F_B, _W_B, _LAT_N, _H_N)
+    return np.array(F[3:9, 0:15])
+
+
+def core_F_compare(omega_rv_terms: bool) -> tuple[float, float]:
+    """(max relative block error of rows δv, μ; max relative error of the μ-row δr, δv blocks alone)."""
+    Fn, Fa = core_F_numerical(), core_F_analytic(omega_rv_terms)
+    worst = 0.0
+    for bi in range(2):
+        for bj in range(5):
+            sl = (slice(3 * bi, 3 * bi + 3), slice(3 * bj, 3 * bj + 3))
+            scale = max(float(np.max(np.abs(Fa[sl]))), float(np.max(np.abs(Fn[sl]))))
+            if scale > 0.0:
+                worst = max(worst, float(np.max(np.abs(Fa[sl] - Fn[sl]))) / scale)
+    att = Fn[3:6, 0:6]
+    att_err = float(np.max(np.abs(Fa[3:6, 0:6] - att)) / np.max(np.abs(att)))
+    return worst, att_err
+
+
+def seed001_attitude_blocks_ned() -> tuple[np.ndarray, np.ndarray]:
+    """Seed 001's corrected F31, F32 (ENU, δ = computed − true, δr = (δφ, δλ, δh)) mapped to the core's
+    μ̇ ← (δr NED m, δv NED), δ = true − computed: J = −T F D with T the ENU → NED axis swap and D the
+    metres → (δφ, δλ, δh) scaling. Evaluated at the seed-001 point of :func:`analytic_F` (φ = 45°)."""
+    Fa = analytic_F()
+    T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # ENU → NED (and back: T = T⁻¹)
+    M, N = earth.radii(LAT)
+    D = np.diag([1.0 / (M + H0), 1.0 / ((N + H0) * math.cos(LAT)), -1.0])  # (δN, δE, δD) → (δφ, δλ, δh)
+    F31, F32 = Fa[6:9, 0:3], Fa[6:9, 3:6]
+    return -T @ F31 @ D, -T @ F32 @ T
