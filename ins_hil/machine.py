@@ -69,3 +69,32 @@ def load_note(load1: float | None = None, *, own: float = 1.0) -> str:
         f"load average {load1:.2f} on {ncpu} CPUs: other processes shared the CPUs, "
         "so wall-clock timings are noisy upper bounds"
     )
+
+
+def summary() -> str:
+    """One line for a generated report: CPUs, model, Python, and the load now with what it means for
+    wall-clock figures (:func:`load_note`)."""
+    return f"{os.cpu_count()} CPUs (`nproc`), {cpu_model()}, Python {platform.python_version()}; {load_note()}"
+
+
+def compiler() -> str:
+    """First line of ``cc --version`` ("n/a" without a C compiler)."""
+    import shutil
+    import subprocess
+
+    if not shutil.which("cc"):
+        return "n/a"
+    out = subprocess.run(["cc", "--version"], capture_output=True, text=True).stdout.splitlines()
+    return out[0] if out else "n/a"
+
+
+def info() -> dict[str, str]:
+    """The machine as fields: cpu, nproc, load (1/5/15-minute averages), python, cc, os."""
+    return {
+        "cpu": cpu_model(),
+        "nproc": str(os.cpu_count()),
+        "load": ", ".join(f"{x:.2f}" for x in load_average()),
+        "python": platform.python_version(),
+        "cc": compiler(),
+        "os": f"{platform.system()} {platform.release()}",
+    }

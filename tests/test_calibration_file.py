@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ins_hil.calibration.files import load_calibration, save_calibration
+from ins_hil.calibration.logs import read_csv_log, write_csv_log
 from ins_hil.cli import main
-from ins_hil.commands.calibrate import read_csv_log, write_csv_log
 from ins_hil.nav import calibration as cal
 from ins_hil.sim import calibration as simcal
 from ins_hil.sim.sensors import ImuErrorModel, corrupt_imu, mems_accel, mems_gyro
@@ -32,8 +33,8 @@ def _example() -> cal.SensorCalibration:
 def test_round_trip(tmp_path: Path, suffix: str) -> None:
     c = _example()
     p = tmp_path / f"cal{suffix}"
-    c.save(p)
-    r = cal.load_calibration(p)
+    save_calibration(c, p)
+    r = load_calibration(p)
     assert r.imu_id == 2 and r.noise == c.noise and r.source == "y"
     for name in cal.SENSORS:
         np.testing.assert_array_equal(getattr(r, name).matrix, getattr(c, name).matrix)
@@ -80,15 +81,15 @@ def test_bad_files_name_the_problem(tmp_path: Path) -> None:
         p = tmp_path / "bad.json"
         p.write_text(json.dumps(bad))
         with pytest.raises(cal.CalibrationError, match=msg):
-            cal.load_calibration(p)
+            load_calibration(p)
     p = tmp_path / "bad.toml"
     p.write_text("format = [")
     with pytest.raises(cal.CalibrationError, match="not valid TOML"):
-        cal.load_calibration(p)
+        load_calibration(p)
     with pytest.raises(cal.CalibrationError, match="cannot read"):
-        cal.load_calibration(tmp_path / "missing.toml")
+        load_calibration(tmp_path / "missing.toml")
     with pytest.raises(cal.CalibrationError, match=r"\.toml or \.json"):
-        cal.load_calibration(tmp_path / "cal.yaml")
+        load_calibration(tmp_path / "cal.yaml")
 
 
 def test_csv_reader_errors(tmp_path: Path) -> None:
@@ -113,7 +114,7 @@ def test_command_accel_then_mag_writes_a_calibration_the_gateway_applies(
     write_csv_log(log, run.imu.t, run.imu.dt, {"dtheta": run.imu.dtheta, "dvel": run.imu.dvel, "step": run.labels})
     out = tmp_path / "imu.toml"
     assert main(["calibrate", "accel", str(log), "-o", str(out), "--lat", "50.45", "--imu-id", "1"]) == 0
-    c = cal.load_calibration(out)
+    c = load_calibration(out)
     assert c.imu_id == 1 and c.accel is not None and c.gyro is None
     np.testing.assert_allclose(np.diag(c.accel.matrix), np.diag(acc.matrix()), atol=2e-4)
     np.testing.assert_allclose(c.accel.bias, acc.bias, rtol=0.02)
@@ -128,7 +129,7 @@ def test_command_accel_then_mag_writes_a_calibration_the_gateway_applies(
     mlog = tmp_path / "mag.csv"
     write_csv_log(mlog, np.arange(1, len(mag) + 1) * 0.05, 0.05, {"mag": mag})
     assert main(["calibrate", "mag", str(mlog), "-o", str(out), "--field", "50"]) == 0
-    c2 = cal.load_calibration(out)
+    c2 = load_calibration(out)
     assert c2.accel is not None and c2.mag is not None and c2.imu_id == 1
     np.testing.assert_allclose(c2.mag.bias, [1e-5, 2e-5, -5e-6], atol=1e-7)
     assert "updating" in capsys.readouterr().out
@@ -162,7 +163,7 @@ def test_command_allan(tmp_path: Path) -> None:
     write_csv_log(log, dt * np.arange(1, len(gy) + 1), dt, {"dtheta": gy, "dvel": ac})
     out = tmp_path / "c.json"
     assert main(["calibrate", "allan", str(log), "-o", str(out)]) == 0
-    c = cal.load_calibration(out)
+    c = load_calibration(out)
     assert c.noise["gyro"]["random_walk"] == pytest.approx(1e-3, rel=0.1)
     assert c.noise["accel"]["random_walk"] == pytest.approx(1e-3, rel=0.1)
     assert (tmp_path / "c_report" / "allan_gyro.png").exists()
@@ -182,7 +183,7 @@ def test_command_six_position_plan_without_step_column(tmp_path: Path) -> None:
     plan.write_text("step,ref_x,ref_y,ref_z\n" + rows + "\n")
     out = tmp_path / "six.toml"
     assert main(["calibrate", "accel", str(log), "--plan", str(plan), "-o", str(out)]) == 0
-    c = cal.load_calibration(out)
+    c = load_calibration(out)
     assert c.accel is not None and c.accel.n_equations == 18
     np.testing.assert_allclose(c.accel.matrix, acc.matrix(), atol=2e-4)
     np.testing.assert_allclose(c.accel.bias, acc.bias, atol=2e-3)
@@ -190,7 +191,7 @@ def test_command_six_position_plan_without_step_column(tmp_path: Path) -> None:
 
 def test_recorded_samples_and_imu_selection(tmp_path: Path) -> None:
     # .ihlog recordings arrive as ImuSample/MagSample records (ins_hil.runtime.recorder.read_records)
-    from ins_hil.commands.calibrate import log_from_records
+    from ins_hil.calibration.logs import log_from_records
     from ins_hil.types import GnssFix
 
     recs: list[object] = []
@@ -222,3 +223,20 @@ def test_recorded_samples_and_imu_selection(tmp_path: Path) -> None:
     np.testing.assert_allclose(
         c.apply(ImuSample(t=0.0, dt=0.01, dtheta=np.ones(3), dvel=np.zeros(3), imu_id=1)).dtheta, 0.5
     )
+
+
+def test_nav_calibration_does_no_file_io() -> None:
+    """nav/ is pure maths: the calibration file and logs are read and written by ins_hil.calibration."""
+    import ast
+
+    src = (Path(__file__).parents[1] / "ins_hil" / "nav" / "calibration.py").read_text()
+    tree = ast.parse(src)
+    mods = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    mods |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not mods & {"json", "tomllib", "pathlib", "csv", "io", "os"}
+    calls = {
+        n.func.attr if isinstance(n.func, ast.Attribute) else getattr(n.func, "id", "")
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Call)
+    }
+    assert not calls & {"open", "read_text", "write_text", "loadtxt", "savetxt", "genfromtxt"}

@@ -19,8 +19,6 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import math
-import os
-import platform
 import re
 import shutil
 import statistics
@@ -33,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.machine import cpu_model, load_note
+from ins_hil import machine
+from ins_hil.machine import load_note
 
 NAME = "bench-core"
 HELP = "benchmark the Python core against the C reference core (per step, per GNSS update, callgrind)"
@@ -53,25 +52,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=600.0,
         help="length (s) of the 50 Hz flight of the accuracy section (C vs Python, float vs double); 0 = skip",
     )
-
-
-def _machine() -> dict[str, str]:
-    cpu = cpu_model()
-    try:
-        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    except OSError:
-        load = "n/a"
-    cc = "n/a"
-    if shutil.which("cc"):
-        cc = subprocess.run(["cc", "--version"], capture_output=True, text=True).stdout.splitlines()[0]
-    return {
-        "cpu": cpu,
-        "nproc": str(os.cpu_count()),
-        "load": load,
-        "python": platform.python_version(),
-        "cc": cc,
-        "os": f"{platform.system()} {platform.release()}",
-    }
 
 
 def _timeit(fn: Callable[[], tuple[float, int]], repeat: int) -> tuple[float, float]:
@@ -372,7 +352,7 @@ def _accuracy_md(lines: list[str], duration: float) -> str:
 
 def _report(rows: dict[str, tuple[float, float]], cg: dict[str, float] | str, args: argparse.Namespace, n: int,
             m: int) -> str:  # fmt: skip
-    mach = _machine()
+    mach = machine.info()
     py_s, py_g = rows["python/step"][0], rows["python/gnss"][0]
 
     def us(x: float) -> str:

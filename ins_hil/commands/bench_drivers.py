@@ -7,7 +7,6 @@ import argparse
 import asyncio
 import json
 import os
-import platform
 import random
 import shutil
 import subprocess
@@ -20,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.machine import cpu_model, load_average, load_note
+from ins_hil.machine import summary
 from ins_hil.types import ImuSample
 
 NAME = "bench-drivers"
@@ -52,14 +51,6 @@ def _best_of(fn: Any, n_runs: int = 7) -> float:
         fn()
         best = min(best, time.perf_counter() - t0)
     return best
-
-
-def _machine() -> str:
-    load = load_average()
-    return (
-        f"{os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python {platform.python_version()}; "
-        f"load average {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f} at the start; {load_note(load[0])}."
-    )
 
 
 # ---------------------------------------------------------------- decode cost
@@ -399,7 +390,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.samples < 100:
         raise SystemExit("ins-hil bench-drivers: --samples must be ≥ 100")
-    machine = _machine()
+    machine = summary() + "."
     print("decode cost ...", flush=True)
     costs = decode_costs(args.samples)
     for name, us, _ in costs:

@@ -4,13 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import platform
 import sys
 import time
 from pathlib import Path
 
-from ins_hil.machine import cpu_model
+from ins_hil.machine import summary
 from ins_hil.reproduce import Row, groups, notes
 
 NAME = "reproduce"
@@ -46,11 +44,6 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|")
 
 
-def _machine() -> str:
-    cpu = cpu_model()
-    return f"{os.cpu_count()} CPUs ({cpu}), Python {platform.python_version()}; other processes may have been running"
-
-
 def render(
     sections: list[tuple[str, list[Row]]],
     seconds: float,
@@ -69,7 +62,7 @@ def render(
         "corrected value where the digest lists a typo — marked **typo**), `diff` = ours − reference.",
         "",
         f"**{n_pass} of {len(rows)} rows pass, {n_disc} are reported as discrepancies (with the reason), "
-        f"{len(rows) - n_pass - n_disc} fail.** Computed in {seconds:.1f} s on {_machine()}.",
+        f"{len(rows) - n_pass - n_disc} fail.** Computed in {seconds:.1f} s on {summary()}.",
         "",
     ]
     for f in figures or []:

@@ -27,8 +27,9 @@ accelerometer reads ``f = [0, 0, −g]``, so the references here are
 table-4.1 rate vectors are ``C_x(φ1) C_y(φ2) [0, 0, ±ω_ref]`` exactly as printed
 (the rate axis is body +z at zero tilt, i.e. down in FRD).
 
-Calibration file (TOML or JSON, chosen by suffix; written by
-``ins-hil calibrate``, read by :func:`load_calibration`)::
+Calibration file (TOML or JSON, chosen by suffix; written by ``ins-hil calibrate``,
+read and written by :mod:`ins_hil.calibration.files`; this module only validates and
+builds its tables, :meth:`SensorCalibration.from_dict` / :meth:`SensorCalibration.to_dict`)::
 
     format = "ins_hil-calibration"      # required
     version = 1                         # required
@@ -55,11 +56,9 @@ over an interval dt: ``Δθ' = A_g⁻¹ (Δθ − b_g dt)``, ``Δv' = A_a⁻¹ (
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -708,16 +707,6 @@ class SensorCalibration:
             out.noise[str(k)] = {str(kk): float(vv) for kk, vv in v.items()}
         return out
 
-    def save(self, path: str | Path) -> None:
-        """Write as TOML (``.toml``) or JSON (``.json``)."""
-        path = Path(path)
-        if path.suffix == ".json":
-            path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
-        elif path.suffix == ".toml":
-            path.write_text(_to_toml(self.to_dict()))
-        else:
-            raise CalibrationError(f"{path}: calibration files end in .toml or .json")
-
 
 def _is_number(x: Any) -> bool:
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(float(x))
@@ -758,53 +747,11 @@ def _triad_from_dict(sec: Any, where: str, unit: str) -> TriadCalibration:
     )
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+def __getattr__(name: str) -> object:
+    """``load_calibration`` now lives in :mod:`ins_hil.calibration.files` (file I/O stays out of ``nav``);
+    this alias keeps the old import path working for callers not yet switched."""
+    if name == "load_calibration":
+        from ins_hil.calibration.files import load_calibration
 
-
-def _to_toml(d: Mapping[str, Any]) -> str:
-    lines = ["# ins_hil sensor calibration; format: docs/calibration.md", ""]
-    tables = []
-    for k, v in d.items():
-        if isinstance(v, Mapping):
-            tables.append((k, v))
-        else:
-            lines.append(f"{k} = {_toml_value(v)}")
-    for k, v in tables:
-        sub = [(kk, vv) for kk, vv in v.items() if isinstance(vv, Mapping)]
-        flat = [(kk, vv) for kk, vv in v.items() if not isinstance(vv, Mapping)]
-        if flat:
-            lines += ["", f"[{k}]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in flat]
-        for kk, vv in sub:
-            lines += ["", f"[{k}.{kk}]"] + [f"{k3} = {_toml_value(v3)}" for k3, v3 in vv.items()]
-    return "\n".join(lines) + "\n"
-
-
-def load_calibration(path: str | Path) -> SensorCalibration:
-    """Read and validate a calibration file (.toml or .json); CalibrationError names the problem."""
-    import tomllib
-
-    path = Path(path)
-    if path.suffix not in (".toml", ".json"):
-        raise CalibrationError(f"{path}: calibration files end in .toml or .json")
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise CalibrationError(f"{path}: cannot read calibration file ({e.strerror})") from e
-    try:
-        d = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as e:
-        raise CalibrationError(f"{path}: not valid {path.suffix[1:].upper()}: {e}") from e
-    if not isinstance(d, Mapping):
-        raise CalibrationError(f"{path}: the top level must be a table")
-    return SensorCalibration.from_dict(d, str(path))
+        return load_calibration
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

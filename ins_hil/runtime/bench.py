@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
-import platform
 import subprocess
 import tempfile
 import time
@@ -22,16 +21,11 @@ from pathlib import Path
 from typing import Any
 
 from ins_hil.config import default_path, load
-from ins_hil.machine import CLK_TCK, cpu_model, load_note, steal_ticks
+from ins_hil.machine import CLK_TCK, steal_ticks, summary
 from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.metrics import _BASE_NS, _RATIO, LatencyHistogram
 
 REPO = Path(__file__).resolve().parent.parent.parent
-
-
-def machine() -> str:
-    """One line: CPUs, model, Python and whether the load allowed clean timings."""
-    return f"{os.cpu_count()} CPUs (nproc), {cpu_model()}, Python {platform.python_version()}, {load_note()}"
 
 
 def measure(duration: float, core: str = "python") -> tuple[Gateway, float]:
@@ -107,7 +101,7 @@ def report(gw: Gateway, wall: float, duration: float, gw_c: Gateway | None = Non
     )
     drops = ", ".join(f"{k} {v}" for k, v in imu["dropped"].items()) or "none"
     return TEMPLATE.format(
-        machine=machine()
+        machine=summary()
         + (
             ""
             if steal_s is None
