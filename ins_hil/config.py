@@ -233,7 +233,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     p = cfg.pipeline
     p.nav = _nav(core.get("nav", {}))
     if p.calibration:
-        from ins_hil.nav.calibration import load_calibration
+        from ins_hil.calibration.files import load_calibration
 
         try:
             load_calibration(p.calibration)

@@ -71,6 +71,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "filter.numerics": f.numerics != "joseph",
         "filter.cov_every": f.cov_every != 1,
         "filter.earth_terms": not f.earth_terms,
+        "filter.omega_rv_terms": f.omega_rv_terms,
         "gnss_lever_arm_b": bool(np.any(np.asarray(cfg.gnss_lever_arm_b) != 0.0)),
         "gnss_std_scale": cfg.gnss_std_scale != 1.0,
         "adaptive": cfg.adaptive,

@@ -745,13 +745,3 @@ def _triad_from_dict(sec: Any, where: str, unit: str) -> TriadCalibration:
         float(sec.get("cond", math.nan)),
         int(sec.get("n_equations", 0)),
     )
-
-
-def __getattr__(name: str) -> object:
-    """``load_calibration`` now lives in :mod:`ins_hil.calibration.files` (file I/O stays out of ``nav``);
-    this alias keeps the old import path working for callers not yet switched."""
-    if name == "load_calibration":
-        from ins_hil.calibration.files import load_calibration
-
-        return load_calibration
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -690,7 +690,7 @@ class Pipeline:
 
 def _load_calibration(path: str) -> Any:
     """A calibration file (``ins_hil.nav.calibration``): an object with ``apply(imu) -> ImuSample``."""
-    from ins_hil.nav.calibration import load_calibration
+    from ins_hil.calibration.files import load_calibration
 
     return load_calibration(path)
 
