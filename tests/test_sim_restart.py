@@ -11,12 +11,19 @@ import time
 from runtime_helpers import sim_config
 
 from ins_hil.runtime.loop import Gateway
+from ins_hil.sim.devices import SimDevices
 from ins_hil.types import FaultEvent, NavState
 
 
 def test_simulator_restart_navigation_resumes_within_the_bound(tmp_path):
     cfg = sim_config(sim={"profile": "static", "imu_errors": "none"})
-    gw = Gateway(cfg, record_path=tmp_path / "restart.ihlog")
+    opened: list[tuple[str, int]] = []
+
+    def devices(addr: tuple[str, int]) -> SimDevices:  # what `ins-hil run` hands the gateway: the simulator
+        opened.append(addr)
+        return SimDevices(cfg.sim, addr)
+
+    gw = Gateway(cfg, record_path=tmp_path / "restart.ihlog", devices=devices)
     states: list[tuple[int, float]] = []
     faults: list[FaultEvent] = []
 
@@ -47,6 +54,9 @@ def test_simulator_restart_navigation_resumes_within_the_bound(tmp_path):
         await run
 
     asyncio.run(scenario())
+    # the devices are the ones handed in, built once for the address the MAVLink input listens on
+    assert len(opened) == 1 and opened[0][0] == "127.0.0.1" and opened[0][1] > 0, opened
+    assert isinstance(gw.sim, SimDevices)
     t = [s for _, s in states]
     assert all(b > a for a, b in itertools.pairwise(t)), "sensor time of the states went backwards"
     assert marks["new_samples"] > 4000  # the restarted IMU delivered at 1 kHz

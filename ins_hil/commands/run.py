@@ -200,8 +200,15 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         print("ins-hil run: --duration must be positive", file=sys.stderr)
         return 2
+    devices = None
+    if cfg.sim_enabled:  # the simulated sensors: their process is started and stopped by the gateway run
+        from functools import partial
+
+        from ins_hil.sim.devices import SimDevices
+
+        devices = partial(SimDevices, cfg.sim)
     try:
-        gw = Gateway(cfg, record_path=args.record)
+        gw = Gateway(cfg, record_path=args.record, devices=devices)
     except (RuntimeError, ValueError) as e:
         print(f"ins-hil run: {e}", file=sys.stderr)
         return 2

@@ -31,9 +31,8 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
-from ins_hil.config import Config
 from ins_hil.drivers.base import Sample
 from ins_hil.drivers.mavlink_in import MavlinkDriver
 from ins_hil.drivers.serial_imu import SerialImuDriver
@@ -45,18 +44,40 @@ from ins_hil.runtime.mqtt_out import MqttPublisher
 from ins_hil.runtime.pipeline import Pipeline
 from ins_hil.runtime.recorder import Recorder
 from ins_hil.runtime.rt import enter_realtime, policy
-from ins_hil.sim.devices import SimDevices
 from ins_hil.types import FaultEvent, GnssFix, ImuSample, NavState
+
+if TYPE_CHECKING:
+    from ins_hil.config import Config
+
+
+class Devices(Protocol):
+    """Sensor devices the gateway hosts for one run (``[sim] enabled``: the simulator,
+    :class:`ins_hil.sim.devices.SimDevices`). Started once the MAVLink input listens, before the
+    serial inputs open ``imu_path`` (the device behind ``port = "sim"``); stopped first at shutdown."""
+
+    imu_path: str
+
+    def start(self) -> object: ...
+
+    def stop(self) -> None: ...
+
+
+DevicesFactory = Callable[[tuple[str, int]], Devices]
+"""Builds the devices for the address (host, UDP port) the gateway's MAVLink input listens on."""
 
 
 class Gateway:
     """One gateway run built from a validated :class:`~ins_hil.config.Config`.
 
     ``metrics`` is the live :class:`RuntimeMetrics` (status view, MQTT health,
-    soak test); ``on_state`` callbacks get every state (tests, tools).
+    soak test); ``on_state`` callbacks get every state (tests, tools). ``devices`` builds the
+    sensor devices of a ``[sim] enabled`` config (``ins-hil run`` passes the simulator's,
+    ``functools.partial(SimDevices, cfg.sim)``); the runtime itself never imports the simulator.
     """
 
-    def __init__(self, cfg: Config, record_path: str | Path | None = None) -> None:
+    def __init__(
+        self, cfg: Config, record_path: str | Path | None = None, devices: DevicesFactory | None = None
+    ) -> None:
         self.params = ParamStore(cfg)  # MAVLink parameters; the override file (<config>.params.toml) applied
         self.cfg = cfg = self.params.cfg
         self.metrics = RuntimeMetrics(cfg.gateway.late_threshold_ms * 1e-3)
@@ -73,7 +94,8 @@ class Gateway:
         self.params.attach(self.mav_outputs, self.pipeline)
         self.mqtt = MqttPublisher(cfg.mqtt, self.metrics) if cfg.mqtt.enabled else None
         self.publishers: list[Any] = [*self.mav_outputs, *([self.mqtt] if self.mqtt else [])]
-        self.sim: SimDevices | None = None
+        self.sim: Devices | None = None
+        self._devices = devices
         self.recorder: Recorder | None = None
         self.record_path = Path(record_path) if record_path else None
         self._tasks: list[asyncio.Task[Any]] = []
@@ -340,7 +362,7 @@ class Gateway:
         if cfg.sim_enabled:
             if not sim_gnss_port:
                 raise RuntimeError("[sim] needs a mavlink input for its GNSS/baro")
-            self.sim = SimDevices(cfg.sim, ("127.0.0.1", sim_gnss_port))
+            self.sim = (self._devices or _default_devices(cfg))(("127.0.0.1", sim_gnss_port))
             await asyncio.get_running_loop().run_in_executor(None, self.sim.start)
         for ic in serial_inputs:
             if ic.type == "can_imu":
@@ -459,6 +481,16 @@ class Gateway:
         if self.error is not None:
             raise RuntimeError(self.stopped_reason) from self.error
         return self.metrics
+
+
+def _default_devices(cfg: Config) -> DevicesFactory:
+    """The simulator for callers that do not pass ``devices`` (kept until they do; an ignored import
+    in the layer contract, pyproject.toml)."""
+    from functools import partial
+
+    from ins_hil.sim.devices import SimDevices
+
+    return partial(SimDevices, cfg.sim)
 
 
 def _pin_port(url: str) -> str:
