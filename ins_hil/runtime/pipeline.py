@@ -738,7 +738,7 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
         if "late_fix_as_current" not in kw:
             # the C core has no roll-back: it always fuses a late fix at the current step, shifted by v·Δt
             kw["late_fix_as_current"] = core == "c" or not bool((nav or {}).get("delay_compensation", True))
-        return AidingMonitor(AidingConfig(**kw))
+        return AidingMonitor(AidingConfig(**kw), (nav or {}).get("gnss_lever_arm_b"))
     except ValueError as e:
         raise ValueError(f"fdi.aiding: {e}") from None
 
