@@ -5,15 +5,7 @@ estimates the calibration with :mod:`ins_hil.nav.calibration` /
 :mod:`ins_hil.nav.allan`, merges it into the calibration file (TOML or JSON) the
 gateway loads at start, and writes a Markdown report with PNG plots.
 
-CSV columns (header row required, SI units, body FRD; see docs/calibration.md):
-
-* IMU logs: ``t`` (s, end of interval) and either increments
-  ``dtheta_x,dtheta_y,dtheta_z`` (rad), ``dvel_x,dvel_y,dvel_z`` (m/s) with ``dt`` (s)
-  — the :class:`~ins_hil.types.ImuSample` form — or rates ``gyro_x..z`` (rad/s) and
-  ``accel_x..z`` (m/s²). Optional ``step`` (int: position/rate step, −1 = transit;
-  without it quiet segments are detected), ``flags`` (ImuFlags bits; saturation
-  bits are checked), ``imu_id``.
-* Magnetometer logs: ``t``, ``mag_x,mag_y,mag_z`` (T).
+The CSV columns are those of :mod:`ins_hil.calibration.logs` (and docs/calibration.md).
 
 ``--simulate`` first writes a simulated log with known errors to LOG (and prints
 them), so the whole workflow can be tried without hardware.
