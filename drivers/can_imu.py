@@ -31,6 +31,7 @@ import can
 from ins_hil.drivers import dronecan_codec as dc
 from ins_hil.drivers.base import Backoff, DriverHealth, Sink
 from ins_hil.drivers.dbc_codec import DbcImuDecoder, DbcProfile
+from ins_hil.drivers.slcan import open_bus
 
 CAN_ERR_BUSOFF = 0x40  # linux/can/error.h: error class bit in the error frame's id
 
@@ -41,7 +42,7 @@ class CanImuDriver:
     ``bus_config``: keyword arguments for :class:`can.Bus` (``interface``,
     ``channel``, ``bitrate``, ...). ``protocol``: ``"dronecan"`` or ``"dbc"``.
     ``nodes``: DroneCAN source node ids to accept (None = any).
-    ``node_id``: our DroneCAN node id for NodeStatus (None = do not publish).
+    ``node_id``: our DroneCAN node id for NodeStatus (None, or 0 in a config, = listen only: nothing is sent).
     ``rcvbuf``: socket receive buffer asked for on socketcan (bytes; 0 = leave the default).
     """
 
@@ -97,7 +98,7 @@ class CanImuDriver:
             protocol=str(cfg.get("protocol", "dronecan")),
             name=str(cfg.get("name", "can_imu")),
             nodes=set(int(n) for n in nodes) if nodes else None,
-            node_id=None if cfg.get("node_id", 100) is None else int(cfg.get("node_id", 100)),
+            node_id=None if cfg.get("node_id", 100) in (None, 0) else int(cfg.get("node_id", 100)),
             dbc=DbcProfile.from_config(dbc) if dbc else None,
             stale_s=float(cfg.get("stale_s", 2.0)),
             rcvbuf=int(cfg.get("rcvbuf", 4 << 20)),
@@ -161,7 +162,7 @@ class CanImuDriver:
         first = True
         while True:
             try:
-                bus = await loop.run_in_executor(None, lambda: can.Bus(**self.bus_config))
+                bus = await loop.run_in_executor(None, lambda: open_bus(self.bus_config))
             except Exception as e:
                 self.health.count("open_failed")
                 self.health.last_error = f"open CAN bus {self.bus_config}: {e}"

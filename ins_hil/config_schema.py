@@ -752,7 +752,13 @@ CAN_OPTIONS = {
         unique=True,
         help="DroneCAN: accept these source node ids only; not set = any",
     ),
-    "node_id": Key("node_id", "int", 100, range="[1, 127]", help="DroneCAN: our node id (NodeStatus at 1 Hz)"),
+    "node_id": Key(
+        "node_id",
+        "int",
+        100,
+        range="[0, 127]",
+        help="DroneCAN: our node id (NodeStatus at 1 Hz); 0 = listen only (anonymous, nothing is sent)",
+    ),
     "stale_s": Key("stale_s", "float", 2.0, unit="s", range="[0.01, 3600]", help="re-open the bus after this silence"),
     "rcvbuf": Key(
         "rcvbuf",

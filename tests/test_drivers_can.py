@@ -333,3 +333,42 @@ def test_factory_builds_each_driver() -> None:
         assert isinstance(d, Driver) and d.health.name == d.name
     with pytest.raises(ValueError, match="'type'"):
         make_driver({"type": "gps"})
+
+
+def test_bulk_slcan_reads_bursts_in_few_calls() -> None:
+    """BulkSlcanBus on a real pty: a burst of 1,000 frames written in pieces that cut lines in two, and
+    an error line, come out whole and in order, with far fewer port reads than frames (python-can's own
+    slcan reads one byte per call)."""
+    from ins_hil.drivers.slcan import BulkSlcanBus, open_bus
+
+    master, slave = os.openpty()
+    tty.setraw(master)
+    name = os.ttyname(slave)
+    os.close(slave)
+    bus = open_bus({"interface": "slcan", "channel": name, "sleep_after_open": 0, "bitrate": 1000000})
+    assert isinstance(bus, BulkSlcanBus)
+    os.read(master, 64)  # the adapter's setup commands (S8, O)
+    sent = [can.Message(arbitration_id=0x1000 + i, data=bytes([i % 256] * (i % 9)), is_extended_id=True)
+            for i in range(1000)]  # fmt: skip
+    wire = b"".join(_slcan_line(m) for m in sent[:500]) + b"\a" + b"".join(_slcan_line(m) for m in sent[500:])
+    reads = [0]
+    port_read = bus.serialPortOrig.read
+
+    def counted(n: int = 1) -> bytes:
+        reads[0] += 1
+        return port_read(n)
+
+    bus.serialPortOrig.read = counted
+    got: list[can.Message] = []
+    try:
+        for k in range(0, len(wire), 997):  # 997: not a multiple of any line length
+            os.write(master, wire[k : k + 997])
+        while len(got) < 1000:
+            m = bus.recv(1.0)
+            assert m is not None, f"only {len(got)} of 1000 frames"
+            got.append(m)
+    finally:
+        bus.shutdown()
+        os.close(master)
+    assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(m.arbitration_id, bytes(m.data)) for m in sent]
+    assert reads[0] < 100

@@ -66,7 +66,7 @@ def imu_inputs(a: argparse.Namespace) -> list[dict[str, Any]]:
     if a.imu_transport == "can":
         nodes = [CAN_NODE_BASE + u for u in range(a.imus)]
         opts = {"interface": "slcan", "channel": a.imu[0], "sleep_after_open": 0, "bitrate": 1000000,
-                "protocol": "dronecan", "nodes": nodes, "node_id": None}  # fmt: skip
+                "protocol": "dronecan", "nodes": nodes, "node_id": 0}  # fmt: skip
         return [{"name": "imu0", "type": "can_imu", "options": opts}]
     return [{"name": f"imu{j}", "type": "serial_imu", "port": p, "baud": 921600} for j, p in enumerate(a.imu)]
 
