@@ -10,6 +10,13 @@
   Z = [a m d], Z1 = [a1 m1 d1] with d = a × m, A = Z1 Z^{−1} (A = C_n^b, the book's
   fixed→body DCM), orthogonalised by SVD A = U S V^T → Ã = U V^T, with a determinant
   guard (flip the last column of U if det < 0; DIGEST_000 §4.2 note).
+* Magnetic heading at rest (:func:`mag_heading`): roll and pitch from the accelerometer alone,
+  yaw from the tilt-compensated magnetometer direction against the reference's declination. Both
+  vectors are used as directions, so any consistent unit (or none) works, and an error in the
+  reference's dip or magnitude moves no tilt: the accelerometer's direction (~1 mrad at rest) is
+  far better known than the magnetometer's (degrees), so this is the limit of the σ-weighted
+  two-vector solution when σ_a ≪ σ_m. The book's A = Z1 Z⁻¹ weighs both vectors equally and takes
+  their magnitudes as given.
 * In-motion yaw from the GNSS course: ψ = atan2(v_E, v_N) (no sideslip assumed).
 """
 
@@ -32,6 +39,24 @@ def coarse_level(f_b: Vec) -> tuple[float, float]:
 def gyrocompass_yaw(w_level: Vec) -> float:
     """Book eq. (4.2): yaw (rad) from the Earth rate measured by levelled gyros (ω_x, ω_y)."""
     return math.atan2(-float(w_level[1]), float(w_level[0]))
+
+
+def mag_heading(roll: float, pitch: float, field_b: Vec, ref_ned: Vec) -> float:
+    """Yaw (rad) from the magnetometer at a known roll and pitch (rad).
+
+    field_b: measured field (body FRD, any unit); ref_ned: reference field (NED, any unit, its
+    horizontal direction gives the declination). The measured field is levelled with roll and pitch
+    (C_b^l = R_y(θ) R_x(φ)); its horizontal angle in that level frame is D − ψ, with D = atan2(m_E, m_N).
+    Raises ValueError when either field has no horizontal component (at a magnetic pole)."""
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    mx, my, mz = float(field_b[0]), float(field_b[1]), float(field_b[2])
+    lx = cp * mx + sp * sr * my + sp * cr * mz  # level-frame x (north of the heading frame)
+    ly = cr * my - sr * mz
+    rn, re = float(ref_ned[0]), float(ref_ned[1])
+    if math.hypot(lx, ly) == 0.0 or math.hypot(rn, re) == 0.0:
+        raise ValueError("magnetic heading: the field has no horizontal component")
+    yaw = math.atan2(re, rn) - math.atan2(ly, lx)
+    return math.atan2(math.sin(yaw), math.cos(yaw))
 
 
 def refined_alignment(ref_nav: Vec, meas_body: Vec, orthogonalize: bool = True) -> Vec:
