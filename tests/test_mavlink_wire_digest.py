@@ -51,9 +51,13 @@ def _state(rng: np.random.Generator, t: float, k: int) -> NavState:
         omega_b=rng.normal(0.0, 1.0, 3),
         accel_b=rng.normal(0.0, 15.0, 3),
         aligned=k % 97 > 10,
-        test_ratios={"gnss_vel": float(rng.uniform(0, 2)), "gnss_ne": float(rng.uniform(0, 2)),
-                     "baro_hgt": float(rng.uniform(0, 2)), "mag": float(rng.uniform(0, 2))},
-    )  # fmt: skip
+        test_ratios={
+            "gnss_vel": float(rng.uniform(0, 2)),
+            "gnss_ne": float(rng.uniform(0, 2)),
+            "baro_hgt": float(rng.uniform(0, 2)),
+            "mag": float(rng.uniform(0, 2)),
+        },
+    )
     if k % 211 == 7:
         st.std_pos = np.zeros(3)
     elif k % 211 == 8:

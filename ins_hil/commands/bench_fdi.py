@@ -61,9 +61,15 @@ def run(args: argparse.Namespace) -> int:
     if args.aiding_live_trials < 0:
         raise SystemExit("ins-hil bench-fdi: --aiding-live-trials must be ≥ 0")
     cfg = fdi.FdiBench(
-        rate=args.rate, trials=args.trials, nominal_hours=args.nominal_hours, p_fa=args.p_fa, seed=args.seed,
-        aiding_trials=args.aiding_trials, aiding_live_trials=args.aiding_live_trials, log=_say,
-    )  # fmt: skip
+        rate=args.rate,
+        trials=args.trials,
+        nominal_hours=args.nominal_hours,
+        p_fa=args.p_fa,
+        seed=args.seed,
+        aiding_trials=args.aiding_trials,
+        aiding_live_trials=args.aiding_live_trials,
+        log=_say,
+    )
     if args.aiding_only:
         return _aiding_only(args, cfg)
     if args.rate <= 0 or args.trials < 1 or args.nominal_hours <= 0:
