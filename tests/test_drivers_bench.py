@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ins_hil.commands.bench_drivers import corruption
+from ins_hil.bench.drivers import corruption
 
 
 def test_one_percent_corruption_every_frame_counted_none_accepted() -> None:

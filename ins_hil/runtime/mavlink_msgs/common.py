@@ -1,0 +1,361 @@
+"""What the message builders of both roles share: the dialect, the streams and default rates, the
+precompiled framing of an unsigned link, the vehicle's status bits, and :class:`MessageBase`, the state
+and helpers of an endpoint that the role mixins (:mod:`.gcs`, :mod:`.fc`, :mod:`.requests`) build on.
+
+Units: SI and radians inside, MAVLink's integer units (1e-7 deg, mm, cm/s, cdeg) at the edge; altitudes
+in MSL fields are EGM96 (:mod:`ins_hil.runtime.geoid`)."""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from ins_hil.nav import earth
+from ins_hil.nav.rotation import euler_from_quat
+from ins_hil.runtime.geoid import undulation
+from ins_hil.types import FaultEvent, GnssFix, NavState, unix_from_gps
+
+if TYPE_CHECKING:
+    import asyncio
+
+    from ins_hil.runtime.metrics import RuntimeMetrics
+
+
+def mavlink_module() -> Any:
+    """The MAVLink 2 dialect used everywhere (ardupilotmega ⊃ common)."""
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    return ardupilotmega
+
+
+GCS_RATES = {
+    "HEARTBEAT": 1.0,
+    "SYS_STATUS": 1.0,
+    "ATTITUDE": 50.0,
+    "ATTITUDE_QUATERNION": 50.0,
+    "GLOBAL_POSITION_INT": 10.0,
+    "LOCAL_POSITION_NED": 10.0,
+    "GPS_RAW_INT": 5.0,
+    "VFR_HUD": 4.0,
+    "ESTIMATOR_STATUS": 2.0,
+}
+FC_RATES = {"HEARTBEAT": 1.0, "ODOMETRY": 30.0, "GPS_INPUT": 5.0, "HIL_STATE_QUATERNION": 0.0}
+ALL_MESSAGES = sorted(set(GCS_RATES) | set(FC_RATES))
+_HEADER = struct.Struct("<BBBBBB")  # len, incompat_flags, compat_flags, seq, sysid, compid
+
+
+class _Frame:
+    """Precompiled MAVLink 2 framing of one message type for an UNSIGNED link.
+
+    :meth:`frame` takes the field values in wire order (pymavlink's ``ordered_fieldnames``,
+    arrays flattened) and returns the same bytes as pymavlink's ``MAVLink.send`` of that
+    message: payload packed with the message's own ``struct`` format, trailing zero bytes
+    trimmed (MAVLink 2, at least one byte kept), header 0xFD·len·0·0·seq·sysid·compid·msgid(24 bit),
+    CRC-16/MCRF4XX over header (without 0xFD) + payload + ``crc_extra``. Signed links must use
+    pymavlink (the signature is not produced here).
+    """
+
+    __slots__ = ("_crc", "_extra", "_msgid", "_pack")
+
+    def __init__(self, cls: Any) -> None:
+        mavlink = mavlink_module()
+        self._pack = cls.unpacker.pack
+        mid = int(cls.id)
+        self._msgid = bytes((mid & 0xFF, (mid >> 8) & 0xFF, mid >> 16))
+        self._extra = bytes((int(cls.crc_extra),))
+        mc = getattr(mavlink, "mcrf4xx", None)  # fastcrc's CRC-16/MCRF4XX, as pymavlink's x25crc uses
+        self._crc = (lambda b: mc(b, 0xFFFF)) if mc is not None else (lambda b: mavlink.x25crc(b).crc)
+
+    def frame(self, mav: Any, *values: Any) -> bytes:
+        payload = self._pack(*values).rstrip(b"\x00") or b"\x00"
+        body = _HEADER.pack(len(payload), 0, 0, mav.seq, mav.srcSystem, mav.srcComponent) + self._msgid + payload
+        crc = self._crc(body + self._extra)
+        return b"\xfd" + body + crc.to_bytes(2, "little")
+
+
+_FRAMES: dict[str, _Frame] = {}
+
+
+def _frame_of(typ: str) -> _Frame:
+    """The cached :class:`_Frame` of a message type name (e.g. ``"ODOMETRY"``)."""
+    f = _FRAMES.get(typ)
+    if f is None:
+        cls = mavlink_module().mavlink_map[getattr(mavlink_module(), "MAVLINK_MSG_ID_" + typ)]
+        f = _FRAMES[typ] = _Frame(cls)
+    return f
+
+
+#: a state older than this (s) is no valid solution (IMU lost): ESTIMATOR_STATUS flags drop, CRITICAL
+SOLUTION_TIMEOUT_S = 0.5
+_BEAT_RETRY_NS = 100_000_000  # a heartbeat the link could not take is tried again after 0.1 s
+
+
+def _msg_names() -> dict[int, str]:
+    m = mavlink_module()
+    return {int(getattr(m, "MAVLINK_MSG_ID_" + t)): t for t in ALL_MESSAGES}
+
+
+_MSG_NAMES = _msg_names()  # message id → name of the streamed messages
+
+
+def _sensor_bits() -> dict[str, int]:
+    m = mavlink_module()
+    return {
+        "imu": m.MAV_SYS_STATUS_SENSOR_3D_GYRO | m.MAV_SYS_STATUS_SENSOR_3D_ACCEL,
+        "gnss": m.MAV_SYS_STATUS_SENSOR_GPS,
+        "baro": m.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE,
+        "mag": m.MAV_SYS_STATUS_SENSOR_3D_MAG,
+    }
+
+
+_SENSOR_BITS = _sensor_bits()
+
+
+def _floats(a: Any) -> list[float]:
+    """Python floats of a small vector (ndarray.tolist is the cheap path)."""
+    try:
+        return a.tolist()
+    except AttributeError:
+        return [float(x) for x in a]
+
+
+def _i16(x: float) -> int:
+    return max(-32768, min(32767, round(float(x))))
+
+
+def _u32(x: float) -> int:
+    return max(0, min(0xFFFFFFFF, round(float(x))))
+
+
+def _dop(g: GnssFix, name: str) -> int:
+    """HDOP/VDOP × 100 of a fix where its source gives it (a ``hdop``/``vdop`` attribute), else UINT16_MAX."""
+    v = getattr(g, name, None)
+    if v is None or not math.isfinite(v) or v < 0:
+        return 0xFFFF
+    return min(0xFFFE, round(v * 100))
+
+
+def _gps_week(g: GnssFix | None, t: float | None = None) -> tuple[int, int]:
+    """(GPS week, ms of week) at sensor time ``t`` (s; default the fix's own) from a fix whose source gives
+    GPS time (``gps_week`` > 0, ``gps_tow`` s), else (0, 0): ArduPilot takes week 0 as "no GPS time"."""
+    if g is None or g.gps_week <= 0 or not math.isfinite(g.gps_tow):
+        return 0, 0
+    total = g.gps_week * 604_800 + g.gps_tow + ((t - g.t) if t is not None else 0.0)
+    week = int(total // 604_800)
+    return week, round((total - week * 604_800) * 1000) % 604_800_000
+
+
+def fault_text(ev: FaultEvent) -> tuple[int, str]:
+    """STATUSTEXT (severity, ≤50 chars) for a fault event."""
+    m = mavlink_module()
+    if ev.cleared:
+        return m.MAV_SEVERITY_NOTICE, f"INS fault cleared: {ev.sensor}"
+    return m.MAV_SEVERITY_WARNING, f"INS fault {ev.sensor} {ev.mode.name.lower()}"
+
+
+@dataclass
+class EndpointConfig:
+    """One MAVLink output (the ``[[outputs]]`` tables of type mavlink)."""
+
+    name: str = "gcs"
+    url: str = "udpout:127.0.0.1:14550"
+    role: str = "gcs"  # gcs | fc
+    sysid: int = 42
+    compid: int = 1
+    mav_type: str = "QUADROTOR"
+    signing_key: str = ""  # 64 hex digits
+    rates: dict[str, float] = field(default_factory=dict)
+    params_file: str = ""  # parameter override file (default: <config>.params.toml), ins_hil.runtime.mavlink_params
+    # ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only LOCAL_FRD; same values: x north)
+    odometry_frame: str = "LOCAL_NED"
+
+    def effective_rates(self) -> dict[str, float]:
+        base = dict(GCS_RATES if self.role == "gcs" else FC_RATES)
+        base.update(self.rates)
+        return {k: v for k, v in base.items() if v > 0}
+
+
+class MessageBase:
+    """The endpoint's state as the message builders see it, and the builders both roles send
+    (HEARTBEAT, SYSTEM_TIME) with their helpers: boot time, Euler angles, home and NED offset, MSL height,
+    solution validity and the vehicle's status bits. Mixed into :class:`~ins_hil.runtime.mavlink_out.MavlinkEndpoint`,
+    which sets the attributes declared here."""
+
+    cfg: EndpointConfig
+    name: str
+    metrics: RuntimeMetrics
+    mav: Any  # pymavlink's MAVLink; the endpoint is its file (write)
+    mav_type: int
+    rates: dict[str, float]
+    next_ns: dict[str, int]  # due time (monotonic ns) of each streamed message
+    sent: dict[str, int]
+    _m: Any  # the dialect module
+    _fast: bool  # unsigned link: the hot messages are framed by _Frame
+    _latest: tuple[NavState, int, int] | None  # newest state, arrival and ready time (monotonic ns)
+    _wake: asyncio.Event
+    _gnss: GnssFix | None
+    _gnss_new: bool
+    _home: tuple[float, float, float] | None
+    _home_ecef: tuple[float, float, float]  # ECEF point of the home (m)
+    _home_cen: tuple[float, ...]  # C_e^n at home, row-major
+    _t0_ns: int
+
+    if TYPE_CHECKING:
+
+        def write(self, buf: bytes) -> None: ...
+        def _count(self, typ: str) -> None: ...
+        def statustext(self, severity: int, text: str) -> None: ...
+        def set_rate(self, typ: str, hz: float) -> None: ...
+
+    def _init_vehicle(self) -> None:
+        self.params: Any = None  # ins_hil.runtime.mavlink_params.ParamStore (attached by the gateway)
+        self.params_index = 0
+        self._seen: Any = None  # the newest state as last seen by _state_age_ns, and when (monotonic ns)
+        self._seen_ns = 0
+        self._reply_pending: list[Any] = []  # messages to send once, after the ACK / off the IMU path
+        self._geoid_at = (math.inf, math.inf)
+        self._geoid_n = 0.0
+        self.rx_ignored = 0  # messages addressed to another system
+        frames = {"LOCAL_NED": self._m.MAV_FRAME_LOCAL_NED, "LOCAL_FRD": self._m.MAV_FRAME_LOCAL_FRD}
+        if self.cfg.odometry_frame not in frames:
+            raise ValueError(f"{self.name}.odometry_frame = {self.cfg.odometry_frame!r}: LOCAL_NED or LOCAL_FRD")
+        self._odom_frame = frames[self.cfg.odometry_frame]
+        self._had_solution = False  # a valid solution was seen (then CRITICAL when it is lost)
+        self._write_ok = True  # the last write reached the transport
+
+    def _emit(self, frame: _Frame, *values: Any) -> None:
+        """Send one message framed by ``frame`` (values in wire order), with pymavlink's bookkeeping."""
+        mav = self.mav
+        buf = frame.frame(mav, *values)
+        self.write(buf)
+        mav.seq = (mav.seq + 1) % 256
+        mav.total_packets_sent += 1
+        mav.total_bytes_sent += len(buf)
+
+    def _tboot_ms(self, st: NavState) -> int:
+        return round(st.t * 1000) & 0xFFFFFFFF
+
+    def _euler(self, st: NavState) -> list[float]:
+        """(roll, pitch, yaw) rad of the state's q_nb as Python floats."""
+        return euler_from_quat(st.q_nb).tolist()
+
+    def _msl(self, lat: float, lon: float, h: float) -> float:
+        """Height above MSL (m, EGM96) of ``h`` (WGS84); the undulation is re-evaluated when the point
+        moved by more than 1e-5 rad (~60 m: the 1° grid changes by < 1 cm over that)."""
+        a, b = self._geoid_at
+        if abs(lat - a) + abs(lon - b) > 1e-5:
+            self._geoid_at = (lat, lon)
+            self._geoid_n = undulation(lat, lon)
+        return h - self._geoid_n
+
+    def _set_home(self, st: NavState) -> None:
+        """The first position is the home of LOCAL_POSITION_NED/ODOMETRY (and GLOBAL_POSITION_INT's
+        relative altitude); its ECEF point and C_e^n are cached here as floats."""
+        self._home = (st.lat, st.lon, st.h)
+        self._home_ecef = earth.ecef_xyz(st.lat, st.lon, st.h)
+        self._home_cen = tuple(earth.dcm_ecef_to_ned(st.lat, st.lon).ravel().tolist())
+        if self.cfg.role == "gcs":
+            self._reply_pending.append("HOME_POSITION")  # sent by the endpoint's task, off the IMU path
+            self._wake.set()
+
+    def _home_ned(self, st: NavState) -> tuple[float, float, float]:
+        """Exact NED offset (m) of the state from the home: earth.ned_from_geodetic's formula
+        (C_e^n(home) · (r_e − r_e,home)) in scalar floats with the home's terms cached."""
+        if self._home is None:
+            self._set_home(st)
+        x, y, z = earth.ecef_xyz(st.lat, st.lon, st.h)
+        x0, y0, z0 = self._home_ecef
+        dx, dy, dz = x - x0, y - y0, z - z0
+        c = self._home_cen
+        return (
+            c[0] * dx + c[1] * dy + c[2] * dz,
+            c[3] * dx + c[4] * dy + c[5] * dz,
+            c[6] * dx + c[7] * dy + c[8] * dz,
+        )
+
+    def _state_age_ns(self, lt: tuple[NavState, int, int]) -> int:
+        """Age of the newest state: from its ready time (the loop's monotonic stamp), or, without one
+        (0, tests and tools), from when this endpoint first saw it here (1–2 Hz checks; nothing is
+        added to :meth:`offer`)."""
+        now = time.monotonic_ns()
+        if lt[2]:
+            return now - lt[2]
+        if lt is not self._seen:
+            self._seen, self._seen_ns = lt, now
+        return now - self._seen_ns
+
+    def _solution_valid(self) -> bool:
+        """A state within the last ``SOLUTION_TIMEOUT_S`` that is aligned, and the IMU not lost."""
+        lt = self._latest
+        if lt is None or not lt[0].aligned:
+            return False
+        if self._state_age_ns(lt) > SOLUTION_TIMEOUT_S * 1e9:
+            return False
+        imu = self.metrics.sensors["imu"]
+        return not (imu.present and imu.count and not imu.healthy)
+
+    def _vehicle_status(self) -> tuple[int, int, int, bool, int]:
+        """SYS_STATUS (present, enabled, health) bits, solution valid, HEARTBEAT system_status.
+
+        Per sensor kind (RuntimeMetrics.sensors): present = configured or seen, enabled = present,
+        healthy = arriving at its rate; the IMU bits are unhealthy while FDI reports a fault; AHRS
+        healthy = valid solution. system_status: STANDBY before the first aligned solution, ACTIVE
+        when the solution is valid and every present sensor healthy, CRITICAL when the IMU is lost,
+        or after a solution when it is invalid (no state for 0.5 s) or a sensor is lost (dead reckoning)."""
+        m = self._m
+        present = health = 0
+        all_ok = True
+        for kind, h in self.metrics.sensors.items():
+            bit = _SENSOR_BITS[kind]
+            if h.present:
+                present |= bit
+                if h.healthy:
+                    health |= bit
+                else:
+                    all_ok = False
+        if self.metrics.fdi_state != "ok":
+            health &= ~(m.MAV_SYS_STATUS_SENSOR_3D_GYRO | m.MAV_SYS_STATUS_SENSOR_3D_ACCEL)
+        valid = self._solution_valid()
+        present |= m.MAV_SYS_STATUS_AHRS
+        if valid:
+            health |= m.MAV_SYS_STATUS_AHRS
+            self._had_solution = True
+        imu = self.metrics.sensors["imu"]
+        if valid and all_ok:
+            status = m.MAV_STATE_ACTIVE
+        elif self._had_solution or (imu.count and not imu.healthy):  # solution lost, or the IMU lost
+            status = m.MAV_STATE_CRITICAL
+        else:
+            status = m.MAV_STATE_STANDBY
+        return present, present, health, valid, status
+
+    def _send_heartbeat(self, st: NavState | None) -> None:
+        m = self._m
+        status = self._vehicle_status()[4]
+        if self.cfg.role == "gcs":
+            typ, ap = self.mav_type, m.MAV_AUTOPILOT_GENERIC
+        else:
+            typ, ap = m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_AUTOPILOT_INVALID
+        if self._fast:  # wire order: custom_mode, type, autopilot, base_mode, system_status, mavlink_version
+            self._emit(_frame_of("HEARTBEAT"), 0, typ, ap, 0, status, 3)
+        else:
+            self.mav.heartbeat_send(typ, ap, 0, 0, status)
+        if not self._write_ok and "HEARTBEAT" in self.next_ns:  # link not up yet (TCP, serial, udpin: no peer)
+            self.next_ns["HEARTBEAT"] = time.monotonic_ns() + _BEAT_RETRY_NS
+        elif self._gnss is not None and self._gnss.gps_week > 0:
+            self._send_system_time(st)  # with the 1 Hz HEARTBEAT, once the GNSS gives GPS time
+
+    def _send_system_time(self, st: NavState | None) -> bool:
+        """SYSTEM_TIME: UNIX time (µs) from the last fix's GPS time moved on to the state's time (the fix's
+        own time without a state); time_boot_ms the state's. False (nothing sent) without GPS time."""
+        g = self._gnss
+        if g is None or g.gps_week <= 0 or not math.isfinite(g.gps_tow):
+            return False
+        t = st.t if st is not None else g.t
+        unix = unix_from_gps(g.gps_week, g.gps_tow + (t - g.t))
+        self.mav.system_time_send(round(unix * 1e6), round(t * 1000) & 0xFFFFFFFF)
+        self._count("SYSTEM_TIME")
+        return True
