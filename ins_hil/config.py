@@ -10,6 +10,7 @@ and what is allowed, and are raised before anything starts (nothing half-starts)
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import tomllib
 from dataclasses import dataclass, field
@@ -24,7 +25,7 @@ from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
 from ins_hil.runtime.mavlink_out import EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
 from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor
-from ins_hil.sim.devices import SimConfig
+from ins_hil.types import SimConfig
 
 REPO_CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 INPUT_TYPES = ("serial_imu", "mavlink", "can_imu")
@@ -83,6 +84,51 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def document(self) -> dict[str, Any]:
+        """This configuration as a TOML document (:func:`config_document`)."""
+        return config_document(self)
+
+    def revalidate(self, doc: dict[str, Any]) -> Config:
+        """The configuration of the TOML document ``doc`` (e.g. :meth:`document` with one value changed),
+        validated as a file is (:func:`from_dict`; ConfigError naming the key), under this one's source."""
+        return from_dict(copy.deepcopy(doc), self.source or "<params>")
+
+
+def config_document(cfg: Config) -> dict[str, Any]:
+    """The TOML document (sections as in ``configs/*.toml``) of a validated ``Config``, with only the
+    keys that differ from their defaults (plus names and types): :func:`from_dict` of it gives the
+    same configuration (checked by ``ins_hil.runtime.mavlink_params.ParamStore``)."""
+    d = cfg.to_dict()
+    ref = Config().to_dict()
+
+    def diff(table: dict[str, Any], default: dict[str, Any], keep: tuple[str, ...] = ()) -> dict[str, Any]:
+        return {k: v for k, v in table.items() if k in keep or k not in default or v != default[k]}
+
+    p = dict(d["pipeline"])
+    fdi: dict[str, Any] = {"enabled": p.pop("fdi"), "imu_ids": p.pop("imu_ids"), "options": p.pop("fdi_options")}
+    fdi = diff(fdi, {"enabled": False, "imu_ids": [0], "options": {}})
+    aiding = {"enabled": p.pop("aiding_fdi"), **p.pop("aiding_options")}
+    if aiding != {"enabled": True}:
+        fdi["aiding"] = aiding
+    p["kind"] = p.pop("core")
+    pref = dict(ref["pipeline"], kind=ref["pipeline"]["core"])
+    core = diff(p, pref, keep=("nav",))
+    inputs = [diff(i, dataclasses.asdict(InputConfig(name=i["name"])), keep=("name", "type")) for i in d["inputs"]]
+    outputs = [
+        {"type": "mavlink", **diff(o, dataclasses.asdict(EndpointConfig(name=o["name"])), keep=("name",))}
+        for o in d["outputs"]
+    ]
+    return {
+        "gateway": diff(d["gateway"], ref["gateway"]),
+        "core": core,
+        **({"fdi": fdi} if fdi else {}),
+        "sim": {"enabled": d["sim_enabled"], **diff(d["sim"], ref["sim"])},
+        "inputs": inputs,
+        "outputs": outputs,
+        "mqtt": diff(d["mqtt"], dataclasses.asdict(MqttConfig()), keep=("enabled",)),
+        "recorder": diff(d["recorder"], ref["recorder"]),
+    }
 
 
 def _fill(obj: Any, table: Any, where: str, section: str | None = None) -> dict[str, Any]:

@@ -186,6 +186,32 @@ class FaultEvent:
     detail: str = ""
 
 
+@dataclass
+class SimConfig:
+    """What the simulated sensors simulate: the ``[sim]`` table of a gateway config (read by
+    :mod:`ins_hil.sim.devices`; here, below both, so the config and the replay name it without the
+    simulator). Units and ranges per key: ``ins_hil.config_schema.TABLES["sim"]``, docs/configuration.md."""
+
+    profile: str = "uav"  # uav | static
+    imu_rate: float = 1000.0  # Hz
+    imu_errors: str = "mems"  # mems | none
+    gnss_rate: float = 5.0  # Hz
+    gnss_latency: float = 0.05  # s, time of validity to sending
+    gnss_std_ne: float = 1.0  # m
+    gnss_std_d: float = 2.0  # m
+    gnss_std_vel: float = 0.1  # m/s
+    baro_rate: float = 25.0  # Hz
+    baro_std: float = 0.5  # m
+    lat_deg: float = 50.45  # deg, start
+    lon_deg: float = 30.52  # deg, start
+    h: float = 180.0  # m above the WGS84 ellipsoid, start
+    seed: int = 7
+    chunk_s: float = 10.0  # s
+    duration: float = 0.0  # s; 0 = until stopped
+    gnss_sysid: int = 1
+    sign_key: str = ""  # hex, 32 bytes: sign the GNSS/baro MAVLink messages
+
+
 #: GPS time − UTC (s), the leap seconds since 1980 (constant since 2017-01-01)
 GPS_UTC_LEAP_S = 18
 #: UNIX time (s) of the GPS epoch, 1980-01-06 00:00:00 UTC
