@@ -27,15 +27,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ins_hil.types import ConfigError as ConfigError  # with the shared types: the runtime raises it too
+
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "configuration.md"
 REQUIRED = "(required)"
-
-
-class ConfigError(ValueError):
-    """A configuration problem; a single line naming the file, the dotted key, the value and what is allowed."""
-
-    def __init__(self, msg: object = "") -> None:
-        super().__init__(re.sub(r"\s*[\r\n]+\s*", " ", str(msg)).strip())
 
 
 def _scalar(x: Any) -> bool:

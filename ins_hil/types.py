@@ -9,6 +9,7 @@ clock-offset correction by the runtime) and the monotonic arrival time
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
 from typing import Any, TypeAlias
@@ -184,6 +185,14 @@ class FaultEvent:
     isolated: bool = True
     cleared: bool = False
     detail: str = ""
+
+
+class ConfigError(ValueError):
+    """A configuration problem; a single line naming the file, the dotted key, the value and what is allowed
+    (raised by ``ins_hil.config`` and by the runtime for its parameter override file)."""
+
+    def __init__(self, msg: object = "") -> None:
+        super().__init__(re.sub(r"\s*[\r\n]+\s*", " ", str(msg)).strip())
 
 
 @dataclass

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from ins_hil.runtime.mavlink_out import ALL_MESSAGES
+from ins_hil.types import ConfigError
 
 #: MAV_PARAM_TYPE values used here
 REAL32 = 9
@@ -303,8 +304,6 @@ class ParamStore:
         return self.path
 
     def _load(self, path: Path) -> None:
-        from ins_hil.config import ConfigError
-
         try:
             d = tomllib.loads(path.read_text()).get("params", {})
         except (OSError, tomllib.TOMLDecodeError) as e:

@@ -29,6 +29,11 @@ class SensorAxes(Protocol):
     """The sensing axes of a redundant set (``ins_hil.fdi.geometry.SensorGeometry`` has them)."""
 
     @property
+    def name(self) -> str:
+        """For messages."""
+        ...
+
+    @property
     def kind(self) -> str:
         """``"array"`` (one axis per ImuSample) or ``"imus"`` (one triad per ImuSample)."""
         ...
