@@ -57,6 +57,16 @@ class InputConfig:
     sysid: int = 0
     options: dict[str, Any] = field(default_factory=dict)
 
+    def driver_table(self) -> dict[str, Any]:
+        """The ``ins_hil.drivers.factory.make_driver`` table of this input. The gateway's MAVLink input
+        emits GNSS and baro only (the IMU comes from its own input)."""
+        if self.type == "serial_imu":
+            return {"type": self.type, "name": self.name, "port": self.port, "baudrate": self.baud}
+        if self.type == "mavlink":
+            return {"type": self.type, "name": self.name, "url": self.url, "system_id": self.sysid or None,
+                    "signing_key": self.signing_key or None, "emit": ["gnss", "baro"]}  # fmt: skip
+        return {"type": self.type, "name": self.name, **self.options}
+
 
 @dataclass
 class RecorderConfig:
