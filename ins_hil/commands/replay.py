@@ -6,9 +6,9 @@ SOURCE is one of
 * ``drive`` or the directory of the real drive (``../shared/data/gnss_imu_drive_0708``):
   the README's outage protocol with and without ground-vehicle aids plus a run with GNSS
   all the time,
-* a recorded gateway log (``*.ihlog``), handed to ``ins_hil.runtime.replay.replay_log``,
+* a recorded gateway log (``*.ihlog``), handed to ``ins_hil.evaluation.sim_flight.replay_log``,
 * ``sim``: the ``[sim]`` flight of ``--config`` (default ``configs/default.toml``) through its pipeline,
-  offline, over ``--runs`` seeds: bias, RMS, NEES, 3σ coverage (``ins_hil.runtime.replay.sim_cli``).
+  offline, over ``--runs`` seeds: bias, RMS, NEES, 3σ coverage (``ins_hil.evaluation.sim_flight.sim_cli``).
 
 Writes ``metrics.json`` and PNG plots to ``--out`` and prints a summary table. ``--docs``
 runs the full report (real drive, Example 3.2, UAV mission, Monte-Carlo NEES/NIS, hot-path
