@@ -2,8 +2,8 @@
 
 Every MAVLink output endpoint serves the same navigation parameters (``NAV_*``, ``FLT_*``) and
 its own message rates (``SR_*``, Hz; 0 = off). A PARAM_SET is checked by the config file's own
-validation — :func:`ins_hil.config.from_dict` on the configuration document with that one value
-changed — and then:
+validation — the config object's ``revalidate`` (``ins_hil.config.from_dict``) of its ``document()``
+with that one value changed; the runtime never imports the config module — and then:
 
 - ``SR_*``: applied at once to that endpoint's stream (like MAV_CMD_SET_MESSAGE_INTERVAL);
 - ``live`` navigation values (gates, measurement σ: read by the Python core at each update):
