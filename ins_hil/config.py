@@ -19,6 +19,7 @@ from typing import Any
 
 from ins_hil import config_schema as schema
 from ins_hil.config_schema import ConfigError
+from ins_hil.drivers.factory import make_driver
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
@@ -203,8 +204,6 @@ def _fdi(cfg: Config, fdi: Any) -> None:
 
 def _can_options(ic: InputConfig, where: str) -> None:
     """A can_imu input's ``[inputs.options]``: checked, then the driver is built (the DBC file loaded)."""
-    from ins_hil.drivers.can_imu import CanImuDriver
-
     opts = schema.validate("inputs[].options", ic.options, f"{where}.options")
     for k in ("name", "type"):
         if k in opts:
@@ -220,7 +219,7 @@ def _can_options(ic: InputConfig, where: str) -> None:
         opts["dbc"] = dbc
     ic.options = opts
     try:
-        drv = CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **opts})
+        drv: Any = make_driver(ic.driver_table())  # a CanImuDriver: .dbc
     except ValueError as e:
         if str(e).startswith(("CAN IMU", "DBC profile")):
             raise ConfigError(f"{where}.options: {e}") from None
@@ -243,8 +242,6 @@ def _can_options(ic: InputConfig, where: str) -> None:
 
 def _startable(cfg: Config) -> None:
     """Build what start-up builds (no device opened): a config that loads must start."""
-    from ins_hil.drivers.mavlink_in import MavlinkDriver
-    from ins_hil.drivers.serial_imu import SerialImuDriver
     from ins_hil.runtime.mavlink_out import MavlinkEndpoint
     from ins_hil.runtime.metrics import RuntimeMetrics
     from ins_hil.runtime.mqtt_out import MqttPublisher
@@ -265,11 +262,8 @@ def _startable(cfg: Config) -> None:
         MqttPublisher(cfg.mqtt, metrics)
     for i, ic in enumerate(cfg.inputs):
         try:
-            if ic.type == "serial_imu":
-                SerialImuDriver(ic.port, ic.baud, name=ic.name)
-            elif ic.type == "mavlink":
-                MavlinkDriver(ic.url, name=ic.name, system_id=ic.sysid or None, signing_key=ic.signing_key or None,
-                              emit={"gnss", "baro"})  # fmt: skip
+            if ic.type != "can_imu":  # built (its DBC file loaded) by _can_options
+                make_driver(ic.driver_table())  # as the gateway builds it (no device opened)
         except ValueError as e:
             raise ConfigError(f"inputs[{i}]: {e}") from None
 

@@ -71,18 +71,19 @@ def test_an_entry_point_is_picked_up(registry: dict[str, Any], monkeypatch: pyte
     assert factory.DRIVERS["ep_imu"] is ThirdPartyImu  # looked up once
 
 
-def test_the_gateway_builds_its_inputs_through_the_registry(registry: dict[str, Any]) -> None:
+def test_the_config_and_the_gateway_build_inputs_through_the_registry(registry: dict[str, Any]) -> None:
     factory.register("serial_imu", ThirdPartyImu)
     cfg = sim_config(
         sim={"enabled": False},
         inputs=[{"name": "imu0", "type": "serial_imu", "port": "/dev/ins-hil-no-such-tty"}],
         recorder={"enabled": False},
     )
-    gw = Gateway(cfg)
+    table = {"type": "serial_imu", "name": "imu0", "port": "/dev/ins-hil-no-such-tty", "baudrate": 921600}
+    assert ThirdPartyImu.built == [table]  # the config's start-up check builds it (no device opened)
+    gw = Gateway(cfg)  # its parameter store re-validates the config: built again, unopened
+    n = len(ThirdPartyImu.built)
     asyncio.run(gw.run(duration=0.2, signals=False))
-    assert ThirdPartyImu.built == [
-        {"type": "serial_imu", "name": "imu0", "port": "/dev/ins-hil-no-such-tty", "baudrate": 921600}
-    ]
+    assert ThirdPartyImu.built == [table] * (n + 1)  # and the gateway's input, through the same registry
     assert [type(d) for d in gw.drivers] == [ThirdPartyImu]
 
 
