@@ -1,7 +1,12 @@
 """Build a driver from one configuration table (e.g. a ``[[inputs]]`` entry of the runtime's TOML).
 
-``type`` selects the driver; the other keys are the driver's own (see each
-``from_config``). Unknown types and keys raise ValueError naming them.
+One registry, :data:`DRIVERS`, maps the table's ``type`` to a driver class with
+``from_config(table)``; the gateway (``ins_hil.runtime.loop``) builds every input
+through :func:`make_driver`. A third-party driver registers itself with
+:func:`register`, or is found by name in the Python entry points group ``ins_hil.drivers``
+(``[project.entry-points."ins_hil.drivers"] my_imu = "my_pkg.imu:MyImuDriver"``).
+The other keys are the driver's own (see each ``from_config``). Unknown types and
+keys raise ValueError naming them, in one line.
 
     serial_imu: port, baudrate, name, stale_s
     can_imu:    interface, channel, (bitrate, ... any can.Bus keyword), protocol ("dronecan"|"dbc"),
@@ -13,26 +18,60 @@
 
 from __future__ import annotations
 
-from typing import Any
+import importlib
+from importlib.metadata import entry_points
+from typing import Any, Protocol
 
 from ins_hil.drivers.base import Driver
 
-TYPES = ("serial_imu", "can_imu", "mavlink")
+#: the entry points group searched for a ``type`` that is not registered
+ENTRY_POINT_GROUP = "ins_hil.drivers"
+
+
+class DriverClass(Protocol):
+    """What the registry holds: a class that builds its driver from a configuration table."""
+
+    def from_config(self, cfg: dict[str, Any]) -> Driver: ...
+
+
+#: ``type`` → the driver class, or ``"module:Class"`` imported on first use (a serial-only
+#: setup never imports python-can)
+DRIVERS: dict[str, DriverClass | str] = {
+    "serial_imu": "ins_hil.drivers.serial_imu:SerialImuDriver",
+    "can_imu": "ins_hil.drivers.can_imu:CanImuDriver",
+    "mavlink": "ins_hil.drivers.mavlink_in:MavlinkDriver",
+}
+TYPES = tuple(DRIVERS)  # the built-in types
+
+
+def register(kind: str, cls: DriverClass | str) -> None:
+    """Make ``type = kind`` build ``cls`` (a class with ``from_config``, or ``"module:Class"``)."""
+    DRIVERS[kind] = cls
+
+
+def _entry_point(kind: str) -> DriverClass | None:
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name == kind:
+            cls: DriverClass = ep.load()
+            return cls
+    return None
+
+
+def driver_class(kind: Any) -> DriverClass:
+    """The class registered for ``kind`` (:data:`DRIVERS`, then the entry points); ValueError if none."""
+    cls = DRIVERS.get(kind) if isinstance(kind, str) else None
+    if cls is None and isinstance(kind, str) and kind:
+        cls = _entry_point(kind)
+        if cls is not None:
+            DRIVERS[kind] = cls
+    if cls is None:
+        raise ValueError(f"driver config: 'type' must be one of {sorted(DRIVERS)}, got {kind!r}")
+    if isinstance(cls, str):
+        module, _, name = cls.partition(":")
+        cls = DRIVERS[kind] = getattr(importlib.import_module(module), name)
+    return cls
 
 
 def make_driver(cfg: dict[str, Any]) -> Driver:
-    """A driver instance for ``cfg`` (its ``type`` key: serial_imu, can_imu or mavlink)."""
-    kind = cfg.get("type")
-    if kind == "serial_imu":
-        from ins_hil.drivers.serial_imu import SerialImuDriver
-
-        return SerialImuDriver.from_config(cfg)
-    if kind == "can_imu":
-        from ins_hil.drivers.can_imu import CanImuDriver
-
-        return CanImuDriver.from_config(cfg)
-    if kind == "mavlink":
-        from ins_hil.drivers.mavlink_in import MavlinkDriver
-
-        return MavlinkDriver.from_config(cfg)
-    raise ValueError(f"driver config: 'type' must be one of {list(TYPES)}, got {kind!r}")
+    """A driver instance for ``cfg``: the class registered for its ``type`` key, ``from_config(cfg)``."""
+    return driver_class(cfg.get("type")).from_config(cfg)

@@ -10,6 +10,7 @@ and what is allowed, and are raised before anything starts (nothing half-starts)
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import tomllib
 from dataclasses import dataclass, field
@@ -18,13 +19,14 @@ from typing import Any
 
 from ins_hil import config_schema as schema
 from ins_hil.config_schema import ConfigError
+from ins_hil.drivers.factory import make_driver
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
 from ins_hil.runtime.mavlink_out import EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
 from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor
-from ins_hil.sim.devices import SimConfig
+from ins_hil.types import SimConfig
 
 REPO_CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 INPUT_TYPES = ("serial_imu", "mavlink", "can_imu")
@@ -56,6 +58,16 @@ class InputConfig:
     sysid: int = 0
     options: dict[str, Any] = field(default_factory=dict)
 
+    def driver_table(self) -> dict[str, Any]:
+        """The ``ins_hil.drivers.factory.make_driver`` table of this input. The gateway's MAVLink input
+        emits GNSS and baro only (the IMU comes from its own input)."""
+        if self.type == "serial_imu":
+            return {"type": self.type, "name": self.name, "port": self.port, "baudrate": self.baud}
+        if self.type == "mavlink":
+            return {"type": self.type, "name": self.name, "url": self.url, "system_id": self.sysid or None,
+                    "signing_key": self.signing_key or None, "emit": ["gnss", "baro"]}  # fmt: skip
+        return {"type": self.type, "name": self.name, **self.options}
+
 
 @dataclass
 class RecorderConfig:
@@ -83,6 +95,51 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def document(self) -> dict[str, Any]:
+        """This configuration as a TOML document (:func:`config_document`)."""
+        return config_document(self)
+
+    def revalidate(self, doc: dict[str, Any]) -> Config:
+        """The configuration of the TOML document ``doc`` (e.g. :meth:`document` with one value changed),
+        validated as a file is (:func:`from_dict`; ConfigError naming the key), under this one's source."""
+        return from_dict(copy.deepcopy(doc), self.source or "<params>")
+
+
+def config_document(cfg: Config) -> dict[str, Any]:
+    """The TOML document (sections as in ``configs/*.toml``) of a validated ``Config``, with only the
+    keys that differ from their defaults (plus names and types): :func:`from_dict` of it gives the
+    same configuration (checked by ``ins_hil.runtime.mavlink_params.ParamStore``)."""
+    d = cfg.to_dict()
+    ref = Config().to_dict()
+
+    def diff(table: dict[str, Any], default: dict[str, Any], keep: tuple[str, ...] = ()) -> dict[str, Any]:
+        return {k: v for k, v in table.items() if k in keep or k not in default or v != default[k]}
+
+    p = dict(d["pipeline"])
+    fdi: dict[str, Any] = {"enabled": p.pop("fdi"), "imu_ids": p.pop("imu_ids"), "options": p.pop("fdi_options")}
+    fdi = diff(fdi, {"enabled": False, "imu_ids": [0], "options": {}})
+    aiding = {"enabled": p.pop("aiding_fdi"), **p.pop("aiding_options")}
+    if aiding != {"enabled": True}:
+        fdi["aiding"] = aiding
+    p["kind"] = p.pop("core")
+    pref = dict(ref["pipeline"], kind=ref["pipeline"]["core"])
+    core = diff(p, pref, keep=("nav",))
+    inputs = [diff(i, dataclasses.asdict(InputConfig(name=i["name"])), keep=("name", "type")) for i in d["inputs"]]
+    outputs = [
+        {"type": "mavlink", **diff(o, dataclasses.asdict(EndpointConfig(name=o["name"])), keep=("name",))}
+        for o in d["outputs"]
+    ]
+    return {
+        "gateway": diff(d["gateway"], ref["gateway"]),
+        "core": core,
+        **({"fdi": fdi} if fdi else {}),
+        "sim": {"enabled": d["sim_enabled"], **diff(d["sim"], ref["sim"])},
+        "inputs": inputs,
+        "outputs": outputs,
+        "mqtt": diff(d["mqtt"], dataclasses.asdict(MqttConfig()), keep=("enabled",)),
+        "recorder": diff(d["recorder"], ref["recorder"]),
+    }
 
 
 def _fill(obj: Any, table: Any, where: str, section: str | None = None) -> dict[str, Any]:
@@ -147,8 +204,6 @@ def _fdi(cfg: Config, fdi: Any) -> None:
 
 def _can_options(ic: InputConfig, where: str) -> None:
     """A can_imu input's ``[inputs.options]``: checked, then the driver is built (the DBC file loaded)."""
-    from ins_hil.drivers.can_imu import CanImuDriver
-
     opts = schema.validate("inputs[].options", ic.options, f"{where}.options")
     for k in ("name", "type"):
         if k in opts:
@@ -164,7 +219,7 @@ def _can_options(ic: InputConfig, where: str) -> None:
         opts["dbc"] = dbc
     ic.options = opts
     try:
-        drv = CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **opts})
+        drv: Any = make_driver(ic.driver_table())  # a CanImuDriver: .dbc
     except ValueError as e:
         if str(e).startswith(("CAN IMU", "DBC profile")):
             raise ConfigError(f"{where}.options: {e}") from None
@@ -187,8 +242,6 @@ def _can_options(ic: InputConfig, where: str) -> None:
 
 def _startable(cfg: Config) -> None:
     """Build what start-up builds (no device opened): a config that loads must start."""
-    from ins_hil.drivers.mavlink_in import MavlinkDriver
-    from ins_hil.drivers.serial_imu import SerialImuDriver
     from ins_hil.runtime.mavlink_out import MavlinkEndpoint
     from ins_hil.runtime.metrics import RuntimeMetrics
     from ins_hil.runtime.mqtt_out import MqttPublisher
@@ -209,11 +262,8 @@ def _startable(cfg: Config) -> None:
         MqttPublisher(cfg.mqtt, metrics)
     for i, ic in enumerate(cfg.inputs):
         try:
-            if ic.type == "serial_imu":
-                SerialImuDriver(ic.port, ic.baud, name=ic.name)
-            elif ic.type == "mavlink":
-                MavlinkDriver(ic.url, name=ic.name, system_id=ic.sysid or None, signing_key=ic.signing_key or None,
-                              emit={"gnss", "baro"})  # fmt: skip
+            if ic.type != "can_imu":  # built (its DBC file loaded) by _can_options
+                make_driver(ic.driver_table())  # as the gateway builds it (no device opened)
         except ValueError as e:
             raise ConfigError(f"inputs[{i}]: {e}") from None
 

@@ -27,15 +27,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ins_hil.types import ConfigError as ConfigError  # with the shared types: the runtime raises it too
+
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "configuration.md"
 REQUIRED = "(required)"
-
-
-class ConfigError(ValueError):
-    """A configuration problem; a single line naming the file, the dotted key, the value and what is allowed."""
-
-    def __init__(self, msg: object = "") -> None:
-        super().__init__(re.sub(r"\s*[\r\n]+\s*", " ", str(msg)).strip())
 
 
 def _scalar(x: Any) -> bool:
@@ -828,7 +823,7 @@ def sections() -> list[Section]:
     from ins_hil.runtime.mavlink_out import EndpointConfig
     from ins_hil.runtime.mqtt_out import MqttConfig
     from ins_hil.runtime.pipeline import PipelineConfig
-    from ins_hil.sim.devices import SimConfig
+    from ins_hil.types import SimConfig
 
     sim_keys = {"enabled": Key("enabled", "bool", False, **_help("sim", "enabled"))}
     sim_keys.update(dataclass_keys(SimConfig, "sim"))
@@ -857,7 +852,7 @@ def sections() -> list[Section]:
         Section("fdi.options", fdi_opts, "The FDI monitor (ins_hil.fdi.monitor.FdiConfig); dt, gyro_noise and "
                 "accel_noise are required when [fdi] enabled = true."),
         Section("fdi.aiding", aid, "The GNSS/baro drift monitor (ins_hil.fdi.aiding.AidingConfig)."),
-        Section("sim", sim_keys, "The simulated sensors (ins_hil.sim.devices.SimConfig)."),
+        Section("sim", sim_keys, "The simulated sensors (ins_hil.types.SimConfig, read by ins_hil.sim.devices)."),
         Section("inputs[]", dataclass_keys(InputConfig, "inputs[]"), "One sensor input per [[inputs]] table."),
         Section("inputs[].options", CAN_OPTIONS, "A can_imu input's options (ins_hil.drivers.can_imu).", open=True),
         Section("inputs[].options.dbc", dataclass_keys(DbcProfile, "inputs[].options.dbc"),

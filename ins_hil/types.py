@@ -9,6 +9,7 @@ clock-offset correction by the runtime) and the monotonic arrival time
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
 from typing import Any, TypeAlias
@@ -184,6 +185,40 @@ class FaultEvent:
     isolated: bool = True
     cleared: bool = False
     detail: str = ""
+
+
+class ConfigError(ValueError):
+    """A configuration problem; a single line naming the file, the dotted key, the value and what is allowed
+    (raised by ``ins_hil.config`` and by the runtime for its parameter override file)."""
+
+    def __init__(self, msg: object = "") -> None:
+        super().__init__(re.sub(r"\s*[\r\n]+\s*", " ", str(msg)).strip())
+
+
+@dataclass
+class SimConfig:
+    """What the simulated sensors simulate: the ``[sim]`` table of a gateway config (read by
+    :mod:`ins_hil.sim.devices`; here, below both, so the config and the replay name it without the
+    simulator). Units and ranges per key: ``ins_hil.config_schema.TABLES["sim"]``, docs/configuration.md."""
+
+    profile: str = "uav"  # uav | static
+    imu_rate: float = 1000.0  # Hz
+    imu_errors: str = "mems"  # mems | none
+    gnss_rate: float = 5.0  # Hz
+    gnss_latency: float = 0.05  # s, time of validity to sending
+    gnss_std_ne: float = 1.0  # m
+    gnss_std_d: float = 2.0  # m
+    gnss_std_vel: float = 0.1  # m/s
+    baro_rate: float = 25.0  # Hz
+    baro_std: float = 0.5  # m
+    lat_deg: float = 50.45  # deg, start
+    lon_deg: float = 30.52  # deg, start
+    h: float = 180.0  # m above the WGS84 ellipsoid, start
+    seed: int = 7
+    chunk_s: float = 10.0  # s
+    duration: float = 0.0  # s; 0 = until stopped
+    gnss_sysid: int = 1
+    sign_key: str = ""  # hex, 32 bytes: sign the GNSS/baro MAVLink messages
 
 
 #: GPS time − UTC (s), the leap seconds since 1980 (constant since 2017-01-01)

@@ -102,12 +102,13 @@ def drive_rows(shared: Path = SHARED) -> list[list[float]]:
 
 def sim_rows(kind: str) -> list[list[float]]:
     """The simulated UAV scenario (seed 0, ``SIM_SECONDS`` s) through the ``python`` or ``c`` core."""
+    from ins_hil.runtime.pipeline import nav_config
     from ins_hil.sim import scenarios
     from ins_hil.types import MagSample
 
     sc = scenarios.build("uav", seed=0, duration=SIM_SECONDS)
     # the settings both cores support (the C core has no magnetometer update): GNSS + baro
-    cfg = dataclasses.replace(sc.config, mag_ref_ned=None)
+    cfg = dataclasses.replace(nav_config(sc.nav), mag_ref_ned=None)
     meas = [m for m in sc.meas if not isinstance(m, MagSample)]
     if kind == "python":
         from ins_hil.core import NavCore

@@ -42,3 +42,13 @@ def sim_config_dict(**over: Any) -> dict[str, Any]:
 
 def sim_config(**over: Any) -> Config:
     return from_dict(sim_config_dict(**over), "test")
+
+
+def sim_gateway(cfg: Config, **kw: Any) -> Any:
+    """``Gateway(cfg, **kw)`` with the simulator as its devices (``[sim] enabled`` configs need them)."""
+    from functools import partial
+
+    from ins_hil.runtime.loop import Gateway
+    from ins_hil.sim.devices import SimDevices
+
+    return Gateway(cfg, devices=partial(SimDevices, cfg.sim), **kw)

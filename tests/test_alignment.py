@@ -17,6 +17,7 @@ from ins_hil.nav.rotation import (
     quat_angle_between,
     quat_from_euler,
 )
+from ins_hil.runtime.pipeline import nav_config
 from ins_hil.sim import scenarios
 from ins_hil.sim import sensors as se
 from ins_hil.sim import trajectory as tr
@@ -96,7 +97,7 @@ def test_navcore_static_alignment_with_magnetometer():
     """Static scenario: not aligned before ``align_time``; then levelling + refined alignment (gravity +
     magnetometer) gives the attitude to better than 1° and the flag turns True."""
     sc = scenarios.build("static", seed=1, duration=10.0)
-    core = NavCore(None, sc.config)
+    core = NavCore(None, nav_config(sc.nav))
     meas = sorted(sc.meas, key=lambda m: m.t)
     j = 0
     flags = []

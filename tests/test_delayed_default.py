@@ -12,8 +12,9 @@ from runtime_helpers import sim_config_dict
 
 from ins_hil.config import default_path, from_dict
 from ins_hil.core import NavCore
+from ins_hil.evaluation.sim_flight import fly_sim
 from ins_hil.runtime.pipeline import Pipeline
-from ins_hil.runtime.replay import errors, fly_sim, score
+from ins_hil.runtime.replay import errors, score
 from ins_hil.sim.devices import send_order
 from ins_hil.types import GnssFix, ImuSample
 

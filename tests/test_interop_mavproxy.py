@@ -17,12 +17,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from runtime_helpers import free_port, sim_config
+from runtime_helpers import free_port, sim_config, sim_gateway
 
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import euler_from_quat
 from ins_hil.runtime.geoid import undulation
-from ins_hil.runtime.loop import Gateway
 from ins_hil.sim.devices import truth_chunks
 
 SYSID = 42
@@ -62,7 +61,7 @@ def test_mavproxy_receives_our_vehicle(tmp_path: Path) -> None:
             outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{port}", "role": "gcs", "sysid": SYSID}],
             recorder={"enabled": False},
         )
-        gw = Gateway(cfg)
+        gw = sim_gateway(cfg)
         asyncio.run(gw.run(duration=7.0, signals=False))
         time.sleep(0.5)
     finally:

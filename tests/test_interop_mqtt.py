@@ -23,9 +23,8 @@ from pathlib import Path
 
 import paho.mqtt.client as mqtt
 import pytest
-from runtime_helpers import free_port, sim_config
+from runtime_helpers import free_port, sim_config, sim_gateway
 
-from ins_hil.runtime.loop import Gateway
 from ins_hil.types import FaultEvent, FaultMode, NavState
 
 PREFIX = "test_ins"
@@ -111,7 +110,7 @@ def test_state_and_faults_survive_a_broker_restart(broker: Broker) -> None:
         mqtt={"enabled": True, "port": broker.port, "topic_prefix": PREFIX, "state_rate": 20.0},
         recorder={"enabled": False},
     )
-    gw = Gateway(cfg)
+    gw = sim_gateway(cfg)
     t_states: list[float] = []
     gw.on_state.append(lambda st: t_states.append(time.monotonic()))
     sub = Subscriber(broker.port)
@@ -170,7 +169,7 @@ def test_state_and_faults_survive_a_broker_restart(broker: Broker) -> None:
 def test_unreachable_broker_does_not_stall_the_loop() -> None:
     port = free_port(socket.SOCK_STREAM)  # nothing listens here
     cfg = sim_config(mqtt={"enabled": True, "port": port, "topic_prefix": PREFIX}, recorder={"enabled": False})
-    gw = Gateway(cfg)
+    gw = sim_gateway(cfg)
     states: list[NavState] = []
     gw.on_state.append(states.append)
     asyncio.run(gw.run(duration=3.0, signals=False))
@@ -192,7 +191,7 @@ def test_username_password(tmp_path: Path) -> None:
                 mqtt={"enabled": True, "port": b.port, "topic_prefix": PREFIX, "username": "gw", "password": pw},
                 recorder={"enabled": False},
             )
-            gw = Gateway(cfg)
+            gw = sim_gateway(cfg)
             asyncio.run(gw.run(duration=3.0, signals=False))
             assert gw.mqtt is not None
             got[name] = (gw.mqtt.connects, gw.metrics.snapshot()["outputs"]["mqtt"], gw.mqtt.last_error)

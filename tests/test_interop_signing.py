@@ -16,9 +16,8 @@ from typing import Any
 
 from ins_hil.drivers.mavlink_link import signing_timestamp
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-from runtime_helpers import free_port, sim_config
+from runtime_helpers import free_port, sim_config, sim_gateway
 
-from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.recorder import read_records
 from ins_hil.types import GnssFix
 
@@ -63,7 +62,7 @@ def test_signed_links(tmp_path: Path) -> None:
         ],
         outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{peer.getsockname()[1]}", "signing_key": KEY}],
     )
-    gw = Gateway(cfg, record_path=tmp_path / "signed.ihlog")
+    gw = sim_gateway(cfg, record_path=tmp_path / "signed.ihlog")
     verifier = mavlink2.MAVLink(None)
     verifier.signing.secret_key = bytes.fromhex(KEY)
     verifier.signing.timestamp = signing_timestamp()

@@ -75,3 +75,33 @@ def test_io_in_the_core_breaks_the_contract(tmp_path: Path) -> None:
     r = _lint(repo)
     assert r.returncode == 1, r.stdout + r.stderr
     assert "ins_hil.fusion.ekf -> asyncio" in r.stdout, r.stdout
+
+
+def test_no_known_exceptions() -> None:
+    """Every contract holds without an ignore list (ARCHITECTURE.md "Layers": known exceptions none)."""
+    import tomllib
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    assert len(contracts) == 4
+    assert {c["id"]: c.get("ignore_imports", []) for c in contracts} == {c["id"]: [] for c in contracts}
+
+
+def test_the_former_exceptions_break_the_contract(tmp_path: Path) -> None:
+    """The imports that used to be ignored (the gateway's fallback simulator, scenarios building NavConfig,
+    the runtime reading the config back) are violations again when added back."""
+    repo = _copy(tmp_path)
+    for rel, line in (
+        ("ins_hil/runtime/loop.py", "import ins_hil.sim.devices"),
+        ("ins_hil/sim/scenarios.py", "import ins_hil.core"),
+        ("ins_hil/runtime/mavlink_params.py", "import ins_hil.config"),
+    ):
+        f = repo / rel
+        f.write_text(f.read_text() + f"\n{line}  # noqa: E402\n")
+    r = _lint(repo)
+    assert r.returncode == 1, r.stdout + r.stderr
+    for imp in (
+        "ins_hil.runtime.loop -> ins_hil.sim.devices",
+        "ins_hil.sim.scenarios -> ins_hil.core",
+        "ins_hil.runtime.mavlink_params -> ins_hil.config",
+    ):
+        assert imp in r.stdout, r.stdout

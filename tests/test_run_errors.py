@@ -19,10 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from runtime_helpers import free_port, sim_config, sim_config_dict
+from runtime_helpers import free_port, sim_config, sim_config_dict, sim_gateway
 
 from ins_hil.config import ConfigError, from_dict
-from ins_hil.runtime.loop import Gateway
 
 MISSING_IMU = "/nonexistent/ttyUSB9"
 MISSING_OUT = "/nonexistent/ttyAMA9"
@@ -171,7 +170,7 @@ def test_the_live_view_shows_the_drivers_error_text() -> None:
     from ins_hil.commands.run import render
 
     cfg = sim_config(inputs=[_imu(MISSING_IMU), _GNSS], recorder={"enabled": False})
-    gw = Gateway(cfg)
+    gw = sim_gateway(cfg)
     seen: dict[str, str] = {}
 
     async def scenario() -> None:
@@ -199,7 +198,7 @@ def test_a_device_that_appears_later_clears_the_problem(tmp_path: Path, caplog: 
     simulator's pty): the driver re-opens, samples flow, the problem is cleared and logged as up."""
     link = tmp_path / "ttyIMU"
     cfg = sim_config(inputs=[_imu(str(link)), _GNSS], recorder={"enabled": False})
-    gw = Gateway(cfg)
+    gw = sim_gateway(cfg)
     got: dict[str, Any] = {}
 
     async def scenario() -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from runtime_helpers import free_port, sim_config
+from runtime_helpers import free_port, sim_config, sim_gateway
 
 from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.metrics import LatencyHistogram
@@ -32,7 +32,7 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
     tmp = tmp_path_factory.mktemp("live")
     port = free_port()  # nobody listens: the endpoint sends anyway and counts what the socket refuses
     cfg = sim_config(sim={"imu_errors": "none"}, outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{port}"}])
-    gw = Gateway(cfg, record_path=tmp / "live.ihlog")
+    gw = sim_gateway(cfg, record_path=tmp / "live.ihlog")
     states: list[NavState] = []
     gw.on_state.append(states.append)
     asyncio.run(gw.run(duration=5.0, signals=False))
@@ -94,7 +94,7 @@ def test_queue_overflow_is_counted_not_silent() -> None:
     cfg.gateway.queue_size = 3
 
     async def go() -> tuple[Gateway, int]:
-        gw = Gateway(cfg)
+        gw = sim_gateway(cfg)
         sink = gw._sink_for("imu0")
         for k in range(10):  # faster than the core runs (it is scheduled, not run, by the sink)
             sink(ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=np.zeros(3)))
@@ -182,7 +182,7 @@ def test_second_sigint_exits_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(os, "_exit", exits.append)
 
     async def go() -> Gateway:
-        gw = Gateway(sim_config())
+        gw = sim_gateway(sim_config())
         gw._on_sigint()
         assert gw._stop.is_set() and gw.stopped_reason == "SIGINT" and exits == []
         gw._on_sigint()
@@ -242,7 +242,7 @@ def test_a_failing_sample_does_not_stop_the_gateway() -> None:
     cfg = sim_config()
 
     async def go() -> Gateway:
-        gw = Gateway(cfg)
+        gw = sim_gateway(cfg)
         sink = gw._sink_for("imu0")
         dv = np.array([0.0, 0.0, -9.80665e-3])
         for k in range(1, 6):

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-from runtime_helpers import free_port
+from runtime_helpers import free_port, sim_gateway
 
 from ins_hil.nav.rotation import dcm_from_quat, quat_from_euler
 from ins_hil.runtime.mavlink_out import EndpointConfig, MavlinkEndpoint
@@ -212,12 +212,11 @@ def _run_gateway(cfg_dict: dict, seconds: float, port: int, kill_sim_at: float =
     """Run a Gateway for ``seconds`` while a UDP listener on ``port`` collects (arrival time, message);
     with ``kill_sim_at`` the simulator process is killed (SIGKILL) that many seconds after the start."""
     from ins_hil.config import from_dict
-    from ins_hil.runtime.loop import Gateway
 
     rx = _listen(port)
     mav = mavlink2.MAVLink(None)
     got: list = []
-    gw = Gateway(from_dict(cfg_dict, "test"))
+    gw = sim_gateway(from_dict(cfg_dict, "test"))
 
     async def go() -> None:
         async def pump() -> None:

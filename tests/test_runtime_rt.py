@@ -7,10 +7,9 @@ import os
 
 import numpy as np
 import pytest
-from runtime_helpers import sim_config, sim_config_dict
+from runtime_helpers import sim_config, sim_config_dict, sim_gateway
 
 from ins_hil.config import ConfigError, from_dict
-from ins_hil.runtime.loop import Gateway
 from ins_hil.runtime.pipeline import aiding_monitor
 from ins_hil.runtime.rt import lock_memory, policy, set_realtime
 from ins_hil.types import BaroSample, GnssFix, ImuSample
@@ -65,7 +64,7 @@ def test_aiding_is_fused_in_segments_one_per_gap_after_the_published_state() -> 
     cfg = sim_config(core={"init": "config", "init_lat_deg": 50.0, "init_lon_deg": 30.0, "init_h": 100.0})
 
     async def go() -> tuple[list[str], list[str], dict[str, int]]:
-        gw = Gateway(cfg)
+        gw = sim_gateway(cfg)
         order: list[str] = []
         gw.on_state.append(lambda st: order.append(f"state {st.t:.3f}"))
         core = gw.pipeline.core

@@ -16,8 +16,9 @@ from runtime_helpers import sim_config_dict
 
 from ins_hil.cli import main
 from ins_hil.config import from_dict
+from ins_hil.evaluation.sim_flight import monte_carlo_sim, sim_truth
 from ins_hil.runtime.recorder import Recorder
-from ins_hil.runtime.replay import check_imu, monte_carlo_sim, sim_truth
+from ins_hil.runtime.replay import check_imu
 from ins_hil.sim.devices import send_order
 from ins_hil.types import ImuSample
 

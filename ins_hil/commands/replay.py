@@ -6,9 +6,9 @@ SOURCE is one of
 * ``drive`` or the directory of the real drive (``../shared/data/gnss_imu_drive_0708``):
   the README's outage protocol with and without ground-vehicle aids plus a run with GNSS
   all the time,
-* a recorded gateway log (``*.ihlog``), handed to ``ins_hil.runtime.replay.replay_log``,
+* a recorded gateway log (``*.ihlog``), handed to ``ins_hil.evaluation.sim_flight.replay_log``,
 * ``sim``: the ``[sim]`` flight of ``--config`` (default ``configs/default.toml``) through its pipeline,
-  offline, over ``--runs`` seeds: bias, RMS, NEES, 3σ coverage (``ins_hil.runtime.replay.sim_cli``).
+  offline, over ``--runs`` seeds: bias, RMS, NEES, 3σ coverage (``ins_hil.evaluation.sim_flight.sim_cli``).
 
 Writes ``metrics.json`` and PNG plots to ``--out`` and prints a summary table. ``--docs``
 runs the full report (real drive, Example 3.2, UAV mission, Monte-Carlo NEES/NIS, hot-path
@@ -34,6 +34,7 @@ from ins_hil.core import NavConfig, NavCore
 from ins_hil.datasets import drive0708
 from ins_hil.datasets.evaluate import Series, run_drive, run_truth
 from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.runtime.pipeline import nav_config
 from ins_hil.sim import scenarios
 
 NAME = "replay"
@@ -147,7 +148,7 @@ def scenario_metrics(ser: Series, t_from: float) -> dict[str, Any]:
 
 def run_scenario(name: str, seed: int, duration: float | None, quiet: bool) -> tuple[dict[str, Any], Series, NavCore]:
     sc = scenarios.build(name, seed=seed, duration=duration)
-    core = NavCore(sc.initial, sc.config)
+    core = NavCore(sc.initial, nav_config(sc.nav))
     core.keep_nis = True
     t0 = time.perf_counter()
     ser = run_truth(core, sc.imu, sc.meas, sc.truth, record_every=10, progress=_Progress(f"{name} seed {seed}", quiet))
@@ -424,8 +425,9 @@ def _fmt(x: Any, nd: int = 3) -> str:
 
 
 def _runtime_replay() -> Any:
-    """The runtime helper's gateway-log replayer (``ins_hil.runtime.replay``), imported on demand."""
-    return importlib.import_module("ins_hil.runtime.replay")
+    """The gateway-log replayer (``ins_hil.runtime.replay``, with the simulator's truth for a simulated
+    run: ``ins_hil.evaluation.sim_flight``), imported on demand."""
+    return importlib.import_module("ins_hil.evaluation.sim_flight")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -34,8 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ins_hil.drivers.base import Sample
-from ins_hil.drivers.mavlink_in import MavlinkDriver
-from ins_hil.drivers.serial_imu import SerialImuDriver
+from ins_hil.drivers.factory import make_driver
 from ins_hil.runtime.clock import SensorClock
 from ins_hil.runtime.mavlink_out import MavlinkEndpoint, fault_text
 from ins_hil.runtime.mavlink_params import ParamStore
@@ -71,8 +70,9 @@ class Gateway:
 
     ``metrics`` is the live :class:`RuntimeMetrics` (status view, MQTT health,
     soak test); ``on_state`` callbacks get every state (tests, tools). ``devices`` builds the
-    sensor devices of a ``[sim] enabled`` config (``ins-hil run`` passes the simulator's,
-    ``functools.partial(SimDevices, cfg.sim)``); the runtime itself never imports the simulator.
+    sensor devices of a ``[sim] enabled`` config, which needs it (every caller passes the simulator's,
+    ``functools.partial(SimDevices, cfg.sim)``): the runtime never imports the simulator. Every input's
+    driver comes from the one registry, ``ins_hil.drivers.factory.make_driver``.
     """
 
     def __init__(
@@ -336,46 +336,34 @@ class Gateway:
             except OSError as e:  # e.g. a host that does not resolve: the config path and the URL
                 raise RuntimeError(f"outputs[{i}] ({p.name}): cannot open {p.cfg.url}: {e}") from e
         sim_gnss_port = 0
-        serial_inputs = []
-        for ic in cfg.inputs:
-            if ic.type == "mavlink":
-                drv = MavlinkDriver(
-                    _pin_port(ic.url),
-                    name=ic.name,
-                    system_id=ic.sysid or None,
-                    signing_key=ic.signing_key or None,
-                    request={} if cfg.sim_enabled else None,
-                    emit={"gnss", "baro"},
-                )
-                self.drivers.append(drv)
-                self._tasks.append(asyncio.create_task(drv.run(self._sink_for(ic.name)), name=ic.name))
-                for _ in range(100):  # until the socket is bound (port 0 = any free port)
-                    if drv.local_address is not None:
-                        break
-                    await asyncio.sleep(0.01)
-                if drv.local_address is None:
-                    raise RuntimeError(f"{self.input_paths[ic.name]}: cannot open {ic.url}: {drv.health.last_error}")
-                if not sim_gnss_port:
-                    sim_gnss_port = int(drv.local_address[1])
-            else:
-                serial_inputs.append(ic)
+        later = []
+        for ic in cfg.inputs:  # MAVLink inputs first: the simulator sends to the port the first one listens on
+            if ic.type != "mavlink":
+                later.append(ic)
+                continue
+            table = {**ic.driver_table(), "url": _pin_port(ic.url), "request": {} if cfg.sim_enabled else None}
+            drv: Any = make_driver(table)  # a MavlinkDriver: local_address
+            self._add_driver(drv, ic.name)
+            for _ in range(100):  # until the socket is bound (port 0 = any free port)
+                if drv.local_address is not None:
+                    break
+                await asyncio.sleep(0.01)
+            if drv.local_address is None:
+                raise RuntimeError(f"{self.input_paths[ic.name]}: cannot open {ic.url}: {drv.health.last_error}")
+            if not sim_gnss_port:
+                sim_gnss_port = int(drv.local_address[1])
         if cfg.sim_enabled:
             if not sim_gnss_port:
                 raise RuntimeError("[sim] needs a mavlink input for its GNSS/baro")
-            self.sim = (self._devices or _default_devices(cfg))(("127.0.0.1", sim_gnss_port))
+            if self._devices is None:
+                raise RuntimeError("[sim] enabled: the gateway needs the simulator, Gateway(cfg, devices=...)")
+            self.sim = self._devices(("127.0.0.1", sim_gnss_port))
             await asyncio.get_running_loop().run_in_executor(None, self.sim.start)
-        for ic in serial_inputs:
-            if ic.type == "can_imu":
-                from ins_hil.drivers.can_imu import CanImuDriver
-
-                cdrv = CanImuDriver.from_config({"type": "can_imu", "name": ic.name, **ic.options})
-                self.drivers.append(cdrv)
-                self._tasks.append(asyncio.create_task(cdrv.run(self._sink_for(ic.name)), name=ic.name))
-                continue
-            dev = self.sim.imu_path if ic.port == "sim" and self.sim else ic.port
-            sdrv = SerialImuDriver(dev, ic.baud, name=ic.name)
-            self.drivers.append(sdrv)
-            self._tasks.append(asyncio.create_task(sdrv.run(self._sink_for(ic.name)), name=ic.name))
+        for ic in later:
+            table = ic.driver_table()
+            if ic.type == "serial_imu" and ic.port == "sim" and self.sim is not None:
+                table["port"] = self.sim.imu_path
+            self._add_driver(make_driver(table), ic.name)
         if cfg.gateway.rt_priority:
             why = enter_realtime(cfg.gateway.rt_priority)
             if why:
@@ -389,6 +377,10 @@ class Gateway:
         t = asyncio.create_task(self._housekeeping(), name="housekeeping")
         t.add_done_callback(self._task_done)
         self._tasks.append(t)
+
+    def _add_driver(self, drv: Any, name: str) -> None:
+        self.drivers.append(drv)
+        self._tasks.append(asyncio.create_task(drv.run(self._sink_for(name)), name=name))
 
     def _announce(self) -> None:
         """Log where everything goes: inputs, each MAVLink output's URL and role, MQTT, the recording."""
@@ -481,16 +473,6 @@ class Gateway:
         if self.error is not None:
             raise RuntimeError(self.stopped_reason) from self.error
         return self.metrics
-
-
-def _default_devices(cfg: Config) -> DevicesFactory:
-    """The simulator for callers that do not pass ``devices`` (kept until they do; an ignored import
-    in the layer contract, pyproject.toml)."""
-    from functools import partial
-
-    from ins_hil.sim.devices import SimDevices
-
-    return partial(SimDevices, cfg.sim)
 
 
 def _pin_port(url: str) -> str:

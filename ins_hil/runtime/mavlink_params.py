@@ -2,8 +2,8 @@
 
 Every MAVLink output endpoint serves the same navigation parameters (``NAV_*``, ``FLT_*``) and
 its own message rates (``SR_*``, Hz; 0 = off). A PARAM_SET is checked by the config file's own
-validation — :func:`ins_hil.config.from_dict` on the configuration document with that one value
-changed — and then:
+validation — the config object's ``revalidate`` (``ins_hil.config.from_dict``) of its ``document()``
+with that one value changed; the runtime never imports the config module — and then:
 
 - ``SR_*``: applied at once to that endpoint's stream (like MAV_CMD_SET_MESSAGE_INTERVAL);
 - ``live`` navigation values (gates, measurement σ: read by the Python core at each update):
@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from ins_hil.runtime.mavlink_out import ALL_MESSAGES
+from ins_hil.types import ConfigError
 
 #: MAV_PARAM_TYPE values used here
 REAL32 = 9
@@ -94,46 +95,6 @@ NAV_PARAMS: tuple[NavParam, ...] = (
 _NAV_BY_NAME = {p.name: p for p in NAV_PARAMS}
 
 
-def config_document(cfg: Any) -> dict[str, Any]:
-    """The TOML document (sections as in ``configs/*.toml``) of a validated ``Config``, with only the
-    keys that differ from their defaults (plus names and types): ``ins_hil.config.from_dict`` of it
-    gives the same configuration (checked by :class:`ParamStore`)."""
-    from ins_hil.config import Config, InputConfig
-    from ins_hil.runtime.mavlink_out import EndpointConfig
-    from ins_hil.runtime.mqtt_out import MqttConfig
-
-    d = cfg.to_dict()
-    ref = Config().to_dict()
-
-    def diff(table: dict[str, Any], default: dict[str, Any], keep: tuple[str, ...] = ()) -> dict[str, Any]:
-        return {k: v for k, v in table.items() if k in keep or k not in default or v != default[k]}
-
-    p = dict(d["pipeline"])
-    fdi: dict[str, Any] = {"enabled": p.pop("fdi"), "imu_ids": p.pop("imu_ids"), "options": p.pop("fdi_options")}
-    fdi = diff(fdi, {"enabled": False, "imu_ids": [0], "options": {}})
-    aiding = {"enabled": p.pop("aiding_fdi"), **p.pop("aiding_options")}
-    if aiding != {"enabled": True}:
-        fdi["aiding"] = aiding
-    p["kind"] = p.pop("core")
-    pref = dict(ref["pipeline"], kind=ref["pipeline"]["core"])
-    core = diff(p, pref, keep=("nav",))
-    inputs = [diff(i, dataclasses.asdict(InputConfig(name=i["name"])), keep=("name", "type")) for i in d["inputs"]]
-    outputs = [
-        {"type": "mavlink", **diff(o, dataclasses.asdict(EndpointConfig(name=o["name"])), keep=("name",))}
-        for o in d["outputs"]
-    ]
-    return {
-        "gateway": diff(d["gateway"], ref["gateway"]),
-        "core": core,
-        **({"fdi": fdi} if fdi else {}),
-        "sim": {"enabled": d["sim_enabled"], **diff(d["sim"], ref["sim"])},
-        "inputs": inputs,
-        "outputs": outputs,
-        "mqtt": diff(d["mqtt"], dataclasses.asdict(MqttConfig()), keep=("enabled",)),
-        "recorder": diff(d["recorder"], ref["recorder"]),
-    }
-
-
 def _nav_get(nav: dict[str, Any], key: str, default: Any) -> Any:
     """A ``[core.nav]`` value by parameter key (``filter.x``, ``k[i]``), else the NavConfig default."""
     if key.startswith("filter."):
@@ -173,7 +134,7 @@ class ParamStore:
         self._nav_default = NavConfig()
         self.base = cfg
         self.cfg = cfg
-        self.doc = config_document(cfg)
+        self.doc = cfg.document()
         # what the override file is the difference to (copies: the running pipeline's dict is changed live)
         self._base_doc = copy.deepcopy(self.doc)
         self._base_rates = [o.effective_rates() for o in cfg.outputs]
@@ -204,9 +165,7 @@ class ParamStore:
         return None
 
     def _validate(self, doc: dict[str, Any]) -> Any:
-        from ins_hil import config
-
-        return config.from_dict(copy.deepcopy(doc), self.base.source or "<params>")
+        return self.base.revalidate(doc)
 
     # -- the parameter table of one endpoint ------------------------------------------
     def names(self, ep_index: int) -> list[str]:
@@ -345,8 +304,6 @@ class ParamStore:
         return self.path
 
     def _load(self, path: Path) -> None:
-        from ins_hil.config import ConfigError
-
         try:
             d = tomllib.loads(path.read_text()).get("params", {})
         except (OSError, tomllib.TOMLDecodeError) as e:

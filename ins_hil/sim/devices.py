@@ -37,7 +37,6 @@ import threading
 import time
 import tty
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -46,31 +45,7 @@ from ins_hil.drivers.mavlink_link import signing_timestamp
 from ins_hil.drivers.serial_frame import encode
 from ins_hil.sim import sensors
 from ins_hil.sim.trajectory import TruthSeries, generate, static_profile, uav_profile
-from ins_hil.types import ImuSample, gps_from_unix
-
-
-@dataclass
-class SimConfig:
-    """What to simulate (the ``[sim]`` table of a config)."""
-
-    profile: str = "uav"  # uav | static
-    imu_rate: float = 1000.0
-    imu_errors: str = "mems"  # mems | none
-    gnss_rate: float = 5.0
-    gnss_latency: float = 0.05
-    gnss_std_ne: float = 1.0
-    gnss_std_d: float = 2.0
-    gnss_std_vel: float = 0.1
-    baro_rate: float = 25.0
-    baro_std: float = 0.5
-    lat_deg: float = 50.45
-    lon_deg: float = 30.52
-    h: float = 180.0
-    seed: int = 7
-    chunk_s: float = 10.0
-    duration: float = 0.0  # 0 = until stopped
-    gnss_sysid: int = 1
-    sign_key: str = ""  # hex, 32 bytes: sign the GNSS/baro MAVLink messages
+from ins_hil.types import ImuSample, SimConfig, gps_from_unix
 
 
 def truth_chunks(cfg: SimConfig) -> Any:

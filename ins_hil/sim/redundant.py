@@ -1,8 +1,9 @@
 """Simulate a redundant inertial sensor set from a truth trajectory.
 
 The ideal body increments of :func:`ins_hil.sim.trajectory.generate` are
-projected on every sensing axis of an :class:`ins_hil.fdi.geometry.SensorGeometry`
-(y = A Δθ, book eq. 5.1), then each sensor gets its own independent errors from
+projected on every sensing axis of a :class:`SensorAxes` (what the simulator reads of
+the :class:`ins_hil.fdi.geometry.SensorGeometry` the caller passes in; y = A Δθ, book
+eq. 5.1), then each sensor gets its own independent errors from
 :func:`ins_hil.sim.sensors.corrupt_imu` (rows processed three at a time as
 virtual triads; for full IMUs each triad is exactly one IMU in its own frame).
 Default error models are the stochastic parts of ``mems_gyro()``/``mems_accel()``
@@ -15,20 +16,54 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 import numpy as np
 
-from ins_hil.fdi.geometry import SensorGeometry
 from ins_hil.sim.sensors import ImuErrorModel, corrupt_imu, mems_accel, mems_gyro
 from ins_hil.sim.trajectory import TruthSeries
 from ins_hil.types import ImuSample, Vec
+
+
+class SensorAxes(Protocol):
+    """The sensing axes of a redundant set (``ins_hil.fdi.geometry.SensorGeometry`` has them)."""
+
+    @property
+    def name(self) -> str:
+        """For messages."""
+        ...
+
+    @property
+    def kind(self) -> str:
+        """``"array"`` (one axis per ImuSample) or ``"imus"`` (one triad per ImuSample)."""
+        ...
+
+    @property
+    def gyro_axes(self) -> Vec:
+        """(n, 3) unit rows, body FRD."""
+        ...
+
+    @property
+    def accel_axes(self) -> Vec:
+        """(n, 3) unit rows, body FRD."""
+        ...
+
+    @property
+    def n(self) -> int:
+        """Sensing axes (rows)."""
+        ...
+
+    @property
+    def units(self) -> int:
+        """ImuSamples per epoch."""
+        ...
 
 
 @dataclass
 class RedundantSeries:
     """Outputs of a redundant set: ``gyro``/``accel`` increments (N, n), times (N,) at interval ends."""
 
-    geometry: SensorGeometry
+    geometry: SensorAxes
     t: Vec
     dt: float
     gyro: Vec
@@ -71,7 +106,7 @@ class RedundantSeries:
 
 def simulate(
     truth: TruthSeries,
-    geometry: SensorGeometry,
+    geometry: SensorAxes,
     gyro: ImuErrorModel | None = None,
     accel: ImuErrorModel | None = None,
     seed: int = 0,

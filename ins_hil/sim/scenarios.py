@@ -3,7 +3,9 @@
 ``build(name, seed, duration=None)`` returns a :class:`Scenario` with the truth, the
 IMU samples, the measurement list (GNSS, baro, magnetometer; time of validity ``t``,
 delivery time in ``t_arrival_ns`` when a latency is simulated), the initial state for
-the core (with the scenario's initial errors) and the NavConfig that suits it.
+the core (with the scenario's initial errors) and the filter settings that suit it as plain data
+(``nav``: a ``[core.nav]`` table; ``ins_hil.runtime.pipeline.nav_config(sc.nav)`` is its NavConfig),
+so the simulator does not import the core.
 
 Scenarios:
 * ``static``: 120 s at rest, MEMS IMU, GNSS 5 Hz, baro, magnetometer (alignment check).
@@ -32,8 +34,6 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.core import NavConfig
-from ins_hil.fusion.ekf import FilterConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_rotvec, quat_mul
 from ins_hil.sim import sensors as se
@@ -53,7 +53,7 @@ class Scenario:
     imu: list[ImuSample]
     meas: list[Any]
     initial: StrapdownState
-    config: NavConfig
+    nav: dict[str, Any]  # the [core.nav] table (NavConfig fields; "filter": FilterConfig fields)
     info: dict[str, Any] = field(default_factory=dict)
 
 
@@ -85,7 +85,7 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
         meas: list[Any] = se.gnss_fixes(truth, se.GnssModel(rate=5), seed=rng)
         meas += se.baro_samples(truth, seed=rng)
         meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
-        cfg = NavConfig(align="static", mag_ref_ned=ref, mag_std=0.01, align_level_only=True)
+        cfg: dict[str, Any] = {"align": "static", "mag_ref_ned": ref, "mag_std": 0.01, "align_level_only": True}
         init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), lat0, lon0, h0)
         return Scenario(
             name, truth, imu, meas, init, cfg, {"accel_bias": ser.accel_bias[0], "gyro_bias": ser.gyro_bias[0]}
@@ -97,15 +97,15 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
         g = se.ImuErrorModel(noise_density=3 * ARCMIN * math.sqrt(dt))  # σ_ω per sample = 3 arcmin/s
         a = se.ImuErrorModel(noise_density=1e-2 * math.sqrt(dt))  # σ_a = 1e-2 m/s²
         imu = se.corrupt_imu(truth, g, a, seed=rng).samples()
-        fcfg = FilterConfig(gyro_bias=False, accel_bias=False, gyro_arw=3 * ARCMIN * math.sqrt(dt),
-                            accel_vrw=1e-2 * math.sqrt(dt), init_pos=57.3, init_vel=1.2, init_att=0.1, init_yaw=0.1,
-                            earth_terms=True)  # fmt: skip
+        fcfg = {"gyro_bias": False, "accel_bias": False, "gyro_arw": 3 * ARCMIN * math.sqrt(dt),
+                "accel_vrw": 1e-2 * math.sqrt(dt), "init_pos": 57.3, "init_vel": 1.2, "init_att": 0.1,
+                "init_yaw": 0.1, "earth_terms": True}  # fmt: skip
         if name == "example32":
             gm = se.GnssModel(rate=0.5, std_ne=50.0, std_d=50.0, std_vel=0.1, outages=[(0, 60), (180, 420)])
-            cfg = NavConfig(filter=fcfg, mag_ref_ned=ref, mag_std=0.0524, baro_std=1.0, baro_offset=0.0)
+            cfg = {"filter": fcfg, "mag_ref_ned": ref, "mag_std": 0.0524, "baro_std": 1.0, "baro_offset": 0.0}
         else:
             gm = se.GnssModel(rate=5.0, std_ne=0.5, std_d=1.0, std_vel=0.02, outages=[(0, 60)])
-            cfg = NavConfig(filter=fcfg, mag_ref_ned=ref, mag_std=0.0524, baro_std=1.0, baro_offset=0.0)
+            cfg = {"filter": fcfg, "mag_ref_ned": ref, "mag_std": 0.0524, "baro_std": 1.0, "baro_offset": 0.0}
         meas = list(se.gnss_fixes(truth, gm, seed=rng))
         mag = se.mag_samples(truth, field_ned=ref, rate=0.5 if name == "example32" else 5.0, std=0.0524 * 50e-6 / 1.0,
                              seed=rng)  # fmt: skip
@@ -114,7 +114,7 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
                  if b.t >= 60.0]  # fmt: skip
         # book initial errors: attitude ≈ 0.1 rad per axis (quaternion [1, .05, −.05, .05]), 1 % in r and v
         init = _initial(truth, (0.1, -0.1, 0.1), eps_v=0.01, dpos_m=0.01 * 2864.79)
-        cfg.gate_gnss = cfg.gate_mag = 10.0
+        cfg["gate_gnss"] = cfg["gate_mag"] = 10.0
         return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 120.0 if name == "example32" else 250.0})
     if name == "coning":
         T = duration or 60.0
@@ -123,7 +123,7 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
         meas = [*se.gnss_fixes(truth, se.GnssModel(rate=5), seed=rng), *se.baro_samples(truth, seed=rng)]
         meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
         init = _initial(truth, (0.01, -0.01, 0.02))
-        return Scenario(name, truth, imu, meas, init, NavConfig(mag_ref_ned=ref, mag_std=0.01, baro_offset=0.0))
+        return Scenario(name, truth, imu, meas, init, {"mag_ref_ned": ref, "mag_std": 0.01, "baro_offset": 0.0})
     # uav, uav_modelled
     T = duration or 240.0
     truth = tr.generate(tr.mission_profile(), T, 0.01, lat0, lon0, h0)
@@ -138,5 +138,5 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
     meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
     init = _initial(truth, (0.01, -0.01, 0.05))
     # σ_m = 0.2 µT / 50 µT = 0.004 per unit-vector component (the simulated sensor); datum known (QNH-like)
-    cfg = NavConfig(mag_ref_ned=ref, mag_std=0.004, baro_offset=0.0)
+    cfg = {"mag_ref_ned": ref, "mag_std": 0.004, "baro_offset": 0.0}
     return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 60.0})
