@@ -34,10 +34,10 @@ def test_bad_argument_is_a_clear_error() -> None:
 
 @pytest.mark.slow  # two 1 s bench runs, ~20 s with the start-up
 def test_runtime_bench_writes_nothing_unless_asked(tmp_path: Path) -> None:
-    """`python -m ins_hil.soak.bench` prints the figures; only --out (or --docs) writes a report."""
+    """`python -m ins_hil.bench.latency` prints the figures; only --out (or --docs) writes a report."""
     docs = Path(__file__).resolve().parent.parent / "docs"
     tracked = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (docs / "runtime.md", docs / "runtime_latency.png")}
-    cmd = [sys.executable, "-m", "ins_hil.soak.bench", "--duration", "1", "--no-c"]
+    cmd = [sys.executable, "-m", "ins_hil.bench.latency", "--duration", "1", "--no-c"]
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "| arrival → state ready |" in r.stdout
