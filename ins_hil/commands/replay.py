@@ -8,8 +8,8 @@ SOURCE is one of
   (``configs/datasets/drive0708.toml``, :mod:`ins_hil.datasets.study`): the outage protocol with and without
   ground-vehicle aids plus a run with GNSS all the time,
 * a flight log / dataset file or folder (PX4 .ulg, PX4 ulog2csv folder, ArduPilot .bin, an RTKLIB folder, an
-  ins-hil dataset CSV), with ``--dataset CONFIG`` (:mod:`ins_hil.datasets.report`),
-* a recorded gateway log (``*.ihlog``), handed to ``ins_hil.runtime.replay.replay_log``,
+  ins-hil dataset CSV, a gateway log with ``--dataset``), with ``--dataset CONFIG`` (:mod:`ins_hil.datasets.report`),
+* a recorded gateway log (``*.ihlog``) without ``--dataset``, handed to ``ins_hil.runtime.replay.replay_log``,
 * ``sim``: the ``[sim]`` flight of ``--config`` (default ``configs/default.toml``) through its pipeline,
   offline, over ``--runs`` seeds: bias, RMS, NEES, 3σ coverage (``ins_hil.runtime.replay.sim_cli``).
 
@@ -126,7 +126,7 @@ def _runtime_replay() -> Any:
 
 def run(args: argparse.Namespace) -> int:
     src = str(args.source)
-    if src.endswith(".ihlog"):
+    if src.endswith(".ihlog") and args.dataset is None:  # the exact pipeline replay (with --dataset: a data set)
         try:
             mod = _runtime_replay()
         except ImportError:

@@ -111,7 +111,7 @@ def register(reader: Reader) -> Reader:
 
 def _load_builtin() -> None:
     # the readers register themselves on import
-    from ins_hil.datasets import dataflash, generic_csv, px4, rtklib  # noqa: F401
+    from ins_hil.datasets import dataflash, generic_csv, ihlog, px4, rtklib  # noqa: F401
 
 
 def expected() -> str:
