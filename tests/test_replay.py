@@ -157,3 +157,16 @@ def test_baro_datum_is_learnt_during_the_alignment(shared_dir: Path):
     # sample (the rule before the alignment learnt it), 0.22 m now (0.20 m before the learnt datum's error was
     # weighted as correlated over its time constant)
     assert h_err[True] < 0.85 * h_err[False]
+
+
+def test_accuracy_markdown_renders_the_saved_metrics():
+    """The library's renderer (``ins_hil.datasets.accuracy_md``) gives docs/accuracy.md's tables from its metrics."""
+    from ins_hil.datasets.accuracy_md import render_markdown
+
+    r = json.loads((REPO / "docs" / "accuracy" / "metrics.json").read_text())
+    r["drive"].setdefault("config", "configs/datasets/drive0708.toml")
+    md = render_markdown(r, {}, REPO / "docs").splitlines()
+    doc = (REPO / "docs" / "accuracy.md").read_text().splitlines()
+    rows = [x for x in md if x.startswith("| ")]
+    assert len(rows) > 15 and all(x in doc for x in rows)
+    assert any("configs/datasets/drive0708.toml" in x for x in md)

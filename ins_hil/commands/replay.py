@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -109,6 +110,7 @@ def replay_drive(aids_variants: tuple[bool, ...], quiet: bool, full: bool = Fals
     cfg = load_dataset_config(DRIVE_CONFIG)
     res, series = study.study(cfg, None, aids_variants, _progress(quiet), full)
     res["config"] = str(DRIVE_CONFIG.relative_to(REPO))
+    res["source_rel"] = os.path.relpath(str(res["source"]), REPO)
     return res, series
 
 
