@@ -247,3 +247,38 @@ def test_synthetic_baro_is_the_rtk_height_plus_seeded_noise(drive_dir: Path, cfg
     assert not np.array_equal(again, baro(0.5, 0.05, 4))
     with pytest.raises(ValueError, match="must be ≥ 0"):
         study.synthetic_baro(g, -0.1, 0.0, 0, datum=1601.0)
+
+
+@pytest.mark.slow
+def test_replay_of_the_drive_folder_with_its_config_gives_the_protocol_figures(drive_dir: Path, tmp_path: Path):
+    """``ins-hil replay DIR --dataset configs/datasets/drive0708.toml``: the protocol's figures of
+    docs/accuracy/metrics.json (the drive's study, ZUPT + NHC) through the generic dataset replay."""
+    import json
+
+    from ins_hil.cli import main
+
+    doc = json.loads((REPO / "docs" / "accuracy" / "metrics.json").read_text())["drive"]["outages_aids"]
+    out = tmp_path / "out"
+    assert main(["replay", str(drive_dir), "--dataset", str(DRIVE_TOML), "--out", str(out), "--no-plots",
+                 "--quiet"]) == 0  # fmt: skip
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["outages"]["outages_scored"] == 11
+    assert m["outages"]["outage_h_rms_m"] == pytest.approx(doc["outage_h_rms_m"], rel=1e-12)  # 1.326941 m
+    assert m["outages"]["outage_h_max_m"] == pytest.approx(doc["outage_h_max_m"], rel=1e-12)  # 9.188699 m
+    assert m["outages"]["beats_both_in_every_outage"]
+
+
+def test_study_and_protocol_keys_are_checked():
+    """[study] and the new [outages]/[score] keys: bad values are one-line errors; first_gnss windows end tail_s
+    before the last fix."""
+    for bad, what in (({"study": {"whatif_baro": [["x", -1, 0]]}}, "whatif_baro"),
+                      ({"study": {"startup_restart_s": 1.0}}, "go together"),
+                      ({"study": {"validation_shifts_s": ["a"]}}, "validation_shifts_s"),
+                      ({"outages": {"relative_to": "landing"}}, "relative_to"),
+                      ({"outages": {"tail_s": -1.0}}, "tail_s"),
+                      ({"score": {"min_fix_type": "rtk"}}, "min_fix_type")):  # fmt: skip
+        with pytest.raises(dataset_config.DatasetConfigError, match=what) as e:
+            dataset_config.from_dict({"dataset": {"name": "x"}, **bad})
+        assert "\n" not in str(e.value)
+    o = dataset_config.OutageProtocol("first_gnss", 40.0, 15.0, 30.0, None, 30.0)
+    assert o.windows(0.0, 200.0) == [(40.0, 55.0), (85.0, 100.0), (130.0, 145.0)]

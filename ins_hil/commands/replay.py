@@ -47,8 +47,9 @@ DRIVE_CONFIG = REPO / "configs" / "datasets" / "drive0708.toml"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", nargs="?", default="drive",
-                   help="scenario name, 'drive', a drive directory, 'sim', a *.ihlog, or a flight log / dataset "
-                   "file or folder (PX4 .ulg, PX4 ulog2csv folder, ArduPilot .bin, ins-hil dataset CSV)")  # fmt: skip
+                   help="scenario name, 'drive' (configs/datasets/drive0708.toml), 'sim', a *.ihlog, or a flight "
+                   "log / dataset file or folder (PX4 .ulg, PX4 ulog2csv folder, ArduPilot .bin, RTKLIB folder, "
+                   "ins-hil dataset CSV; a *.ihlog with --dataset)")  # fmt: skip
     p.add_argument("--dataset", type=Path, default=None, metavar="CONFIG",
                    help="dataset config (configs/datasets/*.toml): format, mounting, lever arms, time offsets, "
                    "sensor grade, [nav] overrides, outage protocol")  # fmt: skip

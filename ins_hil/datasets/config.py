@@ -283,6 +283,15 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
     except ValueError as e:
         raise DatasetConfigError(str(e)) from None
     c.study = dict(d.get("study", {}))
+    st = c.study
+    if not all(isinstance(x, (int, float)) for x in st.get("validation_shifts_s", [])):
+        raise DatasetConfigError(f"{source}: study.validation_shifts_s: expected numbers (s)")
+    for w in st.get("whatif_baro", []):
+        if not (isinstance(w, list) and len(w) == 3 and isinstance(w[0], str)
+                and all(isinstance(x, (int, float)) and x >= 0 for x in w[1:])):  # fmt: skip
+            raise DatasetConfigError(f"{source}: study.whatif_baro entry {w!r}: expected [label, white m, drift m/√s]")
+    if ("startup_restart_s" in st) != ("startup_score_until_s" in st):
+        raise DatasetConfigError(f"{source}: study.startup_restart_s and startup_score_until_s go together")
     c.nav_config()  # every [nav] / [sensor] key checked now
     return c
 
