@@ -165,8 +165,12 @@ def test_accuracy_markdown_renders_the_saved_metrics():
 
     r = json.loads((REPO / "docs" / "accuracy" / "metrics.json").read_text())
     r["drive"].setdefault("config", "configs/datasets/drive0708.toml")
+    study = dataset_config.load(REPO / "configs" / "datasets" / "drive0708.toml").study
+    r["drive"].update(targets=study["targets"], upstream=study["upstream"])  # as ins_hil.datasets.study adds them
     md = render_markdown(r, {}, REPO / "docs").splitlines()
     doc = (REPO / "docs" / "accuracy.md").read_text().splitlines()
     rows = [x for x in md if x.startswith("| ")]
-    assert len(rows) > 15 and all(x in doc for x in rows)
+    assert len(rows) > 15 and all(x in doc for x in rows), [x for x in rows if x not in doc]
+    assert any(x.startswith("| target | ≤ 1.5 | ≤ 6 |") for x in rows)
+    assert any(x.startswith("| upstream filter, causal | 3.09 | 12.8 | 0.41 |") for x in rows)
     assert any("configs/datasets/drive0708.toml" in x for x in md)

@@ -24,7 +24,8 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
     [rtklib]   file names and conventions of an RTKLIB recording (``ins_hil.datasets.rtklib``)
     [study]    the held-out checks of a tuned data set (``ins_hil.datasets.study``): validation_shifts_s,
                startup_restart_s, startup_score_until_s, whatif_baro = [[label, white m, drift m/√s], …],
-               whatif_baro_datum_m
+               whatif_baro_datum_m; targets = {outage_h_rms_m, outage_h_max_m, gnss_h_rms_m, realtime_factor} and
+               upstream = {outage_h_rms_m, outage_h_max_m, outage_v_rms_m} (the report's target and reference rows)
 
 Errors are one line naming the file and the key.
 """
@@ -88,7 +89,7 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
     "score": {"against": list, "settle_s": (int, float), "min_fix_type": int},
     "rtklib": rtklib.OPTIONS,
     "study": {"validation_shifts_s": list, "startup_restart_s": (int, float), "startup_score_until_s": (int, float),
-              "whatif_baro": list, "whatif_baro_datum_m": (int, float)},
+              "whatif_baro": list, "whatif_baro_datum_m": (int, float), "targets": dict, "upstream": dict},
 }  # fmt: skip
 RELATIVE_TO = ("takeoff", "start", "first_gnss")
 
@@ -290,6 +291,11 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
         if not (isinstance(w, list) and len(w) == 3 and isinstance(w[0], str)
                 and all(isinstance(x, (int, float)) and x >= 0 for x in w[1:])):  # fmt: skip
             raise DatasetConfigError(f"{source}: study.whatif_baro entry {w!r}: expected [label, white m, drift m/√s]")
+    for tab, keys in (("targets", ("outage_h_rms_m", "outage_h_max_m", "gnss_h_rms_m", "realtime_factor")),
+                      ("upstream", ("outage_h_rms_m", "outage_h_max_m", "outage_v_rms_m"))):  # fmt: skip
+        v = st.get(tab)
+        if v is not None and (set(v) != set(keys) or not all(isinstance(x, (int, float)) for x in v.values())):
+            raise DatasetConfigError(f"{source}: study.{tab}: expected numbers for {', '.join(keys)}")
     if ("startup_restart_s" in st) != ("startup_score_until_s" in st):
         raise DatasetConfigError(f"{source}: study.startup_restart_s and startup_score_until_s go together")
     c.nav_config()  # every [nav] / [sensor] key checked now

@@ -195,6 +195,10 @@ def study(
                                            **{k: m[k] for k in ("outage_h_rms_m", "outage_h_max_m", "outage_v_rms_m")},
                                            "per_window": per_window(ser, outages, scored_t)})  # fmt: skip
     res["outage_windows_s"] = _windows_from_first(outages, t_first)
+    res["outage_on_s"] = cfg.outages.on_s if cfg.outages is not None else None
+    for k in ("targets", "upstream"):  # the report's target and reference rows
+        if k in cfg.study:
+            res[k] = dict(cfg.study[k])
     res["t_first_fix_s"] = t_first
     if "outages_aids" in series:
         res["per_window_aids"] = per_window(series["outages_aids"], outages, scored_t)
