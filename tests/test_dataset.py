@@ -103,6 +103,16 @@ def test_rtklib_reader_in_the_registry(drive_dir: Path, tmp_path: Path, cfg: dat
     assert ds.meta["format"] == "rtklib" and any("no dataset config" in n for n in ds.meta["notes"])
     ds_cfg = read_dataset(drive_dir, "rtklib", cfg)
     assert ds_cfg.imu[100].t == pytest.approx(ds.imu[100].t - 0.24)  # the config's IMU time offset
+    # prepare() applies only a config's difference from what the reader applied (e.g. a trial time offset)
+    import dataclasses
+
+    assert prepare(ds_cfg, cfg).imu[100] is ds_cfg.imu[100]
+    shifted = prepare(ds_cfg, dataclasses.replace(cfg, imu_time_offset=-0.20)).imu[100]
+    assert shifted.t == pytest.approx(ds_cfg.imu[100].t + 0.04) and np.array_equal(shifted.dvel, ds_cfg.imu[100].dvel)
+    mount_only = dataclasses.replace(cfg, imu_to_body=cfg.imu_to_body[:1])  # without the residual misalignment
+    turned = prepare(ds_cfg, mount_only).imu[100]
+    v_sensor = cfg.mounting_dcm().T @ ds_cfg.imu[100].dvel
+    np.testing.assert_allclose(turned.dvel, mount_only.mounting_dcm() @ v_sensor, atol=1e-12)
     # renamed files: found as the folder's only candidates, or named in the config; a wrong name is one line
     d = tmp_path / "renamed"
     d.mkdir()

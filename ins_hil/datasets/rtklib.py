@@ -17,8 +17,9 @@ The file names and the conventions come from the dataset config's ``[rtklib]`` t
 
 Times are GPST seconds counted like Unix time. The mounting (``mounting.imu_to_body_deg``) and the IMU time
 offset are applied here, to the rate samples before the increments are formed (rotating trapezoid increments
-afterwards is the same rotation but not the same floating-point sums); the dataset's ``meta["mounted"]`` says
-so, and :func:`ins_hil.datasets.run.prepare` does not apply them again.
+afterwards is the same rotation but not the same floating-point sums); the dataset's ``meta["mounted"]`` records
+what was applied, and :func:`ins_hil.datasets.run.prepare` applies only a config's difference from it (e.g. a
+trial offset of ``ins_hil.datasets.offset``).
 """
 
 from __future__ import annotations
@@ -339,7 +340,8 @@ def load(directory: Path, cfg: DatasetConfig | None = None) -> Recording:
                     fix_type=Q_FIX.get(int(pos.q[k]), FixType.FIX_3D), num_sats=int(pos.ns[k]))
         )  # fmt: skip
     notes = [] if cfg is not None else ["no dataset config: identity mounting, no IMU time offset, no lever arm"]
-    meta = {"source": str(d), "format": "rtklib", "vehicle": "", "notes": notes, "mounted": True,
+    mounted = {"imu_time_offset_s": c.imu_time_offset, "imu_to_body": c.imu_to_body.copy()}
+    meta = {"source": str(d), "format": "rtklib", "vehicle": "", "notes": notes, "mounted": mounted,
             "utc_start_s": float(pos.t[0]) if len(pos.t) else None, "csv_bad_lines": bad}  # fmt: skip
     return Recording(Dataset(samples, fixes, meta=meta), log, pos)
 

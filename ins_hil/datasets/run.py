@@ -92,11 +92,18 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     """Apply the dataset config to ``ds`` (causal streams for the core; nothing from the onboard estimate)."""
     notes: list[str] = list(ds.meta.get("notes", []))
     R = cfg.mounting_dcm()  # IMU axes → body FRD
-    mounted = bool(ds.meta.get("mounted"))  # the reader applied the mounting and the IMU time offset
-    rot = cfg.rotated and not mounted
-    off = 0.0 if mounted else cfg.imu_time_offset
+    rot = cfg.rotated
+    off = cfg.imu_time_offset
+    applied = ds.meta.get("mounted")  # what the reader applied already (rtklib): only the difference is applied
+    if applied:
+        off -= float(applied["imu_time_offset_s"])
+        same = np.array_equal(cfg.imu_to_body, applied["imu_to_body"])
+        rot = not same
+        if rot:
+            was = dataclasses.replace(cfg, imu_to_body=np.asarray(applied["imu_to_body"]))
+            R = R @ was.mounting_dcm().T
     t1 = ds.t1
-    if mounted:
+    if applied and not rot and off == 0.0:
         imu = [s for s in ds.imu if s.t <= t1]
     else:
         imu = [dataclasses.replace(s, t=s.t + off, dtheta=R @ s.dtheta, dvel=R @ s.dvel) if rot else
