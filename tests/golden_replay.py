@@ -76,20 +76,24 @@ class _Sampler:
 
 
 def drive_rows(shared: Path = SHARED) -> list[list[float]]:
-    """The drive's first ``DRIVE_SECONDS`` s, replayed like ``ins_hil.datasets.evaluate.run_drive``."""
-    from ins_hil.commands.replay import drive_config
+    """The drive's first ``DRIVE_SECONDS`` s through its dataset config (``configs/datasets/drive0708.toml``),
+    replayed like ``ins_hil.datasets.run.run_dataset``."""
     from ins_hil.core import NavCore
-    from ins_hil.datasets import drive0708 as dd
+    from ins_hil.datasets import config, rtklib
+    from ins_hil.datasets.report import protocol_windows
+    from ins_hil.datasets.run import prepare
 
-    dr = dd.load_drive(shared / "data" / "gnss_imu_drive_0708")
-    t0 = float(dr.pos.t[0])
+    cfg = config.load(REPO / "configs" / "datasets" / "drive0708.toml")
+    ds = rtklib.load(shared / "data" / "gnss_imu_drive_0708", cfg).dataset
+    p = prepare(ds, cfg)
+    t0 = float(p.gnss[0].t)
     end = t0 + DRIVE_SECONDS
-    outs = [w for w in dd.outage_windows(dr.pos.t) if w[0] < end]
-    gnss = [f for f in dr.gnss if f.t < end and not any(a <= f.t < b for a, b in outs)]
-    core = NavCore(None, drive_config(True))
+    outs = [w for w in protocol_windows(ds, p, cfg) or [] if w[0] < end]
+    gnss = [f for f in p.gnss if f.t < end and not any(a <= f.t < b for a, b in outs)]
+    core = NavCore(None, p.nav)
     samp = _Sampler(t0, core.state)
     j = 0
-    for s in dr.imu:
+    for s in p.imu:
         if s.t >= end:
             break
         core.step(s)

@@ -14,8 +14,8 @@ from pathlib import Path
 import golden_replay as gr
 import pytest
 
-from ins_hil.commands.replay import drive_config
-from ins_hil.datasets import drive0708 as dd
+from ins_hil.datasets import config as dataset_config
+from ins_hil.datasets import study
 from ins_hil.datasets.evaluate import run_drive
 
 REPO = Path(__file__).resolve().parent.parent
@@ -53,9 +53,9 @@ def test_golden_digest_is_compared_within_one_library_release():
 def test_drive_protocol_headline_figures(shared_dir: Path):
     """The drive's outage protocol (ZUPT + NHC) against the figures in docs/accuracy/metrics.json (±2 %)."""
     doc = json.loads((REPO / "docs" / "accuracy" / "metrics.json").read_text())["drive"]["outages_aids"]
-    dr = dd.load_drive(shared_dir / "data" / "gnss_imu_drive_0708")
-    m, _, _ = run_drive(dr.imu, dr.gnss, [f.fix_type == 6 for f in dr.gnss], drive_config(True),
-                        dd.outage_windows(dr.pos.t))  # fmt: skip
+    cfg = dataset_config.load(REPO / "configs" / "datasets" / "drive0708.toml")
+    _, p, outages = study.load(cfg, shared_dir / "data" / "gnss_imu_drive_0708")
+    m, _, _ = run_drive(p.imu, p.gnss, [f.fix_type == 6 for f in p.gnss], p.nav, outages)
     assert m["outage_h_rms_m"] == pytest.approx(doc["outage_h_rms_m"], rel=0.02)
     assert m["outage_h_max_m"] == pytest.approx(doc["outage_h_max_m"], rel=0.02)
     assert m["outage_h_rms_m"] <= 1.5  # the protocol's RMS target

@@ -5,15 +5,19 @@ from __future__ import annotations
 import json
 import math
 import types
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from ins_hil.cli import main
 from ins_hil.commands import replay as rp
-from ins_hil.datasets import drive0708 as dd
+from ins_hil.datasets import config as dataset_config
+from ins_hil.datasets import simulated, study
 from ins_hil.datasets.evaluate import run_drive
+from ins_hil.sim import scenarios
 from ins_hil.types import BaroSample
 
 
@@ -37,7 +41,8 @@ def test_replay_monte_carlo_nees(tmp_path: Path):
     """The 9-dof NEES of the simulated UAV with only the modelled errors, averaged over 4 seeds from 60 s on,
     lies inside its two-sided 95 % χ² band, and every sensor's NIS/dof is near 1 (a filter that is over- or
     under-confident by a factor of ~1.3 in variance fails)."""
-    mc = rp.monte_carlo("uav_modelled", runs=4, duration=140.0, quiet=True)
+    mc = simulated.monte_carlo(lambda seed: scenarios.build("uav_modelled", seed=seed, duration=140.0),
+                               "uav_modelled", runs=4)  # fmt: skip
     lo, hi = mc["anees_bounds_95"]
     assert lo <= mc["anees_mean"] <= hi, mc
     assert mc["fraction_inside"] >= 0.3, mc  # ANEES(t) is time-correlated: a loose bound on the share inside
@@ -65,20 +70,33 @@ def test_replay_bad_source_and_gateway_log_dispatch(tmp_path: Path, monkeypatch,
     assert "ins_hil.runtime.replay" in capsys.readouterr().err
 
 
-def _drive_head(shared_dir: Path, seconds: float) -> tuple[dd.Drive, list, list, list[bool]]:
-    """The real drive's first ``seconds`` s after its first GNSS epoch: (drive, IMU samples, fixes, RTK-fixed)."""
-    dr = dd.load_drive(shared_dir / "data" / "gnss_imu_drive_0708")
-    t0 = dr.pos.t[0]
-    gnss = [f for f in dr.gnss if f.t < t0 + seconds]
-    return dr, [s for s in dr.imu if s.t < t0 + seconds], gnss, [f.fix_type == 6 for f in gnss]
+REPO = Path(__file__).resolve().parent.parent
+
+
+@dataclass
+class _Drive:
+    nav: Any
+    outages: list[tuple[float, float]]
+    t0: float
+
+
+def _drive_head(shared_dir: Path, seconds: float) -> tuple[_Drive, list, list, list[bool]]:
+    """The real drive (through configs/datasets/drive0708.toml)'s first ``seconds`` s after its first GNSS epoch:
+    (drive: nav config, protocol outages, first fix time; IMU samples, fixes, RTK-fixed)."""
+    cfg = dataset_config.load(REPO / "configs" / "datasets" / "drive0708.toml")
+    _, p, outages = study.load(cfg, shared_dir / "data" / "gnss_imu_drive_0708")
+    t0 = p.gnss[0].t
+    gnss = [f for f in p.gnss if f.t < t0 + seconds]
+    dr = _Drive(nav=p.nav, outages=outages, t0=t0)
+    return dr, [s for s in p.imu if s.t < t0 + seconds], gnss, [f.fix_type == 6 for f in gnss]
 
 
 @pytest.mark.slow
 def test_drive_replay_first_outage(shared_dir: Path):
     """The first 100 s of the real drive with the protocol's first outage (40–55 s): causal replay."""
     dr, imu, gnss, rtk = _drive_head(shared_dir, 100.0)
-    outs = dd.outage_windows(dr.pos.t)[:1]
-    m, ser, core = run_drive(imu, gnss, rtk, rp.drive_config(True), outs)
+    outs = dr.outages[:1]
+    m, ser, core = run_drive(imu, gnss, rtk, dr.nav, outs)
     assert core.state().aligned
     assert 50 <= m["outage_epochs"] <= 60  # 15 s at 4 Hz, RTK-fixed epochs only
     assert m["outage_h_max_m"] < 10.0
@@ -94,14 +112,14 @@ def test_drive_replay_fuses_aux_baro_inside_outages(shared_dir: Path):
     outage, a baro made from the RTK height holds the height error near zero, and one that reads 1.5 m high from
     the outage's start (3 σ: inside the gate) pulls the height up by about 1.5 m (NED down −1.5 m)."""
     dr, imu, gnss, rtk = _drive_head(shared_dir, 101.0)
-    outs = dd.outage_windows(dr.pos.t)[:2]
+    outs = dr.outages[:2]
     a, b = outs[1]  # the datum is learnt against GNSS in 55–85 s
 
     def late_down(step: float | None) -> tuple[float, int]:
         aux = [] if step is None else [
             BaroSample(f.t, math.nan, altitude=f.h - 1601.0 + (step if f.t >= a else 0.0)) for f in gnss
         ]  # fmt: skip
-        _, ser, core = run_drive(imu, gnss, rtk, rp.drive_config(True), outs, aux=aux)
+        _, ser, core = run_drive(imu, gnss, rtk, dr.nav, outs, aux=aux)
         t, e = np.array(ser.t), np.array(ser.pos_err)
         late = (t >= a + 10.0) & (t < b)
         assert late.sum() > 10
@@ -123,13 +141,13 @@ def test_baro_datum_is_learnt_during_the_alignment(shared_dir: Path):
     GNSS during the 37 s rest, so a baro made from the RTK height is weighted fully inside that outage (with the
     datum taken at the first navigation sample instead, its σ would be the start's height σ and the baro weak)."""
     dr, imu, gnss, rtk = _drive_head(shared_dir, 56.0)
-    t0 = dr.pos.t[0]
-    outs = dd.outage_windows(dr.pos.t)[:1]
+    t0 = dr.t0
+    outs = dr.outages[:1]
     a, b = outs[0]
     h_err = {}
     for with_baro in (False, True):
         aux = [BaroSample(f.t, math.nan, altitude=f.h - 1601.0) for f in gnss] if with_baro else []
-        m, ser, core = run_drive(imu, gnss, rtk, rp.drive_config(True), outs, aux=aux)
+        m, ser, core = run_drive(imu, gnss, rtk, dr.nav, outs, aux=aux)
         assert a - 0.5 < m["t_aligned_s"] + t0 < a
         t, e = np.array(ser.t), np.array(ser.pos_err)
         late = (t >= a + 10.0) & (t < b)
@@ -139,3 +157,20 @@ def test_baro_datum_is_learnt_during_the_alignment(shared_dir: Path):
     # sample (the rule before the alignment learnt it), 0.22 m now (0.20 m before the learnt datum's error was
     # weighted as correlated over its time constant)
     assert h_err[True] < 0.85 * h_err[False]
+
+
+def test_accuracy_markdown_renders_the_saved_metrics():
+    """The library's renderer (``ins_hil.datasets.accuracy_md``) gives docs/accuracy.md's tables from its metrics."""
+    from ins_hil.datasets.accuracy_md import render_markdown
+
+    r = json.loads((REPO / "docs" / "accuracy" / "metrics.json").read_text())
+    r["drive"].setdefault("config", "configs/datasets/drive0708.toml")
+    study = dataset_config.load(REPO / "configs" / "datasets" / "drive0708.toml").study
+    r["drive"].update(targets=study["targets"], upstream=study["upstream"])  # as ins_hil.datasets.study adds them
+    md = render_markdown(r, {}, REPO / "docs").splitlines()
+    doc = (REPO / "docs" / "accuracy.md").read_text().splitlines()
+    rows = [x for x in md if x.startswith("| ")]
+    assert len(rows) > 15 and all(x in doc for x in rows), [x for x in rows if x not in doc]
+    assert any(x.startswith("| target | ≤ 1.5 | ≤ 6 |") for x in rows)
+    assert any(x.startswith("| upstream filter, causal | 3.09 | 12.8 | 0.41 |") for x in rows)
+    assert any("configs/datasets/drive0708.toml" in x for x in md)

@@ -6,7 +6,8 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
                path (the recording, relative to this file), position_deg = [lat, lon, h] (where the log has
                no GNSS: the start point for the no-GNSS hold and the field model)
     [sensor]   grade = "mems" | "tactical"; any FilterConfig noise field to override the preset
-    [mounting] imu_to_body_deg = [roll, pitch, yaw] (IMU axes → body FRD), gnss_lever_arm_m (IMU → antenna,
+    [mounting] imu_to_body_deg = [roll, pitch, yaw] (IMU axes → body FRD; or a list of such rotations applied in
+               turn, the first to the IMU axes: C_s^b = R_n … R_1), gnss_lever_arm_m (IMU → antenna,
                body FRD, m), reference_lever_arm_m, imu_time_offset_s (added to the IMU times),
                gnss_time_offset_s (added to the GNSS times, e.g. −0.11 for PX4's EKF2_GPS_DELAY)
     [aiding]   gnss, baro, mag (bool); mag_heading_only (bool, default true: the magnetometer corrects the heading
@@ -16,8 +17,15 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
                only), hold_rate_hz
     [nav]      ins_hil.core.NavConfig fields (``[nav.filter]``: FilterConfig fields), as ``[core.nav]`` of the
                gateway config (``ins_hil.runtime.pipeline.nav_config``)
-    [outages]  relative_to = "takeoff" | "start", start_s, on_s, off_s, end_s (s from ``relative_to``)
-    [score]    against = ["gnss", "onboard", "reference"], settle_s (s after the core starts navigating)
+    [outages]  relative_to = "takeoff" | "start" | "first_gnss", start_s, on_s (outage), off_s (GNSS between),
+               end_s (s from ``relative_to``), tail_s (the last outage ends ≥ tail_s before the last fix or the end)
+    [score]    against = ["gnss", "onboard", "reference"], settle_s (s after the core starts navigating),
+               min_fix_type (only fixes of this ins_hil.types.FixType or better are scored, e.g. 6 = RTK fixed)
+    [rtklib]   file names and conventions of an RTKLIB recording (``ins_hil.datasets.rtklib``)
+    [study]    the held-out checks of a tuned data set (``ins_hil.datasets.study``): validation_shifts_s,
+               startup_restart_s, startup_score_until_s, whatif_baro = [[label, white m, drift m/√s], …],
+               whatif_baro_datum_m; targets = {outage_h_rms_m, outage_h_max_m, gnss_h_rms_m, realtime_factor} and
+               upstream = {outage_h_rms_m, outage_h_max_m, outage_v_rms_m} (the report's target and reference rows)
 
 Errors are one line naming the file and the key.
 """
@@ -33,7 +41,9 @@ from typing import Any
 import numpy as np
 
 from ins_hil.core import NavConfig
+from ins_hil.datasets import rtklib
 from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.nav.rotation import dcm_from_euler
 from ins_hil.types import Vec
 
 DEG = math.pi / 180.0
@@ -75,9 +85,13 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
                "hold_rate_hz": (int, float)},
     "nav": {},  # NavConfig fields
     "outages": {"relative_to": str, "start_s": (int, float), "on_s": (int, float), "off_s": (int, float),
-                "end_s": (int, float)},
-    "score": {"against": list, "settle_s": (int, float)},
+                "end_s": (int, float), "tail_s": (int, float)},
+    "score": {"against": list, "settle_s": (int, float), "min_fix_type": int},
+    "rtklib": rtklib.OPTIONS,
+    "study": {"validation_shifts_s": list, "startup_restart_s": (int, float), "startup_score_until_s": (int, float),
+              "whatif_baro": list, "whatif_baro_datum_m": (int, float), "targets": dict, "upstream": dict},
 }  # fmt: skip
+RELATIVE_TO = ("takeoff", "start", "first_gnss")
 
 
 class DatasetConfigError(ValueError):
@@ -87,19 +101,21 @@ class DatasetConfigError(ValueError):
 @dataclass
 class OutageProtocol:
     """GNSS outages of ``on_s`` s every ``on_s + off_s`` s from ``start_s`` to ``end_s`` (s after the event
-    ``relative_to``: "takeoff" or "start" of the data; ``end_s`` None = the landing or the end)."""
+    ``relative_to``: "takeoff", "start" of the data or "first_gnss" fix; ``end_s`` None = the landing or the
+    end), the last one ending at least ``tail_s`` s before that end."""
 
     relative_to: str = "takeoff"
     start_s: float = 20.0
     on_s: float = 10.0
     off_s: float = 20.0
     end_s: float | None = None
+    tail_s: float = 0.0
 
     def windows(self, t_ref: float, t_end: float) -> list[tuple[float, float]]:
-        """The outage windows (absolute s) that end before ``t_end``."""
+        """The outage windows (absolute s) that end at least ``tail_s`` before ``t_end``."""
         out = []
         a = t_ref + self.start_s
-        stop = t_end if self.end_s is None else min(t_end, t_ref + self.end_s)
+        stop = t_end - self.tail_s if self.end_s is None else min(t_end - self.tail_s, t_ref + self.end_s)
         while a + self.on_s <= stop:
             out.append((a, a + self.on_s))
             a += self.on_s + self.off_s
@@ -116,7 +132,7 @@ class DatasetConfig:
     path: Path | None = None
     position: tuple[float, float, float] | None = None  # rad, rad, m
     grade: str = "mems"
-    imu_to_body: Vec = field(default_factory=lambda: np.zeros(3))  # rad
+    imu_to_body: Vec = field(default_factory=lambda: np.zeros((1, 3)))  # rad, (k, 3): rotations applied in turn
     gnss_lever_arm: Vec = field(default_factory=lambda: np.zeros(3))
     reference_lever_arm: Vec = field(default_factory=lambda: np.zeros(3))
     imu_time_offset: float = 0.0
@@ -136,6 +152,22 @@ class DatasetConfig:
     outages: OutageProtocol | None = None
     score: tuple[str, ...] = ("gnss", "onboard", "reference")
     settle_s: float = 0.0
+    min_fix_type: int = 0
+    rtklib: dict[str, Any] = field(default_factory=dict)
+    study: dict[str, Any] = field(default_factory=dict)
+
+    def mounting_dcm(self) -> Vec:
+        """C_s^b, IMU axes → body FRD: the product R_n … R_1 of the ``imu_to_body`` rotations (ZYX Euler, book
+        eq. 2.12), the first applied to the IMU axes first."""
+        R = dcm_from_euler(*self.imu_to_body[0])
+        for e in self.imu_to_body[1:]:
+            R = dcm_from_euler(*e) @ R
+        return R
+
+    @property
+    def rotated(self) -> bool:
+        """Whether the mounting rotates the IMU axes at all."""
+        return bool(np.any(self.imu_to_body != 0.0))
 
     def nav_config(self) -> NavConfig:
         """The NavConfig: the grade's preset, then ``[sensor]`` overrides, then ``[nav]`` (``[nav.filter]``)."""
@@ -145,7 +177,7 @@ class DatasetConfig:
         fk.update(self.filter_overrides)
         nav = {"align": "static", **GRADE_NAV[self.grade], **{k: v for k, v in self.nav.items() if k != "filter"}}
         fk.update(self.nav.get("filter", {}))
-        nav["filter"] = fk
+        nav["filter"] = {k: tuple(v) if isinstance(v, list) else v for k, v in fk.items()}  # TOML arrays → tuples
         if "gnss_lever_arm_b" not in nav:
             nav["gnss_lever_arm_b"] = list(self.gnss_lever_arm)
         try:
@@ -203,7 +235,9 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
         raise DatasetConfigError(f"{source}: sensor.grade = {c.grade!r}: expected one of {', '.join(GRADES)}")
     c.filter_overrides = {k: v for k, v in s.items() if k != "grade"}
     m = d.get("mounting", {})
-    c.imu_to_body = _vec3("mounting.imu_to_body_deg", m.get("imu_to_body_deg", [0, 0, 0]), source) * DEG
+    mb = m.get("imu_to_body_deg", [0, 0, 0])
+    rots = mb if mb and all(isinstance(x, list) for x in mb) else [mb]
+    c.imu_to_body = np.array([_vec3("mounting.imu_to_body_deg", r, source) * DEG for r in rots])
     c.gnss_lever_arm = _vec3("mounting.gnss_lever_arm_m", m.get("gnss_lever_arm_m", [0, 0, 0]), source)
     c.reference_lever_arm = _vec3("mounting.reference_lever_arm_m", m.get("reference_lever_arm_m", [0, 0, 0]), source)
     c.imu_time_offset = float(m.get("imu_time_offset_s", 0.0))
@@ -230,18 +264,40 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
         o = d["outages"]
         c.outages = OutageProtocol(o.get("relative_to", "takeoff"), float(o.get("start_s", 20.0)),
                                    float(o.get("on_s", 10.0)), float(o.get("off_s", 20.0)),
-                                   float(o["end_s"]) if "end_s" in o else None)  # fmt: skip
-        if c.outages.relative_to not in ("takeoff", "start"):
+                                   float(o["end_s"]) if "end_s" in o else None,
+                                   float(o.get("tail_s", 0.0)))  # fmt: skip
+        if c.outages.relative_to not in RELATIVE_TO:
             raise DatasetConfigError(f"{source}: outages.relative_to = {c.outages.relative_to!r}: "
-                                     "expected 'takeoff' or 'start'")  # fmt: skip
-        if c.outages.on_s <= 0 or c.outages.off_s < 0:
-            raise DatasetConfigError(f"{source}: outages.on_s must be > 0 and off_s >= 0")
+                                     f"expected one of {', '.join(RELATIVE_TO)}")  # fmt: skip
+        if c.outages.on_s <= 0 or c.outages.off_s < 0 or c.outages.tail_s < 0:
+            raise DatasetConfigError(f"{source}: outages.on_s must be > 0, off_s and tail_s >= 0")
     sc = d.get("score", {})
     c.score = tuple(sc.get("against", ["gnss", "onboard", "reference"]))
     bad = set(c.score) - {"gnss", "onboard", "reference"}
     if bad:
         raise DatasetConfigError(f"{source}: score.against: unknown {sorted(bad)} (expected gnss, onboard, reference)")
     c.settle_s = float(sc.get("settle_s", 0.0))
+    c.min_fix_type = int(sc.get("min_fix_type", 0))
+    c.rtklib = dict(d.get("rtklib", {}))
+    try:
+        rtklib.check_options(c.rtklib, source)
+    except ValueError as e:
+        raise DatasetConfigError(str(e)) from None
+    c.study = dict(d.get("study", {}))
+    st = c.study
+    if not all(isinstance(x, (int, float)) for x in st.get("validation_shifts_s", [])):
+        raise DatasetConfigError(f"{source}: study.validation_shifts_s: expected numbers (s)")
+    for w in st.get("whatif_baro", []):
+        if not (isinstance(w, list) and len(w) == 3 and isinstance(w[0], str)
+                and all(isinstance(x, (int, float)) and x >= 0 for x in w[1:])):  # fmt: skip
+            raise DatasetConfigError(f"{source}: study.whatif_baro entry {w!r}: expected [label, white m, drift m/√s]")
+    for tab, keys in (("targets", ("outage_h_rms_m", "outage_h_max_m", "gnss_h_rms_m", "realtime_factor")),
+                      ("upstream", ("outage_h_rms_m", "outage_h_max_m", "outage_v_rms_m"))):  # fmt: skip
+        v = st.get(tab)
+        if v is not None and (set(v) != set(keys) or not all(isinstance(x, (int, float)) for x in v.values())):
+            raise DatasetConfigError(f"{source}: study.{tab}: expected numbers for {', '.join(keys)}")
+    if ("startup_restart_s" in st) != ("startup_score_until_s" in st):
+        raise DatasetConfigError(f"{source}: study.startup_restart_s and startup_score_until_s go together")
     c.nav_config()  # every [nav] / [sensor] key checked now
     return c
 

@@ -90,13 +90,15 @@ class Dataset:
 
 @dataclass(frozen=True)
 class Reader:
-    """A registered reader: ``detect(path) -> bool`` (cheap), ``read(path) -> Dataset``; ``expects``
-    describes what it reads (for the error message)."""
+    """A registered reader: ``detect(path) -> bool`` (cheap), ``read(path) -> Dataset`` (``configured``:
+    ``read(path, cfg)``, the dataset config's file names and conventions, e.g. the ``[rtklib]`` table);
+    ``expects`` describes what it reads (for the error message)."""
 
     name: str
     expects: str
     detect: Callable[[Path], bool]
-    read: Callable[[Path], Dataset]
+    read: Callable[..., Dataset]
+    configured: bool = False
 
 
 READERS: dict[str, Reader] = {}
@@ -109,7 +111,7 @@ def register(reader: Reader) -> Reader:
 
 def _load_builtin() -> None:
     # the readers register themselves on import
-    from ins_hil.datasets import dataflash, generic_csv, px4  # noqa: F401
+    from ins_hil.datasets import dataflash, generic_csv, ihlog, px4, rtklib  # noqa: F401
 
 
 def expected() -> str:
@@ -133,8 +135,9 @@ def detect_format(path: Path) -> str:
     raise DatasetError(f"{path}: not a supported dataset (expected {expected()})")
 
 
-def read_dataset(path: Path, fmt: str | None = None) -> Dataset:
-    """Read ``path`` with the reader ``fmt`` (a name of :data:`READERS`), detected when None."""
+def read_dataset(path: Path, fmt: str | None = None, cfg: Any = None) -> Dataset:
+    """Read ``path`` with the reader ``fmt`` (a name of :data:`READERS`), detected when None; ``cfg`` (a
+    :class:`ins_hil.datasets.config.DatasetConfig`) goes to the readers that take one."""
     _load_builtin()
     path = Path(path)
     if fmt is None:
@@ -144,7 +147,7 @@ def read_dataset(path: Path, fmt: str | None = None) -> Dataset:
     elif not path.exists():
         raise DatasetError(f"{path}: no such file or directory")
     r = READERS[fmt]
-    ds = r.read(path)
+    ds = r.read(path, cfg) if r.configured else r.read(path)
     if not ds.imu:
         raise DatasetError(f"{path}: no IMU samples ({r.name} expects {r.expects})")
     ds.meta.setdefault("source", str(path))

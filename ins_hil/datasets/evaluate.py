@@ -1,8 +1,8 @@
 """Offline evaluation of NavCore on recorded or simulated data (pure: no I/O, no plots).
 
-``run_drive`` replays the real drive with the README's outage protocol and scores the
-antenna position against the RTK fixes; ``run_truth`` replays a simulated scenario
-against its truth. Both return time series for plots and a metrics dict.
+``run_drive`` replays a recording with reference-grade GNSS (the car drive: ``ins_hil.datasets.study``) with
+GNSS removed in outage windows and scores the antenna position against the fixes; ``run_truth`` replays a
+simulated scenario against its truth. Both return time series for plots and a metrics dict.
 """
 
 from __future__ import annotations
@@ -54,14 +54,14 @@ def antenna_ned(core: NavCore, lever: Vec, t: float, origin: tuple[float, float,
 def run_drive(
     imu: Sequence[ImuSample],
     gnss: Sequence[GnssFix],
-    rtk_fixed: Sequence[bool],
+    scored: Sequence[bool],
     cfg: NavConfig,
     outages: Sequence[tuple[float, float]],
     progress: Progress | None = None,
     aux: Sequence[BaroSample | MagSample] = (),
 ) -> tuple[dict[str, float], Series, NavCore]:
-    """Replay with GNSS removed inside ``outages``; score the antenna position at every RTK-fixed
-    epoch: inside outages (the README protocol) and, with GNSS present, the a-priori error
+    """Replay with GNSS removed inside ``outages``; score the antenna position at every epoch whose ``scored``
+    flag is set (e.g. the RTK-fixed ones): inside outages and, with GNSS present, the a-priori error
     (before that epoch is fused) and the a-posteriori one. ``aux`` (baro/magnetometer samples, sorted
     by ``t`` s) are fused after the IMU step that reaches their time, inside outages too."""
     core = NavCore(None, cfg)
@@ -87,7 +87,7 @@ def run_drive(
             if core.phase == "nav":
                 ref = earth.ned_from_geodetic(f.lat, f.lon, f.h, *origin)
                 e = antenna_ned(core, lever, f.t, origin) - ref
-                if rtk_fixed[j - 1]:
+                if scored[j - 1]:
                     (out_err if inside else prior_err).append(e)
                 ser.t.append(f.t)
                 ser.pos_err.append(e)
@@ -104,7 +104,7 @@ def run_drive(
                 ser.ratios.append(dict(st.test_ratios))
             if not inside:
                 core.fuse(f)
-                if core.phase == "nav" and rtk_fixed[j - 1]:
+                if core.phase == "nav" and scored[j - 1]:
                     ref = earth.ned_from_geodetic(f.lat, f.lon, f.h, *origin)
                     post_err.append(antenna_ned(core, lever, f.t, origin) - ref)
             if core.phase == "nav" and math.isnan(t_aligned):

@@ -17,7 +17,16 @@ import numpy as np
 from ins_hil.datasets import compare as cmp
 from ins_hil.datasets.config import DatasetConfig
 from ins_hil.datasets.dataset import Dataset, read_dataset
-from ins_hil.datasets.run import RunResult, euler_series, gnss_scores, outage_scores, prepare, rejection, run_dataset
+from ins_hil.datasets.run import (
+    Prepared,
+    RunResult,
+    euler_series,
+    gnss_scores,
+    outage_scores,
+    prepare,
+    rejection,
+    run_dataset,
+)
 
 #: warn when the gates reject more than this fraction of a kind of measurement
 REJECT_WARN = 0.03
@@ -26,7 +35,7 @@ ProgressFactory = Callable[[str], Callable[[int, int], None] | None]
 
 def load(path: Path, cfg: DatasetConfig) -> Dataset:
     """Read the recording at ``path`` with the config's format (detected when it names none)."""
-    return read_dataset(path, cfg.format)
+    return read_dataset(path, cfg.format, cfg)
 
 
 def replay(
@@ -73,17 +82,17 @@ def replay(
         )
     t_from = (r.t_nav if math.isfinite(r.t_nav) else p.t1) + cfg.settle_s
     if "gnss" in cfg.score:
-        m["gnss"] = gnss_scores(r, p.gnss) if p.gnss else "no GNSS fix in the log"
+        m["gnss"] = gnss_scores(r, p.gnss, cfg.min_fix_type) if p.gnss else "no GNSS fix in the log"
     if cfg.outages is not None and p.gnss:
-        t_ref = ds.event("takeoff") if cfg.outages.relative_to == "takeoff" else p.t0
-        if t_ref is None:
+        wins = protocol_windows(ds, p, cfg)
+        if wins is None:
             m["outages"] = "no take-off event in the log (set outages.relative_to = 'start')"
         else:
-            land = ds.event("landing")
-            wins = cfg.outages.windows(t_ref, min(p.t1, land) if land is not None else p.t1)
+            t_ref = _protocol_ref(ds, p, cfg)
+            assert t_ref is not None
             ro = run_dataset(p, wins, "outages", prog("replay (outage protocol)"))
             runs["outages"] = ro
-            m["outages"] = outage_scores(ro, p.gnss)
+            m["outages"] = outage_scores(ro, p.gnss, cfg.min_fix_type)
             m["outages"]["protocol"] = {"relative_to": cfg.outages.relative_to, "t_ref_s": t_ref - p.t0,
                                         "start_s": cfg.outages.start_s, "on_s": cfg.outages.on_s,
                                         "off_s": cfg.outages.off_s}  # fmt: skip
@@ -99,6 +108,25 @@ def replay(
         else:
             m["reference"] = cmp.compare(r, ds.reference, t_from, p.t1)
     return m, runs
+
+
+def _protocol_ref(ds: Dataset, p: Prepared, cfg: DatasetConfig) -> float | None:
+    rel = cfg.outages.relative_to if cfg.outages is not None else "start"
+    if rel == "takeoff":
+        return ds.event("takeoff")
+    return p.gnss[0].t if rel == "first_gnss" and p.gnss else p.t0
+
+
+def protocol_windows(ds: Dataset, p: Prepared, cfg: DatasetConfig) -> list[tuple[float, float]] | None:
+    """The config's outage windows (absolute s) on the prepared data; None without the take-off event the
+    protocol counts from. They end before the landing or the end of the data ("first_gnss": the last fix)."""
+    t_ref = _protocol_ref(ds, p, cfg)
+    if cfg.outages is None or t_ref is None:
+        return None if t_ref is None else []
+    if cfg.outages.relative_to == "first_gnss":
+        return cfg.outages.windows(t_ref, p.gnss[-1].t)
+    land = ds.event("landing")
+    return cfg.outages.windows(t_ref, min(p.t1, land) if land is not None else p.t1)
 
 
 def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:

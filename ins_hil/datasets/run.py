@@ -91,12 +91,23 @@ def field_at_rest(imu: list[ImuSample], mag: list[MagSample], t_from: float, t_t
 def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     """Apply the dataset config to ``ds`` (causal streams for the core; nothing from the onboard estimate)."""
     notes: list[str] = list(ds.meta.get("notes", []))
-    R = dcm_from_euler(*cfg.imu_to_body)  # IMU axes → body FRD
-    rot = bool(np.any(cfg.imu_to_body != 0.0))
+    R = cfg.mounting_dcm()  # IMU axes → body FRD
+    rot = cfg.rotated
     off = cfg.imu_time_offset
+    applied = ds.meta.get("mounted")  # what the reader applied already (rtklib): only the difference is applied
+    if applied:
+        off -= float(applied["imu_time_offset_s"])
+        same = np.array_equal(cfg.imu_to_body, applied["imu_to_body"])
+        rot = not same
+        if rot:
+            was = dataclasses.replace(cfg, imu_to_body=np.asarray(applied["imu_to_body"]))
+            R = R @ was.mounting_dcm().T
     t1 = ds.t1
-    imu = [dataclasses.replace(s, t=s.t + off, dtheta=R @ s.dtheta, dvel=R @ s.dvel) if rot else
-           dataclasses.replace(s, t=s.t + off) for s in ds.imu if s.t <= t1]  # fmt: skip
+    if applied and not rot and off == 0.0:
+        imu = [s for s in ds.imu if s.t <= t1]
+    else:
+        imu = [dataclasses.replace(s, t=s.t + off, dtheta=R @ s.dtheta, dvel=R @ s.dvel) if rot else
+               dataclasses.replace(s, t=s.t + off) for s in ds.imu if s.t <= t1]  # fmt: skip
     gnss = [dataclasses.replace(f, t=f.t + cfg.gnss_time_offset) for f in ds.gnss] if cfg.use_gnss else []
     mag = [dataclasses.replace(m, field_b=R @ m.field_b) if rot else m for m in ds.mag] if cfg.use_mag else []
     baro = list(ds.baro) if cfg.use_baro else []
@@ -188,6 +199,7 @@ class RunResult:
     gnss_inside: Vec  # bool: inside an outage
     gnss_std: Vec  # the core's σ (NED m) at the prior
     gnss_ref: Vec  # the fix (NED m)
+    gnss_fix: Vec  # its FixType (int)
     outages: list[tuple[float, float]]
     stats: dict[str, dict[str, int]]
     elapsed_s: float
@@ -215,6 +227,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
     gi: list[bool] = []
     gs: list[Vec] = []
     gr: list[Vec] = []
+    gf: list[int] = []
     j = 0
     n = len(p.imu)
     t_nav = math.nan
@@ -239,6 +252,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
                 gs.append(core.state().std_pos)
                 gi.append(inside)
                 gr.append(ref)
+                gf.append(int(m.fix_type))
             if not inside:
                 core.fuse(m)
             if nav:
@@ -262,7 +276,8 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
 
     return RunResult(
         label, origin, arr(T, 0), arr(Q, 4), arr(V, 3), arr(P, 3), arr(SP, 3), arr(SA, 3), t_nav, arr(gt, 0),
-        arr(ge, 3), arr(gp, 3), np.array(gi, dtype=bool), arr(gs, 3), arr(gr, 3), list(outages),
+        arr(ge, 3), arr(gp, 3), np.array(gi, dtype=bool), arr(gs, 3), arr(gr, 3), np.array(gf, dtype=int),
+        list(outages),
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, list(p.notes),
     )  # fmt: skip
@@ -277,9 +292,10 @@ def hmax(e: Vec) -> float:
     return float(np.max(np.hypot(e[:, 0], e[:, 1]))) if len(e) else math.nan
 
 
-def gnss_scores(r: RunResult, fixes: list[GnssFix]) -> dict[str, Any]:
-    """GNSS-present scores: the a-priori and a-posteriori horizontal antenna error (m) outside outages."""
-    out = ~r.gnss_inside
+def gnss_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[str, Any]:
+    """GNSS-present scores: the a-priori and a-posteriori horizontal antenna error (m) outside outages, at the
+    fixes of type ``min_fix`` or better."""
+    out = ~r.gnss_inside & (r.gnss_fix >= min_fix)
     pr, po = r.gnss_err[out], r.gnss_post[out]
     return {
         "gnss_epochs": int(out.sum()),
@@ -290,8 +306,9 @@ def gnss_scores(r: RunResult, fixes: list[GnssFix]) -> dict[str, Any]:
     }
 
 
-def outage_scores(r: RunResult, fixes: list[GnssFix]) -> dict[str, Any]:
-    """Per outage window: the core's horizontal error at each fix it did not get, against the two trivial
+def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[str, Any]:
+    """Per outage window: the core's horizontal error at each fix (of type ``min_fix`` or better) it did not
+    get, against the two trivial
     predictors built from the last fix before the window (hold it; extrapolate it with its velocity), and
     the 2-dof NEES of the horizontal error with the core's σ. A window that opens before the core navigates
     is reported as not scored."""
@@ -300,7 +317,7 @@ def outage_scores(r: RunResult, fixes: list[GnssFix]) -> dict[str, Any]:
     ft = np.array([f.t for f in fixes])
     for a, b in r.outages:
         row: dict[str, Any] = {"window_s": [a, b]}
-        i = np.nonzero(r.gnss_inside & (r.gnss_t >= a) & (r.gnss_t < b))[0]
+        i = np.nonzero(r.gnss_inside & (r.gnss_t >= a) & (r.gnss_t < b) & (r.gnss_fix >= min_fix))[0]
         kl = int(np.searchsorted(ft, a, "left")) - 1  # the last fix before the window
         if not len(i) or kl < 0 or not (r.t_nav <= a):
             row["scored"] = False

@@ -13,20 +13,23 @@ from pathlib import Path
 
 import numpy as np
 
-from ins_hil.commands.replay import DEFAULT_DRIVE, drive_config
 from ins_hil.core import NavCore
-from ins_hil.datasets import drive0708
+from ins_hil.datasets import config as dataset_config
+from ins_hil.datasets import study
+
+DRIVE_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "datasets" / "drive0708.toml"
 
 
 def dump(path: Path, seconds: float) -> None:
-    dr = drive0708.load_drive(DEFAULT_DRIVE)
-    outages = drive0708.outage_windows(dr.pos.t)
+    cfg_ds = dataset_config.load(DRIVE_CONFIG)
+    _, dr, outs_p = study.load(cfg_ds)  # the prepared drive (imu, gnss, nav) and its protocol
+    outages = outs_p
     t_end = dr.imu[0].t + seconds
     imu = [s for s in dr.imu if s.t <= t_end]
     gnss = [f for f in dr.gnss if f.t <= t_end]
     out: dict[str, np.ndarray] = {}
     for aids in (False, True):
-        core = NavCore(None, drive_config(aids))
+        core = NavCore(None, dr.nav if aids else study.without_aids(dr.nav))
         rows = []
         j = 0
         for s in imu:  # the fuse order of ins_hil.datasets.evaluate.run_drive

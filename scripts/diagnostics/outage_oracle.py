@@ -20,17 +20,20 @@ from __future__ import annotations
 import copy
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
 
-from ins_hil.commands.replay import DEFAULT_DRIVE, drive_config
 from ins_hil.core import NavCore
-from ins_hil.datasets import drive0708
+from ins_hil.datasets import config as dataset_config
+from ins_hil.datasets import study
 from ins_hil.datasets.evaluate import antenna_ned
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
 from ins_hil.types import FixType
+
+DRIVE_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "datasets" / "drive0708.toml"
 
 
 def main(argv: list[str]) -> int:
@@ -39,15 +42,16 @@ def main(argv: list[str]) -> int:
         return 2
     n_out = int(argv[0])
     bounds = [float(x) for x in argv[1:]] or [6.0, 3.0]
-    dr = drive0708.load_drive(DEFAULT_DRIVE)
+    cfg_ds = dataset_config.load(DRIVE_CONFIG)
+    _, dr, outs_p = study.load(cfg_ds)  # the prepared drive (imu, gnss, nav) and its protocol
     g0 = dr.gnss[0]
     origin = (g0.lat, g0.lon, g0.h)
-    outs = drive0708.outage_windows(dr.pos.t)
+    outs = outs_p
     if not 1 <= n_out <= len(outs):
         print(f"outage number 1..{len(outs)}", file=sys.stderr)
         return 2
     a, b = outs[n_out - 1]
-    cfg = drive_config(True)
+    cfg = dr.nav
     core = NavCore(None, cfg)
     j = k = 0
     while dr.imu[k].t < a - 1e-9:

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 from test_datasets_replay import GOOD, _static_csv, _toml
 
-from ins_hil.datasets import batch
 from ins_hil.datasets import config as dcfg
 from ins_hil.datasets.dataset import DatasetError
+from ins_hil.evaluation import batch
 
 
 def _logs(tmp_path: Path) -> tuple[Path, Path]:
