@@ -162,6 +162,10 @@ class NavConfig:
             )
 
 
+#: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)
+_new = tuple.__new__
+
+
 class CoreSnapshot(NamedTuple):
     """NavCore's state at one step (:meth:`NavCore.snapshot`): references only (every array is replaced, never
     mutated in place, by the mechanization, the filter and the feedback), so one per step is cheap."""
@@ -339,10 +343,10 @@ class NavCore:
     def snapshot(self) -> CoreSnapshot:
         """The state at this step, by reference (the delayed-fusion history takes one per step). With the baro
         datum and the GNSS height it learns from: a replay re-fuses the logged baro samples from the same datum."""
-        return CoreSnapshot(
+        return _new(CoreSnapshot, (
             self.ins.snapshot(), self.kf.snapshot(), self.bg, self.ba, self.sg, self.sa, self.G, self.q_mount,
             self.omega_b, self.f_b, self.aids.snapshot(), self.baro.snapshot(),
-        )  # fmt: skip
+        ))  # fmt: skip
 
     def restore(self, d: CoreSnapshot) -> None:
         """Put back the state of a :meth:`snapshot` (the error estimate zero)."""

@@ -19,6 +19,9 @@ if TYPE_CHECKING:
     from ins_hil.core import NavConfig
 
 
+_new = tuple.__new__  # a NamedTuple without its generated __new__ (a snapshot per IMU step)
+
+
 class AidsSnapshot(NamedTuple):
     """The aids' state at one step (:meth:`VehicleAids.snapshot`)."""
 
@@ -48,7 +51,7 @@ class VehicleAids:
         self.mounted = idx.mnt is not None or lever_on or cfg.nhc_pitch_per_accel != 0.0
 
     def snapshot(self) -> AidsSnapshot:
-        return AidsSnapshot(self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp)
+        return _new(AidsSnapshot, (self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp))
 
     def restore(self, d: AidsSnapshot) -> None:
         self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp = d

@@ -23,6 +23,9 @@ def baro_altitude(meas: BaroSample) -> float:
     return earth.altitude_from_pressure(meas.pressure)
 
 
+_new = tuple.__new__  # a NamedTuple without its generated __new__ (a snapshot per IMU step)
+
+
 class BaroSnapshot(NamedTuple):
     """The datum's state at one step (:meth:`BaroDatum.snapshot`)."""
 
@@ -55,8 +58,8 @@ class BaroDatum:
         self.gnss_dt = 1.0  # s between GNSS heights (the last interval seen, ≤ 1 s)
 
     def snapshot(self) -> BaroSnapshot:
-        return BaroSnapshot(self.offset, self.offset_var, self.t_baro, self.baro_dt, self.t_gnss_ok, self.h_gnss,
-                            self.gnss_var_d, self.gnss_dt)  # fmt: skip
+        return _new(BaroSnapshot, (self.offset, self.offset_var, self.t_baro, self.baro_dt, self.t_gnss_ok,
+                                   self.h_gnss, self.gnss_var_d, self.gnss_dt))  # fmt: skip
 
     def restore(self, d: BaroSnapshot) -> None:
         (self.offset, self.offset_var, self.t_baro, self.baro_dt, self.t_gnss_ok, self.h_gnss, self.gnss_var_d,

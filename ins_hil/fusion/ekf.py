@@ -172,6 +172,10 @@ def skew(a: Vec) -> Vec:
     return np.array(((0.0, -a[2], a[1]), (a[2], 0.0, -a[0]), (-a[1], a[0], 0.0)))
 
 
+#: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)
+_new = tuple.__new__
+
+
 class EkfSnapshot(NamedTuple):
     """The filter's state at one step (:meth:`ErrorStateEKF.snapshot`): references only; x is zero at a step."""
 
@@ -270,10 +274,10 @@ class ErrorStateEKF:
     def snapshot(self) -> EkfSnapshot:
         """P, its factor, the ``cov_every`` accumulators and the vibration-noise state by reference: they are
         replaced, never mutated in place, so a snapshot stays valid (delayed fusion takes one per step)."""
-        return EkfSnapshot(
+        return _new(EkfSnapshot, (
             self.P, self.factor, self._acc_n, self._acc_dt, self._acc_f, self._acc_fb, self._acc_w, self._acc_qv,
             self.vib_prev, self.vib_var,
-        )  # fmt: skip
+        ))  # fmt: skip
 
     def restore(self, d: EkfSnapshot) -> None:
         """Put back the state of a :meth:`snapshot`, with a zero error estimate (after a feedback)."""
