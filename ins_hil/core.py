@@ -34,7 +34,6 @@ and the filter's yaw σ is below ``aligned_yaw_std``.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections import deque
 from collections.abc import Iterator
@@ -46,6 +45,9 @@ import numpy as np
 from ins_hil.core_parts.aids import AidsSnapshot, VehicleAids
 from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot, baro_altitude
 from ins_hil.core_parts.contract import Measurement
+from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
+from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
+from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-exported (ins_hil.cref)
 from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
@@ -63,8 +65,6 @@ from ins_hil.nav.rotation import (
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 DEG = math.pi / 180.0
-#: a GNSS reset needs every rejected fix within this many gates of the INS (NavCore._gnss_reset_ok)
-RESET_GATE_FACTOR = 20.0
 _KINDS = ("gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt")
 
 
@@ -86,7 +86,7 @@ class NavConfig:
     term ω × l only (0 = the raw rate, which on a car carries the engine/road vibration).
     gnss_reset_after: a GNSS position rejected this many times in a row may reset the position/velocity σ and be
     accepted over its gate, only when the rejected fixes pass a consistency test of their own
-    (:meth:`NavCore._gnss_reset_ok`).
+    (:meth:`ins_hil.core_parts.gnss.GnssReset.ok`).
     adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
     the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
     separately at its own time of validity (delayed fusion).
@@ -236,9 +236,7 @@ class NavCore:
         self._sd: Vec = np.zeros(9)
         self.keep_nis = False
         self._pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
-        # GNSS reset: the consecutive rejected fixes with their test ratios (see _gnss_reset_ok)
-        self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, self.cfg.gnss_reset_after))
-        self._gnss_accepted = False  # a GNSS position has been accepted since the start
+        self.gnss_reset = GnssReset(self.cfg)  # the run of rejected fixes that may reset the filter
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
@@ -415,42 +413,26 @@ class NavCore:
         c = self.cfg
         if isinstance(meas, GnssFix) and not math.isfinite(meas.lat):  # velocity-only (gnss_vel_delay)
             if c.use_gnss_vel and meas.vel_ned is not None:
-                std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale
-                z, H = mm.gnss_velocity(self.idx, C, s.vel_ned, self.omega_b, np.asarray(meas.vel_ned),
-                                        c.gnss_lever_arm_b)  # fmt: skip
-                self._apply(Measurement("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss), meas.t)
+                self._apply(gnss_velocity(meas, s, C, self.omega_b, self.idx, c), meas.t)
         elif isinstance(meas, GnssFix):
-            lever = c.gnss_lever_arm_b
-            std_ne = max(meas.std_ne, c.gnss_min_std[0]) * c.gnss_std_scale
-            std_d = max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale
-            shift = None if assume_now else s.vel_ned * (s.t - meas.t)  # time alignment to the step
-            z, H = mm.gnss_position(self.idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, lever, shift)
-            r = np.array((std_ne**2, std_ne**2, std_d**2))
-            force = self.stats["gnss_pos"].consecutive_rejects >= c.gnss_reset_after and self._gnss_reset_ok(
-                meas, z, H, r
-            )
+            m = gnss_position(meas, s, C, self.idx, c, assume_now)
+            st = self.stats["gnss_pos"]
+            force = st.consecutive_rejects >= c.gnss_reset_after and self.gnss_reset.ok(meas, m, self.kf.P)
             if force:
                 # GNSS rejected for too long: the INS has drifted, re-initialise position/velocity σ
-                self.kf.set_state_sigma("pos", np.sqrt(z * z + r))
+                self.kf.set_state_sigma("pos", np.sqrt(m.z * m.z + m.r))
                 zv = np.zeros(3) if meas.vel_ned is None else np.asarray(meas.vel_ned) - s.vel_ned
                 self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
                 self.stats["gnss_vel"].consecutive_rejects = 0
-            accepted = self._apply(Measurement("gnss_pos", z, H, r, c.gate_gnss), meas.t, force)
+            accepted = self._apply(m, meas.t, force)
             if not self._replaying:
-                if accepted:
-                    self._rejected.clear()
-                    self._gnss_accepted = True
-                else:
-                    self._rejected.append((meas, self.stats["gnss_pos"].last_ratio))
+                self.gnss_reset.note(meas, accepted, st.last_ratio)
             if accepted:
-                self.baro.gnss_height(meas, C, std_d)
+                self.baro.gnss_height(meas, C, max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale)
             if c.use_gnss_vel and meas.vel_ned is not None:
                 yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
                 s = self.ins.state
-                C = dcm_from_quat(s.q_nb)
-                std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale
-                z, H = mm.gnss_velocity(self.idx, C, s.vel_ned, self.omega_b, np.asarray(meas.vel_ned), lever)
-                self._apply(Measurement("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss), meas.t)
+                self._apply(gnss_velocity(meas, s, dcm_from_quat(s.q_nb), self.omega_b, self.idx, c), meas.t)
         elif isinstance(meas, BaroSample):
             self._apply(self.baro.measurement(meas, self.ins, self.kf, c.gate_baro), meas.t)
         elif isinstance(meas, MagSample):
@@ -462,32 +444,9 @@ class NavCore:
         else:
             raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
 
-    def _gnss_reset_ok(self, meas: GnssFix, z: Vec, H: Vec, r: Vec) -> bool:
-        """May a GNSS position rejected ``gnss_reset_after`` times in a row reset the filter (be accepted over
-        its gate, position/velocity σ re-initialised)? Only when the rejected fixes pass a consistency test
-        of their own, so that junk cannot trigger a reset:
-
-        1. the last ``gnss_reset_after`` rejected fixes and this one agree with each other: each position
-           follows the previous one by their mean velocity × Δt (or, without velocities, lies on the
-           straight line through its neighbours), within ``gate_gnss`` σ of their own σ (NE, D; m);
-        2. each of them is within ``RESET_GATE_FACTOR`` × the gate of the INS (test ratio ≤ factor²): an
-           INS whose position has drifted beyond the gate, not one ``RESET_GATE_FACTOR`` times beyond it —
-           unless no GNSS position has been accepted yet (a wrong configured start).
-        """
-        c = self.cfg
-        fixes = [(f, q) for f, q in self._rejected if f.t < meas.t]
-        if len(fixes) < c.gnss_reset_after:
-            return False
-        S = H @ self.kf.P @ H.T + np.diag(r)
-        ratio, _ = test_ratio(z, S, c.gate_gnss)
-        fixes.append((meas, ratio))
-        if self._gnss_accepted and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
-            return False
-        return gnss_fixes_agree([f for f, _ in fixes], c)
-
     def _apply(self, m: Measurement, t: float, force: bool = False) -> bool:
         """Gate, (adapt R), update, feed back one measurement valid at ``t`` (s). Returns True if accepted
-        (``force``: over the gate, a GNSS reset that passed :meth:`_gnss_reset_ok`)."""
+        (``force``: over the gate, a GNSS reset that passed :meth:`GnssReset.ok`)."""
         kf = self.kf
         kind, z, H, r, gate = m
         HPHt = H @ kf.P @ H.T
@@ -695,46 +654,3 @@ class NavCore:
             s.t, s.q_nb, s.vel_ned, s.lat, s.lon, s.h, self.bg, self.ba, sd[0:3], sd[3:6], sd[6:9],
             self.omega_b, self.f_b, att_ok, self._ratios,
         )  # fmt: skip
-
-
-def gnss_fixes_agree(fixes: list[GnssFix], c: NavConfig) -> bool:
-    """Do consecutive GNSS fixes (time order) agree with each other? Each position follows the previous one
-    by their mean velocity × Δt (or, without velocities, lies on the straight line through its neighbours),
-    within ``gate_gnss`` σ of their own σ (NE, D; m): the consistency test a GNSS reset needs
-    (:meth:`NavCore._gnss_reset_ok`, and ``ins_hil.cref.CNavCore`` for the C core), so junk cannot trigger one."""
-    g2 = c.gate_gnss**2
-    sc = c.gnss_std_scale
-    mn = c.gnss_min_std
-
-    def sig(f: GnssFix) -> tuple[float, float, float]:
-        return max(f.std_ne, mn[0]) * sc, max(f.std_d, mn[1]) * sc, max(f.std_vel, mn[2]) * sc
-
-    meas = fixes[-1]
-    m, n = earth.radii(meas.lat)
-
-    def ned(f: GnssFix) -> tuple[float, float, float]:
-        return ((f.lat - meas.lat) * (m + meas.h), (f.lon - meas.lon) * (n + meas.h) * math.cos(meas.lat),
-                meas.h - f.h)  # fmt: skip
-
-    pts = [(f.t, ned(f), sig(f), None if f.vel_ned is None else np.asarray(f.vel_ned, dtype=float))
-           for f in fixes]  # fmt: skip
-    if all(p[3] is not None for p in pts):
-        for (t0, p0, s0, v0), (t1, p1, s1, v1) in itertools.pairwise(pts):
-            dt = t1 - t0
-            assert v0 is not None and v1 is not None
-            for k in range(3):
-                e = p1[k] - p0[k] - 0.5 * (float(v0[k]) + float(v1[k])) * dt
-                sp = s0[0 if k < 2 else 1] ** 2 + s1[0 if k < 2 else 1] ** 2
-                if not e * e <= g2 * (sp + 0.25 * (s0[2] ** 2 + s1[2] ** 2) * dt * dt):
-                    return False
-        return True
-    if len(pts) < 3:
-        return False
-    for (t0, p0, s0, _), (t1, p1, s1, _), (t2, p2, s2, _) in zip(pts, pts[1:], pts[2:], strict=False):
-        w = (t1 - t0) / (t2 - t0)
-        for k in range(3):
-            e = p1[k] - (p0[k] + w * (p2[k] - p0[k]))
-            j = 0 if k < 2 else 1
-            if not e * e <= g2 * (s0[j] ** 2 + s1[j] ** 2 + s2[j] ** 2):
-                return False
-    return True
