@@ -9,6 +9,11 @@ GNSS/baro fault events raised by the innovation tests since the last call.
 Pure and deterministic: no I/O, no clock, no asyncio; the same input sequence
 gives the same output, bit for bit.
 
+NavCore is a facade: it compensates the increments, runs the time update, gates and
+applies each :class:`~ins_hil.core_parts.contract.Measurement` and feeds the error back;
+the other jobs are its collaborators in :mod:`ins_hil.core_parts` (alignment, GNSS
+aiding and reset, ground-vehicle aids, baro datum, delayed-fusion history).
+
 Filter: closed-loop error-state EKF (:mod:`ins_hil.fusion.ekf`, conventions of
 DIGEST_000 §9), measurement models of :mod:`ins_hil.fusion.measurements`,
 chi-square gating and Sage–Husa adaptive R (:mod:`ins_hil.fusion.innovation`).
@@ -35,7 +40,6 @@ and the filter's yaw σ is below ``aligned_yaw_std``.
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
@@ -43,7 +47,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ins_hil.core_parts.aids import AidsSnapshot, VehicleAids
-from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot, baro_altitude
+from ins_hil.core_parts.alignment import Alignment
+from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot
 from ins_hil.core_parts.contract import Measurement
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
 from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
@@ -52,16 +57,9 @@ from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
-from ins_hil.nav import alignment, earth
+from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownSnapshot, StrapdownState
-from ins_hil.nav.rotation import (
-    dcm_from_euler,
-    dcm_from_quat,
-    euler_from_quat,
-    quat_from_euler,
-    quat_from_rotvec,
-    quat_mul,
-)
+from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 DEG = math.pi / 180.0
@@ -218,19 +216,8 @@ class NavCore:
         c = self.cfg
         self.baro = BaroDatum(c.baro_std, c.baro_offset_tau, c.baro_offset, c.gnss_lever_arm_b)
         self._g_local = 9.80665
-        # alignment
-        self.phase = "nav" if self.cfg.align == "given" else "level"
-        self._lev_buf: deque[tuple[float, Vec, Vec]] = deque()
-        self._lev_f = np.zeros(3)
-        self._lev_w = np.zeros(3)
-        self._lev_t = 0.0
-        self._moving = False
-        self._lev_pending: deque[ImuSample] = deque()
-        self._lev_fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²; its length _lev_t)
-        self._lev_C = np.eye(3)  # the levelled attitude C_b^n, its yaw as the filter holds it (level_tilt_prior)
-        self._lev_t_end = 0.0  # the time of its last sample
-        self._have_pos = self.cfg.align == "given"
-        self._last_mag: Vec | None = None
+        self.phase = "nav" if self.cfg.align == "given" else "level"  # alignment: level → heading → nav
+        self.align = Alignment(self)
         self.nis_log: list[tuple[float, str, float, int]] = []
         self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
         self._sd: Vec = np.zeros(9)
@@ -262,7 +249,7 @@ class NavCore:
             self.history.log_imu(self._step_n, imu)
         self._dt = imu.dt
         if self.phase != "nav":
-            self._align_step(imu)
+            self.align.step(imu)
             return False
         self._mechanize(imu)
         self._pending_end = imu
@@ -372,7 +359,7 @@ class NavCore:
             self.step_end()
         self.history.finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first
         if self.phase != "nav":
-            self._align_meas(meas)
+            self.align.meas(meas)
             return
         if isinstance(meas, GnssFix) and self.cfg.gnss_vel_delay > 0 and meas.vel_ned is not None:
             # position at t, velocity at its own (earlier) time of validity: two measurements
@@ -436,7 +423,7 @@ class NavCore:
         elif isinstance(meas, BaroSample):
             self._apply(self.baro.measurement(meas, self.ins, self.kf, c.gate_baro), meas.t)
         elif isinstance(meas, MagSample):
-            self._last_mag = np.asarray(meas.field_b)
+            self.align.last_mag = np.asarray(meas.field_b)
             if c.mag_ref_ned is None:
                 return
             z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag_ref_ned)
@@ -507,133 +494,6 @@ class NavCore:
             self.G = self.G + x[i.gs : i.gs + 9].reshape(3, 3)
         if i.mnt is not None:
             self.q_mount = quat_mul(quat_from_rotvec(-x[i.mnt : i.mnt + 3]), self.q_mount)  # R̂ ← (I − [δε×]) R̂
-
-    # ------------------------------------------------------------------ alignment
-    def _align_step(self, imu: ImuSample) -> None:
-        self.ins.state.t = imu.t
-        c = self.cfg
-        if self.phase == "level":
-            # samples enter the levelling window only ``still_delay`` s later, so the window cannot hold
-            # the first moments of a motion that the GNSS speed test detects late
-            self._lev_pending.append(imu)
-            while self._lev_pending and imu.t - self._lev_pending[0].t > c.still_delay:
-                old = self._lev_pending.popleft()
-                self._lev_buf.append((old.dt, old.dvel, old.dtheta))
-                self._lev_t += old.dt
-                self._lev_f = self._lev_f + old.dvel
-                self._lev_w = self._lev_w + old.dtheta
-            while self._lev_buf and self._lev_t - self._lev_buf[0][0] >= c.align_time:
-                dt0, dv0, dth0 = self._lev_buf.popleft()
-                self._lev_t -= dt0
-                self._lev_f = self._lev_f - dv0
-                self._lev_w = self._lev_w - dth0
-            full = self._lev_t >= c.align_time - 0.5 * imu.dt
-            if self._have_pos and (full or (self._moving and self._lev_t >= 0.5)):
-                mag_ok = c.mag_ref_ned is not None and self._last_mag is not None
-                if self._moving or mag_ok or c.align_level_only:
-                    self._level()
-        elif self.phase == "heading":
-            # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
-            dth = imu.dtheta - self.bg * imu.dt
-            self.ins.step(dth, imu.dvel - self.ba * imu.dt, imu.dt)
-            self.ins.state.t = imu.t
-            self.ins.state.vel_ned = np.zeros(3)
-            self.omega_b = dth / imu.dt
-
-    def _level(self) -> None:
-        """Coarse levelling (book §4.1.1) and gyro bias from the static window; refined
-        alignment with the magnetometer (§4.1.2) when a field reference is configured."""
-        c = self.cfg
-        s = self.ins.state
-        f = self._lev_f / self._lev_t
-        roll, pitch = alignment.coarse_level(f)
-        yaw = 0.0
-        # gyro bias = mean rate − Earth rate; only the vertical Earth-rate component is known before yaw
-        w = self._lev_w / self._lev_t
-        C0 = dcm_from_quat(quat_from_euler(roll, pitch, 0.0))
-        self.bg = w - C0.T @ np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(s.lat)))
-        have_yaw = False
-        if c.mag_ref_ned is not None and self._last_mag is not None:
-            g_ned = np.array((0.0, 0.0, -earth.normal_gravity(s.lat, s.h)))
-            A = alignment.refined_alignment(np.vstack([g_ned, c.mag_ref_ned]), np.vstack([f, self._last_mag]))
-            roll, pitch, yaw = euler_from_quat(alignment.quat_from_book_A(A))
-            have_yaw = True
-        s.q_nb = quat_from_euler(roll, pitch, yaw)
-        s.vel_ned = np.zeros(3)
-        self.ins.reset_history()
-        self._lev_fb, self._lev_C = f, dcm_from_quat(s.q_nb)
-        self._lev_t_end = self._lev_pending[0].t - self._lev_pending[0].dt if self._lev_pending else s.t
-        # bring the attitude from the end of the window to now with the delayed samples
-        t_now = s.t
-        for old in self._lev_pending:
-            self.ins.step(old.dtheta - self.bg * old.dt, old.dvel, old.dt)
-            s = self.ins.state
-            s.vel_ned = np.zeros(3)
-        self._lev_pending.clear()
-        s.t = t_now
-        if self.idx.bg is not None:
-            self.kf.set_state_sigma("bg", c.align_gyro_bias_std)
-        if have_yaw:
-            self._enter_nav(yaw_std=c.mag_yaw_std)
-        else:
-            self.phase = "heading"
-
-    def _align_meas(self, meas: GnssFix | BaroSample | MagSample) -> None:
-        s = self.ins.state
-        if isinstance(meas, MagSample):
-            self._last_mag = np.asarray(meas.field_b)
-            return
-        if isinstance(meas, BaroSample):
-            # learn the datum before navigation starts, so that the baro holds the height from the first step
-            self.baro.learn(meas.t, baro_altitude(meas))
-            return
-        if not isinstance(meas, GnssFix):
-            return
-        if math.isfinite(meas.h):
-            self.baro.gnss_height(
-                meas, dcm_from_quat(s.q_nb), max(meas.std_d, self.cfg.gnss_min_std[1]) * self.cfg.gnss_std_scale
-            )
-        if self.phase == "level":
-            s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
-            self._have_pos = True
-            if meas.vel_ned is not None:
-                v = np.asarray(meas.vel_ned)
-                self._moving = self._moving or math.hypot(float(v[0]), float(v[1])) > self.cfg.still_speed
-        if self.phase == "heading" and meas.vel_ned is not None:
-            v = np.asarray(meas.vel_ned)
-            sp = math.hypot(float(v[0]), float(v[1]))
-            if sp >= self.cfg.gnss_yaw_speed:
-                roll, pitch, yaw_was = euler_from_quat(s.q_nb)
-                yaw = alignment.yaw_from_course(v)  # in-motion yaw = GNSS course (no sideslip)
-                s.q_nb = quat_from_euler(roll, pitch, yaw)
-                # the yaw reset turns the computed frame about down: the levelled tilt (fixed in NED) turns with it
-                self._lev_C = dcm_from_euler(0.0, 0.0, yaw - yaw_was) @ self._lev_C
-                s.vel_ned = v.copy()
-                C = dcm_from_quat(s.q_nb)
-                d = C @ self.cfg.gnss_lever_arm_b
-                m, n = earth.radii(meas.lat)
-                s.lat = meas.lat - d[0] / (m + meas.h)
-                s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
-                s.h = meas.h + d[2]
-                self.ins.state.t = max(s.t, meas.t)
-                std_v = max(meas.std_vel, self.cfg.gnss_yaw_vel_floor)
-                # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V), independent
-                self._enter_nav(yaw_std=math.hypot(self.cfg.gnss_yaw_std, std_v / sp))
-
-    def _enter_nav(self, yaw_std: float | None = None) -> None:
-        self.phase = "nav"
-        s = self.ins.state
-        self._g_local = earth.normal_gravity(s.lat, s.h)
-        if yaw_std is not None:
-            c = self.cfg.filter
-            self.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))
-            if self.cfg.level_tilt_prior and self._lev_fb is not None:
-                # the levelled tilt holds the horizontal accelerometer error (book §4.1.1): correlated prior;
-                # what the levelling leaves: the window's accelerometer noise and the gyro drift since the window
-                since = max(0.0, s.t - self._lev_t_end)
-                sig = math.hypot(c.accel_vrw / math.sqrt(max(self._lev_t, 1e-3)) / self._g_local,
-                                 self.cfg.align_gyro_bias_std * since)  # fmt: skip
-                self.kf.level_tilt(self._lev_C, self._lev_fb, sig)
 
     # ------------------------------------------------------------------ outputs
     def drain_events(self) -> list[FaultEvent]:
