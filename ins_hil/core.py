@@ -337,11 +337,12 @@ class NavCore:
         """Put back the state of a :meth:`snapshot` (the error estimate zero)."""
         self.ins.restore(d.ins)
         self.kf.restore(d.kf)
-        self.bg, self.ba, self.sg, self.sa, self.G, self.q_mount, self.omega_b, self.f_b = d[2:10]
+        self.bg, self.ba, self.sg, self.sa, self.G = d.bg, d.ba, d.sg, d.sa, d.G
+        self.q_mount, self.omega_b, self.f_b = d.q_mount, d.omega_b, d.f_b
         self.aids.restore(d.aids)
         self.baro.restore(d.baro)
 
-    #: IMU steps a roll-back replays per segment of :meth:`fuse_steps` (about 0.3 ms in Python)
+    #: IMU steps a roll-back replays per segment of :meth:`fuse_steps` (about 0.3 ms in Python; set on DelayedHistory)
     REPLAY_SEGMENT = DelayedHistory.REPLAY_SEGMENT
 
     # ------------------------------------------------------------------ aiding
