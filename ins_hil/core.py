@@ -9,6 +9,11 @@ GNSS/baro fault events raised by the innovation tests since the last call.
 Pure and deterministic: no I/O, no clock, no asyncio; the same input sequence
 gives the same output, bit for bit.
 
+NavCore is a facade: it compensates the increments, runs the time update, gates and
+applies each :class:`~ins_hil.core_parts.contract.Measurement` and feeds the error back;
+the other jobs are its collaborators in :mod:`ins_hil.core_parts` (alignment, GNSS
+aiding and reset, ground-vehicle aids, baro datum, delayed-fusion history).
+
 Filter: closed-loop error-state EKF (:mod:`ins_hil.fusion.ekf`, conventions of
 DIGEST_000 §9), measurement models of :mod:`ins_hil.fusion.measurements`,
 chi-square gating and Sage–Husa adaptive R (:mod:`ins_hil.fusion.innovation`).
@@ -34,34 +39,30 @@ and the filter's yaw σ is below ``aligned_yaw_std``.
 
 from __future__ import annotations
 
-import itertools
 import math
-from collections import deque
-from collections.abc import Generator, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from ins_hil.core_parts.aids import AidsSnapshot, VehicleAids
+from ins_hil.core_parts.alignment import Alignment
+from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot
+from ins_hil.core_parts.contract import Measurement
+from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
+from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
+from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-exported (ins_hil.cref)
+from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.fusion import measurements as mm
-from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
+from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
-from ins_hil.nav import alignment, earth
-from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
-from ins_hil.nav.rotation import (
-    dcm_from_euler,
-    dcm_from_quat,
-    euler_from_quat,
-    quat_from_euler,
-    quat_from_rotvec,
-    quat_mul,
-)
+from ins_hil.nav import earth
+from ins_hil.nav.mechanization import StrapdownNED, StrapdownSnapshot, StrapdownState
+from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 DEG = math.pi / 180.0
-#: a GNSS reset needs every rejected fix within this many gates of the INS (NavCore._gnss_reset_ok)
-RESET_GATE_FACTOR = 20.0
-_DONE = object()
 _KINDS = ("gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt")
 
 
@@ -83,7 +84,7 @@ class NavConfig:
     term ω × l only (0 = the raw rate, which on a car carries the engine/road vibration).
     gnss_reset_after: a GNSS position rejected this many times in a row may reset the position/velocity σ and be
     accepted over its gate, only when the rejected fixes pass a consistency test of their own
-    (:meth:`NavCore._gnss_reset_ok`).
+    (:meth:`ins_hil.core_parts.gnss.GnssReset.ok`).
     adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
     the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
     separately at its own time of validity (delayed fusion).
@@ -159,15 +160,26 @@ class NavConfig:
             )
 
 
-#: a delayed-fusion snapshot: (step number, state time s, the state references of NavCore._snapshot)
-_Snap = tuple[int, float, tuple[Any, ...]]
+#: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)
+_new = tuple.__new__
 
 
-def _baro_altitude(meas: BaroSample) -> float:
-    """Barometric altitude (m above the baro datum): the sample's, else from its static pressure (Pa)."""
-    if math.isfinite(meas.altitude):
-        return meas.altitude
-    return earth.altitude_from_pressure(meas.pressure)
+class CoreSnapshot(NamedTuple):
+    """NavCore's state at one step (:meth:`NavCore.snapshot`): references only (every array is replaced, never
+    mutated in place, by the mechanization, the filter and the feedback), so one per step is cheap."""
+
+    ins: StrapdownSnapshot
+    kf: EkfSnapshot
+    bg: Vec
+    ba: Vec
+    sg: Vec
+    sa: Vec
+    G: Vec
+    q_mount: Vec
+    omega_b: Vec
+    f_b: Vec
+    aids: AidsSnapshot
+    baro: BaroSnapshot
 
 
 class NavCore:
@@ -197,50 +209,21 @@ class NavCore:
         self._step_n = 0
         self._dt = 0.01
         self._pending: list[GnssFix | BaroSample | MagSample] = []
-        self._snaps: deque[_Snap] = deque()
-        self._log: deque[tuple[int, str, Any]] = deque()
-        self._log_sorted = 0  # the log's first entries already in replay order (see _sort_log)
-        self._replaying = False
-        self._rb_gen: Generator[None, None, bool] | None = None  # a roll-back, maybe suspended between segments
-        self._rb_new: list[tuple[int, str, Any]] | None = None  # while one runs: IMU steps logged meanwhile
-        self._nhc_next = 0.0
-        self._still_time = 0.0
-        self._ema_w = np.zeros(3)
-        self._ema_f = np.array((0.0, 0.0, -9.80665))
-        self._w_lp = np.zeros(3)  # low-passed body rate for the NHC lever-arm term (nhc_omega_lp_hz)
-        self._lever_on = bool(np.any(self.cfg.nhc_lever_b != 0.0))
-        self._lever_lp = self.cfg.nhc_omega_lp_hz > 0.0 and self._lever_on
-        self._mounted = self.idx.mnt is not None or self._lever_on or self.cfg.nhc_pitch_per_accel != 0.0
+        self._replaying = False  # a roll-back replays the log: no counting, no events, no logging
+        self._delayed = self.cfg.delay_compensation and self.cfg.max_delay > 0
+        self.history = DelayedHistory(self, self.cfg.max_delay)
+        self.aids = VehicleAids(self.cfg, self.idx)
+        c = self.cfg
+        self.baro = BaroDatum(c.baro_std, c.baro_offset_tau, c.baro_offset, c.gnss_lever_arm_b)
         self._g_local = 9.80665
-        self._baro_offset: float | None = None
-        self._t_baro = 0.0
-        self._t_gnss_ok = -math.inf
-        self._h_gnss = 0.0
-        self._gnss_var_d = 1.0
-        self._baro_offset_var = 0.0
-        self._baro_dt = 0.04  # s between baro samples (the last interval seen)
-        self._gnss_dt = 1.0  # s between GNSS heights (the last interval seen, ≤ 1 s)
-        # alignment
-        self.phase = "nav" if self.cfg.align == "given" else "level"
-        self._lev_buf: deque[tuple[float, Vec, Vec]] = deque()
-        self._lev_f = np.zeros(3)
-        self._lev_w = np.zeros(3)
-        self._lev_t = 0.0
-        self._moving = False
-        self._lev_pending: deque[ImuSample] = deque()
-        self._lev_fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²; its length _lev_t)
-        self._lev_C = np.eye(3)  # the levelled attitude C_b^n, its yaw as the filter holds it (level_tilt_prior)
-        self._lev_t_end = 0.0  # the time of its last sample
-        self._have_pos = self.cfg.align == "given"
-        self._last_mag: Vec | None = None
+        self.phase = "nav" if self.cfg.align == "given" else "level"  # alignment: level → heading → nav
+        self.align = Alignment(self)
         self.nis_log: list[tuple[float, str, float, int]] = []
         self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
         self._sd: Vec = np.zeros(9)
         self.keep_nis = False
         self._pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
-        # GNSS reset: the consecutive rejected fixes with their test ratios (see _gnss_reset_ok)
-        self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, self.cfg.gnss_reset_after))
-        self._gnss_accepted = False  # a GNSS position has been accepted since the start
+        self.gnss_reset = GnssReset(self.cfg)  # the run of rejected fixes that may reset the filter
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
@@ -262,14 +245,11 @@ class NavCore:
         """Mechanization (or an alignment step); True when a time update (:meth:`step_end`) is pending."""
         if self._pending_end is not None:
             self.step_end()
-        if not self._replaying and self.cfg.delay_compensation and self.cfg.max_delay > 0 and self.phase == "nav":
-            e = (self._step_n, "imu", imu)
-            self._log.append(e)
-            if self._rb_new is not None:
-                self._rb_new.append(e)  # a suspended roll-back replays this step too
+        if not self._replaying and self._delayed and self.phase == "nav":
+            self.history.log_imu(self._step_n, imu)
         self._dt = imu.dt
         if self.phase != "nav":
-            self._align_step(imu)
+            self.align.step(imu)
             return False
         self._mechanize(imu)
         self._pending_end = imu
@@ -327,227 +307,43 @@ class NavCore:
         self._ground_aids(imu)
 
     def _after_step(self) -> None:
-        if self.cfg.delay_compensation and self.cfg.max_delay > 0:
-            snaps = self._snaps
-            t = self.ins.state.t
-            snaps.append((self._step_n, t, self._snapshot()))
-            horizon = t - self.cfg.max_delay - 2 * self._dt
-            while snaps and snaps[0][1] < horizon:
-                snaps.popleft()
-            if self._rb_new is None:  # a suspended roll-back still needs the log from its target on
-                first = snaps[0][0] if snaps else self._step_n
-                log = self._log
-                while log and log[0][0] < first:
-                    log.popleft()
-                    self._log_sorted -= 1
-                if self._log_sorted < 0:
-                    self._log_sorted = 0
+        if self._delayed:
+            self.history.after_step(self._step_n, self.ins.state.t, self._dt)
         if self._pending:
             t = self.ins.state.t
             due = [m for m in self._pending if m.t <= t + 0.5 * self._dt]
             if due:
-                self._finish_rollback()
+                self.history.finish_rollback()
                 self._pending = [m for m in self._pending if m.t > t + 0.5 * self._dt]
                 for m in due:
                     self._fuse_now(m)
 
     def _ground_aids(self, imu: ImuSample) -> None:
-        """ZUPT/ZARU at rest and the non-holonomic constraint in motion (ground vehicles).
-
-        Rest detection on exponentially averaged (τ = ``zupt_tau``) rate and specific-force
-        magnitudes, so engine vibration (tens of Hz, °/s-level on a car) does not hide a stop."""
-        c = self.cfg
-        if not (c.nhc or c.zupt):
-            return
-        t = imu.t
-        s = self.ins.state
-        a = min(1.0, imu.dt / c.zupt_tau)
-        self._ema_w = self._ema_w + a * (self.omega_b - self._ema_w)
-        # specific force in NED (not its body magnitude): a start from rest with 1 m/s² changes |f| by only
-        # 0.05 m/s² (second order) but the horizontal specific force by 1 m/s², so the ZUPT stops in time
-        self._ema_f = self._ema_f + a * (self.ins.f_ned - self._ema_f)
-        w, f = self._ema_w, self._ema_f
-        if self._lever_lp:
-            b = 1.0 - math.exp(-2.0 * math.pi * c.nhc_omega_lp_hz * imu.dt)  # first-order IIR, causal
-            self._w_lp = self._w_lp + b * (self.omega_b - self._w_lp)
-        wn = math.sqrt(float(w[0]) ** 2 + float(w[1]) ** 2 + float(w[2]) ** 2)
-        fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + (float(f[2]) + self._g_local) ** 2)  # |f − (0, 0, −g)|
-        vn = s.vel_ned
-        slow = float(vn[0]) ** 2 + float(vn[1]) ** 2 + float(vn[2]) ** 2 < c.zupt_max_speed**2
-        # constant-velocity driving looks like rest to the IMU: require a low estimated speed too
-        still = slow and wn < c.zupt_gyro and fn < c.zupt_accel
-        self._still_time = self._still_time + imu.dt if still else 0.0
-        if t < self._nhc_next:
-            return
-        self._nhc_next = t + 1.0 / c.nhc_rate
-        if c.zupt and self._still_time >= c.zupt_time:
-            z, H = mm.zero_velocity(self.idx, s.vel_ned)
-            self._apply("zupt", z, H, np.full(3, c.zupt_std**2), c.gate_aux, t)
-            if c.zaru and self.idx.bg is not None:
-                # zero angular rate: the averaged compensated rate is the residual gyro bias, z = 0 − ω̄ = −δb_g
-                H = np.zeros((3, self.idx.n))
-                H[:, self.idx.bg : self.idx.bg + 3] = -np.eye(3)
-                self._apply("zupt", -w, H, np.full(3, c.zaru_std**2), c.gate_aux, t)
-                self._ema_w = np.zeros(3)
-        elif c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
-            C = dcm_from_quat(s.q_nb)
-            if self._mounted:
-                R = dcm_from_quat(self.q_mount)
-                if c.nhc_pitch_per_accel != 0.0:
-                    # suspension pitch (squat/dive): the body pitches nose-up by θ = k a_x relative to the road
-                    # when accelerating forward, so the velocity has v_b,z = v θ; the constraint holds in the
-                    # road frame u = R_y(θ) v_b (a_x: averaged kinematic acceleration, body x)
-                    ax = float(C[0, 0] * f[0] + C[1, 0] * f[1] + C[2, 0] * (float(f[2]) + self._g_local))
-                    th = c.nhc_pitch_per_accel * ax
-                    ct, st_ = math.cos(th), math.sin(th)
-                    R = R @ np.array(((ct, 0.0, st_), (0.0, 1.0, 0.0), (-st_, 0.0, ct)))
-                w_l = self._w_lp if self._lever_lp else self.omega_b
-                z, H, _ = mm.nonholonomic_mounted(self.idx, C, s.vel_ned, R, w_l, c.nhc_lever_b)
-            else:
-                z, H = mm.nonholonomic(self.idx, C, s.vel_ned)
-            if c.nhc_vertical:
-                self._apply("nhc", z, H, np.array((c.nhc_std**2, c.nhc_std_vertical**2)), c.gate_aux, t)
-            else:
-                self._apply("nhc", z[:1], H[:1], np.array((c.nhc_std**2,)), c.gate_aux, t)
+        """ZUPT/ZARU at rest and the non-holonomic constraint in motion (:class:`VehicleAids`)."""
+        if self.aids.on:
+            for m in self.aids.measurements(imu, self.ins, self.omega_b, self.q_mount, self._g_local):
+                self._apply(m, imu.t)
 
     # ------------------------------------------------------------------ snapshots (delayed fusion)
-    def _snapshot(self) -> tuple[Any, ...]:
-        """References only: every array below is replaced, never mutated in place, by the mechanization,
-        the filter and the feedback (a cheap per-step snapshot for delayed fusion). With the baro datum and
-        the GNSS height it learns from: a replay re-fuses the logged baro samples from the same datum."""
-        ins, kf = self.ins, self.kf
-        st = ins.state
-        return (
-            st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
-            ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
-            kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next, self._still_time,
-            self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp, kf.vib_prev, kf.vib_var, kf._acc_qv,
-            self._baro_offset, self._baro_offset_var, self._t_baro, self._baro_dt, self._t_gnss_ok, self._h_gnss,
-            self._gnss_var_d, self._gnss_dt,
-        )  # fmt: skip
+    def snapshot(self) -> CoreSnapshot:
+        """The state at this step, by reference (the delayed-fusion history takes one per step). With the baro
+        datum and the GNSS height it learns from: a replay re-fuses the logged baro samples from the same datum."""
+        return _new(CoreSnapshot, (
+            self.ins.snapshot(), self.kf.snapshot(), self.bg, self.ba, self.sg, self.sa, self.G, self.q_mount,
+            self.omega_b, self.f_b, self.aids.snapshot(), self.baro.snapshot(),
+        ))  # fmt: skip
 
-    def _restore(self, d: tuple[Any, ...]) -> None:
-        ins, kf = self.ins, self.kf
-        st = ins.state
-        (st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, ins._dth_prev, ins._dv_prev, ins._have_prev, ins._n,
-         ins.f_ned, ins.omega_ie, ins.omega_en, self.bg, self.ba, self.sg, self.sa, kf.P, kf.factor, kf._acc_n,
-         kf._acc_dt, kf._acc_f, kf._acc_fb, kf._acc_w, self.omega_b, self.f_b, self._nhc_next,
-         self._still_time, self.q_mount, self.G, self._ema_w, self._ema_f, self._w_lp, kf.vib_prev, kf.vib_var,
-         kf._acc_qv, self._baro_offset, self._baro_offset_var, self._t_baro, self._baro_dt, self._t_gnss_ok,
-         self._h_gnss, self._gnss_var_d, self._gnss_dt) = d  # fmt: skip
-        kf.x = np.zeros(kf.n)
+    def restore(self, d: CoreSnapshot) -> None:
+        """Put back the state of a :meth:`snapshot` (the error estimate zero)."""
+        self.ins.restore(d.ins)
+        self.kf.restore(d.kf)
+        self.bg, self.ba, self.sg, self.sa, self.G = d.bg, d.ba, d.sg, d.sa, d.G
+        self.q_mount, self.omega_b, self.f_b = d.q_mount, d.omega_b, d.f_b
+        self.aids.restore(d.aids)
+        self.baro.restore(d.baro)
 
-    #: IMU steps a roll-back replays per segment of :meth:`fuse_steps` (about 0.3 ms in Python)
-    REPLAY_SEGMENT = 8
-
-    def _fuse_delayed(self, meas: GnssFix | BaroSample | MagSample) -> bool:
-        """Roll back to the step nearest meas.t, fuse, replay; False if the history is too short."""
-        gen = self._fuse_delayed_steps(meas)
-        while True:
-            try:
-                next(gen)
-            except StopIteration as stop:
-                return bool(stop.value)
-
-    def _fuse_delayed_steps(self, meas: GnssFix | BaroSample | MagSample) -> Generator[None, None, bool]:
-        """:meth:`_fuse_delayed` in segments (returns its result): the roll-back and the fusion, then the
-        replay of the logged IMU steps and measurements up to now, ``REPLAY_SEGMENT`` steps per segment.
-
-        Between two segments the core is live again: the state at the roll-back's start is put back, so a
-        real-time caller can run IMU steps (logged, and replayed by the next segments) and publish their
-        state; the roll-back's state is kept aside. When the replay has caught up with the last step, its
-        state replaces the live one. Exhausted with no step in between, the operations and their order are
-        those of a roll-back in one piece: the same numbers, bit for bit."""
-        target = None
-        for sn in reversed(self._snaps):
-            if sn[1] <= meas.t + 0.5 * self._dt:
-                target = sn
-                break
-        if target is None:
-            return False
-        t_step, t_t, t_data = target
-        replay = [e for e in self._log if e[0] >= t_step]
-        live = (self._snapshot(), self._step_n)
-        self._restore(t_data)
-        self._step_n = t_step
-        self._rb_new = []
-        try:
-            it = self._fuse_now_steps(meas)  # counted and gated like any measurement
-            while next(it, _DONE) is not _DONE:
-                live = yield from self._rb_pause(live, False)
-            self._replaying = True
-            kept = deque(self._snaps)
-            while kept and kept[-1][0] > t_step:
-                kept.pop()
-            kept[-1] = (t_step, t_t, self._snapshot())
-            k = 0
-            pos = 0
-            while True:
-                if replay:
-                    entries, replay = replay, []
-                else:
-                    entries = self._rb_new[pos:]
-                    pos += len(entries)
-                    if not entries:
-                        break
-                for _step, kind, obj in entries:
-                    if kind == "imu":
-                        self._propagate(obj)
-                        kept.append((self._step_n, self.ins.state.t, self._snapshot()))
-                        k += 1
-                        if k % self.REPLAY_SEGMENT == 0:
-                            live = yield from self._rb_pause(live, True)
-                    else:
-                        self._fuse_now(obj)
-            self._snaps = kept
-        finally:
-            self._replaying = False
-            self._rb_new = None
-        self._log.append((t_step, "meas", meas))
-        self._sort_log(t_step)
-        return True
-
-    def _rb_pause(
-        self, live: tuple[tuple[Any, ...], int], replaying: bool
-    ) -> Generator[None, None, tuple[tuple[Any, ...], int]]:
-        """Suspend a roll-back between two segments: the live state back in, the roll-back's aside; on
-        resume (after any IMU steps the caller ran) the other way round. Returns the live state."""
-        mine = (self._snapshot(), self._step_n)
-        self._restore(live[0])
-        self._step_n = live[1]
-        self._replaying = False
-        yield
-        if self._pending_end is not None:
-            self.step_end()
-        live = (self._snapshot(), self._step_n)
-        self._restore(mine[0])
-        self._step_n = mine[1]
-        self._replaying = replaying
-        return live
-
-    def _finish_rollback(self) -> None:
-        """Run a suspended roll-back to its end now (before anything else changes the core)."""
-        gen, self._rb_gen = self._rb_gen, None
-        if gen is not None:
-            for _ in gen:
-                pass
-
-    def _sort_log(self, floor: int) -> None:
-        """Put the log in replay order: by step, the IMU sample before the measurements of its step (a
-        stable sort). Only the tail from the first step ≥ min(``floor``, the first step logged since the
-        last sort) is sorted: the entries before it are in order and all of smaller steps."""
-        log = self._log
-        n = len(log)
-        u = min(self._log_sorted, n)
-        b = floor if u >= n else min(floor, log[u][0])
-        cut = u
-        while cut > 0 and log[cut - 1][0] >= b:
-            cut -= 1
-        tail = [log.pop() for _ in range(n - cut)]
-        tail.reverse()
-        tail.sort(key=lambda e: (e[0], e[1] != "imu"))
-        log.extend(tail)
-        self._log_sorted = n
+    #: IMU steps a roll-back replays per segment of :meth:`fuse_steps` (about 0.3 ms in Python; set on DelayedHistory)
+    REPLAY_SEGMENT = DelayedHistory.REPLAY_SEGMENT
 
     # ------------------------------------------------------------------ aiding
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
@@ -562,9 +358,9 @@ class NavCore:
         between IMU steps. Exhausted with no step in between, it is exactly :meth:`fuse`."""
         if self._pending_end is not None:
             self.step_end()
-        self._finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first
+        self.history.finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first
         if self.phase != "nav":
-            self._align_meas(meas)
+            self.align.meas(meas)
             return
         if isinstance(meas, GnssFix) and self.cfg.gnss_vel_delay > 0 and meas.vel_ned is not None:
             # position at t, velocity at its own (earlier) time of validity: two measurements
@@ -581,17 +377,18 @@ class NavCore:
         if meas.t > t + 0.5 * self._dt:
             self._pending.append(meas)
             return
-        if meas.t < t - 0.5 * self._dt and self.cfg.delay_compensation and self.cfg.max_delay > 0:
-            gen = self._rb_gen = self._fuse_delayed_steps(meas)
-            done = yield from gen  # None: run to its end by _finish_rollback (it returns False only at once)
-            self._rb_gen = None
+        h = self.history
+        if meas.t < t - 0.5 * self._dt and self._delayed:
+            gen = h.rb_gen = h.fuse_delayed_steps(meas, self._dt)
+            done = yield from gen  # None: run to its end by finish_rollback (it returns False only at once)
+            h.rb_gen = None
             if done is not False:
                 return
         # uncompensated (or beyond the history): treat a late measurement as valid now
         step_n = self._step_n
         yield from self._fuse_now_steps(meas, assume_now=meas.t < t - 1.5 * self._dt)
-        if self.cfg.delay_compensation and self.cfg.max_delay > 0:
-            self._log.append((step_n, "meas", meas))
+        if self._delayed:
+            h.log.append((step_n, "meas", meas))
 
     def _fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
         for _ in self._fuse_now_steps(meas, assume_now):
@@ -604,95 +401,42 @@ class NavCore:
         c = self.cfg
         if isinstance(meas, GnssFix) and not math.isfinite(meas.lat):  # velocity-only (gnss_vel_delay)
             if c.use_gnss_vel and meas.vel_ned is not None:
-                std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale
-                z, H = mm.gnss_velocity(self.idx, C, s.vel_ned, self.omega_b, np.asarray(meas.vel_ned),
-                                        c.gnss_lever_arm_b)  # fmt: skip
-                self._apply("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss, meas.t)
+                self._apply(gnss_velocity(meas, s, C, self.omega_b, self.idx, c), meas.t)
         elif isinstance(meas, GnssFix):
-            lever = c.gnss_lever_arm_b
-            std_ne = max(meas.std_ne, c.gnss_min_std[0]) * c.gnss_std_scale
-            std_d = max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale
-            shift = None if assume_now else s.vel_ned * (s.t - meas.t)  # time alignment to the step
-            z, H = mm.gnss_position(self.idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, lever, shift)
-            r = np.array((std_ne**2, std_ne**2, std_d**2))
-            force = self.stats["gnss_pos"].consecutive_rejects >= c.gnss_reset_after and self._gnss_reset_ok(
-                meas, z, H, r
-            )
+            m = gnss_position(meas, s, C, self.idx, c, assume_now)
+            st = self.stats["gnss_pos"]
+            force = st.consecutive_rejects >= c.gnss_reset_after and self.gnss_reset.ok(meas, m, self.kf.P)
             if force:
                 # GNSS rejected for too long: the INS has drifted, re-initialise position/velocity σ
-                self.kf.set_state_sigma("pos", np.sqrt(z * z + r))
+                self.kf.set_state_sigma("pos", np.sqrt(m.z * m.z + m.r))
                 zv = np.zeros(3) if meas.vel_ned is None else np.asarray(meas.vel_ned) - s.vel_ned
                 self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
                 self.stats["gnss_vel"].consecutive_rejects = 0
-            accepted = self._apply("gnss_pos", z, H, r, c.gate_gnss, meas.t, force)
+            accepted = self._apply(m, meas.t, force)
             if not self._replaying:
-                if accepted:
-                    self._rejected.clear()
-                    self._gnss_accepted = True
-                else:
-                    self._rejected.append((meas, self.stats["gnss_pos"].last_ratio))
+                self.gnss_reset.note(meas, accepted, st.last_ratio)
             if accepted:
-                self._gnss_height(meas, C, std_d)
+                self.baro.gnss_height(meas, C, max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale)
             if c.use_gnss_vel and meas.vel_ned is not None:
                 yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
                 s = self.ins.state
-                C = dcm_from_quat(s.q_nb)
-                std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale
-                z, H = mm.gnss_velocity(self.idx, C, s.vel_ned, self.omega_b, np.asarray(meas.vel_ned), lever)
-                self._apply("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss, meas.t)
+                self._apply(gnss_velocity(meas, s, dcm_from_quat(s.q_nb), self.omega_b, self.idx, c), meas.t)
         elif isinstance(meas, BaroSample):
-            alt = _baro_altitude(meas)
-            if self._baro_offset is None:
-                # no datum learnt during the alignment: configured, or from the first sample
-                self._baro_offset = c.baro_offset if c.baro_offset is not None else s.h - alt
-                self._baro_offset_var = float(self.kf.P[2, 2])
-                self._t_baro = meas.t
-            else:
-                self._learn_baro_datum(meas.t, alt)
-            z, H = mm.baro_height(self.idx, s.h, alt + self._baro_offset)
-            # a learnt datum's error is common to the samples within its correlation time (≈ baro_offset_tau, the
-            # learning's time constant): fused as white noise it enters R with the variance it has over the
-            # 2τ/Δt samples it spans (the equivalent information of correlated noise), not once per sample
-            r_b = c.baro_std**2
-            if c.baro_offset is None:
-                r_b += self._baro_offset_var * max(1.0, 2.0 * c.baro_offset_tau / max(self._baro_dt, 1e-3))
-            self._apply("baro", z, H, np.array((r_b,)), c.gate_baro, meas.t)
+            self._apply(self.baro.measurement(meas, self.ins, self.kf, c.gate_baro), meas.t)
         elif isinstance(meas, MagSample):
-            self._last_mag = np.asarray(meas.field_b)
+            self.align.last_mag = np.asarray(meas.field_b)
             if c.mag_ref_ned is None:
                 return
             z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag_ref_ned)
-            self._apply("mag", z, H, np.full(2, c.mag_std**2), c.gate_mag, meas.t)
+            self._apply(Measurement("mag", z, H, np.full(2, c.mag_std**2), c.gate_mag), meas.t)
         else:
             raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
 
-    def _gnss_reset_ok(self, meas: GnssFix, z: Vec, H: Vec, r: Vec) -> bool:
-        """May a GNSS position rejected ``gnss_reset_after`` times in a row reset the filter (be accepted over
-        its gate, position/velocity σ re-initialised)? Only when the rejected fixes pass a consistency test
-        of their own, so that junk cannot trigger a reset:
-
-        1. the last ``gnss_reset_after`` rejected fixes and this one agree with each other: each position
-           follows the previous one by their mean velocity × Δt (or, without velocities, lies on the
-           straight line through its neighbours), within ``gate_gnss`` σ of their own σ (NE, D; m);
-        2. each of them is within ``RESET_GATE_FACTOR`` × the gate of the INS (test ratio ≤ factor²): an
-           INS whose position has drifted beyond the gate, not one ``RESET_GATE_FACTOR`` times beyond it —
-           unless no GNSS position has been accepted yet (a wrong configured start).
-        """
-        c = self.cfg
-        fixes = [(f, q) for f, q in self._rejected if f.t < meas.t]
-        if len(fixes) < c.gnss_reset_after:
-            return False
-        S = H @ self.kf.P @ H.T + np.diag(r)
-        ratio, _ = test_ratio(z, S, c.gate_gnss)
-        fixes.append((meas, ratio))
-        if self._gnss_accepted and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
-            return False
-        return gnss_fixes_agree([f for f, _ in fixes], c)
-
-    def _apply(self, kind: str, z: Vec, H: Vec, r: Vec, gate: float, t: float, force: bool = False) -> bool:
-        """Gate, (adapt R), update, feed back. Returns True if accepted (``force``: over the gate, a GNSS
-        reset that passed :meth:`_gnss_reset_ok`)."""
+    def _apply(self, m: Measurement, t: float, force: bool = False) -> bool:
+        """Gate, (adapt R), update, feed back one measurement valid at ``t`` (s). Returns True if accepted
+        (``force``: over the gate, a GNSS reset that passed :meth:`GnssReset.ok`)."""
         kf = self.kf
+        kind, z, H, r, gate = m
         HPHt = H @ kf.P @ H.T
         ad = self.adapt.get(kind) if self.cfg.adaptive else None
         if ad is not None:
@@ -752,164 +496,6 @@ class NavCore:
         if i.mnt is not None:
             self.q_mount = quat_mul(quat_from_rotvec(-x[i.mnt : i.mnt + 3]), self.q_mount)  # R̂ ← (I − [δε×]) R̂
 
-    # ------------------------------------------------------------------ alignment
-    def _align_step(self, imu: ImuSample) -> None:
-        self.ins.state.t = imu.t
-        c = self.cfg
-        if self.phase == "level":
-            # samples enter the levelling window only ``still_delay`` s later, so the window cannot hold
-            # the first moments of a motion that the GNSS speed test detects late
-            self._lev_pending.append(imu)
-            while self._lev_pending and imu.t - self._lev_pending[0].t > c.still_delay:
-                old = self._lev_pending.popleft()
-                self._lev_buf.append((old.dt, old.dvel, old.dtheta))
-                self._lev_t += old.dt
-                self._lev_f = self._lev_f + old.dvel
-                self._lev_w = self._lev_w + old.dtheta
-            while self._lev_buf and self._lev_t - self._lev_buf[0][0] >= c.align_time:
-                dt0, dv0, dth0 = self._lev_buf.popleft()
-                self._lev_t -= dt0
-                self._lev_f = self._lev_f - dv0
-                self._lev_w = self._lev_w - dth0
-            full = self._lev_t >= c.align_time - 0.5 * imu.dt
-            if self._have_pos and (full or (self._moving and self._lev_t >= 0.5)):
-                mag_ok = c.mag_ref_ned is not None and self._last_mag is not None
-                if self._moving or mag_ok or c.align_level_only:
-                    self._level()
-        elif self.phase == "heading":
-            # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
-            dth = imu.dtheta - self.bg * imu.dt
-            self.ins.step(dth, imu.dvel - self.ba * imu.dt, imu.dt)
-            self.ins.state.t = imu.t
-            self.ins.state.vel_ned = np.zeros(3)
-            self.omega_b = dth / imu.dt
-
-    def _level(self) -> None:
-        """Coarse levelling (book §4.1.1) and gyro bias from the static window; refined
-        alignment with the magnetometer (§4.1.2) when a field reference is configured."""
-        c = self.cfg
-        s = self.ins.state
-        f = self._lev_f / self._lev_t
-        roll, pitch = alignment.coarse_level(f)
-        yaw = 0.0
-        # gyro bias = mean rate − Earth rate; only the vertical Earth-rate component is known before yaw
-        w = self._lev_w / self._lev_t
-        C0 = dcm_from_quat(quat_from_euler(roll, pitch, 0.0))
-        self.bg = w - C0.T @ np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(s.lat)))
-        have_yaw = False
-        if c.mag_ref_ned is not None and self._last_mag is not None:
-            g_ned = np.array((0.0, 0.0, -earth.normal_gravity(s.lat, s.h)))
-            A = alignment.refined_alignment(np.vstack([g_ned, c.mag_ref_ned]), np.vstack([f, self._last_mag]))
-            roll, pitch, yaw = euler_from_quat(alignment.quat_from_book_A(A))
-            have_yaw = True
-        s.q_nb = quat_from_euler(roll, pitch, yaw)
-        s.vel_ned = np.zeros(3)
-        self.ins.reset_history()
-        self._lev_fb, self._lev_C = f, dcm_from_quat(s.q_nb)
-        self._lev_t_end = self._lev_pending[0].t - self._lev_pending[0].dt if self._lev_pending else s.t
-        # bring the attitude from the end of the window to now with the delayed samples
-        t_now = s.t
-        for old in self._lev_pending:
-            self.ins.step(old.dtheta - self.bg * old.dt, old.dvel, old.dt)
-            s = self.ins.state
-            s.vel_ned = np.zeros(3)
-        self._lev_pending.clear()
-        s.t = t_now
-        if self.idx.bg is not None:
-            self.kf.set_state_sigma("bg", c.align_gyro_bias_std)
-        if have_yaw:
-            self._enter_nav(yaw_std=c.mag_yaw_std)
-        else:
-            self.phase = "heading"
-
-    def _gnss_height(self, meas: GnssFix, C: Vec, std_d: float) -> None:
-        """Note a healthy GNSS height for the baro datum: the IMU height (m, antenna height + lever arm turned
-        by ``C`` = C_b^n), its time and variance (``std_d`` m, the fused σ)."""
-        if meas.t > self._t_gnss_ok:
-            self._gnss_dt = min(meas.t - self._t_gnss_ok, 1.0)  # the GNSS interval (s; ≤ 1 s)
-        self._t_gnss_ok = meas.t
-        self._h_gnss = meas.h + float((C @ self.cfg.gnss_lever_arm_b)[2])
-        self._gnss_var_d = std_d * std_d
-
-    def _learn_baro_datum(self, t: float, alt: float) -> None:
-        """While GNSS is healthy (fused, or received within 0.5 s before navigation), learn the baro datum
-        (baro altitude → ellipsoidal height, m) against the GNSS height: a first-order filter, τ = baro_offset_tau;
-        against GNSS, not the filter height, which the baro itself drives. Before navigation the first sample with
-        a GNSS height starts it, so that the baro holds the height from the first navigation step."""
-        c = self.cfg
-        if c.baro_offset is None and c.baro_offset_tau > 0 and abs(t - self._t_gnss_ok) < 0.5:
-            if self._baro_offset is None:
-                self._baro_offset, self._baro_offset_var = self._h_gnss - alt, self._gnss_var_d
-            else:
-                dt = max(0.0, t - self._t_baro)
-                a = min(1.0, dt / c.baro_offset_tau)
-                self._baro_offset += a * (self._h_gnss - alt - self._baro_offset)
-                # each GNSS height is used by the k baro samples until the next one: its error enters k times
-                # coherently, (k a)² σ_g² per k samples; the baro noise once per sample
-                k = max(1.0, self._gnss_dt / dt) if dt > 0.0 else 1.0
-                var_in = c.baro_std**2 + k * self._gnss_var_d
-                self._baro_offset_var = (1 - a) ** 2 * self._baro_offset_var + a * a * var_in
-                if dt > 0.0:
-                    self._baro_dt = dt
-        self._t_baro = t
-
-    def _align_meas(self, meas: GnssFix | BaroSample | MagSample) -> None:
-        s = self.ins.state
-        if isinstance(meas, MagSample):
-            self._last_mag = np.asarray(meas.field_b)
-            return
-        if isinstance(meas, BaroSample):
-            # learn the datum before navigation starts, so that the baro holds the height from the first step
-            self._learn_baro_datum(meas.t, _baro_altitude(meas))
-            return
-        if not isinstance(meas, GnssFix):
-            return
-        if math.isfinite(meas.h):
-            self._gnss_height(
-                meas, dcm_from_quat(s.q_nb), max(meas.std_d, self.cfg.gnss_min_std[1]) * self.cfg.gnss_std_scale
-            )
-        if self.phase == "level":
-            s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
-            self._have_pos = True
-            if meas.vel_ned is not None:
-                v = np.asarray(meas.vel_ned)
-                self._moving = self._moving or math.hypot(float(v[0]), float(v[1])) > self.cfg.still_speed
-        if self.phase == "heading" and meas.vel_ned is not None:
-            v = np.asarray(meas.vel_ned)
-            sp = math.hypot(float(v[0]), float(v[1]))
-            if sp >= self.cfg.gnss_yaw_speed:
-                roll, pitch, yaw_was = euler_from_quat(s.q_nb)
-                yaw = alignment.yaw_from_course(v)  # in-motion yaw = GNSS course (no sideslip)
-                s.q_nb = quat_from_euler(roll, pitch, yaw)
-                # the yaw reset turns the computed frame about down: the levelled tilt (fixed in NED) turns with it
-                self._lev_C = dcm_from_euler(0.0, 0.0, yaw - yaw_was) @ self._lev_C
-                s.vel_ned = v.copy()
-                C = dcm_from_quat(s.q_nb)
-                d = C @ self.cfg.gnss_lever_arm_b
-                m, n = earth.radii(meas.lat)
-                s.lat = meas.lat - d[0] / (m + meas.h)
-                s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
-                s.h = meas.h + d[2]
-                self.ins.state.t = max(s.t, meas.t)
-                std_v = max(meas.std_vel, self.cfg.gnss_yaw_vel_floor)
-                # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V), independent
-                self._enter_nav(yaw_std=math.hypot(self.cfg.gnss_yaw_std, std_v / sp))
-
-    def _enter_nav(self, yaw_std: float | None = None) -> None:
-        self.phase = "nav"
-        s = self.ins.state
-        self._g_local = earth.normal_gravity(s.lat, s.h)
-        if yaw_std is not None:
-            c = self.cfg.filter
-            self.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))
-            if self.cfg.level_tilt_prior and self._lev_fb is not None:
-                # the levelled tilt holds the horizontal accelerometer error (book §4.1.1): correlated prior;
-                # what the levelling leaves: the window's accelerometer noise and the gyro drift since the window
-                since = max(0.0, s.t - self._lev_t_end)
-                sig = math.hypot(c.accel_vrw / math.sqrt(max(self._lev_t, 1e-3)) / self._g_local,
-                                 self.cfg.align_gyro_bias_std * since)  # fmt: skip
-                self.kf.level_tilt(self._lev_C, self._lev_fb, sig)
-
     # ------------------------------------------------------------------ outputs
     def drain_events(self) -> list[FaultEvent]:
         """GNSS/baro fault events raised by the innovation tests since the last call."""
@@ -929,46 +515,3 @@ class NavCore:
             s.t, s.q_nb, s.vel_ned, s.lat, s.lon, s.h, self.bg, self.ba, sd[0:3], sd[3:6], sd[6:9],
             self.omega_b, self.f_b, att_ok, self._ratios,
         )  # fmt: skip
-
-
-def gnss_fixes_agree(fixes: list[GnssFix], c: NavConfig) -> bool:
-    """Do consecutive GNSS fixes (time order) agree with each other? Each position follows the previous one
-    by their mean velocity × Δt (or, without velocities, lies on the straight line through its neighbours),
-    within ``gate_gnss`` σ of their own σ (NE, D; m): the consistency test a GNSS reset needs
-    (:meth:`NavCore._gnss_reset_ok`, and ``ins_hil.cref.CNavCore`` for the C core), so junk cannot trigger one."""
-    g2 = c.gate_gnss**2
-    sc = c.gnss_std_scale
-    mn = c.gnss_min_std
-
-    def sig(f: GnssFix) -> tuple[float, float, float]:
-        return max(f.std_ne, mn[0]) * sc, max(f.std_d, mn[1]) * sc, max(f.std_vel, mn[2]) * sc
-
-    meas = fixes[-1]
-    m, n = earth.radii(meas.lat)
-
-    def ned(f: GnssFix) -> tuple[float, float, float]:
-        return ((f.lat - meas.lat) * (m + meas.h), (f.lon - meas.lon) * (n + meas.h) * math.cos(meas.lat),
-                meas.h - f.h)  # fmt: skip
-
-    pts = [(f.t, ned(f), sig(f), None if f.vel_ned is None else np.asarray(f.vel_ned, dtype=float))
-           for f in fixes]  # fmt: skip
-    if all(p[3] is not None for p in pts):
-        for (t0, p0, s0, v0), (t1, p1, s1, v1) in itertools.pairwise(pts):
-            dt = t1 - t0
-            assert v0 is not None and v1 is not None
-            for k in range(3):
-                e = p1[k] - p0[k] - 0.5 * (float(v0[k]) + float(v1[k])) * dt
-                sp = s0[0 if k < 2 else 1] ** 2 + s1[0 if k < 2 else 1] ** 2
-                if not e * e <= g2 * (sp + 0.25 * (s0[2] ** 2 + s1[2] ** 2) * dt * dt):
-                    return False
-        return True
-    if len(pts) < 3:
-        return False
-    for (t0, p0, s0, _), (t1, p1, s1, _), (t2, p2, s2, _) in zip(pts, pts[1:], pts[2:], strict=False):
-        w = (t1 - t0) / (t2 - t0)
-        for k in range(3):
-            e = p1[k] - (p0[k] + w * (p2[k] - p0[k]))
-            j = 0 if k < 2 else 1
-            if not e * e <= g2 * (s0[j] ** 2 + s1[j] ** 2 + s2[j] ** 2):
-                return False
-    return True

@@ -25,6 +25,7 @@ from __future__ import annotations
 import importlib
 import math
 from collections import deque
+from collections.abc import Iterator
 from typing import Any, Literal
 
 import numpy as np
@@ -211,6 +212,18 @@ class CNavCore:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
         self._lib_.cref_step(self._core, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t)
         return self.state()
+
+    def step_begin(self, imu: ImuSample) -> NavState:
+        """:meth:`step` (the C step is one piece: the filter time update runs in it too)."""
+        return self.step(imu)
+
+    def step_end(self) -> None:
+        """Nothing left of the step :meth:`step_begin` ran (the ``RealTimeCore`` split step)."""
+
+    def fuse_steps(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
+        """:meth:`fuse` as one segment (the ``RealTimeCore`` interface; it runs on the first ``next``)."""
+        self.fuse(meas)
+        yield from ()
 
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
         """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.

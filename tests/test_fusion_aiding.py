@@ -352,13 +352,13 @@ def test_delayed_fusion_rollback_restores_the_ground_aid_averages(cov_every):
     kf = core.kf
     if cov_every > 1:
         assert kf._acc_n == 3 and kf._acc_qv is not None
-    before = (core._ema_f.copy(), core._ema_w.copy(), core.state().vel_ned.copy(), kf.vib_var, kf.vib_prev,
+    before = (core.aids.ema_f.copy(), core.aids.ema_w.copy(), core.state().vel_ned.copy(), kf.vib_var, kf.vib_prev,
               kf.P.copy(), None if kf._acc_qv is None else kf._acc_qv.copy())  # fmt: skip
     assert np.all(np.array(kf.vib_var) > 0.0)
     assert core.stats["zupt"].accepted > 10 and core.stats["nhc"].accepted > 10
     core.fuse(GnssFix(t=imu[n_end - 1].t - 0.2, lat=math.nan, lon=math.nan, h=math.nan))  # rollback + replay
-    assert np.array_equal(core._ema_f, before[0])  # before the fix: differed by ~1e-3 m/s²
-    assert np.array_equal(core._ema_w, before[1])
+    assert np.array_equal(core.aids.ema_f, before[0])  # before the fix: differed by ~1e-3 m/s²
+    assert np.array_equal(core.aids.ema_w, before[1])
     assert np.array_equal(core.state().vel_ned, before[2])
     assert kf.vib_var == before[3] and kf.vib_prev == before[4]
     assert np.array_equal(kf.P, before[5])

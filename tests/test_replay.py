@@ -152,7 +152,7 @@ def test_baro_datum_is_learnt_during_the_alignment(shared_dir: Path):
         t, e = np.array(ser.t), np.array(ser.pos_err)
         late = (t >= a + 10.0) & (t < b)
         h_err[with_baro] = float(np.sqrt(np.mean(e[late, 2] ** 2)))
-    assert core._baro_offset_var < 0.01  # learnt against the RTK height (σ floor 0.06 m), not the start σ
+    assert core.baro.offset_var < 0.01  # learnt against the RTK height (σ floor 0.06 m), not the start σ
     # vertical RMS late in the outage: 0.27 m without a baro, 0.26 m with the datum from the first navigation
     # sample (the rule before the alignment learnt it), 0.22 m now (0.20 m before the learnt datum's error was
     # weighted as correlated over its time constant)

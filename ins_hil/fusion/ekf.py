@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -171,6 +172,25 @@ def skew(a: Vec) -> Vec:
     return np.array(((0.0, -a[2], a[1]), (a[2], 0.0, -a[0]), (-a[1], a[0], 0.0)))
 
 
+#: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)
+_new = tuple.__new__
+
+
+class EkfSnapshot(NamedTuple):
+    """The filter's state at one step (:meth:`ErrorStateEKF.snapshot`): references only; x is zero at a step."""
+
+    P: Vec
+    factor: tuple | None
+    acc_n: int
+    acc_dt: float
+    acc_f: Vec
+    acc_fb: Vec
+    acc_w: Vec
+    acc_qv: Vec | None
+    vib_prev: tuple[float, ...] | None
+    vib_var: tuple[float, ...]
+
+
 @dataclass
 class ErrorStateEKF:
     """Covariance, error-state estimate and the linear models of the closed-loop filter.
@@ -250,6 +270,20 @@ class ErrorStateEKF:
             from ins_hil.fusion import sqrt as sq
 
             self.factor = sq.factor_from_cov(c.numerics, self.P)
+
+    def snapshot(self) -> EkfSnapshot:
+        """P, its factor, the ``cov_every`` accumulators and the vibration-noise state by reference: they are
+        replaced, never mutated in place, so a snapshot stays valid (delayed fusion takes one per step)."""
+        return _new(EkfSnapshot, (
+            self.P, self.factor, self._acc_n, self._acc_dt, self._acc_f, self._acc_fb, self._acc_w, self._acc_qv,
+            self.vib_prev, self.vib_var,
+        ))  # fmt: skip
+
+    def restore(self, d: EkfSnapshot) -> None:
+        """Put back the state of a :meth:`snapshot`, with a zero error estimate (after a feedback)."""
+        (self.P, self.factor, self._acc_n, self._acc_dt, self._acc_f, self._acc_fb, self._acc_w, self._acc_qv,
+         self.vib_prev, self.vib_var) = d  # fmt: skip
+        self.x = np.zeros(self.n)
 
     # ------------------------------------------------------------------ prediction
     def set_state_sigma(self, block: str, sigma: Vec | float) -> None:

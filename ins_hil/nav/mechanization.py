@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -50,6 +50,28 @@ class StrapdownState:
 
     def copy(self) -> StrapdownState:
         return StrapdownState(self.q_nb.copy(), self.vel_ned.copy(), self.lat, self.lon, self.h, self.t)
+
+
+#: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)
+_new = tuple.__new__
+
+
+class StrapdownSnapshot(NamedTuple):
+    """The strapdown integrator's state at one step (:meth:`StrapdownNED.snapshot`): references only."""
+
+    q_nb: Vec
+    vel_ned: Vec
+    lat: float
+    lon: float
+    h: float
+    t: float
+    dth_prev: Vec
+    dv_prev: Vec
+    have_prev: bool
+    n: int
+    f_ned: Vec
+    omega_ie: Vec
+    omega_en: Vec
 
 
 @dataclass
@@ -83,6 +105,21 @@ class StrapdownNED:
             from .attitude import make_attitude
 
             self._att = make_attitude(self.attitude)
+
+    def snapshot(self) -> StrapdownSnapshot:
+        """The state and the previous increments by reference: :meth:`step` replaces these arrays, never
+        mutates them in place, so a snapshot stays valid (delayed fusion takes one per step)."""
+        st = self.state
+        return _new(StrapdownSnapshot, (
+            st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, self._dth_prev, self._dv_prev, self._have_prev,
+            self._n, self.f_ned, self.omega_ie, self.omega_en,
+        ))  # fmt: skip
+
+    def restore(self, d: StrapdownSnapshot) -> None:
+        """Put back the state of a :meth:`snapshot`."""
+        st = self.state
+        (st.q_nb, st.vel_ned, st.lat, st.lon, st.h, st.t, self._dth_prev, self._dv_prev, self._have_prev,
+         self._n, self.f_ned, self.omega_ie, self.omega_en) = d  # fmt: skip
 
     def reset_history(self) -> None:
         """Forget the previous increments (after a gap or a reset)."""

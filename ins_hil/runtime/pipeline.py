@@ -19,10 +19,10 @@ runs the segment of a gap right after publishing the epoch's state
 runs at its start. The schedule depends only on the input order, so replay
 (which never calls :meth:`work`) performs the same operations in the same order.
 
-The IMU step itself is split the same way when the core offers it (``NavCore.step_begin`` /
-``step_end``): the strapdown mechanization runs on the IMU path and its state is published;
-the filter's time update (covariance propagation, ground-vehicle aids, about 0.1 ms) runs
-after publishing, before anything else touches the core. The published state is the
+The IMU step itself is split the same way (:class:`RealTimeCore` ``step_begin`` / ``step_end``; the C
+core's step is one piece and its ``step_end`` a no-op): the strapdown mechanization runs on the IMU path
+and its state is published; the filter's time update (covariance propagation, ground-vehicle aids, about
+0.1 ms) runs after publishing, before anything else touches the core. The published state is the
 mechanized state: its σ are those of the previous step (1 ms older at 1 kHz), and a
 ground-vehicle aid (NHC/ZUPT) applied in this step's time update shows in the next state.
 
@@ -49,12 +49,11 @@ configured state instead.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol, cast
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -67,22 +66,26 @@ Aid = GnssFix | BaroSample | MagSample
 _DONE = object()
 
 
-class Core(Protocol):
-    """What the runtime needs of a navigation core (Python NavCore or C CNavCore)."""
+class RealTimeCore(Protocol):
+    """What the runtime needs of a navigation core (Python ``NavCore`` or C ``CNavCore``).
+
+    The step runs in two parts: ``step_begin`` (the mechanization; its state is published) and
+    ``step_end`` (the filter time update, after publishing; a no-op for a core whose step is one
+    piece); ``fuse_steps`` is ``fuse`` as a generator of segments, one per gap between IMU epochs."""
 
     def step(self, imu: ImuSample) -> NavState: ...
-
-    def fuse(self, meas: Aid) -> Any: ...
-
-    def state(self) -> NavState: ...
-
-
-class SplitCore(Core, Protocol):
-    """A core whose step runs in two parts (NavCore): the state first, the filter time update after."""
 
     def step_begin(self, imu: ImuSample) -> NavState: ...
 
     def step_end(self) -> None: ...
+
+    def fuse(self, meas: Aid) -> None: ...
+
+    def fuse_steps(self, meas: Aid) -> Iterator[None]: ...
+
+    def state(self) -> NavState: ...
+
+    def drain_events(self) -> list[FaultEvent]: ...
 
 
 CORE_KINDS = ("python", "c")
@@ -130,7 +133,7 @@ def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
     make_core(kind, _initial_placeholder(), nav or {})
 
 
-def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> Core:
+def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> RealTimeCore:
     """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore).
 
     ``filter.cov_every`` is a speed setting of the Python core only: the C core propagates the
@@ -139,16 +142,16 @@ def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = N
     if kind == "c" and isinstance(opts.get("filter"), dict):
         opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
     cfg = nav_config(opts)
+    from ins_hil.core import NavCore
+
     try:
-        cref = importlib.import_module("ins_hil.cref")
+        from ins_hil import cref
     except ImportError as e:
         if kind == "c":
             raise RuntimeError(f"core 'c': the C reference core (ins_hil.cref) is not available: {e}") from e
-        from ins_hil.core import NavCore
-
         return NavCore(initial, cfg)
     try:
-        core: Core = cref.make_core(kind, initial, cfg)
+        core: RealTimeCore = cref.CNavCore(initial, cfg) if kind == "c" else NavCore(initial, cfg)
     except (ImportError, OSError) as e:
         raise RuntimeError(f"core {kind!r}: cannot load the C reference core: {e}") from e
     except ValueError as e:
@@ -271,7 +274,7 @@ class Pipeline:
         self._good: NavState | None = None  # the last state that passed the core guard
         self._fault_open = False  # a core fault is reported and not cleared yet
         self._fault_clear_t = _INF  # sensor time (s) at which it clears
-        self.core: Core | None = None
+        self.core: RealTimeCore | None = None
         self.events: list[FaultEvent] = []
         self.counts: dict[str, int] = {}
         self._held: list[Aid] = []  # aiding samples newer than the IMU time, sorted by t
@@ -296,9 +299,7 @@ class Pipeline:
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
         self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
         self._gap_free = False  # no aiding segment has run since the last IMU step
-        self._split: SplitCore | None = None  # the core, when it splits its step
         self._step_pending = False  # core.step_end of the last step has not run yet
-        self._drain: Any = None  # core.drain_events, when the core has it
         self.last_state: NavState | None = None
         if cfg.init == "config":
             self._start(
@@ -325,10 +326,6 @@ class Pipeline:
 
     def _start(self, initial: StrapdownState, nav: dict[str, Any] | None = None) -> None:
         self.core = make_core(self.cfg.core, initial, self.cfg.nav if nav is None else nav)
-        # a core that splits its step (NavCore): mechanization on the IMU path, the time update after publishing
-        split = hasattr(self.core, "step_begin") and hasattr(self.core, "step_end")
-        self._split = cast(SplitCore, self.core) if split else None
-        self._drain = getattr(self.core, "drain_events", None)
 
     # -- IMU ------------------------------------------------------------------
     def imu(self, s: ImuSample) -> NavState | None:
@@ -457,11 +454,8 @@ class Pipeline:
             self._count("imu_before_init")
             return None
         try:
-            if self._split is not None:
-                st = self._split.step_begin(s)  # mechanization only: published before the time update
-                self._step_pending = True
-            else:
-                st = core.step(s)
+            st = core.step_begin(s)  # mechanization only: published before the time update (step_end)
+            self._step_pending = True
         except Exception as e:  # e.g. a singular update: recovered, never fatal
             self._core_fault(s.t, f"core step: {type(e).__name__}: {e}")
             return None
@@ -476,10 +470,9 @@ class Pipeline:
         if self._new_jobs:
             self._jobs.extend(self._new_jobs)
             self._new_jobs.clear()
-        if self._drain is not None:
-            ev2 = self._drain()
-            if ev2:
-                self.events.extend(ev2)
+        ev2 = core.drain_events()
+        if ev2:
+            self.events.extend(ev2)
         if self._held:
             while self._held and self._held[0].t <= s.t:
                 self._jobs.append(self._fuse(self._held.pop(0)))
@@ -517,16 +510,16 @@ class Pipeline:
         """The rest of the last IMU step (the filter time update, ``core.step_end``): runs before
         anything else touches the core, after the state has been published."""
         self._step_pending = False
-        assert self._split is not None
+        core = self.core
+        assert core is not None
         try:
-            self._split.step_end()
+            core.step_end()
         except Exception as e:  # the next state is guarded; the core is restarted now
             self._core_fault(self._t_imu, f"core time update: {type(e).__name__}: {e}")
             return
-        if self._drain is not None:
-            ev = self._drain()
-            if ev:
-                self.events.extend(ev)
+        ev = core.drain_events()
+        if ev:
+            self.events.extend(ev)
 
     def _segment(self) -> None:
         if self._step_pending:
@@ -589,7 +582,7 @@ class Pipeline:
 
     def _fuse(self, m: Aid) -> Iterator[None]:
         """The fusion of one measurement as a job of segments (see the module doc): the drift
-        monitor's check, then the core's update(s) (``core.fuse_steps`` when the core has it)."""
+        monitor's check, then the core's update(s) (``core.fuse_steps``)."""
         core = self.core
         assert core is not None
         mon = self._aid_mon
@@ -610,11 +603,7 @@ class Pipeline:
                 return
             if isinstance(m, GnssFix):
                 yield  # the check of a fix (O(window) work) and its update in separate gaps
-        steps = getattr(core, "fuse_steps", None)
-        if steps is None:
-            core.fuse(m)
-        else:
-            yield from steps(m)
+        yield from core.fuse_steps(m)
         self._count("fused_" + type(m).__name__)
 
     def _init_from_gnss(self, g: GnssFix) -> None:
@@ -675,8 +664,6 @@ class Pipeline:
             except Exception:  # fall back to a re-alignment
                 pass
         self.core = None
-        self._split = None
-        self._drain = None
         self._good = None
         self._lvl.clear()
         self._lvl_sum = np.zeros(3)

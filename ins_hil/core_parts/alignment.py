@@ -1,0 +1,190 @@
+"""The two-phase alignment before navigation (``NavConfig.align = "static"``): coarse levelling from the mean
+specific force over ``align_time`` s at rest (book §4.1.1), then yaw from the magnetometer (refined alignment,
+§4.1.2, Example 4.1) or from the GNSS course once the speed exceeds ``gnss_yaw_speed``."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from ins_hil.fusion.ekf import ErrorStateEKF, StateIndex
+from ins_hil.nav import alignment, earth
+from ins_hil.nav.mechanization import StrapdownNED
+from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat, euler_from_quat, quat_from_euler
+from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
+
+from .baro_datum import BaroDatum, baro_altitude
+
+if TYPE_CHECKING:
+    from ins_hil.core import NavConfig
+
+
+class Alignable(Protocol):
+    """What the alignment sets in the core (:class:`ins_hil.core.NavCore`): the nominal state, the filter's
+    attitude/bias σ, the gyro bias, the phase (``level`` → ``heading`` → ``nav``) and the local gravity."""
+
+    cfg: NavConfig
+    ins: StrapdownNED
+    kf: ErrorStateEKF
+    idx: StateIndex
+    baro: BaroDatum
+    bg: Vec
+    ba: Vec
+    omega_b: Vec
+    phase: str
+    _g_local: float
+
+
+class Alignment:
+    """The levelling window and the alignment state of a core that starts without an attitude."""
+
+    def __init__(self, core: Alignable) -> None:
+        self.core, self.cfg = core, core.cfg
+        self.buf: deque[tuple[float, Vec, Vec]] = deque()  # the window: (dt s, Δv m/s, Δθ rad)
+        self.f_sum = np.zeros(3)  # Σ Δv over the window (m/s, body)
+        self.w_sum = np.zeros(3)  # Σ Δθ over the window (rad, body)
+        self.t_win = 0.0  # the window's length (s)
+        self.moving = False  # a GNSS speed above still_speed has been seen
+        self.pending: deque[ImuSample] = deque()  # samples not yet in the window (still_delay)
+        self.fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²; its length t_win)
+        self.C = np.eye(3)  # the levelled attitude C_b^n, its yaw as the filter holds it (level_tilt_prior)
+        self.t_end = 0.0  # the time of its last sample
+        self.have_pos = self.cfg.align == "given"
+        self.last_mag: Vec | None = None  # the last magnetometer field (body, any unit)
+
+    def step(self, imu: ImuSample) -> None:
+        """One IMU sample before navigation: into the levelling window, or the gyro-only attitude (heading)."""
+        core = self.core
+        core.ins.state.t = imu.t
+        c = self.cfg
+        if core.phase == "level":
+            # samples enter the levelling window only ``still_delay`` s later, so the window cannot hold
+            # the first moments of a motion that the GNSS speed test detects late
+            self.pending.append(imu)
+            while self.pending and imu.t - self.pending[0].t > c.still_delay:
+                old = self.pending.popleft()
+                self.buf.append((old.dt, old.dvel, old.dtheta))
+                self.t_win += old.dt
+                self.f_sum = self.f_sum + old.dvel
+                self.w_sum = self.w_sum + old.dtheta
+            while self.buf and self.t_win - self.buf[0][0] >= c.align_time:
+                dt0, dv0, dth0 = self.buf.popleft()
+                self.t_win -= dt0
+                self.f_sum = self.f_sum - dv0
+                self.w_sum = self.w_sum - dth0
+            full = self.t_win >= c.align_time - 0.5 * imu.dt
+            if self.have_pos and (full or (self.moving and self.t_win >= 0.5)):
+                mag_ok = c.mag_ref_ned is not None and self.last_mag is not None
+                if self.moving or mag_ok or c.align_level_only:
+                    self._level()
+        elif core.phase == "heading":
+            # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
+            dth = imu.dtheta - core.bg * imu.dt
+            core.ins.step(dth, imu.dvel - core.ba * imu.dt, imu.dt)
+            core.ins.state.t = imu.t
+            core.ins.state.vel_ned = np.zeros(3)
+            core.omega_b = dth / imu.dt
+
+    def _level(self) -> None:
+        """Coarse levelling (book §4.1.1) and gyro bias from the static window; refined
+        alignment with the magnetometer (§4.1.2) when a field reference is configured."""
+        core = self.core
+        c = self.cfg
+        s = core.ins.state
+        f = self.f_sum / self.t_win
+        roll, pitch = alignment.coarse_level(f)
+        yaw = 0.0
+        # gyro bias = mean rate − Earth rate; only the vertical Earth-rate component is known before yaw
+        w = self.w_sum / self.t_win
+        C0 = dcm_from_quat(quat_from_euler(roll, pitch, 0.0))
+        core.bg = w - C0.T @ np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(s.lat)))
+        have_yaw = False
+        if c.mag_ref_ned is not None and self.last_mag is not None:
+            g_ned = np.array((0.0, 0.0, -earth.normal_gravity(s.lat, s.h)))
+            A = alignment.refined_alignment(np.vstack([g_ned, c.mag_ref_ned]), np.vstack([f, self.last_mag]))
+            roll, pitch, yaw = euler_from_quat(alignment.quat_from_book_A(A))
+            have_yaw = True
+        s.q_nb = quat_from_euler(roll, pitch, yaw)
+        s.vel_ned = np.zeros(3)
+        core.ins.reset_history()
+        self.fb, self.C = f, dcm_from_quat(s.q_nb)
+        self.t_end = self.pending[0].t - self.pending[0].dt if self.pending else s.t
+        # bring the attitude from the end of the window to now with the delayed samples
+        t_now = s.t
+        for old in self.pending:
+            core.ins.step(old.dtheta - core.bg * old.dt, old.dvel, old.dt)
+            s = core.ins.state
+            s.vel_ned = np.zeros(3)
+        self.pending.clear()
+        s.t = t_now
+        if core.idx.bg is not None:
+            core.kf.set_state_sigma("bg", c.align_gyro_bias_std)
+        if have_yaw:
+            self.enter_nav(yaw_std=c.mag_yaw_std)
+        else:
+            core.phase = "heading"
+
+    def meas(self, meas: GnssFix | BaroSample | MagSample) -> None:
+        """An aiding sample before navigation: the position, the motion test, the GNSS course yaw; the baro datum
+        starts learning."""
+        core = self.core
+        s = core.ins.state
+        if isinstance(meas, MagSample):
+            self.last_mag = np.asarray(meas.field_b)
+            return
+        if isinstance(meas, BaroSample):
+            # learn the datum before navigation starts, so that the baro holds the height from the first step
+            core.baro.learn(meas.t, baro_altitude(meas))
+            return
+        if not isinstance(meas, GnssFix):
+            return
+        if math.isfinite(meas.h):
+            core.baro.gnss_height(
+                meas, dcm_from_quat(s.q_nb), max(meas.std_d, self.cfg.gnss_min_std[1]) * self.cfg.gnss_std_scale
+            )
+        if core.phase == "level":
+            s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
+            self.have_pos = True
+            if meas.vel_ned is not None:
+                v = np.asarray(meas.vel_ned)
+                self.moving = self.moving or math.hypot(float(v[0]), float(v[1])) > self.cfg.still_speed
+        if core.phase == "heading" and meas.vel_ned is not None:
+            v = np.asarray(meas.vel_ned)
+            sp = math.hypot(float(v[0]), float(v[1]))
+            if sp >= self.cfg.gnss_yaw_speed:
+                roll, pitch, yaw_was = euler_from_quat(s.q_nb)
+                yaw = alignment.yaw_from_course(v)  # in-motion yaw = GNSS course (no sideslip)
+                s.q_nb = quat_from_euler(roll, pitch, yaw)
+                # the yaw reset turns the computed frame about down: the levelled tilt (fixed in NED) turns with it
+                self.C = dcm_from_euler(0.0, 0.0, yaw - yaw_was) @ self.C
+                s.vel_ned = v.copy()
+                C = dcm_from_quat(s.q_nb)
+                d = C @ self.cfg.gnss_lever_arm_b
+                m, n = earth.radii(meas.lat)
+                s.lat = meas.lat - d[0] / (m + meas.h)
+                s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
+                s.h = meas.h + d[2]
+                core.ins.state.t = max(s.t, meas.t)
+                std_v = max(meas.std_vel, self.cfg.gnss_yaw_vel_floor)
+                # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V), independent
+                self.enter_nav(yaw_std=math.hypot(self.cfg.gnss_yaw_std, std_v / sp))
+
+    def enter_nav(self, yaw_std: float | None = None) -> None:
+        """Start navigating; with ``yaw_std`` (rad) the attitude σ (and the levelled tilt's correlated prior)."""
+        core = self.core
+        core.phase = "nav"
+        s = core.ins.state
+        core._g_local = earth.normal_gravity(s.lat, s.h)
+        if yaw_std is not None:
+            c = self.cfg.filter
+            core.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))
+            if self.cfg.level_tilt_prior and self.fb is not None:
+                # the levelled tilt holds the horizontal accelerometer error (book §4.1.1): correlated prior;
+                # what the levelling leaves: the window's accelerometer noise and the gyro drift since the window
+                since = max(0.0, s.t - self.t_end)
+                sig = math.hypot(c.accel_vrw / math.sqrt(max(self.t_win, 1e-3)) / core._g_local,
+                                 self.cfg.align_gyro_bias_std * since)  # fmt: skip
+                core.kf.level_tilt(self.C, self.fb, sig)

@@ -1,0 +1,128 @@
+"""GNSS aiding: the position and velocity measurements (lever arm, time alignment to the IMU step) and the
+reset after a run of rejected fixes, let through only when the rejected fixes agree with each other."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections import deque
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ins_hil.fusion import measurements as mm
+from ins_hil.fusion.ekf import StateIndex
+from ins_hil.fusion.innovation import test_ratio
+from ins_hil.nav import earth
+from ins_hil.nav.mechanization import StrapdownState
+from ins_hil.types import GnssFix, Vec
+
+from .contract import Measurement
+
+if TYPE_CHECKING:
+    from ins_hil.core import NavConfig
+
+#: a GNSS reset needs every rejected fix within this many gates of the INS (GnssReset.ok)
+RESET_GATE_FACTOR = 20.0
+
+
+def gnss_position(
+    meas: GnssFix, s: StrapdownState, C: Vec, idx: StateIndex, c: NavConfig, assume_now: bool
+) -> Measurement:
+    """The antenna position update (C = C_b^n). Unless ``assume_now``, the fix is shifted by v̂·(t_step − t)
+    to the step time (interpolation between IMU samples); σ floored at ``gnss_min_std``, scaled."""
+    std_ne = max(meas.std_ne, c.gnss_min_std[0]) * c.gnss_std_scale
+    std_d = max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale
+    shift = None if assume_now else s.vel_ned * (s.t - meas.t)  # time alignment to the step
+    z, H = mm.gnss_position(idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, c.gnss_lever_arm_b, shift)
+    return Measurement("gnss_pos", z, H, np.array((std_ne**2, std_ne**2, std_d**2)), c.gate_gnss)
+
+
+def gnss_velocity(meas: GnssFix, s: StrapdownState, C: Vec, omega_b: Vec, idx: StateIndex, c: NavConfig) -> Measurement:
+    """The antenna velocity update (lever-arm rate ω × l with the compensated body rate ``omega_b``, rad/s)."""
+    assert meas.vel_ned is not None
+    std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale
+    z, H = mm.gnss_velocity(idx, C, s.vel_ned, omega_b, np.asarray(meas.vel_ned), c.gnss_lever_arm_b)
+    return Measurement("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss)
+
+
+class GnssReset:
+    """The consecutive rejected GNSS positions with their test ratios, for the reset after ``gnss_reset_after``."""
+
+    def __init__(self, c: NavConfig) -> None:
+        self.cfg = c
+        self.rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, c.gnss_reset_after))
+        self.accepted = False  # a GNSS position has been accepted since the start
+
+    def note(self, meas: GnssFix, accepted: bool, ratio: float) -> None:
+        """Count a fused fix (not during a replay): an accepted one clears the run of rejections."""
+        if accepted:
+            self.rejected.clear()
+            self.accepted = True
+        else:
+            self.rejected.append((meas, ratio))
+
+    def ok(self, meas: GnssFix, m: Measurement, P: Vec) -> bool:
+        """May a GNSS position rejected ``gnss_reset_after`` times in a row reset the filter (be accepted over
+        its gate, position/velocity σ re-initialised)? Only when the rejected fixes pass a consistency test
+        of their own, so that junk cannot trigger a reset:
+
+        1. the last ``gnss_reset_after`` rejected fixes and this one agree with each other
+           (:func:`gnss_fixes_agree`);
+        2. each of them is within ``RESET_GATE_FACTOR`` × the gate of the INS (test ratio ≤ factor²): an
+           INS whose position has drifted beyond the gate, not one ``RESET_GATE_FACTOR`` times beyond it —
+           unless no GNSS position has been accepted yet (a wrong configured start).
+        """
+        c = self.cfg
+        fixes = [(f, q) for f, q in self.rejected if f.t < meas.t]
+        if len(fixes) < c.gnss_reset_after:
+            return False
+        S = m.H @ P @ m.H.T + np.diag(m.r)
+        ratio, _ = test_ratio(m.z, S, c.gate_gnss)
+        fixes.append((meas, ratio))
+        if self.accepted and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
+            return False
+        return gnss_fixes_agree([f for f, _ in fixes], c)
+
+
+def gnss_fixes_agree(fixes: list[GnssFix], c: NavConfig) -> bool:
+    """Do consecutive GNSS fixes (time order) agree with each other? Each position follows the previous one
+    by their mean velocity × Δt (or, without velocities, lies on the straight line through its neighbours),
+    within ``gate_gnss`` σ of their own σ (NE, D; m): the consistency test a GNSS reset needs
+    (:meth:`GnssReset.ok`, and ``ins_hil.cref.CNavCore`` for the C core), so junk cannot trigger one."""
+    g2 = c.gate_gnss**2
+    sc = c.gnss_std_scale
+    mn = c.gnss_min_std
+
+    def sig(f: GnssFix) -> tuple[float, float, float]:
+        return max(f.std_ne, mn[0]) * sc, max(f.std_d, mn[1]) * sc, max(f.std_vel, mn[2]) * sc
+
+    meas = fixes[-1]
+    m, n = earth.radii(meas.lat)
+
+    def ned(f: GnssFix) -> tuple[float, float, float]:
+        return ((f.lat - meas.lat) * (m + meas.h), (f.lon - meas.lon) * (n + meas.h) * math.cos(meas.lat),
+                meas.h - f.h)  # fmt: skip
+
+    pts = [(f.t, ned(f), sig(f), None if f.vel_ned is None else np.asarray(f.vel_ned, dtype=float))
+           for f in fixes]  # fmt: skip
+    if all(p[3] is not None for p in pts):
+        for (t0, p0, s0, v0), (t1, p1, s1, v1) in itertools.pairwise(pts):
+            dt = t1 - t0
+            assert v0 is not None and v1 is not None
+            for k in range(3):
+                e = p1[k] - p0[k] - 0.5 * (float(v0[k]) + float(v1[k])) * dt
+                sp = s0[0 if k < 2 else 1] ** 2 + s1[0 if k < 2 else 1] ** 2
+                if not e * e <= g2 * (sp + 0.25 * (s0[2] ** 2 + s1[2] ** 2) * dt * dt):
+                    return False
+        return True
+    if len(pts) < 3:
+        return False
+    for (t0, p0, s0, _), (t1, p1, s1, _), (t2, p2, s2, _) in zip(pts, pts[1:], pts[2:], strict=False):
+        w = (t1 - t0) / (t2 - t0)
+        for k in range(3):
+            e = p1[k] - (p0[k] + w * (p2[k] - p0[k]))
+            j = 0 if k < 2 else 1
+            if not e * e <= g2 * (s0[j] ** 2 + s1[j] ** 2 + s2[j] ** 2):
+                return False
+    return True
