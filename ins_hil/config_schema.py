@@ -512,6 +512,19 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "level_tilt_prior": M(help="levelled tilt prior correlated with the accelerometer errors"),
         "still_speed": M("m/s", "[0, 100]", "static alignment: at rest below this GNSS speed"),
         "still_delay": M("s", "[0, 3600]", "static alignment: at rest for this long"),
+        "still_gyro": M(
+            "rad/s",
+            "(0, 10]",
+            "static alignment: in motion when the rate departs from the window's "
+            "mean by this much (RMS over still_tau)",
+        ),
+        "still_accel": M(
+            "m/s^2",
+            "(0, 100]",
+            "static alignment: in motion when the specific force departs from the "
+            "window's mean by this much (RMS over still_tau)",
+        ),
+        "still_tau": M("s", "(0, 60]", "static alignment: time constant of the IMU motion test"),
         "align_gyro_bias_std": M("rad/s", "(0, 1]", "gyro bias σ after the alignment"),
         "mag_yaw_std": M("rad", f"(0, {PI}]", "yaw σ from the magnetometer alignment"),
         "gnss_yaw_speed": M("m/s", "(0, 1000]", "in-motion yaw from the GNSS course above this speed"),

@@ -136,6 +136,9 @@ class NavConfig:
     level_tilt_prior: bool = True
     still_speed: float = 0.3
     still_delay: float = 1.5
+    still_gyro: float = 3.0 * DEG
+    still_accel: float = 1.0
+    still_tau: float = 0.2
     align_gyro_bias_std: float = 0.02 * DEG
     mag_yaw_std: float = 3.0 * DEG
     gnss_yaw_speed: float = 1.0

@@ -22,6 +22,10 @@ if TYPE_CHECKING:
     from ins_hil.core import NavConfig
 
 
+#: s the window stays frozen after the IMU saw motion while the levelling waits for a position (then it slides again)
+MAX_FROZEN_S = 30.0
+
+
 class Alignable(Protocol):
     """What the alignment sets in the core (:class:`ins_hil.core.NavCore`): the nominal state, the filter's
     attitude/bias σ, the gyro bias, the phase (``level`` → ``heading`` → ``nav``) and the local gravity."""
@@ -47,7 +51,10 @@ class Alignment:
         self.f_sum = np.zeros(3)  # Σ Δv over the window (m/s, body)
         self.w_sum = np.zeros(3)  # Σ Δθ over the window (rad, body)
         self.t_win = 0.0  # the window's length (s)
-        self.moving = False  # a GNSS speed above still_speed has been seen
+        self.moving = False  # motion seen: a GNSS speed above still_speed, or the IMU's motion test
+        self.imu_moving = False  # the IMU's motion test has fired (the window is then frozen)
+        self.dev_w = 0.0  # smoothed squared departure of the rate from the window's mean ((rad/s)²)
+        self.dev_f = 0.0  # the same for the specific force ((m/s²)²)
         self.pending: deque[ImuSample] = deque()  # samples not yet in the window (still_delay)
         self.fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²; its length t_win)
         self.C = np.eye(3)  # the levelled attitude C_b^n, its yaw as the filter holds it (level_tilt_prior)
@@ -61,10 +68,22 @@ class Alignment:
         core.ins.state.t = imu.t
         c = self.cfg
         if core.phase == "level":
+            # the IMU's motion test: each sample against the window's mean (a take-off into a hover, with its
+            # GNSS speed below still_speed, must not slide into the window; engine vibration at rest averages
+            # to the window's mean and only counts by its RMS)
+            if self.t_win >= 0.5 and not self.imu_moving:
+                a = imu.dt / (c.still_tau + imu.dt)
+                dw = imu.dtheta / imu.dt - self.w_sum / self.t_win
+                df = imu.dvel / imu.dt - self.f_sum / self.t_win
+                self.dev_w += a * (float(dw @ dw) - self.dev_w)
+                self.dev_f += a * (float(df @ df) - self.dev_f)
+                if self.dev_w > c.still_gyro**2 or self.dev_f > c.still_accel**2:
+                    self.imu_moving = self.moving = True
             # samples enter the levelling window only ``still_delay`` s later, so the window cannot hold
-            # the first moments of a motion that the GNSS speed test detects late
+            # the first moments of a motion that the GNSS speed test detects late; once the IMU has seen
+            # motion the window is frozen (the pending samples bring the attitude forward at levelling)
             self.pending.append(imu)
-            while self.pending and imu.t - self.pending[0].t > c.still_delay:
+            while self.pending and imu.t - self.pending[0].t > (MAX_FROZEN_S if self.imu_moving else c.still_delay):
                 old = self.pending.popleft()
                 self.buf.append((old.dt, old.dvel, old.dtheta))
                 self.t_win += old.dt
@@ -103,10 +122,14 @@ class Alignment:
         core.bg = w - C0.T @ np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(s.lat)))
         have_yaw = False
         if c.mag_ref_ned is not None and self.last_mag is not None:
-            g_ned = np.array((0.0, 0.0, -earth.normal_gravity(s.lat, s.h)))
-            A = alignment.refined_alignment(np.vstack([g_ned, c.mag_ref_ned]), np.vstack([f, self.last_mag]))
-            roll, pitch, yaw = euler_from_quat(alignment.quat_from_book_A(A))
-            have_yaw = True
+            # tilt from the accelerometer alone, yaw from the tilt-compensated field direction: unit-free, and an
+            # error in the reference's dip or magnitude moves no tilt (the book's two-vector A of §4.1.2 weighs
+            # both vectors equally and takes their magnitudes as given)
+            try:
+                yaw = alignment.mag_heading(roll, pitch, self.last_mag, c.mag_ref_ned)
+                have_yaw = True
+            except ValueError:
+                have_yaw = False
         s.q_nb = quat_from_euler(roll, pitch, yaw)
         s.vel_ned = np.zeros(3)
         core.ins.reset_history()

@@ -1,0 +1,84 @@
+"""Static alignment of a vehicle that takes off into a hover: the IMU's motion test freezes the levelling
+window at rest (a GNSS speed below still_speed says nothing of a hover that yaws and shakes)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ins_hil.core import NavConfig, NavCore
+from ins_hil.nav import earth
+from ins_hil.types import FixType, GnssFix, ImuSample
+
+DEG = math.pi / 180
+LAT, LON, H = math.radians(47.0), math.radians(8.0), 400.0
+BIAS = np.array((0.05, -0.03, 0.10)) * DEG  # rad/s, the gyro bias on the ground
+
+
+def _run(cfg: NavConfig, seconds: float = 20.0, takeoff: float = 4.0) -> tuple[NavCore, list[float]]:
+    """Level on the ground for ``takeoff`` s, then a hover in place: yaw at 8 °/s with ±20 °/s roll/pitch
+    shaking at 6 Hz and 3 m/s² of vibration, GNSS at 5 Hz with no speed. Returns the core and the times at which
+    its phase changed."""
+    rng = np.random.default_rng(4)
+    dt = 0.004
+    g = earth.normal_gravity(LAT, H)
+    core = NavCore(None, cfg)
+    changes: list[float] = []
+    phase = core.phase
+    for k in range(1, int(seconds / dt) + 1):
+        t = k * dt
+        w = BIAS + rng.normal(0.0, 0.002, 3)
+        f = np.array((0.0, 0.0, -g)) + rng.normal(0.0, 0.02, 3)
+        if t > takeoff:
+            w = w + np.array(
+                (20 * DEG * math.sin(2 * math.pi * 6 * t), 20 * DEG * math.cos(2 * math.pi * 6 * t), 8 * DEG)
+            )
+            f = f + rng.normal(0.0, 3.0, 3)
+        core.step(ImuSample(t, dt, w * dt, f * dt))
+        if k % 50 == 0:
+            core.fuse(GnssFix(t, LAT, LON, H, np.zeros(3), 0.5, 1.0, 0.1, FixType.FIX_3D))
+        if core.phase != phase:
+            phase = core.phase
+            changes.append(t)
+    return core, changes
+
+
+def test_hover_after_takeoff_does_not_enter_the_levelling_window() -> None:
+    core, changes = _run(NavConfig(align="static"))
+    assert changes and takeoff_window(changes[0])
+    # the bias comes from the ground (its vertical Earth rate removed): within 0.02 °/s per axis
+    er = np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(LAT)))
+    np.testing.assert_allclose(core.bg + er, BIAS, atol=0.02 * DEG)
+    assert core.phase == "heading"  # no GNSS course yet: yaw waits, and says so by its phase
+
+
+def takeoff_window(t: float) -> bool:
+    """Levelled just after take-off (4 s), once the motion test has fired."""
+    return 4.0 < t < 5.0
+
+
+def test_without_the_motion_test_the_hover_spoils_the_bias() -> None:
+    """The finding behind the test: with thresholds no motion reaches, the window slides into the hover and the
+    gyro bias takes the hover's 8 °/s yaw rate."""
+    core, _ = _run(NavConfig(align="static", still_gyro=10.0, still_accel=100.0, align_level_only=True), takeoff=1.0)
+    assert abs(core.bg[2] - BIAS[2]) > 1.0 * DEG
+
+
+@pytest.mark.parametrize("vib", [0.3, 1.0])
+def test_engine_vibration_at_rest_is_not_motion(vib: float) -> None:
+    """Vibration at rest (no take-off) levels when the window is full, like a vehicle that does not move."""
+    rng = np.random.default_rng(5)
+    dt, g = 0.004, earth.normal_gravity(LAT, H)
+    cfg = NavConfig(align="static", align_level_only=True)
+    core = NavCore(None, cfg)
+    for k in range(1, 1500):
+        t = k * dt
+        w = BIAS + rng.normal(0.0, vib * DEG, 3)
+        f = np.array((0.0, 0.0, -g)) + rng.normal(0.0, 0.5 * vib, 3)
+        core.step(ImuSample(t, dt, w * dt, f * dt))
+        if k % 50 == 0:
+            core.fuse(GnssFix(t, LAT, LON, H, np.zeros(3), 0.5, 1.0, 0.1, FixType.FIX_3D))
+    assert not core.align.imu_moving
+    assert core.phase == "heading"
