@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -55,3 +56,39 @@ def test_offset_needs_gnss_and_outages() -> None:
         estimate_imu_offset(dataclasses.replace(ds, gnss=[]), _cfg())
     with pytest.raises(ValueError, match="at least 3"):
         estimate_imu_offset(ds, _cfg(), window=(0.0, 40.0))
+
+
+def test_write_offset_keeps_the_rest_of_the_config(tmp_path: Path) -> None:
+    from ins_hil.datasets.offset import write_offset
+
+    p = tmp_path / "a.toml"
+    p.write_text('[dataset]\nname = "a"  # x\n\n[mounting]\n# the antenna\ngnss_lever_arm_m = [0, 0, -0.1]\n'
+                 "imu_time_offset_s = 0.01\n\n[outages]\non_s = 5.0\n")  # fmt: skip
+    write_offset(p, -0.0371)
+    text = p.read_text()
+    assert "imu_time_offset_s = -0.0371" in text and "0.01" not in text
+    assert "# x" in text and "# the antenna" in text and "on_s = 5.0" in text
+    assert dcfg.load(p).imu_time_offset == pytest.approx(-0.0371)
+    q = tmp_path / "b.toml"
+    q.write_text('[dataset]\nname = "b"\n')
+    write_offset(q, 0.02)
+    assert dcfg.load(q).imu_time_offset == pytest.approx(0.02)
+    r = tmp_path / "c.toml"
+    r.write_text('[dataset]\nname = "c"\n[mounting]\ngnss_lever_arm_m = [0, 0, 0]\n')
+    write_offset(r, 0.03)
+    assert dcfg.load(r).imu_time_offset == pytest.approx(0.03)
+
+
+def test_estimate_offset_command(tmp_path: Path, capsys) -> None:
+    from ins_hil.cli import main
+    from ins_hil.datasets import generic_csv
+
+    data = tmp_path / "flight.csv"
+    generic_csv.write_generic_csv(data, _flight(0.06, 3, 110.0))
+    cfg = tmp_path / "flight.toml"
+    cfg.write_text('[dataset]\nname = "flight"\n[aiding]\nbaro = false\nmag = false\n')
+    rc = main(["replay", str(data), "--dataset", str(cfg), "--estimate-offset", "--offset-span", "0.12",
+               "--offset-step", "0.04", "--write-offset", "--quiet"])  # fmt: skip
+    text = capsys.readouterr().out
+    assert rc == 0 and "IMU time offset:" in text and text.count(" m²") == 7
+    assert 0.0 < dcfg.load(cfg).imu_time_offset < 0.12  # written: the +60 ms offset, not the config's 0

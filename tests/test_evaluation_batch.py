@@ -64,3 +64,18 @@ def test_a_failing_log_does_not_stop_the_batch_and_dask_gives_the_serial_rows(tm
     assert same  # repr: a seed whose outages fall past the end scores NaN on both
     text = batch.table(serial)
     assert text.count("\n") == 7 and "bad.csv#0" in text and "bad.csv:2" in text
+
+
+def test_batch_command_writes_the_summary_and_fails_on_a_bad_log(tmp_path: Path, capsys) -> None:
+    from ins_hil.cli import main
+
+    d, cfg = _logs(tmp_path)
+    (d / "bad.csv").write_text("# ins-hil dataset csv 1\nimu,1,2\n")
+    out = tmp_path / "out"
+    rc = main(["replay", "--batch", str(d), "--dataset", str(cfg), "--workers", "0", "--out", str(out), "--quiet"])
+    text = capsys.readouterr().out
+    assert rc == 1  # one log failed; the two others were replayed
+    rows = json.loads((out / "batch.json").read_text())["rows"]
+    assert [("error" in r) for r in rows] == [False, False, True]
+    assert "3 replays" in text and "1 failed" in (out / "batch.md").read_text()
+    assert all((Path(r) / "metrics.json").is_file() for r in sorted(str(p) for p in out.iterdir() if p.is_dir())[:2])

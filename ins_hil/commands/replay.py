@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import os
 import sys
 import time
@@ -63,6 +64,48 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument(
         "--config", type=Path, default=None, help="source 'sim': the config whose [sim] flight is flown (default.toml)"
+    )
+    b = p.add_argument_group("batch replays on Dask (ins_hil.evaluation.batch)")
+    b.add_argument(
+        "--batch",
+        nargs="+",
+        metavar="ENTRY",
+        default=None,
+        help="replay many: dataset TOMLs (with their dataset.path), logs, folders or globs; each log with "
+        "--dataset (else the defaults); reports in --out, one folder per job, plus batch.md/batch.json",
+    )
+    b.add_argument(
+        "--seeds",
+        type=int,
+        default=1,
+        metavar="N",
+        help="batch: Monte-Carlo seeds per log (seed k > 0 shifts the outage protocol; default 1)",
+    )
+    b.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        metavar="N",
+        help="batch: LocalCluster worker processes (default 2; 0 = one after the other, in-process)",
+    )
+    b.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDR",
+        help="batch: an existing Dask scheduler (e.g. tcp://host:8786) instead of a LocalCluster",
+    )
+    o = p.add_argument_group("IMU time offset from the data (ins_hil.datasets.offset)")
+    o.add_argument(
+        "--estimate-offset",
+        action="store_true",
+        help="estimate the IMU-GNSS time offset of a log (needs GNSS): 5-s outages scored over a grid",
+    )
+    o.add_argument("--offset-span", type=float, default=0.2, metavar="S", help="search ± this around the config's")
+    o.add_argument("--offset-step", type=float, default=0.02, metavar="S", help="grid step of the search")
+    o.add_argument(
+        "--write-offset",
+        action="store_true",
+        help="write the estimate into the --dataset config ([mounting] imu_time_offset_s)",
     )
 
 
@@ -128,8 +171,74 @@ def _runtime_replay() -> Any:
     return importlib.import_module("ins_hil.evaluation.sim_flight")
 
 
+def _batch(args: argparse.Namespace) -> int:
+    """``--batch``: every entry × ``--seeds`` on Dask; a summary table and each job's report."""
+    from ins_hil.evaluation import batch
+
+    try:
+        pairs = batch.expand(list(args.batch), str(args.dataset) if args.dataset else None)
+    except DatasetError as e:
+        print(f"ins-hil replay: {e}", file=sys.stderr)
+        return 2
+    js = batch.jobs(pairs, max(1, args.seeds), args.out)
+    where = args.scheduler or (f"LocalCluster of {args.workers} workers" if args.workers > 0 else "serially")
+    if not args.quiet:
+        print(f"batch: {len(js)} replays ({len(pairs)} logs x {max(1, args.seeds)} seeds), {where}", file=sys.stderr)
+
+    def done(row: dict[str, Any], k: int, n: int) -> None:
+        if not args.quiet:
+            status = row.get("error") or "ok"
+            print(f"  [{k}/{n}] {row['job']}: {status} ({row.get('elapsed_s', 0.0):.1f} s)", file=sys.stderr)
+
+    rows, wall = batch.run_batch(js, args.workers, args.scheduler, done)
+    args.out.mkdir(parents=True, exist_ok=True)
+    text = batch.table(rows)
+    failed = sum("error" in r for r in rows)
+    tail = f"{len(rows)} replays in {wall:.1f} s wall ({where}); {failed} failed"
+    (args.out / "batch.md").write_text(f"# Batch replay\n\n{text}\n\n{tail}\n")
+    (args.out / "batch.json").write_text(json.dumps({"rows": rows, "wall_s": wall, "where": where}, indent=2,
+                                                    default=str))  # fmt: skip
+    print(text)
+    print(tail)
+    print(f"summary: {args.out / 'batch.md'}")
+    return 1 if failed else 0
+
+
+def _estimate_offset(src: str, args: argparse.Namespace) -> int:
+    """``--estimate-offset``: the IMU time offset of one log, optionally written into its dataset config."""
+    from ins_hil.datasets import report
+    from ins_hil.datasets.config import DatasetConfig
+    from ins_hil.datasets.offset import estimate_imu_offset, write_offset
+
+    try:
+        cfg = load_dataset_config(args.dataset) if args.dataset else DatasetConfig(name=Path(src).stem)
+        path = cfg.path if (src == "drive" and args.dataset is not None) or not src else Path(src)
+        if path is None:
+            raise DatasetConfigError(f"{args.dataset}: no dataset.path and no FILE|DIR given")
+        ds = report.load(Path(path), cfg)
+        est = estimate_imu_offset(ds, cfg, span_s=args.offset_span, step_s=args.offset_step,
+                                  progress=_Progress("offset grid", args.quiet))  # fmt: skip
+    except (DatasetError, ValueError) as e:
+        print(f"ins-hil replay: {e}", file=sys.stderr)
+        return 2
+    print(est.summary())
+    for g, c in zip(est.grid_s, est.cost_m2, strict=True):
+        print(f"  {g * 1e3:+7.1f} ms  {c:10.4f} m²")
+    if args.write_offset:
+        if args.dataset is None or math.isnan(est.offset_s):
+            print("ins-hil replay: --write-offset needs --dataset and an estimate", file=sys.stderr)
+            return 2
+        write_offset(args.dataset, est.offset_s)
+        print(f"written: {args.dataset} [mounting] imu_time_offset_s = {est.offset_s:.4f}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     src = str(args.source)
+    if args.batch:
+        return _batch(args)
+    if args.estimate_offset:
+        return _estimate_offset(src, args)
     if src.endswith(".ihlog") and args.dataset is None:  # the exact pipeline replay (with --dataset: a data set)
         try:
             mod = _runtime_replay()

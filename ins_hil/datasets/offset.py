@@ -20,6 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -156,3 +157,25 @@ def estimate_imu_offset(
     bs = [_vertex(grid, per[:, rng.integers(0, m, m)].sum(axis=1), edge=True) for _ in range(bootstrap)]
     std = float(np.std(bs))
     return OffsetEstimate(est, std, base, grid, cost, outs, (t_from, t_to), "", per)
+
+
+def write_offset(config: str | Path, offset_s: float) -> None:
+    """Set ``[mounting] imu_time_offset_s`` in the dataset TOML ``config`` (the rest of the file, comments
+    included, unchanged; the table is added when missing)."""
+    import re
+
+    p = Path(config)
+    text = p.read_text()
+    line = f"imu_time_offset_s = {offset_s:.4f}"
+    key = re.compile(r"^imu_time_offset_s\s*=.*$", re.M)
+    table = re.compile(r"^\[mounting\]\s*$", re.M)
+    m = table.search(text)
+    if m is None:
+        text = text.rstrip("\n") + f"\n\n[mounting]\n{line}\n"
+    else:
+        nxt = re.compile(r"^\[", re.M).search(text, m.end())
+        end = nxt.start() if nxt else len(text)
+        body = text[m.end() : end]
+        body = key.sub(line, body, count=1) if key.search(body) else f"\n{line}" + body
+        text = text[: m.end()] + body + text[end:]
+    p.write_text(text)
