@@ -125,7 +125,7 @@ def notes() -> list[str]:
     """Markdown sections written after the tables: the seed-004 test bed, Ex 3.1–3.3 compared, the coverage list."""
     from . import book_ch3_examples, coverage, seed004
 
-    return [seed004.comparison_markdown(), book_ch3_examples.comparison_markdown(), coverage.markdown()]
+    return [seed004.comparison_markdown(), book_ch3_examples.comparison_markdown(), coverage.markdown(all_rows())]
 
 
 def all_rows() -> list[Row]:
