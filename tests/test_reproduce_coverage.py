@@ -36,7 +36,7 @@ def test_markdown_lists_all_digest_cases_with_counts(rows) -> None:
         assert f"| {c.id} | {c.what} |" in text
     n = cv.counts(rows)
     assert n["cases"] == len(CASES) == n["all pass"] + n["with discrepancies"] + n["not rows"]
-    assert f"{n['cases']} digest cases: {n['all pass']} reproduced" in text
+    assert f"{n['cases']} entries of the digests' case lists: {n['all pass']} reproduced" in text
     assert "FAIL" not in text and "no rows matched" not in text
 
 

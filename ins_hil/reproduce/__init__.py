@@ -111,7 +111,7 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         ("Seed 001: error-model F vs finite differences (DIGEST_001_004 §6 case 11)", seed001_jacobian.rows),
         ("Book §3.1: square-root QR with a singular r, operation counts (DIGEST_000 §8 cases 16, 36)", book_ch3.rows),
         (
-            "Book Ex 3.1–3.3 closed loops and the §6.1 lab analogue (DIGEST_000 §8 cases 27, 28)",
+            "Book Ex 3.1–3.3 closed loops, the §6.1 lab and §6.5 outage analogues (DIGEST_000 §8 cases 27, 28)",
             book_ch3_examples.rows,
         ),
         ("Book ch. 3–5 printed values (DIGEST_000 §8 cases 14, 15, 17–19, 21–26)", book_tables.rows),
