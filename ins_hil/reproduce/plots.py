@@ -135,19 +135,21 @@ def platform_ins_figures(res: TestbedResult, directory: Path) -> list[Path]:
     urad = 1e6
     dph = 180.0 / np.pi * 3600.0  # rad/s → °/h
 
-    fig, axes = plt.subplots(3, 2, figsize=(11, 7), sharex=True)
+    fig, axes = plt.subplots(3, 2, figsize=(11, 7), sharex="col")
+    zoom = res.t <= 60.0  # the first minute: the test bed's 5-s oscillation (eq. 22) resolved
     for i, name in enumerate(("Φ_E", "Φ_N", "Φ_up")):
         true = res.truth[:, 2 + i]
-        axes[i, 0].plot(tm, true * urad, "k", lw=1.2, label="true")
-        axes[i, 0].plot(tm, res.phi_second[:, i] * urad, "C3", lw=0.6, label="eq. 5 (second order)")
+        axes[i, 0].plot(res.t[zoom], res.phi_second[zoom, i] * urad, "C3", lw=2.5, alpha=0.6, label="eq. 5")
+        axes[i, 0].plot(res.t[zoom], res.phi_first[zoom, i] * urad, "C0", lw=1.0, label="eq. 4")
+        axes[i, 0].plot(res.t[zoom], true[zoom] * urad, "k", lw=0.8, label="true")
         axes[i, 0].set_ylabel(f"{name} [µrad]")
         for arr, lab, st in ((res.phi_first, "eq. 4 − true", "C0"), (res.phi_second, "eq. 5 − true", "C3")):
             axes[i, 1].plot(tm, (arr[:, i] - true) * urad, st, lw=0.5, label=lab)
         axes[i, 1].set_ylabel("residual [µrad]")
     axes[0, 0].legend(fontsize=7)
     axes[0, 1].legend(fontsize=7)
-    for ax in axes[-1]:
-        ax.set_xlabel("time [min]")
+    axes[-1, 0].set_xlabel("time [s] (first minute)")
+    axes[-1, 1].set_xlabel("time [min]")
     fig.suptitle("Platform angles reconstructed from the precession-angle sensors")
     fig.tight_layout()
     out.append(directory / "platform_angles.png")
