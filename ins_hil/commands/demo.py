@@ -1,10 +1,13 @@
-"""`ins-hil demo`: run a simulated flight through the navigation core and print errors against truth."""
+"""`ins-hil demo`: a simulated flight through the navigation core (errors against truth), or
+`ins-hil demo platform-ins`: seed 004's platform INS on its simulated test bed, with PNG plots."""
 
 from __future__ import annotations
 
 import argparse
 import math
 import time
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -16,19 +19,73 @@ from ins_hil.sim.trajectory import generate, static_profile, uav_profile
 from ins_hil.types import ImuSample
 
 NAME = "demo"
-HELP = "run a simulated trajectory through the navigation core and print errors against truth"
+HELP = "run a simulated trajectory through the navigation core (or seed 004's platform INS) against truth"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "scenario",
+        nargs="?",
+        choices=["flight", "platform-ins"],
+        default="flight",
+        help="flight: strapdown core on a simulated trajectory (default); platform-ins: seed 004's platform INS "
+        "with precession-angle sensors, classical and reduced-measurement adaptive corrections, PNGs to --out",
+    )
     p.add_argument("--profile", choices=["uav", "static"], default="uav", help="trajectory (default: uav)")
-    p.add_argument("--duration", type=float, default=120.0, help="seconds of flight (default 120)")
+    p.add_argument("--duration", type=float, default=None, help="seconds of flight (default 120; platform-ins: 7200)")
     p.add_argument("--rate", type=float, default=200.0, help="IMU rate in Hz (default 200)")
     p.add_argument("--lat", type=float, default=50.45, help="start latitude, deg")
     p.add_argument("--lon", type=float, default=30.52, help="start longitude, deg")
     p.add_argument("--height", type=float, default=180.0, help="start ellipsoidal height, m")
+    p.add_argument("--out", type=Path, default=Path("demo-platform-ins"), help="platform-ins: directory for the PNGs")
+    p.add_argument("--constant-velocity", action="store_true", help="platform-ins: no manoeuvres")
+    p.add_argument("--seed", type=int, default=4, help="platform-ins: noise seed (default 4)")
+
+
+def run_platform_ins(args: argparse.Namespace) -> int:
+    """Seed 004 end to end (DIGEST_001_004 §4): test bed, corrections, plots, printed summary."""
+    from ins_hil.platform_ins import testbed as tb
+    from ins_hil.reproduce.plots import platform_ins_figures
+
+    cfg = tb.TestbedConfig(seed=args.seed, manoeuvres=not args.constant_velocity)
+    if args.duration is not None:
+        if args.duration < 4 * cfg.T + cfg.settle:
+            raise SystemExit(f"ins-hil demo platform-ins: --duration must be at least {4 * cfg.T + cfg.settle:.0f} s")
+        cfg = replace(cfg, duration=args.duration)
+    t0 = time.perf_counter()
+    res = tb.simulate(cfg)
+    t_sim = time.perf_counter() - t0
+    flight = "constant velocity" if args.constant_velocity else f"{len(cfg.pulses)} manoeuvres"
+    print(
+        f"ins-hil demo platform-ins: {cfg.duration:.0f} s at {cfg.v0[1]:.0f} m/s north, {flight}, "
+        f"filter step T = {cfg.T:.0f} s, seed {cfg.seed} (simulated in {t_sim:.1f} s)"
+    )
+    true = res.truth[:, 2:5]
+    for order, phi in ((1, res.phi_first), (2, res.phi_second)):
+        rms = np.sqrt(np.mean((phi - true) ** 2, axis=0)) * 1e6
+        print(f"platform angles, eq. {3 + order} residual RMS (E, N, up): {', '.join(f'{x:.3g}' for x in rms)} µrad")
+    print(
+        f"reduced measurements: cond(S) = {res.cond_S:.3g}; S⁻¹ row δv_N = {np.array2string(res.s_inv[0], precision=3)}"
+    )
+    print(f"{'correction':24} {'δv_N':>8} {'Φ_E':>8} {'ω_E^dr':>8}   (improvement of RMS after {cfg.settle:.0f} s)")
+    for name, v in tb.improvements(res).items():
+        print(f"{name:24} " + " ".join(f"{x:+7.0f}%" for x in v))
+    sq, sr = res.scales["reduced adaptive"]
+    print(f"adaptive KF final noise scales: Q {np.array2string(sq, precision=3)}, R {np.array2string(sr, precision=3)}")
+    try:
+        paths = platform_ins_figures(res, args.out)
+    except OSError as e:
+        print(f"ins-hil demo platform-ins: cannot write {args.out}: {e}")
+        return 2
+    print("plots: " + ", ".join(str(p) for p in paths))
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.scenario == "platform-ins":
+        return run_platform_ins(args)
+    if args.duration is None:
+        args.duration = 120.0
     if args.duration <= 0 or args.rate <= 0:
         raise SystemExit("ins-hil demo: --duration and --rate must be positive")
     dt = 1.0 / args.rate

@@ -106,6 +106,12 @@ class TestbedResult:
     cond_S: float = 0.0
     s_inv: Vec = field(default_factory=lambda: np.zeros((3, 3)))
     scales: dict[str, tuple[Vec, Vec]] = field(default_factory=dict)  # (s_Q, s_R) per component at the end
+    # per epoch, reduced-measurement filters: Sage–Husa scales (s_Q (m, 3), s_R (m, 3)); NaN before the first update
+    scale_hist: dict[str, tuple[Vec, Vec]] = field(default_factory=dict)
+    reduced: Vec = field(default_factory=lambda: np.zeros((0, 3)))  # (m − 2, 3): y_k = S⁻¹z*_k of eq. 21
+    z_phi: Vec = field(default_factory=lambda: np.zeros(0))  # (m,): smoothed Φ_E (eq. 5) at the epochs, rad
+    z_acc: Vec = field(default_factory=lambda: np.zeros(0))  # (m,): smoothed a_y^p (eq. 8), m/s²
+    gated: Vec = field(default_factory=lambda: np.zeros(0, dtype=bool))  # (m,): level-flight measurement skipped
 
 
 def simulate(cfg: TestbedConfig = TestbedConfig()) -> TestbedResult:
@@ -180,6 +186,7 @@ def simulate(cfg: TestbedConfig = TestbedConfig()) -> TestbedResult:
     P0 = np.diag([0.5**2, 1e-4**2, (3 * cfg.drift_rms_nom) ** 2])
     est: dict[str, Vec] = {}
     scales: dict[str, tuple[Vec, Vec]] = {}
+    scale_hist: dict[str, tuple[Vec, Vec]] = {}
 
     # classical: z = a_y^p = Φ_E g + δa_y, level unaccelerated flight only (eqs. 8–10)
     for name, gated in (("classical", True), ("classical, ungated", False)):
@@ -201,13 +208,33 @@ def simulate(cfg: TestbedConfig = TestbedConfig()) -> TestbedResult:
     for name, adapt in (("reduced adaptive", True), ("reduced non-adaptive", False)):
         kf = AdaptiveKF(F, np.eye(3), q_nom, r_nom, np.zeros(3), P0.copy(), adapt=adapt)
         xs = np.full((len(idx), 3), np.nan)
+        hq, hr = np.full((len(idx), 3), np.nan), np.full((len(idx), 3), np.nan)
         xs[0] = kf.x
         for k in range(1, len(y)):
             xs[k] = kf.step(y[k])
+            hq[k], hr[k] = kf.q_scales, kf.r_scales
         est[name] = xs
         scales[name] = (kf.q_scales, kf.r_scales)
+        scale_hist[name] = (hq, hr)
     return TestbedResult(
-        cfg, t, out[:, :6], drift, osc, phi1, phi2, t[idx], x_true, est, float(np.linalg.cond(S)), Si, scales
+        cfg,
+        t,
+        out[:, :6],
+        drift,
+        osc,
+        phi1,
+        phi2,
+        t[idx],
+        x_true,
+        est,
+        float(np.linalg.cond(S)),
+        Si,
+        scales,
+        scale_hist,
+        y,
+        z_phi,
+        z_acc,
+        a_ind >= cfg.accel_gate,
     )
 
 

@@ -87,7 +87,9 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
     from . import (
         book_ch2,
         book_ch3,
+        book_ch3_examples,
         book_ch5,
+        book_tables,
         gyrofree,
         seed001,
         seed001_frames,
@@ -108,6 +110,11 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         ),
         ("Seed 001: error-model F vs finite differences (DIGEST_001_004 §6 case 11)", seed001_jacobian.rows),
         ("Book §3.1: square-root QR with a singular r, operation counts (DIGEST_000 §8 cases 16, 36)", book_ch3.rows),
+        (
+            "Book Ex 3.1–3.3 closed loops, the §6.1 lab and §6.5 outage analogues (DIGEST_000 §8 cases 27, 28)",
+            book_ch3_examples.rows,
+        ),
+        ("Book ch. 3–5 printed values (DIGEST_000 §8 cases 14, 15, 17–19, 21–26)", book_tables.rows),
         ("Seed 003: derived guards against its typos (DIGEST_001_004 §6 cases 24–27)", seed003.rows),
         ("Book Ex 5.3: isolation from the estimated gyro bias (units of a₁)", book_ch5.rows),
         ("Seed 004: platform INS with precession-angle sensors (DIGEST_001_004 §6 cases 28–31)", seed004.rows),
@@ -115,10 +122,10 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
 
 
 def notes() -> list[str]:
-    """Markdown sections written after the tables: the seed-004 test-bed comparison and the coverage list."""
-    from . import coverage, seed004
+    """Markdown sections written after the tables: the seed-004 test bed, Ex 3.1–3.3 compared, the coverage list."""
+    from . import book_ch3_examples, coverage, seed004
 
-    return [seed004.comparison_markdown(), coverage.markdown()]
+    return [seed004.comparison_markdown(), book_ch3_examples.comparison_markdown(), coverage.markdown(all_rows())]
 
 
 def all_rows() -> list[Row]:

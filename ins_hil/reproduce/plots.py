@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ins_hil.platform_ins.testbed import TestbedResult
+
 from . import seed001, seed002
 
 MU_GRID = (1.0, 0.5, 0.2, 0.1, 0.05, 0.02, 0.01)
@@ -110,3 +112,103 @@ def seed004_figure(path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def platform_ins_figures(res: TestbedResult, directory: Path) -> list[Path]:
+    """`ins-hil demo platform-ins`: four PNGs of one seed-004 test-bed run (DIGEST_001_004 §4).
+
+    platform_angles: Φ_E, Φ_N, Φ_up true vs reconstructed from the precession angles (eqs. 4, 5) and the
+    residuals; level_flight: the classical measurement a_y^p (eq. 8) beside Φ_E g and the classical estimates;
+    reduced: the reduced measurements S⁻¹z* (eq. 21) against the true north-channel state, cond(S) in the
+    title; adaptive: the adaptive filter's Sage–Husa Q and R scales over time.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ins_hil.platform_ins import model as pim
+
+    directory.mkdir(parents=True, exist_ok=True)
+    out: list[Path] = []
+    tm, tk = res.t / 60.0, res.t_k / 60.0
+    urad = 1e6
+    dph = 180.0 / np.pi * 3600.0  # rad/s → °/h
+
+    fig, axes = plt.subplots(3, 2, figsize=(11, 7), sharex="col")
+    zoom = res.t <= 60.0  # the first minute: the test bed's 5-s oscillation (eq. 22) resolved
+    for i, name in enumerate(("Φ_E", "Φ_N", "Φ_up")):
+        true = res.truth[:, 2 + i]
+        axes[i, 0].plot(res.t[zoom], res.phi_second[zoom, i] * urad, "C3", lw=2.5, alpha=0.6, label="eq. 5")
+        axes[i, 0].plot(res.t[zoom], res.phi_first[zoom, i] * urad, "C0", lw=1.0, label="eq. 4")
+        axes[i, 0].plot(res.t[zoom], true[zoom] * urad, "k", lw=0.8, label="true")
+        axes[i, 0].set_ylabel(f"{name} [µrad]")
+        for arr, lab, st in ((res.phi_first, "eq. 4 − true", "C0"), (res.phi_second, "eq. 5 − true", "C3")):
+            axes[i, 1].plot(tm, (arr[:, i] - true) * urad, st, lw=0.5, label=lab)
+        axes[i, 1].set_ylabel("residual [µrad]")
+    axes[0, 0].legend(fontsize=7)
+    axes[0, 1].legend(fontsize=7)
+    axes[-1, 0].set_xlabel("time [s] (first minute)")
+    axes[-1, 1].set_xlabel("time [min]")
+    fig.suptitle("Platform angles reconstructed from the precession-angle sensors")
+    fig.tight_layout()
+    out.append(directory / "platform_angles.png")
+    fig.savefig(out[-1], dpi=100)
+    plt.close(fig)
+
+    scale = (1.0, urad, dph)
+    labels = ("δv_N [m/s]", "Φ_E [µrad]", "ω_E^dr [°/h]")
+    fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+    axes[0].plot(tk, res.z_acc * 1e3, "C0", lw=0.8, label="a_y^p smoothed (eq. 8)")
+    axes[0].plot(tk, (res.x_true[:, 1] * pim.G + res.cfg.bias[1]) * 1e3, "k", lw=0.8, label="Φ_E g + B_N (true)")
+    lim = 3.0 * float(np.max(np.abs(res.x_true[:, 1] * pim.G + res.cfg.bias[1]))) * 1e3
+    axes[0].set_ylim(-lim, lim)  # the manoeuvres' accelerations (up to 1.5 m/s²) run off the scale
+    axes[0].set_ylabel("[mm/s²]")
+    axes[0].legend(fontsize=7)
+    for i in range(3):
+        ax = axes[i + 1]
+        ax.plot(tk, res.x_true[:, i] * scale[i], "k", lw=1.2, label="true error")
+        ax.plot(tk, res.est["classical"][:, i] * scale[i], "C0", lw=0.9, label="estimate: classical")
+        ax.set_ylabel(labels[i])
+    axes[1].legend(fontsize=7)
+    for ax in axes:
+        for k in np.flatnonzero(res.gated):
+            ax.axvspan(tk[k] - res.cfg.T / 120, tk[k] + res.cfg.T / 120, color="0.88", lw=0)
+    axes[-1].set_xlabel("time [min] (grey: measurement skipped, INS indicates horizontal acceleration)")
+    fig.suptitle("Classical level-flight correction (eqs. 6–10)")
+    fig.tight_layout()
+    out.append(directory / "level_flight.png")
+    fig.savefig(out[-1], dpi=100)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    m = len(res.reduced)
+    for i in range(3):
+        axes[i].plot(tk[:m], res.reduced[:, i] * scale[i], "C2.", ms=2, label="reduced measurement S⁻¹z*")
+        axes[i].plot(tk, res.x_true[:, i] * scale[i], "k", lw=1.2, label="true")
+        axes[i].plot(tk, res.est["reduced adaptive"][:, i] * scale[i], "C3", lw=0.9, label="adaptive KF")
+        axes[i].set_ylabel(labels[i])
+    axes[0].legend(fontsize=7)
+    axes[-1].set_xlabel("time [min]")
+    fig.suptitle(f"Reduced measurements (eqs. 14–21), T = {res.cfg.T:.0f} s: cond(S) = {res.cond_S:.3g}")
+    fig.tight_layout()
+    out.append(directory / "reduced.png")
+    fig.savefig(out[-1], dpi=100)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    hq, hr = res.scale_hist["reduced adaptive"]
+    for i in range(3):
+        axes[0].semilogy(tk, hq[:, i], lw=1, label=f"Q scale, {labels[i].split(' ')[0]}")
+        axes[1].semilogy(tk, hr[:, i], lw=1, label=f"R scale, y_{i + 1}")
+    for ax, what in zip(axes, ("process (input) noise", "measurement noise"), strict=True):
+        ax.axhline(1.0, color="k", lw=0.5)
+        ax.set_ylabel(f"{what}\nestimated / nominal")
+        ax.legend(fontsize=7)
+    axes[-1].set_xlabel("time [min]")
+    fig.suptitle("Adaptive KF: Sage–Husa noise estimates (bounded 1e-3…1e3)")
+    fig.tight_layout()
+    out.append(directory / "adaptive.png")
+    fig.savefig(out[-1], dpi=100)
+    plt.close(fig)
+    return out

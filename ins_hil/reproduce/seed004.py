@@ -243,7 +243,9 @@ def comparison_markdown() -> str:
         f"R {np.array2string(sr, precision=3)} (bounds 1e-3…1e3). The classical correction skips its "
         "level-flight measurement while the INS indicates horizontal acceleration; 'ungated' uses it throughout. "
         "The reduced-measurement estimate of epoch k needs z_k+2 (delay 2T) and the centred moving averages "
-        "look half a window ahead.",
+        "look half a window ahead. `ins-hil demo platform-ins --out DIR` runs this test bed end to end and writes "
+        "the platform angles reconstructed vs true, the level-flight correction, the reduced measurements with "
+        "cond(S) and the adaptive filter's noise estimates as PNGs.",
         "",
         "![seed 004 test bed](reproduction_seed004.png)",
         "",
