@@ -500,6 +500,10 @@ class NavCore:
             self.q_mount = quat_mul(quat_from_rotvec(-x[i.mnt : i.mnt + 3]), self.q_mount)  # R̂ ← (I − [δε×]) R̂
 
     # ------------------------------------------------------------------ outputs
+    def align_status(self) -> str:
+        """Why the core is not navigating yet, in one line ("" once it navigates)."""
+        return "" if self.phase == "nav" else self.align.waiting_for()
+
     def drain_events(self) -> list[FaultEvent]:
         """GNSS/baro fault events raised by the innovation tests since the last call."""
         ev, self._events = self._events, []

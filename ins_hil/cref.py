@@ -309,6 +309,10 @@ class CNavCore:
         if not ok:
             e.consecutive[0] = n - 1
 
+    def align_status(self) -> str:
+        """Always "": the C core starts from its given state (``align = "given"``)."""
+        return ""
+
     def drain_events(self) -> list[FaultEvent]:
         """GNSS/baro fault events raised by the innovation gates since the last call."""
         ev, self._events = self._events, []

@@ -82,3 +82,21 @@ def test_engine_vibration_at_rest_is_not_motion(vib: float) -> None:
             core.fuse(GnssFix(t, LAT, LON, H, np.zeros(3), 0.5, 1.0, 0.1, FixType.FIX_3D))
     assert not core.align.imu_moving
     assert core.phase == "heading"
+
+
+def test_alignment_says_what_it_waits_for() -> None:
+    dt, g = 0.004, earth.normal_gravity(LAT, H)
+    core = NavCore(None, NavConfig(align="static"))
+    seen = []
+    for k in range(1, 1500):
+        t = k * dt
+        core.step(ImuSample(t, dt, BIAS * dt, np.array((0.0, 0.0, -g)) * dt))
+        if t > 1.0 and k % 50 == 0:
+            core.fuse(GnssFix(t, LAT, LON, H, np.zeros(3), 0.5, 1.0, 0.1, FixType.FIX_3D))
+        if k in (100, 400, 1499):
+            seen.append(core.align_status())
+    assert seen[0] == "levelling: waiting for a position (a GNSS fix)"
+    assert seen[1].startswith("levelling: ") and "of 2 s at rest" in seen[1]
+    assert seen[2].startswith("levelled at rest: waiting for motion")
+    hover, _ = _run(NavConfig(align="static"))
+    assert hover.align_status() == "yaw: waiting for a GNSS speed of 1 m/s for the course (last 0.00 m/s)"

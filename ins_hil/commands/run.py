@@ -42,6 +42,12 @@ def _fmt(v: float, unit: str = "") -> str:
     return "—" if v is None or not math.isfinite(v) else f"{v:,.0f}{unit}" if abs(v) >= 100 else f"{v:.2f}{unit}"
 
 
+def _waiting(gw: Any) -> str:
+    """The core's alignment status ("" when it navigates or there is no core)."""
+    core = getattr(gw.pipeline, "core", None)
+    return core.align_status() if core is not None else ""
+
+
 def render(gw: Any) -> Any:
     """The rich status view of a running gateway."""
     from rich.console import Group
@@ -55,7 +61,7 @@ def render(gw: Any) -> Any:
         f"[b]ins-hil[/b] {gw.cfg.source}",
         f"up {snap['uptime_s']:.0f} s",
         f"core {gw.cfg.pipeline.core}",
-        "[green]aligned[/green]" if snap["aligned"] else "[yellow]aligning[/yellow]",
+        "[green]aligned[/green]" if snap["aligned"] else f"[yellow]aligning[/yellow] {_waiting(gw)}",
         f"FDI {snap['fdi_state']}",
         f"faults {snap['faults']}",
     )

@@ -61,6 +61,7 @@ class Alignment:
         self.t_end = 0.0  # the time of its last sample
         self.have_pos = self.cfg.align == "given"
         self.last_mag: Vec | None = None  # the last magnetometer field (body, any unit)
+        self.last_speed: float | None = None  # the last GNSS horizontal speed seen (m/s)
 
     def step(self, imu: ImuSample) -> None:
         """One IMU sample before navigation: into the levelling window, or the gyro-only attitude (heading)."""
@@ -177,6 +178,7 @@ class Alignment:
         if core.phase == "heading" and meas.vel_ned is not None:
             v = np.asarray(meas.vel_ned)
             sp = math.hypot(float(v[0]), float(v[1]))
+            self.last_speed = sp
             if sp >= self.cfg.gnss_yaw_speed:
                 roll, pitch, yaw_was = euler_from_quat(s.q_nb)
                 yaw = alignment.yaw_from_course(v)  # in-motion yaw = GNSS course (no sideslip)
@@ -194,6 +196,27 @@ class Alignment:
                 std_v = max(meas.std_vel, self.cfg.gnss_yaw_vel_floor)
                 # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V), independent
                 self.enter_nav(yaw_std=math.hypot(self.cfg.gnss_yaw_std, std_v / sp))
+
+    def waiting_for(self) -> str:
+        """Why the core is not navigating yet, in one line for a user ("" once it navigates)."""
+        c = self.cfg
+        phase = self.core.phase
+        if phase == "level":
+            if not self.have_pos:
+                return "levelling: waiting for a position (a GNSS fix)"
+            if self.t_win < c.align_time - 1e-9:
+                return f"levelling: {self.t_win:.1f} of {c.align_time:g} s at rest"
+            return (
+                "levelled at rest: waiting for motion (GNSS speed above "
+                f"{c.still_speed:g} m/s or the IMU's motion test) to take the yaw from the GNSS course, "
+                "or set a magnetometer reference (mag_ref_ned) or align_level_only"
+            )
+        if phase == "heading":
+            if c.mag_ref_ned is not None and self.last_mag is None:
+                return "yaw: waiting for a magnetometer sample"
+            last = "no GNSS velocity yet" if self.last_speed is None else f"last {self.last_speed:.2f} m/s"
+            return f"yaw: waiting for a GNSS speed of {c.gnss_yaw_speed:g} m/s for the course ({last})"
+        return ""
 
     def enter_nav(self, yaw_std: float | None = None) -> None:
         """Start navigating; with ``yaw_std`` (rad) the attitude σ (and the levelled tilt's correlated prior)."""

@@ -77,9 +77,7 @@ def replay(
     m["warnings"] = [f"{k}: the gates rejected {v['rejected']} of {v['tested']} ({v['rate']:.1%})"
                      for k, v in m["rejection"].items() if v["rate"] > REJECT_WARN]  # fmt: skip
     if not math.isfinite(r.t_nav):
-        m["warnings"].append(
-            "the core never left its alignment (no GNSS speed ≥ gnss_yaw_speed and no magnetometer reference)"
-        )
+        m["warnings"].append(f"the core never left its alignment: {r.align_status}")
     t_from = (r.t_nav if math.isfinite(r.t_nav) else p.t1) + cfg.settle_s
     if "gnss" in cfg.score:
         m["gnss"] = gnss_scores(r, p.gnss, cfg.min_fix_type) if p.gnss else "no GNSS fix in the log"

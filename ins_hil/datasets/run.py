@@ -204,6 +204,7 @@ class RunResult:
     stats: dict[str, dict[str, int]]
     elapsed_s: float
     notes: list[str] = field(default_factory=list)
+    align_status: str = ""  # why the core had not navigated at the end ("" when it did)
 
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
@@ -279,7 +280,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
         arr(ge, 3), arr(gp, 3), np.array(gi, dtype=bool), arr(gs, 3), arr(gr, 3), np.array(gf, dtype=int),
         list(outages),
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
-        time.perf_counter() - t_start, list(p.notes),
+        time.perf_counter() - t_start, list(p.notes), core.align_status(),
     )  # fmt: skip
 
 

@@ -87,6 +87,8 @@ class RealTimeCore(Protocol):
 
     def drain_events(self) -> list[FaultEvent]: ...
 
+    def align_status(self) -> str: ...
+
 
 CORE_KINDS = ("python", "c")
 
