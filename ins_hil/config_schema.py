@@ -509,6 +509,11 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         ),
         "align_time": M("s", "(0, 3600]", "static alignment: levelling time at rest"),
         "align_level_only": M(help="static alignment: level only (yaw from the initial state)"),
+        "align_gyrocompass": M(
+            help="static alignment: yaw from the Earth rate (book eq. 4.2) when filter.init_gyro_bias allows "
+            "σ_ψ ≤ gyrocompass_max_std (navigation-grade gyros; MEMS cannot resolve 15 °/h)"
+        ),
+        "gyrocompass_max_std": M("rad", f"(0, {PI}]", "align_gyrocompass: the largest yaw σ it may give"),
         "level_tilt_prior": M(help="levelled tilt prior correlated with the accelerometer errors"),
         "still_speed": M("m/s", "[0, 100]", "static alignment: at rest below this GNSS speed"),
         "still_delay": M("s", "[0, 3600]", "static alignment: at rest for this long"),

@@ -133,6 +133,8 @@ class NavConfig:
     align: str = "given"
     align_time: float = 2.0
     align_level_only: bool = False
+    align_gyrocompass: bool = False
+    gyrocompass_max_std: float = 10.0 * DEG
     level_tilt_prior: bool = True
     still_speed: float = 0.3
     still_delay: float = 1.5

@@ -100,3 +100,47 @@ def test_alignment_says_what_it_waits_for() -> None:
     assert seen[2].startswith("levelled at rest: waiting for motion")
     hover, _ = _run(NavConfig(align="static"))
     assert hover.align_status() == "yaw: waiting for a GNSS speed of 1 m/s for the course (last 0.00 m/s)"
+
+
+def _static(cfg: NavConfig, yaw: float, seconds: float, gyro_bias: np.ndarray, arw: float) -> NavCore:
+    """A level vehicle at rest heading ``yaw`` (rad): gyros with a constant bias (rad/s) and white noise of
+    ``arw`` (rad/√s), accelerometers with 0.5 mg of noise; GNSS fixes at 5 Hz."""
+    from ins_hil.nav.rotation import dcm_from_euler
+
+    rng = np.random.default_rng(6)
+    dt, g = 0.01, earth.normal_gravity(LAT, H)
+    C = dcm_from_euler(0.0, 0.0, yaw)
+    w_b = C.T @ earth.earth_rate_ned(LAT) + gyro_bias
+    f_b = C.T @ np.array((0.0, 0.0, -g))
+    core = NavCore(None, cfg)
+    for k in range(1, int(seconds / dt) + 1):
+        t = k * dt
+        w = w_b + rng.normal(0.0, arw / math.sqrt(dt), 3)
+        f = f_b + rng.normal(0.0, 5e-3, 3)
+        core.step(ImuSample(t, dt, w * dt, f * dt))
+        if k % 20 == 0:
+            core.fuse(GnssFix(t, LAT, LON, H, np.zeros(3), 0.5, 1.0, 0.1, FixType.FIX_3D))
+    return core
+
+
+def test_gyrocompass_finds_north_with_navigation_grade_gyros() -> None:
+    """Seed 001-J / book eq. 4.2 as a NavCore option: 0.005 °/h bias, 0.002 °/√h ARW, 120 s at rest."""
+    from ins_hil.fusion.ekf import FilterConfig
+    from ins_hil.nav.rotation import euler_from_quat
+
+    DPH = DEG / 3600
+    f = FilterConfig(init_gyro_bias=0.01 * DPH, gyro_arw=0.002 * DEG / 60)
+    cfg = NavConfig(align="static", align_gyrocompass=True, align_time=100.0, filter=f)
+    for yaw in (30 * DEG, -135 * DEG):
+        core = _static(cfg, yaw, 110.0, np.array((0.005, -0.005, 0.003)) * DPH, 0.002 * DEG / 60)
+        assert core.phase == "nav" and core.align_status() == ""
+        got = euler_from_quat(core.ins.state.q_nb)[2]
+        assert abs(math.remainder(got - yaw, 2 * math.pi)) < 0.5 * DEG
+        assert core.state().std_att[2] < 1.0 * DEG
+
+
+def test_gyrocompass_refuses_mems_gyros_and_says_why() -> None:
+    cfg = NavConfig(align="static", align_gyrocompass=True)  # FilterConfig's bias σ: far above Earth rate
+    core = _static(cfg, 0.5, 6.0, np.array((0.1, -0.1, 0.05)) * DEG, 0.01 * DEG)
+    assert core.phase == "heading"
+    assert core.align_status().startswith("gyrocompass refused (σ_ψ ")

@@ -62,6 +62,7 @@ class Alignment:
         self.have_pos = self.cfg.align == "given"
         self.last_mag: Vec | None = None  # the last magnetometer field (body, any unit)
         self.last_speed: float | None = None  # the last GNSS horizontal speed seen (m/s)
+        self.gyrocompass_std: float | None = None  # σ_ψ (rad) the gyrocompass would give (align_gyrocompass)
 
     def step(self, imu: ImuSample) -> None:
         """One IMU sample before navigation: into the levelling window, or the gyro-only attitude (heading)."""
@@ -98,7 +99,7 @@ class Alignment:
             full = self.t_win >= c.align_time - 0.5 * imu.dt
             if self.have_pos and (full or (self.moving and self.t_win >= 0.5)):
                 mag_ok = c.mag_ref_ned is not None and self.last_mag is not None
-                if self.moving or mag_ok or c.align_level_only:
+                if self.moving or mag_ok or c.align_level_only or c.align_gyrocompass:
                     self._level()
         elif core.phase == "heading":
             # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
@@ -122,7 +123,20 @@ class Alignment:
         C0 = dcm_from_quat(quat_from_euler(roll, pitch, 0.0))
         core.bg = w - C0.T @ np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(s.lat)))
         have_yaw = False
-        if c.mag_ref_ned is not None and self.last_mag is not None:
+        yaw_std = c.mag_yaw_std
+        if c.align_gyrocompass:
+            # book eq. 4.2 on the levelled mean rate: Earth rate's horizontal part points north; usable only when
+            # the gyro bias is well below Ω cos φ (≈ 10.6 °/h at 45°): σ_ψ ≈ σ_bias / (Ω cos φ)
+            ohm = earth.OMEGA_E * math.cos(s.lat)
+            f_c = c.filter
+            sig = math.hypot(f_c.init_gyro_bias, f_c.gyro_arw / math.sqrt(self.t_win)) / max(ohm, 1e-12)
+            if sig <= c.gyrocompass_max_std:
+                yaw = alignment.gyrocompass_yaw(C0 @ w)
+                C = dcm_from_quat(quat_from_euler(roll, pitch, yaw))
+                core.bg = w - C.T @ earth.earth_rate_ned(s.lat)
+                have_yaw, yaw_std = True, sig
+            self.gyrocompass_std = sig
+        if not have_yaw and c.mag_ref_ned is not None and self.last_mag is not None:
             # tilt from the accelerometer alone, yaw from the tilt-compensated field direction: unit-free, and an
             # error in the reference's dip or magnitude moves no tilt (the book's two-vector A of §4.1.2 weighs
             # both vectors equally and takes their magnitudes as given)
@@ -147,7 +161,7 @@ class Alignment:
         if core.idx.bg is not None:
             core.kf.set_state_sigma("bg", c.align_gyro_bias_std)
         if have_yaw:
-            self.enter_nav(yaw_std=c.mag_yaw_std)
+            self.enter_nav(yaw_std=yaw_std)
         else:
             core.phase = "heading"
 
@@ -209,13 +223,17 @@ class Alignment:
             return (
                 "levelled at rest: waiting for motion (GNSS speed above "
                 f"{c.still_speed:g} m/s or the IMU's motion test) to take the yaw from the GNSS course, "
-                "or set a magnetometer reference (mag_ref_ned) or align_level_only"
+                "or set a magnetometer reference (mag_ref_ned), align_gyrocompass or align_level_only"
             )
         if phase == "heading":
+            gc = ""
+            if self.gyrocompass_std is not None:
+                gc = (f"gyrocompass refused (σ_ψ {math.degrees(self.gyrocompass_std):.0f}° > "
+                      f"{math.degrees(c.gyrocompass_max_std):.0f}°: gyro bias too large for Earth rate); ")  # fmt: skip
             if c.mag_ref_ned is not None and self.last_mag is None:
-                return "yaw: waiting for a magnetometer sample"
+                return gc + "yaw: waiting for a magnetometer sample"
             last = "no GNSS velocity yet" if self.last_speed is None else f"last {self.last_speed:.2f} m/s"
-            return f"yaw: waiting for a GNSS speed of {c.gnss_yaw_speed:g} m/s for the course ({last})"
+            return gc + f"yaw: waiting for a GNSS speed of {c.gnss_yaw_speed:g} m/s for the course ({last})"
         return ""
 
     def enter_nav(self, yaw_std: float | None = None) -> None:
