@@ -25,6 +25,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=bench.ROOT / "docs" / "ref_core.md", help="report file (markdown)")
     p.add_argument("--no-callgrind", action="store_true", help="skip the valgrind instruction count")
     p.add_argument(
+        "--replay",
+        action="store_true",
+        help="only the offline replay's cost: 200 Hz IMU with 5 / 20 Hz GNSS and a velocity delay (printed)",
+    )
+    p.add_argument(
         "--accuracy-duration",
         type=float,
         default=600.0,
@@ -37,6 +42,13 @@ def _say(line: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.replay:
+        from ins_hil import machine
+        from ins_hil.bench.replay_cost import replay_cost
+
+        _say(f"ins-hil bench-core --replay: simulated UAV mission, 120 s, process time ({machine.summary()})")
+        replay_cost(say=_say)
+        return 0
     if args.duration <= 0 or args.rate <= 0:
         raise SystemExit("ins-hil bench-core: --duration and --rate must be positive")
     if args.repeat < 1:
