@@ -79,6 +79,7 @@ def test_write_offset_keeps_the_rest_of_the_config(tmp_path: Path) -> None:
     assert dcfg.load(r).imu_time_offset == pytest.approx(0.03)
 
 
+@pytest.mark.slow  # 7 replays of a 110-s flight
 def test_estimate_offset_command(tmp_path: Path, capsys) -> None:
     from ins_hil.cli import main
     from ins_hil.datasets import generic_csv

@@ -44,6 +44,7 @@ def test_seeds_shift_the_outage_protocol(tmp_path: Path) -> None:
     assert [j.seed for j in js] == [0, 1, 2] and len({j.out for j in js}) == 3
 
 
+@pytest.mark.slow  # a Dask LocalCluster of 2 worker processes (~30 s with its start-up)
 def test_a_failing_log_does_not_stop_the_batch_and_dask_gives_the_serial_rows(tmp_path: Path) -> None:
     d, cfg = _logs(tmp_path)
     bad = tmp_path / "bad.csv"
