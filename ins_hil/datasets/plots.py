@@ -5,12 +5,24 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ins_hil.datasets.evaluate import Series
 
 DEG = math.pi / 180.0
+
+
+def _save(fig: Any, path_prefix: Path, suffix: str) -> Path:
+    """Write ``fig`` as ``<path_prefix><suffix>.png`` (90 dpi) and close it; the file."""
+    import matplotlib.pyplot as plt
+
+    f = path_prefix.with_name(path_prefix.name + suffix + ".png")
+    fig.tight_layout()
+    fig.savefig(f, dpi=90)
+    plt.close(fig)
+    return f
 
 
 def plot_series(
@@ -38,11 +50,7 @@ def plot_series(
     ax.axis("equal")
     ax.legend()
     ax.set_title(f"{title}: trajectory")
-    f = path_prefix.with_name(path_prefix.name + "_trajectory.png")
-    fig.tight_layout()
-    fig.savefig(f, dpi=90)
-    plt.close(fig)
-    files.append(f)
+    files.append(_save(fig, path_prefix, "_trajectory"))
     # errors with 3σ
     fig, axs = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     for ax, key, sk, unit, scale in (
@@ -61,11 +69,7 @@ def plot_series(
         ax.legend(loc="upper right", fontsize=7, ncol=3)
     axs[-1].set_xlabel("time (s)")
     axs[0].set_title(f"{title}: errors and ±3σ (dotted)")
-    f = path_prefix.with_name(path_prefix.name + "_errors.png")
-    fig.tight_layout()
-    fig.savefig(f, dpi=90)
-    plt.close(fig)
-    files.append(f)
+    files.append(_save(fig, path_prefix, "_errors"))
     # biases and test ratios
     fig, axs = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     axs[0].plot(t, a["gyro_bias"] / DEG)
@@ -80,9 +84,5 @@ def plot_series(
     axs[2].legend(fontsize=7, ncol=3)
     axs[-1].set_xlabel("time (s)")
     axs[0].set_title(f"{title}: estimated biases and innovation test ratios (reject > 1)")
-    f = path_prefix.with_name(path_prefix.name + "_biases_ratios.png")
-    fig.tight_layout()
-    fig.savefig(f, dpi=90)
-    plt.close(fig)
-    files.append(f)
+    files.append(_save(fig, path_prefix, "_biases_ratios"))
     return files
