@@ -19,7 +19,7 @@ from typing import Any
 
 from ins_hil import config_schema as schema
 from ins_hil.config_schema import ConfigError
-from ins_hil.drivers.factory import make_driver
+from ins_hil.drivers.factory import driver_class, make_driver
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
@@ -202,6 +202,33 @@ def _fdi(cfg: Config, fdi: Any) -> None:
             raise ConfigError(f"fdi.imu_ids = {p.imu_ids}: the geometry {mon.geo.name!r} has {mon.geo.units} IMUs")
 
 
+def _registered(kind: Any) -> bool:
+    """Whether ``kind`` names a driver registered beyond the built-in types (``drivers/factory.py`` ``register``
+    or the ``ins_hil.drivers`` entry points)."""
+    try:
+        driver_class(kind)
+    except (ValueError, ImportError, AttributeError):
+        return False
+    return True
+
+
+def _plugin_input(t: dict[str, Any], i: int, where: str) -> InputConfig:
+    """An ``[[inputs]]`` table of a registered third-party driver: ``name``, ``type`` and its
+    ``[inputs.options]`` (the driver's own keys, checked by building it once)."""
+    extra = sorted(set(t) - {"name", "type", "options"})
+    if extra:
+        raise ConfigError(f"{where}.{extra[0]}: a {t['type']!r} input takes its keys in [inputs.options]")
+    opts = t.get("options", {})
+    if not isinstance(opts, dict):
+        raise ConfigError(f"{where}.options: expected a table")
+    ic = InputConfig(name=str(t.get("name", f"input{i}")), type=str(t["type"]), options=dict(opts))
+    try:
+        make_driver(ic.driver_table())
+    except Exception as e:  # the third-party driver's own check of its options
+        raise ConfigError(f"{where}.options: {type(e).__name__}: {e}") from None
+    return ic
+
+
 def _can_options(ic: InputConfig, where: str) -> None:
     """A can_imu input's ``[inputs.options]``: checked, then the driver is built (the DBC file loaded)."""
     opts = schema.validate("inputs[].options", ic.options, f"{where}.options")
@@ -302,10 +329,15 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     inputs = d.get("inputs", [])
     if not isinstance(inputs, list):
         raise ConfigError("inputs: expected an array of tables ([[inputs]])")
+    plugins = 0
     for i, t in enumerate(inputs):
+        where = f"inputs[{i}]"
+        if isinstance(t, dict) and t.get("type") not in INPUT_TYPES and _registered(t.get("type")):
+            cfg.inputs.append(_plugin_input(t, i, where))
+            plugins += 1
+            continue
         ic = InputConfig(name=f"input{i}")
         _fill(ic, t, f"inputs[{i}]")
-        where = f"inputs[{i}]"
         if ic.options and ic.type != "can_imu":
             raise ConfigError(f"{where}.options: only for type = 'can_imu' (this input is {ic.type!r})")
         _choice(f"{where}.type", ic.type, INPUT_TYPES)
@@ -324,7 +356,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     names = [i.name for i in cfg.inputs]
     if len(set(names)) != len(names):
         raise ConfigError(f"inputs: duplicate names {names}")
-    if not any(i.type in ("serial_imu", "can_imu") for i in cfg.inputs):
+    if not plugins and not any(i.type in ("serial_imu", "can_imu") for i in cfg.inputs):
         raise ConfigError("inputs: no IMU input (add an [[inputs]] table with type = 'serial_imu' or 'can_imu')")
 
     outputs = d.get("outputs", [])

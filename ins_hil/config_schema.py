@@ -660,7 +660,8 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
     "inputs[]": {
         "name": M(help="the input's name (status view, counters)", nonempty=True, doc_default="input<N>"),
         "type": M(
-            help="serial_imu: IMU frames on a serial port; mavlink: GNSS/baro from MAVLink; can_imu: CAN IMU",
+            help="serial_imu: IMU frames on a serial port; mavlink: GNSS/baro from MAVLink; can_imu: CAN IMU; or a "
+            "type a driver package registers (ins_hil.drivers entry points), its keys in [inputs.options]",
             choices=("serial_imu", "mavlink", "can_imu"),
         ),
         "port": M(help="serial_imu: the device (/dev/ttyUSB0), or 'sim' for the simulator's pty", nonempty=True),

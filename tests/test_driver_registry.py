@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 import pytest
 from ins_hil.drivers import factory
 from ins_hil.drivers.base import DriverHealth, Sink
-from runtime_helpers import sim_config
+from runtime_helpers import sim_config, sim_config_dict
 
 from ins_hil.runtime.loop import Gateway
 
@@ -91,3 +91,23 @@ def test_a_simulated_config_needs_the_devices() -> None:
     gw = Gateway(sim_config(recorder={"enabled": False}))
     with pytest.raises(RuntimeError, match="devices"):
         asyncio.run(gw.run(duration=0.2, signals=False))
+
+
+def test_a_registered_driver_is_configured_from_toml(registry: dict[str, Any]) -> None:
+    """A third-party type in ``[[inputs]]`` with its ``[inputs.options]``: the config takes it (built once to
+    check its options), and a key outside the options or a type nobody registered is a one-line error."""
+    from ins_hil.config import ConfigError, from_dict
+
+    factory.register("lidar_imu", ThirdPartyImu)
+    d = sim_config_dict()
+    d["inputs"] = [*d["inputs"], {"name": "li", "type": "lidar_imu", "options": {"rate_hz": 400}}]
+    cfg = from_dict(d, source="t")
+    ic = next(i for i in cfg.inputs if i.type == "lidar_imu")
+    assert ic.driver_table() == {"type": "lidar_imu", "name": "li", "rate_hz": 400}
+    assert ThirdPartyImu.built[-1] == {"type": "lidar_imu", "name": "li", "rate_hz": 400}
+    d["inputs"][-1] = {"name": "li", "type": "lidar_imu", "port": "/dev/x"}
+    with pytest.raises(ConfigError, match=r"inputs\[\d\]\.port: a 'lidar_imu' input takes its keys in"):
+        from_dict(d, source="t")
+    d["inputs"][-1] = {"name": "li", "type": "radar_imu"}
+    with pytest.raises(ConfigError, match="radar_imu"):
+        from_dict(d, source="t")
