@@ -144,3 +144,32 @@ def test_gyrocompass_refuses_mems_gyros_and_says_why() -> None:
     core = _static(cfg, 0.5, 6.0, np.array((0.1, -0.1, 0.05)) * DEG, 0.01 * DEG)
     assert core.phase == "heading"
     assert core.align_status().startswith("gyrocompass refused (σ_ψ ")
+
+
+def test_position_only_gnss_gives_the_course_by_difference() -> None:
+    """A receiver without velocity: the alignment takes the course from two fixes 0.2 s apart (the heading 40°
+    of a vehicle that starts off at 1 m/s² after 4 s at rest), and says what it waits for before that."""
+    from ins_hil.nav.rotation import dcm_from_euler, euler_from_quat
+
+    rng = np.random.default_rng(7)
+    yaw, dt, g = 40 * DEG, 0.01, earth.normal_gravity(LAT, H)
+    C = dcm_from_euler(0.0, 0.0, yaw)
+    u = C @ np.array((1.0, 0.0, 0.0))  # the direction of travel, NED
+    m, n = earth.radii(LAT)
+    core = NavCore(None, NavConfig(align="static"))
+    statuses = []
+    for k in range(1, 1201):
+        t = k * dt
+        a = 1.0 if t > 4.0 else 0.0
+        f_b = C.T @ (a * u + np.array((0.0, 0.0, -g))) + rng.normal(0.0, 0.01, 3)
+        w_b = C.T @ earth.earth_rate_ned(LAT) + rng.normal(0.0, 1e-4, 3)
+        core.step(ImuSample(t, dt, w_b * dt, f_b * dt))
+        if k % 20 == 0:
+            s = 0.5 * max(t - 4.0, 0.0) ** 2  # distance travelled (m)
+            lat = LAT + s * u[0] / (m + H) + rng.normal(0.0, 0.01 / m)
+            lon = LON + s * u[1] / ((n + H) * math.cos(LAT)) + rng.normal(0.0, 0.01 / n)
+            core.fuse(GnssFix(t, lat, lon, H, None, 0.02, 0.04, 0.1, FixType.FIX_3D))
+            statuses.append(core.align_status())
+    assert any("nor two position fixes" not in st and st.startswith("yaw: waiting") for st in statuses)
+    assert core.phase == "nav"
+    assert abs(math.remainder(euler_from_quat(core.ins.state.q_nb)[2] - yaw, 2 * math.pi)) < 3 * DEG

@@ -22,6 +22,9 @@ if TYPE_CHECKING:
     from ins_hil.core import NavConfig
 
 
+#: s: the longest interval between two position-only fixes whose difference is taken as a velocity
+MAX_DIFF_S = 2.0
+
 #: s the window stays frozen after the IMU saw motion while the levelling waits for a position (then it slides again)
 MAX_FROZEN_S = 30.0
 
@@ -62,6 +65,7 @@ class Alignment:
         self.have_pos = self.cfg.align == "given"
         self.last_mag: Vec | None = None  # the last magnetometer field (body, any unit)
         self.last_speed: float | None = None  # the last GNSS horizontal speed seen (m/s)
+        self.prev_fix: GnssFix | None = None  # the fix before (a position-only receiver's velocity by difference)
         self.gyrocompass_std: float | None = None  # σ_ψ (rad) the gyrocompass would give (align_gyrocompass)
 
     def step(self, imu: ImuSample) -> None:
@@ -183,14 +187,14 @@ class Alignment:
             core.baro.gnss_height(
                 meas, dcm_from_quat(s.q_nb), max(meas.std_d, self.cfg.gnss_min_std[1]) * self.cfg.gnss_std_scale
             )
+        vel, std_vel = self._velocity(meas)
         if core.phase == "level":
             s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
             self.have_pos = True
-            if meas.vel_ned is not None:
-                v = np.asarray(meas.vel_ned)
-                self.moving = self.moving or math.hypot(float(v[0]), float(v[1])) > self.cfg.still_speed
-        if core.phase == "heading" and meas.vel_ned is not None:
-            v = np.asarray(meas.vel_ned)
+            if vel is not None:
+                self.moving = self.moving or math.hypot(float(vel[0]), float(vel[1])) > self.cfg.still_speed
+        if core.phase == "heading" and vel is not None:
+            v = vel
             sp = math.hypot(float(v[0]), float(v[1]))
             self.last_speed = sp
             if sp >= self.cfg.gnss_yaw_speed:
@@ -207,9 +211,21 @@ class Alignment:
                 s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
                 s.h = meas.h + d[2]
                 core.ins.state.t = max(s.t, meas.t)
-                std_v = max(meas.std_vel, self.cfg.gnss_yaw_vel_floor)
+                std_v = max(std_vel, self.cfg.gnss_yaw_vel_floor)
                 # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V), independent
                 self.enter_nav(yaw_std=math.hypot(self.cfg.gnss_yaw_std, std_v / sp))
+
+    def _velocity(self, meas: GnssFix) -> tuple[Vec | None, float]:
+        """The fix's velocity (NED m/s) and its σ; for a position-only receiver the difference of this fix and the
+        one before, when they are at most :data:`MAX_DIFF_S` apart (σ = √2 σ_NE / Δt); (None, 0) otherwise."""
+        prev, self.prev_fix = self.prev_fix, meas
+        if meas.vel_ned is not None:
+            return np.asarray(meas.vel_ned), meas.std_vel
+        if prev is None or not 0.0 < meas.t - prev.t <= MAX_DIFF_S:
+            return None, 0.0
+        dt = meas.t - prev.t
+        d = earth.ned_from_geodetic(meas.lat, meas.lon, meas.h, prev.lat, prev.lon, prev.h)
+        return np.asarray(d) / dt, math.sqrt(2.0) * max(meas.std_ne, prev.std_ne) / dt
 
     def waiting_for(self) -> str:
         """Why the core is not navigating yet, in one line for a user ("" once it navigates)."""
@@ -232,7 +248,11 @@ class Alignment:
                       f"{math.degrees(c.gyrocompass_max_std):.0f}°: gyro bias too large for Earth rate); ")  # fmt: skip
             if c.mag_ref_ned is not None and self.last_mag is None:
                 return gc + "yaw: waiting for a magnetometer sample"
-            last = "no GNSS velocity yet" if self.last_speed is None else f"last {self.last_speed:.2f} m/s"
+            last = (
+                "no GNSS velocity yet (nor two position fixes within 2 s)"
+                if self.last_speed is None
+                else f"last {self.last_speed:.2f} m/s"
+            )
             return gc + f"yaw: waiting for a GNSS speed of {c.gnss_yaw_speed:g} m/s for the course ({last})"
         return ""
 
