@@ -74,7 +74,8 @@ class FilterConfig:
     mag_bias: 3 states at the end, the magnetometer hard iron b_m (body FRD, in units of the reference field
     magnitude |m_ref|: m̃_b = C_nb m_ref + b_m, both divided by |m_ref|), δb_m = b_m − b̂_m; a random walk
     ``mag_bias_sigma_rw`` (1/√s) from an initial 1-σ ``init_mag_bias`` (a copter's residual hard iron:
-    ~0.1–0.7 of the field). Only NavCore's magnetometer update sees them.
+    ~0.1–0.7 of the field). Only NavCore's magnetometer update sees them; a replay's heading-only field
+    (``mag_heading_only``, datasets/run.py) has no hard iron left in it for them to estimate.
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     init_accel_sf: per-axis initial 1-σ of the accelerometer scale factors (x, y, z; None = ``init_sf``).
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
