@@ -84,3 +84,24 @@ def test_hard_iron_states_remove_the_yaw_error_of_a_yawing_flight(flight):
     assert rms_off > 10.0  # 16.6° measured
     assert rms_on < 0.5  # 0.09° measured
     np.testing.assert_allclose(core.mb, hard, atol=0.01)  # within 6e-4 measured
+
+
+def test_c_core_refuses_the_hard_iron_states():
+    from ins_hil.cref import CNavCore
+
+    init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
+    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.mag_bias"):
+        CNavCore(init, NavConfig(filter=FilterConfig(mag_bias=True)))
+
+
+def test_snapshot_restores_the_hard_iron_estimate():
+    """Delayed fusion rolls back to a snapshot: the nominal b̂_m is part of it."""
+    init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
+    core = NavCore(init, NavConfig(filter=FilterConfig(mag_bias=True)))
+    snap = core.snapshot()
+    x = np.zeros(core.idx.n)
+    x[core.idx.mb : core.idx.mb + 3] = (0.1, -0.2, 0.3)
+    core._feedback(x)
+    np.testing.assert_array_equal(core.mb, (0.1, -0.2, 0.3))
+    core.restore(snap)
+    np.testing.assert_array_equal(core.mb, np.zeros(3))
