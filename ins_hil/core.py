@@ -435,7 +435,7 @@ class NavCore:
             if c.mag_ref_ned is None:
                 return
             z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag_ref_ned, self.mb)
-            self._apply(Measurement("mag", z, H, np.full(2, c.mag_std**2), c.gate_mag), meas.t)
+            self._apply(Measurement("mag", z, H, np.full(len(z), c.mag_std**2), c.gate_mag), meas.t)
         else:
             raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
 

@@ -82,8 +82,8 @@ def test_hard_iron_states_remove_the_yaw_error_of_a_yawing_flight(flight):
     rms_on, core = _yaw_rms(flight, True)
     hard = flight[4] / np.linalg.norm(flight[3])
     assert rms_off > 10.0  # 16.6° measured
-    assert rms_on < 0.5  # 0.09° measured
-    np.testing.assert_allclose(core.mb, hard, atol=0.01)  # within 6e-4 measured
+    assert rms_on < 0.5  # 0.15° measured
+    np.testing.assert_allclose(core.mb, hard, atol=0.01)  # within 1e-3 measured
 
 
 def test_c_core_refuses_the_hard_iron_states():
