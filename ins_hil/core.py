@@ -181,6 +181,7 @@ class CoreSnapshot(NamedTuple):
     sa: Vec
     G: Vec
     q_mount: Vec
+    mb: Vec
     omega_b: Vec
     f_b: Vec
     aids: AidsSnapshot
@@ -205,6 +206,7 @@ class NavCore:
         self.sa = np.zeros(3)
         self.G = np.zeros((3, 3))  # gyro g-sensitivity (rad/s per m/s², FilterConfig.gyro_gsens)
         self.q_mount = np.array((1.0, 0.0, 0.0, 0.0))  # residual IMU body → vehicle rotation (NHC frame)
+        self.mb = np.zeros(3)  # magnetometer hard iron (body, units of |mag_ref_ned|; FilterConfig.mag_bias)
         self.omega_b = np.zeros(3)
         self.f_b = np.zeros(3)
         self.stats = {k: GateStats() for k in _KINDS}
@@ -334,7 +336,7 @@ class NavCore:
         """The state at this step, by reference (the delayed-fusion history takes one per step). With the baro
         datum and the GNSS height it learns from: a replay re-fuses the logged baro samples from the same datum."""
         return _new(CoreSnapshot, (
-            self.ins.snapshot(), self.kf.snapshot(), self.bg, self.ba, self.sg, self.sa, self.G, self.q_mount,
+            self.ins.snapshot(), self.kf.snapshot(), self.bg, self.ba, self.sg, self.sa, self.G, self.q_mount, self.mb,
             self.omega_b, self.f_b, self.aids.snapshot(), self.baro.snapshot(),
         ))  # fmt: skip
 
@@ -343,7 +345,7 @@ class NavCore:
         self.ins.restore(d.ins)
         self.kf.restore(d.kf)
         self.bg, self.ba, self.sg, self.sa, self.G = d.bg, d.ba, d.sg, d.sa, d.G
-        self.q_mount, self.omega_b, self.f_b = d.q_mount, d.omega_b, d.f_b
+        self.q_mount, self.mb, self.omega_b, self.f_b = d.q_mount, d.mb, d.omega_b, d.f_b
         self.aids.restore(d.aids)
         self.baro.restore(d.baro)
 
@@ -432,8 +434,8 @@ class NavCore:
             self.align.last_mag = np.asarray(meas.field_b)
             if c.mag_ref_ned is None:
                 return
-            z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag_ref_ned)
-            self._apply(Measurement("mag", z, H, np.full(2, c.mag_std**2), c.gate_mag), meas.t)
+            z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag_ref_ned, self.mb)
+            self._apply(Measurement("mag", z, H, np.full(len(z), c.mag_std**2), c.gate_mag), meas.t)
         else:
             raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
 
@@ -500,6 +502,8 @@ class NavCore:
             self.G = self.G + x[i.gs : i.gs + 9].reshape(3, 3)
         if i.mnt is not None:
             self.q_mount = quat_mul(quat_from_rotvec(-x[i.mnt : i.mnt + 3]), self.q_mount)  # R̂ ← (I − [δε×]) R̂
+        if i.mb is not None:
+            self.mb = self.mb + x[i.mb : i.mb + 3]  # b̂_m += δb_m
 
     # ------------------------------------------------------------------ outputs
     def align_status(self) -> str:

@@ -67,6 +67,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "filter.accel_bias": not f.accel_bias,
         "filter.scale_factors": f.scale_factors,
         "filter.gyro_gsens": f.gyro_gsens,
+        "filter.mag_bias": f.mag_bias,
         "filter.gyro_vib_gain": f.gyro_vib_gain != 0.0,
         "filter.accel_vib_gain": f.accel_vib_gain != 0.0,
         "filter.numerics": f.numerics != "joseph",

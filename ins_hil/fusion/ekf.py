@@ -27,7 +27,8 @@ diagonal (the noise is isotropic, so C σ² I C^T = σ² I).
 The state layout is configurable (``FilterConfig``): 9 states (book §3.1:
 μ, δv, δr), 12 (book §3.3: + gyro bias, ``accel_bias=False``), 15 (default:
 + accelerometer bias), 21 (+ gyro and accelerometer scale factors), + 9 gyro g-sensitivity states,
-+ 3 boresight states. Index order here is [δr, δv, μ, δb_g, δb_a, δs_g, δs_a, δG, δε].
++ 3 boresight states, + 3 magnetometer hard-iron states. Index order here is
+[δr, δv, μ, δb_g, δb_a, δs_g, δs_a, δG, δε, δb_m].
 
 Pure and deterministic: no I/O, no clock.
 """
@@ -70,6 +71,11 @@ class FilterConfig:
     omega_rv_terms: add the dependence of Earth rate and transport rate on position and velocity to F
     (seed 001 F21/F22/F31/F32, digest 001-K): μ̇ += ∂ω_in/∂r δr + ∂ω_in/∂v δv and
     δv̇ += v × (∂(2ω_ie + ω_en)/∂r δr + ∂ω_en/∂v δv); needs ``earth_terms``; off keeps the reduced model.
+    mag_bias: 3 states at the end, the magnetometer hard iron b_m (body FRD, in units of the reference field
+    magnitude |m_ref|: m̃_b = C_nb m_ref + b_m, both divided by |m_ref|), δb_m = b_m − b̂_m; a random walk
+    ``mag_bias_sigma_rw`` (1/√s) from an initial 1-σ ``init_mag_bias`` (a copter's residual hard iron:
+    ~0.1–0.7 of the field). Only NavCore's magnetometer update sees them; a replay's heading-only field
+    (``mag_heading_only``, datasets/run.py) has no hard iron left in it for them to estimate.
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     init_accel_sf: per-axis initial 1-σ of the accelerometer scale factors (x, y, z; None = ``init_sf``).
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
@@ -94,6 +100,9 @@ class FilterConfig:
     mount_states: bool = False
     mount_sigma_rw: float = 0.0
     init_mount: float = 1.0 * DEG
+    mag_bias: bool = False
+    mag_bias_sigma_rw: float = 1e-4
+    init_mag_bias: float = 0.3
     gyro_vib_gain: float = 0.0
     accel_vib_gain: float = 0.0
     vib_tau: float = 1.0
@@ -116,7 +125,7 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
         if self.cov_every < 1:
             raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
-        for name in ("gyro_vib_gain", "accel_vib_gain"):
+        for name in ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"FilterConfig.{name}={v!r}: expected a finite value >= 0")
@@ -146,6 +155,7 @@ class StateIndex:
     sa: int | None = None
     mnt: int | None = None
     gs: int | None = None  # 9 states: gyro g-sensitivity G row-major
+    mb: int | None = None  # magnetometer hard iron (units of |m_ref|, body)
 
     @staticmethod
     def build(cfg: FilterConfig) -> StateIndex:
@@ -164,7 +174,10 @@ class StateIndex:
         mnt = None
         if cfg.mount_states:
             mnt, k = k, k + 3
-        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs)
+        mb = None
+        if cfg.mag_bias:
+            mb, k = k, k + 3
+        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs, mb)
 
 
 def skew(a: Vec) -> Vec:
@@ -236,6 +249,9 @@ class ErrorStateEKF:
         if i.mnt is not None:
             sig[i.mnt : i.mnt + 3] = c.init_mount
             qc[i.mnt : i.mnt + 3] = c.mount_sigma_rw**2
+        if i.mb is not None:
+            sig[i.mb : i.mb + 3] = c.init_mag_bias
+            qc[i.mb : i.mb + 3] = c.mag_bias_sigma_rw**2
         self.qc = qc
         self.P = np.diag(sig**2)
         self._F = np.zeros((n, n))

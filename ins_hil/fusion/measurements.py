@@ -9,7 +9,9 @@ Conventions of :mod:`ins_hil.fusion.ekf` (DIGEST_000 §9): δr = true − comput
 * barometric height: z = h_baro − ĥ = −δr_D           (book eq. 3.30 last row, NED sign, §10 item 26)
 * magnetometer, book §3.2 eqs. 3.28–3.38: with the unit reference field m (NED) and the
   rotation τ of eq. 3.33 (τ m = e1), z = rows 2–3 of τ (m × Ĉ m̄) = rows 2–3 of τ μ
-  (the two-component measurement −γ̄ of eq. 3.38; for m = e1, τ = I and z = [μ2, μ3], eq. 3.30)
+  (the two-component measurement −γ̄ of eq. 3.38; for m = e1, τ = I and z = [μ2, μ3], eq. 3.30);
+  with the hard-iron states m̄ = (m̃/|m_ref| − b̂_m)/|·| and H_b = τ_{2:3} [m×] Ĉ (I − m̄ m̄^T)/|m̃/|m_ref| − b̂_m|,
+  plus the magnitude row z_3 = 1 − |m̃/|m_ref| − b̂_m| = −m̄^T δb_m
 * non-holonomic constraint (ground vehicle): body lateral/vertical velocity 0:
   z = 0 − (Ĉ^T v̂)_{y,z} = rows of Ĉ^T δv − Ĉ^T [v̂×] μ
 * zero-velocity update: z = 0 − v̂ = δv.
@@ -92,18 +94,41 @@ def tau_matrix(m: Vec) -> Vec:
     )
 
 
-def magnetometer(idx: StateIndex, C_bn: Vec, field_b: Vec, ref_ned: Vec) -> tuple[Vec, Vec]:
-    """(z, H) of the book's reduced two-component magnetometer measurement (eqs. 3.28–3.38).
+def magnetometer(idx: StateIndex, C_bn: Vec, field_b: Vec, ref_ned: Vec, bias_b: Vec | None = None) -> tuple[Vec, Vec]:
+    """(z, H) of the book's reduced two-component magnetometer measurement (eqs. 3.28–3.38; + a magnitude row).
 
     field_b: measured field (any unit, body FRD); ref_ned: reference field (NED, any unit).
-    Both are normalised (the book works with unit vectors, σ_m per component)."""
-    m = ref_ned / np.linalg.norm(ref_ned)
-    mb = field_b / np.linalg.norm(field_b)
+    Both are normalised (the book works with unit vectors, σ_m per component).
+
+    With the hard-iron states (``idx.mb``, ``FilterConfig.mag_bias``) field_b and ref_ned share a unit and
+    the model is m̃_b = C_nb m_ref + b_m; ``bias_b`` is b̂_m in units of |m_ref|. The corrected direction
+    m̄ = u/|u|, u = m̃_b/|m_ref| − b̂_m, enters eq. 3.38 as before. With u_true = u − δb_m,
+    m̄ = m̄_true + (I − m̄ m̄^T) δb_m/|u|, so m × Ĉ m̄ = m × (μ × m) + [m×] Ĉ (I − m̄ m̄^T) δb_m/|u| and
+    H_b = τ_{2:3} [m×] Ĉ (I − m̄ m̄^T)/|u| (H_μ = τ_{2:3} unchanged). The direction rows see no bias along m̄
+    (it changes the magnitude only), so a third row takes the magnitude: |u_true| = 1 gives
+    z_3 = 1 − |u| = −m̄^T δb_m. Without it the along-field bias is unobservable and wanders (on the PX4 hover,
+    where the field is nearly vertical, to −0.9 |m_ref| in 80 s); with it all three are seen once the vehicle
+    turns. The reference magnitude must then be the field's (WMM, or the field at rest)."""
+    rn = float(np.linalg.norm(ref_ned))
+    m = ref_ned / rn
+    mb_s = idx.mb
+    if mb_s is not None:
+        u = field_b / rn - (np.zeros(3) if bias_b is None else bias_b)
+        un = float(np.linalg.norm(u))
+        mb = u / un
+    else:
+        mb = field_b / np.linalg.norm(field_b)
     tau = tau_matrix(m)
     g = tau @ np.cross(m, C_bn @ mb)  # −γ̄ = m × τ Ā m̄  (eq. 3.38, in τ coordinates)
-    H = np.zeros((2, idx.n))
-    H[:, idx.att : idx.att + 3] = tau[1:3]
-    return g[1:3], H
+    if mb_s is None:
+        H = np.zeros((2, idx.n))
+        H[:, idx.att : idx.att + 3] = tau[1:3]
+        return g[1:3], H
+    H = np.zeros((3, idx.n))
+    H[0:2, idx.att : idx.att + 3] = tau[1:3]
+    H[0:2, mb_s : mb_s + 3] = (tau[1:3] @ skew(m) @ C_bn @ (np.eye(3) - np.outer(mb, mb))) / un
+    H[2, mb_s : mb_s + 3] = -mb
+    return np.array((g[1], g[2], 1.0 - un)), H
 
 
 def nonholonomic(idx: StateIndex, C_bn: Vec, vel: Vec) -> tuple[Vec, Vec]:
