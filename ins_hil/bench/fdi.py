@@ -238,6 +238,16 @@ def _three_ways(geo: SensorGeometry) -> Callable[[np.ndarray, np.ndarray], list[
     return lambda gyro, accel: [(zg_abs @ gyro[1:], za_abs @ accel[1:]), (zg @ gyro, za @ accel)]
 
 
+def _ratio_head(what: str) -> list[str]:
+    """A blank line and the head of a monitor / absent / no FDI table of ``what`` ("err", "RMS") with ratios."""
+    return [
+        "",
+        f"| configuration | fault | att. {what} monitor / absent / no FDI [deg] "
+        f"| pos. {what} monitor / absent / no FDI [m] | ratio att | ratio pos |",
+        "|---|---|---|---|---|---|",
+    ]
+
+
 def _ratio_row(
     kind: str, name: str, label: str, e: np.ndarray, pos_dp: int, cfg: FdiBench, lines: list[str], out: dict
 ) -> None:
@@ -267,10 +277,7 @@ def bench_nav(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
         f"flight, fault at {t_f:.0f} s on gyro 0; errors at the end, mean over {cfg.trials} seeds. "
         "'monitor' = navigation on the FdiMonitor output; 'absent' = least squares without the failed sensor "
         "for the whole run; 'no FDI' = least squares over all sensors. Target: monitor ≤ 1.5 × absent.",
-        "",
-        "| configuration | fault | att. err monitor / absent / no FDI [deg] | pos. err monitor / absent / no FDI [m] "
-        "| ratio att | ratio pos |",
-        "|---|---|---|---|---|---|",
+        *_ratio_head("err"),
     ]
     for name in names:
         geo = by_name(name)
@@ -316,10 +323,7 @@ def bench_aided(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
         f"`ins_hil.core.NavCore` (error-state EKF from the fusion branch, merged) fed by the monitor's output, "
         f"GNSS at 5 Hz (1 m / 0.1 m/s), {dur:.0f} s manoeuvring flight, fault at {t_f:.0f} s on gyro 0; "
         f"RMS errors over {t_eval:.0f}–{dur:.0f} s, one seed. Columns as above.",
-        "",
-        "| configuration | fault | att. RMS monitor / absent / no FDI [deg] | pos. RMS monitor / absent / no FDI [m] "
-        "| ratio att | ratio pos |",
-        "|---|---|---|---|---|---|",
+        *_ratio_head("RMS"),
     ]
     for name in names:
         geo = by_name(name)
