@@ -57,7 +57,7 @@ def test_udp_against_simulated_fc() -> None:
     # TIMESYNC: the FC's boot clock runs ``_boot_ns`` behind our monotonic clock
     assert drv.clock.synced and fc.timesync_answered >= 2
     assert drv.clock.offset_ns is not None
-    assert abs(drv.clock.offset_ns + fc._boot_ns) < 5_000_000  # within 5 ms (loopback, loaded machine)
+    assert abs(drv.clock.offset_ns - fc.fc_time_ns(0.0)) < 5_000_000  # within 5 ms (loopback, loaded machine)
     imu = [s for s in got if isinstance(s, ImuSample)]
     # sensor time mapped onto our monotonic base: close to (just before) arrival
     lat = [s.t_arrival_ns * 1e-9 - s.t for s in imu[len(imu) // 2 :]]
@@ -398,7 +398,7 @@ def test_wild_timesync_reply_does_not_move_the_mapping() -> None:
     got, drv, fc, off0 = asyncio.run(main())
     assert _deliveries_near_arrival(got, 0.5)
     assert drv.clock.offset_ns is not None and abs(drv.clock.offset_ns - off0) < 5_000_000
-    assert abs(drv.clock.offset_ns + fc._boot_ns) < 5_000_000
+    assert abs(drv.clock.offset_ns - fc.fc_time_ns(0.0)) < 5_000_000
     e = drv.health.errors
     assert e.get("timesync_outlier") == 3 and e.get("timesync_unmatched") == 3 and "timesync_reset" not in e
     assert sum(isinstance(s, GnssFix) for s in got) > 10
@@ -437,7 +437,7 @@ def test_fc_reboot_is_followed_within_a_few_replies() -> None:
     got, drv, b, n_before = asyncio.run(main())
     assert _deliveries_near_arrival(got, 0.5)
     c = drv.clock
-    assert c.synced and c.offset_ns is not None and abs(c.offset_ns + b._boot_ns) < 5_000_000
+    assert c.synced and c.offset_ns is not None and abs(c.offset_ns - b.fc_time_ns(0.0)) < 5_000_000
     e = drv.health.errors
     assert e["timesync_reset"] == 1 and e["timesync_outlier"] <= 3  # confirm = 3 replies
     assert e.get("time_implausible", 0) > 0  # the rebooted FC's samples before the re-sync: dropped, counted

@@ -351,9 +351,10 @@ def test_delayed_fusion_rollback_restores_the_ground_aid_averages(cov_every):
         core.step(s)
     kf = core.kf
     if cov_every > 1:
-        assert kf._acc_n == 3 and kf._acc_qv is not None
+        assert kf.snapshot().acc_n == 3 and kf.snapshot().acc_qv is not None
+    acc_qv = kf.snapshot().acc_qv  # the partial block sum of the process noise (cov_every)
     before = (core.aids.ema_f.copy(), core.aids.ema_w.copy(), core.state().vel_ned.copy(), kf.vib_var, kf.vib_prev,
-              kf.P.copy(), None if kf._acc_qv is None else kf._acc_qv.copy())  # fmt: skip
+              kf.P.copy(), None if acc_qv is None else acc_qv.copy())  # fmt: skip
     assert np.all(np.array(kf.vib_var) > 0.0)
     assert core.stats["zupt"].accepted > 10 and core.stats["nhc"].accepted > 10
     core.fuse(GnssFix(t=imu[n_end - 1].t - 0.2, lat=math.nan, lon=math.nan, h=math.nan))  # rollback + replay
@@ -363,7 +364,7 @@ def test_delayed_fusion_rollback_restores_the_ground_aid_averages(cov_every):
     assert kf.vib_var == before[3] and kf.vib_prev == before[4]
     assert np.array_equal(kf.P, before[5])
     if cov_every > 1:
-        assert np.array_equal(kf._acc_qv, before[6])
+        assert np.array_equal(kf.snapshot().acc_qv, before[6])
 
 
 def test_nhc_lever_arm_uses_a_low_passed_rate():
