@@ -1,7 +1,9 @@
-"""Helpers shared by the runtime, recorder and interop tests: configs, free ports, a UDP MAVLink listener."""
+"""Helpers shared by the runtime, recorder, driver and interop tests: configs, free ports, a UDP MAVLink listener,
+running an input driver into a list."""
 
 from __future__ import annotations
 
+import asyncio
 import socket
 import tomllib
 from pathlib import Path
@@ -19,6 +21,24 @@ class BufferSink:
     def write(self, b: bytes) -> bool:
         self.bufs.append(bytes(b))
         return True
+
+
+async def start_driver(drv: Any) -> tuple[list[Any], asyncio.Task[Any]]:
+    """Run the input driver ``drv`` in a task that appends every sample to a list; return (list, task) once the
+    driver reports itself connected."""
+    got: list[Any] = []
+    task = asyncio.create_task(drv.run(got.append))
+    while not drv.health.connected:
+        await asyncio.sleep(0.01)
+    return got, task
+
+
+async def wait_for_count(got: list[Any], n: int, timeout: float = 2.0) -> None:
+    """Poll every 20 ms until ``got`` holds ``n`` items or ``timeout`` s have passed (the caller checks which)."""
+    for _ in range(round(timeout / 0.02)):
+        if len(got) >= n:
+            return
+        await asyncio.sleep(0.02)
 
 
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:

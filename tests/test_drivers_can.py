@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from ins_hil.drivers import dronecan_codec as dc
 from ins_hil.drivers.can_imu import CanImuDriver
 from ins_hil.drivers.dbc_codec import DbcImuDecoder, DbcProfile, crc8_j1850
+from runtime_helpers import start_driver, wait_for_count
 
 from ins_hil.sim.can_imu import DbcImuNode, DroneCanImuNode
 from ins_hil.types import GnssFix, ImuSample, MagSample
@@ -235,10 +236,7 @@ def test_driver_on_virtual_bus() -> None:
         drv = CanImuDriver.from_config(
             {"interface": "virtual", "channel": "unit1", "protocol": "dronecan", "nodes": [10], "node_id": 99}
         )
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         tx = can.Bus(interface="virtual", channel="unit1", receive_own_messages=False)
         seen: list[can.Message] = []
         node = DroneCanImuNode(node_id=10, aux_hz=10.0)
@@ -284,10 +282,7 @@ def test_driver_over_slcan_pty() -> None:
             {"interface": "slcan", "channel": name, "sleep_after_open": 0, "bitrate": 500000, "protocol": "dbc",
              "dbc": {"rate_hz": 100.0}, "node_id": None},
         )  # fmt: skip
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         node = DbcImuNode(rate_hz=100.0)
         for i in range(10):
             buf = b"".join(_slcan_line(m) for m in node.frames(10))
@@ -295,10 +290,7 @@ def test_driver_over_slcan_pty() -> None:
                 buf += b"Tzzzz\r"  # a garbled line
             os.write(master, buf)
             await asyncio.sleep(0.02)
-        for _ in range(100):
-            if len(got) >= 100:
-                break
-            await asyncio.sleep(0.02)
+        await wait_for_count(got, 100)
         task.cancel()
         os.close(master)
         return got, drv

@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from ins_hil.drivers.mavlink_in import ClockSync, MavlinkDriver, parse_url, signing_key_from
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from runtime_helpers import start_driver, wait_for_count
 
 from ins_hil.sim.fc import SimFlightController
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
@@ -284,19 +285,13 @@ def test_serial_link_over_pty() -> None:
         name = os.ttyname(slave)
         os.close(slave)
         drv = MavlinkDriver(f"serial:{name}:57600")
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
         data = _stream(mav, 30)
         for i in range(0, len(data), 17):
             os.write(master, data[i : i + 17])
             await asyncio.sleep(0.001)
-        for _ in range(100):
-            if len(got) >= 30:
-                break
-            await asyncio.sleep(0.02)
+        await wait_for_count(got, 30)
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
         os.close(master)

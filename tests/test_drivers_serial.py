@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ins_hil.drivers import serial_frame as sf
 from ins_hil.drivers.serial_imu import SerialImuDriver
+from runtime_helpers import start_driver, wait_for_count
 
 from ins_hil.types import ImuSample
 
@@ -163,15 +164,9 @@ def test_pty_1khz_with_corruption() -> None:
     async def main() -> tuple[list[ImuSample], SerialImuDriver, list[int]]:
         master, name = _open_pty()
         drv = SerialImuDriver(name, 921600)
-        got: list[ImuSample] = []
-        task = asyncio.create_task(drv.run(got.append))  # type: ignore[arg-type]
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         bad = await _imu_writer(master, 2000, 1000.0, corrupt=0.01, seed=3)
-        for _ in range(100):
-            if len(got) >= 2000 - len(bad):
-                break
-            await asyncio.sleep(0.02)
+        await wait_for_count(got, 2000 - len(bad))
         task.cancel()
         os.close(master)
         return got, drv, bad
@@ -254,15 +249,9 @@ def test_pty_sensor_clock_restarts_mid_stream_navigation_resumes() -> None:
     async def main() -> tuple[list[ImuSample], SerialImuDriver]:
         master, name = _open_pty()
         drv = SerialImuDriver(name, 921600)
-        got: list[ImuSample] = []
-        task = asyncio.create_task(drv.run(got.append))  # type: ignore[arg-type]
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         await writer(master)
-        for _ in range(100):
-            if len(got) >= n1 + n2 - 1:
-                break
-            await asyncio.sleep(0.02)
+        await wait_for_count(got, n1 + n2 - 1)
         task.cancel()
         os.close(master)
         return got, drv
