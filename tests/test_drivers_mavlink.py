@@ -26,22 +26,34 @@ from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
 G = 9.80665
 
 
-async def _run_pair(
-    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None
-) -> tuple[list, MavlinkDriver, SimFlightController]:
-    drv = MavlinkDriver("udpin:127.0.0.1:0", **(drv_kw or {}))
+async def _listening(**drv_kw: Any) -> tuple[MavlinkDriver, list, asyncio.Task]:
+    """A MAVLink driver on udpin:127.0.0.1 (a free port) running into a list: (driver, list, task) once it listens."""
+    drv = MavlinkDriver("udpin:127.0.0.1:0", **drv_kw)
     got: list = []
     task = asyncio.create_task(drv.run(got.append))
     while drv.local_address is None:
         await asyncio.sleep(0.005)
-    fc = SimFlightController(target=drv.local_address, **(fc_kw or {}))
+    return drv, got, task
+
+
+async def _fly_then_stop(fc: SimFlightController, seconds: float, driver_task: asyncio.Task) -> None:
+    """Run the simulated FC for ``seconds``, stop it, give the driver 50 ms to read what is still in flight, stop
+    the driver."""
     ft = asyncio.create_task(fc.run())
-    await asyncio.sleep(duration)
+    await asyncio.sleep(seconds)
     ft.cancel()
     await asyncio.gather(ft, return_exceptions=True)
-    await asyncio.sleep(0.05)  # let the driver read what is still in flight
-    task.cancel()
-    await asyncio.gather(task, return_exceptions=True)
+    await asyncio.sleep(0.05)
+    driver_task.cancel()
+    await asyncio.gather(driver_task, return_exceptions=True)
+
+
+async def _run_pair(
+    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None
+) -> tuple[list, MavlinkDriver, SimFlightController]:
+    drv, got, task = await _listening(**(drv_kw or {}))
+    fc = SimFlightController(target=drv.local_address, **(fc_kw or {}))
+    await _fly_then_stop(fc, duration, task)
     return got, drv, fc
 
 
@@ -111,19 +123,10 @@ def test_udp_corruption_counted_and_rejected() -> None:
         return buf
 
     async def main() -> tuple[list, MavlinkDriver, SimFlightController]:
-        drv = MavlinkDriver("udpin:127.0.0.1:0")
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while drv.local_address is None:
-            await asyncio.sleep(0.005)
+        drv, got, task = await _listening()
         fc = SimFlightController(target=drv.local_address, imu_hz=250.0)
         fc.tamper = tamper
-        ft = asyncio.create_task(fc.run())
-        await asyncio.sleep(1.5)
-        ft.cancel()
-        await asyncio.sleep(0.05)
-        task.cancel()
-        await asyncio.gather(ft, task, return_exceptions=True)
+        await _fly_then_stop(fc, 1.5, task)
         return got, drv, fc
 
     got, drv, fc = asyncio.run(main())
@@ -347,11 +350,7 @@ def test_wild_timesync_reply_does_not_move_the_mapping() -> None:
     counted, every sample's time stays finite and near its arrival."""
 
     async def main() -> tuple[list, MavlinkDriver, SimFlightController, int]:
-        drv = MavlinkDriver("udpin:127.0.0.1:0", timesync_s=0.2)
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while drv.local_address is None:
-            await asyncio.sleep(0.005)
+        drv, got, task = await _listening(timesync_s=0.2)
         loop = asyncio.get_running_loop()
         tx, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol, remote_addr=drv.local_address)
         atk = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)  # posing as the FC
@@ -405,11 +404,7 @@ def test_fc_reboot_is_followed_within_a_few_replies() -> None:
     clock are never delivered at the old offset; the estimate follows within a few TIMESYNC replies."""
 
     async def main() -> tuple[list, MavlinkDriver, SimFlightController, int]:
-        drv = MavlinkDriver("udpin:127.0.0.1:0", timesync_s=0.5)
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while drv.local_address is None:
-            await asyncio.sleep(0.005)
+        drv, got, task = await _listening(timesync_s=0.5)
         a = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0)
         at = asyncio.create_task(a.run())
         for _ in range(200):
@@ -421,12 +416,7 @@ def test_fc_reboot_is_followed_within_a_few_replies() -> None:
         await asyncio.gather(at, return_exceptions=True)
         n_before = len(got)
         b = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0, boot_offset_s=3.0)
-        bt = asyncio.create_task(b.run())
-        await asyncio.sleep(2.0)
-        bt.cancel()
-        await asyncio.sleep(0.05)
-        task.cancel()
-        await asyncio.gather(bt, task, return_exceptions=True)
+        await _fly_then_stop(b, 2.0, task)
         return got, drv, b, n_before
 
     got, drv, b, n_before = asyncio.run(main())
