@@ -1,15 +1,29 @@
 """Helpers shared by the runtime, recorder, driver and interop tests: configs, free ports, a UDP MAVLink listener,
-running an input driver into a list."""
+running an input driver into a list, the measurements due at each IMU sample."""
 
 from __future__ import annotations
 
 import asyncio
 import socket
 import tomllib
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from ins_hil.config import Config, default_path, from_dict
+
+M = TypeVar("M")
+
+
+def with_due(imu: Iterable[Any], meas: Sequence[M], delay: float = 0.0) -> Iterator[tuple[Any, Sequence[M]]]:
+    """Each IMU sample with the measurements (sorted by time) that fall due by it, in order: those whose time of
+    validity + ``delay`` (s, the delivery lag) is at or before the sample's time (1 ns slack), each once."""
+    j = 0
+    for s in imu:
+        k = j
+        while j < len(meas) and meas[j].t + delay <= s.t + 1e-9:  # type: ignore[attr-defined]
+            j += 1
+        yield s, meas[k:j]
 
 
 class BufferSink:

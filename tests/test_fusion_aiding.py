@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
@@ -41,13 +42,11 @@ def _run(truth, imu, meas, cfg, delay=0.0, t_from=0.0):
     core = NavCore(_init(truth), cfg)
     core.keep_nis = True  # the accepted innovations' NIS, for the consistency checks
     meas = sorted(meas, key=lambda m: m.t)
-    j = 0
     pe, ve = [], []
-    for k, s in enumerate(imu):
+    for k, (s, due) in enumerate(with_due(imu, meas, delay)):
         core.step(s)
-        while j < len(meas) and meas[j].t + delay <= s.t + 1e-9:
-            core.fuse(meas[j])
-            j += 1
+        for m in due:
+            core.fuse(m)
         if s.t >= t_from and k % 10 == 0:
             st = core.state()
             i = k + 1
@@ -141,12 +140,10 @@ def test_magnetometer_bounds_heading_without_gnss(scen):
     cfg = NavConfig(mag_ref_ned=ref, mag_std=0.01)
     core = NavCore(_init(truth), cfg)
     meas = sorted([*fixes, *mag], key=lambda m: m.t)
-    j = 0
-    for s in imu:
+    for s, due in with_due(imu, meas):
         core.step(s)
-        while j < len(meas) and meas[j].t <= s.t + 1e-9:
-            core.fuse(meas[j])
-            j += 1
+        for m in due:
+            core.fuse(m)
     from ins_hil.nav.rotation import quat_angle_between
 
     assert math.degrees(quat_angle_between(core.state().q_nb, truth.q_nb[-1])) < 1.0
