@@ -4,8 +4,10 @@ running an input driver into a list, the measurements due at each IMU sample."""
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import tomllib
+import tty
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -35,6 +37,16 @@ class BufferSink:
     def write(self, b: bytes) -> bool:
         self.bufs.append(bytes(b))
         return True
+
+
+def open_raw_pty() -> tuple[int, str]:
+    """A pseudo-terminal in raw mode: (master fd, the slave's device name); the slave fd is closed, a driver opens
+    the device by name."""
+    master, slave = os.openpty()
+    tty.setraw(master)
+    name = os.ttyname(slave)
+    os.close(slave)
+    return master, name
 
 
 async def start_driver(drv: Any) -> tuple[list[Any], asyncio.Task[Any]]:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import math
 import os
-import tty
 
 import can
 import dronecan
@@ -17,7 +16,7 @@ from hypothesis import strategies as st
 from ins_hil.drivers import dronecan_codec as dc
 from ins_hil.drivers.can_imu import CanImuDriver
 from ins_hil.drivers.dbc_codec import DbcImuDecoder, DbcProfile, crc8_j1850
-from runtime_helpers import start_driver, wait_for_count
+from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
 from ins_hil.sim.can_imu import DbcImuNode, DroneCanImuNode
 from ins_hil.types import GnssFix, ImuSample, MagSample
@@ -274,10 +273,7 @@ def test_driver_over_slcan_pty() -> None:
     """A fake slcan adapter on the master side of a real pty; DBC IMU frames plus garbage lines."""
 
     async def main() -> tuple[list, CanImuDriver]:
-        master, slave = os.openpty()
-        tty.setraw(master)
-        name = os.ttyname(slave)
-        os.close(slave)
+        master, name = open_raw_pty()
         drv = CanImuDriver.from_config(
             {"interface": "slcan", "channel": name, "sleep_after_open": 0, "bitrate": 500000, "protocol": "dbc",
              "dbc": {"rate_hz": 100.0}, "node_id": None},
@@ -333,10 +329,7 @@ def test_bulk_slcan_reads_bursts_in_few_calls() -> None:
     slcan reads one byte per call)."""
     from ins_hil.drivers.slcan import BulkSlcanBus, open_bus
 
-    master, slave = os.openpty()
-    tty.setraw(master)
-    name = os.ttyname(slave)
-    os.close(slave)
+    master, name = open_raw_pty()
     bus = open_bus({"interface": "slcan", "channel": name, "sleep_after_open": 0, "bitrate": 1000000})
     assert isinstance(bus, BulkSlcanBus)
     os.read(master, 64)  # the adapter's setup commands (S8, O)

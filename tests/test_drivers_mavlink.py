@@ -8,7 +8,6 @@ import math
 import os
 import random
 import time
-import tty
 from collections import Counter
 from typing import Any
 
@@ -18,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from ins_hil.drivers.mavlink_in import ClockSync, MavlinkDriver, parse_url, signing_key_from
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from runtime_helpers import start_driver, wait_for_count
+from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
 from ins_hil.sim.fc import SimFlightController
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
@@ -283,10 +282,7 @@ def test_tcp_link_and_reconnect() -> None:
 
 def test_serial_link_over_pty() -> None:
     async def main() -> tuple[list, MavlinkDriver]:
-        master, slave = os.openpty()
-        tty.setraw(master)
-        name = os.ttyname(slave)
-        os.close(slave)
+        master, name = open_raw_pty()
         drv = MavlinkDriver(f"serial:{name}:57600")
         got, task = await start_driver(drv)
         mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
