@@ -111,10 +111,12 @@ def test_cli_core_c_unavailable_stops_before_starting(
 ) -> None:
     """Without the C core (its module not importable) ``--core c`` stops with status 2 and a clear message before
     anything starts; the Python core is still built."""
+    import ins_hil
     from ins_hil.cli import main
     from ins_hil.runtime.pipeline import check_core
 
     monkeypatch.setitem(sys.modules, "ins_hil.cref", None)  # import ins_hil.cref -> ImportError
+    monkeypatch.delattr(ins_hil, "cref", raising=False)  # (else `from ins_hil import cref` finds the loaded module)
     with pytest.raises(RuntimeError, match=r"core 'c': the C reference core \(ins_hil.cref\) is not available"):
         check_core("c")
     check_core("python")
