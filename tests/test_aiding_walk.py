@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 import pytest
+from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
@@ -79,12 +80,10 @@ def _run(
     )
     core = NavCore(init, NavConfig(filter=FilterConfig(cov_every=5), gnss_lever_arm_b=LEVER))
     mon = AidingMonitor(AidingConfig(gnss_rate=rate), LEVER if lever else None)
-    j, ev, excl = 0, [], 0
-    for s in imu:
+    ev, excl = [], 0
+    for s, due in with_due(imu, fixes):
         core.step(s)
-        while j < len(fixes) and fixes[j].t <= s.t + 1e-9:
-            f = fixes[j]
-            j += 1
+        for f in due:
             if mon.check(f, core.state()):
                 excl += 1
             else:

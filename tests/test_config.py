@@ -93,8 +93,8 @@ def test_cli_rejects_bad_config_before_starting_anything(tmp_path: Path) -> None
 
 
 @pytest.mark.slow
-def test_cli_core_c_fails_cleanly_or_runs(tmp_path: Path) -> None:
-    """``--core c`` either runs (C core built) or stops before starting with a clear message."""
+def test_cli_core_c_runs(tmp_path: Path) -> None:
+    """``--core c`` runs the gateway on the C reference core (built with the package, as the parity tests need)."""
     r = subprocess.run(
         [sys.executable, "-m", "ins_hil", "run", "--core", "c", "--no-status", "--no-mqtt", "--duration", "2"],
         cwd=tmp_path,
@@ -102,12 +102,25 @@ def test_cli_core_c_fails_cleanly_or_runs(tmp_path: Path) -> None:
         text=True,
         timeout=60,
     )
+    assert r.returncode == 0, r.stderr
+    assert "C reference core" not in r.stderr and list((tmp_path / "recordings").glob("*.ihlog"))
+
+
+def test_cli_core_c_unavailable_stops_before_starting(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Without the C core (its module not importable) ``--core c`` stops with status 2 and a clear message before
+    anything starts; the Python core is still built."""
+    import ins_hil
+    from ins_hil.cli import main
     from ins_hil.runtime.pipeline import check_core
 
-    try:
+    monkeypatch.setitem(sys.modules, "ins_hil.cref", None)  # import ins_hil.cref -> ImportError
+    monkeypatch.delattr(ins_hil, "cref", raising=False)  # (else `from ins_hil import cref` finds the loaded module)
+    with pytest.raises(RuntimeError, match=r"core 'c': the C reference core \(ins_hil.cref\) is not available"):
         check_core("c")
-    except RuntimeError:
-        assert r.returncode == 2 and "C reference core" in r.stderr
-        assert not (tmp_path / "recordings").exists()
-    else:
-        assert r.returncode == 0, r.stderr
+    check_core("python")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--core", "c", "--no-status", "--no-mqtt", "--duration", "2"]) == 2
+    assert "C reference core" in capsys.readouterr().err
+    assert not (tmp_path / "recordings").exists()

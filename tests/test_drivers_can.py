@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import math
 import os
-import tty
 
 import can
 import dronecan
@@ -17,6 +16,7 @@ from hypothesis import strategies as st
 from ins_hil.drivers import dronecan_codec as dc
 from ins_hil.drivers.can_imu import CanImuDriver
 from ins_hil.drivers.dbc_codec import DbcImuDecoder, DbcProfile, crc8_j1850
+from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
 from ins_hil.sim.can_imu import DbcImuNode, DroneCanImuNode
 from ins_hil.types import GnssFix, ImuSample, MagSample
@@ -235,10 +235,7 @@ def test_driver_on_virtual_bus() -> None:
         drv = CanImuDriver.from_config(
             {"interface": "virtual", "channel": "unit1", "protocol": "dronecan", "nodes": [10], "node_id": 99}
         )
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         tx = can.Bus(interface="virtual", channel="unit1", receive_own_messages=False)
         seen: list[can.Message] = []
         node = DroneCanImuNode(node_id=10, aux_hz=10.0)
@@ -276,18 +273,12 @@ def test_driver_over_slcan_pty() -> None:
     """A fake slcan adapter on the master side of a real pty; DBC IMU frames plus garbage lines."""
 
     async def main() -> tuple[list, CanImuDriver]:
-        master, slave = os.openpty()
-        tty.setraw(master)
-        name = os.ttyname(slave)
-        os.close(slave)
+        master, name = open_raw_pty()
         drv = CanImuDriver.from_config(
             {"interface": "slcan", "channel": name, "sleep_after_open": 0, "bitrate": 500000, "protocol": "dbc",
              "dbc": {"rate_hz": 100.0}, "node_id": None},
         )  # fmt: skip
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         node = DbcImuNode(rate_hz=100.0)
         for i in range(10):
             buf = b"".join(_slcan_line(m) for m in node.frames(10))
@@ -295,10 +286,7 @@ def test_driver_over_slcan_pty() -> None:
                 buf += b"Tzzzz\r"  # a garbled line
             os.write(master, buf)
             await asyncio.sleep(0.02)
-        for _ in range(100):
-            if len(got) >= 100:
-                break
-            await asyncio.sleep(0.02)
+        await wait_for_count(got, 100)
         task.cancel()
         os.close(master)
         return got, drv
@@ -341,10 +329,7 @@ def test_bulk_slcan_reads_bursts_in_few_calls() -> None:
     slcan reads one byte per call)."""
     from ins_hil.drivers.slcan import BulkSlcanBus, open_bus
 
-    master, slave = os.openpty()
-    tty.setraw(master)
-    name = os.ttyname(slave)
-    os.close(slave)
+    master, name = open_raw_pty()
     bus = open_bus({"interface": "slcan", "channel": name, "sleep_after_open": 0, "bitrate": 1000000})
     assert isinstance(bus, BulkSlcanBus)
     os.read(master, 64)  # the adapter's setup commands (S8, O)

@@ -8,7 +8,6 @@ import math
 import os
 import random
 import time
-import tty
 from collections import Counter
 from typing import Any
 
@@ -18,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from ins_hil.drivers.mavlink_in import ClockSync, MavlinkDriver, parse_url, signing_key_from
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
 from ins_hil.sim.fc import SimFlightController
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
@@ -25,22 +25,34 @@ from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
 G = 9.80665
 
 
-async def _run_pair(
-    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None
-) -> tuple[list, MavlinkDriver, SimFlightController]:
-    drv = MavlinkDriver("udpin:127.0.0.1:0", **(drv_kw or {}))
+async def _listening(**drv_kw: Any) -> tuple[MavlinkDriver, list, asyncio.Task]:
+    """A MAVLink driver on udpin:127.0.0.1 (a free port) running into a list: (driver, list, task) once it listens."""
+    drv = MavlinkDriver("udpin:127.0.0.1:0", **drv_kw)
     got: list = []
     task = asyncio.create_task(drv.run(got.append))
     while drv.local_address is None:
         await asyncio.sleep(0.005)
-    fc = SimFlightController(target=drv.local_address, **(fc_kw or {}))
+    return drv, got, task
+
+
+async def _fly_then_stop(fc: SimFlightController, seconds: float, driver_task: asyncio.Task) -> None:
+    """Run the simulated FC for ``seconds``, stop it, give the driver 50 ms to read what is still in flight, stop
+    the driver."""
     ft = asyncio.create_task(fc.run())
-    await asyncio.sleep(duration)
+    await asyncio.sleep(seconds)
     ft.cancel()
     await asyncio.gather(ft, return_exceptions=True)
-    await asyncio.sleep(0.05)  # let the driver read what is still in flight
-    task.cancel()
-    await asyncio.gather(task, return_exceptions=True)
+    await asyncio.sleep(0.05)
+    driver_task.cancel()
+    await asyncio.gather(driver_task, return_exceptions=True)
+
+
+async def _run_pair(
+    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None
+) -> tuple[list, MavlinkDriver, SimFlightController]:
+    drv, got, task = await _listening(**(drv_kw or {}))
+    fc = SimFlightController(target=drv.local_address, **(fc_kw or {}))
+    await _fly_then_stop(fc, duration, task)
     return got, drv, fc
 
 
@@ -57,7 +69,7 @@ def test_udp_against_simulated_fc() -> None:
     # TIMESYNC: the FC's boot clock runs ``_boot_ns`` behind our monotonic clock
     assert drv.clock.synced and fc.timesync_answered >= 2
     assert drv.clock.offset_ns is not None
-    assert abs(drv.clock.offset_ns + fc._boot_ns) < 5_000_000  # within 5 ms (loopback, loaded machine)
+    assert abs(drv.clock.offset_ns - fc.fc_time_ns(0.0)) < 5_000_000  # within 5 ms (loopback, loaded machine)
     imu = [s for s in got if isinstance(s, ImuSample)]
     # sensor time mapped onto our monotonic base: close to (just before) arrival
     lat = [s.t_arrival_ns * 1e-9 - s.t for s in imu[len(imu) // 2 :]]
@@ -110,19 +122,10 @@ def test_udp_corruption_counted_and_rejected() -> None:
         return buf
 
     async def main() -> tuple[list, MavlinkDriver, SimFlightController]:
-        drv = MavlinkDriver("udpin:127.0.0.1:0")
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while drv.local_address is None:
-            await asyncio.sleep(0.005)
+        drv, got, task = await _listening()
         fc = SimFlightController(target=drv.local_address, imu_hz=250.0)
         fc.tamper = tamper
-        ft = asyncio.create_task(fc.run())
-        await asyncio.sleep(1.5)
-        ft.cancel()
-        await asyncio.sleep(0.05)
-        task.cancel()
-        await asyncio.gather(ft, task, return_exceptions=True)
+        await _fly_then_stop(fc, 1.5, task)
         return got, drv, fc
 
     got, drv, fc = asyncio.run(main())
@@ -279,24 +282,15 @@ def test_tcp_link_and_reconnect() -> None:
 
 def test_serial_link_over_pty() -> None:
     async def main() -> tuple[list, MavlinkDriver]:
-        master, slave = os.openpty()
-        tty.setraw(master)
-        name = os.ttyname(slave)
-        os.close(slave)
+        master, name = open_raw_pty()
         drv = MavlinkDriver(f"serial:{name}:57600")
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
         data = _stream(mav, 30)
         for i in range(0, len(data), 17):
             os.write(master, data[i : i + 17])
             await asyncio.sleep(0.001)
-        for _ in range(100):
-            if len(got) >= 30:
-                break
-            await asyncio.sleep(0.02)
+        await wait_for_count(got, 30)
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
         os.close(master)
@@ -352,11 +346,7 @@ def test_wild_timesync_reply_does_not_move_the_mapping() -> None:
     counted, every sample's time stays finite and near its arrival."""
 
     async def main() -> tuple[list, MavlinkDriver, SimFlightController, int]:
-        drv = MavlinkDriver("udpin:127.0.0.1:0", timesync_s=0.2)
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while drv.local_address is None:
-            await asyncio.sleep(0.005)
+        drv, got, task = await _listening(timesync_s=0.2)
         loop = asyncio.get_running_loop()
         tx, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol, remote_addr=drv.local_address)
         atk = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)  # posing as the FC
@@ -398,7 +388,7 @@ def test_wild_timesync_reply_does_not_move_the_mapping() -> None:
     got, drv, fc, off0 = asyncio.run(main())
     assert _deliveries_near_arrival(got, 0.5)
     assert drv.clock.offset_ns is not None and abs(drv.clock.offset_ns - off0) < 5_000_000
-    assert abs(drv.clock.offset_ns + fc._boot_ns) < 5_000_000
+    assert abs(drv.clock.offset_ns - fc.fc_time_ns(0.0)) < 5_000_000
     e = drv.health.errors
     assert e.get("timesync_outlier") == 3 and e.get("timesync_unmatched") == 3 and "timesync_reset" not in e
     assert sum(isinstance(s, GnssFix) for s in got) > 10
@@ -410,11 +400,7 @@ def test_fc_reboot_is_followed_within_a_few_replies() -> None:
     clock are never delivered at the old offset; the estimate follows within a few TIMESYNC replies."""
 
     async def main() -> tuple[list, MavlinkDriver, SimFlightController, int]:
-        drv = MavlinkDriver("udpin:127.0.0.1:0", timesync_s=0.5)
-        got: list = []
-        task = asyncio.create_task(drv.run(got.append))
-        while drv.local_address is None:
-            await asyncio.sleep(0.005)
+        drv, got, task = await _listening(timesync_s=0.5)
         a = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0)
         at = asyncio.create_task(a.run())
         for _ in range(200):
@@ -426,18 +412,13 @@ def test_fc_reboot_is_followed_within_a_few_replies() -> None:
         await asyncio.gather(at, return_exceptions=True)
         n_before = len(got)
         b = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0, boot_offset_s=3.0)
-        bt = asyncio.create_task(b.run())
-        await asyncio.sleep(2.0)
-        bt.cancel()
-        await asyncio.sleep(0.05)
-        task.cancel()
-        await asyncio.gather(bt, task, return_exceptions=True)
+        await _fly_then_stop(b, 2.0, task)
         return got, drv, b, n_before
 
     got, drv, b, n_before = asyncio.run(main())
     assert _deliveries_near_arrival(got, 0.5)
     c = drv.clock
-    assert c.synced and c.offset_ns is not None and abs(c.offset_ns + b._boot_ns) < 5_000_000
+    assert c.synced and c.offset_ns is not None and abs(c.offset_ns - b.fc_time_ns(0.0)) < 5_000_000
     e = drv.health.errors
     assert e["timesync_reset"] == 1 and e["timesync_outlier"] <= 3  # confirm = 3 replies
     assert e.get("time_implausible", 0) > 0  # the rebooted FC's samples before the re-sync: dropped, counted

@@ -6,7 +6,6 @@ import asyncio
 import os
 import random
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ins_hil.drivers import serial_frame as sf
 from ins_hil.drivers.serial_imu import SerialImuDriver
+from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
 from ins_hil.types import ImuSample
 
@@ -131,14 +131,6 @@ def test_time_unwraps_over_32bit_counter() -> None:
 
 
 # ---------------------------------------------------------------- real pseudo-terminals
-def _open_pty() -> tuple[int, str]:
-    master, slave = os.openpty()
-    tty.setraw(master)
-    name = os.ttyname(slave)
-    os.close(slave)  # the driver opens it by name
-    return master, name
-
-
 async def _imu_writer(master: int, n: int, rate_hz: float, corrupt: float = 0.0, seed: int = 0) -> list[int]:
     """Write n frames at rate_hz (1 kHz: bursts of 10 every 10 ms). Returns the seqs corrupted."""
     rng = random.Random(seed)
@@ -161,17 +153,11 @@ async def _imu_writer(master: int, n: int, rate_hz: float, corrupt: float = 0.0,
 
 def test_pty_1khz_with_corruption() -> None:
     async def main() -> tuple[list[ImuSample], SerialImuDriver, list[int]]:
-        master, name = _open_pty()
+        master, name = open_raw_pty()
         drv = SerialImuDriver(name, 921600)
-        got: list[ImuSample] = []
-        task = asyncio.create_task(drv.run(got.append))  # type: ignore[arg-type]
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         bad = await _imu_writer(master, 2000, 1000.0, corrupt=0.01, seed=3)
-        for _ in range(100):
-            if len(got) >= 2000 - len(bad):
-                break
-            await asyncio.sleep(0.02)
+        await wait_for_count(got, 2000 - len(bad))
         task.cancel()
         os.close(master)
         return got, drv, bad
@@ -194,7 +180,7 @@ def test_pty_vanishes_and_comes_back(tmp_path: Path) -> None:
         got: list[ImuSample] = []
         task = asyncio.create_task(drv.run(got.append))  # type: ignore[arg-type]
         await asyncio.sleep(0.3)  # nothing there yet: open fails, backoff
-        m1, n1 = _open_pty()
+        m1, n1 = open_raw_pty()
         link.symlink_to(n1)
         while not drv.health.connected:
             await asyncio.sleep(0.01)
@@ -206,7 +192,7 @@ def test_pty_vanishes_and_comes_back(tmp_path: Path) -> None:
             if not drv.health.connected:
                 break
             await asyncio.sleep(0.02)
-        m2, n2 = _open_pty()
+        m2, n2 = open_raw_pty()
         link.symlink_to(n2)
         for _ in range(300):
             if drv.health.connected:
@@ -252,17 +238,11 @@ def test_pty_sensor_clock_restarts_mid_stream_navigation_resumes() -> None:
             await asyncio.sleep(max(0.0, t0 + (i0 + 10) / rate - time.monotonic()))
 
     async def main() -> tuple[list[ImuSample], SerialImuDriver]:
-        master, name = _open_pty()
+        master, name = open_raw_pty()
         drv = SerialImuDriver(name, 921600)
-        got: list[ImuSample] = []
-        task = asyncio.create_task(drv.run(got.append))  # type: ignore[arg-type]
-        while not drv.health.connected:
-            await asyncio.sleep(0.01)
+        got, task = await start_driver(drv)
         await writer(master)
-        for _ in range(100):
-            if len(got) >= n1 + n2 - 1:
-                break
-            await asyncio.sleep(0.02)
+        await wait_for_count(got, n1 + n2 - 1)
         task.cancel()
         os.close(master)
         return got, drv

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.fdi.aiding import AidingConfig, AidingMonitor, cusum_arl0, cusum_threshold
@@ -48,12 +49,10 @@ def _run(truth, imu, fixes, baro, monitor: bool = True):
     core = NavCore(init, NavConfig(filter=FilterConfig(cov_every=5)))
     mon = AidingMonitor(CFG) if monitor else None
     meas = sorted([*fixes, *baro], key=lambda m: m.t)
-    j, ev, err = 0, [], []
-    for k, s in enumerate(imu):
+    ev, err = [], []
+    for k, (s, due) in enumerate(with_due(imu, meas)):
         core.step(s)
-        while j < len(meas) and meas[j].t <= s.t + 1e-9:
-            m = meas[j]
-            j += 1
+        for m in due:
             if mon is not None and mon.check(m, core.state()):
                 continue
             core.fuse(m)

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.fusion import measurements as mm
@@ -22,13 +23,11 @@ LAT0, LON0, H0 = math.radians(45.0), 0.5, 100.0
 def _run(core: NavCore, imu, fixes, extra=()):
     """Feed IMU samples and measurements in time order; returns the list of states after each step."""
     meas = sorted([*fixes, *extra], key=lambda m: m.t)
-    j = 0
     out = []
-    for s in imu.samples():
+    for s, due in with_due(imu.samples(), meas):
         out.append(core.step(s))
-        while j < len(meas) and meas[j].t <= s.t + 1e-9:
-            core.fuse(meas[j])
-            j += 1
+        for m in due:
+            core.fuse(m)
     return out
 
 
@@ -219,12 +218,11 @@ def test_21_state_filter_estimates_gyro_scale_factors():
         init = StrapdownState(truth.q_nb[0].copy(), truth.vel_ned[0].copy(), truth.lat[0], truth.lon[0], truth.h[0])
         core = NavCore(init, NavConfig(filter=FilterConfig(scale_factors=sf, init_sf=5e-3)))
         assert core.kf.n == (21 if sf else 15)
-        j, errs = 0, []
-        for k, s in enumerate(imu):
+        errs = []
+        for k, (s, due) in enumerate(with_due(imu, fixes)):
             core.step(s)
-            while j < len(fixes) and fixes[j].t <= s.t + 1e-9:
-                core.fuse(fixes[j])
-                j += 1
+            for f in due:
+                core.fuse(f)
             if k > 7000 and k % 50 == 0:
                 errs.append(quat_angle_between(core.state().q_nb, truth.q_nb[k + 1]))
         res[sf] = (float(np.sqrt(np.mean(np.square(errs)))), core.sg.copy())

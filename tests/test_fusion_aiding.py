@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
@@ -41,13 +42,11 @@ def _run(truth, imu, meas, cfg, delay=0.0, t_from=0.0):
     core = NavCore(_init(truth), cfg)
     core.keep_nis = True  # the accepted innovations' NIS, for the consistency checks
     meas = sorted(meas, key=lambda m: m.t)
-    j = 0
     pe, ve = [], []
-    for k, s in enumerate(imu):
+    for k, (s, due) in enumerate(with_due(imu, meas, delay)):
         core.step(s)
-        while j < len(meas) and meas[j].t + delay <= s.t + 1e-9:
-            core.fuse(meas[j])
-            j += 1
+        for m in due:
+            core.fuse(m)
         if s.t >= t_from and k % 10 == 0:
             st = core.state()
             i = k + 1
@@ -141,12 +140,10 @@ def test_magnetometer_bounds_heading_without_gnss(scen):
     cfg = NavConfig(mag_ref_ned=ref, mag_std=0.01)
     core = NavCore(_init(truth), cfg)
     meas = sorted([*fixes, *mag], key=lambda m: m.t)
-    j = 0
-    for s in imu:
+    for s, due in with_due(imu, meas):
         core.step(s)
-        while j < len(meas) and meas[j].t <= s.t + 1e-9:
-            core.fuse(meas[j])
-            j += 1
+        for m in due:
+            core.fuse(m)
     from ins_hil.nav.rotation import quat_angle_between
 
     assert math.degrees(quat_angle_between(core.state().q_nb, truth.q_nb[-1])) < 1.0
@@ -351,9 +348,10 @@ def test_delayed_fusion_rollback_restores_the_ground_aid_averages(cov_every):
         core.step(s)
     kf = core.kf
     if cov_every > 1:
-        assert kf._acc_n == 3 and kf._acc_qv is not None
+        assert kf.snapshot().acc_n == 3 and kf.snapshot().acc_qv is not None
+    acc_qv = kf.snapshot().acc_qv  # the partial block sum of the process noise (cov_every)
     before = (core.aids.ema_f.copy(), core.aids.ema_w.copy(), core.state().vel_ned.copy(), kf.vib_var, kf.vib_prev,
-              kf.P.copy(), None if kf._acc_qv is None else kf._acc_qv.copy())  # fmt: skip
+              kf.P.copy(), None if acc_qv is None else acc_qv.copy())  # fmt: skip
     assert np.all(np.array(kf.vib_var) > 0.0)
     assert core.stats["zupt"].accepted > 10 and core.stats["nhc"].accepted > 10
     core.fuse(GnssFix(t=imu[n_end - 1].t - 0.2, lat=math.nan, lon=math.nan, h=math.nan))  # rollback + replay
@@ -363,7 +361,7 @@ def test_delayed_fusion_rollback_restores_the_ground_aid_averages(cov_every):
     assert kf.vib_var == before[3] and kf.vib_prev == before[4]
     assert np.array_equal(kf.P, before[5])
     if cov_every > 1:
-        assert np.array_equal(kf._acc_qv, before[6])
+        assert np.array_equal(kf.snapshot().acc_qv, before[6])
 
 
 def test_nhc_lever_arm_uses_a_low_passed_rate():

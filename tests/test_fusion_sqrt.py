@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.fusion import book
@@ -146,12 +147,10 @@ def test_navcore_numerics_give_the_same_estimates(numerics, vib):
                 filter=FilterConfig(numerics=num, gyro_vib_gain=vib, accel_vib_gain=vib), delay_compensation=False
             ),
         )
-        j = 0
-        for s in imu:
+        for s, due in with_due(imu, fixes):
             core.step(s)
-            while j < len(fixes) and fixes[j].t <= s.t + 1e-9:
-                core.fuse(fixes[j])
-                j += 1
+            for f in due:
+                core.fuse(f)
         return core
 
     ref, other = run("joseph"), run(numerics)

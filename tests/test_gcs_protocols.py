@@ -72,15 +72,23 @@ class Vehicle:
         # the ground station listens where the endpoint sends (MAVProxy's --master=udpin:…)
         url = f"udpin:127.0.0.1:{self.port}"
         self.gcs = mavutil.mavlink_connection(url, source_system=255, dialect="ardupilotmega")
-        self._th.start()
-        assert self._ready.wait(5)
+        self.start()
         self.wait("HEARTBEAT")  # the endpoint's address is known to the GCS from its first datagram
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self.stop()
+        self.gcs.close()
+
+    def start(self) -> None:
+        """Start the vehicle's event-loop thread and wait (5 s at most) until its endpoint is up."""
+        self._th.start()
+        assert self._ready.wait(5)
+
+    def stop(self) -> None:
+        """Stop the event loop and join its thread (5 s at most)."""
         self._stop.set()
         self._th.join(5)
-        self.gcs.close()
 
     def wait(self, typ: str | list[str], timeout: float = 3.0, cond: Any = None) -> Any:
         end = time.monotonic() + timeout
@@ -329,8 +337,7 @@ def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
     n = len(NAV_PARAMS) + len(RATE_PARAM)
     try:
         time.sleep(1.0)  # MAVProxy binds its UDP port
-        v._th.start()
-        assert v._ready.wait(5)
+        v.start()
         assert wait_for(r"Detected vehicle 42:1") is not None, "".join(lines)
         lines.clear()
         cmd("param fetch")
@@ -355,8 +362,7 @@ def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
         except subprocess.TimeoutExpired:
             mp.kill()
             mp.wait()
-        v._stop.set()
-        v._th.join(5)
+        v.stop()
     assert v.ep.rates["VFR_HUD"] == 2.0 and v.pipeline.core.cfg.use_gnss_vel is True
     saved = (tmp_path / "mav_42_1.parm").read_text().split("\n")
     assert len([s for s in saved if s.strip()]) == n  # MAVProxy's own copy of the parameter list

@@ -225,6 +225,43 @@ def bench_nominal(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
     return out
 
 
+def _faults(sg: float) -> list[tuple[str, FaultMode, float]]:
+    """The gyro-0 faults of the navigation tables: a 10σ step (``sg``: per-sample gyro σ, rad/s), a 1 °/s/min ramp."""
+    return [("step 10σ", FaultMode.STEP_BIAS, 10 * sg), ("ramp 1 °/s per min", FaultMode.RAMP, DEG / 60)]
+
+
+def _three_ways(geo: SensorGeometry) -> Callable[[np.ndarray, np.ndarray], list[tuple[np.ndarray, np.ndarray]]]:
+    """Least-squares body increments (gyro rad, accel m/s) of one epoch's sensor outputs, without sensor 0 ('absent')
+    and over all sensors ('no FDI'), as ``[absent, no FDI]`` of (dθ, Δv)."""
+    zg_abs, za_abs = np.linalg.pinv(geo.gyro_axes[1:]), np.linalg.pinv(geo.accel_axes[1:])
+    zg, za = np.linalg.pinv(geo.gyro_axes), np.linalg.pinv(geo.accel_axes)
+    return lambda gyro, accel: [(zg_abs @ gyro[1:], za_abs @ accel[1:]), (zg @ gyro, za @ accel)]
+
+
+def _ratio_head(what: str) -> list[str]:
+    """A blank line and the head of a monitor / absent / no FDI table of ``what`` ("err", "RMS") with ratios."""
+    return [
+        "",
+        f"| configuration | fault | att. {what} monitor / absent / no FDI [deg] "
+        f"| pos. {what} monitor / absent / no FDI [m] | ratio att | ratio pos |",
+        "|---|---|---|---|---|---|",
+    ]
+
+
+def _ratio_row(
+    kind: str, name: str, label: str, e: np.ndarray, pos_dp: int, cfg: FdiBench, lines: list[str], out: dict
+) -> None:
+    """Append the table row of errors ``e`` (rows monitor / absent / no FDI; columns att. deg, pos. m) with the
+    monitor/absent ratios, record the ratios in ``out[(name, label)]`` and log them."""
+    ra, rp = e[0, 0] / e[1, 0], e[0, 1] / e[1, 1]
+    lines.append(
+        f"| {name} | {label} | {e[0, 0]:.4f} / {e[1, 0]:.4f} / {e[2, 0]:.4f} | "
+        f"{e[0, 1]:.{pos_dp}f} / {e[1, 1]:.{pos_dp}f} / {e[2, 1]:.{pos_dp}f} | {ra:.2f} | {rp:.2f} |"
+    )
+    out[(name, label)] = (ra, rp)
+    cfg.log(f"  {kind} {name} {label}: ratio att {ra:.2f} pos {rp:.2f}")
+
+
 def bench_nav(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
     """Free-inertial navigation (mechanization only) on the monitor's output vs the failed sensor absent."""
     dt = 1.0 / cfg.rate
@@ -240,20 +277,12 @@ def bench_nav(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
         f"flight, fault at {t_f:.0f} s on gyro 0; errors at the end, mean over {cfg.trials} seeds. "
         "'monitor' = navigation on the FdiMonitor output; 'absent' = least squares without the failed sensor "
         "for the whole run; 'no FDI' = least squares over all sensors. Target: monitor ≤ 1.5 × absent.",
-        "",
-        "| configuration | fault | att. err monitor / absent / no FDI [deg] | pos. err monitor / absent / no FDI [m] "
-        "| ratio att | ratio pos |",
-        "|---|---|---|---|---|---|",
-    ]
-    faults = [
-        ("step 10σ", FaultMode.STEP_BIAS, 10 * sg),
-        ("ramp 1 °/s per min", FaultMode.RAMP, DEG / 60),
+        *_ratio_head("err"),
     ]
     for name in names:
         geo = by_name(name)
-        Zg_abs, Za_abs = np.linalg.pinv(geo.gyro_axes[1:]), np.linalg.pinv(geo.accel_axes[1:])
-        Zg, Za = np.linalg.pinv(geo.gyro_axes), np.linalg.pinv(geo.accel_axes)
-        for label, mode, size in faults:
+        others = _three_ways(geo)
+        for label, mode, size in _faults(sg):
             errs = np.zeros((3, 2))
             for trial in range(cfg.trials):
                 s = inject(simulate(truth, geo, seed=7000 + trial), FaultSpec(mode, 0, t_f, size))
@@ -266,21 +295,14 @@ def bench_nav(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
                 ]
                 for k in range(len(s.t)):
                     dth, dv, _ = mon.process_arrays(s.t[k], dt, s.gyro[k], s.accel[k])
-                    navs[0].step(dth, dv, dt)
-                    navs[1].step(Zg_abs @ s.gyro[k, 1:], Za_abs @ s.accel[k, 1:], dt)
-                    navs[2].step(Zg @ s.gyro[k], Za @ s.accel[k], dt)
+                    for nv, (a, b) in zip(navs, [(dth, dv), *others(s.gyro[k], s.accel[k])]):
+                        nv.step(a, b, dt)
                 for i, nv in enumerate(navs):
                     st = nv.state
                     errs[i, 0] += math.degrees(quat_angle_between(st.q_nb, truth.q_nb[-1])) / cfg.trials
                     d = earth.ned_from_geodetic(st.lat, st.lon, st.h, truth.lat[-1], truth.lon[-1], truth.h[-1])
                     errs[i, 1] += float(np.linalg.norm(d)) / cfg.trials
-            ra, rp = errs[0, 0] / errs[1, 0], errs[0, 1] / errs[1, 1]
-            lines.append(
-                f"| {name} | {label} | {errs[0, 0]:.4f} / {errs[1, 0]:.4f} / {errs[2, 0]:.4f} | "
-                f"{errs[0, 1]:.1f} / {errs[1, 1]:.1f} / {errs[2, 1]:.1f} | {ra:.2f} | {rp:.2f} |"
-            )
-            out[(name, label)] = (ra, rp)
-            cfg.log(f"  nav {name} {label}: ratio att {ra:.2f} pos {rp:.2f}")
+            _ratio_row("nav", name, label, errs, 1, cfg, lines, out)
     lines.append("")
     return out
 
@@ -301,17 +323,12 @@ def bench_aided(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
         f"`ins_hil.core.NavCore` (error-state EKF from the fusion branch, merged) fed by the monitor's output, "
         f"GNSS at 5 Hz (1 m / 0.1 m/s), {dur:.0f} s manoeuvring flight, fault at {t_f:.0f} s on gyro 0; "
         f"RMS errors over {t_eval:.0f}–{dur:.0f} s, one seed. Columns as above.",
-        "",
-        "| configuration | fault | att. RMS monitor / absent / no FDI [deg] | pos. RMS monitor / absent / no FDI [m] "
-        "| ratio att | ratio pos |",
-        "|---|---|---|---|---|---|",
+        *_ratio_head("RMS"),
     ]
-    faults = [("step 10σ", FaultMode.STEP_BIAS, 10 * sg), ("ramp 1 °/s per min", FaultMode.RAMP, DEG / 60)]
     for name in names:
         geo = by_name(name)
-        Zg_abs, Za_abs = np.linalg.pinv(geo.gyro_axes[1:]), np.linalg.pinv(geo.accel_axes[1:])
-        Zg, Za = np.linalg.pinv(geo.gyro_axes), np.linalg.pinv(geo.accel_axes)
-        for label, mode, size in faults:
+        others = _three_ways(geo)
+        for label, mode, size in _faults(sg):
             s = inject(simulate(truth, geo, seed=9000), FaultSpec(mode, 0, t_f, size))
             mon = FdiMonitor(_config(geo, dt, cfg.p_fa))
             init = StrapdownState(truth.q_nb[0].copy(), truth.vel_ned[0].copy(), LAT0, LON0, H0, truth.t[0])
@@ -322,12 +339,7 @@ def bench_aided(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
             for k in range(len(s.t)):
                 tk = float(s.t[k])
                 dth, dv, _ = mon.process_arrays(tk, dt, s.gyro[k], s.accel[k])
-                incs = [
-                    (dth, dv),
-                    (Zg_abs @ s.gyro[k, 1:], Za_abs @ s.accel[k, 1:]),
-                    (Zg @ s.gyro[k], Za @ s.accel[k]),
-                ]
-                for c, (a, b) in zip(cores, incs):
+                for c, (a, b) in zip(cores, [(dth, dv), *others(s.gyro[k], s.accel[k])]):
                     c.step(ImuSample(tk, dt, a, b))
                 while fi < len(fixes) and fixes[fi].t <= tk + 1e-9:
                     for c in cores:
@@ -344,13 +356,7 @@ def bench_aided(names: list[str], cfg: FdiBench, lines: list[str]) -> dict:
                         acc[i, 1] += float(d @ d)
             rms = np.sqrt(acc / cnt)
             rms[:, 0] = np.degrees(rms[:, 0])
-            ra, rp = rms[0, 0] / rms[1, 0], rms[0, 1] / rms[1, 1]
-            lines.append(
-                f"| {name} | {label} | {rms[0, 0]:.4f} / {rms[1, 0]:.4f} / {rms[2, 0]:.4f} | "
-                f"{rms[0, 1]:.2f} / {rms[1, 1]:.2f} / {rms[2, 1]:.2f} | {ra:.2f} | {rp:.2f} |"
-            )
-            out[(name, label)] = (ra, rp)
-            cfg.log(f"  aided {name} {label}: ratio att {ra:.2f} pos {rp:.2f}")
+            _ratio_row("aided", name, label, rms, 2, cfg, lines, out)
     lines.append("")
     return out
 
@@ -514,17 +520,24 @@ def _aid_live_run(seed: int, fault: str, size: float) -> tuple[list, dict[str, i
     return ev, pipe.counts
 
 
+AID_KINDS = {  # fault kind -> (table label, sensor that should be flagged, expected mode)
+    "none": ("none (nominal)", "", FaultMode.DRIFT),
+    "pull": ("GNSS position pull", "gnss", FaultMode.DRIFT),
+    "spoof": ("GNSS pull, matching velocity", "gnss", FaultMode.DRIFT),
+    "jump": ("GNSS jump (m)", "gnss", FaultMode.JUMP),
+    "baro": ("baro drift", "baro", FaultMode.DRIFT),
+}
+
+
+def _aid_cases(*rows: tuple) -> list[tuple[str, str, float, str, FaultMode]]:
+    """Table rows (label, kind, size, sensor, mode) from ``(kind, size, size, ...)`` groups; sizes in m/s (m for
+    the jump)."""
+    return [(AID_KINDS[r[0]][0], r[0], size, *AID_KINDS[r[0]][1:]) for r in rows for size in r[1:]]
+
+
 def bench_aiding_live(cfg: FdiBench, lines: list[str]) -> None:
     """GNSS/baro drift rows in the live gateway configuration (configs/default.toml, offline)."""
-    cases = [
-        ("none (nominal)", "none", 0.0, "", FaultMode.DRIFT),
-        ("GNSS position pull", "pull", 0.3, "gnss", FaultMode.DRIFT),
-        ("GNSS position pull", "pull", 1.0, "gnss", FaultMode.DRIFT),
-        ("GNSS pull, matching velocity", "spoof", 0.1, "gnss", FaultMode.DRIFT),
-        ("GNSS pull, matching velocity", "spoof", 0.3, "gnss", FaultMode.DRIFT),
-        ("GNSS pull, matching velocity", "spoof", 1.0, "gnss", FaultMode.DRIFT),
-        ("baro drift", "baro", 0.3, "baro", FaultMode.DRIFT),
-    ]
+    cases = _aid_cases(("none", 0.0), ("pull", 0.3, 1.0), ("spoof", 0.1, 0.3, 1.0), ("baro", 0.3))
     n = cfg.aiding_live_trials
     lines += [
         "",
@@ -578,18 +591,7 @@ def bench_aiding_live(cfg: FdiBench, lines: list[str]) -> None:
 
 def bench_aiding(cfg: FdiBench, lines: list[str]) -> None:
     """GNSS/baro drift table (ins_hil.fdi.aiding) on closed-loop simulated flights."""
-    cases = [
-        ("GNSS position pull", "pull", 0.1, "gnss", FaultMode.DRIFT),
-        ("GNSS position pull", "pull", 0.3, "gnss", FaultMode.DRIFT),
-        ("GNSS position pull", "pull", 1.0, "gnss", FaultMode.DRIFT),
-        ("GNSS pull, matching velocity", "spoof", 0.1, "gnss", FaultMode.DRIFT),
-        ("GNSS pull, matching velocity", "spoof", 0.3, "gnss", FaultMode.DRIFT),
-        ("GNSS pull, matching velocity", "spoof", 1.0, "gnss", FaultMode.DRIFT),
-        ("GNSS jump (m)", "jump", 10.0, "gnss", FaultMode.JUMP),
-        ("baro drift", "baro", 0.1, "baro", FaultMode.DRIFT),
-        ("baro drift", "baro", 0.3, "baro", FaultMode.DRIFT),
-        ("baro drift", "baro", 1.0, "baro", FaultMode.DRIFT),
-    ]
+    cases = _aid_cases(("pull", 0.1, 0.3, 1.0), ("spoof", 0.1, 0.3, 1.0), ("jump", 10.0), ("baro", 0.1, 0.3, 1.0))
     n = cfg.aiding_trials
     lines += [
         "## GNSS / baro drift (ins_hil.fdi.aiding)",

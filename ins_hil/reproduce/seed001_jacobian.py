@@ -12,6 +12,7 @@ Convention (DIGEST_001_004 §1.9): F23 = −[f×], F31 = −(printed F31), F32 =
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import lru_cache
 
 import numpy as np
@@ -83,16 +84,20 @@ class _Mech:
         return np.concatenate([rc - rt, vc - vt, _vee(Edot)])
 
 
+def _central_difference(f: Callable[[np.ndarray], np.ndarray], steps: np.ndarray) -> np.ndarray:
+    """Jacobian of ``f`` at 0 by central differences, column j = (f(+h_j e_j) − f(−h_j e_j)) / (2 h_j)."""
+    cols = []
+    for j, hj in enumerate(steps):
+        e = np.zeros(len(steps))
+        e[j] = hj
+        cols.append((f(e) - f(-e)) / (2 * hj))
+    return np.stack(cols, axis=1)
+
+
 def numerical_F() -> np.ndarray:
     """9 × 15 central-difference Jacobian of (δṙ, δv̇, ε̇)."""
-    m = _Mech()
     steps = np.array([1e-7, 1e-7, 1.0] + [1e-3] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-4] * 3)
-    J = np.empty((9, 15))
-    for j in range(15):
-        e = np.zeros(15)
-        e[j] = steps[j]
-        J[:, j] = (m.error_rates(e) - m.error_rates(-e)) / (2 * steps[j])
-    return J
+    return _central_difference(_Mech().error_rates, steps)
 
 
 def analytic_F() -> np.ndarray:
@@ -306,14 +311,8 @@ class _MechNED:
 
 def core_F_numerical() -> np.ndarray:
     """6 × 15 central-difference Jacobian of the core's (δv̇, μ̇)."""
-    m = _MechNED()
     steps = np.array([10.0] * 3 + [1e-3] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-4] * 3)
-    J = np.empty((6, 15))
-    for j in range(15):
-        e = np.zeros(15)
-        e[j] = steps[j]
-        J[:, j] = (m.error_rates(e) - m.error_rates(-e)) / (2 * steps[j])
-    return J
+    return _central_difference(_MechNED().error_rates, steps)
 
 
 def core_F_analytic(omega_rv_terms: bool) -> np.ndarray:
