@@ -481,6 +481,17 @@ class DroneCanDecoder:
             m = self._hostmap[src] = HostTimeMap()
         return m
 
+    def _duplicate(self, key: tuple[int, int], tid: int, now_ns: int) -> bool:
+        """Whether a complete transfer repeats the last accepted one's id within the duplicate window."""
+        last = self._last_tid.get(key)
+        if last is None or (tid - last[0]) & 0x1F:
+            return False
+        window = self.tid_timeout_s * 1e9
+        per = self._period.get(key, 0.0)
+        if 0 < per and 16 * per < window:
+            window = 16 * per
+        return now_ns - last[1] < window
+
     def _transfer_id(self, key: tuple[int, int], tid: int, now_ns: int) -> bool:
         """Transfer-id check of one complete transfer; False if it is a duplicate."""
         last = self._last_tid.get(key)
@@ -550,13 +561,20 @@ class DroneCanDecoder:
         if r is None:
             return None
         dtid, src, tid, payload = r
-        if dtid != DTID_NODE_STATUS and not self._transfer_id((src, dtid), tid, now_ns):
-            return None  # (a NodeStatus is read even when its id repeats: a restarted node starts again at 0)
+        # (a NodeStatus is read even when its id repeats: a restarted node starts again at 0)
+        if dtid != DTID_NODE_STATUS and self._duplicate((src, dtid), tid, now_ns):
+            self._count("duplicate")
+            return None
         try:
             vals = decode_payload(dtid, payload)
         except Exception:
             self._count("decode")
             return None
+        # the transfer id is taken only from a transfer that decodes: a damaged frame that happens to read as
+        # a single-frame transfer (DroneCAN has no CRC on those) must not make the next real transfer with
+        # that id look like its duplicate
+        if dtid != DTID_NODE_STATUS:
+            self._transfer_id((src, dtid), tid, now_ns)
         return _HANDLERS[dtid](self, src, vals, now_ns)
 
     def _imu(self, src: int, v: dict[str, Any], now_ns: int) -> ImuSample | None:

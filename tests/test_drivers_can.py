@@ -114,6 +114,26 @@ def test_corrupted_transfers_counted_never_accepted(data: st.DataObject) -> None
         np.testing.assert_allclose(s.dvel, [0, 0, -9.80665 / 200], rtol=1e-6)
 
 
+def test_a_truncated_frame_read_as_a_single_frame_transfer_takes_down_nothing_else() -> None:
+    """The last frame of transfer 22 cut to 5 bytes: its last byte, 0xD7 in this stream, reads as the tail of a
+    single-frame transfer (SOT, EOT, toggle 0) with transfer id 23, a 4-byte payload that does not decode.
+    Found by the property test above: the id was taken before decoding, so the real transfer 23 was
+    dropped as its duplicate."""
+    frames = _imu_frames(30)
+    dec = dc.DroneCanDecoder()
+    got = []
+    for k, m in enumerate(frames):
+        d = bytes(m.data)
+        if k == 22 * 7 + 6:
+            d = d[:5]
+            assert d[-1] & 0xE0 == 0xC0 and d[-1] & 0x1F == 23  # SOT | EOT, toggle 0, transfer id 23
+        s = dec.feed(m.arbitration_id, d, True, 10**9 + k * 10**6)
+        if s is not None:
+            got.append(round(s.t * 200) - 201)
+    assert got == [i for i in range(30) if i != 22]
+    assert dec.counts.get("decode") == 1 and "duplicate" not in dec.counts
+
+
 @settings(max_examples=100, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 2**29 - 1), st.binary(max_size=8), st.booleans()), max_size=60))
 def test_dronecan_decoder_never_raises_on_random_frames(frames: list) -> None:
