@@ -508,6 +508,20 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
             choices=("given", "static"),
         ),
         "align_time": M("s", "(0, 3600]", "static alignment: levelling time at rest"),
+        "hold_without_gnss": M(
+            help="flight without GNSS: constant-position / zero-velocity pseudo-measurements once no GNSS position "
+            "has been fused for hold_after s (EKF2's no-aiding mode; for hovers and bench tests, not for a moving car)"
+        ),
+        "hold_after": M("s", "[0, 3600]", "hold_without_gnss: seconds without a fused GNSS position"),
+        "hold_std": M("m", "(0, 1e6]", "hold_without_gnss: σ of the constant-position row"),
+        "hold_vel_std": M("m/s", "[0, 1e3]", "hold_without_gnss: σ of the zero-velocity row; 0 = none"),
+        "hold_rate": M("Hz", "(0, 100]", "hold_without_gnss: pseudo-measurements per second"),
+        "gate_hold": M("σ", "(0, 1e6]", "hold_without_gnss: innovation gate"),
+        "position": M(
+            help="[lat deg, lon deg, h m]: a known position (levelling and the hold need no GNSS fix)",
+            length=3,
+            optional=True,
+        ),
         "align_level_only": M(help="static alignment: level only (yaw from the initial state)"),
         "align_gyrocompass": M(
             help="static alignment: yaw from the Earth rate (book eq. 4.2) when filter.init_gyro_bias allows "

@@ -54,6 +54,7 @@ from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
 from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
 from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-exported (ins_hil.cref)
 from ins_hil.core_parts.history import DelayedHistory
+from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
@@ -128,6 +129,13 @@ class NavConfig:
     zupt_max_speed: float = 1.0
     zaru: bool = True
     zaru_std: float = 0.002
+    hold_without_gnss: bool = False
+    hold_after: float = 5.0
+    hold_std: float = 10.0
+    hold_vel_std: float = 1.0
+    hold_rate: float = 5.0
+    gate_hold: float = 5.0
+    position: tuple[float, float, float] | None = None
     delay_compensation: bool = True
     max_delay: float = 0.3
     align: str = "given"
@@ -225,12 +233,20 @@ class NavCore:
         self._g_local = 9.80665
         self.phase = "nav" if self.cfg.align == "given" else "level"  # alignment: level → heading → nav
         self.align = Alignment(self)
+        if c.position is not None and self.phase == "level":  # a known position: levelling needs no GNSS fix
+            st = self.ins.state
+            st.lat, st.lon, st.h = math.radians(c.position[0]), math.radians(c.position[1]), float(c.position[2])
+            self.align.have_pos = True
         self.nis_log: list[tuple[float, str, float, int]] = []
         self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
         self._sd: Vec = np.zeros(9)
         self.keep_nis = False
         self._pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
         self.gnss_reset = GnssReset(self.cfg)  # the run of rejected fixes that may reset the filter
+        # no absolute aiding: constant-position / zero-velocity pseudo-measurements (core_parts/hold.py)
+        self.hold = NoAidHold(self.cfg) if self.cfg.hold_without_gnss else None
+        if self.hold is not None:
+            self.stats["hold"] = GateStats()
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
@@ -314,6 +330,10 @@ class NavCore:
         self._ground_aids(imu)
 
     def _after_step(self) -> None:
+        if self.hold is not None and self.phase == "nav" and self.hold.due(self.ins.state.t):
+            s = self.ins.state
+            for hm in self.hold.measurements(s.t, s, dcm_from_quat(s.q_nb), self.idx):
+                self._apply(hm, s.t)
         if self._delayed:
             self.history.after_step(self._step_n, self.ins.state.t, self._dt)
         if self._pending:
@@ -422,6 +442,8 @@ class NavCore:
             accepted = self._apply(m, meas.t, force)
             if not self._replaying:
                 self.gnss_reset.note(meas, accepted, st.last_ratio)
+                if accepted and self.hold is not None:
+                    self.hold.gnss(meas.t, meas.lat, meas.lon, meas.h)
             if accepted:
                 self.baro.gnss_height(meas, C, max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale)
             if c.use_gnss_vel and meas.vel_ned is not None:

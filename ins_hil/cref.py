@@ -79,6 +79,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "adaptive": cfg.adaptive,
         "nhc": cfg.nhc,
         "zupt": cfg.zupt,
+        "hold_without_gnss": cfg.hold_without_gnss,
         "mag_ref_ned": cfg.mag_ref_ned is not None,
         "align": cfg.align != "given",
         "gnss_vel_delay": cfg.gnss_vel_delay != 0.0,
