@@ -35,6 +35,8 @@ class BulkSlcanBus(slcanBus):
         port = self.serialPortOrig
         while True:
             n = port.in_waiting
+            if n == 0 and timeout is not None and timeout <= 0:
+                return None  # a poll: read(1) would wait the port's own timeout (1 ms) on an empty line
             chunk = port.read(n if n > 0 else 1)
             if chunk:
                 buf = self._buffer

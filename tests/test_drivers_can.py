@@ -386,3 +386,32 @@ def test_bulk_slcan_reads_bursts_in_few_calls() -> None:
         os.close(master)
     assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(m.arbitration_id, bytes(m.data)) for m in sent]
     assert reads[0] < 200  # 32 writes of 997 bytes; python-can's reader: one call per byte (~30,000)
+
+
+def test_bulk_slcan_poll_on_an_empty_line_does_not_wait() -> None:
+    """recv(0) with nothing waiting returns at once without a blocking read(1) (which waits the port's 1 ms
+    timeout: on the event loop's reader callback that added ~1 ms to every CAN sample)."""
+    from ins_hil.drivers.slcan import open_bus
+
+    master, name = open_raw_pty()
+    bus = open_bus({"interface": "slcan", "channel": name, "sleep_after_open": 0, "bitrate": 1000000})
+    os.read(master, 64)
+    reads = [0]
+    port_read = bus.serialPortOrig.read
+
+    def counted(n: int = 1) -> bytes:
+        reads[0] += 1
+        return port_read(n)
+
+    bus.serialPortOrig.read = counted
+    try:
+        assert bus.recv(0) is None and reads[0] == 0
+        os.write(master, b"T00000100110\r")
+        for _ in range(200):
+            if bus.serialPortOrig.in_waiting:
+                break
+        m = bus.recv(0)
+        assert m is not None and m.arbitration_id == 0x100 and bytes(m.data) == b"\x10" and reads[0] == 1
+    finally:
+        bus.shutdown()
+        os.close(master)
