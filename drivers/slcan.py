@@ -13,6 +13,7 @@ from collections import deque
 from typing import Any
 
 import can
+import serial
 from can.interfaces.slcan import slcanBus
 
 #: one slcan line ends at CR (a frame or OK) or BEL (an error)
@@ -29,8 +30,6 @@ class BulkSlcanBus(slcanBus):
     def _read(self, timeout: float | None) -> str | None:
         if self._lines:
             return self._lines.popleft()
-        import serial
-
         deadline = serial.Timeout(timeout)
         port = self.serialPortOrig
         while True:

@@ -89,6 +89,12 @@ class NavConfig:
     adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
     the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
     separately at its own time of validity (delayed fusion).
+    Static alignment: ``still_gyro`` (rad/s) / ``still_accel`` (m/s²), RMS departure of the rate / specific force
+    from the levelling window's mean over ``still_tau`` s, mark motion and freeze the window; ``align_gyrocompass``
+    takes yaw from the Earth rate when σ_ψ ≤ ``gyrocompass_max_std`` (rad); ``position`` [lat deg, lon deg, h m]
+    lets the levelling start without a fix. hold_without_gnss: constant-position (``hold_std`` m) / zero-velocity
+    (``hold_vel_std`` m/s) pseudo-measurements at ``hold_rate`` Hz after ``hold_after`` s without a fused GNSS
+    position (core_parts/hold.py).
     The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
     taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
     """

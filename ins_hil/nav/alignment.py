@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from ins_hil.nav.rotation import quat_from_dcm
+from ins_hil.nav.rotation import dcm_from_euler, quat_from_dcm
 from ins_hil.types import Vec
 
 
@@ -46,12 +46,10 @@ def mag_heading(roll: float, pitch: float, field_b: Vec, ref_ned: Vec) -> float:
 
     field_b: measured field (body FRD, any unit); ref_ned: reference field (NED, any unit, its
     horizontal direction gives the declination). The measured field is levelled with roll and pitch
-    (C_b^l = R_y(θ) R_x(φ)); its horizontal angle in that level frame is D − ψ, with D = atan2(m_E, m_N).
+    (C_b^l = R_y(θ) R_x(φ), book eq. 2.12 with ψ = 0); its horizontal angle in that level frame is D − ψ,
+    with D = atan2(m_E, m_N).
     Raises ValueError when either field has no horizontal component (at a magnetic pole)."""
-    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
-    mx, my, mz = float(field_b[0]), float(field_b[1]), float(field_b[2])
-    lx = cp * mx + sp * sr * my + sp * cr * mz  # level-frame x (north of the heading frame)
-    ly = cr * my - sr * mz
+    lx, ly, _ = (float(x) for x in dcm_from_euler(roll, pitch, 0.0) @ np.asarray(field_b, float))  # heading frame
     rn, re = float(ref_ned[0]), float(ref_ned[1])
     if math.hypot(lx, ly) == 0.0 or math.hypot(rn, re) == 0.0:
         raise ValueError("magnetic heading: the field has no horizontal component")
