@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import blas_pin  # noqa: F401  (before numpy: one OpenBLAS kernel for the golden replays)
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent

@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+import blas_pin  # noqa: F401  (before numpy: one OpenBLAS kernel, bit-reproducible digests)
 import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
