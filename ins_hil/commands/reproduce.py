@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -92,8 +93,25 @@ def _result(r: Row) -> str:
     return "pass" if r.passed else "**FAIL**"
 
 
+def _writable(out: Path) -> str | None:
+    """Why ``out`` cannot be written (its folder is created), or None: checked before the work, not after it."""
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        return str(e)
+    if out.is_dir():
+        return "it is a directory"
+    if not os.access(out.parent, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
+        return "permission denied"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
+    why = _writable(args.output)
+    if why is not None:
+        print(f"ins-hil reproduce: cannot write {args.output}: {why}", file=sys.stderr)
+        return 2
     sections: list[tuple[str, list[Row]]] = []
     for title, fn in groups():
         t1 = time.perf_counter()
