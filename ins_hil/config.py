@@ -27,6 +27,7 @@ from ins_hil.runtime.mavlink_out import EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
 from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor
 from ins_hil.types import SimConfig
+from ins_hil.validation import Limits
 
 REPO_CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 INPUT_TYPES = ("serial_imu", "mavlink", "can_imu")
@@ -117,13 +118,14 @@ def config_document(cfg: Config) -> dict[str, Any]:
         return {k: v for k, v in table.items() if k in keep or k not in default or v != default[k]}
 
     p = dict(d["pipeline"])
+    p.update(p.pop("limits"))  # the validation limits are flat keys of [core]
     fdi: dict[str, Any] = {"enabled": p.pop("fdi"), "imu_ids": p.pop("imu_ids"), "options": p.pop("fdi_options")}
     fdi = diff(fdi, {"enabled": False, "imu_ids": [0], "options": {}})
     aiding = {"enabled": p.pop("aiding_fdi"), **p.pop("aiding_options")}
     if aiding != {"enabled": True}:
         fdi["aiding"] = aiding
     p["kind"] = p.pop("core")
-    pref = dict(ref["pipeline"], kind=ref["pipeline"]["core"])
+    pref = dict(ref["pipeline"], kind=ref["pipeline"]["core"], **ref["pipeline"]["limits"])
     core = diff(p, pref, keep=("nav",))
     inputs = [diff(i, dataclasses.asdict(InputConfig(name=i["name"])), keep=("name", "type")) for i in d["inputs"]]
     outputs = [
@@ -308,6 +310,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
 
     core = _fill(cfg.pipeline, d.get("core", {}), "core")
     p = cfg.pipeline
+    p.limits = Limits(**{f.name: core[f.name] for f in dataclasses.fields(Limits) if f.name in core})
     p.nav = _nav(core.get("nav", {}))
     if p.calibration:
         from ins_hil.calibration.files import load_calibration

@@ -860,6 +860,7 @@ def sections() -> list[Section]:
     from ins_hil.runtime.mqtt_out import MqttConfig
     from ins_hil.runtime.pipeline import PipelineConfig
     from ins_hil.types import SimConfig
+    from ins_hil.validation import Limits
 
     sim_keys = {"enabled": Key("enabled", "bool", False, **_help("sim", "enabled"))}
     sim_keys.update(dataclass_keys(SimConfig, "sim"))
@@ -872,7 +873,9 @@ def sections() -> list[Section]:
 
     out_keys["mav_type"] = dataclasses.replace(out_keys["mav_type"], choices=MAV_TYPES)
     core = dataclass_keys(PipelineConfig, "core", rename={"core": "kind"},
-                          skip=("imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options"))  # fmt: skip
+                          skip=("imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options", "limits"))  # fmt: skip
+    # the validation limits (PipelineConfig.limits) are flat keys of [core]; the loader builds the Limits
+    core.update({k: dataclasses.replace(v, attr=None) for k, v in dataclass_keys(Limits, "core").items()})
     nav = dataclass_keys(NavConfig, "core.nav", skip=("filter",))
     nav["filter"] = Key("filter", "table", None, optional=True, help="the [core.nav.filter] table")
     fdi_opts = dataclass_keys(FdiConfig, "fdi.options")

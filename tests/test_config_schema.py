@@ -229,9 +229,25 @@ def test_every_pipeline_field_is_a_core_key() -> None:
 
     core = config_schema.section("core").keys
     loader = {"imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options"}  # set from the [fdi] tables
+    loader.add("limits")  # built from its flat [core] keys, checked below
     attrs = {k.attr for k in core.values()}
     missing = {f.name for f in dataclasses.fields(PipelineConfig)} - loader - attrs
     assert not missing, f"PipelineConfig fields that are no [core] key (a nested dataclass needs a section): {missing}"
+    from ins_hil.validation import Limits
+
+    assert {f.name for f in dataclasses.fields(Limits)} <= set(core)
+
+
+def test_core_limit_keys_reach_the_validation_boundary(tmp_path) -> None:
+    """[core] gyro_range_dps & co. fill PipelineConfig.limits, and a saved document keeps them."""
+    from ins_hil import config as config_mod
+    from ins_hil.validation import Limits
+
+    cfg = config_mod.from_dict({"core": {"gyro_range_dps": 500, "gnss_min_fix_type": 4}}, "t.toml")
+    assert cfg.pipeline.limits == Limits(gyro_range_dps=500.0, gnss_min_fix_type=4)
+    doc = cfg.document()["core"]
+    assert doc["gyro_range_dps"] == 500.0 and doc["gnss_min_fix_type"] == 4 and "limits" not in doc
+    assert config_mod.from_dict(cfg.document(), "again.toml").pipeline.limits == cfg.pipeline.limits
 
 
 def test_docs_are_generated_from_the_schema() -> None:

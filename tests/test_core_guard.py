@@ -16,6 +16,7 @@ from ins_hil.core import NavConfig, NavCore
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, NavState
+from ins_hil.validation import Limits
 
 G = 9.80665
 DT = 0.01  # 100 Hz keeps the tests fast; the checks scale with the learnt period
@@ -254,7 +255,7 @@ def test_gnss_reset_needs_fixes_consistent_with_each_other(kind: str) -> None:
 
 
 # -- the core guard: a core failure the validation boundary lets through (limits opened up) ------------
-WIDE = {"gyro_range_dps": 1.7e308, "accel_range_g": 1.7e308}  # × margin: no finite increment is out of range
+WIDE = {"limits": Limits(gyro_range_dps=1.7e308, accel_range_g=1.7e308)}  # × margin: no finite increment out of range
 
 
 @pytest.mark.parametrize("core", CORES)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -83,7 +84,7 @@ def _sim_inputs(seconds: float) -> list:
 @pytest.mark.slow
 def test_rotation_by_size_and_replay_across_parts(tmp_path: Path) -> None:
     inputs = _sim_inputs(20.0)
-    header = {"pipeline": PipelineConfig().__dict__}
+    header = {"pipeline": dataclasses.asdict(PipelineConfig())}
     big = Recorder(tmp_path / "one.ihlog", header=header)
     small = Recorder(tmp_path / "rot.ihlog", header=header, max_bytes=64 * 1024)
     for k, s in enumerate(inputs):

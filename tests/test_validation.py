@@ -119,7 +119,7 @@ def test_limits_come_from_core_keys_and_bad_limits_are_one_line_errors() -> None
     for bad in ({"gyro_range_dps": -1.0}, {"range_margin": math.nan}, {"imu_dt_min_periods": 2.0},
                 {"gnss_min_fix_type": 9}, {"baro_pressure_max_pa": 10.0}):  # fmt: skip
         with pytest.raises(ValueError, match=f"core.{next(iter(bad))} = "):
-            Pipeline(PipelineConfig(**bad))
+            Pipeline(PipelineConfig(limits=Limits(**bad)))
 
 
 def test_rejections_are_counted_once_by_reason_at_the_pipeline_entry() -> None:
@@ -188,3 +188,16 @@ def test_any_float_samples_never_give_a_nonfinite_state_or_raise(core: str) -> N
             assert _finite(p.core.state())
 
     run()
+
+
+def test_recorded_limits_load_back_in_both_header_layouts() -> None:
+    """A log header holds PipelineConfig.limits as a table; older headers hold its keys flat: both replay."""
+    import dataclasses
+
+    from ins_hil.runtime.replay import pipeline_config_from_header
+
+    cfg = PipelineConfig(limits=Limits(gyro_range_dps=900.0, gnss_min_fix_type=4))
+    new = pipeline_config_from_header({"pipeline": dataclasses.asdict(cfg)})
+    old = pipeline_config_from_header({"pipeline": {"gyro_range_dps": 900.0, "gnss_min_fix_type": 4}})
+    assert new.limits == old.limits == cfg.limits
+    assert pipeline_config_from_header({}).limits == Limits()

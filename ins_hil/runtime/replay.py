@@ -31,6 +31,7 @@ import numpy as np
 from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
 from ins_hil.runtime.recorder import LogReader, parts_of, read_header, read_records
 from ins_hil.types import FaultEvent, ImuSample, NavState, SimConfig
+from ins_hil.validation import Limits
 
 #: regenerates the simulator's truth of a ``[sim]`` table for ``duration`` s (``sim_flight.sim_truth``)
 TruthSource = Callable[[SimConfig, float], "SimTruth"]
@@ -65,8 +66,12 @@ class ReplayResult:
 def pipeline_config_from_header(header: dict[str, Any], core: str | None = None) -> PipelineConfig:
     """The PipelineConfig stored in a log header (``core`` overrides the core kind)."""
     d = dict(header.get("pipeline", {}))
-    names = {f.name for f in dataclasses.fields(PipelineConfig)}
-    cfg = PipelineConfig(**{k: v for k, v in d.items() if k in names})
+    names = {f.name for f in dataclasses.fields(PipelineConfig)} - {"limits"}
+    lim = {f.name for f in dataclasses.fields(Limits)}
+    # the validation limits: a table, or (logs written before PipelineConfig.limits) flat pipeline keys
+    table = d.get("limits")
+    limits = {k: v for k, v in {**d, **(table if isinstance(table, dict) else {})}.items() if k in lim}
+    cfg = PipelineConfig(**{k: v for k, v in d.items() if k in names}, limits=Limits(**limits))
     if core is not None:
         cfg.core = core
     return cfg
