@@ -238,12 +238,13 @@ def test_every_pipeline_field_is_a_core_key() -> None:
     assert {f.name for f in dataclasses.fields(Limits)} <= set(core)
 
 
-def test_core_limit_keys_reach_the_validation_boundary(tmp_path) -> None:
+def test_core_limit_keys_reach_the_validation_boundary() -> None:
     """[core] gyro_range_dps & co. fill PipelineConfig.limits, and a saved document keeps them."""
     from ins_hil import config as config_mod
     from ins_hil.validation import Limits
+    from tests.runtime_helpers import sim_config_dict
 
-    cfg = config_mod.from_dict({"core": {"gyro_range_dps": 500, "gnss_min_fix_type": 4}}, "t.toml")
+    cfg = config_mod.from_dict(sim_config_dict(core={"gyro_range_dps": 500, "gnss_min_fix_type": 4}), "t.toml")
     assert cfg.pipeline.limits == Limits(gyro_range_dps=500.0, gnss_min_fix_type=4)
     doc = cfg.document()["core"]
     assert doc["gyro_range_dps"] == 500.0 and doc["gnss_min_fix_type"] == 4 and "limits" not in doc

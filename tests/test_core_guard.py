@@ -302,7 +302,7 @@ def test_exception_in_a_gnss_update_is_recovered_from() -> None:
     """The shortest interval the validation boundary lets through (its 1e-5 s floor, the dt band opened up)
     and a GNSS update right after it (a denormal dt made this update raise LinAlgError): the state stays
     finite and navigation continues."""
-    r = Run("python", imu_dt_min_periods=1e-9)
+    r = Run("python", limits=Limits(imu_dt_min_periods=1e-9))
     r.run(2.0)
     r.imu(dt=1.1e-5)  # the floor of the validation boundary: the core must cope or be recovered
     r.fix()
