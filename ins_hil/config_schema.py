@@ -550,6 +550,10 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "gnss_yaw_std": M("rad", f"(0, {PI}]", "yaw σ of the in-motion alignment (⊕ σ_v/V)"),
         "gnss_yaw_vel_floor": M("m/s", "[0, 100]", "floor on the receiver's σ_v in the in-motion yaw σ"),
         "aligned_yaw_std": M("rad", f"(0, {PI}]", "the state is 'aligned' when the yaw σ is below this"),
+        "align_yaw_gsf": M(
+            help="heading phase: yaw from the GNSS-velocity yaw bank (PX4 EKF-GSF, σ < 15°) "
+            "instead of the GNSS course (a multicopter without magnetometer)"
+        ),
     },
     "core.nav.filter": {
         "gyro_bias": M(help="estimate the gyro bias (3 states)"),

@@ -58,6 +58,7 @@ from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
+from ins_hil.fusion.yaw_gsf import YawGsf
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownSnapshot, StrapdownState
 from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
@@ -94,7 +95,9 @@ class NavConfig:
     takes yaw from the Earth rate when σ_ψ ≤ ``gyrocompass_max_std`` (rad); ``position`` [lat deg, lon deg, h m]
     lets the levelling start without a fix. hold_without_gnss: constant-position (``hold_std`` m) / zero-velocity
     (``hold_vel_std`` m/s) pseudo-measurements at ``hold_rate`` Hz after ``hold_after`` s without a fused GNSS
-    position (core_parts/hold.py).
+    position (core_parts/hold.py). align_yaw_gsf: in the heading phase the yaw comes from a bank of yaw hypotheses
+    weighted by the GNSS velocity (ins_hil.fusion.yaw_gsf, PX4's EKF-GSF), once its σ is below 15°, instead of
+    the GNSS course: for a vehicle whose course is not its heading (a multicopter) and has no magnetometer.
     The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
     taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
     """
@@ -161,6 +164,7 @@ class NavConfig:
     gnss_yaw_std: float = 3.0 * DEG
     gnss_yaw_vel_floor: float = 0.0
     aligned_yaw_std: float = 5.0 * DEG
+    align_yaw_gsf: bool = False
 
     def __post_init__(self) -> None:
         if self.align not in ("given", "static"):
@@ -239,6 +243,7 @@ class NavCore:
         self._g_local = 9.80665
         self.phase = "nav" if self.cfg.align == "given" else "level"  # alignment: level → heading → nav
         self.align = Alignment(self)
+        self.yaw_gsf = YawGsf() if c.align_yaw_gsf else None  # yaw from GNSS velocity, before navigation
         if c.position is not None and self.phase == "level":  # a known position: levelling needs no GNSS fix
             st = self.ins.state
             st.lat, st.lon, st.h = math.radians(c.position[0]), math.radians(c.position[1]), float(c.position[2])
@@ -278,6 +283,8 @@ class NavCore:
             self.history.log_imu(self._step_n, imu)
         self._dt = imu.dt
         if self.phase != "nav":
+            if self.yaw_gsf is not None:
+                self.yaw_gsf.predict(imu.dtheta - self.bg * imu.dt, imu.dvel, imu.dt)
             self.align.step(imu)
             return False
         self._mechanize(imu)
@@ -393,6 +400,8 @@ class NavCore:
             self.step_end()
         self.history.finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first
         if self.phase != "nav":
+            if self.yaw_gsf is not None and isinstance(meas, GnssFix) and meas.vel_ned is not None:
+                self.yaw_gsf.fuse_velocity(np.asarray(meas.vel_ned), meas.std_vel)
             self.align.meas(meas)
             return
         if isinstance(meas, GnssFix) and self.cfg.gnss_vel_delay > 0 and meas.vel_ned is not None:

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from ins_hil.fusion.ekf import ErrorStateEKF, StateIndex
+from ins_hil.fusion.yaw_gsf import YawGsf
 from ins_hil.nav import alignment, earth
 from ins_hil.nav.mechanization import StrapdownNED
 from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat, euler_from_quat, quat_from_euler
@@ -43,6 +44,7 @@ class Alignable(Protocol):
     omega_b: Vec
     phase: str
     _g_local: float
+    yaw_gsf: YawGsf | None
 
 
 class Alignment:
@@ -197,9 +199,15 @@ class Alignment:
             v = vel
             sp = math.hypot(float(v[0]), float(v[1]))
             self.last_speed = sp
-            if sp >= self.cfg.gnss_yaw_speed:
+            gsf = core.yaw_gsf
+            if (gsf is not None and gsf.converged()) or (gsf is None and sp >= self.cfg.gnss_yaw_speed):
                 roll, pitch, yaw_was = euler_from_quat(s.q_nb)
-                yaw = alignment.yaw_from_course(v)  # in-motion yaw = GNSS course (no sideslip)
+                if gsf is not None:  # the yaw bank weighted by the GNSS velocity (fusion/yaw_gsf.py)
+                    yaw, yaw_std = gsf.yaw, math.sqrt(gsf.yaw_var)
+                else:  # in-motion yaw = GNSS course (no sideslip)
+                    yaw = alignment.yaw_from_course(v)
+                    # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V)
+                    yaw_std = math.hypot(self.cfg.gnss_yaw_std, max(std_vel, self.cfg.gnss_yaw_vel_floor) / sp)
                 s.q_nb = quat_from_euler(roll, pitch, yaw)
                 # the yaw reset turns the computed frame about down: the levelled tilt (fixed in NED) turns with it
                 self.C = dcm_from_euler(0.0, 0.0, yaw - yaw_was) @ self.C
@@ -211,9 +219,7 @@ class Alignment:
                 s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
                 s.h = meas.h + d[2]
                 core.ins.state.t = max(s.t, meas.t)
-                std_v = max(std_vel, self.cfg.gnss_yaw_vel_floor)
-                # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V), independent
-                self.enter_nav(yaw_std=math.hypot(self.cfg.gnss_yaw_std, std_v / sp))
+                self.enter_nav(yaw_std=yaw_std)
 
     def _velocity(self, meas: GnssFix) -> tuple[Vec | None, float]:
         """The fix's velocity (NED m/s) and its σ; for a position-only receiver the difference of this fix and the
@@ -248,6 +254,11 @@ class Alignment:
                       f"{math.degrees(c.gyrocompass_max_std):.0f}°: gyro bias too large for Earth rate); ")  # fmt: skip
             if c.mag_ref_ned is not None and self.last_mag is None:
                 return gc + "yaw: waiting for a magnetometer sample"
+            gsf = self.core.yaw_gsf
+            if gsf is not None:
+                sd = "no GNSS velocity yet" if not gsf.started else f"σ {math.degrees(math.sqrt(gsf.yaw_var)):.0f}°"
+                lim = math.degrees(gsf.cfg.converged_std)
+                return gc + f"yaw: waiting for the GNSS-velocity yaw estimator ({sd} > {lim:.0f}°; needs accelerations)"
             last = (
                 "no GNSS velocity yet (nor two position fixes within 2 s)"
                 if self.last_speed is None
