@@ -179,3 +179,94 @@ def test_px4_logging_gaps_bridged_or_reported(tmp_path: Path):
     assert ds.imu[10].dt == pytest.approx(0.010) and ds.imu[10].dtheta[0] == pytest.approx(0.001)
     assert ds.imu[20].dt == pytest.approx(0.005)
     assert any("2 logging gaps" in n and "1 longer (up to 0.20 s)" in n for n in ds.meta["notes"]), ds.meta["notes"]
+
+
+def test_px4_reader_takes_px4s_corrected_accelerometer_and_field(uav: Path):
+    """sensor_combined and vehicle_magnetometer are PX4's corrected data (what EKF2 fuses): the raw sensor_accel /
+    sensor_mag with the log's CAL_ACC0 / SENS_BOARD_*_OFF and CAL_MAG0 / magnetometer_bias_estimate applied
+    once give what the reader hands the core; applied a second time they would move y by ~0.6 m/s²."""
+    from pyulog import ULog
+
+    from ins_hil.nav.rotation import dcm_from_euler
+
+    path = uav / "px4_hover_92s" / "hover.ulg"
+    ds = read_dataset(path)
+    u = ULog(str(path), ["sensor_accel", "sensor_mag", "magnetometer_bias_estimate"])
+    d = {x.name: x.data for x in u.data_list if x.multi_id == 0}
+    prm = u.initial_parameters
+    t_off = ds.event("takeoff")
+    assert t_off is not None
+    # accelerometer: board ∘ (scale ⊙ (raw − offset)), PX4's calibration::Accelerometer, at rest before take-off
+    sa = d["sensor_accel"]
+    rest = sa["timestamp_sample"] * 1e-6 < t_off - 0.5
+    raw = np.column_stack([sa[c][rest] for c in "xyz"]).astype(np.float64)
+    off = np.array([prm[f"CAL_ACC0_{c}OFF"] for c in "XYZ"])
+    scale = np.array([prm[f"CAL_ACC0_{c}SCALE"] for c in "XYZ"])
+    board = dcm_from_euler(*(math.radians(prm[f"SENS_BOARD_{c}_OFF"]) for c in "XYZ"))
+    cal = ((raw - off) * scale) @ board.T
+    t_imu = np.array([s.t for s in ds.imu])
+    f = np.array([s.dvel / s.dt for s in ds.imu])
+    near = np.array([f[abs(t_imu - t) < 0.01].mean(axis=0) for t in sa["timestamp_sample"][rest] * 1e-6])
+    assert len(cal) >= 4
+    np.testing.assert_allclose(near.mean(axis=0), cal.mean(axis=0), atol=0.04)
+    twice = (((cal - off) * scale) @ board.T).mean(axis=0)
+    assert abs(twice[1] - near.mean(axis=0)[1]) > 0.3
+    # field: S (raw − offset) − the pre-flight bias estimate (gauss), S with CAL_MAG0 scales and off-diagonals
+    sm, be = d["sensor_mag"], d["magnetometer_bias_estimate"]
+    o = [prm[f"CAL_MAG0_{c}ODIAG"] for c in "XYZ"]
+    s = np.diag([prm[f"CAL_MAG0_{c}SCALE"] for c in "XYZ"])
+    s[0, 1] = s[1, 0] = o[0]
+    s[0, 2] = s[2, 0] = o[1]
+    s[1, 2] = s[2, 1] = o[2]
+    moff = np.array([prm[f"CAL_MAG0_{c}OFF"] for c in "XYZ"])
+    bias = np.array([be[f"bias_{c}[0]"][0] for c in "xyz"])
+    assert be["valid[0]"][0] == 1
+    rest = sm["timestamp_sample"] * 1e-6 < t_off - 0.5
+    want = (np.column_stack([sm[c][rest] for c in "xyz"]).astype(np.float64) - moff) @ s.T - bias
+    got = np.array([m.field_b for m in ds.mag if m.t < t_off - 0.5]) * 1e4  # T → G
+    assert len(want) >= 4 and len(got) >= 8
+    np.testing.assert_allclose(got.mean(axis=0), want.mean(axis=0), atol=0.01)
+    assert np.linalg.norm(((want - moff) @ s.T - bias).mean(axis=0) - got.mean(axis=0)) > 0.05  # applied twice
+
+
+def test_px4_onboard_notes_explain_ekf2_at_rest_and_its_drift(uav: Path):
+    """EKF2's tilt at rest is the reader's levelled specific force less EKF2's bias estimate at the start (the
+    note's figures); its unaided velocity in the hover is reported as dead reckoning."""
+    from ins_hil.datasets.run import euler_series
+    from ins_hil.nav.alignment import coarse_level
+
+    ds = read_dataset(uav / "px4_hover_92s" / "hover.ulg")
+    chk = ds.meta["onboard_check"]
+    assert chk["accel_device_id"]["sensor_combined"] == chk["accel_device_id"]["ekf2_primary"]
+    t_off = ds.event("takeoff")
+    assert t_off is not None and ds.onboard is not None and ds.onboard.q_nb is not None
+    f = np.mean([s.dvel / s.dt for s in ds.imu if s.t < t_off - 0.5], axis=0)
+    ba = np.array(chk["ekf2_accel_bias_start_mps2"])
+    rest = ds.onboard.t_att < t_off - 0.5
+    ekf2 = np.degrees(euler_series(ds.onboard.q_nb[rest]).mean(axis=0))
+    ours = np.degrees(coarse_level(f))
+    less = np.degrees(coarse_level(f - ba))
+    assert np.max(abs(ours - ekf2[:2])) > 0.4  # the levelled specific force alone is not EKF2's tilt
+    np.testing.assert_allclose(less, ekf2[:2], atol=0.1)  # less EKF2's bias, it is
+    assert any("EKF2 starts with an accelerometer bias" in n for n in ds.meta["notes"])
+    assert chk["ekf2_unaided_speed_mps"] > 10.0 and any("dead-reckons" in n for n in ds.meta["notes"])
+
+
+def test_px4_onboard_notes_on_written_topics():
+    """Different IMUs are named; a zero bias and a valid velocity give no note."""
+    n = 5
+    topics = {
+        "sensor_selection": {"timestamp": np.zeros(1), "accel_device_id": np.array([11.0])},
+        "estimator_selector_status": {"timestamp": np.zeros(1), "accel_device_id": np.array([22.0])},
+        "estimator_sensor_bias": {"timestamp": np.zeros(1), "accel_device_id": np.array([22.0]),
+                                  **{f"accel_bias[{i}]": np.zeros(1) for i in range(3)}},
+        "vehicle_local_position": {"timestamp": np.arange(n) * 1e6, "vx": np.full(n, 30.0), "vy": np.zeros(n),
+                                   "v_xy_valid": np.ones(n)},
+    }  # fmt: skip
+    notes, chk = px4.onboard_notes(topics)
+    assert len(notes) == 1 and "accelerometer 11" in notes[0] and "fuses 22" in notes[0]
+    assert chk["ekf2_accel_bias_start_mps2"] == [0.0, 0.0, 0.0] and "ekf2_unaided_speed_mps" not in chk
+    topics["vehicle_local_position"]["v_xy_valid"] = np.zeros(n)
+    topics["vehicle_local_position"]["vx"] = np.arange(n) * 2.0  # 8 m/s after 4 s: 2 m/s²
+    notes, chk = px4.onboard_notes(topics)
+    assert chk["ekf2_unaided_accel_error_mps2"] == pytest.approx(2.0) and "dead-reckons" in notes[-1]

@@ -11,7 +11,16 @@ Topics (instance 0; conventions in ``../shared/data/uav/README.md``):
 * EKF2's output as the onboard estimate: ``vehicle_attitude.q``, ``vehicle_local_position``
   (NED about ``ref_lat``/``ref_lon``/``ref_alt``; x/y only where ``xy_valid``, vx/vy where
   ``v_xy_valid``), else ``estimator_states``;
-* ``vehicle_land_detected``: take-off / landing events.
+* ``vehicle_land_detected``: take-off / landing events;
+* what the comparison with EKF2 needs to be read (:func:`onboard_notes`): the IMU ``sensor_combined`` carries
+  (``sensor_selection``) against EKF2's primary one (``estimator_selector_status``), EKF2's accelerometer bias
+  at the start (``estimator_sensor_bias``), EKF2's unaided horizontal velocity (``vehicle_local_position``).
+
+``sensor_combined`` and ``vehicle_magnetometer`` are PX4's corrected data, the ones EKF2 fuses: the
+accelerometer with ``CAL_ACCn`` offsets and scales and the board rotation (``SENS_BOARD_ROT`` and
+``SENS_BOARD_X/Y/Z_OFF``) applied, the field with ``CAL_MAGn`` offsets and scale matrix and the pre-flight
+``magnetometer_bias_estimate`` removed; the reader applies none of them again (raw ``sensor_accel`` /
+``sensor_mag`` are not read).
 
 In a ``ulog2csv`` folder a topic's file is found by the topic name inside the file name
 (``log_376_..._sensor_combined_0.csv`` or ``sensor_combined_0.csv``).
@@ -35,7 +44,10 @@ ULOG_MAGIC = b"ULog\x01\x12\x35"
 MAX_BRIDGE = 0.05
 TOPICS = ("sensor_combined", "vehicle_gps_position", "sensor_gps", "vehicle_air_data", "vehicle_magnetometer",
           "vehicle_attitude", "vehicle_local_position", "vehicle_global_position", "estimator_states",
-          "vehicle_land_detected")  # fmt: skip
+          "vehicle_land_detected", "sensor_selection", "estimator_selector_status",
+          "estimator_sensor_bias")  # fmt: skip
+#: m/s: EKF2's unaided horizontal velocity above which the notes say it dead-reckons
+DEAD_RECKONING_SPEED = 1.0
 
 
 def _col(t: Topic, *names: str) -> Vec | None:
@@ -199,6 +211,71 @@ def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
     return tr
 
 
+def _first(t: Topic | None, name: str) -> float | None:
+    c = _col(t, name) if t is not None else None
+    return float(c[0]) if c is not None and len(c) else None
+
+
+def onboard_notes(topics: dict[str, Topic], g: float = 9.80665) -> tuple[list[str], dict[str, object]]:
+    """Notes (and their figures for ``meta["onboard_check"]``) that say what EKF2's output is as a reference.
+
+    * The accelerometer of ``sensor_combined`` (``sensor_selection.accel_device_id``) against the one of EKF2's
+      primary instance (``estimator_selector_status``): two IMUs differ in tilt by their relative alignment.
+    * EKF2's accelerometer bias estimate at the first ``estimator_sensor_bias`` sample (m/s², body FRD), learned
+      before the log when it is not zero: EKF2's tilt at rest is the levelled specific force less it, i.e.
+      Δroll = b_y / g, Δpitch = −b_x / g (rad, small angles of φ = atan2(−f_y, −f_z), θ = atan2(f_x, |f_yz|)).
+    * Where ``vehicle_local_position`` has no valid horizontal velocity (``v_xy_valid`` false) EKF2 dead-reckons:
+      the largest unaided speed V reached T s after the first invalid sample is a mean horizontal
+      specific-force error V / T (m/s²), ≈ atan(V / (g T)) of tilt, that its attitude carried."""
+    notes: list[str] = []
+    chk: dict[str, object] = {}
+    sel, ess, bias = (
+        topics.get("sensor_selection"),
+        topics.get("estimator_selector_status"),
+        topics.get("estimator_sensor_bias"),
+    )
+    acc_sc, acc_ekf = _first(sel, "accel_device_id"), _first(ess, "accel_device_id")
+    if acc_sc is not None and acc_ekf is not None:
+        chk["accel_device_id"] = {"sensor_combined": int(acc_sc), "ekf2_primary": int(acc_ekf)}
+        if acc_sc != acc_ekf:
+            notes.append(
+                f"sensor_combined carries accelerometer {int(acc_sc)}, EKF2's primary instance fuses "
+                f"{int(acc_ekf)}: their tilts differ by the two IMUs' relative alignment and biases"
+            )
+    b = [_first(bias, f"accel_bias[{i}]") for i in range(3)]
+    bias_dev = _first(bias, "accel_device_id")
+    if all(x is not None for x in b) and (acc_ekf is None or bias_dev is None or bias_dev == acc_ekf):
+        ba = np.array(b, dtype=np.float64)
+        chk["ekf2_accel_bias_start_mps2"] = ba.round(4).tolist()
+        if np.any(ba[:2] != 0.0):
+            d_roll, d_pitch = math.degrees(ba[1] / g), math.degrees(-ba[0] / g)
+            notes.append(
+                f"EKF2 starts with an accelerometer bias estimate of ({ba[0]:+.3f}, {ba[1]:+.3f}, {ba[2]:+.3f}) m/s² "
+                f"(learned before the log): its tilt at rest is the levelled specific force less it, "
+                f"roll {d_roll:+.2f}°, pitch {d_pitch:+.2f}°"
+            )
+    lp = topics.get("vehicle_local_position")
+    vxy = _col(lp, "v_xy_valid") if lp is not None else None
+    if lp is not None and vxy is not None and "vx" in lp and np.any(vxy == 0):
+        t = _time(lp)
+        bad = vxy == 0
+        sp = np.where(
+            bad, np.hypot(np.asarray(lp["vx"], dtype=np.float64), np.asarray(lp["vy"], dtype=np.float64)), 0.0
+        )
+        k = int(np.argmax(sp))
+        span = float(t[k] - t[np.argmax(bad)])
+        if sp[k] > DEAD_RECKONING_SPEED and span > 0.0:
+            err = float(sp[k]) / span
+            chk["ekf2_unaided_speed_mps"] = round(float(sp[k]), 2)
+            chk["ekf2_unaided_accel_error_mps2"] = round(err, 3)
+            notes.append(
+                f"EKF2 dead-reckons without horizontal aiding (v_xy_valid false): its velocity reached "
+                f"{sp[k]:.1f} m/s in {span:.0f} s, a mean horizontal specific-force error of {err:.2f} m/s² "
+                f"(≈ {math.degrees(math.atan(err / g)):.1f}° of tilt) that its attitude and accelerometer bias carry"
+            )
+    return notes, chk
+
+
 def land_events(t: Topic | None) -> list[tuple[float, str]]:
     """Take-off (landed 1 → 0) and landing (0 → 1) from ``vehicle_land_detected``."""
     if t is None or "landed" not in t:
@@ -248,6 +325,10 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
     if "vehicle_magnetometer" in topics:
         ds.mag = mag_from_magnetometer(topics["vehicle_magnetometer"])
     ds.onboard = onboard_from_ekf2(topics)
+    check: dict[str, object] = {}
+    if ds.onboard is not None:
+        more, check = onboard_notes(topics)
+        notes += more
     ds.events = land_events(topics.get("vehicle_land_detected"))
     ds.meta = {
         "source": source,
@@ -256,6 +337,7 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
         "topics": sorted(topics),
         "notes": notes,
         "utc_start_s": utc_start,
+        "onboard_check": check,
     }
     return ds
 
