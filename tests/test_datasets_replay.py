@@ -72,7 +72,7 @@ def test_config_loads_shipped_and_validates(tmp_path: Path):
     for p in sorted((REPO / "configs" / "datasets").glob("*.toml")):
         c = dcfg.load(p)
         assert c.path is not None and c.path.exists(), p
-        assert c.nav_config().align == "static"
+        assert c.nav_config().alignment.mode == "static"
     bad = {
         "[dataset]\nname='x'\n[mounting]\nimu_to_body=[0,0,0]\n": "unknown key mounting.imu_to_body",
         "[dataset]\nformat='px4-ulog'\n": "missing key dataset.name",

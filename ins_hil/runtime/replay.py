@@ -28,6 +28,7 @@ from typing import Any, overload
 
 import numpy as np
 
+from ins_hil.core_parts.config import nest
 from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
 from ins_hil.runtime.recorder import LogReader, parts_of, read_header, read_records
 from ins_hil.types import FaultEvent, ImuSample, NavState, SimConfig
@@ -67,6 +68,7 @@ def pipeline_config_from_header(header: dict[str, Any], core: str | None = None)
     d = dict(header.get("pipeline", {}))
     names = {f.name for f in dataclasses.fields(PipelineConfig)}
     cfg = PipelineConfig(**{k: v for k, v in d.items() if k in names})
+    cfg.nav = nest(cfg.nav)  # a recording made before the [core.nav] sections: its flat keys in their sections
     if core is not None:
         cfg.core = core
     return cfg
