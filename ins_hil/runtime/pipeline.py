@@ -113,8 +113,10 @@ def nav_config(options: dict[str, Any]) -> Any:
             raise ValueError(f"unknown key 'core.nav.{k}' (known: {', '.join(sorted(known))})")
         cls = FilterConfig if k == "filter" else SECTIONS.get(k)
         if cls is not None:
+            if not isinstance(v, dict):
+                raise ValueError(f"core.nav.{k} = {v!r}: expected a table")
             fk = {f.name for f in dataclasses.fields(cls)}
-            bad = set(v) - fk if isinstance(v, dict) else {"?"}
+            bad = set(v) - fk
             if bad:
                 raise ValueError(f"core.nav.{k}: unknown key(s) {sorted(bad)} (known: {', '.join(sorted(fk))})")
             sub = dict(v)
