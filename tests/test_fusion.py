@@ -197,7 +197,7 @@ def test_magnetometer_book_measurement():
 def test_config_errors_name_the_bad_key():
     with pytest.raises(ValueError, match="numerics"):
         FilterConfig(numerics="lu")
-    with pytest.raises(ValueError, match="align"):
+    with pytest.raises(ValueError, match=r"alignment\.mode=.magic."):
         NavConfig(alignment=AlignmentConfig(mode="magic"))
     with pytest.raises(ValueError, match="initial state"):
         NavCore(None, NavConfig())

@@ -46,7 +46,7 @@ class NoAidHold:
         return self.pos is not None and t - self.t_gnss >= c.hold.after and t - self.t_hold >= 1.0 / c.hold.rate - 1e-9
 
     def measurements(self, t: float, s: StrapdownState, C: Vec, idx: StateIndex) -> list[Measurement]:
-        """The position row (at the IMU: no lever arm) and, with ``hold_vel_std`` > 0, the zero-velocity row."""
+        """The position row (at the IMU: no lever arm) and, with ``hold.vel_std`` > 0, the zero-velocity row."""
         assert self.pos is not None
         c = self.cfg
         self.t_hold = t
