@@ -1,9 +1,9 @@
 """The configuration schema: every key of a gateway TOML file with its type, unit, default, range and help.
 
 The keys of a section are the fields of the dataclass it fills (``[core]`` → ``PipelineConfig``,
-``[core.nav]`` → ``NavConfig``, ``[sim]`` → ``SimConfig``, ...): a field added to one of them is a
-key at once, typed from its default (bool, int, float, str, 3-vector, list, table) and, if it is a
-number, required to be finite. Its unit, range and help come from the field's metadata, e.g.
+``[core.nav]`` → ``NavConfig``, ``[core.nav.gnss]`` → ``GnssConfig``, ``[sim]`` → ``SimConfig``, ...): a field
+added to one of them is a key at once, typed from its default (bool, int, float, str, 3-vector, list, table)
+and, if it is a number, required to be finite. Its unit, range and help come from the field's metadata, e.g.
 ``field(default=40.0, metadata={"unit": "rad/s", "range": "(0, 100]", "help": "..."})``
 (accepted keys: ``unit``, ``range``, ``min``/``max`` (inclusive), ``gt``/``lt`` (exclusive),
 ``choices``, ``help``, ``nonfinite``, ``nonempty``, ``file``), or from one line in the section's
