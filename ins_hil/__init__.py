@@ -3,6 +3,7 @@
 The public API for using the navigation core in your own code::
 
     from ins_hil import NavCore, NavConfig, ImuSample, GnssFix, BaroSample, MagSample, NavState
+    from ins_hil import GnssConfig, AidsConfig  # NavConfig's sections: NavConfig(gnss=GnssConfig(gate=10.0))
 
 ``NavCore`` is the one synchronous entry point (``step`` on every IMU sample, ``fuse`` for every aiding
 measurement, ``state()``); the names are imported on first use, so ``import ins_hil`` stays cheap.
@@ -19,6 +20,10 @@ _PUBLIC = {
     "NavCore": "ins_hil.core",
     "NavConfig": "ins_hil.core",
     "FilterConfig": "ins_hil.fusion.ekf",
+    **{
+        c: "ins_hil.core_parts.config"
+        for c in ("GnssConfig", "BaroConfig", "MagConfig", "AidsConfig", "HoldConfig", "AlignmentConfig", "DelayConfig")
+    },  # NavConfig's sections
     "StrapdownState": "ins_hil.nav.mechanization",
     "ImuSample": "ins_hil.types",
     "GnssFix": "ins_hil.types",
@@ -29,12 +34,22 @@ _PUBLIC = {
     "FixType": "ins_hil.types",
 }
 __all__ = [
-    "BaroSample", "FaultEvent", "FilterConfig", "FixType", "GnssFix", "ImuSample", "MagSample", "NavConfig",
-    "NavCore", "NavState", "StrapdownState", "__version__",
+    "AidsConfig", "AlignmentConfig", "BaroConfig", "BaroSample", "DelayConfig", "FaultEvent", "FilterConfig",
+    "FixType", "GnssConfig", "GnssFix", "HoldConfig", "ImuSample", "MagConfig", "MagSample", "NavConfig", "NavCore",
+    "NavState", "StrapdownState", "__version__",
 ]  # fmt: skip
 
 if TYPE_CHECKING:
     from ins_hil.core import NavConfig, NavCore
+    from ins_hil.core_parts.config import (
+        AidsConfig,
+        AlignmentConfig,
+        BaroConfig,
+        DelayConfig,
+        GnssConfig,
+        HoldConfig,
+        MagConfig,
+    )
     from ins_hil.fusion.ekf import FilterConfig
     from ins_hil.nav.mechanization import StrapdownState
     from ins_hil.types import BaroSample, FaultEvent, FixType, GnssFix, ImuSample, MagSample, NavState

@@ -19,6 +19,7 @@ from typing import Any
 
 from ins_hil import config_schema as schema
 from ins_hil.config_schema import ConfigError
+from ins_hil.core_parts.config import MOVED
 from ins_hil.drivers.factory import driver_class, make_driver
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
@@ -173,10 +174,17 @@ def _key(key: str, v: str) -> None:
 
 
 def _nav(nav: dict[str, Any]) -> dict[str, Any]:
-    """The ``[core.nav]`` table (and ``[core.nav.filter]``) checked key by key."""
+    """The ``[core.nav]`` table and its sections (``[core.nav.gnss]``, ..., ``[core.nav.filter]``) checked key by
+    key; a flat key of the tables before the sections names where it moved."""
+    if isinstance(nav, dict):
+        for k in nav:
+            if k in MOVED:
+                sec, new = MOVED[k]
+                raise ConfigError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
     out = schema.validate("core.nav", nav)
-    if "filter" in out:
-        out["filter"] = schema.validate("core.nav.filter", out["filter"])
+    for k, key in schema.section("core.nav").keys.items():
+        if key.type == "table" and k in out:
+            out[k] = schema.validate(f"core.nav.{k}", out[k])
     return out
 
 

@@ -1,9 +1,9 @@
 """The configuration schema: every key of a gateway TOML file with its type, unit, default, range and help.
 
 The keys of a section are the fields of the dataclass it fills (``[core]`` → ``PipelineConfig``,
-``[core.nav]`` → ``NavConfig``, ``[sim]`` → ``SimConfig``, ...): a field added to one of them is a
-key at once, typed from its default (bool, int, float, str, 3-vector, list, table) and, if it is a
-number, required to be finite. Its unit, range and help come from the field's metadata, e.g.
+``[core.nav]`` → ``NavConfig``, ``[core.nav.gnss]`` → ``GnssConfig``, ``[sim]`` → ``SimConfig``, ...): a field
+added to one of them is a key at once, typed from its default (bool, int, float, str, 3-vector, list, table)
+and, if it is a number, required to be finite. Its unit, range and help come from the field's metadata, e.g.
 ``field(default=40.0, metadata={"unit": "rad/s", "range": "(0, 100]", "help": "..."})``
 (accepted keys: ``unit``, ``range``, ``min``/``max`` (inclusive), ``gt``/``lt`` (exclusive),
 ``choices``, ``help``, ``nonfinite``, ``nonempty``, ``file``), or from one line in the section's
@@ -451,32 +451,39 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "nav": M(help="the [core.nav] table"),
     },
     "core.nav": {
-        "gnss_lever_arm_b": M("m", "[-100, 100]", "IMU → GNSS antenna, body FRD"),
-        "gnss_min_std": M("m, m, m/s", "(0, 1000]", "floor on the reported GNSS σ: north/east, down, velocity"),
-        "gnss_std_scale": M("", "(0, 1000]", "factor on the reported GNSS σ"),
-        "use_gnss_vel": M(help="fuse the GNSS velocity"),
-        "gnss_vel_delay": M(
-            "s", "[0, 2]", "the GNSS velocity is valid this long before the fix's position time (≤ max_delay)"
+        "adaptive": M(help="Sage–Husa adaptive R on GNSS/baro"),
+        "adaptive_b": M("", "(0, 1)", "Sage–Husa forgetting factor"),
+    },
+    "core.nav.gnss": {
+        "lever_arm_b": M("m", "[-100, 100]", "IMU → GNSS antenna, body FRD"),
+        "min_std": M("m, m, m/s", "(0, 1000]", "floor on the reported GNSS σ: north/east, down, velocity"),
+        "std_scale": M("", "(0, 1000]", "factor on the reported GNSS σ"),
+        "use_vel": M(help="fuse the GNSS velocity"),
+        "vel_delay": M(
+            "s", "[0, 2]", "the GNSS velocity is valid this long before the fix's position time (≤ delay.max_delay)"
         ),
-        "gate_gnss": M("σ", "(0, 1e6]", "innovation gate of GNSS"),
-        "gate_baro": M("σ", "(0, 1e6]", "innovation gate of the barometer"),
-        "gate_mag": M("σ", "(0, 1e6]", "innovation gate of the magnetometer"),
-        "gate_aux": M("σ", "(0, 1e6]", "innovation gate of the auxiliary aids (NHC, ZUPT)"),
-        "gnss_reset_after": M("fixes", "[0, 1000000]", "consecutive rejected fixes before the GNSS position is reset"),
-        "baro_std": M("m", "(0, 1000]", "barometer noise"),
-        "baro_offset_tau": M("s", "(0, 1e6]", "time constant of the baro datum calibration against GNSS"),
-        "baro_offset": M(
+        "gate": M("σ", "(0, 1e6]", "innovation gate of GNSS"),
+        "reset_after": M("fixes", "[0, 1000000]", "consecutive rejected fixes before the GNSS position is reset"),
+    },
+    "core.nav.baro": {
+        "std": M("m", "(0, 1000]", "barometer noise"),
+        "gate": M("σ", "(0, 1e6]", "innovation gate of the barometer"),
+        "offset": M(
             "m", "[-10000, 10000]", "fixed baro datum offset (baro altitude → ellipsoidal height); not set = learnt"
         ),
-        "mag_std": M("", "(0, 10]", "magnetometer noise (unit-vector component, book σ_m)"),
-        "mag_ref_ned": M(
+        "offset_tau": M("s", "(0, 1e6]", "time constant of the baro datum calibration against GNSS"),
+    },
+    "core.nav.mag": {
+        "std": M("", "(0, 10]", "magnetometer noise (unit-vector component, book σ_m)"),
+        "ref_ned": M(
             "any unit",
             "[-1e6, 1e6]",
             "reference magnetic field, NED (e.g. from WMM); not set = no heading from it",
             nonzero=True,
         ),
-        "adaptive": M(help="Sage–Husa adaptive R on GNSS/baro"),
-        "adaptive_b": M("", "(0, 1)", "Sage–Husa forgetting factor"),
+        "gate": M("σ", "(0, 1e6]", "innovation gate of the magnetometer"),
+    },
+    "core.nav.aids": {
         "nhc": M(help="non-holonomic constraint (ground vehicles)"),
         "nhc_std": M("m/s", "(0, 100]", "NHC lateral velocity σ"),
         "nhc_rate": M("Hz", "(0, 10000]", "NHC update rate"),
@@ -499,35 +506,31 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "zupt_max_speed": M("m/s", "[0, 1000]", "ZUPT only below this speed"),
         "zaru": M(help="zero angular rate update on the gyro bias with ZUPT"),
         "zaru_std": M("rad/s", "(0, 10]", "ZARU σ"),
-        "delay_compensation": M(
-            help="fuse a late GNSS fix at its time (roll-back); false: at the current step, shifted by v·Δt"
+        "gate": M("σ", "(0, 1e6]", "innovation gate of the auxiliary aids (NHC, ZUPT)"),
+    },
+    "core.nav.hold": {
+        "enabled": M(
+            help="flight without GNSS: constant-position / zero-velocity pseudo-measurements once no GNSS position "
+            "has been fused for `after` s (EKF2's no-aiding mode; for hovers and bench tests, not for a moving car)"
         ),
-        "max_delay": M("s", "[0, 2]", "history kept for delayed fusion"),
-        "align": M(
+        "after": M("s", "[0, 3600]", "seconds without a fused GNSS position before the hold"),
+        "std": M("m", "(0, 1e6]", "σ of the constant-position row"),
+        "vel_std": M("m/s", "[0, 1e3]", "σ of the zero-velocity row; 0 = none"),
+        "rate": M("Hz", "(0, 100]", "pseudo-measurements per second"),
+        "gate": M("σ", "(0, 1e6]", "innovation gate of the hold"),
+    },
+    "core.nav.alignment": {
+        "mode": M(
             help="given: trust the initial state; static: level at rest, yaw from magnetometer or GNSS course",
             choices=("given", "static"),
         ),
-        "align_time": M("s", "(0, 3600]", "static alignment: levelling time at rest"),
-        "hold_without_gnss": M(
-            help="flight without GNSS: constant-position / zero-velocity pseudo-measurements once no GNSS position "
-            "has been fused for hold_after s (EKF2's no-aiding mode; for hovers and bench tests, not for a moving car)"
-        ),
-        "hold_after": M("s", "[0, 3600]", "hold_without_gnss: seconds without a fused GNSS position"),
-        "hold_std": M("m", "(0, 1e6]", "hold_without_gnss: σ of the constant-position row"),
-        "hold_vel_std": M("m/s", "[0, 1e3]", "hold_without_gnss: σ of the zero-velocity row; 0 = none"),
-        "hold_rate": M("Hz", "(0, 100]", "hold_without_gnss: pseudo-measurements per second"),
-        "gate_hold": M("σ", "(0, 1e6]", "hold_without_gnss: innovation gate"),
-        "position": M(
-            help="[lat deg, lon deg, h m]: a known position (levelling and the hold need no GNSS fix)",
-            length=3,
-            optional=True,
-        ),
-        "align_level_only": M(help="static alignment: level only (yaw from the initial state)"),
-        "align_gyrocompass": M(
+        "time": M("s", "(0, 3600]", "static alignment: levelling time at rest"),
+        "level_only": M(help="static alignment: level only (yaw from the initial state)"),
+        "gyrocompass": M(
             help="static alignment: yaw from the Earth rate (book eq. 4.2) when filter.init_gyro_bias allows "
             "σ_ψ ≤ gyrocompass_max_std (navigation-grade gyros; MEMS cannot resolve 15 °/h)"
         ),
-        "gyrocompass_max_std": M("rad", f"(0, {PI}]", "align_gyrocompass: the largest yaw σ it may give"),
+        "gyrocompass_max_std": M("rad", f"(0, {PI}]", "gyrocompass: the largest yaw σ it may give"),
         "level_tilt_prior": M(help="levelled tilt prior correlated with the accelerometer errors"),
         "still_speed": M("m/s", "[0, 100]", "static alignment: at rest below this GNSS speed"),
         "still_delay": M("s", "[0, 3600]", "static alignment: at rest for this long"),
@@ -544,16 +547,27 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
             "window's mean by this much (RMS over still_tau)",
         ),
         "still_tau": M("s", "(0, 60]", "static alignment: time constant of the IMU motion test"),
-        "align_gyro_bias_std": M("rad/s", "(0, 1]", "gyro bias σ after the alignment"),
+        "gyro_bias_std": M("rad/s", "(0, 1]", "gyro bias σ after the alignment"),
         "mag_yaw_std": M("rad", f"(0, {PI}]", "yaw σ from the magnetometer alignment"),
         "gnss_yaw_speed": M("m/s", "(0, 1000]", "in-motion yaw from the GNSS course above this speed"),
         "gnss_yaw_std": M("rad", f"(0, {PI}]", "yaw σ of the in-motion alignment (⊕ σ_v/V)"),
         "gnss_yaw_vel_floor": M("m/s", "[0, 100]", "floor on the receiver's σ_v in the in-motion yaw σ"),
         "aligned_yaw_std": M("rad", f"(0, {PI}]", "the state is 'aligned' when the yaw σ is below this"),
-        "align_yaw_gsf": M(
+        "yaw_gsf": M(
             help="heading phase: yaw from the GNSS-velocity yaw bank (PX4 EKF-GSF, σ < 15°) "
             "instead of the GNSS course (a multicopter without magnetometer)"
         ),
+        "position": M(
+            help="[lat deg, lon deg, h m]: a known position (levelling and the hold need no GNSS fix)",
+            length=3,
+            optional=True,
+        ),
+    },
+    "core.nav.delay": {
+        "compensation": M(
+            help="fuse a late GNSS fix at its time (roll-back); false: at the current step, shifted by v·Δt"
+        ),
+        "max_delay": M("s", "[0, 2]", "history kept for delayed fusion"),
     },
     "core.nav.filter": {
         "gyro_bias": M(help="estimate the gyro bias (3 states)"),
@@ -856,6 +870,7 @@ def sections() -> list[Section]:
     """Every section of a gateway configuration file, in the order of the docs."""
     from ins_hil.config import GatewaySettings, InputConfig, RecorderConfig
     from ins_hil.core import NavConfig
+    from ins_hil.core_parts.config import SECTIONS as NAV_SECTIONS
     from ins_hil.drivers.dbc_codec import DbcProfile
     from ins_hil.fdi.aiding import AidingConfig
     from ins_hil.fdi.monitor import FdiConfig
@@ -880,8 +895,15 @@ def sections() -> list[Section]:
                           skip=("imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options", "limits"))  # fmt: skip
     # the validation limits (PipelineConfig.limits) are flat keys of [core]; the loader builds the Limits
     core.update({k: dataclasses.replace(v, attr=None) for k, v in dataclass_keys(Limits, "core").items()})
-    nav = dataclass_keys(NavConfig, "core.nav", skip=("filter",))
-    nav["filter"] = Key("filter", "table", None, optional=True, help="the [core.nav.filter] table")
+    nav = dataclass_keys(NavConfig, "core.nav")  # the sections are tables of their own
+    nav_secs: list[tuple[str, type, str]] = [
+        (k, c, f"{(c.__doc__ or '').split(' (``')[0]} (ins_hil.core_parts.config.{c.__name__}).")
+        for k, c in NAV_SECTIONS.items()
+    ]
+    nav_secs.append(("filter", FilterConfig, "The error-state Kalman filter (ins_hil.fusion.ekf.FilterConfig; noise "
+                     "densities per √Hz)."))  # fmt: skip
+    for k, _, _ in nav_secs:
+        nav[k] = Key(k, "table", None, optional=True, help=f"the [core.nav.{k}] table")
     fdi_opts = dataclass_keys(FdiConfig, "fdi.options")
     fdi_opts["geometry"] = dataclasses.replace(fdi_opts["geometry"], attr=None)
     return [
@@ -889,8 +911,7 @@ def sections() -> list[Section]:
         Section("core", core, "The navigation pipeline (ins_hil.runtime.pipeline.PipelineConfig)."),
         Section("core.nav", nav,
                 "The navigation core (ins_hil.core.NavConfig; SI units, gates in σ)."),
-        Section("core.nav.filter", dataclass_keys(FilterConfig, "core.nav.filter"),
-                "The error-state Kalman filter (ins_hil.fusion.ekf.FilterConfig; noise densities per √Hz)."),
+        *(Section(f"core.nav.{k}", dataclass_keys(c, f"core.nav.{k}"), doc) for k, c, doc in nav_secs),
         Section("fdi", FDI_KEYS, "Inertial-sensor fault detection and isolation over redundant IMUs."),
         Section("fdi.options", fdi_opts, "The FDI monitor (ins_hil.fdi.monitor.FdiConfig); dt, gyro_noise and "
                 "accel_noise are required when [fdi] enabled = true."),

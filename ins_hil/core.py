@@ -20,14 +20,14 @@ chi-square gating and Sage–Husa adaptive R (:mod:`ins_hil.fusion.innovation`).
 
 Time alignment and latency: a measurement is fused at the IMU step nearest to
 its validity time ``t``. A measurement from the future is queued; one from the
-past (a delayed GNSS fix) is, with ``delay_compensation``, fused by rolling the
+past (a delayed GNSS fix) is, with ``delay.compensation``, fused by rolling the
 filter back to the stored snapshot of that step and re-running the logged IMU
 samples and measurements up to now (delayed fusion with forward
-propagation; history ``max_delay`` s). The position measurement is shifted by
+propagation; history ``delay.max_delay`` s). The position measurement is shifted by
 v̂·(t_step − t) to the step time (interpolation between IMU samples).
 
-Alignment (``NavConfig.align``): ``"given"`` trusts the initial state;
-``"static"`` levels from the mean specific force over ``align_time`` s at rest
+Alignment (``NavConfig.alignment.mode``): ``"given"`` trusts the initial state;
+``"static"`` levels from the mean specific force over ``alignment.time`` s at rest
 (book §4.1.1), takes yaw from the magnetometer (refined alignment, §4.1.2,
 Example 4.1) when a field reference is configured, or else from the GNSS course
 once the speed exceeds ``gnss_yaw_speed`` (in-motion yaw; yaw σ = ``gnss_yaw_std`` ⊕ σ_v/V with the
@@ -49,6 +49,16 @@ import numpy as np
 from ins_hil.core_parts.aids import AidsSnapshot, VehicleAids
 from ins_hil.core_parts.alignment import Alignment
 from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot
+from ins_hil.core_parts.config import (
+    SECTIONS,
+    AidsConfig,
+    AlignmentConfig,
+    BaroConfig,
+    DelayConfig,
+    GnssConfig,
+    HoldConfig,
+    MagConfig,
+)
 from ins_hil.core_parts.contract import Measurement
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
 from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
@@ -70,116 +80,39 @@ _KINDS = ("gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt")
 
 @dataclass
 class NavConfig:
-    """NavCore configuration (SI units; gates in σ; times in s).
-
-    gnss_lever_arm_b: IMU → GNSS antenna (m, body FRD). gnss_min_std: floor on the
-    reported GNSS σ (m, m/s). baro_std (m); mag_std (unit-vector component, book σ_m);
-    mag_ref_ned: reference magnetic field (NED, any unit, e.g. from WMM: declination is in it).
-    nhc/zupt: ground-vehicle aids (non-holonomic constraint at ``nhc_rate`` Hz, optionally also on
-    the vertical axis; zero velocity — and zero angular rate on the gyro bias with ``zaru`` — when
-    the averaged IMU looks at rest for ``zupt_time`` s and the speed is below ``zupt_max_speed``).
-    nhc_pitch_per_accel: suspension pitch per forward acceleration (rad per m/s², nose-up when accelerating):
-    the vertical NHC is applied in the road frame, the body pitched by k a_x from it (squat/dive).
-    nhc_lever_b: IMU → the vehicle point whose lateral/vertical velocity is zero (body FRD, m); with
-    ``filter.mount_states`` the residual IMU → vehicle boresight is estimated (NHC only, needs ``nhc``).
-    nhc_omega_lp_hz: corner (Hz) of a causal first-order low-pass of the body rate used in the NHC lever-arm
-    term ω × l only (0 = the raw rate, which on a car carries the engine/road vibration).
-    gnss_reset_after: a GNSS position rejected this many times in a row may reset the position/velocity σ and be
-    accepted over its gate, only when the rejected fixes pass a consistency test of their own
-    (:meth:`ins_hil.core_parts.gnss.GnssReset.ok`).
-    adaptive: Sage–Husa R on GNSS/baro. gnss_vel_delay: the GNSS velocity is valid this long (s) before
-    the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
-    separately at its own time of validity (delayed fusion).
-    Static alignment: ``still_gyro`` (rad/s) / ``still_accel`` (m/s²), RMS departure of the rate / specific force
-    from the levelling window's mean over ``still_tau`` s, mark motion and freeze the window; ``align_gyrocompass``
-    takes yaw from the Earth rate when σ_ψ ≤ ``gyrocompass_max_std`` (rad); ``position`` [lat deg, lon deg, h m]
-    lets the levelling start without a fix. hold_without_gnss: constant-position (``hold_std`` m) / zero-velocity
-    (``hold_vel_std`` m/s) pseudo-measurements at ``hold_rate`` Hz after ``hold_after`` s without a fused GNSS
-    position (core_parts/hold.py). align_yaw_gsf: in the heading phase the yaw comes from a bank of yaw hypotheses
-    weighted by the GNSS velocity (ins_hil.fusion.yaw_gsf, PX4's EKF-GSF), once its σ is below 15°, instead of
-    the GNSS course: for a vehicle whose course is not its heading (a multicopter) and has no magnetometer.
-    The baro datum offset (baro altitude → ellipsoidal height) is ``baro_offset`` if given, else
-    taken from the first sample and then calibrated with time constant ``baro_offset_tau`` while GNSS is accepted.
+    """NavCore configuration in sections (SI units; gates in σ; times in s): ``gnss``, ``baro``, ``mag``, ``aids``
+    (NHC/ZUPT/ZARU), ``hold`` (flight without GNSS), ``alignment``, ``delay`` (delayed fusion), ``filter``
+    (:class:`~ins_hil.fusion.ekf.FilterConfig`); each section's keys and units are in its class
+    (:mod:`ins_hil.core_parts.config`) and in docs/configuration.md. ``adaptive``: Sage–Husa R on GNSS/baro with
+    forgetting factor ``adaptive_b``.
     """
 
     filter: FilterConfig = field(default_factory=FilterConfig)
-    gnss_lever_arm_b: Vec = field(default_factory=lambda: np.zeros(3))
-    gnss_min_std: tuple[float, float, float] = (0.01, 0.01, 0.02)  # NE, D, vel
-    gnss_std_scale: float = 1.0
-    use_gnss_vel: bool = True
-    gnss_vel_delay: float = 0.0
-    gate_gnss: float = 5.0
-    gate_baro: float = 5.0
-    gate_mag: float = 5.0
-    gate_aux: float = 5.0
-    gnss_reset_after: int = 10
-    baro_std: float = 0.5
-    baro_offset_tau: float = 10.0
-    baro_offset: float | None = None
-    mag_std: float = 0.0524
-    mag_ref_ned: Vec | None = None
+    gnss: GnssConfig = field(default_factory=GnssConfig)
+    baro: BaroConfig = field(default_factory=BaroConfig)
+    mag: MagConfig = field(default_factory=MagConfig)
+    aids: AidsConfig = field(default_factory=AidsConfig)
+    hold: HoldConfig = field(default_factory=HoldConfig)
+    alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
+    delay: DelayConfig = field(default_factory=DelayConfig)
     adaptive: bool = False
     adaptive_b: float = 0.97
-    nhc: bool = False
-    nhc_std: float = 0.1
-    nhc_rate: float = 10.0
-    nhc_min_speed: float = 0.5
-    nhc_vertical: bool = True
-    nhc_std_vertical: float = 0.1
-    nhc_lever_b: Vec = field(default_factory=lambda: np.zeros(3))
-    nhc_pitch_per_accel: float = 0.0
-    nhc_omega_lp_hz: float = 0.0
-    zupt: bool = False
-    zupt_std: float = 0.02
-    zupt_gyro: float = 0.02
-    zupt_accel: float = 0.15
-    zupt_time: float = 0.5
-    zupt_tau: float = 0.3
-    zupt_max_speed: float = 1.0
-    zaru: bool = True
-    zaru_std: float = 0.002
-    hold_without_gnss: bool = False
-    hold_after: float = 5.0
-    hold_std: float = 10.0
-    hold_vel_std: float = 1.0
-    hold_rate: float = 5.0
-    gate_hold: float = 5.0
-    position: tuple[float, float, float] | None = None
-    delay_compensation: bool = True
-    max_delay: float = 0.3
-    align: str = "given"
-    align_time: float = 2.0
-    align_level_only: bool = False
-    align_gyrocompass: bool = False
-    gyrocompass_max_std: float = 10.0 * DEG
-    level_tilt_prior: bool = True
-    still_speed: float = 0.3
-    still_delay: float = 1.5
-    still_gyro: float = 3.0 * DEG
-    still_accel: float = 1.0
-    still_tau: float = 0.2
-    align_gyro_bias_std: float = 0.02 * DEG
-    mag_yaw_std: float = 3.0 * DEG
-    gnss_yaw_speed: float = 1.0
-    gnss_yaw_std: float = 3.0 * DEG
-    gnss_yaw_vel_floor: float = 0.0
-    aligned_yaw_std: float = 5.0 * DEG
-    align_yaw_gsf: bool = False
 
     def __post_init__(self) -> None:
-        if self.align not in ("given", "static"):
-            raise ValueError(f"NavConfig.align={self.align!r}: expected 'given' or 'static'")
-        if not 0.0 <= self.gnss_vel_delay <= self.max_delay:
+        for name, cls in (("filter", FilterConfig), *SECTIONS.items()):
+            v = getattr(self, name)
+            if isinstance(v, dict):  # dataclasses.asdict(NavConfig) loaded back
+                setattr(self, name, cls(**v))
+            elif not isinstance(v, cls):
+                raise TypeError(f"NavConfig.{name}: expected a {cls.__name__}, got {type(v).__name__}")
+        if self.gnss.vel_delay > self.delay.max_delay:
             raise ValueError(
-                f"NavConfig.gnss_vel_delay={self.gnss_vel_delay}: expected 0..max_delay ({self.max_delay} s)"
+                f"NavConfig.gnss.vel_delay={self.gnss.vel_delay}: expected 0..delay.max_delay "
+                f"({self.delay.max_delay} s)"
             )
-        if not 0.0 <= self.max_delay <= 2.0:
-            raise ValueError(f"NavConfig.max_delay={self.max_delay}: expected 0..2 s")
-        if self.nhc_omega_lp_hz < 0.0:
-            raise ValueError(f"NavConfig.nhc_omega_lp_hz={self.nhc_omega_lp_hz}: expected >= 0 (0 = raw rate)")
-        if self.filter.mount_states and not self.nhc:
+        if self.filter.mount_states and not self.aids.nhc:
             raise ValueError(
-                "NavConfig.filter.mount_states=True needs nhc=True (the boresight is seen by the NHC only)"
+                "NavConfig.filter.mount_states=True needs aids.nhc=True (the boresight is seen by the NHC only)"
             )
 
 
@@ -212,8 +145,8 @@ class NavCore:
     def __init__(self, initial: StrapdownState | None = None, config: NavConfig | None = None) -> None:
         self.cfg = config if config is not None else NavConfig()
         if initial is None:
-            if self.cfg.align == "given":
-                raise ValueError("NavCore: align='given' needs an initial state")
+            if self.cfg.alignment.mode == "given":
+                raise ValueError("NavCore: alignment.mode='given' needs an initial state")
             initial = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), 0.0, 0.0, 0.0)
         self.ins = StrapdownNED(initial.copy())
         self.kf = ErrorStateEKF(self.cfg.filter)
@@ -224,7 +157,7 @@ class NavCore:
         self.sa = np.zeros(3)
         self.G = np.zeros((3, 3))  # gyro g-sensitivity (rad/s per m/s², FilterConfig.gyro_gsens)
         self.q_mount = np.array((1.0, 0.0, 0.0, 0.0))  # residual IMU body → vehicle rotation (NHC frame)
-        self.mb = np.zeros(3)  # magnetometer hard iron (body, units of |mag_ref_ned|; FilterConfig.mag_bias)
+        self.mb = np.zeros(3)  # magnetometer hard iron (body, units of |mag.ref_ned|; FilterConfig.mag_bias)
         self.omega_b = np.zeros(3)
         self.f_b = np.zeros(3)
         self.stats = {k: GateStats() for k in _KINDS}
@@ -235,18 +168,19 @@ class NavCore:
         self._dt = 0.01
         self._pending: list[GnssFix | BaroSample | MagSample] = []
         self._replaying = False  # a roll-back replays the log: no counting, no events, no logging
-        self._delayed = self.cfg.delay_compensation and self.cfg.max_delay > 0
-        self.history = DelayedHistory(self, self.cfg.max_delay)
+        self._delayed = self.cfg.delay.compensation and self.cfg.delay.max_delay > 0
+        self.history = DelayedHistory(self, self.cfg.delay.max_delay)
         self.aids = VehicleAids(self.cfg, self.idx)
         c = self.cfg
-        self.baro = BaroDatum(c.baro_std, c.baro_offset_tau, c.baro_offset, c.gnss_lever_arm_b)
+        self.baro = BaroDatum(c.baro.std, c.baro.offset_tau, c.baro.offset, c.gnss.lever_arm_b)
         self._g_local = 9.80665
-        self.phase = "nav" if self.cfg.align == "given" else "level"  # alignment: level → heading → nav
+        self.phase = "nav" if self.cfg.alignment.mode == "given" else "level"  # alignment: level → heading → nav
         self.align = Alignment(self)
-        self.yaw_gsf = YawGsf() if c.align_yaw_gsf else None  # yaw from GNSS velocity, before navigation
-        if c.position is not None and self.phase == "level":  # a known position: levelling needs no GNSS fix
+        self.yaw_gsf = YawGsf() if c.alignment.yaw_gsf else None  # yaw from GNSS velocity, before navigation
+        pos0 = c.alignment.position
+        if pos0 is not None and self.phase == "level":  # a known position: levelling needs no GNSS fix
             st = self.ins.state
-            st.lat, st.lon, st.h = math.radians(c.position[0]), math.radians(c.position[1]), float(c.position[2])
+            st.lat, st.lon, st.h = math.radians(pos0[0]), math.radians(pos0[1]), float(pos0[2])
             self.align.have_pos = True
         self.nis_log: list[tuple[float, str, float, int]] = []
         self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
@@ -255,7 +189,7 @@ class NavCore:
         self._pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
         self.gnss_reset = GnssReset(self.cfg)  # the run of rejected fixes that may reset the filter
         # no absolute aiding: constant-position / zero-velocity pseudo-measurements (core_parts/hold.py)
-        self.hold = NoAidHold(self.cfg) if self.cfg.hold_without_gnss else None
+        self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
         if self.hold is not None:
             self.stats["hold"] = GateStats()
 
@@ -388,7 +322,7 @@ class NavCore:
     # ------------------------------------------------------------------ aiding
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
         """Apply an aiding measurement valid at ``meas.t`` (queued if in the future, fused
-        on the past step's snapshot if delayed and ``delay_compensation``)."""
+        on the past step's snapshot if delayed and ``delay.compensation``)."""
         for _ in self.fuse_steps(meas):
             pass
 
@@ -404,10 +338,10 @@ class NavCore:
                 self.yaw_gsf.fuse_velocity(np.asarray(meas.vel_ned), meas.std_vel)
             self.align.meas(meas)
             return
-        if isinstance(meas, GnssFix) and self.cfg.gnss_vel_delay > 0 and meas.vel_ned is not None:
+        if isinstance(meas, GnssFix) and self.cfg.gnss.vel_delay > 0 and meas.vel_ned is not None:
             # position at t, velocity at its own (earlier) time of validity: two measurements
             pos_only = replace(meas, vel_ned=None)
-            vel_only = replace(meas, t=meas.t - self.cfg.gnss_vel_delay, lat=math.nan)
+            vel_only = replace(meas, t=meas.t - self.cfg.gnss.vel_delay, lat=math.nan)
             yield from self._fuse_one(pos_only)
             yield
             yield from self._fuse_one(vel_only)
@@ -441,13 +375,13 @@ class NavCore:
         s = self.ins.state
         C = dcm_from_quat(s.q_nb)
         c = self.cfg
-        if isinstance(meas, GnssFix) and not math.isfinite(meas.lat):  # velocity-only (gnss_vel_delay)
-            if c.use_gnss_vel and meas.vel_ned is not None:
+        if isinstance(meas, GnssFix) and not math.isfinite(meas.lat):  # velocity-only (gnss.vel_delay)
+            if c.gnss.use_vel and meas.vel_ned is not None:
                 self._apply(gnss_velocity(meas, s, C, self.omega_b, self.idx, c), meas.t)
         elif isinstance(meas, GnssFix):
             m = gnss_position(meas, s, C, self.idx, c, assume_now)
             st = self.stats["gnss_pos"]
-            force = st.consecutive_rejects >= c.gnss_reset_after and self.gnss_reset.ok(meas, m, self.kf.P)
+            force = st.consecutive_rejects >= c.gnss.reset_after and self.gnss_reset.ok(meas, m, self.kf.P)
             if force:
                 # GNSS rejected for too long: the INS has drifted, re-initialise position/velocity σ
                 self.kf.set_state_sigma("pos", np.sqrt(m.z * m.z + m.r))
@@ -460,19 +394,19 @@ class NavCore:
                 if accepted and self.hold is not None:
                     self.hold.gnss(meas.t, meas.lat, meas.lon, meas.h)
             if accepted:
-                self.baro.gnss_height(meas, C, max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale)
-            if c.use_gnss_vel and meas.vel_ned is not None:
+                self.baro.gnss_height(meas, C, max(meas.std_d, c.gnss.min_std[1]) * c.gnss.std_scale)
+            if c.gnss.use_vel and meas.vel_ned is not None:
                 yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
                 s = self.ins.state
                 self._apply(gnss_velocity(meas, s, dcm_from_quat(s.q_nb), self.omega_b, self.idx, c), meas.t)
         elif isinstance(meas, BaroSample):
-            self._apply(self.baro.measurement(meas, self.ins, self.kf, c.gate_baro), meas.t)
+            self._apply(self.baro.measurement(meas, self.ins, self.kf, c.baro.gate), meas.t)
         elif isinstance(meas, MagSample):
             self.align.last_mag = np.asarray(meas.field_b)
-            if c.mag_ref_ned is None:
+            if c.mag.ref_ned is None:
                 return
-            z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag_ref_ned, self.mb)
-            self._apply(Measurement("mag", z, H, np.full(len(z), c.mag_std**2), c.gate_mag), meas.t)
+            z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag.ref_ned, self.mb)
+            self._apply(Measurement("mag", z, H, np.full(len(z), c.mag.std**2), c.mag.gate), meas.t)
         else:
             raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
 
@@ -560,7 +494,7 @@ class NavCore:
             self._sd_of = P
             self._sd = np.sqrt(np.abs(P.diagonal()[:9]))
         sd = self._sd  # shared by the states until P changes (never mutated)
-        att_ok = self.phase == "nav" and float(sd[8]) < self.cfg.aligned_yaw_std
+        att_ok = self.phase == "nav" and float(sd[8]) < self.cfg.alignment.aligned_yaw_std
         return NavState(
             s.t, s.q_nb, s.vel_ned, s.lat, s.lon, s.h, self.bg, self.ba, sd[0:3], sd[3:6], sd[6:9],
             self.omega_b, self.f_b, att_ok, self._ratios,

@@ -74,15 +74,15 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "filter.cov_every": f.cov_every != 1,
         "filter.earth_terms": not f.earth_terms,
         "filter.omega_rv_terms": f.omega_rv_terms,
-        "gnss_lever_arm_b": bool(np.any(np.asarray(cfg.gnss_lever_arm_b) != 0.0)),
-        "gnss_std_scale": cfg.gnss_std_scale != 1.0,
+        "gnss.lever_arm_b": bool(np.any(np.asarray(cfg.gnss.lever_arm_b) != 0.0)),
+        "gnss.std_scale": cfg.gnss.std_scale != 1.0,
         "adaptive": cfg.adaptive,
-        "nhc": cfg.nhc,
-        "zupt": cfg.zupt,
-        "hold_without_gnss": cfg.hold_without_gnss,
-        "mag_ref_ned": cfg.mag_ref_ned is not None,
-        "align": cfg.align != "given",
-        "gnss_vel_delay": cfg.gnss_vel_delay != 0.0,
+        "aids.nhc": cfg.aids.nhc,
+        "aids.zupt": cfg.aids.zupt,
+        "hold.enabled": cfg.hold.enabled,
+        "mag.ref_ned": cfg.mag.ref_ned is not None,
+        "alignment.mode": cfg.alignment.mode != "given",
+        "gnss.vel_delay": cfg.gnss.vel_delay != 0.0,
     }
     bad = [k for k, v in unsupported.items() if v]
     if bad:
@@ -101,12 +101,12 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "p0_yaw": f.init_yaw,
         "p0_bg": f.init_gyro_bias,
         "p0_ba": f.init_accel_bias,
-        "gate_gnss": cfg.gate_gnss,
-        "gate_baro": cfg.gate_baro,
-        "gnss_min_std_ne": cfg.gnss_min_std[0],
-        "gnss_min_std_d": cfg.gnss_min_std[1],
-        "gnss_min_std_vel": cfg.gnss_min_std[2],
-        "baro_std": cfg.baro_std,
+        "gate_gnss": cfg.gnss.gate,
+        "gate_baro": cfg.baro.gate,
+        "gnss_min_std_ne": cfg.gnss.min_std[0],
+        "gnss_min_std_d": cfg.gnss.min_std[1],
+        "gnss_min_std_vel": cfg.gnss.min_std[2],
+        "baro_std": cfg.baro.std,
     }
     for name, value in pairs.items():
         if not (math.isfinite(value) and value >= 0.0):
@@ -116,13 +116,13 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         if not pairs[name] > 0.0:
             raise ValueError(f"CNavCore: filter.{name}={pairs[name]!r} must be > 0")
     c.second_order = 1 if f.second_order else 0
-    c.have_baro_offset = 0 if cfg.baro_offset is None else 1
-    c.baro_offset = 0.0 if cfg.baro_offset is None else float(cfg.baro_offset)
-    if not math.isfinite(cfg.baro_offset_tau) or not math.isfinite(c.baro_offset):
-        raise ValueError("CNavCore: baro_offset / baro_offset_tau must be finite")
-    c.baro_offset_tau = float(cfg.baro_offset_tau)
-    c.gnss_reset_after = int(cfg.gnss_reset_after)
-    c.use_gnss_vel = 1 if cfg.use_gnss_vel else 0
+    c.have_baro_offset = 0 if cfg.baro.offset is None else 1
+    c.baro_offset = 0.0 if cfg.baro.offset is None else float(cfg.baro.offset)
+    if not math.isfinite(cfg.baro.offset_tau) or not math.isfinite(c.baro_offset):
+        raise ValueError("CNavCore: baro.offset / baro.offset_tau must be finite")
+    c.baro_offset_tau = float(cfg.baro.offset_tau)
+    c.gnss_reset_after = int(cfg.gnss.reset_after)
+    c.use_gnss_vel = 1 if cfg.gnss.use_vel else 0
     return c
 
 
@@ -171,8 +171,8 @@ class CNavCore:
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         # the last rejected GNSS positions with their test ratios: the C core's forced acceptance after
-        # gnss_reset_after rejections is let through only when they pass NavCore's consistency test
-        self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, int(self.cfg.gnss_reset_after)))
+        # gnss.reset_after rejections is let through only when they pass NavCore's consistency test
+        self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, int(self.cfg.gnss.reset_after)))
         self.dt: float | None = None
         if dt is not None:
             self._init(dt)
@@ -230,7 +230,7 @@ class CNavCore:
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
         """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.
 
-        Gated like NavCore (per-component test ratio, ``gate_gnss``/``gate_baro``); a fix
+        Gated like NavCore (per-component test ratio, ``gnss.gate``/``baro.gate``); a fix
         valid at an earlier time is shifted by v·Δt (no roll-back in the C core).
         Magnetometer samples are ignored (no magnetometer update in the C core).
         """
@@ -258,7 +258,7 @@ class CNavCore:
                 meas.std_d,
                 meas.std_vel,
             )
-            groups = (0, 1) if meas.vel_ned is not None and self.cfg.use_gnss_vel else (0,)
+            groups = (0, 1) if meas.vel_ned is not None and self.cfg.gnss.use_vel else (0,)
             if int(e.rejected[0]) > before[0]:
                 self._rejected.append((meas, float(e.last_ratio[0])))
             else:
@@ -299,7 +299,7 @@ class CNavCore:
         core (``ins_hil.core.gnss_fixes_agree``, each rejected one within ``RESET_GATE_FACTOR`` gates unless
         no position was ever accepted); otherwise hold the count one below the reset, so the fix is gated."""
         e = self._core.ekf
-        n = int(self.cfg.gnss_reset_after)
+        n = int(self.cfg.gnss.reset_after)
         if int(e.consecutive[0]) < n:
             return
         fixes = [(f, q) for f, q in self._rejected if f.t < meas.t]
@@ -312,7 +312,7 @@ class CNavCore:
             e.consecutive[0] = n - 1
 
     def align_status(self) -> str:
-        """Always "": the C core starts from its given state (``align = "given"``)."""
+        """Always "": the C core starts from its given state (``alignment.mode = "given"``)."""
         return ""
 
     def drain_events(self) -> list[FaultEvent]:
@@ -341,7 +341,7 @@ class CNavCore:
             std_att=o[23:26],
             omega_b=o[26:29],  # bias-compensated rate and specific force of the last interval
             accel_b=o[29:32],
-            aligned=bool(o[25] < self.cfg.aligned_yaw_std),
+            aligned=bool(o[25] < self.cfg.alignment.aligned_yaw_std),
             test_ratios=self._ratios,
         )
 

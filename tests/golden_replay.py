@@ -113,7 +113,8 @@ def sim_rows(kind: str) -> list[list[float]]:
 
     sc = scenarios.build("uav", seed=0, duration=SIM_SECONDS)
     # the settings both cores support (the C core has no magnetometer update): GNSS + baro
-    cfg = dataclasses.replace(nav_config(sc.nav), mag_ref_ned=None)
+    cfg = nav_config(sc.nav)
+    cfg = dataclasses.replace(cfg, mag=dataclasses.replace(cfg.mag, ref_ned=None))
     meas = [m for m in sc.meas if not isinstance(m, MagSample)]
     if kind == "python":
         from ins_hil.core import NavCore

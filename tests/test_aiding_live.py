@@ -1,8 +1,8 @@
 """The GNSS/baro drift monitor in the LIVE gateway configuration, run offline.
 
 configs/default.toml as the gateway uses it: 1 kHz Python core (late fixes fused at their time of
-validity, and with ``delay_compensation = false`` as current), the simulator's UAV flight (take-off ramp, sweeping
-turns at 20 m/s), MEMS IMU errors, GNSS 5 Hz delivered ``gnss_latency`` (50 ms) after its
+validity, and with ``[core.nav.delay] compensation = false`` as current), the simulator's UAV flight
+(take-off ramp, sweeping turns at 20 m/s), MEMS IMU errors, GNSS 5 Hz delivered ``gnss_latency`` (50 ms) after its
 time of validity, baro 25 Hz. The Pipeline is fed directly (no real time) in the order the
 live loop would hand it the samples.
 """
@@ -51,11 +51,11 @@ def _fly(
     (north-east) from t = 60 s. Returns (pipeline events, counts, shadow monitor or None)."""
     d = sim_config_dict()
     if as_current:
-        d["core"]["nav"]["delay_compensation"] = False  # late fixes fused as current (as the C core always does)
+        d["core"]["nav"]["delay"] = {"compensation": False}  # late fixes fused as current (as the C core always does)
     cfg = from_dict(d)
     p, sim = cfg.pipeline, cfg.sim
     # the configuration this test is about (fails loudly if it changes)
-    assert p.core == "python" and p.nav.get("delay_compensation") is not as_current and p.aiding_fdi
+    assert p.core == "python" and p.nav.get("delay", {}).get("compensation") is not as_current and p.aiding_fdi
     assert sim.imu_rate == 1000.0 and sim.gnss_latency == 0.05 and sim.profile == "uav"
     pipe = Pipeline(p)
     mon = pipe._aid_mon

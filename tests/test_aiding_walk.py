@@ -18,6 +18,7 @@ import pytest
 from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import GnssConfig
 from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 from ins_hil.fusion.ekf import FilterConfig
 from ins_hil.nav.mechanization import StrapdownState
@@ -78,7 +79,7 @@ def _run(
     init = StrapdownState(
         quat_from_euler(*truth.euler[0]), truth.vel_ned[0].copy(), truth.lat[0], truth.lon[0], truth.h[0], 0.0
     )
-    core = NavCore(init, NavConfig(filter=FilterConfig(cov_every=5), gnss_lever_arm_b=LEVER))
+    core = NavCore(init, NavConfig(filter=FilterConfig(cov_every=5), gnss=GnssConfig(lever_arm_b=LEVER)))
     mon = AidingMonitor(AidingConfig(gnss_rate=rate), LEVER if lever else None)
     ev, excl = [], 0
     for s, due in with_due(imu, fixes):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import AidsConfig, AlignmentConfig, GnssConfig
 from ins_hil.nav import alignment, earth
 from ins_hil.nav.rotation import (
     book_A,
@@ -94,7 +95,7 @@ def test_gyrocompass_yaw():
 
 
 def test_navcore_static_alignment_with_magnetometer():
-    """Static scenario: not aligned before ``align_time``; then levelling + refined alignment (gravity +
+    """Static scenario: not aligned before ``alignment.time``; then levelling + refined alignment (gravity +
     magnetometer) gives the attitude to better than 1° and the flag turns True."""
     sc = scenarios.build("static", seed=1, duration=10.0)
     core = NavCore(None, nav_config(sc.nav))
@@ -107,7 +108,7 @@ def test_navcore_static_alignment_with_magnetometer():
         while j < len(meas) and meas[j].t <= s.t + 1e-9:
             core.fuse(meas[j])
             j += 1
-    assert not any(flags[:150])  # 1.5 s < align_time = 2 s
+    assert not any(flags[:150])  # 1.5 s < alignment.time = 2 s
     assert flags[-1]
     # at rest the tilt error is set by the accelerometer bias, δφ ≈ b/g (book eq. 4.1), and with a steep
     # field (inclination 66°) the magnetometer ties yaw to roll: the filter must report that honestly
@@ -124,7 +125,7 @@ def test_navcore_in_motion_yaw_from_gnss_course():
     rng = np.random.default_rng(4)
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=5).samples()
     fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.05, std_d=0.1, std_vel=0.03), seed=6)
-    core = NavCore(None, NavConfig(align="static", nhc=True))
+    core = NavCore(None, NavConfig(alignment=AlignmentConfig(mode="static"), aids=AidsConfig(nhc=True)))
     j = 0
     phases = []
     for s in imu:
@@ -183,7 +184,7 @@ def test_level_tilt_prior_predicts_the_tilt_a_biased_accelerometer_leaves(scale_
 
 def test_in_motion_yaw_sigma_uses_the_receiver_velocity_sigma():
     """The course of a velocity with σ_v at speed V has σ ≈ σ_v/V: the in-motion yaw σ uses the receiver's σ_v,
-    not the fusion floor ``gnss_min_std[2]`` (that floor covers the velocity's lag), unless
+    not the fusion floor ``gnss.min_std[2]`` (that floor covers the velocity's lag), unless
     ``gnss_yaw_vel_floor`` asks for one; it adds to ``gnss_yaw_std`` (course ≠ heading) in quadrature."""
     dt = 0.01
     truth = tr.generate(tr.car_profile(t_start=5.0), 12.0, dt, math.radians(40.0), -1.8, 1600.0)
@@ -191,7 +192,11 @@ def test_in_motion_yaw_sigma_uses_the_receiver_velocity_sigma():
     fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.02, std_d=0.04, std_vel=0.03), seed=6)
     yaw_sd = {}
     for floor in (0.0, 0.10):
-        cfg = NavConfig(align="static", nhc=True, gnss_min_std=(0.03, 0.06, 0.15), gnss_yaw_vel_floor=floor)
+        cfg = NavConfig(
+            alignment=AlignmentConfig(mode="static", gnss_yaw_vel_floor=floor),
+            aids=AidsConfig(nhc=True),
+            gnss=GnssConfig(min_std=(0.03, 0.06, 0.15)),
+        )
         core = NavCore(None, cfg)
         j = 0
         for s in imu:
@@ -208,7 +213,7 @@ def test_in_motion_yaw_sigma_uses_the_receiver_velocity_sigma():
                 break
     sd0, v0 = yaw_sd[0.0]
     assert sd0 == pytest.approx(math.hypot(math.radians(3.0), 0.03 / v0), rel=1e-9)  # 1-σ terms add in quadrature
-    sd1, v1 = yaw_sd[0.10]  # the floor asked for, not the fusion floor gnss_min_std[2] = 0.15
+    sd1, v1 = yaw_sd[0.10]  # the floor asked for, not the fusion floor gnss.min_std[2] = 0.15
     assert sd1 == pytest.approx(math.hypot(math.radians(3.0), 0.10 / v1), rel=1e-9)
 
 
@@ -238,7 +243,9 @@ def test_level_tilt_prior_follows_a_turn_between_levelling_and_the_course_fix():
     for f in fixes:  # exact fixes: the course is the heading
         k = round((f.t - truth.t[0]) / dt)
         f.vel_ned = truth.vel_ned[k].copy()
-    core = NavCore(None, NavConfig(align="static", align_level_only=True, nhc=False))
+    core = NavCore(
+        None, NavConfig(alignment=AlignmentConfig(mode="static", level_only=True), aids=AidsConfig(nhc=False))
+    )
     j = 0
     k_nav = None
     for k, s in enumerate(imu):

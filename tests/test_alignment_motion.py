@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import AlignmentConfig, HoldConfig, MagConfig
 from ins_hil.nav import earth
 from ins_hil.types import FixType, GnssFix, ImuSample
 
@@ -46,7 +47,7 @@ def _run(cfg: NavConfig, seconds: float = 20.0, takeoff: float = 4.0) -> tuple[N
 
 
 def test_hover_after_takeoff_does_not_enter_the_levelling_window() -> None:
-    core, changes = _run(NavConfig(align="static"))
+    core, changes = _run(NavConfig(alignment=AlignmentConfig(mode="static")))
     assert changes and takeoff_window(changes[0])
     # the bias comes from the ground (its vertical Earth rate removed): within 0.02 °/s per axis
     er = np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(LAT)))
@@ -62,7 +63,10 @@ def takeoff_window(t: float) -> bool:
 def test_without_the_motion_test_the_hover_spoils_the_bias() -> None:
     """The finding behind the test: with thresholds no motion reaches, the window slides into the hover and the
     gyro bias takes the hover's 8 °/s yaw rate."""
-    core, _ = _run(NavConfig(align="static", still_gyro=10.0, still_accel=100.0, align_level_only=True), takeoff=1.0)
+    core, _ = _run(
+        NavConfig(alignment=AlignmentConfig(mode="static", still_gyro=10.0, still_accel=100.0, level_only=True)),
+        takeoff=1.0,
+    )
     assert abs(core.bg[2] - BIAS[2]) > 1.0 * DEG
 
 
@@ -71,7 +75,7 @@ def test_engine_vibration_at_rest_is_not_motion(vib: float) -> None:
     """Vibration at rest (no take-off) levels when the window is full, like a vehicle that does not move."""
     rng = np.random.default_rng(5)
     dt, g = 0.004, earth.normal_gravity(LAT, H)
-    cfg = NavConfig(align="static", align_level_only=True)
+    cfg = NavConfig(alignment=AlignmentConfig(mode="static", level_only=True))
     core = NavCore(None, cfg)
     for k in range(1, 1500):
         t = k * dt
@@ -86,7 +90,7 @@ def test_engine_vibration_at_rest_is_not_motion(vib: float) -> None:
 
 def test_alignment_says_what_it_waits_for() -> None:
     dt, g = 0.004, earth.normal_gravity(LAT, H)
-    core = NavCore(None, NavConfig(align="static"))
+    core = NavCore(None, NavConfig(alignment=AlignmentConfig(mode="static")))
     seen = []
     for k in range(1, 1500):
         t = k * dt
@@ -98,7 +102,7 @@ def test_alignment_says_what_it_waits_for() -> None:
     assert seen[0] == "levelling: waiting for a position (a GNSS fix)"
     assert seen[1].startswith("levelling: ") and "of 2 s at rest" in seen[1]
     assert seen[2].startswith("levelled at rest: waiting for motion")
-    hover, _ = _run(NavConfig(align="static"))
+    hover, _ = _run(NavConfig(alignment=AlignmentConfig(mode="static")))
     assert hover.align_status() == "yaw: waiting for a GNSS speed of 1 m/s for the course (last 0.00 m/s)"
 
 
@@ -130,7 +134,7 @@ def test_gyrocompass_finds_north_with_navigation_grade_gyros() -> None:
 
     DPH = DEG / 3600
     f = FilterConfig(init_gyro_bias=0.01 * DPH, gyro_arw=0.002 * DEG / 60)
-    cfg = NavConfig(align="static", align_gyrocompass=True, align_time=100.0, filter=f)
+    cfg = NavConfig(filter=f, alignment=AlignmentConfig(mode="static", gyrocompass=True, time=100.0))
     for yaw in (30 * DEG, -135 * DEG):
         core = _static(cfg, yaw, 110.0, np.array((0.005, -0.005, 0.003)) * DPH, 0.002 * DEG / 60)
         assert core.phase == "nav" and core.align_status() == ""
@@ -140,7 +144,9 @@ def test_gyrocompass_finds_north_with_navigation_grade_gyros() -> None:
 
 
 def test_gyrocompass_refuses_mems_gyros_and_says_why() -> None:
-    cfg = NavConfig(align="static", align_gyrocompass=True)  # FilterConfig's bias σ: far above Earth rate
+    cfg = NavConfig(
+        alignment=AlignmentConfig(mode="static", gyrocompass=True)
+    )  # FilterConfig's bias σ: far above Earth rate
     core = _static(cfg, 0.5, 6.0, np.array((0.1, -0.1, 0.05)) * DEG, 0.01 * DEG)
     assert core.phase == "heading"
     assert core.align_status().startswith("gyrocompass refused (σ_ψ ")
@@ -156,7 +162,7 @@ def test_position_only_gnss_gives_the_course_by_difference() -> None:
     C = dcm_from_euler(0.0, 0.0, yaw)
     u = C @ np.array((1.0, 0.0, 0.0))  # the direction of travel, NED
     m, n = earth.radii(LAT)
-    core = NavCore(None, NavConfig(align="static"))
+    core = NavCore(None, NavConfig(alignment=AlignmentConfig(mode="static")))
     statuses = []
     for k in range(1, 1201):
         t = k * dt
@@ -183,8 +189,9 @@ def _no_gnss_rest(hold: bool, seconds: float = 60.0) -> NavCore:
     rng = np.random.default_rng(8)
     dt, g = 0.01, earth.normal_gravity(LAT, H)
     ref = np.array((20e-6, 1e-6, 40e-6))
-    cfg = NavConfig(align="static", position=(math.degrees(LAT), math.degrees(LON), H), mag_ref_ned=ref,
-                    hold_without_gnss=hold, hold_after=1.0)  # fmt: skip
+    pos = (math.degrees(LAT), math.degrees(LON), H)
+    cfg = NavConfig(alignment=AlignmentConfig(mode="static", position=pos), mag=MagConfig(ref_ned=ref),
+                    hold=HoldConfig(enabled=hold, after=1.0))  # fmt: skip
     core = NavCore(None, cfg)
     for k in range(1, int(seconds / dt) + 1):
         t = k * dt

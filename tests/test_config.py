@@ -10,6 +10,7 @@ import pytest
 from runtime_helpers import sim_config_dict
 
 from ins_hil.config import ConfigError, default_path, from_dict, load
+from ins_hil.core_parts.config import MOVED
 
 CONFIGS = sorted((Path(__file__).resolve().parent.parent / "configs").glob("*.toml"))
 
@@ -65,6 +66,24 @@ def test_bad_values_are_named(patch: dict, message: str) -> None:
     with pytest.raises(ConfigError) as e:
         from_dict(sim_config_dict(**patch))
     assert message in str(e.value)
+
+
+def test_a_flat_nav_key_names_its_section(tmp_path: Path) -> None:
+    """[core.nav] keys before the sections: one line naming the file and where the key moved."""
+    p = tmp_path / "x.toml"
+    text = default_path().read_text()
+    assert "[core.nav]" in text and "[core.nav.delay]" in text  # the key lands in [core.nav]: the table before
+    p.write_text(text.replace("\n[core.nav.delay]", "\ngnss_lever_arm_b = [0.0, 0.0, -0.1]\n[core.nav.delay]", 1))
+    with pytest.raises(ConfigError) as e:
+        load(p)
+    assert str(e.value) == f"{p}: [core.nav] gnss_lever_arm_b moved to [core.nav.gnss] lever_arm_b"
+    p.write_text(
+        text.replace("\n[core.nav.delay]", "\n[core.nav.gnss]\nlever_arm_b = [0.0, 0.0, -0.1]\n[core.nav.delay]", 1)
+    )
+    assert load(p).pipeline.nav["gnss"] == {"lever_arm_b": [0.0, 0.0, -0.1]}
+    for old, (sec, new) in MOVED.items():
+        with pytest.raises(ConfigError, match=rf"^\[core\.nav\] {old} moved to \[core\.nav\.{sec}\] {new}$"):
+            from_dict(sim_config_dict(core={"nav": {old: 1.0}}))
 
 
 def test_bad_toml_names_the_file(tmp_path: Path) -> None:

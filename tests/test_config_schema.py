@@ -88,8 +88,9 @@ FINDINGS = [
     (SIM, "core.init_h", "high", "core.init_h = 'high': expected a finite number in [-1000, 100000] m"),
     (SIM, "core.level_samples", 2.5, "core.level_samples = 2.5: expected an integer 1..100000"),
     (SIM, "core.nav", "fast", "core.nav = 'fast': expected a table"),
-    (SIM, "core.nav.gnss_lever_arm_b", [0, 0], "core.nav.gnss_lever_arm_b = [0, 0]: expected 3 finite numbers"),
-    (SIM, "core.nav.gate_gnss", "5", "core.nav.gate_gnss = '5': expected a finite number"),
+    (SIM, "core.nav.gnss.lever_arm_b", [0, 0], "core.nav.gnss.lever_arm_b = [0, 0]: expected 3 finite numbers"),
+    (SIM, "core.nav.gnss.gate", "5", "core.nav.gnss.gate = '5': expected a finite number"),
+    (SIM, "core.nav.gnss", 5, "core.nav.gnss = 5: expected a table"),
     (SIM, "core.nav.filter", [1], "core.nav.filter = [1]: expected a table"),
     (SIM, "core.nav.filter.cov_every", "10", "core.nav.filter.cov_every = '10': expected an integer 1..1000"),
     (SIM, "core.nav.filter.gyro_arw", [1.0], "core.nav.filter.gyro_arw = [1.0]: expected a finite number"),
@@ -116,12 +117,12 @@ FINDINGS = [
     (SIM, "mqtt", {"enabled": True, "state_rate": 1e-300}, "mqtt.state_rate = 1e-300"),
     (SIM, "mqtt", {"enabled": True, "topic_prefix": "a/#"}, "mqtt.topic_prefix = 'a/#'"),
     (SIM, "core.epoch_wait_periods", INF, "core.epoch_wait_periods = inf"),
-    (SIM, "core.nav.max_delay", INF, "core.nav.max_delay = inf"),
+    (SIM, "core.nav.delay.max_delay", INF, "core.nav.delay.max_delay = inf"),
     (SIM, "fdi.aiding.window", INF, "fdi.aiding.window = inf"),
     (SIM, "fdi.aiding.p_fa_hour", 1e-300, "fdi.aiding.p_fa_hour = 1e-300: expected a finite number in [1e-12, 1)"),
     (fdi_doc(), "fdi.options.p_false_alarm", 1e-300, "fdi.options.p_false_alarm = 1e-300"),
     (SIM, "fdi.aiding.cusum_k", 1e-300, "fdi.aiding.cusum_k = 1e-300"),
-    (SIM, "core.nav.mag_ref_ned", [0, 0, 0], "core.nav.mag_ref_ned = [0, 0, 0]: expected 3 finite numbers"),
+    (SIM, "core.nav.mag.ref_ned", [0, 0, 0], "core.nav.mag.ref_ned = [0, 0, 0]: expected 3 finite numbers"),
     (SIM, "sim.lat_deg", 90.0, "sim.lat_deg = 90.0"),
     # the CAN IMU's options (float node ids were truncated; rate_hz = inf gave dt = 0)
     (_doc("dronecan_imu.toml"), "inputs.0.options.nodes", [10.5], "inputs[0].options.nodes = [10.5]: expected"),
@@ -163,8 +164,8 @@ def test_empty_strings_mean_none_in_the_dbc_profile() -> None:
 
 
 def test_int_for_a_float_key_is_converted_and_floats_stay_exact() -> None:
-    cfg = from_dict(_set(SIM, "core.nav.gate_gnss", 4))
-    assert cfg.pipeline.nav["gate_gnss"] == 4.0 and isinstance(cfg.pipeline.nav["gate_gnss"], float)
+    cfg = from_dict(_set(SIM, "core.nav.gnss.gate", 4))
+    assert cfg.pipeline.nav["gnss"]["gate"] == 4.0 and isinstance(cfg.pipeline.nav["gnss"]["gate"], float)
     assert cfg.pipeline.nav["filter"] == {"cov_every": 10}
 
 
@@ -472,9 +473,9 @@ def _ends(k: config_schema.Key) -> list[Any]:
 @pytest.mark.slow
 def test_every_numeric_key_starts_at_the_ends_of_its_range() -> None:
     """Each number at its smallest and largest allowed value gives a config that starts (or a one-line error
-    where keys constrain each other, e.g. gnss_vel_delay ≤ max_delay)."""
+    where keys constrain each other, e.g. gnss.vel_delay ≤ delay.max_delay)."""
     bases = dict.fromkeys(("fdi.aiding", "sim", "gateway", "recorder", "outputs[]", "outputs[].rates"), SIM)
-    bases.update(dict.fromkeys(("core", "core.nav", "core.nav.filter"), CONFIG_INIT))
+    bases.update(dict.fromkeys([s.name for s in config_schema.sections() if s.name.startswith("core")], CONFIG_INIT))
     bases.update(
         {"fdi.options": fdi_doc(), "inputs[].options": _doc("dronecan_imu.toml"), "inputs[].options.dbc": dbc_doc()}
     )

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ins_hil.core import CoreSnapshot, NavConfig, NavCore
+from ins_hil.core_parts.config import AidsConfig, DelayConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import BaroSample, GnssFix, ImuSample
@@ -47,7 +48,7 @@ def _flat(d: object) -> list[object]:
 def test_restore_replays_bit_for_bit() -> None:
     init = StrapdownState(quat_from_euler(0.01, -0.02, 0.3), np.array((5.0, 1.0, 0.0)), 0.87, 0.52, 100.0, 0.0)
     # aids and baro datum carry state too; no delayed fusion: the history (log, snapshots) is not restored
-    core = NavCore(init, NavConfig(nhc=True, zupt=True, delay_compensation=False))
+    core = NavCore(init, NavConfig(aids=AidsConfig(nhc=True, zupt=True), delay=DelayConfig(compensation=False)))
     _run(core, _inputs(1, 300))
     snap = core.snapshot()
     assert isinstance(snap, CoreSnapshot) and snap.baro.offset is not None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import AidsConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import GnssFix, ImuSample
@@ -14,7 +15,7 @@ G = 9.80665
 
 def _run(split: bool) -> list[tuple[float, ...]]:
     init = StrapdownState(quat_from_euler(0.01, -0.02, 0.3), np.array((5.0, 1.0, 0.0)), 0.87, 0.52, 100.0, 0.0)
-    core = NavCore(init, NavConfig(nhc=True, nhc_min_speed=0.5))  # ground aids run in the time update
+    core = NavCore(init, NavConfig(aids=AidsConfig(nhc=True, nhc_min_speed=0.5)))  # ground aids run in the time update
     rng = np.random.default_rng(5)
     out = []
     for k in range(1, 600):

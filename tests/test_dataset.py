@@ -88,7 +88,7 @@ def test_load_drive_mounting_time_and_outages(drive_dir: Path, cfg: dataset_conf
     R = dataclasses.replace(cfg, imu_to_body=cfg.imu_to_body[:1]).mounting_dcm()
     raw = rec.imu_log.acc[:2000].mean(axis=0) @ cfg.mounting_dcm().T.T  # back to sensor axes
     assert abs((R @ raw)[0]) > 1.0
-    np.testing.assert_allclose(cfg.nav_config().gnss_lever_arm_b, (0.0, -0.05, 0.0))
+    np.testing.assert_allclose(cfg.nav_config().gnss.lever_arm_b, (0.0, -0.05, 0.0))
     outs = protocol_windows(dr, prepare(dr, cfg), cfg)
     assert outs is not None and len(outs) == 11  # README: 11 outages
     assert outs[0][0] - rec.pos.t[0] == pytest.approx(40.0)
@@ -221,7 +221,7 @@ def test_startup_validation_is_a_fresh_alignment_outside_the_protocol(
     _, p, proto = study.load(cfg, drive_dir)
     st = cfg.study
     imu, gnss, outs = study.startup_validation(p.imu, p.gnss, st["startup_restart_s"], st["startup_score_until_s"],
-                                               p.nav.gnss_yaw_speed)  # fmt: skip
+                                               p.nav.alignment.gnss_yaw_speed)  # fmt: skip
     t0 = p.gnss[0].t
     assert imu[0].t >= t0 + 201.0 and gnss[0].t >= t0 + 201.0
     ((a, b),) = outs
@@ -230,7 +230,9 @@ def test_startup_validation_is_a_fresh_alignment_outside_the_protocol(
     assert a == pytest.approx(first_moving.t + 0.25)
     assert not any(a < d and c < b for c, d in proto)
     with pytest.raises(ValueError, match="departure"):
-        study.startup_validation(p.imu, p.gnss, 531.0, 545.0, p.nav.gnss_yaw_speed)  # the final stop: no departure
+        study.startup_validation(
+            p.imu, p.gnss, 531.0, 545.0, p.nav.alignment.gnss_yaw_speed
+        )  # final stop: no departure
 
 
 def test_synthetic_baro_is_the_rtk_height_plus_seeded_noise(drive_dir: Path, cfg: dataset_config.DatasetConfig):

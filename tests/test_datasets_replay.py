@@ -72,7 +72,7 @@ def test_config_loads_shipped_and_validates(tmp_path: Path):
     for p in sorted((REPO / "configs" / "datasets").glob("*.toml")):
         c = dcfg.load(p)
         assert c.path is not None and c.path.exists(), p
-        assert c.nav_config().align == "static"
+        assert c.nav_config().alignment.mode == "static"
     bad = {
         "[dataset]\nname='x'\n[mounting]\nimu_to_body=[0,0,0]\n": "unknown key mounting.imu_to_body",
         "[dataset]\nformat='px4-ulog'\n": "missing key dataset.name",
@@ -89,6 +89,22 @@ def test_config_loads_shipped_and_validates(tmp_path: Path):
         with pytest.raises(dcfg.DatasetConfigError, match=msg.replace("[", r"\[").replace("(", r"\(")) as e:
             dcfg.load(_toml(tmp_path / "bad.toml", text))
         assert "\n" not in str(e.value) and str(tmp_path / "bad.toml") in str(e.value)
+
+
+def test_dataset_nav_sections_and_a_flat_key(tmp_path: Path):
+    """[nav] takes the NavConfig sections; a key of the flat layout is one line naming its new place."""
+    head = "[dataset]\nname='x'\n"
+    p = _toml(tmp_path / "old.toml", head + "[nav]\ngate_gnss = 10.0\nnhc = true\n")
+    with pytest.raises(dcfg.DatasetConfigError) as e:
+        dcfg.load(p)
+    assert str(e.value) == f"{p}: [nav] gate_gnss moved to [nav.gnss] gate"
+    c = dcfg.load(_toml(tmp_path / "new.toml", head + "[nav.gnss]\ngate = 10.0\n[nav.aids]\nnhc = true\n"
+                        "[nav.mag]\nstd = 0.2\n[mounting]\ngnss_lever_arm_m = [0, 0.5, 0]\n"))  # fmt: skip
+    n = c.nav_config()
+    assert n.gnss.gate == 10.0 and n.aids.nhc and n.mag.std == 0.2  # over the mems grade's 0.15
+    assert n.gnss.lever_arm_b.tolist() == [0.0, 0.5, 0.0] and n.alignment.mode == "static"  # the defaults kept
+    with pytest.raises(dcfg.DatasetConfigError, match=r"nav\.gnss: unknown key\(s\) \['gaet'\]"):
+        dcfg.load(_toml(tmp_path / "bad.toml", head + "[nav.gnss]\ngaet = 1.0\n"))
 
 
 def test_outage_windows_and_mounting():

@@ -22,7 +22,7 @@ from ins_hil.types import GnssFix, ImuSample
 def test_default_config_fuses_late_fixes_at_their_time() -> None:
     cfg = from_dict(tomllib.loads(default_path().read_text()), "default")
     p = Pipeline(cfg.pipeline)
-    assert cfg.pipeline.nav["delay_compensation"] is True
+    assert cfg.pipeline.nav["delay"]["compensation"] is True
     assert p._aid_mon is not None and not p._aid_mon.cfg.late_fix_as_current  # the monitor follows the core
 
 
@@ -108,7 +108,7 @@ def test_default_flight_has_no_lag_bias() -> None:
     m = score(errors([s for s in states if s.t >= 18.0], truth))
     assert counts["fused_GnssFix"] > 140
     assert abs(m["along_bias_m"]) < 0.1, m
-    d["core"]["nav"]["delay_compensation"] = False  # the old default: the lag is back
+    d["core"]["nav"]["delay"] = {"compensation": False}  # the old default: the lag is back
     states, truth, _ = fly_sim(d, seed=3, duration=30.0)
     m_old = score(errors([s for s in states if s.t >= 18.0], truth))
     assert m_old["along_bias_m"] < -0.5, m_old

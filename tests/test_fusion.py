@@ -9,6 +9,7 @@ import pytest
 from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import AlignmentConfig
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
 from ins_hil.nav import earth
@@ -196,8 +197,8 @@ def test_magnetometer_book_measurement():
 def test_config_errors_name_the_bad_key():
     with pytest.raises(ValueError, match="numerics"):
         FilterConfig(numerics="lu")
-    with pytest.raises(ValueError, match="align"):
-        NavConfig(align="magic")
+    with pytest.raises(ValueError, match=r"alignment\.mode=.magic."):
+        NavConfig(alignment=AlignmentConfig(mode="magic"))
     with pytest.raises(ValueError, match="initial state"):
         NavCore(None, NavConfig())
 

@@ -10,6 +10,7 @@ import pytest
 from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import AidsConfig, DelayConfig, GnssConfig, MagConfig
 from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownState
@@ -68,7 +69,7 @@ def test_delayed_gnss_compensated_matches_undelayed(scen):
     cfg = NavConfig()
     _, p0, v0 = _run(truth, imu, fixes, cfg, 0.0, 10.0)
     core, p1, v1 = _run(truth, imu, fixes, cfg, 0.2, 10.0)
-    _, p2, v2 = _run(truth, imu, fixes, replace(cfg, delay_compensation=False), 0.2, 10.0)
+    _, p2, v2 = _run(truth, imu, fixes, replace(cfg, delay=replace(cfg.delay, compensation=False)), 0.2, 10.0)
     assert _rms(p1) < 1.1 * _rms(p0) + 0.02
     assert _rms(v1) < 1.1 * _rms(v0) + 0.005
     assert _rms(p2) > 2.0 * _rms(p0)
@@ -82,7 +83,7 @@ def test_gating_rejects_multipath_outliers_and_reports_events(scen):
     model = se.GnssModel(rate=5, std_ne=0.5, std_d=1.0, std_vel=0.05, outlier_prob=0.08, outlier_size=15.0)
     fixes = se.gnss_fixes(truth, model, seed=9)
     core, p_gate, _ = _run(truth, imu, fixes, NavConfig(), 0.0, 10.0)
-    _, p_open, _ = _run(truth, imu, fixes, NavConfig(gate_gnss=1e6), 0.0, 10.0)
+    _, p_open, _ = _run(truth, imu, fixes, NavConfig(gnss=GnssConfig(gate=1e6)), 0.0, 10.0)
     st = core.stats["gnss_pos"]
     assert st.rejected >= 10
     assert st.accepted > 0.8 * len(fixes)
@@ -107,7 +108,7 @@ def test_adaptive_r_tracks_a_gnss_noise_change(scen):
     a = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.3, std_d=0.6, std_vel=0.05), seed=4)
     b = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=2.4, std_d=4.8, std_vel=0.05), seed=5)
     fixes = [f for f in a if f.t < 25.0] + [replace(f, std_ne=0.3, std_d=0.6) for f in b if f.t >= 25.0]
-    cfg = NavConfig(gate_gnss=1e6)
+    cfg = NavConfig(gnss=GnssConfig(gate=1e6))
     core_a, pa, _ = _run(truth, imu, fixes, replace(cfg, adaptive=True), 0.0, 40.0)
     _, pf, _ = _run(truth, imu, fixes, cfg, 0.0, 40.0)
     scale = core_a.adapt["gnss_pos"].scale
@@ -137,7 +138,7 @@ def test_magnetometer_bounds_heading_without_gnss(scen):
     fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.5, std_d=1.0, std_vel=0.05, outages=[(20.0, 61.0)]),
                           seed=4)  # fmt: skip
     mag = se.mag_samples(truth, field_ned=ref, rate=10, std=0.3e-6, seed=8)
-    cfg = NavConfig(mag_ref_ned=ref, mag_std=0.01)
+    cfg = NavConfig(mag=MagConfig(ref_ned=ref, std=0.01))
     core = NavCore(_init(truth), cfg)
     meas = sorted([*fixes, *mag], key=lambda m: m.t)
     for s, due in with_due(imu, meas):
@@ -160,7 +161,7 @@ def test_nhc_and_zupt_bound_a_ground_vehicle_outage():
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=2).samples()
     fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.5, std_d=1.0, std_vel=0.05, outages=[(25.0, 50.0)]),
                           seed=3)  # fmt: skip
-    _, p_aid, _ = _run(truth, imu, fixes, NavConfig(nhc=True, zupt=True), 0.0, 49.9)
+    _, p_aid, _ = _run(truth, imu, fixes, NavConfig(aids=AidsConfig(nhc=True, zupt=True)), 0.0, 49.9)
     _, p_raw, _ = _run(truth, imu, fixes, NavConfig(), 0.0, 49.9)
     assert np.linalg.norm(p_aid[-1, :2]) < 0.5 * np.linalg.norm(p_raw[-1, :2])
 
@@ -206,7 +207,7 @@ def test_nhc_mounted_jacobian_matches_finite_differences():
 def test_mount_states_need_nhc():
     with pytest.raises(ValueError, match="mount_states"):
         NavConfig(filter=FilterConfig(mount_states=True))
-    cfg = NavConfig(filter=FilterConfig(mount_states=True), nhc=True)
+    cfg = NavConfig(filter=FilterConfig(mount_states=True), aids=AidsConfig(nhc=True))
     core = NavCore(StrapdownState(np.array([1.0, 0, 0, 0]), np.array((5.0, 0, 0)), LAT0, LON0, H0), cfg)
     x = np.zeros(core.idx.n)
     x[core.idx.mnt + 2] = 0.01
@@ -220,7 +221,7 @@ def test_mount_states_need_nhc():
 
 def test_gnss_velocity_lag_is_fused_at_its_own_time(scen):
     """A receiver whose velocity lags its position by 0.13 s (the drive's RTKLIB .pos, docs/accuracy.md):
-    with ``gnss_vel_delay`` the velocity is fused at its time of validity and the velocity error during
+    with ``gnss.vel_delay`` the velocity is fused at its time of validity and the velocity error during
     the manoeuvres drops; fused at the position's time it biases the velocity along the acceleration."""
     truth, imu = scen
     lag = 0.13
@@ -231,13 +232,13 @@ def test_gnss_velocity_lag_is_fused_at_its_own_time(scen):
 
     # the receiver's velocity noise kept, its time of validity moved 0.13 s before the position's
     lagged = [replace(f, vel_ned=np.asarray(f.vel_ned) - v_true(f.t) + v_true(f.t - lag)) for f in fixes]
-    cfg = NavConfig(gnss_min_std=(0.3, 0.5, 0.03))
+    cfg = NavConfig(gnss=GnssConfig(min_std=(0.3, 0.5, 0.03)))
     _, _, v_naive = _run(truth, imu, lagged, cfg, 0.0, 15.0)
-    core, _, v_comp = _run(truth, imu, lagged, replace(cfg, gnss_vel_delay=lag), 0.0, 15.0)
+    core, _, v_comp = _run(truth, imu, lagged, replace(cfg, gnss=replace(cfg.gnss, vel_delay=lag)), 0.0, 15.0)
     assert core.stats["gnss_vel"].accepted > 200
     assert _rms(v_comp) < 0.6 * _rms(v_naive)
-    with pytest.raises(ValueError, match="gnss_vel_delay"):
-        NavConfig(gnss_vel_delay=0.5, max_delay=0.3)
+    with pytest.raises(ValueError, match=r"gnss\.vel_delay"):
+        NavConfig(gnss=GnssConfig(vel_delay=0.5), delay=DelayConfig(max_delay=0.3))
 
 
 def test_zupt_releases_when_a_car_starts_from_rest():
@@ -247,7 +248,7 @@ def test_zupt_releases_when_a_car_starts_from_rest():
     lat, h, dt, a_x = LAT0, H0, 0.01, 1.0
     g = earth.normal_gravity(lat, h)
     core = NavCore(StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), lat, LON0, h),
-                   NavConfig(zupt=True, zupt_time=0.5))  # fmt: skip
+                   NavConfig(aids=AidsConfig(zupt=True, zupt_time=0.5)))  # fmt: skip
     n_rest, n_go = 300, 300
     st = core.stats["zupt"]
     for k in range(n_rest + n_go):
@@ -279,7 +280,7 @@ def test_nhc_suspension_pitch_keeps_the_pitch_of_an_accelerating_car():
     err = {}
     for kk in (0.0, k):
         core = NavCore(StrapdownState(quat_from_euler(0.0, 0.0, 0.0), np.array((10.0, 0.0, 0.0)), lat, LON0, h),
-                       NavConfig(nhc=True, nhc_pitch_per_accel=kk))  # fmt: skip
+                       NavConfig(aids=AidsConfig(nhc=True, nhc_pitch_per_accel=kk)))  # fmt: skip
         v = 10.0
         p = 0.0
         for n in range(600):
@@ -320,7 +321,7 @@ def test_gyro_g_sensitivity_states_estimate_g_and_hold_the_yaw():
 
 
 def test_c_core_refuses_the_gyro_g_sensitivity_states():
-    """The C reference core has no g-sensitivity states: it refuses the option by name (like gnss_vel_delay)."""
+    """The C reference core has no g-sensitivity states: it refuses the option by name (like gnss.vel_delay)."""
     from ins_hil.cref import CNavCore
 
     init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
@@ -342,7 +343,9 @@ def test_delayed_fusion_rollback_restores_the_ground_aid_averages(cov_every):
     rng = np.random.default_rng(1)
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=2).samples()
     f = FilterConfig(gyro_vib_gain=0.4, accel_vib_gain=0.6, cov_every=cov_every)
-    core = NavCore(_init(truth), NavConfig(nhc=True, zupt=True, max_delay=0.3, filter=f))
+    core = NavCore(
+        _init(truth), NavConfig(filter=f, aids=AidsConfig(nhc=True, zupt=True), delay=DelayConfig(max_delay=0.3))
+    )
     n_end = len(imu) - 2 if cov_every > 1 else len(imu)  # end inside a covariance block (3 of 5 steps)
     for s in imu[:n_end]:
         core.step(s)
@@ -376,7 +379,7 @@ def test_nhc_lever_arm_uses_a_low_passed_rate():
     err = {}
     for hz in (0.0, 1.0):
         f = FilterConfig(init_gyro_bias=0.01, init_att=0.01, init_yaw=0.01, init_vel=0.1)
-        cfg = NavConfig(nhc=True, nhc_lever_b=np.array((-1.5, 0.0, 0.0)), nhc_omega_lp_hz=hz, filter=f)
+        cfg = NavConfig(filter=f, aids=AidsConfig(nhc=True, nhc_lever_b=np.array((-1.5, 0.0, 0.0)), nhc_omega_lp_hz=hz))
         core = NavCore(StrapdownState(np.array([1.0, 0, 0, 0]), np.array((10.0, 0.0, 0.0)), lat, LON0, h), cfg)
         pitch = []
         for n in range(2000):
@@ -391,7 +394,7 @@ def test_nhc_lever_arm_uses_a_low_passed_rate():
     assert err[1.0][0] < 0.7 * err[0.0][0]
     assert err[1.0][1] < 0.5 * err[0.0][1]
     with pytest.raises(ValueError, match="nhc_omega_lp_hz"):
-        NavConfig(nhc_omega_lp_hz=-1.0)
+        NavConfig(aids=AidsConfig(nhc_omega_lp_hz=-1.0))
 
 
 def test_per_axis_accelerometer_scale_factor_prior_learns_a_forward_scale_factor():
@@ -409,7 +412,7 @@ def test_per_axis_accelerometer_scale_factor_prior_learns_a_forward_scale_factor
     res = {}
     for prior in (None, (0.03, 0.002, 0.002)):
         f = FilterConfig(scale_factors=True, init_accel_sf=prior)
-        core, _, _ = _run(truth, imu, fixes, NavConfig(filter=f, gnss_min_std=(0.1, 0.2, 0.02)))
+        core, _, _ = _run(truth, imu, fixes, NavConfig(filter=f, gnss=GnssConfig(min_std=(0.1, 0.2, 0.02))))
         res[prior is not None] = (float(core.sa[0]), float(np.linalg.norm(core.state().vel_ned - truth.vel_ned[-1])))
         if prior is not None:
             assert core.kf.P[core.idx.sa, core.idx.sa] < 0.03**2  # the x prior was used and then reduced

@@ -9,6 +9,7 @@ import pytest
 from runtime_helpers import with_due
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import DelayConfig
 from ins_hil.fusion import book
 from ins_hil.fusion import sqrt as sq
 from ins_hil.fusion.ekf import ErrorStateEKF, FilterConfig
@@ -144,7 +145,8 @@ def test_navcore_numerics_give_the_same_estimates(numerics, vib):
         core = NavCore(
             init,
             NavConfig(
-                filter=FilterConfig(numerics=num, gyro_vib_gain=vib, accel_vib_gain=vib), delay_compensation=False
+                filter=FilterConfig(numerics=num, gyro_vib_gain=vib, accel_vib_gain=vib),
+                delay=DelayConfig(compensation=False),
             ),
         )
         for s, due in with_due(imu, fixes):

@@ -150,8 +150,8 @@ def test_param_read_set_good_bad_and_other_system(tmp_path: Path) -> None:
         # a good value: applied to the running core at once, echoed
         ok = _param_set(v, "NAV_GATE_GNSS", 4.0)
         assert ok is not None and math.isclose(ok.param_value, 4.0)
-        assert v.pipeline.core is not None and v.pipeline.core.cfg.gate_gnss == 4.0
-        assert v.pipeline.cfg.nav["gate_gnss"] == 4.0
+        assert v.pipeline.core is not None and v.pipeline.core.cfg.gnss.gate == 4.0
+        assert v.pipeline.cfg.nav["gnss"]["gate"] == 4.0
         # a rate: applied to the stream
         r = _param_set(v, "SR_VFR_HUD", 2.0)
         assert r is not None and math.isclose(r.param_value, 2.0) and v.ep.rates["VFR_HUD"] == 2.0
@@ -166,7 +166,7 @@ def test_param_read_set_good_bad_and_other_system(tmp_path: Path) -> None:
         ):
             r = _param_set(v, name, value, ptype)
             assert r is not None and math.isclose(r.param_value, old, rel_tol=1e-6), (name, r)
-        assert v.ep.rates["ATTITUDE"] == 50.0 and v.pipeline.core.cfg.use_gnss_vel is True
+        assert v.ep.rates["ATTITUDE"] == 50.0 and v.pipeline.core.cfg.gnss.use_vel is True
         t = v.wait("STATUSTEXT", cond=lambda m: "FLT_GYRO_ARW" in m.text)
         assert t is not None and "restart" in t.text
 
@@ -266,7 +266,7 @@ def test_parameters_saved_and_loaded_at_start(tmp_path: Path) -> None:
     assert "NAV_BARO_STD = 0.8" in text and "[params.gcs]" in text and "SR_GLOBAL_POS = 3.0" in text
     # a new start with the file: the values are in the configuration it runs
     store = ParamStore(sim_config(**_outputs(v.port)), tmp_path / "params.toml")
-    assert store.cfg.pipeline.nav["baro_std"] == 0.8
+    assert store.cfg.pipeline.nav["baro"]["std"] == 0.8
     assert store.cfg.outputs[0].effective_rates()["GLOBAL_POSITION_INT"] == 3.0
     # a bad file is a config error naming the file and the parameter (the config's own validation)
     (tmp_path / "bad.toml").write_text("[params]\nFLT_COV_EVERY = 0\n")
@@ -363,6 +363,6 @@ def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
             mp.kill()
             mp.wait()
         v.stop()
-    assert v.ep.rates["VFR_HUD"] == 2.0 and v.pipeline.core.cfg.use_gnss_vel is True
+    assert v.ep.rates["VFR_HUD"] == 2.0 and v.pipeline.core.cfg.gnss.use_vel is True
     saved = (tmp_path / "mav_42_1.parm").read_text().split("\n")
     assert len([s for s in saved if s.strip()]) == n  # MAVProxy's own copy of the parameter list

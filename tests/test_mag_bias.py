@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import MagConfig
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import FilterConfig, StateIndex, skew
 from ins_hil.nav.mechanization import StrapdownState
@@ -63,7 +64,7 @@ def _yaw_rms(flight, mag_bias: bool) -> tuple[float, NavCore]:
     e = truth.euler[0]
     init = StrapdownState(quat_from_euler(e[0], e[1], e[2] + 0.02), truth.vel_ned[0].copy(), truth.lat[0],
                           truth.lon[0], truth.h[0], truth.t[0])  # fmt: skip
-    core = NavCore(init, NavConfig(mag_ref_ned=ref, mag_std=0.01, filter=FilterConfig(mag_bias=mag_bias)))
+    core = NavCore(init, NavConfig(filter=FilterConfig(mag_bias=mag_bias), mag=MagConfig(ref_ned=ref, std=0.01)))
     j, err = 0, []
     for k, s in enumerate(imu):
         core.step(s)

@@ -1,4 +1,4 @@
-"""The GNSS-velocity yaw bank (ins_hil.fusion.yaw_gsf) and the core's heading phase with it (align_yaw_gsf)."""
+"""The GNSS-velocity yaw bank (ins_hil.fusion.yaw_gsf) and the core's heading phase with it (alignment.yaw_gsf)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import AlignmentConfig
 from ins_hil.fusion.yaw_gsf import GsfConfig, YawGsf
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_euler, euler_from_quat
@@ -93,7 +94,7 @@ def test_bank_config_is_checked() -> None:
 def _align(imu, fixes, gsf: bool, until_end: bool = False) -> tuple[NavCore, float, float]:
     """Run the core; returns it, its yaw (rad) and yaw σ (rad) when it starts navigating (and runs on to the
     end of the data with ``until_end``)."""
-    core = NavCore(None, NavConfig(align="static", align_yaw_gsf=gsf))
+    core = NavCore(None, NavConfig(alignment=AlignmentConfig(mode="static", yaw_gsf=gsf)))
     j = 0
     yaw0 = sd0 = math.nan
     for s in imu:

@@ -488,7 +488,7 @@ AID_LIVE_T_FAULT, AID_LIVE_T_END = 60.0, 90.0
 
 def _aid_live_run(seed: int, fault: str, size: float) -> tuple[list, dict[str, int]]:
     """One flight of the LIVE configuration offline: configs/default.toml's Pipeline (1 kHz Python core,
-    ``delay_compensation = false``, monitor on) fed the default simulator (UAV flight, GNSS 50 ms late)
+    ``[core.nav.delay] compensation = false``, monitor on) fed the default simulator (UAV flight, GNSS 50 ms late)
     in arrival order; fault at 60 s, end at 90 s. Returns (events, pipeline counts)."""
     import tomllib
 
@@ -544,7 +544,7 @@ def bench_aiding_live(cfg: FdiBench, lines: list[str]) -> None:
         "### In the live gateway configuration",
         "",
         "configs/default.toml run offline (no real time): Pipeline with the 1 kHz Python core, "
-        "`delay_compensation = false` (late fixes fused as current), monitor on by default; the default "
+        "`[core.nav.delay] compensation = false` (late fixes fused as current), monitor on by default; the default "
         "simulator (UAV: take-off ramp 10–30 s, sweeping turns at 20 m/s, MEMS IMU), GNSS 5 Hz delivered "
         "50 ms after its time of validity (σ 1 m NE / 2 m D / 0.1 m/s), baro 25 Hz (σ 0.5 m); fault at "
         f"t = {AID_LIVE_T_FAULT:.0f} s, flight {AID_LIVE_T_END:.0f} s; {n} simulator seeds per row "

@@ -3,7 +3,7 @@
 A simulated UAV mission (MEMS IMU at ``imu_hz``, RTK-grade GNSS) is replayed causally through ``NavCore`` with
 the dataset defaults (``mems`` grade), for each GNSS rate and velocity delay; the figure is IMU samples per
 second of process time and the real-time factor. With a GNSS velocity delay every fix is fused at its time of
-validity by a roll-back and replay of the IMU steps since then (``NavConfig.gnss_vel_delay``).
+validity by a roll-back and replay of the IMU steps since then (``NavConfig.gnss.vel_delay``).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def replay_cost(seconds: float = 120.0, imu_hz: float = 200.0, seed: int = 1,
         fixes = list(se.gnss_fixes(truth, se.GnssModel(rate=rate, std_ne=0.02, std_d=0.04, std_vel=0.02), seed=seed))
         if delay > 0:  # the receiver's velocity is valid `delay` s before its position (what the config says)
             fixes = [dataclasses.replace(f, vel_ned=_vel_at(truth, f.t - delay)) for f in fixes]
-        c = dcfg.from_dict({"dataset": {"name": "replay-cost"}, "nav": {"gnss_vel_delay": delay}})
+        c = dcfg.from_dict({"dataset": {"name": "replay-cost"}, "nav": {"gnss": {"vel_delay": delay}}})
         c.use_mag = c.use_baro = False
         p = prepare(Dataset(imu, fixes), c)
         t0 = time.process_time()

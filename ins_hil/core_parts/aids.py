@@ -33,22 +33,22 @@ class AidsSnapshot(NamedTuple):
 
 
 class VehicleAids:
-    """Rest detection and the ZUPT/ZARU/NHC measurements of a ground vehicle (``NavConfig.nhc``/``zupt``).
+    """Rest detection and the ZUPT/ZARU/NHC measurements of a ground vehicle (``NavConfig.aids``: ``nhc``/``zupt``).
 
     Rest detection on exponentially averaged (τ = ``zupt_tau``) rate and specific-force magnitudes, so engine
     vibration (tens of Hz, °/s-level on a car) does not hide a stop."""
 
     def __init__(self, cfg: NavConfig, idx: StateIndex) -> None:
         self.cfg, self.idx = cfg, idx
-        self.on = cfg.nhc or cfg.zupt
+        self.on = cfg.aids.nhc or cfg.aids.zupt
         self.nhc_next = 0.0  # s, the next aid time (nhc_rate)
         self.still_time = 0.0  # s at rest so far
         self.ema_w = np.zeros(3)  # averaged compensated body rate (rad/s)
         self.ema_f = np.array((0.0, 0.0, -9.80665))  # averaged specific force (NED, m/s²)
         self.w_lp = np.zeros(3)  # low-passed body rate for the NHC lever-arm term (nhc_omega_lp_hz)
-        lever_on = bool(np.any(cfg.nhc_lever_b != 0.0))
-        self.lever_lp = cfg.nhc_omega_lp_hz > 0.0 and lever_on
-        self.mounted = idx.mnt is not None or lever_on or cfg.nhc_pitch_per_accel != 0.0
+        lever_on = bool(np.any(cfg.aids.nhc_lever_b != 0.0))
+        self.lever_lp = cfg.aids.nhc_omega_lp_hz > 0.0 and lever_on
+        self.mounted = idx.mnt is not None or lever_on or cfg.aids.nhc_pitch_per_accel != 0.0
 
     def snapshot(self) -> AidsSnapshot:
         return _new(AidsSnapshot, (self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp))
@@ -67,53 +67,55 @@ class VehicleAids:
             return ()
         t = imu.t
         s = ins.state
-        a = min(1.0, imu.dt / c.zupt_tau)
+        a = min(1.0, imu.dt / c.aids.zupt_tau)
         self.ema_w = self.ema_w + a * (omega_b - self.ema_w)
         # specific force in NED (not its body magnitude): a start from rest with 1 m/s² changes |f| by only
         # 0.05 m/s² (second order) but the horizontal specific force by 1 m/s², so the ZUPT stops in time
         self.ema_f = self.ema_f + a * (ins.f_ned - self.ema_f)
         w, f = self.ema_w, self.ema_f
         if self.lever_lp:
-            b = 1.0 - math.exp(-2.0 * math.pi * c.nhc_omega_lp_hz * imu.dt)  # first-order IIR, causal
+            b = 1.0 - math.exp(-2.0 * math.pi * c.aids.nhc_omega_lp_hz * imu.dt)  # first-order IIR, causal
             self.w_lp = self.w_lp + b * (omega_b - self.w_lp)
         wn = math.sqrt(float(w[0]) ** 2 + float(w[1]) ** 2 + float(w[2]) ** 2)
         fn = math.sqrt(float(f[0]) ** 2 + float(f[1]) ** 2 + (float(f[2]) + g_local) ** 2)  # |f − (0, 0, −g)|
         vn = s.vel_ned
-        slow = float(vn[0]) ** 2 + float(vn[1]) ** 2 + float(vn[2]) ** 2 < c.zupt_max_speed**2
+        slow = float(vn[0]) ** 2 + float(vn[1]) ** 2 + float(vn[2]) ** 2 < c.aids.zupt_max_speed**2
         # constant-velocity driving looks like rest to the IMU: require a low estimated speed too
-        still = slow and wn < c.zupt_gyro and fn < c.zupt_accel
+        still = slow and wn < c.aids.zupt_gyro and fn < c.aids.zupt_accel
         self.still_time = self.still_time + imu.dt if still else 0.0
         if t < self.nhc_next:
             return ()
-        self.nhc_next = t + 1.0 / c.nhc_rate
+        self.nhc_next = t + 1.0 / c.aids.nhc_rate
         idx = self.idx
-        if c.zupt and self.still_time >= c.zupt_time:
+        if c.aids.zupt and self.still_time >= c.aids.zupt_time:
             z, H = mm.zero_velocity(idx, s.vel_ned)
-            zupt = Measurement("zupt", z, H, np.full(3, c.zupt_std**2), c.gate_aux)
-            if not (c.zaru and idx.bg is not None):
+            zupt = Measurement("zupt", z, H, np.full(3, c.aids.zupt_std**2), c.aids.gate)
+            if not (c.aids.zaru and idx.bg is not None):
                 return (zupt,)
             # zero angular rate: the averaged compensated rate is the residual gyro bias, z = 0 − ω̄ = −δb_g
             H = np.zeros((3, idx.n))
             H[:, idx.bg : idx.bg + 3] = -np.eye(3)
             self.ema_w = np.zeros(3)
-            return zupt, Measurement("zupt", -w, H, np.full(3, c.zaru_std**2), c.gate_aux)
-        if c.nhc and float(np.linalg.norm(s.vel_ned)) > c.nhc_min_speed:
+            return zupt, Measurement("zupt", -w, H, np.full(3, c.aids.zaru_std**2), c.aids.gate)
+        if c.aids.nhc and float(np.linalg.norm(s.vel_ned)) > c.aids.nhc_min_speed:
             C = dcm_from_quat(s.q_nb)
             if self.mounted:
                 R = dcm_from_quat(q_mount)
-                if c.nhc_pitch_per_accel != 0.0:
+                if c.aids.nhc_pitch_per_accel != 0.0:
                     # suspension pitch (squat/dive): the body pitches nose-up by θ = k a_x relative to the road
                     # when accelerating forward, so the velocity has v_b,z = v θ; the constraint holds in the
                     # road frame u = R_y(θ) v_b (a_x: averaged kinematic acceleration, body x)
                     ax = float(C[0, 0] * f[0] + C[1, 0] * f[1] + C[2, 0] * (float(f[2]) + g_local))
-                    th = c.nhc_pitch_per_accel * ax
+                    th = c.aids.nhc_pitch_per_accel * ax
                     ct, st_ = math.cos(th), math.sin(th)
                     R = R @ np.array(((ct, 0.0, st_), (0.0, 1.0, 0.0), (-st_, 0.0, ct)))
                 w_l = self.w_lp if self.lever_lp else omega_b
-                z, H, _ = mm.nonholonomic_mounted(idx, C, s.vel_ned, R, w_l, c.nhc_lever_b)
+                z, H, _ = mm.nonholonomic_mounted(idx, C, s.vel_ned, R, w_l, c.aids.nhc_lever_b)
             else:
                 z, H = mm.nonholonomic(idx, C, s.vel_ned)
-            if c.nhc_vertical:
-                return (Measurement("nhc", z, H, np.array((c.nhc_std**2, c.nhc_std_vertical**2)), c.gate_aux),)
-            return (Measurement("nhc", z[:1], H[:1], np.array((c.nhc_std**2,)), c.gate_aux),)
+            if c.aids.nhc_vertical:
+                return (
+                    Measurement("nhc", z, H, np.array((c.aids.nhc_std**2, c.aids.nhc_std_vertical**2)), c.aids.gate),
+                )
+            return (Measurement("nhc", z[:1], H[:1], np.array((c.aids.nhc_std**2,)), c.aids.gate),)
         return ()

@@ -1,5 +1,5 @@
-"""The two-phase alignment before navigation (``NavConfig.align = "static"``): coarse levelling from the mean
-specific force over ``align_time`` s at rest (book §4.1.1), then yaw from the magnetometer (refined alignment,
+"""The two-phase alignment before navigation (``NavConfig.alignment.mode = "static"``): coarse levelling from the mean
+specific force over ``alignment.time`` s at rest (book §4.1.1), then yaw from the magnetometer (refined alignment,
 §4.1.2, Example 4.1) or from the GNSS course once the speed exceeds ``gnss_yaw_speed``."""
 
 from __future__ import annotations
@@ -64,11 +64,11 @@ class Alignment:
         self.fb: Vec | None = None  # mean specific force of the levelling window (body, m/s²; its length t_win)
         self.C = np.eye(3)  # the levelled attitude C_b^n, its yaw as the filter holds it (level_tilt_prior)
         self.t_end = 0.0  # the time of its last sample
-        self.have_pos = self.cfg.align == "given"
+        self.have_pos = self.cfg.alignment.mode == "given"
         self.last_mag: Vec | None = None  # the last magnetometer field (body, any unit)
         self.last_speed: float | None = None  # the last GNSS horizontal speed seen (m/s)
         self.prev_fix: GnssFix | None = None  # the fix before (a position-only receiver's velocity by difference)
-        self.gyrocompass_std: float | None = None  # σ_ψ (rad) the gyrocompass would give (align_gyrocompass)
+        self.gyrocompass_std: float | None = None  # σ_ψ (rad) the gyrocompass would give (alignment.gyrocompass)
 
     def step(self, imu: ImuSample) -> None:
         """One IMU sample before navigation: into the levelling window, or the gyro-only attitude (heading)."""
@@ -80,32 +80,34 @@ class Alignment:
             # GNSS speed below still_speed, must not slide into the window; engine vibration at rest averages
             # to the window's mean and only counts by its RMS)
             if self.t_win >= 0.5 and not self.imu_moving:
-                a = imu.dt / (c.still_tau + imu.dt)
+                a = imu.dt / (c.alignment.still_tau + imu.dt)
                 dw = imu.dtheta / imu.dt - self.w_sum / self.t_win
                 df = imu.dvel / imu.dt - self.f_sum / self.t_win
                 self.dev_w += a * (float(dw @ dw) - self.dev_w)
                 self.dev_f += a * (float(df @ df) - self.dev_f)
-                if self.dev_w > c.still_gyro**2 or self.dev_f > c.still_accel**2:
+                if self.dev_w > c.alignment.still_gyro**2 or self.dev_f > c.alignment.still_accel**2:
                     self.imu_moving = self.moving = True
             # samples enter the levelling window only ``still_delay`` s later, so the window cannot hold
             # the first moments of a motion that the GNSS speed test detects late; once the IMU has seen
             # motion the window is frozen (the pending samples bring the attitude forward at levelling)
             self.pending.append(imu)
-            while self.pending and imu.t - self.pending[0].t > (MAX_FROZEN_S if self.imu_moving else c.still_delay):
+            while self.pending and imu.t - self.pending[0].t > (
+                MAX_FROZEN_S if self.imu_moving else c.alignment.still_delay
+            ):
                 old = self.pending.popleft()
                 self.buf.append((old.dt, old.dvel, old.dtheta))
                 self.t_win += old.dt
                 self.f_sum = self.f_sum + old.dvel
                 self.w_sum = self.w_sum + old.dtheta
-            while self.buf and self.t_win - self.buf[0][0] >= c.align_time:
+            while self.buf and self.t_win - self.buf[0][0] >= c.alignment.time:
                 dt0, dv0, dth0 = self.buf.popleft()
                 self.t_win -= dt0
                 self.f_sum = self.f_sum - dv0
                 self.w_sum = self.w_sum - dth0
-            full = self.t_win >= c.align_time - 0.5 * imu.dt
+            full = self.t_win >= c.alignment.time - 0.5 * imu.dt
             if self.have_pos and (full or (self.moving and self.t_win >= 0.5)):
-                mag_ok = c.mag_ref_ned is not None and self.last_mag is not None
-                if self.moving or mag_ok or c.align_level_only or c.align_gyrocompass:
+                mag_ok = c.mag.ref_ned is not None and self.last_mag is not None
+                if self.moving or mag_ok or c.alignment.level_only or c.alignment.gyrocompass:
                     self._level()
         elif core.phase == "heading":
             # attitude from the (bias-compensated) gyros alone, velocity held at zero, until a GNSS course
@@ -129,25 +131,25 @@ class Alignment:
         C0 = dcm_from_quat(quat_from_euler(roll, pitch, 0.0))
         core.bg = w - C0.T @ np.array((0.0, 0.0, -earth.OMEGA_E * math.sin(s.lat)))
         have_yaw = False
-        yaw_std = c.mag_yaw_std
-        if c.align_gyrocompass:
+        yaw_std = c.alignment.mag_yaw_std
+        if c.alignment.gyrocompass:
             # book eq. 4.2 on the levelled mean rate: Earth rate's horizontal part points north; usable only when
             # the gyro bias is well below Ω cos φ (≈ 10.6 °/h at 45°): σ_ψ ≈ σ_bias / (Ω cos φ)
             ohm = earth.OMEGA_E * math.cos(s.lat)
             f_c = c.filter
             sig = math.hypot(f_c.init_gyro_bias, f_c.gyro_arw / math.sqrt(self.t_win)) / max(ohm, 1e-12)
-            if sig <= c.gyrocompass_max_std:
+            if sig <= c.alignment.gyrocompass_max_std:
                 yaw = alignment.gyrocompass_yaw(C0 @ w)
                 C = dcm_from_quat(quat_from_euler(roll, pitch, yaw))
                 core.bg = w - C.T @ earth.earth_rate_ned(s.lat)
                 have_yaw, yaw_std = True, sig
             self.gyrocompass_std = sig
-        if not have_yaw and c.mag_ref_ned is not None and self.last_mag is not None:
+        if not have_yaw and c.mag.ref_ned is not None and self.last_mag is not None:
             # tilt from the accelerometer alone, yaw from the tilt-compensated field direction: unit-free, and an
             # error in the reference's dip or magnitude moves no tilt (the book's two-vector A of §4.1.2 weighs
             # both vectors equally and takes their magnitudes as given)
             try:
-                yaw = alignment.mag_heading(roll, pitch, self.last_mag, c.mag_ref_ned)
+                yaw = alignment.mag_heading(roll, pitch, self.last_mag, c.mag.ref_ned)
                 have_yaw = True
             except ValueError:
                 have_yaw = False
@@ -165,7 +167,7 @@ class Alignment:
         self.pending.clear()
         s.t = t_now
         if core.idx.bg is not None:
-            core.kf.set_state_sigma("bg", c.align_gyro_bias_std)
+            core.kf.set_state_sigma("bg", c.alignment.gyro_bias_std)
         if have_yaw:
             self.enter_nav(yaw_std=yaw_std)
         else:
@@ -187,33 +189,34 @@ class Alignment:
             return
         if math.isfinite(meas.h):
             core.baro.gnss_height(
-                meas, dcm_from_quat(s.q_nb), max(meas.std_d, self.cfg.gnss_min_std[1]) * self.cfg.gnss_std_scale
+                meas, dcm_from_quat(s.q_nb), max(meas.std_d, self.cfg.gnss.min_std[1]) * self.cfg.gnss.std_scale
             )
         vel, std_vel = self._velocity(meas)
         if core.phase == "level":
             s.lat, s.lon, s.h = meas.lat, meas.lon, meas.h
             self.have_pos = True
             if vel is not None:
-                self.moving = self.moving or math.hypot(float(vel[0]), float(vel[1])) > self.cfg.still_speed
+                self.moving = self.moving or math.hypot(float(vel[0]), float(vel[1])) > self.cfg.alignment.still_speed
         if core.phase == "heading" and vel is not None:
             v = vel
             sp = math.hypot(float(v[0]), float(v[1]))
             self.last_speed = sp
             gsf = core.yaw_gsf
-            if (gsf is not None and gsf.converged()) or (gsf is None and sp >= self.cfg.gnss_yaw_speed):
+            if (gsf is not None and gsf.converged()) or (gsf is None and sp >= self.cfg.alignment.gnss_yaw_speed):
                 roll, pitch, yaw_was = euler_from_quat(s.q_nb)
                 if gsf is not None:  # the yaw bank weighted by the GNSS velocity (fusion/yaw_gsf.py)
                     yaw, yaw_std = gsf.yaw, math.sqrt(gsf.yaw_var)
                 else:  # in-motion yaw = GNSS course (no sideslip)
                     yaw = alignment.yaw_from_course(v)
                     # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V)
-                    yaw_std = math.hypot(self.cfg.gnss_yaw_std, max(std_vel, self.cfg.gnss_yaw_vel_floor) / sp)
+                    a = self.cfg.alignment
+                    yaw_std = math.hypot(a.gnss_yaw_std, max(std_vel, a.gnss_yaw_vel_floor) / sp)
                 s.q_nb = quat_from_euler(roll, pitch, yaw)
                 # the yaw reset turns the computed frame about down: the levelled tilt (fixed in NED) turns with it
                 self.C = dcm_from_euler(0.0, 0.0, yaw - yaw_was) @ self.C
                 s.vel_ned = v.copy()
                 C = dcm_from_quat(s.q_nb)
-                d = C @ self.cfg.gnss_lever_arm_b
+                d = C @ self.cfg.gnss.lever_arm_b
                 m, n = earth.radii(meas.lat)
                 s.lat = meas.lat - d[0] / (m + meas.h)
                 s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
@@ -240,19 +243,20 @@ class Alignment:
         if phase == "level":
             if not self.have_pos:
                 return "levelling: waiting for a position (a GNSS fix)"
-            if self.t_win < c.align_time - 1e-9:
-                return f"levelling: {self.t_win:.1f} of {c.align_time:g} s at rest"
+            if self.t_win < c.alignment.time - 1e-9:
+                return f"levelling: {self.t_win:.1f} of {c.alignment.time:g} s at rest"
             return (
                 "levelled at rest: waiting for motion (GNSS speed above "
-                f"{c.still_speed:g} m/s or the IMU's motion test) to take the yaw from the GNSS course, "
-                "or set a magnetometer reference (mag_ref_ned), align_gyrocompass or align_level_only"
+                f"{c.alignment.still_speed:g} m/s or the IMU's motion test) to take the yaw from the GNSS course, "
+                "or set a magnetometer reference (mag.ref_ned), alignment.gyrocompass or alignment.level_only"
             )
         if phase == "heading":
             gc = ""
             if self.gyrocompass_std is not None:
                 gc = (f"gyrocompass refused (σ_ψ {math.degrees(self.gyrocompass_std):.0f}° > "
-                      f"{math.degrees(c.gyrocompass_max_std):.0f}°: gyro bias too large for Earth rate); ")  # fmt: skip
-            if c.mag_ref_ned is not None and self.last_mag is None:
+                      f"{math.degrees(c.alignment.gyrocompass_max_std):.0f}°: "
+                      "gyro bias too large for Earth rate); ")  # fmt: skip
+            if c.mag.ref_ned is not None and self.last_mag is None:
                 return gc + "yaw: waiting for a magnetometer sample"
             gsf = self.core.yaw_gsf
             if gsf is not None:
@@ -264,7 +268,7 @@ class Alignment:
                 if self.last_speed is None
                 else f"last {self.last_speed:.2f} m/s"
             )
-            return gc + f"yaw: waiting for a GNSS speed of {c.gnss_yaw_speed:g} m/s for the course ({last})"
+            return gc + f"yaw: waiting for a GNSS speed of {c.alignment.gnss_yaw_speed:g} m/s for the course ({last})"
         return ""
 
     def enter_nav(self, yaw_std: float | None = None) -> None:
@@ -276,10 +280,10 @@ class Alignment:
         if yaw_std is not None:
             c = self.cfg.filter
             core.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))
-            if self.cfg.level_tilt_prior and self.fb is not None:
+            if self.cfg.alignment.level_tilt_prior and self.fb is not None:
                 # the levelled tilt holds the horizontal accelerometer error (book §4.1.1): correlated prior;
                 # what the levelling leaves: the window's accelerometer noise and the gyro drift since the window
                 since = max(0.0, s.t - self.t_end)
                 sig = math.hypot(c.accel_vrw / math.sqrt(max(self.t_win, 1e-3)) / core._g_local,
-                                 self.cfg.align_gyro_bias_std * since)  # fmt: skip
+                                 self.cfg.alignment.gyro_bias_std * since)  # fmt: skip
                 core.kf.level_tilt(self.C, self.fb, sig)

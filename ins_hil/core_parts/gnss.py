@@ -30,28 +30,28 @@ def gnss_position(
     meas: GnssFix, s: StrapdownState, C: Vec, idx: StateIndex, c: NavConfig, assume_now: bool
 ) -> Measurement:
     """The antenna position update (C = C_b^n). Unless ``assume_now``, the fix is shifted by v̂·(t_step − t)
-    to the step time (interpolation between IMU samples); σ floored at ``gnss_min_std``, scaled."""
-    std_ne = max(meas.std_ne, c.gnss_min_std[0]) * c.gnss_std_scale
-    std_d = max(meas.std_d, c.gnss_min_std[1]) * c.gnss_std_scale
+    to the step time (interpolation between IMU samples); σ floored at ``gnss.min_std``, scaled."""
+    std_ne = max(meas.std_ne, c.gnss.min_std[0]) * c.gnss.std_scale
+    std_d = max(meas.std_d, c.gnss.min_std[1]) * c.gnss.std_scale
     shift = None if assume_now else s.vel_ned * (s.t - meas.t)  # time alignment to the step
-    z, H = mm.gnss_position(idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, c.gnss_lever_arm_b, shift)
-    return Measurement("gnss_pos", z, H, np.array((std_ne**2, std_ne**2, std_d**2)), c.gate_gnss)
+    z, H = mm.gnss_position(idx, C, s.lat, s.lon, s.h, meas.lat, meas.lon, meas.h, c.gnss.lever_arm_b, shift)
+    return Measurement("gnss_pos", z, H, np.array((std_ne**2, std_ne**2, std_d**2)), c.gnss.gate)
 
 
 def gnss_velocity(meas: GnssFix, s: StrapdownState, C: Vec, omega_b: Vec, idx: StateIndex, c: NavConfig) -> Measurement:
     """The antenna velocity update (lever-arm rate ω × l with the compensated body rate ``omega_b``, rad/s)."""
     assert meas.vel_ned is not None
-    std_v = max(meas.std_vel, c.gnss_min_std[2]) * c.gnss_std_scale
-    z, H = mm.gnss_velocity(idx, C, s.vel_ned, omega_b, np.asarray(meas.vel_ned), c.gnss_lever_arm_b)
-    return Measurement("gnss_vel", z, H, np.full(3, std_v**2), c.gate_gnss)
+    std_v = max(meas.std_vel, c.gnss.min_std[2]) * c.gnss.std_scale
+    z, H = mm.gnss_velocity(idx, C, s.vel_ned, omega_b, np.asarray(meas.vel_ned), c.gnss.lever_arm_b)
+    return Measurement("gnss_vel", z, H, np.full(3, std_v**2), c.gnss.gate)
 
 
 class GnssReset:
-    """The consecutive rejected GNSS positions with their test ratios, for the reset after ``gnss_reset_after``."""
+    """The consecutive rejected GNSS positions with their test ratios, for the reset after ``gnss.reset_after``."""
 
     def __init__(self, c: NavConfig) -> None:
         self.cfg = c
-        self.rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, c.gnss_reset_after))
+        self.rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, c.gnss.reset_after))
         self.accepted = False  # a GNSS position has been accepted since the start
 
     def note(self, meas: GnssFix, accepted: bool, ratio: float) -> None:
@@ -63,11 +63,11 @@ class GnssReset:
             self.rejected.append((meas, ratio))
 
     def ok(self, meas: GnssFix, m: Measurement, P: Vec) -> bool:
-        """May a GNSS position rejected ``gnss_reset_after`` times in a row reset the filter (be accepted over
+        """May a GNSS position rejected ``gnss.reset_after`` times in a row reset the filter (be accepted over
         its gate, position/velocity σ re-initialised)? Only when the rejected fixes pass a consistency test
         of their own, so that junk cannot trigger a reset:
 
-        1. the last ``gnss_reset_after`` rejected fixes and this one agree with each other
+        1. the last ``gnss.reset_after`` rejected fixes and this one agree with each other
            (:func:`gnss_fixes_agree`);
         2. each of them is within ``RESET_GATE_FACTOR`` × the gate of the INS (test ratio ≤ factor²): an
            INS whose position has drifted beyond the gate, not one ``RESET_GATE_FACTOR`` times beyond it —
@@ -75,10 +75,10 @@ class GnssReset:
         """
         c = self.cfg
         fixes = [(f, q) for f, q in self.rejected if f.t < meas.t]
-        if len(fixes) < c.gnss_reset_after:
+        if len(fixes) < c.gnss.reset_after:
             return False
         S = m.H @ P @ m.H.T + np.diag(m.r)
-        ratio, _ = test_ratio(m.z, S, c.gate_gnss)
+        ratio, _ = test_ratio(m.z, S, c.gnss.gate)
         fixes.append((meas, ratio))
         if self.accepted and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
             return False
@@ -88,11 +88,11 @@ class GnssReset:
 def gnss_fixes_agree(fixes: list[GnssFix], c: NavConfig) -> bool:
     """Do consecutive GNSS fixes (time order) agree with each other? Each position follows the previous one
     by their mean velocity × Δt (or, without velocities, lies on the straight line through its neighbours),
-    within ``gate_gnss`` σ of their own σ (NE, D; m): the consistency test a GNSS reset needs
+    within ``gnss.gate`` σ of their own σ (NE, D; m): the consistency test a GNSS reset needs
     (:meth:`GnssReset.ok`, and ``ins_hil.cref.CNavCore`` for the C core), so junk cannot trigger one."""
-    g2 = c.gate_gnss**2
-    sc = c.gnss_std_scale
-    mn = c.gnss_min_std
+    g2 = c.gnss.gate**2
+    sc = c.gnss.std_scale
+    mn = c.gnss.min_std
 
     def sig(f: GnssFix) -> tuple[float, float, float]:
         return max(f.std_ne, mn[0]) * sc, max(f.std_d, mn[1]) * sc, max(f.std_vel, mn[2]) * sc

@@ -55,7 +55,7 @@ def _whatif_baro_md(
         "the protocol (drive settings, ZUPT + NHC) with a barometer made from the RTK height at the RTK-fixed "
         "epochs (4 Hz) plus white noise and a random-walk drift (`ins_hil.datasets.study.synthetic_baro`, seeded), "
         "fused the whole time, outages included (`run_drive(aux=...)`), its datum learnt against GNSS as the gateway "
-        "does (`baro_offset_tau`) and `baro_std` set to the white noise. It is built from the truth, so it is a study "
+        "does (`baro.offset_tau`) and `baro.std` set to the white noise. It is built from the truth, so it is a study "
         "for choosing a sensor, never a protocol result.\n\n"
         + _md_table(head, tuple(rows))
         + f"\n\nThe worst protocol outage ({windows[w][0]:.0f} s, {pw[w]['max_m']:.2f} m) has a worst case of "

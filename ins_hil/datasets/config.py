@@ -15,8 +15,10 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
                mag_reference = "wmm" | "rest" | [N, E, D] (µT);
                declination_deg (with "rest"); no_gnss_hold (bool), hold_std_m, hold_vel_std_mps (0 = position
                only), hold_rate_hz
-    [nav]      ins_hil.core.NavConfig fields (``[nav.filter]``: FilterConfig fields), as ``[core.nav]`` of the
-               gateway config (``ins_hil.runtime.pipeline.nav_config``)
+    [nav]      ins_hil.core.NavConfig: its sections ``[nav.gnss]``, ``[nav.baro]``, ``[nav.mag]``, ``[nav.aids]``,
+               ``[nav.hold]``, ``[nav.alignment]``, ``[nav.delay]``, ``[nav.filter]`` (FilterConfig fields) and
+               ``adaptive``/``adaptive_b``, as ``[core.nav]`` of the gateway config
+               (``ins_hil.runtime.pipeline.nav_config``)
     [outages]  relative_to = "takeoff" | "start" | "first_gnss", start_s, on_s (outage), off_s (GNSS between),
                end_s (s from ``relative_to``), tail_s (the last outage ends ≥ tail_s before the last fix or the end)
     [score]    against = ["gnss", "onboard", "reference"], settle_s (s after the core starts navigating),
@@ -41,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ins_hil.core import NavConfig
+from ins_hil.core_parts.config import MOVED
 from ins_hil.datasets import rtklib
 from ins_hil.fusion.ekf import FilterConfig
 from ins_hil.nav.rotation import dcm_from_euler
@@ -53,7 +56,7 @@ G0 = 9.80665
 #: motors (datasheet-class white noise: gyro 0.01 °/s/√Hz, accelerometer 150 µg/√Hz; bias instability of a
 #: few °/h and mg drifting with temperature: Gauss–Markov 0.2 °/s and 5 mg over 300 s; large initial biases:
 #: 0.5 °/s and 0.3 m/s²; vibration added from the measured sample-to-sample change, the same model as on
-#: the car drive). ``tactical``: FilterConfig's defaults. :data:`GRADE_NAV`: NavConfig fields of the grade
+#: the car drive). ``tactical``: FilterConfig's defaults. :data:`GRADE_NAV`: NavConfig sections of the grade
 #: (``mems``: the field direction of an uncompensated MEMS magnetometer near motors is good to ~0.15 per
 #: unit-vector component, ≈ 9°: a residual hard iron of ~0.06 G against a 0.4–0.5 G field).
 GRADES: dict[str, dict[str, Any]] = {
@@ -72,7 +75,7 @@ GRADES: dict[str, dict[str, Any]] = {
     "tactical": {},
 }
 
-GRADE_NAV: dict[str, dict[str, Any]] = {"mems": {"mag_std": 0.15}, "tactical": {}}
+GRADE_NAV: dict[str, dict[str, Any]] = {"mems": {"mag": {"std": 0.15}}, "tactical": {}}
 
 SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
     "dataset": {"name": str, "format": str, "path": str, "position_deg": list, "description": str},
@@ -83,7 +86,7 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
                "mag_reference": (str, list), "declination_deg": (int, float),
                "no_gnss_hold": bool, "hold_std_m": (int, float), "hold_vel_std_mps": (int, float),
                "hold_rate_hz": (int, float)},
-    "nav": {},  # NavConfig fields
+    "nav": {},  # NavConfig sections (tables) and top-level keys
     "outages": {"relative_to": str, "start_s": (int, float), "on_s": (int, float), "off_s": (int, float),
                 "end_s": (int, float), "tail_s": (int, float)},
     "score": {"against": list, "settle_s": (int, float), "min_fix_type": int},
@@ -175,11 +178,12 @@ class DatasetConfig:
 
         fk = dict(GRADES[self.grade])
         fk.update(self.filter_overrides)
-        nav = {"align": "static", **GRADE_NAV[self.grade], **{k: v for k, v in self.nav.items() if k != "filter"}}
+        nav: dict[str, Any] = {"alignment": {"mode": "static"}, "gnss": {"lever_arm_b": list(self.gnss_lever_arm)}}
+        for over in (GRADE_NAV[self.grade], {k: v for k, v in self.nav.items() if k != "filter"}):
+            for k, v in over.items():  # a section's keys merge into the section
+                nav[k] = {**nav.get(k, {}), **v} if isinstance(v, dict) and isinstance(nav.get(k), dict) else v
         fk.update(self.nav.get("filter", {}))
         nav["filter"] = {k: tuple(v) if isinstance(v, list) else v for k, v in fk.items()}  # TOML arrays → tuples
-        if "gnss_lever_arm_b" not in nav:
-            nav["gnss_lever_arm_b"] = list(self.gnss_lever_arm)
         try:
             cfg = nav_config(nav)
         except ValueError as e:
@@ -207,6 +211,9 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
             raise DatasetConfigError(f"{source}: {tab} must be a table [{tab}]")
         extra = filt if tab == "sensor" else navk if tab == "nav" else set()
         for k, x in v.items():
+            if tab == "nav" and k in MOVED:
+                sec, new = MOVED[k]
+                raise DatasetConfigError(f"{source}: [nav] {k} moved to [nav.{sec}] {new}")
             want = SCHEMA[tab].get(k)
             if want is None and k not in extra:
                 known = sorted(set(SCHEMA[tab]) | extra)

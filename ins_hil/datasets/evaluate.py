@@ -65,7 +65,7 @@ def run_drive(
     (before that epoch is fused) and the a-posteriori one. ``aux`` (baro/magnetometer samples, sorted
     by ``t`` s) are fused after the IMU step that reaches their time, inside outages too."""
     core = NavCore(None, cfg)
-    lever = cfg.gnss_lever_arm_b
+    lever = cfg.gnss.lever_arm_b
     g0 = gnss[0]
     origin = (g0.lat, g0.lon, g0.h)
     ser = Series()

@@ -119,7 +119,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     else:
         origin = (0.0, 0.0, 0.0)
     p = Prepared(imu, gnss, [], [], nav, imu[0].t, imu[-1].t, origin, notes)
-    if mag and "mag_ref_ned" not in cfg.nav:
+    if mag and "ref_ned" not in cfg.nav.get("mag", {}):
         ref: Vec | None = None
         if isinstance(cfg.mag_reference, np.ndarray):
             ref, p.mag_ref_source = cfg.mag_reference * 1e-6, "the dataset config"
@@ -144,7 +144,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
                 notes.append("magnetometer not used: no rest before take-off to measure the field")
         if ref is not None:
             p.mag_ref_ned_T = ref
-            nav = dataclasses.replace(nav, mag_ref_ned=ref)
+            nav = dataclasses.replace(nav, mag=dataclasses.replace(nav.mag, ref_ned=ref))
         else:
             mag = []
     p.nav = nav
@@ -211,7 +211,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
                 progress: Progress | None = None) -> RunResult:  # fmt: skip
     """Replay ``p`` causally; GNSS inside ``outages`` (s, absolute) is scored, never fused."""
     core = NavCore(None, p.nav)
-    lever = p.nav.gnss_lever_arm_b
+    lever = p.nav.gnss.lever_arm_b
     origin = p.origin
     meas: list[tuple[float, int, Any]] = [(f.t, 0, f) for f in p.gnss]
     meas += [(f.t, 1, f) for f in p.hold] + [(m.t, 2, m) for m in p.aux]
@@ -241,7 +241,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
             j += 1
             if kind != 0:
                 if p.mag_heading_only and isinstance(m, MagSample) and core.phase == "nav":
-                    m = heading_only(m, core.ins.state.q_nb, p.nav.mag_ref_ned)
+                    m = heading_only(m, core.ins.state.q_nb, p.nav.mag.ref_ned)
                 core.fuse(m)
                 continue
             inside = any(a <= m.t < b for a, b in outages)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import DelayConfig
 from ins_hil.datasets.evaluate import Progress, Series, run_truth
 from ins_hil.fusion.ekf import FilterConfig
 from ins_hil.runtime.pipeline import nav_config
@@ -132,7 +133,7 @@ def benchmark_hot_path(n: int = 20000) -> dict[str, float]:
         for label, cfg in (
             (
                 f"core_step_cov_every_{every}_us",
-                NavConfig(filter=FilterConfig(cov_every=every), delay_compensation=False),
+                NavConfig(filter=FilterConfig(cov_every=every), delay=DelayConfig(compensation=False)),
             ),
             (f"core_step_cov_every_{every}_with_delay_history_us", NavConfig(filter=FilterConfig(cov_every=every))),
         ):

@@ -50,7 +50,7 @@ def load(cfg: DatasetConfig, path: Path | None = None) -> tuple[Dataset, Prepare
 
 def without_aids(nav: NavConfig) -> NavConfig:
     """The NavConfig without the ground-vehicle aids (ZUPT, NHC): how the filter runs on a UAV."""
-    return dataclasses.replace(nav, nhc=False, zupt=False)
+    return dataclasses.replace(nav, aids=dataclasses.replace(nav.aids, nhc=False, zupt=False))
 
 
 def shifted_windows(cfg: DatasetConfig, p: Prepared, shift: float) -> list[tuple[float, float]]:
@@ -175,7 +175,7 @@ def study(
             # held-out start-up outage (a fresh alignment, like the protocol's first outage; never its epochs)
             restart = float(st["startup_restart_s"])
             imu_s, gnss_s, outs_s = startup_validation(imu, gnss, restart, float(st["startup_score_until_s"]),
-                                                       p.nav.gnss_yaw_speed)  # fmt: skip
+                                                       p.nav.alignment.gnss_yaw_speed)  # fmt: skip
             m, _, _ = run_drive(imu_s, gnss_s, [f.fix_type >= cfg.min_fix_type for f in gnss_s], p.nav, outs_s,
                                 prog(f"{cfg.name} start-up validation"))  # fmt: skip
             res["startup_aids"] = {k: m[k] for k in ("outage_h_rms_m", "outage_h_max_m", "outage_epochs")}
@@ -186,7 +186,7 @@ def study(
         res["whatif_baro"] = []
         for name, white, drift in st.get("whatif_baro", []):
             for seed in (0, 1):
-                cfg_b = dataclasses.replace(p.nav, baro_std=white)
+                cfg_b = dataclasses.replace(p.nav, baro=dataclasses.replace(p.nav.baro, std=white))
                 aux = synthetic_baro(gnss, white, drift, seed, float(st.get("whatif_baro_datum_m", 0.0)),
                                      max(cfg.min_fix_type, 1))  # fmt: skip
                 m, ser, _ = run_drive(imu, gnss, scored, cfg_b, outages,

@@ -45,7 +45,7 @@ Late fixes (the live gateway: GNSS delivered 50 ms after its time of validity, c
 against the current state): the fix is compared with the state the way the core fuses it:
 moved back to the time of validity (p − v·lag + ½a·lag², v − a·lag, a = C_b^n f_b + g of the
 state: a second-order interpolation with no history to keep on the IMU path), or, with
-``late_fix_as_current`` (NavCore with ``delay_compensation = false`` fuses a late fix as
+``late_fix_as_current`` (NavCore with ``delay.compensation = false`` fuses a late fix as
 current, so its state lags the truth by ≈ the latency: ≈ 1 m along track at 20 m/s), with the
 current state. What the lag can still cause in manoeuvres (the filter's residual time offset
 is unknown within [0, lag]) is a dead zone of the CUSUM inputs.
@@ -216,7 +216,7 @@ class _Status:
 class AidingMonitor:
     """GNSS / baro drift monitor (see module doc). Call :meth:`check` before fusing.
 
-    ``gnss_lever_arm_b`` (m, body FRD): IMU → antenna, the core's ``NavConfig.gnss_lever_arm_b`` (not a
+    ``gnss_lever_arm_b`` (m, body FRD): IMU → antenna, the core's ``NavConfig.gnss.lever_arm_b`` (not a
     setting of its own: the monitor must compare the fix where the core fuses it); the INS is moved to the
     antenna (p + C_b^n l, v + C_b^n (ω × l)) before it is compared with the fix."""
 
@@ -405,7 +405,7 @@ class AidingMonitor:
         A delay-compensating core holds the state at the fix time: the monitor moves the current
         state back by ``lag`` (p − v·lag + ½a·lag², v − a·lag; a = C_b^n f_b + g from the state,
         to second order the same as interpolating a state history, at no cost per IMU step).
-        A core that fuses a late fix as current (``NavConfig.delay_compensation = false``:
+        A core that fuses a late fix as current (``NavConfig.delay.compensation = false``:
         ``NavCore.fuse`` drops the time alignment when the fix is > 1.5 steps late) is pulled
         towards the fix's past: its state becomes ≈ the truth at t − λ, λ ≤ lag, so there the
         fix is compared with the current state (``late_fix_as_current``) like the core does.

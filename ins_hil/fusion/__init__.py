@@ -23,16 +23,16 @@ subtracted from the increments before the mechanization: Δθ' = (Δθ − b_g �
 NavCore API (``ins_hil.core``)
 ------------------------------
 ``NavCore(initial: StrapdownState | None = None, config: NavConfig | None = None)``
-  ``initial`` is required with ``align="given"`` (default); with ``align="static"`` it may be None
+  ``initial`` is required with ``alignment.mode="given"`` (default); with ``"static"`` it may be None
   (position from the first GNSS fix).
 ``step(imu: ImuSample) -> NavState``: one IMU interval (mechanization + covariance propagation,
   ground-vehicle aids if enabled). Never blocks, no I/O.
 ``fuse(meas: GnssFix | BaroSample | MagSample) -> None``: fused at ``meas.t`` (time of validity):
   queued if in the future, rolled back and re-propagated if older than the current IMU time
-  (``delay_compensation``, history ``max_delay`` s).
+  (``delay.compensation``, history ``delay.max_delay`` s).
 ``state() -> NavState``: q_nb, vel_ned, lat/lon/h, gyro/accel biases, std_pos/vel/att (1σ),
   omega_b/accel_b (compensated), ``aligned`` (False until the alignment is done and yaw σ <
-  ``aligned_yaw_std``), ``test_ratios`` {"gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt"}:
+  ``alignment.aligned_yaw_std``), ``test_ratios`` {"gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt"}:
   last normalised innovation test ratio (> 1 = rejected).
 ``drain_events() -> list[FaultEvent]``: GNSS/baro rejections since the last call
   (sensor "gnss"/"baro", mode JUMP, ``cleared=True`` when the sensor is accepted again).

@@ -58,8 +58,8 @@ assert set(RATE_PARAM) == set(ALL_MESSAGES)
 
 @dataclass(frozen=True)
 class NavParam:
-    """One navigation parameter: its name, the ``[core.nav]`` key (``filter.x`` for FilterConfig,
-    ``key[i]`` for an element of a tuple), the MAV_PARAM_TYPE and whether it applies live."""
+    """One navigation parameter: its name, the ``[core.nav]`` key (``section.x``, e.g. ``gnss.gate`` or
+    ``filter.gyro_arw``; ``section.k[i]`` for an element of a tuple), the MAV_PARAM_TYPE and whether it applies live."""
 
     name: str
     key: str
@@ -69,22 +69,22 @@ class NavParam:
 
 
 NAV_PARAMS: tuple[NavParam, ...] = (
-    NavParam("NAV_GATE_GNSS", "gate_gnss", live=True, doc="GNSS innovation gate (σ)"),
-    NavParam("NAV_GATE_BARO", "gate_baro", live=True, doc="baro innovation gate (σ)"),
-    NavParam("NAV_GATE_MAG", "gate_mag", live=True, doc="magnetometer innovation gate (σ)"),
-    NavParam("NAV_GATE_AUX", "gate_aux", live=True, doc="NHC/ZUPT innovation gate (σ)"),
-    NavParam("NAV_BARO_STD", "baro_std", live=True, doc="baro height σ (m)"),
-    NavParam("NAV_MAG_STD", "mag_std", live=True, doc="magnetometer σ (unit-vector component)"),
-    NavParam("NAV_GNSS_SCALE", "gnss_std_scale", live=True, doc="factor on the receiver's σ"),
-    NavParam("NAV_GNSS_MIN_NE", "gnss_min_std[0]", live=True, doc="floor on the GNSS horizontal σ (m)"),
-    NavParam("NAV_GNSS_MIN_D", "gnss_min_std[1]", live=True, doc="floor on the GNSS vertical σ (m)"),
-    NavParam("NAV_GNSS_MIN_V", "gnss_min_std[2]", live=True, doc="floor on the GNSS velocity σ (m/s)"),
-    NavParam("NAV_NHC_STD", "nhc_std", live=True, doc="non-holonomic constraint σ (m/s)"),
-    NavParam("NAV_ZUPT_STD", "zupt_std", live=True, doc="zero-velocity update σ (m/s)"),
-    NavParam("NAV_USE_GNSS_V", "use_gnss_vel", INT32, doc="fuse the GNSS velocity (0/1)"),
-    NavParam("NAV_DELAY_COMP", "delay_compensation", INT32, doc="fuse late aids at their time (0/1)"),
-    NavParam("NAV_NHC", "nhc", INT32, doc="non-holonomic constraint (0/1)"),
-    NavParam("NAV_ZUPT", "zupt", INT32, doc="zero-velocity updates (0/1)"),
+    NavParam("NAV_GATE_GNSS", "gnss.gate", live=True, doc="GNSS innovation gate (σ)"),
+    NavParam("NAV_GATE_BARO", "baro.gate", live=True, doc="baro innovation gate (σ)"),
+    NavParam("NAV_GATE_MAG", "mag.gate", live=True, doc="magnetometer innovation gate (σ)"),
+    NavParam("NAV_GATE_AUX", "aids.gate", live=True, doc="NHC/ZUPT innovation gate (σ)"),
+    NavParam("NAV_BARO_STD", "baro.std", live=True, doc="baro height σ (m)"),
+    NavParam("NAV_MAG_STD", "mag.std", live=True, doc="magnetometer σ (unit-vector component)"),
+    NavParam("NAV_GNSS_SCALE", "gnss.std_scale", live=True, doc="factor on the receiver's σ"),
+    NavParam("NAV_GNSS_MIN_NE", "gnss.min_std[0]", live=True, doc="floor on the GNSS horizontal σ (m)"),
+    NavParam("NAV_GNSS_MIN_D", "gnss.min_std[1]", live=True, doc="floor on the GNSS vertical σ (m)"),
+    NavParam("NAV_GNSS_MIN_V", "gnss.min_std[2]", live=True, doc="floor on the GNSS velocity σ (m/s)"),
+    NavParam("NAV_NHC_STD", "aids.nhc_std", live=True, doc="non-holonomic constraint σ (m/s)"),
+    NavParam("NAV_ZUPT_STD", "aids.zupt_std", live=True, doc="zero-velocity update σ (m/s)"),
+    NavParam("NAV_USE_GNSS_V", "gnss.use_vel", INT32, doc="fuse the GNSS velocity (0/1)"),
+    NavParam("NAV_DELAY_COMP", "delay.compensation", INT32, doc="fuse late aids at their time (0/1)"),
+    NavParam("NAV_NHC", "aids.nhc", INT32, doc="non-holonomic constraint (0/1)"),
+    NavParam("NAV_ZUPT", "aids.zupt", INT32, doc="zero-velocity updates (0/1)"),
     NavParam("NAV_ADAPTIVE", "adaptive", INT32, doc="Sage–Husa adaptive R (0/1)"),
     NavParam("FLT_GYRO_ARW", "filter.gyro_arw", doc="gyro white noise (rad/s/√Hz)"),
     NavParam("FLT_ACCEL_VRW", "filter.accel_vrw", doc="accelerometer white noise (m/s²/√Hz)"),
@@ -95,26 +95,36 @@ NAV_PARAMS: tuple[NavParam, ...] = (
 _NAV_BY_NAME = {p.name: p for p in NAV_PARAMS}
 
 
+def _split(key: str) -> tuple[str | None, str, int | None]:
+    """(section or None, field, tuple index or None) of a parameter key (``gnss.min_std[0]``, ``adaptive``)."""
+    sec, _, rest = key.rpartition(".")
+    i = None
+    if rest.endswith("]"):
+        rest, n = rest[:-1].split("[")
+        i = int(n)
+    return sec or None, rest, i
+
+
 def _nav_get(nav: dict[str, Any], key: str, default: Any) -> Any:
-    """A ``[core.nav]`` value by parameter key (``filter.x``, ``k[i]``), else the NavConfig default."""
-    if key.startswith("filter."):
-        return (nav.get("filter") or {}).get(key[7:], getattr(default.filter, key[7:]))
-    if key.endswith("]"):
-        k, i = key[:-1].split("[")
-        return tuple(nav.get(k, getattr(default, k)))[int(i)]
-    return nav.get(key, getattr(default, key))
+    """A ``[core.nav]`` value by parameter key (``section.x``, ``section.k[i]``), else the NavConfig default."""
+    sec, k, i = _split(key)
+    table, dflt = (nav.get(sec) or {}, getattr(default, sec)) if sec else (nav, default)
+    v = table.get(k, getattr(dflt, k))
+    return tuple(v)[i] if i is not None else v
 
 
 def _nav_set(nav: dict[str, Any], key: str, value: Any, default: Any) -> None:
-    if key.startswith("filter."):
-        nav["filter"] = {**(nav.get("filter") or {}), key[7:]: value}
-    elif key.endswith("]"):
-        k, i = key[:-1].split("[")
-        t = list(nav.get(k, getattr(default, k)))
-        t[int(i)] = value
-        nav[k] = t
+    sec, k, i = _split(key)
+    if sec:
+        nav[sec] = table = dict(nav.get(sec) or {})
+        dflt = getattr(default, sec)
     else:
-        nav[key] = value
+        table, dflt = nav, default
+    if i is not None:
+        t = list(table.get(k, getattr(dflt, k)))
+        t[i] = value
+        value = t
+    table[k] = value
 
 
 class ParamError(ValueError):
@@ -252,7 +262,12 @@ class ParamStore:
             if ncfg is None or type(ncfg).__name__ != "NavConfig":
                 raise ParamError(f"{p.name}: this core: needs a restart")
             fresh = nav_config(new.pipeline.nav)
-            core.cfg = dataclasses.replace(ncfg, **{p.key.split("[")[0]: getattr(fresh, p.key.split("[")[0])})
+            sec, k, _ = _split(p.key)
+            if sec is None:
+                core.cfg = dataclasses.replace(ncfg, **{k: getattr(fresh, k)})
+            else:
+                sub = dataclasses.replace(getattr(ncfg, sec), **{k: getattr(getattr(fresh, sec), k)})
+                core.cfg = dataclasses.replace(ncfg, **{sec: sub})
         if pipe is not None:
             pipe.cfg.nav.clear()
             pipe.cfg.nav.update(copy.deepcopy(new.pipeline.nav))

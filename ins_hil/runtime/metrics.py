@@ -356,8 +356,12 @@ class RuntimeMetrics:
             "late": self.late,
             "late_threshold_ms": self.late_threshold_ns * 1e-6,
             "sources": {
-                n: {"received": s.received, "rate_hz": s.rate_hz, "dropped": dict(s.dropped),
-                    "clock_events": dict(s.clock_events)}
+                n: {
+                    "received": s.received,
+                    "rate_hz": s.rate_hz,
+                    "dropped": dict(s.dropped),
+                    "clock_events": dict(s.clock_events),
+                }
                 for n, s in self.sources.items()
             },
             "fused": dict(self.fused),

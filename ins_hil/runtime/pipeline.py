@@ -94,29 +94,43 @@ CORE_KINDS = ("python", "c")
 
 
 def nav_config(options: dict[str, Any]) -> Any:
-    """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table (``filter`` = FilterConfig fields).
+    """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table: its sections as sub-tables (``gnss``, ``baro``,
+    ``mag``, ``aids``, ``hold``, ``alignment``, ``delay``, ``filter``) and the top-level ``adaptive`` keys.
 
-    Raises ValueError naming the bad key."""
+    Raises ValueError naming the bad key (an old flat key: where it moved)."""
     from ins_hil.core import NavConfig
+    from ins_hil.core_parts.config import MOVED, SECTIONS
     from ins_hil.fusion.ekf import FilterConfig
 
     known = {f.name: f for f in dataclasses.fields(NavConfig)}
+    vectors = {"gnss": ("lever_arm_b",), "mag": ("ref_ned",), "aids": ("nhc_lever_b",)}
     kw: dict[str, Any] = {}
     for k, v in options.items():
+        if k in MOVED:
+            sec, new = MOVED[k]
+            raise ValueError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
         if k not in known:
             raise ValueError(f"unknown key 'core.nav.{k}' (known: {', '.join(sorted(known))})")
-        if k == "filter":
-            fk = {f.name for f in dataclasses.fields(FilterConfig)}
-            bad = set(v) - fk if isinstance(v, dict) else {"?"}
+        cls = FilterConfig if k == "filter" else SECTIONS.get(k)
+        if cls is not None:
+            if not isinstance(v, dict):
+                raise ValueError(f"core.nav.{k} = {v!r}: expected a table")
+            fk = {f.name for f in dataclasses.fields(cls)}
+            bad = set(v) - fk
             if bad:
-                raise ValueError(f"core.nav.filter: unknown key(s) {sorted(bad)} (known: {', '.join(sorted(fk))})")
-            v = FilterConfig(**v)
-        elif k in ("gnss_lever_arm_b", "mag_ref_ned"):
-            v = np.array(v, dtype=np.float64)
-            if v.shape != (3,):
-                raise ValueError(f"core.nav.{k} = {options[k]!r}: expected 3 numbers")
-        elif k == "gnss_min_std":
-            v = tuple(float(x) for x in v)
+                raise ValueError(f"core.nav.{k}: unknown key(s) {sorted(bad)} (known: {', '.join(sorted(fk))})")
+            sub = dict(v)
+            for name in vectors.get(k, ()):
+                if name in sub:
+                    sub[name] = np.array(sub[name], dtype=np.float64)
+                    if sub[name].shape != (3,):
+                        raise ValueError(f"core.nav.{k}.{name} = {v[name]!r}: expected 3 numbers")
+            if k == "gnss" and "min_std" in sub:
+                sub["min_std"] = tuple(float(x) for x in sub["min_std"])
+            try:
+                v = cls(**sub)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"core.nav.{k}: {e}") from None
         kw[k] = v
     try:
         return NavConfig(**kw)
@@ -183,7 +197,7 @@ class PipelineConfig:
     calibration: str = ""
     aiding_fdi: bool = True  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
     aiding_options: dict[str, Any] = field(default_factory=dict)  # AidingConfig fields
-    nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig fields
+    nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig sections ([core.nav] table)
     # the validation boundary: every sample is checked at the pipeline's entry (its keys sit in [core], flat)
     limits: Limits = field(default_factory=Limits)
 
@@ -634,13 +648,17 @@ class Pipeline:
             self._aid_mon.ins_disturbed(t)
         g = self._good
         nav = dict(self.cfg.nav)
-        restart = g is not None and not self._fault_open and (g.aligned or nav.get("align", "given") == "given")
+        restart = (
+            g is not None
+            and not self._fault_open
+            and (g.aligned or (nav.get("alignment") or {}).get("mode", "given") == "given")
+        )
         self._fault_open = True
         self._fault_clear_t = t + FAULT_CLEAR_S
         if restart:
             assert g is not None
             q = np.array(g.q_nb, dtype=np.float64)
-            nav["align"] = "given"
+            nav["alignment"] = {**(nav.get("alignment") or {}), "mode": "given"}
             try:
                 self._start(StrapdownState(q / math.sqrt(float(q @ q)), np.array(g.vel_ned, dtype=np.float64),
                                            g.lat, g.lon, g.h, g.t), nav)  # fmt: skip
@@ -691,7 +709,7 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
     """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key).
 
     Unless the table sets ``late_fix_as_current``, it follows the core: the C core, and the Python
-    core with ``[core.nav] delay_compensation = false``, fuse a late GNSS fix as current (shifted by
+    core with ``[core.nav.delay] compensation = false``, fuse a late GNSS fix as current (shifted by
     v·Δt), so the monitor compares it with the current state; otherwise at the fix's time of validity."""
     from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 
@@ -709,8 +727,10 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
         kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
         if "late_fix_as_current" not in kw:
             # the C core has no roll-back: it always fuses a late fix at the current step, shifted by v·Δt
-            kw["late_fix_as_current"] = core == "c" or not bool((nav or {}).get("delay_compensation", True))
-        return AidingMonitor(AidingConfig(**kw), (nav or {}).get("gnss_lever_arm_b"))
+            kw["late_fix_as_current"] = core == "c" or not bool(
+                ((nav or {}).get("delay") or {}).get("compensation", True)
+            )
+        return AidingMonitor(AidingConfig(**kw), ((nav or {}).get("gnss") or {}).get("lever_arm_b"))
     except ValueError as e:
         raise ValueError(f"fdi.aiding: {e}") from None
 

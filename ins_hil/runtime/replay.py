@@ -28,6 +28,7 @@ from typing import Any, overload
 
 import numpy as np
 
+from ins_hil.core_parts.config import nest
 from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
 from ins_hil.runtime.recorder import LogReader, parts_of, read_header, read_records
 from ins_hil.types import FaultEvent, ImuSample, NavState, SimConfig
@@ -72,6 +73,7 @@ def pipeline_config_from_header(header: dict[str, Any], core: str | None = None)
     table = d.get("limits")
     limits = {k: v for k, v in {**d, **(table if isinstance(table, dict) else {})}.items() if k in lim}
     cfg = PipelineConfig(**{k: v for k, v in d.items() if k in names}, limits=Limits(**limits))
+    cfg.nav = nest(cfg.nav)  # a recording made before the [core.nav] sections: its flat keys in their sections
     if core is not None:
         cfg.core = core
     return cfg

@@ -53,7 +53,7 @@ class Scenario:
     imu: list[ImuSample]
     meas: list[Any]
     initial: StrapdownState
-    nav: dict[str, Any]  # the [core.nav] table (NavConfig fields; "filter": FilterConfig fields)
+    nav: dict[str, Any]  # the [core.nav] table (NavConfig sections: "gnss", "mag", ..., "filter")
     info: dict[str, Any] = field(default_factory=dict)
 
 
@@ -85,7 +85,10 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
         meas: list[Any] = se.gnss_fixes(truth, se.GnssModel(rate=5), seed=rng)
         meas += se.baro_samples(truth, seed=rng)
         meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
-        cfg: dict[str, Any] = {"align": "static", "mag_ref_ned": ref, "mag_std": 0.01, "align_level_only": True}
+        cfg: dict[str, Any] = {
+            "alignment": {"mode": "static", "level_only": True},
+            "mag": {"ref_ned": ref, "std": 0.01},
+        }
         init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), lat0, lon0, h0)
         return Scenario(
             name, truth, imu, meas, init, cfg, {"accel_bias": ser.accel_bias[0], "gyro_bias": ser.gyro_bias[0]}
@@ -102,10 +105,10 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
                 "init_yaw": 0.1, "earth_terms": True}  # fmt: skip
         if name == "example32":
             gm = se.GnssModel(rate=0.5, std_ne=50.0, std_d=50.0, std_vel=0.1, outages=[(0, 60), (180, 420)])
-            cfg = {"filter": fcfg, "mag_ref_ned": ref, "mag_std": 0.0524, "baro_std": 1.0, "baro_offset": 0.0}
+            cfg = {"filter": fcfg, "mag": {"ref_ned": ref, "std": 0.0524}, "baro": {"std": 1.0, "offset": 0.0}}
         else:
             gm = se.GnssModel(rate=5.0, std_ne=0.5, std_d=1.0, std_vel=0.02, outages=[(0, 60)])
-            cfg = {"filter": fcfg, "mag_ref_ned": ref, "mag_std": 0.0524, "baro_std": 1.0, "baro_offset": 0.0}
+            cfg = {"filter": fcfg, "mag": {"ref_ned": ref, "std": 0.0524}, "baro": {"std": 1.0, "offset": 0.0}}
         meas = list(se.gnss_fixes(truth, gm, seed=rng))
         mag = se.mag_samples(truth, field_ned=ref, rate=0.5 if name == "example32" else 5.0, std=0.0524 * 50e-6 / 1.0,
                              seed=rng)  # fmt: skip
@@ -114,7 +117,8 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
                  if b.t >= 60.0]  # fmt: skip
         # book initial errors: attitude ≈ 0.1 rad per axis (quaternion [1, .05, −.05, .05]), 1 % in r and v
         init = _initial(truth, (0.1, -0.1, 0.1), eps_v=0.01, dpos_m=0.01 * 2864.79)
-        cfg["gate_gnss"] = cfg["gate_mag"] = 10.0
+        cfg["gnss"] = {"gate": 10.0}
+        cfg["mag"] = {**cfg["mag"], "gate": 10.0}
         return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 120.0 if name == "example32" else 250.0})
     if name == "coning":
         T = duration or 60.0
@@ -123,7 +127,7 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
         meas = [*se.gnss_fixes(truth, se.GnssModel(rate=5), seed=rng), *se.baro_samples(truth, seed=rng)]
         meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
         init = _initial(truth, (0.01, -0.01, 0.02))
-        return Scenario(name, truth, imu, meas, init, {"mag_ref_ned": ref, "mag_std": 0.01, "baro_offset": 0.0})
+        return Scenario(name, truth, imu, meas, init, {"mag": {"ref_ned": ref, "std": 0.01}, "baro": {"offset": 0.0}})
     # uav, uav_modelled
     T = duration or 240.0
     truth = tr.generate(tr.mission_profile(), T, 0.01, lat0, lon0, h0)
@@ -138,5 +142,5 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Scenario:
     meas += se.mag_samples(truth, field_ned=ref, rate=10, seed=rng)
     init = _initial(truth, (0.01, -0.01, 0.05))
     # σ_m = 0.2 µT / 50 µT = 0.004 per unit-vector component (the simulated sensor); datum known (QNH-like)
-    cfg = {"mag_ref_ned": ref, "mag_std": 0.004, "baro_offset": 0.0}
+    cfg = {"mag": {"ref_ned": ref, "std": 0.004}, "baro": {"offset": 0.0}}
     return Scenario(name, truth, imu, meas, init, cfg, {"steady_from": 60.0})

@@ -95,7 +95,7 @@ def main(argv: list[str]) -> int:
         for s in seg:
             c.step(s)
             while i < len(fixes) and fixes[i].t <= s.t:
-                e = antenna_ned(c, cfg.gnss_lever_arm_b, fixes[i].t, origin) - refs[i]
+                e = antenna_ned(c, cfg.gnss.lever_arm_b, fixes[i].t, origin) - refs[i]
                 err.append(math.hypot(float(e[0]), float(e[1])))
                 i += 1
         return np.array(err)

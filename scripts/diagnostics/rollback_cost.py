@@ -1,7 +1,7 @@
 """Cost of delayed fusion (rollback) in the Python core at the gateway's rate, configs/default.toml.
 
 Runs the default simulator's flight offline in the devices' send order through the default Pipeline
-(1 kHz, ``cov_every = 10``) with ``delay_compensation`` true and false, timing every core call with
+(1 kHz, ``cov_every = 10``) with ``[core.nav.delay] compensation`` true and false, timing every core call with
 ``time.perf_counter_ns``: per IMU step (median) (``step_begin`` + ``step_end``), per aiding measurement (all the
 segments of its ``fuse_steps``) and the longest single segment (what one gap between IMU steps must hold).
 Each call's best of ``--repeat`` runs (:func:`best_of`).
@@ -28,7 +28,7 @@ from ins_hil.types import BaroSample, GnssFix, ImuSample
 
 def run(dc: bool, seconds: float) -> dict[str, float]:
     d = tomllib.loads(default_path().read_text())
-    d["core"]["nav"]["delay_compensation"] = dc
+    d["core"]["nav"]["delay"] = {"compensation": dc}
     cfg = from_dict(d, "bench")
     pipe = Pipeline(cfg.pipeline)
     ns = time.perf_counter_ns
@@ -120,7 +120,7 @@ def main() -> int:
     for dc in (False, True):
         best = best_of([run(dc, a.seconds) for _ in range(a.repeat)])
         print(
-            f"delay_compensation={str(dc).lower():5}: IMU step median {best['step_med']:.1f} µs"
+            f"delay.compensation={str(dc).lower():5}: IMU step median {best['step_med']:.1f} µs"
             f" (mean {best['step_mean']:.1f}), GNSS fix median {best['gnss_med']:.0f} µs"
             f" (max {best['gnss_max']:.0f}), baro median {best['baro_med']:.0f} µs;"
             f" longest segment {best['seg_max']:.0f} µs, {best['segs_per_meas']:.1f} segments per measurement;"
