@@ -164,16 +164,16 @@ class NavCore:
         self.adapt = {k: SageHusa(b=self.cfg.adaptive_b) for k in ("gnss_pos", "gnss_vel", "baro")}
         self._events: list[FaultEvent] = []
         self._ratios: dict[str, float] = {}
-        self._step_n = 0
+        self.step_n = 0  # IMU steps mechanized (the delayed-fusion history counts by it)
         self._dt = 0.01
         self._pending: list[GnssFix | BaroSample | MagSample] = []
-        self._replaying = False  # a roll-back replays the log: no counting, no events, no logging
+        self.replaying = False  # a roll-back replays the log: no counting, no events, no logging
         self._delayed = self.cfg.delay.compensation and self.cfg.delay.max_delay > 0
         self.history = DelayedHistory(self, self.cfg.delay.max_delay)
         self.aids = VehicleAids(self.cfg, self.idx)
         c = self.cfg
         self.baro = BaroDatum(c.baro.std, c.baro.offset_tau, c.baro.offset, c.gnss.lever_arm_b)
-        self._g_local = 9.80665
+        self.g_local = 9.80665  # normal gravity at the aligned position (m/s²; the ground aids)
         self.phase = "nav" if self.cfg.alignment.mode == "given" else "level"  # alignment: level → heading → nav
         self.align = Alignment(self)
         self.yaw_gsf = YawGsf() if c.alignment.yaw_gsf else None  # yaw from GNSS velocity, before navigation
@@ -186,7 +186,7 @@ class NavCore:
         self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
         self._sd: Vec = np.zeros(9)
         self.keep_nis = False
-        self._pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
+        self.pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
         self.gnss_reset = GnssReset(self.cfg)  # the run of rejected fixes that may reset the filter
         # no absolute aiding: constant-position / zero-velocity pseudo-measurements (core_parts/hold.py)
         self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
@@ -211,10 +211,10 @@ class NavCore:
 
     def _begin(self, imu: ImuSample) -> bool:
         """Mechanization (or an alignment step); True when a time update (:meth:`step_end`) is pending."""
-        if self._pending_end is not None:
+        if self.pending_end is not None:
             self.step_end()
-        if not self._replaying and self._delayed and self.phase == "nav":
-            self.history.log_imu(self._step_n, imu)
+        if not self.replaying and self._delayed and self.phase == "nav":
+            self.history.log_imu(self.step_n, imu)
         self._dt = imu.dt
         if self.phase != "nav":
             if self.yaw_gsf is not None:
@@ -222,20 +222,21 @@ class NavCore:
             self.align.step(imu)
             return False
         self._mechanize(imu)
-        self._pending_end = imu
+        self.pending_end = imu
         return True
 
     def step_end(self) -> None:
         """Finish the step begun by :meth:`step_begin` (no-op if none is pending)."""
-        imu = self._pending_end
+        imu = self.pending_end
         if imu is None:
             return
-        self._pending_end = None
+        self.pending_end = None
         self._time_update(imu)
-        if not self._replaying:
+        if not self.replaying:
             self._after_step()
 
-    def _propagate(self, imu: ImuSample) -> None:
+    def propagate(self, imu: ImuSample) -> None:
+        """Mechanization and filter time update of one IMU interval, nothing else (the history's replays)."""
         self._mechanize(imu)
         self._time_update(imu)
 
@@ -266,7 +267,7 @@ class NavCore:
         self.omega_b = np.array((x0 / dt, x1 / dt, x2 / dt))
         self.f_b = np.array((u0 / dt, u1 / dt, u2 / dt))
         ins.state.t = imu.t
-        self._step_n += 1
+        self.step_n += 1
 
     def _time_update(self, imu: ImuSample) -> None:
         ins = self.ins
@@ -282,7 +283,7 @@ class NavCore:
             for hm in self.hold.measurements(s.t, s, dcm_from_quat(s.q_nb), self.idx):
                 self._apply(hm, s.t)
         if self._delayed:
-            self.history.after_step(self._step_n, self.ins.state.t, self._dt)
+            self.history.after_step(self.step_n, self.ins.state.t, self._dt)
         if self._pending:
             t = self.ins.state.t
             due = [m for m in self._pending if m.t <= t + 0.5 * self._dt]
@@ -290,12 +291,12 @@ class NavCore:
                 self.history.finish_rollback()
                 self._pending = [m for m in self._pending if m.t > t + 0.5 * self._dt]
                 for m in due:
-                    self._fuse_now(m)
+                    self.fuse_now(m)
 
     def _ground_aids(self, imu: ImuSample) -> None:
         """ZUPT/ZARU at rest and the non-holonomic constraint in motion (:class:`VehicleAids`)."""
         if self.aids.on:
-            for m in self.aids.measurements(imu, self.ins, self.omega_b, self.q_mount, self._g_local):
+            for m in self.aids.measurements(imu, self.ins, self.omega_b, self.q_mount, self.g_local):
                 self._apply(m, imu.t)
 
     # ------------------------------------------------------------------ snapshots (delayed fusion)
@@ -330,7 +331,7 @@ class NavCore:
         """:meth:`fuse` in parts, for a real-time caller: yields between the GNSS position and
         velocity updates (each about 0.2 ms in Python), so that they can run in separate gaps
         between IMU steps. Exhausted with no step in between, it is exactly :meth:`fuse`."""
-        if self._pending_end is not None:
+        if self.pending_end is not None:
             self.step_end()
         self.history.finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first
         if self.phase != "nav":
@@ -361,16 +362,17 @@ class NavCore:
             if done is not False:
                 return
         # uncompensated (or beyond the history): treat a late measurement as valid now
-        step_n = self._step_n
-        yield from self._fuse_now_steps(meas, assume_now=meas.t < t - 1.5 * self._dt)
+        step_n = self.step_n
+        yield from self.fuse_now_steps(meas, assume_now=meas.t < t - 1.5 * self._dt)
         if self._delayed:
             h.log.append((step_n, "meas", meas))
 
-    def _fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
-        for _ in self._fuse_now_steps(meas, assume_now):
+    def fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
+        """Fuse ``meas`` at the current step (no delay handling): :meth:`fuse_now_steps` run to its end."""
+        for _ in self.fuse_now_steps(meas, assume_now):
             pass
 
-    def _fuse_now_steps(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> Iterator[None]:
+    def fuse_now_steps(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> Iterator[None]:
         """Fuse at the current step; yields once between a GNSS fix's position and velocity updates."""
         s = self.ins.state
         C = dcm_from_quat(s.q_nb)
@@ -389,7 +391,7 @@ class NavCore:
                 self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
                 self.stats["gnss_vel"].consecutive_rejects = 0
             accepted = self._apply(m, meas.t, force)
-            if not self._replaying:
+            if not self.replaying:
                 self.gnss_reset.note(meas, accepted, st.last_ratio)
                 if accepted and self.hold is not None:
                     self.hold.gnss(meas.t, meas.lat, meas.lon, meas.h)
@@ -427,7 +429,7 @@ class NavCore:
         self._ratios[kind] = ratio
         st.last_nis = nis
         if ratio > 1.0 and not force:
-            if not self._replaying:
+            if not self.replaying:
                 st.rejected += 1
                 st.consecutive_rejects += 1
                 if st.consecutive_rejects == 1 and kind in ("gnss_pos", "gnss_vel", "baro"):
@@ -436,11 +438,11 @@ class NavCore:
                                    float(np.max(np.abs(z))), True, False, f"{kind} innovation test ratio {ratio:.2f}")
                     )  # fmt: skip
             return False
-        if self.keep_nis and not self._replaying:
+        if self.keep_nis and not self.replaying:
             self.nis_log.append((t, kind, nis, len(z)))  # accepted innovations only (consistency check)
         if ad is not None:
             ad.update(z, np.diag(HPHt), r / ad.scale)
-        if not self._replaying:
+        if not self.replaying:
             if st.consecutive_rejects > 0 and kind in ("gnss_pos", "gnss_vel", "baro"):
                 self._events.append(
                     FaultEvent(t, "gnss" if kind.startswith("gnss") else "baro", FaultMode.JUMP, 0.0, True, True,

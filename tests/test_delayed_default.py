@@ -67,13 +67,13 @@ def test_rollback_runs_in_segments_and_equals_the_one_piece_rollback() -> None:
     core, later, fix = _core_at_a_late_fix()
     ref = copy.deepcopy(core)
     n_prop = [0]
-    orig = core._propagate
+    orig = core.propagate
 
     def counting(imu: ImuSample) -> None:
         n_prop[0] += 1
         orig(imu)
 
-    core._propagate = counting  # type: ignore[method-assign]
+    core.propagate = counting  # type: ignore[method-assign]
     per_segment = []
     live_t = []
     steps = iter(later)

@@ -43,7 +43,7 @@ class Alignable(Protocol):
     ba: Vec
     omega_b: Vec
     phase: str
-    _g_local: float
+    g_local: float
     yaw_gsf: YawGsf | None
 
 
@@ -276,7 +276,7 @@ class Alignment:
         core = self.core
         core.phase = "nav"
         s = core.ins.state
-        core._g_local = earth.normal_gravity(s.lat, s.h)
+        core.g_local = earth.normal_gravity(s.lat, s.h)
         if yaw_std is not None:
             c = self.cfg.filter
             core.kf.set_state_sigma("att", np.array((c.init_att, c.init_att, yaw_std)))
@@ -284,6 +284,6 @@ class Alignment:
                 # the levelled tilt holds the horizontal accelerometer error (book §4.1.1): correlated prior;
                 # what the levelling leaves: the window's accelerometer noise and the gyro drift since the window
                 since = max(0.0, s.t - self.t_end)
-                sig = math.hypot(c.accel_vrw / math.sqrt(max(self.t_win, 1e-3)) / core._g_local,
+                sig = math.hypot(c.accel_vrw / math.sqrt(max(self.t_win, 1e-3)) / core.g_local,
                                  self.cfg.alignment.gyro_bias_std * since)  # fmt: skip
                 core.kf.level_tilt(self.C, self.fb, sig)

@@ -20,9 +20,9 @@ class Replayable(Protocol):
     """What the history needs of the core (:class:`ins_hil.core.NavCore`): its snapshot, its step counter and
     replay flag, the propagation and the fusion at the current step."""
 
-    _step_n: int
-    _replaying: bool
-    _pending_end: ImuSample | None
+    step_n: int
+    replaying: bool
+    pending_end: ImuSample | None
 
     def snapshot(self) -> Any: ...
 
@@ -30,11 +30,11 @@ class Replayable(Protocol):
 
     def step_end(self) -> None: ...
 
-    def _propagate(self, imu: ImuSample) -> None: ...
+    def propagate(self, imu: ImuSample) -> None: ...
 
-    def _fuse_now(self, meas: Aid, assume_now: bool = False) -> None: ...
+    def fuse_now(self, meas: Aid, assume_now: bool = False) -> None: ...
 
-    def _fuse_now_steps(self, meas: Aid, assume_now: bool = False) -> Iterator[None]: ...
+    def fuse_now_steps(self, meas: Aid, assume_now: bool = False) -> Iterator[None]: ...
 
 
 class DelayedHistory:
@@ -95,15 +95,15 @@ class DelayedHistory:
             return False
         t_step, t_t, t_data = target
         replay = [e for e in self.log if e[0] >= t_step]
-        live = (core.snapshot(), core._step_n)
+        live = (core.snapshot(), core.step_n)
         core.restore(t_data)
-        core._step_n = t_step
+        core.step_n = t_step
         self.rb_new = []
         try:
-            it = core._fuse_now_steps(meas)  # counted and gated like any measurement
+            it = core.fuse_now_steps(meas)  # counted and gated like any measurement
             while next(it, _DONE) is not _DONE:
                 live = yield from self._pause(live, False)
-            core._replaying = True
+            core.replaying = True
             kept = deque(self.snaps)
             while kept and kept[-1][0] > t_step:
                 kept.pop()
@@ -120,16 +120,16 @@ class DelayedHistory:
                         break
                 for _step, kind, obj in entries:
                     if kind == "imu":
-                        core._propagate(obj)
-                        kept.append((core._step_n, obj.t, core.snapshot()))
+                        core.propagate(obj)
+                        kept.append((core.step_n, obj.t, core.snapshot()))
                         k += 1
                         if k % self.REPLAY_SEGMENT == 0:
                             live = yield from self._pause(live, True)
                     else:
-                        core._fuse_now(obj)
+                        core.fuse_now(obj)
             self.snaps = kept
         finally:
-            core._replaying = False
+            core.replaying = False
             self.rb_new = None
         self.log.append((t_step, "meas", meas))
         self.sort_log(t_step)
@@ -139,17 +139,17 @@ class DelayedHistory:
         """Suspend a roll-back between two segments: the live state back in, the roll-back's aside; on
         resume (after any IMU steps the caller ran) the other way round. Returns the live state."""
         core = self.core
-        mine = (core.snapshot(), core._step_n)
+        mine = (core.snapshot(), core.step_n)
         core.restore(live[0])
-        core._step_n = live[1]
-        core._replaying = False
+        core.step_n = live[1]
+        core.replaying = False
         yield
-        if core._pending_end is not None:
+        if core.pending_end is not None:
             core.step_end()
-        live = (core.snapshot(), core._step_n)
+        live = (core.snapshot(), core.step_n)
         core.restore(mine[0])
-        core._step_n = mine[1]
-        core._replaying = replaying
+        core.step_n = mine[1]
+        core.replaying = replaying
         return live
 
     def finish_rollback(self) -> None:
