@@ -54,7 +54,6 @@ def replay(
         "samples": {
             "imu": len(p.imu),
             "gnss": len(p.gnss),
-            "hold": len(p.hold),
             "baro": sum(1 for a in p.aux if not hasattr(a, "field_b")),
             "mag": sum(1 for a in p.aux if hasattr(a, "field_b")),
         },

@@ -25,7 +25,7 @@ from ins_hil.datasets.dataset import Dataset
 from ins_hil.datasets.evaluate import antenna_ned
 from ins_hil.nav import alignment, earth
 from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat
-from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
+from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
 
 Progress = Callable[[int, int], None]
 #: WMM coefficient files shipped with pygeomag, by the first year of their epoch
@@ -34,12 +34,11 @@ WMM_EPOCHS = ((2025, "WMM_2025.COF"), (2020, "WMM_2020.COF"), (2015, "WMM_2015v2
 
 @dataclass
 class Prepared:
-    """The dataset after the config: streams to fuse, the hold fixes, the NavConfig and notes."""
+    """The dataset after the config: streams to fuse, the NavConfig and notes."""
 
     imu: list[ImuSample]
     gnss: list[GnssFix]
     aux: list[BaroSample | MagSample]
-    hold: list[GnssFix]
     nav: NavConfig
     t0: float
     t1: float
@@ -118,7 +117,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
         origin = cfg.position
     else:
         origin = (0.0, 0.0, 0.0)
-    p = Prepared(imu, gnss, [], [], nav, imu[0].t, imu[-1].t, origin, notes)
+    p = Prepared(imu, gnss, [], nav, imu[0].t, imu[-1].t, origin, notes)
     if mag and "ref_ned" not in cfg.nav.get("mag", {}):
         ref: Vec | None = None
         if isinstance(cfg.mag_reference, np.ndarray):
@@ -151,15 +150,21 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     p.mag_heading_only = cfg.mag_heading_only
     p.aux = sorted([*baro, *mag], key=lambda m: m.t)
     if not gnss and cfg.no_gnss_hold:
-        # no absolute aiding in the log: constant-position pseudo-fixes with a large σ (EKF2's fake position)
-        n = int((p.t1 - p.t0) * cfg.hold_rate)
-        v0 = np.zeros(3) if cfg.hold_vel_std > 0 else None
-        p.hold = [GnssFix(p.t0 + k / cfg.hold_rate, origin[0], origin[1], origin[2], v0, cfg.hold_std,
-                          cfg.hold_std, cfg.hold_vel_std, FixType.NO_FIX) for k in range(n)]  # fmt: skip
+        # no absolute aiding in the log: the core's own hold (core_parts/hold.py; EKF2's fake position) from the
+        # start, at the start point, with the dataset's σ and rate
+        lat, lon, h = origin
+        al = p.nav.alignment
+        p.nav = dataclasses.replace(
+            p.nav,
+            hold=dataclasses.replace(p.nav.hold, enabled=True, after=0.0, std=cfg.hold_std, vel_std=cfg.hold_vel_std,
+                                     rate=cfg.hold_rate),
+            alignment=al if al.position is not None else dataclasses.replace(
+                al, position=(math.degrees(lat), math.degrees(lon), float(h))),
+        )  # fmt: skip
         notes.append(
-            f"no GNSS fix in the log: constant-position hold fixes (σ {cfg.hold_std:g} m"
-            + (f", zero velocity σ {cfg.hold_vel_std:g} m/s" if v0 is not None else "")
-            + f", {cfg.hold_rate:g} Hz) keep the tilt observable (EKF2's no-aiding mode)"
+            f"no GNSS fix in the log: constant-position hold (σ {cfg.hold_std:g} m"
+            + (f", zero velocity σ {cfg.hold_vel_std:g} m/s" if cfg.hold_vel_std > 0 else "")
+            + f", {cfg.hold_rate:g} Hz) keeps the tilt observable (EKF2's no-aiding mode)"
         )
     return p
 
@@ -214,7 +219,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
     lever = p.nav.gnss.lever_arm_b
     origin = p.origin
     meas: list[tuple[float, int, Any]] = [(f.t, 0, f) for f in p.gnss]
-    meas += [(f.t, 1, f) for f in p.hold] + [(m.t, 2, m) for m in p.aux]
+    meas += [(m.t, 2, m) for m in p.aux]
     meas.sort(key=lambda x: (x[0], x[1]))
     T: list[float] = []
     Q: list[Vec] = []
