@@ -294,3 +294,20 @@ def test_study_and_protocol_keys_are_checked():
         assert "\n" not in str(e.value)
     o = dataset_config.OutageProtocol("first_gnss", 40.0, 15.0, 30.0, None, 30.0)
     assert o.windows(0.0, 200.0) == [(40.0, 55.0), (85.0, 100.0), (130.0, 145.0)]
+
+
+def test_flight_log_without_magnetometer_takes_its_yaw_from_the_gnss_velocity_bank(
+    drive_dir: Path, cfg: dataset_config.DatasetConfig
+):
+    """A flight controller's log (PX4, ArduPilot) without a magnetometer aligns its yaw with the GNSS-velocity
+    yaw bank, as EKF2 does; a car's RTKLIB set keeps the course; the config's own choice wins."""
+    import dataclasses
+
+    ds = read_dataset(drive_dir, "rtklib", cfg)
+    ds.mag = []
+    assert not prepare(ds, cfg).nav.alignment.yaw_gsf  # rtklib (the car): the course
+    ds.meta = {**ds.meta, "format": "px4-csv"}
+    p = prepare(ds, cfg)
+    assert p.nav.alignment.yaw_gsf and any("yaw bank" in n for n in p.notes)
+    off = dataclasses.replace(cfg, nav={**cfg.nav, "alignment": {**cfg.nav.get("alignment", {}), "yaw_gsf": False}})
+    assert not prepare(ds, off).nav.alignment.yaw_gsf

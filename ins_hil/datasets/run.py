@@ -28,6 +28,8 @@ from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
 
 Progress = Callable[[int, int], None]
+#: the flight controllers' log formats: without a magnetometer their yaw comes from the GNSS-velocity yaw bank
+FC_FORMATS = frozenset({"px4-ulog", "px4-csv", "ardupilot-bin"})
 #: WMM coefficient files shipped with pygeomag, by the first year of their epoch
 WMM_EPOCHS = ((2025, "WMM_2025.COF"), (2020, "WMM_2020.COF"), (2015, "WMM_2015v2.COF"), (2010, "WMM_2010.COF"))
 
@@ -146,6 +148,11 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
             nav = dataclasses.replace(nav, mag=dataclasses.replace(nav.mag, ref_ned=ref))
         else:
             mag = []
+    if gnss and not mag and ds.meta.get("format") in FC_FORMATS and "yaw_gsf" not in cfg.nav.get("alignment", {}):
+        # a flight log without a magnetometer: the yaw from GNSS velocity changes, as EKF2 does (its EKF-GSF),
+        # not from the course, which a multicopter's heading does not follow
+        nav = dataclasses.replace(nav, alignment=dataclasses.replace(nav.alignment, yaw_gsf=True))
+        notes.append("no magnetometer: the yaw from the GNSS-velocity yaw bank (EKF2's EKF-GSF), not the course")
     p.nav = nav
     p.mag_heading_only = cfg.mag_heading_only
     p.aux = sorted([*baro, *mag], key=lambda m: m.t)
