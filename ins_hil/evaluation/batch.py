@@ -139,7 +139,7 @@ def order(js: list[Job]) -> list[int]:
     """The indices of ``js`` longest-first by :func:`cost` (longest-processing-time list scheduling): the
     seeds of one log stay together, in seed order; equal costs keep the batch's order."""
     costs = {(j.source, j.config): cost(j) for j in js}
-    first = {}
+    first: dict[tuple[str | None, str | None], int] = {}
     for i, j in enumerate(js):
         first.setdefault((j.source, j.config), i)
     return sorted(range(len(js)), key=lambda i: (-costs[(js[i].source, js[i].config)],
