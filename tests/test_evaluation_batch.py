@@ -1,9 +1,13 @@
-"""Batch replays (ins_hil.datasets.batch): entries, seeds, a failing log among good ones, and the same rows
-serially and on a real Dask LocalCluster of 2 worker processes."""
+"""Batch replays (ins_hil.datasets.batch): entries, seeds, the longest-first order, the parsed-log cache, a
+failing log among good ones, the same rows serially and on a real Dask LocalCluster of 2 worker processes,
+and ``--compare-serial``."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import os
+import re
 from pathlib import Path
 
 import pytest
@@ -80,3 +84,105 @@ def test_batch_command_writes_the_summary_and_fails_on_a_bad_log(tmp_path: Path,
     assert [("error" in r) for r in rows] == [False, False, True]
     assert "3 replays" in text and "1 failed" in (out / "batch.md").read_text()
     assert all((Path(r) / "metrics.json").is_file() for r in sorted(str(p) for p in out.iterdir() if p.is_dir())[:2])
+
+
+def test_order_is_longest_first_with_the_seeds_of_a_log_together(tmp_path: Path) -> None:
+    d = tmp_path / "logs"
+    d.mkdir()
+    _static_csv(d / "short.csv", seconds=20.0)
+    _static_csv(d / "long.csv", seconds=60.0)
+    cfg = _toml(tmp_path / "static.toml", GOOD)  # an outage protocol: twice the cost of the same log without
+    plain = _toml(tmp_path / "plain.toml", GOOD.split("[outages]")[0])
+    pairs = [(str(d / "short.csv"), str(plain)), (str(tmp_path / "gone.csv"), str(cfg)),
+             (str(d / "long.csv"), str(plain)), (str(d / "short.csv"), str(cfg))]  # fmt: skip
+    js = batch.jobs(pairs, 2, tmp_path / "out")
+    short, long = ((d / n).stat().st_size for n in ("short.csv", "long.csv"))
+    assert [batch.cost(js[k]) for k in (0, 2, 4, 6)] == [short, 0.0, long, 2 * short]
+    assert batch.cost(js[1]) == batch.cost(js[0])  # the seed does not change the cost
+    assert long > 2 * short  # 60 s of samples against 20 s: the long log first, even without its protocol
+    seq = batch.order(js)
+    assert sorted(seq) == list(range(len(js)))
+    assert [pairs.index((js[i].source, js[i].config)) for i in seq] == [2, 2, 3, 3, 0, 0, 1, 1]  # unreadable: last
+    assert [js[i].seed for i in seq] == [0, 1] * 4
+
+
+def test_the_parsed_log_cache_hits_for_seeds_and_misses_on_a_changed_file(tmp_path: Path) -> None:
+    d, toml = _logs(tmp_path)
+    a, b = d / "a.csv", d / "b.csv"
+    cfg = dcfg.load(toml)
+    batch.clear_cache()
+    ds, hit = batch.load_cached(a, cfg)
+    assert not hit and len(ds.imu) > 1000
+    again, hit = batch.load_cached(a, batch.seeded(cfg, 3))  # another seed: the same parse
+    assert hit and again is ds
+    st = a.stat()
+    os.utime(a, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))  # touched: read again
+    fresh, hit = batch.load_cached(a, cfg)
+    assert not hit and fresh is not ds and len(fresh.imu) == len(ds.imu)
+    assert batch.load_cached(a, cfg)[1]
+    _, hit = batch.load_cached(a, dataclasses.replace(cfg, imu_time_offset=0.01))  # a parse-relevant part
+    assert not hit
+    _, hit = batch.load_cached(b, cfg)
+    assert not hit
+    others = [tmp_path / f"c{k}.csv" for k in range(batch.CACHE_SIZE)]
+    for q in others:
+        q.write_bytes(a.read_bytes())
+        assert not batch.load_cached(q, cfg)[1]
+    assert not batch.load_cached(a, cfg)[1]  # pushed out by the CACHE_SIZE newer ones
+    assert batch.load_cached(others[-1], cfg)[1]
+    batch.clear_cache()
+
+
+def test_serial_rows_carry_timings_and_a_failing_log_is_still_reported(tmp_path: Path) -> None:
+    d, cfg = _logs(tmp_path)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# ins-hil dataset csv 1\nimu,1,2\n")
+    pairs = [(str(bad), str(cfg)), (str(d / "a.csv"), str(cfg))]
+    batch.clear_cache()
+    started: list[str] = []
+    rows, wall = batch.run_batch(batch.jobs(pairs, 2, tmp_path / "s", plots=False), workers=0,
+                                 on_done=lambda r, k, n: started.append(r["job"]))  # fmt: skip
+    assert started == ["a.csv#0", "a.csv#1", "bad.csv#0", "bad.csv#1"]  # longest first ...
+    assert [r["job"] for r in rows] == ["bad.csv#0", "bad.csv#1", "a.csv#0", "a.csv#1"]  # ... rows in job order
+    assert "bad.csv:2: imu" in rows[0]["error"] and "bad.csv:2: imu" in rows[1]["error"]
+    assert [r.get("cached") for r in rows[2:]] == [False, True]
+    for r in rows[2:]:
+        assert r["load_s"] > 0 and r["replay_s"] > 0 and r["plot_s"] >= 0
+        assert r["load_s"] + r["replay_s"] + r["plot_s"] <= r["elapsed_s"] + 1e-6
+    job_out = Path(batch.jobs(pairs, 2, tmp_path / "s")[2].out)
+    assert json.loads((job_out / "metrics.json").read_text())["plots"] == [] and not list(job_out.glob("*.png"))
+    line = batch.breakdown(rows, wall, 1)
+    assert "(1 parsed, 1 from the cache)" in line and "over 4 jobs" in line
+    loaded = sum(r.get("load_s", 0.0) for r in rows)
+    assert f"load {loaded:.1f} s" in line
+    assert batch.differences(rows, rows) == []
+    other = [dict(r) for r in rows]
+    other[3]["elapsed_s"] += 5.0  # a timing is not a result
+    assert batch.differences(rows, other) == []
+    other[3]["gnss_h_rms_m"] += 0.001
+    assert batch.differences(rows, other) == ["a.csv#1"]
+    batch.clear_cache()
+
+
+@pytest.mark.slow  # the batch serially, then on a LocalCluster of 1 worker process (~25 s)
+def test_compare_serial_prints_both_wall_times_and_their_ratio(tmp_path: Path, capsys) -> None:
+    from ins_hil.cli import main
+
+    d, cfg = _logs(tmp_path)
+    out = tmp_path / "out"
+    argv = ["replay", "--batch", str(d / "a.csv"), "--dataset", str(cfg), "--seeds", "2", "--out", str(out), "--quiet"]
+    assert main([*argv, "--workers", "0", "--compare-serial"]) == 2  # nothing to compare with
+    assert "needs --workers > 0" in capsys.readouterr().err
+    rc = main([*argv, "--workers", "1", "--compare-serial", "--no-plots"])
+    text = capsys.readouterr().out
+    assert rc == 0
+    s = json.loads((out / "batch.json").read_text())["compare_serial"]
+    m = re.search(r"serial ([\d.]+) s, parallel ([\d.]+) s \(LocalCluster of 1 workers\): ([\d.]+)x; (.*)", text)
+    assert m is not None, text
+    assert float(m[1]) == round(s["serial_wall_s"], 1) and float(m[2]) == round(s["parallel_wall_s"], 1)
+    assert float(m[3]) == round(s["serial_wall_s"] / s["parallel_wall_s"], 2)
+    assert m[4] == "every job the same results" and s["differences"] == []
+    assert "serial: load" in text and "(1 parsed, 1 from the cache)" in text
+    assert all((out / "serial" / Path(j.out).name / "metrics.json").is_file()
+               for j in batch.jobs([(str(d / "a.csv"), str(cfg))], 2, out))  # fmt: skip
+    assert [r["job"] for r in s["serial_rows"]] == ["a.csv#0", "a.csv#1"]

@@ -94,6 +94,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="ADDR",
         help="batch: an existing Dask scheduler (e.g. tcp://host:8786) instead of a LocalCluster",
     )
+    b.add_argument(
+        "--compare-serial",
+        action="store_true",
+        help="batch: first run the same jobs one after the other in this process (reports in OUT/serial), then "
+        "on Dask; print both wall times, their ratio and whether every job gave the same results",
+    )
     o = p.add_argument_group("IMU time offset from the data (ins_hil.datasets.offset)")
     o.add_argument(
         "--estimate-offset",
@@ -172,7 +178,8 @@ def _runtime_replay() -> Any:
 
 
 def _batch(args: argparse.Namespace) -> int:
-    """``--batch``: every entry × ``--seeds`` on Dask; a summary table and each job's report."""
+    """``--batch``: every entry × ``--seeds`` on Dask; a summary table and each job's report
+    (``--compare-serial``: the same jobs serially first, and the speed-up)."""
     from ins_hil.evaluation import batch
 
     try:
@@ -180,28 +187,51 @@ def _batch(args: argparse.Namespace) -> int:
     except DatasetError as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
-    js = batch.jobs(pairs, max(1, args.seeds), args.out)
+    parallel = args.scheduler is not None or args.workers > 0
+    if args.compare_serial and not parallel:
+        print("ins-hil replay: --compare-serial needs --workers > 0 or --scheduler", file=sys.stderr)
+        return 2
+    seeds = max(1, args.seeds)
+    js = batch.jobs(pairs, seeds, args.out, not args.no_plots)
     where = args.scheduler or (f"LocalCluster of {args.workers} workers" if args.workers > 0 else "serially")
     if not args.quiet:
-        print(f"batch: {len(js)} replays ({len(pairs)} logs x {max(1, args.seeds)} seeds), {where}", file=sys.stderr)
+        print(f"batch: {len(js)} replays ({len(pairs)} logs x {seeds} seeds), {where}", file=sys.stderr)
 
     def done(row: dict[str, Any], k: int, n: int) -> None:
         if not args.quiet:
             status = row.get("error") or "ok"
             print(f"  [{k}/{n}] {row['job']}: {status} ({row.get('elapsed_s', 0.0):.1f} s)", file=sys.stderr)
 
+    serial: dict[str, Any] | None = None
+    if args.compare_serial:
+        if not args.quiet:
+            print("batch: serially first (--compare-serial)", file=sys.stderr)
+        s_rows, s_wall = batch.run_batch(batch.jobs(pairs, seeds, args.out / "serial", not args.no_plots), 0,
+                                         None, done)  # fmt: skip
+        batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
+        serial = {"rows": s_rows, "wall_s": s_wall, "breakdown": batch.breakdown(s_rows, s_wall, 1)}
     rows, wall = batch.run_batch(js, args.workers, args.scheduler, done)
     args.out.mkdir(parents=True, exist_ok=True)
     text = batch.table(rows)
     failed = sum("error" in r for r in rows)
+    n_workers = args.workers if args.scheduler is None else len({r.get("pid") for r in rows})
     tail = f"{len(rows)} replays in {wall:.1f} s wall ({where}); {failed} failed"
-    (args.out / "batch.md").write_text(f"# Batch replay\n\n{text}\n\n{tail}\n")
-    (args.out / "batch.json").write_text(json.dumps({"rows": rows, "wall_s": wall, "where": where}, indent=2,
-                                                    default=str))  # fmt: skip
+    lines = [tail, batch.breakdown(rows, wall, n_workers if parallel else 1)]
+    summary: dict[str, Any] = {"rows": rows, "wall_s": wall, "where": where}
+    if serial is not None:
+        diff = batch.differences(serial["rows"], rows)
+        ratio = serial["wall_s"] / max(wall, 1e-9)
+        same = "every job the same results" if not diff else f"results differ: {', '.join(diff)}"
+        lines += [f"serial {serial['wall_s']:.1f} s, parallel {wall:.1f} s ({where}): {ratio:.2f}x; {same}",
+                  f"serial: {serial['breakdown']}"]  # fmt: skip
+        summary["compare_serial"] = {"serial_wall_s": serial["wall_s"], "parallel_wall_s": wall, "ratio": ratio,
+                                     "differences": diff, "serial_rows": serial["rows"]}  # fmt: skip
+    (args.out / "batch.md").write_text("# Batch replay\n\n" + text + "\n\n" + "\n\n".join(lines) + "\n")
+    (args.out / "batch.json").write_text(json.dumps(summary, indent=2, default=str))
     print(text)
-    print(tail)
+    print("\n".join(lines))
     print(f"summary: {args.out / 'batch.md'}")
-    return 1 if failed else 0
+    return 1 if failed or (serial is not None and summary["compare_serial"]["differences"]) else 0
 
 
 def _estimate_offset(src: str, args: argparse.Namespace) -> int:

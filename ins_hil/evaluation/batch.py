@@ -8,6 +8,13 @@ owes to where the outages fell. Jobs run on a ``dask.distributed`` LocalCluster 
 processes (one thread each: a replay is CPU-bound Python) or on an existing scheduler; ``workers = 0``
 runs them one after the other in this process (the serial reference for the speed-up). A job that fails
 is a row with its error; the others go on.
+
+Scheduling: the job sizes are very unequal (a log with an outage protocol replays twice), so the jobs are
+handed out longest-first (:func:`order`, by :func:`cost`; the seeds of one log together) with at most one
+job in flight per worker thread, each with its Dask ``priority``: the long jobs do not come last, leaving
+one worker busy while the other idles. Each process keeps its last :data:`CACHE_SIZE` parsed logs
+(:func:`load_cached`), so the seeds of one log parse it once per worker. Each row carries its load /
+replay / plot times (:func:`breakdown` sums them).
 """
 
 from __future__ import annotations
@@ -15,8 +22,10 @@ from __future__ import annotations
 import dataclasses
 import glob
 import math
+import os
 import time
-from collections.abc import Callable
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,18 +34,19 @@ import numpy as np
 
 from ins_hil.datasets.config import DatasetConfig
 from ins_hil.datasets.config import load as load_config
-from ins_hil.datasets.dataset import DatasetError, detect_format
+from ins_hil.datasets.dataset import Dataset, DatasetError, detect_format
 
 
 @dataclass(frozen=True)
 class Job:
     """One replay: ``source`` (a log; None = the config's ``dataset.path``), ``config`` (a dataset TOML;
-    None = the defaults), ``seed``, and the folder ``out`` for its report."""
+    None = the defaults), ``seed``, the folder ``out`` for its report, and whether it writes its ``plots``."""
 
     source: str | None
     config: str | None
     seed: int
     out: str
+    plots: bool = True
 
     @property
     def name(self) -> str:
@@ -76,12 +86,12 @@ def _is_log(p: Path) -> bool:
     return True
 
 
-def jobs(pairs: list[tuple[str | None, str | None]], seeds: int, out: Path) -> list[Job]:
+def jobs(pairs: list[tuple[str | None, str | None]], seeds: int, out: Path, plots: bool = True) -> list[Job]:
     """Every pair times seeds 0 … seeds − 1, each with its folder under ``out``."""
     js = []
     for i, (src, cfg) in enumerate(pairs):
         for s in range(seeds):
-            j = Job(src, cfg, s, "")
+            j = Job(src, cfg, s, "", plots)
             js.append(dataclasses.replace(j, out=str(out / f"{i:02d}-{j.name.replace('#', '-seed')}")))
     return js
 
@@ -95,6 +105,94 @@ def seeded(cfg: DatasetConfig, seed: int) -> DatasetConfig:
     return dataclasses.replace(cfg, outages=dataclasses.replace(o, start_s=o.start_s + shift))
 
 
+def _config(job: Job) -> DatasetConfig:
+    """The job's dataset config, seeded."""
+    cfg = load_config(job.config) if job.config else DatasetConfig(name=Path(job.source or "dataset").stem)
+    return seeded(cfg, job.seed)
+
+
+def _log_path(job: Job, cfg: DatasetConfig) -> Path:
+    path = job.source if job.source is not None else cfg.path
+    if path is None:
+        raise DatasetError(f"{job.config}: no dataset.path")
+    return Path(path)
+
+
+def _files(path: Path) -> list[Path]:
+    """The files a log is read from: the file, or the files directly inside a folder (ulog2csv, RTKLIB)."""
+    return sorted(q for q in path.iterdir() if q.is_file()) if path.is_dir() else [path]
+
+
+def cost(job: Job) -> float:
+    """The job's expected replay cost (arbitrary units, for the order only): the log's size in bytes, times
+    2 when the config has an outage protocol (a second replay); 0 when the log or its config cannot be
+    read (the job fails fast)."""
+    try:
+        cfg = _config(job)
+        size = sum(q.stat().st_size for q in _files(_log_path(job, cfg)))
+    except (OSError, ValueError):  # DatasetError and DatasetConfigError are ValueErrors
+        return 0.0
+    return float(size) * (2.0 if cfg.outages is not None else 1.0)
+
+
+def order(js: list[Job]) -> list[int]:
+    """The indices of ``js`` longest-first by :func:`cost` (longest-processing-time list scheduling): the
+    seeds of one log stay together, in seed order; equal costs keep the batch's order."""
+    costs = {(j.source, j.config): cost(j) for j in js}
+    first: dict[tuple[str | None, str | None], int] = {}
+    for i, j in enumerate(js):
+        first.setdefault((j.source, j.config), i)
+    return sorted(range(len(js)), key=lambda i: (-costs[(js[i].source, js[i].config)],
+                                                 first[(js[i].source, js[i].config)], js[i].seed))  # fmt: skip
+
+
+#: parsed logs kept per process by :func:`load_cached`
+CACHE_SIZE = 4
+_CACHE: OrderedDict[Hashable, Dataset] = OrderedDict()
+
+
+def _parse_key(path: Path, cfg: DatasetConfig) -> Hashable:
+    """What the parsed log depends on: each file's resolved path, mtime (ns) and size, and the config parts
+    the readers use (the format; the rtklib reader's ``[rtklib]`` options, IMU time offset and mounting)."""
+    stamp = tuple((str(q.resolve()), st.st_mtime_ns, st.st_size) for q in _files(path) for st in [q.stat()])
+    parts = (cfg.format, repr(sorted(cfg.rtklib.items())), cfg.imu_time_offset, cfg.imu_to_body.tobytes(),
+             cfg.imu_to_body.shape)  # fmt: skip
+    return stamp, parts
+
+
+def load_cached(path: Path, cfg: DatasetConfig) -> tuple[Dataset, bool]:
+    """(the log at ``path`` read with ``cfg`` (:func:`ins_hil.datasets.report.load`), whether it came from
+    this process's cache). The cache holds the last :data:`CACHE_SIZE` logs by :func:`_parse_key`: a log
+    whose file changes (mtime or size) is read again. A replay does not modify its dataset (``prepare``
+    copies what it shifts or rotates), so the seeds of one log share it."""
+    from ins_hil.datasets import report
+
+    key = _parse_key(path, cfg)
+    ds = _CACHE.get(key)
+    if ds is not None:
+        _CACHE.move_to_end(key)
+        return ds, True
+    ds = report.load(path, cfg)
+    _CACHE[key] = ds
+    while len(_CACHE) > CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return ds, False
+
+
+def clear_cache() -> None:
+    """Forget this process's parsed logs."""
+    _CACHE.clear()
+
+
+def warm_up() -> int:
+    """Import what a job needs (the core, the readers, matplotlib) in this (worker) process; its pid."""
+    from ins_hil.datasets import report  # noqa: F401
+    from ins_hil.datasets.plots import plot_series  # noqa: F401
+    from ins_hil.evaluation import sim_flight  # noqa: F401
+
+    return os.getpid()
+
+
 def run_job(job: Job) -> dict[str, Any]:
     """Replay one job and write its ``metrics.json`` and plots into ``job.out``; its summary row.
     Never raises: an error is the row's ``error``."""
@@ -106,18 +204,20 @@ def run_job(job: Job) -> dict[str, Any]:
     ihlog.set_truth_source(sim_truth)  # in this (worker) process: simulated gateway logs get their truth
 
     t0 = time.perf_counter()
-    row: dict[str, Any] = {"job": job.name, "source": job.source, "config": job.config, "seed": job.seed}
+    row: dict[str, Any] = {"job": job.name, "source": job.source, "config": job.config, "seed": job.seed,
+                           "pid": os.getpid()}  # fmt: skip
     try:
-        cfg = load_config(job.config) if job.config else DatasetConfig(name=Path(job.source or "dataset").stem)
-        cfg = seeded(cfg, job.seed)
-        path = job.source if job.source is not None else cfg.path
-        if path is None:
-            raise DatasetError(f"{job.config}: no dataset.path")
-        ds = report.load(Path(path), cfg)
+        cfg = _config(job)
+        ds, row["cached"] = load_cached(_log_path(job, cfg), cfg)
+        t1 = time.perf_counter()
+        row["load_s"] = t1 - t0
         m, runs = report.replay(ds, cfg)
+        t2 = time.perf_counter()
+        row["replay_s"] = t2 - t1
         out = Path(job.out)
         out.mkdir(parents=True, exist_ok=True)
-        m["plots"] = [str(p) for p in report.plot(m, runs, ds, out)]
+        m["plots"] = [str(p) for p in report.plot(m, runs, ds, out)] if job.plots else []
+        row["plot_s"] = time.perf_counter() - t2
         m["seed"] = job.seed
         (out / "metrics.json").write_text(json.dumps(report.jsonable(m), indent=2))
         row.update(_row(m))
@@ -154,13 +254,16 @@ def run_batch(
     on_done: Callable[[dict[str, Any], int, int], None] | None = None,
 ) -> tuple[list[dict[str, Any]], float]:
     """Run ``js``; (rows in job order, wall time s). ``scheduler``: a Dask scheduler address (e.g.
-    ``tcp://host:8786``); else a LocalCluster of ``workers`` processes; ``workers = 0``: serial here.
-    ``on_done(row, k, n)`` after each job (k done of n)."""
+    ``tcp://host:8786``); else a LocalCluster of ``workers`` processes (one thread each, no memory limit);
+    ``workers = 0``: serial here. Either way the jobs start in :func:`order`; on Dask at most one job per
+    worker thread is in flight, so a freed worker takes the next longest one. ``on_done(row, k, n)`` after
+    each job (k done of n)."""
     t0 = time.perf_counter()
     rows: dict[int, dict[str, Any]] = {}
+    seq = order(js)
     if scheduler is None and workers == 0:
-        for i, j in enumerate(js):
-            rows[i] = run_job(j)
+        for i in seq:
+            rows[i] = run_job(js[i])
             if on_done:
                 on_done(rows[i], len(rows), len(js))
         return [rows[i] for i in range(len(js))], time.perf_counter() - t0
@@ -168,12 +271,26 @@ def run_batch(
 
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               memory_limit=0)  # fmt: skip
     client = Client(scheduler if scheduler is not None else cluster)
     try:
-        futs = {client.submit(run_job, j, pure=False): i for i, j in enumerate(js)}
-        for f in as_completed(futs):
-            i = futs[f]
+        client.run(warm_up)  # the imports on every worker at once, before the first job
+        slots = max(1, sum(client.nthreads().values()))
+        todo = list(seq)
+        futs: dict[Any, int] = {}
+
+        def submit() -> Any:
+            i = todo.pop(0)
+            f = client.submit(run_job, js[i], pure=False, priority=len(todo) + 1)  # the first: the highest
+            futs[f] = i
+            return f
+
+        ac = as_completed([submit() for _ in range(min(slots, len(todo)))])
+        for f in ac:
+            i = futs.pop(f)
+            if todo:
+                ac.add(submit())
             try:
                 rows[i] = f.result()
             except Exception as e:  # the worker died (not a failing log: run_job never raises)
@@ -185,6 +302,34 @@ def run_batch(
         if cluster is not None:
             cluster.close()
     return [rows[i] for i in range(len(js))], time.perf_counter() - t0
+
+
+def breakdown(rows: list[dict[str, Any]], wall_s: float, workers: int) -> str:
+    """One line: the jobs' summed load (parsed / from the cache), replay and plot times (s) and how busy the
+    ``workers`` were over ``wall_s`` (the rest: start-up, the imports and the tail's idle worker)."""
+    tot = {k: sum(r.get(k, 0.0) for r in rows) for k in ("load_s", "replay_s", "plot_s", "elapsed_s")}
+    hits = sum(1 for r in rows if r.get("cached") is True)
+    parsed = sum(1 for r in rows if r.get("cached") is False)
+    busy = tot["elapsed_s"] / max(wall_s * max(workers, 1), 1e-9)
+    return (f"load {tot['load_s']:.1f} s ({parsed} parsed, {hits} from the cache), replay {tot['replay_s']:.1f} s, "
+            f"plots {tot['plot_s']:.1f} s over {len(rows)} jobs; {max(workers, 1)} worker(s) x {wall_s:.1f} s "
+            f"wall: {busy:.0%} busy")  # fmt: skip
+
+
+#: the row keys that are timings or places, not results (they differ between two runs of one job)
+TIMING_KEYS = ("elapsed_s", "load_s", "replay_s", "plot_s", "cached", "pid", "realtime")
+
+
+def differences(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> list[str]:
+    """The jobs whose results differ between two runs of one batch (rows in job order; timings ignored,
+    NaN equal to NaN through ``repr``)."""
+
+    def res(r: dict[str, Any]) -> str:
+        return repr({k: v for k, v in r.items() if k not in TIMING_KEYS})
+
+    if len(a) != len(b):
+        return ["(the batches have different jobs)"]
+    return [ra["job"] for ra, rb in zip(a, b, strict=True) if res(ra) != res(rb)]
 
 
 def _f(x: Any, nd: int = 2) -> str:
