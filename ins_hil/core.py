@@ -46,19 +46,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ins_hil.core_parts import config as sections
 from ins_hil.core_parts.aids import AidsSnapshot, VehicleAids
 from ins_hil.core_parts.alignment import Alignment
 from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot
-from ins_hil.core_parts.config import (
-    SECTIONS,
-    AidsConfig,
-    AlignmentConfig,
-    BaroConfig,
-    DelayConfig,
-    GnssConfig,
-    HoldConfig,
-    MagConfig,
-)
 from ins_hil.core_parts.contract import Measurement
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
 from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
@@ -88,18 +79,18 @@ class NavConfig:
     """
 
     filter: FilterConfig = field(default_factory=FilterConfig)
-    gnss: GnssConfig = field(default_factory=GnssConfig)
-    baro: BaroConfig = field(default_factory=BaroConfig)
-    mag: MagConfig = field(default_factory=MagConfig)
-    aids: AidsConfig = field(default_factory=AidsConfig)
-    hold: HoldConfig = field(default_factory=HoldConfig)
-    alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
-    delay: DelayConfig = field(default_factory=DelayConfig)
+    gnss: sections.GnssConfig = field(default_factory=sections.GnssConfig)
+    baro: sections.BaroConfig = field(default_factory=sections.BaroConfig)
+    mag: sections.MagConfig = field(default_factory=sections.MagConfig)
+    aids: sections.AidsConfig = field(default_factory=sections.AidsConfig)
+    hold: sections.HoldConfig = field(default_factory=sections.HoldConfig)
+    alignment: sections.AlignmentConfig = field(default_factory=sections.AlignmentConfig)
+    delay: sections.DelayConfig = field(default_factory=sections.DelayConfig)
     adaptive: bool = False
     adaptive_b: float = 0.97
 
     def __post_init__(self) -> None:
-        for name, cls in (("filter", FilterConfig), *SECTIONS.items()):
+        for name, cls in (("filter", FilterConfig), *sections.SECTIONS.items()):
             v = getattr(self, name)
             if isinstance(v, dict):  # dataclasses.asdict(NavConfig) loaded back
                 setattr(self, name, cls(**v))

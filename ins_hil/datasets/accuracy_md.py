@@ -12,12 +12,15 @@ import numpy as np
 from ins_hil import machine
 
 
-def fmt_value(x: Any, nd: int = 3) -> str:
-    """A float with ``nd`` decimals, a list of them in brackets, anything else as str."""
+def fmt_value(x: Any, nd: int = 3, missing: str | None = None) -> str:
+    """A float with ``nd`` decimals, a list of them in brackets, anything else as str; with ``missing``, that
+    for None and a non-finite float."""
+    if missing is not None and (x is None or (isinstance(x, float) and not math.isfinite(x))):
+        return missing
     if isinstance(x, float):
         return f"{x:.{nd}f}"
     if isinstance(x, list):
-        return "[" + ", ".join(fmt_value(v, nd) for v in x) + "]"
+        return "[" + ", ".join(fmt_value(v, nd, missing) for v in x) + "]"
     return str(x)
 
 

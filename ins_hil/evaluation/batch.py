@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import glob
-import math
 import os
 import time
 from collections import OrderedDict
@@ -32,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.datasets.accuracy_md import fmt_value
 from ins_hil.datasets.config import DatasetConfig
 from ins_hil.datasets.config import load as load_config
 from ins_hil.datasets.dataset import Dataset, DatasetError, detect_format
@@ -333,9 +333,7 @@ def differences(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> list[str]:
 
 
 def _f(x: Any, nd: int = 2) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "—"
-    return f"{x:.{nd}f}" if isinstance(x, float) else str(x)
+    return fmt_value(x, nd, missing="—")
 
 
 def table(rows: list[dict[str, Any]]) -> str:
