@@ -594,6 +594,8 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "gyro_vib_gain": M("", "[0, 1000]", "attitude process noise from the measured rate change; 0 = off"),
         "accel_vib_gain": M("", "[0, 1000]", "velocity process noise from the measured specific-force change; 0 = off"),
         "vib_tau": M("s", "(0, 3600]", "averaging time of the vibration measure"),
+        "gap_accel_sigma": M("m/s²", "[0, 100]", "unknown acceleration across lost IMU data (velocity σ = it × gap)"),
+        "gap_rate_sigma": M("rad/s", "[0, 10]", "unknown rotation rate across lost IMU data (attitude σ = it × gap)"),
         "init_pos": M("m", "(0, 1e6]", "initial 1-σ position"),
         "init_vel": M("m/s", "(0, 1000]", "initial 1-σ velocity"),
         "init_att": M("rad", f"(0, {PI}]", "initial 1-σ roll/pitch"),

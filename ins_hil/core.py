@@ -157,6 +157,7 @@ class NavCore:
         self._ratios: dict[str, float] = {}
         self.step_n = 0  # IMU steps mechanized (the delayed-fusion history counts by it)
         self._dt = 0.01
+        self.imu_lost = (0, 0.0)  # IMU gaps coasted across (count, s)
         self._pending: list[GnssFix | BaroSample | MagSample] = []
         self.replaying = False  # a roll-back replays the log: no counting, no events, no logging
         self._delayed = self.cfg.delay.compensation and self.cfg.delay.max_delay > 0
@@ -235,6 +236,9 @@ class NavCore:
         """Compensate the increments (bias, g-sensitivity, scale factor) and run the strapdown step, in
         scalar floats on the hot path (the same element-wise numbers as the array expressions)."""
         dt = imu.dt
+        lost = imu.t - dt - self.ins.state.t
+        if lost > 0.5 * dt and self.step_n > 0:
+            self._coast(lost)
         a, v, bg, ba = imu.dtheta, imu.dvel, self.bg, self.ba
         x0, x1, x2 = (
             float(a[0]) - float(bg[0]) * dt,
@@ -259,6 +263,21 @@ class NavCore:
         self.f_b = np.array((u0 / dt, u1 / dt, u2 / dt))
         ins.state.t = imu.t
         self.step_n += 1
+
+    def _coast(self, lost: float) -> None:
+        """Cross ``lost`` s of lost IMU data (the sample's interval starts after the last state): the position
+        advances at the held velocity, the attitude is held, and the covariance grows by the unknown motion of
+        the gap (:meth:`ErrorStateEKF.predict_gap`); so the next fixes pull the state back at once."""
+        ins = self.ins
+        ins.reset_history()
+        C = dcm_from_quat(ins.state.q_nb)
+        g = np.array((0.0, 0.0, -self.g_local * lost))  # the specific force of no acceleration (NED), over the gap
+        ins.step(np.zeros(3), C.T @ g, lost)
+        ins.reset_history()
+        s = ins.state
+        self.kf.predict_gap(lost, C, ins.f_ned, ins.omega_ie, ins.omega_en, s.lat, s.h)
+        if not self.replaying:
+            self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lost)
 
     def _time_update(self, imu: ImuSample) -> None:
         ins = self.ins

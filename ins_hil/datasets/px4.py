@@ -307,7 +307,8 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
             f"sensor_combined: {len(gaps)} logging gaps ({sum(gaps):.2f} s); {len(gaps) - len(long)} up to "
             f"{MAX_BRIDGE * 1e3:.0f} ms bridged with the next sample's mean"
             + (
-                f"; {len(long)} longer (up to {max(long):.2f} s): IMU data lost, the INS does not propagate across them"
+                f"; {len(long)} longer (up to {max(long):.2f} s): IMU data lost: the INS "
+                "coasts across them at constant velocity with its σ grown"
                 if long
                 else ""
             )

@@ -47,6 +47,10 @@ from ins_hil.types import Vec
 DEG = math.pi / 180.0
 
 
+#: the covariance grows across at most this much lost IMU data (s; ErrorStateEKF.predict_gap)
+GAP_MAX_S = 10.0
+
+
 @dataclass
 class FilterConfig:
     """Error-state filter configuration (SI units; noise densities per √Hz).
@@ -76,6 +80,11 @@ class FilterConfig:
     ``mag_bias_sigma_rw`` (1/√s) from an initial 1-σ ``init_mag_bias`` (a copter's residual hard iron:
     ~0.1–0.7 of the field). Only NavCore's magnetometer update sees them; a replay's heading-only field
     (``mag_heading_only``, datasets/run.py) has no hard iron left in it for them to estimate.
+    gap_accel_sigma / gap_rate_sigma: the unknown motion across lost IMU data (a logging gap, a stalled
+    link): NavCore coasts the state across the gap at constant velocity and attitude, and the filter adds
+    (σ_a Δ)² to each velocity, (σ_a Δ²/2)² to each position and (σ_ω Δ)² to each attitude variance for a
+    gap of Δ s (:meth:`ErrorStateEKF.predict_gap`; m/s², rad/s: the acceleration and rate a vehicle may
+    hold over a gap of a second or two).
     init_*: initial 1-σ of the error states. cov_every: propagate P every N IMU steps.
     init_accel_sf: per-axis initial 1-σ of the accelerometer scale factors (x, y, z; None = ``init_sf``).
     numerics: "joseph" (sequential scalar Joseph updates, default), "conventional",
@@ -106,6 +115,8 @@ class FilterConfig:
     gyro_vib_gain: float = 0.0
     accel_vib_gain: float = 0.0
     vib_tau: float = 1.0
+    gap_accel_sigma: float = 1.0
+    gap_rate_sigma: float = 3.0 * DEG
     init_pos: float = 5.0
     init_vel: float = 1.0
     init_att: float = 2.0 * DEG
@@ -125,7 +136,8 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
         if self.cov_every < 1:
             raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
-        for name in ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias"):
+        nonneg = ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias", "gap_accel_sigma")
+        for name in (*nonneg, "gap_rate_sigma"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"FilterConfig.{name}={v!r}: expected a finite value >= 0")
@@ -474,6 +486,24 @@ class ErrorStateEKF:
         if self.cfg.second_order:
             Phi += (0.5 * dt * dt) * (F @ F)  # book eq. 3.2: I + FΔt + F²Δt²/2
         self.propagate(Phi, self.qc * dt, dt, qv)
+
+    def predict_gap(self, gap: float, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, lat: float, h: float) -> None:
+        """Time update across ``gap`` s of lost IMU data, the nominal state coasted at constant velocity and
+        attitude (specific force ``f_ned`` = −g, NED): F at that state (book eq. 3.2, second order), the sensor
+        noise over the gap and the unknown motion of the gap (``gap_accel_sigma`` σ_a, ``gap_rate_sigma`` σ_ω):
+        σ_v = σ_a Δ, σ_r = σ_a Δ²/2, σ_att = σ_ω Δ per axis, Δ = min(gap, :data:`GAP_MAX_S`)."""
+        d = min(gap, GAP_MAX_S)
+        F = self.build_F(C_bn, f_ned, w_ie, w_en, C_bn.T @ f_ned, np.zeros(3), lat, h)
+        Phi = self._eye + F * d
+        if self.cfg.second_order:
+            Phi += (0.5 * d * d) * (F @ F)
+        i = self.idx
+        sa, sw = self.cfg.gap_accel_sigma * d, self.cfg.gap_rate_sigma * d
+        qd = self.qc * d
+        qd[i.pos : i.pos + 3] += (0.5 * sa * d) ** 2
+        qd[i.vel : i.vel + 3] += sa * sa
+        qd[i.att : i.att + 3] += sw * sw
+        self.propagate(Phi, qd)
 
     def _vibration_noise(self, dt: float, C_bn: Vec, w_b: Vec, f_b: Vec) -> Vec:
         """The attitude and velocity noise of one step from the vibration (``FilterConfig.gyro_vib_gain`` /
