@@ -174,3 +174,27 @@ def test_accuracy_markdown_renders_the_saved_metrics():
     assert any(x.startswith("| target | ≤ 1.5 | ≤ 6 |") for x in rows)
     assert any(x.startswith("| upstream filter, causal | 3.09 | 12.8 | 0.41 |") for x in rows)
     assert any("configs/datasets/drive0708.toml" in x for x in md)
+
+
+def test_flight_log_targets_are_judged_from_the_metrics():
+    """docs/accuracy.md's flight-log table: each target quantity read from a replay's metrics, met or not; a log
+    that failed to replay says so instead of a figure."""
+    from ins_hil.datasets.accuracy_md import flight_logs_md
+
+    att = {"roll": {"rms": 0.5}, "pitch": {"rms": 1.6}, "yaw": {"rms": 0.8}}
+    quad = {"gnss": {"gnss_h_rms_prior_m": 0.148},
+            "outages": {"outage_h_rms_m": 2.23, "outage_h_max_m": 8.73, "nees_2dof_mean": 0.05, "outages_scored": 4,
+                        "beats_both_in_every_outage": False,
+                        "windows": [{"scored": True, "beats_both": b} for b in (True, False, True, True)]},
+            "rejection": {"gnss_pos": {"rate": 0.002}}}  # fmt: skip
+    md = flight_logs_md({"ardupilot_copter": {"onboard": {"attitude_deg": att}}, "px4_quad": quad,
+                         "px4_hover": {"error": "hover.ulg: no such file"}})  # fmt: skip
+    rows = md.splitlines()
+    assert "| ardupilot_copter | roll vs NKF1, RMS (°) | 0.50 | ≤ 1° | met |" in rows
+    assert "| ardupilot_copter | pitch vs NKF1, RMS (°) | 1.60 | ≤ 1.5° | falls short |" in rows
+    assert "| px4_quad | GNSS-present h error prior, RMS (m) | 0.148 | ≤ 0.35 m | met |" in rows
+    assert "| px4_quad | 10-s outages h error, worst (m) | 8.73 | ≤ 6 m | falls short |" in rows
+    beats = "| px4_quad | outages below hold-last-fix and constant velocity | 3 of 4 | every outage | falls short |"
+    assert beats in rows
+    assert "| px4_quad | gate rejections, worst kind | 0.2% | reported | reported |" in rows
+    assert "| px4_hover | yaw vs EKF2, RMS (°) | failed: hover.ulg: no such file | ≤ 5° | — |" in rows

@@ -21,6 +21,7 @@ timing) and regenerates ``docs/accuracy.md`` with its plots in ``docs/accuracy/`
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import json
 import math
@@ -370,6 +371,33 @@ def _print_drive(res: dict[str, Any]) -> None:
     _print_table(rows)
 
 
+#: the shipped flight logs of docs/accuracy.md (configs/datasets/NAME.toml)
+FLIGHT_LOGS = ("px4_hover", "px4_quad", "ardupilot_copter")
+
+
+def _log_progress(name: str, quiet: bool, label: str) -> _Progress:
+    return _Progress(f"{name}: {label}", quiet)
+
+
+def flight_logs(quiet: bool) -> dict[str, dict[str, Any]]:
+    """Replay each of :data:`FLIGHT_LOGS` with its dataset config; its metrics (or ``{"error": line}``) by name."""
+    import tempfile
+
+    from ins_hil.datasets import report as dsreport
+    from ins_hil.datasets.dataset import DatasetError
+
+    out: dict[str, dict[str, Any]] = {}
+    for name in FLIGHT_LOGS:
+        try:
+            with tempfile.TemporaryDirectory() as tmp:
+                m, _ = dsreport.replay_to_dir(None, REPO / "configs" / "datasets" / f"{name}.toml", Path(tmp), False,
+                                              functools.partial(_log_progress, name, quiet))  # fmt: skip
+            out[name] = dsreport.jsonable(m)
+        except (DatasetError, ValueError) as e:
+            out[name] = {"error": str(e)}
+    return out
+
+
 def full_report(args: argparse.Namespace) -> int:
     """Regenerate docs/accuracy.md and docs/accuracy/*.png."""
     docs = REPO / "docs"
@@ -391,6 +419,7 @@ def full_report(args: argparse.Namespace) -> int:
         sims[name] = m
         plots[name] = plot_series(ser, name, figdir / name)
     report["scenarios"] = sims
+    report["flight_logs"] = flight_logs(quiet)
     report["monte_carlo"] = monte_carlo("example32_gnss", 10, None, quiet)
     report["monte_carlo_uav"] = monte_carlo("uav_modelled", 10, 140.0, quiet)
     report["elapsed_s"] = time.perf_counter() - t_start
