@@ -278,6 +278,10 @@ class NavCore:
         self.kf.predict_gap(lost, C, ins.f_ned, ins.omega_ie, ins.omega_en, s.lat, s.h)
         if not self.replaying:
             self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lost)
+            self._events.append(
+                FaultEvent(s.t, "imu", FaultMode.DROPOUT, lost, True, True,
+                           f"IMU data lost for {lost:.3f} s: coasted at constant velocity, covariance grown")
+            )  # fmt: skip
 
     def _time_update(self, imu: ImuSample) -> None:
         ins = self.ins

@@ -14,7 +14,7 @@ from ins_hil.fusion.ekf import FilterConfig
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
-from ins_hil.types import GnssFix, ImuSample
+from ins_hil.types import FaultMode, GnssFix, ImuSample
 
 G = 9.80665
 LAT, LON, H = math.radians(47.0), math.radians(8.0), 400.0
@@ -52,6 +52,8 @@ def test_a_gap_is_coasted_at_constant_velocity() -> None:
     n0, sd0 = _north(core), core.state()
     _run(core, [3.0 + 0.01 * k for k in range(1, 11)])  # 2.00 s lost, then 3.01..3.10 s
     assert core.imu_lost[0] == 1 and abs(core.imu_lost[1] - 2.0) < 1e-9
+    (ev,) = [e for e in core.drain_events() if e.sensor == "imu"]  # the operator is told, once
+    assert ev.mode == FaultMode.DROPOUT and abs(ev.magnitude - 2.0) < 1e-9 and abs(ev.t - 3.0) < 1e-9
     assert core.ins.state.t == 3.10
     assert abs(_north(core) - n0 - V_N * 2.10) < 0.02  # the lost 2 s advanced the position too
     sd = core.state()
@@ -102,3 +104,19 @@ def test_a_rollback_after_a_gap_does_not_count_it_twice() -> None:
     _run(core, [3.2 + 0.01 * k for k in range(1, 6)])
     assert core.imu_lost[0] == 1
     assert abs(core.ins.state.t - 3.25) < 1e-9
+
+
+def test_the_live_pipeline_rides_through_an_imu_stall() -> None:
+    """A stalled IMU link (2 s without samples, then the stream resumes) in the gateway's pipeline: no core
+    restart, the operator gets one ``imu`` dropout event, and the states go on from the coasted state."""
+    from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
+
+    p = Pipeline(PipelineConfig(init="config", init_lat_deg=47.0, init_lon_deg=8.0, init_h=400.0))
+    times = [0.01 * k for k in range(1, 101)] + [3.0 + 0.01 * k for k in range(1, 101)]
+    states = [p.imu(_imu(t)) for t in times]
+    p.flush()
+    assert all(st is not None for st in states)
+    assert states[-1] is not None and abs(states[-1].t - 4.0) < 1e-9
+    assert not any(k.startswith("core_") for k in p.counts), p.counts
+    drop = [e for e in p.events if e.sensor == "imu" and e.mode == FaultMode.DROPOUT]
+    assert len(drop) == 1 and abs(drop[0].magnitude - 2.0) < 1e-9
