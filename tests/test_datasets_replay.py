@@ -25,9 +25,9 @@ LAT, LON, H = 45.0, 7.0, 300.0
 M_NED_UT = (20.0, 1.0, 40.0)
 
 
-def _static_csv(path: Path, yaw_deg: float = 30.0, seconds: float = 60.0) -> None:
+def _static_csv(path: Path, yaw_deg: float = 30.0, seconds: float = 60.0, lost: tuple[int, int] = (0, 0)) -> None:
     """A vehicle at rest, level, heading ``yaw_deg``: IMU 100 Hz, GNSS 5 Hz, magnetometer 10 Hz, and an
-    'onboard' estimate that is the truth."""
+    'onboard' estimate that is the truth. The IMU samples numbered in [lost[0], lost[1]) are left out."""
     C = dcm_from_euler(0.0, 0.0, math.radians(yaw_deg))  # body → NED
     g = earth.normal_gravity(math.radians(LAT), H)
     f_b = C.T @ np.array((0.0, 0.0, -g))
@@ -37,6 +37,8 @@ def _static_csv(path: Path, yaw_deg: float = 30.0, seconds: float = 60.0) -> Non
     rows = [generic_csv.MAGIC, "# a static test vehicle"]
     n = int(seconds * 100)
     for k in range(1, n + 1):
+        if lost[0] <= k < lost[1]:
+            continue
         rows.append(f"imu,{k / 100:.2f},0.01," + ",".join(f"{x:.9g}" for x in (*w_b, *f_b)))
     for k in range(int(seconds * 5)):
         rows.append(f"gnss,{k / 5:.2f},{LAT},{LON},{H},0,0,0,0.5,1.0,0.1,3")
@@ -199,3 +201,24 @@ def test_replay_ardupilot_against_nkf1_to_the_crash(tmp_path: Path):
     # the issue's targets against NKF1 with the field from the magnetic model
     assert att["roll"]["rms"] <= 1.0 and att["pitch"]["rms"] <= 1.5 and att["yaw"]["rms"] <= 2.0, att
     assert all(v["rate"] < 0.03 for v in m["rejection"].values()) and m["warnings"] == []
+
+
+def test_replay_reports_lost_imu_data(tmp_path: Path, capsys):
+    """1.5 s of IMU rows missing from a CSV: the replay says how many gaps the core coasted across, and how long;
+    a log without gaps has no such row."""
+    cfgp = _toml(
+        tmp_path / "static.toml", GOOD.replace('against = ["gnss", "onboard", "reference"]', 'against = ["gnss"]')
+    )
+    for name, lost in (("gap", (3001, 3151)), ("nogap", (0, 0))):
+        data = tmp_path / f"{name}.csv"
+        _static_csv(data, lost=lost)
+        out = tmp_path / name
+        assert main(["replay", str(data), "--dataset", str(cfgp), "--out", str(out), "--quiet", "--no-plots"]) == 0
+        text = capsys.readouterr().out
+        m = json.loads((out / "metrics.json").read_text())
+        if name == "gap":
+            assert m["imu_lost"]["gaps"] == 1 and m["imu_lost"]["s"] == pytest.approx(1.5, abs=1e-6)
+            assert "IMU data lost (coasted)" in text and "1 gaps, 1.50 s" in text
+            assert m["gnss"]["gnss_h_rms_prior_m"] < 0.2  # at rest, coasted at zero velocity: no jump
+        else:
+            assert m["imu_lost"] == {"gaps": 0, "s": 0.0} and "IMU data lost" not in text

@@ -73,6 +73,7 @@ def replay(
     m["t_nav_s"] = r.t_nav - p.t0 if math.isfinite(r.t_nav) else None
     m["realtime_factor"] = (p.t1 - p.t0) / max(r.elapsed_s, 1e-9)
     m["rejection"] = rejection(r)
+    m["imu_lost"] = {"gaps": r.imu_lost[0], "s": r.imu_lost[1]}
     m["warnings"] = [f"{k}: the gates rejected {v['rejected']} of {v['tested']} ({v['rate']:.1%})"
                      for k, v in m["rejection"].items() if v["rate"] > REJECT_WARN]  # fmt: skip
     if not math.isfinite(r.t_nav):
@@ -156,6 +157,9 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
             rows += [(f"vs {c['against']}: {a}", b, x) for a, b, x in cmp.summary_rows(c)]
         elif c:
             rows.append((key, str(c), ""))
+    lost = m.get("imu_lost")
+    if isinstance(lost, dict) and lost.get("gaps"):
+        rows.append(("IMU data lost (coasted)", f"{lost['gaps']} gaps, {lost['s']:.2f} s", ""))
     for k, v in m.get("rejection", {}).items():
         rows.append((f"gate rejections {k}", f"{v['rejected']} / {v['tested']} ({v['rate']:.1%})", ""))
     rows.append(("replay speed", f"{m['realtime_factor']:.0f}x real time", ""))

@@ -217,6 +217,7 @@ class RunResult:
     elapsed_s: float
     notes: list[str] = field(default_factory=list)
     align_status: str = ""  # why the core had not navigated at the end ("" when it did)
+    imu_lost: tuple[int, float] = (0, 0.0)  # IMU gaps the core coasted across while navigating (count, s)
 
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
@@ -292,7 +293,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
         arr(ge, 3), arr(gp, 3), np.array(gi, dtype=bool), arr(gs, 3), arr(gr, 3), np.array(gf, dtype=int),
         list(outages),
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
-        time.perf_counter() - t_start, list(p.notes), core.align_status(),
+        time.perf_counter() - t_start, list(p.notes), core.align_status(), core.imu_lost,
     )  # fmt: skip
 
 
