@@ -57,7 +57,7 @@ from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-e
 from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.fusion import measurements as mm
-from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
+from ins_hil.fusion.ekf import GAP_MAX_S, EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
 from ins_hil.fusion.yaw_gsf import YawGsf
 from ins_hil.nav import earth
@@ -267,15 +267,19 @@ class NavCore:
     def _coast(self, lost: float) -> None:
         """Cross ``lost`` s of lost IMU data (the sample's interval starts after the last state): the position
         advances at the held velocity, the attitude is held, and the covariance grows by the unknown motion of
-        the gap (:meth:`ErrorStateEKF.predict_gap`); so the next fixes pull the state back at once."""
+        the gap (:meth:`ErrorStateEKF.predict_gap`); so the next fixes pull the state back at once. A gap longer
+        than ``GAP_MAX_S`` (a sensor time gone far ahead) is coasted for that long only; the time jumps anyway."""
         ins = self.ins
         ins.reset_history()
         C = dcm_from_quat(ins.state.q_nb)
-        g = np.array((0.0, 0.0, -self.g_local * lost))  # the specific force of no acceleration (NED), over the gap
-        ins.step(np.zeros(3), C.T @ g, lost)
+        d = min(lost, GAP_MAX_S)
+        g = np.array((0.0, 0.0, -self.g_local * d))  # the specific force of no acceleration (NED), over the gap
+        t_end = ins.state.t + lost
+        ins.step(np.zeros(3), C.T @ g, d)
         ins.reset_history()
         s = ins.state
-        self.kf.predict_gap(lost, C, ins.f_ned, ins.omega_ie, ins.omega_en, s.lat, s.h)
+        s.t = t_end
+        self.kf.predict_gap(d, C, ins.f_ned, ins.omega_ie, ins.omega_en, s.lat, s.h)
         if not self.replaying:
             self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lost)
             self._events.append(

@@ -120,3 +120,18 @@ def test_the_live_pipeline_rides_through_an_imu_stall() -> None:
     assert not any(k.startswith("core_") for k in p.counts), p.counts
     drop = [e for e in p.events if e.sensor == "imu" and e.mode == FaultMode.DROPOUT]
     assert len(drop) == 1 and abs(drop[0].magnitude - 2.0) < 1e-9
+
+
+def test_a_sensor_time_far_ahead_is_coasted_for_ten_seconds_at_most() -> None:
+    """A hostile or corrupt sample stamped a day ahead: the state's time follows it, but the position moves by
+    at most GAP_MAX_S of the held velocity and the state stays finite."""
+    from ins_hil.fusion.ekf import GAP_MAX_S
+
+    core = _core()
+    _run(core, [0.01 * k for k in range(1, 101)])
+    n0 = _north(core)
+    _run(core, [86400.0 + 0.01 * k for k in range(1, 3)])
+    st = core.state()
+    assert st.t == 86400.02 and np.all(np.isfinite(st.std_pos)) and np.all(np.isfinite(st.q_nb))
+    assert abs(_north(core) - n0 - V_N * (GAP_MAX_S + 0.02)) < 0.05
+    assert core.imu_lost[0] == 1 and core.imu_lost[1] > 86000.0

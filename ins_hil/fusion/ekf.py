@@ -47,7 +47,7 @@ from ins_hil.types import Vec
 DEG = math.pi / 180.0
 
 
-#: the covariance grows across at most this much lost IMU data (s; ErrorStateEKF.predict_gap)
+#: lost IMU data is coasted across for at most this long (s; NavCore._coast, ErrorStateEKF.predict_gap)
 GAP_MAX_S = 10.0
 
 
