@@ -38,10 +38,12 @@ def _mosquitto() -> str:
 
 
 class Broker:
-    def __init__(self, tmp: Path, users: dict[str, str] | None = None) -> None:
+    def __init__(self, tmp: Path, users: dict[str, str] | None = None, persist: bool = False) -> None:
+        """``persist``: the broker keeps its sessions (and their queued QoS-1 messages) across a restart."""
         self.port = free_port(socket.SOCK_STREAM)
         self.conf = tmp / "mosquitto.conf"
-        conf = f"listener {self.port} 127.0.0.1\npersistence false\n"
+        conf = f"listener {self.port} 127.0.0.1\n"
+        conf += f"persistence true\npersistence_location {tmp}/\n" if persist else "persistence false\n"
         if users:
             pw = tmp / "passwd"
             pw.write_text("")
@@ -74,10 +76,12 @@ class Broker:
 
 
 class Subscriber:
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, persistent: bool = False) -> None:
+        """``persistent``: a session the broker keeps while the subscriber is away (clean_session false), so a
+        QoS-1 message published before it reconnects is queued for it instead of lost."""
         self.msgs: list[tuple[float, str, bytes, bool]] = []
         self.lock = threading.Lock()
-        self.c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="test-sub")
+        self.c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="test-sub", clean_session=not persistent)
         self.c.on_connect = lambda c, u, f, rc, p=None: c.subscribe(f"{PREFIX}/#", qos=1)
         self.c.on_message = self._on
         self.c.reconnect_delay_set(0.1, 0.5)
@@ -105,7 +109,18 @@ def broker(tmp_path: Path):  # type: ignore[no-untyped-def]
     b.stop()
 
 
-def test_state_and_faults_survive_a_broker_restart(broker: Broker) -> None:
+def test_state_and_faults_survive_a_broker_restart(tmp_path: Path) -> None:
+    # a persistent broker and subscriber session: the gateway may reconnect and send the fault it queued before
+    # the subscriber is back, and the broker must hold it for the subscriber (what a real deployment configures)
+    broker = Broker(tmp_path, persist=True)
+    broker.start()
+    try:
+        _broker_restart(broker)
+    finally:
+        broker.stop()
+
+
+def _broker_restart(broker: Broker) -> None:
     cfg = sim_config(
         mqtt={"enabled": True, "port": broker.port, "topic_prefix": PREFIX, "state_rate": 20.0},
         recorder={"enabled": False},
@@ -113,7 +128,7 @@ def test_state_and_faults_survive_a_broker_restart(broker: Broker) -> None:
     gw = sim_gateway(cfg)
     t_states: list[float] = []
     gw.on_state.append(lambda st: t_states.append(time.monotonic()))
-    sub = Subscriber(broker.port)
+    sub = Subscriber(broker.port, persistent=True)
     marks: dict[str, float] = {}
 
     def fault(t: float, sensor: str) -> FaultEvent:
