@@ -136,8 +136,8 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
         if self.cov_every < 1:
             raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
-        nonneg = ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias", "gap_accel_sigma")
-        for name in (*nonneg, "gap_rate_sigma"):
+        vib_mag = ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias")
+        for name in (*vib_mag, "gap_accel_sigma", "gap_rate_sigma"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"FilterConfig.{name}={v!r}: expected a finite value >= 0")
