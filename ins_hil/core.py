@@ -57,7 +57,7 @@ from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-e
 from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.fusion import measurements as mm
-from ins_hil.fusion.ekf import GAP_MAX_S, EkfSnapshot, ErrorStateEKF, FilterConfig
+from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
 from ins_hil.fusion.yaw_gsf import YawGsf
 from ins_hil.nav import earth
@@ -66,6 +66,8 @@ from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 DEG = math.pi / 180.0
+#: lost IMU data is coasted across for at most this long (s; NavCore._coast: a sensor time gone far ahead)
+GAP_MAX_S = 10.0
 _KINDS = ("gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt")
 
 

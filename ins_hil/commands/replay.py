@@ -381,17 +381,16 @@ def _log_progress(name: str, quiet: bool, label: str) -> _Progress:
 
 def flight_logs(quiet: bool) -> dict[str, dict[str, Any]]:
     """Replay each of :data:`FLIGHT_LOGS` with its dataset config; its metrics (or ``{"error": line}``) by name."""
-    import tempfile
-
     from ins_hil.datasets import report as dsreport
     from ins_hil.datasets.dataset import DatasetError
 
     out: dict[str, dict[str, Any]] = {}
     for name in FLIGHT_LOGS:
         try:
-            with tempfile.TemporaryDirectory() as tmp:
-                m, _ = dsreport.replay_to_dir(None, REPO / "configs" / "datasets" / f"{name}.toml", Path(tmp), False,
-                                              functools.partial(_log_progress, name, quiet))  # fmt: skip
+            cfg = load_dataset_config(REPO / "configs" / "datasets" / f"{name}.toml")
+            if cfg.path is None:
+                raise DatasetError(f"{name}.toml: no dataset.path")
+            m, _ = dsreport.replay(dsreport.load(cfg.path, cfg), cfg, functools.partial(_log_progress, name, quiet))
             out[name] = dsreport.jsonable(m)
         except (DatasetError, ValueError) as e:
             out[name] = {"error": str(e)}

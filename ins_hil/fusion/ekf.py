@@ -47,10 +47,6 @@ from ins_hil.types import Vec
 DEG = math.pi / 180.0
 
 
-#: lost IMU data is coasted across for at most this long (s; NavCore._coast, ErrorStateEKF.predict_gap)
-GAP_MAX_S = 10.0
-
-
 @dataclass
 class FilterConfig:
     """Error-state filter configuration (SI units; noise densities per √Hz).
@@ -481,29 +477,29 @@ class ErrorStateEKF:
                 qv = self._acc_qv
                 self._acc_qv = None
         F = self.build_F(C_bn, f_ned, w_ie, w_en, f_b, w_b, lat, h)
+        self.propagate(self._transition(F, dt), self.qc * dt, dt, qv)
+
+    def _transition(self, F: Vec, dt: float) -> Vec:
+        """Φ = I + FΔt (+ F²Δt²/2 with ``second_order``; book eq. 3.2)."""
         Phi = F * dt
         Phi += self._eye
         if self.cfg.second_order:
-            Phi += (0.5 * dt * dt) * (F @ F)  # book eq. 3.2: I + FΔt + F²Δt²/2
-        self.propagate(Phi, self.qc * dt, dt, qv)
+            Phi += (0.5 * dt * dt) * (F @ F)
+        return Phi
 
     def predict_gap(self, gap: float, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, lat: float, h: float) -> None:
         """Time update across ``gap`` s of lost IMU data, the nominal state coasted at constant velocity and
         attitude (specific force ``f_ned`` = −g, NED): F at that state (book eq. 3.2, second order), the sensor
         noise over the gap and the unknown motion of the gap (``gap_accel_sigma`` σ_a, ``gap_rate_sigma`` σ_ω):
-        σ_v = σ_a Δ, σ_r = σ_a Δ²/2, σ_att = σ_ω Δ per axis, Δ = min(gap, :data:`GAP_MAX_S`)."""
-        d = min(gap, GAP_MAX_S)
+        σ_v = σ_a Δ, σ_r = σ_a Δ²/2, σ_att = σ_ω Δ per axis, Δ = ``gap``."""
         F = self.build_F(C_bn, f_ned, w_ie, w_en, C_bn.T @ f_ned, np.zeros(3), lat, h)
-        Phi = self._eye + F * d
-        if self.cfg.second_order:
-            Phi += (0.5 * d * d) * (F @ F)
         i = self.idx
-        sa, sw = self.cfg.gap_accel_sigma * d, self.cfg.gap_rate_sigma * d
-        qd = self.qc * d
-        qd[i.pos : i.pos + 3] += (0.5 * sa * d) ** 2
+        sa, sw = self.cfg.gap_accel_sigma * gap, self.cfg.gap_rate_sigma * gap
+        qd = self.qc * gap
+        qd[i.pos : i.pos + 3] += (0.5 * sa * gap) ** 2
         qd[i.vel : i.vel + 3] += sa * sa
         qd[i.att : i.att + 3] += sw * sw
-        self.propagate(Phi, qd)
+        self.propagate(self._transition(F, gap), qd)
 
     def _vibration_noise(self, dt: float, C_bn: Vec, w_b: Vec, f_b: Vec) -> Vec:
         """The attitude and velocity noise of one step from the vibration (``FilterConfig.gyro_vib_gain`` /
