@@ -22,28 +22,46 @@ import numpy as np
 
 
 def cyclictest(duration_s: float, cpus: list[int], prio: int = 80, interval_us: int = 1000) -> dict[str, Any]:
-    """Run cyclictest for ``duration_s`` s with one thread per CPU in ``cpus``.
+    """Run cyclictest for ``duration_s`` s' worth of wake-ups with one thread per CPU in ``cpus``.
 
-    Returns ``{"available": True, "duration_s", "interval_us", "priority", "cpus": {cpu: {n, p50_us,
+    The run is a fixed count of wake-ups per thread (``-l``, ``duration_s / interval``), not a wall-clock
+    duration: on a busy host a timed run loses its start-up and every skipped period, so its count would
+    say how loaded the machine was rather than what was measured.
+
+    Returns ``{"available": True, "duration_s", "loops", "interval_us", "priority", "cpus": {cpu: {n, p50_us,
     p99_us, p999_us, p9999_us, max_us, over_1ms, over_2ms}}}`` or ``{"available": False, "why": ...}``
     (not installed, not permitted, failed): never raises for a missing tool."""
     exe = shutil.which("cyclictest")
     if exe is None:
         return {"available": False, "why": "cyclictest is not installed (Debian package rt-tests)"}
+    loops = max(1, round(duration_s * 1e6 / interval_us))
+    # one process per CPU, run together: a single cyclictest with -t N stops every thread as soon as the
+    # first one has its -l count, which cuts the others short
     with tempfile.TemporaryDirectory() as td:
-        hist = Path(td) / "hist"
-        cmd = [
-            exe, "-m", "-q", "-p", str(prio), "-i", str(interval_us), "-a", ",".join(str(c) for c in cpus),
-            "-t", str(len(cpus)), "-D", f"{max(1, round(duration_s))}", "-h", "20000", f"--histfile={hist}",
-        ]  # fmt: skip
+        hists = {c: Path(td) / f"hist{c}" for c in cpus}
+        procs: dict[int, subprocess.Popen[str]] = {}
         try:
-            r = subprocess.run(cmd, capture_output=True, text=True, timeout=duration_s + 60)
+            for c, hist in hists.items():
+                cmd = [
+                    exe, "-m", "-q", "-p", str(prio), "-i", str(interval_us), "-a", str(c), "-t", "1",
+                    "-l", str(loops), "-h", "20000", f"--histfile={hist}",
+                ]  # fmt: skip
+                procs[c] = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            errs = {c: p.communicate(timeout=4 * duration_s + 60)[1] for c, p in procs.items()}
         except (OSError, subprocess.SubprocessError) as e:
+            for p in procs.values():
+                p.kill()
+                p.wait()
             return {"available": False, "why": f"cyclictest: {e}"}
-        if r.returncode != 0 or not hist.exists():
-            return {"available": False, "why": f"cyclictest exited {r.returncode}: {r.stderr.strip()[:200]}"}
-        out = parse_histogram(hist.read_text(), cpus)
-    return {"available": True, "duration_s": duration_s, "interval_us": interval_us, "priority": prio, "cpus": out}
+        out: dict[int, dict[str, float]] = {}
+        for c, p in procs.items():
+            if p.returncode != 0 or not hists[c].exists():
+                return {"available": False, "why": f"cyclictest exited {p.returncode}: {errs[c].strip()[:200]}"}
+            out.update(parse_histogram(hists[c].read_text(), [c]))
+    return {
+        "available": True, "duration_s": duration_s, "loops": loops, "interval_us": interval_us, "priority": prio,
+        "cpus": out,
+    }  # fmt: skip
 
 
 def parse_histogram(text: str, cpus: list[int]) -> dict[int, dict[str, float]]:
@@ -87,14 +105,16 @@ def section(p: dict[str, Any] | None) -> str:
         return ""
     if not p.get("available"):
         return f"Platform wake-up latency (cyclictest): not measured: {p.get('why', '?')}.\n"
+    loops = p.get("loops", "?")
     lines = [
         "### Platform baseline: the machine's own wake-up latency (cyclictest, before the runs)",
         "",
-        f"`cyclictest -m -p {p['priority']} -i {p['interval_us']}`, one SCHED_FIFO thread per CPU waking every "
-        f"{p['interval_us'] / 1000:g} ms for {p['duration_s']:g} s with nothing of the soak running: how late the "
-        "kernel and the hypervisor alone let a real-time thread run. Every end-to-end sample of the soak passes "
-        "several such wake-ups on the two CPUs (the emitter's timer, the pty's kernel worker, the gateway, the "
-        "ground-station client), so this tail is a floor under the soak's tail, whatever the gateway does.",
+        f"`cyclictest -m -p {p['priority']} -i {p['interval_us']} -l {loops}` on each CPU at once: a SCHED_FIFO "
+        f"thread waking every {p['interval_us'] / 1000:g} ms, {loops} times, with nothing of the soak running: "
+        "how late the kernel and the hypervisor alone let a real-time thread run. Every end-to-end sample of the "
+        "soak passes several such wake-ups on the two CPUs (the emitter's timer, the pty's kernel worker, the "
+        "gateway, the ground-station client), so this tail is a floor under the soak's tail, whatever the gateway "
+        "does.",
         "",
         "| CPU | wake-ups | p50 (µs) | p99 (µs) | p99.9 (µs) | p99.99 (µs) | max (µs) | > 1 ms | > 2 ms |",
         "|---|---|---|---|---|---|---|---|---|",
