@@ -186,3 +186,25 @@ def test_compare_serial_prints_both_wall_times_and_their_ratio(tmp_path: Path, c
     assert all((out / "serial" / Path(j.out).name / "metrics.json").is_file()
                for j in batch.jobs([(str(d / "a.csv"), str(cfg))], 2, out))  # fmt: skip
     assert [r["job"] for r in s["serial_rows"]] == ["a.csv#0", "a.csv#1"]
+
+
+@pytest.mark.slow  # a LocalCluster of 1 worker process (~3 s)
+def test_our_local_cluster_runs_its_workers_without_the_profiler_and_with_a_slow_event_loop_tick() -> None:
+    import dask
+    from dask.distributed import Client
+
+    keys = list(batch.WORKER_CONFIG)
+    before = {k: dask.config.get(k) for k in keys}
+    assert before["distributed.worker.profile.enabled"] is True  # dask's defaults, left as they were
+    assert before["distributed.admin.tick.interval"] == "20ms"
+    cluster = batch.local_cluster(1)
+    try:
+        with Client(cluster) as client:
+            seen = client.run(lambda: {k: dask.config.get(k) for k in keys})
+            # the worker's own event loop watchdog runs at the setting's interval (ms)
+            ticks = client.run(lambda dask_worker: dask_worker.periodic_callbacks["tick"].callback_time)
+    finally:
+        cluster.close()
+    assert list(seen.values()) == [batch.WORKER_CONFIG]
+    assert list(ticks.values()) == [1000]
+    assert {k: dask.config.get(k) for k in keys} == before  # only the workers' settings
