@@ -506,7 +506,12 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "zupt_max_speed": M("m/s", "[0, 1000]", "ZUPT only below this speed"),
         "zaru": M(help="zero angular rate update on the gyro bias with ZUPT"),
         "zaru_std": M("rad/s", "(0, 10]", "ZARU σ"),
-        "gate": M("σ", "(0, 1e6]", "innovation gate of the auxiliary aids (NHC, ZUPT)"),
+        "drag": M(help="multirotor rotor drag on the body x/y specific force (needs filter.wind_states)"),
+        "drag_coef": M("1/s", "(0, 10]", "drag coefficient: specific force per air speed (PX4 EKF2_MCOEF)"),
+        "drag_std": M("m/s²", "(0, 100]", "drag aid σ of the averaged specific force"),
+        "drag_tau": M("s", "(0, 60]", "averaging time constant of the specific force for the drag aid"),
+        "drag_rate": M("Hz", "(0, 1000]", "drag aid rate"),
+        "gate": M("σ", "(0, 1e6]", "innovation gate of the auxiliary aids (NHC, ZUPT, drag)"),
     },
     "core.nav.hold": {
         "enabled": M(
@@ -591,6 +596,9 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "mag_bias": M(help="estimate the magnetometer hard iron (3 states; field and reference in one unit)"),
         "mag_bias_sigma_rw": M("|m_ref|/√s", "[0, 1]", "random walk of the hard iron (fraction of the field)"),
         "init_mag_bias": M("|m_ref|", "(0, 10]", "initial 1-σ of the hard iron (fraction of the field)"),
+        "wind_states": M(help="estimate the horizontal wind (2 states; the multirotor drag aid)"),
+        "wind_sigma_rw": M("m/s/√s", "[0, 100]", "random walk of the wind"),
+        "init_wind": M("m/s", "[0, 100]", "initial 1-σ of the wind"),
         "gyro_vib_gain": M("", "[0, 1000]", "attitude process noise from the measured rate change; 0 = off"),
         "accel_vib_gain": M("", "[0, 1000]", "velocity process noise from the measured specific-force change; 0 = off"),
         "vib_tau": M("s", "(0, 3600]", "averaging time of the vibration measure"),

@@ -107,6 +107,8 @@ class NavConfig:
             raise ValueError(
                 "NavConfig.filter.mount_states=True needs aids.nhc=True (the boresight is seen by the NHC only)"
             )
+        if self.aids.drag and not self.filter.wind_states:
+            raise ValueError("NavConfig.aids.drag=True needs filter.wind_states=True (drag acts on the air velocity)")
 
 
 #: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)
@@ -126,6 +128,7 @@ class CoreSnapshot(NamedTuple):
     G: Vec
     q_mount: Vec
     mb: Vec
+    wind: Vec
     omega_b: Vec
     f_b: Vec
     aids: AidsSnapshot
@@ -151,6 +154,7 @@ class NavCore:
         self.G = np.zeros((3, 3))  # gyro g-sensitivity (rad/s per m/s², FilterConfig.gyro_gsens)
         self.q_mount = np.array((1.0, 0.0, 0.0, 0.0))  # residual IMU body → vehicle rotation (NHC frame)
         self.mb = np.zeros(3)  # magnetometer hard iron (body, units of |mag.ref_ned|; FilterConfig.mag_bias)
+        self.wind = np.zeros(2)  # horizontal wind north, east (m/s; FilterConfig.wind_states)
         self.omega_b = np.zeros(3)
         self.f_b = np.zeros(3)
         self.stats = {k: GateStats() for k in _KINDS}
@@ -186,6 +190,8 @@ class NavCore:
         self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
         if self.hold is not None:
             self.stats["hold"] = GateStats()
+        if self.cfg.aids.drag:
+            self.stats["drag"] = GateStats()
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
@@ -316,7 +322,8 @@ class NavCore:
     def _ground_aids(self, imu: ImuSample) -> None:
         """ZUPT/ZARU at rest and the non-holonomic constraint in motion (:class:`VehicleAids`)."""
         if self.aids.on:
-            for m in self.aids.measurements(imu, self.ins, self.omega_b, self.q_mount, self.g_local):
+            for m in self.aids.measurements(imu, self.ins, self.omega_b, self.q_mount, self.g_local, self.f_b,
+                                            self.wind):  # fmt: skip
                 self._apply(m, imu.t)
 
     # ------------------------------------------------------------------ snapshots (delayed fusion)
@@ -325,7 +332,7 @@ class NavCore:
         datum and the GNSS height it learns from: a replay re-fuses the logged baro samples from the same datum."""
         return _new(CoreSnapshot, (
             self.ins.snapshot(), self.kf.snapshot(), self.bg, self.ba, self.sg, self.sa, self.G, self.q_mount, self.mb,
-            self.omega_b, self.f_b, self.aids.snapshot(), self.baro.snapshot(),
+            self.wind, self.omega_b, self.f_b, self.aids.snapshot(), self.baro.snapshot(),
         ))  # fmt: skip
 
     def restore(self, d: CoreSnapshot) -> None:
@@ -333,7 +340,7 @@ class NavCore:
         self.ins.restore(d.ins)
         self.kf.restore(d.kf)
         self.bg, self.ba, self.sg, self.sa, self.G = d.bg, d.ba, d.sg, d.sa, d.G
-        self.q_mount, self.mb, self.omega_b, self.f_b = d.q_mount, d.mb, d.omega_b, d.f_b
+        self.q_mount, self.mb, self.wind, self.omega_b, self.f_b = d.q_mount, d.mb, d.wind, d.omega_b, d.f_b
         self.aids.restore(d.aids)
         self.baro.restore(d.baro)
 
@@ -497,6 +504,8 @@ class NavCore:
             self.q_mount = quat_mul(quat_from_rotvec(-x[i.mnt : i.mnt + 3]), self.q_mount)  # R̂ ← (I − [δε×]) R̂
         if i.mb is not None:
             self.mb = self.mb + x[i.mb : i.mb + 3]  # b̂_m += δb_m
+        if i.wind is not None:
+            self.wind = self.wind + x[i.wind : i.wind + 2]  # ŵ += δw
 
     # ------------------------------------------------------------------ outputs
     def align_status(self) -> str:

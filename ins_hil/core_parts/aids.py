@@ -1,4 +1,5 @@
-"""Ground-vehicle aids: ZUPT/ZARU at rest and the non-holonomic constraint (NHC) in motion."""
+"""Vehicle aids: ZUPT/ZARU at rest and the non-holonomic constraint (NHC) in motion (ground vehicle); the rotor
+drag on the body specific force (multirotor)."""
 
 from __future__ import annotations
 
@@ -30,17 +31,22 @@ class AidsSnapshot(NamedTuple):
     ema_w: Vec
     ema_f: Vec
     w_lp: Vec
+    drag_next: float
+    ema_fb: Vec
 
 
 class VehicleAids:
-    """Rest detection and the ZUPT/ZARU/NHC measurements of a ground vehicle (``NavConfig.aids``: ``nhc``/``zupt``).
+    """Rest detection and the ZUPT/ZARU/NHC measurements of a ground vehicle (``NavConfig.aids``: ``nhc``/``zupt``),
+    and a multirotor's drag measurement (``drag``) while the rest detector does not see it standing.
 
     Rest detection on exponentially averaged (τ = ``zupt_tau``) rate and specific-force magnitudes, so engine
     vibration (tens of Hz, °/s-level on a car) does not hide a stop."""
 
     def __init__(self, cfg: NavConfig, idx: StateIndex) -> None:
         self.cfg, self.idx = cfg, idx
-        self.on = cfg.aids.nhc or cfg.aids.zupt
+        self.on = cfg.aids.nhc or cfg.aids.zupt or cfg.aids.drag
+        self.drag_next = 0.0  # s, the next drag-aid time (drag_rate)
+        self.ema_fb = np.zeros(3)  # averaged compensated body specific force (m/s², drag_tau)
         self.nhc_next = 0.0  # s, the next aid time (nhc_rate)
         self.still_time = 0.0  # s at rest so far
         self.ema_w = np.zeros(3)  # averaged compensated body rate (rad/s)
@@ -51,20 +57,39 @@ class VehicleAids:
         self.mounted = idx.mnt is not None or lever_on or cfg.aids.nhc_pitch_per_accel != 0.0
 
     def snapshot(self) -> AidsSnapshot:
-        return _new(AidsSnapshot, (self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp))
+        return _new(AidsSnapshot, (self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp, self.drag_next,
+                                   self.ema_fb))  # fmt: skip
 
     def restore(self, d: AidsSnapshot) -> None:
-        self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp = d
+        self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp, self.drag_next, self.ema_fb = d
 
     def measurements(
-        self, imu: ImuSample, ins: StrapdownNED, omega_b: Vec, q_mount: Vec, g_local: float
+        self, imu: ImuSample, ins: StrapdownNED, omega_b: Vec, q_mount: Vec, g_local: float, f_b: Vec, wind: Vec
     ) -> tuple[Measurement, ...]:
-        """The aids due after this IMU step, in update order (none between two ``nhc_rate`` ticks).
+        """The aids due after this IMU step, in update order (none between two ``nhc_rate`` / ``drag_rate`` ticks).
 
-        omega_b: compensated body rate (rad/s); q_mount: residual IMU body → vehicle rotation; g_local: m/s²."""
+        omega_b / f_b: compensated body rate (rad/s) and specific force (m/s²); q_mount: residual IMU body →
+        vehicle rotation; g_local: m/s²; wind: the estimated horizontal wind (NED north, east; m/s)."""
         c = self.cfg
         if not self.on:
             return ()
+        ground = self._ground(imu, ins, omega_b, q_mount, g_local)
+        if not c.aids.drag:
+            return ground
+        b = min(1.0, imu.dt / c.aids.drag_tau)
+        self.ema_fb = self.ema_fb + b * (f_b - self.ema_fb)
+        if imu.t < self.drag_next or self.still_time > 0.0:
+            return ground
+        self.drag_next = imu.t + 1.0 / c.aids.drag_rate
+        s = ins.state
+        z, H = mm.multirotor_drag(self.idx, dcm_from_quat(s.q_nb), s.vel_ned, wind, self.ema_fb, c.aids.drag_coef)
+        return (*ground, Measurement("drag", z, H, np.full(2, c.aids.drag_std**2), c.aids.gate))
+
+    def _ground(
+        self, imu: ImuSample, ins: StrapdownNED, omega_b: Vec, q_mount: Vec, g_local: float
+    ) -> tuple[Measurement, ...]:
+        """ZUPT/ZARU and the NHC (and the rest detector the drag aid reads)."""
+        c = self.cfg
         t = imu.t
         s = ins.state
         a = min(1.0, imu.dt / c.aids.zupt_tau)

@@ -78,7 +78,10 @@ class AidsConfig:
     only (0 = the raw rate). zupt: zero velocity (σ ``zupt_std`` m/s) — and zero angular rate on the gyro bias
     with ``zaru`` (σ ``zaru_std`` rad/s) — when the averaged IMU (time constant ``zupt_tau`` s) looks at rest
     (rate < ``zupt_gyro`` rad/s, specific-force change < ``zupt_accel`` m/s²) for ``zupt_time`` s and the speed
-    is below ``zupt_max_speed`` m/s. gate: innovation gate of these aids (σ).
+    is below ``zupt_max_speed`` m/s. drag: a multirotor's rotor drag on the body x/y specific force (averaged
+    over ``drag_tau`` s, σ ``drag_std`` m/s², at ``drag_rate`` Hz, coefficient ``drag_coef`` 1/s: PX4's
+    EKF2_MCOEF default) against the air velocity, with the wind states (``filter.wind_states``); not while the
+    rest detector sees the vehicle standing (on the ground). gate: innovation gate of these aids (σ).
     """
 
     nhc: bool = False
@@ -99,11 +102,20 @@ class AidsConfig:
     zupt_max_speed: float = 1.0
     zaru: bool = True
     zaru_std: float = 0.002
+    drag: bool = False
+    drag_coef: float = 0.15
+    drag_std: float = 0.2
+    drag_tau: float = 0.25
+    drag_rate: float = 5.0
     gate: float = 5.0
 
     def __post_init__(self) -> None:
         if self.nhc_omega_lp_hz < 0.0:
             raise ValueError(f"NavConfig.aids.nhc_omega_lp_hz={self.nhc_omega_lp_hz}: expected >= 0 (0 = raw rate)")
+        for name in ("drag_coef", "drag_std", "drag_tau", "drag_rate"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"NavConfig.aids.{name}={v!r}: expected a finite value > 0")
 
 
 @dataclass

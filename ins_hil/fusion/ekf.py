@@ -76,6 +76,9 @@ class FilterConfig:
     ``mag_bias_sigma_rw`` (1/√s) from an initial 1-σ ``init_mag_bias`` (a copter's residual hard iron:
     ~0.1–0.7 of the field). Only NavCore's magnetometer update sees them; a replay's heading-only field
     (``mag_heading_only``, datasets/run.py) has no hard iron left in it for them to estimate.
+    wind_states: 2 states at the end, the horizontal wind w (NED north, east; m/s), δw = w − ŵ, a random walk
+    ``wind_sigma_rw`` (m/s/√s) from an initial 1-σ ``init_wind`` (m/s); only NavCore's multirotor drag aid
+    (``NavConfig.aids.drag``) sees them.
     gap_accel_sigma / gap_rate_sigma: the unknown motion across lost IMU data (a logging gap, a stalled
     link): NavCore coasts the state across the gap at constant velocity and attitude, and the filter adds
     (σ_a Δ)² to each velocity, (σ_a Δ²/2)² to each position and (σ_ω Δ)² to each attitude variance for a
@@ -108,6 +111,9 @@ class FilterConfig:
     mag_bias: bool = False
     mag_bias_sigma_rw: float = 1e-4
     init_mag_bias: float = 0.3
+    wind_states: bool = False
+    wind_sigma_rw: float = 0.1
+    init_wind: float = 3.0
     gyro_vib_gain: float = 0.0
     accel_vib_gain: float = 0.0
     vib_tau: float = 1.0
@@ -132,7 +138,8 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
         if self.cov_every < 1:
             raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
-        vib_mag = ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias")
+        vib_mag = ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias", "wind_sigma_rw",
+                   "init_wind")  # fmt: skip
         for name in (*vib_mag, "gap_accel_sigma", "gap_rate_sigma"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
@@ -164,6 +171,7 @@ class StateIndex:
     mnt: int | None = None
     gs: int | None = None  # 9 states: gyro g-sensitivity G row-major
     mb: int | None = None  # magnetometer hard iron (units of |m_ref|, body)
+    wind: int | None = None  # 2 states: horizontal wind north, east (m/s)
 
     @staticmethod
     def build(cfg: FilterConfig) -> StateIndex:
@@ -185,7 +193,10 @@ class StateIndex:
         mb = None
         if cfg.mag_bias:
             mb, k = k, k + 3
-        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs, mb)
+        wind = None
+        if cfg.wind_states:
+            wind, k = k, k + 2
+        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs, mb, wind)
 
 
 def skew(a: Vec) -> Vec:
@@ -260,6 +271,9 @@ class ErrorStateEKF:
         if i.mb is not None:
             sig[i.mb : i.mb + 3] = c.init_mag_bias
             qc[i.mb : i.mb + 3] = c.mag_bias_sigma_rw**2
+        if i.wind is not None:
+            sig[i.wind : i.wind + 2] = c.init_wind
+            qc[i.wind : i.wind + 2] = c.wind_sigma_rw**2
         self.qc = qc
         self.P = np.diag(sig**2)
         self._F = np.zeros((n, n))

@@ -15,6 +15,9 @@ Conventions of :mod:`ins_hil.fusion.ekf` (DIGEST_000 §9): δr = true − comput
 * non-holonomic constraint (ground vehicle): body lateral/vertical velocity 0:
   z = 0 − (Ĉ^T v̂)_{y,z} = rows of Ĉ^T δv − Ĉ^T [v̂×] μ
 * zero-velocity update: z = 0 − v̂ = δv.
+* multirotor drag (rotor momentum drag, a multirotor's only horizontal body force besides noise): the body
+  x/y specific force f̃ = −μ (C^T (v − w))_{x,y} + b_a, w = (w_N, w_E, 0) the wind;
+  z = f̃ − f̂ = −μ (Ĉ^T δv − Ĉ^T [û×] μ_att − Ĉ^T δw)_{x,y} + δb_a,{x,y}, û = v̂ − ŵ.
 """
 
 from __future__ import annotations
@@ -169,3 +172,22 @@ def nonholonomic_mounted(
     if idx.mnt is not None:
         H[:, idx.mnt : idx.mnt + 3] = skew(u)[1:3]
     return -u[1:3], H, u
+
+
+def multirotor_drag(idx: StateIndex, C_bn: Vec, vel: Vec, wind_ne: Vec, f_b: Vec, mu: float) -> tuple[Vec, Vec]:
+    """(z, H) of the multirotor drag model on the body x/y specific force ``f_b`` (m/s², bias-compensated,
+    averaged): f_b,xy = −μ (Ĉ^T (v̂ − ŵ))_xy with the drag coefficient ``mu`` (1/s; PX4's EKF2_MCOEF) and the
+    wind ŵ = (``wind_ne``, 0) (NED m/s, the ``idx.wind`` states)."""
+    Cnb = C_bn.T
+    u = np.array((float(vel[0]) - float(wind_ne[0]), float(vel[1]) - float(wind_ne[1]), float(vel[2])))
+    A = Cnb[0:2]
+    z = np.asarray(f_b[0:2], dtype=np.float64) + mu * (A @ u)
+    H = np.zeros((2, idx.n))
+    H[:, idx.vel : idx.vel + 3] = -mu * A
+    H[:, idx.att : idx.att + 3] = mu * (Cnb @ skew(u))[0:2]
+    if idx.wind is not None:
+        H[:, idx.wind : idx.wind + 2] = mu * A[:, 0:2]
+    if idx.ba is not None:
+        H[0, idx.ba] = 1.0
+        H[1, idx.ba + 1] = 1.0
+    return z, H
