@@ -63,8 +63,9 @@ def _flight(drag: bool, wind_n: float = 3.0, v_n: float = 2.0, seconds: float = 
     pitch = -math.atan(MU * (v_n - wind_n) / earth.normal_gravity(LAT, H))  # g sinθ = −μ (v − w) cosθ
     C = dcm_from_euler(0.0, pitch, 0.0)
     v = np.array((v_n, 0.0, 0.0))
-    w_in = earth.earth_rate_ned(LAT) + earth.transport_rate_ned(LAT, H, v)
-    f_n = np.cross(2.0 * earth.earth_rate_ned(LAT) + earth.transport_rate_ned(LAT, H, v), v) - earth.gravity_ned(LAT, H)
+    w_ie = earth.earth_rate_ned(LAT)
+    w_in = w_ie + earth.transport_rate_ned(LAT, H, v)
+    f_n = np.cross(w_ie + w_in, v) - earth.gravity_ned(LAT, H)  # (2ω_ie + ω_en) × v − g: no acceleration
     f_b, w_b = C.T @ f_n, C.T @ w_in
     assert abs(f_b[0] - MU * (wind_n - v_n) * math.cos(pitch)) < 1e-3  # the drag, as the model has it
     init = StrapdownState(quat_from_euler(0.0, pitch, 0.0), v.copy(), LAT, LON, H, 0.0)
