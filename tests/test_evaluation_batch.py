@@ -164,7 +164,7 @@ def test_serial_rows_carry_timings_and_a_failing_log_is_still_reported(tmp_path:
     batch.clear_cache()
 
 
-@pytest.mark.slow  # the batch serially, then on a LocalCluster of 1 worker process (~25 s)
+@pytest.mark.slow  # the batch serially, then on two LocalClusters of 1 worker process (~35 s)
 def test_compare_serial_prints_both_wall_times_and_their_ratio(tmp_path: Path, capsys) -> None:
     from ins_hil.cli import main
 
@@ -173,10 +173,20 @@ def test_compare_serial_prints_both_wall_times_and_their_ratio(tmp_path: Path, c
     argv = ["replay", "--batch", str(d / "a.csv"), "--dataset", str(cfg), "--seeds", "2", "--out", str(out), "--quiet"]
     assert main([*argv, "--workers", "0", "--compare-serial"]) == 2  # nothing to compare with
     assert "needs --workers > 0" in capsys.readouterr().err
-    rc = main([*argv, "--workers", "1", "--compare-serial", "--no-plots"])
+    assert main([*argv, "--scheduler", "tcp://127.0.0.1:1", "--compare-dask-defaults"]) == 2
+    assert "needs our LocalCluster" in capsys.readouterr().err
+    rc = main([*argv, "--workers", "1", "--compare-serial", "--compare-dask-defaults", "--no-plots"])
     text = capsys.readouterr().out
     assert rc == 0
-    s = json.loads((out / "batch.json").read_text())["compare_serial"]
+    summary = json.loads((out / "batch.json").read_text())
+    s, dd = summary["compare_serial"], summary["compare_dask_defaults"]
+    m = re.search(r"Dask's worker settings ([\d.]+) s \(([\d.]+)x serial\), ours \(batch.WORKER_CONFIG\) ([\d.]+) s "
+                  r"\(([\d.]+)x serial\): ([\d.]+)x; the same results", text)  # fmt: skip
+    assert m is not None, text
+    assert float(m[1]) == round(dd["defaults_wall_s"], 1) and float(m[3]) == round(dd["ours_wall_s"], 1)
+    assert float(m[2]) == round(s["serial_wall_s"] / dd["defaults_wall_s"], 2)
+    assert float(m[5]) == round(dd["defaults_wall_s"] / dd["ours_wall_s"], 2) and dd["differences"] == []
+    assert (out / "dask_defaults").is_dir() and "Dask's worker settings: load" in text
     m = re.search(r"serial ([\d.]+) s, parallel ([\d.]+) s \(LocalCluster of 1 workers\): ([\d.]+)x; (.*)", text)
     assert m is not None, text
     assert float(m[1]) == round(s["serial_wall_s"], 1) and float(m[2]) == round(s["parallel_wall_s"], 1)
@@ -207,4 +217,132 @@ def test_our_local_cluster_runs_its_workers_without_the_profiler_and_with_a_slow
         cluster.close()
     assert list(seen.values()) == [batch.WORKER_CONFIG]
     assert list(ticks.values()) == [1000]
+    cluster = batch.local_cluster(1, {})  # Dask's own settings (--compare-dask-defaults)
+    try:
+        with Client(cluster) as client:
+            ticks = client.run(lambda dask_worker: dask_worker.periodic_callbacks["tick"].callback_time)
+            profile = client.run(lambda: dask.config.get("distributed.worker.profile.enabled"))
+    finally:
+        cluster.close()
+    assert list(ticks.values()) == [20] and list(profile.values()) == [True]
     assert {k: dask.config.get(k) for k in keys} == before  # only the workers' settings
+
+
+VARIANTS = """
+# two variants of the static test config
+[short]
+outages = { on_s = 5.0 }
+
+["vib-0.2"]
+sensor = { gyro_vib_gain = 0.2 }
+"""
+
+
+def test_variants_file_errors_are_one_line(tmp_path: Path) -> None:
+    cases = {
+        "": "no variants",
+        "x = 1\n": "x = 1: a variant is a table [x]",
+        "[a.b]\nsensor = { gyro_vib_gain = 0.2 }\n": 'quote the name, ["a-0.5"]',
+        "[a]\ndataset = { name = 'y' }\n": "[a] dataset: a variant sets sensor, mounting",
+        "[config]\n": "not 'config'",
+        "[a]\nnav = [1]\n": None,  # a table of the wrong type is caught against the log's config (below)
+    }
+    for body, want in cases.items():
+        p = _toml(tmp_path / "v.toml", body)
+        if want is None:
+            continue
+        with pytest.raises(dcfg.DatasetConfigError, match=re.escape(want)) as e:
+            batch.load_variants(p)
+        assert "\n" not in str(e.value) and str(p) in str(e.value)
+    with pytest.raises(dcfg.DatasetConfigError, match="no such variants file"):
+        batch.load_variants(tmp_path / "missing.toml")
+    cfg = _toml(tmp_path / "c.toml", GOOD)
+    typo = batch.load_variants(_toml(tmp_path / "t.toml", "[typo]\nnav.aids = { dragg = true }\n"))
+    with pytest.raises(dcfg.DatasetConfigError, match=r"c\.toml with variant \[typo\].*dragg"):
+        batch.jobs([("x.csv", str(cfg))], 1, tmp_path, variants=typo)
+
+
+def test_variants_and_shifts_make_the_jobs_and_reach_their_configs(tmp_path: Path) -> None:
+    cfg = _toml(tmp_path / "c.toml", GOOD)
+    plain = _toml(tmp_path / "plain.toml", GOOD.split("[outages]")[0])
+    vs = batch.load_variants(_toml(tmp_path / "v.toml", VARIANTS))
+    assert [n for n, _ in vs] == ["short", "vib-0.2"]
+    js = batch.jobs([("a.csv", str(cfg)), ("b.csv", str(plain))], 2, tmp_path / "o", variants=vs, shifts=[-5.0, 10])
+    a = [j for j in js if j.source == "a.csv"]
+    b = [j for j in js if j.source == "b.csv"]
+    assert len(a) == 3 * 2 * 2 and len(b) == 2 + 2 * 2 + 2  # no outage protocol: unshifted, but [short] adds one
+    assert [(j.variant, j.shift_s) for j in b[::2]] == [(None, 0.0), ("short", -5.0), ("short", 10.0), ("vib-0.2", 0.0)]
+    assert len({j.out for j in js}) == len(js)
+    assert [j.name for j in a[:4]] == ["a.csv-5s#0", "a.csv-5s#1", "a.csv+10s#0", "a.csv+10s#1"]
+    assert a[4].name == "a.csv[short]-5s#0" and Path(a[4].out).name == "00-a.csv-short-shift-5s-seed0"
+    base = dcfg.load(cfg)
+    c = batch._config(a[4])  # [short], shift -5 s, seed 0
+    assert (c.outages.start_s, c.outages.on_s, c.outages.off_s) == (base.outages.start_s - 5.0, 5.0, 10.0)
+    c = batch._config(a[10])  # [vib-0.2], shift +10 s, seed 0
+    assert c.nav_config().filter.gyro_vib_gain == 0.2 and c.outages.start_s == base.outages.start_s + 10.0
+    assert base.nav_config().filter.gyro_vib_gain != 0.2
+    seeded = batch._config(a[11])  # seed 1 on top of the shift
+    assert seeded.outages.start_s == batch.seeded(batch.shifted(base, 10.0), 1).outages.start_s
+    assert repr(batch._config(a[0]).nav_config()) == repr(base.nav_config())  # the config as it is
+
+
+def test_variant_table_pools_the_seeds_of_each_shift(tmp_path: Path) -> None:
+    def row(v: str, sh: float, rms: float, mx: float, beats: bool) -> dict:
+        return {"job": f"x[{v}]", "log": "x.csv", "variant": v, "shift_s": sh, "outage_h_rms_m": rms,
+                "outage_h_max_m": mx, "beats_both_in_every_outage": beats, "gnss_h_rms_m": 0.1}  # fmt: skip
+
+    rows = [
+        row("config", -5, 3.0, 5.0, True),
+        row("config", -5, 4.0, 9.0, False),
+        row("config", 10, 1.0, 2.0, True),
+        row("b", -5, 1.0, 1.5, True),
+        {"job": "x[b]", "log": "x.csv", "variant": "b", "shift_s": 10, "error": "E"},
+    ]
+    text = batch.variant_table(rows)
+    lines = text.splitlines()
+    assert lines[0] == "**x.csv**: outage h error RMS / worst (m)"
+    head = "| variant | outage shift -5 s | outage shift +10 s | pooled | beats both | GNSS h RMS m | failed |"
+    assert lines[2] == head
+    pooled = (3.0**2 + 4.0**2 + 1.0**2) / 3
+    assert lines[4] == f"| config | 3.54 / 9.00 | 1.00 / 2.00 | {pooled**0.5:.2f} / 9.00 | 2 of 3 | 0.10 | 0 |"
+    assert lines[5] == "| b | 1.00 / 1.50 | — | 1.00 / 1.50 | 1 of 2 | 0.10 | 1 |"
+    assert batch.variant_table([{"job": "x#0", "variant": "config", "shift_s": 0.0}]) == ""
+
+
+def test_variants_command_puts_them_side_by_side(tmp_path: Path, capsys) -> None:
+    from ins_hil.cli import main
+
+    d, cfg = _logs(tmp_path)
+    vs = _toml(tmp_path / "v.toml", VARIANTS)
+    out = tmp_path / "out"
+    rc = main(["replay", str(d / "a.csv"), "--dataset", str(cfg), "--variants", str(vs), "--shifts", "-5", "0",
+               "--workers", "0", "--out", str(out), "--quiet", "--no-plots"])  # fmt: skip
+    text = capsys.readouterr().out
+    assert rc == 0
+    summary = json.loads((out / "batch.json").read_text())
+    assert summary["variants"] == ["config", "short", "vib-0.2"] and summary["shifts_s"] == [-5.0, 0.0]
+    rows = summary["rows"]
+    assert [(r["variant"], r["shift_s"]) for r in rows] == [(v, s) for v in ("config", "short", "vib-0.2")
+                                                            for s in (-5.0, 0.0)]  # fmt: skip
+    js = batch.jobs(batch.expand([str(d / "a.csv")], str(cfg)), 1, out, False, batch.load_variants(vs), [-5, 0])
+    for r, job in zip(rows, js, strict=True):
+        assert r["job"] == job.name
+        p = json.loads((Path(job.out) / "metrics.json").read_text())["outages"]["protocol"]
+        assert p["start_s"] == 20.0 + r["shift_s"] and p["on_s"] == (5.0 if r["variant"] == "short" else 10.0)
+    assert "| config |" in text and "| short |" in text and "| vib-0.2 |" in text
+    assert "outage shift -5 s" in (out / "batch.md").read_text()
+
+
+def test_shipped_variants_fit_every_shipped_dataset_config(tmp_path: Path) -> None:
+    repo = Path(__file__).resolve().parents[1]
+    pairs = batch.expand([str(repo / "configs" / "datasets")])
+    files = sorted((repo / "configs" / "variants").glob("*.toml"))
+    assert {f.stem for f in files} >= {"noise", "accel_bias", "drag"}
+    for f in files:
+        vs = batch.load_variants(f)
+        js = batch.jobs(pairs, 1, tmp_path, False, vs, [-10.0, 15.0])  # every variant checked against every config
+        for name, _ in vs:
+            j = next(j for j in js if j.variant == name)
+            cfg = batch._config(j)
+            assert repr(cfg.nav_config()) != repr(batch._config(dataclasses.replace(j, variant=None, overrides=None))
+                                                  .nav_config()), (f.name, name)  # fmt: skip  # it changes something

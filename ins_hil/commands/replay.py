@@ -96,10 +96,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="batch: an existing Dask scheduler (e.g. tcp://host:8786) instead of a LocalCluster",
     )
     b.add_argument(
+        "--variants",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="batch: config variants (configs/variants/*.toml: each table a name and dataset-config tables "
+        "merged over each log's config); every log runs as configured and with each, side by side",
+    )
+    b.add_argument(
+        "--shifts",
+        type=float,
+        nargs="+",
+        default=None,
+        metavar="S",
+        help="batch: run the outage protocol moved by each of these s (selection windows, e.g. -10 15)",
+    )
+    b.add_argument(
         "--compare-serial",
         action="store_true",
         help="batch: first run the same jobs one after the other in this process (reports in OUT/serial), then "
         "on Dask; print both wall times, their ratio and whether every job gave the same results",
+    )
+    b.add_argument(
+        "--compare-dask-defaults",
+        action="store_true",
+        help="batch: also run the jobs on a LocalCluster with Dask's own worker settings (profiler, 20-ms "
+        "tick) and print both wall times side by side (with --compare-serial: both ratios)",
     )
     o = p.add_argument_group("IMU time offset from the data (ins_hil.datasets.offset)")
     o.add_argument(
@@ -183,20 +205,30 @@ def _batch(args: argparse.Namespace) -> int:
     (``--compare-serial``: the same jobs serially first, and the speed-up)."""
     from ins_hil.evaluation import batch
 
+    seeds = max(1, args.seeds)
     try:
         pairs = batch.expand(list(args.batch), str(args.dataset) if args.dataset else None)
-    except DatasetError as e:
+        variants = batch.load_variants(args.variants) if args.variants is not None else None
+        js = batch.jobs(pairs, seeds, args.out, not args.no_plots, variants, args.shifts)
+    except (DatasetError, DatasetConfigError) as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
     parallel = args.scheduler is not None or args.workers > 0
     if args.compare_serial and not parallel:
         print("ins-hil replay: --compare-serial needs --workers > 0 or --scheduler", file=sys.stderr)
         return 2
-    seeds = max(1, args.seeds)
-    js = batch.jobs(pairs, seeds, args.out, not args.no_plots)
+    if args.compare_dask_defaults and (args.scheduler is not None or args.workers == 0):
+        print("ins-hil replay: --compare-dask-defaults needs our LocalCluster (--workers > 0, no --scheduler)",
+              file=sys.stderr)  # fmt: skip
+        return 2
     where = args.scheduler or (f"LocalCluster of {args.workers} workers" if args.workers > 0 else "serially")
     if not args.quiet:
-        print(f"batch: {len(js)} replays ({len(pairs)} logs x {seeds} seeds), {where}", file=sys.stderr)
+        what = f"{len(pairs)} logs x {seeds} seeds"
+        if variants:
+            what += f" x {len(variants) + 1} variants"
+        if args.shifts:
+            what += f" x {len(args.shifts)} shifts"
+        print(f"batch: {len(js)} replays ({what}), {where}", file=sys.stderr)
 
     def done(row: dict[str, Any], k: int, n: int) -> None:
         if not args.quiet:
@@ -207,10 +239,17 @@ def _batch(args: argparse.Namespace) -> int:
     if args.compare_serial:
         if not args.quiet:
             print("batch: serially first (--compare-serial)", file=sys.stderr)
-        s_rows, s_wall = batch.run_batch(batch.jobs(pairs, seeds, args.out / "serial", not args.no_plots), 0,
-                                         None, done)  # fmt: skip
+        s_jobs = batch.jobs(pairs, seeds, args.out / "serial", not args.no_plots, variants, args.shifts)
+        s_rows, s_wall = batch.run_batch(s_jobs, 0, None, done)
         batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
         serial = {"rows": s_rows, "wall_s": s_wall, "breakdown": batch.breakdown(s_rows, s_wall, 1)}
+    defaults: dict[str, Any] | None = None
+    if args.compare_dask_defaults:
+        if not args.quiet:
+            print("batch: on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)", file=sys.stderr)
+        d_jobs = batch.jobs(pairs, seeds, args.out / "dask_defaults", not args.no_plots, variants, args.shifts)
+        d_rows, d_wall = batch.run_batch(d_jobs, args.workers, None, done, worker_config={})
+        defaults = {"rows": d_rows, "wall_s": d_wall, "breakdown": batch.breakdown(d_rows, d_wall, args.workers)}
     rows, wall = batch.run_batch(js, args.workers, args.scheduler, done)
     args.out.mkdir(parents=True, exist_ok=True)
     text = batch.table(rows)
@@ -227,12 +266,30 @@ def _batch(args: argparse.Namespace) -> int:
                   f"serial: {serial['breakdown']}"]  # fmt: skip
         summary["compare_serial"] = {"serial_wall_s": serial["wall_s"], "parallel_wall_s": wall, "ratio": ratio,
                                      "differences": diff, "serial_rows": serial["rows"]}  # fmt: skip
+    side = batch.variant_table(rows)
+    if side:
+        text += "\n\n" + side
+        summary["variants"] = [batch.BASELINE] + [n for n, _ in variants or []]
+        summary["shifts_s"] = args.shifts or [0.0]
+    if defaults is not None:
+        diff = batch.differences(defaults["rows"], rows)
+
+        def vs_serial(w: float) -> str:
+            return f" ({serial['wall_s'] / max(w, 1e-9):.2f}x serial)" if serial is not None else ""
+
+        same = "the same results" if not diff else f"results differ: {', '.join(diff)}"
+        lines += [f"Dask's worker settings {defaults['wall_s']:.1f} s{vs_serial(defaults['wall_s'])}, ours "
+                  f"(batch.WORKER_CONFIG) {wall:.1f} s{vs_serial(wall)}: {defaults['wall_s'] / max(wall, 1e-9):.2f}x; "
+                  f"{same}", f"Dask's worker settings: {defaults['breakdown']}"]  # fmt: skip
+        summary["compare_dask_defaults"] = {"defaults_wall_s": defaults["wall_s"], "ours_wall_s": wall,
+                                            "differences": diff, "defaults_rows": defaults["rows"]}  # fmt: skip
     (args.out / "batch.md").write_text("# Batch replay\n\n" + text + "\n\n" + "\n\n".join(lines) + "\n")
     (args.out / "batch.json").write_text(json.dumps(summary, indent=2, default=str))
     print(text)
     print("\n".join(lines))
     print(f"summary: {args.out / 'batch.md'}")
-    return 1 if failed or (serial is not None and summary["compare_serial"]["differences"]) else 0
+    differ = any(summary.get(k, {}).get("differences") for k in ("compare_serial", "compare_dask_defaults"))
+    return 1 if failed or differ else 0
 
 
 def _estimate_offset(src: str, args: argparse.Namespace) -> int:
@@ -266,6 +323,10 @@ def _estimate_offset(src: str, args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     src = str(args.source)
+    if not args.batch and (args.variants is not None or args.shifts):  # one log's variants: a batch of one
+        args.batch = [str(args.dataset) if args.dataset is not None and src == "drive" else src]
+        if args.dataset is not None and src == "drive":
+            args.dataset = None
     if args.batch:
         return _batch(args)
     if args.estimate_offset:

@@ -309,13 +309,31 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
     return c
 
 
-def load(path: str | Path) -> DatasetConfig:
-    """Load and validate a dataset TOML."""
+def read_toml(path: str | Path, what: str = "dataset config") -> dict[str, Any]:
+    """The tables of a TOML file; DatasetConfigError (one line) when it is missing or not TOML."""
     p = Path(path)
     try:
-        d = tomllib.loads(p.read_text())
+        return tomllib.loads(p.read_text())
     except FileNotFoundError:
-        raise DatasetConfigError(f"{p}: no such dataset config") from None
+        raise DatasetConfigError(f"{p}: no such {what}") from None
     except tomllib.TOMLDecodeError as e:
         raise DatasetConfigError(f"{p}: not valid TOML ({e})") from None
-    return from_dict(d, str(p), p.resolve().parent)
+
+
+def merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``over`` merged in, table by table (a key of ``over`` replaces the one of ``base``;
+    nested tables merge); neither is modified."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def load(path: str | Path, overrides: dict[str, Any] | None = None, label: str = "") -> DatasetConfig:
+    """Load and validate a dataset TOML, with ``overrides`` (tables as in the file, :func:`merged` over it;
+    ``label`` names them in an error, e.g. a variant's)."""
+    p = Path(path)
+    d = read_toml(p)
+    if overrides:
+        d = merged(d, overrides)
+    return from_dict(d, f"{p}{label}", p.resolve().parent)

@@ -9,6 +9,12 @@ processes (one thread each: a replay is CPU-bound Python) or on an existing sche
 runs them one after the other in this process (the serial reference for the speed-up). A job that fails
 is a row with its error; the others go on.
 
+Config variants and selection windows: a variants file (:func:`load_variants`, ``configs/variants/*.toml``)
+names sets of dataset-config tables merged over each log's own config, and ``shifts`` moves the outage
+protocol by fixed seconds (the selection windows a setting is chosen on, away from the scored protocol).
+Every log then runs as configured and with each variant, at each shift; :func:`variant_table` puts their
+outage errors side by side.
+
 Scheduling: the job sizes are very unequal (a log with an outage protocol replays twice), so the jobs are
 handed out longest-first (:func:`order`, by :func:`cost`; the seeds of one log together) with at most one
 job in flight per worker thread, each with its Dask ``priority``: the long jobs do not come last, leaving
@@ -22,17 +28,18 @@ from __future__ import annotations
 import dataclasses
 import glob
 import os
+import re
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ins_hil.datasets.accuracy_md import fmt_value
-from ins_hil.datasets.config import DatasetConfig
+from ins_hil.datasets.config import DatasetConfig, from_dict, merged
 from ins_hil.datasets.config import load as load_config
 from ins_hil.datasets.dataset import Dataset, DatasetError, detect_format
 
@@ -47,11 +54,21 @@ class Job:
     seed: int
     out: str
     plots: bool = True
+    #: the variant's name and its tables (None: the config as it is); the protocol's shift (s)
+    variant: str | None = None
+    overrides: dict[str, Any] | None = field(default=None, hash=False)
+    shift_s: float = 0.0
+
+    @property
+    def log(self) -> str:
+        """The log's short name."""
+        return Path(self.source).name if self.source else Path(self.config or "dataset").stem
 
     @property
     def name(self) -> str:
-        stem = Path(self.source).name if self.source else Path(self.config or "dataset").stem
-        return f"{stem}#{self.seed}"
+        var = f"[{self.variant}]" if self.variant else ""
+        shift = f"{self.shift_s:+g}s" if self.shift_s else ""
+        return f"{self.log}{var}{shift}#{self.seed}"
 
 
 def expand(entries: list[str], config: str | None = None) -> list[tuple[str | None, str | None]]:
@@ -86,14 +103,69 @@ def _is_log(p: Path) -> bool:
     return True
 
 
-def jobs(pairs: list[tuple[str | None, str | None]], seeds: int, out: Path, plots: bool = True) -> list[Job]:
-    """Every pair times seeds 0 … seeds − 1, each with its folder under ``out``."""
+#: the dataset-config tables a variant may set (not ``[dataset]``: the log, its format and name stay)
+VARIANT_TABLES = ("sensor", "mounting", "aiding", "nav", "outages", "score", "rtklib")
+#: the name of the config as it is, first among the variants
+BASELINE = "config"
+
+
+def load_variants(path: str | Path) -> list[tuple[str, dict[str, Any]]]:
+    """The variants of a TOML file, in its order: each top-level table is one, named by its key, holding
+    dataset-config tables (:data:`VARIANT_TABLES`, e.g. ``nav.aids.drag = true``). DatasetConfigError (one
+    line) on a bad file; each variant's keys are checked against each log's config by :func:`jobs`."""
+    from ins_hil.datasets.config import DatasetConfigError, read_toml
+
+    d = read_toml(path, "variants file")
+    if not d:
+        raise DatasetConfigError(f"{path}: no variants (expected tables, e.g. [drag] with nav.aids.drag = true)")
+    out = []
+    for name, v in d.items():
+        if not isinstance(v, dict):
+            raise DatasetConfigError(f"{path}: {name} = {v!r}: a variant is a table [{name}]")
+        if name == BASELINE or not re.fullmatch(r"[\w.+-]+", name):
+            raise DatasetConfigError(f"{path}: [{name}]: a variant name is letters, digits, _ . + - and not "
+                                     f"{BASELINE!r} (the config as it is)")  # fmt: skip
+        bad = [k for k in v if k not in VARIANT_TABLES]
+        if bad:
+            hint = ' (a dot in a table name nests: quote the name, ["a-0.5"])' if isinstance(v[bad[0]], dict) else ""
+            raise DatasetConfigError(f"{path}: [{name}] {bad[0]}: a variant sets {', '.join(VARIANT_TABLES)}{hint}")
+        out.append((name, v))
+    return out
+
+
+def jobs(
+    pairs: list[tuple[str | None, str | None]],
+    seeds: int,
+    out: Path,
+    plots: bool = True,
+    variants: list[tuple[str, dict[str, Any]]] | None = None,
+    shifts: list[float] | None = None,
+) -> list[Job]:
+    """Every pair times seeds 0 … seeds − 1, each with its folder under ``out``; with ``variants``, each
+    also with every variant (the config as it is first), and with ``shifts``, each at every shift of its
+    outage protocol (s; a config without one runs once, unshifted). DatasetConfigError when a variant does
+    not fit a log's config (checked here, before anything runs)."""
+    vs: list[tuple[str | None, dict[str, Any] | None]] = [(None, None)]
+    vs += [(n, v) for n, v in variants or []]
     js = []
     for i, (src, cfg) in enumerate(pairs):
-        for s in range(seeds):
-            j = Job(src, cfg, s, "", plots)
-            js.append(dataclasses.replace(j, out=str(out / f"{i:02d}-{j.name.replace('#', '-seed')}")))
+        for name, over in vs:
+            base = Job(src, cfg, 0, "", plots, name, over)
+            has_outages = _config(base).outages is not None  # the variant checked against this config
+            for sh in (shifts or [0.0]) if has_outages else [0.0]:
+                for s in range(seeds):
+                    j = dataclasses.replace(base, seed=s, shift_s=float(sh))
+                    parts = [f"{i:02d}", j.log, name or "", f"shift{sh:+g}s" if sh else "", f"seed{s}"]
+                    folder = re.sub(r"[^\w.+-]+", "_", "-".join(q for q in parts if q))
+                    js.append(dataclasses.replace(j, out=str(out / folder)))
     return js
+
+
+def shifted(cfg: DatasetConfig, shift_s: float) -> DatasetConfig:
+    """The config with its outage protocol's start moved by ``shift_s`` s (0 or no protocol: unchanged)."""
+    if shift_s == 0.0 or cfg.outages is None:
+        return cfg
+    return dataclasses.replace(cfg, outages=dataclasses.replace(cfg.outages, start_s=cfg.outages.start_s + shift_s))
 
 
 def seeded(cfg: DatasetConfig, seed: int) -> DatasetConfig:
@@ -106,9 +178,16 @@ def seeded(cfg: DatasetConfig, seed: int) -> DatasetConfig:
 
 
 def _config(job: Job) -> DatasetConfig:
-    """The job's dataset config, seeded."""
-    cfg = load_config(job.config) if job.config else DatasetConfig(name=Path(job.source or "dataset").stem)
-    return seeded(cfg, job.seed)
+    """The job's dataset config: its variant's tables merged over it, shifted, seeded."""
+    label = f" with variant [{job.variant}]" if job.variant else ""
+    if job.config:
+        cfg = load_config(job.config, job.overrides, label)
+    elif job.overrides:
+        stem = Path(job.source or "dataset").stem
+        cfg = from_dict(merged({"dataset": {"name": stem}}, job.overrides), f"{stem}{label}")
+    else:
+        cfg = DatasetConfig(name=Path(job.source or "dataset").stem)
+    return seeded(shifted(cfg, job.shift_s), job.seed)
 
 
 def _log_path(job: Job, cfg: DatasetConfig) -> Path:
@@ -205,6 +284,7 @@ def run_job(job: Job) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     row: dict[str, Any] = {"job": job.name, "source": job.source, "config": job.config, "seed": job.seed,
+                           "log": job.log, "variant": job.variant or BASELINE, "shift_s": job.shift_s,
                            "pid": os.getpid()}  # fmt: skip
     try:
         cfg = _config(job)
@@ -257,14 +337,16 @@ WORKER_CONFIG: dict[str, Any] = {
 }
 
 
-def local_cluster(workers: int) -> Any:
+def local_cluster(workers: int, worker_config: dict[str, Any] | None = None) -> Any:
     """A ``dask.distributed`` LocalCluster of ``workers`` processes, one thread each, no memory limit, no
-    dashboard, with :data:`WORKER_CONFIG` (2 workers, 12 replays: 1.32x the serial throughput with Dask's
-    defaults, 1.68x with these; docs/datasets.md). A given scheduler keeps its own settings."""
+    dashboard, with ``worker_config`` (default :data:`WORKER_CONFIG`; ``{}``: Dask's own settings). With
+    2 workers and 12 replays: 1.43–1.67x the serial throughput with Dask's settings, 1.73–1.76x with these
+    (docs/datasets.md; ``ins-hil replay --batch … --compare-serial --compare-dask-defaults``). A given
+    scheduler keeps its own settings."""
     import dask
     from dask.distributed import LocalCluster
 
-    with dask.config.set(WORKER_CONFIG):  # the Nanny hands them to its worker
+    with dask.config.set(WORKER_CONFIG if worker_config is None else worker_config):  # the Nanny hands them on
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                             memory_limit=0)  # fmt: skip
 
@@ -274,9 +356,11 @@ def run_batch(
     workers: int = 2,
     scheduler: str | None = None,
     on_done: Callable[[dict[str, Any], int, int], None] | None = None,
+    worker_config: dict[str, Any] | None = None,
 ) -> tuple[list[dict[str, Any]], float]:
     """Run ``js``; (rows in job order, wall time s). ``scheduler``: a Dask scheduler address (e.g.
-    ``tcp://host:8786``); else a LocalCluster of ``workers`` processes (one thread each, no memory limit);
+    ``tcp://host:8786``); else a LocalCluster of ``workers`` processes (one thread each, no memory limit,
+    ``worker_config`` as :func:`local_cluster`);
     ``workers = 0``: serial here. Either way the jobs start in :func:`order`; on Dask at most one job per
     worker thread is in flight, so a freed worker takes the next longest one. ``on_done(row, k, n)`` after
     each job (k done of n)."""
@@ -291,7 +375,7 @@ def run_batch(
         return [rows[i] for i in range(len(js))], time.perf_counter() - t0
     from dask.distributed import Client, as_completed
 
-    cluster = local_cluster(workers) if scheduler is None else None
+    cluster = local_cluster(workers, worker_config) if scheduler is None else None
     client = Client(scheduler if scheduler is not None else cluster)
     try:
         client.run(warm_up)  # the imports on every worker at once, before the first job
@@ -370,3 +454,61 @@ def table(rows: list[dict[str, Any]]) -> str:
                  _f(r.get("realtime"), 0), _f(r.get("elapsed_s"), 1), status)  # fmt: skip
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines)
+
+
+def _pooled(rows: list[dict[str, Any]]) -> tuple[float, float]:
+    """(RMS, worst) of the outage error over rows (RMS pooled as the root mean of their squares; NaN
+    when none has outage figures)."""
+    ok = [r for r in rows if r.get("outage_h_rms_m") is not None and "error" not in r]
+    if not ok:
+        return float("nan"), float("nan")
+    rms = float(np.sqrt(np.mean([float(r["outage_h_rms_m"]) ** 2 for r in ok])))
+    return rms, float(max(float(r["outage_h_max_m"]) for r in ok))
+
+
+def variant_table(rows: list[dict[str, Any]]) -> str:
+    """The variants side by side (Markdown), one table per log, a row per variant (the config as it is
+    first): the outage error RMS / worst (m) at each shift of the protocol over its seeds (RMS pooled, the
+    worst of the worst), all shifts pooled, in how many jobs the filter beat both trivial predictors in
+    every outage; the GNSS-present error (prior, m RMS) and the attitude difference to the onboard estimator
+    (roll / pitch / yaw, ° RMS), as the mean over the jobs, where the log has them. Empty when the batch has
+    neither variants nor shifts."""
+    if all(r.get("variant", BASELINE) == BASELINE and not r.get("shift_s") for r in rows):
+        return ""
+    out: list[str] = []
+    for log in dict.fromkeys(r.get("log", r["job"]) for r in rows):
+        mine = [r for r in rows if r.get("log", r["job"]) == log]
+        shifts = sorted({float(r.get("shift_s", 0.0)) for r in mine})
+        names = list(dict.fromkeys(r.get("variant", BASELINE) for r in mine))
+        outages = any(r.get("outage_h_rms_m") is not None for r in mine)
+        gnss = any(r.get("gnss_h_rms_m") is not None for r in mine)
+        onboard = any(r.get("onboard_att_rms_deg") for r in mine)
+        head = ["variant"]
+        if outages:
+            head += [f"outage shift {s:+g} s" for s in shifts] if len(shifts) > 1 or shifts[0] else ["outage"]
+            head += ["pooled", "beats both"] if len(shifts) > 1 else ["beats both"]
+        head += ["GNSS h RMS m"] * gnss + ["vs onboard r / p / y °"] * onboard + ["failed"]
+        lines = [f"**{log}**" + (": outage h error RMS / worst (m)" if outages else ""), "",
+                 "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]  # fmt: skip
+        for n in names:
+            vrows = [r for r in mine if r.get("variant", BASELINE) == n]
+            ok = [r for r in vrows if "error" not in r]
+            cells = [n]
+            if outages:
+                groups = [[r for r in vrows if r.get("shift_s", 0.0) == sh] for sh in shifts]
+                groups += [vrows] if len(shifts) > 1 else []
+                for g in groups:
+                    rms, mx = _pooled(g)
+                    cells.append(f"{_f(rms)} / {_f(mx)}" if not np.isnan(rms) else "—")
+                beats = sum(1 for r in ok if r.get("beats_both_in_every_outage") is True)
+                cells.append(f"{beats} of {len(vrows)}")
+            if gnss:
+                gh = [float(r["gnss_h_rms_m"]) for r in ok if r.get("gnss_h_rms_m") is not None]
+                cells.append(_f(float(np.mean(gh))) if gh else "—")
+            if onboard:
+                a = [r["onboard_att_rms_deg"] for r in ok if r.get("onboard_att_rms_deg")]
+                cells.append(" / ".join(_f(float(x)) for x in np.mean(a, axis=0)) if a else "—")
+            cells.append(str(len(vrows) - len(ok)))
+            lines.append("| " + " | ".join(cells) + " |")
+        out.append("\n".join(lines))
+    return "\n\n".join(out)
