@@ -222,3 +222,67 @@ def test_replay_reports_lost_imu_data(tmp_path: Path, capsys):
             assert m["gnss"]["gnss_h_rms_prior_m"] < 0.2  # at rest, coasted at zero velocity: no jump
         else:
             assert m["imu_lost"] == {"gaps": 0, "s": 0.0} and "IMU data lost" not in text
+
+
+def test_autocorrelation_of_white_ma1_ar1_series_and_no_pair_across_a_gap():
+    from ins_hil.datasets.run import autocorrelation
+
+    rng = np.random.default_rng(7)
+    n = 4000
+    t = np.arange(n) * 0.2
+    e = rng.standard_normal(n + 1)
+    white = autocorrelation(t, e[1:])
+    assert all(abs(a) < 1.96 / math.sqrt(n) * 1.5 for a in white), white
+    ma1 = autocorrelation(t, e[1:] - e[:-1])  # a differenced white sequence: ρ1 = −1/2, ρ2 = 0
+    assert ma1[0] == pytest.approx(-0.5, abs=0.04) and abs(ma1[1]) < 0.05
+    ar = np.zeros(n)
+    for k in range(1, n):
+        ar[k] = 0.8 * ar[k - 1] + e[k]
+    assert autocorrelation(t, ar)[:2] == pytest.approx([0.8, 0.64], abs=0.04)
+    # a gap of 10 s in the middle: the pair across it is left out
+    tg = np.concatenate([t[:200], t[200:400] + 10.0])
+    x = np.concatenate([np.ones(200), -np.ones(200)]) + 0.01 * e[:400]
+    d = x - x.mean()
+    keep = np.ones(399, dtype=bool)
+    keep[199] = False
+    want = float(np.mean((d[1:] * d[:-1])[keep]) / np.mean(d * d))
+    assert autocorrelation(tg, x, lags=1)[0] == pytest.approx(want)
+    assert math.isnan(autocorrelation(t[:8], e[:8], lags=1)[0])  # fewer than 10 pairs
+
+
+def test_velocity_innovations_are_white_for_white_gnss_errors_and_not_for_correlated_ones(tmp_path: Path):
+    """A vehicle at rest whose GNSS velocity carries noise of the σ it reports (0.1 m/s): white noise gives near
+    white innovations; the same σ correlated from fix to fix (AR(1), ρ = 0.9, as a receiver's own smoothing
+    makes it) gives innovations that keep their sign over several fixes (a positive lag 1)."""
+    from ins_hil.datasets import report
+
+    lag1 = {}
+    for rho in (0.0, 0.9):
+        data = tmp_path / f"noisy{rho}.csv"
+        _static_csv(data, seconds=150.0)
+        rng = np.random.default_rng(3)
+        err = np.zeros(3)
+        rows = []
+        for line in data.read_text().splitlines():
+            if line.startswith("gnss,"):
+                err = rho * err + math.sqrt(1.0 - rho**2) * rng.normal(0.0, 0.1, 3)  # stationary σ 0.1 m/s
+                c = line.split(",")
+                c[5:8] = [f"{x:.4f}" for x in err]
+                line = ",".join(c)
+            rows.append(line)
+        data.write_text("\n".join(rows) + "\n")
+        cfg = dcfg.from_dict(tomllib_loads(GOOD), "noisy")
+        m, _ = report.replay(report.load(data, cfg), cfg)
+        w = m["gnss"]["vel_innovation"]
+        assert w["n"] > 400 and w["white_band"] == pytest.approx(1.96 / math.sqrt(w["n"]))
+        assert 0.03 < min(w["rms_mps"]) and max(w["rms_mps"]) < 0.2, w
+        lag1[rho] = float(np.mean(w["lag1"]))
+    assert abs(lag1[0.0]) < 0.15 and lag1[0.9] > 0.5, lag1
+    text = report.format_table(report.summary(m))
+    assert "lag-1 autocorrelation N / E" in text and "white: ±" in text
+
+
+def tomllib_loads(text: str) -> dict:
+    import tomllib
+
+    return tomllib.loads(text)

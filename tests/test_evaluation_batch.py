@@ -307,6 +307,11 @@ def test_variant_table_pools_the_seeds_of_each_shift(tmp_path: Path) -> None:
     assert lines[4] == f"| config | 3.54 / 9.00 | 1.00 / 2.00 | {pooled**0.5:.2f} / 9.00 | 2 of 3 | 0.10 | 0 |"
     assert lines[5] == "| b | 1.00 / 1.50 | — | 1.00 / 1.50 | 1 of 2 | 0.10 | 1 |"
     assert batch.variant_table([{"job": "x#0", "variant": "config", "shift_s": 0.0}]) == ""
+    lag = [{"job": "y", "log": "y", "variant": v, "shift_s": 0.0, "gnss_h_rms_m": 0.2, "vel_innov_lag1": l}
+           for v, l in (("config", [-0.4, -0.2]), ("s2", [-0.1, 0.05]))]  # fmt: skip
+    lines = batch.variant_table(lag).splitlines()
+    assert lines[0] == "**y**" and lines[2] == "| variant | GNSS h RMS m | vel innov lag-1 N / E | failed |"
+    assert lines[4:] == ["| config | 0.20 | -0.40 / -0.20 | 0 |", "| s2 | 0.20 | -0.10 / +0.05 | 0 |"]
 
 
 def test_variants_command_puts_them_side_by_side(tmp_path: Path, capsys) -> None:

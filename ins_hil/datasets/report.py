@@ -22,6 +22,7 @@ from ins_hil.datasets.run import (
     RunResult,
     euler_series,
     gnss_scores,
+    innovation_whiteness,
     outage_scores,
     prepare,
     rejection,
@@ -81,6 +82,8 @@ def replay(
     t_from = (r.t_nav if math.isfinite(r.t_nav) else p.t1) + cfg.settle_s
     if "gnss" in cfg.score:
         m["gnss"] = gnss_scores(r, p.gnss, cfg.min_fix_type) if p.gnss else "no GNSS fix in the log"
+        if p.gnss:
+            m["gnss"]["vel_innovation"] = innovation_whiteness(r)
     if cfg.outages is not None and p.gnss:
         wins = protocol_windows(ds, p, cfg)
         if wins is None:
@@ -139,6 +142,11 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
             ("GNSS present: h error prior (m)", f"{g['gnss_h_rms_prior_m']:.3f}", f"{g['gnss_h_max_prior_m']:.3f}")
         )
         rows.append(("GNSS present: h error post (m)", f"{g['gnss_h_rms_post_m']:.3f}", ""))
+        w = g.get("vel_innovation")
+        if isinstance(w, dict):
+            lag1 = " / ".join(f"{x:+.2f}" for x in w["lag1"])
+            rows.append(("GNSS vel innovations N / E (m/s)", " / ".join(f"{x:.3f}" for x in w["rms_mps"]), ""))
+            rows.append(("  lag-1 autocorrelation N / E", lag1, f"white: ±{w['white_band']:.2f}"))
     elif g:
         rows.append(("GNSS", str(g), ""))
     o = m.get("outages")

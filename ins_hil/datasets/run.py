@@ -218,12 +218,14 @@ class RunResult:
     notes: list[str] = field(default_factory=list)
     align_status: str = ""  # why the core had not navigated at the end ("" when it did)
     imu_lost: tuple[int, float] = (0, 0.0)  # IMU gaps the core coasted across while navigating (count, s)
+    vel_innov: Vec = field(default_factory=lambda: np.zeros((0, 4)))  # GNSS velocity innovations: t s, z NED m/s
 
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
                 progress: Progress | None = None) -> RunResult:  # fmt: skip
     """Replay ``p`` causally; GNSS inside ``outages`` (s, absolute) is scored, never fused."""
     core = NavCore(None, p.nav)
+    core.keep_innov = True  # the GNSS velocity innovations, for their whiteness (innovation_whiteness)
     lever = p.nav.gnss.lever_arm_b
     origin = p.origin
     meas: list[tuple[float, int, Any]] = [(f.t, 0, f) for f in p.gnss]
@@ -294,6 +296,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
         list(outages),
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, list(p.notes), core.align_status(), core.imu_lost,
+        np.array([(t, *z) for t, kind, z in core.innov_log if kind == "gnss_vel" and len(z) == 3]).reshape(-1, 4),
     )  # fmt: skip
 
 
@@ -317,6 +320,47 @@ def gnss_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[st
         "gnss_h_max_prior_m": hmax(pr),
         "gnss_v_rms_prior_m": float(np.sqrt(np.mean(pr[:, 2] ** 2))) if len(pr) else math.nan,
         "gnss_h_rms_post_m": hrms(po),
+    }
+
+
+def autocorrelation(t: Vec, x: Vec, lags: int = 3, gap: float = 1.5) -> list[float]:
+    """Sample autocorrelation of the series ``x`` (N,) at lags 1 … ``lags`` over pairs of samples that are
+    that many steps apart in time too (their time difference within ``(lag + gap − 1)`` median intervals:
+    no pair across an outage or a data gap); NaN where fewer than 10 pairs."""
+    out = []
+    if len(x) < 3:
+        return [math.nan] * lags
+    d = x - np.mean(x)
+    var = float(np.mean(d * d))
+    dt = float(np.median(np.diff(t)))
+    for lag in range(1, lags + 1):
+        ok = (t[lag:] - t[:-lag]) <= (lag + gap - 1.0) * dt
+        n = int(ok.sum())
+        out.append(float(np.mean(d[lag:][ok] * d[:-lag][ok]) / var) if n >= 10 and var > 0 else math.nan)
+    return out
+
+
+def innovation_whiteness(r: RunResult, settle_s: float = 30.0) -> dict[str, Any] | None:
+    """The whiteness of the GNSS velocity innovations (GNSS velocity less the filter's prior, N and E) from
+    ``settle_s`` s after the core starts navigating: their RMS and autocorrelation at lags 1–3 (fixes) and the
+    95 % band of a white sequence, ±1.96/√n. A filter with the right noise has white innovations (Mehra 1970);
+    a negative lag 1 is a filter that weights the GNSS too much for its process noise (each correction
+    overshoots), a positive one GNSS errors correlated over the fixes or too little process noise. None
+    without velocity innovations."""
+    v = r.vel_innov
+    if not len(v) or math.isnan(r.t_nav):
+        return None
+    v = v[v[:, 0] >= r.t_nav + settle_s]
+    if len(v) < 20:
+        return None
+    acs = [autocorrelation(v[:, 0], v[:, 1 + ax]) for ax in range(2)]
+    return {
+        "n": len(v),
+        "rms_mps": [float(np.sqrt(np.mean(v[:, 1 + ax] ** 2))) for ax in range(2)],
+        "lag1": [a[0] for a in acs],
+        "lag2": [a[1] for a in acs],
+        "lag3": [a[2] for a in acs],
+        "white_band": 1.96 / math.sqrt(len(v)),
     }
 
 

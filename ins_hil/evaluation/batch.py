@@ -314,6 +314,9 @@ def _row(m: dict[str, Any]) -> dict[str, Any]:
     g = m.get("gnss")
     if isinstance(g, dict):
         r["gnss_h_rms_m"] = g.get("gnss_h_rms_prior_m")
+        w = g.get("vel_innovation")
+        if isinstance(w, dict):
+            r["vel_innov_lag1"] = w["lag1"]
     o = m.get("outages")
     if isinstance(o, dict):
         for k in ("outage_h_rms_m", "outage_h_max_m", "hold_h_rms_m", "cv_h_rms_m", "beats_both_in_every_outage"):
@@ -470,7 +473,8 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
     """The variants side by side (Markdown), one table per log, a row per variant (the config as it is
     first): the outage error RMS / worst (m) at each shift of the protocol over its seeds (RMS pooled, the
     worst of the worst), all shifts pooled, in how many jobs the filter beat both trivial predictors in
-    every outage; the GNSS-present error (prior, m RMS) and the attitude difference to the onboard estimator
+    every outage; the GNSS-present error (prior, m RMS), the lag-1 autocorrelation of the GNSS velocity
+    innovations (N / E; ``innovation_whiteness``) and the attitude difference to the onboard estimator
     (roll / pitch / yaw, ° RMS), as the mean over the jobs, where the log has them. Empty when the batch has
     neither variants nor shifts."""
     if all(r.get("variant", BASELINE) == BASELINE and not r.get("shift_s") for r in rows):
@@ -482,12 +486,14 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
         names = list(dict.fromkeys(r.get("variant", BASELINE) for r in mine))
         outages = any(r.get("outage_h_rms_m") is not None for r in mine)
         gnss = any(r.get("gnss_h_rms_m") is not None for r in mine)
+        lag1 = any(r.get("vel_innov_lag1") for r in mine)
         onboard = any(r.get("onboard_att_rms_deg") for r in mine)
         head = ["variant"]
         if outages:
             head += [f"outage shift {s:+g} s" for s in shifts] if len(shifts) > 1 or shifts[0] else ["outage"]
             head += ["pooled", "beats both"] if len(shifts) > 1 else ["beats both"]
-        head += ["GNSS h RMS m"] * gnss + ["vs onboard r / p / y °"] * onboard + ["failed"]
+        head += ["GNSS h RMS m"] * gnss + ["vel innov lag-1 N / E"] * lag1 + ["vs onboard r / p / y °"] * onboard
+        head += ["failed"]
         lines = [f"**{log}**" + (": outage h error RMS / worst (m)" if outages else ""), "",
                  "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]  # fmt: skip
         for n in names:
@@ -505,6 +511,9 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
             if gnss:
                 gh = [float(r["gnss_h_rms_m"]) for r in ok if r.get("gnss_h_rms_m") is not None]
                 cells.append(_f(float(np.mean(gh))) if gh else "—")
+            if lag1:
+                a1 = [r["vel_innov_lag1"] for r in ok if r.get("vel_innov_lag1")]
+                cells.append(" / ".join(f"{float(x):+.2f}" for x in np.mean(a1, axis=0)) if a1 else "—")
             if onboard:
                 a = [r["onboard_att_rms_deg"] for r in ok if r.get("onboard_att_rms_deg")]
                 cells.append(" / ".join(_f(float(x)) for x in np.mean(a, axis=0)) if a else "—")
