@@ -480,8 +480,13 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
     if all(r.get("variant", BASELINE) == BASELINE and not r.get("shift_s") for r in rows):
         return ""
     out: list[str] = []
-    for log in dict.fromkeys(r.get("log", r["job"]) for r in rows):
-        mine = [r for r in rows if r.get("log", r["job"]) == log]
+
+    def key(r: dict[str, Any]) -> tuple[Any, ...]:  # one log with one config (two folders may share a name)
+        return r.get("log", r["job"]), r.get("source"), r.get("config")
+
+    for k in dict.fromkeys(key(r) for r in rows):
+        log = k[0]
+        mine = [r for r in rows if key(r) == k]
         shifts = sorted({float(r.get("shift_s", 0.0)) for r in mine})
         names = list(dict.fromkeys(r.get("variant", BASELINE) for r in mine))
         outages = any(r.get("outage_h_rms_m") is not None for r in mine)
