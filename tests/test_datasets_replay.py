@@ -142,6 +142,11 @@ def test_replay_csv_with_dataset_config(tmp_path: Path, capsys):
     np.testing.assert_allclose([w["window_s"] for w in o["windows"]], np.array([[20, 30], [40, 50]]) + t0)
     # at rest the trivial predictors are exact; the filter drifts a little in the outage
     assert o["hold_h_rms_m"] == pytest.approx(0.0, abs=1e-6) and o["outage_h_rms_m"] < 1.0
+    # what the drift is made of, fitted per outage: small, and the fit explains it
+    for w in o["windows"]:
+        assert w["start_vel_err_mps"] < 0.01 and w["sf_err_mps2"] < 0.005 and w["growth_fit_rms_m"] < 0.01, w
+    assert o["sf_err_max_mps2"] == max(w["sf_err_mps2"] for w in o["windows"])
+    assert "fitted: specific-force error" in text
     assert "gnss_pos" in m["rejection"] and (out / "attitude.png").is_file() and (out / "outages.png").is_file()
     assert "below both predictors in every outage" in text and "vs onboard: attitude yaw" in text
 
@@ -286,3 +291,18 @@ def tomllib_loads(text: str) -> dict:
     import tomllib
 
     return tomllib.loads(text)
+
+
+def test_error_growth_recovers_the_start_velocity_and_specific_force_errors():
+    from ins_hil.datasets.run import error_growth
+
+    rng = np.random.default_rng(5)
+    tau = np.arange(0.2, 10.0, 0.2)
+    v0, acc = np.array([0.18, -0.04]), np.array([0.115, 0.083])
+    e = np.outer(tau, v0) + 0.5 * np.outer(tau**2, acc) + rng.normal(0.0, 0.02, (len(tau), 2))
+    g = error_growth(tau, e)
+    assert g is not None
+    np.testing.assert_allclose(g[0], v0, atol=0.02)
+    np.testing.assert_allclose(g[1], acc, atol=0.005)
+    assert 0.01 < g[2] < 0.04  # the residual is the noise
+    assert error_growth(tau[:5], e[:5]) is None

@@ -28,6 +28,7 @@ from ins_hil.datasets.run import (
     rejection,
     run_dataset,
 )
+from ins_hil.nav import earth
 
 #: warn when the gates reject more than this fraction of a kind of measurement
 REJECT_WARN = 0.03
@@ -156,6 +157,12 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
         rows.append(("  hold the last fix (m)", f"{o['hold_h_rms_m']:.2f}", f"{o['hold_h_max_m']:.2f}"))
         rows.append(("  constant-velocity extrapolation (m)", f"{o['cv_h_rms_m']:.2f}", f"{o['cv_h_max_m']:.2f}"))
         rows.append(("  NEES (2 dof, mean)", f"{o['nees_2dof_mean']:.2f}", ""))
+        if math.isfinite(o.get("sf_err_rms_mps2", math.nan)):
+            rows.append(("  fitted: start velocity error (m/s)", f"{o['start_vel_err_rms_mps']:.3f}",
+                         f"{o['start_vel_err_max_mps']:.3f}"))  # fmt: skip
+            tilt = math.degrees(math.atan2(o["sf_err_rms_mps2"], earth.G0))
+            rows.append(("  fitted: specific-force error (m/s²)", f"{o['sf_err_rms_mps2']:.3f} ({tilt:.2f}° tilt)",
+                         f"{o['sf_err_max_mps2']:.3f}"))  # fmt: skip
         rows.append(("  below both predictors in every outage", "yes" if o["beats_both_in_every_outage"] else "no", ""))
     elif o:
         rows.append(("outages", str(o), ""))

@@ -364,14 +364,29 @@ def innovation_whiteness(r: RunResult, settle_s: float = 30.0) -> dict[str, Any]
     }
 
 
+def error_growth(tau: Vec, e: Vec) -> tuple[Vec, Vec, float] | None:
+    """What an outage's horizontal error is made of: the least-squares fit e(τ) ≈ e₀ + v₀ τ + a τ²/2 of the
+    errors ``e`` (N, 2; m, north / east) at ``tau`` (N,) s after the outage began. (v₀ m/s, the velocity error
+    it started with; a m/s², the constant specific-force error (tilt or accelerometer bias) that grows it;
+    the fit's residual RMS m). None for fewer than 6 epochs."""
+    if len(tau) < 6:
+        return None
+    A = np.column_stack([np.ones_like(tau), tau, 0.5 * tau**2])
+    coef, *_ = np.linalg.lstsq(A, e, rcond=None)
+    res = e - A @ coef
+    return coef[1], coef[2], float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
+
+
 def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[str, Any]:
     """Per outage window: the core's horizontal error at each fix (of type ``min_fix`` or better) it did not
     get, against the two trivial
-    predictors built from the last fix before the window (hold it; extrapolate it with its velocity), and
-    the 2-dof NEES of the horizontal error with the core's σ. A window that opens before the core navigates
-    is reported as not scored."""
+    predictors built from the last fix before the window (hold it; extrapolate it with its velocity), the
+    2-dof NEES of the horizontal error with the core's σ, and what the error is made of (:func:`error_growth`:
+    the horizontal velocity error at the window's start, m/s, and the specific-force error, m/s², with its
+    tilt equivalent, °). A window that opens before the core navigates is reported as not scored."""
     rows = []
     allf, allh, allc, alln = [], [], [], []
+    v0s, sfs = [], []
     ft = np.array([f.t for f in fixes])
     for a, b in r.outages:
         row: dict[str, Any] = {"window_s": [a, b]}
@@ -393,6 +408,14 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
                     "hold_h_rms_m": hrms(eh), "hold_h_max_m": hmax(eh), "cv_h_rms_m": hrms(ec), "cv_h_max_m": hmax(ec),
                     "nees_2dof": float(np.mean(nees))})  # fmt: skip
         row["beats_both"] = row["h_rms_m"] < row["hold_h_rms_m"] and row["h_rms_m"] < row["cv_h_rms_m"]
+        g = error_growth(r.gnss_t[i] - a, e[:, :2])
+        if g is not None:
+            v0, acc, res = g
+            row.update({"start_vel_err_mps": float(np.hypot(*v0)), "sf_err_mps2": float(np.hypot(*acc)),
+                        "sf_err_tilt_deg": math.degrees(math.atan2(float(np.hypot(*acc)), earth.G0)),
+                        "growth_fit_rms_m": res})  # fmt: skip
+            v0s.append(row["start_vel_err_mps"])
+            sfs.append(row["sf_err_mps2"])
         rows.append(row)
         allf.append(e)
         allh.append(eh)
@@ -411,6 +434,10 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
         "cv_h_max_m": hmax(C),
         "nees_2dof_mean": float(np.mean(np.concatenate(alln))) if alln else math.nan,
         "beats_both_in_every_outage": bool(allf) and all(w.get("beats_both", True) for w in rows if w["scored"]),
+        "start_vel_err_rms_mps": float(np.sqrt(np.mean(np.square(v0s)))) if v0s else math.nan,
+        "start_vel_err_max_mps": max(v0s) if v0s else math.nan,
+        "sf_err_rms_mps2": float(np.sqrt(np.mean(np.square(sfs)))) if sfs else math.nan,
+        "sf_err_max_mps2": max(sfs) if sfs else math.nan,
     }
 
 
