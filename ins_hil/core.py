@@ -181,9 +181,10 @@ class NavCore:
             st.lat, st.lon, st.h = math.radians(pos0[0]), math.radians(pos0[1]), float(pos0[2])
             self.align.have_pos = True
         self.nis_log: list[tuple[float, str, float, int]] = []
-        #: with ``keep_innov``: (t s, kind, innovation z) of every measurement tested (a replay's whiteness check)
+        #: (t s, kind, innovation z) of every tested measurement of the kinds in ``innov_kinds`` (none by default;
+        #: a replay's whiteness check keeps "gnss_vel")
         self.innov_log: list[tuple[float, str, Vec]] = []
-        self.keep_innov = False
+        self.innov_kinds: frozenset[str] = frozenset()
         self._sd_of: Any = None  # the P whose σ is in _sd (state() cache)
         self._sd: Vec = np.zeros(9)
         self.keep_nis = False
@@ -458,7 +459,7 @@ class NavCore:
         self._ratios = dict(self._ratios)
         self._ratios[kind] = ratio
         st.last_nis = nis
-        if self.keep_innov and not self.replaying:
+        if kind in self.innov_kinds and not self.replaying:
             self.innov_log.append((t, kind, z.copy()))
         if ratio > 1.0 and not force:
             if not self.replaying:

@@ -28,7 +28,6 @@ from ins_hil.datasets.run import (
     rejection,
     run_dataset,
 )
-from ins_hil.nav import earth
 
 #: warn when the gates reject more than this fraction of a kind of measurement
 REJECT_WARN = 0.03
@@ -160,7 +159,7 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
         if math.isfinite(o.get("sf_err_rms_mps2", math.nan)):
             rows.append(("  fitted: start velocity error (m/s)", f"{o['start_vel_err_rms_mps']:.3f}",
                          f"{o['start_vel_err_max_mps']:.3f}"))  # fmt: skip
-            tilt = math.degrees(math.atan2(o["sf_err_rms_mps2"], earth.G0))
+            tilt = o["sf_err_rms_tilt_deg"]
             rows.append(("  fitted: specific-force error (m/s²)", f"{o['sf_err_rms_mps2']:.3f} ({tilt:.2f}° tilt)",
                          f"{o['sf_err_max_mps2']:.3f}"))  # fmt: skip
         rows.append(("  below both predictors in every outage", "yes" if o["beats_both_in_every_outage"] else "no", ""))

@@ -225,7 +225,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
                 progress: Progress | None = None) -> RunResult:  # fmt: skip
     """Replay ``p`` causally; GNSS inside ``outages`` (s, absolute) is scored, never fused."""
     core = NavCore(None, p.nav)
-    core.keep_innov = True  # the GNSS velocity innovations, for their whiteness (innovation_whiteness)
+    core.innov_kinds = frozenset({"gnss_vel"})  # the GNSS velocity innovations, for innovation_whiteness
     lever = p.nav.gnss.lever_arm_b
     origin = p.origin
     meas: list[tuple[float, int, Any]] = [(f.t, 0, f) for f in p.gnss]
@@ -296,7 +296,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
         list(outages),
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, list(p.notes), core.align_status(), core.imu_lost,
-        np.array([(t, *z) for t, kind, z in core.innov_log if kind == "gnss_vel" and len(z) == 3]).reshape(-1, 4),
+        np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4),
     )  # fmt: skip
 
 
@@ -377,6 +377,11 @@ def error_growth(tau: Vec, e: Vec) -> tuple[Vec, Vec, float] | None:
     return coef[1], coef[2], float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
 
 
+def tilt_deg(a: float) -> float:
+    """The tilt (°) whose gravity component is a horizontal specific force of ``a`` m/s²."""
+    return math.degrees(math.atan2(a, earth.G0))
+
+
 def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[str, Any]:
     """Per outage window: the core's horizontal error at each fix (of type ``min_fix`` or better) it did not
     get, against the two trivial
@@ -412,7 +417,7 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
         if g is not None:
             v0, acc, res = g
             row.update({"start_vel_err_mps": float(np.hypot(*v0)), "sf_err_mps2": float(np.hypot(*acc)),
-                        "sf_err_tilt_deg": math.degrees(math.atan2(float(np.hypot(*acc)), earth.G0)),
+                        "sf_err_tilt_deg": tilt_deg(float(np.hypot(*acc))),
                         "growth_fit_rms_m": res})  # fmt: skip
             v0s.append(row["start_vel_err_mps"])
             sfs.append(row["sf_err_mps2"])
@@ -437,6 +442,7 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
         "start_vel_err_rms_mps": float(np.sqrt(np.mean(np.square(v0s)))) if v0s else math.nan,
         "start_vel_err_max_mps": max(v0s) if v0s else math.nan,
         "sf_err_rms_mps2": float(np.sqrt(np.mean(np.square(sfs)))) if sfs else math.nan,
+        "sf_err_rms_tilt_deg": tilt_deg(float(np.sqrt(np.mean(np.square(sfs))))) if sfs else math.nan,
         "sf_err_max_mps2": max(sfs) if sfs else math.nan,
     }
 
