@@ -186,7 +186,8 @@ def test_flight_log_targets_are_judged_from_the_metrics():
             "outages": {"outage_h_rms_m": 2.23, "outage_h_max_m": 8.73, "nees_2dof_mean": 0.05, "outages_scored": 4,
                         "beats_both_in_every_outage": False,
                         "windows": [{"scored": True, "beats_both": b} for b in (True, False, True, True)]},
-            "rejection": {"gnss_pos": {"rate": 0.002}}}  # fmt: skip
+            "rejection": {"gnss_pos": {"rate": 0.002}},
+            "rotor_drag": {"ours": {"x": {"mu_per_s": 0.1876}}}}  # fmt: skip
     md = flight_logs_md({"ardupilot_copter": {"onboard": {"attitude_deg": att}}, "px4_quad": quad,
                          "px4_hover": {"error": "hover.ulg: no such file"}})  # fmt: skip
     rows = md.splitlines()
@@ -197,4 +198,6 @@ def test_flight_log_targets_are_judged_from_the_metrics():
     beats = "| px4_quad | outages below hold-last-fix and constant velocity | 3 of 4 | every outage | falls short |"
     assert beats in rows
     assert "| px4_quad | gate rejections, worst kind | 0.2% | reported | reported |" in rows
+    mu = "| px4_quad | body-x specific force against our velocity: rotor drag μ (1/s) | 0.188 |"
+    assert mu + " ≥ 0.1 for a real velocity | reported |" in rows
     assert "| px4_hover | yaw vs EKF2, RMS (°) | failed: hover.ulg: no such file | ≤ 5° | — |" in rows

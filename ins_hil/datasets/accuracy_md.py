@@ -80,10 +80,16 @@ FLIGHT_LOG_TARGETS: tuple[tuple[str, str, str, str, float], ...] = (
     ("px4_hover", "pitch vs EKF2, RMS (°)", "onboard.attitude_deg.pitch.rms", "≤ 0.7°", 0.7),
     ("px4_hover", "yaw vs EKF2, RMS (°)", "onboard.attitude_deg.yaw.rms", "≤ 5°", 5.0),
     ("px4_hover", "height vs EKF2, RMS (m)", "onboard.position_m.down.rms", "≤ 0.5 m", 0.5),
+    ("px4_hover", "EKF2's body-x velocity in flight, 5–95 % span (m/s)", "rotor_drag.onboard.x.span_mps", "reported",
+     math.inf),
+    ("px4_hover", "body-x specific force against it: rotor drag μ (1/s)", "rotor_drag.onboard.x.mu_per_s",
+     "≥ 0.1 for a real velocity", math.inf),
     ("px4_quad", "GNSS-present h error prior, RMS (m)", "gnss.gnss_h_rms_prior_m", "≤ 0.35 m", 0.35),
     ("px4_quad", "10-s outages h error, RMS (m)", "outages.outage_h_rms_m", "≤ 2 m", 2.0),
     ("px4_quad", "10-s outages h error, worst (m)", "outages.outage_h_max_m", "≤ 6 m", 6.0),
     ("px4_quad", "outage NEES (2 dof, mean)", "outages.nees_2dof_mean", "reported", math.inf),
+    ("px4_quad", "body-x specific force against our velocity: rotor drag μ (1/s)", "rotor_drag.ours.x.mu_per_s",
+     "≥ 0.1 for a real velocity", math.inf),
     ("ardupilot_copter", "roll vs NKF1, RMS (°)", "onboard.attitude_deg.roll.rms", "≤ 1°", 1.0),
     ("ardupilot_copter", "pitch vs NKF1, RMS (°)", "onboard.attitude_deg.pitch.rms", "≤ 1.5°", 1.5),
     ("ardupilot_copter", "yaw vs NKF1, RMS (°)", "onboard.attitude_deg.yaw.rms", "≤ 2°", 2.0),
@@ -107,7 +113,8 @@ def flight_logs_md(logs: dict[str, dict[str, Any]]) -> str:
             continue
         v = _dig(m, path)
         ok = "reported" if not math.isfinite(bound) else ("met" if v is not None and v <= bound else "falls short")
-        rows.append((name, quantity, fmt_value(v, 3 if bound < 0.5 else 2, missing="—"), target, ok))
+        nd = 3 if bound < 0.5 or path.endswith("mu_per_s") else 2
+        rows.append((name, quantity, fmt_value(v, nd, missing="—"), target, ok))
     for name in sorted(logs):
         m = logs[name]
         o = m.get("outages")

@@ -4,6 +4,11 @@ Each onboard sample is compared with our state at the last IMU step at or before
 interpolation of ours). Attitude: roll/pitch/yaw differences (ours − theirs, wrapped to ±180°); velocity
 NED; position NED: about the estimator's origin when the log holds it, else after removing the mean
 difference (the estimators start from different origins; stated in the result).
+
+:func:`rotor_drag` checks a multirotor's velocity (ours or the onboard estimator's) against the accelerometers:
+a rotor's drag makes the horizontal body specific force follow the body velocity, f_x,y ≈ c − μ v_x,y (the
+momentum drag EKF2 fuses with ``EKF2_MCOEF``), so a velocity the specific force does not follow is not the
+vehicle's.
 """
 
 from __future__ import annotations
@@ -16,7 +21,14 @@ import numpy as np
 from ins_hil.datasets.dataset import Trajectory
 from ins_hil.datasets.run import RunResult, euler_series
 from ins_hil.nav import earth
-from ins_hil.types import Vec
+from ins_hil.nav.rotation import dcm_from_quat
+from ins_hil.types import ImuSample, Vec
+
+#: 1/s: the smallest rotor-drag coefficient a multirotor is taken to have (the shipped quadrotors: 0.10–0.22 from
+#: their GNSS-aided velocity; PX4's EKF2_MCOEF default 0.15)
+ROTOR_DRAG_MIN = 0.1
+#: m/s: the body-axis speed span (5–95 %) below which μ is not fitted
+DRAG_SPAN_MIN = 1.0
 
 
 def _ours_at(r: RunResult, t: Vec, t_from: float, t_to: float) -> tuple[Vec, Vec]:
@@ -108,3 +120,66 @@ def summary_rows(c: dict[str, Any]) -> list[tuple[str, str, str]]:
             if isinstance(v, dict):
                 rows.append((f"{key.split('_')[0]} {ax} ({unit})", f(v["rms"], nd), f(v["max"], nd)))
     return rows
+
+
+def rotor_drag(imu: list[ImuSample], t_v: Vec, v_ned: Vec, t_q: Vec, q_nb: Vec, t_from: float, t_to: float,
+               avg_s: float = 0.5) -> dict[str, Any] | None:  # fmt: skip
+    """The rotor-drag fit of a velocity against the accelerometers over [t_from, t_to] (s).
+
+    In bins of ``avg_s`` s: the mean body specific force f (m/s², from the IMU increments) and the mean body
+    velocity v = Cᵀ v_ned (m/s, C the same estimate's attitude at or before each velocity sample); per body
+    axis x, y the least-squares f = c − μ v. Returns per axis ``mu_per_s`` (NaN where the speed span is below
+    :data:`DRAG_SPAN_MIN`), ``corr``, ``residual_mps2``, ``f_std_mps2`` (the specific force's spread over the
+    bins), ``span_mps`` (5–95 % of v) and ``expected_mps2`` = :data:`ROTOR_DRAG_MIN` × span (what the smallest
+    rotor drag would have moved f by); None when fewer than 20 bins have both. Velocity samples with a NaN are
+    left out."""
+    ok = np.all(np.isfinite(v_ned), axis=1) & (t_v >= t_from) & (t_v < t_to)
+    if not np.any(ok) or len(t_q) == 0:
+        return None
+    tv, vn = t_v[ok], v_ned[ok]
+    iq = np.clip(np.searchsorted(t_q, tv, "right") - 1, 0, len(t_q) - 1)
+    vb = np.array([dcm_from_quat(q_nb[i]).T @ x for i, x in zip(iq, vn, strict=True)])
+    ti = np.array([s.t for s in imu])
+    m = (ti >= t_from) & (ti < t_to)
+    dv = np.array([s.dvel for s, k in zip(imu, m, strict=True) if k]).reshape(-1, 3)
+    dt = np.array([s.dt for s, k in zip(imu, m, strict=True) if k])
+    n_bins = int((t_to - t_from) // avg_s)
+    bi = ((ti[m] - t_from) // avg_s).astype(int)
+    bv = ((tv - t_from) // avg_s).astype(int)
+    cnt_i = np.bincount(bi, minlength=n_bins)[:n_bins]
+    cnt_v = np.bincount(bv, minlength=n_bins)[:n_bins]
+    use = (cnt_i >= 3) & (cnt_v >= 1)
+    if use.sum() < 20:
+        return None
+    sdt = np.bincount(bi, dt, n_bins)[:n_bins]
+    out: dict[str, Any] = {"bins": int(use.sum()), "avg_s": avg_s}
+    for a, ax in enumerate(("x", "y")):
+        f = (np.bincount(bi, dv[:, a], n_bins)[:n_bins] / np.maximum(sdt, 1e-12))[use]
+        v = (np.bincount(bv, vb[:, a], n_bins)[:n_bins] / np.maximum(cnt_v, 1))[use]
+        A = np.column_stack([np.ones(len(v)), v])
+        c, *_ = np.linalg.lstsq(A, f, rcond=None)
+        span = float(np.percentile(v, 95) - np.percentile(v, 5))
+        sv, sf = float(np.std(v)), float(np.std(f))
+        out[ax] = {
+            "mu_per_s": float(-c[1]) if span >= DRAG_SPAN_MIN else math.nan,
+            "corr": float(np.corrcoef(v, f)[0, 1]) if sv > 0 and sf > 0 else math.nan,
+            "residual_mps2": float(np.sqrt(np.mean((f - A @ c) ** 2))),
+            "f_std_mps2": sf,
+            "span_mps": span,
+            "expected_mps2": ROTOR_DRAG_MIN * span,
+        }
+    return out
+
+
+def drag_unsensed(fit: dict[str, Any] | None) -> str | None:
+    """The body axis ("x" / "y") whose velocity the specific force does not follow, None if each does (or
+    cannot tell): a span of at least 3 m/s, the smallest rotor drag's expected change above 5× the specific
+    force's whole spread, and a fitted μ below a third of :data:`ROTOR_DRAG_MIN`."""
+    if fit is None:
+        return None
+    for ax in ("x", "y"):
+        d = fit[ax]
+        small = abs(d["mu_per_s"]) < ROTOR_DRAG_MIN / 3
+        if d["span_mps"] >= 3.0 and d["expected_mps2"] > 5.0 * d["f_std_mps2"] and small:
+            return ax
+    return None

@@ -5,7 +5,7 @@
   sample), stamped at the sample;
 * ``GPS`` with Status ≥ 3 (3-D): Lat/Lng (deg), Alt (m MSL, used as the height), Spd/GCrs (ground speed,
   course deg) and VZ (m/s down) as the NED velocity; σ from ``GPA`` (HAcc, VAcc, SAcc) where logged;
-* ``BARO`` Alt (m); ``MAG`` MagX..Z (milligauss → tesla);
+* ``BARO`` Alt (m); ``MAG`` MagX..Z (milligauss → tesla); the firmware banner in ``MSG`` as the vehicle type;
 * the EKF output ``NKF1`` (EKF2) or ``XKF1`` (EKF3) as the onboard estimate: Roll/Pitch/Yaw (deg), VN/VE/VD,
   PN/PE/PD (m about the EKF origin, which the log does not hold unless ``ORGN`` is there).
 
@@ -30,6 +30,9 @@ DF_HEAD = b"\xa3\x95"
 #: multicopter's normal envelope)
 CRASH_ACCEL = 40.0
 CRASH_RATE = 3.0
+#: the firmware banner of each vehicle (its first MSG): APM:Copter V3.4.4, ArduCopter V4.5.1, ArduPlane V4.5.1, …
+FIRMWARES = ("APM:Copter", "ArduCopter", "APM:Plane", "ArduPlane", "APM:Rover", "ArduRover", "ArduSub", "APM:Sub",
+             "Blimp", "AntennaTracker")  # fmt: skip
 
 
 def _is_dataflash(path: Path) -> bool:
@@ -63,7 +66,7 @@ def read_dataflash(path: Path) -> Dataset:
         r = DFReader.DFReader_binary(str(path), zero_time_base=True)
     except Exception as e:
         raise DatasetError(f"{path}: cannot parse as DataFlash ({e})") from None
-    want = {"IMU", "GPS", "GPA", "BARO", "MAG", "NKF1", "XKF1", "ORGN"}
+    want = {"IMU", "GPS", "GPA", "BARO", "MAG", "NKF1", "XKF1", "ORGN", "MSG"}
     rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
     while True:
         m = r.recv_match(type=list(want))
@@ -125,6 +128,10 @@ def read_dataflash(path: Path) -> Dataset:
     ds.meta.update(
         {"source": str(path), "format": "ardupilot-bin", "vehicle": "ArduPilot", "notes": [], "utc_start_s": utc}
     )
+    fw = next((d["Message"] for d in rows["MSG"] if str(d.get("Message", "")).startswith(FIRMWARES)), None)
+    if fw is not None:  # the firmware banner names the vehicle type
+        ds.meta["firmware"] = str(fw)
+        ds.meta["rotary_wing"] = str(fw).startswith(("APM:Copter", "ArduCopter"))
     return ds
 
 

@@ -30,7 +30,9 @@ class Trajectory:
     ``vel_ned`` (N, 3) m/s at ``t_vel``; ``pos_ned`` (N, 3) m about ``origin`` = (lat rad, lon rad, h m)
     at ``t_pos``; ``origin`` None when the estimator's origin is not in the log (positions are then
     compared after removing the mean offset). ``lever_b``: body FRD lever arm (m) from the IMU to the point
-    the positions refer to. ``name``: e.g. "EKF2", "NKF1 (EKF2)".
+    the positions refer to. ``name``: e.g. "EKF2", "NKF1 (EKF2)". ``vel_ned_unaided``: the estimator's
+    velocity at ``t_vel`` where it flags its horizontal velocity as unaided (NaN in ``vel_ned`` there, not
+    compared; NaN elsewhere), None when it flags none: what :func:`ins_hil.datasets.compare.rotor_drag` checks.
     """
 
     name: str
@@ -42,6 +44,7 @@ class Trajectory:
     pos_ned: Vec | None = None
     origin: tuple[float, float, float] | None = None
     lever_b: Vec = field(default_factory=lambda: np.zeros(3))
+    vel_ned_unaided: Vec | None = None
 
 
 @dataclass
@@ -52,7 +55,8 @@ class Dataset:
     independent reference trajectory (None for a flight log). ``onboard``: the flight controller's own
     estimate (EKF2, EKF3; None if not logged). ``t_end_valid``: the end of the valid data (s; e.g. the
     last sample before a crash), None = the end of the log. ``events``: (t s, text) flight events
-    (take-off, landing, crash). ``meta``: source, format, vehicle, sensor rates (Hz), notes.
+    (take-off, landing, crash). ``meta``: source, format, vehicle, sensor rates (Hz), notes, ``rotary_wing``
+    (True / False from the log's vehicle type, absent when the log does not say).
     """
 
     imu: list[ImuSample]

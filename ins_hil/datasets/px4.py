@@ -11,7 +11,7 @@ Topics (instance 0; conventions in ``../shared/data/uav/README.md``):
 * EKF2's output as the onboard estimate: ``vehicle_attitude.q``, ``vehicle_local_position``
   (NED about ``ref_lat``/``ref_lon``/``ref_alt``; x/y only where ``xy_valid``, vx/vy where
   ``v_xy_valid``), else ``estimator_states``;
-* ``vehicle_land_detected``: take-off / landing events;
+* ``vehicle_land_detected``: take-off / landing events; ``vehicle_status``: the vehicle type;
 * what the comparison with EKF2 needs to be read (:func:`onboard_notes`): the IMU ``sensor_combined`` carries
   (``sensor_selection``) against EKF2's primary one (``estimator_selector_status``), EKF2's accelerometer bias
   at the start (``estimator_sensor_bias``), EKF2's unaided horizontal velocity (``vehicle_local_position``).
@@ -45,7 +45,7 @@ MAX_BRIDGE = 0.05
 TOPICS = ("sensor_combined", "vehicle_gps_position", "sensor_gps", "vehicle_air_data", "vehicle_magnetometer",
           "vehicle_attitude", "vehicle_local_position", "vehicle_global_position", "estimator_states",
           "vehicle_land_detected", "sensor_selection", "estimator_selector_status",
-          "estimator_sensor_bias")  # fmt: skip
+          "estimator_sensor_bias", "vehicle_status")  # fmt: skip
 #: m/s: EKF2's unaided horizontal velocity above which the notes say it dead-reckons
 DEAD_RECKONING_SPEED = 1.0
 
@@ -189,7 +189,8 @@ def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
         tr.t_vel = tr.t_pos = t
         tr.vel_ned = np.column_stack([lp["vx"], lp["vy"], lp["vz"]]).astype(np.float64)
         vxy = _col(lp, "v_xy_valid")
-        if vxy is not None:
+        if vxy is not None and np.any(vxy == 0):
+            tr.vel_ned_unaided = np.where((vxy == 0)[:, None], tr.vel_ned, math.nan)
             tr.vel_ned[vxy == 0, :2] = math.nan  # EKF2 dead-reckoning without aiding: not a valid velocity
         pos = np.column_stack([lp["x"], lp["y"], lp["z"]]).astype(np.float64)
         xy = _col(lp, "xy_valid")
@@ -331,6 +332,7 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
         more, check = onboard_notes(topics)
         notes += more
     ds.events = land_events(topics.get("vehicle_land_detected"))
+    rw = vehicle_rotary_wing(topics.get("vehicle_status"))
     ds.meta = {
         "source": source,
         "format": fmt,
@@ -340,7 +342,22 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
         "utc_start_s": utc_start,
         "onboard_check": check,
     }
+    if rw is not None:
+        ds.meta["rotary_wing"] = rw
     return ds
+
+
+def vehicle_rotary_wing(t: Topic | None) -> bool | None:
+    """Whether ``vehicle_status`` says rotary-wing at any time (a VTOL is while it hovers): ``vehicle_type``
+    VEHICLE_TYPE_ROTARY_WING (1) since PX4 v1.14, ``is_rotary_wing`` before; None when neither is logged."""
+    if t is None:
+        return None
+    vt, rw = _col(t, "vehicle_type"), _col(t, "is_rotary_wing")
+    if vt is not None and len(vt):
+        return bool(np.any(vt == 1))
+    if rw is not None and len(rw):
+        return bool(np.any(rw > 0))
+    return None
 
 
 # ---------------------------------------------------------------------------------------------- ULog

@@ -108,7 +108,41 @@ def replay(
             m["reference"] = "no reference"
         else:
             m["reference"] = cmp.compare(r, ds.reference, t_from, p.t1)
+    if ds.meta.get("rotary_wing"):
+        m["rotor_drag"] = rotor_drag_check(ds, p, r, t_from)
+        if m["rotor_drag"].get("note"):
+            m["notes"] = [*m["notes"], m["rotor_drag"]["note"]]
     return m, runs
+
+
+def rotor_drag_check(ds: Dataset, p: Prepared, r: RunResult, t_from: float) -> dict[str, Any]:
+    """A multirotor's velocities against its accelerometers in flight (take-off to landing): the rotor-drag fit
+    (:func:`ins_hil.datasets.compare.rotor_drag`) of ours (from ``t_from``, when we navigate) and of the onboard
+    estimator's (its unaided samples included), and a note when the onboard velocity is one the specific force
+    does not follow."""
+    a = ds.event("takeoff") or p.t0
+    b = min(ds.event("landing") or p.t1, p.t1)
+    out: dict[str, Any] = {"from_s": a - p.t0, "to_s": b - p.t0}
+    if len(r.t):
+        out["ours"] = cmp.rotor_drag(p.imu, r.t, r.vel_ned, r.t, r.q_nb, max(a, t_from), b)
+    ob = ds.onboard
+    if ob is not None and ob.vel_ned is not None and ob.t_vel is not None and ob.q_nb is not None:
+        assert ob.t_att is not None
+        v = ob.vel_ned if ob.vel_ned_unaided is None else np.where(np.isnan(ob.vel_ned), ob.vel_ned_unaided, ob.vel_ned)
+        fit = cmp.rotor_drag(p.imu, ob.t_vel, v, ob.t_att, ob.q_nb, a, b)
+        out["onboard"], out["onboard_name"] = fit, ob.name
+        ax = cmp.drag_unsensed(fit)
+        if fit is not None and ax is not None:
+            d = fit[ax]
+            out["note"] = (
+                f"rotor drag: {ob.name}'s body-{ax} velocity spans {d['span_mps']:.1f} m/s in flight, yet the body "
+                f"specific force varies by {d['f_std_mps2']:.2f} m/s² (σ over {fit['avg_s']:g} s) and does not follow "
+                f"it (μ {d['mu_per_s']:+.3f} /s, correlation {d['corr']:+.2f}); a rotor drag of "
+                f"{cmp.ROTOR_DRAG_MIN:g} /s or more would have moved it by {d['expected_mps2']:.1f} m/s²: "
+                f"{ob.name}'s horizontal velocity is not the vehicle's, and the specific-force error that drives it "
+                "is in its attitude or its accelerometer bias"
+            )
+    return out
 
 
 def _protocol_ref(ds: Dataset, p: Prepared, cfg: DatasetConfig) -> float | None:
@@ -171,6 +205,16 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
             rows += [(f"vs {c['against']}: {a}", b, x) for a, b, x in cmp.summary_rows(c)]
         elif c:
             rows.append((key, str(c), ""))
+    rd = m.get("rotor_drag")
+    if isinstance(rd, dict):
+        for key, who in (("ours", "ours"), ("onboard", rd.get("onboard_name", ""))):
+            fit = rd.get(key)
+            if fit is None:
+                continue
+            mu = " / ".join("n/a" if not math.isfinite(fit[a]["mu_per_s"]) else f"{fit[a]['mu_per_s']:+.3f}"
+                            for a in ("x", "y"))  # fmt: skip
+            span = " / ".join(f"{fit[a]['span_mps']:.1f}" for a in ("x", "y"))
+            rows.append((f"rotor drag μ x / y (1/s), {who}", mu, f"speed span {span} m/s"))
     lost = m.get("imu_lost")
     if isinstance(lost, dict) and lost.get("gaps"):
         rows.append(("IMU data lost (coasted)", f"{lost['gaps']} gaps, {lost['s']:.2f} s", ""))

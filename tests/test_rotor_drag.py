@@ -1,0 +1,102 @@
+"""The rotor-drag check of a multirotor's velocity against its accelerometers (ins_hil.datasets.compare):
+synthetic flights with and without drag, the vehicle type from the shipped logs, and the replay's figures."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ins_hil.cli import main
+from ins_hil.datasets import compare as cmp
+from ins_hil.datasets.dataset import read_dataset
+from ins_hil.nav.rotation import dcm_from_quat, quat_from_euler
+from ins_hil.types import ImuSample
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _flight(mu: float, speed: float, seed: int = 1, dt: float = 0.005, T: float = 60.0):
+    """A multirotor at yaw 30° flying a body-x velocity of speed·sin(2π t / 20) (plus a slower body-y one): its
+    body specific force −μ v + c + white noise (σ 0.3 m/s² per sample). Returns the IMU and the (t, v_ned, q)."""
+    rng = np.random.default_rng(seed)
+    q = quat_from_euler(0.0, 0.0, math.radians(30.0))
+    C = dcm_from_quat(q)
+    t = np.arange(1, int(T / dt) + 1) * dt
+    vb = np.column_stack([speed * np.sin(2 * math.pi * t / 20.0), 0.5 * speed * np.sin(2 * math.pi * t / 33.0),
+                          np.zeros(len(t))])  # fmt: skip
+    f = -mu * vb + np.array((0.1, -0.2, -9.81)) + rng.normal(0.0, 0.3, (len(t), 3))
+    imu = [ImuSample(float(tk), dt, np.zeros(3), fk * dt) for tk, fk in zip(t, f, strict=True)]
+    tv = t[::20]  # the estimate at 10 Hz
+    return imu, tv, vb[::20] @ C.T, np.tile(q, (len(tv), 1))
+
+
+def test_the_fit_recovers_the_drag_coefficient():
+    imu, tv, v, q = _flight(mu=0.18, speed=4.0)
+    fit = cmp.rotor_drag(imu, tv, v, tv, q, 1.0, 59.0)
+    assert fit is not None and fit["bins"] >= 110
+    assert fit["x"]["mu_per_s"] == pytest.approx(0.18, abs=0.01)
+    assert fit["y"]["mu_per_s"] == pytest.approx(0.18, abs=0.02)
+    assert fit["x"]["corr"] < -0.9 and fit["x"]["span_mps"] > 7.0
+    assert cmp.drag_unsensed(fit) is None
+    # a hover: too little speed to fit μ
+    imu, tv, v, q = _flight(mu=0.18, speed=0.2)
+    fit = cmp.rotor_drag(imu, tv, v, tv, q, 1.0, 59.0)
+    assert fit is not None and math.isnan(fit["x"]["mu_per_s"]) and cmp.drag_unsensed(fit) is None
+
+
+def test_a_velocity_the_specific_force_does_not_follow_is_flagged():
+    """The accelerometers of a hovering vehicle against an estimate that drifts to 15 m/s: not the vehicle's."""
+    imu, tv, _, q = _flight(mu=0.18, speed=0.0)
+    ramp = np.column_stack([np.linspace(0.0, 15.0, len(tv)), np.zeros(len(tv)), np.zeros(len(tv))])
+    fit = cmp.rotor_drag(imu, tv, ramp @ dcm_from_quat(q[0]).T, tv, q, 1.0, 59.0)
+    assert fit is not None and abs(fit["x"]["mu_per_s"]) < 0.01 and fit["x"]["expected_mps2"] > 1.0
+    assert cmp.drag_unsensed(fit) == "x"
+    # NaN velocities are left out; too few bins give None
+    v = ramp.copy()
+    v[::2] = math.nan
+    assert cmp.rotor_drag(imu, tv, v, tv, q, 1.0, 59.0) is not None
+    assert cmp.rotor_drag(imu, tv, ramp, tv, q, 1.0, 9.0) is None
+
+
+def test_the_logs_name_their_vehicle_type(shared_dir: Path):
+    uav = shared_dir / "data" / "uav"
+    hover = read_dataset(uav / "px4_hover_92s" / "hover.ulg")  # vehicle_status.vehicle_type (PX4 v1.16)
+    assert hover.meta["rotary_wing"] is True
+    ob = hover.onboard
+    assert ob is not None and ob.vel_ned is not None and ob.vel_ned_unaided is not None
+    # EKF2's unaided horizontal velocity: NaN where compared, kept for the drag check
+    assert np.all(np.isnan(ob.vel_ned[:, :2])) and np.nanmax(np.hypot(*ob.vel_ned_unaided[:, :2].T)) > 15.0
+    assert read_dataset(uav / "px4_quad_157s").meta["rotary_wing"] is True  # is_rotary_wing (ulog2csv, older PX4)
+    ardu = read_dataset(uav / "ardupilot_copter_150s" / "flight.bin")
+    assert ardu.meta["rotary_wing"] is True and ardu.meta["firmware"].startswith("APM:Copter V3.4")
+
+
+@pytest.mark.slow
+def test_replay_checks_ekf2s_hover_velocity_against_the_accelerometers(tmp_path: Path, capsys):
+    """The hover log: EKF2's unaided velocity spans more than 15 m/s in body x and the specific force does not
+    follow it: the replay says so, with the figures; ours stays within a hover's speeds."""
+    out = tmp_path / "hover"
+    cfgp = REPO / "configs" / "datasets" / "px4_hover.toml"
+    assert main(["replay", "--dataset", str(cfgp), "--out", str(out), "--no-plots"]) == 0
+    text = capsys.readouterr().out
+    rd = json.loads((out / "metrics.json").read_text())["rotor_drag"]
+    ob = rd["onboard"]["x"]
+    assert ob["span_mps"] > 15.0 and abs(ob["mu_per_s"]) < 0.01 and ob["f_std_mps2"] < 0.1
+    assert rd["ours"]["x"]["span_mps"] < 1.0 and rd["ours"]["y"]["span_mps"] < 1.0
+    assert "rotor drag: EKF2's body-x velocity spans" in text and "rotor drag μ x / y (1/s), EKF2" in text
+
+
+@pytest.mark.slow
+def test_replay_measures_the_quadrotors_rotor_drag(tmp_path: Path):
+    """The GNSS-aided quadrotor: its specific force follows our body velocity at a multirotor's μ."""
+    out = tmp_path / "quad"
+    cfgp = REPO / "configs" / "datasets" / "px4_quad.toml"
+    assert main(["replay", "--dataset", str(cfgp), "--out", str(out), "--quiet", "--no-plots"]) == 0
+    rd = json.loads((out / "metrics.json").read_text())["rotor_drag"]
+    assert "onboard" not in rd  # no EKF2 output in this log
+    for ax in ("x", "y"):
+        assert 0.1 < rd["ours"][ax]["mu_per_s"] < 0.3 and rd["ours"][ax]["corr"] < -0.4
