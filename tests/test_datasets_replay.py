@@ -147,6 +147,11 @@ def test_replay_csv_with_dataset_config(tmp_path: Path, capsys):
         assert w["start_vel_err_mps"] < 0.01 and w["sf_err_mps2"] < 0.005 and w["growth_fit_rms_m"] < 0.01, w
     assert o["sf_err_max_mps2"] == max(w["sf_err_mps2"] for w in o["windows"])
     assert "fitted: specific-force error" in text
+    # beside it the filter's own tilt σ when each window opened (measured 1.3° / 1.2°): it covers the drift's tilt
+    sd = [w["start_tilt_std_deg"] for w in o["windows"]]
+    assert all(0.0 < x < 3.0 for x in sd) and o["start_tilt_std_max_deg"] == max(sd), sd
+    assert all(w["sf_err_tilt_deg"] < w["start_tilt_std_deg"] for w in o["windows"])
+    assert "filter's tilt σ at the starts" in text
     assert "gnss_pos" in m["rejection"] and (out / "attitude.png").is_file() and (out / "outages.png").is_file()
     assert "below both predictors in every outage" in text and "vs onboard: attitude yaw" in text
 

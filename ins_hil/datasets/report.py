@@ -196,6 +196,9 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
             tilt = o["sf_err_rms_tilt_deg"]
             rows.append(("  fitted: specific-force error (m/s²)", f"{o['sf_err_rms_mps2']:.3f} ({tilt:.2f}° tilt)",
                          f"{o['sf_err_max_mps2']:.3f}"))  # fmt: skip
+            if math.isfinite(o.get("start_tilt_std_rms_deg", math.nan)):
+                rows.append(("  filter's tilt σ at the starts (°)", f"{o['start_tilt_std_rms_deg']:.2f}",
+                             f"{o['start_tilt_std_max_deg']:.2f}"))  # fmt: skip
         rows.append(("  below both predictors in every outage", "yes" if o["beats_both_in_every_outage"] else "no", ""))
     elif o:
         rows.append(("outages", str(o), ""))

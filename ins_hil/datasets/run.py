@@ -388,10 +388,11 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
     predictors built from the last fix before the window (hold it; extrapolate it with its velocity), the
     2-dof NEES of the horizontal error with the core's σ, and what the error is made of (:func:`error_growth`:
     the horizontal velocity error at the window's start, m/s, and the specific-force error, m/s², with its
-    tilt equivalent, °). A window that opens before the core navigates is reported as not scored."""
+    tilt equivalent, °) beside the filter's own horizontal tilt σ when the window opened (°, √(σ_N² + σ_E²)).
+    A window that opens before the core navigates is reported as not scored."""
     rows = []
     allf, allh, allc, alln = [], [], [], []
-    v0s, sfs = [], []
+    v0s, sfs, tilt_sd = [], [], []
     ft = np.array([f.t for f in fixes])
     for a, b in r.outages:
         row: dict[str, Any] = {"window_s": [a, b]}
@@ -413,6 +414,10 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
                     "hold_h_rms_m": hrms(eh), "hold_h_max_m": hmax(eh), "cv_h_rms_m": hrms(ec), "cv_h_max_m": hmax(ec),
                     "nees_2dof": float(np.mean(nees))})  # fmt: skip
         row["beats_both"] = row["h_rms_m"] < row["hold_h_rms_m"] and row["h_rms_m"] < row["cv_h_rms_m"]
+        k0 = int(np.searchsorted(r.t, a, "right")) - 1  # the filter's tilt σ when the window opened
+        if k0 >= 0:
+            row["start_tilt_std_deg"] = math.degrees(math.hypot(float(r.std_att[k0, 0]), float(r.std_att[k0, 1])))
+            tilt_sd.append(row["start_tilt_std_deg"])
         g = error_growth(r.gnss_t[i] - a, e[:, :2])
         if g is not None:
             v0, acc, res = g
@@ -444,6 +449,8 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
         "sf_err_rms_mps2": float(np.sqrt(np.mean(np.square(sfs)))) if sfs else math.nan,
         "sf_err_rms_tilt_deg": tilt_deg(float(np.sqrt(np.mean(np.square(sfs))))) if sfs else math.nan,
         "sf_err_max_mps2": max(sfs) if sfs else math.nan,
+        "start_tilt_std_rms_deg": float(np.sqrt(np.mean(np.square(tilt_sd)))) if tilt_sd else math.nan,
+        "start_tilt_std_max_deg": max(tilt_sd) if tilt_sd else math.nan,
     }
 
 
