@@ -8,7 +8,7 @@ difference (the estimators start from different origins; stated in the result).
 :func:`rotor_drag` checks a multirotor's velocity (ours or the onboard estimator's) against the accelerometers:
 a rotor's drag makes the horizontal body specific force follow the body velocity, f_x,y ≈ c − μ v_x,y (the
 momentum drag EKF2 fuses with ``EKF2_MCOEF``), so a velocity the specific force does not follow is not the
-vehicle's.
+vehicle's. :func:`mag_heading` holds a yaw against the magnetometer's own heading.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from ins_hil.datasets.dataset import Trajectory
 from ins_hil.datasets.run import RunResult, euler_series
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat
-from ins_hil.types import ImuSample, Vec
+from ins_hil.types import ImuSample, MagSample, Vec
 
 #: 1/s: the smallest rotor-drag coefficient a multirotor is taken to have (the shipped quadrotors: 0.10–0.22 from
 #: their GNSS-aided velocity; PX4's EKF2_MCOEF default 0.15)
@@ -183,3 +183,25 @@ def drag_unsensed(fit: dict[str, Any] | None) -> str | None:
         if d["span_mps"] >= 3.0 and d["expected_mps2"] > 5.0 * d["f_std_mps2"] and small:
             return ax
     return None
+
+
+def mag_heading(
+    mag: list[MagSample], t_q: Vec, q_nb: Vec, ref_ned: Vec, t_from: float, t_to: float
+) -> dict[str, Any] | None:
+    """An estimate's yaw against the magnetometer's own heading over [t_from, t_to] (s): each reading levelled
+    with the estimate's attitude at or before it, C m_b, whose horizontal direction less the reference field's
+    (``ref_ned``, its declination) is the estimate's yaw less the magnetic heading (°, wrapped to ±180).
+    RMS / max |·| / mean; None for fewer than 10 readings."""
+    t = np.array([m.t for m in mag])
+    ok = (t >= t_from) & (t <= t_to) & (t >= t_q[0]) if len(t_q) else np.zeros(len(t), bool)
+    if ok.sum() < 10:
+        return None
+    iq = np.searchsorted(t_q, t[ok], "right") - 1
+    ref = math.atan2(float(ref_ned[1]), float(ref_ned[0]))
+    d = []
+    for m, i in zip((m for m, k in zip(mag, ok, strict=True) if k), iq, strict=True):
+        mn = dcm_from_quat(q_nb[i]) @ m.field_b
+        d.append(math.degrees(math.atan2(float(mn[1]), float(mn[0])) - ref))
+    x = (np.array(d) + 180.0) % 360.0 - 180.0
+    rms, mx = float(np.sqrt(np.mean(x**2))), float(np.max(np.abs(x)))
+    return {"n": len(x), "rms": rms, "max": mx, "mean": float(np.mean(x))}

@@ -28,6 +28,7 @@ from ins_hil.datasets.run import (
     rejection,
     run_dataset,
 )
+from ins_hil.types import MagSample
 
 #: warn when the gates reject more than this fraction of a kind of measurement
 REJECT_WARN = 0.03
@@ -108,6 +109,14 @@ def replay(
             m["reference"] = "no reference"
         else:
             m["reference"] = cmp.compare(r, ds.reference, t_from, p.t1)
+    ref = p.nav.mag.ref_ned
+    mags = [a for a in p.aux if isinstance(a, MagSample)]
+    if ref is not None and mags and len(r.t):
+        mh: dict[str, Any] = {"ours": cmp.mag_heading(mags, r.t, r.q_nb, ref, t_from, p.t1)}
+        ob = ds.onboard
+        if ob is not None and ob.q_nb is not None and ob.t_att is not None:
+            mh["onboard"], mh["onboard_name"] = cmp.mag_heading(mags, ob.t_att, ob.q_nb, ref, t_from, p.t1), ob.name
+        m["mag_heading"] = mh
     if ds.meta.get("rotary_wing"):
         m["rotor_drag"] = rotor_drag_check(ds, p, r, t_from)
         if m["rotor_drag"].get("note"):
@@ -208,6 +217,12 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
             rows += [(f"vs {c['against']}: {a}", b, x) for a, b, x in cmp.summary_rows(c)]
         elif c:
             rows.append((key, str(c), ""))
+    mh = m.get("mag_heading")
+    if isinstance(mh, dict):
+        for key, who in (("ours", "ours"), ("onboard", mh.get("onboard_name", ""))):
+            h = mh.get(key)
+            if h is not None:
+                rows.append((f"yaw − magnetic heading (°), {who}", f"{h['rms']:.2f}", f"{h['max']:.2f}"))
     rd = m.get("rotor_drag")
     if isinstance(rd, dict):
         for key, who in (("ours", "ours"), ("onboard", rd.get("onboard_name", ""))):
