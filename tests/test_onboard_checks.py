@@ -120,3 +120,33 @@ def test_replay_measures_the_quadrotors_rotor_drag(tmp_path: Path):
     assert "onboard" not in rd  # no EKF2 output in this log
     for ax in ("x", "y"):
         assert 0.1 < rd["ours"][ax]["mu_per_s"] < 0.3 and rd["ours"][ax]["corr"] < -0.4
+
+
+@pytest.mark.slow
+def test_the_config_says_multirotor_where_the_log_cannot(tmp_path: Path, shared_dir: Path, capsys):
+    """A generic CSV holds no vehicle type: `[dataset] rotary_wing = true` turns the rotor-drag check on (the
+    quadrotor written as CSV gives the μ of its own log); `false` turns it off for a log that says multirotor; a
+    wrong type is a one-line error."""
+    from ins_hil.datasets.generic_csv import write_generic_csv
+
+    csv = tmp_path / "flight.csv"
+    write_generic_csv(csv, read_dataset(shared_dir / "data" / "uav" / "px4_quad_157s"))
+    cfg = tmp_path / "quad.toml"
+    cfg.write_text('[dataset]\nname = "q"\npath = "flight.csv"\nrotary_wing = true\n'
+                   "[mounting]\ngnss_time_offset_s = -0.11\n")  # fmt: skip
+    assert main(["replay", "--dataset", str(cfg), "--out", str(tmp_path / "q"), "--quiet", "--no-plots"]) == 0
+    rd = json.loads((tmp_path / "q" / "metrics.json").read_text())["rotor_drag"]
+    assert 0.1 < rd["ours"]["x"]["mu_per_s"] < 0.3
+    hover = tmp_path / "hover.toml"
+    src = (REPO / "configs" / "datasets" / "px4_hover.toml").read_text()
+    path = shared_dir / "data" / "uav" / "px4_hover_92s" / "hover.ulg"
+    old = 'path = "../../../shared/data/uav/px4_hover_92s/hover.ulg"'
+    src = src.replace(old, f'path = "{path}"\nrotary_wing = false')
+    hover.write_text(src)
+    assert main(["replay", "--dataset", str(hover), "--out", str(tmp_path / "h"), "--quiet", "--no-plots"]) == 0
+    assert "rotor_drag" not in json.loads((tmp_path / "h" / "metrics.json").read_text())
+    capsys.readouterr()
+    hover.write_text(src.replace("rotary_wing = false", 'rotary_wing = "yes"'))
+    assert main(["replay", "--dataset", str(hover), "--out", str(tmp_path / "h")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "dataset.rotary_wing = 'yes': wrong type" in err

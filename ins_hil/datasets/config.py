@@ -4,7 +4,8 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
 
     [dataset]  name, format (a reader of ins_hil.datasets.dataset.READERS; detected if absent),
                path (the recording, relative to this file), position_deg = [lat, lon, h] (where the log has
-               no GNSS: the start point for the no-GNSS hold and the field model)
+               no GNSS: the start point for the no-GNSS hold and the field model), rotary_wing = true | false
+               (a multirotor: the replay's rotor-drag check; default: what the log says, off where it says nothing)
     [sensor]   grade = "mems" | "tactical"; any FilterConfig noise field to override the preset
     [mounting] imu_to_body_deg = [roll, pitch, yaw] (IMU axes → body FRD; or a list of such rotations applied in
                turn, the first to the IMU axes: C_s^b = R_n … R_1), gnss_lever_arm_m (IMU → antenna,
@@ -78,7 +79,8 @@ GRADES: dict[str, dict[str, Any]] = {
 GRADE_NAV: dict[str, dict[str, Any]] = {"mems": {"mag": {"std": 0.15}}, "tactical": {}}
 
 SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
-    "dataset": {"name": str, "format": str, "path": str, "position_deg": list, "description": str},
+    "dataset": {"name": str, "format": str, "path": str, "position_deg": list, "description": str,
+                "rotary_wing": bool},
     "sensor": {"grade": str},  # + FilterConfig fields
     "mounting": {"imu_to_body_deg": list, "gnss_lever_arm_m": list, "reference_lever_arm_m": list,
                  "imu_time_offset_s": (int, float), "gnss_time_offset_s": (int, float)},
@@ -134,6 +136,7 @@ class DatasetConfig:
     format: str | None = None
     path: Path | None = None
     position: tuple[float, float, float] | None = None  # rad, rad, m
+    rotary_wing: bool | None = None  # None: the log's vehicle type
     grade: str = "mems"
     imu_to_body: Vec = field(default_factory=lambda: np.zeros((1, 3)))  # rad, (k, 3): rotations applied in turn
     gnss_lever_arm: Vec = field(default_factory=lambda: np.zeros(3))
@@ -233,6 +236,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
             raise DatasetConfigError(f"{source}: dataset.format = {c.format!r}: expected one of {', '.join(READERS)}")
     if "path" in ds:
         c.path = (base / ds["path"]).resolve() if base is not None else Path(ds["path"])
+    c.rotary_wing = ds.get("rotary_wing")
     if "position_deg" in ds:
         p = _vec3("dataset.position_deg", ds["position_deg"], source)
         c.position = (p[0] * DEG, p[1] * DEG, float(p[2]))

@@ -117,7 +117,7 @@ def replay(
         if ob is not None and ob.q_nb is not None and ob.t_att is not None:
             mh["onboard"], mh["onboard_name"] = cmp.mag_heading(mags, ob.t_att, ob.q_nb, ref, t_from, p.t1), ob.name
         m["mag_heading"] = mh
-    if ds.meta.get("rotary_wing"):
+    if cfg.rotary_wing if cfg.rotary_wing is not None else ds.meta.get("rotary_wing"):
         m["rotor_drag"] = rotor_drag_check(ds, p, r, t_from)
         if m["rotor_drag"].get("note"):
             m["notes"] = [*m["notes"], m["rotor_drag"]["note"]]
