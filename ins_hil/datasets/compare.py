@@ -7,8 +7,9 @@ difference (the estimators start from different origins; stated in the result).
 
 :func:`rotor_drag` checks a multirotor's velocity (ours or the onboard estimator's) against the accelerometers:
 a rotor's drag makes the horizontal body specific force follow the body velocity, f_x,y ≈ c − μ v_x,y (the
-momentum drag EKF2 fuses with ``EKF2_MCOEF``), so a velocity the specific force does not follow is not the
-vehicle's. :func:`mag_heading` holds a yaw against the magnetometer's own heading.
+momentum drag EKF2 fuses with ``EKF2_MCOEF``; Martin & Salaün 2010, docs/references.md), so a velocity the
+specific force does not follow is not the vehicle's. :func:`mag_heading` holds a yaw against the magnetometer's
+own heading.
 """
 
 from __future__ import annotations
