@@ -235,21 +235,22 @@ def _batch(args: argparse.Namespace) -> int:
             status = row.get("error") or "ok"
             print(f"  [{k}/{n}] {row['job']}: {status} ({row.get('elapsed_s', 0.0):.1f} s)", file=sys.stderr)
 
+    def reference_run(what: str, sub: str, workers: int, worker_config: dict[str, Any] | None) -> dict[str, Any]:
+        """The same jobs once more, for a comparison (in ``--out``/``sub``): their rows, wall time, breakdown."""
+        if not args.quiet:
+            print(f"batch: {what}", file=sys.stderr)
+        ref_jobs = batch.jobs(pairs, seeds, args.out / sub, not args.no_plots, variants, args.shifts)
+        ref_rows, ref_wall = batch.run_batch(ref_jobs, workers, None, done, worker_config=worker_config)
+        return {"rows": ref_rows, "wall_s": ref_wall, "breakdown": batch.breakdown(ref_rows, ref_wall, max(workers, 1))}
+
     serial: dict[str, Any] | None = None
     if args.compare_serial:
-        if not args.quiet:
-            print("batch: serially first (--compare-serial)", file=sys.stderr)
-        s_jobs = batch.jobs(pairs, seeds, args.out / "serial", not args.no_plots, variants, args.shifts)
-        s_rows, s_wall = batch.run_batch(s_jobs, 0, None, done)
+        serial = reference_run("serially first (--compare-serial)", "serial", 0, None)
         batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
-        serial = {"rows": s_rows, "wall_s": s_wall, "breakdown": batch.breakdown(s_rows, s_wall, 1)}
     defaults: dict[str, Any] | None = None
     if args.compare_dask_defaults:
-        if not args.quiet:
-            print("batch: on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)", file=sys.stderr)
-        d_jobs = batch.jobs(pairs, seeds, args.out / "dask_defaults", not args.no_plots, variants, args.shifts)
-        d_rows, d_wall = batch.run_batch(d_jobs, args.workers, None, done, worker_config={})
-        defaults = {"rows": d_rows, "wall_s": d_wall, "breakdown": batch.breakdown(d_rows, d_wall, args.workers)}
+        defaults = reference_run("on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)",
+                                 "dask_defaults", args.workers, {})  # fmt: skip
     rows, wall = batch.run_batch(js, args.workers, args.scheduler, done)
     args.out.mkdir(parents=True, exist_ok=True)
     text = batch.table(rows)
