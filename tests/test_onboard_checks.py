@@ -98,7 +98,7 @@ def test_replay_checks_ekf2s_hover_velocity_against_the_accelerometers(tmp_path:
     the magnetometer's own heading (measured 16.2° RMS), ours follows it (3.3°)."""
     out = tmp_path / "hover"
     cfgp = REPO / "configs" / "datasets" / "px4_hover.toml"
-    assert main(["replay", "--dataset", str(cfgp), "--out", str(out), "--no-plots"]) == 0
+    assert main(["replay", "--dataset", str(cfgp), "--out", str(out)]) == 0  # with plots: the heading's dots
     text = capsys.readouterr().out
     rd = json.loads((out / "metrics.json").read_text())["rotor_drag"]
     ob = rd["onboard"]["x"]
@@ -107,7 +107,7 @@ def test_replay_checks_ekf2s_hover_velocity_against_the_accelerometers(tmp_path:
     assert "rotor drag: EKF2's body-x velocity spans" in text and "rotor drag μ x / y (1/s), EKF2" in text
     mh = json.loads((out / "metrics.json").read_text())["mag_heading"]
     assert mh["ours"]["rms"] < 5.0 and mh["onboard"]["rms"] > 10.0 and mh["onboard_name"] == "EKF2"
-    assert "yaw − magnetic heading (°), EKF2" in text
+    assert "yaw − magnetic heading (°), EKF2" in text and (out / "attitude.png").stat().st_size > 10_000
 
 
 @pytest.mark.slow

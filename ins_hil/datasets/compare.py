@@ -192,7 +192,8 @@ def mag_heading(
     """An estimate's yaw against the magnetometer's own heading over [t_from, t_to] (s): each reading levelled
     with the estimate's attitude at or before it, C m_b, whose horizontal direction less the reference field's
     (``ref_ned``, its declination) is the estimate's yaw less the magnetic heading (°, wrapped to ±180).
-    RMS / max |·| / mean; None for fewer than 10 readings."""
+    RMS / max |·| / mean, and (``_t``, ``_heading_deg``) the magnetic heading itself for the plots; None for
+    fewer than 10 readings."""
     t = np.array([m.t for m in mag])
     ok = (t >= t_from) & (t <= t_to) & (t >= t_q[0]) if len(t_q) else np.zeros(len(t), bool)
     if ok.sum() < 10:
@@ -205,4 +206,6 @@ def mag_heading(
         d.append(math.degrees(math.atan2(float(mn[1]), float(mn[0])) - ref))
     x = (np.array(d) + 180.0) % 360.0 - 180.0
     rms, mx = float(np.sqrt(np.mean(x**2))), float(np.max(np.abs(x)))
-    return {"n": len(x), "rms": rms, "max": mx, "mean": float(np.mean(x))}
+    yaw = np.degrees(euler_series(q_nb[iq])[:, 2])
+    heading = (yaw - x + 180.0) % 360.0 - 180.0  # the magnetic heading with this estimate's tilt (for the plots)
+    return {"n": len(x), "rms": rms, "max": mx, "mean": float(np.mean(x)), "_t": t[ok], "_heading_deg": heading}

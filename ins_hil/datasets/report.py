@@ -272,6 +272,11 @@ def plot(m: dict[str, Any], runs: dict[str, RunResult], ds: Dataset, out: Path) 
             ax[k].plot(s["att_t"] - t0, s["att_theirs_deg"][:, k], lw=0.8, label=c["against"])  # type: ignore[index]
         ax[k].set_ylabel(f"{name} (°)")
         ax[k].grid(alpha=0.3)
+    mh = m.get("mag_heading", {}).get("ours") if isinstance(m.get("mag_heading"), dict) else None
+    if mh is not None and "_t" in mh:
+        ax[2].plot(mh["_t"] - t0, mh["_heading_deg"], ".", ms=2, color="0.4",
+                   label="magnetometer heading (levelled with ours)")  # fmt: skip
+        ax[2].legend(loc="best")
     ax[0].legend(loc="upper right")
     ax[0].set_title(f"{m['dataset']}: attitude" + ("" if c else " (no onboard estimate in the log)"))
     ax[2].set_xlabel("time from the start of the log (s)")
