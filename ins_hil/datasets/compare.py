@@ -32,6 +32,11 @@ ROTOR_DRAG_MIN = 0.1
 DRAG_SPAN_MIN = 1.0
 
 
+def _wrap_deg(a: Vec) -> Vec:
+    """Angles (°) wrapped to [−180, 180)."""
+    return (a + 180.0) % 360.0 - 180.0
+
+
 def _ours_at(r: RunResult, t: Vec, t_from: float, t_to: float) -> tuple[Vec, Vec]:
     """(mask into t, index into r.t) of the onboard times inside [t_from, t_to] where we navigate."""
     i = np.searchsorted(r.t, t, "right") - 1
@@ -58,7 +63,7 @@ def compare(r: RunResult, tr: Trajectory, t_from: float, t_to: float) -> dict[st
         if np.any(m):
             theirs = euler_series(tr.q_nb[m])
             d = np.degrees(euler_series(r.q_nb[i]) - theirs)
-            d = (d + 180.0) % 360.0 - 180.0
+            d = _wrap_deg(d)
             out["attitude_deg"] = _stats(d, ("roll", "pitch", "yaw"))
             series["att_t"], series["att_theirs_deg"], series["att_diff_deg"] = tr.t_att[m], np.degrees(theirs), d
     if tr.vel_ned is not None and tr.t_vel is not None:
@@ -204,8 +209,8 @@ def mag_heading(
     for m, i in zip((m for m, k in zip(mag, ok, strict=True) if k), iq, strict=True):
         mn = dcm_from_quat(q_nb[i]) @ m.field_b
         d.append(math.degrees(math.atan2(float(mn[1]), float(mn[0])) - ref))
-    x = (np.array(d) + 180.0) % 360.0 - 180.0
+    x = _wrap_deg(np.array(d))
     rms, mx = float(np.sqrt(np.mean(x**2))), float(np.max(np.abs(x)))
     yaw = np.degrees(euler_series(q_nb[iq])[:, 2])
-    heading = (yaw - x + 180.0) % 360.0 - 180.0  # the magnetic heading with this estimate's tilt (for the plots)
+    heading = _wrap_deg(yaw - x)  # the magnetic heading with this estimate's tilt (for the plots)
     return {"n": len(x), "rms": rms, "max": mx, "mean": float(np.mean(x)), "_t": t[ok], "_heading_deg": heading}

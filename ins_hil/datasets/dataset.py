@@ -46,6 +46,13 @@ class Trajectory:
     lever_b: Vec = field(default_factory=lambda: np.zeros(3))
     vel_ned_unaided: Vec | None = None
 
+    def vel_ned_all(self) -> Vec | None:
+        """The estimator's velocity (m/s, NED) at ``t_vel`` with its unaided samples filled in (``vel_ned``
+        where it is valid, ``vel_ned_unaided`` where the estimator flags it)."""
+        if self.vel_ned is None or self.vel_ned_unaided is None:
+            return self.vel_ned
+        return np.where(np.isnan(self.vel_ned), self.vel_ned_unaided, self.vel_ned)
+
 
 @dataclass
 class Dataset:

@@ -135,9 +135,8 @@ def rotor_drag_check(ds: Dataset, p: Prepared, r: RunResult, t_from: float) -> d
     if len(r.t):
         out["ours"] = cmp.rotor_drag(p.imu, r.t, r.vel_ned, r.t, r.q_nb, max(a, t_from), b)
     ob = ds.onboard
-    if ob is not None and ob.vel_ned is not None and ob.t_vel is not None and ob.q_nb is not None:
-        assert ob.t_att is not None
-        v = ob.vel_ned if ob.vel_ned_unaided is None else np.where(np.isnan(ob.vel_ned), ob.vel_ned_unaided, ob.vel_ned)
+    v = ob.vel_ned_all() if ob is not None else None
+    if ob is not None and v is not None and ob.t_vel is not None and ob.q_nb is not None and ob.t_att is not None:
         fit = cmp.rotor_drag(p.imu, ob.t_vel, v, ob.t_att, ob.q_nb, a, b)
         out["onboard"], out["onboard_name"] = fit, ob.name
         ax = cmp.drag_unsensed(fit)
