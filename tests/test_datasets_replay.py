@@ -226,12 +226,26 @@ def test_replay_reports_lost_imu_data(tmp_path: Path, capsys):
         assert main(["replay", str(data), "--dataset", str(cfgp), "--out", str(out), "--quiet", "--no-plots"]) == 0
         text = capsys.readouterr().out
         m = json.loads((out / "metrics.json").read_text())
+        w = [x for x in m["outages"]["windows"] if x["scored"]]
+        assert [x["window_s"][0] for x in w] == pytest.approx([20.01, 40.01])  # the data start at 0.01 s
         if name == "gap":
             assert m["imu_lost"]["gaps"] == 1 and m["imu_lost"]["s"] == pytest.approx(1.5, abs=1e-6)
             assert "IMU data lost (coasted)" in text and "1 gaps, 1.50 s" in text
             assert m["gnss"]["gnss_h_rms_prior_m"] < 0.2  # at rest, coasted at zero velocity: no jump
+            # the outage at 40 s opened 8.5 s after the gap (30.0-31.5 s) ended; the one at 20 s saw none
+            assert w[1]["before"]["imu_lost_s"] == pytest.approx(1.5, abs=1e-6)
+            assert w[1]["before"]["since_imu_lost_s"] == pytest.approx(8.5, abs=1e-6)
+            assert w[0]["before"]["imu_lost_s"] == 0.0 and w[0]["before"]["since_imu_lost_s"] is None
         else:
             assert m["imu_lost"] == {"gaps": 0, "s": 0.0} and "IMU data lost" not in text
+            assert all(x["before"]["imu_lost_s"] == 0.0 for x in w)
+        assert all(x["before"]["peak_rate_dps"] < 0.01 for x in w)  # at rest: the Earth's rate only
+        # at rest, holding the last fix is exact: each outage that loses to it is listed with what preceded it
+        for k, x in enumerate(w, 1):
+            line = [ln for ln in text.splitlines() if ln.strip().startswith(f"outage {k}: ours / hold / cv (m)")]
+            assert len(line) == (0 if x["beats_both"] else 1)
+            if line and name == "gap" and k == 2:
+                assert "opened 8.5 s after 1.50 s of lost IMU data" in line[0]
 
 
 def test_autocorrelation_of_white_ma1_ar1_series_and_no_pair_across_a_gap():
@@ -311,3 +325,28 @@ def test_error_growth_recovers_the_start_velocity_and_specific_force_errors():
     np.testing.assert_allclose(g[1], acc, atol=0.005)
     assert 0.01 < g[2] < 0.04  # the residual is the noise
     assert error_growth(tau[:5], e[:5]) is None
+
+
+def test_what_preceded_an_outage_lost_imu_data_and_a_fast_turn():
+    """``preceded_by``: the IMU data lost in the 10 s before an outage and the peak turn rate (0.25-s means of the
+    body rate, so vibration averages out), each with the time since; nothing before the look-back counts."""
+    from types import SimpleNamespace
+
+    from ins_hil.datasets.run import preceded_by, rate_bins
+
+    rng = np.random.default_rng(3)
+    imu = []
+    for k in range(1, 1001):  # 10 s at 100 Hz: a 90 °/s yaw over [5, 6) s, 0.2 rad/s vibration on every axis
+        t = k / 100
+        w = rng.normal(0.0, 0.2, 3) + (np.array((0.0, 0.0, math.radians(90.0))) if 5.0 < t <= 6.0 else 0.0)
+        imu.append(ImuSample(t=t, dt=0.01, dtheta=w * 0.01, dvel=np.zeros(3)))
+    rb = rate_bins(imu)
+    assert rb.shape == (40, 2) and rb[0, 0] == pytest.approx(0.01)
+    r = SimpleNamespace(imu_gaps=np.array([[2.0, 0.7], [3.0, 0.3]]), rate_bins=rb)
+    b = preceded_by(r, 8.0)
+    assert b["imu_lost_s"] == pytest.approx(1.0) and b["since_imu_lost_s"] == pytest.approx(5.0)
+    assert 85.0 < b["peak_rate_dps"] < 100.0 and 1.9 < b["since_peak_rate_s"] < 2.8  # since its 0.25-s bin ended
+    late = preceded_by(r, 13.5)  # the gaps are more than 10 s back; the turn is still inside
+    assert late["imu_lost_s"] == 0.0 and math.isnan(late["since_imu_lost_s"]) and late["peak_rate_dps"] > 85.0
+    quiet = preceded_by(SimpleNamespace(imu_gaps=np.zeros((0, 2)), rate_bins=rb), 4.0)
+    assert quiet["peak_rate_dps"] < 10.0  # the vibration alone: 0.2 rad/s per sample, 0.25-s means of 25 samples

@@ -188,9 +188,16 @@ def test_flight_log_targets_are_judged_from_the_metrics():
                         "windows": [{"scored": True, "beats_both": b} for b in (True, False, True, True)]},
             "rejection": {"gnss_pos": {"rate": 0.002}},
             "rotor_drag": {"ours": {"x": {"mu_per_s": 0.1876}}}}  # fmt: skip
+    quad["outages"]["windows"][1].update(h_rms_m=3.73, hold_h_rms_m=1.6, cv_h_rms_m=4.02, before={
+        "imu_lost_s": 2.52, "since_imu_lost_s": 4.97, "peak_rate_dps": 199.7, "since_peak_rate_s": 3.07})  # fmt: skip
+    quad["outages"]["windows"][3].update(before={"imu_lost_s": 0.0, "since_imu_lost_s": None,  # as read back
+                                                 "peak_rate_dps": None, "since_peak_rate_s": None})  # fmt: skip
     md = flight_logs_md({"ardupilot_copter": {"onboard": {"attitude_deg": att}}, "px4_quad": quad,
                          "px4_hover": {"error": "hover.ulg: no such file"}})  # fmt: skip
     rows = md.splitlines()
+    why = "outage 2, opened 5.0 s after 2.52 s of lost IMU data, 3.1 s after a 200 °/s turn"
+    assert f"| px4_quad | {why}: ours / hold / cv h RMS (m) | 3.73 / 1.60 / 4.02 | below both | falls short |" in rows
+    assert sum("outage 4" in x for x in rows) == 0  # below both: not listed
     assert "| ardupilot_copter | roll vs NKF1, RMS (°) | 0.50 | ≤ 1° | met |" in rows
     assert "| ardupilot_copter | pitch vs NKF1, RMS (°) | 1.60 | ≤ 1.5° | falls short |" in rows
     assert "| px4_quad | GNSS-present h error prior, RMS (m) | 0.148 | ≤ 0.35 m | met |" in rows

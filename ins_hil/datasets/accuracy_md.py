@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from ins_hil import machine
+from ins_hil.datasets.run import preceded_text
 
 
 def fmt_value(x: Any, nd: int = 3, missing: str | None = None) -> str:
@@ -126,6 +127,11 @@ def flight_logs_md(logs: dict[str, dict[str, Any]]) -> str:
             n = sum(1 for w in o["windows"] if w.get("scored") and w.get("beats_both"))
             rows.append((name, "outages below hold-last-fix and constant velocity", f"{n} of {o['outages_scored']}",
                          "every outage", "met" if o["beats_both_in_every_outage"] else "falls short"))  # fmt: skip
+            for k, w in enumerate((w for w in o["windows"] if w.get("scored")), 1):
+                if not w["beats_both"] and "before" in w:
+                    rows.append((name, f"outage {k}, opened {preceded_text(w['before'])}: ours / hold / cv h RMS (m)",
+                                 f"{w['h_rms_m']:.2f} / {w['hold_h_rms_m']:.2f} / {w['cv_h_rms_m']:.2f}",
+                                 "below both", "falls short"))  # fmt: skip
         rej = [v["rate"] for v in m.get("rejection", {}).values()]
         if rej:
             rows.append((name, "gate rejections, worst kind", f"{max(rej):.1%}", "reported", "reported"))

@@ -24,6 +24,7 @@ from ins_hil.datasets.run import (
     gnss_scores,
     innovation_whiteness,
     outage_scores,
+    preceded_text,
     prepare,
     rejection,
     run_dataset,
@@ -208,6 +209,12 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
                 rows.append(("  filter's tilt σ at the starts (°)", f"{o['start_tilt_std_rms_deg']:.2f}",
                              f"{o['start_tilt_std_max_deg']:.2f}"))  # fmt: skip
         rows.append(("  below both predictors in every outage", "yes" if o["beats_both_in_every_outage"] else "no", ""))
+        scored = [w for w in o["windows"] if w.get("scored")]
+        for k, w in enumerate(scored, 1):
+            if w["beats_both"] or "before" not in w:
+                continue
+            rows.append((f"  outage {k}: ours / hold / cv (m)", f"{w['h_rms_m']:.2f} / {w['hold_h_rms_m']:.2f} / "
+                         f"{w['cv_h_rms_m']:.2f}", "opened " + preceded_text(w["before"])))  # fmt: skip
     elif o:
         rows.append(("outages", str(o), ""))
     for key in ("onboard", "reference"):

@@ -219,6 +219,8 @@ class RunResult:
     align_status: str = ""  # why the core had not navigated at the end ("" when it did)
     imu_lost: tuple[int, float] = (0, 0.0)  # IMU gaps the core coasted across while navigating (count, s)
     vel_innov: Vec = field(default_factory=lambda: np.zeros((0, 4)))  # GNSS velocity innovations: t s, z NED m/s
+    imu_gaps: Vec = field(default_factory=lambda: np.zeros((0, 2)))  # each coasted gap: its end (s), lost (s)
+    rate_bins: Vec = field(default_factory=lambda: np.zeros((0, 2)))  # |mean body rate| per RATE_BIN_S: t s, rad/s
 
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
@@ -244,6 +246,8 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
     gs: list[Vec] = []
     gr: list[Vec] = []
     gf: list[int] = []
+    gaps: list[tuple[float, float]] = []
+    lost = core.imu_lost
     j = 0
     n = len(p.imu)
     t_nav = math.nan
@@ -251,6 +255,9 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
     t_start = time.perf_counter()
     for k, s in enumerate(p.imu):
         core.step(s)
+        if core.imu_lost is not lost:  # a gap coasted across in this step
+            gaps.append((s.t, core.imu_lost[1] - lost[1]))
+            lost = core.imu_lost
         while j < len(meas) and meas[j][0] <= s.t:
             _, kind, m = meas[j]
             j += 1
@@ -296,8 +303,44 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
         list(outages),
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, list(p.notes), core.align_status(), core.imu_lost,
-        np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4),
+        np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), rate_bins(p.imu),
     )  # fmt: skip
+
+
+#: the bin (s) of :func:`rate_bins`: a turn's rate, not the vibration's
+RATE_BIN_S = 0.25
+#: how far back (s) :func:`outage_scores` looks for what preceded each outage
+LOOKBACK_S = 10.0
+
+
+def rate_bins(imu: list[ImuSample]) -> Vec:
+    """(M, 2): the start of each ``RATE_BIN_S`` bin (s) and the norm of the mean body rate in it (rad/s):
+    the vehicle's turns with its vibration averaged out."""
+    if not imu:
+        return np.zeros((0, 2))
+    t = np.fromiter((s.t for s in imu), np.float64, len(imu))
+    d = np.array([s.dtheta for s in imu])
+    dt = np.fromiter((s.dt for s in imu), np.float64, len(imu))
+    k = ((t - t[0]) // RATE_BIN_S).astype(np.int64)
+    ang = np.zeros((int(k[-1]) + 1, 3))
+    tim = np.zeros(int(k[-1]) + 1)
+    np.add.at(ang, k, d)
+    np.add.at(tim, k, dt)
+    ok = tim > 0
+    return np.column_stack([t[0] + RATE_BIN_S * np.nonzero(ok)[0], np.linalg.norm(ang[ok], axis=1) / tim[ok]])
+
+
+def preceded_by(r: RunResult, a: float, lookback: float = LOOKBACK_S) -> dict[str, float]:
+    """What came in the ``lookback`` s before an outage opened at ``a`` s: IMU data lost (s, coasted) and the
+    time since that loss ended (s; NaN without one), the peak turn rate (°/s, :func:`rate_bins`) and the time
+    since it (s): an outage that opens soon after either starts from a state the filter is still re-learning."""
+    g = r.imu_gaps[(r.imu_gaps[:, 0] > a - lookback) & (r.imu_gaps[:, 0] <= a)] if len(r.imu_gaps) else r.imu_gaps
+    b = r.rate_bins[(r.rate_bins[:, 0] >= a - lookback) & (r.rate_bins[:, 0] + RATE_BIN_S <= a)]
+    k = int(np.argmax(b[:, 1])) if len(b) else -1
+    return {"imu_lost_s": float(g[:, 1].sum()) if len(g) else 0.0,
+            "since_imu_lost_s": float(a - g[-1, 0]) if len(g) else math.nan,
+            "peak_rate_dps": math.degrees(float(b[k, 1])) if k >= 0 else math.nan,
+            "since_peak_rate_s": float(a - b[k, 0] - RATE_BIN_S) if k >= 0 else math.nan}  # fmt: skip
 
 
 def hrms(e: Vec) -> float:
@@ -364,6 +407,16 @@ def innovation_whiteness(r: RunResult, settle_s: float = 30.0) -> dict[str, Any]
     }
 
 
+def preceded_text(b: dict[str, Any]) -> str:
+    """One line of what preceded an outage (:func:`preceded_by`; as read back from JSON too, NaN as None)."""
+    lost, rate = b.get("imu_lost_s") or 0.0, b.get("peak_rate_dps")
+    text = (f"{b['since_imu_lost_s']:.1f} s after {lost:.2f} s of lost IMU data" if lost > 0
+            else f"no lost IMU data in the {LOOKBACK_S:.0f} s before it")  # fmt: skip
+    if rate is not None and math.isfinite(rate):
+        text += f", {b['since_peak_rate_s']:.1f} s after a {rate:.0f} °/s turn"
+    return text
+
+
 def error_growth(tau: Vec, e: Vec) -> tuple[Vec, Vec, float] | None:
     """What an outage's horizontal error is made of: the least-squares fit e(τ) ≈ e₀ + v₀ τ + a τ²/2 of the
     errors ``e`` (N, 2; m, north / east) at ``tau`` (N,) s after the outage began. (v₀ m/s, the velocity error
@@ -388,8 +441,9 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
     predictors built from the last fix before the window (hold it; extrapolate it with its velocity), the
     2-dof NEES of the horizontal error with the core's σ, and what the error is made of (:func:`error_growth`:
     the horizontal velocity error at the window's start, m/s, and the specific-force error, m/s², with its
-    tilt equivalent, °) beside the filter's own horizontal tilt σ when the window opened (°, √(σ_N² + σ_E²)).
-    A window that opens before the core navigates is reported as not scored."""
+    tilt equivalent, °) beside the filter's own horizontal tilt σ when the window opened (°, √(σ_N² + σ_E²)),
+    and what preceded it (``before``: :func:`preceded_by`). A window that opens before the core navigates is
+    reported as not scored."""
     rows = []
     allf, allh, allc, alln = [], [], [], []
     v0s, sfs, tilt_sd = [], [], []
@@ -414,6 +468,7 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
                     "hold_h_rms_m": hrms(eh), "hold_h_max_m": hmax(eh), "cv_h_rms_m": hrms(ec), "cv_h_max_m": hmax(ec),
                     "nees_2dof": float(np.mean(nees))})  # fmt: skip
         row["beats_both"] = row["h_rms_m"] < row["hold_h_rms_m"] and row["h_rms_m"] < row["cv_h_rms_m"]
+        row["before"] = preceded_by(r, a)
         k0 = int(np.searchsorted(r.t, a, "right")) - 1  # the filter's tilt σ when the window opened
         if k0 >= 0:
             row["start_tilt_std_deg"] = math.degrees(math.hypot(float(r.std_att[k0, 0]), float(r.std_att[k0, 1])))

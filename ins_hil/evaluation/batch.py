@@ -321,6 +321,9 @@ def _row(m: dict[str, Any]) -> dict[str, Any]:
     if isinstance(o, dict):
         for k in ("outage_h_rms_m", "outage_h_max_m", "hold_h_rms_m", "cv_h_rms_m", "beats_both_in_every_outage"):
             r[k] = o.get(k)
+        w = [x for x in o.get("windows", []) if x.get("scored")]
+        for k in ("h_rms_m", "hold_h_rms_m", "cv_h_rms_m"):  # per outage, in order
+            r[f"each_{k}"] = [x[k] for x in w]
     ob = m.get("onboard")
     if isinstance(ob, dict):
         att = ob.get("attitude_deg")
@@ -493,10 +496,12 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
         gnss = any(r.get("gnss_h_rms_m") is not None for r in mine)
         lag1 = any(r.get("vel_innov_lag1") for r in mine)
         onboard = any(r.get("onboard_att_rms_deg") for r in mine)
+        each = len(shifts) == 1 and any(r.get("each_h_rms_m") for r in mine)  # one protocol: each outage too
         head = ["variant"]
         if outages:
             head += [f"outage shift {s:+g} s" for s in shifts] if len(shifts) > 1 or shifts[0] else ["outage"]
             head += ["pooled", "beats both"] if len(shifts) > 1 else ["beats both"]
+            head += ["each outage h RMS m"] * each
         head += ["GNSS h RMS m"] * gnss + ["vel innov lag-1 N / E"] * lag1 + ["vs onboard r / p / y °"] * onboard
         head += ["failed"]
         lines = [f"**{log}**" + (": outage h error RMS / worst (m)" if outages else ""), "",
@@ -513,6 +518,8 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
                     cells.append(f"{_f(rms)} / {_f(mx)}" if not np.isnan(rms) else "—")
                 beats = sum(1 for r in ok if r.get("beats_both_in_every_outage") is True)
                 cells.append(f"{beats} of {len(vrows)}")
+                if each:
+                    cells.append(_each(ok, "each_h_rms_m"))
             if gnss:
                 gh = [float(r["gnss_h_rms_m"]) for r in ok if r.get("gnss_h_rms_m") is not None]
                 cells.append(_f(float(np.mean(gh))) if gh else "—")
@@ -524,5 +531,19 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
                 cells.append(" / ".join(_f(float(x)) for x in np.mean(a, axis=0)) if a else "—")
             cells.append(str(len(vrows) - len(ok)))
             lines.append("| " + " | ".join(cells) + " |")
+        if each:  # the trivial predictors use the GNSS only: one line for every variant
+            ok = [r for r in mine if "error" not in r and r.get("each_h_rms_m")]
+            lines += ["", f"Each outage, hold the last fix: {_each(ok, 'each_hold_h_rms_m')} m; constant-velocity "
+                          f"extrapolation: {_each(ok, 'each_cv_h_rms_m')} m (h RMS)."]  # fmt: skip
         out.append("\n".join(lines))
     return "\n\n".join(out)
+
+
+def _each(rows: list[dict[str, Any]], key: str) -> str:
+    """Per outage, the RMS over ``rows`` (seeds) of their ``key`` lists (m), as "a / b / c"; "—" without."""
+    lists = [r[key] for r in rows if r.get(key)]
+    n = min((len(x) for x in lists), default=0)
+    if not n:
+        return "—"
+    a = np.array([x[:n] for x in lists], dtype=float)
+    return " / ".join(_f(float(v)) for v in np.sqrt(np.mean(a**2, axis=0)))
