@@ -123,7 +123,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="batch: also run the jobs on a LocalCluster with Dask's own worker settings (profiler, 20-ms "
         "tick) and print both wall times side by side (with --compare-serial: both ratios)",
     )
-    o = p.add_argument_group("IMU time offset from the data (ins_hil.datasets.offset)")
+    o = p.add_argument_group("IMU time offset and mounting yaw from the data (ins_hil.datasets.offset)")
     o.add_argument(
         "--estimate-offset",
         action="store_true",
@@ -135,6 +135,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--write-offset",
         action="store_true",
         help="write the estimate into the --dataset config ([mounting] imu_time_offset_s)",
+    )
+    o.add_argument(
+        "--estimate-mounting",
+        action="store_true",
+        help="estimate the IMU mounting yaw (about body z, after the config's rotations): 5-s outages scored "
+        "over a grid; observable with a ground vehicle's NHC, said when the log cannot tell",
+    )
+    o.add_argument("--mounting-span", type=float, default=5.0, metavar="DEG", help="search ± this around the config's")
+    o.add_argument("--mounting-step", type=float, default=0.5, metavar="DEG", help="grid step of the search")
+    o.add_argument(
+        "--write-mounting",
+        action="store_true",
+        help="write the estimate into the --dataset config (the yaw of [mounting] imu_to_body_deg's last rotation)",
     )
 
 
@@ -293,32 +306,43 @@ def _batch(args: argparse.Namespace) -> int:
     return 1 if failed or differ else 0
 
 
-def _estimate_offset(src: str, args: argparse.Namespace) -> int:
-    """``--estimate-offset``: the IMU time offset of one log, optionally written into its dataset config."""
+def _estimate(src: str, args: argparse.Namespace) -> int:
+    """``--estimate-offset`` / ``--estimate-mounting``: the IMU time offset or mounting yaw of one log, optionally
+    written into its dataset config."""
     from ins_hil.datasets import report
     from ins_hil.datasets.config import DatasetConfig
-    from ins_hil.datasets.offset import estimate_imu_offset, write_offset
+    from ins_hil.datasets.offset import estimate_imu_offset, estimate_mounting_yaw, write_mounting_yaw, write_offset
 
+    mounting = args.estimate_mounting
+    write, flag = (args.write_mounting, "--write-mounting") if mounting else (args.write_offset, "--write-offset")
     try:
         cfg = load_dataset_config(args.dataset) if args.dataset else DatasetConfig(name=Path(src).stem)
         path = cfg.path if (src == "drive" and args.dataset is not None) or not src else Path(src)
         if path is None:
             raise DatasetConfigError(f"{args.dataset}: no dataset.path and no FILE|DIR given")
         ds = report.load(Path(path), cfg)
-        est = estimate_imu_offset(ds, cfg, span_s=args.offset_span, step_s=args.offset_step,
-                                  progress=_Progress("offset grid", args.quiet))  # fmt: skip
+        if mounting:
+            est = estimate_mounting_yaw(ds, cfg, span=math.radians(args.mounting_span),
+                                        step=math.radians(args.mounting_step),
+                                        progress=_Progress("mounting grid", args.quiet))  # fmt: skip
+        else:
+            est = estimate_imu_offset(ds, cfg, span_s=args.offset_span, step_s=args.offset_step,
+                                      progress=_Progress("offset grid", args.quiet))  # fmt: skip
     except (DatasetError, ValueError) as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
     print(est.summary())
-    for g, c in zip(est.grid_s, est.cost_m2, strict=True):
-        print(f"  {g * 1e3:+7.1f} ms  {c:10.4f} m²")
-    if args.write_offset:
-        if args.dataset is None or math.isnan(est.offset_s):
-            print("ins-hil replay: --write-offset needs --dataset and an estimate", file=sys.stderr)
+    print("\n".join(est.table()))
+    if write:
+        if args.dataset is None or math.isnan(est.value):
+            print(f"ins-hil replay: {flag} needs --dataset and an estimate", file=sys.stderr)
             return 2
-        write_offset(args.dataset, est.offset_s)
-        print(f"written: {args.dataset} [mounting] imu_time_offset_s = {est.offset_s:.4f}")
+        if mounting:
+            write_mounting_yaw(args.dataset, cfg, est.value)
+            print(f"written: {args.dataset} [mounting] imu_to_body_deg, yaw {math.degrees(est.value):.2f}°")
+        else:
+            write_offset(args.dataset, est.value)
+            print(f"written: {args.dataset} [mounting] imu_time_offset_s = {est.value:.4f}")
     return 0
 
 
@@ -330,8 +354,11 @@ def run(args: argparse.Namespace) -> int:
             args.dataset = None
     if args.batch:
         return _batch(args)
-    if args.estimate_offset:
-        return _estimate_offset(src, args)
+    if args.estimate_offset or args.estimate_mounting:
+        if args.estimate_offset and args.estimate_mounting:
+            print("ins-hil replay: --estimate-offset and --estimate-mounting: one at a time", file=sys.stderr)
+            return 2
+        return _estimate(src, args)
     if src.endswith(".ihlog") and args.dataset is None:  # the exact pipeline replay (with --dataset: a data set)
         try:
             mod = _runtime_replay()

@@ -1,4 +1,4 @@
-"""The IMU–GNSS time offset from the data: short GNSS outages scored over a grid of offsets.
+"""The IMU–GNSS time offset and the IMU mounting yaw from the data: short GNSS outages scored over a grid.
 
 An IMU whose time stamps are off by δ against the GNSS lags (or leads) the motion: the attitude and
 velocity the INS carries into an outage are those of δ earlier, so the dead-reckoned position drifts
@@ -11,7 +11,14 @@ spread of the vertex when the outages are resampled (bootstrap): what the data s
 
 The cost is taken on the dataset config as given (its mounting, lever arms, grade, aids), so the
 estimate answers "which offset makes this filter dead-reckon best on this log"; that is also the
-offset to set for replays. Mounting yaw is not estimated here.
+offset to set for replays.
+
+The mounting yaw (:func:`estimate_mounting_yaw`, a rotation about the body z axis after the config's
+``imu_to_body`` rotations) is searched the same way. It is observable where something ties the body axes to
+the motion: a ground vehicle's non-holonomic constraint (``[nav.aids] nhc``) turns a yaw misalignment into a
+lateral velocity and a dead-reckoned heading error. Where nothing does (a multirotor without the drag aid)
+the cost is flat; the bootstrap then spreads the minimum over the whole search and the estimate says that
+the log cannot tell (:data:`UNOBSERVABLE`).
 """
 
 from __future__ import annotations
@@ -33,31 +40,49 @@ from ins_hil.types import Vec
 Progress = Callable[[int, int], None]
 
 
-@dataclass
-class OffsetEstimate:
-    """The result: ``offset_s`` to set as ``imu_time_offset_s`` (NaN when the minimum lies at the edge of
-    the search, ``reason`` says so), its bootstrap σ ``std_s``, the cost curve (``grid_s`` absolute
-    offsets, ``cost_m2`` mean squared horizontal outage error), the outages used and the window (s)."""
+#: a search whose bootstrap σ exceeds this fraction of its span, or whose cost changes by less than
+#: ``FLAT`` (relative) over the whole search, has found no minimum the data support
+UNOBSERVABLE = 0.5
+FLAT = 0.1
 
-    offset_s: float
-    std_s: float
-    base_s: float
-    grid_s: Vec
+
+@dataclass
+class GridEstimate:
+    """The result of a search over a grid of one config value: ``value`` to set (NaN when the data do not
+    give one, ``reason`` says why), its bootstrap σ ``std``, the config's own ``base``, the cost curve (``grid``
+    absolute values, ``cost_m2`` mean squared horizontal outage error), the outages used and the window (s, absolute).
+    Values in the setting's unit (s, rad); ``what``, ``unit`` and ``scale`` print them (ms: 1e3, °: 180/π)."""
+
+    value: float
+    std: float
+    base: float
+    grid: Vec
     cost_m2: Vec
     outages: list[tuple[float, float]]
     window: tuple[float, float]
     reason: str = ""
     per_outage: Vec = field(default_factory=lambda: np.zeros((0, 0)))
+    what: str = "IMU time offset"
+    unit: str = "ms"
+    scale: float = 1e3
+    log_t0: float = 0.0  # the log's first time (s): the window is printed from it
 
     def summary(self) -> str:
         """One line for the terminal."""
-        if math.isnan(self.offset_s):
-            return f"IMU time offset: not found ({self.reason})"
+        if math.isnan(self.value):
+            return f"{self.what}: not found ({self.reason})"
+        u, k = self.unit, self.scale
         return (
-            f"IMU time offset: {self.offset_s * 1e3:+.1f} ms ± {self.std_s * 1e3:.1f} ms (1σ, bootstrap over "
-            f"{len(self.outages)} outages of the window {self.window[0]:.0f}–{self.window[1]:.0f} s; "
-            f"the config has {self.base_s * 1e3:+.1f} ms)"
+            f"{self.what}: {self.value * k:+.1f} {u} ± {self.std * k:.1f} {u} (1σ, bootstrap over "
+            f"{len(self.outages)} outages of {self.window[0] - self.log_t0:.0f}–{self.window[1] - self.log_t0:.0f} s "
+            "into the log; "
+            f"the config has {self.base * k:+.1f} {u})"
         )
+
+    def table(self) -> list[str]:
+        """The cost curve, a line per candidate."""
+        k, u = self.scale, self.unit
+        return [f"  {g * k:+7.1f} {u}  {c:10.4f} m²" for g, c in zip(self.grid, self.cost_m2, strict=True)]
 
 
 def outage_windows(t0: float, t1: float, on_s: float, off_s: float) -> list[tuple[float, float]]:
@@ -95,16 +120,66 @@ def estimate_imu_offset(
     bootstrap: int = 200,
     seed: int = 0,
     progress: Progress | None = None,
-) -> OffsetEstimate:
+) -> GridEstimate:
     """Estimate the IMU time offset (s, added to the IMU times as ``imu_time_offset_s``) of ``ds``.
 
     Candidates: the config's offset ± ``span_s`` in steps of ``step_s``. ``window`` (s, absolute): the
     selection window replayed (default the whole log; outages start ``settle_s`` after its start, or
     after take-off where the log has one). Needs GNSS in the window."""
+    return _search(ds, cfg, "time offset", cfg.imu_time_offset, span_s, step_s,
+                   lambda c, d: dataclasses.replace(c, imu_time_offset=d), window, settle_s, on_s, off_s,
+                   bootstrap, seed, progress)  # fmt: skip
+
+
+def estimate_mounting_yaw(
+    ds: Dataset,
+    cfg: DatasetConfig,
+    span: float = math.radians(5.0),
+    step: float = math.radians(0.5),
+    window: tuple[float, float] | None = None,
+    settle_s: float = 30.0,
+    on_s: float = 5.0,
+    off_s: float = 7.0,
+    bootstrap: int = 200,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> GridEstimate:
+    """Estimate the mounting yaw of ``ds`` (rad): a rotation about the body z axis added to the yaw of the
+    config's last ``imu_to_body`` rotation (the one applied last, in body axes), over its value ± ``span``
+    in steps of ``step``; the rest as :func:`estimate_imu_offset`."""
+
+    def with_yaw(c: DatasetConfig, y: float) -> DatasetConfig:
+        rot = c.imu_to_body.copy()
+        rot[-1, 2] = y
+        return dataclasses.replace(c, imu_to_body=rot)
+
+    est = _search(ds, cfg, "mounting yaw", float(cfg.imu_to_body[-1, 2]), span, step, with_yaw, window, settle_s,
+                  on_s, off_s, bootstrap, seed, progress)  # fmt: skip
+    return dataclasses.replace(est, what="mounting yaw", unit="°", scale=180.0 / math.pi)
+
+
+def _search(
+    ds: Dataset,
+    cfg: DatasetConfig,
+    what: str,
+    base: float,
+    span: float,
+    step: float,
+    apply: Callable[[DatasetConfig, float], DatasetConfig],
+    window: tuple[float, float] | None,
+    settle_s: float,
+    on_s: float,
+    off_s: float,
+    bootstrap: int,
+    seed: int,
+    progress: Progress | None,
+) -> GridEstimate:
+    """Replay ``ds`` with ``apply(cfg, value)`` for each value of ``base`` ± ``span`` in steps of ``step``,
+    with outages of ``on_s`` every ``on_s + off_s`` s; the cost's minimum and its bootstrap σ."""
     if not ds.gnss:
-        raise ValueError("time offset: the log has no GNSS fixes to score outages against")
-    if step_s <= 0.0 or span_s < 2 * step_s:
-        raise ValueError(f"time offset: need span ≥ 2 steps (span {span_s} s, step {step_s} s)")
+        raise ValueError(f"{what}: the log has no GNSS fixes to score outages against")
+    if step <= 0.0 or span < 2 * step:
+        raise ValueError(f"{what}: need span ≥ 2 steps (span {span:g}, step {step:g})")
     t_from, t_to = window if window is not None else (ds.t0, ds.t1)
     t_from = max(t_from, ds.t0)
     t_to = min(t_to, ds.t1)
@@ -120,16 +195,15 @@ def estimate_imu_offset(
     outages = outage_windows(start, t_to - 1.0, on_s, off_s)
     if len(outages) < 3:
         raise ValueError(
-            f"time offset: the window {t_from:.0f}–{t_to:.0f} s leaves {len(outages)} outages of {on_s:g} s "
+            f"{what}: the window {t_from:.0f}–{t_to:.0f} s leaves {len(outages)} outages of {on_s:g} s "
             f"after {settle_s:g} s of settling; need at least 3 (a longer window or shorter outages)"
         )
-    base = cfg.imu_time_offset
-    n = round(span_s / step_s)
-    grid = base + step_s * np.arange(-n, n + 1)
+    n = round(span / step)
+    grid = base + step * np.arange(-n, n + 1)
     per = np.zeros((len(grid), len(outages)))
     counts = np.zeros(len(outages))
     for k, d in enumerate(grid):
-        r = run_dataset(prepare(sub, dataclasses.replace(cfg, imu_time_offset=float(d))), outages=outages)
+        r = run_dataset(prepare(sub, apply(cfg, float(d))), outages=outages)
         for j, (a, b) in enumerate(outages):
             sel = r.gnss_inside & (r.gnss_t >= a) & (r.gnss_t < b)
             e = r.gnss_err[sel]
@@ -139,43 +213,66 @@ def estimate_imu_offset(
             progress(k + 1, len(grid))
     scored = counts > 0
     if scored.sum() < 3:
-        raise ValueError("time offset: fewer than 3 outages were scored (the core did not navigate in time)")
+        raise ValueError(f"{what}: fewer than 3 outages were scored (the core did not navigate in time)")
     per = per[:, scored]
     outs = [o for o, s in zip(outages, scored, strict=True) if s]
     cost = per.sum(axis=1) / counts[scored].sum()
-    est = _vertex(grid, cost)
-    if math.isnan(est):
-        edge = "below" if int(np.argmin(cost)) == 0 else "above"
-        reason = (
-            f"the lowest cost is at the edge of the search ({base * 1e3:+.0f} ± {span_s * 1e3:.0f} ms): "
-            f"the offset is {edge} it; widen the span"
-        )
-        return OffsetEstimate(math.nan, math.nan, base, grid, cost, outs, (t_from, t_to), reason, per)
     rng = np.random.default_rng(seed)
     m = per.shape[1]
     # a resample whose minimum falls on the edge counts at the edge (its spread is then a lower bound)
     bs = [_vertex(grid, per[:, rng.integers(0, m, m)].sum(axis=1), edge=True) for _ in range(bootstrap)]
     std = float(np.std(bs))
-    return OffsetEstimate(est, std, base, grid, cost, outs, (t_from, t_to), "", per)
+    est = _vertex(grid, cost)
+    reason = ""
+    spread = float(cost.max()) / max(float(cost.min()), 1e-12) - 1.0
+    if std > UNOBSERVABLE * span or spread < FLAT:
+        how = ("its minimum moves across it when the outages are resampled" if std > UNOBSERVABLE * span
+               else f"less than the {FLAT:.0%} a setting that matters moves it")  # fmt: skip
+        reason = f"not observable on this log: the cost changes by {100 * spread:.1f} % over the search, {how}"
+        est = math.nan
+    elif math.isnan(est):
+        edge = "below" if int(np.argmin(cost)) == 0 else "above"
+        reason = (f"the lowest cost is at the edge of the search (the config's ± the span): the {what} is {edge} "
+                  "it; widen the span")  # fmt: skip
+    return GridEstimate(est, math.nan if reason else std, base, grid, cost, outs, (t_from, t_to), reason, per,
+                        log_t0=ds.t0)  # fmt: skip
 
 
 def write_offset(config: str | Path, offset_s: float) -> None:
     """Set ``[mounting] imu_time_offset_s`` in the dataset TOML ``config`` (the rest of the file, comments
     included, unchanged; the table is added when missing)."""
+    _write_mounting(config, "imu_time_offset_s", f"{offset_s:.4f}")
+
+
+def write_mounting_yaw(config: str | Path, cfg: DatasetConfig, yaw: float) -> None:
+    """Set the yaw (rad) of the last ``[mounting] imu_to_body_deg`` rotation in the dataset TOML ``config``, the
+    other angles as ``cfg`` has them (one rotation: ``[r, p, y]``, several: ``[[…], […]]``; the rest of the file
+    unchanged)."""
+    rot = np.degrees(cfg.imu_to_body)
+    rot[-1, 2] = math.degrees(yaw)
+    rows = ["[" + ", ".join(f"{float(x):.2f}" for x in r) + "]" for r in rot]
+    _write_mounting(config, "imu_to_body_deg", rows[0] if len(rows) == 1 else "[" + ", ".join(rows) + "]")
+
+
+def _write_mounting(config: str | Path, key: str, value: str) -> None:
+    """Set ``[mounting] key = value`` (TOML text) in ``config``: the key's line replaced (a comment after it
+    kept), or added at the top of the table, or the table added at the end."""
     import re
 
     p = Path(config)
     text = p.read_text()
-    line = f"imu_time_offset_s = {offset_s:.4f}"
-    key = re.compile(r"^imu_time_offset_s\s*=.*$", re.M)
+    pat = re.compile(rf"^{key}\s*=[^#\n]*(#.*)?$", re.M)
     table = re.compile(r"^\[mounting\]\s*$", re.M)
     m = table.search(text)
     if m is None:
-        text = text.rstrip("\n") + f"\n\n[mounting]\n{line}\n"
+        text = text.rstrip("\n") + f"\n\n[mounting]\n{key} = {value}\n"
     else:
         nxt = re.compile(r"^\[", re.M).search(text, m.end())
         end = nxt.start() if nxt else len(text)
         body = text[m.end() : end]
-        body = key.sub(line, body, count=1) if key.search(body) else f"\n{line}" + body
+        if pat.search(body):
+            body = pat.sub(lambda g: f"{key} = {value}" + (f"  {g.group(1)}" if g.group(1) else ""), body, count=1)
+        else:
+            body = f"\n{key} = {value}" + body
         text = text[: m.end()] + body + text[end:]
     p.write_text(text)
