@@ -147,8 +147,9 @@ def test_write_mounting_yaw_sets_the_last_rotation_and_keeps_the_rest(tmp_path: 
     from ins_hil.datasets.offset import write_mounting_yaw
 
     p = tmp_path / "a.toml"
-    p.write_text('[dataset]\nname = "a"\n\n[mounting]\nimu_to_body_deg = [[180.0, 0.0, 180.0], [0.0, -6.79, 5.35]]'
-                 "  # mount, then the misalignment\ngnss_lever_arm_m = [0, 0, -0.1]\n\n[outages]\non_s = 5.0\n")  # fmt: skip
+    p.write_text('[dataset]\nname = "a"\n\n[mounting]\n'
+                 "imu_to_body_deg = [[180.0, 0.0, 180.0], [0.0, -6.79, 5.35]]  # mount, then the misalignment\n"
+                 "gnss_lever_arm_m = [0, 0, -0.1]\n\n[outages]\non_s = 5.0\n")  # fmt: skip
     write_mounting_yaw(p, dcfg.load(p), math.radians(4.47))
     text = p.read_text()
     assert "imu_to_body_deg = [[180.00, 0.00, 180.00], [0.00, -6.79, 4.47]]  # mount, then the misalignment" in text

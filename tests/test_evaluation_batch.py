@@ -315,23 +315,27 @@ def test_variant_table_pools_the_seeds_of_each_shift(tmp_path: Path) -> None:
 
 
 def test_variant_table_shows_each_outage_for_one_protocol() -> None:
-    """One protocol (no shifts): a column with each outage's h RMS (RMS over the seeds) and one line with the
-    trivial predictors' (the same for every variant: they use the GNSS only)."""
-
+    """One protocol (one shift, one seed each): a column with each outage's h RMS and one line with the trivial
+    predictors' (the same for every variant: they use the GNSS only); seeds or shifts move the outages, so
+    then there is no such column."""
     def row(v: str, seed: int, each: list[float]) -> dict:
         return {"job": f"x[{v}]#{seed}", "log": "x.csv", "variant": v, "shift_s": 0.0, "outage_h_rms_m": 1.0,
                 "outage_h_max_m": 2.0, "beats_both_in_every_outage": False, "each_h_rms_m": each,
                 "each_hold_h_rms_m": [0.5, 2.0], "each_cv_h_rms_m": [3.0, 4.0]}  # fmt: skip
 
-    rows = [row("config", 0, [1.0, 3.0]), row("config", 1, [3.0, 3.0]), row("b", 0, [0.25, 1.5])]
+    rows = [row("config", 0, [1.0, 3.0]), row("b", 0, [0.25, 1.5]),
+            {"job": "x[c]", "log": "x.csv", "variant": "c", "shift_s": 0.0, "error": "E"}]  # fmt: skip
     lines = batch.variant_table(rows).splitlines()
     assert lines[2] == "| variant | outage | beats both | each outage h RMS m | failed |"
-    assert lines[4] == f"| config | 1.00 / 2.00 | 0 of 2 | {5.0**0.5:.2f} / 3.00 | 0 |"
+    assert lines[4] == "| config | 1.00 / 2.00 | 0 of 1 | 1.00 / 3.00 | 0 |"
     assert lines[5] == "| b | 1.00 / 2.00 | 0 of 1 | 0.25 / 1.50 | 0 |"
-    assert lines[7] == ("Each outage, hold the last fix: 0.50 / 2.00 m; constant-velocity extrapolation: "
+    assert lines[6] == "| c | — | 0 of 1 | — | 1 |"
+    assert lines[8] == ("Each outage, hold the last fix: 0.50 / 2.00 m; constant-velocity extrapolation: "
                         "3.00 / 4.00 m (h RMS).")  # fmt: skip
-    two = [dict(r, shift_s=sh) for r in rows for sh in (0.0, 10.0)]  # two protocols: no per-outage column
-    assert "each outage" not in batch.variant_table(two) and "Each outage" not in batch.variant_table(two)
+    seeds = [*rows, row("config", 1, [3.0, 3.0])]
+    two = [dict(r, shift_s=sh) for r in rows for sh in (0.0, 10.0)]
+    for t in (batch.variant_table(seeds), batch.variant_table(two)):
+        assert "each outage" not in t and "Each outage" not in t
 
 
 def test_variants_command_puts_them_side_by_side(tmp_path: Path, capsys) -> None:

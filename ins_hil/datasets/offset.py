@@ -96,7 +96,7 @@ def outage_windows(t0: float, t1: float, on_s: float, off_s: float) -> list[tupl
 
 
 def _vertex(grid: Vec, cost: Vec, edge: bool = False) -> float:
-    """The offset at the vertex of the parabola through the lowest cost and its two neighbours each side;
+    """The value at the vertex of the parabola through the lowest cost and its two neighbours each side;
     when the lowest cost is at either end of the grid, that end with ``edge``, else NaN."""
     i = int(np.argmin(cost))
     if i == 0 or i == len(cost) - 1:

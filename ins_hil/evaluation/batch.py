@@ -496,7 +496,9 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
         gnss = any(r.get("gnss_h_rms_m") is not None for r in mine)
         lag1 = any(r.get("vel_innov_lag1") for r in mine)
         onboard = any(r.get("onboard_att_rms_deg") for r in mine)
-        each = len(shifts) == 1 and any(r.get("each_h_rms_m") for r in mine)  # one protocol: each outage too
+        # one protocol (one shift, one seed: a seed moves the outages too): each outage's error as well
+        each = len(shifts) == 1 and any(r.get("each_h_rms_m") for r in mine) and all(
+            sum(1 for r in mine if r.get("variant", BASELINE) == n) == 1 for n in names)
         head = ["variant"]
         if outages:
             head += [f"outage shift {s:+g} s" for s in shifts] if len(shifts) > 1 or shifts[0] else ["outage"]
@@ -519,7 +521,7 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
                 beats = sum(1 for r in ok if r.get("beats_both_in_every_outage") is True)
                 cells.append(f"{beats} of {len(vrows)}")
                 if each:
-                    cells.append(_each(ok, "each_h_rms_m"))
+                    cells.append(_each(ok[:1], "each_h_rms_m"))
             if gnss:
                 gh = [float(r["gnss_h_rms_m"]) for r in ok if r.get("gnss_h_rms_m") is not None]
                 cells.append(_f(float(np.mean(gh))) if gh else "—")
@@ -531,19 +533,15 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
                 cells.append(" / ".join(_f(float(x)) for x in np.mean(a, axis=0)) if a else "—")
             cells.append(str(len(vrows) - len(ok)))
             lines.append("| " + " | ".join(cells) + " |")
-        if each:  # the trivial predictors use the GNSS only: one line for every variant
-            ok = [r for r in mine if "error" not in r and r.get("each_h_rms_m")]
-            lines += ["", f"Each outage, hold the last fix: {_each(ok, 'each_hold_h_rms_m')} m; constant-velocity "
-                          f"extrapolation: {_each(ok, 'each_cv_h_rms_m')} m (h RMS)."]  # fmt: skip
+        ok = [r for r in mine if "error" not in r and r.get("each_h_rms_m")]
+        if each and ok:  # the trivial predictors use the GNSS only: one line for every variant
+            lines += ["", f"Each outage, hold the last fix: {_each(ok[:1], 'each_hold_h_rms_m')} m; constant-velocity "
+                          f"extrapolation: {_each(ok[:1], 'each_cv_h_rms_m')} m (h RMS)."]  # fmt: skip
         out.append("\n".join(lines))
     return "\n\n".join(out)
 
 
 def _each(rows: list[dict[str, Any]], key: str) -> str:
-    """Per outage, the RMS over ``rows`` (seeds) of their ``key`` lists (m), as "a / b / c"; "—" without."""
-    lists = [r[key] for r in rows if r.get(key)]
-    n = min((len(x) for x in lists), default=0)
-    if not n:
-        return "—"
-    a = np.array([x[:n] for x in lists], dtype=float)
-    return " / ".join(_f(float(v)) for v in np.sqrt(np.mean(a**2, axis=0)))
+    """The first row's ``key`` list (m, per outage) as "a / b / c"; "—" without."""
+    x = rows[0].get(key) if rows else None
+    return " / ".join(_f(float(v)) for v in x) if x else "—"
