@@ -240,6 +240,7 @@ def test_replay_reports_lost_imu_data(tmp_path: Path, capsys):
             assert m["imu_lost"] == {"gaps": 0, "s": 0.0} and "IMU data lost" not in text
             assert all(x["before"]["imu_lost_s"] == 0.0 for x in w)
         assert all(x["before"]["peak_rate_dps"] < 0.01 for x in w)  # at rest: the Earth's rate only
+        assert all(x["before"]["sf_corr_mps2"] < 0.01 for x in w)  # a level vehicle at rest: nothing to correct
         # at rest, holding the last fix is exact: each outage that loses to it is listed with what preceded it
         for k, x in enumerate(w, 1):
             line = [ln for ln in text.splitlines() if ln.strip().startswith(f"outage {k}: ours / hold / cv (m)")]
@@ -329,10 +330,11 @@ def test_error_growth_recovers_the_start_velocity_and_specific_force_errors():
 
 def test_what_preceded_an_outage_lost_imu_data_and_a_fast_turn():
     """``preceded_by``: the IMU data lost in the 10 s before an outage and the peak turn rate (0.25-s means of the
-    body rate, so vibration averages out), each with the time since; nothing before the look-back counts."""
+    body rate, so vibration averages out), each with the time since; nothing before the look-back counts; the
+    fixes' specific-force corrections of the last 5 s summed (a settled filter's cancel out)."""
     from types import SimpleNamespace
 
-    from ins_hil.datasets.run import preceded_by, rate_bins
+    from ins_hil.datasets.run import corrections, preceded_by, rate_bins, typical_corrections
 
     rng = np.random.default_rng(3)
     imu = []
@@ -342,11 +344,17 @@ def test_what_preceded_an_outage_lost_imu_data_and_a_fast_turn():
         imu.append(ImuSample(t=t, dt=0.01, dtheta=w * 0.01, dvel=np.zeros(3)))
     rb = rate_bins(imu)
     assert rb.shape == (40, 2) and rb[0, 0] == pytest.approx(0.01)
-    r = SimpleNamespace(imu_gaps=np.array([[2.0, 0.7], [3.0, 0.3]]), rate_bins=rb)
+    # 60 s of fixes at 5 Hz: a settled filter's corrections alternate in sign; over [6, 8) s they all push north
+    tf = np.arange(0.0, 60.0, 0.2)
+    sf = np.column_stack([tf, np.where((tf >= 6.0) & (tf < 8.0), 0.05, 0.01 * (-1.0) ** np.round(tf * 5)), 0 * tf])
+    r = SimpleNamespace(imu_gaps=np.array([[2.0, 0.7], [3.0, 0.3]]), rate_bins=rb, sf_corr=sf)
     b = preceded_by(r, 8.0)
+    assert b["sf_corr_mps2"] == pytest.approx(0.5, abs=0.011)  # 10 fixes × 0.05 (+ at most one settled fix)
+    assert typical_corrections(r) < 0.03 and corrections(r, 0.0, 5.0) < 0.011
     assert b["imu_lost_s"] == pytest.approx(1.0) and b["since_imu_lost_s"] == pytest.approx(5.0)
     assert 85.0 < b["peak_rate_dps"] < 100.0 and 1.9 < b["since_peak_rate_s"] < 2.8  # since its 0.25-s bin ended
     late = preceded_by(r, 13.5)  # the gaps are more than 10 s back; the turn is still inside
     assert late["imu_lost_s"] == 0.0 and math.isnan(late["since_imu_lost_s"]) and late["peak_rate_dps"] > 85.0
-    quiet = preceded_by(SimpleNamespace(imu_gaps=np.zeros((0, 2)), rate_bins=rb), 4.0)
+    quiet = preceded_by(SimpleNamespace(imu_gaps=np.zeros((0, 2)), rate_bins=rb, sf_corr=np.zeros((0, 3))), 4.0)
+    assert quiet["sf_corr_mps2"] == 0.0
     assert quiet["peak_rate_dps"] < 10.0  # the vibration alone: 0.2 rad/s per sample, 0.25-s means of 25 samples

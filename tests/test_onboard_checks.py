@@ -112,10 +112,17 @@ def test_replay_checks_ekf2s_hover_velocity_against_the_accelerometers(tmp_path:
 
 @pytest.mark.slow
 def test_replay_measures_the_quadrotors_rotor_drag(tmp_path: Path):
-    """The GNSS-aided quadrotor: its specific force follows our body velocity at a multirotor's μ."""
+    """The GNSS-aided quadrotor: its specific force follows our body velocity at a multirotor's μ. Its second
+    outage, the one not below both trivial predictors, opened 5 s after 2.5 s of lost IMU data while the fixes
+    were still moving the filter's tilt several times more than they do on the rest of the flight."""
     out = tmp_path / "quad"
     cfgp = REPO / "configs" / "datasets" / "px4_quad.toml"
     assert main(["replay", "--dataset", str(cfgp), "--out", str(out), "--quiet", "--no-plots"]) == 0
+    w = [x for x in json.loads((out / "metrics.json").read_text())["outages"]["windows"] if x["scored"]]
+    typ = w[0]["before"]["sf_corr_typical_mps2"]
+    assert [x["beats_both"] for x in w] == [True, False, True, True]
+    assert w[1]["before"]["imu_lost_s"] > 2.0 and w[1]["before"]["sf_corr_mps2"] > 5.0 * typ
+    assert all(x["before"]["imu_lost_s"] == 0.0 and x["before"]["sf_corr_mps2"] < 2.0 * typ for x in w[::2] + w[3:])
     rd = json.loads((out / "metrics.json").read_text())["rotor_drag"]
     assert "onboard" not in rd  # no EKF2 output in this log
     for ax in ("x", "y"):

@@ -221,6 +221,7 @@ class RunResult:
     vel_innov: Vec = field(default_factory=lambda: np.zeros((0, 4)))  # GNSS velocity innovations: t s, z NED m/s
     imu_gaps: Vec = field(default_factory=lambda: np.zeros((0, 2)))  # each coasted gap: its end (s), lost (s)
     rate_bins: Vec = field(default_factory=lambda: np.zeros((0, 2)))  # |mean body rate| per RATE_BIN_S: t s, rad/s
+    sf_corr: Vec = field(default_factory=lambda: np.zeros((0, 3)))  # per fused fix: t s, Δ horizontal f NED m/s²
 
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
@@ -247,6 +248,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
     gr: list[Vec] = []
     gf: list[int] = []
     gaps: list[tuple[float, float]] = []
+    corr: list[tuple[float, float, float]] = []
     lost = core.imu_lost
     j = 0
     n = len(p.imu)
@@ -277,7 +279,14 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
                 gr.append(ref)
                 gf.append(int(m.fix_type))
             if not inside:
-                core.fuse(m)
+                if nav:  # how far the fix's attitude and bias corrections move an unaccelerated vehicle's f (NED)
+                    g_n = np.array((0.0, 0.0, -core.g_local))
+                    f_raw = dcm_from_quat(core.ins.state.q_nb).T @ g_n + core.ba  # its accelerometer reading
+                    core.fuse(m)
+                    f1 = dcm_from_quat(core.ins.state.q_nb) @ (f_raw - core.ba)
+                    corr.append((s.t, float(f1[0]), float(f1[1])))
+                else:
+                    core.fuse(m)
             if nav:
                 gp.append(nan3 if inside else antenna_ned(core, lever, m.t, origin) - ref)
         if core.phase == "nav":
@@ -304,6 +313,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, list(p.notes), core.align_status(), core.imu_lost,
         np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), rate_bins(p.imu),
+        arr(corr, 3),
     )  # fmt: skip
 
 
@@ -311,6 +321,8 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
 RATE_BIN_S = 0.25
 #: how far back (s) :func:`outage_scores` looks for what preceded each outage
 LOOKBACK_S = 10.0
+#: the span (s) over which :func:`preceded_by` sums the fixes' specific-force corrections
+CORR_S = 5.0
 
 
 def rate_bins(imu: list[ImuSample]) -> Vec:
@@ -340,7 +352,27 @@ def preceded_by(r: RunResult, a: float, lookback: float = LOOKBACK_S) -> dict[st
     return {"imu_lost_s": float(g[:, 1].sum()) if len(g) else 0.0,
             "since_imu_lost_s": float(a - g[-1, 0]) if len(g) else math.nan,
             "peak_rate_dps": math.degrees(float(b[k, 1])) if k >= 0 else math.nan,
-            "since_peak_rate_s": float(a - b[k, 0] - RATE_BIN_S) if k >= 0 else math.nan}  # fmt: skip
+            "since_peak_rate_s": float(a - b[k, 0] - RATE_BIN_S) if k >= 0 else math.nan,
+            "sf_corr_mps2": corrections(r, a - CORR_S, a)}  # fmt: skip
+
+
+def corrections(r: RunResult, t0: float, t1: float) -> float:
+    """The norm of the summed horizontal specific-force corrections (m/s², NED) of the fixes fused in [t0, t1) s:
+    how far the GNSS was still moving the filter's tilt and accelerometer bias (a settled filter's corrections
+    cancel out)."""
+    c = r.sf_corr[(r.sf_corr[:, 0] >= t0) & (r.sf_corr[:, 0] < t1)] if len(r.sf_corr) else r.sf_corr
+    return float(np.hypot(*c[:, 1:3].sum(axis=0))) if len(c) else 0.0
+
+
+def typical_corrections(r: RunResult) -> float:
+    """The median of :func:`corrections` over consecutive ``CORR_S`` spans of the replay that hold fused fixes
+    (m/s²; NaN without any): what a settled filter's corrections add up to on this log."""
+    if not len(r.sf_corr):
+        return math.nan
+    t = r.sf_corr[:, 0]
+    edges = np.arange(t[0], t[-1], CORR_S)
+    sums = [corrections(r, e, e + CORR_S) for e in edges if np.any((t >= e) & (t < e + CORR_S))]
+    return float(np.median(sums)) if sums else math.nan
 
 
 def hrms(e: Vec) -> float:
@@ -414,6 +446,10 @@ def preceded_text(b: dict[str, Any]) -> str:
             else f"no lost IMU data in the {LOOKBACK_S:.0f} s before it")  # fmt: skip
     if rate is not None and math.isfinite(rate):
         text += f", {b['since_peak_rate_s']:.1f} s after a {rate:.0f} °/s turn"
+    if b.get("sf_corr_mps2") is not None:  # horizontal specific force: the tilt and the accelerometer bias
+        typ = b.get("sf_corr_typical_mps2")
+        text += f", the last {CORR_S:.0f} s of fixes moved its tilt {b['sf_corr_mps2']:.2f} m/s²"
+        text += f" (typical {typ:.2f})" if typ is not None and math.isfinite(typ) else ""
     return text
 
 
@@ -442,12 +478,13 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
     2-dof NEES of the horizontal error with the core's σ, and what the error is made of (:func:`error_growth`:
     the horizontal velocity error at the window's start, m/s, and the specific-force error, m/s², with its
     tilt equivalent, °) beside the filter's own horizontal tilt σ when the window opened (°, √(σ_N² + σ_E²)),
-    and what preceded it (``before``: :func:`preceded_by`). A window that opens before the core navigates is
-    reported as not scored."""
+    and what preceded it (``before``: :func:`preceded_by`, with the replay's :func:`typical_corrections`). A window
+    that opens before the core navigates is reported as not scored."""
     rows = []
     allf, allh, allc, alln = [], [], [], []
     v0s, sfs, tilt_sd = [], [], []
     ft = np.array([f.t for f in fixes])
+    typical = typical_corrections(r)
     for a, b in r.outages:
         row: dict[str, Any] = {"window_s": [a, b]}
         i = np.nonzero(r.gnss_inside & (r.gnss_t >= a) & (r.gnss_t < b) & (r.gnss_fix >= min_fix))[0]
@@ -468,7 +505,7 @@ def outage_scores(r: RunResult, fixes: list[GnssFix], min_fix: int = 0) -> dict[
                     "hold_h_rms_m": hrms(eh), "hold_h_max_m": hmax(eh), "cv_h_rms_m": hrms(ec), "cv_h_max_m": hmax(ec),
                     "nees_2dof": float(np.mean(nees))})  # fmt: skip
         row["beats_both"] = row["h_rms_m"] < row["hold_h_rms_m"] and row["h_rms_m"] < row["cv_h_rms_m"]
-        row["before"] = preceded_by(r, a)
+        row["before"] = {**preceded_by(r, a), "sf_corr_typical_mps2": typical}
         k0 = int(np.searchsorted(r.t, a, "right")) - 1  # the filter's tilt σ when the window opened
         if k0 >= 0:
             row["start_tilt_std_deg"] = math.degrees(math.hypot(float(r.std_att[k0, 0]), float(r.std_att[k0, 1])))
