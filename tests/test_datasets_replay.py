@@ -232,9 +232,9 @@ def test_replay_reports_lost_imu_data(tmp_path: Path, capsys):
             assert m["imu_lost"]["gaps"] == 1 and m["imu_lost"]["s"] == pytest.approx(1.5, abs=1e-6)
             assert "IMU data lost (coasted)" in text and "1 gaps, 1.50 s" in text
             assert m["gnss"]["gnss_h_rms_prior_m"] < 0.2  # at rest, coasted at zero velocity: no jump
-            # the outage at 40 s opened 8.5 s after the gap (30.0-31.5 s) ended; the one at 20 s saw none
+            # the outage at 40.01 s opened 8.51 s after the gap (30.0-31.5 s) ended; the one at 20 s saw none
             assert w[1]["before"]["imu_lost_s"] == pytest.approx(1.5, abs=1e-6)
-            assert w[1]["before"]["since_imu_lost_s"] == pytest.approx(8.5, abs=1e-6)
+            assert w[1]["before"]["since_imu_lost_s"] == pytest.approx(8.51, abs=1e-6)
             assert w[0]["before"]["imu_lost_s"] == 0.0 and w[0]["before"]["since_imu_lost_s"] is None
         else:
             assert m["imu_lost"] == {"gaps": 0, "s": 0.0} and "IMU data lost" not in text

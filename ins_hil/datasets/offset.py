@@ -126,7 +126,7 @@ def estimate_imu_offset(
     Candidates: the config's offset ± ``span_s`` in steps of ``step_s``. ``window`` (s, absolute): the
     selection window replayed (default the whole log; outages start ``settle_s`` after its start, or
     after take-off where the log has one). Needs GNSS in the window."""
-    return _search(ds, cfg, "time offset", cfg.imu_time_offset, span_s, step_s,
+    return _search(ds, cfg, ("IMU time offset", "ms", 1e3), cfg.imu_time_offset, span_s, step_s,
                    lambda c, d: dataclasses.replace(c, imu_time_offset=d), window, settle_s, on_s, off_s,
                    bootstrap, seed, progress)  # fmt: skip
 
@@ -153,15 +153,14 @@ def estimate_mounting_yaw(
         rot[-1, 2] = y
         return dataclasses.replace(c, imu_to_body=rot)
 
-    est = _search(ds, cfg, "mounting yaw", float(cfg.imu_to_body[-1, 2]), span, step, with_yaw, window, settle_s,
-                  on_s, off_s, bootstrap, seed, progress)  # fmt: skip
-    return dataclasses.replace(est, what="mounting yaw", unit="°", scale=180.0 / math.pi)
+    return _search(ds, cfg, ("mounting yaw", "°", 180.0 / math.pi), float(cfg.imu_to_body[-1, 2]), span, step,
+                   with_yaw, window, settle_s, on_s, off_s, bootstrap, seed, progress)  # fmt: skip
 
 
 def _search(
     ds: Dataset,
     cfg: DatasetConfig,
-    what: str,
+    label: tuple[str, str, float],
     base: float,
     span: float,
     step: float,
@@ -175,7 +174,9 @@ def _search(
     progress: Progress | None,
 ) -> GridEstimate:
     """Replay ``ds`` with ``apply(cfg, value)`` for each value of ``base`` ± ``span`` in steps of ``step``,
-    with outages of ``on_s`` every ``on_s + off_s`` s; the cost's minimum and its bootstrap σ."""
+    with outages of ``on_s`` every ``on_s + off_s`` s; the cost's minimum and its bootstrap σ. ``label``: what
+    is searched, its printed unit and the scale to it (GridEstimate's ``what``, ``unit``, ``scale``)."""
+    what = label[0]
     if not ds.gnss:
         raise ValueError(f"{what}: the log has no GNSS fixes to score outages against")
     if step <= 0.0 or span < 2 * step:
@@ -235,7 +236,7 @@ def _search(
         reason = (f"the lowest cost is at the edge of the search (the config's ± the span): the {what} is {edge} "
                   "it; widen the span")  # fmt: skip
     return GridEstimate(est, math.nan if reason else std, base, grid, cost, outs, (t_from, t_to), reason, per,
-                        log_t0=ds.t0)  # fmt: skip
+                        *label, log_t0=ds.t0)  # fmt: skip
 
 
 def write_offset(config: str | Path, offset_s: float) -> None:

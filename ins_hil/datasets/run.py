@@ -25,7 +25,7 @@ from ins_hil.datasets.dataset import Dataset
 from ins_hil.datasets.evaluate import antenna_ned
 from ins_hil.nav import alignment, earth
 from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
+from ins_hil.types import BaroSample, FaultMode, GnssFix, ImuSample, MagSample, Vec
 
 Progress = Callable[[int, int], None]
 #: the flight controllers' log formats: without a magnetometer their yaw comes from the GNSS-velocity yaw bank
@@ -247,9 +247,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
     gs: list[Vec] = []
     gr: list[Vec] = []
     gf: list[int] = []
-    gaps: list[tuple[float, float]] = []
     corr: list[tuple[float, float, float]] = []
-    lost = core.imu_lost
     j = 0
     n = len(p.imu)
     t_nav = math.nan
@@ -257,9 +255,6 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
     t_start = time.perf_counter()
     for k, s in enumerate(p.imu):
         core.step(s)
-        if core.imu_lost is not lost:  # a gap coasted across in this step
-            gaps.append((s.t, core.imu_lost[1] - lost[1]))
-            lost = core.imu_lost
         while j < len(meas) and meas[j][0] <= s.t:
             _, kind, m = meas[j]
             j += 1
@@ -305,6 +300,9 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
 
     def arr(x: list[Any], w: int) -> Vec:
         return np.array(x, dtype=np.float64) if x else np.zeros((0, w) if w else 0)
+
+    # the core's own record of each IMU gap it coasted across: its end (s) and the data lost (s)
+    gaps = [(e.t, e.magnitude) for e in core.drain_events() if e.sensor == "imu" and e.mode == FaultMode.DROPOUT]
 
     return RunResult(
         label, origin, arr(T, 0), arr(Q, 4), arr(V, 3), arr(P, 3), arr(SP, 3), arr(SA, 3), t_nav, arr(gt, 0),
