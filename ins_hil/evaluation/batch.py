@@ -521,7 +521,7 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
                 beats = sum(1 for r in ok if r.get("beats_both_in_every_outage") is True)
                 cells.append(f"{beats} of {len(vrows)}")
                 if each:
-                    cells.append(_each(ok[:1], "each_h_rms_m"))
+                    cells.append(_each(ok[0] if ok else None, "each_h_rms_m"))
             if gnss:
                 gh = [float(r["gnss_h_rms_m"]) for r in ok if r.get("gnss_h_rms_m") is not None]
                 cells.append(_f(float(np.mean(gh))) if gh else "—")
@@ -533,15 +533,15 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
                 cells.append(" / ".join(_f(float(x)) for x in np.mean(a, axis=0)) if a else "—")
             cells.append(str(len(vrows) - len(ok)))
             lines.append("| " + " | ".join(cells) + " |")
-        ok = [r for r in mine if "error" not in r and r.get("each_h_rms_m")]
-        if each and ok:  # the trivial predictors use the GNSS only: one line for every variant
-            lines += ["", f"Each outage, hold the last fix: {_each(ok[:1], 'each_hold_h_rms_m')} m; constant-velocity "
-                          f"extrapolation: {_each(ok[:1], 'each_cv_h_rms_m')} m (h RMS)."]  # fmt: skip
+        one = next((r for r in mine if "error" not in r and r.get("each_h_rms_m")), None)
+        if each and one:  # the trivial predictors use the GNSS only: one line for every variant
+            lines += ["", f"Each outage, hold the last fix: {_each(one, 'each_hold_h_rms_m')} m; constant-velocity "
+                          f"extrapolation: {_each(one, 'each_cv_h_rms_m')} m (h RMS)."]  # fmt: skip
         out.append("\n".join(lines))
     return "\n\n".join(out)
 
 
-def _each(rows: list[dict[str, Any]], key: str) -> str:
-    """The first row's ``key`` list (m, per outage) as "a / b / c"; "—" without."""
-    x = rows[0].get(key) if rows else None
+def _each(row: dict[str, Any] | None, key: str) -> str:
+    """A job row's ``key`` list (m, per outage) as "a / b / c"; "—" without."""
+    x = row.get(key) if row else None
     return " / ".join(_f(float(v)) for v in x) if x else "—"
