@@ -4,6 +4,7 @@ the tests write, detection and the one-line errors."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -109,6 +110,44 @@ def _synthetic() -> Dataset:
     return Dataset(imu, gnss, [BaroSample(0.1, math.nan, 12.5)], [MagSample(0.1, np.array((2e-5, 1e-6, 4e-5)))])
 
 
+def _dataflash_text(src: Path, dst: Path, types: list[str]) -> None:
+    """Write ``src`` (a DataFlash .bin) as a text log (Mission Planner's layout: every FMT, then one line per
+    message of ``types``, its values in their units)."""
+    from pymavlink import DFReader
+
+    r = DFReader.DFReader_binary(str(src), zero_time_base=True)
+    with dst.open("w") as f:
+        for fm in {fm.name: fm for fm in r.formats.values()}.values():
+            f.write(f"FMT, {fm.type}, {fm.len}, {fm.name}, {fm.format}, {','.join(fm.columns)}\n")
+        while (m := r.recv_match(type=types)) is not None:
+            f.write(", ".join([m.get_type()] + [str(getattr(m, c)) for c in m.fmt.columns]) + "\n")
+
+
+def test_ardupilot_dataflash_text_log_reads_as_the_bin(tmp_path: Path, uav: Path):
+    src = uav / "ardupilot_copter_150s" / "flight.bin"
+    log = tmp_path / "flight.log"
+    _dataflash_text(src, log, ["IMU", "GPS", "GPA", "BARO", "MAG", "NKF1", "MSG", "PARM"])
+    assert dsm.detect_format(log) == "ardupilot-log"
+    a, b = read_dataset(src), read_dataset(log)
+    assert b.meta["format"] == "ardupilot-log" and b.meta["firmware"] == a.meta["firmware"]
+    assert (len(b.imu), len(b.gnss), len(b.baro), len(b.mag)) == (len(a.imu), len(a.gnss), len(a.baro), len(a.mag))
+    for x, y in zip(a.imu, b.imu):
+        assert x.t == y.t and np.array_equal(x.dtheta, y.dtheta) and np.array_equal(x.dvel, y.dvel)
+    assert [(f.t, f.lat, f.lon, f.h, f.std_ne) for f in a.gnss] == [(f.t, f.lat, f.lon, f.h, f.std_ne) for f in b.gnss]
+    assert b.t_end_valid == a.t_end_valid and b.meta["utc_start_s"] == a.meta["utc_start_s"]
+    assert a.onboard is not None and b.onboard is not None
+    np.testing.assert_array_equal(a.onboard.q_nb, b.onboard.q_nb)
+    # a .log replayed with the .bin's dataset config is read by the text reader
+    from ins_hil.datasets import config, report
+
+    cfg = config.load(Path(__file__).resolve().parents[1] / "configs" / "datasets" / "ardupilot_copter.toml")
+    assert cfg.format == "ardupilot-bin" and report.load(log, cfg).meta["format"] == "ardupilot-log"
+    bad = tmp_path / "other.log"
+    bad.write_text("2016-12-23 12:00:00 boot\n")
+    with pytest.raises(DatasetError, match="its name says ardupilot-log but its content is not an ArduPilot"):
+        report.load(bad, cfg)
+
+
 def test_generic_csv_round_trip(tmp_path: Path):
     ds = _synthetic()
     p = tmp_path / "mine.csv"
@@ -153,8 +192,18 @@ def test_generic_csv_errors_name_the_line(tmp_path: Path, body: str, match: str)
 def test_unsupported_and_wrong_files(tmp_path: Path, uav: Path):
     p = tmp_path / "notes.txt"
     p.write_text("hello\n")
-    with pytest.raises(DatasetError, match=r"not a supported dataset \(expected .*PX4 \.ulg.*DataFlash"):
+    with pytest.raises(DatasetError, match=r"not a supported dataset \(expected .*PX4 \.ulg"):
         read_dataset(p)
+    with pytest.raises(DatasetError, match=r"not a supported dataset \(expected .*DataFlash \.bin"):
+        read_dataset(p)
+    damaged = tmp_path / "flight.ulg"
+    damaged.write_bytes(b"\x00" * 64)
+    with pytest.raises(DatasetError, match=r"flight\.ulg: its name says px4-ulog but its content is not a PX4 \.ulg"):
+        read_dataset(damaged)
+    topic = uav / "px4_quad_157s" / "sensor_combined_0.csv"
+    folder = re.escape(str(topic.parent))
+    with pytest.raises(DatasetError, match=rf"one file of a PX4 ulog2csv folder .*: give the folder {folder}$"):
+        read_dataset(topic)
     with pytest.raises(DatasetError, match="not a PX4 ULog file"):
         read_dataset(p, "px4-ulog")
     with pytest.raises(DatasetError, match="not an ArduPilot DataFlash"):

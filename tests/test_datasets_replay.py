@@ -162,6 +162,10 @@ def test_replay_unsupported_file_is_one_line_error(tmp_path: Path, capsys):
     assert main(["replay", str(p), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "not a supported dataset (expected" in err
+    for src, said in ((tmp_path, "not a supported dataset (expected"), (tmp_path / "missing.bin", "no such file")):
+        assert main(["replay", str(src), "--out", str(tmp_path / "o")]) == 2  # a folder; a path that is not there
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and said in err, err
     bad = _toml(tmp_path / "b.toml", "[dataset]\nname='x'\n[aiding]\nmag_ref='wmm'\n")
     assert main(["replay", str(p), "--dataset", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "unknown key aiding.mag_ref" in capsys.readouterr().err

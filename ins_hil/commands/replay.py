@@ -7,8 +7,8 @@ SOURCE is one of
 * ``drive``: the protocol study of the real drive through its dataset config
   (``configs/datasets/drive0708.toml``, :mod:`ins_hil.datasets.study`): the outage protocol with and without
   ground-vehicle aids plus a run with GNSS all the time,
-* a flight log / dataset file or folder (PX4 .ulg, PX4 ulog2csv folder, ArduPilot .bin, an RTKLIB folder, an
-  ins-hil dataset CSV, a gateway log with ``--dataset``), with ``--dataset CONFIG`` (:mod:`ins_hil.datasets.report`),
+* a flight log / dataset file or folder (PX4 .ulg, PX4 ulog2csv folder, ArduPilot .bin or .log, an RTKLIB folder,
+  an ins-hil dataset CSV, a gateway log with ``--dataset``), with ``--dataset CONFIG`` (:mod:`ins_hil.datasets.report`),
 * a recorded gateway log (``*.ihlog``) without ``--dataset``, handed to ``ins_hil.evaluation.sim_flight.replay_log``,
 * ``sim``: the ``[sim]`` flight of ``--config`` (default ``configs/default.toml``) through its pipeline,
   offline, over ``--runs`` seeds: bias, RMS, NEES, 3σ coverage (``ins_hil.evaluation.sim_flight.sim_cli``).
@@ -50,8 +50,8 @@ DRIVE_CONFIG = REPO / "configs" / "datasets" / "drive0708.toml"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", nargs="?", default="drive",
                    help="scenario name, 'drive' (configs/datasets/drive0708.toml), 'sim', a *.ihlog, or a flight "
-                   "log / dataset file or folder (PX4 .ulg, PX4 ulog2csv folder, ArduPilot .bin, RTKLIB folder, "
-                   "ins-hil dataset CSV; a *.ihlog with --dataset)")  # fmt: skip
+                   "log / dataset file or folder (PX4 .ulg, PX4 ulog2csv folder, ArduPilot .bin or .log, RTKLIB "
+                   "folder, ins-hil dataset CSV; a *.ihlog with --dataset)")  # fmt: skip
     p.add_argument("--dataset", type=Path, default=None, metavar="CONFIG",
                    help="dataset config (configs/datasets/*.toml): format, mounting, lever arms, time offsets, "
                    "sensor grade, [nav] overrides, outage protocol")  # fmt: skip
@@ -414,18 +414,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _is_dataset(src: str, args: argparse.Namespace) -> bool:
-    """A flight log / dataset source: a --dataset config, or a file/folder that a dataset reader detects."""
+    """A flight log / dataset source: a --dataset config, or any file or folder (a reader detects it, else the
+    dataset path says what is expected), or a path that does not exist (the dataset path says so)."""
     if getattr(args, "dataset", None) is not None:
         return True
-    if src in scenarios.NAMES or src == "drive" or not Path(src).exists():
+    if src in scenarios.NAMES or src == "drive":
         return False
-    from ins_hil.datasets.dataset import DatasetError, detect_format
-
-    try:
-        detect_format(Path(src))
-    except DatasetError:
-        return Path(src).is_file()  # a file that no reader takes: the dataset path says what is expected
-    return True
+    return Path(src).exists() or "/" in src or Path(src).suffix != ""
 
 
 def _replay_dataset(src: str, args: argparse.Namespace) -> int:

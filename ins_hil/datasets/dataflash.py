@@ -1,4 +1,5 @@
-"""ArduPilot DataFlash reader (``*.bin``, with ``pymavlink.DFReader``).
+"""ArduPilot DataFlash readers: the binary ``*.bin`` and the text ``*.log`` (Mission Planner's and
+MAVExplorer's export: ``FMT, 128, 89, FMT, BBnNZ, …`` lines), both with ``pymavlink.DFReader``.
 
 * ``IMU`` (the first IMU): GyrX..Z (rad/s), AccX..Z (m/s²), body FRD, ``TimeUS``; logged samples of the
   rate, so the increments are rate × the IMU's own interval (the ``TimeUS`` difference to the previous
@@ -26,6 +27,8 @@ from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
 
 DF_HEAD = b"\xa3\x95"
+#: how far into a text log (bytes) its first ``FMT`` line is looked for
+TEXT_HEAD = 65536
 #: a crash: specific force above this (m/s², ≈ 4 g) or a rate above ``CRASH_RATE`` rad/s (≈ 170 °/s, beyond a
 #: multicopter's normal envelope)
 CRASH_ACCEL = 40.0
@@ -41,6 +44,15 @@ def _is_dataflash(path: Path) -> bool:
     with path.open("rb") as f:
         head = f.read(3)
     return head[:2] == DF_HEAD and head[2:3] == b"\x80"  # the first message is an FMT (id 128)
+
+
+def _is_dataflash_text(path: Path) -> bool:
+    """A text DataFlash log: text (no NUL byte) with a line starting ``FMT,`` near its start."""
+    if not path.is_file():
+        return False
+    with path.open("rb") as f:
+        head = f.read(TEXT_HEAD)
+    return b"\0" not in head and any(line.lstrip().startswith(b"FMT,") for line in head.splitlines()[:200])
 
 
 def end_of_valid_data(t: Vec, gyro: Vec, acc: Vec, t_last_gps: float | None) -> tuple[float | None, str]:
@@ -66,6 +78,25 @@ def read_dataflash(path: Path) -> Dataset:
         r = DFReader.DFReader_binary(str(path), zero_time_base=True)
     except Exception as e:
         raise DatasetError(f"{path}: cannot parse as DataFlash ({e})") from None
+    return _read(r, path, "ardupilot-bin")
+
+
+def read_dataflash_text(path: Path) -> Dataset:
+    """Read an ArduPilot DataFlash text log (``.log``): the same messages as :func:`read_dataflash`, its values
+    already in their units (degrees, not 1e-7 degrees)."""
+    from pymavlink import DFReader
+
+    if not _is_dataflash_text(path):
+        raise DatasetError(f"{path}: not an ArduPilot DataFlash text log (expected 'FMT, 128, 89, FMT, …' lines)")
+    try:
+        r = DFReader.DFReader_text(str(path), zero_time_base=True)
+    except Exception as e:
+        raise DatasetError(f"{path}: cannot parse as a DataFlash text log ({e})") from None
+    return _read(r, path, "ardupilot-log")
+
+
+def _read(r: Any, path: Path, fmt: str) -> Dataset:
+    """The dataset of an open ``DFReader`` (binary or text); ``fmt`` names the reader in the metadata."""
     want = {"IMU", "GPS", "GPA", "BARO", "MAG", "NKF1", "XKF1", "ORGN", "MSG"}
     rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
     while True:
@@ -125,9 +156,7 @@ def read_dataflash(path: Path) -> Dataset:
     wk = [d for d in rows["GPS"] if d.get("GWk", 0) > 0]
     if wk:  # GPS time (s since 1980-01-06) → UNIX s (leap seconds ignored: a field-model date)
         utc = 315964800.0 + wk[0]["GWk"] * 604800.0 + wk[0]["GMS"] * 1e-3
-    ds.meta.update(
-        {"source": str(path), "format": "ardupilot-bin", "vehicle": "ArduPilot", "notes": [], "utc_start_s": utc}
-    )
+    ds.meta.update({"source": str(path), "format": fmt, "vehicle": "ArduPilot", "notes": [], "utc_start_s": utc})
     fw = next((d["Message"] for d in rows["MSG"] if str(d.get("Message", "")).startswith(FIRMWARES)), None)
     if fw is not None:  # the firmware banner names the vehicle type
         ds.meta["firmware"] = str(fw)
@@ -135,4 +164,13 @@ def read_dataflash(path: Path) -> Dataset:
     return ds
 
 
-register(Reader("ardupilot-bin", "an ArduPilot DataFlash .bin", _is_dataflash, read_dataflash))
+register(Reader("ardupilot-bin", "an ArduPilot DataFlash .bin", _is_dataflash, read_dataflash, suffixes=(".bin",)))
+register(
+    Reader(
+        "ardupilot-log",
+        "an ArduPilot DataFlash text log (.log: 'FMT, 128, 89, FMT, …' lines)",
+        _is_dataflash_text,
+        read_dataflash_text,
+        suffixes=(".log",),
+    )
+)

@@ -103,13 +103,15 @@ class Dataset:
 class Reader:
     """A registered reader: ``detect(path) -> bool`` (cheap), ``read(path) -> Dataset`` (``configured``:
     ``read(path, cfg)``, the dataset config's file names and conventions, e.g. the ``[rtklib]`` table);
-    ``expects`` describes what it reads (for the error message)."""
+    ``expects`` describes what it reads (for the error message); ``suffixes``, the file names it is usually
+    given (``.ulg``), so that a file so named that it does not take is said to be a damaged one of its kind."""
 
     name: str
     expects: str
     detect: Callable[[Path], bool]
     read: Callable[..., Dataset]
     configured: bool = False
+    suffixes: tuple[str, ...] = ()
 
 
 READERS: dict[str, Reader] = {}
@@ -143,6 +145,13 @@ def detect_format(path: Path) -> str:
                 return r.name
         except OSError as e:
             raise DatasetError(f"{path}: cannot read ({e.strerror or e})") from None
+    if path.is_file():
+        named = [r for r in READERS.values() if path.suffix.lower() in r.suffixes]
+        if named:
+            raise DatasetError(f"{path}: its name says {named[0].name} but its content is not {named[0].expects}")
+        folder = next((r for r in READERS.values() if r.detect(path.parent)), None)
+        if folder is not None:
+            raise DatasetError(f"{path}: one file of {folder.expects}: give the folder {path.parent}")
     raise DatasetError(f"{path}: not a supported dataset (expected {expected()})")
 
 

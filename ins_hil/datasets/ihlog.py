@@ -97,4 +97,6 @@ def read_ihlog(path: Path) -> Dataset:
     return ds
 
 
-register(Reader("ihlog", "a gateway recording (*.ihlog, IHLOG1/IHLOG2 magic)", _is_ihlog, read_ihlog))
+register(
+    Reader("ihlog", "a gateway recording (*.ihlog, IHLOG1/IHLOG2 magic)", _is_ihlog, read_ihlog, suffixes=(".ihlog",))
+)

@@ -433,5 +433,5 @@ def read_px4_csv(path: Path) -> Dataset:
     return dataset_from_topics(topics, str(path), "px4-csv")
 
 
-register(Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog))
+register(Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog, suffixes=(".ulg",)))
 register(Reader("px4-csv", "a PX4 ulog2csv folder with *sensor_combined*.csv", _is_px4_csv_dir, read_px4_csv))

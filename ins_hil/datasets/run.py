@@ -29,7 +29,7 @@ from ins_hil.types import BaroSample, FaultMode, GnssFix, ImuSample, MagSample, 
 
 Progress = Callable[[int, int], None]
 #: the flight controllers' log formats: without a magnetometer their yaw comes from the GNSS-velocity yaw bank
-FC_FORMATS = frozenset({"px4-ulog", "px4-csv", "ardupilot-bin"})
+FC_FORMATS = frozenset({"px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log"})
 #: WMM coefficient files shipped with pygeomag, by the first year of their epoch
 WMM_EPOCHS = ((2025, "WMM_2025.COF"), (2020, "WMM_2020.COF"), (2015, "WMM_2015v2.COF"), (2010, "WMM_2010.COF"))
 
