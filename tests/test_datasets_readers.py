@@ -86,6 +86,43 @@ def test_px4_csv_folder_written_topic_names_and_dt_units(tmp_path: Path):
     assert da.imu[0].t == pytest.approx(1.0)  # µs since boot → s, the interval end
 
 
+def test_px4_vehicle_imu_is_the_imu_without_sensor_combined(tmp_path: Path, uav: Path):
+    # a ulog2csv folder whose IMU is vehicle_imu at its full rate: deltas over µs, stamped at timestamp_sample
+    n = 20
+    _write_topic(tmp_path / "vehicle_imu_0.csv", {
+        "timestamp": [1_000_150 + 5000 * k for k in range(n)],
+        "timestamp_sample": [1_000_000 + 5000 * k for k in range(n)],
+        "accel_device_id": [4259850] * n, "delta_angle[0]": [0.0005] * n, "delta_angle[1]": [0.0] * n,
+        "delta_angle[2]": [-0.001] * n, "delta_velocity[0]": [0.0025] * n, "delta_velocity[1]": [0.0] * n,
+        "delta_velocity[2]": [-0.049] * n, "delta_angle_dt": [5000] * n, "delta_velocity_dt": [5000] * n,
+        "delta_angle_clipping": [0] * (n - 1) + [1], "delta_velocity_clipping": [0] * n,
+    })  # fmt: skip
+    ds = read_dataset(tmp_path)
+    assert ds.meta["format"] == "px4-csv" and len(ds.imu) == n
+    assert ds.imu[0].t == pytest.approx(1.0) and ds.imu[0].dt == pytest.approx(0.005)
+    np.testing.assert_allclose(ds.imu[3].dtheta, (0.0005, 0.0, -0.001))
+    np.testing.assert_allclose(ds.imu[3].dvel, (0.0025, 0.0, -0.049))
+    assert ds.imu[-1].flags != 0 and ds.imu[0].flags == 0  # clipping carried over
+    assert any("IMU from vehicle_imu" in x and "4259850" in x for x in ds.meta["notes"])
+    # the real hover log: vehicle_imu of the selected accelerometer is what sensor_combined carries, to 1e-6
+    from pyulog import ULog
+
+    u = ULog(str(uav / "px4_hover_92s" / "hover.ulg"), ["sensor_combined", "vehicle_imu"])
+    sc = next(d.data for d in u.data_list if d.name == "sensor_combined")
+    vi = next(d.data for d in u.data_list if d.name == "vehicle_imu" and d.multi_id == 0)
+    conv = px4.sensor_combined_from_vehicle_imu(vi, min_cover=0.0)
+    k = np.searchsorted(sc["timestamp"], conv["timestamp"])
+    np.testing.assert_allclose(sc["timestamp"][k], conv["timestamp"], atol=1.0)  # µs
+    for i in range(3):
+        np.testing.assert_allclose(conv[f"gyro_rad[{i}]"], sc[f"gyro_rad[{i}]"][k], atol=1e-6)
+        np.testing.assert_allclose(conv[f"accelerometer_m_s2[{i}]"], sc[f"accelerometer_m_s2[{i}]"][k], atol=1e-5)
+    # as PX4 logs it by default (one interval in ~100), it is no IMU: a one-line error
+    with pytest.raises(DatasetError, match=r"vehicle_imu's intervals cover 1% of its 92 s .*not a continuous IMU"):
+        px4.dataset_from_topics({"vehicle_imu": vi}, "hover.ulg", "px4-ulog")
+    with pytest.raises(DatasetError, match="no sensor_combined or vehicle_imu topic"):
+        px4.dataset_from_topics({}, "x.ulg", "px4-ulog")
+
+
 def test_ardupilot_dataflash_crash_is_end_of_valid_data(uav: Path):
     ds = read_dataset(uav / "ardupilot_copter_150s" / "flight.bin")
     assert ds.meta["format"] == "ardupilot-bin"

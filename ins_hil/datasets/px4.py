@@ -5,6 +5,10 @@ Topics (instance 0; conventions in ``../shared/data/uav/README.md``):
 * ``sensor_combined``: ``gyro_rad`` mean rate (rad/s) over ``gyro_integral_dt``, ``accelerometer_m_s2``
   mean specific force (m/s²) over ``accelerometer_integral_dt``; dt in µs (float s in PX4 ≤ 1.7 logs,
   told apart by size); increments = mean × dt, stamped at ``timestamp`` (the last gyro sample);
+* else ``vehicle_imu`` (a log without ``sensor_combined``): ``delta_angle`` / ``delta_velocity`` over
+  ``delta_angle_dt`` / ``delta_velocity_dt`` (µs), ending at ``timestamp_sample``: the instance of
+  ``sensor_selection``'s accelerometer (in a ULog; instance 0 in a ulog2csv folder). It must be logged at its
+  full rate: PX4's default logging keeps one interval in about a hundred, which is refused;
 * ``vehicle_gps_position`` (or ``sensor_gps``): fixes with fix type ≥ 3, stamped at ``timestamp_sample``
   where logged; σ: ``eph`` (per horizontal axis, as EKF2 uses it), ``epv``, ``s_variance_m_s``;
 * ``vehicle_air_data.baro_alt_meter``; ``vehicle_magnetometer.magnetometer_ga`` (gauss → tesla);
@@ -42,12 +46,14 @@ Topic = dict[str, Vec]
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 #: logging gaps in sensor_combined up to this long (s) are bridged with the next sample's mean rate
 MAX_BRIDGE = 0.05
-TOPICS = ("sensor_combined", "vehicle_gps_position", "sensor_gps", "vehicle_air_data", "vehicle_magnetometer",
-          "vehicle_attitude", "vehicle_local_position", "vehicle_global_position", "estimator_states",
-          "vehicle_land_detected", "sensor_selection", "estimator_selector_status",
+TOPICS = ("sensor_combined", "vehicle_imu", "vehicle_gps_position", "sensor_gps", "vehicle_air_data",
+          "vehicle_magnetometer", "vehicle_attitude", "vehicle_local_position", "vehicle_global_position",
+          "estimator_states", "vehicle_land_detected", "sensor_selection", "estimator_selector_status",
           "estimator_sensor_bias", "vehicle_status")  # fmt: skip
 #: m/s: EKF2's unaided horizontal velocity above which the notes say it dead-reckons
 DEAD_RECKONING_SPEED = 1.0
+#: the share of its time span that ``vehicle_imu``'s intervals must cover to be read as the IMU
+MIN_IMU_COVER = 0.9
 
 
 def _col(t: Topic, *names: str) -> Vec | None:
@@ -114,6 +120,38 @@ def imu_from_sensor_combined(t: Topic, gaps: list[float] | None = None) -> list[
         else:
             out.append(ImuSample(float(tt[k]), float(dtg[k]), g[k] * dtg[k], a[k] * dta[k], seq=k, flags=fl))
         last = tt[k]
+    return out
+
+
+def sensor_combined_from_vehicle_imu(t: Topic, source: str = "vehicle_imu", min_cover: float = MIN_IMU_COVER) -> Topic:
+    """``vehicle_imu``'s deltas as ``sensor_combined``'s columns: the mean rate (rad/s) and specific force (m/s²)
+    over each interval, stamped at ``timestamp_sample`` (PX4's sensor_combined is the selected vehicle_imu
+    divided by its dt: the hover log's agree to 1e-9 rad/s). DatasetError when the intervals cover less than
+    ``min_cover`` of the time (the default logging profile samples the topic at about 2 Hz)."""
+    need = ("timestamp", "delta_angle_dt", "delta_velocity_dt", *(f"delta_{q}[{i}]" for q in ("angle", "velocity")
+                                                                   for i in range(3)))  # fmt: skip
+    if any(n not in t for n in need):
+        raise DatasetError(f"{source}: vehicle_imu: expected timestamp(_sample), delta_angle[0..2], "
+                           "delta_velocity[0..2], delta_angle_dt, delta_velocity_dt")  # fmt: skip
+    ts = _time(t) * 1e6
+    dtg = np.asarray(t["delta_angle_dt"], dtype=np.float64)
+    dta = np.asarray(t["delta_velocity_dt"], dtype=np.float64)
+    span = float(ts[-1] - ts[0]) if len(ts) > 1 else 0.0
+    cover = float(np.sum(dtg[1:])) / span if span > 0 else 0.0
+    if cover < min_cover:
+        raise DatasetError(
+            f"{source}: no sensor_combined, and vehicle_imu's intervals cover {cover:.0%} of its {span * 1e-6:.0f} s "
+            f"({len(ts) / max(span * 1e-6, 1e-9):.1f} messages/s): not a continuous IMU (log sensor_combined, or "
+            "vehicle_imu at its full rate)"
+        )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out: Topic = {"timestamp": ts, "gyro_integral_dt": dtg, "accelerometer_integral_dt": dta}
+        for i in range(3):
+            out[f"gyro_rad[{i}]"] = np.asarray(t[f"delta_angle[{i}]"], dtype=np.float64) / (dtg * 1e-6)
+            out[f"accelerometer_m_s2[{i}]"] = np.asarray(t[f"delta_velocity[{i}]"], dtype=np.float64) / (dta * 1e-6)
+    for a, b in (("delta_angle_clipping", "gyro_clipping"), ("delta_velocity_clipping", "accelerometer_clipping")):
+        if a in t:
+            out[b] = np.asarray(t[a], dtype=np.float64)
     return out
 
 
@@ -296,16 +334,22 @@ def land_events(t: Topic | None) -> list[tuple[float, str]]:
 def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Dataset:
     """A Dataset from PX4 topics (name → column → array)."""
     sc = topics.get("sensor_combined")
+    imu_topic = "sensor_combined"
+    notes: list[str] = []
+    if sc is None and "vehicle_imu" in topics:
+        sc, imu_topic = sensor_combined_from_vehicle_imu(topics["vehicle_imu"], source), "vehicle_imu"
+        dev = _col(topics["vehicle_imu"], "accel_device_id")
+        notes.append("IMU from vehicle_imu (no sensor_combined)" + (f", accelerometer {int(dev[0])}" if dev is not None
+                                                                    and len(dev) else ""))  # fmt: skip
     if sc is None:
-        raise DatasetError(f"{source}: no sensor_combined topic (the PX4 readers need the IMU in it)")
+        raise DatasetError(f"{source}: no sensor_combined or vehicle_imu topic (the PX4 readers need the IMU)")
     gaps: list[float] = []
     ds = Dataset(imu_from_sensor_combined(sc, gaps))
     gps = topics.get("vehicle_gps_position", topics.get("sensor_gps"))
-    notes: list[str] = []
     if gaps:
         long = [g for g in gaps if g > MAX_BRIDGE]
         notes.append(
-            f"sensor_combined: {len(gaps)} logging gaps ({sum(gaps):.2f} s); {len(gaps) - len(long)} up to "
+            f"{imu_topic}: {len(gaps)} logging gaps ({sum(gaps):.2f} s); {len(gaps) - len(long)} up to "
             f"{MAX_BRIDGE * 1e3:.0f} ms bridged with the next sample's mean"
             + (
                 f"; {len(long)} longer (up to {max(long):.2f} s): IMU data lost: the INS "
@@ -379,8 +423,18 @@ def read_ulog(path: Path) -> Dataset:
     except Exception as e:  # pyulog raises plain Exceptions on corrupt files
         raise DatasetError(f"{path}: cannot parse as ULog ({e})") from None
     topics: dict[str, Topic] = {}
+    imus: list[Topic] = []
     for d in sorted(u.data_list, key=lambda d: d.multi_id):
         topics.setdefault(d.name, dict(d.data))
+        if d.name == "vehicle_imu":
+            imus.append(dict(d.data))
+    sel = _col(topics.get("sensor_selection", {}), "accel_device_id")
+    want = float(sel[-1]) if sel is not None and len(sel) else None  # the instance of the selected accelerometer
+    for t in imus if want is not None else []:
+        a = _col(t, "accel_device_id")
+        if a is not None and len(a) and a[0] == want:
+            topics["vehicle_imu"] = t
+            break
     ds = dataset_from_topics(topics, str(path), "px4-ulog")
     ds.meta["params"] = {k: v for k, v in u.initial_parameters.items() if k.startswith(("EKF2_", "SENS_", "CAL_MAG"))}
     return ds
@@ -419,19 +473,23 @@ def read_topic_csv(path: Path) -> Topic:
 
 
 def _is_px4_csv_dir(path: Path) -> bool:
-    return path.is_dir() and "sensor_combined" in topic_files(path)
+    return path.is_dir() and not {"sensor_combined", "vehicle_imu"}.isdisjoint(topic_files(path))
 
 
 def read_px4_csv(path: Path) -> Dataset:
     """Read a PX4 ``ulog2csv`` folder."""
     if not path.is_dir():
-        raise DatasetError(f"{path}: not a folder (expected a PX4 ulog2csv folder with *sensor_combined*.csv)")
+        raise DatasetError(f"{path}: not a folder (expected a PX4 ulog2csv folder of topic CSVs)")
     files = topic_files(path)
-    if "sensor_combined" not in files:
-        raise DatasetError(f"{path}: no *sensor_combined*.csv (expected a PX4 ulog2csv folder)")
+    if "sensor_combined" not in files and "vehicle_imu" not in files:
+        raise DatasetError(f"{path}: no *sensor_combined*.csv or *vehicle_imu*.csv (expected a PX4 ulog2csv folder)")
     topics = {k: read_topic_csv(p) for k, p in files.items()}
     return dataset_from_topics(topics, str(path), "px4-csv")
 
 
 register(Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog, suffixes=(".ulg",)))
-register(Reader("px4-csv", "a PX4 ulog2csv folder with *sensor_combined*.csv", _is_px4_csv_dir, read_px4_csv))
+register(
+    Reader(
+        "px4-csv", "a PX4 ulog2csv folder (*sensor_combined*.csv or *vehicle_imu*.csv)", _is_px4_csv_dir, read_px4_csv
+    )
+)
