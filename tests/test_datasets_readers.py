@@ -185,6 +185,45 @@ def test_ardupilot_dataflash_text_log_reads_as_the_bin(tmp_path: Path, uav: Path
         report.load(bad, cfg)
 
 
+def _ardupilot4_text_log(path: Path, n: int = 40) -> None:
+    """An ArduPilot 4.x text log: two IMUs, two GPS, two baros and two compasses, each one message name with
+    an instance field I, interleaved; EKF3 with two cores (C). Instance 1 carries other values."""
+    fmt = [
+        "FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns",
+        "FMT, 129, 67, IMU, QBffffffIIfBBHH, TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz",
+        "FMT, 130, 58, GPS, QBBIHBcLLeffffB, TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U",
+        "FMT, 131, 47, BARO, QBffcfIffB, TimeUS,I,Alt,Press,Temp,CRt,SMS,Offset,GndTemp,Health",
+        "FMT, 132, 39, MAG, QBhhhhhhhhhBI, TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S",
+        "FMT, 133, 63, XKF1, QBccCfffffffccce, TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH",
+        "FMT, 134, 75, MSG, QZ, TimeUS,Message",
+    ]
+    lines = [*fmt, "MSG, 1000, ArduCopter V4.5.1 (12345678)"]
+    for k in range(n):
+        t = 1_000_000 + 2500 * k  # 400 Hz
+        for i, (g, a) in enumerate(((0.01, -9.8), (0.5, -8.0))):
+            lines.append(f"IMU, {t + i * 100}, {i}, {g}, 0, 0, 0, 0, {a}, 0, 0, 25, 1, 1, 400, 400")
+        if k % 20 == 0:
+            for i, lat in enumerate((47.0, 48.0)):
+                lines.append(f"GPS, {t}, {i}, 3, {t // 1000}, 2300, 12, 0.8, {lat}, 8.0, 500.0, 0, 0, 0, 0, 1")
+                lines.append(f"BARO, {t}, {i}, {1.0 + 9 * i}, 95000, 20, 0, {t // 1000}, 0, 20, 1")
+                lines.append(f"MAG, {t}, {i}, {200 + 300 * i}, 0, 400, 0, 0, 0, 0, 0, 0, 1, {t}")
+                lines.append(f"XKF1, {t}, {i}, 1.0, {2.0 + 10 * i}, 90.0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_ardupilot4_instances_the_first_of_each_sensor(tmp_path: Path):
+    log = tmp_path / "00000042.log"
+    _ardupilot4_text_log(log)
+    ds = read_dataset(log)
+    assert ds.meta["format"] == "ardupilot-log" and ds.meta["firmware"].startswith("ArduCopter V4.5.1")
+    assert len(ds.imu) == 39 and all(s.dt == pytest.approx(0.0025) for s in ds.imu)  # instance 0 only
+    assert all(s.dtheta[0] / s.dt == pytest.approx(0.01) and s.dvel[2] / s.dt == pytest.approx(-9.8) for s in ds.imu)
+    assert len(ds.gnss) == 2 and all(math.degrees(f.lat) == pytest.approx(47.0) for f in ds.gnss)
+    assert [b.altitude for b in ds.baro] == [1.0, 1.0] and all(m.field_b[0] == pytest.approx(2e-5) for m in ds.mag)
+    assert ds.onboard is not None and ds.onboard.name.startswith("XKF1")
+    assert len(ds.onboard.t_att) == 2  # core 0
+
+
 def test_generic_csv_round_trip(tmp_path: Path):
     ds = _synthetic()
     p = tmp_path / "mine.csv"

@@ -1,9 +1,10 @@
 """ArduPilot DataFlash readers: the binary ``*.bin`` and the text ``*.log`` (Mission Planner's and
 MAVExplorer's export: ``FMT, 128, 89, FMT, BBnNZ, …`` lines), both with ``pymavlink.DFReader``.
 
-* ``IMU`` (the first IMU): GyrX..Z (rad/s), AccX..Z (m/s²), body FRD, ``TimeUS``; logged samples of the
-  rate, so the increments are rate × the IMU's own interval (the ``TimeUS`` difference to the previous
-  sample), stamped at the sample;
+* ``IMU`` (the first IMU: the ``IMU`` name in 3.x logs, the instance ``I`` = 0 in 4.x, as for GPS, BARO and
+  MAG): GyrX..Z (rad/s), AccX..Z (m/s²), body FRD, ``TimeUS``; logged samples of the rate, so the
+  increments are rate × the IMU's own interval (the ``TimeUS`` difference to the previous sample), stamped
+  at the sample;
 * ``GPS`` with Status ≥ 3 (3-D): Lat/Lng (deg), Alt (m MSL, used as the height), Spd/GCrs (ground speed,
   course deg) and VZ (m/s down) as the NED velocity; σ from ``GPA`` (HAcc, VAcc, SAcc) where logged;
 * ``BARO`` Alt (m); ``MAG`` MagX..Z (milligauss → tesla); the firmware banner in ``MSG`` as the vehicle type;
@@ -44,6 +45,15 @@ def _is_dataflash(path: Path) -> bool:
     with path.open("rb") as f:
         head = f.read(3)
     return head[:2] == DF_HEAD and head[2:3] == b"\x80"  # the first message is an FMT (id 128)
+
+
+def first_instance(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows of the first sensor instance: ArduPilot 4.x logs every IMU, GPS, BARO and MAG as one message
+    name with an instance field ``I`` (3.x: IMU, IMU2, … as names, no ``I``)."""
+    if not rows or "I" not in rows[0]:
+        return rows
+    first = min(int(d["I"]) for d in rows)
+    return [d for d in rows if int(d["I"]) == first]
 
 
 def _is_dataflash_text(path: Path) -> bool:
@@ -106,6 +116,8 @@ def _read(r: Any, path: Path, fmt: str) -> Dataset:
         rows[m.get_type()].append(m.to_dict())
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
+    for name in ("IMU", "GPS", "GPA", "BARO", "MAG"):
+        rows[name] = first_instance(rows[name])
     ti = np.array([d["TimeUS"] for d in rows["IMU"]], dtype=np.float64) * 1e-6
     g = np.array([[d["GyrX"], d["GyrY"], d["GyrZ"]] for d in rows["IMU"]], dtype=np.float64)
     a = np.array([[d["AccX"], d["AccY"], d["AccZ"]] for d in rows["IMU"]], dtype=np.float64)
