@@ -196,8 +196,10 @@ def _ardupilot4_text_log(path: Path, n: int = 40) -> None:
         "FMT, 132, 39, MAG, QBhhhhhhhhhBI, TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S",
         "FMT, 133, 63, XKF1, QBccCfffffffccce, TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH",
         "FMT, 134, 75, MSG, QZ, TimeUS,Message",
+        "FMT, 135, 25, ORGN, QBLLe, TimeUS,Type,Lat,Lng,Alt",
     ]
-    lines = [*fmt, "MSG, 1000, ArduCopter V4.5.1 (12345678)"]
+    lines = [*fmt, "MSG, 1000, ArduCopter V4.5.1 (12345678)", "ORGN, 2000, 0, 47.0, 8.0, 500.0",
+             "ORGN, 3000, 1, 47.1, 8.1, 501.0"]  # the EKF origin, then the AHRS home  # fmt: skip
     for k in range(n):
         t = 1_000_000 + 2500 * k  # 400 Hz
         for i, (g, a) in enumerate(((0.01, -9.8), (0.5, -8.0))):
@@ -222,6 +224,7 @@ def test_ardupilot4_instances_the_first_of_each_sensor(tmp_path: Path):
     assert [b.altitude for b in ds.baro] == [1.0, 1.0] and all(m.field_b[0] == pytest.approx(2e-5) for m in ds.mag)
     assert ds.onboard is not None and ds.onboard.name.startswith("XKF1")
     assert len(ds.onboard.t_att) == 2  # core 0
+    assert ds.onboard.origin is not None and math.degrees(ds.onboard.origin[0]) == pytest.approx(47.0)  # not home
 
 
 def test_generic_csv_round_trip(tmp_path: Path):

@@ -154,8 +154,9 @@ def _read(r: Any, path: Path, fmt: str) -> Dataset:
         v = np.array([[d["VN"], d["VE"], d["VD"]] for d in ekf_rows], dtype=np.float64)
         p = np.array([[d["PN"], d["PE"], d["PD"]] for d in ekf_rows], dtype=np.float64)
         origin = None
-        if rows["ORGN"]:
-            o = rows["ORGN"][-1]
+        ekf_origin = [o for o in rows["ORGN"] if int(o.get("Type", 0)) == 0]  # Type 1 is the AHRS home (4.x)
+        if ekf_origin:
+            o = ekf_origin[-1]
             origin = (math.radians(o["Lat"]), math.radians(o["Lng"]), float(o["Alt"]))
         onboard = Trajectory(name, te, q, te, v, te, p, origin)
     t_end, why = end_of_valid_data(ti, g, a, gnss[-1].t if gnss else None)
