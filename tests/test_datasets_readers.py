@@ -104,6 +104,14 @@ def test_px4_vehicle_imu_is_the_imu_without_sensor_combined(tmp_path: Path, uav:
     np.testing.assert_allclose(ds.imu[3].dvel, (0.0025, 0.0, -0.049))
     assert ds.imu[-1].flags != 0 and ds.imu[0].flags == 0  # clipping carried over
     assert any("IMU from vehicle_imu" in x and "4259850" in x for x in ds.meta["notes"])
+    # a second instance, and sensor_selection naming it: that one is read
+    rows = (tmp_path / "vehicle_imu_0.csv").read_text().replace("4259850", "2490378").replace(",0.0005,", ",0.002,")
+    (tmp_path / "vehicle_imu_1.csv").write_text(rows)
+    _write_topic(tmp_path / "sensor_selection_0.csv", {"timestamp": [900_000], "accel_device_id": [2490378],
+                                                       "gyro_device_id": [2490378]})  # fmt: skip
+    ds = read_dataset(tmp_path)
+    np.testing.assert_allclose(ds.imu[3].dtheta, (0.002, 0.0, -0.001))
+    assert any("accelerometer 2490378" in x for x in ds.meta["notes"])
     # the real hover log: vehicle_imu of the selected accelerometer is what sensor_combined carries, to 1e-6
     from pyulog import ULog
 
@@ -225,6 +233,32 @@ def test_ardupilot4_instances_the_first_of_each_sensor(tmp_path: Path):
     assert ds.onboard is not None and ds.onboard.name.startswith("XKF1")
     assert len(ds.onboard.t_att) == 2  # core 0
     assert ds.onboard.origin is not None and math.degrees(ds.onboard.origin[0]) == pytest.approx(47.0)  # not home
+    bad = tmp_path / "bad.log"
+    bad.write_text(log.read_text().replace("IMU, 1002500, 0, 0.01,", "IMU, 1002500, 0, 0.0x1,"))
+    with pytest.raises(DatasetError, match=r"bad\.log: a IMU message that does not parse"):
+        read_dataset(bad)
+
+
+def test_a_config_reads_its_flight_stacks_other_form_and_refuses_another(tmp_path: Path, uav: Path):
+    from ins_hil.datasets import config, report
+
+    root = Path(__file__).resolve().parents[1] / "configs" / "datasets"
+    log = tmp_path / "flight.log"
+    _dataflash_text(uav / "ardupilot_copter_150s" / "flight.bin", log, ["IMU", "GPS", "MSG"])
+    own = tmp_path / "my_copter.toml"  # a copy of the shipped config whose own path is the text log
+    own.write_text((root / "ardupilot_copter.toml").read_text().replace(
+        'path = "../../../shared/data/uav/ardupilot_copter_150s/flight.bin"', f'path = "{log}"'))  # fmt: skip
+    cfg = config.load(own)
+    assert cfg.format == "ardupilot-bin" and cfg.path == log
+    assert report.load(log, cfg).meta["format"] == "ardupilot-log"
+    drive = config.load(root / "drive0708.toml")
+    with pytest.raises(DatasetError, match=r"hover\.ulg: a px4-ulog recording, but the dataset config names format "
+                                           r"= 'rtklib'"):  # fmt: skip
+        report.load(uav / "px4_hover_92s" / "hover.ulg", drive)
+    quad = config.load(root / "px4_quad.toml")
+    topic = uav / "px4_quad_157s" / "sensor_combined_0.csv"
+    with pytest.raises(DatasetError, match="give the folder"):
+        report.load(topic, quad)
 
 
 def test_generic_csv_round_trip(tmp_path: Path):

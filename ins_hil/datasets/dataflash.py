@@ -113,7 +113,10 @@ def _read(r: Any, path: Path, fmt: str) -> Dataset:
         m = r.recv_match(type=list(want))
         if m is None:
             break
-        rows[m.get_type()].append(m.to_dict())
+        try:  # a text log's values are converted here, when read
+            rows[m.get_type()].append(m.to_dict())
+        except (ValueError, TypeError) as e:
+            raise DatasetError(f"{path}: a {m.get_type()} message that does not parse ({e})") from None
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
     for name in ("IMU", "GPS", "GPA", "BARO", "MAG"):
@@ -177,7 +180,16 @@ def _read(r: Any, path: Path, fmt: str) -> Dataset:
     return ds
 
 
-register(Reader("ardupilot-bin", "an ArduPilot DataFlash .bin", _is_dataflash, read_dataflash, suffixes=(".bin",)))
+register(
+    Reader(
+        "ardupilot-bin",
+        "an ArduPilot DataFlash .bin",
+        _is_dataflash,
+        read_dataflash,
+        suffixes=(".bin",),
+        family="ardupilot",
+    )
+)
 register(
     Reader(
         "ardupilot-log",
@@ -185,5 +197,6 @@ register(
         _is_dataflash_text,
         read_dataflash_text,
         suffixes=(".log",),
+        family="ardupilot",
     )
 )

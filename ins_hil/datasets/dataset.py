@@ -104,7 +104,9 @@ class Reader:
     """A registered reader: ``detect(path) -> bool`` (cheap), ``read(path) -> Dataset`` (``configured``:
     ``read(path, cfg)``, the dataset config's file names and conventions, e.g. the ``[rtklib]`` table);
     ``expects`` describes what it reads (for the error message); ``suffixes``, the file names it is usually
-    given (``.ulg``), so that a file so named that it does not take is said to be a damaged one of its kind."""
+    given (``.ulg``), so that a file so named that it does not take is said to be a damaged one of its kind;
+    ``family``, the flight stack whose logs it reads in another form (``.bin`` / ``.log``), so that one dataset
+    config serves both."""
 
     name: str
     expects: str
@@ -112,6 +114,7 @@ class Reader:
     read: Callable[..., Dataset]
     configured: bool = False
     suffixes: tuple[str, ...] = ()
+    family: str = ""
 
 
 READERS: dict[str, Reader] = {}
@@ -145,14 +148,46 @@ def detect_format(path: Path) -> str:
                 return r.name
         except OSError as e:
             raise DatasetError(f"{path}: cannot read ({e.strerror or e})") from None
-    if path.is_file():
-        named = [r for r in READERS.values() if path.suffix.lower() in r.suffixes]
-        if named:
-            raise DatasetError(f"{path}: its name says {named[0].name} but its content is not {named[0].expects}")
-        folder = next((r for r in READERS.values() if r.detect(path.parent)), None)
-        if folder is not None:
-            raise DatasetError(f"{path}: one file of {folder.expects}: give the folder {path.parent}")
-    raise DatasetError(f"{path}: not a supported dataset (expected {expected()})")
+    raise DatasetError(misnamed(path) or f"{path}: not a supported dataset (expected {expected()})")
+
+
+def misnamed(path: Path) -> str | None:
+    """Why a file that no reader takes looks like a dataset all the same: its name says one format (a damaged
+    ``.ulg``), or it is one file of a folder format (a ulog2csv topic); None otherwise."""
+    if not path.is_file():
+        return None
+    named = [r for r in READERS.values() if path.suffix.lower() in r.suffixes]
+    if named:
+        return f"{path}: its name says {named[0].name} but its content is not {named[0].expects}"
+    folder = next((r for r in READERS.values() if r.detect(path.parent)), None)
+    if folder is not None:
+        return f"{path}: one file of {folder.expects}: give the folder {path.parent}"
+    return None
+
+
+def reader_for(path: Path, fmt: str | None) -> str | None:
+    """The reader of ``path`` under a dataset config that names ``fmt`` (None: detected when read): ``fmt`` when
+    it takes the file, else the reader detected from it if that is of ``fmt``'s family (a text ``.log`` with a
+    ``.bin``'s config). A log of another format, or a misnamed file (:func:`misnamed`), is a DatasetError;
+    anything else stays with ``fmt``, whose reader then says what it expects (it may also take folders it does
+    not detect: an RTKLIB folder with the config's own file names)."""
+    _load_builtin()
+    if fmt is None or not path.exists():
+        return fmt
+    r = READERS[fmt]
+    if r.detect(path):
+        return fmt
+    try:
+        other = detect_format(path)
+    except DatasetError:
+        hint = misnamed(path)
+        if hint is not None:
+            raise DatasetError(hint) from None
+        return fmt
+    if r.family and READERS[other].family == r.family:
+        return other
+    raise DatasetError(f"{path}: a {other} recording, but the dataset config names format = {fmt!r} "
+                       f"(a config for {other}, or one without a format, reads it)")  # fmt: skip
 
 
 def read_dataset(path: Path, fmt: str | None = None, cfg: Any = None) -> Dataset:

@@ -7,8 +7,8 @@ Topics (instance 0; conventions in ``../shared/data/uav/README.md``):
   told apart by size); increments = mean × dt, stamped at ``timestamp`` (the last gyro sample);
 * else ``vehicle_imu`` (a log without ``sensor_combined``): ``delta_angle`` / ``delta_velocity`` over
   ``delta_angle_dt`` / ``delta_velocity_dt`` (µs), ending at ``timestamp_sample``: the instance of
-  ``sensor_selection``'s accelerometer (in a ULog; instance 0 in a ulog2csv folder). It must be logged at its
-  full rate: PX4's default logging keeps one interval in about a hundred, which is refused;
+  ``sensor_selection``'s accelerometer (else instance 0). It must be logged at its full rate: PX4's default
+  logging keeps one interval in about a hundred, which is refused;
 * ``vehicle_gps_position`` (or ``sensor_gps``): fixes with fix type ≥ 3, stamped at ``timestamp_sample``
   where logged; σ: ``eph`` (per horizontal axis, as EKF2 uses it), ``epv``, ``s_variance_m_s``;
 * ``vehicle_air_data.baro_alt_meter``; ``vehicle_magnetometer.magnetometer_ga`` (gauss → tesla);
@@ -138,7 +138,7 @@ def sensor_combined_from_vehicle_imu(t: Topic, source: str = "vehicle_imu", min_
     dta = np.asarray(t["delta_velocity_dt"], dtype=np.float64)
     span = float(ts[-1] - ts[0]) if len(ts) > 1 else 0.0
     cover = float(np.sum(dtg[1:])) / span if span > 0 else 0.0
-    if cover < min_cover:
+    if not cover >= min_cover:  # NaN too
         raise DatasetError(
             f"{source}: no sensor_combined, and vehicle_imu's intervals cover {cover:.0%} of its {span * 1e-6:.0f} s "
             f"({len(ts) / max(span * 1e-6, 1e-9):.1f} messages/s): not a continuous IMU (log sensor_combined, or "
@@ -428,13 +428,7 @@ def read_ulog(path: Path) -> Dataset:
         topics.setdefault(d.name, dict(d.data))
         if d.name == "vehicle_imu":
             imus.append(dict(d.data))
-    sel = _col(topics.get("sensor_selection", {}), "accel_device_id")
-    want = float(sel[-1]) if sel is not None and len(sel) else None  # the instance of the selected accelerometer
-    for t in imus if want is not None else []:
-        a = _col(t, "accel_device_id")
-        if a is not None and len(a) and a[0] == want:
-            topics["vehicle_imu"] = t
-            break
+    _select_imu(topics, imus)
     ds = dataset_from_topics(topics, str(path), "px4-ulog")
     ds.meta["params"] = {k: v for k, v in u.initial_parameters.items() if k.startswith(("EKF2_", "SENS_", "CAL_MAG"))}
     return ds
@@ -472,6 +466,19 @@ def read_topic_csv(path: Path) -> Topic:
     return {name: data[:, i] for i, name in enumerate(head)}
 
 
+def _select_imu(topics: dict[str, Topic], imus: list[Topic]) -> None:
+    """``topics["vehicle_imu"]``: of the ``imus`` instances, the one of the accelerometer ``sensor_selection``
+    names first (the one ``sensor_combined`` carries, as :func:`onboard_notes` says); kept as it is otherwise."""
+    sel = _col(topics.get("sensor_selection", {}), "accel_device_id")
+    if sel is None or not len(sel):
+        return
+    for t in imus:
+        a = _col(t, "accel_device_id")
+        if a is not None and len(a) and a[0] == sel[0]:
+            topics["vehicle_imu"] = t
+            return
+
+
 def _is_px4_csv_dir(path: Path) -> bool:
     return path.is_dir() and not {"sensor_combined", "vehicle_imu"}.isdisjoint(topic_files(path))
 
@@ -484,12 +491,19 @@ def read_px4_csv(path: Path) -> Dataset:
     if "sensor_combined" not in files and "vehicle_imu" not in files:
         raise DatasetError(f"{path}: no *sensor_combined*.csv or *vehicle_imu*.csv (expected a PX4 ulog2csv folder)")
     topics = {k: read_topic_csv(p) for k, p in files.items()}
+    if "sensor_combined" not in topics:
+        pat = re.compile(r"(^|_)vehicle_imu_(\d+)\.csv$")
+        _select_imu(topics, [read_topic_csv(f) for f in sorted(path.glob("*.csv")) if pat.search(f.name)])
     return dataset_from_topics(topics, str(path), "px4-csv")
 
 
-register(Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog, suffixes=(".ulg",)))
+register(Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog, suffixes=(".ulg",), family="px4"))
 register(
     Reader(
-        "px4-csv", "a PX4 ulog2csv folder (*sensor_combined*.csv or *vehicle_imu*.csv)", _is_px4_csv_dir, read_px4_csv
+        "px4-csv",
+        "a PX4 ulog2csv folder (*sensor_combined*.csv or *vehicle_imu*.csv)",
+        _is_px4_csv_dir,
+        read_px4_csv,
+        family="px4",
     )
 )

@@ -16,7 +16,7 @@ import numpy as np
 
 from ins_hil.datasets import compare as cmp
 from ins_hil.datasets.config import DatasetConfig
-from ins_hil.datasets.dataset import READERS, Dataset, DatasetError, detect_format, read_dataset
+from ins_hil.datasets.dataset import Dataset, read_dataset, reader_for
 from ins_hil.datasets.run import (
     Prepared,
     RunResult,
@@ -37,24 +37,9 @@ ProgressFactory = Callable[[str], Callable[[int, int], None] | None]
 
 
 def load(path: Path, cfg: DatasetConfig) -> Dataset:
-    """Read the recording at ``path`` with the config's format (detected when it names none). Another
-    recording than the config's own that the config's reader does not take (a text ``.log`` replayed with a
-    ``.bin``'s config) is read by the reader detected from it; when none is, the reader its name suggests
-    (``.log``), else the config's, says what it expects."""
-    fmt = cfg.format
-    if fmt is not None and path.exists() and (cfg.path is None or path.resolve() != cfg.path.resolve()):
-        r = READERS[fmt]
-        if not r.detect(path):
-            try:
-                fmt = detect_format(path)
-            except DatasetError:
-                if (
-                    path.is_file()
-                    and path.suffix.lower() not in r.suffixes
-                    and any(path.suffix.lower() in x.suffixes for x in READERS.values())
-                ):
-                    raise
-    return read_dataset(path, fmt, cfg)
+    """Read the recording at ``path`` with the config's format (detected when it names none; the same flight
+    stack's other form, a text ``.log`` for a ``.bin``, when the file is that: :func:`reader_for`)."""
+    return read_dataset(path, reader_for(path, cfg.format), cfg)
 
 
 def replay(
