@@ -80,33 +80,31 @@ def end_of_valid_data(t: Vec, gyro: Vec, acc: Vec, t_last_gps: float | None) -> 
 
 def read_dataflash(path: Path) -> Dataset:
     """Read an ArduPilot DataFlash ``.bin``."""
-    from pymavlink import DFReader
-
-    if not _is_dataflash(path):
-        raise DatasetError(f"{path}: not an ArduPilot DataFlash .bin (expected the 0xA3 0x95 FMT header)")
-    try:
-        r = DFReader.DFReader_binary(str(path), zero_time_base=True)
-    except Exception as e:
-        raise DatasetError(f"{path}: cannot parse as DataFlash ({e})") from None
-    return _read(r, path, "ardupilot-bin")
+    return _read(path, text=False)
 
 
 def read_dataflash_text(path: Path) -> Dataset:
     """Read an ArduPilot DataFlash text log (``.log``): the same messages as :func:`read_dataflash`, its values
     already in their units (degrees, not 1e-7 degrees)."""
+    return _read(path, text=True)
+
+
+def _read(path: Path, text: bool) -> Dataset:
+    """The dataset of a binary or (``text``) text DataFlash log, through pymavlink's DFReader of that kind."""
     from pymavlink import DFReader
 
-    if not _is_dataflash_text(path):
-        raise DatasetError(f"{path}: not an ArduPilot DataFlash text log (expected 'FMT, 128, 89, FMT, …' lines)")
+    if text:
+        ok, cls, fmt = _is_dataflash_text(path), DFReader.DFReader_text, "ardupilot-log"
+        what = "an ArduPilot DataFlash text log (expected 'FMT, 128, 89, FMT, …' lines)"
+    else:
+        ok, cls, fmt = _is_dataflash(path), DFReader.DFReader_binary, "ardupilot-bin"
+        what = "an ArduPilot DataFlash .bin (expected the 0xA3 0x95 FMT header)"
+    if not ok:
+        raise DatasetError(f"{path}: not {what}")
     try:
-        r = DFReader.DFReader_text(str(path), zero_time_base=True)
+        r = cls(str(path), zero_time_base=True)
     except Exception as e:
-        raise DatasetError(f"{path}: cannot parse as a DataFlash text log ({e})") from None
-    return _read(r, path, "ardupilot-log")
-
-
-def _read(r: Any, path: Path, fmt: str) -> Dataset:
-    """The dataset of an open ``DFReader`` (binary or text); ``fmt`` names the reader in the metadata."""
+        raise DatasetError(f"{path}: cannot parse as {fmt} ({e})") from None
     want = {"IMU", "GPS", "GPA", "BARO", "MAG", "NKF1", "XKF1", "ORGN", "MSG"}
     rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
     while True:
