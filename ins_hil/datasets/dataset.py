@@ -142,13 +142,21 @@ def detect_format(path: Path) -> str:
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: no such file or directory")
+    name = _detected(path)
+    if name is None:
+        raise DatasetError(misnamed(path) or f"{path}: not a supported dataset (expected {expected()})")
+    return name
+
+
+def _detected(path: Path) -> str | None:
+    """The first reader that takes ``path`` (which exists), None if none does."""
     for r in READERS.values():
         try:
             if r.detect(path):
                 return r.name
         except OSError as e:
             raise DatasetError(f"{path}: cannot read ({e.strerror or e})") from None
-    raise DatasetError(misnamed(path) or f"{path}: not a supported dataset (expected {expected()})")
+    return None
 
 
 def misnamed(path: Path) -> str | None:
@@ -177,12 +185,11 @@ def reader_for(path: Path, fmt: str | None) -> str | None:
     r = READERS[fmt]
     if r.detect(path):
         return fmt
-    try:
-        other = detect_format(path)
-    except DatasetError:
+    other = _detected(path)
+    if other is None:
         hint = misnamed(path)
         if hint is not None:
-            raise DatasetError(hint) from None
+            raise DatasetError(hint)
         return fmt
     if r.family and READERS[other].family == r.family:
         return other
