@@ -27,22 +27,33 @@ ensure_apt() {
 }
 
 # ensure_venv: create .venv and (re)install the package with its dev extras
-# whenever pyproject.toml / setup.py / the C sources change.
+# whenever pyproject.toml / setup.py / the C sources change. A venv whose
+# python does not run (an interrupted creation) is made anew; an install that
+# failed or was interrupted leaves no stamp, so the next call installs again.
+# Every failure prints one line naming what failed and the log to read.
 ensure_venv() {
   local py=${PYTHON:-python3}
   if ! "$py" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
     log "Python >= 3.11 is required (found: $("$py" --version 2>&1))"; return 1
   fi
+  if [ -e "$VENV" ] && ! "$PY" -c 'import pip' >/dev/null 2>&1; then
+    log "virtualenv $VENV is incomplete (an interrupted creation): making it anew"
+    rm -rf "$VENV"
+  fi
   if [ ! -x "$PY" ]; then
     log "creating virtualenv $VENV"
-    "$py" -m venv "$VENV" || { ensure_apt python3-venv && "$py" -m venv "$VENV"; } || return 1
+    "$py" -m venv "$VENV" >/dev/null 2>&1 || { ensure_apt python3-venv && rm -rf "$VENV" && "$py" -m venv "$VENV"; } \
+      || { log "could not create the virtualenv $VENV with $py"; return 1; }
   fi
   local stamp="$VENV/.ins_hil_stamp" want
   want=$(cat "$ROOT/pyproject.toml" "$ROOT"/setup.py "$ROOT"/firmware_ref/cffi_build.py "$ROOT"/firmware_ref/src/*.[ch] "$ROOT"/firmware_ref/include/*.h 2>/dev/null | sha256sum | cut -c1-16)
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
-    log "installing ins_hil and its dependencies into $VENV"
-    "$PY" -m pip install -q --disable-pip-version-check -e "$ROOT[dev]" 2>&1 | grep -vE '^WARNING: Location' >&2
-    [ "${PIPESTATUS[0]}" -eq 0 ] || { log "pip install failed"; return 1; }
+    rm -f "$stamp"
+    local plog="$VENV/pip-install.log"
+    log "installing ins_hil and its dependencies into $VENV (a few minutes the first time; log: $plog)"
+    if ! "$PY" -m pip install -q --disable-pip-version-check -e "$ROOT[dev]" >"$plog" 2>&1; then
+      log "pip install failed: read $plog (the next run installs again)"; return 1
+    fi
     echo "$want" > "$stamp"
   fi
 }
