@@ -190,6 +190,7 @@ class NavCore:
         self.keep_nis = False
         self.pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
         self.gnss_reset = GnssReset(self.cfg)  # the run of rejected fixes that may reset the filter
+        self.gnss_resets = 0  # GNSS position resets done (the position steps: NavState.resets)
         # no absolute aiding: constant-position / zero-velocity pseudo-measurements (core_parts/hold.py)
         self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
         if self.hold is not None:
@@ -421,6 +422,8 @@ class NavCore:
                 zv = np.zeros(3) if meas.vel_ned is None else np.asarray(meas.vel_ned) - s.vel_ned
                 self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
                 self.stats["gnss_vel"].consecutive_rejects = 0
+                if not self.replaying:
+                    self.gnss_resets += 1
             accepted = self._apply(m, meas.t, force)
             if not self.replaying:
                 self.gnss_reset.note(meas, accepted, st.last_ratio)

@@ -134,7 +134,7 @@ class NavState:
     q_nb: Hamilton scalar-first quaternion body→NED; vel_ned (m/s);
     lat/lon (rad), h (m, ellipsoidal); biases in body FRD (rad/s, m/s^2);
     std_* are 1-σ from the filter covariance (NED position m, velocity m/s,
-    attitude rad about NED axes).
+    attitude rad about NED axes). ``resets`` changes when the solution may step (see the field).
     """
 
     t: float
@@ -152,6 +152,9 @@ class NavState:
     accel_b: Vec = field(default_factory=_zeros3)
     aligned: bool = False
     test_ratios: dict[str, float] = field(default_factory=dict)
+    #: resets of the solution so far (a new core: initialisation, restart or re-alignment after a fault;
+    #: a GNSS position reset): position/attitude may step when it changes (ODOMETRY ``reset_counter``)
+    resets: int = 0
 
 
 class FaultMode(IntEnum):

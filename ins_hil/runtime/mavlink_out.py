@@ -229,7 +229,8 @@ class MavlinkEndpoint(Requests, GcsMessages, FcMessages):
                 if now < due or (typ == "GPS_RAW_INT" and not self._gnss_new):
                     continue
                 nxt[typ] = advance_due(due, period, now)
-                send(st)
+                if send(st) is False:  # an fc-role message with no usable solution: nothing went out
+                    continue
                 self._count(typ)
                 if first:
                     self.metrics.record_sent(arrival_ns, ready_ns, time.monotonic_ns())

@@ -274,6 +274,7 @@ class Pipeline:
         self._fault_open = False  # a core fault is reported and not cleared yet
         self._fault_clear_t = _INF  # sensor time (s) at which it clears
         self.core: RealTimeCore | None = None
+        self._resets = 0  # NavState.resets of the cores before this one (each new core counts one)
         self.events: list[FaultEvent] = []
         self.counts: dict[str, int] = {}
         self._held: list[Aid] = []  # aiding samples newer than the IMU time, sorted by t
@@ -324,6 +325,8 @@ class Pipeline:
             self._imu_rejects += 1
 
     def _start(self, initial: StrapdownState, nav: dict[str, Any] | None = None) -> None:
+        old = self.core
+        self._resets += 1 + (getattr(old, "gnss_resets", 0) if old is not None else 0)
         self.core = make_core(self.cfg.core, initial, self.cfg.nav if nav is None else nav)
 
     # -- IMU ------------------------------------------------------------------
@@ -461,6 +464,7 @@ class Pipeline:
         if not state_ok(st):
             self._core_fault(s.t, "core step: non-finite or implausible state", "state")
             return None
+        st.resets = self._resets + getattr(core, "gnss_resets", 0)
         self._good = st
         if self._fault_open and s.t >= self._fault_clear_t:
             self._fault_open = False
@@ -666,6 +670,7 @@ class Pipeline:
                 return
             except Exception:  # fall back to a re-alignment
                 pass
+        self._resets += getattr(self.core, "gnss_resets", 0) if self.core is not None else 0
         self.core = None
         self._good = None
         self._lvl.clear()

@@ -8,6 +8,7 @@ in MSL fields are EGM96 (:mod:`ins_hil.runtime.geoid`)."""
 from __future__ import annotations
 
 import math
+import secrets
 import struct
 import time
 from dataclasses import dataclass, field
@@ -144,8 +145,8 @@ def _gps_week(g: GnssFix | None, t: float | None = None) -> tuple[int, int]:
     if g is None or g.gps_week <= 0 or not math.isfinite(g.gps_tow):
         return 0, 0
     total = g.gps_week * 604_800 + g.gps_tow + ((t - g.t) if t is not None else 0.0)
-    week = int(total // 604_800)
-    return week, round((total - week * 604_800) * 1000) % 604_800_000
+    ms = round(total * 1000)  # rounded once: 604 799.9996 s is the next week's 0 ms, never 604 800 000 ms
+    return ms // 604_800_000, ms % 604_800_000
 
 
 def fault_text(ev: FaultEvent) -> tuple[int, str]:
@@ -225,6 +226,12 @@ class MessageBase:
         self._odom_frame = frames[self.cfg.odometry_frame]
         self._had_solution = False  # a valid solution was seen (then CRITICAL when it is lost)
         self._write_ok = True  # the last write reached the transport
+        # ODOMETRY reset_counter: from a random start (a restarted gateway does not repeat the value the flight
+        # controller last saw, but with a 1/256 chance), + 1 whenever the solution becomes usable (the home is
+        # taken; again after it was unusable) or NavState.resets changes (new core, GNSS position reset)
+        self.reset_counter = secrets.randbelow(256)
+        self._fc_usable = False  # the last fc-role state was usable (see _usable)
+        self._fc_resets = -1  # NavState.resets of that state
 
     def _emit(self, frame: _Frame, *values: Any) -> None:
         """Send one message framed by ``frame`` (values in wire order), with pymavlink's bookkeeping."""
@@ -297,6 +304,38 @@ class MessageBase:
         imu = self.metrics.sensors["imu"]
         return not (imu.present and imu.count and not imu.healthy)
 
+    def _usable(self, st: NavState) -> bool:
+        """The state may be fed to a flight controller: aligned and the IMU not lost (a state that stops
+        coming, or a core that re-initialises, is not aligned or not offered). The fc-role builders send
+        nothing (ODOMETRY, HIL_STATE_QUATERNION) or no fix (GPS_INPUT) otherwise."""
+        if not st.aligned:
+            return False
+        imu = self.metrics.sensors["imu"]
+        return not (imu.present and imu.count and not imu.healthy)
+
+    def _note_usable(self, st: NavState, usable: bool) -> bool:
+        """Track usability and resets for ODOMETRY's ``reset_counter``: True when it was incremented here
+        (the first usable state, usable again, or ``st.resets`` changed while usable)."""
+        step = usable and (not self._fc_usable or st.resets != self._fc_resets)
+        self._fc_usable = usable
+        if usable:
+            self._fc_resets = st.resets
+        if step:
+            self.reset_counter = (self.reset_counter + 1) & 0xFF
+        return step
+
+    def _send_origin(self) -> None:
+        """SET_GPS_GLOBAL_ORIGIN: the home (the origin of ODOMETRY's local frame) to the flight controller,
+        ``target_system`` = this endpoint's system id (the autopilot's; PX4 checks it). Altitude MSL, mm."""
+        if self._home is None:
+            return
+        lat, lon, h = self._home
+        self.mav.set_gps_global_origin_send(
+            self.cfg.sysid, round(math.degrees(lat) * 1e7), round(math.degrees(lon) * 1e7),
+            round(self._msl(lat, lon, h) * 1000),
+        )  # fmt: skip
+        self._count("SET_GPS_GLOBAL_ORIGIN")
+
     def _vehicle_status(self) -> tuple[int, int, int, bool, int]:
         """SYS_STATUS (present, enabled, health) bits, solution valid, HEARTBEAT system_status.
 
@@ -347,6 +386,8 @@ class MessageBase:
             self.next_ns["HEARTBEAT"] = time.monotonic_ns() + _BEAT_RETRY_NS
         elif self._gnss is not None and self._gnss.gps_week > 0:
             self._send_system_time(st)  # with the 1 Hz HEARTBEAT, once the GNSS gives GPS time
+        if self.cfg.role == "fc" and "ODOMETRY" in self.rates and self._write_ok:
+            self._send_origin()  # with every HEARTBEAT once the home is set: a flight controller started later
 
     def _send_system_time(self, st: NavState | None) -> bool:
         """SYSTEM_TIME: UNIX time (µs) from the last fix's GPS time moved on to the state's time (the fix's

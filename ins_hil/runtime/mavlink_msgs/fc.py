@@ -8,14 +8,63 @@ import math
 
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat
-from ins_hil.runtime.mavlink_msgs.common import MessageBase, _dop, _floats, _frame_of, _gps_week, _i16
+from ins_hil.runtime.mavlink_msgs.common import MessageBase, _floats, _frame_of, _gps_week, _i16
 from ins_hil.types import NavState
+
+#: GPS_INPUT's DOP is the filter's σ over this range error (m): hdop = hypot(σN, σE) / DOP_RANGE_M
+DOP_RANGE_M = 1.0
+DOP_MAX = 99.99  # ArduPilot stores hdop × 100 in a uint16 and calls 9999 unknown (GPS_UNKNOWN_DOP)
+
+
+def _body_cov(c: list[list[float]], s: list[float]) -> tuple[float, float, float, float, float, float]:
+    """(xx, xy, xz, yy, yz, zz) of Cᵀ diag(s²) C: NED variances (σ ``s``) in body FRD axes, C = C_b^n."""
+    a, b, d = s[0] * s[0], s[1] * s[1], s[2] * s[2]
+    r0, r1, r2 = c
+    return (
+        a * r0[0] * r0[0] + b * r1[0] * r1[0] + d * r2[0] * r2[0],
+        a * r0[0] * r0[1] + b * r1[0] * r1[1] + d * r2[0] * r2[1],
+        a * r0[0] * r0[2] + b * r1[0] * r1[2] + d * r2[0] * r2[2],
+        a * r0[1] * r0[1] + b * r1[1] * r1[1] + d * r2[1] * r2[1],
+        a * r0[1] * r0[2] + b * r1[1] * r1[2] + d * r2[1] * r2[2],
+        a * r0[2] * r0[2] + b * r1[2] * r1[2] + d * r2[2] * r2[2],
+    )
+
+
+def _euler_cov(c: list[list[float]], s: list[float]) -> tuple[float, float, float, float, float, float]:
+    """(rr, rp, ry, pp, py, yy): the covariance of (roll, pitch, yaw) from attitude errors ψ about the NED axes
+    with σ ``s`` (rad). δe = W⁻¹ Cᵀ ψ: Cᵀψ is the error in body axes, W⁻¹ maps body rates to the ZYX Euler
+    rates (roll' = p + (q sinφ + r cosφ) tanθ, pitch' = q cosφ − r sinφ, yaw' = (q sinφ + r cosφ)/cosθ);
+    cosθ is held ≥ 1e-3 at the pitch singularity."""
+    sth = max(-1.0, min(1.0, -c[2][0]))
+    cth = max(math.sqrt(1.0 - sth * sth), 1e-3)
+    n = math.hypot(c[2][1], c[2][2]) or 1.0
+    sph, cph = c[2][1] / n, c[2][2] / n
+    tth = sth / cth
+    rows = []
+    for k in range(3):  # ψ along NED axis k: body error (c[k][0], c[k][1], c[k][2]), then Euler error
+        p, q, r = c[k][0], c[k][1], c[k][2]
+        u = q * sph + r * cph
+        rows.append((p + u * tth, q * cph - r * sph, u / cth))
+    v = (s[0] * s[0], s[1] * s[1], s[2] * s[2])
+
+    def cov(i: int, j: int) -> float:
+        return v[0] * rows[0][i] * rows[0][j] + v[1] * rows[1][i] * rows[1][j] + v[2] * rows[2][i] * rows[2][j]
+
+    return cov(0, 0), cov(0, 1), cov(0, 2), cov(1, 1), cov(1, 2), cov(2, 2)
 
 
 class FcMessages(MessageBase):
     """Builders of the flight-controller messages (``_send_<message>``, one state in, one message out)."""
 
-    def _send_odometry(self, st: NavState) -> None:
+    def _send_odometry(self, st: NavState) -> bool:
+        """ODOMETRY of a usable state (:meth:`_usable`); nothing (False) otherwise: PX4 fuses any quality while
+        ``EKF2_EV_QMIN`` ≤ 0 (its default), so an unusable solution is not sent at all (quality −1 would still
+        be fused there). quality 100; reset_counter: :meth:`_note_usable`; covariances in the message's
+        frames (pose: NED position, roll/pitch/yaw; velocity: body FRD)."""
+        usable = self._usable(st)
+        reset = self._note_usable(st, usable)
+        if not usable:
+            return False
         m = self._m
         d = self._home_ned(st)
         q = _floats(st.q_nb)
@@ -28,45 +77,53 @@ class FcMessages(MessageBase):
         vbz = c[0][2] * vn + c[1][2] * ve + c[2][2] * vd
         sp0, sp1, sp2 = _floats(st.std_pos)
         if (sp0 > 0.0 or sp1 > 0.0 or sp2 > 0.0) and not (math.isnan(sp0) or math.isnan(sp1) or math.isnan(sp2)):
-            # (that is max(std_pos) > 0) upper-right triangle, row-major: diagonal at 0, 6, 11, 15, 18, 20
-            sa0, sa1, sa2 = _floats(st.std_att)
-            sv0, sv1, sv2 = _floats(st.std_vel)
+            # (that is max(std_pos) > 0) upper-right triangle of the 6×6, row-major: (r, c) at 6r − r(r−1)/2 + c − r
             pc = [0.0] * 21
-            pc[0], pc[6], pc[11], pc[15], pc[18], pc[20] = sp0**2, sp1**2, sp2**2, sa0**2, sa1**2, sa2**2
+            pc[0], pc[6], pc[11] = sp0**2, sp1**2, sp2**2
+            pc[15], pc[16], pc[17], pc[18], pc[19], pc[20] = _euler_cov(c, _floats(st.std_att))
             vc = [0.0] * 21
-            vc[0], vc[6], vc[11] = sv0**2, sv1**2, sv2**2
+            vc[0], vc[1], vc[2], vc[6], vc[7], vc[11] = _body_cov(c, _floats(st.std_vel))
         else:  # unknown: NaN first element
             pc = [math.nan] + [0.0] * 20
             vc = list(pc)
         t_us = round(st.t * 1e6)
-        quality = 100 if st.aligned else 0
+        rc = self.reset_counter
         # estimator_type VIO: PX4 reads the covariances only when it is not NAIVE (an inertial + aided estimate)
         if self._fast:  # wire order: time, x, y, z, q, v, rates, covariances, frame ids, reset, estimator, quality
             self._emit(
                 _frame_of("ODOMETRY"), t_us, *d, *q, vbx, vby, vbz, wx, wy, wz, *pc, *vc,
-                self._odom_frame, m.MAV_FRAME_BODY_FRD, 0, m.MAV_ESTIMATOR_TYPE_VIO, quality,
+                self._odom_frame, m.MAV_FRAME_BODY_FRD, rc, m.MAV_ESTIMATOR_TYPE_VIO, 100,
             )  # fmt: skip
         else:
             self.mav.odometry_send(
                 t_us, self._odom_frame, m.MAV_FRAME_BODY_FRD, *d, q, vbx, vby, vbz, wx, wy, wz, pc, vc,
-                0, m.MAV_ESTIMATOR_TYPE_VIO, quality,
+                rc, m.MAV_ESTIMATOR_TYPE_VIO, 100,
             )  # fmt: skip
+        if reset:
+            self._send_origin()  # the local origin, at once after the first ODOMETRY of a (re)start
+        return True
 
     def _send_gps_input(self, st: NavState) -> None:
-        """The fused state as a MAVLink GPS (ArduPilot GPS1_TYPE = 14). hdop/vdop from the last fix where its
-        source gave them, else UINT16_MAX with GPS_INPUT_IGNORE_FLAG_HDOP|VDOP; time_week/time_week_ms: the
-        GPS time of the last fix moved on to the state's time, or 0/0 (which ArduPilot takes as "no GPS
-        time") while the source gives none; satellites from the last fix, 0 when the source gives none.
-        alt: MSL (EGM96)."""
+        """The fused state as a MAVLink GPS (ArduPilot GPS1_TYPE = 14). fix_type 3 while the state is usable
+        and GNSS-aided, 1 (no fix) before alignment, with the IMU lost, or while dead reckoning (a GNSS input
+        is present and lost). hdop = hypot(σN, σE) / 1 m, vdop = σD / 1 m (a DOP with a 1 m range error:
+        ArduPilot's GPS_HDOP_GOOD = 140 then means σh ≤ 1.4 m), at most 99.99; flagged ignored only when σ
+        is not finite. time_week/time_week_ms: the GPS time of the last fix moved on to the state's time, or
+        0/0 (which ArduPilot takes as "no GPS time") while the source gives none; satellites from the last
+        fix, 0 when the source gives none. alt: MSL (EGM96)."""
         m = self._m
-        v, sp, sv = st.vel_ned, st.std_pos, st.std_vel
+        v, sp, sv = st.vel_ned, _floats(st.std_pos), st.std_vel
         g = self._gnss
-        ignore = m.GPS_INPUT_IGNORE_FLAG_HDOP | m.GPS_INPUT_IGNORE_FLAG_VDOP
-        hdop = vdop = 65535.0
-        if g is not None and _dop(g, "hdop") != 0xFFFF:
-            hdop, ignore = _dop(g, "hdop") * 0.01, ignore & ~m.GPS_INPUT_IGNORE_FLAG_HDOP
-        if g is not None and _dop(g, "vdop") != 0xFFFF:
-            vdop, ignore = _dop(g, "vdop") * 0.01, ignore & ~m.GPS_INPUT_IGNORE_FLAG_VDOP
+        ignore = 0
+        hdop, vdop = math.hypot(sp[0], sp[1]) / DOP_RANGE_M, sp[2] / DOP_RANGE_M
+        if not math.isfinite(hdop):
+            hdop, ignore = 65535.0, ignore | m.GPS_INPUT_IGNORE_FLAG_HDOP
+        if not math.isfinite(vdop):
+            vdop, ignore = 65535.0, ignore | m.GPS_INPUT_IGNORE_FLAG_VDOP
+        hdop, vdop = min(hdop, DOP_MAX), min(vdop, DOP_MAX)
+        gnss = self.metrics.sensors["gnss"]
+        dead_reckoning = gnss.present and gnss.count > 0 and not gnss.healthy
+        fix = 3 if self._usable(st) and not dead_reckoning else 1
         week, week_ms = _gps_week(g, st.t)
         self.mav.gps_input_send(
             round(st.t * 1e6),
@@ -74,7 +131,7 @@ class FcMessages(MessageBase):
             ignore,
             week_ms,
             week,
-            3 if st.aligned else 1,
+            fix,
             round(math.degrees(st.lat) * 1e7),
             round(math.degrees(st.lon) * 1e7),
             float(self._msl(st.lat, st.lon, st.h)),
@@ -89,7 +146,11 @@ class FcMessages(MessageBase):
             min(254, g.num_sats) if g is not None else 0,
         )
 
-    def _send_hil_state_quaternion(self, st: NavState) -> None:
+    def _send_hil_state_quaternion(self, st: NavState) -> bool:
+        """HIL_STATE_QUATERNION of a usable state (:meth:`_usable`); nothing (False) otherwise: the message
+        has no validity field, and PX4 in HIL takes it as the truth."""
+        if not self._usable(st):
+            return False
         q, w, v = st.q_nb, st.omega_b, st.vel_ned
         a = st.accel_b / earth.G0 * 1000.0  # mG
         gs = math.hypot(v[0], v[1])
@@ -111,3 +172,4 @@ class FcMessages(MessageBase):
             _i16(a[1]),
             _i16(a[2]),
         )
+        return True
