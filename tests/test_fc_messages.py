@@ -27,6 +27,9 @@ def _send(typ: str, st: Any = None, gnss: GnssFix | None = None, **cfg: Any) -> 
         ep.offer_gnss(gnss)
     getattr(ep, "_send_" + typ.lower())(st if st is not None else _state(2.0))
     msgs = [m for b in sink.bufs for m in mav.MAVLink(None).parse_buffer(b) or []]
+    if typ == "ODOMETRY" and msgs:  # the first ODOMETRY is followed by the local origin
+        assert [m.get_type() for m in msgs] == [typ, "SET_GPS_GLOBAL_ORIGIN"]
+        msgs = msgs[:1]
     assert [m.get_type() for m in msgs] == [typ]
     m = msgs[0]
     assert m.get_srcSystem() == 1 and m.get_srcComponent() == 197
@@ -47,21 +50,27 @@ def test_odometry_frames_covariance_and_body_velocity() -> None:
     assert o.frame_id == mav.MAV_FRAME_LOCAL_NED and o.child_frame_id == mav.MAV_FRAME_BODY_FRD
     # PX4 ignores the covariances of a MAV_ESTIMATOR_TYPE_NAIVE estimate and accepts VISION/VIO
     assert o.estimator_type == mav.MAV_ESTIMATOR_TYPE_VIO
-    assert o.time_usec == 2_000_000 and o.quality == 100 and o.reset_counter == 0
+    assert o.time_usec == 2_000_000 and o.quality == 100
     assert np.allclose(o.q, st.q_nb, atol=1e-7)  # body → local (Hamilton, w first)
     assert np.allclose([o.vx, o.vy, o.vz], dcm_from_quat(st.q_nb).T @ st.vel_ned, atol=1e-5)
     assert np.allclose([o.rollspeed, o.pitchspeed, o.yawspeed], st.omega_b, atol=1e-7)
     # pose_covariance: the upper-right triangle of the 6×6 (x, y, z, roll, pitch, yaw), row-major, 21 floats:
-    # the diagonal at 0, 6, 11, 15, 18, 20 (what PX4 and ArduPilot read), every other entry 0 here
+    # NED position variances at 0, 6, 11; the roll/pitch/yaw block (15–20) is the NED attitude σ carried to
+    # Euler angles (tests/test_autopilot_rules.py checks it against a numerical Jacobian); nothing else
     pc = np.array(o.pose_covariance)
     assert pc.shape == (21,)
-    diag = {0: 0.5**2, 6: 0.6**2, 11: 1.2**2, 15: math.radians(0.5) ** 2, 18: math.radians(0.5) ** 2,
-            20: math.radians(2.0) ** 2}  # fmt: skip
-    for i in range(21):
+    diag = {0: 0.5**2, 6: 0.6**2, 11: 1.2**2}
+    for i in (*range(15),):
         assert math.isclose(pc[i], diag.get(i, 0.0), rel_tol=1e-6, abs_tol=0.0), i
+    ea = np.array([[pc[15], pc[16], pc[17]], [pc[16], pc[18], pc[19]], [pc[17], pc[19], pc[20]]])
+    assert np.all(np.linalg.eigvalsh(ea) > 0)  # a covariance
+    assert math.isclose(np.trace(ea), np.sum(np.radians([0.5, 0.5, 2.0]) ** 2), rel_tol=0.05)  # ~level: ≈ trace
+    # velocity_covariance: body FRD like the velocity (C^T Σ_NED C), the rate block unknown (0)
     vc = np.array(o.velocity_covariance)
-    assert np.allclose(vc[[0, 6, 11]], [0.05**2, 0.05**2, 0.1**2], rtol=1e-6)
-    assert np.count_nonzero(vc) == 3
+    c = dcm_from_quat(st.q_nb)
+    sb = c.T @ np.diag([0.05**2, 0.05**2, 0.1**2]) @ c
+    assert np.allclose(vc[[0, 1, 2, 6, 7, 11]], sb[np.triu_indices(3)], rtol=1e-5, atol=1e-9)
+    assert np.count_nonzero(vc[[3, 4, 5, 8, 9, 10, *range(12, 21)]]) == 0
     # the triangle index of (row, col): 6 r − r(r−1)/2 + (c − r), so (1, 1) → 6, (5, 5) → 20
     assert [6 * r - r * (r - 1) // 2 for r in range(6)] == [0, 6, 11, 15, 18, 20]
 
@@ -69,10 +78,9 @@ def test_odometry_frames_covariance_and_body_velocity() -> None:
 def test_odometry_unknown_covariance_and_the_ardupilot_frame() -> None:
     st = _state(2.0)
     st.std_pos = np.zeros(3)  # no covariance yet
-    st.aligned = False
     o = _send("ODOMETRY", st)
     assert math.isnan(o.pose_covariance[0]) and math.isnan(o.velocity_covariance[0])  # NaN first = unknown
-    assert o.quality == 0
+    assert o.quality == 100
     # ArduPilot's handle_odometry takes frame_id LOCAL_FRD (and child BODY_FRD) only: the same NED values
     a = _send("ODOMETRY", _state(2.0), odometry_frame="LOCAL_FRD")
     assert a.frame_id == mav.MAV_FRAME_LOCAL_FRD and a.child_frame_id == mav.MAV_FRAME_BODY_FRD
@@ -83,9 +91,9 @@ def test_odometry_unknown_covariance_and_the_ardupilot_frame() -> None:
 def test_gps_input_fields_as_ardupilot_reads_them() -> None:
     st = _state(2.0)
     g = _send("GPS_INPUT", st, gnss=_fix())
-    # no DOP in the navigation state: hdop/vdop ignored (UINT16_MAX), every other field provided
-    assert g.ignore_flags == mav.GPS_INPUT_IGNORE_FLAG_HDOP | mav.GPS_INPUT_IGNORE_FLAG_VDOP
-    assert g.hdop == 65535.0 and g.vdop == 65535.0
+    # DOP from the filter σ over a 1 m range error: hdop = hypot(σN, σE), vdop = σD; nothing ignored
+    assert g.ignore_flags == 0
+    assert math.isclose(g.hdop, math.hypot(0.5, 0.6), rel_tol=1e-6) and math.isclose(g.vdop, 1.2, rel_tol=1e-6)
     # GPS time unknown: week 0 (AP_GPS_MAV uses the week's time only when time_week > 0)
     assert g.time_week == 0 and g.time_week_ms == 0
     assert g.time_usec == 2_000_000 and g.gps_id == 0 and g.fix_type == 3 and g.satellites_visible == 11
@@ -134,7 +142,8 @@ def test_gps_time_and_dop_are_passed_where_the_source_gives_them() -> None:
     assert gi.time_week == 2345 and gi.time_week_ms == 123456789 and gi.ignore_flags == 0
     gi = _send("GPS_INPUT", _state(2.5), gnss=g)  # 0.5 s later: the fix's GPS time moved on to the state's
     assert gi.time_week == 2345 and gi.time_week_ms == 123457289
-    assert math.isclose(gi.hdop, 0.9, rel_tol=1e-6) and math.isclose(gi.vdop, 1.4, rel_tol=1e-6)
+    # GPS_INPUT's DOP is the fused state's (σ), not the receiver's
+    assert math.isclose(gi.hdop, math.hypot(0.5, 0.6), rel_tol=1e-6) and math.isclose(gi.vdop, 1.2, rel_tol=1e-6)
     raw = _send("GPS_RAW_INT", gnss=g)
     assert (raw.eph, raw.epv) == (90, 140)  # HDOP/VDOP × 100
 

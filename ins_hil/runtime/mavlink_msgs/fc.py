@@ -57,14 +57,16 @@ class FcMessages(MessageBase):
     """Builders of the flight-controller messages (``_send_<message>``, one state in, one message out)."""
 
     def _send_odometry(self, st: NavState) -> bool:
-        """ODOMETRY of a usable state (:meth:`_usable`); nothing (False) otherwise: PX4 fuses any quality while
-        ``EKF2_EV_QMIN`` ≤ 0 (its default), so an unusable solution is not sent at all (quality −1 would still
-        be fused there). quality 100; reset_counter: :meth:`_note_usable`; covariances in the message's
-        frames (pose: NED position, roll/pitch/yaw; velocity: body FRD)."""
+        """ODOMETRY: quality 100 for a usable state (:meth:`_usable`), −1 (MAVLink: invalid) otherwise; role
+        ``fc`` sends nothing (False) for an unusable state, as PX4 fuses any quality while ``EKF2_EV_QMIN``
+        ≤ 0 (its default). reset_counter: :meth:`_note_usable`; covariances in the message's frames (pose:
+        NED position, roll/pitch/yaw; velocity: body FRD)."""
         usable = self._usable(st)
         reset = self._note_usable(st, usable)
-        if not usable:
+        fc = self.cfg.role == "fc"
+        if fc and not usable:
             return False
+        quality = 100 if usable else -1
         m = self._m
         d = self._home_ned(st)
         q = _floats(st.q_nb)
@@ -92,14 +94,14 @@ class FcMessages(MessageBase):
         if self._fast:  # wire order: time, x, y, z, q, v, rates, covariances, frame ids, reset, estimator, quality
             self._emit(
                 _frame_of("ODOMETRY"), t_us, *d, *q, vbx, vby, vbz, wx, wy, wz, *pc, *vc,
-                self._odom_frame, m.MAV_FRAME_BODY_FRD, rc, m.MAV_ESTIMATOR_TYPE_VIO, 100,
+                self._odom_frame, m.MAV_FRAME_BODY_FRD, rc, m.MAV_ESTIMATOR_TYPE_VIO, quality,
             )  # fmt: skip
         else:
             self.mav.odometry_send(
                 t_us, self._odom_frame, m.MAV_FRAME_BODY_FRD, *d, q, vbx, vby, vbz, wx, wy, wz, pc, vc,
-                rc, m.MAV_ESTIMATOR_TYPE_VIO, 100,
+                rc, m.MAV_ESTIMATOR_TYPE_VIO, quality,
             )  # fmt: skip
-        if reset:
+        if reset and fc:
             self._send_origin()  # the local origin, at once after the first ODOMETRY of a (re)start
         return True
 
