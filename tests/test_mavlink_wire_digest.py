@@ -31,10 +31,10 @@ KEY = bytes(range(32))
 N_STATES = 3000
 SIGN_T0 = 123_456_789_000  # signing timestamp (10 µs units) at the endpoint's start
 EXPECTED = {
-    ("gcs", False): "49ad4c30313832ed246813851ca1ebf065f03c67bea14dd147507659d3244c74",
-    ("gcs", True): "88c501d85b2a636f52778eb70d3e5ad8e8cdd735db7e9bc68b38c87dd644c396",
-    ("fc", False): "953e3018c35df12cc3ff54ca0efdb82d7a0b89a2c082d3b159b6ec7eafda6a1f",
-    ("fc", True): "2925be1312ca380d3d7c7b5680c03ece611861313d240260dd40c5b697831e33",
+    ("gcs", False): "f7e30f38b5a8e9b8d5eaadd75d176b3e3136cd43aeac605ec005bd047ae6fa58",
+    ("gcs", True): "3773ea4233ebc3c5ca9dc54bd5614ac7a85836a7a48e3f13d98683fe30a2414a",
+    ("fc", False): "f8a27864ea040258dacc4b2a1fdd7501f00a8cf5ddbe09e519338021a03845df",
+    ("fc", True): "bc5cbbee921476e3c61ad9e2bb4c4618cf0b0b9d82315683aa9b0bc8cebda396",
 }
 
 

@@ -188,6 +188,7 @@ class MessageBase:
     cfg: EndpointConfig
     name: str
     metrics: RuntimeMetrics
+    period_ns: dict[str, int]  # period of each streamed message (ns)
     mav: Any  # pymavlink's MAVLink; the endpoint is its file (write)
     mav_type: int
     rates: dict[str, float]
@@ -232,6 +233,8 @@ class MessageBase:
         self.reset_counter = secrets.randbelow(256)
         self._fc_usable = False  # the last fc-role state was usable (see _usable)
         self._fc_resets = -1  # NavState.resets of that state
+        self._fc_seen_ns = 0  # when ODOMETRY last looked at a state (monotonic ns)
+        self._fc_prev: tuple[float, ...] | None = None  # that state's t (s), NED offset (m), NED velocity (m/s)
 
     def _emit(self, frame: _Frame, *values: Any) -> None:
         """Send one message framed by ``frame`` (values in wire order), with pymavlink's bookkeeping."""
@@ -315,8 +318,13 @@ class MessageBase:
 
     def _note_usable(self, st: NavState, usable: bool) -> bool:
         """Track usability and resets for ODOMETRY's ``reset_counter``: True when it was incremented here
-        (the first usable state, usable again, or ``st.resets`` changed while usable)."""
-        step = usable and (not self._fc_usable or st.resets != self._fc_resets)
+        (the first usable state; usable again; the first state after a pause of the states longer than
+        ``SOLUTION_TIMEOUT_S`` or 3 ODOMETRY periods, i.e. the IMU stopped; ``st.resets`` changed)."""
+        now = time.monotonic_ns()
+        pause = max(SOLUTION_TIMEOUT_S * 1e9, 3 * self.period_ns.get("ODOMETRY", 0))
+        stale = now - self._fc_seen_ns > pause
+        self._fc_seen_ns = now
+        step = usable and (not self._fc_usable or stale or st.resets != self._fc_resets)
         self._fc_usable = usable
         if usable:
             self._fc_resets = st.resets

@@ -11,6 +11,8 @@ from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.runtime.mavlink_msgs.common import MessageBase, _floats, _frame_of, _gps_week, _i16
 from ins_hil.types import NavState
 
+#: a step of the ODOMETRY position (m) beyond what the velocity explains between two messages: reset_counter + 1
+JUMP_M = 1.0
 #: GPS_INPUT's DOP is the filter's σ over this range error (m): hdop = hypot(σN, σE) / DOP_RANGE_M
 DOP_RANGE_M = 1.0
 DOP_MAX = 99.99  # ArduPilot stores hdop × 100 in a uint16 and calls 9999 unknown (GPS_UNKNOWN_DOP)
@@ -69,11 +71,20 @@ class FcMessages(MessageBase):
         quality = 100 if usable else -1
         m = self._m
         d = self._home_ned(st)
+        vn, ve, vd = _floats(st.vel_ned)
+        prev, t = self._fc_prev, st.t
+        if prev is not None and not reset:  # a step of the position beyond what the velocity explains
+            h = 0.5 * (t - prev[0])
+            dn = d[0] - prev[1] - h * (vn + prev[4])
+            de = d[1] - prev[2] - h * (ve + prev[5])
+            dd = d[2] - prev[3] - h * (vd + prev[6])
+            if dn * dn + de * de + dd * dd > JUMP_M * JUMP_M:
+                self.reset_counter = (self.reset_counter + 1) & 0xFF
+        self._fc_prev = (t, d[0], d[1], d[2], vn, ve, vd)
         q = _floats(st.q_nb)
         wx, wy, wz = _floats(st.omega_b)
         # child frame body FRD (MAVLink ODOMETRY convention): v_b = (C_b^n)ᵀ v_n, C_b^n from rotation.dcm_from_quat
         c = dcm_from_quat(st.q_nb).tolist()
-        vn, ve, vd = _floats(st.vel_ned)
         vbx = c[0][0] * vn + c[1][0] * ve + c[2][0] * vd
         vby = c[0][1] * vn + c[1][1] * ve + c[2][1] * vd
         vbz = c[0][2] * vn + c[1][2] * ve + c[2][2] * vd
