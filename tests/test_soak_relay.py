@@ -31,6 +31,7 @@ def _odometry_endpoint() -> tuple[MavlinkEndpoint, BufferSink]:
     """A gateway ground-station endpoint that sends ODOMETRY alone, at the soak's rate."""
     rates = {**dict.fromkeys(GCS_RATES, 0.0), "ODOMETRY": GCS_RATE}
     ep = MavlinkEndpoint(EndpointConfig(role="gcs", rates=rates), RuntimeMetrics())
+    ep.reset_counter = 0  # random per process; the relay sends 0
     sink = BufferSink()
     ep.tr = sink  # type: ignore[assignment]
     return ep, sink

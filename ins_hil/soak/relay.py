@@ -15,8 +15,8 @@ address, ODOMETRY rate, MAVLink system/component ids) and then does the least a 
   the gateway decides on the monotonic clock when a state is ready, not on sensor time), ``time_usec``
   = the epoch's sensor time as the gateway encodes it (``round(t·1e6)``), framed by the gateway's
   packer (:func:`~ins_hil.runtime.mavlink_out._frame_of`); the message carries no navigation (zero
-  position, identity attitude, unknown covariance) and is the size of the gateway's before it is
-  aligned (quality 0; an aligned gateway's quality 100 makes its message one byte longer);
+  position, identity attitude, unknown covariance) and is the size of the gateway's ground-station
+  ODOMETRY before it is aligned (quality −1, as an aligned gateway's 100: no byte trimmed);
 * drains the GNSS/baro UDP input (so the simulator's datagrams are received) and does nothing with it.
 
 No navigation, no FDI, no recorder, no other MAVLink stream: the end-to-end latency the analysis
@@ -85,11 +85,12 @@ def open_link(port: str, baud: int) -> Any:
 def odometry_tail() -> tuple[Any, ...]:
     """The ODOMETRY fields after ``time_usec``, in wire order: no navigation (position 0, identity
     quaternion, zero velocity and rates, unknown covariances = NaN first element, as the gateway sends
-    before its covariance is known), LOCAL_NED / BODY_FRD, estimator VIO (as the gateway), quality 0."""
+    before its covariance is known), LOCAL_NED / BODY_FRD, reset counter 0, estimator VIO (as the gateway),
+    quality −1 (invalid: the gateway's ground-station ODOMETRY before alignment)."""
     m = mavlink_module()
     cov = (math.nan, *([0.0] * 20))
     return (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *cov, *cov,
-            m.MAV_FRAME_LOCAL_NED, m.MAV_FRAME_BODY_FRD, 0, m.MAV_ESTIMATOR_TYPE_VIO, 0)  # fmt: skip
+            m.MAV_FRAME_LOCAL_NED, m.MAV_FRAME_BODY_FRD, 0, m.MAV_ESTIMATOR_TYPE_VIO, -1)  # fmt: skip
 
 
 def odometry_message(mav: Any, t: float, tail: tuple[Any, ...] | None = None) -> bytes:
