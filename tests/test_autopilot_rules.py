@@ -540,6 +540,7 @@ def test_a_live_gateway_run_keeps_the_rules() -> None:
     org = [m for _, m in got if m.get_type() == "SET_GPS_GLOBAL_ORIGIN"]
     assert org and all(px4_origin_taken(s, 1) for s in org)
     assert not any(heartbeat_counts_as_gcs(m) for _, m in got if m.get_type() == "HEARTBEAT")
-    # the gateway's own latency (IMU arrival → first message of that state sent) is far below the delay docs give
+    # the gateway's own latency (IMU arrival → first message of that state sent), even on a loaded test host,
+    # is far from the 0.2 s ArduPilot assumes for a MAVLink GPS left at GPS1_DELAY_MS = 0
     lat = gw.metrics.snapshot()["latency"]["arrival_to_sent"]
-    assert lat["count"] > 30 and lat["p50_us"] * 1e-6 < ap_gps_lag_s(_doc_param("GPS1_DELAY_MS"))
+    assert lat["count"] > 30 and lat["p50_us"] * 1e-6 < 0.25 * ap_gps_lag_s(0)

@@ -16,7 +16,8 @@ The messages, by role, are built in :mod:`ins_hil.runtime.mavlink_msgs` (mixins 
 role ``gcs`` (:mod:`~ins_hil.runtime.mavlink_msgs.gcs`): HEARTBEAT, SYS_STATUS, ATTITUDE,
 ATTITUDE_QUATERNION, GLOBAL_POSITION_INT, LOCAL_POSITION_NED, GPS_RAW_INT, VFR_HUD, ESTIMATOR_STATUS,
 STATUSTEXT (faults, alignment, sensors lost/back), HOME_POSITION; role ``fc``
-(:mod:`~ins_hil.runtime.mavlink_msgs.fc`): HEARTBEAT, ODOMETRY, GPS_INPUT, HIL_STATE_QUATERNION.
+(:mod:`~ins_hil.runtime.mavlink_msgs.fc`): HEARTBEAT, ODOMETRY, GPS_INPUT, HIL_STATE_QUATERNION (only
+of a usable solution), SET_GPS_GLOBAL_ORIGIN.
 Cost on the IMU path: the hot messages (ODOMETRY, ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT,
 LOCAL_POSITION_NED, HEARTBEAT, SYS_STATUS) are computed in scalar floats and, on an unsigned link,
 framed by :class:`~ins_hil.runtime.mavlink_msgs.common._Frame` (bytes identical to pymavlink's); a
