@@ -544,3 +544,28 @@ def test_a_live_gateway_run_keeps_the_rules() -> None:
     # is far from the 0.2 s ArduPilot assumes for a MAVLink GPS left at GPS1_DELAY_MS = 0
     lat = gw.metrics.snapshot()["latency"]["arrival_to_sent"]
     assert lat["count"] > 30 and lat["p50_us"] * 1e-6 < 0.25 * ap_gps_lag_s(0)
+
+
+# ---------------------------------------------------------------------------- the core's reset signal
+
+
+def test_navstate_resets_counts_new_cores_and_gnss_position_resets() -> None:
+    """NavState.resets (what ODOMETRY's reset_counter follows) changes when the pipeline restarts the core
+    after a fault, when it re-aligns, and when the core resets its position on consistent GNSS fixes."""
+    from test_core_guard import LAT, LON, WIDE, H, Run, _core_at, _drive_core
+
+    r = Run("python", **WIDE)
+    r.run(2.0)
+    first = r.states[-1].resets
+    r.imu(dtheta=(1e30, 0.0, 0.0))  # a core failure: restarted from the last good state
+    r.run(0.5)
+    assert r.counts["core_restart"] == 1 and r.states[-1].resets == first + 1
+    r.imu(dtheta=(1e30, 0.0, 0.0))  # again before the first cleared: re-aligned from the next fix
+    r.run(1.0)
+    assert r.counts["core_realign"] == 1 and r.states[-1].resets > first + 1
+    core = _core_at(LAT, "python")  # 200 m of consistent GNSS disagreement: the position is reset
+    lat = math.radians(LAT)
+    fixes = [GnssFix(t=0.2 * (k + 1), lat=lat + 200.0 / 6.37e6, lon=math.radians(LON), h=H,
+                     vel_ned=np.zeros(3), std_ne=1.0, std_d=2.0, std_vel=0.1) for k in range(12)]  # fmt: skip
+    _drive_core(core, fixes, 0.0)
+    assert core.gnss_resets >= 1
