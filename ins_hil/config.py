@@ -408,7 +408,7 @@ def _gcs_output(ec: EndpointConfig, where: str) -> None:
         raise ConfigError(f"{where}.allowed_gcs_sysids = {ids}: 0 means any system; give [0] alone or only ids 1-255")
     if ec.signing_key_file:
         if ec.signing_key:
-            raise ConfigError(f"{where}: signing_key and signing_key_file both given: keep one")
+            raise ConfigError(f"{where}.signing_key_file: signing_key also given: keep one of both")
         try:
             read_key_file(ec.signing_key_file)
         except ValueError as e:
