@@ -6,8 +6,9 @@ commands from a system id that is not an allowed ground station are refused (cou
 PARAM_VALUE with the unchanged value, one STATUSTEXT per system id), nothing is saved, and a gateway started
 afterwards runs with the config file's values; ``allowed_gcs_sysids`` lets a ground station in by id; commands
 addressed to another component of our system id (the autopilot of the ``fc`` role) are not ours; the override
-file is announced at start (log line and STATUSTEXT) and can be switched off; MQTT refuses a password without a
-user name and warns when it would go out in clear text.
+file is announced at start (log line and STATUSTEXT) and can be switched off; an unsigned output listening on a
+network address is warned about at start; MQTT refuses a password without a user name and warns when it would go
+out in clear text.
 """
 
 from __future__ import annotations
@@ -251,3 +252,24 @@ def test_mqtt_password_needs_a_user_and_is_not_sent_in_clear_silently(tmp_path: 
     assert any("password" in w and "tls" in w for w in clear), clear
     tls = asyncio.run(start_stop(MqttConfig(port=port, username="u", password="p", tls=True)))
     assert not any("password" in w for w in tls), tls
+
+
+def test_unsigned_output_listening_on_the_network_is_warned_about(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from ins_hil.runtime.mavlink_out import EndpointConfig
+
+    assert EndpointConfig(url="udpin:0.0.0.0:14550").exposed()
+    assert EndpointConfig(url="tcpin:192.168.1.5:5760").exposed()
+    assert not EndpointConfig(url="udpin:127.0.0.1:14550").exposed()
+    assert not EndpointConfig(url="udpin:[::1]:14550").exposed()
+    assert not EndpointConfig(url="udpout:192.168.1.5:14550").exposed()  # sends; listens on no chosen address
+    assert not EndpointConfig(url="udpin:0.0.0.0:14550", signing_key="a1" * 32).exposed()
+
+    gw = Gateway(load(_write_config(tmp_path / "gw.toml", url="udpin:0.0.0.0:0")))
+    gw.log = logging.getLogger("ins_hil")
+    gw.input_paths = {ic.name: f"inputs[{i}] ({ic.name})" for i, ic in enumerate(gw.cfg.inputs)}
+    with caplog.at_level(logging.INFO, logger="ins_hil"):
+        gw._announce()
+    warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(warned) == 1 and "udpin:0.0.0.0:0 for the whole network, unsigned" in warned[0], warned

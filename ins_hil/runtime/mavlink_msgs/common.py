@@ -213,6 +213,21 @@ class EndpointConfig:
             return self.signing_key
         return read_key_file(self.signing_key_file)
 
+    def exposed(self) -> bool:
+        """Listens (udpin, tcpin) on an address other hosts reach (not loopback) and is unsigned: anyone on the
+        network can send it requests (the writes are then held only by ``allowed_gcs_sysids``)."""
+        import ipaddress
+
+        from ins_hil.drivers.mavlink_link import parse_url
+
+        u = parse_url(self.url)
+        if not u.listens or self.signing_key or self.signing_key_file or u.host == "localhost":
+            return False
+        try:
+            return not ipaddress.ip_address(u.host).is_loopback
+        except ValueError:  # a host name: whatever it resolves to
+            return True
+
     def allows(self, sysid: int) -> bool:
         """Whether system ``sysid`` may change this output's parameters or send it state-changing commands."""
         ids = self.allowed_gcs_sysids
