@@ -780,7 +780,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "tls_ca": M(help="CA certificate file; '' = system CAs", file=True),
         "tls_cert": M(help="client certificate file; '' = none", file=True),
         "tls_key": M(help="client key file; '' = none", file=True),
-        "tls_insecure": M(help="do not verify the broker's host name"),
+        "tls_insecure": M(help="do not verify the broker's certificate nor its host name (tests only)"),
         "keepalive": M("s", "[1, 65535]", "MQTT keep-alive"),
     },
     "recorder": {

@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
     print("Ground station (the same passphrase; never send it over an unsigned link):")
     print(f"  MAVProxy:       module load signing, then: signing key {secret}")
     print(f"                  (or a line '<device> {secret}' in ~/.mavproxy/signing.keys)")
-    print(f"  QGroundControl: Application Settings > MAVLink > MAVLink 2 Signing: key {secret}")
+    print(f"  QGroundControl: Application Settings > Telemetry > MAVLink 2 Signing > Key: {secret}")
+    print("                  (not 'Send to Vehicle', nor MAVProxy's 'signing setup': the gateway's key is its file)")
     print(f'  pymavlink:      mav.setup_signing(bytes.fromhex("{key_hex}"), sign_outgoing=True)')
     return 0

@@ -31,7 +31,7 @@ Topics under ``topic_prefix`` (default ``ins_hil``):
 
 Security: ``username``/``password`` log in to the broker (a password needs a user name); ``tls = true``
 encrypts the connection and checks the broker's certificate (``tls_ca``: its CA, else the system's;
-``tls_cert``/``tls_key``: a client certificate; ``tls_insecure``: skip the host-name check). A password
+``tls_cert``/``tls_key``: a client certificate; ``tls_insecure``: no certificate check at all, for tests). A password
 without TLS is warned about at start: it would cross the network in clear text.
 
 The publisher is its own task: a broker outage never touches the IMU path.
