@@ -8,7 +8,7 @@ afterwards runs with the config file's values; ``allowed_gcs_sysids`` lets a gro
 addressed to another component of our system id (the autopilot of the ``fc`` role) are not ours; the override
 file is announced at start (log line and STATUSTEXT) and can be switched off; an unsigned output listening on a
 network address is warned about at start; MQTT refuses a password without a user name and warns when it would go
-out in clear text.
+out in clear text, and the documented TLS set-up works against a real broker (mosquitto, certificates from openssl).
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import subprocess
+import time
 from pathlib import Path
 from typing import Any
 
@@ -273,3 +275,77 @@ def test_unsigned_output_listening_on_the_network_is_warned_about(
         gw._announce()
     warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(warned) == 1 and "udpin:0.0.0.0:0 for the whole network, unsigned" in warned[0], warned
+
+
+def _tls_broker(tmp: Path) -> tuple[subprocess.Popen[bytes], int, Path]:
+    """mosquitto with a TLS listener (a CA and a server certificate for 127.0.0.1 made by the openssl command) and
+    a password file (user gw, password pw): the process, its port and the CA file."""
+    import os
+    import shutil
+    import socket
+
+    from runtime_helpers import free_port
+
+    exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+    if not Path(exe).exists():
+        raise RuntimeError("mosquitto not installed: scripts/test.d/40-mosquitto.sh installs it (apt)")
+
+    def ssl(*args: str) -> None:
+        subprocess.run(["openssl", *args], cwd=tmp, check=True, capture_output=True)
+
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+    ssl("req", "-x509", *ec, "-keyout", "ca.key", "-out", "ca.pem", "-days", "2", "-subj", "/CN=ins-hil test CA")
+    ssl("req", *ec, "-keyout", "server.key", "-out", "server.csr", "-subj", "/CN=127.0.0.1")
+    (tmp / "san.ext").write_text("subjectAltName=IP:127.0.0.1\n")
+    ssl("x509", "-req", "-in", "server.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
+        "-out", "server.pem", "-days", "2", "-extfile", "san.ext")  # fmt: skip
+    subprocess.run(["mosquitto_passwd", "-c", "-b", str(tmp / "passwd"), "gw", "pw"], check=True, capture_output=True)
+    port = free_port(socket.SOCK_STREAM)
+    conf = (f"listener {port} 127.0.0.1\ncafile {tmp}/ca.pem\ncertfile {tmp}/server.pem\nkeyfile {tmp}/server.key\n"
+            f"allow_anonymous false\npassword_file {tmp}/passwd\npersistence false\n")  # fmt: skip
+    if os.geteuid() == 0:  # as root mosquitto drops to its own user, who cannot read pytest's tmp dir
+        conf += "user root\n"
+    (tmp / "mosquitto.conf").write_text(conf)
+    proc = subprocess.Popen([exe, "-c", str(tmp / "mosquitto.conf")], stderr=subprocess.DEVNULL)
+    for _ in range(200):
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return proc, port, tmp / "ca.pem"
+        except OSError:
+            time.sleep(0.05)
+    proc.terminate()
+    raise RuntimeError("mosquitto did not start")
+
+
+@pytest.mark.integration  # a real broker (mosquitto) and certificates made by openssl
+def test_mqtt_over_tls_with_a_password(tmp_path: Path) -> None:
+    """The documented broker set-up: TLS with the broker's CA and a password connects and publishes; without the CA
+    (the system's CAs do not know the broker) or without TLS the connection is refused, and said so."""
+    from ins_hil.runtime.mqtt_out import MqttConfig, MqttPublisher
+
+    proc, port, ca = _tls_broker(tmp_path)
+
+    async def attempt(cfg: MqttConfig) -> MqttPublisher:
+        pub = MqttPublisher(cfg, RuntimeMetrics())
+        await pub.start()
+        for _ in range(300):  # until the health message is out, or an error (at most ~30 s under load)
+            if pub.metrics.outputs.get("mqtt", {}).get("health") or pub.last_error:
+                break
+            await asyncio.sleep(0.1)
+        await pub.close()
+        return pub
+
+    base = {"host": "127.0.0.1", "port": port, "username": "gw", "password": "pw", "health_period": 0.1}
+    try:
+        ok = asyncio.run(attempt(MqttConfig(**base, tls=True, tls_ca=str(ca))))
+        no_ca = asyncio.run(attempt(MqttConfig(**base, tls=True)))
+        plain = asyncio.run(attempt(MqttConfig(**base)))
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    assert ok.connects == 1 and ok.metrics.outputs["mqtt"]["health"] >= 1 and not ok.last_error
+    assert not any("clear text" in w for w in ok.metrics.warnings)
+    assert no_ca.connects == 0 and "CERTIFICATE_VERIFY_FAILED" in no_ca.last_error, no_ca.last_error
+    assert any("cannot connect to" in w for w in no_ca.metrics.warnings)
+    assert plain.connects == 0 and plain.last_error
+    assert any("clear text" in w for w in plain.metrics.warnings)
