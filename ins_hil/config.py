@@ -24,6 +24,7 @@ from ins_hil.drivers.factory import driver_class, make_driver
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
+from ins_hil.runtime.mavlink_msgs.common import read_key_file
 from ins_hil.runtime.mavlink_out import EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
 from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor
@@ -385,6 +386,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         _choice(f"{where}.role", ec.role, ("gcs", "fc"))
         _choice(f"{where}.mav_type", ec.mav_type, MAV_TYPES)
         _key(f"{where}.signing_key", ec.signing_key)
+        _gcs_output(ec, where)
         ec.rates = schema.validate("outputs[].rates", t.get("rates", {}), f"{where}.rates")
         cfg.outputs.append(ec)
 
@@ -393,9 +395,35 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         _fill(cfg.mqtt, d["mqtt"], "mqtt")
         if any(c in cfg.mqtt.topic_prefix for c in "+#"):
             raise ConfigError(f"mqtt.topic_prefix = {cfg.mqtt.topic_prefix!r}: must not hold the wildcards + or #")
+        _mqtt_auth(cfg.mqtt)
     _fill(cfg.recorder, d.get("recorder", {}), "recorder")
     _startable(cfg)
     return cfg
+
+
+def _gcs_output(ec: EndpointConfig, where: str) -> None:
+    """The ground-station access keys of a MAVLink output: allowed_gcs_sysids (0 = any, alone), the signing key file."""
+    ids = ec.allowed_gcs_sysids
+    if 0 in ids and len(ids) > 1:
+        raise ConfigError(f"{where}.allowed_gcs_sysids = {ids}: 0 means any system; give [0] alone or only ids 1-255")
+    if ec.signing_key_file:
+        if ec.signing_key:
+            raise ConfigError(f"{where}.signing_key_file: signing_key also given: keep one of both")
+        try:
+            read_key_file(ec.signing_key_file)
+        except ValueError as e:
+            raise ConfigError(f"{where}.signing_key_file: {e}") from None
+
+
+def _mqtt_auth(mq: MqttConfig) -> None:
+    """The broker credentials and TLS keys go together (MQTT sends a password only with a user name)."""
+    if mq.password and not mq.username:
+        raise ConfigError("mqtt.password: needs mqtt.username (MQTT sends a password only with a user name)")
+    for k in ("tls_ca", "tls_cert", "tls_key", "tls_insecure"):
+        if getattr(mq, k) and not mq.tls:
+            raise ConfigError(f"mqtt.{k}: needs mqtt.tls = true (without it the connection is plain TCP)")
+    if mq.tls_key and not mq.tls_cert:
+        raise ConfigError("mqtt.tls_key: needs mqtt.tls_cert (the client certificate of that key)")
 
 
 def _bad(key: str, v: Any, what: str) -> Any:

@@ -752,6 +752,19 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
             help="ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only this)",
             choices=("LOCAL_NED", "LOCAL_FRD"),
         ),
+        "allowed_gcs_sysids": M(
+            "",
+            "[0, 255]",
+            "system ids obeyed for PARAM_SET, parameter saves and state-changing commands (255: "
+            "QGroundControl, MAVProxy; 245: MAVSDK); [] = none (read-only); [0] = any system",
+            unique=True,
+        ),
+        "signing_key_file": M(
+            help="file holding the signing key: a passphrase (its SHA-256, as MAVProxy and "
+            "QGroundControl make it) or 64 hex digits, mode 0600; `ins-hil keygen` writes one; "
+            "'' = signing_key",
+            file=True,
+        ),
     },
     "mqtt": {
         "enabled": M(help="publish state/fault/health to an MQTT broker (reconnects with backoff)"),
@@ -767,7 +780,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "tls_ca": M(help="CA certificate file; '' = system CAs", file=True),
         "tls_cert": M(help="client certificate file; '' = none", file=True),
         "tls_key": M(help="client key file; '' = none", file=True),
-        "tls_insecure": M(help="do not verify the broker's host name"),
+        "tls_insecure": M(help="do not verify the broker's certificate nor its host name (tests only)"),
         "keepalive": M("s", "[1, 65535]", "MQTT keep-alive"),
     },
     "recorder": {

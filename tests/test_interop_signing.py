@@ -4,7 +4,9 @@ The simulator signs its GNSS/baro with the key; the test injects unsigned and
 wrongly signed GPS_INPUT (at a far-away position) into the same input: they
 are rejected, counted, and never reach the pipeline. On the output side a
 pymavlink peer with the key verifies every message we send, and its unsigned
-and wrongly signed replies are rejected and counted by our endpoint.
+and wrongly signed replies are rejected and counted by our endpoint. ``ins-hil keygen`` writes a key file
+(0600) that an output takes as ``signing_key_file``: its key is the passphrase's SHA-256, as MAVProxy and
+QGroundControl derive it, and a bad key file is a one-line config error.
 """
 
 from __future__ import annotations
@@ -124,3 +126,78 @@ def test_signed_links(tmp_path: Path) -> None:
     assert got.get("HEARTBEAT", 0) >= 1 and got.get("ATTITUDE", 0) > 20
     out = gw.metrics.snapshot()["outputs"]["gcs"]
     assert out.get("rx_unsigned") == 3 and out.get("rx_bad_signature") == 3 and out.get("rx_messages") == 3
+
+
+def test_keygen_key_file_signs_an_output(tmp_path: Path, capsys: Any) -> None:
+    """``ins-hil keygen`` writes a 0600 passphrase file and prints the config line; an output with that
+    ``signing_key_file`` signs with SHA-256(passphrase) (the key MAVProxy's ``signing key`` and QGroundControl
+    make of it) and obeys only messages signed with it; a bad key file is a one-line config error."""
+    import hashlib
+    import os
+    import stat
+
+    import pytest
+    from runtime_helpers import BufferSink
+
+    from ins_hil.cli import main
+    from ins_hil.config import ConfigError
+    from ins_hil.runtime.mavlink_out import MavlinkEndpoint
+    from ins_hil.runtime.metrics import RuntimeMetrics
+
+    key_file = tmp_path / "signing.key"
+    assert main(["keygen", str(key_file)]) == 0
+    out = capsys.readouterr().out
+    assert stat.S_IMODE(key_file.stat().st_mode) == 0o600
+    secret = key_file.read_text().strip()
+    key = hashlib.sha256(secret.encode()).digest()
+    assert f'signing_key_file = "{key_file.resolve()}"' in out and f"signing key {secret}" in out
+    assert f'signing_key = "{key.hex()}"' in out
+    assert main(["keygen", str(key_file)]) == 2 and key_file.read_text().strip() == secret  # never overwritten
+    os.chmod(key_file, 0o644)
+    assert main(["keygen", "--force", str(key_file)]) == 0 and stat.S_IMODE(key_file.stat().st_mode) == 0o600
+    capsys.readouterr()
+    secret = key_file.read_text().strip()
+    key = hashlib.sha256(secret.encode()).digest()
+
+    def output(**kw: Any) -> dict[str, Any]:
+        return {"name": "gcs", "url": "udpout:127.0.0.1:9", "sysid": 42, **kw}
+
+    cfg = sim_config(outputs=[output(signing_key_file=str(key_file))])
+    ep = MavlinkEndpoint(cfg.outputs[0], RuntimeMetrics())
+    sink = BufferSink()
+    ep.tr = sink  # type: ignore[assignment]
+    ep._send_heartbeat(None)
+    verifier = mavlink2.MAVLink(None)
+    verifier.signing.secret_key = key
+    verifier.signing.timestamp = signing_timestamp()
+    assert [m.get_type() for m in verifier.parse_buffer(b"".join(sink.bufs)) or []] == ["HEARTBEAT"]
+    assert verifier.signing.goodsig_count == 1
+    # a ground station with the key is obeyed; without it, or with another key, it is not
+    for k, answered in ((None, False), (WRONG, False), (key.hex(), True)):
+        gcs, buf = _mav(k, 255)
+        sink.bufs.clear()
+        buf.data = b""
+        gcs.command_long_send(42, 1, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0)
+        ep._on_data(buf.data)
+        ep._send_replies()
+        assert bool(sink.bufs) == answered, k
+    o = ep.metrics.outputs["gcs"]
+    assert o["rx_unsigned"] == 1 and o["rx_bad_signature"] == 1
+
+    # bad key files and keys: one line naming the key
+    os.chmod(key_file, 0o640)
+    bad = {
+        "readable by other users (mode 0640): chmod 600": output(signing_key_file=str(key_file)),
+        "signing_key also given": output(signing_key_file=str(key_file), signing_key=KEY),
+        "file not found": output(signing_key_file=str(tmp_path / "none.key")),
+        "expected '' or 64 hex digits": output(signing_key="abc"),
+    }
+    short = tmp_path / "short.key"
+    short.write_text("hunter2\n")
+    short.chmod(0o600)
+    bad["at least 16 printable ASCII characters"] = output(signing_key_file=str(short))
+    for why, out_table in bad.items():
+        with pytest.raises(ConfigError) as e:
+            sim_config(outputs=[out_table])
+        msg = str(e.value)
+        assert why in msg and "outputs[0].signing_key" in msg and "\n" not in msg, msg

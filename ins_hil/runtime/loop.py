@@ -394,10 +394,15 @@ class Gateway:
             log.info("%s: %s %s", self.input_paths[ic.name], ic.type, where)
         for i, e in enumerate(self.mav_outputs):
             c = e.cfg
-            signed = ", signed" if c.signing_key else ""
+            signed = ", signed" if c.signing_key or c.signing_key_file else ""
             log.info("MAVLink outputs[%d] (%s): %s, role %s, sysid %d%s", i, c.name, c.url, c.role, c.sysid, signed)
+            if c.exposed():  # docs/flight_controller.md, "Securing the gateway"
+                log.warning("MAVLink outputs[%d] (%s) listens on %s for the whole network, unsigned: sign it "
+                            "(ins-hil keygen, signing_key_file) or listen on 127.0.0.1", i, c.name, c.url)  # fmt: skip
         if not self.mav_outputs:
             log.info("MAVLink: no outputs")
+        if self.params.loaded:  # values a MAV_CMD_PREFLIGHT_STORAGE saved: never in force silently
+            log.warning("%s", self.params.announcement())
         mq = self.cfg.mqtt
         if self.mqtt is not None:
             tls = " (TLS)" if mq.tls else ""

@@ -29,9 +29,11 @@ solution yet), with the sensor health of :class:`~ins_hil.runtime.metrics.Sensor
 answers a ground station (:mod:`~ins_hil.runtime.mavlink_msgs.requests`: parameters, commands,
 message intervals, mission count, FTP NAK). See docs/flight_controller.md.
 
-Signing (MAVLink 2): with a 32-byte key every outgoing message is signed and
-incoming messages on the endpoint are accepted only when correctly signed
-(rejections are counted in the metrics as ``rx_unsigned``/``rx_bad_signature``).
+Signing (MAVLink 2): with a 32-byte key (``signing_key``, or ``signing_key_file`` written by
+``ins-hil keygen``) every outgoing message is signed and incoming messages on the endpoint are
+accepted only when correctly signed (rejections are counted in the metrics as
+``rx_unsigned``/``rx_bad_signature``). Parameter writes, saves and state-changing commands are
+obeyed only from the system ids in ``allowed_gcs_sysids`` (:mod:`~ins_hil.runtime.mavlink_msgs.requests`).
 """
 
 from __future__ import annotations
@@ -100,7 +102,8 @@ class MavlinkEndpoint(Requests, GcsMessages, FcMessages):
         # highest rate first (stable for equal rates): the first message of a state is the fastest stream
         order = sorted(self.rates, key=lambda k: -self.rates[k])
         self.next_ns = dict.fromkeys(order, 0)
-        key = signing_key_from(cfg.signing_key) if cfg.signing_key else None
+        secret = cfg.signing_secret()  # signing_key, or the content of signing_key_file
+        key = signing_key_from(secret) if secret else None
         self.rx = MavReceiver(key)
         self.rx_messages: dict[str, int] = {}
         self.tr = Link(cfg.url, self._on_data, on_error=lambda why: metrics.output(cfg.name, "link_" + why))

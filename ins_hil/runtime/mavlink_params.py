@@ -17,8 +17,12 @@ with that one value changed; the runtime never imports the config module — and
 A refused set is answered with PARAM_VALUE carrying the unchanged value (the MAVLink
 parameter protocol's way to say no) and a STATUSTEXT with the reason. MAV_CMD_PREFLIGHT_STORAGE
 (param1 = 1) writes the values that differ from the config file to the override file
-(``<config>.params.toml`` beside the config, or an endpoint's ``params_file``); it is loaded at
-start, validated the same way (a bad entry is a ConfigError naming the file and the parameter).
+(``<config>.params.toml`` beside the config, or an endpoint's ``params_file``; ``params_file = "off"``:
+none, neither loaded nor written); it is loaded at start, validated the same way (a bad entry is a
+ConfigError naming the file and the parameter), and announced (:meth:`ParamStore.announcement`: the
+gateway's log names the file and every value it overrides; each ``gcs`` output gets a STATUSTEXT), so a
+retune cannot stick silently. Writes are obeyed only from an allowed ground station
+(``allowed_gcs_sysids``, :mod:`ins_hil.runtime.mavlink_msgs.requests`).
 """
 
 from __future__ import annotations
@@ -156,19 +160,26 @@ class ParamStore:
                 raise ValueError("the configuration does not round-trip through its document")
         except Exception as e:
             self.writable, self.why_readonly = False, f"parameters read-only: {e}"
+        self.off = not path and self._params_file(cfg) == PARAMS_OFF  # params_file = "off": no override file
         self.path = Path(path) if path else self._default_path(cfg)
         self.endpoints: list[Any] = []
         self.pipeline: Any = None
         self.warnings: list[str] = []
         self.changed: dict[str, Any] = {}  # name (``SR_X@endpoint`` for rates) → value set at run time
+        self.loaded: dict[str, Any] = {}  # what the override file set at start: name (``SR_X@endpoint``) → value
         if self.path is not None and self.path.is_file():
             self._load(self.path)
 
     @staticmethod
-    def _default_path(cfg: Any) -> Path | None:
-        for o in cfg.outputs:
-            if getattr(o, "params_file", ""):
-                return Path(o.params_file)
+    def _params_file(cfg: Any) -> str:
+        """The first output's non-empty ``params_file`` ('' = none given)."""
+        return next((o.params_file for o in cfg.outputs if getattr(o, "params_file", "")), "")
+
+    @classmethod
+    def _default_path(cls, cfg: Any) -> Path | None:
+        given = cls._params_file(cfg)
+        if given:
+            return None if given == PARAMS_OFF else Path(given)
         src = Path(cfg.source) if cfg.source else None
         if src is not None and src.suffix == ".toml" and src.is_file():
             return src.with_name(src.stem + ".params.toml")
@@ -281,6 +292,23 @@ class ParamStore:
         for i, ep in enumerate(self.endpoints):
             ep.params = self
             ep.params_index = i
+        if self.loaded:  # the ground stations see that the start values are not the config file's
+            texts = [f"params: {len(self.loaded)} override(s) from {self.path.name if self.path else '?'}"]
+            texts += [f"param override {k} = {_num(v)}" for k, v in list(self.loaded.items())[:_MAX_TEXTS]]
+            if len(self.loaded) > _MAX_TEXTS:
+                texts.append(f"... and {len(self.loaded) - _MAX_TEXTS} more overrides (see the log)")
+            for ep in self.endpoints:
+                if ep.cfg.role == "gcs":
+                    for t in texts:
+                        ep.statustext(4, t)  # MAV_SEVERITY_WARNING
+
+    def announcement(self) -> str:
+        """The start-up log line of the override file: its path and every value it overrides ('' = none loaded)."""
+        if not self.loaded:
+            return ""
+        vals = ", ".join(f"{k} = {_num(v)}" for k, v in self.loaded.items())
+        return (f"parameter override file {self.path} loaded (MAV_CMD_PREFLIGHT_STORAGE; delete it, or set "
+                f"params_file = 'off', to run the config's values): {vals}")  # fmt: skip
 
     # -- override file -------------------------------------------------------------------
     def overrides(self) -> dict[str, Any]:
@@ -302,6 +330,8 @@ class ParamStore:
     def save(self) -> Path:
         """Write the override file (raises OSError or ParamError when there is no path)."""
         if self.path is None:
+            if self.off:
+                raise ParamError("params_file = 'off'")
             raise ParamError("no override file: the config is not a file and no endpoint sets params_file")
         lines = [f"# ins-hil parameter overrides of {self.base.source or 'the config'} (MAV_CMD_PREFLIGHT_STORAGE)"]
         lines.append("[params]")
@@ -342,7 +372,17 @@ class ParamStore:
                 raise ConfigError(f"{path}: unknown parameter {n!r}") from None
             except ParamError as e:
                 raise ConfigError(f"{path}: {e}") from None
+        self.loaded = dict(self.changed)
         self.changed.clear()
+
+
+#: ``params_file`` value that switches the override file off (nothing loaded at start, saves refused)
+PARAMS_OFF = "off"
+_MAX_TEXTS = 8  # STATUSTEXTs naming overridden values at start (the log names all of them)
+
+
+def _num(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
 
 
 def _f32_decimal(x: float) -> float:

@@ -29,6 +29,11 @@ Topics under ``topic_prefix`` (default ``ins_hil``):
   (published before disconnecting) and as the last will (process killed,
   link lost).
 
+Security: ``username``/``password`` log in to the broker (a password needs a user name); ``tls = true``
+encrypts the connection and checks the broker's certificate (``tls_ca``: its CA, else the system's;
+``tls_cert``/``tls_key``: a client certificate; ``tls_insecure``: no certificate check at all, for tests). A password
+without TLS is warned about at start: it would cross the network in clear text.
+
 The publisher is its own task: a broker outage never touches the IMU path.
 It reconnects with exponential backoff (0.2 s … 5 s); states due while
 disconnected are counted as ``state_dropped_offline``. Connecting, losing
@@ -159,6 +164,10 @@ class MqttPublisher:
         self._wake.set()
 
     async def start(self) -> None:
+        c = self.cfg
+        if c.password and not c.tls:
+            self.metrics.warn(f"mqtt: the password for {c.username!r} goes to {c.host}:{c.port} in clear text "
+                              "(set tls = true, and the broker's TLS port, usually 8883)")  # fmt: skip
         self._task = asyncio.create_task(self._run(), name="mqtt")
 
     async def close(self) -> None:

@@ -157,6 +157,36 @@ def fault_text(ev: FaultEvent) -> tuple[int, str]:
     return m.MAV_SEVERITY_WARNING, f"INS fault {ev.sensor} {ev.mode.name.lower()}"
 
 
+#: the ground-station system ids obeyed by default: 255 (QGroundControl, MAVProxy, Mission Planner) and 245
+#: (MAVSDK's ground-station default, ``Mavsdk::Configuration(ComponentType::GroundStation)``)
+GCS_SYSIDS = (255, 245)
+
+
+def read_key_file(path: str) -> str:
+    """The MAVLink signing key text of a key file (``ins-hil keygen``): its first line, a passphrase (the key is its
+    SHA-256, as MAVProxy and QGroundControl make it) or 64 hex digits. ValueError (one line) when the file cannot be
+    read, is empty, or can be read by other users (POSIX mode bits; the key would not be secret)."""
+    import os
+    import stat
+
+    try:
+        st = os.stat(path)
+        with open(path, encoding="utf-8") as f:
+            text = f.readline().strip()
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"signing key file {path!r}: {getattr(e, 'strerror', None) or e}") from None
+    if os.name == "posix" and st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise ValueError(f"signing key file {path!r}: readable by other users (mode {stat.S_IMODE(st.st_mode):04o}): "
+                         f"chmod 600 {path}")  # fmt: skip
+    if not text:
+        raise ValueError(f"signing key file {path!r}: empty (write a passphrase or 64 hex digits: ins-hil keygen)")
+    if len(text) != 64 or any(c not in "0123456789abcdefABCDEF" for c in text):  # a passphrase
+        if not (text.isascii() and text.isprintable()) or " " in text or len(text) < 16:
+            raise ValueError(f"signing key file {path!r}: the passphrase must be one word of at least 16 printable "
+                             "ASCII characters (as MAVProxy's `signing key` takes it), or 64 hex digits")  # fmt: skip
+    return text
+
+
 @dataclass
 class EndpointConfig:
     """One MAVLink output (the ``[[outputs]]`` tables of type mavlink)."""
@@ -172,6 +202,37 @@ class EndpointConfig:
     params_file: str = ""  # parameter override file (default: <config>.params.toml), ins_hil.runtime.mavlink_params
     # ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only LOCAL_FRD; same values: x north)
     odometry_frame: str = "LOCAL_NED"
+    # system ids whose PARAM_SET, parameter save and state-changing commands are obeyed (0 = any system);
+    # 255: QGroundControl, MAVProxy, Mission Planner; 245: MAVSDK's ground-station default. [] = none (read-only)
+    allowed_gcs_sysids: list[int] = field(default_factory=lambda: list(GCS_SYSIDS))
+    signing_key_file: str = ""  # a file holding the signing key (a passphrase or 64 hex digits), `ins-hil keygen`
+
+    def signing_secret(self) -> str:
+        """The signing key text (``signing_key``, or the content of ``signing_key_file``); '' = unsigned.
+        Raises ValueError (one line) for a key file that cannot be read, is empty or readable by others."""
+        if self.signing_key or not self.signing_key_file:
+            return self.signing_key
+        return read_key_file(self.signing_key_file)
+
+    def exposed(self) -> bool:
+        """Listens (udpin, tcpin) on an address other hosts reach (not loopback) and is unsigned: anyone on the
+        network can send it requests (the writes are then held only by ``allowed_gcs_sysids``)."""
+        import ipaddress
+
+        from ins_hil.drivers.mavlink_link import parse_url
+
+        u = parse_url(self.url)
+        if not u.listens or self.signing_key or self.signing_key_file or u.host == "localhost":
+            return False
+        try:
+            return not ipaddress.ip_address(u.host).is_loopback
+        except ValueError:  # a host name: whatever it resolves to
+            return True
+
+    def allows(self, sysid: int) -> bool:
+        """Whether system ``sysid`` may change this output's parameters or send it state-changing commands."""
+        ids = self.allowed_gcs_sysids
+        return 0 in ids or sysid in ids
 
     def effective_rates(self) -> dict[str, float]:
         base = dict(GCS_RATES if self.role == "gcs" else FC_RATES)
@@ -220,7 +281,8 @@ class MessageBase:
         self._reply_pending: list[Any] = []  # messages to send once, after the ACK / off the IMU path
         self._geoid_at = (math.inf, math.inf)
         self._geoid_n = 0.0
-        self.rx_ignored = 0  # messages addressed to another system
+        self.rx_ignored = 0  # messages addressed to another system or component
+        self._refused_from: set[int] = set()  # system ids told once (STATUSTEXT) that their writes are refused
         frames = {"LOCAL_NED": self._m.MAV_FRAME_LOCAL_NED, "LOCAL_FRD": self._m.MAV_FRAME_LOCAL_FRD}
         if self.cfg.odometry_frame not in frames:
             raise ValueError(f"{self.name}.odometry_frame = {self.cfg.odometry_frame!r}: LOCAL_NED or LOCAL_FRD")

@@ -2,7 +2,15 @@
 protocol (:mod:`ins_hil.runtime.mavlink_params`), COMMAND_LONG/COMMAND_INT (always a COMMAND_ACK),
 MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_/GET_MESSAGE_INTERVAL, MAV_CMD_PREFLIGHT_STORAGE, MISSION_REQUEST_LIST
 (MISSION_COUNT 0) and MAVLink FTP (a NAK). Replies (among them AUTOPILOT_VERSION and HOME_POSITION)
-wait in ``_reply_pending`` and go out after the ACK."""
+wait in ``_reply_pending`` and go out after the ACK.
+
+A request is answered only when addressed to this system and component (or broadcast, 0): the ``fc`` role
+shares its system id with the autopilot, whose parameters and commands are not ours. Writes (:data:`_WRITES`:
+PARAM_SET, and every COMMAND_LONG/COMMAND_INT but the read-only ones of :data:`_READ_ONLY_COMMANDS`, among them
+MAV_CMD_PREFLIGHT_STORAGE) are obeyed only from the system ids of ``allowed_gcs_sysids``; from any other
+system they are refused (:meth:`Requests._refuse`): counted (``rx_refused_sysid``), answered the protocol's way
+(COMMAND_ACK DENIED; PARAM_VALUE with the unchanged value) and reported once per system id (STATUSTEXT and
+a warning)."""
 
 from __future__ import annotations
 
@@ -11,31 +19,69 @@ import struct
 import time
 from typing import Any
 
-from ins_hil.runtime.mavlink_msgs.common import _MSG_NAMES, EndpointConfig, MessageBase
+from ins_hil.runtime.mavlink_msgs.common import _MSG_NAMES, EndpointConfig, MessageBase, mavlink_module
 
 _HANDLED = frozenset(
     ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET", "COMMAND_LONG", "COMMAND_INT",
      "MISSION_REQUEST_LIST", "FILE_TRANSFER_PROTOCOL")
 )  # fmt: skip
 _FTP_ERR_UNKNOWN_COMMAND = 7  # MAVLink FTP error code UnknownCommand
+#: the requests that can change the gateway (a message type that changes anything must be listed here)
+_WRITES = frozenset(("PARAM_SET", "COMMAND_LONG", "COMMAND_INT"))
+#: the commands that only read: answered from any system (every other command is a write)
+_READ_ONLY_COMMANDS = frozenset(
+    int(getattr(mavlink_module(), "MAV_CMD_" + c))
+    for c in ("REQUEST_MESSAGE", "REQUEST_AUTOPILOT_CAPABILITIES", "GET_MESSAGE_INTERVAL", "REQUEST_PROTOCOL_VERSION")
+)
 
 
 class Requests(MessageBase):
     """Answers to the requests above (``_on_<message>``) and the queue of replies."""
 
     def _handle(self, msg: Any, typ: str) -> None:
-        """Answer a ground station's request addressed to this system (target 0 = broadcast)."""
+        """Answer a ground station's request addressed to this system and component (0 = broadcast); a write
+        from a system id that is not an allowed ground station is refused (:meth:`_refuse`)."""
         target = getattr(msg, "target_system", 0)
         if target not in (0, self.cfg.sysid):
             self.rx_ignored += 1
             self.metrics.output(self.name, "rx_other_system")
             return
+        if getattr(msg, "target_component", 0) not in (0, self.cfg.compid):  # e.g. the autopilot of our system
+            self.rx_ignored += 1
+            self.metrics.output(self.name, "rx_other_component")
+            return
         try:
-            getattr(self, "_on_" + typ.lower())(msg)
+            writes = typ in _WRITES and (typ == "PARAM_SET" or int(msg.command) not in _READ_ONLY_COMMANDS)
+            if writes and not self.cfg.allows(msg.get_srcSystem()):
+                self._refuse(msg, typ)
+            else:
+                getattr(self, "_on_" + typ.lower())(msg)
         except Exception as e:  # a malformed request must not kill the link
             self.metrics.output(self.name, "rx_error")
             self.metrics.warn(f"{self.name}: {typ}: {type(e).__name__}: {e}")
         self._send_replies()
+
+    def _refuse(self, msg: Any, typ: str) -> None:
+        """A write from a system that is not an allowed ground station: nothing changes; counted, answered (PARAM_SET:
+        PARAM_VALUE with the value in force; a command: COMMAND_ACK DENIED), told once per system id."""
+        m = self._m
+        src = msg.get_srcSystem()
+        self.metrics.output(self.name, "rx_refused_sysid")
+        if src not in self._refused_from:
+            self._refused_from.add(src)
+            self.statustext(m.MAV_SEVERITY_WARNING, f"sysid {src}: not an allowed GCS, writes refused")
+            what = typ if typ == "PARAM_SET" else f"{typ} {int(msg.command)}"
+            self.metrics.warn(f"{self.name}: {what} from system {src} refused: not in allowed_gcs_sysids "
+                              f"{self.cfg.allowed_gcs_sysids} (later ones counted as rx_refused_sysid)")  # fmt: skip
+        if typ == "PARAM_SET":
+            if self.params is not None:
+                names = self.params.names(self.params_index)
+                name = _param_name(msg.param_id)
+                if name in names:
+                    self._param_value(name, names.index(name))  # the unchanged value: the protocol's "no"
+            return
+        self.mav.command_ack_send(int(msg.command), m.MAV_RESULT_DENIED, 0, 0, src, msg.get_srcComponent())
+        self._count("COMMAND_ACK")
 
     def _param_value(self, name: str, index: int) -> None:
         value, ptype = self.params.get(self.params_index, name)
