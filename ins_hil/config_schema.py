@@ -555,7 +555,7 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "gyro_bias_std": M("rad/s", "(0, 1]", "gyro bias σ after the alignment"),
         "mag_yaw_std": M("rad", f"(0, {PI}]", "yaw σ from the magnetometer alignment"),
         "gnss_yaw_speed": M("m/s", "(0, 1000]",
-                            "in-motion yaw from a receiver's velocity course above this speed (position-only: a fitted track)"),
+                            "in-motion yaw from a receiver's velocity course above this speed (else a fitted track)"),
         "gnss_yaw_std": M("rad", f"(0, {PI}]", "yaw σ of the in-motion alignment (⊕ σ_v/V)"),
         "gnss_yaw_vel_floor": M("m/s", "[0, 100]", "floor on the receiver's σ_v in the in-motion yaw σ"),
         "aligned_yaw_std": M("rad", f"(0, {PI}]", "the state is 'aligned' when the yaw σ is below this"),
