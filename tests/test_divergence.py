@@ -85,3 +85,13 @@ def test_an_injected_gnss_offset_is_no_divergence_and_stays_gated(position_only:
     assert core.divergences == []
     assert max(e for t, e in err if t >= 80.0) < 10.0
     assert core.stats["gnss_pos"].consecutive_rejects > 50
+
+
+def test_a_divergence_reads_as_one_statustext() -> None:
+    """Live, the divergence event becomes one STATUSTEXT a pilot can read (≤ 50 characters)."""
+    from ins_hil.runtime.mavlink_msgs.common import fault_text
+
+    core, _ = _run(1, True, seconds=80.0)
+    ev = [e for e in core.drain_events() if e.sensor == "nav"]
+    sev, text = fault_text(ev[0])
+    assert text == "INS diverged: reset to GNSS" and len(text) <= 50 and sev == 4
