@@ -57,6 +57,7 @@ from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-e
 from ins_hil.core_parts.gnss import ins_off_track as ins_off_track  # re-exported (ins_hil.cref)
 from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
+from ins_hil.core_parts.sensor_check import SensorCheck
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
@@ -192,6 +193,10 @@ class NavCore:
         self.pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
         self.gnss_reset = GnssReset(self.cfg)  # the run of rejected fixes that may reset the filter
         self.divergences: list[tuple[float, str]] = []  # (t s, why): the resets of a diverged filter to GNSS
+        #: the start-up check of the IMU against the mounting and the noise preset (core_parts/sensor_check.py);
+        #: its one-line findings in ``sensor_warnings`` once judged
+        self.sensor_check: SensorCheck | None = SensorCheck(self.cfg)
+        self.sensor_warnings: list[str] = []
         # no absolute aiding: constant-position / zero-velocity pseudo-measurements (core_parts/hold.py)
         self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
         if self.hold is not None:
@@ -222,6 +227,8 @@ class NavCore:
         if not self.replaying and self._delayed and self.phase == "nav":
             self.history.log_imu(self.step_n, imu)
         self._dt = imu.dt
+        if self.sensor_check is not None and not self.replaying and self.sensor_check.add(imu):
+            self._sensor_checked(self.sensor_check)
         if self.phase != "nav":
             if self.yaw_gsf is not None:
                 self.yaw_gsf.predict(imu.dtheta - self.bg * imu.dt, imu.dvel, imu.dt)
@@ -449,6 +456,18 @@ class NavCore:
             self._apply(Measurement("mag", z, H, np.full(len(z), c.mag.std**2), c.mag.gate), meas.t)
         else:
             raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
+
+    def _sensor_checked(self, chk: SensorCheck) -> None:
+        """The start-up check has judged: keep its warnings, inflate the white-noise densities it found too small
+        (the filter's ``qc``: accelerometer → velocity, gyro → attitude)."""
+        self.sensor_check = None
+        self.sensor_warnings = list(chk.warnings)
+        kg, ka = chk.inflate
+        if kg > 1.0 or ka > 1.0:
+            qc = self.kf.qc.copy()
+            qc[3:6] *= ka * ka
+            qc[6:9] *= kg * kg
+            self.kf.qc = qc
 
     def _recover(self, meas: GnssFix, v_track: Vec) -> None:
         """A diverged filter (:meth:`GnssReset.ok`: the INS velocity off the rejected fixes' own track): take the
