@@ -54,8 +54,10 @@ from ins_hil.core_parts.contract import Measurement
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
 from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
 from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-exported (ins_hil.cref)
+from ins_hil.core_parts.gnss import ins_off_track as ins_off_track  # re-exported (ins_hil.cref)
 from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
+from ins_hil.core_parts.sensor_check import SensorCheck
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
@@ -191,6 +193,11 @@ class NavCore:
         self.pending_end: ImuSample | None = None  # step_begin ran, step_end not yet
         self.gnss_reset = GnssReset(self.cfg)  # the run of rejected fixes that may reset the filter
         self.gnss_resets = 0  # GNSS position resets done (the position steps: NavState.resets)
+        self.divergences: list[tuple[float, str]] = []  # (t s, why): the resets of a diverged filter to GNSS
+        #: the start-up check of the IMU against the mounting and the noise preset (core_parts/sensor_check.py);
+        #: its one-line findings in ``sensor_warnings`` once judged
+        self.sensor_check: SensorCheck | None = SensorCheck(self.cfg)
+        self.sensor_warnings: list[str] = []
         # no absolute aiding: constant-position / zero-velocity pseudo-measurements (core_parts/hold.py)
         self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
         if self.hold is not None:
@@ -221,6 +228,8 @@ class NavCore:
         if not self.replaying and self._delayed and self.phase == "nav":
             self.history.log_imu(self.step_n, imu)
         self._dt = imu.dt
+        if self.sensor_check is not None and not self.replaying and self.sensor_check.add(imu):
+            self._sensor_checked(self.sensor_check)
         if self.phase != "nav":
             if self.yaw_gsf is not None:
                 self.yaw_gsf.predict(imu.dtheta - self.bg * imu.dt, imu.dvel, imu.dt)
@@ -415,7 +424,12 @@ class NavCore:
         elif isinstance(meas, GnssFix):
             m = gnss_position(meas, s, C, self.idx, c, assume_now)
             st = self.stats["gnss_pos"]
-            force = st.consecutive_rejects >= c.gnss.reset_after and self.gnss_reset.ok(meas, m, self.kf.P)
+            force = st.consecutive_rejects >= c.gnss.reset_after and self.gnss_reset.ok(
+                meas, m, self.kf.P, s.vel_ned, self.kf.P.diagonal()[3:6]
+            )
+            if force and self.gnss_reset.diverged:
+                self._recover(meas, self.gnss_reset.track_vel)
+                m = gnss_position(meas, s, C, self.idx, c, assume_now)
             if force:
                 # GNSS rejected for too long: the INS has drifted, re-initialise position/velocity σ
                 self.kf.set_state_sigma("pos", np.sqrt(m.z * m.z + m.r))
@@ -445,6 +459,50 @@ class NavCore:
             self._apply(Measurement("mag", z, H, np.full(len(z), c.mag.std**2), c.mag.gate), meas.t)
         else:
             raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
+
+    def _sensor_checked(self, chk: SensorCheck) -> None:
+        """The start-up check has judged: keep its warnings, inflate the white-noise densities it found too small
+        (the filter's ``qc``: accelerometer → velocity, gyro → attitude)."""
+        self.sensor_check = None
+        self.sensor_warnings = list(chk.warnings)
+        kg, ka = chk.inflate
+        if kg > 1.0 or ka > 1.0:
+            qc = self.kf.qc.copy()
+            qc[3:6] *= ka * ka
+            qc[6:9] *= kg * kg
+            self.kf.qc = qc
+
+    def _recover(self, meas: GnssFix, v_track: Vec) -> None:
+        """A diverged filter (:meth:`GnssReset.ok`: the INS velocity off the rejected fixes' own track): take the
+        track's velocity ``v_track`` (NED m/s); when both speeds exceed ``alignment.gnss_yaw_speed`` and agree
+        within half, turn the yaw by the angle between the INS velocity and the track (the dead-reckoned velocity
+        turned with the yaw error); re-open the attitude and bias σ to their initial values so the filter learns
+        them again (EKF2's reset to GNSS after ``EKF2_GPS_TOUT``, with its GSF's yaw). Counted in
+        :attr:`divergences`, reported as a FaultEvent (sensor "nav")."""
+        s = self.ins.state
+        c, f = self.cfg, self.cfg.filter
+        sp_i = math.hypot(float(s.vel_ned[0]), float(s.vel_ned[1]))
+        sp_t = math.hypot(float(v_track[0]), float(v_track[1]))
+        dpsi = 0.0
+        if min(sp_i, sp_t) >= c.alignment.gnss_yaw_speed and abs(sp_i - sp_t) <= 0.5 * sp_t:
+            dpsi = math.remainder(
+                math.atan2(float(v_track[1]), float(v_track[0])) - math.atan2(float(s.vel_ned[1]), float(s.vel_ned[0])),
+                math.tau,
+            )
+            s.q_nb = quat_mul(quat_from_rotvec(np.array((0.0, 0.0, dpsi))), s.q_nb)  # C ← R_down(Δψ) C
+        s.vel_ned = np.asarray(v_track, dtype=np.float64).copy()
+        self.kf.set_state_sigma("att", np.array((f.init_att, f.init_att, max(f.init_yaw, abs(dpsi)))))
+        if self.idx.bg is not None:
+            self.kf.set_state_sigma("bg", f.init_gyro_bias)
+        if self.idx.ba is not None:
+            self.kf.set_state_sigma("ba", f.init_accel_bias)
+        if not self.replaying:
+            why = self.gnss_reset.diverged + (f", yaw turned {math.degrees(dpsi):+.0f}°" if dpsi else "")
+            self.divergences.append((meas.t, why))
+            self._events.append(
+                FaultEvent(meas.t, "nav", FaultMode.DRIFT, math.nan, True, True,
+                           f"filter diverged: reset to GNSS ({why})")
+            )  # fmt: skip
 
     def _apply(self, m: Measurement, t: float, force: bool = False) -> bool:
         """Gate, (adapt R), update, feed back one measurement valid at ``t`` (s). Returns True if accepted

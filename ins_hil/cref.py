@@ -30,7 +30,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree
+from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, ins_off_track
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
@@ -306,10 +306,12 @@ class CNavCore:
             return
         fixes = [(f, q) for f, q in self._rejected if f.t < meas.t]
         ok = len(fixes) >= n
-        if ok and int(e.accepted[0]) > 0 and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
-            ok = False
         if ok:
             ok = gnss_fixes_agree([f for f, _ in fixes] + [meas], self.cfg)
+        if ok and int(e.accepted[0]) > 0 and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
+            st = self.state()  # far beyond the gate: a reset only for a diverged filter (NavCore's rule)
+            var = np.asarray(st.std_vel, dtype=float) ** 2
+            ok = ins_off_track([f for f, _ in fixes] + [meas], st.vel_ned, var, self.cfg) is not None  # no _recover
         if not ok:
             e.consecutive[0] = n - 1
 

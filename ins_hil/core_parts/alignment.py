@@ -1,6 +1,8 @@
 """The two-phase alignment before navigation (``NavConfig.alignment.mode = "static"``): coarse levelling from the mean
 specific force over ``alignment.time`` s at rest (book §4.1.1), then yaw from the magnetometer (refined alignment,
-§4.1.2, Example 4.1) or from the GNSS course once the speed exceeds ``gnss_yaw_speed``."""
+§4.1.2, Example 4.1) or from the GNSS course: a receiver's velocity once its speed exceeds ``gnss_yaw_speed``, or for a
+position-only receiver a robust straight-line fit over several seconds of fixes (never one pair of fixes: one GNSS
+jump between two close fixes is a "speed" of metres per second in any direction)."""
 
 from __future__ import annotations
 
@@ -25,6 +27,21 @@ if TYPE_CHECKING:
 
 #: s: the longest interval between two position-only fixes whose difference is taken as a velocity
 MAX_DIFF_S = 2.0
+
+#: s: the longest span of position-only fixes fitted for the in-motion course (:meth:`Alignment._track_course`)
+COURSE_SPAN_S = 5.0
+
+#: the fewest position-only fixes the course fit takes
+COURSE_MIN_FIXES = 5
+
+#: rad: the most the gyros may turn the vehicle over the fitted span (the fit is of a straight track)
+COURSE_MAX_TURN = 10.0 * math.pi / 180.0
+
+#: the 2-D residual (in σ) beyond which a fix is an outlier of the fit: √χ²₂(99.9 %) = 3.72
+COURSE_OUTLIER_SIGMA = 3.72
+
+#: the largest share of fixes the fit may reject as outliers before it calls the track inconsistent
+COURSE_MAX_REJECTED = 0.3
 
 #: s the window stays frozen after the IMU saw motion while the levelling waits for a position (then it slides again)
 MAX_FROZEN_S = 30.0
@@ -69,6 +86,9 @@ class Alignment:
         self.last_speed: float | None = None  # the last GNSS horizontal speed seen (m/s)
         self.prev_fix: GnssFix | None = None  # the fix before (a position-only receiver's velocity by difference)
         self.gyrocompass_std: float | None = None  # σ_ψ (rad) the gyrocompass would give (alignment.gyrocompass)
+        # the heading phase's position-only track: (t s, lat rad, lon rad, h m, σ_NE m, gyro-held yaw rad)
+        self.track: deque[tuple[float, float, float, float, float, float]] = deque()
+        self.track_note = ""  # why the track gives no course yet (waiting_for)
 
     def step(self, imu: ImuSample) -> None:
         """One IMU sample before navigation: into the levelling window, or the gyro-only attitude (heading)."""
@@ -197,32 +217,105 @@ class Alignment:
             self.have_pos = True
             if vel is not None:
                 self.moving = self.moving or math.hypot(float(vel[0]), float(vel[1])) > self.cfg.alignment.still_speed
-        if core.phase == "heading" and vel is not None:
-            v = vel
+        if core.phase != "heading":
+            return
+        gsf = core.yaw_gsf
+        a = self.cfg.alignment
+        if gsf is None and meas.vel_ned is None:
+            # a position-only receiver: the course of a robust fit over several seconds of fixes
+            fit = self._track_course(meas)
+            if fit is None:
+                return
+            v, sig_course, d_ne = fit
             sp = math.hypot(float(v[0]), float(v[1]))
             self.last_speed = sp
-            gsf = core.yaw_gsf
-            if (gsf is not None and gsf.converged()) or (gsf is None and sp >= self.cfg.alignment.gnss_yaw_speed):
-                roll, pitch, yaw_was = euler_from_quat(s.q_nb)
-                if gsf is not None:  # the yaw bank weighted by the GNSS velocity (fusion/yaw_gsf.py)
-                    yaw, yaw_std = gsf.yaw, math.sqrt(gsf.yaw_var)
-                else:  # in-motion yaw = GNSS course (no sideslip)
-                    yaw = alignment.yaw_from_course(v)
-                    # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V)
-                    a = self.cfg.alignment
-                    yaw_std = math.hypot(a.gnss_yaw_std, max(std_vel, a.gnss_yaw_vel_floor) / sp)
-                s.q_nb = quat_from_euler(roll, pitch, yaw)
-                # the yaw reset turns the computed frame about down: the levelled tilt (fixed in NED) turns with it
-                self.C = dcm_from_euler(0.0, 0.0, yaw - yaw_was) @ self.C
-                s.vel_ned = v.copy()
-                C = dcm_from_quat(s.q_nb)
-                d = C @ self.cfg.gnss.lever_arm_b
-                m, n = earth.radii(meas.lat)
-                s.lat = meas.lat - d[0] / (m + meas.h)
-                s.lon = meas.lon - d[1] / ((n + meas.h) * math.cos(meas.lat))
-                s.h = meas.h + d[2]
-                core.ins.state.t = max(s.t, meas.t)
-                self.enter_nav(yaw_std=yaw_std)
+            yaw_std = math.hypot(a.gnss_yaw_std, sig_course)
+            if sp < a.still_speed or yaw_std > a.aligned_yaw_std:
+                self.track_note = (f"course σ {math.degrees(sig_course):.1f}° over {len(self.track)} fixes at "
+                                   f"{sp:.2f} m/s")  # fmt: skip
+                return
+            self._take_course(meas, alignment.yaw_from_course(v), yaw_std, v, d_ne)
+            return
+        if vel is None:
+            return
+        v = vel
+        sp = math.hypot(float(v[0]), float(v[1]))
+        self.last_speed = sp
+        if (gsf is not None and gsf.converged()) or (gsf is None and sp >= a.gnss_yaw_speed):
+            if gsf is not None:  # the yaw bank weighted by the GNSS velocity (fusion/yaw_gsf.py)
+                yaw, yaw_std = gsf.yaw, math.sqrt(gsf.yaw_var)
+            else:  # in-motion yaw = GNSS course (no sideslip)
+                yaw = alignment.yaw_from_course(v)
+                # 1-σ of course − heading (gnss_yaw_std: sideslip, lag) and of the course itself (σ_v / V)
+                yaw_std = math.hypot(a.gnss_yaw_std, max(std_vel, a.gnss_yaw_vel_floor) / sp)
+            self._take_course(meas, yaw, yaw_std, v, np.zeros(2))
+
+    def _take_course(self, meas: GnssFix, yaw: float, yaw_std: float, v: Vec, d_ne: Vec) -> None:
+        """Enter navigation with ``yaw`` (rad, σ ``yaw_std``), the velocity ``v`` (NED m/s) and the antenna at
+        ``meas`` moved by ``d_ne`` (m north, east: the fitted track's position at the fix's time)."""
+        core = self.core
+        s = core.ins.state
+        roll, pitch, yaw_was = euler_from_quat(s.q_nb)
+        s.q_nb = quat_from_euler(roll, pitch, yaw)
+        # the yaw reset turns the computed frame about down: the levelled tilt (fixed in NED) turns with it
+        self.C = dcm_from_euler(0.0, 0.0, yaw - yaw_was) @ self.C
+        s.vel_ned = np.asarray(v, dtype=np.float64).copy()
+        C = dcm_from_quat(s.q_nb)
+        d = C @ self.cfg.gnss.lever_arm_b
+        m, n = earth.radii(meas.lat)
+        s.lat = meas.lat + (float(d_ne[0]) - d[0]) / (m + meas.h)
+        s.lon = meas.lon + (float(d_ne[1]) - d[1]) / ((n + meas.h) * math.cos(meas.lat))
+        s.h = meas.h + d[2]
+        core.ins.state.t = max(s.t, meas.t)
+        self.enter_nav(yaw_std=yaw_std)
+
+    def _track_course(self, meas: GnssFix) -> tuple[Vec, float, Vec] | None:
+        """The course of a position-only receiver from the fixes of the last :data:`COURSE_SPAN_S` s over which
+        the gyros turned the vehicle by at most :data:`COURSE_MAX_TURN`: a least-squares straight line
+        p(t) = p₀ + v (t − t_k) north and east, refitted without the fixes whose 2-D residual exceeds
+        :data:`COURSE_OUTLIER_SIGMA` σ, with σ from the residuals themselves (their median, a jump cannot inflate
+        it) floored at a tenth of the receiver's σ_NE. Returns the velocity at the fix (NED m/s: the fitted mean
+        velocity turned by the gyros' yaw change since the fit's mean time), the course's 1-σ (rad, σ_v / V) and the
+        fitted position's offset from the fix (m north, east); None while too few fixes agree."""
+        yaw_now = euler_from_quat(self.core.ins.state.q_nb)[2]
+        tr = self.track
+        if tr and not 0.0 < meas.t - tr[-1][0] <= MAX_DIFF_S:
+            tr.clear()
+        tr.append((meas.t, meas.lat, meas.lon, meas.h, meas.std_ne, yaw_now))
+        while tr and (meas.t - tr[0][0] > COURSE_SPAN_S or abs(math.remainder(tr[0][5] - yaw_now, math.tau))
+                      > COURSE_MAX_TURN):  # fmt: skip
+            tr.popleft()
+        if len(tr) < COURSE_MIN_FIXES:
+            self.track_note = f"{len(tr)} of {COURSE_MIN_FIXES} position fixes on a straight track"
+            return None
+        arr = np.array(tr)
+        tau = arr[:, 0] - meas.t
+        p = np.array([earth.ned_from_geodetic(r[1], r[2], r[3], meas.lat, meas.lon, meas.h)[:2] for r in tr])
+        floor = 0.1 * float(np.median(arr[:, 4]))
+        keep = np.ones(len(tr), dtype=bool)
+        A = np.stack([np.ones_like(tau), tau], axis=1)
+        for _ in range(4):
+            coef, *_ = np.linalg.lstsq(A[keep], p[keep], rcond=None)
+            r = np.linalg.norm(p - A @ coef, axis=1)
+            # the median 2-D residual norm of N(0, σ²I₂) is σ √(2 ln 2)
+            sig = max(float(np.median(r[keep])) / math.sqrt(2.0 * math.log(2.0)), floor, 1e-4)
+            new = r <= COURSE_OUTLIER_SIGMA * sig
+            if np.array_equal(new, keep) or new.sum() < COURSE_MIN_FIXES:
+                break
+            keep = new
+        if keep.sum() < COURSE_MIN_FIXES or 1.0 - keep.mean() > COURSE_MAX_REJECTED:
+            self.track_note = f"the track's fixes disagree ({int((~keep).sum())} of {len(tr)} off the line)"
+            return None
+        cov = np.linalg.inv(A[keep].T @ A[keep])
+        v_ne = coef[1]
+        sp = float(np.hypot(v_ne[0], v_ne[1]))
+        if sp <= 0.0:
+            return None
+        sig_course = sig * math.sqrt(float(cov[1, 1])) / sp
+        dyaw = math.remainder(yaw_now - float(np.mean(arr[keep, 5])), math.tau)
+        c, sn = math.cos(dyaw), math.sin(dyaw)
+        v = np.array((c * v_ne[0] - sn * v_ne[1], sn * v_ne[0] + c * v_ne[1], 0.0))
+        return v, sig_course, np.asarray(coef[0], dtype=np.float64)
 
     def _velocity(self, meas: GnssFix) -> tuple[Vec | None, float]:
         """The fix's velocity (NED m/s) and its σ; for a position-only receiver the difference of this fix and the
@@ -268,6 +361,8 @@ class Alignment:
                 if self.last_speed is None
                 else f"last {self.last_speed:.2f} m/s"
             )
+            if self.prev_fix is not None and self.prev_fix.vel_ned is None:
+                return gc + f"yaw: waiting for a straight GNSS track for the course ({self.track_note or last})"
             return gc + f"yaw: waiting for a GNSS speed of {c.alignment.gnss_yaw_speed:g} m/s for the course ({last})"
         return ""
 

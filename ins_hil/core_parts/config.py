@@ -139,7 +139,9 @@ class AlignmentConfig:
     mode: ``"given"`` trusts the initial state; ``"static"`` levels from the mean specific force over ``time`` s
     at rest (book §4.1.1), then takes yaw from the magnetometer (σ ``mag_yaw_std`` rad) when a field reference is
     configured, else from the GNSS course once the speed exceeds ``gnss_yaw_speed`` m/s (σ ``gnss_yaw_std`` ⊕
-    σ_v/V rad with the receiver's σ_v floored at ``gnss_yaw_vel_floor`` m/s). level_only: level only (yaw from the
+    σ_v/V rad with the receiver's σ_v floored at ``gnss_yaw_vel_floor`` m/s); for a position-only receiver from a
+    robust straight-line fit over up to 5 s of fixes once its speed exceeds ``still_speed`` and the yaw σ it gives
+    is below ``aligned_yaw_std``. level_only: level only (yaw from the
     initial state). gyrocompass: yaw from the Earth rate when σ_ψ ≤ ``gyrocompass_max_std`` (rad).
     level_tilt_prior: the levelled tilt's prior correlated with the accelerometer error states. At rest: GNSS
     speed below ``still_speed`` m/s for ``still_delay`` s; ``still_gyro`` (rad/s) / ``still_accel`` (m/s²), RMS

@@ -1,5 +1,7 @@
 """GNSS aiding: the position and velocity measurements (lever arm, time alignment to the IMU step) and the
-reset after a run of rejected fixes, let through only when the rejected fixes agree with each other."""
+reset after a run of rejected fixes, let through only when the rejected fixes agree with each other, and — when
+they are far beyond the gate — only when the INS's own velocity has left the fixes' track (a diverged filter, not a
+GNSS jump: EKF2 resets to GNSS after ``EKF2_GPS_TOUT`` of failed checks)."""
 
 from __future__ import annotations
 
@@ -53,6 +55,8 @@ class GnssReset:
         self.cfg = c
         self.rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, c.gnss.reset_after))
         self.accepted = False  # a GNSS position has been accepted since the start
+        self.diverged = ""  # why the last reset allowed by ok() was a divergence ("" for a drift inside the bound)
+        self.track_vel = np.zeros(3)  # the rejected fixes' track velocity (NED m/s) of that divergence
 
     def note(self, meas: GnssFix, accepted: bool, ratio: float) -> None:
         """Count a fused fix (not during a replay): an accepted one clears the run of rejections."""
@@ -62,7 +66,7 @@ class GnssReset:
         else:
             self.rejected.append((meas, ratio))
 
-    def ok(self, meas: GnssFix, m: Measurement, P: Vec) -> bool:
+    def ok(self, meas: GnssFix, m: Measurement, P: Vec, vel_ins: Vec, var_vel_ins: Vec) -> bool:
         """May a GNSS position rejected ``gnss.reset_after`` times in a row reset the filter (be accepted over
         its gate, position/velocity σ re-initialised)? Only when the rejected fixes pass a consistency test
         of their own, so that junk cannot trigger a reset:
@@ -70,19 +74,61 @@ class GnssReset:
         1. the last ``gnss.reset_after`` rejected fixes and this one agree with each other
            (:func:`gnss_fixes_agree`);
         2. each of them is within ``RESET_GATE_FACTOR`` × the gate of the INS (test ratio ≤ factor²): an
-           INS whose position has drifted beyond the gate, not one ``RESET_GATE_FACTOR`` times beyond it —
-           unless no GNSS position has been accepted yet (a wrong configured start).
+           INS whose position has drifted beyond the gate — unless no GNSS position has been accepted yet (a
+           wrong configured start), or the filter has diverged: the INS velocity ``vel_ins`` (NED m/s, variance
+           ``var_vel_ins``) is off the fixes' own track (:func:`ins_off_track`). A GNSS jump (or an injected
+           offset) moves the fixes but not their track's velocity, so it stays gated.
+
+        Sets :attr:`diverged` to the reason whenever the INS velocity is off the track (a reset of a diverged
+        filter, inside the bound or beyond it), "" for a position drift alone.
         """
         c = self.cfg
+        self.diverged = ""
         fixes = [(f, q) for f, q in self.rejected if f.t < meas.t]
         if len(fixes) < c.gnss.reset_after:
             return False
         S = m.H @ P @ m.H.T + np.diag(m.r)
         ratio, _ = test_ratio(m.z, S, c.gnss.gate)
         fixes.append((meas, ratio))
-        if self.accepted and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
+        fx = [f for f, _ in fixes]
+        if not gnss_fixes_agree(fx, c):
             return False
-        return gnss_fixes_agree([f for f, _ in fixes], c)
+        off = ins_off_track(fx, vel_ins, var_vel_ins, c)
+        if off is None and self.accepted and max(q for _, q in fixes) > RESET_GATE_FACTOR**2:
+            return False
+        if off is not None:
+            self.track_vel = off[1]
+            self.diverged = f"the INS velocity is {off[0]:.1f} m/s off the GNSS track"
+        return True
+
+
+def ins_off_track(
+    fixes: list[GnssFix], vel_ins: Vec, var_vel_ins: Vec, c: NavConfig
+) -> tuple[float, Vec] | None:
+    """How far (m/s) the INS velocity (NED m/s, variance m²/s²) is off the velocity of the fixes' own track, when
+    beyond ``gnss.gate`` σ of both (χ² over the three axes), with that track velocity (NED m/s); None when it
+    agrees. The track's velocity: the last fix's receiver velocity, or without one the last fix's velocity of a
+    least-squares quadratic through the positions (a turning track is no straight line)."""
+    sc, mn = c.gnss.std_scale, c.gnss.min_std
+    last = fixes[-1]
+    if last.vel_ned is not None:
+        v = np.asarray(last.vel_ned, dtype=float)
+        var = np.full(3, (max(last.std_vel, mn[2]) * sc) ** 2)
+    else:
+        # the velocity at the last fix of a least-squares quadratic p(τ) = a + b τ + c τ², τ = t − t_last: b
+        t = np.array([f.t for f in fixes]) - last.t
+        if len(fixes) < 4 or float(np.ptp(t)) <= 0.0:
+            return None
+        A = np.stack([np.ones_like(t), t, t * t], axis=1)
+        p = np.array([earth.ned_from_geodetic(f.lat, f.lon, f.h, last.lat, last.lon, last.h) for f in fixes])
+        coef, *_ = np.linalg.lstsq(A, p, rcond=None)
+        v = coef[1]
+        s_ne = max(max(f.std_ne, mn[0]) for f in fixes) * sc
+        s_d = max(max(f.std_d, mn[1]) for f in fixes) * sc
+        var = np.array((s_ne**2, s_ne**2, s_d**2)) * float(np.linalg.pinv(A.T @ A)[1, 1])
+    e = np.asarray(vel_ins, dtype=float) - v
+    q = float(np.sum(e * e / (var + np.asarray(var_vel_ins, dtype=float))))
+    return (float(np.linalg.norm(e)), v) if q > c.gnss.gate**2 * 3 else None
 
 
 def gnss_fixes_agree(fixes: list[GnssFix], c: NavConfig) -> bool:

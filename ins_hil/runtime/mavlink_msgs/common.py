@@ -152,6 +152,8 @@ def _gps_week(g: GnssFix | None, t: float | None = None) -> tuple[int, int]:
 def fault_text(ev: FaultEvent) -> tuple[int, str]:
     """STATUSTEXT (severity, ≤50 chars) for a fault event."""
     m = mavlink_module()
+    if ev.sensor == "nav":  # NavCore's divergence reset (core_parts/gnss.py GnssReset.ok)
+        return m.MAV_SEVERITY_WARNING, "INS diverged: reset to GNSS"
     if ev.cleared:
         return m.MAV_SEVERITY_NOTICE, f"INS fault cleared: {ev.sensor}"
     return m.MAV_SEVERITY_WARNING, f"INS fault {ev.sensor} {ev.mode.name.lower()}"
