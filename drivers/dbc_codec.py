@@ -122,7 +122,8 @@ class DbcImuDecoder:
         self._extended = bool(self.gyro.is_extended_frame)
         if bool(self.accel.is_extended_frame) != self._extended:
             raise ValueError(f"DBC profile: {p.gyro_message} and {p.accel_message} must both use 11-bit or 29-bit ids")
-        for m, sigs in ((self.gyro, p.gyro_signals), (self.accel, p.accel_signals)):
+        counter = (p.counter_signal,) if p.counter_signal else ()
+        for m, sigs in ((self.gyro, (*p.gyro_signals, *counter)), (self.accel, (*p.accel_signals, *counter))):
             names = {s.name for s in m.signals}
             for s in sigs:
                 if s not in names:
