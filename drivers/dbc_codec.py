@@ -122,12 +122,14 @@ class DbcImuDecoder:
         self._extended = bool(self.gyro.is_extended_frame)
         if bool(self.accel.is_extended_frame) != self._extended:
             raise ValueError(f"DBC profile: {p.gyro_message} and {p.accel_message} must both use 11-bit or 29-bit ids")
-        counter = (p.counter_signal,) if p.counter_signal else ()
-        for m, sigs in ((self.gyro, (*p.gyro_signals, *counter)), (self.accel, (*p.accel_signals, *counter))):
+        for m, sigs in ((self.gyro, p.gyro_signals), (self.accel, p.accel_signals)):
             names = {s.name for s in m.signals}
             for s in sigs:
                 if s not in names:
                     raise ValueError(f"DBC profile: signal {s!r} not in message {m.name} of {p.dbc}")
+            if p.counter_signal and p.counter_signal not in names:  # else a KeyError on every frame
+                raise ValueError(f"DBC profile: counter_signal = {p.counter_signal!r}: not a signal of {m.name} "
+                                 f"(signals: {', '.join(sorted(names))})")  # fmt: skip
         if not (isinstance(p.rate_hz, int | float) and 0 < p.rate_hz < math.inf):
             raise ValueError(f"DBC profile: 'rate_hz' must be a finite number > 0 (Hz), got {p.rate_hz!r}")
         self.dt = 1.0 / p.rate_hz

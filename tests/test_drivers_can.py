@@ -252,7 +252,7 @@ def test_dbc_config_errors() -> None:
 def test_dbc_unknown_counter_signal_is_a_one_line_error_at_construction() -> None:
     """A decoder built directly (not from a config) with a counter signal its messages lack: refused
     at construction in one line, instead of a KeyError on every frame."""
-    with pytest.raises(ValueError, match="'Cnt' not in message IMU_GYRO") as e:
+    with pytest.raises(ValueError, match="counter_signal = 'Cnt': not a signal of IMU_GYRO") as e:
         DbcImuDecoder(DbcProfile(counter_signal="Cnt"))
     assert "\n" not in str(e.value)
     dec = DbcImuDecoder(DbcProfile(counter_signal=None))  # no counter: one interval per sample
