@@ -277,6 +277,9 @@ class Pipeline:
         self._t_off: dict[int, float] = {}
         self._t_cand: dict[int, ImuSample] = {}
         self._last_arrival = 0  # host arrival (ns) of the last IMU epoch run (0: unknown)
+        #: the time (s) of the last IMU sample handed to :meth:`imu` if it passed the validation boundary (after a
+        #: clock re-anchoring: its new time), None if it was refused: the live loop maps aiding times with it
+        self.imu_t: float | None = None
         self._imu_rejects = 0  # IMU samples rejected by the validator
         self._core_faults = 0  # core exceptions / bad states recovered from
         self._good: NavState | None = None  # the last state that passed the core guard
@@ -349,9 +352,11 @@ class Pipeline:
         if why is not None:
             r = self._clock_restart(s) if why == "imu_time" else None
             if r is None:
+                self.imu_t = None
                 self._reject(why)
                 return None
             s = r
+        self.imu_t = s.t
         try:
             if self._calib is not None:
                 s = self._calib.apply(s)
