@@ -127,6 +127,9 @@ class DbcImuDecoder:
             for s in sigs:
                 if s not in names:
                     raise ValueError(f"DBC profile: signal {s!r} not in message {m.name} of {p.dbc}")
+            if p.counter_signal and p.counter_signal not in names:  # else a KeyError on every frame
+                raise ValueError(f"DBC profile: counter_signal = {p.counter_signal!r}: not a signal of {m.name} "
+                                 f"(signals: {', '.join(sorted(names))})")  # fmt: skip
         if not (isinstance(p.rate_hz, int | float) and 0 < p.rate_hz < math.inf):
             raise ValueError(f"DBC profile: 'rate_hz' must be a finite number > 0 (Hz), got {p.rate_hz!r}")
         self.dt = 1.0 / p.rate_hz

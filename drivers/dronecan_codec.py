@@ -431,7 +431,8 @@ class DroneCanDecoder:
     ``nodes``: accepted source node ids (None = any); frames of other nodes
     count as ``unknown_node``. Per (node, type) the 5-bit transfer id gives
     ``duplicate`` (the same id again within 16 of the source's transfer periods,
-    at most ``tid_timeout_s``) and ``seq_gap`` (transfers missing; a gap of 32
+    at most ``tid_timeout_s``, and for a RawIMU with a node time that moved by
+    less than 16 integration intervals) and ``seq_gap`` (transfers missing; a gap of 32
     or more is counted from the host time elapsed). RawIMU node time goes
     through one clock model per node (``time_backwards``, ``time_jump`` and the
     ``clock_*`` events of :mod:`ins_hil.drivers.clock`). Values: ``nonfinite``,
@@ -452,7 +453,7 @@ class DroneCanDecoder:
     def __post_init__(self) -> None:
         self.reasm.counts = self.counts  # one counter dict for frames and transfers
 
-    _last_tid: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)  # (tid, host ns)
+    _last_tid: dict[tuple[int, int], tuple[int, int, int]] = field(default_factory=dict)  # (tid, host ns, node µs)
     _period: dict[tuple[int, int], float] = field(default_factory=dict)  # ns between transfers, running mean
     clocks: dict[int, SourceClock] = field(default_factory=dict)
     _hostmap: dict[int, HostTimeMap] = field(default_factory=dict)
@@ -481,19 +482,18 @@ class DroneCanDecoder:
             m = self._hostmap[src] = HostTimeMap()
         return m
 
-    def _duplicate(self, key: tuple[int, int], tid: int, now_ns: int) -> bool:
-        """Whether a complete transfer repeats the last accepted one's id within the duplicate window."""
-        last = self._last_tid.get(key)
-        if last is None or (tid - last[0]) & 0x1F:
-            return False
-        window = self.tid_timeout_s * 1e9
-        per = self._period.get(key, 0.0)
-        if 0 < per and 16 * per < window:
-            window = 16 * per
-        return now_ns - last[1] < window
+    def _transfer_id(
+        self, key: tuple[int, int], tid: int, now_ns: int, node_us: int = 0, interval_s: float = 0.0
+    ) -> bool:
+        """Transfer-id check of one complete transfer that decoded; False (counted ``duplicate``) if it repeats
+        the last accepted one.
 
-    def _transfer_id(self, key: tuple[int, int], tid: int, now_ns: int) -> bool:
-        """Transfer-id check of one complete transfer; False if it is a duplicate."""
+        The same 5-bit id again is a duplicate only if it came within the duplicate window (16 of the
+        source's transfer periods, at most ``tid_timeout_s``) *and*, when the transfer carries the node's
+        time (RawIMU: ``node_us`` µs with its ``interval_s``), that time moved by less than 16 intervals: a
+        re-sent transfer repeats its node time, while after 31 (or 63, ...) lost transfers the node time
+        has moved on by 32 (64, ...) intervals. The host time alone cannot tell them apart when the period
+        is not learnt yet (the first transfers) or is learnt too long (frames handed over in batches)."""
         last = self._last_tid.get(key)
         if last is not None:
             d = (tid - last[0]) & 0x1F
@@ -503,7 +503,8 @@ class DroneCanDecoder:
                 window = self.tid_timeout_s * 1e9
                 if 0 < per and 16 * per < window:
                     window = 16 * per
-                if el < window:
+                moved = node_us and last[2] and 0 < interval_s and abs(node_us - last[2]) >= 16e6 * interval_s
+                if el < window and not moved:
                     self._count("duplicate")
                     return False
             k = 0
@@ -516,7 +517,7 @@ class DroneCanDecoder:
             elif el > 0:  # the mean spacing of consecutive transfers; frames handed over in one batch (one
                 # host stamp, el = 0) say nothing about it and would pull it towards 0
                 self._period[key] = float(el) if per == 0 else per + (el - per) * 0.125
-        self._last_tid[key] = (tid, now_ns)
+        self._last_tid[key] = (tid, now_ns, node_us)
         return True
 
     def _count(self, key: str, n: int = 1) -> None:
@@ -561,10 +562,6 @@ class DroneCanDecoder:
         if r is None:
             return None
         dtid, src, tid, payload = r
-        # (a NodeStatus is read even when its id repeats: a restarted node starts again at 0)
-        if dtid != DTID_NODE_STATUS and self._duplicate((src, dtid), tid, now_ns):
-            self._count("duplicate")
-            return None
         try:
             vals = decode_payload(dtid, payload)
         except Exception:
@@ -572,9 +569,15 @@ class DroneCanDecoder:
             return None
         # the transfer id is taken only from a transfer that decodes: a damaged frame that happens to read as
         # a single-frame transfer (DroneCAN has no CRC on those) must not make the next real transfer with
-        # that id look like its duplicate
-        if dtid != DTID_NODE_STATUS:
-            self._transfer_id((src, dtid), tid, now_ns)
+        # that id look like its duplicate; a NodeStatus is read even when its id repeats (a restarted node
+        # starts again at 0)
+        if dtid == DTID_RAW_IMU:
+            iv = vals["integration_interval"]
+            iv = iv if math.isfinite(iv) else 0.0
+            if not self._transfer_id((src, dtid), tid, now_ns, vals["timestamp.usec"], iv):
+                return None
+        elif dtid != DTID_NODE_STATUS and not self._transfer_id((src, dtid), tid, now_ns):
+            return None
         return _HANDLERS[dtid](self, src, vals, now_ns)
 
     def _imu(self, src: int, v: dict[str, Any], now_ns: int) -> ImuSample | None:

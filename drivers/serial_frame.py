@@ -24,6 +24,11 @@ _BODY = struct.Struct("<BBHIH3f3fhB")  # version .. flags (bytes 2..38)
 _CRC = struct.Struct("<H")
 assert 2 + _BODY.size + _CRC.size == FRAME_LEN
 TEMP_INVALID = -32768
+#: the decoder's plausibility bounds per interval (beyond is not a physical reading: the frame is dropped as
+#: ``range``, before it can touch the clock model); the physical ranges of the gateway are the validation
+#: boundary's (ins_hil.validation), which every decoded sample passes before the pipeline uses it
+MAX_ABS_DTHETA = 1.0  # rad per interval (≈ 57 °/interval)
+MAX_ABS_DVEL = 50.0  # m/s per interval
 
 
 def crc16_ccitt(data: bytes, init: int = 0xFFFF) -> int:
@@ -66,7 +71,9 @@ class FrameError(ValueError):
 
 
 def decode(frame: bytes | memoryview, t_arrival_ns: int = 0) -> ImuSample:
-    """Decode one complete frame. Raises FrameError with a reason on any fault.
+    """Decode one complete frame. Raises FrameError with a reason on any fault: the same checks as
+    :meth:`FrameParser.feed` (length, sync, crc, version, nonfinite, range: ``dt_us`` = 0 or an increment
+    beyond :data:`MAX_ABS_DTHETA` / :data:`MAX_ABS_DVEL`).
 
     The returned ``t`` is the wrapped 32-bit µs time in seconds; stream
     receivers unwrap it (see FrameParser).
@@ -86,6 +93,8 @@ def decode(frame: bytes | memoryview, t_arrival_ns: int = 0) -> ImuSample:
     vals = (a0, a1, a2, v0, v1, v2)
     if not all(math.isfinite(x) for x in vals):
         raise FrameError("nonfinite")
+    if max(abs(a0), abs(a1), abs(a2)) > MAX_ABS_DTHETA or max(abs(v0), abs(v1), abs(v2)) > MAX_ABS_DVEL:
+        raise FrameError("range", f"increment beyond {MAX_ABS_DTHETA} rad / {MAX_ABS_DVEL} m/s per interval")
     return ImuSample(
         t=t_us * 1e-6,
         dt=dt_us * 1e-6,
@@ -113,8 +122,8 @@ class FrameParser:
     ``reopen()`` after a re-plug keeps the time bases, so the output continues.
     """
 
-    max_abs_dtheta: float = 1.0  # rad per interval (≈ 57 °/interval): beyond is not physical
-    max_abs_dvel: float = 50.0  # m/s per interval
+    max_abs_dtheta: float = MAX_ABS_DTHETA  # rad per interval: beyond is not physical
+    max_abs_dvel: float = MAX_ABS_DVEL  # m/s per interval
     max_time_jump_us: int = 100_000  # sensor-time step beyond (seq step × dt) that counts as a jump
     counts: dict[str, int] = field(default_factory=dict)
     _buf: bytearray = field(default_factory=bytearray)

@@ -259,7 +259,11 @@ def _can_options(ic: InputConfig, where: str) -> None:
     try:
         drv: Any = make_driver(ic.driver_table())  # a CanImuDriver: .dbc
     except ValueError as e:
-        if str(e).startswith(("CAN IMU", "DBC profile")):
+        msg = str(e)
+        head, _, rest = msg.partition(": ")
+        if head == "DBC profile" and " = " in rest and rest.partition(" = ")[0].isidentifier():
+            raise ConfigError(f"{where}.options.dbc.{rest}") from None  # the key named as in the file
+        if msg.startswith(("CAN IMU", "DBC profile")):
             raise ConfigError(f"{where}.options: {e}") from None
         path = (dbc or {}).get("dbc", "")
         raise ConfigError(f"{where}.options.dbc.dbc = {path!r}: not a DBC file ({e})") from None
@@ -357,7 +361,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             try:
                 mavlink_in_url(ic.url)
             except ValueError as e:
-                raise ConfigError(f"{where}.url = {ic.url!r}: {e}") from None
+                raise _url_error(f"{where}.url", ic.url, e) from None
             _key(f"{where}.signing_key", ic.signing_key)
         elif ic.type == "can_imu":
             _can_options(ic, where)
@@ -430,11 +434,18 @@ def _bad(key: str, v: Any, what: str) -> Any:
     raise ConfigError(f"{key} = {schema.show(v)}: expected {what}")
 
 
+def _url_error(key: str, v: Any, e: ValueError) -> ConfigError:
+    """A MAVLink url the link layer refused, in one line with the value once (its "MAVLink url '...': " dropped)."""
+    why = str(e)
+    pre = f"MAVLink url {v!r}: "
+    return ConfigError(f"{key} = {schema.show(v)}: {why[len(pre) :] if why.startswith(pre) else why}")
+
+
 def _url(key: str, v: str, schemes: tuple[str, ...]) -> None:
     try:
         scheme, _, _ = parse_url(v)
     except ValueError as e:
-        raise ConfigError(f"{key} = {v!r}: {e}") from None
+        raise _url_error(key, v, e) from None
     if scheme not in schemes:
         raise ConfigError(f"{key} = {v!r}: scheme must be one of {', '.join(schemes)}")
 

@@ -23,6 +23,7 @@ import difflib
 import math
 import re
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -184,7 +185,12 @@ class Key:
         t = self.type
 
         def bad() -> ConfigError:
-            return ConfigError(f"{where} = {show(v)}: expected {self.allowed()}")
+            what = self.allowed()
+            if self.choices and len(what) > KNOWN_LIST_MAX:  # one line: the close matches, not every choice
+                near = difflib.get_close_matches(v, [str(c) for c in self.choices], n=2) if isinstance(v, str) else []
+                alt = f" (did you mean {' or '.join(repr(n) for n in near)}?)" if near else ""
+                what = f"one of {len(self.choices)} names{alt}, listed in docs/configuration.md"
+            return ConfigError(f"{where} = {show(v)}: expected {what}")
 
         if t == "bool":
             if not isinstance(v, bool):
@@ -222,8 +228,14 @@ class Key:
                     ok = False
                 if not ok:
                     raise bad()
-            if self.file and v and not Path(v).is_file():
-                raise ConfigError(f"{where} = {show(v)}: file not found (or not a regular file)")
+            if self.file and v:
+                try:
+                    found = Path(v).is_file()
+                except (OSError, ValueError) as e:  # e.g. a name too long, a NUL byte
+                    why = getattr(e, "strerror", None) or e
+                    raise ConfigError(f"{where} = {show(v)}: not a usable path ({why})") from None
+                if not found:
+                    raise ConfigError(f"{where} = {show(v)}: file not found (or not a regular file)")
             return v
         if t == "vec3":
             ok = isinstance(v, list) and len(v) == 3
@@ -968,6 +980,26 @@ def section(name: str) -> Section:
     return _CACHE[re.sub(r"\[\d+\]", "[]", name)]
 
 
+#: a list of known names longer than this is not spelt out in an error (the error stays one line)
+KNOWN_LIST_MAX = 80
+
+
+def known_hint(k: str, known: Iterable[str], section: str = "") -> str:
+    """What to say about an unknown name ``k`` in one line: the close matches (``did you mean``), else the
+    known names when they fit in :data:`KNOWN_LIST_MAX` characters, else how many there are and where
+    they are documented (``section``: its name in docs/configuration.md, e.g. ``core.nav.filter``)."""
+    names = sorted(known)
+    near = difflib.get_close_matches(k, names, n=2)
+    if near:
+        return f"did you mean {' or '.join(repr(n) for n in near)}?"
+    listed = ", ".join(names)
+    if len(listed) <= KNOWN_LIST_MAX:
+        return f"known: {listed}"
+    sec = section.replace("[]", "")
+    table = f"[[{sec}]]" if section.endswith("[]") and "." not in sec else f"[{sec}]"
+    return f"{len(names)} known keys: docs/configuration.md, {table}" if section else f"{len(names)} known"
+
+
 def validate(name: str, table: Any, where: str | None = None) -> dict[str, Any]:
     """Check one TOML table against its section: {key: converted value} of the keys present.
 
@@ -983,9 +1015,7 @@ def validate(name: str, table: Any, where: str | None = None) -> dict[str, Any]:
         key = sec.keys.get(k)
         if key is None:
             if not sec.open:
-                near = difflib.get_close_matches(str(k), list(sec.keys), n=1)
-                hint = f"did you mean {near[0]!r}? " if near else ""
-                raise ConfigError(f"unknown key {f'{where}.{k}'!r} ({hint}known: {', '.join(sorted(sec.keys))})")
+                raise ConfigError(f"unknown key {show(f'{where}.{k}')} ({known_hint(str(k), sec.keys, name)})")
             key = sec.keys["*"]
         out[k] = key.check(v, f"{where}.{k}")
     for k, key in sec.keys.items():

@@ -50,7 +50,7 @@ from ins_hil.core_parts import config as sections
 from ins_hil.core_parts.aids import AidsSnapshot, VehicleAids
 from ins_hil.core_parts.alignment import Alignment
 from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot
-from ins_hil.core_parts.contract import Measurement
+from ins_hil.core_parts.contract import Measurement, check_aid, check_imu
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
 from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
 from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-exported (ins_hil.cref)
@@ -207,7 +207,10 @@ class NavCore:
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
-        """Propagate with one IMU interval; returns the current state."""
+        """Propagate with one IMU interval; returns the current state. A sample with a non-finite value or
+        time, or ``dt`` ≤ 0, is refused with a one-line ValueError (the core's contract,
+        :func:`~ins_hil.core_parts.contract.check_imu`); ``fuse`` likewise
+        (:func:`~ins_hil.core_parts.contract.check_aid`)."""
         if self._begin(imu):
             self.step_end()
         return self.state()
@@ -222,7 +225,9 @@ class NavCore:
         return self.state()
 
     def _begin(self, imu: ImuSample) -> bool:
-        """Mechanization (or an alignment step); True when a time update (:meth:`step_end`) is pending."""
+        """Mechanization (or an alignment step); True when a time update (:meth:`step_end`) is pending.
+        ValueError (one line, nothing changed) for a sample the core cannot integrate (:func:`check_imu`)."""
+        check_imu(imu)
         if self.pending_end is not None:
             self.step_end()
         if not self.replaying and self._delayed and self.phase == "nav":
@@ -371,7 +376,10 @@ class NavCore:
     def fuse_steps(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
         """:meth:`fuse` in parts, for a real-time caller: yields between the GNSS position and
         velocity updates (each about 0.2 ms in Python), so that they can run in separate gaps
-        between IMU steps. Exhausted with no step in between, it is exactly :meth:`fuse`."""
+        between IMU steps. Exhausted with no step in between, it is exactly :meth:`fuse`.
+        ValueError (one line, at the first segment, nothing changed) for a measurement the core cannot fuse
+        (:func:`check_aid`)."""
+        check_aid(meas)
         if self.pending_end is not None:
             self.step_end()
         self.history.finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first

@@ -159,6 +159,11 @@ class SampleValidator:
                 self._imus[source].t = -math.inf
             self._gnss_t.pop(source, None)
 
+    def imu_time(self, imu_id: int) -> float:
+        """The time (s) of the last IMU sample of ``imu_id`` that passed (−inf before the first)."""
+        st = self._imus.get(imu_id)
+        return st.t if st is not None else -math.inf
+
     def check(self, s: ImuSample | GnssFix | BaroSample | MagSample) -> str | None:
         """The reason ``s`` is rejected, or None (any sample kind)."""
         if isinstance(s, ImuSample):

@@ -304,6 +304,30 @@ def test_dronecan_32_lost_transfers_are_not_a_duplicate() -> None:
     assert send(dec, again, node.host_ns + 100_000) is None and dec.counts["duplicate"] == 1
 
 
+@pytest.mark.parametrize("before", ["one-transfer", "batched"])
+def test_dronecan_32_lost_transfers_are_not_a_duplicate_whatever_the_host_period_says(before: str) -> None:
+    """31 transfers lost when the host time cannot tell (the transfer period not learnt yet after one
+    transfer, or learnt 10x too long from frames handed over in batches): the node time moved by 32
+    integration intervals, so the same transfer id is a new transfer, not a duplicate (it was). A re-sent
+    transfer (the same node time) is still a duplicate."""
+    node = CanNode(rate_hz=1000.0)
+    dec = dc.DroneCanDecoder()
+    if before == "one-transfer":
+        assert isinstance(send(dec, node.imu(), node.host_ns), ImuSample)
+    else:
+        for _batch in range(50):  # batches of 10 transfers under one host stamp, 10 ms apart
+            stamp = node.host_ns
+            for _ in range(10):
+                send(dec, node.imu(), stamp)
+    for _ in range(31):
+        node.imu()  # lost on the bus
+    s = send(dec, node.imu(), node.host_ns)
+    assert isinstance(s, ImuSample), dec.counts
+    assert dec.counts.get("duplicate", 0) == 0 and dec.counts["seq_gap"] == 31
+    node.tids[dc.DTID_RAW_IMU] = (node.tids[dc.DTID_RAW_IMU] - 1) & 0x1F  # the same transfer, re-sent
+    assert send(dec, node.imu(advance=False), node.host_ns + 100_000) is None and dec.counts["duplicate"] == 1
+
+
 def test_dronecan_batched_arrivals_keep_the_transfer_period_sane() -> None:
     """A CAN driver hands frames over in batches with one host stamp (the gap between transfers is 0):
     the transfer period is learnt from real gaps only, so a later gap neither overflows the lost-transfer

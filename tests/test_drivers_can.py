@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from ins_hil.drivers import dronecan_codec as dc
 from ins_hil.drivers.can_imu import CanImuDriver
-from ins_hil.drivers.dbc_codec import DbcImuDecoder, DbcProfile, crc8_j1850
+from ins_hil.drivers.dbc_codec import DbcImuDecoder, DbcProfile, crc8_j1850, encode_imu_frames
 from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
 from ins_hil.sim.can_imu import DbcImuNode, DroneCanImuNode
@@ -247,6 +247,19 @@ def test_dbc_config_errors() -> None:
         CanImuDriver.from_config({"interface": "virtual", "protocol": "j1939"})
     with pytest.raises(ValueError, match="rate_hz"):  # dt = 0 would stop the core
         DbcImuDecoder(DbcProfile(rate_hz=math.inf))
+
+
+def test_dbc_unknown_counter_signal_is_a_one_line_error_at_construction() -> None:
+    """A decoder built directly (not from a config) with a counter signal its messages lack: refused
+    at construction in one line, instead of a KeyError on every frame."""
+    with pytest.raises(ValueError, match="counter_signal = 'Cnt': not a signal of IMU_GYRO") as e:
+        DbcImuDecoder(DbcProfile(counter_signal="Cnt"))
+    assert "\n" not in str(e.value)
+    dec = DbcImuDecoder(DbcProfile(counter_signal=None))  # no counter: one interval per sample
+    db = dec.db
+    got = [dec.feed(cid, d, 10**9 + k * 5_000_000) for k in range(3)
+           for cid, d in encode_imu_frames(db, (0.01, 0.0, 0.0), (0.0, 0.0, -9.8), k)]  # fmt: skip
+    assert sum(s is not None for s in got) == 3
 
 
 # ---------------------------------------------------------------- driver: virtual (unit) and slcan over a pty

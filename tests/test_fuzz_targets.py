@@ -82,10 +82,14 @@ def test_nan_state_and_stall_are_counted() -> None:
     for _ in range(400):
         t += 0.005
         nav.feed(_imu(t=t, dvel=np.array((0.0, 0.0, -9.80665 * 0.005))), res2)
-    nav.feed(_imu(t=t + 1e6), res2)  # one sample far ahead: everything after it is "backwards"
-    for _ in range(STALL + 5):
+    nav.feed(_imu(t=t + 1e6), res2)  # one sample far ahead: the later ones go "backwards", the pipeline re-anchors
+    for _ in range(20):
         t += 0.005
         nav.feed(_imu(t=t, dvel=np.array((0.0, 0.0, -9.80665 * 0.005))), res2)
+    assert nav.pipe.counts["imu_clock_reanchor"] == 1 and res2.nav_stalls == 0
+    for _ in range(STALL + 5):  # every sample refused (1,000 g): no state for STALL samples, a stall
+        t += 0.005
+        nav.feed(_imu(t=t, dvel=np.array((0.0, 0.0, 50.0))), res2)
     assert res2.nav_stalls == 1 and "pipeline stall" in res2.findings
 
 

@@ -173,10 +173,11 @@ class Gateway:
             s, name = q.popleft()
             self._current = name
             if isinstance(s, ImuSample):
-                clock.update(s.t, s.t_arrival_ns)
                 t0 = mono()
                 st = pipe.imu(s)
                 ready = mono()
+                if pipe.imu_t is not None:  # only a sample past the validation boundary, at its (re-anchored) time
+                    clock.update(pipe.imu_t, s.t_arrival_ns)
                 if st is not None:
                     for p in pubs:  # first: the bookkeeping below is not on the latency path
                         p.offer(st, s.t_arrival_ns, ready)

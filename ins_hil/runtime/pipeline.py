@@ -28,7 +28,10 @@ ground-vehicle aid (NHC/ZUPT) applied in this step's time update shows in the ne
 
 Every sample passes the validation boundary first (:class:`ins_hil.validation.SampleValidator`,
 limits from the ``[core]`` keys ``gyro_range_dps``, ``accel_range_g``, ...): a rejected sample is
-counted once as ``reject_<reason>`` and never reaches the core. The core guard: after every core
+counted once as ``reject_<reason>`` and never reaches the core. An IMU whose clock restarted (its times
+going back, passed through by a driver) is re-anchored on the second such sample (``imu_clock_reanchor``,
+:meth:`Pipeline._clock_restart`): its later times continue the old time base, so it is never refused for
+good. The core guard: after every core
 step and fusion segment the state is checked (:func:`state_ok`: finite and plausible position and
 velocity, |q| = 1, σ finite and ≥ 0); a failed check or any exception inside the core is counted
 (``core_bad_state`` / ``core_exception``), reported as a ``FaultEvent`` with sensor ``core`` (cleared
@@ -268,6 +271,15 @@ class Pipeline:
         self.cfg = cfg
         self.validator = SampleValidator(limits_of(cfg))  # the one validation boundary (ValueError: bad limit)
         self._val_imu = self.validator.imu
+        # IMU clock restarts passed through by a driver (defence in depth; drivers/clock.py re-anchors its own):
+        # per imu_id, the offset (s) added to its sensor times since a restart, and the last sample refused
+        # for its time (the candidate of a restart, as in SourceClock: a second one consistent with it confirms)
+        self._t_off: dict[int, float] = {}
+        self._t_cand: dict[int, ImuSample] = {}
+        self._last_arrival = 0  # host arrival (ns) of the last IMU epoch run (0: unknown)
+        #: the time (s) of the last IMU sample handed to :meth:`imu` if it passed the validation boundary (after a
+        #: clock re-anchoring: its new time), None if it was refused: the live loop maps aiding times with it
+        self.imu_t: float | None = None
         self._imu_rejects = 0  # IMU samples rejected by the validator
         self._core_faults = 0  # core exceptions / bad states recovered from
         self._good: NavState | None = None  # the last state that passed the core guard
@@ -336,10 +348,18 @@ class Pipeline:
         The sample passes the validation boundary first (a rejection is counted as ``reject_<reason>``);
         an exception inside the core is caught and recovered from (:meth:`_core_fault`); any other
         exception is counted (``pipeline_error``) and the sample dropped: this never raises."""
+        off = self._t_off
+        if off and s.imu_id in off:  # this IMU's clock restarted: its times continue the old time base
+            s = dataclasses.replace(s, t=s.t + off[s.imu_id])
         why = self._val_imu(s)
         if why is not None:
-            self._reject(why)
-            return None
+            r = self._clock_restart(s) if why == "imu_time" else None
+            if r is None:
+                self.imu_t = None
+                self._reject(why)
+                return None
+            s = r
+        self.imu_t = s.t
         try:
             if self._calib is not None:
                 s = self._calib.apply(s)
@@ -350,6 +370,40 @@ class Pipeline:
             self._count("pipeline_error")
             self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
             return None
+
+    def _clock_restart(self, s: ImuSample) -> ImuSample | None:
+        """A sample refused because its time did not increase: the IMU's clock may have restarted (a driver
+        passed the restarted times through). The rule of :class:`ins_hil.drivers.clock.SourceClock`: the
+        sample is dropped and kept as the candidate; when the next sample refused for its time follows the
+        candidate by one interval (± max(0.1 s, 10 intervals)), the clock really restarted and is
+        re-anchored there: this IMU's times continue from the last accepted one plus the host time elapsed
+        (its ``t_arrival_ns``; without it, the intervals the sensor counted), never backwards, and the
+        sample is taken (``imu_clock_reanchor``; the candidate counts once as ``reject_imu_time``). A lone
+        sample with a bad time costs that sample only; a restart costs one sample, never all that follow."""
+        iid = s.imu_id
+        cand = self._t_cand.get(iid)
+        self._t_cand[iid] = s
+        if cand is None:
+            return None
+        el = s.t - cand.t
+        ok = 0.0 < el and abs(el - s.dt) <= max(0.1, 10.0 * s.dt)
+        if ok and s.t_arrival_ns and cand.t_arrival_ns:  # no further than the host saw time pass
+            ok = el <= (s.t_arrival_ns - cand.t_arrival_ns) * 1e-9 + 0.1
+        if not ok:
+            return None
+        last = self.validator.imu_time(iid)
+        if not -_INF < last < _INF:
+            return None
+        own = el + cand.dt  # the intervals the sensor counted since the last accepted sample, at least
+        hs = (s.t_arrival_ns - self._last_arrival) * 1e-9 if s.t_arrival_ns and self._last_arrival else -1.0
+        t = last + (hs if hs > own else own)
+        self._t_off[iid] = self._t_off.get(iid, 0.0) + (t - s.t)
+        del self._t_cand[iid]
+        r = dataclasses.replace(s, t=t)
+        if self._val_imu(r) is not None:  # e.g. its dt out of band: refused after all, the offset kept
+            return None
+        self._count("imu_clock_reanchor")
+        return r
 
     def _group(self, s: ImuSample) -> NavState | None:
         """Redundant IMUs: group samples into epochs by sensor time.
@@ -450,6 +504,7 @@ class Pipeline:
             self._count("imu_time_backwards")
             return None
         self._t_imu = s.t
+        self._last_arrival = s.t_arrival_ns
         core = self.core
         if core is None:
             self._level_add(s)
