@@ -51,8 +51,8 @@ class SensorCheck:
         """One sample (body FRD increments over ``imu.dt``); True when the window is full and judged."""
         if not imu.dt > 0.0:
             return False
-        f = imu.dvel / imu.dt
-        w = imu.dtheta / imu.dt
+        f = np.asarray(imu.dvel, dtype=np.float64) / imu.dt
+        w = np.asarray(imu.dtheta, dtype=np.float64) / imu.dt
         self.sf += f
         self.sf2 += f * f
         self.sw += w
