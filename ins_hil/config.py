@@ -21,6 +21,7 @@ from ins_hil import config_schema as schema
 from ins_hil.config_schema import ConfigError
 from ins_hil.core_parts.config import MOVED
 from ins_hil.drivers.factory import driver_class, make_driver
+from ins_hil.drivers.mavlink_in import GNSS_MESSAGES as MAVLINK_GNSS_MESSAGES
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
@@ -48,8 +49,9 @@ class GatewaySettings:
 
 @dataclass
 class InputConfig:
-    """One ``[[inputs]]`` table: ``serial_imu`` (port, baud), ``mavlink`` (url, signing_key, sysid)
-    or ``can_imu`` (``[inputs.options]``: the CAN IMU driver's keys, ins_hil.drivers.can_imu)."""
+    """One ``[[inputs]]`` table: ``serial_imu`` (port, baud), ``mavlink`` (url, signing_key, sysid, compid,
+    gnss_messages, fc_gnss_lag_s) or ``can_imu`` (``[inputs.options]``: the CAN IMU driver's keys,
+    ins_hil.drivers.can_imu)."""
 
     name: str = ""
     type: str = "serial_imu"
@@ -57,16 +59,22 @@ class InputConfig:
     baud: int = 921600
     url: str = "udpin:127.0.0.1:0"
     signing_key: str = ""
-    sysid: int = 0
+    sysid: int = 1  # MAVLink: the flight controller's system id (ArduPilot's and PX4's default); 0 = any
+    compid: int = 0  # MAVLink: GNSS only from this component; 0 = any (never one of ours)
+    gnss_messages: list[str] = field(default_factory=lambda: list(MAVLINK_GNSS_MESSAGES))
+    fc_gnss_lag_s: float = 0.0  # s: the FC's GNSS lag, removed from GPS_RAW_INT/GPS2_RAW's arrival stamp
     options: dict[str, Any] = field(default_factory=dict)
 
-    def driver_table(self) -> dict[str, Any]:
+    def driver_table(self, own_ids: list[tuple[int, int]] | None = None) -> dict[str, Any]:
         """The ``ins_hil.drivers.factory.make_driver`` table of this input. The gateway's MAVLink input
-        emits GNSS and baro only (the IMU comes from its own input)."""
+        emits GNSS and baro only (the IMU comes from its own input) and refuses messages from ``own_ids``
+        (the gateway's MAVLink identities, :meth:`Config.mavlink_ids`)."""
         if self.type == "serial_imu":
             return {"type": self.type, "name": self.name, "port": self.port, "baudrate": self.baud}
         if self.type == "mavlink":
             return {"type": self.type, "name": self.name, "url": self.url, "system_id": self.sysid or None,
+                    "component_id": self.compid or None, "gnss_messages": list(self.gnss_messages),
+                    "fc_gnss_lag_s": self.fc_gnss_lag_s, "own_ids": list(own_ids or []),
                     "signing_key": self.signing_key or None, "emit": ["gnss", "baro"]}  # fmt: skip
         return {"type": self.type, "name": self.name, **self.options}
 
@@ -97,6 +105,10 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def mavlink_ids(self) -> list[tuple[int, int]]:
+        """Every MAVLink identity (system, component) the gateway's outputs send as: its inputs refuse them."""
+        return [(o.sysid, o.compid) for o in self.outputs]
 
     def document(self) -> dict[str, Any]:
         """This configuration as a TOML document (:func:`config_document`)."""
@@ -358,6 +370,10 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             except ValueError as e:
                 raise ConfigError(f"{where}.url = {ic.url!r}: {e}") from None
             _key(f"{where}.signing_key", ic.signing_key)
+            bad = [m for m in ic.gnss_messages if m not in MAVLINK_GNSS_MESSAGES]
+            if bad or len(set(ic.gnss_messages)) != len(ic.gnss_messages):
+                raise ConfigError(f"{where}.gnss_messages = {schema.show(ic.gnss_messages)}: expected distinct names "
+                                  f"of {', '.join(MAVLINK_GNSS_MESSAGES)}")  # fmt: skip
         elif ic.type == "can_imu":
             _can_options(ic, where)
         else:
@@ -394,8 +410,34 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         if any(c in cfg.mqtt.topic_prefix for c in "+#"):
             raise ConfigError(f"mqtt.topic_prefix = {cfg.mqtt.topic_prefix!r}: must not hold the wildcards + or #")
     _fill(cfg.recorder, d.get("recorder", {}), "recorder")
+    _gnss_sources(cfg)
     _startable(cfg)
     return cfg
+
+
+def _gnss_sources(cfg: Config) -> None:
+    """MAVLink GNSS that would feed the gateway its own output back, refused in one line: an input taking
+    GPS_RAW_INT from the system an ``fc`` output sends GPS_INPUT to (ArduPilot with GPS1_TYPE = 14 sends our
+    GPS_INPUT back as its GPS_RAW_INT), and an input that would refuse the simulator's GNSS."""
+    mav = [(i, ic) for i, ic in enumerate(cfg.inputs) if ic.type == "mavlink"]
+    for i, ic in mav:
+        if "GPS_RAW_INT" not in ic.gnss_messages:
+            continue
+        for j, o in enumerate(cfg.outputs):
+            if o.role == "fc" and o.effective_rates().get("GPS_INPUT", 0) > 0 and ic.sysid in (0, o.sysid):
+                raise ConfigError(
+                    f"inputs[{i}] takes GPS_RAW_INT from system {o.sysid} while outputs[{j}] sends it GPS_INPUT "
+                    f"(GPS1_TYPE = 14 echoes our fix back as GPS_RAW_INT): remove GPS_RAW_INT from "
+                    f"inputs[{i}].gnss_messages or set outputs[{j}].rates.GPS_INPUT = 0"
+                )
+    if cfg.sim_enabled and mav:
+        i, ic = mav[0]  # the simulator sends its GNSS to the first MAVLink input
+        sid, cid = cfg.sim.gnss_sysid, 220  # MAV_COMP_ID_GPS (ins_hil.sim.devices)
+        if ic.sysid not in (0, sid) or ic.compid not in (0, cid) or (sid, cid) in cfg.mavlink_ids():
+            raise ConfigError(
+                f"inputs[{i}] (sysid {ic.sysid}, compid {ic.compid}) would refuse the simulated GNSS "
+                f"(system {sid}, component {cid}): set inputs[{i}].sysid = {sid} or sim.gnss_sysid = {ic.sysid}"
+            )
 
 
 def _bad(key: str, v: Any, what: str) -> Any:
