@@ -276,6 +276,7 @@ class MavlinkDriver:
         gnss_messages: Iterable[str] | None = None,
         fc_gnss_lag_s: float = 0.0,
         on_warn: Callable[[str], None] | None = None,
+        gnss_refused_why: str = "",
     ) -> None:
         self.link_url = parse_url(url)
         self.kind, self.host, self.port = self.link_url
@@ -315,6 +316,7 @@ class MavlinkDriver:
         self.own_ids = {(int(a), int(b)) for a, b in own_ids} | {(src_sys, source_component)}
         self.fc_gnss_lag_us = round(fc_gnss_lag_s * 1e6)
         self.on_warn = on_warn
+        self.gnss_refused_why = gnss_refused_why  # said with a GNSS type refusal (the config's reason)
         self._said: set[Any] = set()
         self._last_gnss: dict[tuple[str, int], int] = {}  # (message type, source) -> last time key (µs)
         self.imu_dt = imu_dt
@@ -366,7 +368,7 @@ class MavlinkDriver:
         "request": {"GPS_RAW_INT": 5}, "emit": ["gnss", "baro"], "imu_dt": 0.01, "stale_s": 3}``."""
         known = {"type", "url", "name", "system_id", "source_system", "source_component", "signing_key"}
         known |= {"request", "emit", "imu_dt", "timesync_s", "stale_s", "max_skew_s", "component_id", "own_ids"}
-        known |= {"gnss_messages", "fc_gnss_lag_s"}
+        known |= {"gnss_messages", "fc_gnss_lag_s", "gnss_refused_why"}
         bad = set(cfg) - known
         if bad:
             raise ValueError(f"MAVLink config: unknown key(s) {sorted(bad)} (known: {sorted(known)})")
@@ -431,7 +433,8 @@ class MavlinkDriver:
         """GNSS only in the accepted types and from the accepted component (refusals counted, said once)."""
         if t not in self.gnss_messages:
             self.health.count("gnss_refused")
-            self._say_once(("type", t), f"refused {t}: not in gnss_messages ({', '.join(sorted(self.gnss_messages))})")
+            why = self.gnss_refused_why or f"not in gnss_messages ({', '.join(sorted(self.gnss_messages))})"
+            self._say_once(("type", t), f"refused {t}: {why}")
             return False
         if self.component_id is not None and compid != self.component_id:
             self.health.count("gnss_refused")

@@ -61,20 +61,26 @@ class InputConfig:
     signing_key: str = ""
     sysid: int = 1  # MAVLink: the flight controller's system id (ArduPilot's and PX4's default); 0 = any
     compid: int = 0  # MAVLink: GNSS only from this component; 0 = any (never one of ours)
-    gnss_messages: list[str] = field(default_factory=lambda: list(MAVLINK_GNSS_MESSAGES))
+    gnss_messages: list[str] = field(default_factory=list)  # MAVLink: [] = every one but our GPS_INPUT's echo
     fc_gnss_lag_s: float = 0.0  # s: the FC's GNSS lag, removed from GPS_RAW_INT/GPS2_RAW's arrival stamp
     options: dict[str, Any] = field(default_factory=dict)
 
-    def driver_table(self, own_ids: list[tuple[int, int]] | None = None) -> dict[str, Any]:
+    def driver_table(self, cfg: Config | None = None) -> dict[str, Any]:
         """The ``ins_hil.drivers.factory.make_driver`` table of this input. The gateway's MAVLink input
-        emits GNSS and baro only (the IMU comes from its own input) and refuses messages from ``own_ids``
-        (the gateway's MAVLink identities, :meth:`Config.mavlink_ids`)."""
+        emits GNSS and baro only (the IMU comes from its own input); with the gateway's configuration ``cfg``
+        it refuses messages from the gateway's own MAVLink identities (:meth:`Config.mavlink_ids`) and, when
+        ``gnss_messages`` is left empty, GPS_RAW_INT from a system an ``fc`` output sends GPS_INPUT to."""
         if self.type == "serial_imu":
             return {"type": self.type, "name": self.name, "port": self.port, "baudrate": self.baud}
         if self.type == "mavlink":
+            gnss = list(self.gnss_messages or MAVLINK_GNSS_MESSAGES)
+            echo = _gps_input_echo(self, cfg) if cfg is not None and not self.gnss_messages else None
+            if echo is not None:
+                gnss.remove("GPS_RAW_INT")
             return {"type": self.type, "name": self.name, "url": self.url, "system_id": self.sysid or None,
-                    "component_id": self.compid or None, "gnss_messages": list(self.gnss_messages),
-                    "fc_gnss_lag_s": self.fc_gnss_lag_s, "own_ids": list(own_ids or []),
+                    "component_id": self.compid or None, "gnss_messages": gnss, "fc_gnss_lag_s": self.fc_gnss_lag_s,
+                    "own_ids": cfg.mavlink_ids() if cfg is not None else [],
+                    "gnss_refused_why": f"{echo} (GPS1_TYPE = 14 echoes it back as GPS_RAW_INT)" if echo else "",
                     "signing_key": self.signing_key or None, "emit": ["gnss", "baro"]}  # fmt: skip
         return {"type": self.type, "name": self.name, **self.options}
 
@@ -415,21 +421,29 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     return cfg
 
 
+def _gps_input_echo(ic: InputConfig, cfg: Config) -> str | None:
+    """Why GPS_RAW_INT from the MAVLink input ``ic``'s source may be our own fix echoed ("outputs[j] sends GPS_INPUT
+    to system S"), or None: an ``fc`` output sends GPS_INPUT to the system the input takes GNSS from (ArduPilot
+    with GPS1_TYPE = 14 sends it back as its GPS_RAW_INT)."""
+    for j, o in enumerate(cfg.outputs):
+        if o.role == "fc" and o.effective_rates().get("GPS_INPUT", 0) > 0 and ic.sysid in (0, o.sysid):
+            return f"outputs[{j}] sends GPS_INPUT to system {o.sysid}"
+    return None
+
+
 def _gnss_sources(cfg: Config) -> None:
-    """MAVLink GNSS that would feed the gateway its own output back, refused in one line: an input taking
-    GPS_RAW_INT from the system an ``fc`` output sends GPS_INPUT to (ArduPilot with GPS1_TYPE = 14 sends our
-    GPS_INPUT back as its GPS_RAW_INT), and an input that would refuse the simulator's GNSS."""
+    """MAVLink GNSS that would feed the gateway its own output back, refused in one line: an input whose
+    ``gnss_messages`` names GPS_RAW_INT from the system an ``fc`` output sends GPS_INPUT to (left empty, the
+    input leaves GPS_RAW_INT out itself); and an input that would refuse the simulator's GNSS."""
     mav = [(i, ic) for i, ic in enumerate(cfg.inputs) if ic.type == "mavlink"]
     for i, ic in mav:
-        if "GPS_RAW_INT" not in ic.gnss_messages:
-            continue
-        for j, o in enumerate(cfg.outputs):
-            if o.role == "fc" and o.effective_rates().get("GPS_INPUT", 0) > 0 and ic.sysid in (0, o.sysid):
-                raise ConfigError(
-                    f"inputs[{i}] takes GPS_RAW_INT from system {o.sysid} while outputs[{j}] sends it GPS_INPUT "
-                    f"(GPS1_TYPE = 14 echoes our fix back as GPS_RAW_INT): remove GPS_RAW_INT from "
-                    f"inputs[{i}].gnss_messages or set outputs[{j}].rates.GPS_INPUT = 0"
-                )
+        echo = _gps_input_echo(ic, cfg) if "GPS_RAW_INT" in ic.gnss_messages else None
+        if echo is not None:
+            raise ConfigError(
+                f"inputs[{i}].gnss_messages takes GPS_RAW_INT from system {ic.sysid or 'any'} while {echo} "
+                f"(GPS1_TYPE = 14 echoes our fix back as GPS_RAW_INT): leave GPS_RAW_INT out or set that output's "
+                "rates.GPS_INPUT = 0"
+            )
     if cfg.sim_enabled and mav:
         i, ic = mav[0]  # the simulator sends its GNSS to the first MAVLink input
         sid, cid = cfg.sim.gnss_sysid, 220  # MAV_COMP_ID_GPS (ins_hil.sim.devices)

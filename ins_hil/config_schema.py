@@ -719,9 +719,9 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
                    "ArduPilot and PX4: 1); 0 = any (not on a shared network)"),
         "compid": M("", "[0, 255]", "mavlink: take GNSS only from this component; 0 = any (messages from the "
                     "gateway's own output identities are always refused)"),
-        "gnss_messages": M(help="mavlink: the GNSS messages taken (GPS_RAW_INT, GPS2_RAW, GPS_INPUT, HIL_GPS); "
-                           "leave out GPS_RAW_INT when an fc output sends GPS_INPUT to the same flight controller",
-                           nonempty=True),
+        "gnss_messages": M(help="mavlink: the GNSS messages taken (of GPS_RAW_INT, GPS2_RAW, GPS_INPUT, HIL_GPS); "
+                           "[] = all, less GPS_RAW_INT from a system an fc output sends GPS_INPUT to (its echo); "
+                           "naming GPS_RAW_INT while one does is a config error", type="list[str]"),
         "fc_gnss_lag_s": M("s", "[0, 1]", "mavlink: the flight controller's GNSS lag, removed from GPS_RAW_INT/"
                            "GPS2_RAW time (their time is the FC's arrival, not the fix's time of validity)"),
         "options": M(help="can_imu: the [inputs.options] table"),

@@ -346,7 +346,7 @@ class Gateway:
             if ic.type != "mavlink":
                 later.append(ic)
                 continue
-            table = {**ic.driver_table(cfg.mavlink_ids()), "url": _pin_port(ic.url),
+            table = {**ic.driver_table(cfg), "url": _pin_port(ic.url),
                      "request": {} if cfg.sim_enabled else None}  # fmt: skip
             drv: Any = make_driver(table)  # a MavlinkDriver: local_address
             drv.on_warn = partial(self._input_warning, self.input_paths[ic.name])  # refused sources, said once
