@@ -32,7 +32,8 @@ messages are):
   (ArduPilot ``last_fix_time_ms``, PX4 ``timestamp``), later than its time of
   validity by the FC's GNSS lag: ``fc_gnss_lag_s`` is subtracted.
   GPS_INPUT without ``time_usec`` is timed by its GPS week time (its time of
-  validity, through the host's wall clock); a fix with neither by its arrival.
+  validity, through the host's wall clock); a fix with neither by its arrival
+  (which must move forward too).
 
 - Baro: SCALED_PRESSURE → BaroSample (hPa → Pa, cdegC → °C).
 - IMU where the FC is the IMU source: HIGHRES_IMU and HIL_SENSOR (m/s², rad/s,
@@ -507,19 +508,19 @@ class MavlinkDriver:
             self.health.count("range")
             return
         gps_us = round(unix_from_gps(week, tow) * 1e6) if week > 0 and math.isfinite(tow) else 0
-        key_us = t_us or gps_us  # the stream's time: the sender's clock, else GPS time (0: none, arrival)
-        k = (stream, src)
+        key_us = t_us or gps_us  # the stream's time: the sender's clock, else GPS time, else the arrival
+        k = (stream if key_us else stream + "@arrival", src)
+        key = key_us or now // 1000
         last = self._last_gnss.get(k)
-        if key_us and last is not None and key_us <= last:
-            if last - key_us <= 5_000_000:
-                self.health.count("duplicate" if key_us == last else "time_backwards")
+        if last is not None and key <= last:
+            if last - key <= 5_000_000:
+                self.health.count("duplicate" if key == last else "time_backwards")
                 return
             self.health.count("gnss_restart")  # more than 5 s back: the FC rebooted, the stream restarts
         t = self._time_s(max(t_us - lag_us, 1) if t_us else gps_us, now) if key_us else now * 1e-9
         if t is None:
             return
-        if key_us:
-            self._last_gnss[k] = key_us
+        self._last_gnss[k] = key
         ft = FixType(min(fix, 6)) if fix <= 6 else FixType.FIX_3D
         self._deliver(
             GnssFix(

@@ -302,3 +302,14 @@ def test_gps_input_without_a_sender_clock_is_timed_by_its_gps_time() -> None:
     fc.send(_gps_input(fc.mav, 0, MSL, week, ms), now_ns=now)
     assert len(got) == 1
     assert now * 1e-9 - got[0].t == pytest.approx(2.0, abs=0.5)
+
+
+def test_gnss_without_any_time_is_timed_by_its_arrival_once() -> None:
+    """Neither a sender time nor a GPS time: stamped at arrival, and two arriving at the same instant are one."""
+    drv = MavlinkDriver("udpin:127.0.0.1:0")
+    got = _collect(drv)
+    fc = _Fc(drv)
+    for now in (NOW, NOW, NOW - 1000, NOW + 200_000_000):
+        fc.send(_gps_input(fc.mav, 0, MSL), now_ns=now)
+    assert [s.t for s in got] == [NOW * 1e-9, (NOW + 200_000_000) * 1e-9]
+    assert drv.health.errors == {"duplicate": 1, "time_backwards": 1}
