@@ -400,8 +400,9 @@ class MavlinkDriver:
                 continue
             if (sysid, compid) in self.own_ids:  # an output of ours (or our own traffic) routed back
                 h.count("own_message")
-                self._say_once(("own", sysid, compid), f"refused messages from our own MAVLink identity "
-                               f"{sysid}/{compid} (an output of the gateway routed back to its input)")  # fmt: skip
+                self._say_once(("own", sysid, compid), f"refused messages from {sysid}/{compid}, an identity the "
+                               "gateway's outputs send as (our own traffic routed back, or an output configured "
+                               "with another device's identity)")  # fmt: skip
                 continue
             if t in GNSS_MESSAGES and not self._gnss_source_ok(t, compid):
                 continue

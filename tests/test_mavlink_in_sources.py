@@ -151,7 +151,7 @@ def test_gnss_from_our_own_output_identity_is_refused_and_said_once(caplog: pyte
             fc.send(_gps_input(fc.mav, 1_000_000 + k * 100_000, MSL), compid=197)
     fc.send(_gps_raw(fc.mav, 2_000_000, round(MSL * 1e3)), compid=1)
     assert len(got) == 1 and drv.health.errors == {"own_message": 3}
-    said = [r.getMessage() for r in caplog.records if "own MAVLink identity" in r.getMessage()]
+    said = [r.getMessage() for r in caplog.records if "an identity the gateway's outputs send as" in r.getMessage()]
     assert len(said) == 1 and "1/197" in said[0]
 
 

@@ -13,9 +13,9 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from ins_hil.geoid import undulation
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import euler_from_quat
-from ins_hil.geoid import undulation
 from ins_hil.types import FaultEvent, GnssFix, NavState, unix_from_gps
 
 if TYPE_CHECKING:
