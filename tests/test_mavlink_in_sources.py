@@ -313,3 +313,52 @@ def test_gnss_without_any_time_is_timed_by_its_arrival_once() -> None:
         fc.send(_gps_input(fc.mav, 0, MSL), now_ns=now)
     assert [s.t for s in got] == [NOW * 1e-9, (NOW + 200_000_000) * 1e-9]
     assert drv.health.errors == {"duplicate": 1, "time_backwards": 1}
+
+
+# ---------------------------------------------------------------------------------------------- gateway
+@pytest.mark.slow
+def test_gateway_refuses_its_own_gps_input_and_the_echo_and_says_so_once() -> None:
+    """A running gateway with an fc output (1/197, GPS_INPUT at its default 5 Hz): our own GPS_INPUT routed back
+    and the flight controller's GPS_RAW_INT (its echo with GPS1_TYPE = 14) are refused, counted in the input's
+    drops, each said once as a warning under the input's config path; the FC's GPS2_RAW is taken."""
+    from runtime_helpers import free_port, sim_config_dict
+
+    from ins_hil.config import from_dict
+    from ins_hil.runtime.loop import Gateway
+
+    cfg = from_dict(sim_config_dict(
+        sim={"enabled": False},
+        inputs=[{"name": "imu0", "type": "serial_imu", "port": "/dev/ins-hil-no-such-tty"},
+                {"name": "fc", "type": "mavlink", "url": "udpin:127.0.0.1:0"}],
+        outputs=[{"name": "fc", "url": f"udpout:127.0.0.1:{free_port()}", "role": "fc", "sysid": 1, "compid": 197}],
+        recorder={"enabled": False},
+    ), "test")  # fmt: skip
+    gw = Gateway(cfg)
+
+    async def go() -> None:
+        run = asyncio.create_task(gw.run(duration=3.0, signals=False))
+        drv = None
+        while drv is None or drv.local_address is None:
+            await asyncio.sleep(0.02)
+            drv = next((d for d in gw.drivers if d.name == "fc"), None)
+        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        own = mavlink.MAVLink(None, srcSystem=1, srcComponent=197)
+        fc = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        for k in range(3):
+            tx.sendto(_gps_input(own, 1_000_000 + k * 200_000, MSL).pack(own), drv.local_address)
+            tx.sendto(_gps_raw(fc, 1_000_000 + k * 200_000, round(MSL * 1e3)).pack(fc), drv.local_address)
+            fc.seq += 1
+            tx.sendto(fc.gps2_raw_encode(1_000_000 + k * 200_000, 3, 504500000, 305200000, round(MSL * 1e3), 80,
+                                         120, 0, 0, 9, 0, 0, 0, 0, 0, 0, 0, 0).pack(fc), drv.local_address)  # fmt: skip
+            own.seq += 1
+            fc.seq += 1
+            await asyncio.sleep(0.05)
+        tx.close()
+        await run
+
+    asyncio.run(go())
+    drops = gw.metrics.source("fc").dropped
+    assert drops.get("driver_own_message") == 3 and drops.get("driver_gnss_refused") == 3, drops
+    said = [w for w in gw.metrics.warnings if w.startswith("inputs[1] (fc): refused")]
+    assert len(said) == 2, said
+    assert any("1/197" in w for w in said) and any("outputs[0] sends GPS_INPUT to system 1" in w for w in said)
