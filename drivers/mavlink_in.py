@@ -15,12 +15,26 @@ Messages → samples (``ins_hil.types``, SI, body FRD as MAVLink's IMU
 messages are):
 
 - GNSS: GPS_RAW_INT (source 0), GPS2_RAW (1), GPS_INPUT (gps_id), HIL_GPS
-  (id) → GnssFix. Height: ``alt_ellipsoid`` when the FC fills it, else the
-  MSL altitude (the geoid separation is not known here). GPS_RAW_INT/GPS2_RAW
-  carry no vertical velocity, so their ``vel_ned`` is None; GPS_INPUT and
-  HIL_GPS give vn/ve/vd. Std: ``h_acc``/``v_acc``/``vel_acc`` (or GPS_INPUT's
-  accuracies, HIL_GPS's eph/epv as HDOP×1 m) when present. Fixes below 2D are
-  dropped (``no_fix``).
+  (id) → GnssFix. Height: always WGS84 ellipsoidal. ``alt`` of all four is MSL
+  in the MAVLink spec (common.xml), so h = alt + N, N the EGM96 undulation
+  (:mod:`ins_hil.geoid`); GPS_RAW_INT/GPS2_RAW's ``alt_ellipsoid`` (WGS84) is
+  taken as it is when nonzero (ArduPilot sends 0 unless its GPS driver knows the
+  undulation). GPS_RAW_INT/GPS2_RAW carry no vertical velocity, so their
+  ``vel_ned`` is None; GPS_INPUT and HIL_GPS give vn/ve/vd. Std:
+  ``h_acc``/``v_acc``/``vel_acc`` (or GPS_INPUT's accuracies, HIL_GPS's eph/epv
+  as HDOP×1 m) when present. Fixes below 2D are dropped (``no_fix``). Each GNSS
+  stream (message type and source) must move forward in time: a fix with the
+  same time as the last (a flight controller repeating its last GPS_RAW_INT at a
+  stream rate above the receiver's) is dropped (``duplicate``), one older than
+  the last is dropped (``time_backwards``; more than 5 s back = the FC rebooted:
+  the stream restarts, ``gnss_restart``; so it does on a new connection).
+  GPS_RAW_INT/GPS2_RAW's ``time_usec`` is the FC's arrival time of the fix
+  (ArduPilot ``last_fix_time_ms``, PX4 ``timestamp``), later than its time of
+  validity by the FC's GNSS lag: ``fc_gnss_lag_s`` is subtracted.
+  GPS_INPUT without ``time_usec`` is timed by its GPS week time (its time of
+  validity, through the host's wall clock); a fix with neither by its arrival
+  (which must move forward too).
+
 - Baro: SCALED_PRESSURE → BaroSample (hPa → Pa, cdegC → °C).
 - IMU where the FC is the IMU source: HIGHRES_IMU and HIL_SENSOR (m/s², rad/s,
   gauss), SCALED_IMU/2/3 and RAW_IMU (mG, mrad/s, mgauss: ArduPilot fills
@@ -31,6 +45,14 @@ messages are):
   increments are rectangular-rule approximations (error O(dt²·ω̇)), fine at
   the 50–250 Hz MAVLink carries. Their magnetometer fields → MagSample
   (gauss → T) when present/updated.
+
+Sources: GNSS is taken only from ``system_id`` (when set) and ``component_id``
+(when set), only in the ``gnss_messages`` types, and never from one of our own
+MAVLink identities (``own_ids``: every output of the gateway, plus this link's own
+``source_system``/``source_component``): a message from our own identity is
+refused whole (``own_message``), GNSS from another component or of a type not
+accepted is refused (``gnss_refused``). Each kind of refusal is counted and said
+once (``on_warn``, else the ``ins_hil`` logger).
 
 Time: the FC's ``time_boot_ms``/``time_usec`` are mapped onto our time base
 (``time.monotonic()`` seconds, the base of ``t_arrival_ns``) with a clock offset
@@ -47,6 +69,12 @@ after three consecutive messages that disagree with it. ``time_usec`` values pas
 time is more than ``max_skew_s`` (5 s) from its arrival is dropped (``time_implausible``),
 never delivered. FC TIMESYNC requests are answered.
 
+Our HEARTBEAT (each ``timesync_s``): MAV_TYPE_ONBOARD_CONTROLLER from ``source_system``/
+``source_component`` (default: ``system_id`` or 1, component 191 = MAV_COMP_ID_ONBOARD_COMPUTER),
+never a ground station's identity: ArduPilot counts any message from a GCS system id (MAV_GCS_SYSID,
+formerly SYSID_MYGCS, default 255) as "GCS seen" and PX4 any heartbeat of type MAV_TYPE_GCS, which
+would mask their ground-station failsafes (module ``HEARTBEAT_TYPE``).
+
 Signing: with ``signing_key`` (32 bytes, 64 hex digits or a passphrase) only correctly
 signed MAVLink 2 messages are accepted; unsigned or wrongly signed ones count as
 ``bad_signature``; our own messages are signed (the link layer's
@@ -57,9 +85,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
 import time
 from collections import deque
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -67,7 +97,8 @@ from ins_hil.drivers.base import Backoff, DriverHealth, Sample, Sink
 from ins_hil.drivers.mavlink_link import Link, MavReceiver, configure_signing, parse_url, signing_key_from
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, gps_from_unix
+from ins_hil.geoid import undulation
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, gps_from_unix, unix_from_gps
 
 __all__ = ["ClockSync", "MavlinkDriver", "parse_url", "signing_key_from"]
 
@@ -76,6 +107,15 @@ MAX_GYRO = 40.0  # rad/s
 MAX_ACCEL = 400.0  # m/s^2
 MAX_MAG_GAUSS = 20.0
 DEFAULT_REQUEST = {"GPS_RAW_INT": 5.0, "SCALED_PRESSURE": 10.0}
+GNSS_MESSAGES = ("GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT", "HIL_GPS")
+MAV_COMP_ID_ONBOARD_COMPUTER = 191
+#: Our HEARTBEAT's type. Not MAV_TYPE_GCS, and sent from our own system id (never 255): ArduPilot's
+#: GCS_MAVLINK::handle_heartbeat (libraries/GCS_MAVLink/GCS_Common.cpp) refreshes "GCS last seen"
+#: (sysid_mygcs_seen, FS_GCS) for any heartbeat whose system id is a GCS id (sysid_is_gcs: MAV_GCS_SYSID,
+#: formerly SYSID_MYGCS, default 255 = pymavlink's default source system); PX4's
+#: MavlinkReceiver::handle_message_heartbeat (src/modules/mavlink/mavlink_receiver.cpp) takes a heartbeat of
+#: type MAV_TYPE_GCS from any system as the ground station's (NAV_DLL_ACT).
+HEARTBEAT_TYPE = mavlink.MAV_TYPE_ONBOARD_CONTROLLER
 
 
 class ClockSync:
@@ -223,8 +263,8 @@ class MavlinkDriver:
         url: str,
         name: str = "mavlink",
         system_id: int | None = None,
-        source_system: int = 255,
-        source_component: int = 191,
+        source_system: int | None = None,
+        source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
         signing_key: str | bytes | None = None,
         request: dict[str, float] | None = None,
         emit: set[str] | None = None,
@@ -232,6 +272,12 @@ class MavlinkDriver:
         timesync_s: float = 1.0,
         stale_s: float = 3.0,
         max_skew_s: float = 5.0,
+        component_id: int | None = None,
+        own_ids: Iterable[tuple[int, int]] = (),
+        gnss_messages: Iterable[str] | None = None,
+        fc_gnss_lag_s: float = 0.0,
+        on_warn: Callable[[str], None] | None = None,
+        gnss_refused_why: str = "",
     ) -> None:
         self.link_url = parse_url(url)
         self.kind, self.host, self.port = self.link_url
@@ -255,12 +301,31 @@ class MavlinkDriver:
             raise ValueError(f"MAVLink: 'timesync_s' must be positive, got {timesync_s!r}")
         if not 0 < max_skew_s < math.inf:
             raise ValueError(f"MAVLink: 'max_skew_s' must be a positive number of seconds, got {max_skew_s!r}")
+        self.gnss_messages = set(GNSS_MESSAGES if gnss_messages is None else gnss_messages)
+        bad = self.gnss_messages - set(GNSS_MESSAGES)
+        if bad:
+            raise ValueError(f"MAVLink: unknown 'gnss_messages' {sorted(bad)} ({', '.join(GNSS_MESSAGES)})")
+        if not 0 <= fc_gnss_lag_s <= 1:
+            raise ValueError(f"MAVLink: 'fc_gnss_lag_s' must be in [0, 1] s, got {fc_gnss_lag_s!r}")
+        src_sys = (system_id or 1) if source_system is None else source_system
+        for what, v in (("source_system", src_sys), ("source_component", source_component)):
+            if not 1 <= v <= 255:
+                raise ValueError(f"MAVLink: '{what}' must be in [1, 255], got {v!r}")
+        if src_sys == 255:
+            raise ValueError("MAVLink: 'source_system' 255 is a ground station's id (it masks the FC's GCS failsafe)")
+        self.component_id = component_id
+        self.own_ids = {(int(a), int(b)) for a, b in own_ids} | {(src_sys, source_component)}
+        self.fc_gnss_lag_us = round(fc_gnss_lag_s * 1e6)
+        self.on_warn = on_warn
+        self.gnss_refused_why = gnss_refused_why  # said with a GNSS type refusal (the config's reason)
+        self._said: set[Any] = set()
+        self._last_gnss: dict[tuple[str, int], int] = {}  # (message type, source) -> last time key (µs)
         self.imu_dt = imu_dt
         self.timesync_s = timesync_s
         self.stale_s = stale_s
         self.max_skew_s = max_skew_s
         self.key = signing_key_from(signing_key) if signing_key is not None else None
-        self.mav = mavlink.MAVLink(None, srcSystem=source_system, srcComponent=source_component)
+        self.mav = mavlink.MAVLink(None, srcSystem=src_sys, srcComponent=source_component)
         configure_signing(self.mav, self.key, link_id=1)
         self.rx = MavReceiver(self.key, on_reject=self._rejected)
         self.clock = ClockSync(
@@ -303,7 +368,8 @@ class MavlinkDriver:
         """``{"type": "mavlink", "url": "udpin:127.0.0.1:14550", "system_id": 1, "signing_key": "...",
         "request": {"GPS_RAW_INT": 5}, "emit": ["gnss", "baro"], "imu_dt": 0.01, "stale_s": 3}``."""
         known = {"type", "url", "name", "system_id", "source_system", "source_component", "signing_key"}
-        known |= {"request", "emit", "imu_dt", "timesync_s", "stale_s", "max_skew_s"}
+        known |= {"request", "emit", "imu_dt", "timesync_s", "stale_s", "max_skew_s", "component_id", "own_ids"}
+        known |= {"gnss_messages", "fc_gnss_lag_s", "gnss_refused_why"}
         bad = set(cfg) - known
         if bad:
             raise ValueError(f"MAVLink config: unknown key(s) {sorted(bad)} (known: {sorted(known)})")
@@ -332,6 +398,14 @@ class MavlinkDriver:
             if self.system_id is not None and sysid != self.system_id:
                 h.count("unknown_system")
                 continue
+            if (sysid, compid) in self.own_ids:  # an output of ours (or our own traffic) routed back
+                h.count("own_message")
+                self._say_once(("own", sysid, compid), f"refused messages from {sysid}/{compid}, an identity the "
+                               "gateway's outputs send as (our own traffic routed back, or an output configured "
+                               "with another device's identity)")  # fmt: skip
+                continue
+            if t in GNSS_MESSAGES and not self._gnss_source_ok(t, compid):
+                continue
             good = True
             self.messages += 1
             self._last_rx_ns = now
@@ -356,6 +430,31 @@ class MavlinkDriver:
                 h.count("internal")
                 h.last_error = f"{t}: {type(e).__name__}: {e}"
         return good
+
+    def _gnss_source_ok(self, t: str, compid: int) -> bool:
+        """GNSS only in the accepted types and from the accepted component (refusals counted, said once)."""
+        if t not in self.gnss_messages:
+            self.health.count("gnss_refused")
+            why = self.gnss_refused_why or f"not in gnss_messages ({', '.join(sorted(self.gnss_messages))})"
+            self._say_once(("type", t), f"refused {t}: {why}")
+            return False
+        if self.component_id is not None and compid != self.component_id:
+            self.health.count("gnss_refused")
+            self._say_once(("comp", compid), f"refused GNSS ({t}) from component {compid}: only from component "
+                           f"{self.component_id}")  # fmt: skip
+            return False
+        return True
+
+    def _say_once(self, key: Any, text: str) -> None:
+        """A refusal said once per kind (``on_warn``, else the ``ins_hil`` logger); counted by the caller."""
+        if key in self._said:
+            return
+        self._said.add(key)
+        self.health.last_error = text
+        if self.on_warn is not None:
+            self.on_warn(text)
+        else:
+            logging.getLogger("ins_hil").warning("%s: %s", self.name, text)
 
     def _deliver(self, s: Sample, now: int) -> None:
         self.health.seen(now)
@@ -389,7 +488,10 @@ class MavlinkDriver:
     def _gnss(
         self, now: int, t_us: int, fix: int, lat: float, lon: float, h: float, vel: Any, std: tuple, sats: int,
         src: int, week: int = 0, tow: float = math.nan, hdop: float = math.nan, vdop: float = math.nan,
+        msl: bool = True, stream: str = "", lag_us: int = 0,
     ) -> None:  # fmt: skip
+        """One fix: ``h`` MSL (``msl``, the MAVLink ``alt`` fields: + EGM96 undulation) or WGS84 (m); ``t_us``
+        the FC/sender time (µs, 0 = none: the GPS week time), ``lag_us`` its lag after the time of validity."""
         if "gnss" not in self.emit:
             return
         if fix < 2:
@@ -398,17 +500,28 @@ class MavlinkDriver:
         if not all(math.isfinite(x) for x in (lat, lon, h, *std)) or (vel is not None and not np.all(np.isfinite(vel))):
             self.health.count("nonfinite")
             return
-        if (
-            abs(lat) > 90
-            or abs(lon) > 180
-            or not -1000 < h < 100_000
-            or (vel is not None and np.any(np.abs(vel) > 600))
-        ):
+        if abs(lat) > 90 or abs(lon) > 180:
             self.health.count("range")
             return
-        t = self._time_s(t_us, now)
+        if msl:
+            h += undulation(math.radians(lat), math.radians(lon))
+        if not -1000 < h < 100_000 or (vel is not None and np.any(np.abs(vel) > 600)):
+            self.health.count("range")
+            return
+        gps_us = round(unix_from_gps(week, tow) * 1e6) if week > 0 and math.isfinite(tow) else 0
+        key_us = t_us or gps_us  # the stream's time: the sender's clock, else GPS time, else the arrival
+        k = (stream if key_us else stream + "@arrival", src)
+        key = key_us or now // 1000
+        last = self._last_gnss.get(k)
+        if last is not None and key <= last:
+            if last - key <= 5_000_000:
+                self.health.count("duplicate" if key == last else "time_backwards")
+                return
+            self.health.count("gnss_restart")  # more than 5 s back: the FC rebooted, the stream restarts
+        t = self._time_s(max(t_us - lag_us, 1) if t_us else gps_us, now) if key_us else now * 1e-9
         if t is None:
             return
+        self._last_gnss[k] = key
         ft = FixType(min(fix, 6)) if fix <= 6 else FixType.FIX_3D
         self._deliver(
             GnssFix(
@@ -420,7 +533,8 @@ class MavlinkDriver:
         )  # fmt: skip
 
     def _gps_raw(self, m: Any, now: int) -> None:
-        h_mm = m.alt_ellipsoid if getattr(m, "alt_ellipsoid", 0) else m.alt
+        ell = bool(getattr(m, "alt_ellipsoid", 0))  # WGS84 when the FC fills it, else alt (MSL)
+        h_mm = m.alt_ellipsoid if ell else m.alt
         std = (
             m.h_acc * 1e-3 if getattr(m, "h_acc", 0) else (m.eph * 0.01 if 0 < m.eph < 65535 else 2.5),
             m.v_acc * 1e-3 if getattr(m, "v_acc", 0) else (m.epv * 0.01 if 0 < m.epv < 65535 else 5.0),
@@ -430,7 +544,7 @@ class MavlinkDriver:
         week, tow = gps_from_unix(m.time_usec * 1e-6) if m.time_usec > UNIX_US else (0, math.nan)
         self._gnss(
             now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, h_mm * 1e-3, None, std, m.satellites_visible, src,
-            week, tow, _dop(m.eph), _dop(m.epv),
+            week, tow, _dop(m.eph), _dop(m.epv), msl=not ell, stream=m.get_type(), lag_us=self.fc_gnss_lag_us,
         )  # fmt: skip
 
     def _gps_input(self, m: Any, now: int) -> None:
@@ -446,7 +560,7 @@ class MavlinkDriver:
         vdop = m.vdop if not ig & 4 and m.vdop > 0 else math.nan
         self._gnss(
             now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, m.alt, vel, std, m.satellites_visible, m.gps_id,
-            week, tow, hdop, vdop,
+            week, tow, hdop, vdop, stream="GPS_INPUT",
         )  # fmt: skip
 
     def _hil_gps(self, m: Any, now: int) -> None:
@@ -456,7 +570,7 @@ class MavlinkDriver:
         week, tow = gps_from_unix(m.time_usec * 1e-6) if m.time_usec > UNIX_US else (0, math.nan)
         self._gnss(
             now, m.time_usec, m.fix_type, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3, vel, std, m.satellites_visible, src,
-            week, tow, _dop(m.eph), _dop(m.epv),
+            week, tow, _dop(m.eph), _dop(m.epv), stream="HIL_GPS",
         )  # fmt: skip
 
     def _pressure(self, m: Any, now: int) -> None:
@@ -630,9 +744,7 @@ class MavlinkDriver:
         self._fast_sync = 10
         loop = asyncio.get_running_loop()
         while True:
-            self.send(
-                self.mav.heartbeat_encode(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-            )
+            self.send(self.mav.heartbeat_encode(HEARTBEAT_TYPE, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
             self._send_timesync()
             n += 1
             if n % 10 == 0:  # re-request: FCs forget after a reboot
@@ -668,6 +780,7 @@ class MavlinkDriver:
                 self.health.reconnects += 1
             first = False
             self._link = link
+            self._last_gnss.clear()  # a new connection (the FC may have rebooted): the GNSS streams restart
             self.local_address = link.local_address
             self.health.connected = True
             self._last_rx_ns = time.monotonic_ns()

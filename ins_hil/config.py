@@ -21,6 +21,7 @@ from ins_hil import config_schema as schema
 from ins_hil.config_schema import ConfigError
 from ins_hil.core_parts.config import MOVED
 from ins_hil.drivers.factory import driver_class, make_driver
+from ins_hil.drivers.mavlink_in import GNSS_MESSAGES as MAVLINK_GNSS_MESSAGES
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
@@ -49,8 +50,9 @@ class GatewaySettings:
 
 @dataclass
 class InputConfig:
-    """One ``[[inputs]]`` table: ``serial_imu`` (port, baud), ``mavlink`` (url, signing_key, sysid)
-    or ``can_imu`` (``[inputs.options]``: the CAN IMU driver's keys, ins_hil.drivers.can_imu)."""
+    """One ``[[inputs]]`` table: ``serial_imu`` (port, baud), ``mavlink`` (url, signing_key, sysid, compid,
+    gnss_messages, fc_gnss_lag_s) or ``can_imu`` (``[inputs.options]``: the CAN IMU driver's keys,
+    ins_hil.drivers.can_imu)."""
 
     name: str = ""
     type: str = "serial_imu"
@@ -58,16 +60,28 @@ class InputConfig:
     baud: int = 921600
     url: str = "udpin:127.0.0.1:0"
     signing_key: str = ""
-    sysid: int = 0
+    sysid: int = 1  # MAVLink: the flight controller's system id (ArduPilot's and PX4's default); 0 = any
+    compid: int = 0  # MAVLink: GNSS only from this component; 0 = any (never one of ours)
+    gnss_messages: list[str] = field(default_factory=list)  # MAVLink: [] = every one but our GPS_INPUT's echo
+    fc_gnss_lag_s: float = 0.0  # s: the FC's GNSS lag, removed from GPS_RAW_INT/GPS2_RAW's arrival stamp
     options: dict[str, Any] = field(default_factory=dict)
 
-    def driver_table(self) -> dict[str, Any]:
+    def driver_table(self, cfg: Config | None = None) -> dict[str, Any]:
         """The ``ins_hil.drivers.factory.make_driver`` table of this input. The gateway's MAVLink input
-        emits GNSS and baro only (the IMU comes from its own input)."""
+        emits GNSS and baro only (the IMU comes from its own input); with the gateway's configuration ``cfg``
+        it refuses messages from the gateway's own MAVLink identities (:meth:`Config.mavlink_ids`) and, when
+        ``gnss_messages`` is left empty, GPS_RAW_INT from a system an ``fc`` output sends GPS_INPUT to."""
         if self.type == "serial_imu":
             return {"type": self.type, "name": self.name, "port": self.port, "baudrate": self.baud}
         if self.type == "mavlink":
+            gnss = list(self.gnss_messages or MAVLINK_GNSS_MESSAGES)
+            echo = _gps_input_echo(self, cfg) if cfg is not None and not self.gnss_messages else None
+            if echo is not None:
+                gnss.remove("GPS_RAW_INT")
             return {"type": self.type, "name": self.name, "url": self.url, "system_id": self.sysid or None,
+                    "component_id": self.compid or None, "gnss_messages": gnss, "fc_gnss_lag_s": self.fc_gnss_lag_s,
+                    "own_ids": cfg.mavlink_ids() if cfg is not None else [],
+                    "gnss_refused_why": f"{echo} (GPS1_TYPE = 14 echoes it back as GPS_RAW_INT)" if echo else "",
                     "signing_key": self.signing_key or None, "emit": ["gnss", "baro"]}  # fmt: skip
         return {"type": self.type, "name": self.name, **self.options}
 
@@ -98,6 +112,10 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def mavlink_ids(self) -> list[tuple[int, int]]:
+        """Every MAVLink identity (system, component) the gateway's outputs send as: its inputs refuse them."""
+        return [(o.sysid, o.compid) for o in self.outputs]
 
     def document(self) -> dict[str, Any]:
         """This configuration as a TOML document (:func:`config_document`)."""
@@ -363,6 +381,10 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             except ValueError as e:
                 raise _url_error(f"{where}.url", ic.url, e) from None
             _key(f"{where}.signing_key", ic.signing_key)
+            bad = [m for m in ic.gnss_messages if m not in MAVLINK_GNSS_MESSAGES]
+            if bad or len(set(ic.gnss_messages)) != len(ic.gnss_messages):
+                raise ConfigError(f"{where}.gnss_messages = {schema.show(ic.gnss_messages)}: expected distinct names "
+                                  f"of {', '.join(MAVLINK_GNSS_MESSAGES)}")  # fmt: skip
         elif ic.type == "can_imu":
             _can_options(ic, where)
         else:
@@ -401,6 +423,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
             raise ConfigError(f"mqtt.topic_prefix = {cfg.mqtt.topic_prefix!r}: must not hold the wildcards + or #")
         _mqtt_auth(cfg.mqtt)
     _fill(cfg.recorder, d.get("recorder", {}), "recorder")
+    _gnss_sources(cfg)
     _startable(cfg)
     return cfg
 
@@ -428,6 +451,39 @@ def _mqtt_auth(mq: MqttConfig) -> None:
             raise ConfigError(f"mqtt.{k}: needs mqtt.tls = true (without it the connection is plain TCP)")
     if mq.tls_key and not mq.tls_cert:
         raise ConfigError("mqtt.tls_key: needs mqtt.tls_cert (the client certificate of that key)")
+
+
+def _gps_input_echo(ic: InputConfig, cfg: Config) -> str | None:
+    """Why GPS_RAW_INT from the MAVLink input ``ic``'s source may be our own fix echoed ("outputs[j] sends GPS_INPUT
+    to system S"), or None: an ``fc`` output sends GPS_INPUT to the system the input takes GNSS from (ArduPilot
+    with GPS1_TYPE = 14 sends it back as its GPS_RAW_INT)."""
+    for j, o in enumerate(cfg.outputs):
+        if o.role == "fc" and o.effective_rates().get("GPS_INPUT", 0) > 0 and ic.sysid in (0, o.sysid):
+            return f"outputs[{j}] sends GPS_INPUT to system {o.sysid}"
+    return None
+
+
+def _gnss_sources(cfg: Config) -> None:
+    """MAVLink GNSS that would feed the gateway its own output back, refused in one line: an input whose
+    ``gnss_messages`` names GPS_RAW_INT from the system an ``fc`` output sends GPS_INPUT to (left empty, the
+    input leaves GPS_RAW_INT out itself); and an input that would refuse the simulator's GNSS."""
+    mav = [(i, ic) for i, ic in enumerate(cfg.inputs) if ic.type == "mavlink"]
+    for i, ic in mav:
+        echo = _gps_input_echo(ic, cfg) if "GPS_RAW_INT" in ic.gnss_messages else None
+        if echo is not None:
+            raise ConfigError(
+                f"inputs[{i}].gnss_messages takes GPS_RAW_INT from system {ic.sysid or 'any'} while {echo} "
+                f"(GPS1_TYPE = 14 echoes our fix back as GPS_RAW_INT): leave GPS_RAW_INT out or set that output's "
+                "rates.GPS_INPUT = 0"
+            )
+    if cfg.sim_enabled and mav:
+        i, ic = mav[0]  # the simulator sends its GNSS to the first MAVLink input
+        sid, cid = cfg.sim.gnss_sysid, 220  # MAV_COMP_ID_GPS (ins_hil.sim.devices)
+        if ic.sysid not in (0, sid) or ic.compid not in (0, cid) or (sid, cid) in cfg.mavlink_ids():
+            raise ConfigError(
+                f"inputs[{i}] (sysid {ic.sysid}, compid {ic.compid}) would refuse the simulated GNSS "
+                f"(system {sid}, component {cid}): set inputs[{i}].sysid = {sid} or sim.gnss_sysid = {ic.sysid}"
+            )
 
 
 def _bad(key: str, v: Any, what: str) -> Any:

@@ -728,7 +728,30 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
             help="mavlink: udpin:HOST:PORT (0 = any free port), udpout:HOST:PORT, tcp:HOST:PORT, serial:DEV[:BAUD]"
         ),
         "signing_key": M(help="mavlink: accept only messages signed with this key (32 bytes); '' = any", hex_bytes=32),
-        "sysid": M("", "[0, 255]", "mavlink: take GNSS/baro only from this system id; 0 = any"),
+        "sysid": M(
+            "",
+            "[0, 255]",
+            "mavlink: take GNSS/baro only from this system id (the flight controller's; "
+            "ArduPilot and PX4: 1); 0 = any (not on a shared network)",
+        ),
+        "compid": M(
+            "",
+            "[0, 255]",
+            "mavlink: take GNSS only from this component; 0 = any (messages from the "
+            "gateway's own output identities are always refused)",
+        ),
+        "gnss_messages": M(
+            help="mavlink: the GNSS messages taken (of GPS_RAW_INT, GPS2_RAW, GPS_INPUT, HIL_GPS); "
+            "[] = all, less GPS_RAW_INT from a system an fc output sends GPS_INPUT to (its echo); "
+            "naming GPS_RAW_INT while one does is a config error",
+            type="list[str]",
+        ),
+        "fc_gnss_lag_s": M(
+            "s",
+            "[0, 1]",
+            "mavlink: the flight controller's GNSS lag, removed from GPS_RAW_INT/"
+            "GPS2_RAW time (their time is the FC's arrival, not the fix's time of validity)",
+        ),
         "options": M(help="can_imu: the [inputs.options] table"),
     },
     "inputs[].options": {},  # explicit keys (SECTIONS)

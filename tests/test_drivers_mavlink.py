@@ -19,10 +19,12 @@ from ins_hil.drivers.mavlink_in import ClockSync, MavlinkDriver, parse_url, sign
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
+from ins_hil.geoid import undulation
 from ins_hil.sim.fc import SimFlightController
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
 
 G = 9.80665
+KYIV_N = undulation(math.radians(50.45), math.radians(30.52))  # EGM96, ≈ 25.4 m: MAVLink alt (MSL) + N = WGS84 h
 
 
 async def _listening(**drv_kw: Any) -> tuple[MavlinkDriver, list, asyncio.Task]:
@@ -210,7 +212,8 @@ def test_gnss_messages_bad_values_and_time() -> None:
     feed(mav.hil_sensor_encode(3_030_000, 0, 0, -G, 100.0, 0, 0, 0.2, 0, 0.4, 1000, 0, 0, 20, 0x1FF))  # 100 rad/s
     fixes = [s for s in got if isinstance(s, GnssFix)]
     assert len(fixes) == 2
-    assert fixes[0].source == 2 and fixes[0].std_ne == pytest.approx(0.9) and fixes[0].h == pytest.approx(181.0)
+    assert fixes[0].source == 2 and fixes[0].std_ne == pytest.approx(0.9)
+    assert fixes[0].h == pytest.approx(181.0 + KYIV_N, abs=0.01)  # GPS_INPUT.alt is MSL
     np.testing.assert_allclose(fixes[0].vel_ned, [1.0, 2.0, -0.5])
     assert fixes[1].source == 1 and fixes[1].vel_ned is None
     e = drv.health.errors

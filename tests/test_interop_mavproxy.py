@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 from runtime_helpers import free_port, sim_config, sim_gateway
 
+from ins_hil.geoid import undulation
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import euler_from_quat
-from ins_hil.runtime.geoid import undulation
 from ins_hil.sim.devices import truth_chunks
 
 SYSID = 42

@@ -30,6 +30,7 @@ import socket
 import time
 from collections import deque
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -281,6 +282,10 @@ class Gateway:
             text = getattr(tr, "last_error", "") or ("cannot open" if tr.errors.get("connect_failed") else "")
             self._watch(f"outputs[{i}] ({e.name})", text, not tr.connected, tr.connected, 0)
 
+    def _input_warning(self, path: str, text: str) -> None:
+        """A driver's one-time notice (e.g. the MAVLink input refusing a source) as a warning under its path."""
+        self.metrics.warn(f"{path}: {text}")
+
     def _watch(self, path: str, text: str, down: bool, ok: bool, mark: int) -> None:
         """One source: its last error ``text``, ``down`` (not open now), ``ok`` (working since the report);
         ``mark``: what ``ok`` is measured from (an input's received count)."""
@@ -342,8 +347,10 @@ class Gateway:
             if ic.type != "mavlink":
                 later.append(ic)
                 continue
-            table = {**ic.driver_table(), "url": _pin_port(ic.url), "request": {} if cfg.sim_enabled else None}
+            table = {**ic.driver_table(cfg), "url": _pin_port(ic.url),
+                     "request": {} if cfg.sim_enabled else None}  # fmt: skip
             drv: Any = make_driver(table)  # a MavlinkDriver: local_address
+            drv.on_warn = partial(self._input_warning, self.input_paths[ic.name])  # refused sources, said once
             self._add_driver(drv, ic.name)
             for _ in range(100):  # until the socket is bound (port 0 = any free port)
                 if drv.local_address is not None:

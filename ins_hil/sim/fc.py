@@ -1,6 +1,7 @@
 """A simulated flight controller speaking MAVLink 2 over UDP (pymavlink), for tests and demos.
 
-It sends HEARTBEAT (1 Hz), GPS_RAW_INT (``gps_hz``, 5–10 Hz), an IMU message
+It sends HEARTBEAT (1 Hz), GPS_RAW_INT (``gps_hz``, 5–10 Hz; ``alt`` MSL through the EGM96
+geoid, ``alt_ellipsoid`` WGS84, as the MAVLink spec has them), an IMU message
 (``imu_msg``: HIGHRES_IMU, SCALED_IMU or RAW_IMU at ``imu_hz``, 50–250 Hz),
 SCALED_PRESSURE (10 Hz), answers TIMESYNC requests with its own boot clock
 (which starts ``boot_offset_s`` before our monotonic clock, so a receiver's
@@ -24,6 +25,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from ins_hil.geoid import undulation
 from ins_hil.nav.earth import pressure_from_altitude
 
 G = 9.80665
@@ -43,7 +45,8 @@ class SimFlightController:
     baro_hz: float = 10.0
     lat_deg: float = 50.45
     lon_deg: float = 30.52
-    h_m: float = 180.0
+    h_m: float = 180.0  # WGS84 ellipsoidal height (m)
+    alt_ellipsoid: bool = True  # GPS_RAW_INT fills alt_ellipsoid (else 0: alt, MSL, only)
     boot_offset_s: float = 1234.5  # the FC booted this long before our monotonic zero... roughly
     noise: float = 0.0
     signing_key: bytes | None = None
@@ -116,9 +119,13 @@ class SimFlightController:
         return self.mav.raw_imu_encode(t_ns // 1000, *vals, 0, 2500)
 
     def _gps(self, at: float) -> Any:
+        """GPS_RAW_INT as the spec has it: ``alt`` MSL (EGM96), ``alt_ellipsoid`` WGS84 (``h_m``), or 0 with
+        ``alt_ellipsoid = False`` (as ArduPilot sends it when its GPS driver knows no undulation)."""
+        msl = self.h_m - undulation(math.radians(self.lat_deg), math.radians(self.lon_deg))
         return self.mav.gps_raw_int_encode(
             self.fc_time_ns(at) // 1000, 3, round(self.lat_deg * 1e7), round(self.lon_deg * 1e7),
-            round(self.h_m * 1e3), 80, 120, 0, 0, 12, round(self.h_m * 1e3), 1500, 2500, 200, 0,
+            round(msl * 1e3), 80, 120, 0, 0, 12, round(self.h_m * 1e3) if self.alt_ellipsoid else 0, 1500, 2500, 200,
+            0,
         )  # fmt: skip
 
     def _baro(self, at: float) -> Any:

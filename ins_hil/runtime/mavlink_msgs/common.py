@@ -3,7 +3,7 @@ precompiled framing of an unsigned link, the vehicle's status bits, and :class:`
 and helpers of an endpoint that the role mixins (:mod:`.gcs`, :mod:`.fc`, :mod:`.requests`) build on.
 
 Units: SI and radians inside, MAVLink's integer units (1e-7 deg, mm, cm/s, cdeg) at the edge; altitudes
-in MSL fields are EGM96 (:mod:`ins_hil.runtime.geoid`)."""
+in MSL fields are EGM96 (:mod:`ins_hil.geoid`)."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from ins_hil.geoid import undulation
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import euler_from_quat
-from ins_hil.runtime.geoid import undulation
 from ins_hil.types import FaultEvent, GnssFix, NavState, unix_from_gps
 
 if TYPE_CHECKING:
