@@ -319,7 +319,8 @@ def _mavproxy() -> list[str]:
 def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
     """MAVProxy (interactive, commands on stdin): ``param fetch`` lists every parameter, ``param set``
     of a good value is applied, of a non-integer to an INT32 parameter refused (MAVProxy reports the
-    failure with the value we echoed), and the refusal's STATUSTEXT is shown; ``wp list`` gets an
+    failure with the value we echoed: INT32 values are bytewise, which MAVProxy shows raw for a non-PX4
+    autopilot), and the refusal's STATUSTEXT is shown; ``wp list`` gets an
     empty mission, ``arm throttle`` a DENIED and an unknown command an UNSUPPORTED COMMAND_ACK."""
     import re
     import subprocess
@@ -360,8 +361,12 @@ def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
         assert got is not None and int(got.group(1)) == n, "".join(lines)
         cmd("param set SR_VFR_HUD 2")
         cmd("param set NAV_USE_GNSS_V 0.5")
-        assert wait_for(r"Failed to set NAV_USE_GNSS_V to 0.5 \(invalid returned value 1.0\)") is not None, lines
+        # refused, the unchanged 1 echoed bytewise (INT32): MAVProxy decodes bytewise for PX4 autopilots only
+        # (MAVProxy/modules/mavproxy_param.py, handle_px4_param_value), so it shows that float's raw value
+        assert wait_for(r"Failed to set NAV_USE_GNSS_V to 0.5 \(invalid returned value 1.4\d*e-45\)") is not None, lines
         assert wait_for(r"NAV_USE_GNSS_V: wrong type") is not None  # our STATUSTEXT, shown by MAVProxy
+        cmd("param set FLT_GYRO_ARW 0.001")  # refused with a 51-character text: sent in two chunks, shown whole
+        assert wait_for(r"FLT_GYRO_ARW: needs a restart \(set it in the config\)") is not None, "".join(lines)
         cmd("param show SR_VFR_HUD")
         assert wait_for(r"SR_VFR_HUD\s+2\.0") is not None, "".join(lines)
         cmd("wp list")
