@@ -613,3 +613,20 @@ def test_imu_pauses_give_one_lost_and_one_back_text_each() -> None:
     lost = [x for x in about if "lost" in x]
     back = [x for x in about if "lost" not in x and ("back" in x or "aligned" in x)]
     assert 1 <= len(lost) <= 5 and len(back) <= 5, texts
+
+
+def test_fc_endpoint_keeps_its_first_position_as_origin() -> None:
+    """The converged home is the ground station's: an ``fc`` endpoint's origin (ODOMETRY, and any
+    GLOBAL_POSITION_INT it streams) stays its first position, whatever the σ does later."""
+    from runtime_helpers import BufferSink
+
+    from ins_hil.runtime.mavlink_out import EndpointConfig
+
+    ep = MavlinkEndpoint(EndpointConfig(role="fc", rates={"GLOBAL_POSITION_INT": 10.0}), RuntimeMetrics())
+    ep.tr = BufferSink()  # type: ignore[assignment]
+    for k, (h, sd) in enumerate(((184.5, 3.0), (182.3, 0.9), (181.6, 0.5), (181.5, 0.2))):
+        st = _state(1.0 + k)
+        st.h, st.std_pos, st.vel_ned = h, np.array([0.5, 0.5, sd]), np.zeros(3)
+        ep.offer(st, 0, 0)
+        time.sleep(0.11)
+    assert ep._home is not None and ep._home[2] == 184.5

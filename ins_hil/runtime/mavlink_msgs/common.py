@@ -284,8 +284,14 @@ class MessageBase:
         ``HOME_MAX_STD_D`` (or that is aligned), then re-taken — HOME_POSITION sent again each time — while
         the vehicle stays at rest (ground and vertical speed below ``HOME_REST_SPEED``) whenever the
         vertical σ has fallen to ``HOME_RETAKE_RATIO`` of the σ of the last take; the first ground speed
-        above ``HOME_MOVED_SPEED`` fixes it for the run."""
+        above ``HOME_MOVED_SPEED`` fixes it for the run. An ``fc`` endpoint keeps its first position (the
+        origin of its ODOMETRY, which must not move under the flight controller)."""
         if self._home_fixed:
+            return
+        if self.cfg.role != "gcs":
+            if self._home is None:
+                self._set_home(st)
+            self._home_fixed = True
             return
         sd = float(st.std_pos[2])
         vn, ve, vd = _floats(st.vel_ned)
