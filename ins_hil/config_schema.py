@@ -752,6 +752,10 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
             help="ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only this)",
             choices=("LOCAL_NED", "LOCAL_FRD"),
         ),
+        "param_encoding": M(
+            help="INT32 parameters on the wire: bytewise (MAVSDK, QGroundControl), c_cast (MAVProxy, Mission Planner)",
+            choices=("bytewise", "c_cast"),
+        ),
     },
     "mqtt": {
         "enabled": M(help="publish state/fault/health to an MQTT broker (reconnects with backoff)"),

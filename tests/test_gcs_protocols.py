@@ -35,10 +35,12 @@ M = mavutil.mavlink
 class Vehicle:
     """A gcs endpoint + ParamStore (+ Pipeline) served on a background asyncio loop."""
 
-    def __init__(self, tmp: Path, states: bool = True, **cfg_over: Any) -> None:
+    def __init__(self, tmp: Path, states: bool = True, param_encoding: str = "bytewise", **cfg_over: Any) -> None:
         self.port = free_port()
+        out = {"name": "gcs", "url": f"udpout:127.0.0.1:{self.port}", "role": "gcs", "sysid": SYSID,
+               "param_encoding": param_encoding}  # fmt: skip
         over: dict[str, Any] = {
-            "outputs": [{"name": "gcs", "url": f"udpout:127.0.0.1:{self.port}", "role": "gcs", "sysid": SYSID}],
+            "outputs": [out],
             "recorder": {"enabled": False},
             "core": {"init": "config", "init_lat_deg": 50.45, "init_lon_deg": 30.52, "init_h": 181.5},
         }
@@ -319,13 +321,13 @@ def _mavproxy() -> list[str]:
 def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
     """MAVProxy (interactive, commands on stdin): ``param fetch`` lists every parameter, ``param set``
     of a good value is applied, of a non-integer to an INT32 parameter refused (MAVProxy reports the
-    failure with the value we echoed: INT32 values are bytewise, which MAVProxy shows raw for a non-PX4
-    autopilot), and the refusal's STATUSTEXT is shown; ``wp list`` gets an
+    failure with the value we echoed; the output's ``param_encoding = "c_cast"``: MAVProxy decodes INT32
+    bytewise for PX4 only), and the refusal's STATUSTEXT is shown; ``wp list`` gets an
     empty mission, ``arm throttle`` a DENIED and an unknown command an UNSUPPORTED COMMAND_ACK."""
     import re
     import subprocess
 
-    v = Vehicle(tmp_path)
+    v = Vehicle(tmp_path, param_encoding="c_cast")  # the INT32 values as MAVProxy decodes a non-PX4 vehicle's
     mp = subprocess.Popen(
         [*_mavproxy(), f"--master=udpin:127.0.0.1:{v.port}", f"--state-basedir={tmp_path}",
          "--default-modules=param,wp,arm,cmdlong", "--mav20"],
@@ -361,9 +363,12 @@ def test_mavproxy_param_fetch_and_set(tmp_path: Path) -> None:
         assert got is not None and int(got.group(1)) == n, "".join(lines)
         cmd("param set SR_VFR_HUD 2")
         cmd("param set NAV_USE_GNSS_V 0.5")
-        # refused, the unchanged 1 echoed bytewise (INT32): MAVProxy decodes bytewise for PX4 autopilots only
-        # (MAVProxy/modules/mavproxy_param.py, handle_px4_param_value), so it shows that float's raw value
-        assert wait_for(r"Failed to set NAV_USE_GNSS_V to 0.5 \(invalid returned value 1.4\d*e-45\)") is not None, lines
+        # refused, the unchanged 1 echoed (c_cast: MAVProxy decodes bytewise for PX4 autopilots only,
+        # MAVProxy/modules/mavproxy_param.py handle_px4_param_value; with the default bytewise it shows 1.4e-45)
+        assert wait_for(r"Failed to set NAV_USE_GNSS_V to 0.5 \(invalid returned value 1.0\)") is not None, lines
+        cmd("param set NAV_DELAY_COMP 1")  # an INT32 set (the value in force): confirmed by the echo
+        cmd("param show NAV_DELAY_COMP")
+        assert wait_for(r"NAV_DELAY_COMP\s+1(\.0)?\s*$") is not None, "".join(lines)
         assert wait_for(r"NAV_USE_GNSS_V: wrong type") is not None  # our STATUSTEXT, shown by MAVProxy
         cmd("param set FLT_GYRO_ARW 0.001")  # refused with a 51-character text: sent in two chunks, shown whole
         assert wait_for(r"FLT_GYRO_ARW: needs a restart \(set it in the config\)") is not None, "".join(lines)
@@ -399,6 +404,9 @@ def test_int32_parameters_are_bytewise_both_ways(tmp_path: Path) -> None:
         assert av.capabilities & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
         assert not av.capabilities & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
         assert av.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_INT  # MAVSDK's mission download needs it
+        v.gcs.mav.param_request_read_send(SYSID, 1, b"FLT_COV_EVERY", -1)
+        r = v.wait("PARAM_VALUE", cond=lambda m: m.param_id == "FLT_COV_EVERY")
+        assert r is not None and r.param_type == M.MAV_PARAM_TYPE_INT32 and r.param_value == _bytewise(10)
 
         # the value in force (1), bytewise: accepted, echoed bytewise
         r = _param_set(v, "NAV_DELAY_COMP", _bytewise(1), M.MAV_PARAM_TYPE_INT32)
@@ -630,3 +638,19 @@ def test_fc_endpoint_keeps_its_first_position_as_origin() -> None:
         ep.offer(st, 0, 0)
         time.sleep(0.11)
     assert ep._home is not None and ep._home[2] == 184.5
+
+
+def test_c_cast_output_sends_integers_as_their_value(tmp_path: Path) -> None:
+    """``param_encoding = "c_cast"`` (for MAVProxy, Mission Planner): INT32 values as their float, C_CAST
+    advertised; a set is read either way."""
+    with Vehicle(tmp_path, param_encoding="c_cast") as v:
+        a = v.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+        av = v.wait("AUTOPILOT_VERSION")
+        assert a is not None and av is not None
+        assert av.capabilities & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+        assert not av.capabilities & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+        v.gcs.mav.param_request_read_send(SYSID, 1, b"FLT_COV_EVERY", -1)
+        r = v.wait("PARAM_VALUE", cond=lambda m: m.param_id == "FLT_COV_EVERY")
+        assert r is not None and r.param_type == M.MAV_PARAM_TYPE_INT32 and r.param_value == 10.0
+        r = _param_set(v, "NAV_DELAY_COMP", _bytewise(1), M.MAV_PARAM_TYPE_INT32)
+        assert r is not None and r.param_value == 1.0

@@ -181,6 +181,9 @@ class EndpointConfig:
     params_file: str = ""  # parameter override file (default: <config>.params.toml), ins_hil.runtime.mavlink_params
     # ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only LOCAL_FRD; same values: x north)
     odometry_frame: str = "LOCAL_NED"
+    # INT32 parameters in PARAM_VALUE: "bytewise" (the int's bytes: MAVSDK, QGroundControl) or "c_cast" (the
+    # int's float value: MAVProxy, Mission Planner, which decode bytewise only for PX4); AUTOPILOT_VERSION says which
+    param_encoding: str = "bytewise"
 
     def effective_rates(self) -> dict[str, float]:
         base = dict(GCS_RATES if self.role == "gcs" else FC_RATES)
@@ -234,6 +237,8 @@ class MessageBase:
         if self.cfg.odometry_frame not in frames:
             raise ValueError(f"{self.name}.odometry_frame = {self.cfg.odometry_frame!r}: LOCAL_NED or LOCAL_FRD")
         self._odom_frame = frames[self.cfg.odometry_frame]
+        if self.cfg.param_encoding not in ("bytewise", "c_cast"):
+            raise ValueError(f"{self.name}.param_encoding = {self.cfg.param_encoding!r}: bytewise or c_cast")
         self._had_solution = False  # a valid solution was seen (then CRITICAL when it is lost)
         self._home_fixed = False  # the gcs home is no longer re-taken (_track_home)
         self._home_sd = math.inf  # vertical σ (m) of the state the home was taken from

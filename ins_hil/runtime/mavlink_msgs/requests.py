@@ -44,7 +44,8 @@ class Requests(MessageBase):
 
         value, ptype = self.params.get(self.params_index, name)
         count = len(self.params.names(self.params_index))
-        self.mav.param_value_send(name.encode(), encode_wire(value, ptype), ptype, count, index)  # INT32 bytewise
+        wire = encode_wire(value, ptype) if self.cfg.param_encoding == "bytewise" else float(value)
+        self.mav.param_value_send(name.encode(), wire, ptype, count, index)
         self._count("PARAM_VALUE")
 
     def _on_param_request_list(self, msg: Any) -> None:
@@ -230,8 +231,11 @@ class Requests(MessageBase):
             | m.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
             | m.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
             | m.MAV_PROTOCOL_CAPABILITY_MISSION_INT  # the (empty) mission is served with the INT messages
-            | m.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE  # INT32 parameters: their bytes in the float
         )
+        if self.cfg.param_encoding == "bytewise":
+            caps |= m.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE  # INT32 parameters: their bytes in the float
+        else:
+            caps |= m.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST  # INT32 parameters: their value as a float
         from ins_hil import __version__
 
         parts = [int(x) if x.isdigit() else 0 for x in [*__version__.split("."), "0", "0"][:3]]
