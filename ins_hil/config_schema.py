@@ -801,6 +801,10 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
             "'' = signing_key",
             file=True,
         ),
+        "param_encoding": M(
+            help="INT32 parameters on the wire: bytewise (MAVSDK, QGroundControl), c_cast (MAVProxy, Mission Planner)",
+            choices=("bytewise", "c_cast"),
+        ),
     },
     "mqtt": {
         "enabled": M(help="publish state/fault/health to an MQTT broker (reconnects with backoff)"),

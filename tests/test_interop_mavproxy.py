@@ -2,7 +2,7 @@
 
 MAVProxy listens (``--master=udpin``) where our gcs endpoint sends, logs the
 telemetry (``.tlog``); the log read back with pymavlink must hold our
-HEARTBEAT, ATTITUDE and GLOBAL_POSITION_INT, with values matching the
+HEARTBEAT, ATTITUDE, GLOBAL_POSITION_INT and HOME_POSITION, with values matching the
 simulated truth; MAVProxy's own heartbeats must reach our endpoint.
 """
 
@@ -76,7 +76,7 @@ def test_mavproxy_receives_our_vehicle(tmp_path: Path) -> None:
     from pymavlink import mavutil
 
     log = mavutil.mavlink_connection(str(tlog), dialect="ardupilotmega")
-    seen: dict[str, list] = {"HEARTBEAT": [], "ATTITUDE": [], "GLOBAL_POSITION_INT": []}
+    seen: dict[str, list] = {"HEARTBEAT": [], "ATTITUDE": [], "GLOBAL_POSITION_INT": [], "HOME_POSITION": []}
     while True:
         m = log.recv_match(type=list(seen))
         if m is None:
@@ -86,6 +86,7 @@ def test_mavproxy_receives_our_vehicle(tmp_path: Path) -> None:
     assert len(seen["HEARTBEAT"]) >= 3
     assert seen["HEARTBEAT"][0].type == mavutil.mavlink.MAV_TYPE_QUADROTOR
     assert len(seen["ATTITUDE"]) > 100 and len(seen["GLOBAL_POSITION_INT"]) > 20
+    assert seen["HOME_POSITION"]  # streamed (0.5 Hz) and sent as the home is taken
 
     # the gateway heard MAVProxy's own heartbeats on the same link
     out = gw.metrics.snapshot()["outputs"]["gcs"]

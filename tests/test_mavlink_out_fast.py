@@ -216,6 +216,9 @@ def test_highest_rate_message_goes_first_and_latency_is_taken_at_it() -> None:
         "VFR_HUD": 0.0,
         "ESTIMATOR_STATUS": 0.0,
         "ODOMETRY": 50.0,
+        "EXTENDED_SYS_STATE": 0.0,
+        "BATTERY_STATUS": 0.0,
+        "HOME_POSITION": 0.0,
     }  # fmt: skip  (the soak's gcs endpoint)
     metrics = RuntimeMetrics()
     ep = MavlinkEndpoint(EndpointConfig(rates=rates), metrics)

@@ -4,9 +4,12 @@
 task's texts/replies/heartbeat group, GNSS fixes, sensor health changes, ground-station requests), on a
 fake monotonic clock, in both roles, unsigned (the precompiled framing) and signed (pymavlink's sender,
 fixed signing timestamp). Every message type of ``ALL_MESSAGES`` is streamed. The digests were taken on
-the endpoint before its message builders moved to :mod:`ins_hil.runtime.mavlink_msgs`, and again when the
-flight-controller messages changed for issue 38 (ODOMETRY quality/reset counter/covariance frames, GPS_INPUT
-DOP and fix, SET_GPS_GLOBAL_ORIGIN); a change of any byte of any message changes them.
+the endpoint before its message builders moved to :mod:`ins_hil.runtime.mavlink_msgs`, and re-taken
+when both sides changed on purpose for issue 38: the flight-controller messages (ODOMETRY quality/reset
+counter/covariance frames, GPS_INPUT DOP and fix, SET_GPS_GLOBAL_ORIGIN) and the ground-station side
+(EXTENDED_SYS_STATE, BATTERY_STATUS and HOME_POSITION streamed, INT32 parameters bytewise, the home from a
+converged solution, the drop rate in c%, GLOBAL_POSITION_INT's heading unknown before alignment); a change
+of any byte of any message changes them.
 """
 
 from __future__ import annotations
@@ -31,10 +34,10 @@ KEY = bytes(range(32))
 N_STATES = 3000
 SIGN_T0 = 123_456_789_000  # signing timestamp (10 µs units) at the endpoint's start
 EXPECTED = {
-    ("gcs", False): "f7e30f38b5a8e9b8d5eaadd75d176b3e3136cd43aeac605ec005bd047ae6fa58",
-    ("gcs", True): "3773ea4233ebc3c5ca9dc54bd5614ac7a85836a7a48e3f13d98683fe30a2414a",
-    ("fc", False): "f8a27864ea040258dacc4b2a1fdd7501f00a8cf5ddbe09e519338021a03845df",
-    ("fc", True): "bc5cbbee921476e3c61ad9e2bb4c4618cf0b0b9d82315683aa9b0bc8cebda396",
+    ("gcs", False): "74d860e90ca4ebbb3d5f22eb0cbabcb6223b2b6adf6f4c89662f78b164c95359",
+    ("gcs", True): "3a40b265e8feeea2e7ed59d2953f24b981b590428effc7d0aff2c63e31716172",
+    ("fc", False): "c6e5552f391ddbf16be72655e15fc289b77a9ce9fe0bede5e761c87e9f8e7e2b",
+    ("fc", True): "5df8d669c5cdb56287b4a017e3d07ebfa03ecb8189b1a84824dae8834c0d339a",
 }
 
 

@@ -246,12 +246,12 @@ class Gateway:
                 rec.flush()
             now = time.monotonic()
             m.tick()
-            for sev, text in m.drain_sensor_events():  # a source lost or back → STATUSTEXT
+            # a source lost or back → STATUSTEXT, once per loss and once when back: SensorHealth's hysteresis
+            # (an IMU gap is "IMU lost: no data" then "IMU back"; the core's alignment is kept, so no INS text)
+            for sev, text in m.drain_sensor_events():
                 self._text(sev, text)
             imu = m.sensors["imu"]
-            if self._was_aligned and imu.count and not imu.healthy:  # no states: the solution is gone
-                self._was_aligned = m.aligned = False
-                self._text(4, "INS alignment lost: no IMU data")
+            m.aligned = self._was_aligned and not (imu.count and not imu.healthy)  # no IMU: no solution
             for d in self.drivers:
                 m.source(d.name).driver_drops(d.health.errors)
             self._watch_errors()

@@ -15,7 +15,7 @@ HEARTBEAT at 1 Hz), so the latency-critical stream is not queued behind the slow
 The messages, by role, are built in :mod:`ins_hil.runtime.mavlink_msgs` (mixins of the endpoint):
 role ``gcs`` (:mod:`~ins_hil.runtime.mavlink_msgs.gcs`): HEARTBEAT, SYS_STATUS, ATTITUDE,
 ATTITUDE_QUATERNION, GLOBAL_POSITION_INT, LOCAL_POSITION_NED, GPS_RAW_INT, VFR_HUD, ESTIMATOR_STATUS,
-STATUSTEXT (faults, alignment, sensors lost/back), HOME_POSITION; role ``fc``
+EXTENDED_SYS_STATE, BATTERY_STATUS, HOME_POSITION, STATUSTEXT (faults, alignment, sensors lost/back); role ``fc``
 (:mod:`~ins_hil.runtime.mavlink_msgs.fc`): HEARTBEAT, ODOMETRY, GPS_INPUT, HIL_STATE_QUATERNION (only
 of a usable solution), SET_GPS_GLOBAL_ORIGIN.
 Cost on the IMU path: the hot messages (ODOMETRY, ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT,
@@ -24,10 +24,11 @@ framed by :class:`~ins_hil.runtime.mavlink_msgs.common._Frame` (bytes identical 
 signed link uses pymavlink's sender.
 
 The vehicle is always there: the endpoint's task sends HEARTBEAT (and SYS_STATUS,
-ESTIMATOR_STATUS) at their rate when no state did within 50 ms of their due time (no IMU, no
-solution yet), with the sensor health of :class:`~ins_hil.runtime.metrics.SensorHealth`. It
-answers a ground station (:mod:`~ins_hil.runtime.mavlink_msgs.requests`: parameters, commands,
-message intervals, mission count, FTP NAK). See docs/flight_controller.md.
+ESTIMATOR_STATUS, EXTENDED_SYS_STATE, BATTERY_STATUS) at their rate when no state did within
+50 ms of their due time (no IMU, no solution yet), with the sensor health of
+:class:`~ins_hil.runtime.metrics.SensorHealth`. It answers a ground station
+(:mod:`~ins_hil.runtime.mavlink_msgs.requests`: parameters, commands, message intervals, mission
+count, FTP NAK). See docs/flight_controller.md.
 
 Signing (MAVLink 2): with a 32-byte key (``signing_key``, or ``signing_key_file`` written by
 ``ins-hil keygen``) every outgoing message is signed and incoming messages on the endpoint are
@@ -57,7 +58,7 @@ from ins_hil.runtime.mavlink_msgs.common import (
 )
 from ins_hil.runtime.mavlink_msgs.fc import FcMessages
 from ins_hil.runtime.mavlink_msgs.gcs import GcsMessages
-from ins_hil.runtime.mavlink_msgs.requests import _HANDLED, Requests
+from ins_hil.runtime.mavlink_msgs.requests import _HANDLED, _STATELESS, Requests
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.types import GnssFix, NavState
 
@@ -77,6 +78,8 @@ __all__ = [
     "parse_url",
 ]
 
+#: s within which the same STATUSTEXT (severity and text) is not sent again
+TEXT_REPEAT_S = 2.0
 _BEAT_GRACE_NS = 50_000_000  # the task sends the 1 Hz group when no state has sent it 50 ms after it was due
 
 
@@ -117,6 +120,8 @@ class MavlinkEndpoint(Requests, GcsMessages, FcMessages):
         self._latest: tuple[NavState, int, int] | None = None
         self._wake = asyncio.Event()
         self._texts: deque[tuple[int, str]] = deque(maxlen=32)
+        self._text_sent: dict[tuple[int, str], int] = {}  # (severity, text) → when it was last queued (ns)
+        self._text_id = 0  # id of the last chunked STATUSTEXT
         self._gnss: GnssFix | None = None
         self._gnss_new = False
         self._home: tuple[float, float, float] | None = None
@@ -165,7 +170,19 @@ class MavlinkEndpoint(Requests, GcsMessages, FcMessages):
         self._update_next_due()
 
     def statustext(self, severity: int, text: str) -> None:
-        self._texts.append((severity, text[:50]))
+        """Queue a STATUSTEXT (sent by the endpoint's task). A text longer than 50 characters goes out in
+        chunks (MAVLink 2's ``id``/``chunk_seq``; MAVProxy and MAVSDK put them together). The same text again
+        within ``TEXT_REPEAT_S`` is dropped (counted as ``statustext_repeated``): a state that flaps, or a
+        client retrying a refused request, gives one line, not one per event."""
+        now = time.monotonic_ns()
+        last = self._text_sent.get((severity, text))
+        if last is not None and now - last < TEXT_REPEAT_S * 1e9:
+            self.metrics.output(self.name, "statustext_repeated")
+            return
+        if len(self._text_sent) > 64:  # forget the old ones
+            self._text_sent = {k: v for k, v in self._text_sent.items() if now - v < TEXT_REPEAT_S * 1e9}
+        self._text_sent[(severity, text)] = now
+        self._texts.append((severity, text))
         self._wake.set()
 
     async def start(self) -> None:
@@ -233,7 +250,7 @@ class MavlinkEndpoint(Requests, GcsMessages, FcMessages):
                 if now < due or (typ == "GPS_RAW_INT" and not self._gnss_new):
                     continue
                 nxt[typ] = advance_due(due, period, now)
-                if send(st) is False:  # an fc-role message with no usable solution: nothing went out
+                if send(st) is False:  # nothing went out: no usable solution (fc role), no home yet (gcs)
                     continue
                 self._count(typ)
                 if first:
@@ -246,8 +263,16 @@ class MavlinkEndpoint(Requests, GcsMessages, FcMessages):
     def _send_texts(self) -> None:
         while self._texts:
             sev, text = self._texts.popleft()
-            self.mav.statustext_send(sev, text.encode())
-            self._count("STATUSTEXT")
+            raw = text.encode()
+            if len(raw) <= 50:
+                self.mav.statustext_send(sev, raw)
+                self._count("STATUSTEXT")
+                continue
+            self._text_id = self._text_id % 0xFFFF + 1  # 1..65535: 0 is "a single-chunk text"
+            # 50-byte chunks; a last chunk of exactly 50 bytes is followed by an empty one (the NUL ends it)
+            for k, i in enumerate(range(0, len(raw) + 1, 50)):
+                self.mav.statustext_send(sev, raw[i : i + 50], self._text_id, k)
+                self._count("STATUSTEXT")
 
     def _update_next_due(self) -> None:
         """Earliest time a message is due (GPS_RAW_INT only once a new fix is there)."""
@@ -262,7 +287,7 @@ class MavlinkEndpoint(Requests, GcsMessages, FcMessages):
         if due is None or now < due + _BEAT_GRACE_NS:
             return
         st = self._latest[0] if self._latest is not None and self._solution_valid() else None
-        for typ in ("HEARTBEAT", "SYS_STATUS", "ESTIMATOR_STATUS"):
+        for typ in _STATELESS:
             d = nxt.get(typ)
             if d is not None and now >= d:
                 nxt[typ] = advance_due(d, self.period_ns[typ], now)

@@ -14,6 +14,15 @@ with that one value changed; the runtime never imports the config module — and
 - everything else (noise densities, aids, delay compensation: they shape the filter at its
   start) is refused at run time: set them in the config file.
 
+Wire encoding (:func:`encode_wire`, :func:`decode_wire`): REAL32 values are the float itself; integer
+parameters (INT32) are sent *bytewise* (PARAM_VALUE's float holds the int32's four bytes, as the
+endpoint advertises with MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE in AUTOPILOT_VERSION): MAVSDK and
+QGroundControl decode a non-ArduPilot vehicle's integers that way. MAVProxy decodes bytewise only for
+PX4 autopilots, so it shows an INT32 parameter's raw float (1 reads 1.4e-45); its REAL32 values, and its
+PARAM_SET of an integer (a REAL32 with an integral value, "C cast"), are read as meant. A PARAM_SET of
+an integer type is decoded bytewise unless its float is itself a whole number below 2^24 (a C-cast
+sender; an int32 sent bytewise is such a float only from 0x3F800000 = 1065353216 up).
+
 A refused set is answered with PARAM_VALUE carrying the unchanged value (the MAVLink
 parameter protocol's way to say no) and a STATUSTEXT with the reason. MAV_CMD_PREFLIGHT_STORAGE
 (param1 = 1) writes the values that differ from the config file to the override file
@@ -30,6 +39,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import struct
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +51,32 @@ from ins_hil.types import ConfigError
 #: MAV_PARAM_TYPE values used here
 REAL32 = 9
 INT32 = 6
+#: MAV_PARAM_TYPE → struct code of the integer types (UINT8 … INT32; 64-bit types do not fit the float)
+_INT_CODES = {1: "B", 2: "b", 3: "H", 4: "h", 5: "I", 6: "i"}
+
+
+def encode_wire(value: float, ptype: int) -> float:
+    """The PARAM_VALUE float of a parameter value: REAL32 as is, an integer type bytewise (the integer's
+    little-endian bytes in the float's four bytes, the rest zero)."""
+    code = _INT_CODES.get(ptype)
+    if code is None:
+        return float(value)
+    raw = struct.pack("<" + code, int(value)).ljust(4, b"\x00")
+    return float(struct.unpack("<f", raw)[0])
+
+
+def decode_wire(wire: float, ptype: int) -> float:
+    """The value of a PARAM_SET float of MAV_PARAM_TYPE ``ptype``: REAL32 (and the 64-bit types) as is; an
+    integer type bytewise, except a whole number below 2^24, which a C-cast sender (MAVProxy, ArduPilot
+    style) means as itself. A NaN's payload bits survive (Python floats keep them)."""
+    code = _INT_CODES.get(ptype)
+    if code is None:
+        return float(wire)
+    if math.isfinite(wire) and wire == int(wire) and wire != 0 and abs(wire) < 2**24:
+        return float(wire)  # C cast
+    raw = struct.pack("<f", wire)
+    return float(struct.unpack("<" + code, raw[: struct.calcsize(code)])[0])
+
 
 #: stream rate parameter name per message (≤ 16 characters)
 RATE_PARAM = {
@@ -53,6 +89,9 @@ RATE_PARAM = {
     "GPS_RAW_INT": "SR_GPS_RAW_INT",
     "VFR_HUD": "SR_VFR_HUD",
     "ESTIMATOR_STATUS": "SR_EST_STATUS",
+    "EXTENDED_SYS_STATE": "SR_EXT_SYS_STATE",
+    "BATTERY_STATUS": "SR_BATTERY",
+    "HOME_POSITION": "SR_HOME_POS",
     "ODOMETRY": "SR_ODOMETRY",
     "GPS_INPUT": "SR_GPS_INPUT",
     "HIL_STATE_QUATERNION": "SR_HIL_STATE_Q",
@@ -213,10 +252,11 @@ class ParamStore:
         """Validate and apply a PARAM_SET; returns the value now in force. Raises ParamError
         (the reason) or KeyError (unknown name); nothing changes then."""
         want = self.get(ep_index, name)[1]
+        value = decode_wire(value, ptype)
         if not self.writable:
             raise ParamError(self.why_readonly)
-        # REAL32 parameters take REAL32 only; INT32 ones any integer type or REAL32 with an integral value
-        # (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST: the value is the float of the integer, as MAVProxy sends)
+        # REAL32 parameters take REAL32 only; INT32 ones any integer type (decoded by decode_wire) or REAL32 with
+        # an integral value (the float of the integer, as MAVProxy sends)
         if (want == REAL32 and ptype != REAL32) or (want == INT32 and ptype not in (1, 2, 3, 4, 5, 6, 7, 8, REAL32)):
             raise ParamError(f"{name}: wrong type ({'INT32' if want == INT32 else 'REAL32'} expected)")
         if want == INT32 and math.isfinite(value) and value != int(value):
@@ -366,8 +406,8 @@ class ParamStore:
             if isinstance(v, bool) or not isinstance(v, int | float):
                 raise ConfigError(f"{path}: {n} = {v!r}: expected a number")
             try:
-                ptype = self.get(i, n)[1]
-                self.set(i, n, float(v), ptype)
+                self.get(i, n)  # KeyError when unknown
+                self.set(i, n, float(v), REAL32)  # a number, not a wire value: integers as their float
             except KeyError:
                 raise ConfigError(f"{path}: unknown parameter {n!r}") from None
             except ParamError as e:

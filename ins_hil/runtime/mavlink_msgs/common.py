@@ -42,6 +42,9 @@ GCS_RATES = {
     "GPS_RAW_INT": 5.0,
     "VFR_HUD": 4.0,
     "ESTIMATOR_STATUS": 2.0,
+    "EXTENDED_SYS_STATE": 1.0,
+    "BATTERY_STATUS": 1.0,
+    "HOME_POSITION": 0.5,
 }
 FC_RATES = {"HEARTBEAT": 1.0, "ODOMETRY": 30.0, "GPS_INPUT": 5.0, "HIL_STATE_QUATERNION": 0.0}
 ALL_MESSAGES = sorted(set(GCS_RATES) | set(FC_RATES))
@@ -91,6 +94,13 @@ def _frame_of(typ: str) -> _Frame:
 
 #: a state older than this (s) is no valid solution (IMU lost): ESTIMATOR_STATUS flags drop, CRITICAL
 SOLUTION_TIMEOUT_S = 0.5
+#: the ``gcs`` home (MessageBase._track_home): taken at the first state whose vertical σ is at most this (m),
+#: or that is aligned; re-taken while the vehicle stays at rest there each time the vertical σ has fallen
+#: to HOME_RETAKE_RATIO of the σ it was taken with; fixed for good once the vehicle moved
+HOME_MAX_STD_D = 1.0
+HOME_RETAKE_RATIO = 0.7
+HOME_REST_SPEED = 0.5  # m/s: ground speed and |vertical speed| below this is "at rest"
+HOME_MOVED_SPEED = 2.0  # m/s: a ground speed above this ends the re-taking
 _BEAT_RETRY_NS = 100_000_000  # a heartbeat the link could not take is tried again after 0.1 s
 
 
@@ -204,6 +214,9 @@ class EndpointConfig:
     params_file: str = ""  # parameter override file (default: <config>.params.toml), ins_hil.runtime.mavlink_params
     # ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only LOCAL_FRD; same values: x north)
     odometry_frame: str = "LOCAL_NED"
+    # INT32 parameters in PARAM_VALUE: "bytewise" (the int's bytes: MAVSDK, QGroundControl) or "c_cast" (the
+    # int's float value: MAVProxy, Mission Planner, which decode bytewise only for PX4); AUTOPILOT_VERSION says which
+    param_encoding: str = "bytewise"
     # system ids whose PARAM_SET, parameter save and state-changing commands are obeyed (0 = any system);
     # 255: QGroundControl, MAVProxy, Mission Planner; 245: MAVSDK's ground-station default. [] = none (read-only)
     allowed_gcs_sysids: list[int] = field(default_factory=lambda: list(GCS_SYSIDS))
@@ -274,6 +287,7 @@ class MessageBase:
         def _count(self, typ: str) -> None: ...
         def statustext(self, severity: int, text: str) -> None: ...
         def set_rate(self, typ: str, hz: float) -> None: ...
+        def _send_home_position(self, st: NavState | None = None) -> bool: ...
 
     def _init_vehicle(self) -> None:
         self.params: Any = None  # ins_hil.runtime.mavlink_params.ParamStore (attached by the gateway)
@@ -289,7 +303,13 @@ class MessageBase:
         if self.cfg.odometry_frame not in frames:
             raise ValueError(f"{self.name}.odometry_frame = {self.cfg.odometry_frame!r}: LOCAL_NED or LOCAL_FRD")
         self._odom_frame = frames[self.cfg.odometry_frame]
+        if self.cfg.param_encoding not in ("bytewise", "c_cast"):
+            raise ValueError(f"{self.name}.param_encoding = {self.cfg.param_encoding!r}: bytewise or c_cast")
         self._had_solution = False  # a valid solution was seen (then CRITICAL when it is lost)
+        self._home_fixed = False  # the gcs home is no longer re-taken (_track_home)
+        self._home_sd = math.inf  # vertical σ (m) of the state the home was taken from
+        self._drop_ref = (0, 0, 0)  # SYS_STATUS drop rate: window start (monotonic ns), dropped, received
+        self._drop_cpct = 0  # drop rate of the last closed window (c%)
         self._write_ok = True  # the last write reached the transport
         # ODOMETRY reset_counter: from a random start (a restarted gateway does not repeat the value the flight
         # controller last saw, but with a 1/256 chance), + 1 whenever the solution becomes usable (the home is
@@ -334,6 +354,37 @@ class MessageBase:
         if self.cfg.role == "gcs":
             self._reply_pending.append("HOME_POSITION")  # sent by the endpoint's task, off the IMU path
             self._wake.set()
+
+    def _track_home(self, st: NavState) -> None:
+        """The ground-station home (HOME_POSITION, GLOBAL_POSITION_INT's relative altitude, the origin of the
+        gcs role's LOCAL_POSITION_NED), from a converged solution rather than the first fix: the first
+        state's height can be metres off (a 2 m GNSS σ), which a vehicle parked at home would then show as
+        its relative altitude for the whole run. Taken at the first state whose vertical σ is at most
+        ``HOME_MAX_STD_D`` (or that is aligned), then re-taken — HOME_POSITION sent again each time — while
+        the vehicle stays at rest (ground and vertical speed below ``HOME_REST_SPEED``) whenever the
+        vertical σ has fallen to ``HOME_RETAKE_RATIO`` of the σ of the last take; the first ground speed
+        above ``HOME_MOVED_SPEED`` fixes it for the run. An ``fc`` endpoint keeps its first position (the
+        origin of its ODOMETRY, which must not move under the flight controller)."""
+        if self._home_fixed:
+            return
+        if self.cfg.role != "gcs":
+            if self._home is None:
+                self._set_home(st)
+            self._home_fixed = True
+            return
+        sd = float(st.std_pos[2])
+        vn, ve, vd = _floats(st.vel_ned)
+        gs = math.hypot(vn, ve)
+        if self._home is not None and gs > HOME_MOVED_SPEED:
+            self._home_fixed = True
+            return
+        if self._home is None:
+            if (math.isfinite(sd) and sd <= HOME_MAX_STD_D) or st.aligned:
+                self._home_sd = sd if math.isfinite(sd) else math.inf
+                self._set_home(st)
+        elif gs < HOME_REST_SPEED and abs(vd) < HOME_REST_SPEED and sd <= HOME_RETAKE_RATIO * self._home_sd:
+            self._home_sd = sd
+            self._set_home(st)
 
     def _home_ned(self, st: NavState) -> tuple[float, float, float]:
         """Exact NED offset (m) of the state from the home: earth.ned_from_geodetic's formula

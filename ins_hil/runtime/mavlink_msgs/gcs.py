@@ -1,6 +1,7 @@
 """Messages of the ``gcs`` role (a ground station sees the gateway as its own vehicle): SYS_STATUS,
 ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT, LOCAL_POSITION_NED, GPS_RAW_INT (pass-through of the
-last GNSS fix), VFR_HUD, ESTIMATOR_STATUS."""
+last GNSS fix), VFR_HUD, ESTIMATOR_STATUS, EXTENDED_SYS_STATE, BATTERY_STATUS (HOME_POSITION is with the
+requests, :mod:`.requests`)."""
 
 from __future__ import annotations
 
@@ -14,17 +15,49 @@ from ins_hil.types import NavState
 class GcsMessages(MessageBase):
     """Builders of the ground-station messages (``_send_<message>``, one state in, one message out)."""
 
+    def _drop_rate(self) -> tuple[int, int]:
+        """(drop_rate_comm in c%, errors_comm): the inputs' dropped samples ÷ (received + dropped) over the
+        last window of at least 1 s (the rate of the previous window until the next one closes), and the
+        cumulative drop count (saturated at UINT16_MAX − 1)."""
+        m = self.metrics
+        dropped = m.dropped_total()
+        received = sum(s.received for s in m.sources.values())
+        now = time.monotonic_ns()
+        t0, d0, r0 = self._drop_ref
+        if t0 == 0 or now - t0 >= 1_000_000_000:
+            d, r = dropped - d0, received - r0
+            self._drop_cpct = min(10000, round(1e4 * d / (r + d))) if d > 0 else 0
+            self._drop_ref = (now, dropped, received)
+        return self._drop_cpct, min(0xFFFE, dropped)
+
     def _send_sys_status(self, st: NavState | None) -> None:
         present, enabled, health, _, _ = self._vehicle_status()
-        drops = min(10000, self.metrics.dropped_total())
-        # battery unknown (the spec's values): voltage UINT16_MAX, current −1, remaining −1
+        drops, errors = self._drop_rate()
+        # battery unknown (the spec's values): voltage UINT16_MAX, current −1, remaining −1 (BATTERY_STATUS too)
         if self._fast:  # wire order: present, enabled, health, load, voltage, current, drop_rate, errors ×5,
             # battery_remaining, then the three *_extended fields
             self._emit(
-                _frame_of("SYS_STATUS"), present, enabled, health, 0, 0xFFFF, -1, drops, 0, 0, 0, 0, 0, -1, 0, 0, 0
+                _frame_of("SYS_STATUS"), present, enabled, health, 0, 0xFFFF, -1, drops, errors, 0, 0, 0, 0, -1, 0, 0, 0
             )
         else:
-            self.mav.sys_status_send(present, enabled, health, 0, 0xFFFF, -1, -1, drops, 0, 0, 0, 0, 0)
+            self.mav.sys_status_send(present, enabled, health, 0, 0xFFFF, -1, -1, drops, errors, 0, 0, 0, 0)
+
+    def _send_extended_sys_state(self, st: NavState | None) -> None:
+        """EXTENDED_SYS_STATE: landed state and VTOL state UNDEFINED — a navigation gateway cannot tell ground
+        contact, and the vehicle is no VTOL (MAVSDK's in_air()/landed_state() then report False/UNKNOWN)."""
+        m = self._m
+        self.mav.extended_sys_state_send(m.MAV_VTOL_STATE_UNDEFINED, m.MAV_LANDED_STATE_UNDEFINED)
+
+    def _send_battery_status(self, st: NavState | None) -> None:
+        """BATTERY_STATUS of a gateway without a battery monitor: every field "unknown" as the spec gives it
+        (cell voltages UINT16_MAX, current −1, consumed −1, remaining −1, temperature INT16_MAX). A client
+        that reads SYS_STATUS's battery while no BATTERY_STATUS came (MAVSDK) would show its UINT16_MAX
+        voltage as 65.535 V; with this one MAVSDK reports 0 V, remaining −1 %."""
+        m = self._m
+        self.mav.battery_status_send(
+            0, m.MAV_BATTERY_FUNCTION_UNKNOWN, m.MAV_BATTERY_TYPE_UNKNOWN, 0x7FFF, [0xFFFF] * 10, -1, -1, -1, -1,
+            0, m.MAV_BATTERY_CHARGE_STATE_UNDEFINED, [0, 0, 0, 0], 0, 0,
+        )  # fmt: skip
 
     def _send_attitude(self, st: NavState) -> None:
         r, p, y = self._euler(st)
@@ -42,11 +75,12 @@ class GcsMessages(MessageBase):
             self.mav.attitude_quaternion_send(self._tboot_ms(st), *q, *w)
 
     def _send_global_position_int(self, st: NavState) -> None:
+        """relative_alt: above the home (0 until the home is taken, MessageBase._track_home); hdg: the yaw,
+        UINT16_MAX (unknown) before alignment."""
         vn, ve, vd = _floats(st.vel_ned)
-        hdg = math.degrees(self._euler(st)[2]) % 360.0
-        rel = st.h - (self._home[2] if self._home else st.h)
-        if self._home is None:  # the first position sets the home (LOCAL_POSITION_NED, ODOMETRY)
-            self._set_home(st)
+        self._track_home(st)
+        rel = st.h - self._home[2] if self._home is not None else 0.0
+        hdg = round((math.degrees(self._euler(st)[2]) % 360.0) * 100) % 36000 if st.aligned else 0xFFFF
         vals = (
             self._tboot_ms(st),
             round(math.degrees(st.lat) * 1e7),
@@ -56,20 +90,26 @@ class GcsMessages(MessageBase):
             _i16(vn * 100),
             _i16(ve * 100),
             _i16(vd * 100),
-            round(hdg * 100) % 36000,
+            hdg,
         )
         if self._fast:  # wire order = argument order
             self._emit(_frame_of("GLOBAL_POSITION_INT"), *vals)
         else:
             self.mav.global_position_int_send(*vals)
 
-    def _send_local_position_ned(self, st: NavState) -> None:
+    def _send_local_position_ned(self, st: NavState) -> bool:
+        """NED position (m) from the home, which is the local origin; not sent (False) before the home is
+        taken (MessageBase._track_home)."""
+        self._track_home(st)
+        if self._home is None:
+            return False
         d = self._home_ned(st)
         v = _floats(st.vel_ned)
         if self._fast:
             self._emit(_frame_of("LOCAL_POSITION_NED"), self._tboot_ms(st), *d, *v)
         else:
             self.mav.local_position_ned_send(self._tboot_ms(st), *d, *v)
+        return True
 
     def _send_gps_raw_int(self, st: NavState) -> None:
         g = self._gnss

@@ -33,6 +33,8 @@ _READ_ONLY_COMMANDS = frozenset(
     int(getattr(mavlink_module(), "MAV_CMD_" + c))
     for c in ("REQUEST_MESSAGE", "REQUEST_AUTOPILOT_CAPABILITIES", "GET_MESSAGE_INTERVAL", "REQUEST_PROTOCOL_VERSION")
 )
+#: streamed messages whose builder needs no state (sent without one: no IMU, no solution yet)
+_STATELESS = ("HEARTBEAT", "SYS_STATUS", "ESTIMATOR_STATUS", "EXTENDED_SYS_STATE", "BATTERY_STATUS")
 
 
 class Requests(MessageBase):
@@ -84,9 +86,12 @@ class Requests(MessageBase):
         self._count("COMMAND_ACK")
 
     def _param_value(self, name: str, index: int) -> None:
+        from ins_hil.runtime.mavlink_params import encode_wire
+
         value, ptype = self.params.get(self.params_index, name)
         count = len(self.params.names(self.params_index))
-        self.mav.param_value_send(name.encode(), float(value), ptype, count, index)
+        wire = encode_wire(value, ptype) if self.cfg.param_encoding == "bytewise" else float(value)
+        self.mav.param_value_send(name.encode(), wire, ptype, count, index)
         self._count("PARAM_VALUE")
 
     def _on_param_request_list(self, msg: Any) -> None:
@@ -203,9 +208,9 @@ class Requests(MessageBase):
             self._reply_pending.append("AUTOPILOT_VERSION")
             return int(m.MAV_RESULT_ACCEPTED)
         if msg_id == m.MAVLINK_MSG_ID_HOME_POSITION:
-            if self._home is None:
-                return int(m.MAV_RESULT_TEMPORARILY_REJECTED)  # no position yet
-            self._reply_pending.append("HOME_POSITION")
+            # accepted before the home is known too: HOME_POSITION goes out the moment it is taken
+            if self._home is not None:
+                self._reply_pending.append("HOME_POSITION")
             return int(m.MAV_RESULT_ACCEPTED)
         if msg_id == m.MAVLINK_MSG_ID_SYSTEM_TIME:
             if self._gnss is None or self._gnss.gps_week <= 0:
@@ -218,7 +223,7 @@ class Requests(MessageBase):
         if typ == "GPS_RAW_INT":
             if self._gnss is None:
                 return int(m.MAV_RESULT_TEMPORARILY_REJECTED)
-        elif typ not in ("HEARTBEAT", "SYS_STATUS", "ESTIMATOR_STATUS") and self._latest is None:
+        elif typ not in _STATELESS and self._latest is None:
             return int(m.MAV_RESULT_TEMPORARILY_REJECTED)  # no state yet
         self._reply_pending.append(typ)
         return int(m.MAV_RESULT_ACCEPTED)
@@ -251,13 +256,14 @@ class Requests(MessageBase):
             elif typ == "AUTOPILOT_VERSION":
                 self._send_autopilot_version()
             elif typ == "HOME_POSITION":
-                self._send_home_position()
+                if not self._send_home_position():
+                    continue
             elif typ == "SYSTEM_TIME":
                 self._send_system_time(self._latest[0] if self._latest is not None else None)
                 continue  # counted by the builder
             else:
                 st = self._latest[0] if self._latest is not None else None
-                if st is None and typ not in ("HEARTBEAT", "SYS_STATUS", "ESTIMATOR_STATUS"):
+                if st is None and typ not in _STATELESS:
                     continue
                 if typ == "GPS_RAW_INT":
                     self._gnss_new = True
@@ -270,23 +276,33 @@ class Requests(MessageBase):
             m.MAV_PROTOCOL_CAPABILITY_MAVLINK2
             | m.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
             | m.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-            | m.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST  # INT32 parameters sent as their float value
+            | m.MAV_PROTOCOL_CAPABILITY_MISSION_INT  # the (empty) mission is served with the INT messages
         )
+        if self.cfg.param_encoding == "bytewise":
+            caps |= m.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE  # INT32 parameters: their bytes in the float
+        else:
+            caps |= m.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST  # INT32 parameters: their value as a float
         from ins_hil import __version__
 
         parts = [int(x) if x.isdigit() else 0 for x in [*__version__.split("."), "0", "0"][:3]]
         sw = (parts[0] << 24) | (parts[1] << 16) | (parts[2] << 8) | 0xFF  # FIRMWARE_VERSION_TYPE_OFFICIAL
         self.mav.autopilot_version_send(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, self.cfg.sysid)
 
-    def _send_home_position(self) -> None:
+    def _send_home_position(self, st: Any = None) -> bool:
+        """HOME_POSITION (streamed, requested, and sent when the home is taken or re-taken); False, nothing
+        sent, while the home is unknown. Position: the home's lat/lon/MSL altitude; x, y, z its offset from
+        the local origin, which is the home: 0."""
+        if st is not None:
+            self._track_home(st)
         if self._home is None:
-            return
+            return False
         lat, lon, h = self._home
         self.mav.home_position_send(
             round(math.degrees(lat) * 1e7), round(math.degrees(lon) * 1e7), round(self._msl(lat, lon, h) * 1000),
             0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
             round((time.monotonic_ns() - self._t0_ns) * 1e-3),
         )  # fmt: skip
+        return True
 
 
 def _param_name(pid: Any) -> str:
