@@ -189,23 +189,16 @@ class _Stderr(logging.Handler):
             self.handleError(record)
 
 
-def run(args: argparse.Namespace) -> int:
+def _prepare(args: argparse.Namespace, path: Any) -> tuple[Any, Any]:
+    """The whole configuration, validated (the core built once: its imports), with the command's
+    overrides, and the simulator's devices factory when ``[sim]`` is enabled (ConfigError)."""
     from ins_hil import config as config_mod
-    from ins_hil.runtime.loop import Gateway
 
-    path = args.config or config_mod.default_path()
-    try:
-        cfg = config_mod.load(path)
-    except config_mod.ConfigError as e:
-        print(f"ins-hil run: config error: {e}", file=sys.stderr)
-        return 2
+    cfg = config_mod.load(path)
     if args.core:
         cfg.pipeline.core = args.core
     if args.no_mqtt:
         cfg.mqtt.enabled = False
-    if args.duration is not None and args.duration <= 0:
-        print("ins-hil run: --duration must be positive", file=sys.stderr)
-        return 2
     devices = None
     if cfg.sim_enabled:  # the simulated sensors: their process is started and stopped by the gateway run
         from functools import partial
@@ -213,17 +206,53 @@ def run(args: argparse.Namespace) -> int:
         from ins_hil.sim.devices import SimDevices
 
         devices = partial(SimDevices, cfg.sim)
+    return cfg, devices
+
+
+async def _start(args: argparse.Namespace, path: Any, outputs: list[Any]) -> Any:
+    """Start-up in the order a ground station sees it: the MAVLink outputs open and send their first
+    HEARTBEAT, then the whole config is validated (in a thread, its heavy imports too, while the
+    heartbeat goes on), then the gateway is built (core, recorder, MQTT; its run starts the simulator
+    and the inputs). Returns the gateway, or the exit status of a bad config (2)."""
+    from ins_hil import config as config_mod
+    from ins_hil.runtime.loop import Gateway, open_outputs
+
+    opened = await open_outputs(outputs)
     try:
-        gw = Gateway(cfg, record_path=args.record, devices=devices)
+        cfg, devices = await asyncio.to_thread(_prepare, args, path)
+        return Gateway(cfg, record_path=args.record, devices=devices, outputs=opened)
+    except config_mod.ConfigError as e:
+        print(f"ins-hil run: config error: {e}", file=sys.stderr)
     except (RuntimeError, ValueError) as e:
         print(f"ins-hil run: {e}", file=sys.stderr)
+    await opened.close()
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    from ins_hil import config as config_mod
+
+    path = args.config or config_mod.default_path()
+    if args.duration is not None and args.duration <= 0:
+        print("ins-hil run: --duration must be positive", file=sys.stderr)
+        return 2
+    try:
+        outputs = config_mod.load_outputs(path)  # only the [[outputs]]: they open first (HEARTBEAT within ~0.5 s)
+    except config_mod.ConfigError as e:
+        print(f"ins-hil run: config error: {e}", file=sys.stderr)
         return 2
     interactive = not args.no_status and sys.stdout.isatty()
     view = _status_live if interactive else _status_lines
     missing: list[str] = []
 
     async def status(g: Any) -> None:
-        await asyncio.gather(view(g), _watch_inputs(g, cfg.gateway.input_timeout, missing))
+        await asyncio.gather(view(g), _watch_inputs(g, g.cfg.gateway.input_timeout, missing))
+
+    async def main() -> Any:
+        gw = await _start(args, path, outputs)
+        if not isinstance(gw, int):
+            await gw.run(duration=args.duration, status=status)
+        return gw
 
     log = logging.getLogger("ins_hil")
     handler = _Stderr()
@@ -231,13 +260,15 @@ def run(args: argparse.Namespace) -> int:
     log.setLevel(logging.INFO)
     log.propagate = False
     try:
-        asyncio.run(gw.run(duration=args.duration, status=status))
+        gw = asyncio.run(main())
     except (OSError, RuntimeError, ValueError) as e:  # e.g. a device or URL that cannot be opened
         print(f"ins-hil run: {e}", file=sys.stderr)
         return 1
     finally:
         log.removeHandler(handler)
         log.propagate = True
+    if isinstance(gw, int):
+        return gw
     print(_final_line(gw), file=sys.stderr)
     if gw.recorder is not None:
         print(f"[ins-hil] recorded {gw.recorder.records} inputs to {gw.recorder.paths[0]}", file=sys.stderr)
@@ -247,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
         with open(args.json, "w") as f:
             json.dump(clean_json(gw.metrics.snapshot()), f, indent=1)
     if missing:
-        t = cfg.gateway.input_timeout
+        t = gw.cfg.gateway.input_timeout
         print(f"ins-hil run: no data within gateway.input_timeout = {t:g} s from {', '.join(missing)}", file=sys.stderr)
         return EXIT_NO_INPUT
     return 0
