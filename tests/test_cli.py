@@ -105,7 +105,8 @@ def test_a_new_command_file_is_listed_without_being_imported(tmp_path: Path, mon
 
     (tmp_path / "zz_new.py").write_text(
         '"""`ins-hil zz-new`."""\nimport argparse\n\nimport no_such_heavy_module\n\nNAME = "zz-new"\n'
-        'HELP = (\n    "a new command, "\n    "in two pieces"\n)\n\n\ndef add_arguments(p: argparse.ArgumentParser) -> None:\n'
+        'HELP = (\n    "a new command, "\n    "in two pieces"\n)\n\n\n'
+        "def add_arguments(p: argparse.ArgumentParser) -> None:\n"
         '    p.add_argument("--x")\n\n\ndef run(args: argparse.Namespace) -> int:\n    return 0\n'
     )
     (tmp_path / "zz_helper.py").write_text('"""Not a command: no NAME."""\n\ndef run() -> None: ...\n')

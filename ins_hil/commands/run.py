@@ -48,9 +48,7 @@ def _waiting(gw: Any) -> str:
     return core.align_status() if core is not None else ""
 
 
-#: the live view's size budget: an 80 × 24 terminal (what it is tested at, default config)
-VIEW_WIDTH, VIEW_HEIGHT = 80, 24
-STOP_HINT = "Ctrl-C to stop"
+STOP_HINT = "Ctrl-C to stop"  # on the live view's first line
 
 
 def _output_counters(d: dict[str, int]) -> str:
@@ -246,6 +244,9 @@ async def _start(args: argparse.Namespace, path: Any, outputs: list[Any]) -> Any
         print(f"ins-hil run: config error: {e}", file=sys.stderr)
     except (RuntimeError, ValueError) as e:
         print(f"ins-hil run: {e}", file=sys.stderr)
+    except BaseException:  # another error, Ctrl-C: the outputs closed before it goes on
+        await opened.close()
+        raise
     await opened.close()
     return 2
 
@@ -258,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
         print("ins-hil run: --duration must be positive", file=sys.stderr)
         return 2
     try:
-        outputs = config_mod.load_outputs(path)  # only the [[outputs]]: they open first (HEARTBEAT within ~0.5 s)
+        outputs = config_mod.load_outputs(path)  # only the [[outputs]]: they open first (see _start)
     except config_mod.ConfigError as e:
         print(f"ins-hil run: config error: {e}", file=sys.stderr)
         return 2
