@@ -1,8 +1,10 @@
 """`ins-hil` command line: one subcommand per module in ``ins_hil.commands``.
 
-A command module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and
-``run(args) -> int``; it is found automatically, so adding a command is
-adding a file.
+A command module defines ``NAME``, ``HELP`` (string literals), ``add_arguments(parser)`` and
+``run(args) -> int``; it is found automatically, so adding a command is adding a file. The command
+list is read from the modules' source (their ``NAME`` and ``HELP`` literals, :func:`command_table`)
+without importing them: ``ins-hil --help`` imports no command, and ``ins-hil CMD ...`` imports only
+CMD's module, when argparse reaches its name (:class:`_LazyCommands`).
 
 No command prints a traceback for a bad input: a :class:`~ins_hil.config.ConfigError` or a file that
 cannot be read or decoded is one line on stderr and exit status 2; any other exception is one line
@@ -13,29 +15,101 @@ command name) or ``INS_HIL_DEBUG=1`` shows the traceback instead.
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import os
 import pkgutil
+import re
 import struct
 import sys
 from collections.abc import Sequence
-from types import ModuleType
+from pathlib import Path
+from typing import Any, NamedTuple
 
 from ins_hil import __version__, commands
 
 
-def _command_modules() -> list[ModuleType]:
-    mods = []
+class Command(NamedTuple):
+    """A subcommand as listed by ``ins-hil --help``: its name, one-line help and module (not imported)."""
+
+    name: str
+    help: str
+    module: str
+
+
+_BODY = re.compile(r"^(?:async\s+def|def|class|@)\b", re.M)  # the first top-level definition ends the header
+_RUN = re.compile(r"^(?:async\s+)?def\s+run\s*\(", re.M)
+
+
+def _literals(path: Path) -> dict[str, Any] | None:
+    """The module-level ``NAME``/``HELP`` string literals of a command file (parsed from the source up to
+    its first definition, nothing imported) and whether it defines ``run``; None when the file cannot be
+    read this way (then only importing it tells)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+        body = _BODY.search(text)
+        try:
+            tree = ast.parse(text[: body.start()] if body else text, str(path))
+        except SyntaxError:  # the header cut inside a string: the whole file
+            tree = ast.parse(text, str(path))
+    except (OSError, SyntaxError, ValueError):
+        return None
+    found: dict[str, Any] = {"run": _RUN.search(text) is not None}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            key = node.targets[0].id
+            if key in ("NAME", "HELP"):
+                if not (isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)):
+                    return None  # computed: only the import tells
+                found[key] = node.value.value
+    if "NAME" not in found and re.search(r"^NAME\b", text, re.M):
+        return None  # NAME set after the first definition
+    return found
+
+
+def command_table() -> dict[str, Command]:
+    """Every command of ``ins_hil.commands`` by name, in name order, read without importing the modules
+    (a module whose ``NAME``/``HELP`` are not string literals is imported to read them)."""
+    out: dict[str, Command] = {}
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
         if info.name.startswith("_"):
             continue
-        mod = importlib.import_module(f"ins_hil.commands.{info.name}")
-        if hasattr(mod, "NAME") and hasattr(mod, "run"):
-            mods.append(mod)
-    return mods
+        module = f"ins_hil.commands.{info.name}"
+        lit = _literals(Path(commands.__path__[0]) / f"{info.name}.py")
+        if lit is None:
+            mod = importlib.import_module(module)
+            if hasattr(mod, "NAME") and hasattr(mod, "run"):
+                out[mod.NAME] = Command(mod.NAME, mod.HELP, module)
+        elif "NAME" in lit and lit.get("run"):
+            out[lit["NAME"]] = Command(lit["NAME"], lit.get("HELP", ""), module)
+    return dict(sorted(out.items()))
+
+
+class _LazyCommands(argparse._SubParsersAction):
+    """The subcommands' action: a command's module is imported, and its arguments added to its parser,
+    only when argparse reaches that command's name."""
+
+    modules: dict[str, str]
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:  # fmt: skip
+        name = values[0]
+        module = self.modules.pop(name, None)
+        if module is not None:
+            _load(self._name_parser_map[name], module)
+        super().__call__(parser, namespace, values, option_string)
+
+
+def _load(p: argparse.ArgumentParser, module: str) -> None:
+    mod = importlib.import_module(module)
+    p.description = getattr(mod, "DESCRIPTION", mod.HELP)
+    mod.add_arguments(p)
+    p.set_defaults(_run=mod.run)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``ins-hil`` parser: every command listed with its help; a command's own arguments are added
+    when it is parsed (its module imported then)."""
     parser = argparse.ArgumentParser(
         prog="ins-hil",
         description="Hardware-in-the-loop navigation gateway: strapdown INS + EKF + FDI, "
@@ -47,21 +121,28 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument(
         "--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback of an error"
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for mod in _command_modules():
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP), parents=[common])
-        mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", action=_LazyCommands)
+    assert isinstance(sub, _LazyCommands)
+    sub.modules = {}
+    for c in command_table().values():
+        sub.add_parser(c.name, help=c.help, description=c.help, parents=[common])
+        sub.modules[c.name] = c.module
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    debug = os.environ.get("INS_HIL_DEBUG", "") not in ("", "0")
+    try:
+        args = parser.parse_args(argv)
+    except Exception as e:  # the command's module failed to import (e.g. a missing optional dependency)
+        if debug or "--debug" in (sys.argv[1:] if argv is None else argv):
+            raise
+        return report_error("ins-hil", e)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
-    debug = bool(getattr(args, "debug", False)) or os.environ.get("INS_HIL_DEBUG", "") not in ("", "0")
+    debug = debug or bool(getattr(args, "debug", False))
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:

@@ -302,7 +302,6 @@ def _can_options(ic: InputConfig, where: str) -> None:
 
 def _startable(cfg: Config) -> None:
     """Build what start-up builds (no device opened): a config that loads must start."""
-    from ins_hil.runtime.mavlink_out import MavlinkEndpoint
     from ins_hil.runtime.metrics import RuntimeMetrics
     from ins_hil.runtime.mqtt_out import MqttPublisher
     from ins_hil.runtime.pipeline import Pipeline
@@ -313,11 +312,7 @@ def _startable(cfg: Config) -> None:
         msg = str(e)
         raise ConfigError(msg if msg.startswith(("core", "fdi")) else f"core: {msg}") from None
     metrics = RuntimeMetrics(cfg.gateway.late_threshold_ms * 1e-3)
-    for i, ec in enumerate(cfg.outputs):
-        try:
-            MavlinkEndpoint(ec, metrics)
-        except (ValueError, RuntimeError) as e:
-            raise ConfigError(f"outputs[{i}]: {e}") from None
+    _startable_outputs(cfg.outputs)
     if cfg.mqtt.enabled:
         MqttPublisher(cfg.mqtt, metrics)
     for i, ic in enumerate(cfg.inputs):
@@ -326,6 +321,19 @@ def _startable(cfg: Config) -> None:
                 make_driver(ic.driver_table())  # as the gateway builds it (no device opened)
         except ValueError as e:
             raise ConfigError(f"inputs[{i}]: {e}") from None
+
+
+def _startable_outputs(outputs: list[EndpointConfig]) -> None:
+    """Build each MAVLink endpoint as start-up does (nothing opened)."""
+    from ins_hil.runtime.mavlink_out import MavlinkEndpoint
+    from ins_hil.runtime.metrics import RuntimeMetrics
+
+    metrics = RuntimeMetrics()
+    for i, ec in enumerate(outputs):
+        try:
+            MavlinkEndpoint(ec, metrics)
+        except (ValueError, RuntimeError) as e:
+            raise ConfigError(f"outputs[{i}]: {e}") from None
 
 
 def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
@@ -397,9 +405,26 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     if not plugins and not any(i.type in ("serial_imu", "can_imu") for i in cfg.inputs):
         raise ConfigError("inputs: no IMU input (add an [[inputs]] table with type = 'serial_imu' or 'can_imu')")
 
+    cfg.outputs = _outputs(d)
+
+    if "mqtt" in d:
+        cfg.mqtt = MqttConfig()
+        _fill(cfg.mqtt, d["mqtt"], "mqtt")
+        if any(c in cfg.mqtt.topic_prefix for c in "+#"):
+            raise ConfigError(f"mqtt.topic_prefix = {cfg.mqtt.topic_prefix!r}: must not hold the wildcards + or #")
+        _mqtt_auth(cfg.mqtt)
+    _fill(cfg.recorder, d.get("recorder", {}), "recorder")
+    _gnss_sources(cfg)
+    _startable(cfg)
+    return cfg
+
+
+def _outputs(d: dict[str, Any]) -> list[EndpointConfig]:
+    """The ``[[outputs]]`` tables of a parsed TOML document, validated (ConfigError naming the key)."""
     outputs = d.get("outputs", [])
     if not isinstance(outputs, list):
         raise ConfigError("outputs: expected an array of tables ([[outputs]])")
+    out: list[EndpointConfig] = []
     for i, t in enumerate(outputs):
         where = f"outputs[{i}]"
         t = dict(t) if isinstance(t, dict) else _bad(where, t, "a table")
@@ -414,18 +439,9 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
         _key(f"{where}.signing_key", ec.signing_key)
         _gcs_output(ec, where)
         ec.rates = schema.validate("outputs[].rates", t.get("rates", {}), f"{where}.rates")
-        cfg.outputs.append(ec)
+        out.append(ec)
 
-    if "mqtt" in d:
-        cfg.mqtt = MqttConfig()
-        _fill(cfg.mqtt, d["mqtt"], "mqtt")
-        if any(c in cfg.mqtt.topic_prefix for c in "+#"):
-            raise ConfigError(f"mqtt.topic_prefix = {cfg.mqtt.topic_prefix!r}: must not hold the wildcards + or #")
-        _mqtt_auth(cfg.mqtt)
-    _fill(cfg.recorder, d.get("recorder", {}), "recorder")
-    _gnss_sources(cfg)
-    _startable(cfg)
-    return cfg
+    return out
 
 
 def _gcs_output(ec: EndpointConfig, where: str) -> None:
@@ -506,9 +522,8 @@ def _url(key: str, v: str, schemes: tuple[str, ...]) -> None:
         raise ConfigError(f"{key} = {v!r}: scheme must be one of {', '.join(schemes)}")
 
 
-def load(path: str | Path) -> Config:
-    """Read and validate a TOML config file."""
-    p = Path(path)
+def _read(p: Path) -> dict[str, Any]:
+    """The TOML document of a config file (ConfigError: unreadable, not UTF-8, not TOML)."""
     try:
         raw = p.read_bytes()
     except OSError as e:
@@ -519,13 +534,33 @@ def load(path: str | Path) -> Config:
         line = raw[: e.start].count(b"\n") + 1
         raise ConfigError(f"{p}: not UTF-8 text (byte 0x{raw[e.start]:02x} on line {line}, offset {e.start})") from None
     try:
-        d = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{p}: not valid TOML: {e}") from None
     except RecursionError:
         raise ConfigError(f"{p}: not valid TOML: nested too deeply") from None
+
+
+def load(path: str | Path) -> Config:
+    """Read and validate a TOML config file."""
+    p = Path(path)
+    d = _read(p)
     try:
         return from_dict(d, str(p))
+    except ConfigError as e:
+        raise ConfigError(f"{p}: {e}") from None
+
+
+def load_outputs(path: str | Path) -> list[EndpointConfig]:
+    """The ``[[outputs]]`` of a config file, validated as :func:`load` validates them, without the rest
+    (nothing of the core is built or imported): ``ins-hil run`` opens them and sends its first HEARTBEAT
+    before the whole file is validated. A ``<config>.params.toml`` (rates) is applied later, by the gateway."""
+    p = Path(path)
+    d = _read(p)
+    try:
+        outputs = _outputs(d)
+        _startable_outputs(outputs)
+        return outputs
     except ConfigError as e:
         raise ConfigError(f"{p}: {e}") from None
 

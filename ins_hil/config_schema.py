@@ -938,7 +938,6 @@ def sections() -> list[Section]:
     from ins_hil.fdi.aiding import AidingConfig
     from ins_hil.fdi.monitor import FdiConfig
     from ins_hil.fusion.ekf import FilterConfig
-    from ins_hil.runtime.mavlink_out import EndpointConfig
     from ins_hil.runtime.mqtt_out import MqttConfig
     from ins_hil.runtime.pipeline import PipelineConfig
     from ins_hil.types import SimConfig
@@ -948,12 +947,6 @@ def sections() -> list[Section]:
     sim_keys.update(dataclass_keys(SimConfig, "sim"))
     aid = {"enabled": Key("enabled", "bool", True, **_help("fdi.aiding", "enabled"))}
     aid.update(dataclass_keys(AidingConfig, "fdi.aiding"))
-    out_keys = {"type": Key("type", **TABLES["outputs[]"]["type"])}
-    out_keys.update(dataclass_keys(EndpointConfig, "outputs[]", skip=("rates",)))
-    out_keys["rates"] = Key("rates", "table", None, optional=True, help="the [outputs.rates] table")
-    from ins_hil.config import MAV_TYPES
-
-    out_keys["mav_type"] = dataclasses.replace(out_keys["mav_type"], choices=MAV_TYPES)
     core = dataclass_keys(PipelineConfig, "core", rename={"core": "kind"},
                           skip=("imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options", "limits"))  # fmt: skip
     # the validation limits (PipelineConfig.limits) are flat keys of [core]; the loader builds the Limits
@@ -984,13 +977,28 @@ def sections() -> list[Section]:
         Section("inputs[].options", CAN_OPTIONS, "A can_imu input's options (ins_hil.drivers.can_imu).", open=True),
         Section("inputs[].options.dbc", dataclass_keys(DbcProfile, "inputs[].options.dbc"),
                 "protocol = 'dbc': which DBC messages and signals carry the IMU (ins_hil.drivers.dbc_codec)."),
-        Section("outputs[]", out_keys, "One MAVLink output per [[outputs]] table (ins_hil.runtime.mavlink_out)."),
-        Section("outputs[].rates", rate_keys(), "Messages per second of one output (the defaults depend on role)."),
+        *_output_sections(),
         Section("mqtt", dataclass_keys(MqttConfig, "mqtt"), "The MQTT publisher (ins_hil.runtime.mqtt_out); "
                 "without an [mqtt] table MQTT is off."),
         Section("recorder", dataclass_keys(RecorderConfig, "recorder"),
                 "The input recorder (ins_hil.runtime.recorder)."),
     ]  # fmt: skip
+
+
+def _output_sections() -> list[Section]:
+    """The sections of the ``[[outputs]]`` tables: built without the core's imports, so that
+    :func:`ins_hil.config.load_outputs` stays light (``ins-hil run`` opens the outputs first)."""
+    from ins_hil.config import MAV_TYPES
+    from ins_hil.runtime.mavlink_out import EndpointConfig
+
+    out_keys = {"type": Key("type", **TABLES["outputs[]"]["type"])}
+    out_keys.update(dataclass_keys(EndpointConfig, "outputs[]", skip=("rates",)))
+    out_keys["rates"] = Key("rates", "table", None, optional=True, help="the [outputs.rates] table")
+    out_keys["mav_type"] = dataclasses.replace(out_keys["mav_type"], choices=MAV_TYPES)
+    return [
+        Section("outputs[]", out_keys, "One MAVLink output per [[outputs]] table (ins_hil.runtime.mavlink_out)."),
+        Section("outputs[].rates", rate_keys(), "Messages per second of one output (the defaults depend on role)."),
+    ]
 
 
 def _help(section: str, key: str) -> dict[str, Any]:
@@ -1002,9 +1010,11 @@ _CACHE: dict[str, Section] = {}
 
 def section(name: str) -> Section:
     """A section by its dotted name (``inputs[0].options`` → ``inputs[].options``)."""
-    if not _CACHE:
-        _CACHE.update({s.name: s for s in sections()})
-    return _CACHE[re.sub(r"\[\d+\]", "[]", name)]
+    name = re.sub(r"\[\d+\]", "[]", name)
+    if name not in _CACHE:
+        light = name.startswith("outputs[]") and "gateway" not in _CACHE  # the outputs' alone: no core imported
+        _CACHE.update({s.name: s for s in (_output_sections() if light else sections())})
+    return _CACHE[name]
 
 
 #: a list of known names longer than this is not spelt out in an error (the error stays one line)

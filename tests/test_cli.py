@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import subprocess
 import sys
 from pathlib import Path
@@ -48,3 +49,70 @@ def test_runtime_bench_writes_nothing_unless_asked(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     assert out.read_text().startswith("# Runtime") and (out.parent / "runtime_latency.png").stat().st_size > 0
     assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in tracked} == tracked
+
+
+_MODULES_AT_EXIT = (
+    "import atexit, runpy, sys\n"
+    "atexit.register(lambda: print('MODULES', *sorted(sys.modules), file=sys.stderr))\n"
+    "sys.argv[0] = 'ins-hil'\n"
+    "runpy.run_module('ins_hil', run_name='__main__', alter_sys=True)\n"
+)
+
+
+def _imported(*argv: str) -> tuple[subprocess.CompletedProcess[str], set[str]]:
+    """Run ``python -m ins_hil ARGV``; the result and every module loaded when it exits (``sys.modules``)."""
+    r = subprocess.run([sys.executable, "-c", _MODULES_AT_EXIT, *argv], capture_output=True, text=True)
+    last = r.stderr.strip().splitlines()[-1] if r.stderr.strip() else ""
+    assert last.startswith("MODULES "), r.stderr[-2000:]
+    return r, set(last.split()[1:])
+
+
+#: what a command's module may pull in: none of it may load for the command list
+HEAVY = ("numpy", "scipy", "pymavlink", "rich", "ins_hil.core", "ins_hil.runtime", "ins_hil.nav", "ins_hil.fdi")
+
+
+def test_help_lists_every_command_without_importing_any() -> None:
+    """`ins-hil --help` reads the commands' NAME and HELP from their source: no command module, nothing
+    of numpy, scipy, pymavlink or the core is imported (that made --help take seconds)."""
+    from ins_hil.cli import command_table
+
+    r, mods = _imported("--help")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "ins_hil.cli" in mods  # the import log is read right
+    assert not {m for m in mods if m.startswith("ins_hil.commands.")}, sorted(mods)
+    assert not {m for m in mods if m.split(".")[0] in HEAVY or m.startswith(HEAVY)}, sorted(mods)
+    table = command_table()
+    assert len(table) >= 10 and {"run", "replay", "demo", "config"} <= set(table)
+    flat = " ".join(r.stdout.split())
+    for c in table.values():  # every command with its one-line help, as the module states it
+        mod = importlib.import_module(c.module)
+        assert (c.name, c.help) == (mod.NAME, mod.HELP)
+        assert f"{c.name} {' '.join(c.help.replace('%%', '%').split())}" in flat, (c.name, r.stdout)
+
+
+@pytest.mark.parametrize("command", ["run", "config"])
+def test_a_commands_help_imports_that_command_only(command: str) -> None:
+    r, mods = _imported(command, "--help")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert f"usage: ins-hil {command}" in r.stdout and "--debug" in r.stdout
+    assert {m for m in mods if m.startswith("ins_hil.commands.")} == {f"ins_hil.commands.{command}"}
+    assert "scipy" not in mods and "ins_hil.core" not in mods
+
+
+def test_a_new_command_file_is_listed_without_being_imported(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A command added as a file (another helper's, a plugin) is found by name; its heavy imports wait."""
+    from ins_hil import cli, commands
+
+    (tmp_path / "zz_new.py").write_text(
+        '"""`ins-hil zz-new`."""\nimport argparse\n\nimport no_such_heavy_module\n\nNAME = "zz-new"\n'
+        'HELP = (\n    "a new command, "\n    "in two pieces"\n)\n\n\n'
+        "def add_arguments(p: argparse.ArgumentParser) -> None:\n"
+        '    p.add_argument("--x")\n\n\ndef run(args: argparse.Namespace) -> int:\n    return 0\n'
+    )
+    (tmp_path / "zz_helper.py").write_text('"""Not a command: no NAME."""\n\ndef run() -> None: ...\n')
+    monkeypatch.setattr(commands, "__path__", [str(tmp_path)])
+    table = cli.command_table()
+    assert table == {"zz-new": cli.Command("zz-new", "a new command, in two pieces", "ins_hil.commands.zz_new")}
+    assert "ins_hil.commands.zz_new" not in sys.modules
+    assert "a new command, in two pieces" in cli.build_parser().format_help()
+    assert "ins_hil.commands.zz_new" not in sys.modules

@@ -226,3 +226,86 @@ def test_a_device_that_appears_later_clears_the_problem(tmp_path: Path, caplog: 
     msgs = [r.getMessage() for r in caplog.records if r.name == "ins_hil"]
     assert sum(m.startswith(f"inputs[0] (imu0): open {link}") for m in msgs) == 1, msgs
     assert "inputs[0] (imu0): up" in msgs
+
+
+def _busy_gateway(aligned: bool, problems: dict[str, str]) -> Any:
+    """A gateway as the live view reads it, with the widest values a long run gives: 7-digit counts,
+    5-digit latencies, a long config path, every output counter, the alignment's longest waiting text."""
+    from types import SimpleNamespace
+
+    from test_runtime_mavlink import _state
+
+    from ins_hil.runtime.metrics import RuntimeMetrics
+
+    m = RuntimeMetrics()
+    m.t_start_ns -= 86_399 * 10**9  # up almost a day
+    m.expect_inputs([("imu0", "serial_imu"), ("gnss", "mavlink")])
+    for name, n, rate in (("gnss", 2_592_000, 30.0), ("imu0", 86_400_000, 1000.0)):
+        src = m.source(name)
+        src.received, src.rate_hz = n, rate
+    m.source("imu0").drop("queue_full", 12_345)
+    m.source("imu0").drop("bad_crc", 678)
+    for k in m.hist:
+        for ns in (80_000, 9_490_000, 24_626_000, 99_999_000):
+            m.record(k, ns)
+    m.roll_window()
+    for typ in ("ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "HEARTBEAT", "SYS_STATUS", "VFR_HUD"):
+        m.output("gcs", typ, 4_320_000)
+    m.output("gcs", "link_refused", 86_400)
+    m.output("gcs", "not_sent", 1_234)
+    for k in ("states", "health", "faults", "state_dropped_offline", "connects"):
+        m.output("mqtt", k, 864_000)
+    m.faults, m.late, m.queue_depth_max, m.aligned = 12, 1_234_567, 4096, aligned
+    m.test_ratios = {"gnss_pos": 0.41, "gnss_vel": 0.22, "baro": 0.13, "mag": 1.5}
+    m.warn("core behind: 786 late samples in the last second, queue 4096")
+    waiting = (
+        "levelled at rest: waiting for motion (GNSS speed above 0.5 m/s or the IMU's motion test) to take the "
+        "yaw from the GNSS course, or set a magnetometer reference (mag.ref_ned), alignment.gyrocompass or "
+        "alignment.level_only"
+    )
+    st = _state(86_399.99)
+    _core = SimpleNamespace(core="python")
+    return SimpleNamespace(
+        metrics=m,
+        cfg=SimpleNamespace(source="/home/someone/vehicle-42/configs/flight_controller.toml", pipeline=_core),
+        pipeline=SimpleNamespace(last_state=st, core=SimpleNamespace(align_status=lambda: "" if aligned else waiting)),
+        mqtt=SimpleNamespace(connected=False, last_error="[Errno 111] Connection refused"),
+        problems=problems,
+    )
+
+
+def _view_lines(gw: Any, width: int = 80) -> list[str]:
+    from rich.console import Console
+
+    from ins_hil.commands.run import render
+
+    with open(os.devnull, "w") as devnull:
+        con = Console(width=width, height=24, record=True, file=devnull, color_system=None)
+        con.print(render(gw))
+    return con.export_text().rstrip("\n").split("\n")
+
+
+@pytest.mark.parametrize("aligned", [True, False])
+def test_the_live_view_fits_an_80_column_terminal_and_says_how_to_stop(aligned: bool) -> None:
+    """Every line of the live view within 80 cells, nothing cut (every value whole, the long texts all
+    there), "Ctrl-C to stop" on the first line, and the default config's view within 24 rows."""
+    from rich.cells import cell_len
+
+    from ins_hil.commands.run import STOP_HINT
+
+    problem = {"inputs[0] (imu0)": "open /dev/ttyUSB0: [Errno 2] No such file or directory: '/dev/ttyUSB0'"}
+    gw = _busy_gateway(aligned, problem if not aligned else {})
+    lines = _view_lines(gw)
+    assert max(cell_len(ln) for ln in lines) <= 80, "\n".join(lines)
+    assert lines[0].rstrip().endswith(STOP_HINT) and STOP_HINT == "Ctrl-C to stop"
+    text = "\n".join(lines)
+    for value in ("lat 50.450000", "lon 30.520000", "h 181.5 m", "v 3.0 -4.0 0.5 m/s", "86,400,000", "2,592,000",
+                  "queue_full 12345", "bad_crc 678", "mag 1.50", "late 1,234,567", "faults 12", "99,999",
+                  "up 23:59:59", "config flight_controller.toml"):  # fmt: skip
+        assert value in text, (value, text)
+    flat = "".join(text.split())  # a text folded over lines is still whole
+    for long in (gw.metrics.warnings[-1], gw.mqtt.last_error, *gw.problems.values(), gw.pipeline.core.align_status()):
+        assert "".join(long.split()) in flat, (long, text)
+    assert "…" not in text and "..." not in text
+    if aligned:  # the default config's view (two inputs, the gcs output, MQTT) on one 80 × 24 screen
+        assert len(lines) <= 24, f"{len(lines)} rows:\n{text}"

@@ -48,75 +48,94 @@ def _waiting(gw: Any) -> str:
     return core.align_status() if core is not None else ""
 
 
+STOP_HINT = "Ctrl-C to stop"  # on the live view's first line
+
+
+def _output_counters(d: dict[str, int]) -> str:
+    """One output's counters in a line: the MAVLink messages sent (upper-case keys) as their total, then
+    the rest (link errors, MQTT states, …) by name; bytes left out."""
+    sent = sum(v for k, v in d.items() if k.isupper())
+    rest = [f"{k} {v:,}" for k, v in sorted(d.items()) if not k.isupper() and k != "bytes"]
+    return "  ".join(([f"{sent:,} msgs"] if sent else []) + rest) or "—"
+
+
 def render(gw: Any) -> Any:
-    """The rich status view of a running gateway."""
+    """The live status view of a running gateway: one screen of an 80-column terminal (cells fold,
+    nothing is cut at the edge), the stop hint on its first line, the solution and problems before the
+    counters (a terminal shorter than the view loses the bottom: the latency table)."""
+    from pathlib import Path
+
+    from rich import box
     from rich.console import Group
     from rich.table import Table
     from rich.text import Text
 
     snap = gw.metrics.snapshot()
     st = gw.pipeline.last_state
-    head = Table.grid(padding=(0, 2))
+
+    def table(*cols: str) -> Table:
+        t = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False, padding=(0, 1), header_style="bold")
+        for i, c in enumerate(cols):
+            t.add_column(c, overflow="fold", justify="left" if i == 0 or c in ("dropped", "counters") else "right")
+        return t
+
+    head = Table.grid(expand=True, padding=(0, 1))
+    head.add_column(overflow="fold")
+    head.add_column(justify="right", no_wrap=True)
+    align = "[green]aligned[/green]" if snap["aligned"] else "[yellow]aligning[/yellow]"
+    up = int(snap["uptime_s"])
     head.add_row(
-        f"[b]ins-hil[/b] {gw.cfg.source}",
-        f"up {snap['uptime_s']:.0f} s",
-        f"core {gw.cfg.pipeline.core}",
-        "[green]aligned[/green]" if snap["aligned"] else f"[yellow]aligning[/yellow] {_waiting(gw)}",
+        f"[b]ins-hil[/b]  up {up // 3600}:{up // 60 % 60:02d}:{up % 60:02d}  core {gw.cfg.pipeline.core}  {align}  "
         f"FDI {snap['fdi_state']}",
-        f"faults {snap['faults']}",
+        f"[b]{STOP_HINT}[/b]",
     )
-    t_in = Table(title="inputs", expand=True)
-    for c in ("source", "rate Hz", "received", "dropped"):
-        t_in.add_column(c)
-    for name, s in snap["sources"].items():
-        drops = ", ".join(f"{k} {v}" for k, v in s["dropped"].items() if v) or "0"
-        t_in.add_row(name, f"{s['rate_hz']:.1f}", str(s["received"]), drops)
-    t_lat = Table(title="latency (last 5 s window / total), µs", expand=True)
-    for c in ("path", "p50", "p99", "p99.9", "max", "count"):
-        t_lat.add_column(c)
-    for k in ("arrival_to_state", "state_to_sent", "arrival_to_sent", "core_step"):
-        w, tot = snap["latency_window"][k], snap["latency"][k]
-        t_lat.add_row(
-            k.replace("_", " "),
-            f"{_fmt(w['p50_us'])} / {_fmt(tot['p50_us'])}",
-            f"{_fmt(w['p99_us'])} / {_fmt(tot['p99_us'])}",
-            _fmt(tot["p999_us"]),
-            _fmt(tot["max_us"]),
-            str(tot["count"]),
-        )
-    t_out = Table(title="outputs", expand=True)
-    for c in ("endpoint", "counters"):
-        t_out.add_column(c)
-    for name, d in snap["outputs"].items():
-        t_out.add_row(name, ", ".join(f"{k} {v}" for k, v in sorted(d.items()) if k != "bytes"))
-    if gw.mqtt is not None:
-        link = "connected" if gw.mqtt.connected else f"[yellow]offline[/yellow] {gw.mqtt.last_error}"
-        t_out.add_row("mqtt link", link)
-    parts: list[Any] = [head, t_in, t_lat, t_out]
-    nav = Table.grid(padding=(0, 2))
+    parts: list[Any] = [head]
+    waiting = "" if snap["aligned"] else _waiting(gw)
+    if waiting:
+        parts.append(Text(waiting, style="yellow"))
     if st is not None:
         from ins_hil.nav.rotation import euler_from_quat
 
         e = [math.degrees(float(x)) for x in euler_from_quat(st.q_nb)]
-        nav.add_row(
-            f"t {st.t:.2f} s",
-            f"lat {math.degrees(st.lat):.6f}  lon {math.degrees(st.lon):.6f}  h {st.h:.1f} m",
-            f"rpy {e[0]:.1f} {e[1]:.1f} {e[2]:.1f} °",
-            f"v {st.vel_ned[0]:.1f} {st.vel_ned[1]:.1f} {st.vel_ned[2]:.1f} m/s",
-        )
-        ratios = "  ".join(f"{k} {v:.2f}" for k, v in snap["test_ratios"].items()) or "—"
-        nav.add_row("test ratios", ratios, f"late {snap['late']}", f"queue max {snap['queue_depth_max']}")
-    parts.append(nav)
+        v = st.vel_ned
+        parts.append(f"t {st.t:.2f} s  lat {math.degrees(st.lat):.6f}  lon {math.degrees(st.lon):.6f}  h {st.h:.1f} m")
+        parts.append(f"v {v[0]:.1f} {v[1]:.1f} {v[2]:.1f} m/s  rpy {e[0]:.1f} {e[1]:.1f} {e[2]:.1f}°")
+        parts.append("test ratios  " + ("  ".join(f"{k} {x:.2f}" for k, x in snap["test_ratios"].items()) or "—"))
+    config = Path(gw.cfg.source).name if gw.cfg.source else "—"
+    parts.append(
+        f"faults {snap['faults']}  late {snap['late']:,}  queue max {snap['queue_depth_max']}  config {config}"
+    )
     bad = _rejections(snap)
     if bad:
-        parts.append("rejected / recovered: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
+        parts.append("rejected / recovered: " + ", ".join(f"{k} {x}" for k, x in bad.items()))
     if snap["warnings"]:
         parts.append(Text(snap["warnings"][-1], style="yellow"))  # (Text: brackets in a warning are no markup)
     last = snap["warnings"][-1] if snap["warnings"] else ""
     for path, text in getattr(gw, "problems", {}).items():  # unresolved input/output errors, each with its text
         if f"{path}: {text}" != last:
             parts.append(Text(f"{path}: {text}", style="red"))
-    return Group(*parts)
+    t_in = table("input", "rate Hz", "received", "dropped")
+    for name, src in snap["sources"].items():
+        drops = ", ".join(f"{k} {x}" for k, x in src["dropped"].items() if x) or "0"
+        t_in.add_row(name, f"{src['rate_hz']:.1f}", f"{src['received']:,}", drops)
+    t_out = table("output", "counters")
+    for name, d in snap["outputs"].items():
+        t_out.add_row(name, _output_counters(d))
+    if gw.mqtt is not None:
+        t_out.add_row("mqtt link", "connected" if gw.mqtt.connected else f"offline {gw.mqtt.last_error}")
+    t_lat = table("latency µs", "p50 5 s/all", "p99 5 s/all", "p99.9", "max", "count")
+    for k, label in (("arrival_to_state", "arrival→state"), ("state_to_sent", "state→sent"),
+                     ("arrival_to_sent", "arrival→sent"), ("core_step", "core step")):  # fmt: skip
+        w, tot = snap["latency_window"][k], snap["latency"][k]
+        t_lat.add_row(
+            label,
+            f"{_fmt(w['p50_us'])} / {_fmt(tot['p50_us'])}",
+            f"{_fmt(w['p99_us'])} / {_fmt(tot['p99_us'])}",
+            _fmt(tot["p999_us"]),
+            _fmt(tot["max_us"]),
+            f"{tot['count']:,}",
+        )
+    return Group(*parts, t_in, t_out, t_lat)
 
 
 def _rejections(snap: dict[str, Any]) -> dict[str, int]:
@@ -146,7 +165,7 @@ def _final_line(gw: Any) -> str:
 async def _status_live(gw: Any) -> None:
     from rich.live import Live
 
-    with Live(render(gw), auto_refresh=False, transient=False) as live:
+    with Live(render(gw), auto_refresh=False, transient=False) as live:  # (taller than the terminal: bottom cut)
         while True:
             await asyncio.sleep(gw.cfg.gateway.status_period)
             live.update(render(gw), refresh=True)
@@ -189,23 +208,16 @@ class _Stderr(logging.Handler):
             self.handleError(record)
 
 
-def run(args: argparse.Namespace) -> int:
+def _prepare(args: argparse.Namespace, path: Any) -> tuple[Any, Any]:
+    """The whole configuration, validated (the core built once: its imports), with the command's
+    overrides, and the simulator's devices factory when ``[sim]`` is enabled (ConfigError)."""
     from ins_hil import config as config_mod
-    from ins_hil.runtime.loop import Gateway
 
-    path = args.config or config_mod.default_path()
-    try:
-        cfg = config_mod.load(path)
-    except config_mod.ConfigError as e:
-        print(f"ins-hil run: config error: {e}", file=sys.stderr)
-        return 2
+    cfg = config_mod.load(path)
     if args.core:
         cfg.pipeline.core = args.core
     if args.no_mqtt:
         cfg.mqtt.enabled = False
-    if args.duration is not None and args.duration <= 0:
-        print("ins-hil run: --duration must be positive", file=sys.stderr)
-        return 2
     devices = None
     if cfg.sim_enabled:  # the simulated sensors: their process is started and stopped by the gateway run
         from functools import partial
@@ -213,17 +225,56 @@ def run(args: argparse.Namespace) -> int:
         from ins_hil.sim.devices import SimDevices
 
         devices = partial(SimDevices, cfg.sim)
+    return cfg, devices
+
+
+async def _start(args: argparse.Namespace, path: Any, outputs: list[Any]) -> Any:
+    """Start-up in the order a ground station sees it: the MAVLink outputs open and send their first
+    HEARTBEAT, then the whole config is validated (in a thread, its heavy imports too, while the
+    heartbeat goes on), then the gateway is built (core, recorder, MQTT; its run starts the simulator
+    and the inputs). Returns the gateway, or the exit status of a bad config (2)."""
+    from ins_hil import config as config_mod
+    from ins_hil.runtime.loop import Gateway, open_outputs
+
+    opened = await open_outputs(outputs)
     try:
-        gw = Gateway(cfg, record_path=args.record, devices=devices)
+        cfg, devices = await asyncio.to_thread(_prepare, args, path)
+        return Gateway(cfg, record_path=args.record, devices=devices, outputs=opened)
+    except config_mod.ConfigError as e:
+        print(f"ins-hil run: config error: {e}", file=sys.stderr)
     except (RuntimeError, ValueError) as e:
         print(f"ins-hil run: {e}", file=sys.stderr)
+    except BaseException:  # another error, Ctrl-C: the outputs closed before it goes on
+        await opened.close()
+        raise
+    await opened.close()
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    from ins_hil import config as config_mod
+
+    path = args.config or config_mod.default_path()
+    if args.duration is not None and args.duration <= 0:
+        print("ins-hil run: --duration must be positive", file=sys.stderr)
+        return 2
+    try:
+        outputs = config_mod.load_outputs(path)  # only the [[outputs]]: they open first (see _start)
+    except config_mod.ConfigError as e:
+        print(f"ins-hil run: config error: {e}", file=sys.stderr)
         return 2
     interactive = not args.no_status and sys.stdout.isatty()
     view = _status_live if interactive else _status_lines
     missing: list[str] = []
 
     async def status(g: Any) -> None:
-        await asyncio.gather(view(g), _watch_inputs(g, cfg.gateway.input_timeout, missing))
+        await asyncio.gather(view(g), _watch_inputs(g, g.cfg.gateway.input_timeout, missing))
+
+    async def main() -> Any:
+        gw = await _start(args, path, outputs)
+        if not isinstance(gw, int):
+            await gw.run(duration=args.duration, status=status)
+        return gw
 
     log = logging.getLogger("ins_hil")
     handler = _Stderr()
@@ -231,13 +282,15 @@ def run(args: argparse.Namespace) -> int:
     log.setLevel(logging.INFO)
     log.propagate = False
     try:
-        asyncio.run(gw.run(duration=args.duration, status=status))
+        gw = asyncio.run(main())
     except (OSError, RuntimeError, ValueError) as e:  # e.g. a device or URL that cannot be opened
         print(f"ins-hil run: {e}", file=sys.stderr)
         return 1
     finally:
         log.removeHandler(handler)
         log.propagate = True
+    if isinstance(gw, int):
+        return gw
     print(_final_line(gw), file=sys.stderr)
     if gw.recorder is not None:
         print(f"[ins-hil] recorded {gw.recorder.records} inputs to {gw.recorder.paths[0]}", file=sys.stderr)
@@ -247,7 +300,7 @@ def run(args: argparse.Namespace) -> int:
         with open(args.json, "w") as f:
             json.dump(clean_json(gw.metrics.snapshot()), f, indent=1)
     if missing:
-        t = cfg.gateway.input_timeout
+        t = gw.cfg.gateway.input_timeout
         print(f"ins-hil run: no data within gateway.input_timeout = {t:g} s from {', '.join(missing)}", file=sys.stderr)
         return EXIT_NO_INPUT
     return 0

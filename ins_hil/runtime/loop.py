@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from ins_hil.drivers.base import Sample
 from ins_hil.drivers.factory import make_driver
 from ins_hil.runtime.clock import SensorClock
-from ins_hil.runtime.mavlink_out import MavlinkEndpoint, fault_text
+from ins_hil.runtime.mavlink_out import EndpointConfig, MavlinkEndpoint, fault_text
 from ins_hil.runtime.mavlink_params import ParamStore
 from ins_hil.runtime.metrics import RuntimeMetrics
 from ins_hil.runtime.mqtt_out import MqttPublisher
@@ -73,15 +73,21 @@ class Gateway:
     soak test); ``on_state`` callbacks get every state (tests, tools). ``devices`` builds the
     sensor devices of a ``[sim] enabled`` config, which needs it (every caller passes the simulator's,
     ``functools.partial(SimDevices, cfg.sim)``): the runtime never imports the simulator. Every input's
-    driver comes from the one registry, ``ins_hil.drivers.factory.make_driver``.
+    driver comes from the one registry, ``ins_hil.drivers.factory.make_driver``. ``outputs``: the MAVLink
+    outputs already open and sending HEARTBEAT (:func:`open_outputs`), taken over instead of opened here.
     """
 
     def __init__(
-        self, cfg: Config, record_path: str | Path | None = None, devices: DevicesFactory | None = None
+        self,
+        cfg: Config,
+        record_path: str | Path | None = None,
+        devices: DevicesFactory | None = None,
+        outputs: OpenOutputs | None = None,
     ) -> None:
         self.params = ParamStore(cfg)  # MAVLink parameters; the override file (<config>.params.toml) applied
         self.cfg = cfg = self.params.cfg
-        self.metrics = RuntimeMetrics(cfg.gateway.late_threshold_ms * 1e-3)
+        self.metrics = outputs.metrics if outputs is not None else RuntimeMetrics()
+        self.metrics.late_threshold_ns = int(cfg.gateway.late_threshold_ms * 1e-3 * 1e9)
         self.metrics.expect_inputs([(i.name, i.type) for i in cfg.inputs])  # SYS_STATUS sensor bits
         self.pipeline = Pipeline(cfg.pipeline)  # may raise: before anything starts
         self.on_state: list[Callable[[NavState], None]] = []
@@ -91,7 +97,8 @@ class Gateway:
         self._scheduled = False  # _run_queue is scheduled on the event loop
         self._stop = asyncio.Event()
         self.drivers: list[Any] = []
-        self.mav_outputs = [MavlinkEndpoint(e, self.metrics) for e in cfg.outputs]
+        self._opened: list[MavlinkEndpoint] = outputs.take(cfg.outputs) if outputs is not None else []
+        self.mav_outputs = self._opened or [MavlinkEndpoint(e, self.metrics) for e in cfg.outputs]
         self.params.attach(self.mav_outputs, self.pipeline)
         self.mqtt = MqttPublisher(cfg.mqtt, self.metrics) if cfg.mqtt.enabled else None
         self.publishers: list[Any] = [*self.mav_outputs, *([self.mqtt] if self.mqtt else [])]
@@ -337,10 +344,8 @@ class Gateway:
                 on_message=self.metrics.warn,
             )
         for i, p in enumerate(self.publishers):
-            try:
-                await p.start()
-            except OSError as e:  # e.g. a host that does not resolve: the config path and the URL
-                raise RuntimeError(f"outputs[{i}] ({p.name}): cannot open {p.cfg.url}: {e}") from e
+            if p not in self._opened:  # (those opened by open_outputs send already)
+                await _start_output(i, p)
         sim_gnss_port = 0
         later = []
         for ic in cfg.inputs:  # MAVLink inputs first: the simulator sends to the port the first one listens on
@@ -486,6 +491,65 @@ class Gateway:
         if self.error is not None:
             raise RuntimeError(self.stopped_reason) from self.error
         return self.metrics
+
+
+async def _start_output(i: int, p: Any) -> None:
+    """Start publisher ``i`` (a MAVLink endpoint, MQTT); RuntimeError naming its config path and URL."""
+    try:
+        await p.start()
+    except OSError as e:  # e.g. a host that does not resolve: the config path and the URL
+        raise RuntimeError(f"outputs[{i}] ({p.name}): cannot open {p.cfg.url}: {e}") from e
+
+
+class OpenOutputs:
+    """MAVLink outputs open and sending HEARTBEAT before the gateway is built (:func:`open_outputs`);
+    :class:`Gateway` (``outputs=``) takes them over, :meth:`close` them when no gateway follows."""
+
+    def __init__(self, metrics: RuntimeMetrics, endpoints: list[MavlinkEndpoint]) -> None:
+        self.metrics = metrics
+        self.endpoints = endpoints
+
+    def take(self, cfgs: list[EndpointConfig]) -> list[MavlinkEndpoint]:
+        """The endpoints, for the configuration's ``outputs`` (the same file's: same names and URLs) with
+        its rates (a ``<config>.params.toml`` may have changed the SR_* of the file)."""
+        eps = self.endpoints
+        if [(e.cfg.name, e.cfg.url) for e in eps] != [(c.name, c.url) for c in cfgs]:
+            raise RuntimeError("the MAVLink outputs opened at start are not those of the configuration")
+        for ep, ec in zip(eps, cfgs, strict=True):
+            ep.cfg = ec
+            want = ec.effective_rates()
+            for typ in sorted(set(ep.rates) | set(want)):
+                if ep.rates.get(typ, 0.0) != want.get(typ, 0.0):
+                    ep.set_rate(typ, want.get(typ, 0.0))
+        return list(eps)
+
+    async def close(self) -> None:
+        for ep in self.endpoints:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(ep.close(), 10.0)
+
+
+async def open_outputs(cfgs: list[EndpointConfig]) -> OpenOutputs:
+    """Open the MAVLink outputs ``cfgs`` and return once each has sent its first HEARTBEAT (to the
+    transport; a link not up yet retries on its own): the vehicle is on the ground station's list before
+    the core is built, the simulator started or the rest of the config validated (``ins-hil run``). Their
+    task keeps HEARTBEAT (SYS_STATUS, ESTIMATOR_STATUS) at its rate meanwhile. RuntimeError (config path,
+    URL) when one cannot be opened."""
+    out = OpenOutputs(RuntimeMetrics(), [])
+    try:
+        for i, ec in enumerate(cfgs):
+            ep = MavlinkEndpoint(ec, out.metrics)
+            await _start_output(i, ep)
+            out.endpoints.append(ep)
+        deadline = time.monotonic() + 1.0  # (the task's first beat is due at once: a few loop iterations)
+        while any("HEARTBEAT" in e.rates and not e.sent.get("HEARTBEAT") for e in out.endpoints):
+            if time.monotonic() > deadline:
+                break
+            await asyncio.sleep(0.001)
+    except BaseException:
+        await out.close()
+        raise
+    return out
 
 
 def _pin_port(url: str) -> str:
