@@ -69,3 +69,23 @@ def test_a_preset_that_matches_the_imu_is_left_alone() -> None:
     core = _core_at_rest((0.0, 0.0, -G), 0.5 * DEG, 0.05, cfg)
     assert core.sensor_warnings == []
     assert core.kf.qc[6] == cfg.filter.gyro_arw**2
+
+
+def test_the_gateway_says_each_start_up_finding_once() -> None:
+    """Live, each finding is a warning (log, status view, MQTT health) and one STATUSTEXT, once."""
+    from types import SimpleNamespace
+
+    from ins_hil.runtime.loop import Gateway
+    from ins_hil.runtime.metrics import RuntimeMetrics
+
+    core = _core_at_rest((0.0, 0.0, +G), 0.001, 0.01, NavConfig())
+    texts: list[tuple[int, str]] = []
+    gw = Gateway.__new__(Gateway)
+    gw.pipeline = SimpleNamespace(core=core)  # type: ignore[assignment]
+    gw.metrics = RuntimeMetrics()
+    gw.mav_outputs = [SimpleNamespace(cfg=SimpleNamespace(role="gcs"), statustext=lambda s, t: texts.append((s, t)))]  # type: ignore[list-item]
+    gw._core_said = set()
+    for _ in range(3):
+        gw._core_warnings()
+    assert texts == [(4, "IMU check: mounting looks wrong")]
+    assert [w for w in gw.metrics.warnings if "roll 180°" in w] == core.sensor_warnings

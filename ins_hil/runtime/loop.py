@@ -269,10 +269,23 @@ class Gateway:
                 m.roll_window()
             if now - last_warn >= 1.0:
                 last_warn = now
+                self._core_warnings()
                 if m.late > late_seen:
                     n_late = m.late - late_seen
                     m.warn(f"core behind: {n_late} late samples in the last second, queue {len(self.queue)}")
                     late_seen = m.late
+
+    def _core_warnings(self) -> None:
+        """The core's start-up check of the IMU (a wrong mounting, a noise preset far below the IMU:
+        ``NavCore.sensor_warnings``) said once each: a warning (log, status view, MQTT health) and a STATUSTEXT."""
+        core = getattr(self.pipeline, "core", None)
+        for w in getattr(core, "sensor_warnings", None) or ():
+            if w in self._core_said:
+                continue
+            self._core_said.add(w)
+            self.metrics.warn(w)
+            what = "mounting looks wrong" if w.startswith("mounting") else "noise above preset"
+            self._text(4, f"IMU check: {what}")
 
     def _watch_errors(self) -> None:
         """Each input's and output's error text (a port that does not open, a lost link) reported once
@@ -322,6 +335,7 @@ class Gateway:
         self.problems: dict[str, str] = {}  # config path → error text not yet resolved (status view)
         self._reported: dict[str, str] = {}
         self._marks: dict[str, int] = {}  # an input's received count when its error was reported
+        self._core_said: set[str] = set()  # the core's start-up check warnings already said (_core_warnings)
         import logging
 
         self.log = logging.getLogger("ins_hil")
