@@ -4,6 +4,7 @@ TIMESYNC clock offset, message signing, corruption and fuzzing."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import os
 import random
@@ -19,6 +20,7 @@ from ins_hil.drivers.mavlink_in import ClockSync, MavlinkDriver, parse_url, sign
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
+from ins_hil.fuzz import bad_sample
 from ins_hil.sim.fc import SimFlightController
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
 
@@ -181,8 +183,61 @@ def test_feed_mutated_stream(data: st.DataObject) -> None:
     step = data.draw(st.integers(1, 64))
     for i in range(0, len(buf), step):
         drv.feed(bytes(buf[i : i + step]), now_ns=10**9)
+    _assert_true_or_on_the_wire(got, bytes(buf))
+
+
+def _wire_fixes(buf: bytes) -> list[Any]:
+    """Every HIL_GPS that a CRC-valid MAVLink 1 or 2 frame at any offset of ``buf`` decodes to (pymavlink's own
+    checksum and decoder, frame by frame): what a receiver may deliver from these bytes whatever was mutated."""
+    ref = mavlink.MAVLink(None)
+    out = []
+    for i, b in enumerate(buf):
+        if b == 0xFD and i + 3 <= len(buf):
+            n = 10 + buf[i + 1] + 2 + (13 if buf[i + 2] & 1 else 0)
+        elif b == 0xFE and i + 2 <= len(buf):
+            n = 6 + buf[i + 1] + 2
+        else:
+            continue
+        try:
+            m = ref.decode(bytearray(buf[i : i + n]))
+        except Exception:  # a bad CRC, length or header: no frame here
+            continue
+        if m.get_type() == "HIL_GPS":
+            out.append(m)
+    return out
+
+
+def _assert_true_or_on_the_wire(got: list, buf: bytes) -> None:
+    """Every accepted fix carries the true values of ``_stream``, or the values of a frame whose CRC-16 is valid in
+    the mutated bytes (a checksum collision: one in 65,536 candidate frames passes any CRC-16 check, so a receiver
+    cannot tell it from a real frame) and then lies within the physical ranges the validation enforces."""
+    wire = _wire_fixes(buf)
     for f in got:
-        assert math.degrees(f.lat) == pytest.approx(50.45) and f.vel_ned[2] == pytest.approx(0.2)
+        if math.degrees(f.lat) == pytest.approx(50.45) and f.vel_ned[2] == pytest.approx(0.2):
+            continue
+        same = [m for m in wire if m.lat * 1e-7 == pytest.approx(math.degrees(f.lat)) and m.vd * 0.01 == f.vel_ned[2]]
+        assert same, f"accepted fix {f} is neither the truth nor a CRC-valid frame in the bytes"
+        assert bad_sample(f) == "", (f, bad_sample(f))
+
+
+def test_mutated_stream_rule_accepts_a_crc_collision_and_nothing_else() -> None:
+    """The rule of test_feed_mutated_stream: a valid frame with other values inside the stream (what a CRC
+    collision of an insertion looks like: a HIL_GPS with vd −41.63 m/s) is accepted as what the wire said; a fix
+    whose values are nowhere on the wire is a driver error."""
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    buf = bytearray(_stream(mav, 4))
+    foreign = mav.hil_gps_encode(450_000, 3, 504500000, 305200000, 180000, 90, 130, 150, 100, -50, -4163, 0, 10, 0, 0)
+    frame = foreign.pack(mav)
+    buf[2 * len(frame) : 2 * len(frame)] = frame  # between the second and the third frame
+    drv = MavlinkDriver("udpin:127.0.0.1:0")
+    got: list = []
+    drv._sink = got.append
+    drv.feed(bytes(buf), now_ns=10**9)
+    assert sorted(f.vel_ned[2] for f in got)[0] == pytest.approx(-41.63)  # the old rule (vd = 0.2) fails here
+    _assert_true_or_on_the_wire(got, bytes(buf))
+    invented = dataclasses.replace(got[0], vel_ned=np.array((1.0, -0.5, 3.0)))
+    with pytest.raises(AssertionError, match="neither the truth nor"):
+        _assert_true_or_on_the_wire([invented], bytes(buf))
 
 
 def test_gnss_messages_bad_values_and_time() -> None:
