@@ -37,11 +37,18 @@ async def _listening(**drv_kw: Any) -> tuple[MavlinkDriver, list, asyncio.Task]:
     return drv, got, task
 
 
-async def _fly_then_stop(fc: SimFlightController, seconds: float, driver_task: asyncio.Task) -> None:
-    """Run the simulated FC for ``seconds``, stop it, give the driver 50 ms to read what is still in flight, stop
+async def _fly_then_stop(fc: SimFlightController, seconds: float, driver_task: asyncio.Task, until: Any = None) -> None:
+    """Run the simulated FC for ``seconds`` (with ``until``: until ``until()`` is true, ``seconds`` at most: a
+    count, not a time, on a busy machine), stop it, give the driver 50 ms to read what is still in flight, stop
     the driver."""
     ft = asyncio.create_task(fc.run())
-    await asyncio.sleep(seconds)
+    if until is None:
+        await asyncio.sleep(seconds)
+    else:
+        for _ in range(round(seconds / 0.05)):
+            if until():
+                break
+            await asyncio.sleep(0.05)
     ft.cancel()
     await asyncio.gather(ft, return_exceptions=True)
     await asyncio.sleep(0.05)
@@ -50,19 +57,31 @@ async def _fly_then_stop(fc: SimFlightController, seconds: float, driver_task: a
 
 
 async def _run_pair(
-    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None
+    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None, until: Any = None
 ) -> tuple[list, MavlinkDriver, SimFlightController]:
+    """A driver and a simulated FC for ``duration`` s, or with ``until(got, fc)`` until it is true (``duration`` at
+    most: the counts a test needs, however busy the machine)."""
     drv, got, task = await _listening(**(drv_kw or {}))
     fc = SimFlightController(target=drv.local_address, **(fc_kw or {}))
-    await _fly_then_stop(fc, duration, task)
+    await _fly_then_stop(fc, duration, task, None if until is None else lambda: until(got, fc))
     return got, drv, fc
+
+
+def _kinds(got: list) -> Counter:
+    return Counter(type(s).__name__ for s in got)
 
 
 @pytest.mark.slow
 def test_udp_against_simulated_fc() -> None:
     drv_kw = {"request": {"GPS_RAW_INT": 10.0}, "timesync_s": 0.4}
-    got, drv, fc = asyncio.run(_run_pair(2.0, drv_kw, {"imu_hz": 200.0, "gps_hz": 10.0}))
-    kinds = Counter(type(s).__name__ for s in got)
+    need = {"ImuSample": 300, "GnssFix": 15, "BaroSample": 15}
+
+    def enough(got: list, fc: SimFlightController) -> bool:  # about 2 s on an idle machine
+        k = _kinds(got)
+        return all(k[c] >= n for c, n in need.items()) and fc.timesync_answered >= 2
+
+    got, drv, fc = asyncio.run(_run_pair(60.0, drv_kw, {"imu_hz": 200.0, "gps_hz": 10.0}, until=enough))
+    kinds = _kinds(got)
     assert kinds["ImuSample"] >= 300 and kinds["GnssFix"] >= 15 and kinds["BaroSample"] >= 15
     assert kinds["MagSample"] == kinds["ImuSample"]
     assert drv.health.errors == {}
@@ -89,9 +108,13 @@ def test_udp_against_simulated_fc() -> None:
     np.testing.assert_allclose(mag.field_b, [19e-6, 1e-6, 45e-6], rtol=1e-6)
 
 
+def _imu_count(n: int) -> Any:
+    return lambda got, _: _kinds(got)["ImuSample"] >= n
+
+
 @pytest.mark.parametrize("imu_msg", ["SCALED_IMU", "RAW_IMU"])
 def test_scaled_imu_units(imu_msg: str) -> None:
-    got, drv, _ = asyncio.run(_run_pair(0.8, {}, {"imu_hz": 100.0, "imu_msg": imu_msg}))
+    got, drv, _ = asyncio.run(_run_pair(60.0, {}, {"imu_hz": 100.0, "imu_msg": imu_msg}, until=_imu_count(41)))
     imu = [s for s in got if isinstance(s, ImuSample)][1:]
     assert len(imu) >= 40 and drv.health.errors == {}
     for s in imu:
@@ -102,7 +125,9 @@ def test_scaled_imu_units(imu_msg: str) -> None:
 @pytest.mark.slow
 def test_signed_link() -> None:
     key = signing_key_from("ins-hil test key")
-    got, drv, _ = asyncio.run(_run_pair(1.0, {"signing_key": key}, {"signing_key": key, "imu_hz": 100.0}))
+    got, drv, _ = asyncio.run(
+        _run_pair(60.0, {"signing_key": key}, {"signing_key": key, "imu_hz": 100.0}, until=lambda g, _: len(g) > 50)
+    )
     assert len(got) > 50 and "bad_signature" not in drv.health.errors
     # an unsigned FC, and one with another key: nothing accepted, every message counted
     for fc_key in (None, signing_key_from("another key")):
@@ -127,7 +152,7 @@ def test_udp_corruption_counted_and_rejected() -> None:
         drv, got, task = await _listening()
         fc = SimFlightController(target=drv.local_address, imu_hz=250.0)
         fc.tamper = tamper
-        await _fly_then_stop(fc, 1.5, task)
+        await _fly_then_stop(fc, 60.0, task, until=lambda: tampered[0] > 5)  # about 1.5 s on an idle machine
         return got, drv, fc
 
     got, drv, fc = asyncio.run(main())
@@ -361,7 +386,7 @@ def test_udp_silence_reopens() -> None:
         drv = MavlinkDriver("udpout:127.0.0.1:9", stale_s=0.2)  # nobody answers there
         task = asyncio.create_task(drv.run(lambda s: None))
         t0 = time.monotonic()
-        while drv.health.errors.get("silence", 0) < 2 and time.monotonic() - t0 < 5:
+        while drv.health.errors.get("silence", 0) < 2 and time.monotonic() - t0 < 30:  # a hang guard only
             await asyncio.sleep(0.05)
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
@@ -467,7 +492,8 @@ def test_fc_reboot_is_followed_within_a_few_replies() -> None:
         await asyncio.gather(at, return_exceptions=True)
         n_before = len(got)
         b = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0, boot_offset_s=3.0)
-        await _fly_then_stop(b, 2.0, task)
+        # until 10 fixes came after the re-sync (about 2 s on an idle machine; 60 s only guards a hang)
+        await _fly_then_stop(b, 60.0, task, until=lambda: sum(isinstance(s, GnssFix) for s in got[n_before:]) >= 10)
         return got, drv, b, n_before
 
     got, drv, b, n_before = asyncio.run(main())
