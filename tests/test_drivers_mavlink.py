@@ -381,6 +381,32 @@ def test_serial_link_over_pty() -> None:
     assert np.all(np.diff([s.t for s in got]) == pytest.approx(0.1))
 
 
+def test_a_stop_during_the_teardown_of_a_lost_link_stops_the_driver() -> None:
+    """Cancelling run() while it waits for its heartbeat task to end (a link gone silent, being re-opened) stops
+    the driver: the cancel is not swallowed (it was, and test_udp_silence_reopens hung on a busy machine)."""
+
+    async def main() -> bool:
+        drv = MavlinkDriver("udpout:127.0.0.1:9", stale_s=0.1)  # nobody answers there: silence, re-open
+        tearing = asyncio.Event()
+
+        async def periodic() -> None:  # a heartbeat task that takes 0.2 s to end once cancelled
+            try:
+                await asyncio.sleep(3600)
+            except asyncio.CancelledError:
+                tearing.set()
+                await asyncio.sleep(0.2)
+                raise
+
+        drv._periodic = periodic  # type: ignore[method-assign]
+        task = asyncio.create_task(drv.run(lambda s: None))
+        await asyncio.wait_for(tearing.wait(), 30)  # run() now waits for the heartbeat task to end
+        task.cancel()
+        done, _ = await asyncio.wait([task], timeout=30)
+        return bool(done)
+
+    assert asyncio.run(main()), "the driver kept running after it was cancelled"
+
+
 def test_udp_silence_reopens() -> None:
     async def main() -> MavlinkDriver:
         drv = MavlinkDriver("udpout:127.0.0.1:9", stale_s=0.2)  # nobody answers there
