@@ -284,10 +284,10 @@ class CanImuDriver:
         finally:
             if status_task is not None:
                 status_task.cancel()
-                with contextlib.suppress(BaseException):
-                    await status_task
             if fd >= 0:
                 loop.remove_reader(fd)
             stop.set()
+            if status_task is not None:  # a cancel of run() itself during this wait propagates, never swallowed
+                await asyncio.wait([status_task])
             if thread is not None:
                 await loop.run_in_executor(None, thread.join, 1.0)

@@ -800,12 +800,13 @@ class MavlinkDriver:
                     self.health.last_error = lost.result()
             finally:
                 periodic.cancel()
-                with contextlib.suppress(BaseException):
-                    await periodic
                 self.health.connected = False
                 self._link = None
                 self.fc = None
                 link.close()
+                # until the heartbeat task has ended; a cancel of run() itself during this wait propagates
+                # (suppressing it here once swallowed the stop and kept the driver re-opening for ever)
+                await asyncio.wait([periodic])
             if self.health.samples > n0:
                 self._backoff.reset()
             await self._backoff.wait()

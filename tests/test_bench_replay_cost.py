@@ -6,10 +6,13 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
+
 from ins_hil.bench import replay_cost as rc
 from ins_hil.datasets import config as dcfg
 
 
+@pytest.mark.slow  # 7 s on a busy 2-core machine
 def test_replay_cost_rows_are_the_delayed_fusion(monkeypatch) -> None:
     rows = rc.replay_cost(seconds=30.0, imu_hz=100.0)
     assert [(r["gnss_hz"], r["vel_delay_s"]) for r in rows] == list(rc.CASES)

@@ -27,6 +27,7 @@ def test_a_gyro_bias_shows_in_the_free_ins() -> None:
     assert float(np.max(np.linalg.norm(biased.att, axis=1))) > 1e-4
 
 
+@pytest.mark.slow  # every example of the chapter in full: ~50 s on an idle core
 def test_ex33_bias_states_estimate_the_bias_and_help() -> None:
     f = ex.figures()
     assert f["EX33"]["log_end"] < -0.5

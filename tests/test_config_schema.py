@@ -362,6 +362,7 @@ N_FUZZ = int(os.environ.get("INS_HIL_FUZZ_EXAMPLES", "400"))
 FUZZ = settings(max_examples=N_FUZZ, deadline=None, suppress_health_check=[HealthCheck.too_slow], database=None)
 
 
+@pytest.mark.slow  # 9 s on a busy 2-core machine
 @FUZZ
 @given(mutated())
 def test_mutated_documents_start_or_give_one_line(d: dict[str, Any]) -> None:

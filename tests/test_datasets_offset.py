@@ -45,6 +45,7 @@ def test_offset_found_within_its_uncertainty(offset: float, seed: int) -> None:
     assert "ms ±" in est.summary()
 
 
+@pytest.mark.slow  # 12 s on a busy 2-core machine
 def test_offset_outside_the_search_is_said() -> None:
     est = estimate_imu_offset(_flight(0.2, 3, 100.0), _cfg(), span_s=0.06, step_s=0.03, settle_s=20.0)
     assert math.isnan(est.value) and "above" in est.reason and "widen" in est.summary()

@@ -4,6 +4,7 @@ TIMESYNC clock offset, message signing, corruption and fuzzing."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import os
 import random
@@ -19,6 +20,7 @@ from ins_hil.drivers.mavlink_in import ClockSync, MavlinkDriver, parse_url, sign
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from runtime_helpers import open_raw_pty, start_driver, wait_for_count
 
+from ins_hil.fuzz import bad_sample
 from ins_hil.geoid import undulation
 from ins_hil.sim.fc import SimFlightController
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
@@ -37,11 +39,18 @@ async def _listening(**drv_kw: Any) -> tuple[MavlinkDriver, list, asyncio.Task]:
     return drv, got, task
 
 
-async def _fly_then_stop(fc: SimFlightController, seconds: float, driver_task: asyncio.Task) -> None:
-    """Run the simulated FC for ``seconds``, stop it, give the driver 50 ms to read what is still in flight, stop
+async def _fly_then_stop(fc: SimFlightController, seconds: float, driver_task: asyncio.Task, until: Any = None) -> None:
+    """Run the simulated FC for ``seconds`` (with ``until``: until ``until()`` is true, ``seconds`` at most: a
+    count, not a time, on a busy machine), stop it, give the driver 50 ms to read what is still in flight, stop
     the driver."""
     ft = asyncio.create_task(fc.run())
-    await asyncio.sleep(seconds)
+    if until is None:
+        await asyncio.sleep(seconds)
+    else:
+        for _ in range(round(seconds / 0.05)):
+            if until():
+                break
+            await asyncio.sleep(0.05)
     ft.cancel()
     await asyncio.gather(ft, return_exceptions=True)
     await asyncio.sleep(0.05)
@@ -50,19 +59,31 @@ async def _fly_then_stop(fc: SimFlightController, seconds: float, driver_task: a
 
 
 async def _run_pair(
-    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None
+    duration: float, drv_kw: dict[str, Any] | None = None, fc_kw: dict[str, Any] | None = None, until: Any = None
 ) -> tuple[list, MavlinkDriver, SimFlightController]:
+    """A driver and a simulated FC for ``duration`` s, or with ``until(got, fc)`` until it is true (``duration`` at
+    most: the counts a test needs, however busy the machine)."""
     drv, got, task = await _listening(**(drv_kw or {}))
     fc = SimFlightController(target=drv.local_address, **(fc_kw or {}))
-    await _fly_then_stop(fc, duration, task)
+    await _fly_then_stop(fc, duration, task, None if until is None else lambda: until(got, fc))
     return got, drv, fc
+
+
+def _kinds(got: list) -> Counter:
+    return Counter(type(s).__name__ for s in got)
 
 
 @pytest.mark.slow
 def test_udp_against_simulated_fc() -> None:
     drv_kw = {"request": {"GPS_RAW_INT": 10.0}, "timesync_s": 0.4}
-    got, drv, fc = asyncio.run(_run_pair(2.0, drv_kw, {"imu_hz": 200.0, "gps_hz": 10.0}))
-    kinds = Counter(type(s).__name__ for s in got)
+    need = {"ImuSample": 300, "GnssFix": 15, "BaroSample": 15}
+
+    def enough(got: list, fc: SimFlightController) -> bool:  # about 2 s on an idle machine
+        k = _kinds(got)
+        return all(k[c] >= n for c, n in need.items()) and fc.timesync_answered >= 2
+
+    got, drv, fc = asyncio.run(_run_pair(60.0, drv_kw, {"imu_hz": 200.0, "gps_hz": 10.0}, until=enough))
+    kinds = _kinds(got)
     assert kinds["ImuSample"] >= 300 and kinds["GnssFix"] >= 15 and kinds["BaroSample"] >= 15
     assert kinds["MagSample"] == kinds["ImuSample"]
     assert drv.health.errors == {}
@@ -89,9 +110,13 @@ def test_udp_against_simulated_fc() -> None:
     np.testing.assert_allclose(mag.field_b, [19e-6, 1e-6, 45e-6], rtol=1e-6)
 
 
+def _imu_count(n: int) -> Any:
+    return lambda got, _: _kinds(got)["ImuSample"] >= n
+
+
 @pytest.mark.parametrize("imu_msg", ["SCALED_IMU", "RAW_IMU"])
 def test_scaled_imu_units(imu_msg: str) -> None:
-    got, drv, _ = asyncio.run(_run_pair(0.8, {}, {"imu_hz": 100.0, "imu_msg": imu_msg}))
+    got, drv, _ = asyncio.run(_run_pair(60.0, {}, {"imu_hz": 100.0, "imu_msg": imu_msg}, until=_imu_count(41)))
     imu = [s for s in got if isinstance(s, ImuSample)][1:]
     assert len(imu) >= 40 and drv.health.errors == {}
     for s in imu:
@@ -102,7 +127,9 @@ def test_scaled_imu_units(imu_msg: str) -> None:
 @pytest.mark.slow
 def test_signed_link() -> None:
     key = signing_key_from("ins-hil test key")
-    got, drv, _ = asyncio.run(_run_pair(1.0, {"signing_key": key}, {"signing_key": key, "imu_hz": 100.0}))
+    got, drv, _ = asyncio.run(
+        _run_pair(60.0, {"signing_key": key}, {"signing_key": key, "imu_hz": 100.0}, until=lambda g, _: len(g) > 50)
+    )
     assert len(got) > 50 and "bad_signature" not in drv.health.errors
     # an unsigned FC, and one with another key: nothing accepted, every message counted
     for fc_key in (None, signing_key_from("another key")):
@@ -127,7 +154,7 @@ def test_udp_corruption_counted_and_rejected() -> None:
         drv, got, task = await _listening()
         fc = SimFlightController(target=drv.local_address, imu_hz=250.0)
         fc.tamper = tamper
-        await _fly_then_stop(fc, 1.5, task)
+        await _fly_then_stop(fc, 60.0, task, until=lambda: tampered[0] > 5)  # about 1.5 s on an idle machine
         return got, drv, fc
 
     got, drv, fc = asyncio.run(main())
@@ -183,8 +210,61 @@ def test_feed_mutated_stream(data: st.DataObject) -> None:
     step = data.draw(st.integers(1, 64))
     for i in range(0, len(buf), step):
         drv.feed(bytes(buf[i : i + step]), now_ns=10**9)
+    _assert_true_or_on_the_wire(got, bytes(buf))
+
+
+def _wire_fixes(buf: bytes) -> list[Any]:
+    """Every HIL_GPS that a CRC-valid MAVLink 1 or 2 frame at any offset of ``buf`` decodes to (pymavlink's own
+    checksum and decoder, frame by frame): what a receiver may deliver from these bytes whatever was mutated."""
+    ref = mavlink.MAVLink(None)
+    out = []
+    for i, b in enumerate(buf):
+        if b == 0xFD and i + 3 <= len(buf):
+            n = 10 + buf[i + 1] + 2 + (13 if buf[i + 2] & 1 else 0)
+        elif b == 0xFE and i + 2 <= len(buf):
+            n = 6 + buf[i + 1] + 2
+        else:
+            continue
+        try:
+            m = ref.decode(bytearray(buf[i : i + n]))
+        except Exception:  # a bad CRC, length or header: no frame here
+            continue
+        if m.get_type() == "HIL_GPS":
+            out.append(m)
+    return out
+
+
+def _assert_true_or_on_the_wire(got: list, buf: bytes) -> None:
+    """Every accepted fix carries the true values of ``_stream``, or the values of a frame whose CRC-16 is valid in
+    the mutated bytes (a checksum collision: one in 65,536 candidate frames passes any CRC-16 check, so a receiver
+    cannot tell it from a real frame) and then lies within the physical ranges the validation enforces."""
+    wire = _wire_fixes(buf)
     for f in got:
-        assert math.degrees(f.lat) == pytest.approx(50.45) and f.vel_ned[2] == pytest.approx(0.2)
+        if math.degrees(f.lat) == pytest.approx(50.45) and f.vel_ned[2] == pytest.approx(0.2):
+            continue
+        same = [m for m in wire if m.lat * 1e-7 == pytest.approx(math.degrees(f.lat)) and m.vd * 0.01 == f.vel_ned[2]]
+        assert same, f"accepted fix {f} is neither the truth nor a CRC-valid frame in the bytes"
+        assert bad_sample(f) == "", (f, bad_sample(f))
+
+
+def test_mutated_stream_rule_accepts_a_crc_collision_and_nothing_else() -> None:
+    """The rule of test_feed_mutated_stream: a valid frame with other values inside the stream (what a CRC
+    collision of an insertion looks like: a HIL_GPS with vd −41.63 m/s) is accepted as what the wire said; a fix
+    whose values are nowhere on the wire is a driver error."""
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    buf = bytearray(_stream(mav, 4))
+    foreign = mav.hil_gps_encode(450_000, 3, 504500000, 305200000, 180000, 90, 130, 150, 100, -50, -4163, 0, 10, 0, 0)
+    frame = foreign.pack(mav)
+    buf[2 * len(frame) : 2 * len(frame)] = frame  # between the second and the third frame
+    drv = MavlinkDriver("udpin:127.0.0.1:0")
+    got: list = []
+    drv._sink = got.append
+    drv.feed(bytes(buf), now_ns=10**9)
+    assert sorted(f.vel_ned[2] for f in got)[0] == pytest.approx(-41.63)  # the old rule (vd = 0.2) fails here
+    _assert_true_or_on_the_wire(got, bytes(buf))
+    invented = dataclasses.replace(got[0], vel_ned=np.array((1.0, -0.5, 3.0)))
+    with pytest.raises(AssertionError, match="neither the truth nor"):
+        _assert_true_or_on_the_wire([invented], bytes(buf))
 
 
 def test_gnss_messages_bad_values_and_time() -> None:
@@ -304,12 +384,38 @@ def test_serial_link_over_pty() -> None:
     assert np.all(np.diff([s.t for s in got]) == pytest.approx(0.1))
 
 
+def test_a_stop_during_the_teardown_of_a_lost_link_stops_the_driver() -> None:
+    """Cancelling run() while it waits for its heartbeat task to end (a link gone silent, being re-opened) stops
+    the driver: the cancel is not swallowed (it was, and test_udp_silence_reopens hung on a busy machine)."""
+
+    async def main() -> bool:
+        drv = MavlinkDriver("udpout:127.0.0.1:9", stale_s=0.1)  # nobody answers there: silence, re-open
+        tearing = asyncio.Event()
+
+        async def periodic() -> None:  # a heartbeat task that takes 0.2 s to end once cancelled
+            try:
+                await asyncio.sleep(3600)
+            except asyncio.CancelledError:
+                tearing.set()
+                await asyncio.sleep(0.2)
+                raise
+
+        drv._periodic = periodic  # type: ignore[method-assign]
+        task = asyncio.create_task(drv.run(lambda s: None))
+        await asyncio.wait_for(tearing.wait(), 30)  # run() now waits for the heartbeat task to end
+        task.cancel()
+        done, _ = await asyncio.wait([task], timeout=30)
+        return bool(done)
+
+    assert asyncio.run(main()), "the driver kept running after it was cancelled"
+
+
 def test_udp_silence_reopens() -> None:
     async def main() -> MavlinkDriver:
         drv = MavlinkDriver("udpout:127.0.0.1:9", stale_s=0.2)  # nobody answers there
         task = asyncio.create_task(drv.run(lambda s: None))
         t0 = time.monotonic()
-        while drv.health.errors.get("silence", 0) < 2 and time.monotonic() - t0 < 5:
+        while drv.health.errors.get("silence", 0) < 2 and time.monotonic() - t0 < 30:  # a hang guard only
             await asyncio.sleep(0.05)
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
@@ -415,7 +521,8 @@ def test_fc_reboot_is_followed_within_a_few_replies() -> None:
         await asyncio.gather(at, return_exceptions=True)
         n_before = len(got)
         b = SimFlightController(target=drv.local_address, imu_hz=50.0, gps_hz=10.0, boot_offset_s=3.0)
-        await _fly_then_stop(b, 2.0, task)
+        # until 10 fixes came after the re-sync (about 2 s on an idle machine; 60 s only guards a hang)
+        await _fly_then_stop(b, 60.0, task, until=lambda: sum(isinstance(s, GnssFix) for s in got[n_before:]) >= 10)
         return got, drv, b, n_before
 
     got, drv, b, n_before = asyncio.run(main())

@@ -338,6 +338,7 @@ def test_variant_table_shows_each_outage_for_one_protocol() -> None:
         assert "each outage" not in t and "Each outage" not in t
 
 
+@pytest.mark.slow  # 6 s on a busy 2-core machine
 def test_variants_command_puts_them_side_by_side(tmp_path: Path, capsys) -> None:
     from ins_hil.cli import main
 

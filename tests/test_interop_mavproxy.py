@@ -34,6 +34,17 @@ def _mavproxy() -> list[str]:
     return [sys.executable, exe]
 
 
+def _wait_bound(port: int, timeout: float = 60.0) -> None:
+    """Until a UDP socket is bound to ``port`` (Linux /proc/net/udp: no probe that could take the port from
+    MAVProxy), ``timeout`` s at most."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        lines = Path("/proc/net/udp").read_text().splitlines()[1:]
+        if any(int(ln.split()[1].split(":")[1], 16) == port for ln in lines):
+            return
+        time.sleep(0.1)
+
+
 def test_mavproxy_receives_our_vehicle(tmp_path: Path) -> None:
     port = free_port()
     tlog = tmp_path / "gcs.tlog"
@@ -55,14 +66,31 @@ def test_mavproxy_receives_our_vehicle(tmp_path: Path) -> None:
         text=True,
     )
     try:
-        time.sleep(1.5)  # MAVProxy binds its UDP port
+        _wait_bound(port)  # MAVProxy binds its UDP port (seconds on a busy machine)
         cfg = sim_config(
             sim={"imu_errors": "none"},
             outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{port}", "role": "gcs", "sysid": SYSID}],
             recorder={"enabled": False},
         )
         gw = sim_gateway(cfg)
-        asyncio.run(gw.run(duration=7.0, signals=False))
+
+        async def run() -> None:  # until what the checks below need was sent and heard (about 7 s idle)
+            task = asyncio.create_task(gw.run(duration=None, signals=False))
+            for _ in range(1200):
+                await asyncio.sleep(0.1)
+                ep = gw.mav_outputs[0] if gw.mav_outputs else None
+                if task.done() or (
+                    ep is not None
+                    and ep.sent.get("HEARTBEAT", 0) >= 6
+                    and ep.sent.get("ATTITUDE", 0) > 200
+                    and ep.sent.get("GLOBAL_POSITION_INT", 0) > 40
+                    and ep.rx_messages.get("HEARTBEAT", 0) > 0
+                ):
+                    break
+            gw.request_stop("test")
+            await task
+
+        asyncio.run(run())
         time.sleep(0.5)
     finally:
         mp.terminate()

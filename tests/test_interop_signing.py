@@ -74,7 +74,10 @@ def test_signed_links(tmp_path: Path) -> None:
     async def scenario() -> None:
         nonlocal rejected_by_peer
         task = asyncio.create_task(gw.run(duration=None, signals=False))
-        await asyncio.sleep(2.5)
+        for _ in range(1200):  # until the signed simulator got through (about 2.5 s idle; 120 s guards a hang)
+            await asyncio.sleep(0.1)
+            if gw.metrics.source("gnss").received > 10 and gw.drivers and gw.drivers[0].local_address:
+                break
         drv = gw.drivers[0]
         port = drv.local_address[1]
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -87,8 +90,10 @@ def test_signed_links(tmp_path: Path) -> None:
         # the peer: verify what we send, answer with unsigned / wrongly signed / signed heartbeats
         good, gb = _mav(KEY, 250)
         our_addr = None
-        for _ in range(40):
+        for _ in range(1200):  # until enough of our output was verified (about 2 s idle; 60 s guards a hang)
             await asyncio.sleep(0.05)
+            if got.get("HEARTBEAT", 0) >= 1 and got.get("ATTITUDE", 0) > 20 and verifier.signing.goodsig_count > 50:
+                break
             while True:
                 try:
                     data, our_addr = peer.recvfrom(65536)

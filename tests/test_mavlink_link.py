@@ -123,7 +123,7 @@ def test_signing_lives_in_the_link_layer() -> None:
 
 
 # ------------------------------------------------------------------ real sockets
-async def _until(cond: Any, timeout: float = 5.0) -> None:
+async def _until(cond: Any, timeout: float = 30.0) -> None:  # a hang guard: a busy machine may take seconds
     loop = asyncio.get_running_loop()
     end = loop.time() + timeout
     while not cond():

@@ -108,10 +108,11 @@ def test_missing_imu_and_output_are_reported_once_and_the_run_fails(tmp_path: Pa
         ],
     )
     rec = tmp_path / "run.ihlog"
-    r, wall = ins_hil_run(cfg, "--duration", "40", "--record", str(rec))
+    r, _ = ins_hil_run(cfg, "--duration", "40", "--record", str(rec))
     err = r.stderr
     assert r.returncode == 3, err
-    assert wall < 30, wall  # stopped at the input timeout, not at --duration
+    # stopped at the input timeout, not at --duration (the reason, not the wall time: a busy machine is slow)
+    assert sum("summary (stopped: no data from 1 input(s) within 3 s)" in ln for ln in err.splitlines()) == 1, err
     lines = err.splitlines()
     # the driver's own error text, with the input's config path, exactly once (not on every re-open)
     imu_err = [ln for ln in lines if f"inputs[0] (imu0): open {MISSING_IMU}" in ln]

@@ -28,14 +28,31 @@ REPO = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def live_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """One 5 s live run at 1 kHz with every state kept."""
+    """One live run at 1 kHz with every state kept, until the counts the tests need (about 5 s on an idle machine;
+    a count, not a time, so a busy machine runs longer instead of failing; 120 s guards a hang)."""
     tmp = tmp_path_factory.mktemp("live")
     port = free_port()  # nobody listens: the endpoint sends anyway and counts what the socket refuses
     cfg = sim_config(sim={"imu_errors": "none"}, outputs=[{"name": "gcs", "url": f"udpout:127.0.0.1:{port}"}])
     gw = sim_gateway(cfg, record_path=tmp / "live.ihlog")
     states: list[NavState] = []
     gw.on_state.append(states.append)
-    asyncio.run(gw.run(duration=5.0, signals=False))
+
+    async def run() -> None:
+        task = asyncio.create_task(gw.run(duration=None, signals=False))
+        for _ in range(1200):
+            await asyncio.sleep(0.1)
+            c = gw.pipeline.counts
+            if (
+                gw.metrics.source("imu0").received > 4000
+                and gw.metrics.source("gnss").received > 20
+                and c.get("fused_GnssFix", 0) > 15
+                and c.get("fused_BaroSample", 0) > 80
+            ) or task.done():
+                break
+        gw.request_stop("test")
+        await task
+
+    asyncio.run(run())
     return {"gw": gw, "states": states, "log": tmp / "live.ihlog", "cfg": cfg}
 
 
@@ -43,8 +60,8 @@ def test_live_run_consumes_every_input_and_counts(live_run: dict) -> None:
     gw, states = live_run["gw"], live_run["states"]
     snap = gw.metrics.snapshot()
     imu = snap["sources"]["imu0"]
-    # 5 s at 1 kHz: every received sample was consumed (nothing dropped in the queue)
-    assert imu["received"] > 3000
+    # at 1 kHz: every received sample was consumed (nothing dropped in the queue)
+    assert imu["received"] > 4000
     assert "queue_full" not in imu["dropped"]
     n_imu_records = sum(isinstance(r, ImuSample) for r in read_records(live_run["log"]))
     assert n_imu_records == imu["received"]
@@ -55,10 +72,15 @@ def test_live_run_consumes_every_input_and_counts(live_run: dict) -> None:
     assert snap["fused"]["fused_GnssFix"] > 15 and snap["fused"]["fused_BaroSample"] > 80
     lat = snap["latency"]["arrival_to_state"]
     assert 0 < lat["min_us"] <= lat["p50_us"] <= lat["p99_us"] <= lat["max_us"]
-    # sensor time strictly increasing at the IMU rate
+    # sensor time strictly increasing at the IMU rate; a step of more than one period only where frames never
+    # arrived (the simulator drops whole frames when its pty is not read for ~100 ms: a busy machine), counted
     t = np.array([s.t for s in states])
-    assert np.all(np.diff(t) > 0)
-    assert np.allclose(np.diff(t), 1e-3, atol=1e-9)
+    steps = np.diff(t) / 1e-3
+    assert np.all(steps > 0)
+    assert np.allclose(steps, np.round(steps), atol=1e-6)
+    (drv,) = [d for d in gw.drivers if d.name == "imu0"]
+    lost = int(np.sum(np.round(steps) - 1))
+    assert lost <= drv.health.errors.get("seq_gap", 0), (lost, drv.health.errors)
 
 
 def test_replay_reproduces_online_states_bit_for_bit(live_run: dict) -> None:

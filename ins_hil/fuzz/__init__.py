@@ -1,4 +1,4 @@
-"""Fuzz campaign engine: structure-aware mutational inputs per target, within a time budget.
+"""Fuzz campaign engine: structure-aware mutational inputs per target, within a time or an input budget.
 
 A :class:`Target` is one entry of :data:`ins_hil.fuzz.targets.TARGETS`: a name and a ``setup(rng)``
 that returns a ``step()``; each call of ``step()`` makes one or more inputs, feeds them to the
@@ -216,17 +216,23 @@ def _where(e: BaseException) -> str:
     return f"{fr.filename.rsplit('/', 2)[-1] if '/' in fr.filename else fr.filename}:{fr.lineno}"
 
 
-def run_target(t: Target, seconds: float, seed: int = 0, nav_share: float = 0.3) -> TargetResult:
-    """Fuzz one target for ``seconds`` (wall clock); ``nav_share``: at most this part of it in the pipeline.
+def run_target(
+    t: Target, seconds: float | None, seed: int = 0, nav_share: float = 0.3, inputs: int | None = None
+) -> TargetResult:
+    """Fuzz one target for ``seconds`` (wall clock) or until ``inputs`` inputs (a count: the same inputs on any
+    machine and under any load), whichever comes first; ``nav_share``: at most this part of the time in the
+    pipeline.
 
     Overflow warnings of junk values (numpy, Python) are silenced: what they lead to is counted.
     """
+    if seconds is None and inputs is None:
+        raise ValueError("run_target: give a time budget (seconds) or an input budget (inputs)")
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
-        return _run_target(t, seconds, seed, nav_share)
+        return _run_target(t, seconds, seed, nav_share, inputs)
 
 
-def _run_target(t: Target, seconds: float, seed: int, nav_share: float) -> TargetResult:
+def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, inputs: int | None) -> TargetResult:
     rng = random.Random(seed)
     res = TargetResult(t.name, t.what, decoder=t.decoder)
     step = t.setup(rng)
@@ -239,10 +245,11 @@ def _run_target(t: Target, seconds: float, seed: int, nav_share: float) -> Targe
         NavCheck()  # imports and first-build costs outside the measured share
     mono = time.perf_counter
     t0 = mono()
-    end = t0 + seconds
+    end = math.inf if seconds is None else t0 + seconds
+    most = math.inf if inputs is None else inputs
     nav_s = 0.0
     now = t0
-    while now < end:
+    while now < end and res.inputs < most:
         try:
             n, out = step()
         except Exception as e:
