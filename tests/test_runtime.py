@@ -239,7 +239,7 @@ def test_status_view_renders_the_live_figures(live_run: dict) -> None:
         con = Console(width=160, record=True, file=devnull)
         con.print(render(live_run["gw"]))
     text = con.export_text()
-    for word in ("imu0", "gnss", "arrival to state", "state to sent", "gcs", "align", "test ratios", "FDI"):
+    for word in ("imu0", "gnss", "arrival→state", "state→sent", "gcs", "align", "test ratios", "FDI"):
         assert word in text, word
     line = _summary_line(live_run["gw"])
     assert "imu0" in line and "arrival→sent" in line
