@@ -35,6 +35,10 @@ def _record(path: Path, seconds: float, sim: bool = True) -> None:
 
 @pytest.mark.slow
 def test_ihlog_of_a_simulated_run_is_scored_against_the_truth(tmp_path: Path, capsys):
+    from ins_hil.datasets import ihlog
+    from ins_hil.evaluation.sim_flight import sim_truth
+
+    ihlog.set_truth_source(sim_truth)  # what `ins-hil replay` installs (a library caller installs it itself)
     log = tmp_path / "sim.ihlog"
     _record(log, 20.0)
     assert detect_format(log) == "ihlog"
