@@ -97,6 +97,8 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
               "whatif_baro": list, "whatif_baro_datum_m": (int, float), "targets": dict, "upstream": dict},
 }  # fmt: skip
 RELATIVE_TO = ("takeoff", "start", "first_gnss")
+#: the most outage windows a protocol may open on one log
+MAX_WINDOWS = 10_000
 
 
 class DatasetConfigError(ValueError):
@@ -118,12 +120,16 @@ class OutageProtocol:
 
     def windows(self, t_ref: float, t_end: float) -> list[tuple[float, float]]:
         """The outage windows (absolute s) that end at least ``tail_s`` before ``t_end``."""
-        out = []
+        out: list[tuple[float, float]] = []
         a = t_ref + self.start_s
         stop = t_end - self.tail_s if self.end_s is None else min(t_end - self.tail_s, t_ref + self.end_s)
+        step = self.on_s + self.off_s
         while a + self.on_s <= stop:
+            if not (a < a + self.on_s and a < a + step) or len(out) >= MAX_WINDOWS:  # every loop advances
+                raise ValueError(f"outages: on_s = {self.on_s:g} s, off_s = {self.off_s:g} s from {a:g} s to "
+                                 f"{stop:g} s: more than {MAX_WINDOWS} windows or a step lost in the times' rounding")  # fmt: skip
             out.append((a, a + self.on_s))
-            a += self.on_s + self.off_s
+            a += step
         return out
 
 
