@@ -126,8 +126,10 @@ class OutageProtocol:
         step = self.on_s + self.off_s
         while a + self.on_s <= stop:
             if not (a < a + self.on_s and a < a + step) or len(out) >= MAX_WINDOWS:  # every loop advances
-                raise ValueError(f"outages: on_s = {self.on_s:g} s, off_s = {self.off_s:g} s from {a:g} s to "
-                                 f"{stop:g} s: more than {MAX_WINDOWS} windows or a step lost in the times' rounding")  # fmt: skip
+                raise ValueError(
+                    f"outages: on_s = {self.on_s:g} s, off_s = {self.off_s:g} s from {a:g} s to {stop:g} s: "
+                    f"more than {MAX_WINDOWS} windows or a step lost in the times' rounding"
+                )
             out.append((a, a + self.on_s))
             a += step
         return out
