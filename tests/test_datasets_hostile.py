@@ -212,3 +212,24 @@ def test_an_unforeseen_reader_failure_is_one_line_naming_the_file(tmp_path: Path
         read_dataset(p)
     _one_line_naming(e, p)
     assert np.isfinite(1.0)
+
+
+#: four float splices into the first 120 kB of the shipped hover.ulg (found by the reader_px4_ulog fuzz target):
+#: pyulog's resync then seeks back for ever in its definitions section
+STUCK_ULOG = [(6364, b"\x00\x00\x00\x80"), (23348, b"\x00\x00\x00?"), (33104, b"\x00\x00\x00\x80"),
+              (105936, b"\xea\x8c\xa09Y>)F")]  # fmt: skip
+
+
+def test_a_ulog_pyulog_never_finishes_is_refused(tmp_path: Path, shared_dir: Path):
+    import subprocess
+    import sys
+
+    b = bytearray((shared_dir / "data/uav/px4_hover_92s/hover.ulg").read_bytes()[:120_000])
+    for off, v in STUCK_ULOG:
+        b[off : off + len(v)] = v
+    p = tmp_path / "stuck.ulg"
+    p.write_bytes(bytes(b))
+    code = "import sys; from ins_hil.datasets.dataset import read_dataset; read_dataset(sys.argv[1])"
+    r = subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True, timeout=600)  # hang guard
+    assert r.returncode == 1 and "DatasetError" in r.stderr
+    assert f"{p}: cannot parse as ULog (the parser does not advance in a damaged part)" in r.stderr

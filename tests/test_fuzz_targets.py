@@ -92,7 +92,8 @@ def test_nan_state_and_stall_are_counted() -> None:
 @pytest.mark.parametrize("target", TARGETS, ids=[t.name for t in TARGETS])
 def test_every_target_runs_and_reaches_past_the_checksums(target: Target) -> None:
     r = run_target(target, 1.0, seed=3)
-    assert r.inputs > 50
+    # a dataset reader parses a whole (small) log per input: pyulog and DFReader resync a damaged one byte by byte
+    assert r.inputs > (3 if target.name.startswith("reader_") else 50)
     if target.decoder:
         assert r.accepted > 0  # structure-aware: valid and mutated-but-checksummed inputs get through
     if target.name == "recorder_reader":

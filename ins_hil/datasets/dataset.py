@@ -8,9 +8,11 @@ ArduPilot). IMU samples are increments over the interval stamped at the interval
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -269,6 +271,34 @@ def reader_for(path: Path, fmt: str | None) -> str | None:
                        f"(a config for {other}, or one without a format, reads it)")  # fmt: skip
 
 
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """pyulog and pymavlink print what they skip of a damaged file, a line per byte (Python prints and C writes
+    on stdout and stderr): sent to /dev/null while a reader runs, file descriptors 1 and 2 included."""
+    import sys
+
+    saved: list[tuple[int, int]] = []
+    with open(os.devnull, "w") as null, contextlib.redirect_stdout(null), contextlib.redirect_stderr(null):
+        try:
+            for fd in (1, 2):
+                try:
+                    saved.append((fd, os.dup(fd)))
+                    os.dup2(null.fileno(), fd)
+                except OSError:
+                    pass
+            yield
+        finally:
+            for stream in (sys.__stdout__, sys.__stderr__):
+                if stream is not None:
+                    try:
+                        stream.flush()
+                    except (OSError, ValueError):
+                        pass
+            for fd, copy in saved:
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
 def _short(e: BaseException) -> str:
     """An exception's text on one short line."""
     t = " ".join(str(e).split())
@@ -288,7 +318,8 @@ def read_dataset(path: Path, fmt: str | None = None, cfg: Any = None) -> Dataset
         raise DatasetError(f"{path}: no such file or directory")
     r = READERS[fmt]
     try:
-        ds = r.read(path, cfg) if r.configured else r.read(path)
+        with _quiet():
+            ds = r.read(path, cfg) if r.configured else r.read(path)
     except DatasetError:
         raise
     except OSError as e:

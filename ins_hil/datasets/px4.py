@@ -33,6 +33,7 @@ In a ``ulog2csv`` folder a topic's file is found by the topic name inside the fi
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from pathlib import Path
@@ -433,6 +434,29 @@ def _is_ulog(path: Path) -> bool:
         return f.read(7) == ULOG_MAGIC
 
 
+class _Stuck(RuntimeError):
+    """pyulog read a damaged file far longer than its size allows (its resync can seek back for ever)."""
+
+
+class _Bounded(io.BufferedReader):
+    """The file handle given to pyulog: at most ``READS_PER_BYTE`` reads per byte of the file (its resync over a
+    damaged stretch reads one or two a byte), then :class:`_Stuck`, which pyulog does not catch."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(io.FileIO(str(path), "rb"))
+        self.budget = READS_PER_BYTE * path.stat().st_size + 10_000
+
+    def read(self, n: int | None = -1, /) -> bytes:
+        self.budget -= 1
+        if self.budget < 0:
+            raise _Stuck("the parser does not advance in a damaged part")
+        return super().read(n)
+
+
+#: reads per byte of a ULog file before pyulog's parse is given up as stuck
+READS_PER_BYTE = 3
+
+
 def read_ulog(path: Path) -> Dataset:
     """Read a PX4 ``.ulg`` with pyulog (instance 0 of each topic)."""
     from pyulog import ULog
@@ -440,9 +464,10 @@ def read_ulog(path: Path) -> Dataset:
     if not _is_ulog(path):
         raise DatasetError(f"{path}: not a PX4 ULog file (expected the 'ULog' header)")
     try:
-        u = ULog(str(path), list(TOPICS))
+        with _Bounded(path) as f:
+            u = ULog(f, list(TOPICS))
     except Exception as e:  # pyulog raises plain Exceptions on corrupt files
-        raise DatasetError(f"{path}: cannot parse as ULog ({e})") from None
+        raise DatasetError(f"{path}: cannot parse as ULog ({' '.join(str(e).split())[:160]})") from None
     topics: dict[str, Topic] = {}
     imus: list[Topic] = []
     for d in sorted(u.data_list, key=lambda d: d.multi_id):
