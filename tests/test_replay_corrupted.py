@@ -15,7 +15,7 @@ import pytest
 from ins_hil.cli import main
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_datasets_replay import GOOD, _static_csv  # noqa: E402
+from test_datasets_replay import GOOD, _static_csv
 
 CAP = 1 << 30  # bytes of address space
 RUN = """
