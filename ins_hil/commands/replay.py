@@ -430,15 +430,33 @@ def _replay_dataset(src: str, args: argparse.Namespace) -> int:
 
     ihlog.set_truth_source(sim_truth)  # a simulated gateway log is scored against its regenerated truth
 
+    from ins_hil.datasets.run import ReplayError
+
     source = None if (args.dataset is not None and src == "drive") else Path(src)
     try:
         _, text = report.replay_to_dir(source, args.dataset, args.out, not args.no_plots,
                                        lambda label: _Progress(label, args.quiet))  # fmt: skip
+    except ReplayError as e:  # read, but no figures: non-finite states, a numerical failure, no valid IMU data
+        print(f"ins-hil replay: {_one_line(e)}", file=sys.stderr)
+        return 1
     except (DatasetError, ValueError) as e:
-        print(f"ins-hil replay: {e}", file=sys.stderr)
+        print(f"ins-hil replay: {_one_line(e)}", file=sys.stderr)
         return 2
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as e:  # still one line naming the recording (INS_HIL_DEBUG=1 / --debug: the traceback)
+        if getattr(args, "debug", False) or os.environ.get("INS_HIL_DEBUG", "") not in ("", "0"):
+            raise
+        what = source if source is not None else args.dataset
+        print(f"ins-hil replay: {what}: the replay failed ({type(e).__name__}: {_one_line(e)})", file=sys.stderr)
+        return 1
     print(text)
     return 0
+
+
+def _one_line(e: BaseException) -> str:
+    t = " ".join(str(e).split()) or type(e).__name__
+    return t if len(t) <= 300 else t[:297] + "..."
 
 
 def _print_drive(res: dict[str, Any]) -> None:

@@ -97,6 +97,8 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
               "whatif_baro": list, "whatif_baro_datum_m": (int, float), "targets": dict, "upstream": dict},
 }  # fmt: skip
 RELATIVE_TO = ("takeoff", "start", "first_gnss")
+#: the most outage windows a protocol may open on one log
+MAX_WINDOWS = 10_000
 
 
 class DatasetConfigError(ValueError):
@@ -118,12 +120,18 @@ class OutageProtocol:
 
     def windows(self, t_ref: float, t_end: float) -> list[tuple[float, float]]:
         """The outage windows (absolute s) that end at least ``tail_s`` before ``t_end``."""
-        out = []
+        out: list[tuple[float, float]] = []
         a = t_ref + self.start_s
         stop = t_end - self.tail_s if self.end_s is None else min(t_end - self.tail_s, t_ref + self.end_s)
+        step = self.on_s + self.off_s
         while a + self.on_s <= stop:
+            if not (a < a + self.on_s and a < a + step) or len(out) >= MAX_WINDOWS:  # every loop advances
+                raise ValueError(
+                    f"outages: on_s = {self.on_s:g} s, off_s = {self.off_s:g} s from {a:g} s to {stop:g} s: "
+                    f"more than {MAX_WINDOWS} windows or a step lost in the times' rounding"
+                )
             out.append((a, a + self.on_s))
-            a += self.on_s + self.off_s
+            a += step
         return out
 
 
@@ -201,6 +209,126 @@ def _vec3(where: str, v: Any, source: str) -> Vec:
     return np.array(v, dtype=np.float64)
 
 
+#: the ranges of the numbers of the tables the dataset config defines itself ((table, key): (lo, hi), inclusive;
+#: the ``[sensor]`` and ``[nav.*]`` keys are checked by the gateway's schema, ``ins_hil.config_schema``)
+RANGES: dict[tuple[str, str], tuple[float, float]] = {
+    ("mounting", "imu_time_offset_s"): (-3600.0, 3600.0),
+    ("mounting", "gnss_time_offset_s"): (-3600.0, 3600.0),
+    ("aiding", "declination_deg"): (-180.0, 180.0),
+    ("aiding", "hold_std_m"): (1e-3, 1e4),
+    ("aiding", "hold_vel_std_mps"): (0.0, 100.0),
+    ("aiding", "hold_rate_hz"): (1e-3, 1000.0),
+    ("outages", "start_s"): (-1e6, 1e6),
+    ("outages", "end_s"): (-1e6, 1e6),
+    ("outages", "on_s"): (0.01, 1e6),
+    ("outages", "off_s"): (0.0, 1e6),
+    ("outages", "tail_s"): (0.0, 1e6),
+    ("score", "settle_s"): (0.0, 1e6),
+    ("score", "min_fix_type"): (0, 6),
+    ("rtklib", "time_calib_s"): (1e-3, 1e6),
+    ("rtklib", "accel_lag_s"): (-1.0, 1.0),
+    ("rtklib", "max_q"): (1, 6),
+    ("study", "startup_restart_s"): (-1e6, 1e6),
+    ("study", "startup_score_until_s"): (-1e6, 1e6),
+    ("study", "whatif_baro_datum_m"): (-1e4, 1e4),
+}
+#: vectors: (table, key): the largest magnitude of a component
+VECTOR_MAX = {("mounting", "imu_to_body_deg"): 360.0, ("mounting", "gnss_lever_arm_m"): 100.0,
+              ("mounting", "reference_lever_arm_m"): 100.0, ("aiding", "mag_reference"): 1000.0}  # fmt: skip
+#: the most rotations ``mounting.imu_to_body_deg`` may chain
+MAX_ROTATIONS = 16
+
+
+def _nonfinite(d: Any, where: str) -> str | None:
+    """The dotted key of the first NaN / ±inf number in a TOML tree, None if none."""
+    if isinstance(d, float) and not math.isfinite(d):
+        return where
+    if isinstance(d, dict):
+        for k, v in d.items():
+            bad = _nonfinite(v, f"{where}.{k}" if where else str(k))
+            if bad:
+                return bad
+    if isinstance(d, list):
+        for i, v in enumerate(d):
+            bad = _nonfinite(v, f"{where}[{i}]")
+            if bad:
+                return bad
+    return None
+
+
+def _get(tree: dict[str, Any], where: str) -> Any:
+    """The value at a dotted key with list indices (``mounting.imu_to_body_deg[1][0]``), for the message."""
+    import re
+
+    v: Any = tree
+    for part in re.findall(r"[^.\[\]]+|\[\d+\]", where):
+        v = v[int(part[1:-1])] if part.startswith("[") else v[part]
+    return v
+
+
+def check_values(d: dict[str, Any], source: str) -> None:
+    """DatasetConfigError (one line: the file, the key, its value and what is allowed) for a number that is not
+    finite or out of its range, a string with a NUL, or a ``[sensor]`` / ``[nav.*]`` key the gateway's schema
+    (``ins_hil.config_schema``, the ``[core.nav]`` tables) refuses. The types are checked by :func:`from_dict`."""
+    bad = _nonfinite(d, "")
+    if bad:
+        raise DatasetConfigError(f"{source}: {bad} = {_get(d, bad)!r}: expected a finite number")
+    for (tab, key), (lo, hi) in RANGES.items():
+        v = d.get(tab, {}).get(key) if isinstance(d.get(tab), dict) else None
+        if isinstance(v, int | float) and not isinstance(v, bool) and not lo <= v <= hi:
+            kind = "an integer" if isinstance(lo, int) else "a number"
+            raise DatasetConfigError(f"{source}: {tab}.{key} = {v!r}: expected {kind} in [{lo:g}, {hi:g}]")
+    for (tab, key), top in VECTOR_MAX.items():
+        v = d.get(tab, {}).get(key) if isinstance(d.get(tab), dict) else None
+        rows = v if isinstance(v, list) and v and all(isinstance(x, list) for x in v) else [v]
+        if key == "imu_to_body_deg" and len(rows) > MAX_ROTATIONS:
+            raise DatasetConfigError(f"{source}: {tab}.{key}: {len(rows)} rotations (at most {MAX_ROTATIONS})")
+        for r in rows:
+            if isinstance(r, list) and any(isinstance(x, int | float) and not abs(x) <= top for x in r):
+                raise DatasetConfigError(f"{source}: {tab}.{key} = {r!r}: expected 3 numbers within ±{top:g}")
+    ds = d.get("dataset")
+    if isinstance(ds, dict):
+        p = ds.get("position_deg")
+        if isinstance(p, list) and len(p) == 3 and all(isinstance(x, int | float) for x in p):
+            if not (-90 <= p[0] <= 90 and -180 <= p[1] <= 360 and -1000 <= p[2] <= 1e5):
+                raise DatasetConfigError(f"{source}: dataset.position_deg = {p!r}: expected [lat −90…90°, "
+                                         "lon −180…360°, h −1000…100000 m]")  # fmt: skip
+    for tab, t in d.items():
+        if isinstance(t, dict):
+            for k, v in t.items():
+                if isinstance(v, str) and (
+                    "\0" in v or (k in ("name", "path", "imu_csv", "time_tag", "pos") and not v)
+                ):
+                    raise DatasetConfigError(f"{source}: {tab}.{k} = {v!r}: expected a non-empty text without NUL")
+    _schema_tables(d, source)
+
+
+def _schema_tables(d: dict[str, Any], source: str) -> None:
+    """``[sensor]`` (FilterConfig fields) and ``[nav]`` through the gateway's schema (``[core.nav]``)."""
+    from ins_hil import config_schema as schema
+    from ins_hil.core_parts.config import SECTIONS
+
+    def check(name: str, table: Any, where: str) -> None:
+        keys = schema.section(name).keys
+        if isinstance(table, dict):  # an unknown key is said by nav_config (where it moved, the known ones)
+            table = {k: v for k, v in table.items() if k in keys}
+        try:
+            schema.validate(name, table, where)
+        except ValueError as e:  # ConfigError is a ValueError
+            raise DatasetConfigError(f"{source}: {' '.join(str(e).split())}") from None
+
+    sensor = d.get("sensor")
+    if isinstance(sensor, dict):
+        check("core.nav.filter", {k: v for k, v in sensor.items() if k != "grade"}, "sensor")
+    nav = d.get("nav")
+    if isinstance(nav, dict):
+        top = {k: v for k, v in nav.items() if k not in MOVED}
+        check("core.nav", top, "nav")
+        for k, v in top.items():
+            if k == "filter" or k in SECTIONS:
+                check(f"core.nav.{k}", v, f"nav.{k}")
+
+
 def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = None) -> DatasetConfig:
     """Validate and build a DatasetConfig; DatasetConfigError (one line) on a bad key or value."""
     from dataclasses import fields
@@ -223,6 +351,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
                 raise DatasetConfigError(f"{source}: unknown key {tab}.{k} (known: {', '.join(known)})")
             if want is not None and (not isinstance(x, want) or (want == (int, float) and isinstance(x, bool))):
                 raise DatasetConfigError(f"{source}: {tab}.{k} = {x!r}: wrong type")
+    check_values(d, source)
     ds = d.get("dataset")
     if ds is None or "name" not in ds:
         raise DatasetConfigError(f"{source}: missing key dataset.name (every dataset config names its data set)")
@@ -284,6 +413,10 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
             raise DatasetConfigError(f"{source}: outages.on_s must be > 0, off_s and tail_s >= 0")
     sc = d.get("score", {})
     c.score = tuple(sc.get("against", ["gnss", "onboard", "reference"]))
+    if not all(isinstance(x, str) for x in c.score):
+        raise DatasetConfigError(
+            f"{source}: score.against = {list(c.score)!r}: expected names (gnss, onboard, reference)"
+        )
     bad = set(c.score) - {"gnss", "onboard", "reference"}
     if bad:
         raise DatasetConfigError(f"{source}: score.against: unknown {sorted(bad)} (expected gnss, onboard, reference)")

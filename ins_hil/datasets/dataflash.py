@@ -23,11 +23,23 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, register
+from ins_hil.datasets.dataset import (
+    READ_ERRORS,
+    Dataset,
+    DatasetError,
+    Reader,
+    Trajectory,
+    count_of,
+    fix_type_of,
+    increasing,
+    register,
+)
 from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
 
 DF_HEAD = b"\xa3\x95"
+#: the UNIX times (s) a log's GPS date may give: 1980-01-06 to 2100-01-01 (else the date is not used)
+UTC_RANGE = (315964800.0, 4102444800.0)
 #: how far into a text log (bytes) its first ``FMT`` line is looked for
 TEXT_HEAD = 65536
 #: a crash: specific force above this (m/s², ≈ 4 g) or a rate above ``CRASH_RATE`` rad/s (≈ 170 °/s, beyond a
@@ -52,8 +64,41 @@ def first_instance(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     name with an instance field ``I`` (3.x: IMU, IMU2, … as names, no ``I``)."""
     if not rows or "I" not in rows[0]:
         return rows
-    first = min(int(d["I"]) for d in rows)
-    return [d for d in rows if int(d["I"]) == first]
+    inst: list[float] = []
+    for d in rows:
+        i = d.get("I")
+        if not (isinstance(i, int | float) and math.isfinite(i)):
+            raise DatasetError(f"a {d.get('mavpackettype', 'sensor')} message with instance I = {i!r} "
+                               "(expected an integer)")  # fmt: skip
+        inst.append(float(i))
+    first = min(inst)
+    return [d for d, i in zip(rows, inst, strict=True) if i == first]
+
+
+#: the fields the reader uses of each message (a log whose FMT defines a message without them is refused)
+FIELDS = {
+    "IMU": ("TimeUS", "GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"),
+    "GPS": ("TimeUS", "Status", "Lat", "Lng", "Alt", "Spd", "GCrs", "VZ"),
+    "GPA": ("TimeUS",),
+    "BARO": ("TimeUS", "Alt"),
+    "MAG": ("TimeUS", "MagX", "MagY", "MagZ"),
+    "NKF1": ("TimeUS", "Roll", "Pitch", "Yaw", "VN", "VE", "VD", "PN", "PE", "PD"),
+    "XKF1": ("TimeUS", "Roll", "Pitch", "Yaw", "VN", "VE", "VD", "PN", "PE", "PD"),
+    "ORGN": ("Lat", "Lng", "Alt"),
+    "MSG": (),
+}
+
+
+def _check_fields(path: Path, rows: dict[str, list[dict[str, Any]]]) -> None:
+    """DatasetError naming the message and the missing or non-numeric field (a damaged or redefined FMT)."""
+    for name, cols in FIELDS.items():
+        for k, d in enumerate(rows[name]):
+            for c in cols:
+                v = d.get(c)
+                if not isinstance(v, int | float):
+                    what = "missing" if v is None else f"{v!r}"
+                    raise DatasetError(f"{path}: {name} message {k}: field {c} {what} (expected a number; "
+                                       f"{name} needs {', '.join(cols)})")  # fmt: skip
 
 
 def _is_dataflash_text(path: Path) -> bool:
@@ -105,33 +150,47 @@ def _read(path: Path, text: bool) -> Dataset:
         r = cls(str(path), zero_time_base=True)
     except Exception as e:
         raise DatasetError(f"{path}: cannot parse as {fmt} ({e})") from None
-    want = {"IMU", "GPS", "GPA", "BARO", "MAG", "NKF1", "XKF1", "ORGN", "MSG"}
+    want = set(FIELDS)
     rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
-    while True:
-        m = r.recv_match(type=list(want))
-        if m is None:
-            break
-        try:  # a text log's values are converted here, when read
-            rows[m.get_type()].append(m.to_dict())
-        except (ValueError, TypeError) as e:
-            raise DatasetError(f"{path}: a {m.get_type()} message that does not parse ({e})") from None
+    n = 0
+    what = "a message"
+    try:
+        while True:
+            what = "a message"
+            m = r.recv_match(type=list(want))
+            if m is None:
+                break
+            n += 1
+            what = f"a {m.get_type()} message"
+            rows[m.get_type()].append(m.to_dict())  # a text log's values are converted here, when read
+    except READ_ERRORS as e:  # DFReader on a damaged log (its text reader: ValueError, RecursionError, TypeError)
+        raise DatasetError(f"{path}: {what} that does not parse (message {n + 1}; {type(e).__name__}: "
+                           f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
-    for name in ("IMU", "GPS", "GPA", "BARO", "MAG"):
-        rows[name] = first_instance(rows[name])
+    _check_fields(path, rows)
+    try:
+        for name in ("IMU", "GPS", "GPA", "BARO", "MAG"):
+            rows[name] = first_instance(rows[name])
+    except DatasetError as e:
+        raise DatasetError(f"{path}: {e}") from None
     ti = np.array([d["TimeUS"] for d in rows["IMU"]], dtype=np.float64) * 1e-6
     g = np.array([[d["GyrX"], d["GyrY"], d["GyrZ"]] for d in rows["IMU"]], dtype=np.float64)
     a = np.array([[d["AccX"], d["AccY"], d["AccZ"]] for d in rows["IMU"]], dtype=np.float64)
     imu: list[ImuSample] = []
-    for k in range(1, len(ti)):
-        dt = ti[k] - ti[k - 1]
-        if dt <= 0:
-            continue
+    # the longest increasing run of IMU times: a stamp that jumps back or far ahead costs its sample, and the
+    # increments span the interval since the previous kept sample (never a negative or zero one)
+    kept = np.nonzero(increasing(np.where(np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1), ti, math.nan)))[0]
+    for j in range(1, len(kept)):
+        k = int(kept[j])
+        dt = ti[k] - ti[kept[j - 1]]
         imu.append(ImuSample(float(ti[k]), float(dt), g[k] * dt, a[k] * dt, seq=k))
     gpa = {d["TimeUS"]: d for d in rows["GPA"]}
     gnss: list[GnssFix] = []
-    for d in rows["GPS"]:
-        if d["Status"] < 3:
+    for k, d in enumerate(rows["GPS"]):
+        where = f"{path}: GPS message {k} (TimeUS {d['TimeUS']})"
+        ft = fix_type_of(d["Status"], where)
+        if ft is None or ft < FixType.FIX_3D:
             continue
         c = math.radians(d["GCrs"])
         acc = gpa.get(d["TimeUS"], {})
@@ -139,7 +198,7 @@ def _read(path: Path, text: bool) -> Dataset:
             d["TimeUS"] * 1e-6, math.radians(d["Lat"]), math.radians(d["Lng"]), float(d["Alt"]),
             np.array((d["Spd"] * math.cos(c), d["Spd"] * math.sin(c), d["VZ"])),
             std_ne=float(acc.get("HAcc", 2.5)), std_d=float(acc.get("VAcc", 5.0)), std_vel=float(acc.get("SAcc", 0.3)),
-            fix_type=FixType(min(int(d["Status"]), 6)), num_sats=int(d.get("NSats", 0)),
+            fix_type=ft, num_sats=count_of(d.get("NSats", 0), f"{where}: NSats"),
         ))  # fmt: skip
     baro = [BaroSample(d["TimeUS"] * 1e-6, float(d.get("Press", math.nan)), float(d["Alt"])) for d in rows["BARO"]]
     mag = [MagSample(d["TimeUS"] * 1e-6, np.array((d["MagX"], d["MagY"], d["MagZ"]), dtype=np.float64) * 1e-7)
@@ -155,7 +214,7 @@ def _read(path: Path, text: bool) -> Dataset:
         v = np.array([[d["VN"], d["VE"], d["VD"]] for d in ekf_rows], dtype=np.float64)
         p = np.array([[d["PN"], d["PE"], d["PD"]] for d in ekf_rows], dtype=np.float64)
         origin = None
-        ekf_origin = [o for o in rows["ORGN"] if int(o.get("Type", 0)) == 0]  # Type 1 is the AHRS home (4.x)
+        ekf_origin = [o for o in rows["ORGN"] if o.get("Type", 0) == 0]  # Type 1 is the AHRS home (4.x)
         if ekf_origin:
             o = ekf_origin[-1]
             origin = (math.radians(o["Lat"]), math.radians(o["Lng"]), float(o["Alt"]))
@@ -169,7 +228,8 @@ def _read(path: Path, text: bool) -> Dataset:
     utc = None
     wk = [d for d in rows["GPS"] if d.get("GWk", 0) > 0]
     if wk:  # GPS time (s since 1980-01-06) → UNIX s (leap seconds ignored: a field-model date)
-        utc = 315964800.0 + wk[0]["GWk"] * 604800.0 + wk[0]["GMS"] * 1e-3
+        utc = 315964800.0 + float(wk[0]["GWk"]) * 604800.0 + float(wk[0].get("GMS", 0.0)) * 1e-3
+        utc = utc if math.isfinite(utc) and UTC_RANGE[0] <= utc <= UTC_RANGE[1] else None  # a damaged week
     ds.meta.update({"source": str(path), "format": fmt, "vehicle": "ArduPilot", "notes": [], "utc_start_s": utc})
     fw = next((d["Message"] for d in rows["MSG"] if str(d.get("Message", "")).startswith(FIRMWARES)), None)
     if fw is not None:  # the firmware banner names the vehicle type

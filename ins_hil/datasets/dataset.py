@@ -8,18 +8,92 @@ ArduPilot). IMU samples are increments over the interval stamped at the interval
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import math
+import os
+import struct
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
 
 
 class DatasetError(ValueError):
     """A file or folder that no reader accepts, or a reader that cannot use it (one-line message)."""
+
+
+#: what a reader's code may raise on damaged input that it did not foresee: :func:`read_dataset` turns it into a
+#: DatasetError naming the file and the reader (the readers check what they know of first)
+READ_ERRORS = (KeyError, IndexError, ValueError, TypeError, ZeroDivisionError, OverflowError, UnicodeError,
+               RecursionError, AttributeError, struct.error, EOFError)  # fmt: skip
+#: the largest fix-type number of the flight stacks (PX4 8 = extrapolated): 7 and 8 are read as 6 (RTK fixed)
+FIX_TYPE_MAX = 8
+
+
+def fix_type_of(x: Any, where: str) -> FixType | None:
+    """A log's fix-type number as a :class:`FixType`: 0 (MAVLink NO_GPS) and 1 (NO_FIX) are ``None`` (no fix),
+    2–6 their FixType, 7–8 RTK fixed; anything else (NaN, ±inf, a fraction, out of 0–8) is a DatasetError naming
+    ``where`` (the file and the record)."""
+    x = x.item() if isinstance(x, np.generic) else x
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not (math.isfinite(v) and v == int(v) and 0 <= v <= FIX_TYPE_MAX):
+        raise DatasetError(f"{where}: fix type {x!r}: expected an integer 0 (no GPS) to {FIX_TYPE_MAX}")
+    n = int(v)
+    return None if n < FixType.FIX_2D else FixType(min(n, FixType.RTK_FIXED))
+
+
+def increasing(t: Any) -> Vec:
+    """A mask (bool, len(t)) of the longest strictly increasing run of the finite times ``t`` (not necessarily
+    contiguous): a time that jumps ahead and back (one stamp an hour off) or back and ahead loses that sample only,
+    a clock that restarts keeps its longer part. All true for times that already increase. O(n log n)."""
+    import bisect
+
+    t = np.asarray(t, dtype=np.float64)
+    n = len(t)
+    keep = np.zeros(n, dtype=bool)
+    if n and bool(np.all(np.diff(t) > 0)) and math.isfinite(float(t[0])) and math.isfinite(float(t[-1])):
+        keep[:] = True
+        return keep
+    tails: list[float] = []  # the smallest last time of an increasing run of each length
+    tail_i: list[int] = []
+    prev = np.full(n, -1, dtype=np.int64)
+    for k in range(n):
+        x = float(t[k])
+        if not math.isfinite(x):
+            continue
+        j = bisect.bisect_left(tails, x)
+        if j == len(tails):
+            tails.append(x)
+            tail_i.append(k)
+        elif x < tails[j]:
+            tails[j], tail_i[j] = x, k
+        else:
+            continue  # equal to a run's end: that earlier sample stays
+        prev[k] = tail_i[j - 1] if j else -1
+    k = tail_i[-1] if tail_i else -1
+    while k >= 0:
+        keep[k] = True
+        k = int(prev[k])
+    return keep
+
+
+def count_of(x: Any, where: str, hi: int = 255) -> int:
+    """A count field (satellites used): an integer 0–``hi``; DatasetError naming ``where`` otherwise."""
+    x = x.item() if isinstance(x, np.generic) else x
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not (math.isfinite(v) and v == int(v) and 0 <= v <= hi):
+        raise DatasetError(f"{where}: {x!r}: expected an integer 0 to {hi}")
+    return int(v)
 
 
 @dataclass
@@ -197,6 +271,40 @@ def reader_for(path: Path, fmt: str | None) -> str | None:
                        f"(a config for {other}, or one without a format, reads it)")  # fmt: skip
 
 
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """pyulog and pymavlink print what they skip of a damaged file, a line per byte (Python prints and C writes
+    on stdout and stderr): sent to /dev/null while a reader runs, file descriptors 1 and 2 included."""
+    import sys
+
+    saved: list[tuple[int, int]] = []
+    with open(os.devnull, "w") as null, contextlib.redirect_stdout(null), contextlib.redirect_stderr(null):
+        try:
+            for fd in (1, 2):
+                try:
+                    saved.append((fd, os.dup(fd)))
+                    os.dup2(null.fileno(), fd)
+                except OSError:
+                    pass
+            yield
+        finally:
+            for stream in (sys.__stdout__, sys.__stderr__):
+                if stream is not None:
+                    try:
+                        stream.flush()
+                    except (OSError, ValueError):
+                        pass
+            for fd, copy in saved:
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
+def _short(e: BaseException) -> str:
+    """An exception's text on one short line."""
+    t = " ".join(str(e).split())
+    return t if len(t) <= 160 else t[:157] + "..."
+
+
 def read_dataset(path: Path, fmt: str | None = None, cfg: Any = None) -> Dataset:
     """Read ``path`` with the reader ``fmt`` (a name of :data:`READERS`), detected when None; ``cfg`` (a
     :class:`ins_hil.datasets.config.DatasetConfig`) goes to the readers that take one."""
@@ -209,7 +317,17 @@ def read_dataset(path: Path, fmt: str | None = None, cfg: Any = None) -> Dataset
     elif not path.exists():
         raise DatasetError(f"{path}: no such file or directory")
     r = READERS[fmt]
-    ds = r.read(path, cfg) if r.configured else r.read(path)
+    try:
+        with _quiet():
+            ds = r.read(path, cfg) if r.configured else r.read(path)
+    except DatasetError:
+        raise
+    except OSError as e:
+        raise DatasetError(f"{path}: cannot read ({e.strerror or e})") from None
+    except MemoryError:
+        raise DatasetError(f"{path}: too large to read as {r.expects}") from None
+    except READ_ERRORS as e:  # a damage the reader did not foresee: still one line naming the file
+        raise DatasetError(f"{path}: damaged or not {r.expects} ({type(e).__name__}: {_short(e)})") from None
     if not ds.imu:
         raise DatasetError(f"{path}: no IMU samples ({r.name} expects {r.expects})")
     ds.meta.setdefault("source", str(path))

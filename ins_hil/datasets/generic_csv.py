@@ -6,7 +6,8 @@ The first line is ``# ins-hil dataset csv 1``; then one record per line, the kin
                                             t = END of the interval dt (s)
     gnss,t,lat,lon,h,vn,ve,vd,std_ne,std_d,std_vel,fix_type
                                             deg, deg, m (ellipsoidal); m/s NED (empty = none); σ m, m, m/s;
-                                            fix type 3 = 3-D … 6 = RTK fixed (empty = 3)
+                                            fix type 3 = 3-D … 6 = RTK fixed (empty = 3;
+                                            0, 1 = no fix: the record is skipped)
     baro,t,alt                              barometric altitude (m)
     mag,t,mx,my,mz                          magnetic field, body FRD (µT)
     ref,t,lat,lon,h,vn,ve,vd,roll,pitch,yaw reference trajectory (deg, deg, m, m/s, deg; empty = none)
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, register
+from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, fix_type_of, register
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample
@@ -65,9 +66,12 @@ def read_generic_csv(path: Path) -> Dataset:
     if not _is_generic(path):
         raise DatasetError(f"{path}: not an ins-hil dataset CSV (expected the first line {MAGIC!r})")
     recs: dict[str, list[list[float]]] = {k: [] for k in FIELDS}
-    with path.open() as f:
-        for n, line in enumerate(f, 1):
-            line = line.strip()
+    with path.open("rb") as f:
+        for n, raw in enumerate(f, 1):
+            try:
+                line = raw.decode("utf-8").strip()
+            except UnicodeDecodeError:
+                raise DatasetError(f"{path}:{n}: not UTF-8 text (expected a CSV record)") from None
             if not line or line.startswith("#"):
                 continue
             kind, *vals = line.split(",")
@@ -77,10 +81,13 @@ def read_generic_csv(path: Path) -> Dataset:
             try:
                 row = [_num(v) for v in vals] + [math.nan] * (want - len(vals))
             except ValueError:
-                raise DatasetError(f"{path}:{n}: {kind}: a field is not a number: {line!r}") from None
+                raise DatasetError(f"{path}:{n}: {kind}: a field is not a number: {line[:80]!r}") from None
             if len(vals) > want or any(math.isnan(x) for x in row[: REQUIRED[kind] + 1]):
                 raise DatasetError(f"{path}:{n}: {kind}: expected t and {FIELDS[kind]} fields "
-                                   f"(at least {REQUIRED[kind]} given): {line!r}")  # fmt: skip
+                                   f"(at least {REQUIRED[kind]} given): {line[:80]!r}")  # fmt: skip
+            if not all(math.isfinite(x) for x in row[: REQUIRED[kind] + 1]):
+                raise DatasetError(f"{path}:{n}: {kind}: t and the first {REQUIRED[kind]} fields must be finite "
+                                   f"numbers: {line[:80]!r}")  # fmt: skip
             recs[kind].append(row)
     imu = []
     for r in sorted(recs["imu"], key=lambda r: r[0]):
@@ -90,13 +97,16 @@ def read_generic_csv(path: Path) -> Dataset:
         imu.append(ImuSample(r[0], dt, np.array(r[2:5]) * dt, np.array(r[5:8]) * dt))
     gnss = []
     for r in sorted(recs["gnss"], key=lambda r: r[0]):
+        ft = fix_type_of(r[10], f"{path}: gnss record at t={r[0]} s") if not math.isnan(r[10]) else FixType.FIX_3D
+        if ft is None:  # 0 (no GPS) or 1 (no fix): not a fix
+            continue
         vel = np.array(r[4:7]) if all(math.isfinite(x) for x in r[4:7]) else None
 
         def sd(x: float, d: float) -> float:
             return x if math.isfinite(x) else d
 
         gnss.append(GnssFix(r[0], math.radians(r[1]), math.radians(r[2]), r[3], vel, sd(r[7], 2.5), sd(r[8], 5.0),
-                            sd(r[9], 0.3), FixType(int(r[10]) if math.isfinite(r[10]) else 3)))  # fmt: skip
+                            sd(r[9], 0.3), ft))  # fmt: skip
     baro = [BaroSample(r[0], math.nan, r[1]) for r in sorted(recs["baro"], key=lambda r: r[0])]
     mag = [MagSample(r[0], np.array(r[1:4]) * 1e-6) for r in sorted(recs["mag"], key=lambda r: r[0])]
     ds = Dataset(imu, gnss, baro, mag)

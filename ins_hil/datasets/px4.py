@@ -33,13 +33,23 @@ In a ``ulog2csv`` folder a topic's file is found by the topic name inside the fi
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from pathlib import Path
 
 import numpy as np
 
-from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, register
+from ins_hil.datasets.dataset import (
+    Dataset,
+    DatasetError,
+    Reader,
+    Trajectory,
+    count_of,
+    fix_type_of,
+    increasing,
+    register,
+)
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuFlags, ImuSample, MagSample, Vec
 
 Topic = dict[str, Vec]
@@ -68,7 +78,8 @@ def _time(t: Topic) -> Vec:
     ts = _col(t, "timestamp_sample")
     if ts is None or not np.all(np.isfinite(ts)) or np.all(ts == 0):
         ts = _col(t, "timestamp")
-    assert ts is not None
+    if ts is None:
+        raise DatasetError("a topic without a timestamp column (expected timestamp or timestamp_sample)")
     return ts * 1e-6
 
 
@@ -86,11 +97,15 @@ def imu_from_sensor_combined(t: Topic, gaps: list[float] | None = None) -> list[
     ts = _col(t, "timestamp")
     if ts is None or "gyro_rad[0]" not in t or "accelerometer_m_s2[0]" not in t:
         raise DatasetError("sensor_combined: expected timestamp, gyro_rad[0..2], accelerometer_m_s2[0..2]")
+    if any(f"{q}[{i}]" not in t for q in ("gyro_rad", "accelerometer_m_s2") for i in range(3)):
+        raise DatasetError("sensor_combined: expected timestamp, gyro_rad[0..2], accelerometer_m_s2[0..2]")
     g = np.column_stack([t[f"gyro_rad[{i}]"] for i in range(3)]).astype(np.float64)
     a = np.column_stack([t[f"accelerometer_m_s2[{i}]"] for i in range(3)]).astype(np.float64)
     dtg = _col(t, "gyro_integral_dt")
     dta = _col(t, "accelerometer_integral_dt")
     tt = ts * 1e-6
+    if len(tt) < 2:
+        return []
     if dtg is None:
         dtg = np.diff(tt, prepend=tt[0] - float(np.median(np.diff(tt))))
     else:
@@ -100,9 +115,11 @@ def imu_from_sensor_combined(t: Topic, gaps: list[float] | None = None) -> list[
     clip_g = _col(t, "gyro_clipping")
     out: list[ImuSample] = []
     last = -math.inf
+    usable = np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1) & (dtg > 0) & (dta > 0)
+    # the longest increasing run of times: a stamp far ahead costs that sample, not every sample after it
+    keep = increasing(np.where(usable, tt, math.nan))
     for k in range(len(tt)):
-        finite = np.all(np.isfinite(g[k])) and np.all(np.isfinite(a[k]))
-        if not (dtg[k] > 0 and dta[k] > 0 and tt[k] > last and finite):
+        if not keep[k]:
             continue
         fl = 0
         if clip_a is not None and clip_a[k] != 0:
@@ -137,6 +154,7 @@ def sensor_combined_from_vehicle_imu(t: Topic, source: str = "vehicle_imu", min_
     dtg = np.asarray(t["delta_angle_dt"], dtype=np.float64)
     dta = np.asarray(t["delta_velocity_dt"], dtype=np.float64)
     span = float(ts[-1] - ts[0]) if len(ts) > 1 else 0.0
+    span = span if math.isfinite(span) else 0.0
     cover = float(np.sum(dtg[1:])) / span if span > 0 else 0.0
     if not cover >= min_cover:  # NaN too
         raise DatasetError(
@@ -166,7 +184,8 @@ def gnss_from_gps(t: Topic) -> list[GnssFix]:
         if la is None or lo is None:
             raise DatasetError("vehicle_gps_position: expected lat/lon or latitude_deg/longitude_deg")
         lat, lon = la * 1e-7, lo * 1e-7
-    assert lon is not None
+    if lon is None:
+        raise DatasetError("vehicle_gps_position: expected longitude_deg with latitude_deg")
     if h is None:
         he = _col(t, "alt_ellipsoid", "alt")
         h = he * 1e-3 if he is not None else np.zeros_like(lat)
@@ -177,8 +196,10 @@ def gnss_from_gps(t: Topic) -> list[GnssFix]:
     sats = _col(t, "satellites_used")
     out: list[GnssFix] = []
     for k in range(len(ts)):
-        ft = int(fix[k]) if fix is not None else 3
-        if ft < 3 or not (math.isfinite(lat[k]) and math.isfinite(lon[k])) or (lat[k] == 0 and lon[k] == 0):
+        where = f"vehicle_gps_position record {k} (t={float(ts[k]):.3f} s)"
+        ft = fix_type_of(fix[k], where) if fix is not None else FixType.FIX_3D
+        no_pos = not (math.isfinite(lat[k]) and math.isfinite(lon[k])) or (lat[k] == 0 and lon[k] == 0)
+        if ft is None or ft < FixType.FIX_3D or no_pos:
             continue
         vel = None
         if vn is not None and ve is not None and vd is not None and (vok is None or vok[k] != 0):
@@ -186,8 +207,8 @@ def gnss_from_gps(t: Topic) -> list[GnssFix]:
         out.append(GnssFix(
             float(ts[k]), math.radians(lat[k]), math.radians(lon[k]), float(h[k]), vel,
             std_ne=float(eph[k]) if eph is not None else 2.5, std_d=float(epv[k]) if epv is not None else 5.0,
-            std_vel=float(sv[k]) if sv is not None else 0.3, fix_type=FixType(min(ft, 6)),
-            num_sats=int(sats[k]) if sats is not None else 0,
+            std_vel=float(sv[k]) if sv is not None else 0.3, fix_type=ft,
+            num_sats=count_of(sats[k], f"{where}: satellites_used") if sats is not None else 0,
         ))  # fmt: skip
     return out
 
@@ -215,14 +236,14 @@ def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
     tr = Trajectory("EKF2")
     att = topics.get("vehicle_attitude")
     es = topics.get("estimator_states")
-    if att is not None and "q[0]" in att:
+    if att is not None and all(f"q[{i}]" in att for i in range(4)):
         tr.t_att = _time(att)
         tr.q_nb = np.column_stack([att[f"q[{i}]"] for i in range(4)]).astype(np.float64)
-    elif es is not None and "states[0]" in es:
+    elif es is not None and all(f"states[{i}]" in es for i in range(4)):
         tr.t_att = _time(es)
         tr.q_nb = np.column_stack([es[f"states[{i}]"] for i in range(4)]).astype(np.float64)
     lp = topics.get("vehicle_local_position")
-    if lp is not None and "vx" in lp:
+    if lp is not None and all(c in lp for c in ("vx", "vy", "vz", "x", "y", "z")):
         t = _time(lp)
         tr.t_vel = tr.t_pos = t
         tr.vel_ned = np.column_stack([lp["vx"], lp["vy"], lp["vz"]]).astype(np.float64)
@@ -240,7 +261,7 @@ def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
         if rl is not None and rlo is not None and ra is not None and (glob is None or glob[-1] != 0):
             if xy is not None and np.any(xy != 0) and abs(float(rl[-1])) > 1e-9:
                 tr.origin = (math.radians(float(rl[-1])), math.radians(float(rlo[-1])), float(ra[-1]))
-    elif es is not None and "states[4]" in es:
+    elif es is not None and all(f"states[{i}]" in es for i in range(4, 10)):
         t = _time(es)
         tr.t_vel = tr.t_pos = t
         tr.vel_ned = np.column_stack([es[f"states[{i}]"] for i in (4, 5, 6)]).astype(np.float64)
@@ -295,7 +316,7 @@ def onboard_notes(topics: dict[str, Topic], g: float = 9.80665) -> tuple[list[st
             )
     lp = topics.get("vehicle_local_position")
     vxy = _col(lp, "v_xy_valid") if lp is not None else None
-    if lp is not None and vxy is not None and "vx" in lp and np.any(vxy == 0):
+    if lp is not None and vxy is not None and "vx" in lp and "vy" in lp and np.any(vxy == 0):
         t = _time(lp)
         bad = vxy == 0
         sp = np.where(
@@ -320,7 +341,8 @@ def land_events(t: Topic | None) -> list[tuple[float, str]]:
     if t is None or "landed" not in t:
         return []
     ts = _col(t, "timestamp")
-    assert ts is not None
+    if ts is None:
+        return []
     landed = np.asarray(t["landed"]) != 0
     ev: list[tuple[float, str]] = []
     for k in range(1, len(landed)):
@@ -365,7 +387,7 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
         if utc is not None and np.any(utc > 1e15):
             utc_start = float(utc[utc > 1e15][0]) * 1e-6  # UNIX s
         if not ds.gnss:
-            notes.append(f"GNSS receiver logged ({len(gps['timestamp'])} messages) but never had a 3-D fix")
+            notes.append(f"GNSS receiver logged ({len(_time(gps))} messages) but never had a 3-D fix")
     if "vehicle_air_data" in topics:
         ds.baro = baro_from_air_data(topics["vehicle_air_data"])
     if "vehicle_magnetometer" in topics:
@@ -412,6 +434,29 @@ def _is_ulog(path: Path) -> bool:
         return f.read(7) == ULOG_MAGIC
 
 
+class _Stuck(RuntimeError):
+    """pyulog read a damaged file far longer than its size allows (its resync can seek back for ever)."""
+
+
+class _Bounded(io.BufferedReader):
+    """The file handle given to pyulog: at most ``READS_PER_BYTE`` reads per byte of the file (its resync over a
+    damaged stretch reads one or two a byte), then :class:`_Stuck`, which pyulog does not catch."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(io.FileIO(str(path), "rb"))
+        self.budget = READS_PER_BYTE * path.stat().st_size + 10_000
+
+    def read(self, n: int | None = -1, /) -> bytes:
+        self.budget -= 1
+        if self.budget < 0:
+            raise _Stuck("the parser does not advance in a damaged part")
+        return super().read(n)
+
+
+#: reads per byte of a ULog file before pyulog's parse is given up as stuck
+READS_PER_BYTE = 3
+
+
 def read_ulog(path: Path) -> Dataset:
     """Read a PX4 ``.ulg`` with pyulog (instance 0 of each topic)."""
     from pyulog import ULog
@@ -419,9 +464,10 @@ def read_ulog(path: Path) -> Dataset:
     if not _is_ulog(path):
         raise DatasetError(f"{path}: not a PX4 ULog file (expected the 'ULog' header)")
     try:
-        u = ULog(str(path), list(TOPICS))
+        with _Bounded(path) as f:
+            u = ULog(f, list(TOPICS))
     except Exception as e:  # pyulog raises plain Exceptions on corrupt files
-        raise DatasetError(f"{path}: cannot parse as ULog ({e})") from None
+        raise DatasetError(f"{path}: cannot parse as ULog ({' '.join(str(e).split())[:160]})") from None
     topics: dict[str, Topic] = {}
     imus: list[Topic] = []
     for d in sorted(u.data_list, key=lambda d: d.multi_id):
@@ -429,7 +475,10 @@ def read_ulog(path: Path) -> Dataset:
         if d.name == "vehicle_imu":
             imus.append(dict(d.data))
     _select_imu(topics, imus)
-    ds = dataset_from_topics(topics, str(path), "px4-ulog")
+    try:
+        ds = dataset_from_topics(topics, str(path), "px4-ulog")
+    except DatasetError as e:
+        raise _named(path, e) from None
     ds.meta["params"] = {k: v for k, v in u.initial_parameters.items() if k.startswith(("EKF2_", "SENS_", "CAL_MAG"))}
     return ds
 
@@ -449,21 +498,42 @@ def topic_files(folder: Path) -> dict[str, Path]:
 
 def read_topic_csv(path: Path) -> Topic:
     """One ulog2csv file: a header of field names, then numbers (``inf``/``nan`` allowed)."""
-    with path.open(newline="") as f:
-        rd = csv.reader(f)
-        try:
-            head = next(rd)
-        except StopIteration:
-            raise DatasetError(f"{path}: empty CSV (expected a ulog2csv header line)") from None
-        if "timestamp" not in head:
-            raise DatasetError(f"{path}: no 'timestamp' column (expected a PX4 ulog2csv file)")
-        try:
-            data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=np.float64)
-        except ValueError as e:
-            raise DatasetError(f"{path}: non-numeric data ({e})") from None
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = path.read_bytes()[: e.start].count(b"\n") + 1
+        raise DatasetError(f"{path}:{line}: not UTF-8 text (expected a PX4 ulog2csv file)") from None
+    lines = text.splitlines()
+    rd = csv.reader(lines[:1])
+    head = next(rd, None)
+    if not head:
+        raise DatasetError(f"{path}: empty CSV (expected a ulog2csv header line)")
+    if "timestamp" not in head:
+        raise DatasetError(f"{path}: no 'timestamp' column (expected a PX4 ulog2csv file)")
+    if len(set(head)) != len(head):
+        raise DatasetError(f"{path}: a column named twice in the header (expected a PX4 ulog2csv file)")
+    body = [ln for ln in lines[1:] if ln.strip()]
+    try:
+        data = np.loadtxt(body, delimiter=",", ndmin=2, dtype=np.float64) if body else np.zeros((0, len(head)))
+    except ValueError as e:
+        raise DatasetError(f"{path}: non-numeric data or rows of different lengths ({_one_line(e)})") from None
     if data.size == 0:
         data = np.zeros((0, len(head)))
+    if data.shape[1] != len(head):
+        raise DatasetError(f"{path}: {data.shape[1]} values a row, {len(head)} columns in the header (expected "
+                           "one value per column)")  # fmt: skip
     return {name: data[:, i] for i, name in enumerate(head)}
+
+
+def _one_line(e: BaseException) -> str:
+    t = " ".join(str(e).split())
+    return t if len(t) <= 120 else t[:117] + "..."
+
+
+def _named(path: Path, e: DatasetError) -> DatasetError:
+    """``e`` with the file named first (the topic helpers name only the topic)."""
+    msg = str(e)
+    return e if msg.startswith(str(path)) else DatasetError(f"{path}: {msg}")
 
 
 def _select_imu(topics: dict[str, Topic], imus: list[Topic]) -> None:
@@ -494,7 +564,10 @@ def read_px4_csv(path: Path) -> Dataset:
     if "sensor_combined" not in topics:
         pat = re.compile(r"(^|_)vehicle_imu_(\d+)\.csv$")
         _select_imu(topics, [read_topic_csv(f) for f in sorted(path.glob("*.csv")) if pat.search(f.name)])
-    return dataset_from_topics(topics, str(path), "px4-csv")
+    try:
+        return dataset_from_topics(topics, str(path), "px4-csv")
+    except DatasetError as e:
+        raise _named(path, e) from None
 
 
 register(Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog, suffixes=(".ulg",), family="px4"))

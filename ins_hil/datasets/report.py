@@ -174,32 +174,46 @@ def protocol_windows(ds: Dataset, p: Prepared, cfg: DatasetConfig) -> list[tuple
     return cfg.outages.windows(t_ref, min(p.t1, land) if land is not None else p.t1)
 
 
+def num(x: Any, spec: str, why: str = "") -> str:
+    """``x`` formatted with ``spec``, or "not scored (why)" when it is missing or not finite: a summary never
+    prints NaN as a figure."""
+    if isinstance(x, int | float | np.floating) and math.isfinite(float(x)):
+        return format(float(x), spec)
+    return f"not scored ({why})" if why else "not scored"
+
+
 def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
-    """The summary table (quantity, value / RMS, max) of :func:`replay`'s metrics."""
+    """The summary table (quantity, value / RMS, max) of :func:`replay`'s metrics; a figure that could not be
+    scored reads "not scored (why)", never "nan"."""
     rows: list[tuple[str, str, str]] = [("quantity", "RMS / value", "max")]
+    never = "the core never navigated" if m.get("t_nav_s") is None else ""
     rows.append(("data", f"{m['format']}, {m['duration_s']:.1f} s", ""))
     tn = m.get("t_nav_s")
     rows.append(("navigating from", f"{tn:.2f} s" if tn is not None else "never", ""))
     g = m.get("gnss")
     if isinstance(g, dict):
-        rows.append(
-            ("GNSS present: h error prior (m)", f"{g['gnss_h_rms_prior_m']:.3f}", f"{g['gnss_h_max_prior_m']:.3f}")
-        )
-        rows.append(("GNSS present: h error post (m)", f"{g['gnss_h_rms_post_m']:.3f}", ""))
+        why = never or ("no fix while navigating" if not g.get("gnss_epochs") else "")
+        rows.append(("GNSS present: h error prior (m)", num(g["gnss_h_rms_prior_m"], ".3f", why),
+                     num(g["gnss_h_max_prior_m"], ".3f", why) if not why else ""))  # fmt: skip
+        rows.append(("GNSS present: h error post (m)", num(g["gnss_h_rms_post_m"], ".3f", why), ""))
         w = g.get("vel_innovation")
         if isinstance(w, dict):
-            lag1 = " / ".join(f"{x:+.2f}" for x in w["lag1"])
-            rows.append(("GNSS vel innovations N / E (m/s)", " / ".join(f"{x:.3f}" for x in w["rms_mps"]), ""))
+            lag1 = " / ".join(num(x, "+.2f", "too few pairs") for x in w["lag1"])
+            rows.append(("GNSS vel innovations N / E (m/s)", " / ".join(num(x, ".3f") for x in w["rms_mps"]), ""))
             rows.append(("  lag-1 autocorrelation N / E", lag1, f"white: ±{w['white_band']:.2f}"))
     elif g:
         rows.append(("GNSS", str(g), ""))
     o = m.get("outages")
-    if isinstance(o, dict):
-        rows.append((f"outages ({o['outages_scored']} scored): h error (m)", f"{o['outage_h_rms_m']:.2f}",
-                     f"{o['outage_h_max_m']:.2f}"))  # fmt: skip
-        rows.append(("  hold the last fix (m)", f"{o['hold_h_rms_m']:.2f}", f"{o['hold_h_max_m']:.2f}"))
-        rows.append(("  constant-velocity extrapolation (m)", f"{o['cv_h_rms_m']:.2f}", f"{o['cv_h_max_m']:.2f}"))
-        rows.append(("  NEES (2 dof, mean)", f"{o['nees_2dof_mean']:.2f}", ""))
+    if isinstance(o, dict) and not o.get("outages_scored"):
+        why = never or ("no window in the data" if not o.get("windows") else "no window opened while navigating "
+                        "with fixes inside it")  # fmt: skip
+        rows.append(("outages: h error (m)", f"not scored ({why})", ""))
+    elif isinstance(o, dict):
+        rows.append((f"outages ({o['outages_scored']} scored): h error (m)", num(o["outage_h_rms_m"], ".2f"),
+                     num(o["outage_h_max_m"], ".2f")))  # fmt: skip
+        rows.append(("  hold the last fix (m)", num(o["hold_h_rms_m"], ".2f"), num(o["hold_h_max_m"], ".2f")))
+        rows.append(("  constant-velocity extrapolation (m)", num(o["cv_h_rms_m"], ".2f"), num(o["cv_h_max_m"], ".2f")))
+        rows.append(("  NEES (2 dof, mean)", num(o["nees_2dof_mean"], ".2f"), ""))
         if math.isfinite(o.get("sf_err_rms_mps2", math.nan)):
             rows.append(("  fitted: start velocity error (m/s)", f"{o['start_vel_err_rms_mps']:.3f}",
                          f"{o['start_vel_err_max_mps']:.3f}"))  # fmt: skip
@@ -229,7 +243,8 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
         for key, who in (("ours", "ours"), ("onboard", mh.get("onboard_name", ""))):
             h = mh.get(key)
             if h is not None:
-                rows.append((f"yaw − magnetic heading (°), {who}", f"{h['rms']:.2f}", f"{h['max']:.2f}"))
+                rows.append((f"yaw − magnetic heading (°), {who}", num(h["rms"], ".2f", "no sample"),
+                             num(h["max"], ".2f", "no sample")))  # fmt: skip
     rd = m.get("rotor_drag")
     if isinstance(rd, dict):
         for key, who in (("ours", "ours"), ("onboard", rd.get("onboard_name", ""))):
@@ -238,7 +253,7 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
                 continue
             mu = " / ".join("n/a" if not math.isfinite(fit[a]["mu_per_s"]) else f"{fit[a]['mu_per_s']:+.3f}"
                             for a in ("x", "y"))  # fmt: skip
-            span = " / ".join(f"{fit[a]['span_mps']:.1f}" for a in ("x", "y"))
+            span = " / ".join(num(fit[a]["span_mps"], ".1f") for a in ("x", "y"))
             rows.append((f"rotor drag μ x / y (1/s), {who}", mu, f"speed span {span} m/s"))
     lost = m.get("imu_lost")
     if isinstance(lost, dict) and lost.get("gaps"):

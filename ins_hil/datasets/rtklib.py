@@ -149,6 +149,8 @@ def read_timetag(path: Path) -> TimeTag:
     (frac,) = struct.unpack_from("<d", data, 68)
     body = data[76:]
     n = len(body) // 8
+    if n == 0:
+        raise ValueError(f"{path}: a time-tag header without records (expected (tick, offset) records after it)")
     rec = np.frombuffer(body[: 8 * n], dtype="<u4").reshape(n, 2)
     return TimeTag(int(tick0), int(start), float(frac), rec[:, 0].astype(np.float64), rec[:, 1].astype(np.float64))
 
@@ -197,6 +199,8 @@ def read_pos(path: Path, velocity_up: bool = True) -> PosLog:
             rows.append(vals)
     if cols is None:
         raise ValueError(f"{path}: no '% GPST latitude(deg) ...' header line")
+    if not rows:
+        raise ValueError(f"{path}: a header without solution lines (expected 'yyyy/mm/dd hh:mm:ss.s lat lon ...')")
     a = np.array(rows)
 
     def col(name: str) -> Vec:
@@ -331,13 +335,14 @@ def load(directory: Path, cfg: DatasetConfig | None = None) -> Recording:
     max_q = int(o.get("max_q", 2))
     fixes = []
     for k in range(len(pos.t)):
-        if pos.q[k] > max_q:
+        if not 1 <= pos.q[k] <= max_q:  # RTKLIB's Q is 1 (fix) … 6 (PPP); NaN too
             continue
         fixes.append(
             GnssFix(t=float(pos.t[k]), lat=float(pos.lat[k]), lon=float(pos.lon[k]), h=float(pos.h[k]),
                     vel_ned=pos.vel_ned[k].copy(), std_ne=float(max(pos.sd[k, 0], pos.sd[k, 1])),
                     std_d=float(pos.sd[k, 2]), std_vel=float(np.max(pos.sdv[k])),
-                    fix_type=Q_FIX.get(int(pos.q[k]), FixType.FIX_3D), num_sats=int(pos.ns[k]))
+                    fix_type=Q_FIX.get(int(pos.q[k]), FixType.FIX_3D),
+                    num_sats=int(pos.ns[k]) if 0 <= pos.ns[k] <= 255 else 0)
         )  # fmt: skip
     notes = [] if cfg is not None else ["no dataset config: identity mounting, no IMU time offset, no lever arm"]
     mounted = {"imu_time_offset_s": c.imu_time_offset, "imu_to_body": c.imu_to_body.copy()}
@@ -353,8 +358,11 @@ def _is_rtklib(path: Path) -> bool:
 def _read(path: Path, cfg: DatasetConfig | None = None) -> Dataset:
     try:
         return load(path, cfg).dataset
+    except DatasetError:
+        raise
     except ValueError as e:
-        raise DatasetError(str(e)) from None
+        msg = " ".join(str(e).split())
+        raise DatasetError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
 
 
 register(Reader("rtklib", "a folder with an IMU csv, its RTKLIB time tag (*.csv.tag) and an RTKLIB *.pos",

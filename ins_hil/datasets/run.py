@@ -19,19 +19,116 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.core import NavConfig, NavCore
+from ins_hil.core import GAP_MAX_S, NavConfig, NavCore
 from ins_hil.datasets.config import DatasetConfig
-from ins_hil.datasets.dataset import Dataset
+from ins_hil.datasets.dataset import Dataset, DatasetError, increasing
 from ins_hil.datasets.evaluate import antenna_ned
 from ins_hil.nav import alignment, earth
 from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat
 from ins_hil.types import BaroSample, FaultMode, GnssFix, ImuSample, MagSample, Vec
+from ins_hil.validation import Limits, SampleValidator
 
 Progress = Callable[[int, int], None]
 #: the flight controllers' log formats: without a magnetometer their yaw comes from the GNSS-velocity yaw bank
 FC_FORMATS = frozenset({"px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log"})
 #: WMM coefficient files shipped with pygeomag, by the first year of their epoch
 WMM_EPOCHS = ((2025, "WMM_2025.COF"), (2020, "WMM_2020.COF"), (2015, "WMM_2015v2.COF"), (2010, "WMM_2010.COF"))
+
+
+#: the validation boundary of a replay: the gateway's (:class:`ins_hil.validation.SampleValidator`, its default
+#: ranges) with room for the intervals a reader bridges over a logging gap (PX4: up to 50 ms in one interval)
+REPLAY_LIMITS = Limits(imu_dt_max_periods=20.0)
+#: an IMU time gap (s) longer than the core coasts across (``ins_hil.core.GAP_MAX_S``) splits the log: its
+#: longest part is replayed
+SPLIT_GAP_S = GAP_MAX_S
+
+
+class ReplayError(DatasetError):
+    """A replay that cannot give figures: no valid IMU data, non-finite states, a numerical failure (one line
+    naming the recording and where it happened)."""
+
+
+@dataclass
+class Screened:
+    """The streams that pass the validation boundary, and what it dropped (notes)."""
+
+    imu: list[ImuSample]
+    gnss: list[GnssFix]
+    aux: list[BaroSample | MagSample]
+    notes: list[str]
+
+
+def _counted(reasons: dict[str, int]) -> str:
+    return ", ".join(f"{k} {n}" for k, n in sorted(reasons.items()))
+
+
+def screen(
+    imu: list[ImuSample], gnss: list[GnssFix], aux: list[BaroSample | MagSample], source: str,
+    limits: Limits = REPLAY_LIMITS,
+) -> Screened:  # fmt: skip
+    """The replay's validation boundary, the gateway's own (:class:`ins_hil.validation.SampleValidator`): each
+    sample finite and in range, the time strictly increasing per sensor (of the times out of order, the longest
+    increasing run is kept: one stamp far off costs that sample only); an IMU gap longer than ``SPLIT_GAP_S``
+    splits the log and its longest part is replayed (the aiding within it), a shorter one is coasted by the core.
+    What is dropped is said in the notes. ReplayError when no IMU sample is left."""
+    v = SampleValidator(limits)
+    notes: list[str] = []
+    why: dict[str, int] = {}
+
+    def drop(reason: str) -> None:
+        why[reason] = why.get(reason, 0) + 1
+
+    order = increasing([s.t for s in imu])
+    ok_imu: list[ImuSample] = []
+    for s, keep in zip(imu, order, strict=True):
+        r = v.imu(s) if keep else "imu_time"
+        if r is None:
+            ok_imu.append(s)
+        else:
+            drop(r)
+    if why:
+        notes.append(f"validation: {sum(why.values())} of {len(imu)} IMU samples dropped ({_counted(why)})")
+    if not ok_imu:
+        raise ReplayError(f"{source}: no IMU sample passes the validation boundary"
+                          + (f" ({_counted(why)})" if why else ""))  # fmt: skip
+    # split at the gaps the core would not coast across: the longest part (by samples) is replayed
+    cuts = [0] + [k for k in range(1, len(ok_imu)) if ok_imu[k].t - ok_imu[k].dt - ok_imu[k - 1].t > SPLIT_GAP_S]
+    if len(cuts) > 1:
+        ends = [*cuts[1:], len(ok_imu)]
+        a, b = max(zip(cuts, ends, strict=True), key=lambda ab: ab[1] - ab[0])
+        notes.append(f"IMU time gaps over {SPLIT_GAP_S:g} s split the log in {len(cuts)} parts: the longest, "
+                     f"{ok_imu[a].t:.2f}–{ok_imu[b - 1].t:.2f} s ({b - a} samples), is replayed")  # fmt: skip
+        ok_imu = ok_imu[a:b]
+        lo, hi = ok_imu[0].t - ok_imu[0].dt - SPLIT_GAP_S, ok_imu[-1].t
+        gnss = [f for f in gnss if lo <= f.t <= hi]
+        aux = [m for m in aux if lo <= m.t <= hi]
+    gw: dict[str, int] = {}
+    fixes = [f for f in gnss if math.isfinite(f.t)]
+    gw["gnss_nonfinite"] = len(gnss) - len(fixes)
+    fixes.sort(key=lambda f: f.t)
+    order = increasing([f.t for f in fixes])
+    ok_gnss = []
+    for f, keep in zip(fixes, order, strict=True):
+        r = v.gnss(f) if keep else "gnss_time"
+        if r is None:
+            ok_gnss.append(f)
+        else:
+            gw[r] = gw.get(r, 0) + 1
+    gw = {k: n for k, n in gw.items() if n}
+    if gw:
+        notes.append(f"validation: {sum(gw.values())} of {len(gnss)} GNSS fixes dropped ({_counted(gw)})")
+    aw: dict[str, int] = {}
+    ok_aux = []
+    for m in aux:
+        r = v.check(m)
+        if r is None:
+            ok_aux.append(m)
+        else:
+            aw[r] = aw.get(r, 0) + 1
+    if aw:
+        notes.append(f"validation: {sum(aw.values())} of {len(aux)} baro / magnetometer samples dropped "
+                     f"({_counted(aw)})")  # fmt: skip
+    return Screened(ok_imu, ok_gnss, ok_aux, notes)
 
 
 @dataclass
@@ -49,6 +146,7 @@ class Prepared:
     mag_ref_ned_T: Vec | None = None
     mag_ref_source: str = ""
     mag_heading_only: bool = True
+    source: str = ""  # the recording, for the errors
 
 
 def _decimal_year(unix_s: float) -> float:
@@ -104,6 +202,10 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
             was = dataclasses.replace(cfg, imu_to_body=np.asarray(applied["imu_to_body"]))
             R = R @ was.mounting_dcm().T
     t1 = ds.t1
+    source = str(ds.meta.get("source", "the dataset"))
+    if ds.imu and not ds.imu[0].t <= t1:
+        raise ReplayError(f"{source}: the end of valid data ({t1:.2f} s) comes before the first IMU sample "
+                          f"({ds.imu[0].t:.2f} s): nothing to replay")  # fmt: skip
     if applied and not rot and off == 0.0:
         imu = [s for s in ds.imu if s.t <= t1]
     else:
@@ -112,6 +214,12 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     gnss = [dataclasses.replace(f, t=f.t + cfg.gnss_time_offset) for f in ds.gnss] if cfg.use_gnss else []
     mag = [dataclasses.replace(m, field_b=R @ m.field_b) if rot else m for m in ds.mag] if cfg.use_mag else []
     baro = list(ds.baro) if cfg.use_baro else []
+    # the validation boundary (the gateway's): what the core is given is finite, in range and in time order
+    sc = screen(imu, gnss, [*baro, *mag], source)
+    notes += sc.notes
+    imu, gnss = sc.imu, sc.gnss
+    baro = [m for m in sc.aux if isinstance(m, BaroSample)]
+    mag = [m for m in sc.aux if isinstance(m, MagSample)]
     nav = cfg.nav_config()
     if gnss:
         origin = (gnss[0].lat, gnss[0].lon, gnss[0].h)
@@ -119,7 +227,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
         origin = cfg.position
     else:
         origin = (0.0, 0.0, 0.0)
-    p = Prepared(imu, gnss, [], nav, imu[0].t, imu[-1].t, origin, notes)
+    p = Prepared(imu, gnss, [], nav, imu[0].t, imu[-1].t, origin, notes, source=source)
     if mag and "ref_ned" not in cfg.nav.get("mag", {}):
         ref: Vec | None = None
         if isinstance(cfg.mag_reference, np.ndarray):
@@ -226,7 +334,21 @@ class RunResult:
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
                 progress: Progress | None = None) -> RunResult:  # fmt: skip
-    """Replay ``p`` causally; GNSS inside ``outages`` (s, absolute) is scored, never fused."""
+    """Replay ``p`` causally; GNSS inside ``outages`` (s, absolute) is scored, never fused. ReplayError (one line
+    naming the recording and the time) when the state becomes non-finite or the core fails numerically."""
+    at = [math.nan]
+    try:
+        return _run_dataset(p, outages, label, progress, at)
+    except ReplayError:
+        raise
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError) as e:
+        raise ReplayError(f"{p.source or label or 'replay'}: the replay failed at t = {at[0]:.3f} s "
+                          f"({type(e).__name__}: {' '.join(str(e).split())[:120]})") from None  # fmt: skip
+
+
+def _run_dataset(p: Prepared, outages: list[tuple[float, float]], label: str, progress: Progress | None,
+                 at: list[float]) -> RunResult:  # fmt: skip
+    """:func:`run_dataset`'s loop; ``at[0]``: the time of the IMU sample being processed (for an error)."""
     core = NavCore(None, p.nav)
     core.innov_kinds = frozenset({"gnss_vel"})  # the GNSS velocity innovations, for innovation_whiteness
     lever = p.nav.gnss.lever_arm_b
@@ -254,6 +376,7 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
     nan3 = np.full(3, math.nan)
     t_start = time.perf_counter()
     for k, s in enumerate(p.imu):
+        at[0] = s.t
         core.step(s)
         while j < len(meas) and meas[j][0] <= s.t:
             _, kind, m = meas[j]
@@ -286,6 +409,9 @@ def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str
                 gp.append(nan3 if inside else antenna_ned(core, lever, m.t, origin) - ref)
         if core.phase == "nav":
             st = core.ins.state
+            if not math.isfinite(st.lat + st.lon + st.h + float(np.sum(st.vel_ned)) + float(np.sum(st.q_nb))):
+                raise ReplayError(f"{p.source or label or 'replay'}: non-finite navigation states from t = {s.t:.3f} s "
+                                  f"({s.t - p.t0:.2f} s into the data): no figures")  # fmt: skip
             if math.isnan(t_nav):
                 t_nav = s.t
             T.append(s.t)
@@ -331,13 +457,14 @@ def rate_bins(imu: list[ImuSample]) -> Vec:
     t = np.fromiter((s.t for s in imu), np.float64, len(imu))
     d = np.array([s.dtheta for s in imu])
     dt = np.fromiter((s.dt for s in imu), np.float64, len(imu))
-    k = ((t - t[0]) // RATE_BIN_S).astype(np.int64)
-    ang = np.zeros((int(k[-1]) + 1, 3))
-    tim = np.zeros(int(k[-1]) + 1)
+    # the bins that hold samples only: the arrays are sized by the samples, never by the time span
+    bins, k = np.unique((t - t[0]) // RATE_BIN_S, return_inverse=True)
+    ang = np.zeros((len(bins), 3))
+    tim = np.zeros(len(bins))
     np.add.at(ang, k, d)
     np.add.at(tim, k, dt)
     ok = tim > 0
-    return np.column_stack([t[0] + RATE_BIN_S * np.nonzero(ok)[0], np.linalg.norm(ang[ok], axis=1) / tim[ok]])
+    return np.column_stack([t[0] + RATE_BIN_S * bins[ok], np.linalg.norm(ang[ok], axis=1) / tim[ok]])
 
 
 def preceded_by(r: RunResult, a: float, lookback: float = LOOKBACK_S) -> dict[str, float]:

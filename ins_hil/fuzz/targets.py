@@ -516,6 +516,294 @@ def _recorder(rng: random.Random) -> Step:
     return step
 
 
+# ------------------------------------------------------------------------------ dataset readers and configs
+#: ../shared/data beside the clone: the shipped logs whose beginnings seed the reader targets (read, never copied
+#: into the repository); without it the synthetic seeds made here are used alone
+SHARED_DATA = ROOT.parent / "shared" / "data"
+#: bytes of each shipped binary log kept as a seed (its definitions and a few seconds of data)
+SEED_BYTES = {"px4-ulog": 130_000, "ardupilot-bin": 40_000}
+#: text lines of each shipped text file kept as a seed
+SEED_LINES = 300
+#: one input in this many is replayed (prepare, the core, the scores and the summary), not only read
+REPLAY_EVERY = 25
+_TEXT_CELLS = ["nan", "inf", "-inf", "1e308", "-1e308", "0", "-1", "", "3600000000", "x", "1e-300", "9" * 30, "0x10"]
+
+
+def _text_mutate(rng: random.Random, b: bytes) -> bytes:
+    """A CSV-like text mutated: a cell replaced by a special value, a cell or column dropped or added, a line
+    duplicated, moved or deleted, a time jumped by an hour, CRLF, non-UTF-8 bytes."""
+    lines = b.split(b"\n")
+    if len(lines) < 3:
+        return b
+    for _ in range(rng.choice((1, 1, 2, 3))):
+        j = rng.randrange(len(lines))
+        cells = lines[j].split(b",")
+        r = rng.random()
+        if r < 0.35 and len(cells) > 1:
+            cells[rng.randrange(len(cells))] = rng.choice(_TEXT_CELLS).encode()
+        elif r < 0.45:
+            del cells[rng.randrange(len(cells))]
+        elif r < 0.5:
+            cells.insert(rng.randrange(len(cells) + 1), b"1.5")
+        elif r < 0.6:
+            lines.insert(rng.randrange(len(lines)), lines[j])
+        elif r < 0.68:
+            lines.insert(rng.randrange(len(lines)), lines.pop(j))
+        elif r < 0.75:
+            del lines[j]
+            continue
+        elif r < 0.85 and len(cells) > 1:  # the time (2nd cell of a generic record, 1st of a topic row) far off
+            k = 1 if cells[0].isalpha() else 0
+            try:
+                cells[k] = repr(float(cells[k]) + rng.choice((3600.0, 3.6e9, -3600.0, 1e-3))).encode()
+            except ValueError:
+                pass
+        elif r < 0.92:
+            lines = [ln + b"\r" for ln in lines]
+            break
+        else:
+            cells[rng.randrange(len(cells))] += bytes((0xFF, 0xFE, 0xC3))
+        lines[j] = b",".join(cells)
+    return b"\n".join(lines)
+
+
+def _bytes_mutate(rng: random.Random, b: bytes) -> bytes:
+    """Bytes mutated: flips, a truncation, an inserted / zeroed / duplicated block, an interesting value."""
+    out = bytearray(b)
+    r = rng.random()
+    if r < 0.4:
+        _flip(rng, out, n=rng.choice((1, 1, 2, 4, 16)))
+    elif r < 0.5:
+        del out[rng.randrange(len(out) + 1) :]
+    elif r < 0.6:
+        i = rng.randrange(len(out) + 1)
+        out[i:i] = rng.randbytes(rng.randrange(1, 200))
+    elif r < 0.7:
+        i, j = sorted((rng.randrange(len(out) + 1), rng.randrange(len(out) + 1)))
+        out[i : min(j, i + 4096)] = bytes(min(j, i + 4096) - i)
+    elif r < 0.8:
+        i, n = rng.randrange(len(out) + 1), rng.randrange(1, 2000)
+        j = rng.randrange(len(out) + 1)
+        out[j:j] = out[i : i + n]
+    else:
+        for _ in range(rng.choice((1, 2, 4))):
+            _splice(rng, out, 0, len(out))
+    return bytes(out)
+
+
+def _synthetic_dataset(seconds: float = 3.0) -> Any:
+    """A small vehicle at rest: IMU 100 Hz, GNSS 5 Hz, baro and magnetometer 10 Hz (a seed and the config
+    target's data)."""
+    from ins_hil.datasets.dataset import Dataset
+
+    n = int(seconds * 100)
+    imu = [ImuSample(0.01 * k, 0.01, np.array((1e-6, -2e-6, 3e-6)), np.array((0.001, -0.002, -0.0980))) for k in
+           range(1, n + 1)]  # fmt: skip
+    gnss = [GnssFix(0.2 * k, 0.8, 0.2, 300.0, np.array((0.0, 0.0, 0.0)), 1.0, 2.0, 0.2, FixType.FIX_3D, 9) for k in
+            range(int(seconds * 5))]  # fmt: skip
+    baro = [BaroSample(0.1 * k, 97_000.0, 300.0) for k in range(int(seconds * 10))]
+    mag = [MagSample(0.1 * k, np.array((2e-5, 1e-6, 4e-5))) for k in range(int(seconds * 10))]
+    return Dataset(imu, gnss, baro, mag, meta={"source": "<fuzz>", "format": "csv", "utc_start_s": 1.7e9})
+
+
+def _head_lines(p: Path, n: int = SEED_LINES) -> bytes:
+    with p.open("rb") as f:
+        return b"".join(f.readline() for _ in range(n))
+
+
+def _reader_seeds(fmt: str, tmp: Path) -> list[dict[str, bytes]]:
+    """Seeds of a reader: {relative file name: bytes} (a folder format has several files); the beginnings of
+    the shipped logs where ../shared/data has them, and a synthetic one where the format allows."""
+    from ins_hil.datasets import generic_csv
+
+    seeds: list[dict[str, bytes]] = []
+    d = SHARED_DATA
+    if fmt == "csv":
+        p = tmp / "seed.csv"
+        generic_csv.write_generic_csv(p, _synthetic_dataset())
+        seeds.append({"d.csv": p.read_bytes()})
+    elif fmt == "px4-ulog" and (d / "uav/px4_hover_92s/hover.ulg").is_file():
+        seeds.append({"d.ulg": (d / "uav/px4_hover_92s/hover.ulg").read_bytes()[: SEED_BYTES[fmt]]})
+    elif fmt == "px4-csv":
+        q = d / "uav/px4_quad_157s"
+        if q.is_dir():
+            seeds.append({f.name: _head_lines(f) for f in sorted(q.glob("*.csv"))})
+        cols = ["timestamp", "gyro_rad[0]", "gyro_rad[1]", "gyro_rad[2]", "gyro_integral_dt", "accelerometer_m_s2[0]",
+                "accelerometer_m_s2[1]", "accelerometer_m_s2[2]", "accelerometer_integral_dt"]  # fmt: skip
+        rows = [f"{1_000_000 + 4000 * k},0.01,0,0,4000,0.1,0,-9.8,4000" for k in range(300)]
+        gps = ["timestamp,lat,lon,alt,fix_type,eph,epv,s_variance_m_s,vel_n_m_s,vel_e_m_s,vel_d_m_s,satellites_used"]
+        gps += [f"{1_000_000 + 200_000 * k},470000000,80000000,400000,3,1.0,2.0,0.3,0,0,0,9" for k in range(6)]
+        seeds.append({"sensor_combined_0.csv": ("\n".join([",".join(cols), *rows]) + "\n").encode(),
+                      "vehicle_gps_position_0.csv": ("\n".join(gps) + "\n").encode()})  # fmt: skip
+    elif fmt in ("ardupilot-bin", "ardupilot-log") and (d / "uav/ardupilot_copter_150s/flight.bin").is_file():
+        head = (d / "uav/ardupilot_copter_150s/flight.bin").read_bytes()[: SEED_BYTES["ardupilot-bin"]]
+        if fmt == "ardupilot-bin":
+            seeds.append({"d.bin": head})
+        else:
+            from pymavlink import DFReader
+
+            p = tmp / "seed.bin"
+            p.write_bytes(head)
+            r = DFReader.DFReader_binary(str(p), zero_time_base=True)
+            out = [f"FMT, {fm.type}, {fm.len}, {fm.name}, {fm.format}, {','.join(fm.columns)}"
+                   for fm in {fm.name: fm for fm in r.formats.values()}.values()]  # fmt: skip
+            while (m := r.recv_match(type=["IMU", "GPS", "GPA", "BARO", "MAG", "NKF1", "XKF1", "MSG"])) is not None:
+                out.append(", ".join([m.get_type()] + [str(getattr(m, c)) for c in m.fmt.columns]))
+            seeds.append({"d.log": ("\n".join(out) + "\n").encode()})
+    elif fmt == "rtklib" and (d / "gnss_imu_drive_0708/imu_1934.csv").is_file():
+        g = d / "gnss_imu_drive_0708"
+        imu = _head_lines(g / "imu_1934.csv", 2 * SEED_LINES)
+        tag = (g / "imu_1934.csv.tag").read_bytes()
+        tags = np.frombuffer(tag[76 : 76 + 8 * ((len(tag) - 76) // 8)], dtype="<u4").reshape(-1, 2)
+        keep = tags[tags[:, 1] < len(imu)]
+        last = np.array([[keep[-1, 0] + 10 if len(keep) else 0, len(imu)]], dtype="<u4")
+        tag = tag[:76] + np.vstack([keep, last]).astype("<u4").tobytes()
+        pos = _head_lines(g / "gnss_1934_sf.pos", 60)
+        seeds.append({"imu.csv": imu, "imu.csv.tag": tag, "sol.pos": pos})
+    elif fmt == "ihlog":
+        from ins_hil.runtime import recorder as rec
+
+        ds = _synthetic_dataset(1.0)
+        r = rec.Recorder(tmp / "seed.ihlog", header={"pipeline": {}})
+        for x in sorted([*ds.imu, *ds.gnss, *ds.baro, *ds.mag], key=lambda x: x.t):
+            r.write(x)
+        r.close()
+        seeds.append({"d.ihlog": (tmp / "seed.ihlog").read_bytes()})
+    return seeds
+
+
+def _replay_check(ds: Any, cfg: Any) -> list[Any]:
+    """Replay ``ds`` with ``cfg`` through the dataset replay (prepare, the core, the scores) and its summary:
+    [] when it gives finite figures or refuses in one line (ReplayError), else a ``Wrong`` naming the NaN."""
+    from ins_hil.datasets import report
+    from ins_hil.datasets.run import ReplayError
+
+    try:
+        m, _ = report.replay(ds, cfg)
+    except ReplayError:
+        return []
+    text = report.format_table(report.summary(m)).lower()
+    if "nan" in text.replace("not scored", "").replace("nanos", ""):
+        return [Wrong(f"a NaN printed as a figure: {text[:300]!r}")]
+    return []
+
+
+def _reader(fmt: str) -> Callable[[random.Random], Step]:
+    """A reader target: a seed of ``fmt`` mutated (bytes; text formats also cell- and line-wise), read with the
+    reader; a DatasetError is the clean refusal, anything else raised escapes. The samples it yields go through
+    the replay's validation boundary (:func:`ins_hil.datasets.run.screen`) and are returned for the campaign's
+    range oracle; one input in ``REPLAY_EVERY`` is replayed (:func:`_replay_check`)."""
+
+    def setup(rng: random.Random) -> Step:
+        from ins_hil.datasets.config import DatasetConfig
+        from ins_hil.datasets.dataset import DatasetError, read_dataset
+        from ins_hil.datasets.run import ReplayError, screen
+
+        tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+        seeds = _reader_seeds(fmt, tmp)
+        if not seeds:
+            raise RuntimeError(f"{fmt}: no seed ({SHARED_DATA} missing)")
+        folder = fmt in ("px4-csv", "rtklib")
+        text = fmt in ("csv", "px4-csv", "ardupilot-log", "rtklib")
+        n = [0]
+
+        def step() -> tuple[int, list[Any]]:
+            seed = rng.choice(seeds)
+            root = tmp / "in"
+            if root.exists():
+                for f in root.iterdir():
+                    f.unlink()
+            root.mkdir(exist_ok=True)
+            names = list(seed)
+            victim = rng.choice(names)
+            for name, b in seed.items():
+                if name == victim:
+                    if text and not name.endswith(".tag") and rng.random() < 0.6:
+                        b = _text_mutate(rng, b)
+                    else:
+                        b = _bytes_mutate(rng, b)
+                (root / name).write_bytes(b)
+            if folder and rng.random() < 0.05:  # a file of the folder missing
+                (root / rng.choice(names)).unlink()
+            path = root if folder else root / names[0]
+            n[0] += 1
+            try:
+                ds = read_dataset(path, fmt)
+            except DatasetError:
+                return 1, []
+            try:
+                sc = screen(ds.imu, ds.gnss, [*ds.baro, *ds.mag], str(path))
+            except ReplayError:
+                return 1, []
+            # (a baro sample of a log carries its altitude alone: the campaign's oracle wants a pressure)
+            out: list[Any] = [*sc.imu[:100], *sc.imu[-20:], *sc.gnss[:20],
+                              *[m for m in sc.aux if isinstance(m, MagSample)][:20]]  # fmt: skip
+            if n[0] % REPLAY_EVERY == 0:
+                out += _replay_check(ds, DatasetConfig(name="fuzz", rtklib={}))
+            return 1, out
+
+        return step
+
+    return setup
+
+
+def _dataset_config(rng: random.Random) -> Step:
+    """The dataset config: the shipped configs/datasets/*.toml mutated (as TOML trees and as text), loaded; a
+    DatasetConfigError is the clean refusal. An accepted config replays a small synthetic data set (prepare, the
+    core, the outage protocol, the scores, the summary): a ReplayError / DatasetError is a clean refusal too,
+    anything else escapes; a NaN printed as a figure is counted (``Wrong``)."""
+    from ins_hil.datasets.config import DatasetConfigError, from_dict, load
+    from ins_hil.datasets.dataset import DatasetError
+
+    files = sorted((ROOT / "configs" / "datasets").glob("*.toml"))
+    seeds = [(p, p.read_text()) for p in files]
+    trees = [tomllib.loads(t) for _, t in seeds]
+    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    ds0 = _synthetic_dataset(3.0)
+    n = [0]
+
+    def step() -> tuple[int, list[Any]]:
+        i = rng.randrange(len(seeds))
+        n[0] += 1
+        try:
+            if rng.random() < 0.5:
+                d = copy.deepcopy(trees[i])
+                for _ in range(rng.choice((1, 1, 2, 3))):
+                    _mutate_tree(rng, d)
+                cfg = from_dict(d, "<fuzz>", tmp)
+            else:
+                lines = seeds[i][1].splitlines()
+                for _ in range(rng.choice((1, 1, 2, 4))):
+                    j = rng.randrange(len(lines))
+                    ln = lines[j]
+                    r = rng.random()
+                    if r < 0.6 and "=" in ln:
+                        lines[j] = (
+                            f"{ln.split('=', 1)[0]}= {rng.choice([*_TEXT_VALUES, '-1e308', '-9.2e18', '1e-300'])}"
+                        )
+                    elif r < 0.75:
+                        del lines[j]
+                    elif r < 0.85:
+                        lines.insert(j, lines[rng.randrange(len(lines))])
+                    else:
+                        b = bytearray(ln.encode())
+                        _flip(rng, b) if b else None
+                        lines[j] = b.decode("latin-1")
+                p = tmp / "fuzz.toml"
+                p.write_text("\n".join(lines) + "\n", encoding="utf-8", errors="surrogateescape")
+                cfg = load(p)
+        except DatasetConfigError:
+            return 1, []
+        if n[0] % 4:
+            return 1, []
+        try:  # one accepted config in four replays the small data set with it
+            return 1, _replay_check(copy.deepcopy(ds0), cfg)
+        except (DatasetError, DatasetConfigError):
+            return 1, []
+
+    return step
+
+
 TARGETS: list[Target] = [
     # weights: shares of the budget, set so every decoder gets about the same number of inputs
     Target("serial_frame", "ins_hil.drivers.serial_frame.FrameParser.feed", _serial, 0.45, nav=True),
@@ -524,6 +812,24 @@ TARGETS: list[Target] = [
     Target("mavlink_in", "ins_hil.drivers.mavlink_in.MavlinkDriver.feed", _mavlink, 1.35, nav=True),
     Target("config", "ins_hil.config.from_dict / load (mutated configs/*.toml)", _config, 0.5, decoder=False),
     Target("recorder_reader", "ins_hil.runtime.recorder.read_records", _recorder, 0.5, decoder=False),
+    # the dataset readers (mutated beginnings of the shipped logs, synthetic seeds) and the dataset config
+    *(
+        Target(
+            f"reader_{f.replace('-', '_')}",
+            f"ins_hil.datasets.dataset.read_dataset(..., {f!r}) + replay screen",
+            _reader(f),
+            0.3,
+            decoder=False,
+        )
+        for f in ("csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "rtklib", "ihlog")
+    ),
+    Target(
+        "dataset_config",
+        "ins_hil.datasets.config.from_dict / load + a small replay",
+        _dataset_config,
+        0.3,
+        decoder=False,
+    ),
 ]
 
 
