@@ -112,8 +112,17 @@ def test_no_valid_imu_sample_is_one_line():
 def test_non_finite_states_fail_and_say_where_they_began():
     p = prepare(_ds(_rest()), _cfg())
     k = 2000
-    p.imu[k] = dataclasses.replace(p.imu[k], dvel=np.full(3, math.nan))  # past the boundary (a hand-made Prepared)
+    # past the boundary (a hand-made Prepared): finite, so the core's own contract takes it, but it overflows the state
+    p.imu[k] = dataclasses.replace(p.imu[k], dvel=np.full(3, 1e308))
     with pytest.raises(ReplayError, match=r"mem\.csv: non-finite navigation states from t = 20\.010 s"):
+        run_dataset(p)
+
+
+def test_a_sample_the_core_refuses_fails_the_replay_in_one_line():
+    """A NaN sample past the boundary is refused by the core's own contract (NavCore.step): one line, its time."""
+    p = prepare(_ds(_rest()), _cfg())
+    p.imu[2000] = dataclasses.replace(p.imu[2000], dvel=np.full(3, math.nan))
+    with pytest.raises(ReplayError, match=r"mem\.csv: the replay failed at t = 20\.010 s \(ValueError: NavCore\.step"):
         run_dataset(p)
 
 
