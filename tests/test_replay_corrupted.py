@@ -110,7 +110,8 @@ def test_non_finite_states_exit_1_naming_the_file_and_the_time(tmp_path: Path, c
     def poisoned(imu, gnss, aux, source, limits=run.REPLAY_LIMITS):  # type: ignore[no-untyped-def]
         sc = real(imu, gnss, aux, source, limits)
         k = len(sc.imu) // 2
-        sc.imu[k] = run.dataclasses.replace(sc.imu[k], dvel=sc.imu[k].dvel * float("nan"))  # past the boundary
+        # past the boundary, finite (the core's own contract takes it) but overflowing the state
+        sc.imu[k] = run.dataclasses.replace(sc.imu[k], dvel=sc.imu[k].dvel * 0.0 + 1e308)
         return sc
 
     monkeypatch.setattr(run, "screen", poisoned)
