@@ -57,7 +57,7 @@ def test_status_text() -> None:
     from ins_hil.reproduce import Row
 
     c = cv.Case("x", "demo", "^g$")
-    rs = [Row("g", "a", 1.0, 1.0), Row("g", "b", 1.0, 2.0, discrepancy="why"), Row("h", "c", 1.0, 1.0)]
+    rs = [Row("g", "a", 1.0, 1.0), Row("g", "b", 1.0, 2.0, discrepancy="why", expect=2.0), Row("h", "c", 1.0, 1.0)]
     assert cv.status(c, rs) == "1 pass, 1 discrepancy"
     assert cv.status(cv.Case("y", "none", why="no data"), rs) == "not a row"
     assert cv.status(cv.Case("z", "bad", "^g$"), [Row("g", "a", 1.0, 3.0)]) == "0 pass, **1 FAIL**"

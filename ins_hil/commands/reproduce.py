@@ -89,7 +89,9 @@ def render(
 
 def _result(r: Row) -> str:
     if r.status == "discrepancy":
-        return "**discrepancy** — " + _cell(r.discrepancy)
+        return f"**discrepancy** (ours held at {r.expect_text}) — " + _cell(r.discrepancy)
+    if r.discrepancy:
+        return f"**FAIL** (discrepancy moved: ours should be {r.expect_text}) — " + _cell(r.discrepancy)
     return "pass" if r.passed else "**FAIL**"
 
 
@@ -142,5 +144,8 @@ def run(args: argparse.Namespace) -> int:
     n_pass = len(rows_all) - len(failed) - len(disc)
     print(f"reproduce: {n_pass}/{len(rows_all)} rows pass, {len(disc)} discrepancies; report written to {out}")
     for r in failed:
-        print(f"  FAIL {r.group}: {r.case}: ours {r.ours:.6g}, reference {r.ref:.6g} ({r.tolerance_text})")
+        if r.discrepancy:
+            print(f"  FAIL {r.group}: {r.case}: ours {r.ours:.6g}, documented {r.expect_text}")
+        else:
+            print(f"  FAIL {r.group}: {r.case}: ours {r.ours:.6g}, reference {r.ref:.6g} ({r.tolerance_text})")
     return 1 if failed else 0

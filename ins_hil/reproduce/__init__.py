@@ -25,7 +25,11 @@ class Row:
     ``"le"`` ours ≤ ref; ``"ge"`` ours ≥ ref (bounds). ``published`` is None
     when the source prints no number (the reference then comes from the digest).
     ``discrepancy`` names why a row is reported rather than passed (a parameter we had to
-    change, a unit the source does not state): such a row never counts as a pass.
+    change, a unit the source does not state): such a row never counts as a pass, and it
+    must document the value we measure: ``expect`` (ours, as measured when the reason was
+    written) within ``expect_tol`` (relative; absolute when ``expect`` is 0). A discrepancy row
+    whose value leaves that band, or that documents none, is a failure: a code change that
+    moves a reported value fails like any other row.
     """
 
     group: str
@@ -38,13 +42,31 @@ class Row:
     note: str = ""
     typo: bool = False
     discrepancy: str = ""  # non-empty: the reason our result differs (a changed parameter, a reading); never a pass
+    expect: float | None = None  # discrepancy rows: the documented value of ``ours``
+    expect_tol: float = 0.0  # relative tolerance on ``expect`` (absolute when expect == 0)
 
     @property
     def status(self) -> str:
-        """Return "pass", "fail" or "discrepancy" (reported with its reason: neither a pass nor a fail)."""
+        """Return "pass", "fail" or "discrepancy" (reported with its reason and held at its documented value)."""
         if self.discrepancy:
-            return "discrepancy"
+            return "discrepancy" if self.held else "fail"
         return "pass" if self.passed else "fail"
+
+    @property
+    def held(self) -> bool:
+        """A discrepancy row's value is where its reason documents it (``expect`` ± ``expect_tol``)."""
+        if self.expect is None or not math.isfinite(self.ours):
+            return False
+        band = self.expect_tol * abs(self.expect) if self.expect != 0.0 else self.expect_tol
+        return abs(self.ours - self.expect) <= band
+
+    @property
+    def expect_text(self) -> str:
+        """The documented value of a discrepancy row, e.g. "17.6 ± 5 %"."""
+        if self.expect is None:
+            return "no documented value"
+        tol = f"{100 * self.expect_tol:g} %" if self.expect != 0.0 else f"{self.expect_tol:g}"
+        return f"{self.expect:.4g} ± {tol}"
 
     @property
     def ref(self) -> float:
