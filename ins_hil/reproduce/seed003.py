@@ -9,7 +9,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ins_hil.nav.rotation import quat_mul
+from ins_hil.nav.rotation import quat_angle_between, quat_from_rotvec, quat_mul, quat_slerp
 
 from . import Row
 
@@ -54,6 +54,52 @@ def j2_gravity(mu: float) -> tuple[float, float]:
         return GM / r**2 * (1.0 + 1.5 * mu * (A_E / r) ** 2 * (1.0 - 3.0 * math.sin(phi) ** 2))
 
     return gr(A_E, 0.0) - OMEGA_E**2 * A_E, gr(B_E, math.pi / 2)
+
+
+def slerp_printed(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+    """The thesis' SLERP as printed (lines 896–902): sin((1−t)θ)/sin θ·q0 + sin(tθ)/sin θ·q1, cos θ = q0·q1
+    (no shortest-path sign flip, no small-θ fallback)."""
+    th = math.acos(float(np.clip(q0 @ q1, -1.0, 1.0)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (math.sin((1 - t) * th) * q0 + math.sin(t * th) * q1) / np.float64(math.sin(th))
+
+
+def _same(p: np.ndarray, q: np.ndarray) -> float:
+    """max |p − q| up to the sign of the whole quaternion (q and −q are one attitude)."""
+    return float(min(np.max(np.abs(p - q)), np.max(np.abs(p + q))))
+
+
+def slerp_figures() -> dict[str, float]:
+    """003-E: ours against the printed formula (q0·q1 ≥ 0), scipy's Slerp, the long way and a 1e-10-rad pair."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    rng = np.random.default_rng(2024)
+    ts = np.linspace(0.0, 1.0, 11)
+    printed = scipy_ = 0.0
+    for _ in range(200):
+        q0, q1 = (q / np.linalg.norm(q) for q in rng.normal(size=(2, 4)))
+        if q0 @ q1 < 0.0:
+            q1 = -q1
+        ref = Slerp([0.0, 1.0], Rotation.from_quat(np.array([q0, q1])[:, [1, 2, 3, 0]]))(ts).as_quat()[:, [3, 0, 1, 2]]
+        for t, r in zip(ts, ref, strict=True):
+            q = quat_slerp(q0, q1, t)
+            printed = max(printed, _same(q, slerp_printed(q0, q1, t)))
+            scipy_ = max(scipy_, _same(q, r))
+    th = math.radians(60.0)
+    q0 = np.array([1.0, 0.0, 0.0, 0.0])
+    q1 = quat_from_rotvec(np.array([0.0, 0.0, th]))
+    long_mid = slerp_printed(q0, -q1, 0.5)
+    phi = np.array([6e-11, -8e-11, 0.0])
+    q1s = quat_from_rotvec(phi)
+    small = max(_same(quat_slerp(q0, q1s, t), quat_from_rotvec(t * phi)) for t in (0.25, 0.5, 0.75))
+    return {
+        "printed": printed,
+        "scipy": scipy_,
+        "mid_ours": quat_angle_between(q0, quat_slerp(q0, -q1, 0.5)) / th,
+        "mid_printed": quat_angle_between(q0, long_mid / np.linalg.norm(long_mid)) / th,
+        "small": small,
+        "small_printed_finite": float(np.all(np.isfinite(slerp_printed(q0, q1s, 0.5)))),
+    }
 
 
 def table_1_1(phi: float, lam: float, eps: float) -> np.ndarray:
@@ -146,4 +192,20 @@ def rows() -> list[Row]:
         up_err = max(up_err, float(np.max(np.abs(T[2] - up))))
     out.append(Row(g, "003-D: corrected Table 1.1, max |C Cᵀ − I|", None, worst, 1e-12, "abs", 0.0))
     out.append(Row(g, "003-D: row ζ₀ − geodetic Up, max", None, up_err, 1e-15, "abs", 0.0))
+    g = "003-E SLERP, ins_hil.nav.rotation.quat_slerp (seed 003 lines 894–903; the thesis prints no numbers)"
+    s = slerp_figures()
+    out += [
+        Row(g, "max |ours − printed formula| (q0·q1 ≥ 0, 200 pairs × 11 t)", None, s["printed"], 1e-12, "abs", 0.0,
+            "equal up to the quaternion's sign where the printed formula is right"),
+        Row(g, "max |ours − scipy Slerp| (200 pairs × 11 t)", None, s["scipy"], 1e-12, "abs", 0.0,
+            "an independent implementation"),
+        Row(g, "ours, q1 → −q1 (same attitude), θ = 60°: midpoint angle / θ", None, s["mid_ours"], 1e-9, "abs", 0.5,
+            "shortest path"),
+        Row(g, "printed formula, q1 → −q1, θ = 60°: midpoint angle / θ", None, s["mid_printed"], 1e-9, "abs", 2.5,
+            "the printed formula has no sign flip: it takes the long way, (2π − θ)/2", typo=True),
+        Row(g, "ours, attitudes 1e-10 rad apart: max |ours − q0 ⊗ exp(tφ)|", None, s["small"], 1e-15, "abs", 0.0,
+            "small-angle safe"),
+        Row(g, "printed formula, attitudes 1e-10 rad apart: finite (1 = yes)", None, s["small_printed_finite"], 0.0,
+            "abs", 0.0, "cos θ rounds to 1, θ = 0: 0/0", typo=True),
+    ]  # fmt: skip
     return out
