@@ -144,10 +144,16 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
 
 
 def notes() -> list[str]:
-    """Markdown sections written after the tables: the seed-004 test bed, Ex 3.1–3.3 compared, the coverage list."""
-    from . import book_ch3_examples, coverage, seed004
+    """Markdown sections written after the tables: the seed-004 test bed, Ex 3.1–3.3 compared, the coverage list,
+    the mutation check's list."""
+    from . import book_ch3_examples, coverage, mutations, seed004
 
-    return [seed004.comparison_markdown(), book_ch3_examples.comparison_markdown(), coverage.markdown(all_rows())]
+    return [
+        seed004.comparison_markdown(),
+        book_ch3_examples.comparison_markdown(),
+        coverage.markdown(all_rows()),
+        mutations.list_markdown(),
+    ]
 
 
 def all_rows() -> list[Row]:
