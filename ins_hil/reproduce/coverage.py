@@ -93,6 +93,7 @@ BOOK_CASES: tuple[Case, ...] = (
         "^§4.2.1 accelerometer",
         why="the estimate of A itself needs the raw data (not in the book); its printed decomposition is checked",
     ),
+    Case("4.9", "error-growth formula (4.9) against a strapdown simulation (not in §8's list)", "^Book eq. 4.9"),
     Case("21", "Ex 5.1 / Table 5.1 SVD isolation", "^Ex 5.1–5.4", "^Table 5.1"),
     Case("22", "Ex 5.3 Z matrix", "^Ex 5.1–5.4", "^Ex 5.3: max"),
     Case("23", "Ex 5.3 isolation logic and run (a₁ unit: discrepancy)", r"^Ex 5.1–5.4|^Ex 5.3 \(", "â₁|isolating"),
