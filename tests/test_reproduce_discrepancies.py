@@ -121,3 +121,15 @@ def test_ex26_reason_does_not_misquote_ex27() -> None:
     rs = [r for r in gyrofree.rows() if r.case.startswith("Ex 2.6 with λ = 7")]
     assert len(rs) == 2
     assert all("Ex 2.7 sets μ = 7" in r.discrepancy and "the value Ex 2.7 quotes" not in r.discrepancy for r in rs)
+
+
+def test_ex27_twelve_accelerometers_on_ex24() -> None:
+    """Ex 2.7: on Ex 2.4's circle the 12-accelerometer correction (λ = 7) lowers the 15-s attitude error of the
+    6-accelerometer Ex 2.4 and its ω error; the literal μ = 7 (λ = γ/μ ≈ 6e-4) diverges; ode45 ≡ the discrete scheme."""
+    from ins_hil.reproduce import gyrofree as gf
+
+    e24, e27 = gf.ex24_run(6), gf.ex24_run(12, 7.0)
+    assert e27.att_err < 0.8 * e24.att_err and e27.w_err < 0.5 * e24.w_err
+    assert gf.ex24_run(12, gf.ex27_gamma() / 7.0).att_err > 45.0
+    assert abs(gf.ex24_run_ode45(sigma=0.0).att_err - gf.ex24_run(6, sigma=0.0).att_err) < 1e-3
+    assert gf.ex27_gamma() == pytest.approx(2**0.5 * 1e-3 / (3**0.5 * 0.2))

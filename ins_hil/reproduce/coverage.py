@@ -81,6 +81,7 @@ BOOK_CASES: tuple[Case, ...] = (
     Case("11", "Table 2.4 lower rows γ = 30…90°", r"^Table 2.4 \(simulation", "γ ?= ?(30|45|60|90)"),
     Case("12", "Ex 2.4 constants", "^Ex 2.4 constants"),
     Case("13", "Ex 2.5 constants and outcomes (Ex 2.6 λ: discrepancy)", "^Ex 2.5/2.6"),
+    Case("2.7", "Ex 2.7: Ex 2.4 with 12 accelerometers, μ = 7, ode45 (not in §8's list; figure only)", "^Ex 2.7 "),
     Case("14", "ch. 3 scenario constants", "^Ch. 3 scenario constants"),
     Case("15", "WMM example (3.31)–(3.33)", "^WMM example"),
     Case("16", "operation counts 516 / 29 154 (flops figures: no MATLAB 5)", "^§3.1.4"),
