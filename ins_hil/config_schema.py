@@ -465,6 +465,10 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
     "core.nav": {
         "adaptive": M(help="Sage–Husa adaptive R on GNSS/baro"),
         "adaptive_b": M("", "(0, 1)", "Sage–Husa forgetting factor"),
+        "gravity": M(
+            help="strapdown gravity model: 'normal' Somigliana + height series, 'j2' J2 field + centrifugal",
+            choices=("normal", "j2"),
+        ),
     },
     "core.nav.gnss": {
         "lever_arm_b": M("m", "[-100, 100]", "IMU → GNSS antenna, body FRD"),
@@ -566,8 +570,9 @@ TABLES: dict[str, dict[str, dict[str, Any]]] = {
         "still_tau": M("s", "(0, 60]", "static alignment: time constant of the IMU motion test"),
         "gyro_bias_std": M("rad/s", "(0, 1]", "gyro bias σ after the alignment"),
         "mag_yaw_std": M("rad", f"(0, {PI}]", "yaw σ from the magnetometer alignment"),
-        "gnss_yaw_speed": M("m/s", "(0, 1000]",
-                            "in-motion yaw from a receiver's velocity course above this speed (else a fitted track)"),
+        "gnss_yaw_speed": M(
+            "m/s", "(0, 1000]", "in-motion yaw from a receiver's velocity course above this speed (else a fitted track)"
+        ),
         "gnss_yaw_std": M("rad", f"(0, {PI}]", "yaw σ of the in-motion alignment (⊕ σ_v/V)"),
         "gnss_yaw_vel_floor": M("m/s", "[0, 100]", "floor on the receiver's σ_v in the in-motion yaw σ"),
         "aligned_yaw_std": M("rad", f"(0, {PI}]", "the state is 'aligned' when the yaw σ is below this"),

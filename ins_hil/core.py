@@ -79,7 +79,8 @@ class NavConfig:
     (NHC/ZUPT/ZARU), ``hold`` (flight without GNSS), ``alignment``, ``delay`` (delayed fusion), ``filter``
     (:class:`~ins_hil.fusion.ekf.FilterConfig`); each section's keys and units are in its class
     (:mod:`ins_hil.core_parts.config`) and in docs/configuration.md. ``adaptive``: Sage–Husa R on GNSS/baro with
-    forgetting factor ``adaptive_b``.
+    forgetting factor ``adaptive_b``. ``gravity``: the strapdown's gravity model, ``"normal"`` (Somigliana with
+    the height series, the default) or ``"j2"`` (J2 field + centrifugal, :func:`ins_hil.nav.earth.gravity_j2_ned`).
     """
 
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -92,8 +93,11 @@ class NavConfig:
     delay: sections.DelayConfig = field(default_factory=sections.DelayConfig)
     adaptive: bool = False
     adaptive_b: float = 0.97
+    gravity: str = "normal"
 
     def __post_init__(self) -> None:
+        if self.gravity not in earth.GRAVITY_MODELS:
+            raise ValueError(f"NavConfig.gravity={self.gravity!r}: expected one of {', '.join(earth.GRAVITY_MODELS)}")
         for name, cls in (("filter", FilterConfig), *sections.SECTIONS.items()):
             v = getattr(self, name)
             if isinstance(v, dict):  # dataclasses.asdict(NavConfig) loaded back
@@ -146,7 +150,7 @@ class NavCore:
             if self.cfg.alignment.mode == "given":
                 raise ValueError("NavCore: alignment.mode='given' needs an initial state")
             initial = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), 0.0, 0.0, 0.0)
-        self.ins = StrapdownNED(initial.copy())
+        self.ins = StrapdownNED(initial.copy(), gravity=self.cfg.gravity)
         self.kf = ErrorStateEKF(self.cfg.filter)
         self.idx = self.kf.idx
         self.bg = np.zeros(3)

@@ -23,7 +23,44 @@ ROWS = book_ch2.rows()
 
 @pytest.mark.parametrize("row", ROWS, ids=[f"{r.group}: {r.case}" for r in ROWS])
 def test_published_value(row) -> None:
-    assert row.passed, f"ours {row.ours:.6g} vs reference {row.ref:.6g} ({row.tolerance_text}); {row.note}"
+    """Recomputed here: a relative tolerance of at most 2 % (the book prints 3 digits), an absolute one of at
+    most 1 (the book truncates); a discrepancy row held at its documented value within 2 %."""
+    if row.discrepancy:
+        assert row.expect is not None and 0 < row.expect_tol <= 0.02
+        assert abs(row.ours - row.expect) <= row.expect_tol * abs(row.expect), (row.ours, row.expect)
+        return
+    if row.check == "le":  # the book's round-off of an exact zero (Table 2.2 |λ2|)
+        assert row.ref <= 1e-5 and abs(row.ours) <= 1e-12, (row.ours, row.ref)
+        return
+    cap = 0.10 if row.case.startswith("δλ³") else 0.02  # δλ³: the book's start-up is undefined (case 4)
+    assert (row.check == "rel" and row.tol <= cap) or (row.check == "abs" and row.tol <= 1.0), (
+        f"tolerance {row.tolerance_text} wider than the book's precision"
+    )
+    assert abs(row.ours - row.ref) <= (row.tol * abs(row.ref) if row.check == "rel" else row.tol)
+
+
+# Table 2.3 / 2.4 simulated values that our exact simulation does not reproduce: ours and the printed value
+TABLE_23_24_GAPS = {
+    ("Table 2.3 (simulation)", "case I, δλ¹"): (5130, 5252.0),
+    ("Table 2.3 (simulation)", "case I, δλ²"): (2626, 2644.9),
+    ("Table 2.3 (simulation)", "case II, δλ¹"): (5797, 5766.8),
+    ("Table 2.3 (simulation)", "case II, δλ²"): (1938, 1927.8),
+    ("Table 2.4 (simulation)", "γ=90°, δλ¹"): (10, 1.620),
+    ("Table 2.4 (simulation)", "γ=90°, δλ²"): (2, 7.047),
+    ("Table 2.4 (simulation)", "γ=90°, δλ²_m"): (0.8, 1.671),
+}
+
+
+def test_simulated_rows_the_book_misses_are_discrepancies() -> None:
+    """No tolerance is widened to the observed gap: these rows are discrepancies held at our value."""
+    rows = {(r.group, r.case): r for r in ROWS}
+    for key, (printed, ours) in TABLE_23_24_GAPS.items():
+        r = rows[key]
+        assert r.published == printed and r.discrepancy, key
+        assert r.ours == pytest.approx(ours, rel=2e-3), key
+    # Table 2.3 II's own γ = 0 twin in Table 2.4 agrees to the printed (truncated) digit
+    for col, pub in (("δλ¹", 5766), ("δλ²", 1927)):
+        assert 0 <= rows[("Table 2.4 (simulation)", f"γ=0°, {col}")].ours - pub < 1
 
 
 def test_table_2_1_has_all_32_entries() -> None:

@@ -31,7 +31,7 @@ def test_every_selector_matches_and_every_row_has_a_case(rows) -> None:
 def test_markdown_lists_all_digest_cases_with_counts(rows) -> None:
     text = cv.markdown(rows)
     ids_seed = [c.id for c in cv.SEED_CASES]
-    assert ids_seed[0] == "001-A" and ids_seed[-1] == "004-D" and len(ids_seed) == 31  # DIGEST_001_004 §6: 31 cases
+    assert ids_seed[0] == "001-A" and ids_seed[-1] == "004-D" and len(ids_seed) == 32  # 31 digest cases + 003-E
     for c in CASES:
         assert f"| {c.id} | {c.what} |" in text
     n = cv.counts(rows)
@@ -57,7 +57,7 @@ def test_status_text() -> None:
     from ins_hil.reproduce import Row
 
     c = cv.Case("x", "demo", "^g$")
-    rs = [Row("g", "a", 1.0, 1.0), Row("g", "b", 1.0, 2.0, discrepancy="why"), Row("h", "c", 1.0, 1.0)]
+    rs = [Row("g", "a", 1.0, 1.0), Row("g", "b", 1.0, 2.0, discrepancy="why", expect=2.0), Row("h", "c", 1.0, 1.0)]
     assert cv.status(c, rs) == "1 pass, 1 discrepancy"
     assert cv.status(cv.Case("y", "none", why="no data"), rs) == "not a row"
     assert cv.status(cv.Case("z", "bad", "^g$"), [Row("g", "a", 1.0, 3.0)]) == "0 pass, **1 FAIL**"

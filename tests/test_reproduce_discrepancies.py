@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -13,12 +14,12 @@ from ins_hil.reproduce.gyrofree import EX26_LAMBDA_PRINTED, EX26_LAMBDA_READ, ex
 
 def test_discrepancy_row_is_never_a_pass() -> None:
     ok = Row("g", "c", 1.0, 1.0, 0.1)
-    disc = Row("g", "c", 1.0, 1.0, 0.1, discrepancy="parameter changed")
+    disc = Row("g", "c", 1.0, 1.0, 0.1, discrepancy="parameter changed", expect=1.0)
     bad = Row("g", "c", 1.0, 2.0, 0.1)
     assert (ok.status, disc.status, bad.status) == ("pass", "discrepancy", "fail")
     text = render([("s", [ok, disc, bad])], 0.0)
     assert "**1 of 3 rows pass, 1 are reported as discrepancies (with the reason), 1 fail.**" in text
-    assert "**discrepancy** — parameter changed" in text
+    assert "**discrepancy** (ours held at 1 ± 0 %) — parameter changed" in text
 
 
 def test_ex26_printed_lambda_misses_the_books_outcome_and_lambda_7_reaches_it() -> None:
@@ -79,3 +80,56 @@ def test_seed003_guards() -> None:
     eq, pole = seed003.j2_gravity(seed003.J2)
     assert eq == pytest.approx(9.78028, abs=2e-4) and pole == pytest.approx(9.83207, abs=2e-4)
     assert all(r.status == "pass" for r in seed003.rows())
+
+
+def test_a_discrepancy_row_must_document_its_value_and_fails_when_it_moves() -> None:
+    """A discrepancy is held at ``expect`` ± ``expect_tol``: no documented value, or a value that moved, is a FAIL."""
+    held = Row("g", "c", 1.0, 2.0, 0.1, discrepancy="reason", expect=2.0, expect_tol=0.05)
+    moved = replace(held, ours=2.2)
+    undocumented = Row("g", "c", 1.0, 2.0, 0.1, discrepancy="reason")
+    zero = Row("g", "c", 1.0, 0.004, 0.1, discrepancy="reason", expect=0.0, expect_tol=0.01)
+    assert (held.status, moved.status, undocumented.status, zero.status) == (
+        "discrepancy",
+        "fail",
+        "fail",
+        "discrepancy",
+    )
+    assert replace(held, ours=math.nan).status == "fail"
+    text = render([("s", [held, moved])], 0.0)
+    assert "**discrepancy** (ours held at 2 ± 5 %) — reason" in text
+    assert "**FAIL** (discrepancy moved: ours should be 2 ± 5 %)" in text
+    assert "**1 of 2 rows pass" not in text and "1 fail.**" in text
+
+
+def test_every_fast_discrepancy_row_documents_its_value() -> None:
+    """Recomputed here rather than from Row.status: each discrepancy row has a value and a band ≤ 15 % and holds."""
+    from ins_hil.reproduce import book_ch2, book_ch3, book_tables, gyrofree, seed002
+
+    rows = [r for mod in (book_ch2, book_ch3, book_ch5, book_tables, gyrofree, seed002) for r in mod.rows()]
+    disc = [r for r in rows if r.discrepancy]
+    assert len(disc) >= 25
+    for r in disc:
+        assert r.expect is not None and 0 <= r.expect_tol <= 0.15, r.case
+        band = r.expect_tol * abs(r.expect) if r.expect else r.expect_tol
+        assert abs(r.ours - r.expect) <= band, (r.group, r.case, r.ours, r.expect)
+
+
+def test_ex26_reason_does_not_misquote_ex27() -> None:
+    """Ex 2.7 sets μ = 7 in eq. 2.54 (λ = γ/μ), not λ = 7: the reason says so."""
+    from ins_hil.reproduce import gyrofree
+
+    rs = [r for r in gyrofree.rows() if r.case.startswith("Ex 2.6 with λ = 7")]
+    assert len(rs) == 2
+    assert all("Ex 2.7 sets μ = 7" in r.discrepancy and "the value Ex 2.7 quotes" not in r.discrepancy for r in rs)
+
+
+def test_ex27_twelve_accelerometers_on_ex24() -> None:
+    """Ex 2.7: on Ex 2.4's circle the 12-accelerometer correction (λ = 7) lowers the 15-s attitude error of the
+    6-accelerometer Ex 2.4 and its ω error; the literal μ = 7 (λ = γ/μ ≈ 6e-4) diverges; ode45 ≡ the discrete scheme."""
+    from ins_hil.reproduce import gyrofree as gf
+
+    e24, e27 = gf.ex24_run(6), gf.ex24_run(12, 7.0)
+    assert e27.att_err < 0.8 * e24.att_err and e27.w_err < 0.5 * e24.w_err
+    assert gf.ex24_run(12, gf.ex27_gamma() / 7.0).att_err > 45.0
+    assert abs(gf.ex24_run_ode45(sigma=0.0).att_err - gf.ex24_run(6, sigma=0.0).att_err) < 1e-3
+    assert gf.ex27_gamma() == pytest.approx(2**0.5 * 1e-3 / (3**0.5 * 0.2))

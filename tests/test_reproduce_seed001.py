@@ -82,3 +82,22 @@ def test_attitude_update_and_kalman_forms() -> None:
     """001-I and 001-L."""
     assert s1.attitude_update_error() < 1e-12
     assert s1.kalman_forms_error() < 1e-10
+
+
+def test_a_broken_schuler_loop_is_a_reported_failure_not_a_crash(monkeypatch) -> None:
+    """No zero crossings (e.g. the transport-rate sign flipped): the period rows fail with NaN instead of raising."""
+    import ins_hil.reproduce.seed001 as s1m
+
+    orig = s1m.schuler_run
+
+    def flat():
+        r = orig()
+        return s1m.SchulerRun(r.t, np.abs(r.dv_north) + 1.0, r.dr_north, r.period_theory)
+
+    s1m.rows.cache_clear()
+    monkeypatch.setattr(s1m, "schuler_run", flat)
+    try:
+        rows = s1m.rows()
+        assert [r.status for r in rows[:2]] == ["fail", "fail"]
+    finally:
+        s1m.rows.cache_clear()

@@ -76,3 +76,62 @@ def test_yaw_90_maps_body_x_to_east() -> None:
     # pitch up: nose (body x) points up, i.e. negative down
     q = R.quat_from_euler(0.0, 0.3, 0.0)
     assert R.quat_rotate(q, np.array([1.0, 0, 0]))[2] < 0
+
+
+def _seed003_slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+    """Seed 003's printed formula (lines 896–902): sin((1−t)θ)/sin θ·q0 + sin(tθ)/sin θ·q1, cos θ = q0·q1."""
+    th = math.acos(float(np.clip(q0 @ q1, -1.0, 1.0)))
+    return (math.sin((1 - t) * th) * q0 + math.sin(t * th) * q1) / math.sin(th)
+
+
+def _rand_quat(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    return q / np.linalg.norm(q)
+
+
+def test_slerp_matches_scipy_and_the_seed_formula() -> None:
+    """Against scipy's Slerp (scalar-last, an independent implementation) and, for q0·q1 ≥ 0, against the seed's
+    own formula component by component (up to the sign of the whole quaternion)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    rng = np.random.default_rng(3)
+    ts = np.linspace(0.0, 1.0, 11)
+    for _ in range(100):
+        q0, q1 = _rand_quat(rng), _rand_quat(rng)
+        ref = Slerp([0.0, 1.0], Rotation.from_quat(np.array([q0, q1])[:, [1, 2, 3, 0]]))(ts).as_quat()[:, [3, 0, 1, 2]]
+        for t, r in zip(ts, ref, strict=True):
+            q = R.quat_slerp(q0, q1, t)
+            assert abs(np.linalg.norm(q) - 1.0) < 1e-14
+            assert R.quat_angle_between(q, r) < 1e-7  # quat_angle_between's own floor (atan2 of |vec| ~ 1e-8)
+            assert min(np.max(np.abs(q - r)), np.max(np.abs(q + r))) < 1e-12
+            if q0 @ q1 > 0.0:  # ours is returned with a non-negative scalar part (quat_normalize): ± the seed's
+                s = _seed003_slerp(q0, q1, t)
+                assert min(np.max(np.abs(q - s)), np.max(np.abs(q + s))) < 1e-12
+
+
+def test_slerp_takes_the_shortest_path_and_endpoints() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        q0, q1 = _rand_quat(rng), _rand_quat(rng)
+        th = R.quat_angle_between(q0, q1)
+        for t in (0.0, 0.25, 0.5, 1.0):
+            a, b = R.quat_slerp(q0, q1, t), R.quat_slerp(q0, -q1, t)  # −q1 is the same attitude
+            assert min(np.max(np.abs(a - b)), np.max(np.abs(a + b))) < 1e-12
+            assert abs(R.quat_angle_between(q0, a) - t * th) < 1e-9
+            assert abs(R.quat_angle_between(a, q1) - (1 - t) * th) < 1e-9
+        # the seed's formula with q0·q1 < 0 goes the long way: 2π − θ about the axis
+        if q0 @ q1 > 0.0:
+            mid = _seed003_slerp(q0, -q1, 0.5)
+            assert R.quat_angle_between(q0, mid / np.linalg.norm(mid)) > th / 2 + 1e-3 or th < 2e-3
+
+
+def test_slerp_is_small_angle_safe() -> None:
+    """Attitudes 1e-10 rad apart (the seed's formula divides by sin θ ~ 1e-10): exact rotation t·φ, no NaN."""
+    q0 = R.quat_from_euler(0.3, -0.2, 1.0)
+    phi = np.array([3e-11, -4e-11, 0.0]) * 2  # |φ| = 1e-10 rad
+    q1 = R.quat_mul(q0, R.quat_from_rotvec(phi))
+    for t in (0.0, 0.3, 1.0):
+        q = R.quat_slerp(q0, q1, t)
+        assert np.all(np.isfinite(q))
+        np.testing.assert_allclose(q, R.quat_mul(q0, R.quat_from_rotvec(t * phi)), atol=1e-15)
+    assert np.array_equal(R.quat_slerp(q0, q0, 0.5), R.quat_normalize(q0))

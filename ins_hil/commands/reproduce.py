@@ -19,7 +19,9 @@ DESCRIPTION = (
     "§6.1 lab test as an analogue) and seeds 001–004's cases (DIGEST_001_004 §6) with ins_hil's algorithms and "
     "write a Markdown report: published value, ours, difference, tolerance, pass/fail/discrepancy and a note "
     "where the published value is a known typo, plus the table of every digest case with its status (or why "
-    "it is not a row). Exit status 1 if any row fails."
+    "it is not a row). Exit status 1 if any row fails. --mutations instead applies the list of small formula "
+    "mutations of ins_hil/reproduce/mutations.py, one at a time in a fresh interpreter, and checks that each "
+    "makes a row of its report section fail (exit status 1 if one is not caught; a few minutes)."
 )
 
 
@@ -27,6 +29,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--output", "-o", type=Path, default=Path("docs/reproduction.md"), help="report path")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     p.add_argument("--no-plots", action="store_true", help="do not write the PNG figures beside the report")
+    p.add_argument(
+        "--mutations",
+        action="store_true",
+        help="check that each formula mutation of ins_hil/reproduce/mutations.py is caught by a row (no report)",
+    )
 
 
 def _fmt(x: float | None) -> str:
@@ -89,7 +96,9 @@ def render(
 
 def _result(r: Row) -> str:
     if r.status == "discrepancy":
-        return "**discrepancy** — " + _cell(r.discrepancy)
+        return f"**discrepancy** (ours held at {r.expect_text}) — " + _cell(r.discrepancy)
+    if r.discrepancy:
+        return f"**FAIL** (discrepancy moved: ours should be {r.expect_text}) — " + _cell(r.discrepancy)
     return "pass" if r.passed else "**FAIL**"
 
 
@@ -106,7 +115,21 @@ def _writable(out: Path) -> str | None:
     return None
 
 
+def _run_mutations(quiet: bool) -> int:
+    from ins_hil.reproduce import mutations
+
+    outcomes = mutations.run(progress=not quiet)
+    print(mutations.markdown(outcomes))
+    missed = [o.id for o in outcomes if not o.caught]
+    print(f"reproduce --mutations: {len(outcomes) - len(missed)} of {len(outcomes)} mutations caught")
+    for mid in missed:
+        print(f"  NOT CAUGHT {mid}")
+    return 1 if missed else 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "mutations", False):
+        return _run_mutations(args.quiet)
     t0 = time.perf_counter()
     why = _writable(args.output)
     if why is not None:
@@ -142,5 +165,8 @@ def run(args: argparse.Namespace) -> int:
     n_pass = len(rows_all) - len(failed) - len(disc)
     print(f"reproduce: {n_pass}/{len(rows_all)} rows pass, {len(disc)} discrepancies; report written to {out}")
     for r in failed:
-        print(f"  FAIL {r.group}: {r.case}: ours {r.ours:.6g}, reference {r.ref:.6g} ({r.tolerance_text})")
+        if r.discrepancy:
+            print(f"  FAIL {r.group}: {r.case}: ours {r.ours:.6g}, documented {r.expect_text}")
+        else:
+            print(f"  FAIL {r.group}: {r.case}: ours {r.ours:.6g}, reference {r.ref:.6g} ({r.tolerance_text})")
     return 1 if failed else 0

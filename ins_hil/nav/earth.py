@@ -26,6 +26,8 @@ GAMMA_B = 9.8321849378  # normal gravity at the pole [m/s^2]
 K_SOMIGLIANA = B_WGS84 * GAMMA_B / (A_WGS84 * GAMMA_A) - 1.0  # seed 001 eq. 12
 
 G0 = 9.80665  # standard gravity, used only for unit conversions (g → m/s^2)
+J2_WGS84 = 1.082629821e-3  # second zonal harmonic (seed 003 eq. 1.9 prints μ = 1.09e-10: a typo, DIGEST_001_004 §3)
+GRAVITY_MODELS = ("normal", "j2")  # StrapdownNED.gravity / NavConfig.gravity
 
 
 def radii(lat: float) -> tuple[float, float]:
@@ -54,6 +56,33 @@ def normal_gravity(lat: float, h: float = 0.0) -> float:
 def gravity_ned(lat: float, h: float = 0.0) -> Vec:
     """Gravity vector in NED, (0, 0, +γ) (seed 001 eq. 11 in NED; no deflection)."""
     return np.array([0.0, 0.0, normal_gravity(lat, h)])
+
+
+def j2_gravity_nd(slat: float, clat: float, h: float) -> tuple[float, float]:
+    """(north, down) gravity (m/s²) of the J2 field plus the centrifugal term at sin/cos of the geodetic
+    latitude and height h (m); see :func:`gravity_j2_ned`. Scalar: the mechanization's hot path."""
+    n = A_WGS84 / math.sqrt(1.0 - E2_WGS84 * slat * slat)
+    x, z = (n + h) * clat, (n * (1.0 - E2_WGS84) + h) * slat  # ECEF in the meridian plane (seed 001 eq. 8)
+    r2 = x * x + z * z
+    k = 1.5 * J2_WGS84 * A_WGS84 * A_WGS84 / r2
+    u = 5.0 * z * z / r2
+    gm_r3 = GM_WGS84 / (r2 * math.sqrt(r2))
+    gx = -gm_r3 * x * (1.0 + k * (1.0 - u)) + OMEGA_E * OMEGA_E * x
+    gz = -gm_r3 * z * (1.0 + k * (3.0 - u))
+    return -slat * gx + clat * gz, -clat * gx - slat * gz
+
+
+def gravity_j2_ned(lat: float, h: float = 0.0) -> Vec:
+    """Gravity in NED (m/s²) from the J2 gravitational field plus the centrifugal acceleration.
+
+    In ECEF, g = −GM/r³ (x (1 + k(1 − 5z²/r²)), y (1 + k(1 − 5z²/r²)), z (1 + k(3 − 5z²/r²))) + ω_e² (x, y, 0),
+    k = 1.5 J2 (a/r)², rotated to NED at the geodetic latitude. Its radial part is seed 003's eq. 1.9 (with μ =
+    J2); unlike :func:`normal_gravity` (the ellipsoid's closed form, the navigation's default) it holds at any
+    height, and it has a small north component (the J2 field is not exactly normal to the ellipsoid; the
+    truncated J4… terms leave ~1e-5 m/s² against Somigliana at the surface).
+    """
+    g_n, g_d = j2_gravity_nd(math.sin(lat), math.cos(lat), h)
+    return np.array([g_n, 0.0, g_d])
 
 
 def earth_rate_ned(lat: float) -> Vec:

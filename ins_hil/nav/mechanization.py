@@ -82,6 +82,9 @@ class StrapdownNED:
     ``earth_rate`` switches Earth rate, transport rate and Coriolis off for
     flat-Earth tests. ``renorm_every`` renormalises the quaternion every N
     steps (the exact rotation-vector update keeps the norm to round-off).
+    ``gravity``: ``"normal"`` (default) Somigliana normal gravity with the height series (seed 001 eqs. 12,
+    16), or ``"j2"`` the J2 field plus centrifugal term with its north component
+    (:func:`~ins_hil.nav.earth.gravity_j2_ned`, seed 003 eq. 1.9).
     """
 
     state: StrapdownState
@@ -98,9 +101,14 @@ class StrapdownNED:
     omega_ie: Vec = field(default_factory=lambda: np.zeros(3))
     omega_en: Vec = field(default_factory=lambda: np.zeros(3))
     attitude: str = "rotvec"
+    gravity: str = "normal"
     _att: Any = field(default=None, init=False, repr=False)
+    _j2: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
+        if self.gravity not in earth.GRAVITY_MODELS:
+            raise ValueError(f"StrapdownNED: gravity={self.gravity!r}: expected one of {earth.GRAVITY_MODELS}")
+        self._j2 = self.gravity == "j2"
         if self.attitude != "rotvec":
             from .attitude import make_attitude
 
@@ -189,13 +197,18 @@ class StrapdownNED:
         # gravity at mid-interval height; Coriolis/transport −(2ω_ie + ω_en) × v (seed 001 eq. 57)
         hm0 = h - 0.5 * vD * dt
         s2 = slat * slat
-        g = (
-            earth.GAMMA_A * (1.0 + earth.K_SOMIGLIANA * s2) / math.sqrt(w2)
-            - (3.0877e-6 - 4.4e-9 * s2) * hm0
-            + 0.72e-12 * hm0 * hm0
-        )  # seed 001 eqs. 12, 16
+        if self._j2:
+            gN, g = earth.j2_gravity_nd(slat, clat, hm0)  # seed 003 eq. 1.9 (J2 field + centrifugal)
+        else:
+            g = (
+                earth.GAMMA_A * (1.0 + earth.K_SOMIGLIANA * s2) / math.sqrt(w2)
+                - (3.0877e-6 - 4.4e-9 * s2) * hm0
+                + 0.72e-12 * hm0 * hm0
+            )  # seed 001 eqs. 12, 16
         cN, cE, cD = 2.0 * ieN + enN, enE, 2.0 * ieD + enD
         vN1 = vN + fN - (cE * vD - cD * vE) * dt
+        if self._j2:
+            vN1 += gN * dt
         vE1 = vE + fE - (cD * vN - cN * vD) * dt
         vD1 = vD + fD + (g - (cN * vE - cE * vN)) * dt
 

@@ -40,6 +40,7 @@ __all__ = [
     "quat_mul",
     "quat_normalize",
     "quat_rotate",
+    "quat_slerp",
     "rotvec_from_quat",
     "skew",
 ]
@@ -205,3 +206,20 @@ def quat_angle_between(p: Vec, q: Vec) -> float:
     """Smallest rotation angle (rad) taking attitude p to attitude q."""
     d = quat_mul(quat_conj(quat_normalize(p)), quat_normalize(q))
     return 2.0 * math.atan2(float(np.linalg.norm(d[1:])), abs(float(d[0])))
+
+
+def quat_slerp(q0: Vec, q1: Vec, t: float) -> Vec:
+    """Spherical linear interpolation from attitude ``q0`` (t = 0) to ``q1`` (t = 1) along the shortest path.
+
+    q(t) = q0 ⊗ exp(t·log(q0* ⊗ q1)) with the relative quaternion taken with a non-negative scalar part
+    (q and −q are one attitude), i.e. a rotation by t·θ about the fixed axis of the relative rotation,
+    θ ∈ [0, π]. This is seed 003's sin((1−t)θ)/sin θ·q0 + sin(tθ)/sin θ·q1, cos θ = q0·q1, when q0·q1 ≥ 0;
+    the printed formula takes the long way otherwise and divides by sin θ → 0 for close attitudes
+    (DIGEST_001_004 §3.6): here the rotation-vector series keeps small angles exact. Inputs need not be
+    normalised; t outside [0, 1] extrapolates. Returns a unit Hamilton quaternion, scalar first.
+    """
+    a, b = quat_normalize(q0), quat_normalize(q1)
+    d = quat_mul(quat_conj(a), b)
+    if d[0] < 0.0:
+        d = -d
+    return quat_normalize(quat_mul(a, quat_from_rotvec(float(t) * rotvec_from_quat(d))))

@@ -25,7 +25,11 @@ class Row:
     ``"le"`` ours ≤ ref; ``"ge"`` ours ≥ ref (bounds). ``published`` is None
     when the source prints no number (the reference then comes from the digest).
     ``discrepancy`` names why a row is reported rather than passed (a parameter we had to
-    change, a unit the source does not state): such a row never counts as a pass.
+    change, a unit the source does not state): such a row never counts as a pass, and it
+    must document the value we measure: ``expect`` (ours, as measured when the reason was
+    written) within ``expect_tol`` (relative; absolute when ``expect`` is 0). A discrepancy row
+    whose value leaves that band, or that documents none, is a failure: a code change that
+    moves a reported value fails like any other row.
     """
 
     group: str
@@ -38,13 +42,31 @@ class Row:
     note: str = ""
     typo: bool = False
     discrepancy: str = ""  # non-empty: the reason our result differs (a changed parameter, a reading); never a pass
+    expect: float | None = None  # discrepancy rows: the documented value of ``ours``
+    expect_tol: float = 0.0  # relative tolerance on ``expect`` (absolute when expect == 0)
 
     @property
     def status(self) -> str:
-        """Return "pass", "fail" or "discrepancy" (reported with its reason: neither a pass nor a fail)."""
+        """Return "pass", "fail" or "discrepancy" (reported with its reason and held at its documented value)."""
         if self.discrepancy:
-            return "discrepancy"
+            return "discrepancy" if self.held else "fail"
         return "pass" if self.passed else "fail"
+
+    @property
+    def held(self) -> bool:
+        """A discrepancy row's value is where its reason documents it (``expect`` ± ``expect_tol``)."""
+        if self.expect is None or not math.isfinite(self.ours):
+            return False
+        band = self.expect_tol * abs(self.expect) if self.expect != 0.0 else self.expect_tol
+        return abs(self.ours - self.expect) <= band
+
+    @property
+    def expect_text(self) -> str:
+        """The documented value of a discrepancy row, e.g. "17.6 ± 5 %"."""
+        if self.expect is None:
+            return "no documented value"
+        tol = f"{100 * self.expect_tol:g} %" if self.expect != 0.0 else f"{self.expect_tol:g}"
+        return f"{self.expect:.4g} ± {tol}"
 
     @property
     def ref(self) -> float:
@@ -88,6 +110,7 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         book_ch2,
         book_ch3,
         book_ch3_examples,
+        book_ch4,
         book_ch5,
         book_tables,
         gyrofree,
@@ -115,6 +138,7 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
             book_ch3_examples.rows,
         ),
         ("Book ch. 3–5 printed values (DIGEST_000 §8 cases 14, 15, 17–19, 21–26)", book_tables.rows),
+        ("Book eq. 4.9: position-error growth against the strapdown", book_ch4.rows),
         ("Seed 003: derived guards against its typos (DIGEST_001_004 §6 cases 24–27)", seed003.rows),
         ("Book Ex 5.3: isolation from the estimated gyro bias (units of a₁)", book_ch5.rows),
         ("Seed 004: platform INS with precession-angle sensors (DIGEST_001_004 §6 cases 28–31)", seed004.rows),
@@ -122,10 +146,16 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
 
 
 def notes() -> list[str]:
-    """Markdown sections written after the tables: the seed-004 test bed, Ex 3.1–3.3 compared, the coverage list."""
-    from . import book_ch3_examples, coverage, seed004
+    """Markdown sections written after the tables: the seed-004 test bed, Ex 3.1–3.3 compared, the coverage list,
+    the mutation check's list."""
+    from . import book_ch3_examples, coverage, mutations, seed004
 
-    return [seed004.comparison_markdown(), book_ch3_examples.comparison_markdown(), coverage.markdown(all_rows())]
+    return [
+        seed004.comparison_markdown(),
+        book_ch3_examples.comparison_markdown(),
+        coverage.markdown(all_rows()),
+        mutations.list_markdown(),
+    ]
 
 
 def all_rows() -> list[Row]:

@@ -66,6 +66,7 @@ def rows() -> list[Row]:
             1e-9,
             "abs",
             discrepancy="the printed sum (276) does not equal its own closed form (516)",
+            expect=276.0,
         ),
         Row(
             g,
@@ -75,6 +76,7 @@ def rows() -> list[Row]:
             1e-9,
             "abs",
             discrepancy="the printed sum from j = n − m (29 162) differs from the closed form by 8",
+            expect=29162.0,
         ),
     ]
     g = "§3.1.2 QR update with a singular r (9 states, 4 measurements, rank r = 2)"

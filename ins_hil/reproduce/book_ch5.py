@@ -51,6 +51,7 @@ def rows() -> list[Row]:
             1.0,
             "book Fig. 5.5: indicator settles at 1",
             discrepancy="a₁'s unit is not stated; rad/s (≈ 115 σ_ω) is our reading and makes isolation easy",
+            expect=1.0,
         ),
         Row(
             g,
@@ -62,5 +63,6 @@ def rows() -> list[Row]:
             1.0,
             "book Fig. 5.5: indicator settles at 1",
             discrepancy="in the °/s reading (2 σ_ω, the unit of σ_ω) the book's outcome is not reproduced",
+            expect=0.0,
         ),
     ]

@@ -28,6 +28,7 @@ A_X1 = np.array([0.1, 1e-4, 1e-7])
 A_Z = (1.000000000000000e-04, 1.000843038769424e-04, 1.001683537749176e-04)
 A_COND = 4.2e10
 PAPER_IMPROVEMENT = (44.0, 65.0, 11.0)  # % velocity, deviation angle, drift (seed 004 line 258)
+OURS_IMPROVEMENT = (81.8, 97.5, 77.4)  # % our simulated bed (measured; a code change that moves them fails)
 
 # 004-B: our gyro and motion (the property test of case 29 takes arbitrary values)
 B_J, B_H, B_h = 2e-3, 1.0, 1e-2  # kg m², N m s, N m s
@@ -138,7 +139,7 @@ def rows() -> list[Row]:
             "eq. 4 residual ratio, amplitude 2e-4 vs 1e-4 (O(Φ²) ⇒ 4)",
             None,
             r1a / r1b,
-            0.15,
+            0.03,
             "rel",
             4.0,
             f"{r1a:.3g} rad at 2e-4",
@@ -150,7 +151,7 @@ def rows() -> list[Row]:
             "eq. 5 residual ratio, amplitude 2e-4 vs 1e-4 (O(Φ³) ⇒ 8)",
             None,
             r2a / r2b,
-            0.15,
+            0.03,
             "rel",
             8.0,
             f"{r2a:.3g} rad at 2e-4",
@@ -192,8 +193,11 @@ def rows() -> list[Row]:
     imp = tb.improvements(man)["reduced adaptive"]
     g = "004-D Ts-060K improvement (paper) vs our simulated test bed (reduced measurements, adaptive KF)"
     why = "not reproducible: the paper gives no data, parameters or metric; ours: simulated bed, RMS metric"
-    for name, p, o in zip(tb.STATE_NAMES, PAPER_IMPROVEMENT, imp, strict=True):
-        out.append(Row(g, f"improvement of {name} [%]", p, o, 0.0, "abs", note="qualitative only", discrepancy=why))
+    for name, p, o, e in zip(tb.STATE_NAMES, PAPER_IMPROVEMENT, imp, OURS_IMPROVEMENT, strict=True):
+        out.append(
+            Row(g, f"improvement of {name} [%]", p, o, 0.0, "abs", note="qualitative only", discrepancy=why,
+                expect=e, expect_tol=0.05)
+        )  # fmt: skip
     return out
 
 
