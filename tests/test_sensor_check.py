@@ -89,3 +89,22 @@ def test_the_gateway_says_each_start_up_finding_once() -> None:
         gw._core_warnings()
     assert texts == [(4, "IMU check: mounting looks wrong")]
     assert [w for w in gw.metrics.warnings if "roll 180°" in w] == core.sensor_warnings
+
+
+def test_a_replay_with_a_wrong_mounting_warns_in_its_summary(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Issue 40's walk replayed upside down: the replay's summary names the missing rotation (and metrics.json
+    keeps it), instead of a run with 20 % of fixes rejected and no hint."""
+    import json
+
+    from test_datasets_replay import GOOD, _static_csv
+
+    from ins_hil.cli import main
+
+    data = tmp_path / "static.csv"
+    _static_csv(data, seconds=20.0)
+    cfg = tmp_path / "upside_down.toml"
+    cfg.write_text(GOOD + "[mounting]\nimu_to_body_deg = [180.0, 0.0, 0.0]\n")
+    out = tmp_path / "out"
+    assert main(["replay", str(data), "--dataset", str(cfg), "--out", str(out), "--no-plots", "--quiet"]) == 0
+    warns = json.loads((out / "metrics.json").read_text())["warnings"]
+    assert any(w.startswith("mounting:") and "roll 180°" in w for w in warns), warns

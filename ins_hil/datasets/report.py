@@ -82,6 +82,10 @@ def replay(
                      for k, v in m["rejection"].items() if v["rate"] > REJECT_WARN]  # fmt: skip
     if not math.isfinite(r.t_nav):
         m["warnings"].append(f"the core never left its alignment: {r.align_status}")
+    m["warnings"] += r.sensor_warnings  # the core's start-up check: a wrong mounting, a preset below the IMU's noise
+    m["divergences"] = [[round(t - p.t0, 3), why] for t, why in r.divergences]
+    m["warnings"] += [f"the filter diverged at t = {t - p.t0:.1f} s and was reset to GNSS ({why}): the figures "
+                      "include it" for t, why in r.divergences]  # fmt: skip
     t_from = (r.t_nav if math.isfinite(r.t_nav) else p.t1) + cfg.settle_s
     if "gnss" in cfg.score:
         m["gnss"] = gnss_scores(r, p.gnss, cfg.min_fix_type) if p.gnss else "no GNSS fix in the log"

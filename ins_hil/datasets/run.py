@@ -330,6 +330,8 @@ class RunResult:
     imu_gaps: Vec = field(default_factory=lambda: np.zeros((0, 2)))  # each coasted gap: its end (s), lost (s)
     rate_bins: Vec = field(default_factory=lambda: np.zeros((0, 2)))  # |mean body rate| per RATE_BIN_S: t s, rad/s
     sf_corr: Vec = field(default_factory=lambda: np.zeros((0, 3)))  # per fused fix: t s, Δ horizontal f NED m/s²
+    divergences: list[tuple[float, str]] = field(default_factory=list)  # the core's divergence resets: t s, why
+    sensor_warnings: list[str] = field(default_factory=list)  # the core's start-up IMU check (mounting, noise)
 
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
@@ -437,7 +439,7 @@ def _run_dataset(p: Prepared, outages: list[tuple[float, float]], label: str, pr
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, list(p.notes), core.align_status(), core.imu_lost,
         np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), rate_bins(p.imu),
-        arr(corr, 3),
+        arr(corr, 3), list(core.divergences), list(core.sensor_warnings),
     )  # fmt: skip
 
 
