@@ -60,3 +60,11 @@ def undulation(lat: float, lon: float) -> float:
 def msl_height(lat: float, lon: float, h: float) -> float:
     """Height above mean sea level (m, EGM96) of a point at ellipsoidal height ``h`` (m)."""
     return h - undulation(lat, lon)
+
+
+def ellipsoidal_height(lat: float, lon: float, msl: float) -> float:
+    """WGS84 height (m) of a point ``msl`` m above mean sea level (EGM96) at ``lat``, ``lon`` (rad); a non-finite
+    position leaves ``msl`` as it is (the validation boundary refuses the sample, not the geoid)."""
+    if not (math.isfinite(lat) and math.isfinite(lon)):
+        return msl
+    return msl + undulation(lat, lon)

@@ -13,6 +13,7 @@ import pytest
 from ins_hil.datasets import dataset as dsm
 from ins_hil.datasets import generic_csv, px4
 from ins_hil.datasets.dataset import Dataset, DatasetError, read_dataset
+from ins_hil.geoid import undulation
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
 
 
@@ -233,6 +234,11 @@ def test_ardupilot4_instances_the_first_of_each_sensor(tmp_path: Path):
     assert ds.onboard is not None and ds.onboard.name.startswith("XKF1")
     assert len(ds.onboard.t_att) == 2  # core 0
     assert ds.onboard.origin is not None and math.degrees(ds.onboard.origin[0]) == pytest.approx(47.0)  # not home
+    # ORGN and GPS Alt are MSL: the origin and the fixes on the WGS84 datum the solution is on (EGM96 N ≈ 48.4 m)
+    n = undulation(math.radians(47.0), math.radians(8.0))
+    assert n == pytest.approx(48.4, abs=0.5)
+    assert ds.onboard.origin[2] == pytest.approx(500.0 + n)
+    assert all(f.h == pytest.approx(500.0 + undulation(f.lat, f.lon)) for f in ds.gnss)
     bad = tmp_path / "bad.log"
     bad.write_text(log.read_text().replace("IMU, 1002500, 0, 0.01,", "IMU, 1002500, 0, 0.0x1,"))
     with pytest.raises(DatasetError, match=r"bad\.log: a IMU message that does not parse"):

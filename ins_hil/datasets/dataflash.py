@@ -5,11 +5,13 @@ MAVExplorer's export: ``FMT, 128, 89, FMT, BBnNZ, …`` lines), both with ``pyma
   MAG): GyrX..Z (rad/s), AccX..Z (m/s²), body FRD, ``TimeUS``; logged samples of the rate, so the
   increments are rate × the IMU's own interval (the ``TimeUS`` difference to the previous sample), stamped
   at the sample;
-* ``GPS`` with Status ≥ 3 (3-D): Lat/Lng (deg), Alt (m MSL, used as the height), Spd/GCrs (ground speed,
-  course deg) and VZ (m/s down) as the NED velocity; σ from ``GPA`` (HAcc, VAcc, SAcc) where logged;
+* ``GPS`` with Status ≥ 3 (3-D): Lat/Lng (deg), Alt (m MSL; + the EGM96 undulation = the WGS84 height),
+  Spd/GCrs (ground speed, course deg) and VZ (m/s down) as the NED velocity; σ from ``GPA`` (HAcc, VAcc, SAcc)
+  where logged;
 * ``BARO`` Alt (m); ``MAG`` MagX..Z (milligauss → tesla); the firmware banner in ``MSG`` as the vehicle type;
 * the EKF output ``NKF1`` (EKF2) or ``XKF1`` (EKF3) as the onboard estimate: Roll/Pitch/Yaw (deg), VN/VE/VD,
-  PN/PE/PD (m about the EKF origin, which the log does not hold unless ``ORGN`` is there).
+  PN/PE/PD (m about the EKF origin, which the log does not hold unless ``ORGN`` is there; its Alt is MSL, taken to
+  the WGS84 height like the GPS's).
 
 The end of valid data (:func:`end_of_valid_data`): a log that ends in a crash has an impact at the end
 (saturated or huge specific force, tumbling rates); the data end before the first such sample.
@@ -34,6 +36,7 @@ from ins_hil.datasets.dataset import (
     increasing,
     register,
 )
+from ins_hil.geoid import ellipsoidal_height
 from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
 
@@ -194,8 +197,9 @@ def _read(path: Path, text: bool) -> Dataset:
             continue
         c = math.radians(d["GCrs"])
         acc = gpa.get(d["TimeUS"], {})
+        lat, lon = math.radians(d["Lat"]), math.radians(d["Lng"])
         gnss.append(GnssFix(
-            d["TimeUS"] * 1e-6, math.radians(d["Lat"]), math.radians(d["Lng"]), float(d["Alt"]),
+            d["TimeUS"] * 1e-6, lat, lon, ellipsoidal_height(lat, lon, float(d["Alt"])),
             np.array((d["Spd"] * math.cos(c), d["Spd"] * math.sin(c), d["VZ"])),
             std_ne=float(acc.get("HAcc", 2.5)), std_d=float(acc.get("VAcc", 5.0)), std_vel=float(acc.get("SAcc", 0.3)),
             fix_type=ft, num_sats=count_of(d.get("NSats", 0), f"{where}: NSats"),
@@ -217,7 +221,8 @@ def _read(path: Path, text: bool) -> Dataset:
         ekf_origin = [o for o in rows["ORGN"] if o.get("Type", 0) == 0]  # Type 1 is the AHRS home (4.x)
         if ekf_origin:
             o = ekf_origin[-1]
-            origin = (math.radians(o["Lat"]), math.radians(o["Lng"]), float(o["Alt"]))
+            olat, olon = math.radians(o["Lat"]), math.radians(o["Lng"])
+            origin = (olat, olon, ellipsoidal_height(olat, olon, float(o["Alt"])))
         onboard = Trajectory(name, te, q, te, v, te, p, origin)
     t_end, why = end_of_valid_data(ti, g, a, gnss[-1].t if gnss else None)
     ds = Dataset(imu, gnss, baro, mag, None, onboard, t_end)

@@ -50,6 +50,7 @@ from ins_hil.datasets.dataset import (
     increasing,
     register,
 )
+from ins_hil.geoid import ellipsoidal_height
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuFlags, ImuSample, MagSample, Vec
 
 Topic = dict[str, Vec]
@@ -187,8 +188,14 @@ def gnss_from_gps(t: Topic) -> list[GnssFix]:
     if lon is None:
         raise DatasetError("vehicle_gps_position: expected longitude_deg with latitude_deg")
     if h is None:
-        he = _col(t, "alt_ellipsoid", "alt")
-        h = he * 1e-3 if he is not None else np.zeros_like(lat)
+        he, msl = _col(t, "alt_ellipsoid"), _col(t, "alt")
+        if he is not None:
+            h = he * 1e-3
+        elif msl is not None:  # MSL (mm): + the EGM96 undulation = the WGS84 height
+            h = np.array([ellipsoidal_height(math.radians(float(a)), math.radians(float(b)), float(m) * 1e-3)
+                          for a, b, m in zip(lat, lon, msl, strict=True)])  # fmt: skip
+        else:
+            h = np.zeros_like(lat)
     fix = _col(t, "fix_type")
     eph, epv, sv = _col(t, "eph"), _col(t, "epv"), _col(t, "s_variance_m_s")
     vn, ve, vd = _col(t, "vel_n_m_s"), _col(t, "vel_e_m_s"), _col(t, "vel_d_m_s")
@@ -260,7 +267,8 @@ def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
         rl, rlo, ra = _col(lp, "ref_lat"), _col(lp, "ref_lon"), _col(lp, "ref_alt")
         if rl is not None and rlo is not None and ra is not None and (glob is None or glob[-1] != 0):
             if xy is not None and np.any(xy != 0) and abs(float(rl[-1])) > 1e-9:
-                tr.origin = (math.radians(float(rl[-1])), math.radians(float(rlo[-1])), float(ra[-1]))
+                olat, olon = math.radians(float(rl[-1])), math.radians(float(rlo[-1]))
+                tr.origin = (olat, olon, ellipsoidal_height(olat, olon, float(ra[-1])))  # ref_alt is MSL
     elif es is not None and all(f"states[{i}]" in es for i in range(4, 10)):
         t = _time(es)
         tr.t_vel = tr.t_pos = t
