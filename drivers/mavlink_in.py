@@ -97,7 +97,7 @@ from ins_hil.drivers.base import Backoff, DriverHealth, Sample, Sink
 from ins_hil.drivers.mavlink_link import Link, MavReceiver, configure_signing, parse_url, signing_key_from
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ins_hil.geoid import undulation
+from ins_hil.geoid import ellipsoidal_height
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, gps_from_unix, unix_from_gps
 
 __all__ = ["ClockSync", "MavlinkDriver", "parse_url", "signing_key_from"]
@@ -504,7 +504,7 @@ class MavlinkDriver:
             self.health.count("range")
             return
         if msl:
-            h += undulation(math.radians(lat), math.radians(lon))
+            h = ellipsoidal_height(math.radians(lat), math.radians(lon), h)
         if not -1000 < h < 100_000 or (vel is not None and np.any(np.abs(vel) > 600)):
             self.health.count("range")
             return

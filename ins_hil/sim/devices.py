@@ -43,7 +43,7 @@ import numpy as np
 
 from ins_hil.drivers.mavlink_link import signing_timestamp
 from ins_hil.drivers.serial_frame import encode
-from ins_hil.geoid import undulation
+from ins_hil.geoid import msl_height
 from ins_hil.sim import sensors
 from ins_hil.sim.trajectory import TruthSeries, generate, static_profile, uav_profile
 from ins_hil.types import ImuSample, SimConfig, gps_from_unix
@@ -279,7 +279,7 @@ def _send_gnss(mav: Any, f: Any, gps0: float = 0.0) -> None:
         int(f.fix_type),
         round(math.degrees(f.lat) * 1e7),
         round(math.degrees(f.lon) * 1e7),
-        float(f.h - undulation(f.lat, f.lon)),  # alt (m): MSL in the MAVLink spec (EGM96), f.h is WGS84
+        float(msl_height(f.lat, f.lon, f.h)),  # alt (m): MSL in the MAVLink spec (EGM96), f.h is WGS84
         0.8,
         1.2,  # hdop, vdop
         float(v[0]),

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ins_hil.geoid import undulation
+from ins_hil.geoid import msl_height
 from ins_hil.nav.earth import pressure_from_altitude
 
 G = 9.80665
@@ -121,7 +121,7 @@ class SimFlightController:
     def _gps(self, at: float) -> Any:
         """GPS_RAW_INT as the spec has it: ``alt`` MSL (EGM96), ``alt_ellipsoid`` WGS84 (``h_m``), or 0 with
         ``alt_ellipsoid = False`` (as ArduPilot sends it when its GPS driver knows no undulation)."""
-        msl = self.h_m - undulation(math.radians(self.lat_deg), math.radians(self.lon_deg))
+        msl = msl_height(math.radians(self.lat_deg), math.radians(self.lon_deg), self.h_m)
         return self.mav.gps_raw_int_encode(
             self.fc_time_ns(at) // 1000, 3, round(self.lat_deg * 1e7), round(self.lon_deg * 1e7),
             round(msl * 1e3), 80, 120, 0, 0, 12, round(self.h_m * 1e3) if self.alt_ellipsoid else 0, 1500, 2500, 200,
