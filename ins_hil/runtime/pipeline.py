@@ -60,12 +60,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ins_hil import aids
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
-from ins_hil.types import BaroSample, FaultEvent, FaultMode, FixType, GnssFix, ImuSample, MagSample, NavState
+from ins_hil.types import AidSample, FaultEvent, FaultMode, FixType, GnssFix, ImuSample, NavState
 from ins_hil.validation import Limits, SampleValidator
 
-Aid = GnssFix | BaroSample | MagSample
+#: an aiding sample (any aid source's, :mod:`ins_hil.aids`)
+Aid = AidSample
 _DONE = object()
 
 
@@ -644,7 +646,8 @@ class Pipeline:
         core = self.core
         assert core is not None
         mon = self._aid_mon
-        if mon is not None and not isinstance(m, MagSample):
+        src = aids.source_of(m)
+        if mon is not None and src.drift_monitor:
             # IMU epochs skipped since the last check: the INS is not evidence against the GNSS for a while
             c = self.counts
             lost = c.get("imu_nonfinite", 0) + c.get("imu_epoch_incomplete", 0) + c.get("imu_time_backwards", 0)
@@ -659,7 +662,7 @@ class Pipeline:
             if excluded:
                 self._count("excluded_" + type(m).__name__)
                 return
-            if isinstance(m, GnssFix):
+            if src.split_check:
                 yield  # the check of a fix (O(window) work) and its update in separate gaps
         yield from core.fuse_steps(m)
         self._count("fused_" + type(m).__name__)

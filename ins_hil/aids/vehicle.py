@@ -1,20 +1,22 @@
 """Vehicle aids: ZUPT/ZARU at rest and the non-holonomic constraint (NHC) in motion (ground vehicle); the rotor
-drag on the body specific force (multirotor)."""
+drag on the body specific force (multirotor). No sample of their own: they run after every IMU time update
+(``[core.nav.aids]`` in :mod:`ins_hil.core_parts.config`; the models in :mod:`ins_hil.fusion.measurements`)."""
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from ins_hil.core_parts.contract import Measurement
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import StateIndex
 from ins_hil.nav.mechanization import StrapdownNED
 from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.types import ImuSample, Vec
 
-from .contract import Measurement
+from . import Aid, AidSource
 
 if TYPE_CHECKING:
     from ins_hil.core import NavConfig
@@ -35,7 +37,7 @@ class AidsSnapshot(NamedTuple):
     ema_fb: Vec
 
 
-class VehicleAids:
+class VehicleAids(Aid):
     """Rest detection and the ZUPT/ZARU/NHC measurements of a ground vehicle (``NavConfig.aids``: ``nhc``/``zupt``),
     and a multirotor's drag measurement (``drag``) while the rest detector does not see it standing.
 
@@ -55,6 +57,14 @@ class VehicleAids:
         lever_on = bool(np.any(cfg.aids.nhc_lever_b != 0.0))
         self.lever_lp = cfg.aids.nhc_omega_lp_hz > 0.0 and lever_on
         self.mounted = idx.mnt is not None or lever_on or cfg.aids.nhc_pitch_per_accel != 0.0
+        self.stateful = self.per_step = self.on
+        self.core: Any = None
+
+    def after_step(self, imu: ImuSample) -> None:
+        """Apply the aids due after this IMU step (``NavCore._apply``)."""
+        core = self.core
+        for m in self.measurements(imu, core.ins, core.omega_b, core.q_mount, core.g_local, core.f_b, core.wind):
+            core._apply(m, imu.t)
 
     def snapshot(self) -> AidsSnapshot:
         return _new(AidsSnapshot, (self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp, self.drag_next,
@@ -144,3 +154,23 @@ class VehicleAids:
                 )
             return (Measurement("nhc", z[:1], H[:1], np.array((c.aids.nhc_std**2,)), c.aids.gate),)
         return ()
+
+
+class VehicleSource(AidSource):
+    name = "vehicle"
+    kinds = ("nhc", "zupt", "drag")
+
+    def enabled(self, nav: Any) -> bool:
+        return bool(nav.aids.nhc or nav.aids.zupt or nav.aids.drag)
+
+    def stat_kinds(self, nav: Any) -> tuple[str, ...]:
+        return ("nhc", "zupt", "drag") if nav.aids.drag else ("nhc", "zupt")
+
+    def bind(self, core: Any) -> VehicleAids:
+        a = VehicleAids(core.cfg, core.idx)
+        a.core = core
+        core.aids = a
+        return a
+
+
+SOURCE = VehicleSource()
