@@ -202,6 +202,7 @@ class NavCore:
         self._per_step = tuple(b for _, b in bound if b.per_step)
         self._stateful = tuple(b for _, b in bound if b.stateful)
         self._feedback_aids = tuple(b for a, b in bound if a.blocks(c))
+        self._aid_by_name = {a.name: b for a, b in bound}
         self.g_local = 9.80665  # normal gravity at the aligned position (m/s²; the ground aids)
         self.phase = "nav" if self.cfg.alignment.mode == "given" else "level"  # alignment: level → heading → nav
         self.align = Alignment(self)
@@ -567,6 +568,10 @@ class NavCore:
             a.feedback(x)
 
     # ------------------------------------------------------------------ outputs
+    def aid(self, name: str) -> Aid:
+        """This core's part of the aid source ``name`` (:mod:`ins_hil.aids`; e.g. ``"odometer"``, its scale factor)."""
+        return self._aid_by_name[name]
+
     def align_status(self) -> str:
         """Why the core is not navigating yet, in one line ("" once it navigates)."""
         return "" if self.phase == "nav" else self.align.waiting_for()
