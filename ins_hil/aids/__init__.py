@@ -32,7 +32,7 @@ from typing import Any
 from ins_hil.types import Vec
 
 #: the aid modules of this package, in registry order (the one line a new aid adds)
-AID_MODULES = ("gnss", "baro", "mag", "vehicle", "odometer")
+AID_MODULES = ("gnss", "baro", "mag", "vehicle", "odometer", "airspeed")
 
 _INF = math.inf
 
