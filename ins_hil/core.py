@@ -63,9 +63,9 @@ from ins_hil.core_parts.sensor_check import SensorCheck
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
 from ins_hil.fusion.yaw_gsf import YawGsf
-from ins_hil.nav import earth
+from ins_hil.nav import alignment, earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownSnapshot, StrapdownState
-from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
+from ins_hil.nav.rotation import dcm_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
 from ins_hil.types import AidSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState, Vec
 
 DEG = math.pi / 180.0
@@ -132,6 +132,19 @@ class NavConfig:
             )
         if self.aids.drag and not self.filter.wind_states:
             raise ValueError("NavConfig.aids.drag=True needs filter.wind_states=True (drag acts on the air velocity)")
+
+
+def initial_state(f_b: Vec, fix: GnssFix, t: float, yaw: float, cfg: NavConfig) -> StrapdownState:
+    """The state a core starts from at a GNSS fix (the runtime's ``init = "gnss"``): roll and pitch levelled from
+    the mean specific force ``f_b`` (m/s², body FRD; :func:`ins_hil.nav.alignment.coarse_level`, the core's own
+    levelling), the fix's position and velocity, and the yaw from the GNSS course
+    (:func:`~ins_hil.nav.alignment.yaw_from_course`) once the horizontal speed exceeds ``alignment.gnss_yaw_speed``
+    (the threshold of the core's in-motion yaw), else ``yaw`` (rad); valid at ``t`` (s)."""
+    roll, pitch = alignment.coarse_level(f_b)
+    vel = np.array(fix.vel_ned, dtype=np.float64) if fix.vel_ned is not None else np.zeros(3)
+    if math.hypot(float(vel[0]), float(vel[1])) > cfg.alignment.gnss_yaw_speed:
+        yaw = alignment.yaw_from_course(vel)
+    return StrapdownState(quat_from_euler(roll, pitch, yaw), vel, fix.lat, fix.lon, fix.h, t)
 
 
 #: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)

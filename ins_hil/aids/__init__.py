@@ -106,6 +106,10 @@ class AidSource:
         and per-source state): None for a sample that may be fused, else one of :attr:`reasons`."""
         return None
 
+    def starts_core(self, s: Any) -> bool:
+        """Whether the runtime may start a core at this sample (its position and velocity: a 3-D GNSS fix)."""
+        return False
+
     def fields(self, s: Any) -> tuple[Any, ...]:
         """The record payload's values of a sample, in :attr:`record_fmt` order."""
         raise NotImplementedError

@@ -18,15 +18,17 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ins_hil.core_parts.contract import Measurement
-from ins_hil.fusion.ekf import StateIndex
 from ins_hil.types import Vec
 
 from . import Aid, AidSource
+
+if TYPE_CHECKING:
+    from ins_hil.fusion.ekf import StateIndex
 
 #: the validation boundary's airspeed limit (m/s)
 TAS_MAX = 400.0

@@ -11,18 +11,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot
 from ins_hil.types import BaroSample
 
 from . import _INF, Aid, AidSource
+
+if TYPE_CHECKING:
+    from ins_hil.core_parts.baro_datum import BaroSnapshot
 
 
 class BaroAid(Aid):
     stateful = True
 
     def __init__(self, core: Any) -> None:
+        from ins_hil.core_parts.baro_datum import BaroDatum  # the model: not at import (see the registry)
+
         self.core = core
         c = core.cfg
         self.datum = BaroDatum(c.baro.std, c.baro.offset_tau, c.baro.offset, c.gnss.lever_arm_b)

@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 
 from ins_hil.core_parts.contract import _vec3
-from ins_hil.core_parts.gnss import gnss_position, gnss_velocity
 from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.types import FixType, GnssFix
 
@@ -27,7 +26,10 @@ from . import _INF, Aid, AidSource
 
 class GnssAid(Aid):
     def __init__(self, core: Any) -> None:
+        from ins_hil.core_parts import gnss  # the models (they load the filter: not at import, see the registry)
+
         self.core = core
+        self.position, self.velocity = gnss.gnss_position, gnss.gnss_velocity
 
     def parts(self, meas: GnssFix) -> tuple[GnssFix, ...]:
         """Position at ``t`` and, with ``gnss.vel_delay``, the velocity at its own (earlier) time of validity."""
@@ -44,7 +46,7 @@ class GnssAid(Aid):
 
     def fuse(self, meas: GnssFix, assume_now: bool = False) -> Iterator[None]:
         """Position (with the reset after ``gnss.reset_after`` rejections), then velocity; yields between them."""
-        core = self.core
+        core, gnss_position, gnss_velocity = self.core, self.position, self.velocity
         s = core.ins.state
         C = dcm_from_quat(s.q_nb)
         c = core.cfg
@@ -142,6 +144,9 @@ class GnssSource(AidSource):
             return "gnss_time"
         v.set_time("gnss", g.source, g.t)
         return None
+
+    def starts_core(self, s: GnssFix) -> bool:
+        return s.fix_type >= FixType.FIX_3D
 
     def fields(self, s: GnssFix) -> tuple[Any, ...]:
         vel = s.vel_ned if s.vel_ned is not None else (0.0, 0.0, 0.0)

@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 
 from ins_hil.core_parts.contract import Measurement, _vec3
-from ins_hil.fusion import measurements as mm
 from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.types import MagSample
 
@@ -24,7 +23,10 @@ from . import Aid, AidSource
 
 class MagAid(Aid):
     def __init__(self, core: Any) -> None:
+        from ins_hil.fusion import measurements  # the model: not at import (see the registry)
+
         self.core = core
+        self.model = measurements.magnetometer
 
     def align(self, meas: MagSample) -> None:
         self.core.align.meas(meas)
@@ -36,7 +38,7 @@ class MagAid(Aid):
         if c.ref_ned is None:
             return
         C = dcm_from_quat(core.ins.state.q_nb)
-        z, H = mm.magnetometer(core.idx, C, np.asarray(meas.field_b), c.ref_ned, core.mb)
+        z, H = self.model(core.idx, C, np.asarray(meas.field_b), c.ref_ned, core.mb)
         core._apply(Measurement("mag", z, H, np.full(len(z), c.std**2), c.gate), meas.t)
         yield from ()
 

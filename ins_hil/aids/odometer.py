@@ -19,16 +19,18 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ins_hil.core_parts.contract import Measurement
-from ins_hil.fusion.ekf import StateIndex, skew
-from ins_hil.nav.rotation import dcm_from_quat
+from ins_hil.nav.rotation import dcm_from_quat, skew
 from ins_hil.types import Vec
 
 from . import Aid, AidSource
+
+if TYPE_CHECKING:
+    from ins_hil.fusion.ekf import StateIndex
 
 #: the validation boundary's speed limit (m/s; a car's odometer reads ≥ 0, a reversing one negative)
 SPEED_MAX = 150.0

@@ -10,9 +10,6 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from ins_hil.core_parts.contract import Measurement
-from ins_hil.fusion import measurements as mm
-from ins_hil.fusion.ekf import StateIndex
-from ins_hil.nav.mechanization import StrapdownNED
 from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.types import ImuSample, Vec
 
@@ -20,6 +17,8 @@ from . import Aid, AidSource
 
 if TYPE_CHECKING:
     from ins_hil.core import NavConfig
+    from ins_hil.fusion.ekf import StateIndex
+    from ins_hil.nav.mechanization import StrapdownNED
 
 
 _new = tuple.__new__  # a NamedTuple without its generated __new__ (a snapshot per IMU step)
@@ -45,6 +44,11 @@ class VehicleAids(Aid):
     vibration (tens of Hz, °/s-level on a car) does not hide a stop."""
 
     def __init__(self, cfg: NavConfig, idx: StateIndex) -> None:
+        from ins_hil.fusion import measurements  # the models: not at import (see the registry)
+
+        mm = measurements  # its functions (a NavCore is deep-copyable: no module in its state)
+        self.drag_model, self.zero_velocity = mm.multirotor_drag, mm.zero_velocity
+        self.nhc, self.nhc_mounted = mm.nonholonomic, mm.nonholonomic_mounted
         self.cfg, self.idx = cfg, idx
         self.on = cfg.aids.nhc or cfg.aids.zupt or cfg.aids.drag
         self.drag_next = 0.0  # s, the next drag-aid time (drag_rate)
@@ -92,7 +96,7 @@ class VehicleAids(Aid):
             return ground
         self.drag_next = imu.t + 1.0 / c.aids.drag_rate
         s = ins.state
-        z, H = mm.multirotor_drag(self.idx, dcm_from_quat(s.q_nb), s.vel_ned, wind, self.ema_fb, c.aids.drag_coef)
+        z, H = self.drag_model(self.idx, dcm_from_quat(s.q_nb), s.vel_ned, wind, self.ema_fb, c.aids.drag_coef)
         return (*ground, Measurement("drag", z, H, np.full(2, c.aids.drag_std**2), c.aids.gate))
 
     def _ground(
@@ -123,7 +127,7 @@ class VehicleAids(Aid):
         self.nhc_next = t + 1.0 / c.aids.nhc_rate
         idx = self.idx
         if c.aids.zupt and self.still_time >= c.aids.zupt_time:
-            z, H = mm.zero_velocity(idx, s.vel_ned)
+            z, H = self.zero_velocity(idx, s.vel_ned)
             zupt = Measurement("zupt", z, H, np.full(3, c.aids.zupt_std**2), c.aids.gate)
             if not (c.aids.zaru and idx.bg is not None):
                 return (zupt,)
@@ -145,9 +149,9 @@ class VehicleAids(Aid):
                     ct, st_ = math.cos(th), math.sin(th)
                     R = R @ np.array(((ct, 0.0, st_), (0.0, 1.0, 0.0), (-st_, 0.0, ct)))
                 w_l = self.w_lp if self.lever_lp else omega_b
-                z, H, _ = mm.nonholonomic_mounted(idx, C, s.vel_ned, R, w_l, c.aids.nhc_lever_b)
+                z, H, _ = self.nhc_mounted(idx, C, s.vel_ned, R, w_l, c.aids.nhc_lever_b)
             else:
-                z, H = mm.nonholonomic(idx, C, s.vel_ned)
+                z, H = self.nhc(idx, C, s.vel_ned)
             if c.aids.nhc_vertical:
                 return (
                     Measurement("nhc", z, H, np.array((c.aids.nhc_std**2, c.aids.nhc_std_vertical**2)), c.aids.gate),
