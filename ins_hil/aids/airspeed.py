@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -50,10 +50,15 @@ class AirspeedConfig:
     """The airspeed sensor (``[core.nav.airspeed]``): ``enabled`` (needs ``filter.wind_states``); ``std``: TAS noise
     (m/s, 1-σ, when the sample carries none); ``gate`` (σ); ``min_airspeed``: not fused below (m/s)."""
 
-    enabled: bool = False
-    std: float = 0.5
-    gate: float = 5.0
-    min_airspeed: float = 5.0
+    enabled: bool = field(default=False, metadata={"help": "fuse the true airspeed (needs filter.wind_states)"})
+    std: float = field(
+        default=0.5,
+        metadata={"unit": "m/s", "range": "(0, 100)", "help": "airspeed noise (1-σ) when the sample carries none"},
+    )
+    gate: float = field(default=5.0, metadata={"unit": "σ", "range": "(0, 100)", "help": "innovation gate"})
+    min_airspeed: float = field(
+        default=5.0, metadata={"unit": "m/s", "range": "(0, 400)", "help": "not fused below this airspeed"}
+    )
 
     def __post_init__(self) -> None:
         for k in ("std", "gate"):

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -54,11 +54,19 @@ class OdometerConfig:
     carries none); ``gate`` (σ); ``init_scale_std``: the scale factor's initial 1-σ (ratio, e.g. 0.02 = 2 %);
     ``scale_rw``: its random walk (1/√s; 0 = a constant)."""
 
-    enabled: bool = False
-    std: float = 0.05
-    gate: float = 5.0
-    init_scale_std: float = 0.02
-    scale_rw: float = 0.0
+    enabled: bool = field(default=False, metadata={"help": "fuse the wheel odometer's speed (body x)"})
+    std: float = field(
+        default=0.05,
+        metadata={"unit": "m/s", "range": "(0, 100)", "help": "speed noise (1-σ) when the sample carries none"},
+    )
+    gate: float = field(default=5.0, metadata={"unit": "σ", "range": "(0, 100)", "help": "innovation gate"})
+    init_scale_std: float = field(
+        default=0.02, metadata={"range": "(0, 1)", "help": "initial 1-σ of the scale factor (ratio)"}
+    )
+    scale_rw: float = field(
+        default=0.0,
+        metadata={"unit": "1/√s", "range": "[0, 1)", "help": "random walk of the scale factor (0 = a constant)"},
+    )
 
     def __post_init__(self) -> None:
         for k in ("std", "gate", "init_scale_std"):
