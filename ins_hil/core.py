@@ -1,8 +1,9 @@
 """NavCore: the one synchronous entry point the runtime and replay call.
 
 ``step(imu)`` runs the strapdown mechanization on the bias/scale-compensated
-increments and the error-state EKF time update; ``fuse(meas)`` applies a
-GNSS/baro/magnetometer measurement at its time of validity; ``state()``
+increments and the error-state EKF time update; ``fuse(meas)`` applies an
+aiding measurement (GNSS, baro, magnetometer, odometer, airspeed: any aid source's
+of :mod:`ins_hil.aids`) at its time of validity; ``state()``
 returns the current :class:`NavState`; ``drain_events()`` returns the
 GNSS/baro fault events raised by the innovation tests since the last call.
 
@@ -11,8 +12,10 @@ gives the same output, bit for bit.
 
 NavCore is a facade: it compensates the increments, runs the time update, gates and
 applies each :class:`~ins_hil.core_parts.contract.Measurement` and feeds the error back;
-the other jobs are its collaborators in :mod:`ins_hil.core_parts` (alignment, GNSS
-aiding and reset, ground-vehicle aids, baro datum, delayed-fusion history).
+the aids are the aid sources of :mod:`ins_hil.aids` (one module each: sample, model, validation,
+record, snapshot), dispatched by sample type through its registry; the other jobs are its
+collaborators in :mod:`ins_hil.core_parts` (alignment, GNSS reset, baro datum, delayed-fusion
+history).
 
 Filter: closed-loop error-state EKF (:mod:`ins_hil.fusion.ekf`, conventions of
 DIGEST_000 §9), measurement models of :mod:`ins_hil.fusion.measurements`,
