@@ -18,9 +18,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
+from ins_hil.types import Sample
 
-Sample = ImuSample | GnssFix | BaroSample | MagSample
 Sink = Callable[[Sample], None]
 
 

@@ -51,9 +51,7 @@ import dronecan
 import numpy as np
 from ins_hil.drivers.clock import HostTimeMap, SourceClock
 
-from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample
-
-Sample = ImuSample | GnssFix | BaroSample | MagSample
+from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Sample
 
 DTID_RAW_IMU = 1003
 DTID_FIX2 = 1063

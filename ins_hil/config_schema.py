@@ -936,6 +936,7 @@ class Section:
 
 def sections() -> list[Section]:
     """Every section of a gateway configuration file, in the order of the docs."""
+    from ins_hil import aids
     from ins_hil.config import GatewaySettings, InputConfig, RecorderConfig
     from ins_hil.core import NavConfig
     from ins_hil.core_parts.config import SECTIONS as NAV_SECTIONS
@@ -956,11 +957,14 @@ def sections() -> list[Section]:
                           skip=("imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options", "limits"))  # fmt: skip
     # the validation limits (PipelineConfig.limits) are flat keys of [core]; the loader builds the Limits
     core.update({k: dataclasses.replace(v, attr=None) for k, v in dataclass_keys(Limits, "core").items()})
-    nav = dataclass_keys(NavConfig, "core.nav")  # the sections are tables of their own
+    nav = dataclass_keys(NavConfig, "core.nav", skip=("sources",))  # the sections are tables of their own
     nav_secs: list[tuple[str, type, str]] = [
         (k, c, f"{(c.__doc__ or '').split(' (``')[0]} (ins_hil.core_parts.config.{c.__name__}).")
         for k, c in NAV_SECTIONS.items()
     ]
+    # the aid modules' own sections (ins_hil.aids: the registry collects them; NavConfig.sources)
+    nav_secs += [(k, c, f"{(c.__doc__ or '').split(' (``')[0]} (ins_hil.aids.{k}.{c.__name__}).")
+                 for k, c in aids.sections().items()]  # fmt: skip
     nav_secs.append(("filter", FilterConfig, "The error-state Kalman filter (ins_hil.fusion.ekf.FilterConfig; noise "
                      "densities per √Hz)."))  # fmt: skip
     for k, _, _ in nav_secs:

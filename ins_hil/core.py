@@ -1,8 +1,9 @@
 """NavCore: the one synchronous entry point the runtime and replay call.
 
 ``step(imu)`` runs the strapdown mechanization on the bias/scale-compensated
-increments and the error-state EKF time update; ``fuse(meas)`` applies a
-GNSS/baro/magnetometer measurement at its time of validity; ``state()``
+increments and the error-state EKF time update; ``fuse(meas)`` applies an
+aiding measurement (GNSS, baro, magnetometer, odometer, airspeed: any aid source's
+of :mod:`ins_hil.aids`) at its time of validity; ``state()``
 returns the current :class:`NavState`; ``drain_events()`` returns the
 GNSS/baro fault events raised by the innovation tests since the last call.
 
@@ -11,8 +12,10 @@ gives the same output, bit for bit.
 
 NavCore is a facade: it compensates the increments, runs the time update, gates and
 applies each :class:`~ins_hil.core_parts.contract.Measurement` and feeds the error back;
-the other jobs are its collaborators in :mod:`ins_hil.core_parts` (alignment, GNSS
-aiding and reset, ground-vehicle aids, baro datum, delayed-fusion history).
+the aids are the aid sources of :mod:`ins_hil.aids` (one module each: sample, model, validation,
+record, snapshot), dispatched by sample type through its registry; the other jobs are its
+collaborators in :mod:`ins_hil.core_parts` (alignment, GNSS reset, baro datum, delayed-fusion
+history).
 
 Filter: closed-loop error-state EKF (:mod:`ins_hil.fusion.ekf`, conventions of
 DIGEST_000 §9), measurement models of :mod:`ins_hil.fusion.measurements`,
@@ -41,36 +44,36 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from ins_hil import aids as registry
+from ins_hil.aids import Aid
+from ins_hil.aids.vehicle import VehicleAids
 from ins_hil.core_parts import config as sections
-from ins_hil.core_parts.aids import AidsSnapshot, VehicleAids
 from ins_hil.core_parts.alignment import Alignment
-from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot
-from ins_hil.core_parts.contract import Measurement, check_aid, check_imu
+from ins_hil.core_parts.baro_datum import BaroDatum
+from ins_hil.core_parts.contract import Measurement, check_imu
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
-from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
+from ins_hil.core_parts.gnss import GnssReset
 from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-exported (ins_hil.cref)
 from ins_hil.core_parts.gnss import ins_off_track as ins_off_track  # re-exported (ins_hil.cref)
 from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.core_parts.sensor_check import SensorCheck
-from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
 from ins_hil.fusion.yaw_gsf import YawGsf
-from ins_hil.nav import earth
+from ins_hil.nav import alignment, earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownSnapshot, StrapdownState
-from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
-from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
+from ins_hil.nav.rotation import dcm_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
+from ins_hil.types import AidSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState, Vec
 
 DEG = math.pi / 180.0
 #: lost IMU data is coasted across for at most this long (s; NavCore._coast: a sensor time gone far ahead)
 GAP_MAX_S = 10.0
-_KINDS = ("gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt")
 
 
 @dataclass
@@ -78,7 +81,9 @@ class NavConfig:
     """NavCore configuration in sections (SI units; gates in σ; times in s): ``gnss``, ``baro``, ``mag``, ``aids``
     (NHC/ZUPT/ZARU), ``hold`` (flight without GNSS), ``alignment``, ``delay`` (delayed fusion), ``filter``
     (:class:`~ins_hil.fusion.ekf.FilterConfig`); each section's keys and units are in its class
-    (:mod:`ins_hil.core_parts.config`) and in docs/configuration.md. ``adaptive``: Sage–Husa R on GNSS/baro with
+    (:mod:`ins_hil.core_parts.config`) and in docs/configuration.md. ``sources``: the sections of the aid modules
+    that keep their own (``[core.nav.<name>]``, :func:`ins_hil.aids.sections`: ``odometer``, ``airspeed``), by
+    name; a missing one is its default, a dict is built into its class. ``adaptive``: Sage–Husa R on GNSS/baro with
     forgetting factor ``adaptive_b``. ``gravity``: the strapdown's gravity model, ``"normal"`` (Somigliana with
     the height series, the default) or ``"j2"`` (J2 field + centrifugal, :func:`ins_hil.nav.earth.gravity_j2_ned`).
     """
@@ -94,6 +99,7 @@ class NavConfig:
     adaptive: bool = False
     adaptive_b: float = 0.97
     gravity: str = "normal"
+    sources: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.gravity not in earth.GRAVITY_MODELS:
@@ -104,6 +110,20 @@ class NavConfig:
                 setattr(self, name, cls(**v))
             elif not isinstance(v, cls):
                 raise TypeError(f"NavConfig.{name}: expected a {cls.__name__}, got {type(v).__name__}")
+        known = registry.sections()
+        bad = set(self.sources) - set(known)
+        if bad:
+            raise ValueError(f"NavConfig.sources: unknown aid section(s) {sorted(bad)} (known: {', '.join(known)})")
+        src = dict(self.sources)
+        for name, cls in known.items():
+            v = src.get(name)
+            if v is None:
+                src[name] = cls()
+            elif isinstance(v, dict):
+                src[name] = cls(**v)
+            elif not isinstance(v, cls):
+                raise TypeError(f"NavConfig.sources[{name!r}]: expected a {cls.__name__}, got {type(v).__name__}")
+        self.sources = src
         if self.gnss.vel_delay > self.delay.max_delay:
             raise ValueError(
                 f"NavConfig.gnss.vel_delay={self.gnss.vel_delay}: expected 0..delay.max_delay "
@@ -115,6 +135,19 @@ class NavConfig:
             )
         if self.aids.drag and not self.filter.wind_states:
             raise ValueError("NavConfig.aids.drag=True needs filter.wind_states=True (drag acts on the air velocity)")
+
+
+def initial_state(f_b: Vec, fix: GnssFix, t: float, yaw: float, cfg: NavConfig) -> StrapdownState:
+    """The state a core starts from at a GNSS fix (the runtime's ``init = "gnss"``): roll and pitch levelled from
+    the mean specific force ``f_b`` (m/s², body FRD; :func:`ins_hil.nav.alignment.coarse_level`, the core's own
+    levelling), the fix's position and velocity, and the yaw from the GNSS course
+    (:func:`~ins_hil.nav.alignment.yaw_from_course`) once the horizontal speed exceeds ``alignment.gnss_yaw_speed``
+    (the threshold of the core's in-motion yaw), else ``yaw`` (rad); valid at ``t`` (s)."""
+    roll, pitch = alignment.coarse_level(f_b)
+    vel = np.array(fix.vel_ned, dtype=np.float64) if fix.vel_ned is not None else np.zeros(3)
+    if math.hypot(float(vel[0]), float(vel[1])) > cfg.alignment.gnss_yaw_speed:
+        yaw = alignment.yaw_from_course(vel)
+    return StrapdownState(quat_from_euler(roll, pitch, yaw), vel, fix.lat, fix.lon, fix.h, t)
 
 
 #: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)
@@ -137,8 +170,8 @@ class CoreSnapshot(NamedTuple):
     wind: Vec
     omega_b: Vec
     f_b: Vec
-    aids: AidsSnapshot
-    baro: BaroSnapshot
+    #: the snapshots of the stateful aid sources (NavCore._stateful order)
+    sources: tuple[Any, ...]
 
 
 class NavCore:
@@ -151,7 +184,8 @@ class NavCore:
                 raise ValueError("NavCore: alignment.mode='given' needs an initial state")
             initial = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), 0.0, 0.0, 0.0)
         self.ins = StrapdownNED(initial.copy(), gravity=self.cfg.gravity)
-        self.kf = ErrorStateEKF(self.cfg.filter)
+        srcs = registry.sources()
+        self.kf = ErrorStateEKF(self.cfg.filter, tuple(b for a in srcs for b in a.blocks(self.cfg)))
         self.idx = self.kf.idx
         self.bg = np.zeros(3)
         self.ba = np.zeros(3)
@@ -163,20 +197,28 @@ class NavCore:
         self.wind = np.zeros(2)  # horizontal wind north, east (m/s; FilterConfig.wind_states)
         self.omega_b = np.zeros(3)
         self.f_b = np.zeros(3)
-        self.stats = {k: GateStats() for k in _KINDS}
+        self.stats = {k: GateStats() for a in srcs for k in a.stat_kinds(self.cfg)}
         self.adapt = {k: SageHusa(b=self.cfg.adaptive_b) for k in ("gnss_pos", "gnss_vel", "baro")}
         self._events: list[FaultEvent] = []
         self._ratios: dict[str, float] = {}
         self.step_n = 0  # IMU steps mechanized (the delayed-fusion history counts by it)
         self._dt = 0.01
         self.imu_lost = (0, 0.0)  # IMU gaps coasted across (count, s)
-        self._pending: list[GnssFix | BaroSample | MagSample] = []
+        self._pending: list[AidSample] = []
         self.replaying = False  # a roll-back replays the log: no counting, no events, no logging
         self._delayed = self.cfg.delay.compensation and self.cfg.delay.max_delay > 0
         self.history = DelayedHistory(self, self.cfg.delay.max_delay)
-        self.aids = VehicleAids(self.cfg, self.idx)
         c = self.cfg
-        self.baro = BaroDatum(c.baro.std, c.baro.offset_tau, c.baro.offset, c.gnss.lever_arm_b)
+        self.aids: VehicleAids  # the vehicle aids (set by their source's bind)
+        self.baro: BaroDatum  # the baro datum (set by the baro source's bind; the GNSS aid and alignment feed it)
+        #: the aid sources bound to this core: by the sample type they read, those run after each IMU step, and
+        #: those whose state the delayed-fusion snapshots keep
+        bound = [(a, a.bind(self)) for a in srcs]
+        self._by_type: dict[type, tuple[registry.AidSource, Aid]] = {a.sample: (a, b) for a, b in bound if a.sample}
+        self._per_step = tuple(b for _, b in bound if b.per_step)
+        self._stateful = tuple(b for _, b in bound if b.stateful)
+        self._feedback_aids = tuple(b for a, b in bound if a.blocks(c))
+        self._aid_by_name = {a.name: b for a, b in bound}
         self.g_local = 9.80665  # normal gravity at the aligned position (m/s²; the ground aids)
         self.phase = "nav" if self.cfg.alignment.mode == "given" else "level"  # alignment: level → heading → nav
         self.align = Alignment(self)
@@ -206,15 +248,13 @@ class NavCore:
         self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
         if self.hold is not None:
             self.stats["hold"] = GateStats()
-        if self.cfg.aids.drag:
-            self.stats["drag"] = GateStats()
 
     # ------------------------------------------------------------------ IMU path
     def step(self, imu: ImuSample) -> NavState:
         """Propagate with one IMU interval; returns the current state. A sample with a non-finite value or
         time, or ``dt`` ≤ 0, is refused with a one-line ValueError (the core's contract,
         :func:`~ins_hil.core_parts.contract.check_imu`); ``fuse`` likewise
-        (:func:`~ins_hil.core_parts.contract.check_aid`)."""
+        (the aid source's :meth:`~ins_hil.aids.AidSource.check`)."""
         if self._begin(imu):
             self.step_end()
         return self.state()
@@ -324,7 +364,8 @@ class NavCore:
         self.kf.predict(
             imu.dt, C, ins.f_ned, ins.omega_ie, ins.omega_en, self.f_b, self.omega_b, ins.state.lat, ins.state.h
         )
-        self._ground_aids(imu)
+        for a in self._per_step:  # the vehicle aids (ZUPT/ZARU, NHC, drag)
+            a.after_step(imu)
 
     def _after_step(self) -> None:
         if self.hold is not None and self.phase == "nav" and self.hold.due(self.ins.state.t):
@@ -342,20 +383,13 @@ class NavCore:
                 for m in due:
                     self.fuse_now(m)
 
-    def _ground_aids(self, imu: ImuSample) -> None:
-        """ZUPT/ZARU at rest and the non-holonomic constraint in motion (:class:`VehicleAids`)."""
-        if self.aids.on:
-            for m in self.aids.measurements(imu, self.ins, self.omega_b, self.q_mount, self.g_local, self.f_b,
-                                            self.wind):  # fmt: skip
-                self._apply(m, imu.t)
-
     # ------------------------------------------------------------------ snapshots (delayed fusion)
     def snapshot(self) -> CoreSnapshot:
         """The state at this step, by reference (the delayed-fusion history takes one per step). With the baro
         datum and the GNSS height it learns from: a replay re-fuses the logged baro samples from the same datum."""
         return _new(CoreSnapshot, (
             self.ins.snapshot(), self.kf.snapshot(), self.bg, self.ba, self.sg, self.sa, self.G, self.q_mount, self.mb,
-            self.wind, self.omega_b, self.f_b, self.aids.snapshot(), self.baro.snapshot(),
+            self.wind, self.omega_b, self.f_b, tuple([a.snapshot() for a in self._stateful]),
         ))  # fmt: skip
 
     def restore(self, d: CoreSnapshot) -> None:
@@ -364,45 +398,48 @@ class NavCore:
         self.kf.restore(d.kf)
         self.bg, self.ba, self.sg, self.sa, self.G = d.bg, d.ba, d.sg, d.sa, d.G
         self.q_mount, self.mb, self.wind, self.omega_b, self.f_b = d.q_mount, d.mb, d.wind, d.omega_b, d.f_b
-        self.aids.restore(d.aids)
-        self.baro.restore(d.baro)
+        for a, sd in zip(self._stateful, d.sources, strict=True):
+            a.restore(sd)
 
     #: IMU steps a roll-back replays per segment of :meth:`fuse_steps` (about 0.3 ms in Python; set on DelayedHistory)
     REPLAY_SEGMENT = DelayedHistory.REPLAY_SEGMENT
 
     # ------------------------------------------------------------------ aiding
-    def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
+    def fuse(self, meas: AidSample) -> None:
         """Apply an aiding measurement valid at ``meas.t`` (queued if in the future, fused
         on the past step's snapshot if delayed and ``delay.compensation``)."""
         for _ in self.fuse_steps(meas):
             pass
 
-    def fuse_steps(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
+    def fuse_steps(self, meas: AidSample) -> Iterator[None]:
         """:meth:`fuse` in parts, for a real-time caller: yields between the GNSS position and
         velocity updates (each about 0.2 ms in Python), so that they can run in separate gaps
         between IMU steps. Exhausted with no step in between, it is exactly :meth:`fuse`.
         ValueError (one line, at the first segment, nothing changed) for a measurement the core cannot fuse
-        (:func:`check_aid`)."""
-        check_aid(meas)
+        (the aid source's ``check``)."""
+        src, aid = self._aid_of(meas)
+        src.check(meas)
         if self.pending_end is not None:
             self.step_end()
         self.history.finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first
         if self.phase != "nav":
-            if self.yaw_gsf is not None and isinstance(meas, GnssFix) and meas.vel_ned is not None:
-                self.yaw_gsf.fuse_velocity(np.asarray(meas.vel_ned), meas.std_vel)
-            self.align.meas(meas)
+            aid.align(meas)
             return
-        if isinstance(meas, GnssFix) and self.cfg.gnss.vel_delay > 0 and meas.vel_ned is not None:
-            # position at t, velocity at its own (earlier) time of validity: two measurements
-            pos_only = replace(meas, vel_ned=None)
-            vel_only = replace(meas, t=meas.t - self.cfg.gnss.vel_delay, lat=math.nan)
-            yield from self._fuse_one(pos_only)
-            yield
-            yield from self._fuse_one(vel_only)
-            return
-        yield from self._fuse_one(meas)
+        # e.g. a GNSS fix with gnss.vel_delay: position at t, velocity at its own (earlier) time of validity
+        for k, part in enumerate(aid.parts(meas)):
+            if k:
+                yield
+            yield from self._fuse_one(part)
 
-    def _fuse_one(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
+    def _aid_of(self, meas: AidSample) -> tuple[registry.AidSource, Aid]:
+        """The aid source reading ``meas`` and its part of this core (TypeError, one line: none)."""
+        r = self._by_type.get(type(meas))
+        if r is None:
+            registry.source_of(meas)  # raises: no aid source reads it
+            raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
+        return r
+
+    def _fuse_one(self, meas: AidSample) -> Iterator[None]:
         t = self.ins.state.t
         if meas.t > t + 0.5 * self._dt:
             self._pending.append(meas)
@@ -420,57 +457,15 @@ class NavCore:
         if self._delayed:
             h.log.append((step_n, "meas", meas))
 
-    def fuse_now(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> None:
+    def fuse_now(self, meas: AidSample, assume_now: bool = False) -> None:
         """Fuse ``meas`` at the current step (no delay handling): :meth:`fuse_now_steps` run to its end."""
         for _ in self.fuse_now_steps(meas, assume_now):
             pass
 
-    def fuse_now_steps(self, meas: GnssFix | BaroSample | MagSample, assume_now: bool = False) -> Iterator[None]:
-        """Fuse at the current step; yields once between a GNSS fix's position and velocity updates."""
-        s = self.ins.state
-        C = dcm_from_quat(s.q_nb)
-        c = self.cfg
-        if isinstance(meas, GnssFix) and not math.isfinite(meas.lat):  # velocity-only (gnss.vel_delay)
-            if c.gnss.use_vel and meas.vel_ned is not None:
-                self._apply(gnss_velocity(meas, s, C, self.omega_b, self.idx, c), meas.t)
-        elif isinstance(meas, GnssFix):
-            m = gnss_position(meas, s, C, self.idx, c, assume_now)
-            st = self.stats["gnss_pos"]
-            force = st.consecutive_rejects >= c.gnss.reset_after and self.gnss_reset.ok(
-                meas, m, self.kf.P, s.vel_ned, self.kf.P.diagonal()[3:6]
-            )
-            if force and self.gnss_reset.diverged:
-                self._recover(meas, self.gnss_reset.track_vel)
-                m = gnss_position(meas, s, C, self.idx, c, assume_now)
-            if force:
-                # GNSS rejected for too long: the INS has drifted, re-initialise position/velocity σ
-                self.kf.set_state_sigma("pos", np.sqrt(m.z * m.z + m.r))
-                zv = np.zeros(3) if meas.vel_ned is None else np.asarray(meas.vel_ned) - s.vel_ned
-                self.kf.set_state_sigma("vel", np.abs(zv) + 0.1)
-                self.stats["gnss_vel"].consecutive_rejects = 0
-                if not self.replaying:
-                    self.gnss_resets += 1
-            accepted = self._apply(m, meas.t, force)
-            if not self.replaying:
-                self.gnss_reset.note(meas, accepted, st.last_ratio)
-                if accepted and self.hold is not None:
-                    self.hold.gnss(meas.t, meas.lat, meas.lon, meas.h)
-            if accepted:
-                self.baro.gnss_height(meas, C, max(meas.std_d, c.gnss.min_std[1]) * c.gnss.std_scale)
-            if c.gnss.use_vel and meas.vel_ned is not None:
-                yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
-                s = self.ins.state
-                self._apply(gnss_velocity(meas, s, dcm_from_quat(s.q_nb), self.omega_b, self.idx, c), meas.t)
-        elif isinstance(meas, BaroSample):
-            self._apply(self.baro.measurement(meas, self.ins, self.kf, c.baro.gate), meas.t)
-        elif isinstance(meas, MagSample):
-            self.align.last_mag = np.asarray(meas.field_b)
-            if c.mag.ref_ned is None:
-                return
-            z, H = mm.magnetometer(self.idx, C, np.asarray(meas.field_b), c.mag.ref_ned, self.mb)
-            self._apply(Measurement("mag", z, H, np.full(len(z), c.mag.std**2), c.mag.gate), meas.t)
-        else:
-            raise TypeError(f"NavCore.fuse: unsupported measurement {type(meas).__name__}")
+    def fuse_now_steps(self, meas: AidSample, assume_now: bool = False) -> Iterator[None]:
+        """Fuse at the current step (the aid source's model, :meth:`ins_hil.aids.Aid.fuse`); yields between the
+        updates of one sample (a GNSS fix's position and velocity)."""
+        yield from self._aid_of(meas)[1].fuse(meas, assume_now)
 
     def _sensor_checked(self, chk: SensorCheck) -> None:
         """The start-up check has judged: keep its warnings, inflate the white-noise densities it found too small
@@ -585,8 +580,14 @@ class NavCore:
             self.mb = self.mb + x[i.mb : i.mb + 3]  # b̂_m += δb_m
         if i.wind is not None:
             self.wind = self.wind + x[i.wind : i.wind + 2]  # ŵ += δw
+        for a in self._feedback_aids:  # the aid sources' own states (e.g. the odometer scale factor)
+            a.feedback(x)
 
     # ------------------------------------------------------------------ outputs
+    def aid(self, name: str) -> Aid:
+        """This core's part of the aid source ``name`` (:mod:`ins_hil.aids`; e.g. ``"odometer"``, its scale factor)."""
+        return self._aid_by_name[name]
+
     def align_status(self) -> str:
         """Why the core is not navigating yet, in one line ("" once it navigates)."""
         return "" if self.phase == "nav" else self.align.waiting_for()

@@ -30,9 +30,10 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ins_hil import aids
 from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, ins_off_track
 from ins_hil.nav.mechanization import StrapdownState
-from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
+from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState, Vec
 
 Precision = Literal["double", "float"]
 
@@ -85,6 +86,8 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "mag.ref_ned": cfg.mag.ref_ned is not None,
         "alignment.mode": cfg.alignment.mode != "given",
         "gnss.vel_delay": cfg.gnss.vel_delay != 0.0,
+        # the aid modules with their own section (ins_hil.aids: odometer, airspeed) are Python-only
+        **{f"{a.name}.enabled": a.enabled(cfg) for a in aids.sources() if a.section is not None},
     }
     bad = [k for k, v in unsupported.items() if v]
     if bad:
@@ -224,12 +227,12 @@ class CNavCore:
     def step_end(self) -> None:
         """Nothing left of the step :meth:`step_begin` ran (the ``RealTimeCore`` split step)."""
 
-    def fuse_steps(self, meas: GnssFix | BaroSample | MagSample) -> Iterator[None]:
+    def fuse_steps(self, meas: AidSample) -> Iterator[None]:
         """:meth:`fuse` as one segment (the ``RealTimeCore`` interface; it runs on the first ``next``)."""
         self.fuse(meas)
         yield from ()
 
-    def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
+    def fuse(self, meas: AidSample) -> None:
         """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.
 
         Gated like NavCore (per-component test ratio, ``gnss.gate``/``baro.gate``); a fix

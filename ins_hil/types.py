@@ -12,7 +12,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
-from typing import Any, TypeAlias
+from typing import Any, Protocol, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,6 +125,21 @@ class MagSample:
     field_b: Vec
     source: int = 0
     t_arrival_ns: int = 0
+
+
+class AidSample(Protocol):
+    """What every aiding sample has: its time of validity ``t`` (s, sensor clock) and its arrival time
+    ``t_arrival_ns`` (ns, host monotonic; 0 offline). The aiding sample types are :class:`GnssFix`,
+    :class:`BaroSample`, :class:`MagSample` and those of the aid modules (:mod:`ins_hil.aids`, one per aid
+    source: its sample type, model, validation and record codec); the core dispatches on the registry."""
+
+    t: float
+    t_arrival_ns: int
+
+
+#: every sample a driver, a reader or the simulator hands to the runtime: the IMU's or an aid source's (the one
+#: sample union; the aid sources' registry is :mod:`ins_hil.aids`)
+Sample: TypeAlias = ImuSample | AidSample
 
 
 @dataclass(slots=True)

@@ -23,20 +23,27 @@ Checks (limits in :class:`Limits`, SI units inside, configured with units in the
   the pressure, when carried (not NaN), in [``baro_pressure_min_pa``, ``baro_pressure_max_pa``]; at
   least one of them carried.
 - Magnetometer: finite, |B| < ``mag_max_t`` (T).
+- Every other aiding sample: its aid source's check (:meth:`ins_hil.aids.AidSource.validate`, in the aid's
+  module; e.g. the odometer's and the airspeed's).
+
+The aiding checks live in their aid modules (:mod:`ins_hil.aids`); :meth:`SampleValidator.check` dispatches
+on the registry by sample type (the GNSS, baro and magnetometer checks above read the limits of this module).
 
 Reasons are short names (``imu_rate``, ``gnss_fix_type``, ...); the pipeline counts them as
 ``reject_<reason>``. The IMU check is a few float comparisons, no allocation (after the learning
 of the nominal period).
 
-Pure: imports only :mod:`ins_hil.types`, the standard library and numpy.
+Pure: imports only :mod:`ins_hil.types`, the aid registry (:mod:`ins_hil.aids`), the standard library and numpy.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
+from ins_hil import aids
+from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Sample
 
 #: absolute bounds of an IMU interval (s), whatever the nominal period
 DT_FLOOR = 1e-5
@@ -46,14 +53,8 @@ LEARN_SAMPLES = 8
 G0 = 9.80665  # m/s² per g
 _INF = math.inf
 
-#: every reason a sample can be rejected for (counted as ``reject_<reason>``)
-REASONS = (
-    "imu_nonfinite", "imu_dt", "imu_rate", "imu_accel", "imu_time",
-    "gnss_fix_type", "gnss_nonfinite", "gnss_position", "gnss_height", "gnss_velocity", "gnss_std",
-    "gnss_time",
-    "baro_nonfinite", "baro_range",
-    "mag_nonfinite", "mag_range",
-)  # fmt: skip
+#: every reason a sample can be rejected for (counted as ``reject_<reason>``): the IMU's, then the aid sources'
+REASONS = ("imu_nonfinite", "imu_dt", "imu_rate", "imu_accel", "imu_time", *aids.reasons())
 
 
 @dataclass(frozen=True)
@@ -142,39 +143,44 @@ class SampleValidator:
         self._w = lim.gyro_range_dps * math.pi / 180.0 * lim.range_margin  # rad/s per axis
         self._f = lim.accel_range_g * G0 * lim.range_margin  # m/s² per axis
         self._imus: dict[int, _Imu] = {}
-        self._gnss_t: dict[int, float] = {}
-        self._lat = math.pi / 2
-        self._lon = math.pi
-        self._v2 = lim.gnss_speed_max_mps**2
-        self._b2 = lim.mag_max_t**2
+        self._times: dict[tuple[str, int], float] = {}  # (aid source, source id) → last accepted time (s)
+        #: the check of each sample type: the IMU's, then the aid sources' (the registry)
+        self._checks: dict[type, Any] = {ImuSample: self.imu}
+        for t, src in aids.by_sample().items():
+            self._checks[t] = _bind(src, self)
 
     def reset_time(self, source: int | None = None) -> None:
         """Forget the last time of every IMU id and GNSS receiver (``source``: only that id)."""
         if source is None:
             for st in self._imus.values():
                 st.t = -math.inf
-            self._gnss_t.clear()
+            self._times.clear()
         else:
             if source in self._imus:
                 self._imus[source].t = -math.inf
-            self._gnss_t.pop(source, None)
+            for k in [k for k in self._times if k[1] == source]:
+                del self._times[k]
 
     def imu_time(self, imu_id: int) -> float:
         """The time (s) of the last IMU sample of ``imu_id`` that passed (−inf before the first)."""
         st = self._imus.get(imu_id)
         return st.t if st is not None else -math.inf
 
-    def check(self, s: ImuSample | GnssFix | BaroSample | MagSample) -> str | None:
-        """The reason ``s`` is rejected, or None (any sample kind)."""
-        if isinstance(s, ImuSample):
-            return self.imu(s)
-        if isinstance(s, GnssFix):
-            return self.gnss(s)
-        if isinstance(s, BaroSample):
-            return self.baro(s)
-        if isinstance(s, MagSample):
-            return self.mag(s)
-        raise TypeError(f"SampleValidator: unsupported sample {type(s).__name__}")
+    def last_time(self, kind: str, source: int) -> float:
+        """The time (s) of the last accepted sample of aid source ``kind`` (e.g. ``"gnss"``) from ``source``
+        (−inf before the first): an aid's check that wants strictly increasing times per source reads it."""
+        return self._times.get((kind, source), -math.inf)
+
+    def set_time(self, kind: str, source: int, t: float) -> None:
+        """Remember ``t`` (s) as the last accepted time of aid source ``kind`` from ``source``."""
+        self._times[(kind, source)] = t
+
+    def check(self, s: Sample) -> str | None:
+        """The reason ``s`` is rejected, or None (any sample kind: the IMU's check or its aid source's)."""
+        fn = self._checks.get(type(s))
+        if fn is None:
+            raise TypeError(f"SampleValidator: unsupported sample {type(s).__name__}")
+        return fn(s)
 
     # -- IMU (the hot path: comparisons only) -----------------------------------------
     def imu(self, s: ImuSample) -> str | None:
@@ -239,60 +245,26 @@ class SampleValidator:
             self._learn(st, s.dt)
         return None
 
-    # -- aiding ------------------------------------------------------------------------
+    # -- aiding (the checks are the aid sources', :mod:`ins_hil.aids`) -------------------------------------
     def gnss(self, g: GnssFix) -> str | None:
         """None if the fix may be fused, else ``gnss_fix_type`` / ``gnss_nonfinite`` / ``gnss_position``
         / ``gnss_height`` / ``gnss_velocity`` / ``gnss_std`` / ``gnss_time``."""
-        lim = self.limits
-        if not g.fix_type >= lim.gnss_min_fix_type:
-            return "gnss_fix_type"
-        fin = math.isfinite
-        if not (fin(g.t) and fin(g.lat) and fin(g.lon) and fin(g.h)):
-            return "gnss_nonfinite"
-        if not (-self._lat <= g.lat <= self._lat and -self._lon <= g.lon <= self._lon):
-            return "gnss_position"
-        if not lim.gnss_h_min_m <= g.h <= lim.gnss_h_max_m:
-            return "gnss_height"
-        v = g.vel_ned
-        if v is not None:
-            try:
-                v0, v1, v2 = (float(x) for x in v)
-            except (TypeError, ValueError):
-                return "gnss_velocity"
-            if not v0 * v0 + v1 * v1 + v2 * v2 < self._v2:  # NaN/inf fail too
-                return "gnss_velocity"
-        smax = lim.gnss_std_max_m
-        if not (0 < g.std_ne < smax and 0 < g.std_d < smax and 0 < g.std_vel < lim.gnss_std_vel_max_mps):
-            return "gnss_std"
-        last = self._gnss_t.get(g.source, -math.inf)
-        if not g.t > last:
-            return "gnss_time"
-        self._gnss_t[g.source] = g.t
-        return None
+        return self.check(g)
 
     def baro(self, b: BaroSample) -> str | None:
         """None if the sample may be fused, else ``baro_nonfinite`` / ``baro_range``."""
-        lim = self.limits
-        alt, p = b.altitude, b.pressure
-        if not math.isfinite(b.t):
-            return "baro_nonfinite"
-        has_alt, has_p = not math.isnan(alt), not math.isnan(p)
-        if not (has_alt or has_p) or (has_alt and not math.isfinite(alt)) or (has_p and not math.isfinite(p)):
-            return "baro_nonfinite"
-        if has_alt and not lim.baro_alt_min_m <= alt <= lim.baro_alt_max_m:
-            return "baro_range"
-        if has_p and not lim.baro_pressure_min_pa <= p <= lim.baro_pressure_max_pa:
-            return "baro_range"
-        return None
+        return self.check(b)
 
     def mag(self, m: MagSample) -> str | None:
         """None if the sample may be fused, else ``mag_nonfinite`` / ``mag_range``."""
-        try:
-            b0, b1, b2 = (float(x) for x in m.field_b)
-        except (TypeError, ValueError):
-            return "mag_nonfinite"
-        if not (math.isfinite(m.t) and math.isfinite(b0) and math.isfinite(b1) and math.isfinite(b2)):
-            return "mag_nonfinite"
-        if not b0 * b0 + b1 * b1 + b2 * b2 < self._b2:
-            return "mag_range"
-        return None
+        return self.check(m)
+
+
+def _bind(src: aids.AidSource, v: SampleValidator) -> Any:
+    """The aid source's check of one sample, with this validator's limits and per-source times."""
+    validate = src.validate
+
+    def check(s: Any) -> str | None:
+        return validate(v, s)
+
+    return check

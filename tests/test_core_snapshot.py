@@ -51,7 +51,7 @@ def test_restore_replays_bit_for_bit() -> None:
     core = NavCore(init, NavConfig(aids=AidsConfig(nhc=True, zupt=True), delay=DelayConfig(compensation=False)))
     _run(core, _inputs(1, 300))
     snap = core.snapshot()
-    assert isinstance(snap, CoreSnapshot) and snap.baro.offset is not None
+    assert isinstance(snap, CoreSnapshot) and snap.sources[0].offset is not None  # the baro datum
     later = _inputs(300, 500)
     first = _run(core, later)
     end = _flat(core.snapshot())

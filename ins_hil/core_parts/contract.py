@@ -2,18 +2,19 @@
 
 An aid linearises its model at the current nominal state into the innovation, the measurement rows and
 the noise (z, H, R), in the spirit of pyins ``Measurement.compute_matrices``; gating, adaptive R, the
-update and the feedback are the core's. A new aid is one function that returns a :class:`Measurement`.
+update and the feedback are the core's. A new aid is one module of :mod:`ins_hil.aids` whose model returns a
+:class:`Measurement`.
 
-The core's input contract (:func:`check_imu`, :func:`check_aid`): ``NavCore.step`` / ``fuse`` refuse, with a
-one-line ValueError, a sample they cannot integrate or fuse (non-finite values or times, ``dt`` ≤ 0).
+The core's input contract (:func:`check_imu`; an aid sample's is its source's ``check``,
+:meth:`ins_hil.aids.AidSource.check`): ``NavCore.step`` / ``fuse`` refuse, with a one-line ValueError, a sample
+they cannot integrate or fuse (non-finite values or times, ``dt`` ≤ 0).
 """
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
+from ins_hil.types import ImuSample, Vec
 
 
 class Measurement(NamedTuple):
@@ -76,35 +77,3 @@ def check_imu(imu: ImuSample) -> None:
         raise ValueError(f"NavCore.step: imu.t = {t!r}: must be a finite time (s)")
     _vec3(imu.dtheta, "NavCore.step: imu.dtheta")
     _vec3(imu.dvel, "NavCore.step: imu.dvel")
-
-
-def check_aid(meas: GnssFix | BaroSample | MagSample) -> None:
-    """Refuse (ValueError, one line) a measurement the core cannot fuse: a time that is not finite; a GNSS fix
-    whose lat/lon/h are not finite (lat = NaN: a velocity-only record, lon and h unused), whose σ
-    (``std_ne``, ``std_d``, ``std_vel``) are not finite numbers ≥ 0 or whose velocity (when given) is not
-    3 finite numbers; a baro sample with neither a finite pressure nor a finite altitude (NaN = not
-    carried; ±inf refused); a magnetometer field that is not 3 finite numbers."""
-    name = type(meas).__name__
-    if not abs(meas.t) < _INF:
-        raise ValueError(f"NavCore.fuse: {name}.t = {meas.t!r}: must be a finite time (s)")
-    if isinstance(meas, GnssFix):
-        # lat = NaN: a velocity-only record (lon, h unused), as the core itself splits a fix (gnss.vel_delay)
-        for k in () if math.isnan(meas.lat) else ("lat", "lon", "h"):
-            v = getattr(meas, k)
-            if not abs(v) < _INF:
-                raise ValueError(f"NavCore.fuse: GnssFix.{k} = {v!r}: must be a finite number")
-        for k in ("std_ne", "std_d", "std_vel"):
-            v = getattr(meas, k)
-            if not 0.0 <= v < _INF:
-                raise ValueError(f"NavCore.fuse: GnssFix.{k} = {v!r}: must be a finite number >= 0")
-        if meas.vel_ned is not None:
-            _vec3(meas.vel_ned, "NavCore.fuse: GnssFix.vel_ned")
-    elif isinstance(meas, BaroSample):
-        p, alt = meas.pressure, meas.altitude
-        if p in (_INF, -_INF) or alt in (_INF, -_INF) or not (abs(p) < _INF or abs(alt) < _INF):
-            raise ValueError(
-                f"NavCore.fuse: BaroSample pressure = {p!r}, altitude = {alt!r}: one of them must be a finite "
-                "number (NaN = not carried)"
-            )
-    elif isinstance(meas, MagSample):
-        _vec3(meas.field_b, "NavCore.fuse: MagSample.field_b")

@@ -7,9 +7,9 @@ from collections import deque
 from collections.abc import Generator, Iterator
 from typing import Any, Protocol
 
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample
+from ins_hil.types import AidSample as Aid
+from ins_hil.types import ImuSample
 
-Aid = GnssFix | BaroSample | MagSample
 _DONE = object()
 
 #: a log entry: (step number, "imu" or "meas", the sample)

@@ -27,7 +27,8 @@ NavCore API (``ins_hil.core``)
   (position from the first GNSS fix).
 ``step(imu: ImuSample) -> NavState``: one IMU interval (mechanization + covariance propagation,
   ground-vehicle aids if enabled). Never blocks, no I/O.
-``fuse(meas: GnssFix | BaroSample | MagSample) -> None``: fused at ``meas.t`` (time of validity):
+``fuse(meas: AidSample) -> None`` (a GNSS fix, baro, magnetometer, odometer or airspeed sample: any aid source's of
+  :mod:`ins_hil.aids`): fused at ``meas.t`` (time of validity):
   queued if in the future, rolled back and re-propagated if older than the current IMU time
   (``delay.compensation``, history ``delay.max_delay`` s).
 ``state() -> NavState``: q_nb, vel_ned, lat/lon/h, gyro/accel biases, std_pos/vel/att (1σ),

@@ -172,9 +172,13 @@ class StateIndex:
     gs: int | None = None  # 9 states: gyro g-sensitivity G row-major
     mb: int | None = None  # magnetometer hard iron (units of |m_ref|, body)
     wind: int | None = None  # 2 states: horizontal wind north, east (m/s)
+    #: the aid sources' own blocks (:meth:`ins_hil.aids.AidSource.blocks`), appended last: name → start index
+    extra: dict[str, int] = field(default_factory=dict)
 
     @staticmethod
-    def build(cfg: FilterConfig) -> StateIndex:
+    def build(cfg: FilterConfig, blocks: tuple[tuple[str, int, float, float], ...] = ()) -> StateIndex:
+        """The index of the states ``cfg`` turns on, then the ``blocks`` (name, size, initial σ, random walk
+        σ/√s) of the aid sources."""
         k = 9
         bg = ba = sg = sa = None
         if cfg.gyro_bias:
@@ -196,7 +200,10 @@ class StateIndex:
         wind = None
         if cfg.wind_states:
             wind, k = k, k + 2
-        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs, mb, wind)
+        extra = {}
+        for name, size, _sig, _rw in blocks:
+            extra[name], k = k, k + size
+        return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs, mb, wind, extra)
 
 
 def skew(a: Vec) -> Vec:
@@ -232,10 +239,12 @@ class ErrorStateEKF:
     """
 
     cfg: FilterConfig = field(default_factory=FilterConfig)
+    #: the aid sources' own error-state blocks (name, size, initial 1-σ, random-walk σ/√s; StateIndex.extra)
+    blocks: tuple[tuple[str, int, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         c = self.cfg
-        self.idx = StateIndex.build(c)
+        self.idx = StateIndex.build(c, self.blocks)
         n = self.idx.n
         self.n = n
         self.x = np.zeros(n)
@@ -274,6 +283,10 @@ class ErrorStateEKF:
         if i.wind is not None:
             sig[i.wind : i.wind + 2] = c.init_wind
             qc[i.wind : i.wind + 2] = c.wind_sigma_rw**2
+        for name, size, sig0, rw in self.blocks:
+            k0 = i.extra[name]
+            sig[k0 : k0 + size] = sig0
+            qc[k0 : k0 + size] = rw**2
         self.qc = qc
         self.P = np.diag(sig**2)
         self._F = np.zeros((n, n))

@@ -41,11 +41,13 @@ state with the initial covariance (``core_restart``), or re-aligns from the next
 :meth:`Pipeline.imu` and :meth:`Pipeline.aid` never raise (anything else: ``pipeline_error``).
 
 Initialisation (until the core aligns itself): the core is created at the
-first 3-D GNSS fix, at its position and velocity, with roll/pitch levelled
-from the mean specific force of the last ``level_samples`` IMU intervals
-(standard levelling, the x-forward reading of book eq. 4.1 — DIGEST_000
-§4.1 notes the book swaps the axes) and yaw from the config (or the GNSS
-course when moving faster than 3 m/s). ``init = "config"`` starts at a
+first 3-D GNSS fix (the fix an aid source may start a core from,
+:meth:`ins_hil.aids.AidSource.starts_core`) by the core's own initialisation,
+:func:`ins_hil.core.initial_state`: at the fix's position and velocity, with
+roll/pitch levelled from the mean specific force of the last ``level_samples``
+IMU intervals (the core's levelling, :func:`ins_hil.nav.alignment.coarse_level`)
+and yaw from the config, or from the GNSS course when faster than the core's
+``[core.nav.alignment] gnss_yaw_speed``. ``init = "config"`` starts at a
 configured state instead.
 """
 
@@ -56,16 +58,18 @@ import math
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
+from ins_hil import aids
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
-from ins_hil.types import BaroSample, FaultEvent, FaultMode, FixType, GnssFix, ImuSample, MagSample, NavState
+from ins_hil.types import AidSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState
 from ins_hil.validation import Limits, SampleValidator
 
-Aid = GnssFix | BaroSample | MagSample
+#: an aiding sample (any aid source's, :mod:`ins_hil.aids`)
+Aid = AidSample
 _DONE = object()
 
 
@@ -105,15 +109,24 @@ def nav_config(options: dict[str, Any]) -> Any:
     from ins_hil.core_parts.config import MOVED, SECTIONS
     from ins_hil.fusion.ekf import FilterConfig
 
-    known = {f.name: f for f in dataclasses.fields(NavConfig)}
+    known = {f.name: f for f in dataclasses.fields(NavConfig) if f.name != "sources"}
     vectors = {"gnss": ("lever_arm_b",), "mag": ("ref_ned",), "aids": ("nhc_lever_b",)}
     kw: dict[str, Any] = {}
+    own = aids.sections()  # the aid modules' own sections ([core.nav.odometer], ...): NavConfig.sources
     for k, v in options.items():
+        if k in own:
+            if not isinstance(v, dict):
+                raise ValueError(f"core.nav.{k} = {v!r}: expected a table")
+            try:
+                kw.setdefault("sources", {})[k] = own[k](**v)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"core.nav.{k}: {e}") from None
+            continue
         if k in MOVED:
             sec, new = MOVED[k]
             raise ValueError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
         if k not in known:
-            raise ValueError(f"unknown key 'core.nav.{k}' (known: {', '.join(sorted(known))})")
+            raise ValueError(f"unknown key 'core.nav.{k}' (known: {', '.join(sorted([*known, *own]))})")
         cls = FilterConfig if k == "filter" else SECTIONS.get(k)
         if cls is not None:
             if not isinstance(v, dict):
@@ -209,17 +222,6 @@ def limits_of(cfg: PipelineConfig) -> Limits:
     """The validation limits of a pipeline config, checked (ValueError names the bad ``core.*`` key)."""
     cfg.limits.check("core")
     return cfg.limits
-
-
-def level_attitude(f_b: np.ndarray, yaw: float) -> np.ndarray:
-    """q_nb from a mean specific force f_b (m/s², body FRD, at rest f = −g up = (0, 0, −g)) and a yaw (rad).
-
-    roll = atan2(−f_y, −f_z), pitch = atan2(f_x, √(f_y² + f_z²)) (x-forward levelling).
-    """
-    fx, fy, fz = float(f_b[0]), float(f_b[1]), float(f_b[2])
-    roll = math.atan2(-fy, -fz)
-    pitch = math.atan2(fx, math.hypot(fy, fz))
-    return quat_from_euler(roll, pitch, yaw)
 
 
 #: a unit missing from this many epochs in a row is not waited for until it delivers again
@@ -617,9 +619,9 @@ class Pipeline:
             self._reject(why)
             return
         if self.core is None:
-            if isinstance(m, GnssFix) and m.fix_type >= FixType.FIX_3D and self._lvl_dt > 0:
+            if self._lvl_dt > 0 and aids.source_of(m).starts_core(m):
                 try:
-                    self._init_from_gnss(m)
+                    self._init_from_gnss(cast(GnssFix, m))
                 except Exception as e:
                     self.core = None
                     self._count("pipeline_error")
@@ -644,7 +646,8 @@ class Pipeline:
         core = self.core
         assert core is not None
         mon = self._aid_mon
-        if mon is not None and not isinstance(m, MagSample):
+        src = aids.source_of(m)
+        if mon is not None and src.drift_monitor:
             # IMU epochs skipped since the last check: the INS is not evidence against the GNSS for a while
             c = self.counts
             lost = c.get("imu_nonfinite", 0) + c.get("imu_epoch_incomplete", 0) + c.get("imu_time_backwards", 0)
@@ -659,18 +662,17 @@ class Pipeline:
             if excluded:
                 self._count("excluded_" + type(m).__name__)
                 return
-            if isinstance(m, GnssFix):
+            if src.split_check:
                 yield  # the check of a fix (O(window) work) and its update in separate gaps
         yield from core.fuse_steps(m)
         self._count("fused_" + type(m).__name__)
 
     def _init_from_gnss(self, g: GnssFix) -> None:
+        from ins_hil.core import initial_state
+
         f_b = self._lvl_sum / self._lvl_dt
-        vel = np.array(g.vel_ned, dtype=np.float64) if g.vel_ned is not None else np.zeros(3)
         yaw = math.radians(self.cfg.init_yaw_deg)
-        if math.hypot(vel[0], vel[1]) > 3.0:
-            yaw = math.atan2(vel[1], vel[0])
-        self._start(StrapdownState(level_attitude(f_b, yaw), vel, g.lat, g.lon, g.h, self._t_imu))
+        self._start(initial_state(f_b, g, self._t_imu, yaw, nav_config(self.cfg.nav)))
         self._count("init_gnss")
         if self._fault_open:  # re-aligned after a core fault: cleared after FAULT_CLEAR_S of good states
             self._fault_clear_t = self._t_imu + FAULT_CLEAR_S

@@ -13,7 +13,9 @@ The CRC-32 of a frame is seeded with the four bytes before it: the previous fram
 header's for the first frame of a part. So the records are chained: a valid record copied or moved
 elsewhere (a splice, a duplicated block) fails at its new place, not only a damaged byte.
 
-The payload is a fixed struct per type (below); floats are float64, so every
+The payload is a fixed struct per type: the IMU's below, each aiding sample's in its aid source's module
+(:mod:`ins_hil.aids`: ``record`` type byte, ``record_fmt``, ``fields``/``build``; GNSS 2, baro 3,
+magnetometer 4, odometer 5, airspeed 6); floats are float64, so every
 value (and the order of the calls) is exactly what the online pipeline saw:
 :func:`ins_hil.runtime.replay.replay_log` reproduces the fused states bit for
 bit. Any damaged byte fails the frame's CRC (or its sync, type or length), so
@@ -58,7 +60,8 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample
+from ins_hil import aids
+from ins_hil.types import ImuSample, Sample
 
 MAGIC_V1 = b"IHLOG1\n"
 MAGIC = b"IHLOG2\n"
@@ -67,34 +70,34 @@ SUFFIX = ".ihlog"
 SYNC = b"\xa9\x1e"
 
 T_IMU = 1
-T_GNSS = 2
-T_BARO = 3
-T_MAG = 4
+T_GNSS = aids.by_name()["gnss"].record
+T_BARO = aids.by_name()["baro"].record
+T_MAG = aids.by_name()["mag"].record
 T_END = 15
 
 # t, dt, dtheta[3], dvel[3], temperature, t_arrival_ns, seq, imu_id, flags
 _IMU = struct.Struct("<9dqHBB")
-# t, lat, lon, h, vel[3], std_ne, std_d, std_vel, t_arrival_ns, has_vel, fix_type, num_sats, source
-_GNSS = struct.Struct("<10dqBBBB")
-# t, pressure, altitude, temperature, t_arrival_ns, source
-_BARO = struct.Struct("<4dqB")
-# t, field[3], t_arrival_ns, source
-_MAG = struct.Struct("<4dqB")
 # records in this part, records of the run up to the end of this part, 1 = a next part follows
 _END = struct.Struct("<QQB")
-_SIZES = {T_IMU: _IMU.size, T_GNSS: _GNSS.size, T_BARO: _BARO.size, T_MAG: _MAG.size}
+#: the aid sources' payloads by record type (their modules' ``record_fmt``)
+_AID = {k: (src, struct.Struct("<" + src.record_fmt)) for k, src in aids.by_record().items()}
+_SIZES = {T_IMU: _IMU.size, **{k: st.size for k, (_, st) in _AID.items()}}
 _SIZES_V2 = {**_SIZES, T_END: _END.size}
 _U32 = struct.Struct("<I")
 FRAME_OVERHEAD = len(SYNC) + 2 + 4  # sync, type, length, CRC-32 (bytes)
 # whole frames without their CRC: sync, type, length, payload
 _IMU_F = struct.Struct("<2sBB" + _IMU.format[1:])
-_GNSS_F = struct.Struct("<2sBB" + _GNSS.format[1:])
-_BARO_F = struct.Struct("<2sBB" + _BARO.format[1:])
-_MAG_F = struct.Struct("<2sBB" + _MAG.format[1:])
 _END_F = struct.Struct("<2sBB" + _END.format[1:])
 _FRAME_SIZE = {k: v + FRAME_OVERHEAD for k, v in _SIZES_V2.items()}
+#: the frame packer of each aiding sample type: (record type, payload size, frame struct, the source's fields)
+_PACK = {
+    src.sample: (k, st.size, struct.Struct("<2sBB" + st.format[1:]), src.fields)
+    for k, (src, st) in _AID.items()
+    if src.sample is not None
+}
 
-Record = ImuSample | GnssFix | BaroSample | MagSample
+#: a recorded sample (the one sample union, :data:`ins_hil.types.Sample`)
+Record = Sample
 
 
 class RecordError(ValueError):
@@ -127,7 +130,7 @@ def encode_record(s: Record, prev: int = 0) -> bytes:
 
 def _frame(s: Record, prev: int) -> tuple[bytes, int]:
     """:func:`encode_record`'s frame and its CRC (the next frame's seed)."""
-    if isinstance(s, ImuSample):
+    if type(s) is ImuSample:  # the hot path first
         a, v = s.dtheta, s.dvel
         f = _IMU_F.pack(
             SYNC,
@@ -147,37 +150,9 @@ def _frame(s: Record, prev: int) -> tuple[bytes, int]:
             s.imu_id & 0xFF,
             s.flags & 0xFF,
         )
-    elif isinstance(s, GnssFix):
-        vel = s.vel_ned if s.vel_ned is not None else (0.0, 0.0, 0.0)
-        f = _GNSS_F.pack(
-            SYNC,
-            T_GNSS,
-            _GNSS.size,
-            s.t,
-            s.lat,
-            s.lon,
-            s.h,
-            float(vel[0]),
-            float(vel[1]),
-            float(vel[2]),
-            s.std_ne,
-            s.std_d,
-            s.std_vel,
-            s.t_arrival_ns,
-            s.vel_ned is not None,
-            int(s.fix_type),
-            s.num_sats & 0xFF,
-            s.source & 0xFF,
-        )
-    elif isinstance(s, BaroSample):
-        f = _BARO_F.pack(
-            SYNC, T_BARO, _BARO.size, s.t, s.pressure, s.altitude, s.temperature, s.t_arrival_ns, s.source & 0xFF
-        )
-    elif isinstance(s, MagSample):
-        g = s.field_b
-        f = _MAG_F.pack(
-            SYNC, T_MAG, _MAG.size, s.t, float(g[0]), float(g[1]), float(g[2]), s.t_arrival_ns, s.source & 0xFF
-        )
+    elif (p := _PACK.get(type(s))) is not None:  # an aiding sample: its aid source's record
+        kind, size, fs, fields = p
+        f = fs.pack(SYNC, kind, size, *fields(s))
     else:
         raise TypeError(f"cannot record {type(s).__name__}")
     c = zlib.crc32(f, prev)
@@ -207,15 +182,9 @@ def decode_record(kind: int, body: bytes | memoryview) -> Record:
     if kind == T_IMU:
         t, dt, a0, a1, a2, v0, v1, v2, temp, arr, seq, iid, flags = _IMU.unpack(body)
         return ImuSample(t, dt, np.array((a0, a1, a2)), np.array((v0, v1, v2)), iid, seq, temp, flags, arr)
-    if kind == T_GNSS:
-        t, lat, lon, h, vn, ve, vd, sne, sd, sv, arr, hv, ft, ns, src = _GNSS.unpack(body)
-        return GnssFix(t, lat, lon, h, np.array((vn, ve, vd)) if hv else None, sne, sd, sv, FixType(ft), ns, src, arr)
-    if kind == T_BARO:
-        t, p, alt, temp, arr, src = _BARO.unpack(body)
-        return BaroSample(t, p, alt, temp, src, arr)
-    if kind == T_MAG:
-        t, f0, f1, f2, arr, src = _MAG.unpack(body)
-        return MagSample(t, np.array((f0, f1, f2)), src, arr)
+    a = _AID.get(kind)
+    if a is not None:
+        return a[0].build(a[1].unpack(body))
     raise ValueError(f"unknown record type {kind}")
 
 

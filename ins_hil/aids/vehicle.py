@@ -1,23 +1,24 @@
 """Vehicle aids: ZUPT/ZARU at rest and the non-holonomic constraint (NHC) in motion (ground vehicle); the rotor
-drag on the body specific force (multirotor)."""
+drag on the body specific force (multirotor). No sample of their own: they run after every IMU time update
+(``[core.nav.aids]`` in :mod:`ins_hil.core_parts.config`; the models in :mod:`ins_hil.fusion.measurements`)."""
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from ins_hil.fusion import measurements as mm
-from ins_hil.fusion.ekf import StateIndex
-from ins_hil.nav.mechanization import StrapdownNED
+from ins_hil.core_parts.contract import Measurement
 from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.types import ImuSample, Vec
 
-from .contract import Measurement
+from . import Aid, AidSource
 
 if TYPE_CHECKING:
     from ins_hil.core import NavConfig
+    from ins_hil.fusion.ekf import StateIndex
+    from ins_hil.nav.mechanization import StrapdownNED
 
 
 _new = tuple.__new__  # a NamedTuple without its generated __new__ (a snapshot per IMU step)
@@ -35,7 +36,7 @@ class AidsSnapshot(NamedTuple):
     ema_fb: Vec
 
 
-class VehicleAids:
+class VehicleAids(Aid):
     """Rest detection and the ZUPT/ZARU/NHC measurements of a ground vehicle (``NavConfig.aids``: ``nhc``/``zupt``),
     and a multirotor's drag measurement (``drag``) while the rest detector does not see it standing.
 
@@ -43,6 +44,11 @@ class VehicleAids:
     vibration (tens of Hz, °/s-level on a car) does not hide a stop."""
 
     def __init__(self, cfg: NavConfig, idx: StateIndex) -> None:
+        from ins_hil.fusion import measurements  # the models: not at import (see the registry)
+
+        mm = measurements  # its functions (a NavCore is deep-copyable: no module in its state)
+        self.drag_model, self.zero_velocity = mm.multirotor_drag, mm.zero_velocity
+        self.nhc, self.nhc_mounted = mm.nonholonomic, mm.nonholonomic_mounted
         self.cfg, self.idx = cfg, idx
         self.on = cfg.aids.nhc or cfg.aids.zupt or cfg.aids.drag
         self.drag_next = 0.0  # s, the next drag-aid time (drag_rate)
@@ -55,6 +61,14 @@ class VehicleAids:
         lever_on = bool(np.any(cfg.aids.nhc_lever_b != 0.0))
         self.lever_lp = cfg.aids.nhc_omega_lp_hz > 0.0 and lever_on
         self.mounted = idx.mnt is not None or lever_on or cfg.aids.nhc_pitch_per_accel != 0.0
+        self.stateful = self.per_step = self.on
+        self.core: Any = None
+
+    def after_step(self, imu: ImuSample) -> None:
+        """Apply the aids due after this IMU step (``NavCore._apply``)."""
+        core = self.core
+        for m in self.measurements(imu, core.ins, core.omega_b, core.q_mount, core.g_local, core.f_b, core.wind):
+            core._apply(m, imu.t)
 
     def snapshot(self) -> AidsSnapshot:
         return _new(AidsSnapshot, (self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp, self.drag_next,
@@ -82,7 +96,7 @@ class VehicleAids:
             return ground
         self.drag_next = imu.t + 1.0 / c.aids.drag_rate
         s = ins.state
-        z, H = mm.multirotor_drag(self.idx, dcm_from_quat(s.q_nb), s.vel_ned, wind, self.ema_fb, c.aids.drag_coef)
+        z, H = self.drag_model(self.idx, dcm_from_quat(s.q_nb), s.vel_ned, wind, self.ema_fb, c.aids.drag_coef)
         return (*ground, Measurement("drag", z, H, np.full(2, c.aids.drag_std**2), c.aids.gate))
 
     def _ground(
@@ -113,7 +127,7 @@ class VehicleAids:
         self.nhc_next = t + 1.0 / c.aids.nhc_rate
         idx = self.idx
         if c.aids.zupt and self.still_time >= c.aids.zupt_time:
-            z, H = mm.zero_velocity(idx, s.vel_ned)
+            z, H = self.zero_velocity(idx, s.vel_ned)
             zupt = Measurement("zupt", z, H, np.full(3, c.aids.zupt_std**2), c.aids.gate)
             if not (c.aids.zaru and idx.bg is not None):
                 return (zupt,)
@@ -135,12 +149,32 @@ class VehicleAids:
                     ct, st_ = math.cos(th), math.sin(th)
                     R = R @ np.array(((ct, 0.0, st_), (0.0, 1.0, 0.0), (-st_, 0.0, ct)))
                 w_l = self.w_lp if self.lever_lp else omega_b
-                z, H, _ = mm.nonholonomic_mounted(idx, C, s.vel_ned, R, w_l, c.aids.nhc_lever_b)
+                z, H, _ = self.nhc_mounted(idx, C, s.vel_ned, R, w_l, c.aids.nhc_lever_b)
             else:
-                z, H = mm.nonholonomic(idx, C, s.vel_ned)
+                z, H = self.nhc(idx, C, s.vel_ned)
             if c.aids.nhc_vertical:
                 return (
                     Measurement("nhc", z, H, np.array((c.aids.nhc_std**2, c.aids.nhc_std_vertical**2)), c.aids.gate),
                 )
             return (Measurement("nhc", z[:1], H[:1], np.array((c.aids.nhc_std**2,)), c.aids.gate),)
         return ()
+
+
+class VehicleSource(AidSource):
+    name = "vehicle"
+    kinds = ("nhc", "zupt", "drag")
+
+    def enabled(self, nav: Any) -> bool:
+        return bool(nav.aids.nhc or nav.aids.zupt or nav.aids.drag)
+
+    def stat_kinds(self, nav: Any) -> tuple[str, ...]:
+        return ("nhc", "zupt", "drag") if nav.aids.drag else ("nhc", "zupt")
+
+    def bind(self, core: Any) -> VehicleAids:
+        a = VehicleAids(core.cfg, core.idx)
+        a.core = core
+        core.aids = a
+        return a
+
+
+SOURCE = VehicleSource()

@@ -1,0 +1,162 @@
+"""Wheel odometer / body-velocity aid: the speed along the body x axis with a scale-factor state.
+
+The odometer measures s̃ = (1 + k) (C_nb v)_x + noise (m/s; the wheel speed at the IMU, the vehicle's x axis
+along the body x axis, as the non-holonomic constraint assumes), with an unknown scale factor k (tyre radius,
+pressure, load) estimated as one error state ``odo_sf`` (a random walk), as pyins' odometer. With the NHC it
+gives the whole body velocity, so the position drift in a GNSS outage is the scale-factor and heading error
+only instead of the integrated accelerometer error.
+
+Linearisation (error conventions of :mod:`ins_hil.fusion.measurements`: δv = true − computed,
+Ĉ_bn = (I + [μ×]) C_bn, δk = k − k̂), with v_b = Ĉ^T v̂ and the true C^T v = v_b + Ĉ^T δv − Ĉ^T [v̂×] μ:
+z = s̃ − (1 + k̂) v_b,x = (1 + k̂) (Ĉ^T δv − Ĉ^T [v̂×] μ)_x + v_b,x δk,
+H_v = (1 + k̂) (Ĉ^T)_x, H_μ = −(1 + k̂) (Ĉ^T [v̂×])_x, H_k = v_b,x.
+
+Config ``[core.nav.odometer]`` (:class:`OdometerConfig`); sample :class:`OdometerSample`; record type 5.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ins_hil.core_parts.contract import Measurement
+from ins_hil.nav.rotation import dcm_from_quat, skew
+from ins_hil.types import Vec
+
+from . import Aid, AidSource
+
+if TYPE_CHECKING:
+    from ins_hil.fusion.ekf import StateIndex
+
+#: the validation boundary's speed limit (m/s; a car's odometer reads ≥ 0, a reversing one negative)
+SPEED_MAX = 150.0
+
+
+@dataclass(slots=True)
+class OdometerSample:
+    """Speed along the vehicle's forward (body x) axis (m/s, negative reversing) valid at ``t`` (s); ``sigma``:
+    its 1-σ (m/s; NaN = the configured ``odometer.std``)."""
+
+    t: float
+    speed_mps: float
+    sigma: float = math.nan
+    source: int = 0
+    t_arrival_ns: int = 0
+
+
+@dataclass
+class OdometerConfig:
+    """The wheel odometer (``[core.nav.odometer]``): ``enabled``; ``std``: speed noise (m/s, 1-σ, when the sample
+    carries none); ``gate`` (σ); ``init_scale_std``: the scale factor's initial 1-σ (ratio, e.g. 0.02 = 2 %);
+    ``scale_rw``: its random walk (1/√s; 0 = a constant)."""
+
+    enabled: bool = field(default=False, metadata={"help": "fuse the wheel odometer's speed (body x)"})
+    std: float = field(
+        default=0.05,
+        metadata={"unit": "m/s", "range": "(0, 100)", "help": "speed noise (1-σ) when the sample carries none"},
+    )
+    gate: float = field(default=5.0, metadata={"unit": "σ", "range": "(0, 100)", "help": "innovation gate"})
+    init_scale_std: float = field(
+        default=0.02, metadata={"range": "(0, 1)", "help": "initial 1-σ of the scale factor (ratio)"}
+    )
+    scale_rw: float = field(
+        default=0.0,
+        metadata={"unit": "1/√s", "range": "[0, 1)", "help": "random walk of the scale factor (0 = a constant)"},
+    )
+
+    def __post_init__(self) -> None:
+        for k in ("std", "gate", "init_scale_std"):
+            v = getattr(self, k)
+            if not (isinstance(v, int | float) and 0.0 < v < math.inf):
+                raise ValueError(f"NavConfig.odometer.{k}={v!r}: expected a finite number > 0")
+        if not (isinstance(self.scale_rw, int | float) and 0.0 <= self.scale_rw < math.inf):
+            raise ValueError(f"NavConfig.odometer.scale_rw={self.scale_rw!r}: expected a finite number >= 0")
+
+
+def odometer_speed(idx: StateIndex, C_bn: Vec, vel: Vec, scale: float, speed: float) -> tuple[Vec, Vec]:
+    """(z, H) of an odometer speed ``speed`` (m/s) with the scale factor k̂ = ``scale`` (see the module doc)."""
+    Cnb = C_bn.T
+    vb_x = float(Cnb[0] @ vel)
+    g = 1.0 + scale
+    H = np.zeros((1, idx.n))
+    H[0, idx.vel : idx.vel + 3] = g * Cnb[0]
+    H[0, idx.att : idx.att + 3] = -g * (Cnb @ skew(vel))[0]
+    H[0, idx.extra["odo_sf"]] = vb_x
+    return np.array((speed - g * vb_x,)), H
+
+
+class OdometerAid(Aid):
+    stateful = True
+
+    def __init__(self, core: Any, cfg: OdometerConfig) -> None:
+        self.core, self.cfg = core, cfg
+        self.scale = 0.0  # k̂, the estimated scale factor (ratio)
+        self.i = core.idx.extra["odo_sf"]
+
+    def fuse(self, meas: OdometerSample, assume_now: bool = False) -> Iterator[None]:
+        core, c = self.core, self.cfg
+        s = core.ins.state
+        z, H = odometer_speed(core.idx, dcm_from_quat(s.q_nb), s.vel_ned, self.scale, meas.speed_mps)
+        sd = meas.sigma if meas.sigma > 0.0 else c.std
+        core._apply(Measurement("odometer", z, H, np.array((sd * sd,)), c.gate), meas.t)
+        yield from ()
+
+    def feedback(self, x: Vec) -> None:
+        self.scale += float(x[self.i])
+
+    def snapshot(self) -> float:
+        return self.scale
+
+    def restore(self, d: float) -> None:
+        self.scale = d
+
+
+class _Disabled(Aid):
+    """An odometer sample with ``odometer.enabled`` false: not fused."""
+
+
+class OdometerSource(AidSource):
+    name = "odometer"
+    sample = OdometerSample
+    record = 5
+    record_fmt = "3dqB"  # t, speed_mps, sigma, t_arrival_ns, source
+    reasons = ("odometer_nonfinite", "odometer_range")
+    kinds = ("odometer",)
+    section = OdometerConfig
+
+    def check(self, s: OdometerSample) -> None:
+        super().check(s)
+        if not abs(s.speed_mps) < math.inf:
+            raise ValueError(f"NavCore.fuse: OdometerSample.speed_mps = {s.speed_mps!r}: must be a finite number")
+
+    def validate(self, v: Any, s: OdometerSample) -> str | None:
+        """Time and speed finite, σ NaN or finite > 0; |speed| ≤ :data:`SPEED_MAX`."""
+        if not (math.isfinite(s.t) and math.isfinite(s.speed_mps)) or not (math.isnan(s.sigma) or s.sigma > 0.0):
+            return "odometer_nonfinite"
+        if s.sigma == math.inf:
+            return "odometer_nonfinite"
+        if not abs(s.speed_mps) <= SPEED_MAX:
+            return "odometer_range"
+        return None
+
+    def fields(self, s: OdometerSample) -> tuple[Any, ...]:
+        return (s.t, s.speed_mps, s.sigma, s.t_arrival_ns, s.source & 0xFF)
+
+    def build(self, vals: tuple[Any, ...]) -> OdometerSample:
+        t, sp, sd, arr, src = vals
+        return OdometerSample(t, sp, sd, src, arr)
+
+    def blocks(self, nav: Any) -> tuple[tuple[str, int, float, float], ...]:
+        c = nav.sources[self.name]
+        return (("odo_sf", 1, c.init_scale_std, c.scale_rw),) if c.enabled else ()
+
+    def bind(self, core: Any) -> Aid:
+        c = core.cfg.sources[self.name]
+        return OdometerAid(core, c) if c.enabled else _Disabled()
+
+
+SOURCE = OdometerSource()
