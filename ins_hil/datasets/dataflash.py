@@ -20,6 +20,7 @@ The end of valid data (:func:`end_of_valid_data`): a log that ends in a crash ha
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -104,6 +105,122 @@ def _check_fields(path: Path, rows: dict[str, list[dict[str, Any]]]) -> None:
                                        f"{name} needs {', '.join(cols)})")  # fmt: skip
 
 
+def _text_rows(path: Path, cls: Any, want: set[str]) -> dict[str, list[dict[str, Any]]]:
+    """The messages named in ``want`` of a text log, as dicts, through pymavlink's DFReader_text."""
+    try:
+        r = cls(str(path), zero_time_base=True)
+    except Exception as e:
+        raise DatasetError(f"{path}: cannot parse as ardupilot-log ({' '.join(str(e).split())[:120]})") from None
+    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
+    n = 0
+    what = "a message"
+    try:
+        while True:
+            what = "a message"
+            m = r.recv_match(type=list(want))
+            if m is None:
+                break
+            n += 1
+            what = f"a {m.get_type()} message"
+            rows[m.get_type()].append(m.to_dict())  # a text log's values are converted here, when read
+    except READ_ERRORS as e:  # DFReader's text reader on a damaged log: ValueError, RecursionError, TypeError
+        raise DatasetError(f"{path}: {what} that does not parse (message {n + 1}; {type(e).__name__}: "
+                           f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
+    return rows
+
+
+#: parsed FMT definitions by their bytes (every log of a firmware defines the same ones)
+_FMT_CACHE: dict[bytes, Any] = {}
+#: DataFlash message id of FMT (the format definitions), its fixed length in bytes (header included)
+FMT_ID, FMT_LEN = 0x80, 89
+
+
+def _df_value(raw: Any, ch: str, cast: Any, mult: float | None) -> Any:
+    """One unpacked DataFlash field as pymavlink's DFMessage gives it: strings decoded (UTF-8, else Latin-1)
+    and cut at the first NUL, the format's type applied, ``c``/``C``/``e``/``E`` ×0.01 and ``L`` ×1e-7."""
+    if isinstance(raw, bytes):
+        try:
+            raw = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raw = raw.decode("ISO-8859-1")
+    if ch == "a":
+        return raw
+    v = cast(raw)
+    if isinstance(v, str):
+        v = v.split("\0", 1)[0]
+    if mult is not None:
+        v = v / (1 / mult) if 0.0 < mult < 1.0 else v * mult
+    return v
+
+
+def binary_rows(data: bytes, want: set[str]) -> dict[str, list[dict[str, Any]]]:
+    """The messages named in ``want`` of a DataFlash ``.bin`` (its bytes), as dicts of field → value in
+    pymavlink's units (:func:`_df_value`), in file order.
+
+    A sequential read as pymavlink's ``DFReader_binary._parse_next`` does it, without its whole-log passes (the
+    time-base search, the index, a Python object per message): a message is ``0xA3 0x95 id`` and the bytes its
+    ``FMT`` (id 128, which may be redefined later in the log) gives; bytes that are not the header of a known
+    message are skipped one by one; a message whose body does not unpack is skipped after its header; the log
+    ends at the first message cut short. Only the messages in ``want`` are unpacked."""
+    from pymavlink.DFReader import DFFormat, null_term
+
+    formats: dict[int, Any] = {FMT_ID: DFFormat(FMT_ID, "FMT", FMT_LEN, "BBnNZ", "Type,Length,Name,Format,Columns")}
+    unpack: dict[int, Any] = {}
+    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
+    end = len(data)
+    off = 0
+    find = data.find
+    while end - off >= 3:
+        if data[off] != 0xA3 or data[off + 1] != 0x95 or data[off + 2] not in formats:
+            nxt = find(DF_HEAD, off + 1)
+            if nxt < 0:
+                break
+            off = nxt
+            continue
+        mid = data[off + 2]
+        fm = formats[mid]
+        body_len = fm.len - 3
+        if body_len < 0:  # a damaged FMT's length: pymavlink would step back onto the same message for ever
+            off += 3
+            continue
+        if end - off - 3 < body_len:
+            break  # cut short: the end of the log
+        body = data[off + 3 : off + 3 + body_len]
+        try:
+            up = unpack.get(mid)
+            if up is None:
+                up = unpack[mid] = struct.Struct(fm.msg_struct).unpack
+            el = up(body)
+        except (struct.error, ValueError):
+            off += 3  # as pymavlink: the message is skipped after its header
+            continue
+        if mid == FMT_ID:
+            nf = _FMT_CACHE.get(body)
+            if nf is None:
+                try:
+                    nf = DFFormat(el[0], null_term(el[2]), el[1], null_term(el[3]), null_term(el[4]))
+                except Exception:  # an unknown format character: the definition is ignored, as pymavlink does
+                    off += 3
+                    continue
+                if len(_FMT_CACHE) >= 4096:
+                    _FMT_CACHE.clear()
+                _FMT_CACHE[body] = nf
+            formats[el[0]] = nf
+            unpack.pop(el[0], None)
+        elif fm.name in want:
+            cols = fm.columns
+            if len(cols) > len(el):
+                raise DatasetError(f"{fm.name} message at byte {off}: {len(cols)} columns for {len(el)} values "
+                                   f"(its FMT is damaged)")  # fmt: skip
+            d: dict[str, Any] = {"mavpackettype": fm.name}
+            for c in cols:
+                j = fm.colhash[c]  # a column named twice gives its last value, as pymavlink's
+                d[c] = _df_value(el[j], fm.msg_fmts[j], fm.msg_types[j], fm.msg_mults[j])
+            rows[fm.name].append(d)
+        off += fm.len
+    return rows
+
+
 def _is_dataflash_text(path: Path) -> bool:
     """A text DataFlash log: text (no NUL byte) with a line starting ``FMT,`` near its start."""
     if not path.is_file():
@@ -149,26 +266,11 @@ def _read(path: Path, text: bool) -> Dataset:
         what = "an ArduPilot DataFlash .bin (expected the 0xA3 0x95 FMT header)"
     if not ok:
         raise DatasetError(f"{path}: not {what}")
-    try:
-        r = cls(str(path), zero_time_base=True)
-    except Exception as e:
-        raise DatasetError(f"{path}: cannot parse as {fmt} ({e})") from None
     want = set(FIELDS)
-    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
-    n = 0
-    what = "a message"
-    try:
-        while True:
-            what = "a message"
-            m = r.recv_match(type=list(want))
-            if m is None:
-                break
-            n += 1
-            what = f"a {m.get_type()} message"
-            rows[m.get_type()].append(m.to_dict())  # a text log's values are converted here, when read
-    except READ_ERRORS as e:  # DFReader on a damaged log (its text reader: ValueError, RecursionError, TypeError)
-        raise DatasetError(f"{path}: {what} that does not parse (message {n + 1}; {type(e).__name__}: "
-                           f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
+    if text:
+        rows = _text_rows(path, cls, want)
+    else:
+        rows = binary_rows(path.read_bytes(), want)
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
     _check_fields(path, rows)
