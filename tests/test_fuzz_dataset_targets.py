@@ -26,3 +26,20 @@ def test_target_runs_clean(name: str, shared_dir):
         n, out = step()  # an escaped exception fails the test
         assert n == 1
         assert not [s for s in out if isinstance(s, Wrong) or bad_sample(s)], out[:3]
+
+
+def test_seeds_cut_from_the_shipped_logs_are_small_valid_logs(shared_dir, tmp_path):
+    from ins_hil.datasets.dataset import read_dataset
+    from ins_hil.fuzz.targets import SEED_RECORDS, dataflash_seed, ulog_seed
+
+    uav = shared_dir / "data/uav"
+    u, u_spans = ulog_seed((uav / "px4_hover_92s/hover.ulg").read_bytes())
+    b, b_spans = dataflash_seed((uav / "ardupilot_copter_150s/flight.bin").read_bytes())
+    for name, data, spans in (("s.ulg", u, u_spans), ("s.bin", b, b_spans)):
+        assert len(data) < 60_000
+        assert spans[-1][0] + spans[-1][1] == len(data)  # the spans tile the messages, header aside
+        (tmp_path / name).write_bytes(data)
+        ds = read_dataset(tmp_path / name)
+        assert SEED_RECORDS - 2 <= len(ds.imu) <= SEED_RECORDS
+        assert len(ds.gnss) >= 5  # the hover log had no fix: the ULog seed's GNSS records carry one
+        assert all(s.dt > 0 for s in ds.imu)

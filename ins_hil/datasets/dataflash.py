@@ -131,6 +131,10 @@ def _text_rows(path: Path, cls: Any, want: set[str]) -> dict[str, list[dict[str,
 
 #: parsed FMT definitions by their bytes (every log of a firmware defines the same ones)
 _FMT_CACHE: dict[bytes, Any] = {}
+#: format characters whose unpacked value is the field's value (no string, no multiplier)
+_PLAIN = frozenset("bBhHiIfdgMqQ")
+#: per parsed format (by id, the format kept to check it): its plain columns (name, index) and the others
+_CONV: dict[int, tuple[Any, list[tuple[str, int]], list[tuple[str, int, str, Any, float | None]]]] = {}
 #: DataFlash message id of FMT (the format definitions), its fixed length in bytes (header included)
 FMT_ID, FMT_LEN = 0x80, 89
 
@@ -204,18 +208,27 @@ def binary_rows(data: bytes, want: set[str]) -> dict[str, list[dict[str, Any]]]:
                     continue
                 if len(_FMT_CACHE) >= 4096:
                     _FMT_CACHE.clear()
+                    _CONV.clear()
                 _FMT_CACHE[body] = nf
             formats[el[0]] = nf
             unpack.pop(el[0], None)
         elif fm.name in want:
-            cols = fm.columns
-            if len(cols) > len(el):
-                raise DatasetError(f"{fm.name} message at byte {off}: {len(cols)} columns for {len(el)} values "
-                                   f"(its FMT is damaged)")  # fmt: skip
+            conv = _CONV.get(id(fm))
+            if conv is None or conv[0] is not fm:
+                cols = fm.columns
+                if len(cols) > len(el):
+                    raise DatasetError(f"{fm.name} message at byte {off}: {len(cols)} columns for {len(el)} values "
+                                       f"(its FMT is damaged)")  # fmt: skip
+                js = [fm.colhash[c] for c in cols]  # a column named twice gives its last value, as pymavlink's
+                plain = [(c, j) for c, j in zip(cols, js, strict=True) if fm.msg_fmts[j] in _PLAIN]
+                other = [(c, j, fm.msg_fmts[j], fm.msg_types[j], fm.msg_mults[j])
+                         for c, j in zip(cols, js, strict=True) if fm.msg_fmts[j] not in _PLAIN]  # fmt: skip
+                conv = _CONV[id(fm)] = (fm, plain, other)
             d: dict[str, Any] = {"mavpackettype": fm.name}
-            for c in cols:
-                j = fm.colhash[c]  # a column named twice gives its last value, as pymavlink's
-                d[c] = _df_value(el[j], fm.msg_fmts[j], fm.msg_types[j], fm.msg_mults[j])
+            for c, j in conv[1]:
+                d[c] = el[j]
+            for c, j, ch, cast, mult in conv[2]:
+                d[c] = _df_value(el[j], ch, cast, mult)
             rows[fm.name].append(d)
         off += fm.len
     return rows

@@ -126,6 +126,7 @@ class TargetResult:
     name: str
     what: str
     seconds: float = 0.0
+    cpu_seconds: float = 0.0  # CPU time of the process while it ran (what the rate on one free core is based on)
     inputs: int = 0
     escaped: int = 0
     accepted: int = 0
@@ -244,6 +245,7 @@ def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, i
     if navs is not None:
         NavCheck()  # imports and first-build costs outside the measured share
     mono = time.perf_counter
+    cpu0 = time.process_time()
     t0 = mono()
     end = math.inf if seconds is None else t0 + seconds
     most = math.inf if inputs is None else inputs
@@ -291,4 +293,5 @@ def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, i
                 nav_s += mono() - n0
         now = mono()
     res.seconds = now - t0
+    res.cpu_seconds = time.process_time() - cpu0
     return res
