@@ -695,9 +695,9 @@ def ulog_seed(b: bytes, records: int = SEED_RECORDS, start: float = SEED_FROM) -
                 keep = b[off : off + n]
                 if name in ("vehicle_gps_position", "sensor_gps"):  # a 3-D fix where the log had none
                     rec = bytearray(keep)
-                    for field, (k, ch) in _ulog_fields(formats[name][3:]).items():
-                        if field in _ULOG_FIX:
-                            struct.pack_into("<" + ch, rec, 5 + k, _ULOG_FIX[field])
+                    for fname, (k, ch) in _ulog_fields(formats[name][3:]).items():
+                        if fname in _ULOG_FIX:
+                            struct.pack_into("<" + ch, rec, 5 + k, _ULOG_FIX[fname])
                     keep = bytes(rec)
                 n_imu += name == "sensor_combined"
                 n_gps += name in ("vehicle_gps_position", "sensor_gps")
