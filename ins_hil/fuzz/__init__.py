@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 import random
+import signal
+import threading
 import time
 import traceback
 import warnings
@@ -112,6 +114,7 @@ class Target:
     weight: float = 1.0  # share of the budget
     nav: bool = False  # feed accepted IMU samples through a Pipeline
     decoder: bool = True  # counts toward the "≥ 1 million inputs per decoder" target
+    goal: int = 1_000_000  # inputs a full campaign must reach (0: none)
 
 
 @dataclass
@@ -137,14 +140,54 @@ class TargetResult:
     nan_states: int = 0
     nav_exceptions: int = 0
     nav_stalls: int = 0  # the pipeline produced no state for STALL samples in a row after its start
+    blowups: int = 0  # a MemoryError out of one input (the campaign runs under an address-space cap)
+    hangs: int = 0  # one input that used more than the step's CPU-time limit
     findings: dict[str, Finding] = field(default_factory=dict)
     decoder: bool = True
+    goal: int = 0  # inputs the target must reach in a full campaign (0: none)
 
     def note(self, kind: str, example: str) -> None:
         f = self.findings.get(kind)
         if f is None:
             f = self.findings[kind] = Finding(kind, 0, example[:300])
         f.count += 1
+
+    def failures(self) -> int:
+        """What fails the campaign: escaped exceptions, accepted-bad samples, NaN states, pipeline exceptions,
+        blow-ups and hangs."""
+        return self.escaped + self.accepted_bad + self.nan_states + self.nav_exceptions + self.blowups + self.hangs
+
+    def add(self, other: TargetResult) -> None:
+        """Add ``other`` (a later run of the same target) into this one: counts summed, findings merged."""
+        for k in COUNTS:
+            setattr(self, k, getattr(self, k) + getattr(other, k))
+        for kind, f in other.findings.items():
+            mine = self.findings.setdefault(kind, Finding(kind, 0, f.example))
+            mine.count += f.count
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {k: getattr(self, k) for k in ("name", "what", "decoder", "goal", *COUNTS)}
+        d["findings"] = [[f.kind, f.count, f.example] for f in self.findings.values()]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TargetResult:
+        r = cls(d["name"], d["what"], decoder=bool(d.get("decoder", True)), goal=int(d.get("goal", 0)))
+        for k in COUNTS:
+            setattr(r, k, type(getattr(r, k))(d.get(k, 0)))
+        r.findings = {k: Finding(k, int(n), str(ex)) for k, n, ex in d.get("findings", [])}
+        return r
+
+
+#: the summed fields of a TargetResult
+COUNTS = ("seconds", "cpu_seconds", "inputs", "escaped", "accepted", "decoded_bad", "accepted_bad", "nav_fed",
+          "nav_states", "nan_states", "nav_exceptions", "nav_stalls", "blowups", "hangs")  # fmt: skip
+#: CPU seconds one input may use before it counts as a hang (SIGVTALRM; the main thread only)
+STEP_CPU_LIMIT = 20.0
+
+
+class _Hang(BaseException):
+    """Raised in a step by the CPU-time alarm (a BaseException: the code under test does not catch it)."""
 
 
 STALL = 500
@@ -218,24 +261,44 @@ def _where(e: BaseException) -> str:
 
 
 def run_target(
-    t: Target, seconds: float | None, seed: int = 0, nav_share: float = 0.3, inputs: int | None = None
+    t: Target,
+    seconds: float | None,
+    seed: int = 0,
+    nav_share: float = 0.3,
+    inputs: int | None = None,
+    step_cpu_limit: float | None = STEP_CPU_LIMIT,
 ) -> TargetResult:
     """Fuzz one target for ``seconds`` (wall clock) or until ``inputs`` inputs (a count: the same inputs on any
     machine and under any load), whichever comes first; ``nav_share``: at most this part of the time in the
     pipeline.
 
-    Overflow warnings of junk values (numpy, Python) are silenced: what they lead to is counted.
+    Overflow warnings of junk values (numpy, Python) are silenced: what they lead to is counted. A MemoryError out
+    of a step is a *blow-up*; a step that uses more than ``step_cpu_limit`` CPU seconds is stopped and counted as a
+    *hang* (a CPU-time alarm, in the main thread only; None: no limit). Both rebuild the harness.
     """
     if seconds is None and inputs is None:
         raise ValueError("run_target: give a time budget (seconds) or an input budget (inputs)")
-    with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore")
-        return _run_target(t, seconds, seed, nav_share, inputs)
+    alarm = step_cpu_limit is not None and threading.current_thread() is threading.main_thread()
+    old = signal.signal(signal.SIGVTALRM, _on_alarm) if alarm else None
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            return _run_target(t, seconds, seed, nav_share, inputs, step_cpu_limit if alarm else None)
+    finally:
+        if alarm:
+            signal.setitimer(signal.ITIMER_VIRTUAL, 0)
+            signal.signal(signal.SIGVTALRM, old)
 
 
-def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, inputs: int | None) -> TargetResult:
+def _on_alarm(signum: int, frame: Any) -> None:
+    raise _Hang()
+
+
+def _run_target(
+    t: Target, seconds: float | None, seed: int, nav_share: float, inputs: int | None, limit: float | None
+) -> TargetResult:
     rng = random.Random(seed)
-    res = TargetResult(t.name, t.what, decoder=t.decoder)
+    res = TargetResult(t.name, t.what, decoder=t.decoder, goal=t.goal)
     step = t.setup(rng)
     from ins_hil.validation import SampleValidator
 
@@ -253,7 +316,27 @@ def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, i
     now = t0
     while now < end and res.inputs < most:
         try:
-            n, out = step()
+            if limit is not None:
+                signal.setitimer(signal.ITIMER_VIRTUAL, limit)
+            try:
+                n, out = step()
+            finally:
+                if limit is not None:
+                    signal.setitimer(signal.ITIMER_VIRTUAL, 0)
+        except _Hang:
+            res.hangs += 1
+            res.inputs += 1
+            res.note("hang", f"one input used more than {limit:g} s of CPU time")
+            step = t.setup(rng)
+            now = mono()
+            continue
+        except MemoryError:
+            res.blowups += 1
+            res.inputs += 1
+            res.note("blow-up (MemoryError)", "one input exceeded the address-space cap")
+            step = t.setup(rng)
+            now = mono()
+            continue
         except Exception as e:
             res.escaped += 1
             res.inputs += 1

@@ -1031,8 +1031,10 @@ TARGETS: list[Target] = [
     Target("dronecan", "ins_hil.drivers.dronecan_codec.DroneCanDecoder.feed", _dronecan, 1.5, nav=True),
     Target("dbc", "ins_hil.drivers.dbc_codec.DbcImuDecoder.feed", _dbc, 0.7, nav=True),
     Target("mavlink_in", "ins_hil.drivers.mavlink_in.MavlinkDriver.feed", _mavlink, 1.35, nav=True),
-    Target("config", "ins_hil.config.from_dict / load (mutated configs/*.toml)", _config, 0.5, decoder=False),
-    Target("recorder_reader", "ins_hil.runtime.recorder.read_records", _recorder, 0.5, decoder=False),
+    Target(
+        "config", "ins_hil.config.from_dict / load (mutated configs/*.toml)", _config, 0.5, decoder=False, goal=10_000
+    ),
+    Target("recorder_reader", "ins_hil.runtime.recorder.read_records", _recorder, 0.5, decoder=False, goal=0),
     # the dataset readers (mutated beginnings of the shipped logs, synthetic seeds) and the dataset config
     *(
         Target(
@@ -1050,6 +1052,7 @@ TARGETS: list[Target] = [
         _dataset_config,
         0.3,
         decoder=False,
+        goal=100_000,
     ),
 ]
 
