@@ -157,6 +157,14 @@ def report(results: list[TargetResult], command: str, machine_line: str, load: s
         "",
         *_ranges(),
         "",
+        *[
+            f"Measured in {r.name} (the largest of {r.inputs:,} runs): "
+            + ", ".join(f"{k} {v:,.1f}" for k, v in sorted(r.maxima.items()))
+            + "."
+            for r in results
+            if r.maxima
+        ],
+        *([""] if any(r.maxima for r in results) else []),
         "Against the goals (≥ 1 million inputs per decoder and per dataset reader, 10,000 gateway config",
         "documents, 100,000 dataset configs; 0 escaped exceptions, 0 accepted samples outside the physical ranges,",
         "0 NaN states or figures, 0 blow-ups, 0 hangs):",

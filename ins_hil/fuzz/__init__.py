@@ -40,6 +40,15 @@ P_RANGE = (100.0, 120_000.0)  # Pa: static pressure
 MAX_FIELD = 1e-3  # T (10 gauss): magnetic field norm
 
 
+class Measure:
+    """A figure a step measured (e.g. a child's peak memory): the campaign keeps its maximum per target, it is not a
+    sample."""
+
+    def __init__(self, name: str, value: float) -> None:
+        self.name = name
+        self.value = value
+
+
 class Wrong:
     """A record the recorder reader returned that is not the one recorded (a silent misread)."""
 
@@ -143,6 +152,7 @@ class TargetResult:
     blowups: int = 0  # a MemoryError out of one input (the campaign runs under an address-space cap)
     hangs: int = 0  # one input that used more than the step's CPU-time limit
     findings: dict[str, Finding] = field(default_factory=dict)
+    maxima: dict[str, float] = field(default_factory=dict)  # the largest of each Measure the steps returned
     decoder: bool = True
     goal: int = 0  # inputs the target must reach in a full campaign (0: none)
 
@@ -164,10 +174,13 @@ class TargetResult:
         for kind, f in other.findings.items():
             mine = self.findings.setdefault(kind, Finding(kind, 0, f.example))
             mine.count += f.count
+        for k, v in other.maxima.items():
+            self.maxima[k] = max(v, self.maxima.get(k, v))
 
     def to_dict(self) -> dict[str, Any]:
         d = {k: getattr(self, k) for k in ("name", "what", "decoder", "goal", *COUNTS)}
         d["findings"] = [[f.kind, f.count, f.example] for f in self.findings.values()]
+        d["maxima"] = dict(self.maxima)
         return d
 
     @classmethod
@@ -176,6 +189,7 @@ class TargetResult:
         for k in COUNTS:
             setattr(r, k, type(getattr(r, k))(d.get(k, 0)))
         r.findings = {k: Finding(k, int(n), str(ex)) for k, n, ex in d.get("findings", [])}
+        r.maxima = {str(k): float(v) for k, v in d.get("maxima", {}).items()}
         return r
 
 
@@ -345,6 +359,11 @@ def _run_target(
             now = mono()
             continue
         res.inputs += n
+        if out and any(isinstance(s, Measure) for s in out):
+            for s in out:
+                if isinstance(s, Measure):
+                    res.maxima[s.name] = max(s.value, res.maxima.get(s.name, s.value))
+            out = [s for s in out if not isinstance(s, Measure)]
         if out:
             res.accepted += len(out)
             for s in out:

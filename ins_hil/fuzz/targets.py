@@ -20,6 +20,7 @@ from __future__ import annotations
 import copy
 import math
 import random
+import re
 import struct
 import tempfile
 import time
@@ -904,6 +905,35 @@ def _replay_check(ds: Any, cfg: Any) -> list[Any]:
     return []
 
 
+#: the reader formats whose input is a folder, and those that are text
+FOLDERS = ("px4-csv", "rtklib")
+TEXTS = ("csv", "px4-csv", "ardupilot-log", "rtklib")
+
+
+def _mutated(rng: random.Random, seed: dict[str, bytes], fmt: str, root: Path) -> Path:
+    """One file of ``seed`` mutated (text formats cell- and line-wise or as bytes, binary logs record-wise or as
+    bytes; a folder format's file sometimes missing), written to the emptied folder ``root``; returns the path
+    the reader is given (``root`` for a folder format)."""
+    if root.exists():
+        for f in root.iterdir():
+            f.unlink()
+    root.mkdir(exist_ok=True)
+    names = list(seed)
+    victim = rng.choice(names)
+    for name, b in seed.items():
+        if name == victim:
+            if fmt in TEXTS and not name.endswith(".tag") and rng.random() < 0.6:
+                b = _text_mutate(rng, b)
+            elif b in SPANS and rng.random() < 0.6:
+                b = _record_mutate(rng, b, *SPANS[b])
+            else:
+                b = _bytes_mutate(rng, b)
+        (root / name).write_bytes(b)
+    if fmt in FOLDERS and rng.random() < 0.05:  # a file of the folder missing
+        (root / rng.choice(names)).unlink()
+    return root if fmt in FOLDERS else root / names[0]
+
+
 def _reader(fmt: str) -> Callable[[random.Random], Step]:
     """A reader target: a seed of ``fmt`` mutated (bytes; text formats also cell- and line-wise), read with the
     reader; a DatasetError is the clean refusal, anything else raised escapes. The samples it yields go through
@@ -919,32 +949,11 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
         seeds = _reader_seeds(fmt, tmp)
         if not seeds:
             raise RuntimeError(f"{fmt}: no seed ({SHARED_DATA} missing)")
-        folder = fmt in ("px4-csv", "rtklib")
-        text = fmt in ("csv", "px4-csv", "ardupilot-log", "rtklib")
         n = [0]
         clock = [time.perf_counter(), 0.0]  # the start, the seconds spent replaying
 
         def step() -> tuple[int, list[Any]]:
-            seed = rng.choice(seeds)
-            root = tmp / "in"
-            if root.exists():
-                for f in root.iterdir():
-                    f.unlink()
-            root.mkdir(exist_ok=True)
-            names = list(seed)
-            victim = rng.choice(names)
-            for name, b in seed.items():
-                if name == victim:
-                    if text and not name.endswith(".tag") and rng.random() < 0.6:
-                        b = _text_mutate(rng, b)
-                    elif b in SPANS and rng.random() < 0.6:
-                        b = _record_mutate(rng, b, *SPANS[b])
-                    else:
-                        b = _bytes_mutate(rng, b)
-                (root / name).write_bytes(b)
-            if folder and rng.random() < 0.05:  # a file of the folder missing
-                (root / rng.choice(names)).unlink()
-            path = root if folder else root / names[0]
+            path = _mutated(rng, rng.choice(seeds), fmt, tmp / "in")
             n[0] += 1
             try:
                 ds = read_dataset(path, fmt)
@@ -966,6 +975,108 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
         return step
 
     return setup
+
+
+#: the formats whose mutated seeds the replay targets run through ``ins-hil replay``
+REPLAY_FORMATS = ("csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "rtklib", "ihlog")
+#: the replay's guarantee on a corrupted log: it ends within this (s) and under this address space (MiB)
+REPLAY_SECONDS = 60.0
+REPLAY_MIB = 1024
+_NUMBER_NAN = re.compile(r"(?<![a-z_])(nan|[+-]?inf)(?![a-z_])")
+
+
+def replay_oracle(rc: int, out: str, err: str, path: Path) -> list[Any]:
+    """The guarantee of ``ins-hil replay`` on a corrupted log, checked on one run: exit 0 with no NaN or inf
+    printed as a figure, or exit ≠ 0 with one line on stderr that names ``path`` and is a foreseen refusal (not
+    "the replay failed (KeyError…)", not an escaped exception's type). [] when kept, else one ``Wrong``."""
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    if rc == 0:
+        m = _NUMBER_NAN.search(out.lower().replace("not scored", ""))
+        return [Wrong(f"exit 0 with a non-finite figure {m.group(0)!r}: {out[:300]!r}")] if m else []
+    if len(lines) != 1:
+        return [Wrong(f"exit {rc} with {len(lines)} lines on stderr: {err[:300]!r}")]
+    if str(path) not in lines[0]:
+        return [Wrong(f"exit {rc}, its line does not name the file: {lines[0][:300]!r}")]
+    if "the replay failed (" in lines[0] or "--debug for the traceback" in lines[0]:
+        return [Wrong(f"exit {rc}, an unforeseen failure: {lines[0][:300]!r}")]
+    return []
+
+
+def _replay_seeds(tmp: Path) -> list[tuple[str, dict[str, bytes]]]:
+    seeds = [(fmt, s) for fmt in REPLAY_FORMATS for s in _reader_seeds(fmt, tmp)]
+    if not seeds:
+        raise RuntimeError(f"replay: no seed ({SHARED_DATA} missing)")
+    return seeds
+
+
+def _replay_cli(rng: random.Random) -> Step:
+    """``ins-hil replay LOG --no-plots --quiet`` in process (``ins_hil.cli.main``, stdout and stderr captured) on a
+    mutated seed of every reader format: each run is checked by :func:`replay_oracle` (the campaign's CPU-time
+    limit per input and its address-space cap bound it)."""
+    import contextlib
+    import io
+
+    from ins_hil.cli import main
+
+    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    seeds = _replay_seeds(tmp)
+
+    def step() -> tuple[int, list[Any]]:
+        fmt, seed = rng.choice(seeds)
+        path = _mutated(rng, seed, fmt, tmp / "in")
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main(["replay", str(path), "--out", str(tmp / "out"), "--no-plots", "--quiet"])
+        return 1, replay_oracle(rc, out.getvalue(), err.getvalue(), path)
+
+    return step
+
+
+def _replay_process(rng: random.Random) -> Step:
+    """``python -m ins_hil replay LOG --no-plots --quiet`` as a child process under ``REPLAY_MIB`` MiB of address
+    space (RLIMIT_AS) on a mutated seed of every reader format: killed after ``REPLAY_SECONDS`` (a hang); each run
+    checked by :func:`replay_oracle`; its wall time and peak resident memory (``os.wait4``) returned as
+    :class:`~ins_hil.fuzz.Measure` (the campaign keeps their maxima)."""
+    import os
+    import resource
+    import subprocess
+    import sys
+
+    from ins_hil.fuzz import Measure
+
+    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    seeds = _replay_seeds(tmp)
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (REPLAY_MIB * 1024 * 1024, resource.getrlimit(resource.RLIMIT_AS)[1]))
+
+    def step() -> tuple[int, list[Any]]:
+        fmt, seed = rng.choice(seeds)
+        path = _mutated(rng, seed, fmt, tmp / "in")
+        cmd = [sys.executable, "-m", "ins_hil", "replay", str(path), "--out", str(tmp / "out"), "--no-plots", "--quiet"]
+        t0 = time.perf_counter()
+        with (tmp / "stdout").open("w+") as fo, (tmp / "stderr").open("w+") as fe:
+            child = subprocess.Popen(cmd, stdout=fo, stderr=fe, stdin=subprocess.DEVNULL, preexec_fn=cap, cwd=ROOT)
+            while True:
+                pid, status, ru = os.wait4(child.pid, os.WNOHANG)
+                if pid:
+                    break
+                if time.perf_counter() - t0 > REPLAY_SECONDS:
+                    child.kill()
+                    pid, status, ru = os.wait4(child.pid, 0)
+                    child.returncode = -9
+                    return 1, [Wrong(f"killed after {REPLAY_SECONDS:g} s"),
+                               Measure("replay wall s", time.perf_counter() - t0)]  # fmt: skip
+                time.sleep(0.02)
+            child.returncode = os.waitstatus_to_exitcode(status)
+            fo.seek(0)
+            fe.seek(0)
+            out, err = fo.read(), fe.read()
+        wall = time.perf_counter() - t0
+        found = replay_oracle(child.returncode, out, err, path)
+        return 1, [*found, Measure("replay wall s", wall), Measure("replay peak RSS MiB", ru.ru_maxrss / 1024.0)]
+
+    return step
 
 
 def _dataset_config(rng: random.Random) -> Step:
@@ -1045,6 +1156,22 @@ TARGETS: list[Target] = [
             decoder=False,
         )
         for f in ("csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "rtklib", "ihlog")
+    ),
+    Target(
+        "replay_cli",
+        "ins_hil.cli.main(['replay', LOG, ...]) on mutated logs of every reader format",
+        _replay_cli,
+        0.3,
+        decoder=False,
+        goal=0,
+    ),
+    Target(
+        "replay_process",
+        f"python -m ins_hil replay LOG in a child under {REPLAY_MIB} MiB, killed after {REPLAY_SECONDS:g} s",
+        _replay_process,
+        0.15,
+        decoder=False,
+        goal=0,
     ),
     Target(
         "dataset_config",
