@@ -817,7 +817,8 @@ def _synthetic_dataset(seconds: float = 3.0) -> Any:
             range(int(seconds * 5))]  # fmt: skip
     baro = [BaroSample(0.1 * k, 97_000.0, 300.0) for k in range(int(seconds * 10))]
     mag = [MagSample(0.1 * k, np.array((2e-5, 1e-6, 4e-5))) for k in range(int(seconds * 10))]
-    return Dataset(imu, gnss, baro, mag, meta={"source": "<fuzz>", "format": "csv", "utc_start_s": 1.7e9})
+    return Dataset(imu, gnss, baro, mag, events=[(0.5, "takeoff")],
+                   meta={"source": "<fuzz>", "format": "csv", "utc_start_s": 1.7e9})  # fmt: skip
 
 
 def _head_lines(p: Path, n: int = SEED_LINES) -> bytes:
