@@ -55,3 +55,32 @@ def test_a_fmt_length_below_the_header_ends(tmp_path: Path, length: int):
     b = _log() + _fmt(0x82, "XXX", length, "", "") + b"\xa3\x95\x82" * 10 + _imu(600_000)
     rows = dataflash.binary_rows(bytes(b), {"IMU", "XXX"})
     assert len(rows["IMU"]) == 51 and rows["XXX"] == []
+
+
+def test_text_rows_agree_with_pymavlink_on_the_shipped_logs_text_export(shared_dir: Path, tmp_path: Path):
+    from pymavlink import DFReader
+    from test_datasets_readers import _dataflash_text
+
+    p = tmp_path / "flight.log"
+    want = ["IMU", "GPS", "BARO", "MSG", "NKF1"]
+    _dataflash_text(shared_dir / "data/uav/ardupilot_copter_150s/flight.bin", p, want)
+    ours = dataflash.text_rows(p, p.read_bytes(), set(want))
+    r = DFReader.DFReader_text(str(p), zero_time_base=True)
+    theirs: dict[str, list[dict[str, object]]] = {k: [] for k in want}
+    while (m := r.recv_match(type=want)) is not None:
+        theirs[m.get_type()].append(m.to_dict())
+    assert len(ours["IMU"]) > 1000 and ours == theirs
+
+
+def test_text_rows_errors_name_the_line(tmp_path: Path):
+    p = tmp_path / "d.log"
+    head = "FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns\nFMT, 129, 35, IMU, Qffffff, " + IMU_COLS + "\n"
+    for body, match in (("IMU, 10000, 0.01, 0, 0, 0, 0, x\n", r":3: a IMU message that does not parse"),
+                        ("FMT, 1x, 35, BAD, Qf, A,B\n", r":3: an FMT line that does not parse"),
+                        ("FMT, 140, 35, BAD, Qy, A,B\n", r":3: an FMT line that does not parse")):  # fmt: skip
+        p.write_text(head + body)
+        with pytest.raises(dataflash.DatasetError, match=match):
+            dataflash.text_rows(p, p.read_bytes(), {"IMU"})
+    p.write_bytes(head.encode() + b"IMU, 1\xff\n")
+    with pytest.raises(dataflash.DatasetError, match=r":3: not UTF-8 text"):
+        dataflash.text_rows(p, p.read_bytes(), {"IMU"})

@@ -1,5 +1,6 @@
 """ArduPilot DataFlash readers: the binary ``*.bin`` and the text ``*.log`` (Mission Planner's and
-MAVExplorer's export: ``FMT, 128, 89, FMT, BBnNZ, …`` lines), both with ``pymavlink.DFReader``.
+MAVExplorer's export: ``FMT, 128, 89, FMT, BBnNZ, …`` lines), each read in one pass by the reader's own parser
+(:func:`binary_rows`, :func:`text_rows`: the values pymavlink's ``DFReader`` gives, with its format definitions).
 
 * ``IMU`` (the first IMU: the ``IMU`` name in 3.x logs, the instance ``I`` = 0 in 4.x, as for GPS, BARO and
   MAG): GyrX..Z (rad/s), AccX..Z (m/s²), body FRD, ``TimeUS``; logged samples of the rate, so the
@@ -27,7 +28,6 @@ from typing import Any
 import numpy as np
 
 from ins_hil.datasets.dataset import (
-    READ_ERRORS,
     Dataset,
     DatasetError,
     Reader,
@@ -105,27 +105,77 @@ def _check_fields(path: Path, rows: dict[str, list[dict[str, Any]]]) -> None:
                                        f"{name} needs {', '.join(cols)})")  # fmt: skip
 
 
-def _text_rows(path: Path, cls: Any, want: set[str]) -> dict[str, list[dict[str, Any]]]:
-    """The messages named in ``want`` of a text log, as dicts, through pymavlink's DFReader_text."""
-    try:
-        r = cls(str(path), zero_time_base=True)
-    except Exception as e:
-        raise DatasetError(f"{path}: cannot parse as ardupilot-log ({' '.join(str(e).split())[:120]})") from None
+def text_rows(path: Path, data: bytes, want: set[str]) -> dict[str, list[dict[str, Any]]]:
+    """The messages named in ``want`` of a DataFlash text log (its bytes), as dicts of field → value, in file order.
+
+    Read line by line as pymavlink's ``DFReader_text`` reads one: fields split at ``", "`` (or ``","`` when the
+    log's first FMT line is written so), an ``FMT`` line defines a message, a line of an undefined message or with
+    fewer fields than its format is skipped; a value is converted with its format's type (``int``, ``float``,
+    ``str`` cut at a NUL; ``M`` and ``a`` kept as text; no multiplier: a text log's values are in their units).
+    Without pymavlink's whole-log passes (its index and time base) and its Python object per message. A line that
+    is not UTF-8, a damaged FMT line, or a value that does not convert is a DatasetError naming the line."""
+    from pymavlink.DFReader import DFFormat
+
+    delim = ", "
+    start = data.find(b"FMT, ")
+    if start < 0:
+        start, delim = data.find(b"FMT,"), ","
+    if start < 0:
+        raise DatasetError(f"{path}: no FMT line (expected an ArduPilot DataFlash text log)")
+    line0 = data.count(b"\n", 0, start)
+    formats: dict[str, Any] = {"FMT": DFFormat(FMT_ID, "FMT", FMT_LEN, "BBnNZ", "Type,Length,Name,Format,Columns")}
+    conv: dict[str, list[tuple[str, int, Any]]] = {}
     rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
-    n = 0
-    what = "a message"
-    try:
-        while True:
-            what = "a message"
-            m = r.recv_match(type=list(want))
-            if m is None:
-                break
-            n += 1
-            what = f"a {m.get_type()} message"
-            rows[m.get_type()].append(m.to_dict())  # a text log's values are converted here, when read
-    except READ_ERRORS as e:  # DFReader's text reader on a damaged log: ValueError, RecursionError, TypeError
-        raise DatasetError(f"{path}: {what} that does not parse (message {n + 1}; {type(e).__name__}: "
-                           f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
+    for n, raw in enumerate(data[start:].split(b"\n"), line0 + 1):
+        b = raw.rstrip()
+        if not b:
+            continue
+        try:
+            line = b.decode("utf-8")
+        except UnicodeDecodeError:
+            raise DatasetError(f"{path}:{n}: not UTF-8 text (expected a DataFlash text log line)") from None
+        el = line.split(delim)
+        if len(el) < 2:
+            continue
+        if len(el) == 5 and el[-1] == ",":  # an FMT of an empty message, as pymavlink reads it
+            el[-1:] = ["", ""]
+        fm = formats.get(el[0])
+        if fm is None or len(el) < len(fm.format) + 1:
+            continue
+        name = el[0]
+        el = el[1:]
+        if name == "FMT":
+            if delim == ",":
+                el = [*el[0:4], ",".join(el[4:])]
+            cols = el[4]
+            if el[2] == "FMT" and cols == "Type,Length,Name,Format":  # some logs leave FMT's Columns out
+                cols = "Type,Length,Name,Format,Columns"
+            try:
+                formats[el[2]] = DFFormat(int(el[0]), el[2], int(el[1]), el[3], cols)
+            except Exception as e:  # a number that is not one, an unknown format character
+                raise DatasetError(f"{path}:{n}: an FMT line that does not parse ({type(e).__name__}: "
+                                   f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
+            conv.pop(el[2], None)
+            continue
+        if name not in want:
+            continue
+        cv = conv.get(name)
+        if cv is None:
+            js = [(c, fm.colhash[c]) for c in fm.columns]  # a column named twice: its last value, as pymavlink's
+            cv = conv[name] = [(c, j, None if fm.format[j] in "aM" else fm.msg_types[j]) for c, j in js]
+        d: dict[str, Any] = {"mavpackettype": name}
+        try:
+            for c, j, cast in cv:
+                v = el[j]
+                if cast is not None:
+                    v = cast(v)
+                    if cast is str:
+                        v = v.split("\0", 1)[0]
+                d[c] = v
+        except (ValueError, IndexError) as e:
+            raise DatasetError(f"{path}:{n}: a {name} message that does not parse ({type(e).__name__}: "
+                               f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
+        rows[name].append(d)
     return rows
 
 
@@ -268,22 +318,17 @@ def read_dataflash_text(path: Path) -> Dataset:
 
 
 def _read(path: Path, text: bool) -> Dataset:
-    """The dataset of a binary or (``text``) text DataFlash log, through pymavlink's DFReader of that kind."""
-    from pymavlink import DFReader
-
+    """The dataset of a binary or (``text``) text DataFlash log (:func:`binary_rows`, :func:`text_rows`)."""
     if text:
-        ok, cls, fmt = _is_dataflash_text(path), DFReader.DFReader_text, "ardupilot-log"
+        ok, fmt = _is_dataflash_text(path), "ardupilot-log"
         what = "an ArduPilot DataFlash text log (expected 'FMT, 128, 89, FMT, …' lines)"
     else:
-        ok, cls, fmt = _is_dataflash(path), DFReader.DFReader_binary, "ardupilot-bin"
+        ok, fmt = _is_dataflash(path), "ardupilot-bin"
         what = "an ArduPilot DataFlash .bin (expected the 0xA3 0x95 FMT header)"
     if not ok:
         raise DatasetError(f"{path}: not {what}")
     want = set(FIELDS)
-    if text:
-        rows = _text_rows(path, cls, want)
-    else:
-        rows = binary_rows(path.read_bytes(), want)
+    rows = text_rows(path, path.read_bytes(), want) if text else binary_rows(path.read_bytes(), want)
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
     _check_fields(path, rows)
