@@ -113,3 +113,31 @@ def test_the_campaign_caps_its_memory_and_gives_it_back(monkeypatch: pytest.Monk
     assert seen and seen[0][0] == 1536 * 1024 * 1024
     assert resource.getrlimit(resource.RLIMIT_AS) == before
     assert random.Random(1).random() == random.Random(1).random() and fuzz.STEP_CPU_LIMIT > 0
+
+
+def test_an_import_that_fails_discards_the_chunk_and_is_retried(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from ins_hil.commands import fuzz as cmd
+    from ins_hil.fuzz import targets
+
+    chunks = [0]
+
+    def make() -> Any:
+        chunks[0] += 1
+        broken = chunks[0] == 1
+
+        def step() -> tuple[int, list[Any]]:
+            if broken:
+                raise ModuleNotFoundError("No module named 'pyulog'")
+            return 1, []
+
+        return step
+
+    monkeypatch.setattr(targets, "TARGETS", [_target("env", make, goal=20)])
+    monkeypatch.setattr(cmd, "FAULT_WAIT", 0.0)
+    assert main(["fuzz", "--to-goal", "--no-doc"]) == 0  # not an escaped exception of the code under test
+    err = capsys.readouterr().err
+    assert "environment: env: ModuleNotFoundError" in err and "retried" in err
+    with pytest.raises(fuzz.EnvironmentFault):
+        run_target(_target("env2", lambda: (_ for _ in ()).throw(ImportError("x"))), None, inputs=3)

@@ -199,6 +199,11 @@ def report(results: list[TargetResult], command: str, machine_line: str, load: s
     return "\n".join(out)
 
 
+#: chunks a campaign discards for an environment fault (an import that fails) before it stops, and the wait (s)
+MAX_FAULTS = 5
+FAULT_WAIT = 30.0
+
+
 class _Stop(BaseException):
     """SIGTERM: stop after writing what ran (like Ctrl-C)."""
 
@@ -279,7 +284,8 @@ def run(args: argparse.Namespace) -> int:
     old_term = signal.signal(signal.SIGTERM, _on_term)
     by_count = args.inputs is not None or args.to_goal
     total_w = sum(t.weight for t in targets)
-    interrupted = False
+    interrupted = env_failed = False
+    faults = 0
     t0 = time.perf_counter()
     try:
         for i, t in enumerate(targets):
@@ -298,13 +304,25 @@ def run(args: argparse.Namespace) -> int:
                     break
                 k = chunks.get(t.name, 0)
                 chunks[t.name] = k + 1
-                r = run_target(t, min(args.progress, left_s) if left_s is not None else args.progress,
-                               seed=args.seed * 1000 + i + 100_003 * k, inputs=left_n)  # fmt: skip
+                try:
+                    r = run_target(t, min(args.progress, left_s) if left_s is not None else args.progress,
+                                   seed=args.seed * 1000 + i + 100_003 * k, inputs=left_n)  # fmt: skip
+                except fuzz.EnvironmentFault as e:
+                    faults += 1
+                    print(f"[fuzz] environment: {e}; the chunk is discarded ({faults} of {MAX_FAULTS}), retried "
+                          f"in {FAULT_WAIT:g} s", file=sys.stderr, flush=True)  # fmt: skip
+                    if faults >= MAX_FAULTS:
+                        raise
+                    time.sleep(FAULT_WAIT)
+                    continue
                 acc.add(r)
                 print(f"[fuzz] {_line(acc)}", file=sys.stderr, flush=True)
                 if args.state is not None:
                     _save_state(args.state, results, chunks)
             print(_line(acc), flush=True)
+    except fuzz.EnvironmentFault as e:
+        print(f"ins-hil fuzz: stopped: {e} (the installation changed under the campaign?)", file=sys.stderr)
+        env_failed = True
     except (KeyboardInterrupt, _Stop):
         interrupted = True
         print("[fuzz] interrupted: the counts of the chunks that finished follow (the running chunk is lost)",
@@ -326,7 +344,8 @@ def run(args: argparse.Namespace) -> int:
         cmd += f" --seed {args.seed}"
     if args.memory_mib != 2048:
         cmd += f" --memory-mib {args.memory_mib}"
-    shown = [results[t.name] for t in targets if t.name in results and results[t.name].inputs]
+    # every target with counts: this run's and, with --resume, the earlier runs' kept in --state
+    shown = [r for r in _ordered(results) if r.inputs]
     if not args.no_doc and shown:
         text = report(shown, cmd, machine.describe(), machine.load_note(own=1.0), args.memory_mib)
         args.doc.parent.mkdir(parents=True, exist_ok=True)
@@ -334,4 +353,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"[fuzz] wrote {args.doc}", file=sys.stderr)
     if interrupted:
         return 130
-    return 1 if any(r.failures() for r in shown) else 0
+    return 1 if env_failed or any(r.failures() for r in shown) else 0
+
+
+def _ordered(results: dict[str, TargetResult]) -> list[TargetResult]:
+    """The results in the order of :data:`ins_hil.fuzz.targets.TARGETS` (unknown names last)."""
+    from ins_hil.fuzz.targets import TARGETS
+
+    rank = {t.name: i for i, t in enumerate(TARGETS)}
+    return sorted(results.values(), key=lambda r: rank.get(r.name, len(rank)))

@@ -200,6 +200,11 @@ COUNTS = ("seconds", "cpu_seconds", "inputs", "escaped", "accepted", "decoded_ba
 STEP_CPU_LIMIT = 20.0
 
 
+class EnvironmentFault(RuntimeError):
+    """A step could not import a module (the installation changed under the campaign): not a finding of the code
+    under test; the campaign's runner discards the chunk and retries it later."""
+
+
 class _Hang(BaseException):
     """Raised in a step by the CPU-time alarm (a BaseException: the code under test does not catch it)."""
 
@@ -288,7 +293,8 @@ def run_target(
 
     Overflow warnings of junk values (numpy, Python) are silenced: what they lead to is counted. A MemoryError out
     of a step is a *blow-up*; a step that uses more than ``step_cpu_limit`` CPU seconds is stopped and counted as a
-    *hang* (a CPU-time alarm, in the main thread only; None: no limit). Both rebuild the harness.
+    *hang* (a CPU-time alarm, in the main thread only; None: no limit). Both rebuild the harness. An ImportError
+    (in the setup or a step) is :class:`EnvironmentFault`, raised: the installation, not the input.
     """
     if seconds is None and inputs is None:
         raise ValueError("run_target: give a time budget (seconds) or an input budget (inputs)")
@@ -298,6 +304,8 @@ def run_target(
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
             return _run_target(t, seconds, seed, nav_share, inputs, step_cpu_limit if alarm else None)
+    except ImportError as e:  # in a target's setup
+        raise EnvironmentFault(f"{t.name}: {type(e).__name__}: {e}") from e
     finally:
         if alarm:
             signal.setitimer(signal.ITIMER_VIRTUAL, 0)
@@ -344,6 +352,8 @@ def _run_target(
             step = t.setup(rng)
             now = mono()
             continue
+        except ImportError as e:  # ModuleNotFoundError too: the environment, not the input
+            raise EnvironmentFault(f"{t.name}: {type(e).__name__}: {e}") from e
         except MemoryError:
             res.blowups += 1
             res.inputs += 1
