@@ -11,7 +11,7 @@ from ins_hil.fuzz import bad_sample
 from ins_hil.fuzz.targets import TARGETS, Wrong, by_name
 
 NAMES = ["reader_csv", "reader_px4_ulog", "reader_px4_csv", "reader_ardupilot_bin", "reader_ardupilot_log",
-         "reader_rtklib", "reader_ihlog", "dataset_config", "replay_cli"]  # fmt: skip
+         "reader_rtklib", "reader_ihlog", "dataset_config", "replay_dataset"]  # fmt: skip
 
 
 def test_targets_registered():

@@ -1010,25 +1010,31 @@ def _replay_seeds(tmp: Path) -> list[tuple[str, dict[str, bytes]]]:
     return seeds
 
 
-def _replay_cli(rng: random.Random) -> Step:
-    """``ins-hil replay LOG --no-plots --quiet`` in process (``ins_hil.cli.main``, stdout and stderr captured) on a
-    mutated seed of every reader format: each run is checked by :func:`replay_oracle` (the campaign's CPU-time
-    limit per input and its address-space cap bound it)."""
-    import contextlib
-    import io
+def _replay_dataset(rng: random.Random) -> Step:
+    """What ``ins-hil replay LOG`` runs, in process: :func:`ins_hil.datasets.report.replay_to_dir` (read, replay,
+    metrics, the summary text; no plots) on a mutated seed of every reader format. The command prints the text
+    and exits 0, or maps DatasetError / DatasetConfigError / ValueError (exit 2) and ReplayError (exit 1) to one
+    line; anything else is its "the replay failed (…)". So: a return is checked for a NaN or inf figure, those
+    refusals for one line naming the file (:func:`replay_oracle`), anything else escapes. (The fuzz layer may not
+    import the command line; :func:`_replay_process` runs the command itself.)"""
+    from ins_hil.datasets import ihlog, report
+    from ins_hil.datasets.run import ReplayError
+    from ins_hil.evaluation.sim_flight import sim_truth
 
-    from ins_hil.cli import main
-
+    ihlog.set_truth_source(sim_truth)  # as the command does: a simulated gateway log against its truth
     tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
     seeds = _replay_seeds(tmp)
 
     def step() -> tuple[int, list[Any]]:
         fmt, seed = rng.choice(seeds)
         path = _mutated(rng, seed, fmt, tmp / "in")
-        out, err = io.StringIO(), io.StringIO()
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            rc = main(["replay", str(path), "--out", str(tmp / "out"), "--no-plots", "--quiet"])
-        return 1, replay_oracle(rc, out.getvalue(), err.getvalue(), path)
+        try:
+            _, text = report.replay_to_dir(path, None, tmp / "out", plots=False)
+        except ReplayError as e:
+            return 1, replay_oracle(1, "", f"ins-hil replay: {e}", path)
+        except ValueError as e:  # DatasetError, DatasetConfigError
+            return 1, replay_oracle(2, "", f"ins-hil replay: {e}", path)
+        return 1, replay_oracle(0, text, "", path)
 
     return step
 
@@ -1159,9 +1165,9 @@ TARGETS: list[Target] = [
         for f in ("csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "rtklib", "ihlog")
     ),
     Target(
-        "replay_cli",
-        "ins_hil.cli.main(['replay', LOG, ...]) on mutated logs of every reader format",
-        _replay_cli,
+        "replay_dataset",
+        "ins_hil.datasets.report.replay_to_dir (ins-hil replay LOG's path) on mutated logs of every reader format",
+        _replay_dataset,
         0.3,
         decoder=False,
         goal=0,
