@@ -870,7 +870,7 @@ def _reader_seeds(fmt: str, tmp: Path) -> list[dict[str, bytes]]:
             seeds.append({"d.log": ("\n".join(out) + "\n").encode()})
     elif fmt == "rtklib" and (d / "gnss_imu_drive_0708/imu_1934.csv").is_file():
         g = d / "gnss_imu_drive_0708"
-        imu = _head_lines(g / "imu_1934.csv", 2 * SEED_LINES)
+        imu = _head_lines(g / "imu_1934.csv", SEED_LINES)
         tag = (g / "imu_1934.csv.tag").read_bytes()
         tags = np.frombuffer(tag[76 : 76 + 8 * ((len(tag) - 76) // 8)], dtype="<u4").reshape(-1, 2)
         keep = tags[tags[:, 1] < len(imu)]
