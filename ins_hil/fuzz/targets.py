@@ -1152,7 +1152,7 @@ TARGETS: list[Target] = [
     Target(
         "config", "ins_hil.config.from_dict / load (mutated configs/*.toml)", _config, 0.5, decoder=False, goal=10_000
     ),
-    Target("recorder_reader", "ins_hil.runtime.recorder.read_records", _recorder, 0.5, decoder=False, goal=0),
+    Target("recorder_reader", "ins_hil.runtime.recorder.read_records", _recorder, 0.5, decoder=False, goal=100_000),
     # the dataset readers (mutated beginnings of the shipped logs, synthetic seeds) and the dataset config
     *(
         Target(
@@ -1170,7 +1170,7 @@ TARGETS: list[Target] = [
         _replay_dataset,
         0.3,
         decoder=False,
-        goal=0,
+        goal=10_000,
     ),
     Target(
         "replay_process",
@@ -1178,7 +1178,7 @@ TARGETS: list[Target] = [
         _replay_process,
         0.15,
         decoder=False,
-        goal=0,
+        goal=500,
     ),
     Target(
         "dataset_config",
