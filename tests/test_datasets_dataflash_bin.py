@@ -84,3 +84,11 @@ def test_text_rows_errors_name_the_line(tmp_path: Path):
     p.write_bytes(head.encode() + b"IMU, 1\xff\n")
     with pytest.raises(dataflash.DatasetError, match=r":3: not UTF-8 text"):
         dataflash.text_rows(p, p.read_bytes(), {"IMU"})
+
+
+def test_a_fmt_with_more_columns_than_values_is_refused_naming_the_file(tmp_path: Path):
+    b = bytearray(_fmt(0x81, "IMU", 35, "Qffffff", IMU_COLS + ",Extra") + b"".join(_imu(10_000 * k) for k in range(5)))
+    p = tmp_path / "cols.bin"
+    p.write_bytes(bytes(b))
+    with pytest.raises(dataflash.DatasetError, match=rf"^{p}: IMU message at byte 89: 8 columns for 7 values"):
+        read_dataset(p)

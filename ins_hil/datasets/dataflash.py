@@ -207,7 +207,7 @@ def _df_value(raw: Any, ch: str, cast: Any, mult: float | None) -> Any:
     return v
 
 
-def binary_rows(data: bytes, want: set[str]) -> dict[str, list[dict[str, Any]]]:
+def binary_rows(data: bytes, want: set[str], source: str = "<bytes>") -> dict[str, list[dict[str, Any]]]:
     """The messages named in ``want`` of a DataFlash ``.bin`` (its bytes), as dicts of field → value in
     pymavlink's units (:func:`_df_value`), in file order.
 
@@ -215,7 +215,8 @@ def binary_rows(data: bytes, want: set[str]) -> dict[str, list[dict[str, Any]]]:
     time-base search, the index, a Python object per message): a message is ``0xA3 0x95 id`` and the bytes its
     ``FMT`` (id 128, which may be redefined later in the log) gives; bytes that are not the header of a known
     message are skipped one by one; a message whose body does not unpack is skipped after its header; the log
-    ends at the first message cut short. Only the messages in ``want`` are unpacked."""
+    ends at the first message cut short. Only the messages in ``want`` are unpacked. ``source``: the file, for the
+    errors."""
     from pymavlink.DFReader import DFFormat, null_term
 
     formats: dict[int, Any] = {FMT_ID: DFFormat(FMT_ID, "FMT", FMT_LEN, "BBnNZ", "Type,Length,Name,Format,Columns")}
@@ -267,8 +268,8 @@ def binary_rows(data: bytes, want: set[str]) -> dict[str, list[dict[str, Any]]]:
             if conv is None or conv[0] is not fm:
                 cols = fm.columns
                 if len(cols) > len(el):
-                    raise DatasetError(f"{fm.name} message at byte {off}: {len(cols)} columns for {len(el)} values "
-                                       f"(its FMT is damaged)")  # fmt: skip
+                    raise DatasetError(f"{source}: {fm.name} message at byte {off}: {len(cols)} columns for "
+                                       f"{len(el)} values (its FMT is damaged)")  # fmt: skip
                 js = [fm.colhash[c] for c in cols]  # a column named twice gives its last value, as pymavlink's
                 plain = [(c, j) for c, j in zip(cols, js, strict=True) if fm.msg_fmts[j] in _PLAIN]
                 other = [(c, j, fm.msg_fmts[j], fm.msg_types[j], fm.msg_mults[j])
@@ -328,7 +329,7 @@ def _read(path: Path, text: bool) -> Dataset:
     if not ok:
         raise DatasetError(f"{path}: not {what}")
     want = set(FIELDS)
-    rows = text_rows(path, path.read_bytes(), want) if text else binary_rows(path.read_bytes(), want)
+    rows = text_rows(path, path.read_bytes(), want) if text else binary_rows(path.read_bytes(), want, str(path))
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
     _check_fields(path, rows)
