@@ -7,8 +7,13 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
                no GNSS: the start point for the no-GNSS hold and the field model), rotary_wing = true | false
                (a multirotor: the replay's rotor-drag check; default: what the log says, off where it says nothing)
     [sensor]   grade = "mems" | "tactical"; any FilterConfig noise field to override the preset
-    [mounting] imu_to_body_deg = [roll, pitch, yaw] (IMU axes → body FRD; or a list of such rotations applied in
-               turn, the first to the IMU axes: C_s^b = R_n … R_1), gnss_lever_arm_m (IMU → antenna,
+    [mounting] imu_to_body_deg = [roll, pitch, yaw] (deg): the IMU's axes as seen from the body FRD axes, ZYX
+               Euler angles (yaw about body z, then pitch, then roll), so that a vector read in the IMU's axes
+               is v_b = C_s^b v_s with C_s^b = Rz(yaw) Ry(pitch) Rx(roll): yaw = +90 is an IMU whose x axis points
+               to the body's right (+y), roll = 180 an IMU upside down (its z up); or a list of such rotations
+               applied in turn, the first to the IMU axes: C_s^b = R_n … R_1. The readers' IMU and magnetometer
+               data are in the IMU's axes (PX4 and ArduPilot log them already in body FRD: identity there);
+               gnss_lever_arm_m (IMU → antenna,
                body FRD, m), reference_lever_arm_m, imu_time_offset_s (added to the IMU times),
                gnss_time_offset_s (added to the GNSS times, e.g. −0.11 for PX4's EKF2_GPS_DELAY)
     [aiding]   gnss, baro, mag (bool); mag_heading_only (bool, default true: the magnetometer corrects the heading

@@ -1,5 +1,6 @@
 """ArduPilot DataFlash readers: the binary ``*.bin`` and the text ``*.log`` (Mission Planner's and
-MAVExplorer's export: ``FMT, 128, 89, FMT, BBnNZ, …`` lines), both with ``pymavlink.DFReader``.
+MAVExplorer's export: ``FMT, 128, 89, FMT, BBnNZ, …`` lines), each read in one pass by the reader's own parser
+(:func:`binary_rows`, :func:`text_rows`: the values pymavlink's ``DFReader`` gives, with its format definitions).
 
 * ``IMU`` (the first IMU: the ``IMU`` name in 3.x logs, the instance ``I`` = 0 in 4.x, as for GPS, BARO and
   MAG): GyrX..Z (rad/s), AccX..Z (m/s²), body FRD, ``TimeUS``; logged samples of the rate, so the
@@ -20,13 +21,13 @@ The end of valid data (:func:`end_of_valid_data`): a log that ends in a crash ha
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ins_hil.datasets.dataset import (
-    READ_ERRORS,
     Dataset,
     DatasetError,
     Reader,
@@ -104,6 +105,186 @@ def _check_fields(path: Path, rows: dict[str, list[dict[str, Any]]]) -> None:
                                        f"{name} needs {', '.join(cols)})")  # fmt: skip
 
 
+def text_rows(path: Path, data: bytes, want: set[str]) -> dict[str, list[dict[str, Any]]]:
+    """The messages named in ``want`` of a DataFlash text log (its bytes), as dicts of field → value, in file order.
+
+    Read line by line as pymavlink's ``DFReader_text`` reads one: fields split at ``", "`` (or ``","`` when the
+    log's first FMT line is written so), an ``FMT`` line defines a message, a line of an undefined message or with
+    fewer fields than its format is skipped; a value is converted with its format's type (``int``, ``float``,
+    ``str`` cut at a NUL; ``M`` and ``a`` kept as text; no multiplier: a text log's values are in their units).
+    Without pymavlink's whole-log passes (its index and time base) and its Python object per message. A line that
+    is not UTF-8, a damaged FMT line, or a value that does not convert is a DatasetError naming the line."""
+    from pymavlink.DFReader import DFFormat
+
+    delim = ", "
+    start = data.find(b"FMT, ")
+    if start < 0:
+        start, delim = data.find(b"FMT,"), ","
+    if start < 0:
+        raise DatasetError(f"{path}: no FMT line (expected an ArduPilot DataFlash text log)")
+    line0 = data.count(b"\n", 0, start)
+    formats: dict[str, Any] = {"FMT": DFFormat(FMT_ID, "FMT", FMT_LEN, "BBnNZ", "Type,Length,Name,Format,Columns")}
+    conv: dict[str, list[tuple[str, int, Any]]] = {}
+    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
+    for n, raw in enumerate(data[start:].split(b"\n"), line0 + 1):
+        b = raw.rstrip()
+        if not b:
+            continue
+        try:
+            line = b.decode("utf-8")
+        except UnicodeDecodeError:
+            raise DatasetError(f"{path}:{n}: not UTF-8 text (expected a DataFlash text log line)") from None
+        el = line.split(delim)
+        if len(el) < 2:
+            continue
+        if len(el) == 5 and el[-1] == ",":  # an FMT of an empty message, as pymavlink reads it
+            el[-1:] = ["", ""]
+        fm = formats.get(el[0])
+        if fm is None or len(el) < len(fm.format) + 1:
+            continue
+        name = el[0]
+        el = el[1:]
+        if name == "FMT":
+            if delim == ",":
+                el = [*el[0:4], ",".join(el[4:])]
+            cols = el[4]
+            if el[2] == "FMT" and cols == "Type,Length,Name,Format":  # some logs leave FMT's Columns out
+                cols = "Type,Length,Name,Format,Columns"
+            try:
+                formats[el[2]] = DFFormat(int(el[0]), el[2], int(el[1]), el[3], cols)
+            except Exception as e:  # a number that is not one, an unknown format character
+                raise DatasetError(f"{path}:{n}: an FMT line that does not parse ({type(e).__name__}: "
+                                   f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
+            conv.pop(el[2], None)
+            continue
+        if name not in want:
+            continue
+        cv = conv.get(name)
+        if cv is None:
+            js = [(c, fm.colhash[c]) for c in fm.columns]  # a column named twice: its last value, as pymavlink's
+            cv = conv[name] = [(c, j, None if fm.format[j] in "aM" else fm.msg_types[j]) for c, j in js]
+        d: dict[str, Any] = {"mavpackettype": name}
+        try:
+            for c, j, cast in cv:
+                v = el[j]
+                if cast is not None:
+                    v = cast(v)
+                    if cast is str:
+                        v = v.split("\0", 1)[0]
+                d[c] = v
+        except (ValueError, IndexError) as e:
+            raise DatasetError(f"{path}:{n}: a {name} message that does not parse ({type(e).__name__}: "
+                               f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
+        rows[name].append(d)
+    return rows
+
+
+#: parsed FMT definitions by their bytes (every log of a firmware defines the same ones)
+_FMT_CACHE: dict[bytes, Any] = {}
+#: format characters whose unpacked value is the field's value (no string, no multiplier)
+_PLAIN = frozenset("bBhHiIfdgMqQ")
+#: per parsed format (by id, the format kept to check it): its plain columns (name, index) and the others
+_CONV: dict[int, tuple[Any, list[tuple[str, int]], list[tuple[str, int, str, Any, float | None]]]] = {}
+#: DataFlash message id of FMT (the format definitions), its fixed length in bytes (header included)
+FMT_ID, FMT_LEN = 0x80, 89
+
+
+def _df_value(raw: Any, ch: str, cast: Any, mult: float | None) -> Any:
+    """One unpacked DataFlash field as pymavlink's DFMessage gives it: strings decoded (UTF-8, else Latin-1)
+    and cut at the first NUL, the format's type applied, ``c``/``C``/``e``/``E`` ×0.01 and ``L`` ×1e-7."""
+    if isinstance(raw, bytes):
+        try:
+            raw = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raw = raw.decode("ISO-8859-1")
+    if ch == "a":
+        return raw
+    v = cast(raw)
+    if isinstance(v, str):
+        v = v.split("\0", 1)[0]
+    if mult is not None:
+        v = v / (1 / mult) if 0.0 < mult < 1.0 else v * mult
+    return v
+
+
+def binary_rows(data: bytes, want: set[str], source: str = "<bytes>") -> dict[str, list[dict[str, Any]]]:
+    """The messages named in ``want`` of a DataFlash ``.bin`` (its bytes), as dicts of field → value in
+    pymavlink's units (:func:`_df_value`), in file order.
+
+    A sequential read as pymavlink's ``DFReader_binary._parse_next`` does it, without its whole-log passes (the
+    time-base search, the index, a Python object per message): a message is ``0xA3 0x95 id`` and the bytes its
+    ``FMT`` (id 128, which may be redefined later in the log) gives; bytes that are not the header of a known
+    message are skipped one by one; a message whose body does not unpack is skipped after its header; the log
+    ends at the first message cut short. Only the messages in ``want`` are unpacked. ``source``: the file, for the
+    errors."""
+    from pymavlink.DFReader import DFFormat, null_term
+
+    formats: dict[int, Any] = {FMT_ID: DFFormat(FMT_ID, "FMT", FMT_LEN, "BBnNZ", "Type,Length,Name,Format,Columns")}
+    unpack: dict[int, Any] = {}
+    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
+    end = len(data)
+    off = 0
+    find = data.find
+    while end - off >= 3:
+        if data[off] != 0xA3 or data[off + 1] != 0x95 or data[off + 2] not in formats:
+            nxt = find(DF_HEAD, off + 1)
+            if nxt < 0:
+                break
+            off = nxt
+            continue
+        mid = data[off + 2]
+        fm = formats[mid]
+        body_len = fm.len - 3
+        if body_len < 0:  # a damaged FMT's length: pymavlink would step back onto the same message for ever
+            off += 3
+            continue
+        if end - off - 3 < body_len:
+            break  # cut short: the end of the log
+        body = data[off + 3 : off + 3 + body_len]
+        try:
+            up = unpack.get(mid)
+            if up is None:
+                up = unpack[mid] = struct.Struct(fm.msg_struct).unpack
+            el = up(body)
+        except (struct.error, ValueError):
+            off += 3  # as pymavlink: the message is skipped after its header
+            continue
+        if mid == FMT_ID:
+            nf = _FMT_CACHE.get(body)
+            if nf is None:
+                try:
+                    nf = DFFormat(el[0], null_term(el[2]), el[1], null_term(el[3]), null_term(el[4]))
+                except Exception:  # an unknown format character: the definition is ignored, as pymavlink does
+                    off += 3
+                    continue
+                if len(_FMT_CACHE) >= 4096:
+                    _FMT_CACHE.clear()
+                    _CONV.clear()
+                _FMT_CACHE[body] = nf
+            formats[el[0]] = nf
+            unpack.pop(el[0], None)
+        elif fm.name in want:
+            conv = _CONV.get(id(fm))
+            if conv is None or conv[0] is not fm:
+                cols = fm.columns
+                if len(cols) > len(el):
+                    raise DatasetError(f"{source}: {fm.name} message at byte {off}: {len(cols)} columns for "
+                                       f"{len(el)} values (its FMT is damaged)")  # fmt: skip
+                js = [fm.colhash[c] for c in cols]  # a column named twice gives its last value, as pymavlink's
+                plain = [(c, j) for c, j in zip(cols, js, strict=True) if fm.msg_fmts[j] in _PLAIN]
+                other = [(c, j, fm.msg_fmts[j], fm.msg_types[j], fm.msg_mults[j])
+                         for c, j in zip(cols, js, strict=True) if fm.msg_fmts[j] not in _PLAIN]  # fmt: skip
+                conv = _CONV[id(fm)] = (fm, plain, other)
+            d: dict[str, Any] = {"mavpackettype": fm.name}
+            for c, j in conv[1]:
+                d[c] = el[j]
+            for c, j, ch, cast, mult in conv[2]:
+                d[c] = _df_value(el[j], ch, cast, mult)
+            rows[fm.name].append(d)
+        off += fm.len
+    return rows
+
+
 def _is_dataflash_text(path: Path) -> bool:
     """A text DataFlash log: text (no NUL byte) with a line starting ``FMT,`` near its start."""
     if not path.is_file():
@@ -138,37 +319,17 @@ def read_dataflash_text(path: Path) -> Dataset:
 
 
 def _read(path: Path, text: bool) -> Dataset:
-    """The dataset of a binary or (``text``) text DataFlash log, through pymavlink's DFReader of that kind."""
-    from pymavlink import DFReader
-
+    """The dataset of a binary or (``text``) text DataFlash log (:func:`binary_rows`, :func:`text_rows`)."""
     if text:
-        ok, cls, fmt = _is_dataflash_text(path), DFReader.DFReader_text, "ardupilot-log"
+        ok, fmt = _is_dataflash_text(path), "ardupilot-log"
         what = "an ArduPilot DataFlash text log (expected 'FMT, 128, 89, FMT, …' lines)"
     else:
-        ok, cls, fmt = _is_dataflash(path), DFReader.DFReader_binary, "ardupilot-bin"
+        ok, fmt = _is_dataflash(path), "ardupilot-bin"
         what = "an ArduPilot DataFlash .bin (expected the 0xA3 0x95 FMT header)"
     if not ok:
         raise DatasetError(f"{path}: not {what}")
-    try:
-        r = cls(str(path), zero_time_base=True)
-    except Exception as e:
-        raise DatasetError(f"{path}: cannot parse as {fmt} ({e})") from None
     want = set(FIELDS)
-    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
-    n = 0
-    what = "a message"
-    try:
-        while True:
-            what = "a message"
-            m = r.recv_match(type=list(want))
-            if m is None:
-                break
-            n += 1
-            what = f"a {m.get_type()} message"
-            rows[m.get_type()].append(m.to_dict())  # a text log's values are converted here, when read
-    except READ_ERRORS as e:  # DFReader on a damaged log (its text reader: ValueError, RecursionError, TypeError)
-        raise DatasetError(f"{path}: {what} that does not parse (message {n + 1}; {type(e).__name__}: "
-                           f"{' '.join(str(e).split())[:120]})") from None  # fmt: skip
+    rows = text_rows(path, path.read_bytes(), want) if text else binary_rows(path.read_bytes(), want, str(path))
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
     _check_fields(path, rows)

@@ -2,16 +2,22 @@
 
 The first line is ``# ins-hil dataset csv 1``; then one record per line, the kind first::
 
-    imu,t,dt,gx,gy,gz,ax,ay,az              mean rate (rad/s), mean specific force (m/s²), body FRD,
+    imu,t,dt,gx,gy,gz,ax,ay,az              mean rate (rad/s), mean specific force (m/s²) in the IMU's axes,
                                             t = END of the interval dt (s)
     gnss,t,lat,lon,h,vn,ve,vd,std_ne,std_d,std_vel,fix_type
                                             deg, deg, m (ellipsoidal); m/s NED (empty = none); σ m, m, m/s;
                                             fix type 3 = 3-D … 6 = RTK fixed (empty = 3;
                                             0, 1 = no fix: the record is skipped)
     baro,t,alt                              barometric altitude (m)
-    mag,t,mx,my,mz                          magnetic field, body FRD (µT)
+    mag,t,mx,my,mz                          magnetic field in the IMU's axes (µT)
     ref,t,lat,lon,h,vn,ve,vd,roll,pitch,yaw reference trajectory (deg, deg, m, m/s, deg; empty = none)
     onboard,t,…                             the flight controller's estimate, as ``ref``
+    event,t,name                            a flight event: ``takeoff`` or ``landing`` (optional; the outage
+                                            protocol's ``relative_to = "takeoff"`` counts from the first take-off)
+
+The IMU and magnetometer columns are in the IMU's axes, like every reader's: they are body FRD when the dataset
+config has no ``[mounting] imu_to_body_deg`` rotation (the default), and that rotation takes them to body FRD
+when it has one (:meth:`ins_hil.datasets.config.DatasetConfig.mounting_dcm`).
 
 Lines starting with ``#`` and empty lines are skipped; any other line that does not parse is an error
 naming its line number.
@@ -61,11 +67,29 @@ def _trajectory(name: str, rows: list[list[float]]) -> Trajectory:
     return tr
 
 
+#: the flight events an ``event`` record may name
+EVENTS = ("takeoff", "landing")
+
+
+def _event(path: Path, n: int, vals: list[str], line: str) -> tuple[float, str]:
+    """An ``event,t,name`` record: (t s, name); DatasetError naming the line otherwise."""
+    name = vals[1].strip() if len(vals) == 2 else ""
+    try:
+        t = float(vals[0]) if vals else math.nan
+    except ValueError:
+        t = math.nan
+    if not (math.isfinite(t) and name in EVENTS):
+        raise DatasetError(f"{path}:{n}: event: expected t (s, finite) and one of {', '.join(EVENTS)}: "
+                           f"{line[:80]!r}")  # fmt: skip
+    return t, name
+
+
 def read_generic_csv(path: Path) -> Dataset:
     """Read the generic dataset CSV."""
     if not _is_generic(path):
         raise DatasetError(f"{path}: not an ins-hil dataset CSV (expected the first line {MAGIC!r})")
     recs: dict[str, list[list[float]]] = {k: [] for k in FIELDS}
+    events: list[tuple[float, str]] = []
     with path.open("rb") as f:
         for n, raw in enumerate(f, 1):
             try:
@@ -75,8 +99,12 @@ def read_generic_csv(path: Path) -> Dataset:
             if not line or line.startswith("#"):
                 continue
             kind, *vals = line.split(",")
+            if kind == "event":
+                events.append(_event(path, n, vals, line))
+                continue
             if kind not in FIELDS:
-                raise DatasetError(f"{path}:{n}: unknown record kind {kind!r} (expected one of {', '.join(FIELDS)})")
+                raise DatasetError(f"{path}:{n}: unknown record kind {kind!r} (expected one of "
+                                   f"{', '.join(FIELDS)}, event)")  # fmt: skip
             want = FIELDS[kind] + 1
             try:
                 row = [_num(v) for v in vals] + [math.nan] * (want - len(vals))
@@ -109,7 +137,7 @@ def read_generic_csv(path: Path) -> Dataset:
                             sd(r[9], 0.3), ft))  # fmt: skip
     baro = [BaroSample(r[0], math.nan, r[1]) for r in sorted(recs["baro"], key=lambda r: r[0])]
     mag = [MagSample(r[0], np.array(r[1:4]) * 1e-6) for r in sorted(recs["mag"], key=lambda r: r[0])]
-    ds = Dataset(imu, gnss, baro, mag)
+    ds = Dataset(imu, gnss, baro, mag, events=sorted(events))
     if recs["ref"]:
         ds.reference = _trajectory("reference", recs["ref"])
     if recs["onboard"]:
@@ -119,7 +147,8 @@ def read_generic_csv(path: Path) -> Dataset:
 
 
 def write_generic_csv(path: Path, ds: Dataset) -> None:
-    """Write ``ds`` (IMU, GNSS, baro, magnetometer) in the generic layout (the reader's inverse)."""
+    """Write ``ds`` (IMU, GNSS, baro, magnetometer, take-off and landing events) in the generic layout (the
+    reader's inverse)."""
     lines = [MAGIC]
     for s in ds.imu:
         w, f = s.dtheta / s.dt, s.dvel / s.dt
@@ -132,6 +161,9 @@ def write_generic_csv(path: Path, ds: Dataset) -> None:
         lines.append(f"baro,{b.t:.6f},{b.altitude:.4f}")
     for m in ds.mag:
         lines.append(f"mag,{m.t:.6f}," + ",".join(f"{x * 1e6:.4f}" for x in m.field_b))
+    for t, e in ds.events:
+        if e in EVENTS:
+            lines.append(f"event,{t:.6f},{e}")
     path.write_text("\n".join(lines) + "\n")
 
 

@@ -119,25 +119,27 @@ def imu_from_sensor_combined(t: Topic, gaps: list[float] | None = None) -> list[
     usable = np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1) & (dtg > 0) & (dta > 0)
     # the longest increasing run of times: a stamp far ahead costs that sample, not every sample after it
     keep = increasing(np.where(usable, tt, math.nan))
-    for k in range(len(tt)):
-        if not keep[k]:
-            continue
-        fl = 0
-        if clip_a is not None and clip_a[k] != 0:
-            fl |= ImuFlags.ACCEL_SATURATED
-        if clip_g is not None and clip_g[k] != 0:
-            fl |= ImuFlags.GYRO_SATURATED
-        gap = tt[k] - last
-        if out and gap > 1.5 * dtg[k]:
-            gaps.append(float(gap - dtg[k]))
-        if out and 1.5 * dtg[k] < gap <= MAX_BRIDGE:
+    flags = np.zeros(len(tt), dtype=np.int64)
+    if clip_a is not None:
+        flags[clip_a != 0] |= int(ImuFlags.ACCEL_SATURATED)
+    if clip_g is not None:
+        flags[clip_g != 0] |= int(ImuFlags.GYRO_SATURATED)
+    with np.errstate(all="ignore"):
+        dth, dv = g * dtg[:, None], a * dta[:, None]  # the same products as row by row
+    fl_l, tt_l, dtg_l = flags.tolist(), tt.tolist(), dtg.tolist()
+    for k in np.flatnonzero(keep).tolist():
+        t_k, dt_k = tt_l[k], dtg_l[k]
+        gap = t_k - last
+        if out and gap > 1.5 * dt_k:
+            gaps.append(gap - dt_k)
+        if out and 1.5 * dt_k < gap <= MAX_BRIDGE:
             # messages the logger dropped: the interval since the previous logged sample is integrated with this
             # sample's mean rate and specific force (else the attitude would miss the rotation of the gap); a longer
             # gap is lost data: the sample keeps its own interval and the core's time jumps (reported)
-            out.append(ImuSample(float(tt[k]), float(gap), g[k] * gap, a[k] * gap, seq=k, flags=fl))
+            out.append(ImuSample(t_k, gap, g[k] * gap, a[k] * gap, seq=k, flags=fl_l[k]))
         else:
-            out.append(ImuSample(float(tt[k]), float(dtg[k]), g[k] * dtg[k], a[k] * dta[k], seq=k, flags=fl))
-        last = tt[k]
+            out.append(ImuSample(t_k, dt_k, dth[k], dv[k], seq=k, flags=fl_l[k]))
+        last = t_k
     return out
 
 

@@ -36,6 +36,11 @@ REJECT_WARN = 0.03
 ProgressFactory = Callable[[str], Callable[[int, int], None] | None]
 
 
+#: the note of a replay without a dataset config (``ins-hil replay LOG`` without ``--dataset``)
+NO_CONFIG_NOTE = ("no dataset config: identity mounting (the IMU's axes taken as body FRD), no time offsets, no lever "
+                  "arms, the mems preset (--dataset CONFIG sets them)")  # fmt: skip
+
+
 def load(path: Path, cfg: DatasetConfig) -> Dataset:
     """Read the recording at ``path`` with the config's format (detected when it names none; the same flight
     stack's other form, a text ``.log`` for a ``.bin``, when the file is that: :func:`reader_for`)."""
@@ -385,6 +390,9 @@ def replay_to_dir(
         raise DatasetConfigError(f"{config}: no dataset.path and no FILE|DIR given")
     ds = load(Path(path), cfg)
     m, runs = replay(ds, cfg, progress)
+    notes = m.setdefault("notes", [])
+    if config is None and not any(str(n).startswith("no dataset config") for n in notes):
+        notes.insert(0, NO_CONFIG_NOTE)
     out.mkdir(parents=True, exist_ok=True)
     if plots:
         m["plots"] = [str(p) for p in plot(m, runs, ds, out)]

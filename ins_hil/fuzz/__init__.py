@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 import random
+import signal
+import threading
 import time
 import traceback
 import warnings
@@ -36,6 +38,15 @@ MAX_SPEED = 1000.0  # m/s: GNSS velocity norm
 MAX_STD = 1e5  # m or m/s: GNSS σ
 P_RANGE = (100.0, 120_000.0)  # Pa: static pressure
 MAX_FIELD = 1e-3  # T (10 gauss): magnetic field norm
+
+
+class Measure:
+    """A figure a step measured (e.g. a child's peak memory): the campaign keeps its maximum per target, it is not a
+    sample."""
+
+    def __init__(self, name: str, value: float) -> None:
+        self.name = name
+        self.value = value
 
 
 class Wrong:
@@ -112,6 +123,7 @@ class Target:
     weight: float = 1.0  # share of the budget
     nav: bool = False  # feed accepted IMU samples through a Pipeline
     decoder: bool = True  # counts toward the "≥ 1 million inputs per decoder" target
+    goal: int = 1_000_000  # inputs a full campaign must reach (0: none)
 
 
 @dataclass
@@ -126,6 +138,7 @@ class TargetResult:
     name: str
     what: str
     seconds: float = 0.0
+    cpu_seconds: float = 0.0  # CPU time of the process and its children while it ran (the rate on one core)
     inputs: int = 0
     escaped: int = 0
     accepted: int = 0
@@ -136,14 +149,64 @@ class TargetResult:
     nan_states: int = 0
     nav_exceptions: int = 0
     nav_stalls: int = 0  # the pipeline produced no state for STALL samples in a row after its start
+    blowups: int = 0  # a MemoryError out of one input (the campaign runs under an address-space cap)
+    hangs: int = 0  # one input that used more than the step's CPU-time limit
     findings: dict[str, Finding] = field(default_factory=dict)
+    maxima: dict[str, float] = field(default_factory=dict)  # the largest of each Measure the steps returned
     decoder: bool = True
+    goal: int = 0  # inputs the target must reach in a full campaign (0: none)
 
     def note(self, kind: str, example: str) -> None:
         f = self.findings.get(kind)
         if f is None:
             f = self.findings[kind] = Finding(kind, 0, example[:300])
         f.count += 1
+
+    def failures(self) -> int:
+        """What fails the campaign: escaped exceptions, accepted-bad samples, NaN states, pipeline exceptions,
+        blow-ups and hangs."""
+        return self.escaped + self.accepted_bad + self.nan_states + self.nav_exceptions + self.blowups + self.hangs
+
+    def add(self, other: TargetResult) -> None:
+        """Add ``other`` (a later run of the same target) into this one: counts summed, findings merged."""
+        for k in COUNTS:
+            setattr(self, k, getattr(self, k) + getattr(other, k))
+        for kind, f in other.findings.items():
+            mine = self.findings.setdefault(kind, Finding(kind, 0, f.example))
+            mine.count += f.count
+        for k, v in other.maxima.items():
+            self.maxima[k] = max(v, self.maxima.get(k, v))
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {k: getattr(self, k) for k in ("name", "what", "decoder", "goal", *COUNTS)}
+        d["findings"] = [[f.kind, f.count, f.example] for f in self.findings.values()]
+        d["maxima"] = dict(self.maxima)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TargetResult:
+        r = cls(d["name"], d["what"], decoder=bool(d.get("decoder", True)), goal=int(d.get("goal", 0)))
+        for k in COUNTS:
+            setattr(r, k, type(getattr(r, k))(d.get(k, 0)))
+        r.findings = {k: Finding(k, int(n), str(ex)) for k, n, ex in d.get("findings", [])}
+        r.maxima = {str(k): float(v) for k, v in d.get("maxima", {}).items()}
+        return r
+
+
+#: the summed fields of a TargetResult
+COUNTS = ("seconds", "cpu_seconds", "inputs", "escaped", "accepted", "decoded_bad", "accepted_bad", "nav_fed",
+          "nav_states", "nan_states", "nav_exceptions", "nav_stalls", "blowups", "hangs")  # fmt: skip
+#: CPU seconds one input may use before it counts as a hang (SIGVTALRM; the main thread only)
+STEP_CPU_LIMIT = 20.0
+
+
+class EnvironmentFault(RuntimeError):
+    """A step could not import a module (the installation changed under the campaign): not a finding of the code
+    under test; the campaign's runner discards the chunk and retries it later."""
+
+
+class _Hang(BaseException):
+    """Raised in a step by the CPU-time alarm (a BaseException: the code under test does not catch it)."""
 
 
 STALL = 500
@@ -217,24 +280,55 @@ def _where(e: BaseException) -> str:
 
 
 def run_target(
-    t: Target, seconds: float | None, seed: int = 0, nav_share: float = 0.3, inputs: int | None = None
+    t: Target,
+    seconds: float | None,
+    seed: int = 0,
+    nav_share: float = 0.3,
+    inputs: int | None = None,
+    step_cpu_limit: float | None = STEP_CPU_LIMIT,
 ) -> TargetResult:
     """Fuzz one target for ``seconds`` (wall clock) or until ``inputs`` inputs (a count: the same inputs on any
     machine and under any load), whichever comes first; ``nav_share``: at most this part of the time in the
     pipeline.
 
-    Overflow warnings of junk values (numpy, Python) are silenced: what they lead to is counted.
+    Overflow warnings of junk values (numpy, Python) are silenced: what they lead to is counted. A MemoryError out
+    of a step is a *blow-up*; a step that uses more than ``step_cpu_limit`` CPU seconds is stopped and counted as a
+    *hang* (a CPU-time alarm, in the main thread only; None: no limit). Both rebuild the harness. An ImportError
+    (in the setup or a step) is :class:`EnvironmentFault`, raised: the installation, not the input.
     """
     if seconds is None and inputs is None:
         raise ValueError("run_target: give a time budget (seconds) or an input budget (inputs)")
-    with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore")
-        return _run_target(t, seconds, seed, nav_share, inputs)
+    alarm = step_cpu_limit is not None and threading.current_thread() is threading.main_thread()
+    old = signal.signal(signal.SIGVTALRM, _on_alarm) if alarm else None
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            return _run_target(t, seconds, seed, nav_share, inputs, step_cpu_limit if alarm else None)
+    except ImportError as e:  # in a target's setup
+        raise EnvironmentFault(f"{t.name}: {type(e).__name__}: {e}") from e
+    finally:
+        if alarm:
+            signal.setitimer(signal.ITIMER_VIRTUAL, 0)
+            signal.signal(signal.SIGVTALRM, old)
 
 
-def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, inputs: int | None) -> TargetResult:
+def _cpu() -> float:
+    """CPU seconds (user + system) of this process and of its children that were waited for (a child replay)."""
+    import resource
+
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def _on_alarm(signum: int, frame: Any) -> None:
+    raise _Hang()
+
+
+def _run_target(
+    t: Target, seconds: float | None, seed: int, nav_share: float, inputs: int | None, limit: float | None
+) -> TargetResult:
     rng = random.Random(seed)
-    res = TargetResult(t.name, t.what, decoder=t.decoder)
+    res = TargetResult(t.name, t.what, decoder=t.decoder, goal=t.goal)
     step = t.setup(rng)
     from ins_hil.validation import SampleValidator
 
@@ -244,6 +338,7 @@ def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, i
     if navs is not None:
         NavCheck()  # imports and first-build costs outside the measured share
     mono = time.perf_counter
+    cpu0 = _cpu()
     t0 = mono()
     end = math.inf if seconds is None else t0 + seconds
     most = math.inf if inputs is None else inputs
@@ -251,7 +346,29 @@ def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, i
     now = t0
     while now < end and res.inputs < most:
         try:
-            n, out = step()
+            if limit is not None:
+                signal.setitimer(signal.ITIMER_VIRTUAL, limit)
+            try:
+                n, out = step()
+            finally:
+                if limit is not None:
+                    signal.setitimer(signal.ITIMER_VIRTUAL, 0)
+        except _Hang:
+            res.hangs += 1
+            res.inputs += 1
+            res.note("hang", f"one input used more than {limit:g} s of CPU time")
+            step = t.setup(rng)
+            now = mono()
+            continue
+        except ImportError as e:  # ModuleNotFoundError too: the environment, not the input
+            raise EnvironmentFault(f"{t.name}: {type(e).__name__}: {e}") from e
+        except MemoryError:
+            res.blowups += 1
+            res.inputs += 1
+            res.note("blow-up (MemoryError)", "one input exceeded the address-space cap")
+            step = t.setup(rng)
+            now = mono()
+            continue
         except Exception as e:
             res.escaped += 1
             res.inputs += 1
@@ -260,6 +377,11 @@ def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, i
             now = mono()
             continue
         res.inputs += n
+        if out and any(isinstance(s, Measure) for s in out):
+            for s in out:
+                if isinstance(s, Measure):
+                    res.maxima[s.name] = max(s.value, res.maxima.get(s.name, s.value))
+            out = [s for s in out if not isinstance(s, Measure)]
         if out:
             res.accepted += len(out)
             for s in out:
@@ -291,4 +413,5 @@ def _run_target(t: Target, seconds: float | None, seed: int, nav_share: float, i
                 nav_s += mono() - n0
         now = mono()
     res.seconds = now - t0
+    res.cpu_seconds = _cpu() - cpu0
     return res

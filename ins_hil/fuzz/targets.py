@@ -20,8 +20,10 @@ from __future__ import annotations
 import copy
 import math
 import random
+import re
 import struct
 import tempfile
+import time
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -520,12 +522,13 @@ def _recorder(rng: random.Random) -> Step:
 #: ../shared/data beside the clone: the shipped logs whose beginnings seed the reader targets (read, never copied
 #: into the repository); without it the synthetic seeds made here are used alone
 SHARED_DATA = ROOT.parent / "shared" / "data"
-#: bytes of each shipped binary log kept as a seed (its definitions and a few seconds of data)
-SEED_BYTES = {"px4-ulog": 130_000, "ardupilot-bin": 40_000}
+#: a binary seed's message spans (offset, length) and the bytes of a message before its time field
+SPANS: dict[bytes, tuple[list[tuple[int, int]], int]] = {}
 #: text lines of each shipped text file kept as a seed
 SEED_LINES = 300
-#: one input in this many is replayed (prepare, the core, the scores and the summary), not only read
-REPLAY_EVERY = 25
+#: at most this share of a reader target's time replays accepted inputs (prepare, the core, the scores and the
+#: summary); the rest only reads
+REPLAY_SHARE = 0.2
 _TEXT_CELLS = ["nan", "inf", "-inf", "1e308", "-1e308", "0", "-1", "", "3600000000", "x", "1e-300", "9" * 30, "0x10"]
 
 
@@ -591,6 +594,217 @@ def _bytes_mutate(rng: random.Random, b: bytes) -> bytes:
     return bytes(out)
 
 
+#: records of the IMU topic kept in a seed cut from a shipped binary log (the others: those of the same span)
+SEED_RECORDS = 200
+#: parameters kept in a ULog seed (the reader keeps EKF2_, SENS_ and CAL_MAG ones in the dataset's meta)
+SEED_PARAMS = 12
+#: GNSS records a ULog seed keeps at least (the other topics go on after the IMU's records until then)
+SEED_FIXES = 5
+#: where in the shipped log the kept span starts (a share of its bytes: in flight, the GNSS fixed)
+SEED_FROM = 0.4
+_ULOG_BASE = {"int8_t", "uint8_t", "int16_t", "uint16_t", "int32_t", "uint32_t", "int64_t", "uint64_t", "float",
+              "double", "bool", "char"}  # fmt: skip
+
+
+def _ulog_records(b: bytes, start: int = 16) -> list[tuple[int, int, str]]:
+    """The messages of a ULog from ``start``: (offset, length with the 3-byte header, type letter)."""
+    out = []
+    off = start
+    while off + 3 <= len(b):
+        size, typ = struct.unpack_from("<HB", b, off)
+        if off + 3 + size > len(b):
+            break
+        out.append((off, 3 + size, chr(typ)))
+        off += 3 + size
+    return out
+
+
+_ULOG_SIZE = {"int8_t": "b", "uint8_t": "B", "int16_t": "h", "uint16_t": "H", "int32_t": "i", "uint32_t": "I",
+              "int64_t": "q", "uint64_t": "Q", "float": "f", "double": "d", "bool": "?", "char": "c"}  # fmt: skip
+#: a 3-D fix written into a ULog seed's GNSS records (the shipped hover log never had one)
+_ULOG_FIX = {"latitude_deg": 47.397742, "longitude_deg": 8.545594, "altitude_ellipsoid_m": 535.0,
+             "altitude_msl_m": 488.0, "fix_type": 3, "satellites_used": 10, "eph": 1.0, "epv": 2.0,
+             "s_variance_m_s": 0.3, "vel_ned_valid": True}  # fmt: skip
+
+
+def _ulog_fields(fmt: bytes) -> dict[str, tuple[int, str]]:
+    """Field name → (byte offset in a data record's payload, struct character) of a flat ULog format body
+    (``name:type field;…``); the fields after the first nested type are left out."""
+    out: dict[str, tuple[int, str]] = {}
+    off = 0
+    for f in fmt.split(b":", 1)[1].decode("latin-1").split(";"):
+        if not f:
+            continue
+        typ, name = f.split(" ", 1)
+        base, _, count = typ.partition("[")
+        ch = _ULOG_SIZE.get(base)
+        if ch is None:
+            break
+        n = int(count.rstrip("]")) if count else 1
+        out[name] = (off, ch)
+        off += struct.calcsize("<" + ch) * n
+    return out
+
+
+def ulog_seed(b: bytes, records: int = SEED_RECORDS, start: float = SEED_FROM) -> tuple[bytes, list[tuple[int, int]]]:
+    """A small valid ULog cut from ``b`` (a whole log): the header, the flag bits (no appended data), the formats of
+    the topics the reader reads (:data:`ins_hil.datasets.px4.TOPICS`, nested types included), ``SEED_PARAMS``
+    EKF2_ parameters, their subscriptions, and their data from ``start`` (a share of the file) on until ``records``
+    ``sensor_combined`` records and ``SEED_FIXES`` GNSS records (a 3-D fix written into them: ``_ULOG_FIX``).
+    Returns it and its message spans (offset, length) for the record mutations."""
+    from ins_hil.datasets.px4 import TOPICS
+
+    recs = _ulog_records(b)
+    formats: dict[str, bytes] = {}
+    for off, n, t in recs:
+        if t == "F":
+            body = b[off + 3 : off + n]
+            formats[body.split(b":", 1)[0].decode("latin-1")] = b[off : off + n]
+    need: set[str] = set()
+    todo = [t for t in TOPICS if t in formats]
+    while todo:
+        name = todo.pop()
+        if name in need or name not in formats:
+            continue
+        need.add(name)
+        for field in formats[name][3:].split(b":", 1)[1].split(b";"):
+            typ = field.split(b" ", 1)[0].split(b"[", 1)[0].decode("latin-1")
+            if typ and typ not in _ULOG_BASE:
+                todo.append(typ)
+    out = bytearray(b[:16])
+    spans: list[tuple[int, int]] = []
+    ids: dict[int, str] = {}
+    n_imu = params = n_gps = 0
+    cut = int(start * len(b))
+    for off, n, t in recs:
+        keep = b""
+        if t == "B":
+            keep = b[off : off + 11] + bytes(n - 11)  # compat flags kept; incompat flags and appended offsets 0
+        elif t == "F" and b[off + 3 : off + n].split(b":", 1)[0].decode("latin-1") in need:
+            keep = b[off : off + n]
+        elif t == "P" and not ids and params < SEED_PARAMS and b"EKF2_" in b[off : off + n]:
+            keep = b[off : off + n]
+            params += 1
+        elif t == "A":
+            name = b[off + 6 : off + n].decode("latin-1")
+            if name in TOPICS:
+                ids[struct.unpack_from("<H", b, off + 4)[0]] = name
+                keep = b[off : off + n]
+        elif t == "D" and off >= cut:
+            name = ids.get(struct.unpack_from("<H", b, off + 3)[0], "")
+            if name and not (name == "sensor_combined" and n_imu >= records):
+                keep = b[off : off + n]
+                if name in ("vehicle_gps_position", "sensor_gps"):  # a 3-D fix where the log had none
+                    rec = bytearray(keep)
+                    for fname, (k, ch) in _ulog_fields(formats[name][3:]).items():
+                        if fname in _ULOG_FIX:
+                            struct.pack_into("<" + ch, rec, 5 + k, _ULOG_FIX[fname])
+                    keep = bytes(rec)
+                n_imu += name == "sensor_combined"
+                n_gps += name in ("vehicle_gps_position", "sensor_gps")
+        if keep:
+            spans.append((len(out), len(keep)))
+            out += keep
+        if n_imu >= records and n_gps >= SEED_FIXES:
+            break
+    return bytes(out), spans
+
+
+def _df_records(b: bytes) -> list[tuple[int, int, str]]:
+    """The messages of a DataFlash .bin: (offset, length, name); damaged stretches are skipped."""
+    from ins_hil.datasets.dataflash import FMT_ID, FMT_LEN
+
+    lens, names = {FMT_ID: FMT_LEN}, {FMT_ID: "FMT"}
+    out = []
+    off = 0
+    while off + 3 <= len(b):
+        if b[off] != 0xA3 or b[off + 1] != 0x95 or b[off + 2] not in lens:
+            off += 1
+            continue
+        n = lens[b[off + 2]]
+        if off + n > len(b) or n < 3:
+            break
+        if b[off + 2] == FMT_ID:
+            lens[b[off + 3]] = b[off + 4]
+            names[b[off + 3]] = b[off + 5 : off + 9].split(b"\0", 1)[0].decode("latin-1")
+        out.append((off, n, names[b[off + 2]]))
+        off += n
+    return out
+
+
+def dataflash_seed(
+    b: bytes, records: int = SEED_RECORDS, start: float = SEED_FROM
+) -> tuple[bytes, list[tuple[int, int]]]:
+    """A small valid DataFlash .bin cut from ``b`` (a whole log): the FMT definitions of what it keeps, the first
+    ORGN and firmware MSG, and the messages the reader reads (:data:`ins_hil.datasets.dataflash.FIELDS`) and PARM
+    from ``start`` (a share of the file) on until ``records`` IMU messages. Returns it and its message spans."""
+    from ins_hil.datasets.dataflash import FIELDS
+
+    out = bytearray()
+    spans: list[tuple[int, int]] = []
+    cut = int(start * len(b))
+    n_imu = 0
+    seen: set[str] = set()
+    recs = _df_records(b)
+    for off, n, name in recs:
+        if name == "FMT":  # the definitions of the messages kept (and of FMT)
+            defined = b[off + 5 : off + 9].split(b"\0", 1)[0].decode("latin-1")
+            if defined in FIELDS or defined in ("FMT", "PARM"):
+                spans.append((len(out), n))
+                out += b[off : off + n]
+    for off, n, name in recs:
+        first = name in ("ORGN", "MSG") and name not in seen
+        if first or (off >= cut and (name in FIELDS or name == "PARM")):
+            seen.add(name)
+            spans.append((len(out), n))
+            out += b[off : off + n]
+            n_imu += name == "IMU"
+        if n_imu >= records:
+            break
+    return bytes(out), spans
+
+
+def _record_mutate(rng: random.Random, b: bytes, spans: list[tuple[int, int]], head: int) -> bytes:
+    """A binary log mutated record-wise (``spans``: (offset, length) of its messages; ``head``: the bytes of a
+    message header): a message deleted, duplicated, moved or cut short, its time field (the first 8 bytes after
+    the header) set to an interesting value or moved by an hour, a field of its body spliced, or its header
+    bytes damaged; the log cut at a message boundary."""
+    if not spans:
+        return _bytes_mutate(rng, b)
+    out = bytearray(b)
+    for _ in range(rng.choice((1, 1, 2, 3))):
+        off, n = spans[rng.randrange(len(spans))]
+        if off + n > len(out):
+            continue
+        r = rng.random()
+        if r < 0.15:
+            del out[off : off + n]
+            break  # the spans after it moved
+        elif r < 0.3:
+            out[off:off] = out[off : off + n]
+            break
+        elif r < 0.4:
+            j = spans[rng.randrange(len(spans))][0]
+            rec = out[off : off + n]
+            del out[off : off + n]
+            j = min(j, len(out))
+            out[j:j] = rec
+            break
+        elif r < 0.55 and n >= head + 8:
+            t = struct.unpack_from("<Q", out, off + head)[0]
+            v = rng.choice([0, 1, 2**63 - 1, 2**64 - 1, t + 3_600_000_000, max(t - 3_600_000_000, 0), t - 1 if t else 0,
+                            t + 1, 2**32])  # fmt: skip
+            struct.pack_into("<Q", out, off + head, v & (2**64 - 1))
+        elif r < 0.8:
+            _splice(rng, out, off + head, off + n)
+        elif r < 0.9:
+            _flip(rng, out, off, off + head)
+        else:
+            del out[off + rng.randrange(n) :]
+            break
+    return bytes(out)
+
+
 def _synthetic_dataset(seconds: float = 3.0) -> Any:
     """A small vehicle at rest: IMU 100 Hz, GNSS 5 Hz, baro and magnetometer 10 Hz (a seed and the config
     target's data)."""
@@ -603,7 +817,8 @@ def _synthetic_dataset(seconds: float = 3.0) -> Any:
             range(int(seconds * 5))]  # fmt: skip
     baro = [BaroSample(0.1 * k, 97_000.0, 300.0) for k in range(int(seconds * 10))]
     mag = [MagSample(0.1 * k, np.array((2e-5, 1e-6, 4e-5))) for k in range(int(seconds * 10))]
-    return Dataset(imu, gnss, baro, mag, meta={"source": "<fuzz>", "format": "csv", "utc_start_s": 1.7e9})
+    return Dataset(imu, gnss, baro, mag, events=[(0.5, "takeoff")],
+                   meta={"source": "<fuzz>", "format": "csv", "utc_start_s": 1.7e9})  # fmt: skip
 
 
 def _head_lines(p: Path, n: int = SEED_LINES) -> bytes:
@@ -623,7 +838,9 @@ def _reader_seeds(fmt: str, tmp: Path) -> list[dict[str, bytes]]:
         generic_csv.write_generic_csv(p, _synthetic_dataset())
         seeds.append({"d.csv": p.read_bytes()})
     elif fmt == "px4-ulog" and (d / "uav/px4_hover_92s/hover.ulg").is_file():
-        seeds.append({"d.ulg": (d / "uav/px4_hover_92s/hover.ulg").read_bytes()[: SEED_BYTES[fmt]]})
+        b, spans = ulog_seed((d / "uav/px4_hover_92s/hover.ulg").read_bytes())
+        SPANS[b] = (spans, 5)  # a data message: header, msg_id, then its timestamp
+        seeds.append({"d.ulg": b})
     elif fmt == "px4-csv":
         q = d / "uav/px4_quad_157s"
         if q.is_dir():
@@ -636,7 +853,8 @@ def _reader_seeds(fmt: str, tmp: Path) -> list[dict[str, bytes]]:
         seeds.append({"sensor_combined_0.csv": ("\n".join([",".join(cols), *rows]) + "\n").encode(),
                       "vehicle_gps_position_0.csv": ("\n".join(gps) + "\n").encode()})  # fmt: skip
     elif fmt in ("ardupilot-bin", "ardupilot-log") and (d / "uav/ardupilot_copter_150s/flight.bin").is_file():
-        head = (d / "uav/ardupilot_copter_150s/flight.bin").read_bytes()[: SEED_BYTES["ardupilot-bin"]]
+        head, spans = dataflash_seed((d / "uav/ardupilot_copter_150s/flight.bin").read_bytes())
+        SPANS[head] = (spans, 3)  # a message: header, then TimeUS
         if fmt == "ardupilot-bin":
             seeds.append({"d.bin": head})
         else:
@@ -652,7 +870,7 @@ def _reader_seeds(fmt: str, tmp: Path) -> list[dict[str, bytes]]:
             seeds.append({"d.log": ("\n".join(out) + "\n").encode()})
     elif fmt == "rtklib" and (d / "gnss_imu_drive_0708/imu_1934.csv").is_file():
         g = d / "gnss_imu_drive_0708"
-        imu = _head_lines(g / "imu_1934.csv", 2 * SEED_LINES)
+        imu = _head_lines(g / "imu_1934.csv", SEED_LINES)
         tag = (g / "imu_1934.csv.tag").read_bytes()
         tags = np.frombuffer(tag[76 : 76 + 8 * ((len(tag) - 76) // 8)], dtype="<u4").reshape(-1, 2)
         keep = tags[tags[:, 1] < len(imu)]
@@ -688,11 +906,40 @@ def _replay_check(ds: Any, cfg: Any) -> list[Any]:
     return []
 
 
+#: the reader formats whose input is a folder, and those that are text
+FOLDERS = ("px4-csv", "rtklib")
+TEXTS = ("csv", "px4-csv", "ardupilot-log", "rtklib")
+
+
+def _mutated(rng: random.Random, seed: dict[str, bytes], fmt: str, root: Path) -> Path:
+    """One file of ``seed`` mutated (text formats cell- and line-wise or as bytes, binary logs record-wise or as
+    bytes; a folder format's file sometimes missing), written to the emptied folder ``root``; returns the path
+    the reader is given (``root`` for a folder format)."""
+    if root.exists():
+        for f in root.iterdir():
+            f.unlink()
+    root.mkdir(exist_ok=True)
+    names = list(seed)
+    victim = rng.choice(names)
+    for name, b in seed.items():
+        if name == victim:
+            if fmt in TEXTS and not name.endswith(".tag") and rng.random() < 0.6:
+                b = _text_mutate(rng, b)
+            elif b in SPANS and rng.random() < 0.6:
+                b = _record_mutate(rng, b, *SPANS[b])
+            else:
+                b = _bytes_mutate(rng, b)
+        (root / name).write_bytes(b)
+    if fmt in FOLDERS and rng.random() < 0.05:  # a file of the folder missing
+        (root / rng.choice(names)).unlink()
+    return root if fmt in FOLDERS else root / names[0]
+
+
 def _reader(fmt: str) -> Callable[[random.Random], Step]:
     """A reader target: a seed of ``fmt`` mutated (bytes; text formats also cell- and line-wise), read with the
     reader; a DatasetError is the clean refusal, anything else raised escapes. The samples it yields go through
     the replay's validation boundary (:func:`ins_hil.datasets.run.screen`) and are returned for the campaign's
-    range oracle; one input in ``REPLAY_EVERY`` is replayed (:func:`_replay_check`)."""
+    range oracle; accepted inputs are replayed (:func:`_replay_check`) in up to ``REPLAY_SHARE`` of the time."""
 
     def setup(rng: random.Random) -> Step:
         from ins_hil.datasets.config import DatasetConfig
@@ -703,29 +950,11 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
         seeds = _reader_seeds(fmt, tmp)
         if not seeds:
             raise RuntimeError(f"{fmt}: no seed ({SHARED_DATA} missing)")
-        folder = fmt in ("px4-csv", "rtklib")
-        text = fmt in ("csv", "px4-csv", "ardupilot-log", "rtklib")
         n = [0]
+        clock = [time.perf_counter(), 0.0]  # the start, the seconds spent replaying
 
         def step() -> tuple[int, list[Any]]:
-            seed = rng.choice(seeds)
-            root = tmp / "in"
-            if root.exists():
-                for f in root.iterdir():
-                    f.unlink()
-            root.mkdir(exist_ok=True)
-            names = list(seed)
-            victim = rng.choice(names)
-            for name, b in seed.items():
-                if name == victim:
-                    if text and not name.endswith(".tag") and rng.random() < 0.6:
-                        b = _text_mutate(rng, b)
-                    else:
-                        b = _bytes_mutate(rng, b)
-                (root / name).write_bytes(b)
-            if folder and rng.random() < 0.05:  # a file of the folder missing
-                (root / rng.choice(names)).unlink()
-            path = root if folder else root / names[0]
+            path = _mutated(rng, rng.choice(seeds), fmt, tmp / "in")
             n[0] += 1
             try:
                 ds = read_dataset(path, fmt)
@@ -738,13 +967,123 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
             # (a baro sample of a log carries its altitude alone: the campaign's oracle wants a pressure)
             out: list[Any] = [*sc.imu[:100], *sc.imu[-20:], *sc.gnss[:20],
                               *[m for m in sc.aux if isinstance(m, MagSample)][:20]]  # fmt: skip
-            if n[0] % REPLAY_EVERY == 0:
+            now = time.perf_counter()
+            if clock[1] <= REPLAY_SHARE * (now - clock[0]):
                 out += _replay_check(ds, DatasetConfig(name="fuzz", rtklib={}))
+                clock[1] += time.perf_counter() - now
             return 1, out
 
         return step
 
     return setup
+
+
+#: the formats whose mutated seeds the replay targets run through ``ins-hil replay``
+REPLAY_FORMATS = ("csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "rtklib", "ihlog")
+#: the replay's guarantee on a corrupted log: it ends within this (s) and under this address space (MiB)
+REPLAY_SECONDS = 60.0
+REPLAY_MIB = 1024
+_NUMBER_NAN = re.compile(r"(?<![a-z_])(nan|[+-]?inf)(?![a-z_])")
+
+
+def replay_oracle(rc: int, out: str, err: str, path: Path) -> list[Any]:
+    """The guarantee of ``ins-hil replay`` on a corrupted log, checked on one run: exit 0 with no NaN or inf
+    printed as a figure, or exit ≠ 0 with one line on stderr that names ``path`` and is a foreseen refusal (not
+    "the replay failed (KeyError…)", not an escaped exception's type). [] when kept, else one ``Wrong``."""
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    if rc == 0:
+        m = _NUMBER_NAN.search(out.lower().replace("not scored", ""))
+        return [Wrong(f"exit 0 with a non-finite figure {m.group(0)!r}: {out[:300]!r}")] if m else []
+    if len(lines) != 1:
+        return [Wrong(f"exit {rc} with {len(lines)} lines on stderr: {err[:300]!r}")]
+    if str(path) not in lines[0]:
+        return [Wrong(f"exit {rc}, its line does not name the file: {lines[0][:300]!r}")]
+    if "the replay failed (" in lines[0] or "--debug for the traceback" in lines[0]:
+        return [Wrong(f"exit {rc}, an unforeseen failure: {lines[0][:300]!r}")]
+    return []
+
+
+def _replay_seeds(tmp: Path) -> list[tuple[str, dict[str, bytes]]]:
+    seeds = [(fmt, s) for fmt in REPLAY_FORMATS for s in _reader_seeds(fmt, tmp)]
+    if not seeds:
+        raise RuntimeError(f"replay: no seed ({SHARED_DATA} missing)")
+    return seeds
+
+
+def _replay_dataset(rng: random.Random) -> Step:
+    """What ``ins-hil replay LOG`` runs, in process: :func:`ins_hil.datasets.report.replay_to_dir` (read, replay,
+    metrics, the summary text; no plots) on a mutated seed of every reader format. The command prints the text
+    and exits 0, or maps DatasetError / DatasetConfigError / ValueError (exit 2) and ReplayError (exit 1) to one
+    line; anything else is its "the replay failed (…)". So: a return is checked for a NaN or inf figure, those
+    refusals for one line naming the file (:func:`replay_oracle`), anything else escapes. (The fuzz layer may not
+    import the command line; :func:`_replay_process` runs the command itself.)"""
+    from ins_hil.datasets import ihlog, report
+    from ins_hil.datasets.run import ReplayError
+    from ins_hil.evaluation.sim_flight import sim_truth
+
+    ihlog.set_truth_source(sim_truth)  # as the command does: a simulated gateway log against its truth
+    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    seeds = _replay_seeds(tmp)
+
+    def step() -> tuple[int, list[Any]]:
+        fmt, seed = rng.choice(seeds)
+        path = _mutated(rng, seed, fmt, tmp / "in")
+        try:
+            _, text = report.replay_to_dir(path, None, tmp / "out", plots=False)
+        except ReplayError as e:
+            return 1, replay_oracle(1, "", f"ins-hil replay: {e}", path)
+        except ValueError as e:  # DatasetError, DatasetConfigError
+            return 1, replay_oracle(2, "", f"ins-hil replay: {e}", path)
+        return 1, replay_oracle(0, text, "", path)
+
+    return step
+
+
+def _replay_process(rng: random.Random) -> Step:
+    """``python -m ins_hil replay LOG --no-plots --quiet`` as a child process under ``REPLAY_MIB`` MiB of address
+    space (RLIMIT_AS) on a mutated seed of every reader format: killed after ``REPLAY_SECONDS`` (a hang); each run
+    checked by :func:`replay_oracle`; its wall time and peak resident memory (``os.wait4``) returned as
+    :class:`~ins_hil.fuzz.Measure` (the campaign keeps their maxima)."""
+    import os
+    import resource
+    import subprocess
+    import sys
+
+    from ins_hil.fuzz import Measure
+
+    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    seeds = _replay_seeds(tmp)
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (REPLAY_MIB * 1024 * 1024, resource.getrlimit(resource.RLIMIT_AS)[1]))
+
+    def step() -> tuple[int, list[Any]]:
+        fmt, seed = rng.choice(seeds)
+        path = _mutated(rng, seed, fmt, tmp / "in")
+        cmd = [sys.executable, "-m", "ins_hil", "replay", str(path), "--out", str(tmp / "out"), "--no-plots", "--quiet"]
+        t0 = time.perf_counter()
+        with (tmp / "stdout").open("w+") as fo, (tmp / "stderr").open("w+") as fe:
+            child = subprocess.Popen(cmd, stdout=fo, stderr=fe, stdin=subprocess.DEVNULL, preexec_fn=cap, cwd=ROOT)
+            while True:
+                pid, status, ru = os.wait4(child.pid, os.WNOHANG)
+                if pid:
+                    break
+                if time.perf_counter() - t0 > REPLAY_SECONDS:
+                    child.kill()
+                    pid, status, ru = os.wait4(child.pid, 0)
+                    child.returncode = -9
+                    return 1, [Wrong(f"killed after {REPLAY_SECONDS:g} s"),
+                               Measure("replay wall s", time.perf_counter() - t0)]  # fmt: skip
+                time.sleep(0.02)
+            child.returncode = os.waitstatus_to_exitcode(status)
+            fo.seek(0)
+            fe.seek(0)
+            out, err = fo.read(), fe.read()
+        wall = time.perf_counter() - t0
+        found = replay_oracle(child.returncode, out, err, path)
+        return 1, [*found, Measure("replay wall s", wall), Measure("replay peak RSS MiB", ru.ru_maxrss / 1024.0)]
+
+    return step
 
 
 def _dataset_config(rng: random.Random) -> Step:
@@ -810,8 +1149,10 @@ TARGETS: list[Target] = [
     Target("dronecan", "ins_hil.drivers.dronecan_codec.DroneCanDecoder.feed", _dronecan, 1.5, nav=True),
     Target("dbc", "ins_hil.drivers.dbc_codec.DbcImuDecoder.feed", _dbc, 0.7, nav=True),
     Target("mavlink_in", "ins_hil.drivers.mavlink_in.MavlinkDriver.feed", _mavlink, 1.35, nav=True),
-    Target("config", "ins_hil.config.from_dict / load (mutated configs/*.toml)", _config, 0.5, decoder=False),
-    Target("recorder_reader", "ins_hil.runtime.recorder.read_records", _recorder, 0.5, decoder=False),
+    Target(
+        "config", "ins_hil.config.from_dict / load (mutated configs/*.toml)", _config, 0.5, decoder=False, goal=10_000
+    ),
+    Target("recorder_reader", "ins_hil.runtime.recorder.read_records", _recorder, 0.5, decoder=False, goal=100_000),
     # the dataset readers (mutated beginnings of the shipped logs, synthetic seeds) and the dataset config
     *(
         Target(
@@ -824,11 +1165,28 @@ TARGETS: list[Target] = [
         for f in ("csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "rtklib", "ihlog")
     ),
     Target(
+        "replay_dataset",
+        "ins_hil.datasets.report.replay_to_dir (ins-hil replay LOG's path) on mutated logs of every reader format",
+        _replay_dataset,
+        0.3,
+        decoder=False,
+        goal=10_000,
+    ),
+    Target(
+        "replay_process",
+        f"python -m ins_hil replay LOG in a child under {REPLAY_MIB} MiB, killed after {REPLAY_SECONDS:g} s",
+        _replay_process,
+        0.15,
+        decoder=False,
+        goal=500,
+    ),
+    Target(
         "dataset_config",
         "ins_hil.datasets.config.from_dict / load + a small replay",
         _dataset_config,
         0.3,
         decoder=False,
+        goal=100_000,
     ),
 ]
 
