@@ -58,6 +58,7 @@ from ins_hil.core_parts.gnss import ins_off_track as ins_off_track  # re-exporte
 from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.core_parts.sensor_check import SensorCheck
+from ins_hil.core_parts.yaw_reset import YawReset
 from ins_hil.fusion import measurements as mm
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
@@ -202,6 +203,10 @@ class NavCore:
         #: its one-line findings in ``sensor_warnings`` once judged
         self.sensor_check: SensorCheck | None = SensorCheck(self.cfg)
         self.sensor_warnings: list[str] = []
+        #: the GNSS-velocity yaw bank run from the first sample and the emergency yaw reset it allows
+        #: (core_parts/yaw_reset.py, EKF2's); the resets done: (t s, why)
+        self.yaw_reset = YawReset(self.cfg)
+        self.yaw_resets: list[tuple[float, str]] = []
         # no absolute aiding: constant-position / zero-velocity pseudo-measurements (core_parts/hold.py)
         self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
         if self.hold is not None:
@@ -239,6 +244,8 @@ class NavCore:
         self._dt = imu.dt
         if self.sensor_check is not None and not self.replaying and self.sensor_check.add(imu):
             self._sensor_checked(self.sensor_check)
+        if not self.replaying:
+            self.yaw_reset.imu(imu, self.bg)
         if self.phase != "nav":
             if self.yaw_gsf is not None:
                 self.yaw_gsf.predict(imu.dtheta - self.bg * imu.dt, imu.dvel, imu.dt)
@@ -387,6 +394,8 @@ class NavCore:
         if self.pending_end is not None:
             self.step_end()
         self.history.finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first
+        if isinstance(meas, GnssFix):
+            self.yaw_reset.gnss(meas)
         if self.phase != "nav":
             if self.yaw_gsf is not None and isinstance(meas, GnssFix) and meas.vel_ned is not None:
                 self.yaw_gsf.fuse_velocity(np.asarray(meas.vel_ned), meas.std_vel)
@@ -461,6 +470,8 @@ class NavCore:
                 yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
                 s = self.ins.state
                 self._apply(gnss_velocity(meas, s, dcm_from_quat(s.q_nb), self.omega_b, self.idx, c), meas.t)
+            if not self.replaying:
+                self._yaw_check(meas)
         elif isinstance(meas, BaroSample):
             self._apply(self.baro.measurement(meas, self.ins, self.kf, c.baro.gate), meas.t)
         elif isinstance(meas, MagSample):
@@ -515,6 +526,45 @@ class NavCore:
                 FaultEvent(meas.t, "nav", FaultMode.DRIFT, math.nan, True, True,
                            f"filter diverged: reset to GNSS ({why})")
             )  # fmt: skip
+
+    def _yaw_check(self, meas: GnssFix) -> None:
+        """After a fix: EKF2's emergency yaw reset (:class:`~ins_hil.core_parts.yaw_reset.YawReset`). When due, the
+        attitude is turned about down onto the yaw bank's yaw (its σ the bank's), the tilt, z gyro bias and
+        accelerometer bias σ reopened, and the velocity and position reset to the fix. Counted in
+        :attr:`yaw_resets`, a FaultEvent (sensor "nav")."""
+        c, f, i = self.cfg, self.cfg.filter, self.idx
+        kind = "gnss_vel" if c.gnss.use_vel and meas.vel_ned is not None else "gnss_pos"
+        s = self.ins.state
+        P = self.kf.P
+        # the GNSS velocity (position) fails its test, or on a ground vehicle the NHC (a yaw that is off turns the
+        # accepted GNSS velocity sideways in the body)
+        st = self.stats
+        rejected = st[kind].consecutive_rejects > 0 or (c.aids.nhc and st["nhc"].consecutive_rejects > 0)
+        dpsi = self.yaw_reset.check(meas, rejected, s.q_nb, float(P[i.att + 2, i.att + 2]))
+        if dpsi is None:
+            return
+        sd = np.sqrt(np.abs(P.diagonal()))
+        s.q_nb = quat_mul(quat_from_rotvec(np.array((0.0, 0.0, dpsi))), s.q_nb)  # C ← R_down(Δψ) C
+        # the tilt and the accelerometer bias took in the wrong yaw's innovations: they re-open with the yaw
+        self.kf.set_state_sigma("att", np.array((f.init_att, f.init_att, math.sqrt(self.yaw_reset.gsf.yaw_var))))
+        if i.bg is not None:
+            self.kf.set_state_sigma("bg", np.array((sd[i.bg], sd[i.bg + 1], f.init_gyro_bias)))
+        if i.ba is not None:
+            self.kf.set_state_sigma("ba", f.init_accel_bias)
+        assert meas.vel_ned is not None  # YawReset.check resets only with a GNSS velocity
+        s.vel_ned = np.asarray(meas.vel_ned, dtype=np.float64).copy()
+        self.kf.set_state_sigma("vel", max(meas.std_vel, c.gnss.min_std[2]) * c.gnss.std_scale + 0.1)
+        m = gnss_position(meas, s, dcm_from_quat(s.q_nb), i, c, True)
+        self.kf.set_state_sigma("pos", np.sqrt(m.z * m.z + m.r))
+        self._apply(m, meas.t, True)
+        self.stats["gnss_vel"].consecutive_rejects = 0
+        self.stats["gnss_pos"].consecutive_rejects = 0
+        self.gnss_reset.rejected.clear()
+        why = f"yaw {math.degrees(dpsi):+.0f}° off the GNSS-velocity yaw estimator"
+        self.yaw_resets.append((meas.t, why))
+        self._events.append(
+            FaultEvent(meas.t, "nav", FaultMode.JUMP, abs(dpsi), True, True, f"yaw reset to the yaw estimator ({why})")
+        )
 
     def _apply(self, m: Measurement, t: float, force: bool = False) -> bool:
         """Gate, (adapt R), update, feed back one measurement valid at ``t`` (s). Returns True if accepted
