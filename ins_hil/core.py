@@ -536,8 +536,8 @@ class NavCore:
         kind = "gnss_vel" if c.gnss.use_vel and meas.vel_ned is not None else "gnss_pos"
         s = self.ins.state
         P = self.kf.P
-        # the GNSS velocity (position) fails its test, or on a ground vehicle the NHC (a yaw that is off turns the
-        # accepted GNSS velocity sideways in the body)
+        # the GNSS velocity fails its test (YawReset.check needs one), or on a ground vehicle the NHC (a yaw that is
+        # off turns the accepted GNSS velocity sideways in the body)
         st = self.stats
         rejected = st[kind].consecutive_rejects > 0 or (c.aids.nhc and st["nhc"].consecutive_rejects > 0)
         dpsi = self.yaw_reset.check(meas, rejected, s.q_nb, float(P[i.att + 2, i.att + 2]))

@@ -8,16 +8,19 @@ The conditions are EKF2's (PX4 ``src/modules/ekf2/EKF/aid_sources/gnss/gps_contr
 1. the bank is converged: its yaw variance below ``GsfConfig.converged_std``² (EKF2 ``EKFGSF_yaw_err_max``, 15°);
 2. the filter's yaw is more than :data:`YAW_FAIL` (25°, EKF2's fixed threshold) from the bank's, and beyond
    :data:`YAW_GATE` of the two σ combined (a yaw the filter itself is unsure of is not a failure);
-3. the filter has failed the GNSS velocity (or, without one, position) innovation test — or, on a ground vehicle,
-   the non-holonomic constraint's (a wrong yaw turns an accepted GNSS velocity sideways in the body) — for
-   :data:`RESET_DELAY` s (EKF2 ``EKFGSF_reset_delay``) while moving faster than ``alignment.gnss_yaw_speed``
-   (EKF2: in air);
+3. the filter has failed the GNSS velocity innovation test — or, on a ground vehicle, the non-holonomic
+   constraint's (a wrong yaw turns an accepted GNSS velocity sideways in the body) — for :data:`RESET_DELAY` s
+   (EKF2 ``EKFGSF_reset_delay``) while moving faster than ``alignment.gnss_yaw_speed`` (EKF2: in air);
 4. at most one reset per :data:`MIN_INTERVAL` s, so the bank has time to improve if the last reset did not help.
 
-The reset turns the attitude about down onto the bank's yaw with its variance, reopens the z gyro bias σ (a yaw
-that ran off is a sign of a wrong z bias), and resets the velocity to the GNSS velocity and the position to the
-fix (EKF2's ``do_vel_pos_reset``). The bank runs from the first IMU sample, on the bias-compensated increments
-summed to :data:`GSF_DT` s (the bank needs the low frequencies only; it costs a fraction of the core's step).
+A position-only receiver feeds the bank nothing: its yaw is guarded by the divergence reset (core_parts/gnss.py,
+the INS velocity against the fixes' track).
+
+The reset turns the attitude about down onto the bank's yaw with its variance, reopens the tilt, z gyro bias and
+accelerometer bias σ (a yaw that ran off is a sign of a wrong z bias, and the tilt and accelerometer bias took in the
+wrong yaw's innovations), and resets the velocity to the GNSS velocity and the position to the fix (EKF2's
+``do_vel_pos_reset``). The bank runs from the first IMU sample, on the bias-compensated increments summed to
+:data:`GSF_DT` s (the bank needs the low frequencies only; ≈ 0.3 ms per prediction in Python).
 """
 
 from __future__ import annotations
@@ -81,8 +84,8 @@ class YawReset:
             self.gsf.fuse_velocity(v, meas.std_vel)
 
     def check(self, meas: GnssFix, rejected: bool, q_nb: Vec, var_yaw: float) -> float | None:
-        """After a fix was fused: ``rejected`` when its velocity (or, without one, its position) failed the
-        innovation test. Returns the yaw turn (rad) to apply when a reset is due, else None."""
+        """After a fix was fused: ``rejected`` when its velocity (or the NHC) failed the innovation test. Returns the
+        yaw turn (rad) to apply when a reset is due, else None."""
         t = meas.t
         if not rejected:
             self.rejected_since = None
