@@ -440,7 +440,7 @@ def _run_dataset(p: Prepared, outages: list[tuple[float, float]], label: str, pr
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, list(p.notes), core.align_status(), core.imu_lost,
         np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), rate_bins(p.imu),
-        arr(corr, 3), list(core.divergences), list(core.sensor_warnings), list(core.yaw_resets),
+        arr(corr, 3), list(core.divergences), list(core.sensor_warnings), list(getattr(core, "yaw_resets", ())),
     )  # fmt: skip
 
 
