@@ -57,12 +57,13 @@ from ins_hil.core_parts.alignment import Alignment
 from ins_hil.core_parts.baro_datum import BaroDatum
 from ins_hil.core_parts.contract import Measurement, check_imu
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
-from ins_hil.core_parts.gnss import GnssReset
+from ins_hil.core_parts.gnss import GnssReset, gnss_position
 from ins_hil.core_parts.gnss import gnss_fixes_agree as gnss_fixes_agree  # re-exported (ins_hil.cref)
 from ins_hil.core_parts.gnss import ins_off_track as ins_off_track  # re-exported (ins_hil.cref)
 from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.core_parts.sensor_check import SensorCheck
+from ins_hil.core_parts.yaw_reset import YawReset
 from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
 from ins_hil.fusion.yaw_gsf import YawGsf
@@ -244,6 +245,10 @@ class NavCore:
         #: its one-line findings in ``sensor_warnings`` once judged
         self.sensor_check: SensorCheck | None = SensorCheck(self.cfg)
         self.sensor_warnings: list[str] = []
+        #: the GNSS-velocity yaw bank run from the first sample and the emergency yaw reset it allows
+        #: (core_parts/yaw_reset.py, EKF2's); the resets done: (t s, why)
+        self.yaw_reset = YawReset(self.cfg)
+        self.yaw_resets: list[tuple[float, str]] = []
         # no absolute aiding: constant-position / zero-velocity pseudo-measurements (core_parts/hold.py)
         self.hold = NoAidHold(self.cfg) if self.cfg.hold.enabled else None
         if self.hold is not None:
@@ -279,6 +284,8 @@ class NavCore:
         self._dt = imu.dt
         if self.sensor_check is not None and not self.replaying and self.sensor_check.add(imu):
             self._sensor_checked(self.sensor_check)
+        if not self.replaying:
+            self.yaw_reset.imu(imu, self.bg)
         if self.phase != "nav":
             if self.yaw_gsf is not None:
                 self.yaw_gsf.predict(imu.dtheta - self.bg * imu.dt, imu.dvel, imu.dt)
@@ -422,6 +429,7 @@ class NavCore:
         if self.pending_end is not None:
             self.step_end()
         self.history.finish_rollback()  # a roll-back of an earlier measurement left suspended: it comes first
+        aid.arrive(meas)
         if self.phase != "nav":
             aid.align(meas)
             return
@@ -510,6 +518,45 @@ class NavCore:
                 FaultEvent(meas.t, "nav", FaultMode.DRIFT, math.nan, True, True,
                            f"filter diverged: reset to GNSS ({why})")
             )  # fmt: skip
+
+    def _yaw_check(self, meas: GnssFix) -> None:
+        """After a fix: EKF2's emergency yaw reset (:class:`~ins_hil.core_parts.yaw_reset.YawReset`). When due, the
+        attitude is turned about down onto the yaw bank's yaw (its σ the bank's), the tilt, z gyro bias and
+        accelerometer bias σ reopened, and the velocity and position reset to the fix. Counted in
+        :attr:`yaw_resets`, a FaultEvent (sensor "nav")."""
+        c, f, i = self.cfg, self.cfg.filter, self.idx
+        kind = "gnss_vel" if c.gnss.use_vel and meas.vel_ned is not None else "gnss_pos"
+        s = self.ins.state
+        P = self.kf.P
+        # the GNSS velocity fails its test (YawReset.check needs one), or on a ground vehicle the NHC (a yaw that is
+        # off turns the accepted GNSS velocity sideways in the body)
+        st = self.stats
+        rejected = st[kind].consecutive_rejects > 0 or (c.aids.nhc and st["nhc"].consecutive_rejects > 0)
+        dpsi = self.yaw_reset.check(meas, rejected, s.q_nb, float(P[i.att + 2, i.att + 2]))
+        if dpsi is None:
+            return
+        sd = np.sqrt(np.abs(P.diagonal()))
+        s.q_nb = quat_mul(quat_from_rotvec(np.array((0.0, 0.0, dpsi))), s.q_nb)  # C ← R_down(Δψ) C
+        # the tilt and the accelerometer bias took in the wrong yaw's innovations: they re-open with the yaw
+        self.kf.set_state_sigma("att", np.array((f.init_att, f.init_att, math.sqrt(self.yaw_reset.gsf.yaw_var))))
+        if i.bg is not None:
+            self.kf.set_state_sigma("bg", np.array((sd[i.bg], sd[i.bg + 1], f.init_gyro_bias)))
+        if i.ba is not None:
+            self.kf.set_state_sigma("ba", f.init_accel_bias)
+        assert meas.vel_ned is not None  # YawReset.check resets only with a GNSS velocity
+        s.vel_ned = np.asarray(meas.vel_ned, dtype=np.float64).copy()
+        self.kf.set_state_sigma("vel", max(meas.std_vel, c.gnss.min_std[2]) * c.gnss.std_scale + 0.1)
+        m = gnss_position(meas, s, dcm_from_quat(s.q_nb), i, c, True)
+        self.kf.set_state_sigma("pos", np.sqrt(m.z * m.z + m.r))
+        self._apply(m, meas.t, True)
+        self.stats["gnss_vel"].consecutive_rejects = 0
+        self.stats["gnss_pos"].consecutive_rejects = 0
+        self.gnss_reset.rejected.clear()
+        why = f"yaw {math.degrees(dpsi):+.0f}° off the GNSS-velocity yaw estimator"
+        self.yaw_resets.append((meas.t, why))
+        self._events.append(
+            FaultEvent(meas.t, "nav", FaultMode.JUMP, abs(dpsi), True, True, f"yaw reset to the yaw estimator ({why})")
+        )
 
     def _apply(self, m: Measurement, t: float, force: bool = False) -> bool:
         """Gate, (adapt R), update, feed back one measurement valid at ``t`` (s). Returns True if accepted

@@ -42,7 +42,7 @@ class Aid:
 
     ``fuse(meas, assume_now)`` yields between its updates (a real-time caller runs IMU steps there);
     ``after_step(imu)`` runs after every IMU time update (the vehicle aids: no sample of their own);
-    ``align(meas)`` takes a sample before navigation; ``feedback(x)`` applies the aid's own error states of
+    ``arrive(meas)`` sees every sample as it comes; ``align(meas)`` takes a sample before navigation; ``feedback(x)`` applies the aid's own error states of
     the error estimate ``x``; ``snapshot``/``restore`` keep the aid's state for delayed fusion (references
     only, nothing mutated in place). Every hook defaults to nothing."""
 
@@ -54,6 +54,10 @@ class Aid:
     def parts(self, meas: Any) -> tuple[Any, ...]:
         """The measurements ``meas`` is fused as, each at its own time of validity (default: itself)."""
         return (meas,)
+
+    def arrive(self, meas: Any) -> None:
+        """Every sample as the core receives it, before alignment or fusion (in arrival order)."""
+        return None
 
     def fuse(self, meas: Any, assume_now: bool = False) -> Iterator[None]:
         yield from ()

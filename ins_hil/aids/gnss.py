@@ -38,6 +38,9 @@ class GnssAid(Aid):
             return replace(meas, vel_ned=None), replace(meas, t=meas.t - d, lat=math.nan)
         return (meas,)
 
+    def arrive(self, meas: GnssFix) -> None:
+        self.core.yaw_reset.gnss(meas)  # the yaw bank runs from the first fix (core_parts/yaw_reset.py)
+
     def align(self, meas: GnssFix) -> None:
         core = self.core
         if core.yaw_gsf is not None and meas.vel_ned is not None:
@@ -81,6 +84,8 @@ class GnssAid(Aid):
             yield  # a real-time caller may run an IMU step here (the fix is then ≤ 1 step older)
             s = core.ins.state
             core._apply(gnss_velocity(meas, s, dcm_from_quat(s.q_nb), core.omega_b, core.idx, c), meas.t)
+        if not core.replaying:
+            core._yaw_check(meas)  # EKF2's emergency yaw reset when the velocity fails against the yaw bank
 
 
 class GnssSource(AidSource):

@@ -91,6 +91,9 @@ def replay(
     m["divergences"] = [[round(t - p.t0, 3), why] for t, why in r.divergences]
     m["warnings"] += [f"the filter diverged at t = {t - p.t0:.1f} s and was reset to GNSS ({why}): the figures "
                       "include it" for t, why in r.divergences]  # fmt: skip
+    m["yaw_resets"] = [[round(t - p.t0, 3), why] for t, why in r.yaw_resets]
+    m["warnings"] += [f"the yaw was reset to the GNSS-velocity yaw estimator at t = {t - p.t0:.1f} s ({why}): the "
+                      "figures include it" for t, why in r.yaw_resets]  # fmt: skip
     t_from = (r.t_nav if math.isfinite(r.t_nav) else p.t1) + cfg.settle_s
     if "gnss" in cfg.score:
         m["gnss"] = gnss_scores(r, p.gnss, cfg.min_fix_type) if p.gnss else "no GNSS fix in the log"

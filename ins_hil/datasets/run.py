@@ -332,6 +332,7 @@ class RunResult:
     sf_corr: Vec = field(default_factory=lambda: np.zeros((0, 3)))  # per fused fix: t s, Δ horizontal f NED m/s²
     divergences: list[tuple[float, str]] = field(default_factory=list)  # the core's divergence resets: t s, why
     sensor_warnings: list[str] = field(default_factory=list)  # the core's start-up IMU check (mounting, noise)
+    yaw_resets: list[tuple[float, str]] = field(default_factory=list)  # the core's emergency yaw resets: t s, why
 
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
@@ -439,7 +440,7 @@ def _run_dataset(p: Prepared, outages: list[tuple[float, float]], label: str, pr
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, list(p.notes), core.align_status(), core.imu_lost,
         np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), rate_bins(p.imu),
-        arr(corr, 3), list(core.divergences), list(core.sensor_warnings),
+        arr(corr, 3), list(core.divergences), list(core.sensor_warnings), list(getattr(core, "yaw_resets", ())),
     )  # fmt: skip
 
 

@@ -99,8 +99,12 @@ class YawGsf:
         self.updates = 0  # GNSS velocities fused
 
     # ------------------------------------------------------------------ IMU
-    def predict(self, dtheta: Vec, dvel: Vec, dt: float) -> None:
-        """One IMU interval: Δθ (rad) and Δv (m/s) in body FRD over ``dt`` s."""
+    def predict(self, dtheta: Vec, dvel: Vec, dt: float, forward_speed: float = 0.0) -> None:
+        """One IMU interval: Δθ (rad) and Δv (m/s) in body FRD over ``dt`` s. ``forward_speed`` (m/s, along body
+        x: a ground vehicle or a fixed wing; 0 = unknown): the tilt correction then removes the centripetal
+        acceleration ω × (V, 0, 0) of a turn from the specific force, as EKF2 does with its true airspeed
+        (PX4 ``src/modules/ekf2/EKF/yaw_estimator/EKFGSF_yaw.cpp``, ``predictEKF``/``ahrsPredict``): a steady
+        turn otherwise tilts every model towards the turn's inside and biases the yaw bank."""
         c = self.cfg
         dt_s = max(dt, 1e-3)
         f = dvel / dt_s
@@ -112,12 +116,20 @@ class YawGsf:
             return
         k = min(10.0 * dt_s * c.tilt_gain, 1.0)  # vibration low-pass: 1/10 of the tilt correction's time constant
         self.accel = self.accel + k * (f - self.accel)
-        an = math.sqrt(float(self.accel @ self.accel))
+        acc = self.accel
+        if forward_speed > 0.0:
+            w = dtheta / dt_s
+            acc = acc - np.array((0.0, forward_speed * float(w[2]), -forward_speed * float(w[1])))
+        an = math.sqrt(float(acc @ acc))
         gain = c.tilt_gain * (1.0 - min(2.0 * abs(an - G0) / G0, 1.0)) ** 2
         tilt = np.zeros_like(self.bias)
         if gain > 0.0 and an > 0.0:
             down_b = self.R[:, 2, :]  # NED down in body, each model
-            tilt = np.cross(down_b, self.accel) * (gain / an)  # rotates the model's down onto −f
+            k_t = gain / an  # down_b × acc (written out: np.cross costs more than the rest of the step)
+            tilt = np.empty_like(down_b)
+            tilt[:, 0] = (down_b[:, 1] * float(acc[2]) - down_b[:, 2] * float(acc[1])) * k_t
+            tilt[:, 1] = (down_b[:, 2] * float(acc[0]) - down_b[:, 0] * float(acc[2])) * k_t
+            tilt[:, 2] = (down_b[:, 0] * float(acc[1]) - down_b[:, 1] * float(acc[0])) * k_t  # turns down onto −f
         rate = dtheta / dt_s - self.bias
         learn = np.sqrt(np.einsum("ij,ij->i", rate, rate)) < c.bias_spin_max
         self.bias = np.where(learn[:, None], self.bias - tilt * (c.gyro_bias_gain * dt_s), self.bias)

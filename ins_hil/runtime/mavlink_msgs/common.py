@@ -162,7 +162,9 @@ def _gps_week(g: GnssFix | None, t: float | None = None) -> tuple[int, int]:
 def fault_text(ev: FaultEvent) -> tuple[int, str]:
     """STATUSTEXT (severity, ≤50 chars) for a fault event."""
     m = mavlink_module()
-    if ev.sensor == "nav":  # NavCore's divergence reset (core_parts/gnss.py GnssReset.ok)
+    if ev.sensor == "nav":  # NavCore's divergence reset (core_parts/gnss.py) or yaw reset (core_parts/yaw_reset.py)
+        if ev.detail.startswith("yaw reset"):
+            return m.MAV_SEVERITY_WARNING, "INS yaw reset to the GNSS yaw estimator"
         return m.MAV_SEVERITY_WARNING, "INS diverged: reset to GNSS"
     if ev.cleared:
         return m.MAV_SEVERITY_NOTICE, f"INS fault cleared: {ev.sensor}"
