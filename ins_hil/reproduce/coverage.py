@@ -61,6 +61,7 @@ SEED_CASES: tuple[Case, ...] = (
     Case("003-C", "J2 gravity with the corrected μ", "^003-A", "^003-C"),
     Case("003-D", "Table 1.1 corrected", "^003-A", "^003-D"),
     Case("003-E", "SLERP (shortest path, small-angle safe; the thesis prints no numbers)", "^003-E"),
+    Case("003-F", "continuous–discrete Kalman filter, asynchronous sensors (no printed numbers)", "^003-F"),
     Case("004-A", "reduced measurements eqs. 19–21, cond(S)", "^004-A"),
     Case("004-B", "platform-angle reconstruction eqs. 3–5", "^004-B"),
     Case("004-C", "level-flight accelerometer measurement eqs. 6–8", "^004-C"),

@@ -120,6 +120,15 @@ MUTATIONS: tuple[Mutation, ...] = (
         "^Seed 003",
     ),
     Mutation(
+        "003 continuous–discrete Ṗ",
+        "seed 003",
+        "Ṗ = AP + PAᵀ + Q loses the PAᵀ term between the measurements",
+        "ins_hil.fusion.continuous_discrete:ContinuousDiscreteKF._advance",
+        "return AP + AP.T + Q",
+        "return AP + Q",
+        "^Seed 003",
+    ),
+    Mutation(
         "book ch. 2 δλ_q sign",
         "book ch. 2",
         "eq. 2.28: δλ_q = [1 + q‖∇θ‖², ½∇θ]",

@@ -1,6 +1,7 @@
 """Seed 003 derived guards (DIGEST_001_004 §3, §6 cases 24–27): the thesis prints no results, so these
 rows check that its typos are not copied: the DCM (003-A), the quaternion product (003-B), the J2
-gravity constant (003-C) and Table 1.1 (003-D)."""
+gravity constant (003-C) and Table 1.1 (003-D); and the algorithms it describes without numbers, held against
+independent formulations: SLERP (003-E) and the continuous–discrete Kalman filter (003-F)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ins_hil.fusion.continuous_discrete import make_linear_filter
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
 from ins_hil.nav.rotation import quat_angle_between, quat_from_rotvec, quat_mul, quat_slerp
@@ -128,6 +130,49 @@ def table_1_1(phi: float, lam: float, eps: float) -> np.ndarray:
     )
 
 
+def cd_kf_figures() -> dict[str, float]:
+    """003-F: the continuous–discrete filter (RK4, 0.01-s sub-steps) against independent forms.
+
+    * a scalar model ẋ = ax + bu + ξ with one sensor at 25 irregular times against the closed form
+      p(t) = (p₀ + q/2a) e^{2at} − q/2a, x(t) = x₀e^{at} + bu(e^{at} − 1)/a, p⁺ = p r/(p + r);
+    * a position–velocity–bias model with a position sensor (~1 Hz) and a velocity sensor (~3 Hz) at their own
+      interleaved times against the exact (Van Loan) discrete filter;
+    * the RK4 error ratio at sub-steps 0.5 s / 0.25 s over 3 s (fourth order: 16)."""
+    rng = np.random.default_rng(3)
+    a, b, q, r, u = -0.4, 2.0, 0.3, 0.5, 0.7
+    times = np.cumsum(rng.uniform(0.01, 0.9, 25))
+    ys = rng.normal(2.0, 1.0, 25)
+    f = make_linear_filter("continuous_discrete", [[a]], [[q]], [1.0], [[4.0]], {"s": ([[1.0]], [[r]])}, B=[[b]],
+                           max_step=0.01)  # fmt: skip
+    f.run([(float(t), "s", [float(y)]) for t, y in zip(times, ys, strict=True)], u=[u])
+    t0, x, p = 0.0, 1.0, 4.0
+    for tn, y in zip(times, ys, strict=True):
+        e = math.exp(a * (tn - t0))
+        x, p = x * e + b * u * (e - 1.0) / a, (p + q / (2 * a)) * e * e - q / (2 * a)
+        k = p / (p + r)
+        x, p, t0 = x + k * (y - x), (1 - k) * p, tn
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [0.0, 0.0, -1.0 / 50.0]])
+    Q = np.diag([0.0, 0.04, 2 * 0.01**2 / 50.0])
+    P0 = np.diag([25.0, 1.0, 0.01])
+    sensors = {"pos": (np.array([[1.0, 0.0, 0.0]]), np.array([[4.0]])),
+               "vel": (np.array([[0.0, 1.0, 0.0]]), np.array([[0.01]]))}  # fmt: skip
+    meas = [(float(t), "pos", rng.normal(size=1)) for t in np.cumsum(rng.uniform(0.8, 1.2, 30))]
+    meas += [(float(t), "vel", rng.normal(size=1)) for t in np.cumsum(rng.uniform(0.15, 0.45, 90))]
+    cd = make_linear_filter("continuous_discrete", A, Q, np.zeros(3), P0, sensors, max_step=0.01).run(meas)
+    dk = make_linear_filter("discrete", A, Q, np.zeros(3), P0, sensors).run(meas)
+    dp = max(float(np.max(np.abs(c[2] - d[2])) / np.max(np.abs(d[2]))) for c, d in zip(cd, dk, strict=True))
+    dx = max(float(np.max(np.abs(c[1] - d[1]))) for c, d in zip(cd, dk, strict=True))
+    ref = make_linear_filter("discrete", A, Q, np.zeros(3), P0)
+    ref.predict_to(3.0)
+    err = []
+    for h in (0.5, 0.25):
+        g = make_linear_filter("continuous_discrete", A, Q, np.zeros(3), P0, max_step=h)
+        g.predict_to(3.0)
+        err.append(float(np.max(np.abs(g.P - ref.P))))
+    return {"scalar_p": abs(float(f.P[0, 0]) / p - 1.0), "scalar_x": abs(float(f.x[0]) - x), "vl_p": dp,
+            "vl_x": dx, "order": err[0] / err[1], "updates": float(len(cd))}  # fmt: skip
+
+
 @lru_cache(maxsize=1)
 def rows() -> list[Row]:
     out: list[Row] = []
@@ -238,5 +283,18 @@ def rows() -> list[Row]:
             "small-angle safe"),
         Row(g, "printed formula, attitudes 1e-10 rad apart: finite (1 = yes)", None, s["small_printed_finite"], 0.0,
             "abs", 0.0, "cos θ rounds to 1, θ = 0: 0/0", typo=True),
+    ]  # fmt: skip
+    g = ("003-F continuous–discrete KF, ins_hil.fusion.continuous_discrete (seed 003 lines 782–866; the thesis "
+         "prints no numbers)")  # fmt: skip
+    c = cd_kf_figures()
+    out += [
+        Row(g, "scalar, 25 irregular updates: |p/p_closed-form − 1|", None, c["scalar_p"], 1e-10, "abs", 0.0,
+            "Ṗ = 2ap + q solved in closed form between the updates"),
+        Row(g, "scalar, 25 irregular updates: |x̂ − x̂_closed-form|", None, c["scalar_x"], 1e-10, "abs", 0.0),
+        Row(g, "2 asynchronous sensors, 120 updates: max |P − P_VanLoan| / max |P_VanLoan|", None, c["vl_p"], 1e-9,
+            "abs", 0.0, "the exact discretisation e^{AΔt}, ∫e^{As}Qe^{Aᵀs}ds of each interval"),
+        Row(g, "2 asynchronous sensors, 120 updates: max |x̂ − x̂_VanLoan|", None, c["vl_x"], 1e-9, "abs", 0.0),
+        Row(g, "RK4 sub-step 0.5 s / 0.25 s: error ratio of P over 3 s", None, c["order"], 0.25, "rel", 16.0,
+            "fourth order"),
     ]  # fmt: skip
     return out
