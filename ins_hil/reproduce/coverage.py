@@ -45,6 +45,7 @@ SEED_CASES: tuple[Case, ...] = (
     Case("001-J", "static coarse alignment eqs. 64–69", "^001-J"),
     Case("001-K", "error-model Jacobian F (seed's and the core's)", "^001-K"),
     Case("001-L", "Kalman update forms eqs. 143–144", "001-L", "143|information|Kalman|P"),
+    Case("001-M", "i-frame and e-frame mechanizations (eqs. 45, 51) vs the NED one (no printed numbers)", "^001-M"),
     Case("002-A", "code ≡ formula", why="an identity of the seed's code, tested in tests/test_seed002.py"),
     Case("002-B", "Revers1h drift 0.042 μ²", CONING, "^Revers1h δ"),
     Case("002-C", "RK21 drift 0.083 μ², opposite sign", CONING, "^RK21 |^sign of RK21"),
