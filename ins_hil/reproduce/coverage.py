@@ -63,6 +63,11 @@ SEED_CASES: tuple[Case, ...] = (
     Case("003-D", "Table 1.1 corrected", "^003-A", "^003-D"),
     Case("003-E", "SLERP (shortest path, small-angle safe; the thesis prints no numbers)", "^003-E"),
     Case("003-F", "continuous–discrete Kalman filter, asynchronous sensors (no printed numbers)", "^003-F"),
+    Case(
+        "003-G",
+        "orthodromic frame: transport rate and curvature (eqs. 1.5–1.6; printed coefficient and sign: typos)",
+        "^003-G",
+    ),
     Case("004-A", "reduced measurements eqs. 19–21, cond(S)", "^004-A"),
     Case("004-B", "platform-angle reconstruction eqs. 3–5", "^004-B"),
     Case("004-C", "level-flight accelerometer measurement eqs. 6–8", "^004-C"),

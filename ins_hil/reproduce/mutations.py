@@ -147,6 +147,15 @@ MUTATIONS: tuple[Mutation, ...] = (
         "^Seed 003",
     ),
     Mutation(
+        "003 orthodromic torsion sign",
+        "seed 003",
+        "eq. 1.5: the geodesic-torsion term of ω⁰_ξ, −τ v_ξ, enters with +",
+        "ins_hil.nav.orthodromic:transport_rate",
+        "-v_eta * k_eta - tau * v_xi",
+        "-v_eta * k_eta + tau * v_xi",
+        "^Seed 003",
+    ),
+    Mutation(
         "book ch. 2 δλ_q sign",
         "book ch. 2",
         "eq. 2.28: δλ_q = [1 + q‖∇θ‖², ½∇θ]",
