@@ -125,7 +125,7 @@ def table_1_1(phi: float, lam: float, eps: float) -> np.ndarray:
 
 
 def _track(t: float, h: float, v_ned: tuple[float, float], lat0: float = 0.6, lon0: float = 0.2, eps0: float = 0.7,
-           step: float = 0.5) -> np.ndarray:  # fmt: skip
+           step: float = 5.0) -> np.ndarray:  # fmt: skip
     """(φ, λ, ε) at t s along a track of constant NED ground velocity: the geodetic rates (seed 001 eqs. 55/56)
     and the semi-free azimuth rate integrated by RK4."""
     v = np.array([v_ned[0], v_ned[1], 0.0])
