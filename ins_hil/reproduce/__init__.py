@@ -141,7 +141,11 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         ),
         ("Book ch. 3–5 printed values (DIGEST_000 §8 cases 14, 15, 17–19, 21–26)", book_tables.rows),
         ("Book eq. 4.9: position-error growth against the strapdown", book_ch4.rows),
-        ("Seed 003: derived guards against its typos (DIGEST_001_004 §6 cases 24–27)", seed003.rows),
+        (
+            "Seed 003: guards against its typos (DIGEST_001_004 §6 cases 24–27), SLERP, the continuous–discrete "
+            "Kalman filter, the orthodromic frame",
+            seed003.rows,
+        ),
         ("Book Ex 5.3: isolation from the estimated gyro bias (units of a₁)", book_ch5.rows),
         ("Seed 004: platform INS with precession-angle sensors (DIGEST_001_004 §6 cases 28–31)", seed004.rows),
     ]
