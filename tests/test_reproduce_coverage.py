@@ -31,7 +31,7 @@ def test_every_selector_matches_and_every_row_has_a_case(rows) -> None:
 def test_markdown_lists_all_digest_cases_with_counts(rows) -> None:
     text = cv.markdown(rows)
     ids_seed = [c.id for c in cv.SEED_CASES]
-    assert ids_seed[0] == "001-A" and ids_seed[-1] == "004-D" and len(ids_seed) == 32  # 31 digest cases + 003-E
+    assert ids_seed[0] == "001-A" and ids_seed[-1] == "004-D" and len(ids_seed) == 35  # + 001-M, 003-E…G
     for c in CASES:
         assert f"| {c.id} | {c.what} |" in text
     n = cv.counts(rows)

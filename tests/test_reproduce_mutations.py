@@ -15,6 +15,10 @@ BY_ID = {m.id: m for m in mu.MUTATIONS}
 
 def test_the_list_covers_the_issue_and_every_seed() -> None:
     assert {"004-D adaptation off", "004-B eq. 5 cross-term sign", "Ex 3.x halved attitude feedback"} <= set(BY_ID)
+    # one for each algorithm added for issue 43: the continuous–discrete filter, the i-/e-frame mechanizations,
+    # the orthodromic frame
+    assert {"003 continuous–discrete Ṗ", "001 e-frame Coriolis", "001 i-frame gravity for gravitation",
+            "003 orthodromic torsion sign"} <= set(BY_ID)  # fmt: skip
     assert {"seed 001", "seed 002", "seed 003", "seed 004"} <= {m.source for m in mu.MUTATIONS}
     assert len(BY_ID) == len(mu.MUTATIONS)
 
@@ -64,6 +68,8 @@ def test_fast_mutations_are_caught_in_process() -> None:
         for mid in (
             "003 SLERP rotation order",
             "003 J2 polar term",
+            "003 continuous–discrete Ṗ",
+            "003 orthodromic torsion sign",
             "book ch. 2 δλ_q sign",
             "book ch. 5 decision rule",
         ):

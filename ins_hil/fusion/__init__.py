@@ -12,6 +12,9 @@ Modules
   Cholesky factors, Bierman UD + Thornton, observability rank.
 * :mod:`ins_hil.fusion.innovation` — gating (test ratio, NIS) and bounded Sage–Husa adaptive R.
 * :mod:`ins_hil.fusion.book` — the book's own 9/12-state Φ and H (eqs. 3.2, 3.3, 3.30, 3.41–3.43).
+* :mod:`ins_hil.fusion.continuous_discrete` — linear filters for ẋ = Ax + Bu + ξ with asynchronous
+  per-sensor updates: seed 003's continuous–discrete filter (Ṗ = AP + PAᵀ + Q by RK4) or the exact discrete
+  one, by name (``make_linear_filter``); analysis tools, not the core's filter.
 
 Conventions (DIGEST_000 §9)
 ---------------------------

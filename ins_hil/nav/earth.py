@@ -85,6 +85,30 @@ def gravity_j2_ned(lat: float, h: float = 0.0) -> Vec:
     return np.array([g_n, 0.0, g_d])
 
 
+def gravity_model_ned(lat: float, h: float, model: str = "normal") -> Vec:
+    """Gravity in NED (m/s²) of a named model (:data:`GRAVITY_MODELS`): "normal" :func:`gravity_ned`, "j2"
+    :func:`gravity_j2_ned`."""
+    if model == "normal":
+        return gravity_ned(lat, h)
+    if model == "j2":
+        return gravity_j2_ned(lat, h)
+    raise ValueError(f"gravity model {model!r}: expected one of {GRAVITY_MODELS}")
+
+
+def gravity_ecef(r_e: Vec, model: str = "normal") -> Vec:
+    """Gravity g^e (m/s², ECEF) at the ECEF point r_e (m): the NED model at its geodetic latitude and height,
+    rotated to ECEF (seed 001 eq. 10 with the normal gravity of eq. 11: gravitation minus the centripetal term)."""
+    lat, lon, h = ecef_to_geodetic(r_e)
+    return dcm_ecef_to_ned(lat, lon).T @ gravity_model_ned(lat, h, model)
+
+
+def gravitation_ecef(r_e: Vec, model: str = "normal") -> Vec:
+    """Gravitation ḡ^e = g^e + Ω_ie Ω_ie r^e (m/s², ECEF; seed 001 eq. 10 solved for ḡ): gravity without the
+    centrifugal part, what an inertial-frame mechanization integrates."""
+    w2 = OMEGA_E * OMEGA_E
+    return gravity_ecef(r_e, model) - w2 * np.array([float(r_e[0]), float(r_e[1]), 0.0])
+
+
 def earth_rate_ned(lat: float) -> Vec:
     """ω_ie^n in NED (rad/s): (ω_e cos φ, 0, −ω_e sin φ) (seed 001 eq. 67 in NED)."""
     return np.array([OMEGA_E * math.cos(lat), 0.0, -OMEGA_E * math.sin(lat)])

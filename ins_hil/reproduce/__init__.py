@@ -117,6 +117,7 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         seed001,
         seed001_frames,
         seed001_jacobian,
+        seed001_mech,
         seed002,
         seed003,
         seed004,
@@ -132,6 +133,7 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
             seed001_frames.rows,
         ),
         ("Seed 001: error-model F vs finite differences (DIGEST_001_004 §6 case 11)", seed001_jacobian.rows),
+        ("Seed 001: i- and e-frame mechanizations vs the NED one (seed 001 §3.2.1–3.2.2)", seed001_mech.rows),
         ("Book §3.1: square-root QR with a singular r, operation counts (DIGEST_000 §8 cases 16, 36)", book_ch3.rows),
         (
             "Book Ex 3.1–3.3 closed loops, the §6.1 lab and §6.5 outage analogues (DIGEST_000 §8 cases 27, 28)",
@@ -139,7 +141,11 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         ),
         ("Book ch. 3–5 printed values (DIGEST_000 §8 cases 14, 15, 17–19, 21–26)", book_tables.rows),
         ("Book eq. 4.9: position-error growth against the strapdown", book_ch4.rows),
-        ("Seed 003: derived guards against its typos (DIGEST_001_004 §6 cases 24–27)", seed003.rows),
+        (
+            "Seed 003: guards against its typos (DIGEST_001_004 §6 cases 24–27), SLERP, the continuous–discrete "
+            "Kalman filter, the orthodromic frame",
+            seed003.rows,
+        ),
         ("Book Ex 5.3: isolation from the estimated gyro bias (units of a₁)", book_ch5.rows),
         ("Seed 004: platform INS with precession-angle sensors (DIGEST_001_004 §6 cases 28–31)", seed004.rows),
     ]

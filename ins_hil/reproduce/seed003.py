@@ -1,6 +1,7 @@
 """Seed 003 derived guards (DIGEST_001_004 §3, §6 cases 24–27): the thesis prints no results, so these
 rows check that its typos are not copied: the DCM (003-A), the quaternion product (003-B), the J2
-gravity constant (003-C) and Table 1.1 (003-D)."""
+gravity constant (003-C) and Table 1.1 (003-D); and the algorithms it describes without numbers, held against
+independent formulations: SLERP (003-E) and the continuous–discrete Kalman filter (003-F)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from ins_hil.nav import earth
+from ins_hil.fusion.continuous_discrete import make_linear_filter
+from ins_hil.nav import earth, orthodromic
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
 from ins_hil.nav.rotation import quat_angle_between, quat_from_rotvec, quat_mul, quat_slerp
 
@@ -117,15 +119,119 @@ def j2_navigation_drift(lat: float = math.radians(45.0), h: float = 100.0, secon
 
 
 def table_1_1(phi: float, lam: float, eps: float) -> np.ndarray:
-    """Corrected Table 1.1 (Greenwich → orthodromic direction cosines)."""
-    sf, cf, sl, cl, se, ce = math.sin(phi), math.cos(phi), math.sin(lam), math.cos(lam), math.sin(eps), math.cos(eps)
-    return np.array(
-        [
-            [-sf * cl * se - sl * ce, -sf * sl * se + cl * ce, cf * se],
-            [-sf * cl * ce + sl * se, -sf * sl * ce - cl * se, cf * ce],
-            [cf * cl, cf * sl, sf],
-        ]
-    )
+    """Corrected Table 1.1 (Greenwich → orthodromic direction cosines): the library's
+    :func:`~ins_hil.nav.orthodromic.dcm_ecef_to_orthodromic`."""
+    return orthodromic.dcm_ecef_to_orthodromic(phi, lam, eps)
+
+
+def _track(t: float, h: float, v_ned: tuple[float, float], lat0: float = 0.6, lon0: float = 0.2, eps0: float = 0.7,
+           step: float = 5.0) -> np.ndarray:  # fmt: skip
+    """(φ, λ, ε) at t s along a track of constant NED ground velocity: the geodetic rates (seed 001 eqs. 55/56)
+    and the semi-free azimuth rate integrated by RK4."""
+    v = np.array([v_ned[0], v_ned[1], 0.0])
+
+    def f(y: np.ndarray) -> np.ndarray:
+        dlat, dlon, _ = earth.geodetic_rates(float(y[0]), h, v)
+        return np.array([dlat, dlon, orthodromic.azimuth_rate(float(y[0]), h, v_ned[1])])
+
+    y = np.array([lat0, lon0, eps0])
+    n = max(1, math.ceil(abs(t) / step))
+    dt = t / n
+    for _ in range(n):
+        k1 = f(y)
+        k2 = f(y + 0.5 * dt * k1)
+        k3 = f(y + 0.5 * dt * k2)
+        k4 = f(y + dt * k3)
+        y = y + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return y
+
+
+def orthodromic_figures() -> dict[str, float]:
+    """003-G: eq. 1.5 (corrected, exact radii) against the angular velocity of Table 1.1's DCM by central
+    differences (±0.5 s) along a 3000-s track at 3 km, 150 m/s N, −220 m/s E; against the NED transport rate
+    rotated to the frame (horizontal components); eq. 1.6's series (corrected and printed) against the exact
+    curvature over a grid of φ, ε, h."""
+    h, vel = 3000.0, (150.0, -220.0)
+    fd = vert = ned = 0.0
+    for t in np.linspace(0.0, 3000.0, 7):
+        y = _track(float(t), h, vel)
+        C = table_1_1(*y)
+        dC = (table_1_1(*_track(float(t) + 0.5, h, vel)) - table_1_1(*_track(float(t) - 0.5, h, vel))) / 1.0
+        W = -dC @ C.T  # Ċ_e^o = −[ω⁰×] C_e^o
+        w_fd = np.array([W[2, 1], W[0, 2], W[1, 0]])
+        v_o = orthodromic.dcm_ned_to_orthodromic(float(y[2])) @ np.array([vel[0], vel[1], 0.0])
+        w = orthodromic.transport_rate(float(y[0]), h, float(y[2]), float(v_o[0]), float(v_o[1]))
+        scale = float(np.linalg.norm(w))
+        fd = max(fd, float(np.linalg.norm(w_fd[:2] - w[:2])) / scale)
+        vert = max(vert, abs(float(w_fd[2])) / scale)
+        w_ned = earth.transport_rate_ned(float(y[0]), h, np.array([vel[0], vel[1], 0.0]))
+        w_n = orthodromic.dcm_ned_to_orthodromic(float(y[2])) @ w_ned
+        ned = max(ned, float(np.linalg.norm(w_n[:2] - w[:2])) / scale)
+    series = printed = 0.0
+    e2 = earth.E2_WGS84
+    for lat in np.radians(np.arange(-80.0, 81.0, 10.0)):
+        for eps in np.radians(np.arange(0.0, 360.0, 15.0)):
+            for hh in (0.0, 10000.0):
+                C = table_1_1(float(lat), 0.3, float(eps))
+                b13, b23, b33 = C[0, 2], C[1, 2], C[2, 2]
+                ex = orthodromic.curvature(float(lat), hh, float(eps))
+                se = orthodromic.curvature_series(b13, b23, b33, hh)
+                series = max(series, *(abs(a / b - 1.0) for a, b in zip(se[:2], ex[:2], strict=True)),
+                             abs(se[2] - ex[2]) * earth.A_WGS84)  # fmt: skip
+                base = 1.0 - 0.5 * e2 * b33 * b33 - hh / earth.A_WGS84
+                pr = ((base + 0.5 * e2 * b13 * b13), (base + 0.5 * e2 * b23 * b23))
+                printed = max(printed, *(abs(a / earth.A_WGS84 / b - 1.0) for a, b in zip(pr, ex[:2], strict=True)))
+    # eq. 1.5 as printed: ω⁰_η = −V_ξ/R_ξ − (v_η/a) e² b₁₃ b₂₃, against the corrected one (ε = 0.7, 45°)
+    k_xi, _, _ = orthodromic.curvature(math.radians(45.0), 0.0, 0.7)
+    C = table_1_1(math.radians(45.0), 0.3, 0.7)
+    vx, vy = 120.0, -80.0
+    w = orthodromic.transport_rate(math.radians(45.0), 0.0, 0.7, vx, vy)
+    w_eta_printed = -vx * k_xi - vy / earth.A_WGS84 * e2 * C[0, 2] * C[1, 2]
+    return {"fd": fd, "vertical": vert, "ned": ned, "series": series, "printed16": printed,
+            "printed15": w_eta_printed / float(w[1])}  # fmt: skip
+
+
+def cd_kf_figures() -> dict[str, float]:
+    """003-F: the continuous–discrete filter (RK4, 0.01-s sub-steps) against independent forms.
+
+    * a scalar model ẋ = ax + bu + ξ with one sensor at 25 irregular times against the closed form
+      p(t) = (p₀ + q/2a) e^{2at} − q/2a, x(t) = x₀e^{at} + bu(e^{at} − 1)/a, p⁺ = p r/(p + r);
+    * a position–velocity–bias model with a position sensor (~1 Hz) and a velocity sensor (~3 Hz) at their own
+      interleaved times against the exact (Van Loan) discrete filter;
+    * the RK4 error ratio at sub-steps 0.5 s / 0.25 s over 3 s (fourth order: 16)."""
+    rng = np.random.default_rng(3)
+    a, b, q, r, u = -0.4, 2.0, 0.3, 0.5, 0.7
+    times = np.cumsum(rng.uniform(0.01, 0.9, 25))
+    ys = rng.normal(2.0, 1.0, 25)
+    f = make_linear_filter("continuous_discrete", [[a]], [[q]], [1.0], [[4.0]], {"s": ([[1.0]], [[r]])}, B=[[b]],
+                           max_step=0.01)  # fmt: skip
+    f.run([(float(t), "s", [float(y)]) for t, y in zip(times, ys, strict=True)], u=[u])
+    t0, x, p = 0.0, 1.0, 4.0
+    for tn, y in zip(times, ys, strict=True):
+        e = math.exp(a * (tn - t0))
+        x, p = x * e + b * u * (e - 1.0) / a, (p + q / (2 * a)) * e * e - q / (2 * a)
+        k = p / (p + r)
+        x, p, t0 = x + k * (y - x), (1 - k) * p, tn
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [0.0, 0.0, -1.0 / 50.0]])
+    Q = np.diag([0.0, 0.04, 2 * 0.01**2 / 50.0])
+    P0 = np.diag([25.0, 1.0, 0.01])
+    sensors = {"pos": (np.array([[1.0, 0.0, 0.0]]), np.array([[4.0]])),
+               "vel": (np.array([[0.0, 1.0, 0.0]]), np.array([[0.01]]))}  # fmt: skip
+    meas = [(float(t), "pos", rng.normal(size=1)) for t in np.cumsum(rng.uniform(0.8, 1.2, 30))]
+    meas += [(float(t), "vel", rng.normal(size=1)) for t in np.cumsum(rng.uniform(0.15, 0.45, 90))]
+    cd = make_linear_filter("continuous_discrete", A, Q, np.zeros(3), P0, sensors, max_step=0.01).run(meas)
+    dk = make_linear_filter("discrete", A, Q, np.zeros(3), P0, sensors).run(meas)
+    dp = max(float(np.max(np.abs(c[2] - d[2])) / np.max(np.abs(d[2]))) for c, d in zip(cd, dk, strict=True))
+    dx = max(float(np.max(np.abs(c[1] - d[1]))) for c, d in zip(cd, dk, strict=True))
+    ref = make_linear_filter("discrete", A, Q, np.zeros(3), P0)
+    ref.predict_to(3.0)
+    err = []
+    for h in (0.5, 0.25):
+        g = make_linear_filter("continuous_discrete", A, Q, np.zeros(3), P0, max_step=h)
+        g.predict_to(3.0)
+        err.append(float(np.max(np.abs(g.P - ref.P))))
+    return {"scalar_p": abs(float(f.P[0, 0]) / p - 1.0), "scalar_x": abs(float(f.x[0]) - x), "vl_p": dp,
+            "vl_x": dx, "order": err[0] / err[1], "updates": float(len(cd))}  # fmt: skip
 
 
 @lru_cache(maxsize=1)
@@ -238,5 +344,37 @@ def rows() -> list[Row]:
             "small-angle safe"),
         Row(g, "printed formula, attitudes 1e-10 rad apart: finite (1 = yes)", None, s["small_printed_finite"], 0.0,
             "abs", 0.0, "cos θ rounds to 1, θ = 0: 0/0", typo=True),
+    ]  # fmt: skip
+    g = ("003-F continuous–discrete KF, ins_hil.fusion.continuous_discrete (seed 003 lines 782–866; the thesis "
+         "prints no numbers)")  # fmt: skip
+    c = cd_kf_figures()
+    out += [
+        Row(g, "scalar, 25 irregular updates: |p/p_closed-form − 1|", None, c["scalar_p"], 1e-10, "abs", 0.0,
+            "Ṗ = 2ap + q solved in closed form between the updates"),
+        Row(g, "scalar, 25 irregular updates: |x̂ − x̂_closed-form|", None, c["scalar_x"], 1e-10, "abs", 0.0),
+        Row(g, "2 asynchronous sensors, 120 updates: max |P − P_VanLoan| / max |P_VanLoan|", None, c["vl_p"], 1e-9,
+            "abs", 0.0, "the exact discretisation e^{AΔt}, ∫e^{As}Qe^{Aᵀs}ds of each interval"),
+        Row(g, "2 asynchronous sensors, 120 updates: max |x̂ − x̂_VanLoan|", None, c["vl_x"], 1e-9, "abs", 0.0),
+        Row(g, "RK4 sub-step 0.5 s / 0.25 s: error ratio of P over 3 s", None, c["order"], 0.25, "rel", 16.0,
+            "fourth order"),
+    ]  # fmt: skip
+    g = "003-G orthodromic frame, ins_hil.nav.orthodromic (seed 003 eqs. 1.5–1.6, Table 1.1; no printed numbers)"
+    o = orthodromic_figures()
+    e2 = earth.E2_WGS84
+    out += [
+        Row(g, "eq. 1.5 vs ω of Table 1.1's DCM by central differences, 3000-s track: max |Δω|/|ω| (horizontal)",
+            None, o["fd"], 1e-7, "abs", 0.0, "an independent formulation: the frame's own rotation"),
+        Row(g, "vertical ω⁰_ζ of Table 1.1's DCM with the semi-free ε̇ = −v_E tan φ/(N + h): max |ω_ζ|/|ω|", None,
+            o["vertical"], 1e-7, "abs", 0.0),
+        Row(g, "eq. 1.5 vs the NED transport rate rotated to the frame (horizontal): max |Δω|/|ω|", None, o["ned"],
+            1e-12, "abs", 0.0, "earth.transport_rate_ned"),
+        Row(g, "eq. 1.6 series, e²·b₁₃² corrected: max relative error of 1/R_ξ, 1/R_η (a·|Δτ|) vs exact", None,
+            o["series"], 0.0, "le", 2.0 * e2 * e2, "second order in e²: within 2e⁴"),
+        Row(g, "eq. 1.6 as printed (½e²·b₁₃²): max relative error vs exact", None, o["printed16"], 0.03, "rel",
+            0.5 * e2, "½e²: the meridian curvature at the equator is (1 + e²)/a, the printed form (1 + ½e²)/a",
+            typo=True),
+        Row(g, "eq. 1.5 as printed: ω⁰_η(printed) / ω⁰_η(corrected)", None, o["printed15"], 1e-4, "abs", -1.0,
+            "the whole component's sign reversed (ε = 0 must give the ENU ω_N = +v_E/(N + h)); −1 to the torsion's e⁴",
+            typo=True),
     ]  # fmt: skip
     return out

@@ -1,0 +1,104 @@
+"""Seed 001 §3.2.1–3.2.2: the i-frame and e-frame mechanizations held against the local-level (NED) one.
+
+The three integrate the same IMU increments from one initial state (:mod:`ins_hil.nav.mechanization_ie`,
+:class:`~ins_hil.nav.mechanization.StrapdownNED`); the NED state is taken to ECEF / ECI and compared:
+position |Δr|/|r|, velocity |Δv|/|v^i| (v^i the inertial velocity, ≈ 330 m/s at 45°: an Earth-fixed vehicle
+has v^e = 0), attitude the angle between the two (rad). The seed prints no numbers (001-M).
+
+* An Earth-fixed vehicle (45° N, tilted attitude) for 1 h at 100 Hz: the three agree to ≤ 1e-9.
+* A constant-velocity cruise (100 m/s) for 20 min: the i- and e-frame ones agree to ≤ 1e-9 with each other;
+  the NED one differs from both by its own first-order error (it takes Earth and transport rate at the
+  start of each interval), which halves when the step halves.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
+from ins_hil.nav.mechanization_ie import (
+    FrameState,
+    StrapdownECEF,
+    StrapdownECI,
+    ecef_from_eci,
+    ecef_from_ned,
+    eci_from_ecef,
+)
+from ins_hil.nav.rotation import quat_angle_between
+from ins_hil.sim import trajectory as tr
+from ins_hil.types import Vec
+
+from . import Row
+
+LAT, LON, H = math.radians(45.0), math.radians(10.0), 100.0
+
+
+def cruise_profile(vel_ned: tuple[float, float, float] = (60.0, 80.0, 0.0),
+                   euler: tuple[float, float, float] = (0.05, 0.02, 0.9)) -> tr.Profile:  # fmt: skip
+    """Constant NED velocity (m/s) and constant roll/pitch/yaw (rad)."""
+    v, e = np.array(vel_ned), np.array(euler)
+
+    def prof(t: Vec) -> tr.Kinematics:
+        m = np.size(t)
+        z = np.zeros((m, 3))
+        return tr.Kinematics(np.tile(e, (m, 1)), z, np.tile(v, (m, 1)), z.copy())
+
+    return prof
+
+
+def _diff(a: FrameState, b: FrameState, v_scale: float) -> tuple[float, float, float]:
+    return (float(np.linalg.norm(a.r - b.r) / np.linalg.norm(b.r)), float(np.linalg.norm(a.v - b.v)) / v_scale,
+            quat_angle_between(a.q_xb, b.q_xb))  # fmt: skip
+
+
+@lru_cache(maxsize=4)
+def compare(profile: str, dt: float, seconds: float) -> dict[str, tuple[float, float, float]]:
+    """Max over the run (checked every 10 s) of (position, velocity, attitude) differences: "e-NED", "i-NED",
+    "i-e" (see the module docstring). ``profile``: "static" (45° N, roll 0.1, pitch −0.2, yaw 1.0 rad) or
+    "cruise" (:func:`cruise_profile`)."""
+    prof = tr.static_profile(0.1, -0.2, 1.0) if profile == "static" else cruise_profile()
+    T = tr.generate(prof, seconds, dt, LAT, LON, H)
+    s0 = StrapdownState(T.q_nb[0].copy(), T.vel_ned[0].copy(), LAT, LON, H)
+    ned = StrapdownNED(s0.copy())
+    e = StrapdownECEF(ecef_from_ned(s0))
+    i = StrapdownECI(eci_from_ecef(ecef_from_ned(s0)))
+    every = round(10.0 / dt)
+    worst = {k: (0.0, 0.0, 0.0) for k in ("e-NED", "i-NED", "i-e")}
+    for k in range(len(T.dtheta)):
+        a, b = T.dtheta[k], T.dvel[k]
+        ned.step(a, b, dt)
+        e.step(a, b, dt)
+        i.step(a, b, dt)
+        if (k + 1) % every and k + 1 != len(T.dtheta):
+            continue
+        E = ecef_from_ned(ned.state)
+        Ii = eci_from_ecef(E)
+        vs = float(np.linalg.norm(Ii.v))
+        for key, d in (("e-NED", _diff(e.state, E, vs)), ("i-NED", _diff(i.state, Ii, vs)),
+                       ("i-e", _diff(ecef_from_eci(i.state), e.state, vs))):  # fmt: skip
+            worst[key] = tuple(max(x, y) for x, y in zip(worst[key], d, strict=True))  # type: ignore[assignment]
+    return worst
+
+
+@lru_cache(maxsize=1)
+def rows() -> list[Row]:
+    g = "001-M i- and e-frame mechanizations vs NED (seed 001 eqs. 45, 51; nav.mechanization_ie)"
+    out: list[Row] = []
+    st = compare("static", 0.01, 3600.0)
+    names = ("position |Δr|/|r|", "velocity |Δv|/|vⁱ|", "attitude [rad]")
+    for key, frame in (("e-NED", "e-frame"), ("i-NED", "i-frame")):
+        for j, what in enumerate(names):
+            out.append(Row(g, f"{frame} − NED, Earth-fixed, 1 h at 100 Hz: max {what}", None, st[key][j], 1e-9, "le",
+                           1e-9, "the NED state taken to the frame"))  # fmt: skip
+    c10, c20 = compare("cruise", 0.1, 1200.0), compare("cruise", 0.05, 1200.0)
+    for j, what in enumerate(names):
+        out.append(Row(g, f"i-frame − e-frame, 100 m/s cruise, 20 min at 10 Hz: max {what}", None, c10["i-e"][j],
+                       1e-9, "le", 1e-9))  # fmt: skip
+    out.append(Row(g, "NED − e-frame, cruise, 20 min: max attitude difference at 10 Hz / at 20 Hz", None,
+                   c10["e-NED"][2] / c20["e-NED"][2], 0.05, "rel", 2.0,
+                   "first order in the step: the NED mechanization's start-of-interval Earth and transport rates "
+                   "(the e- and i-frame ones agree with each other)"))  # fmt: skip
+    return out
