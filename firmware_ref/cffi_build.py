@@ -40,10 +40,15 @@ typedef struct {{
     int second_order; ins_real gate_gnss, gate_baro; int gnss_reset_after;
     ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; int use_gnss_vel; ins_real baro_std;
     int have_baro_offset; double baro_offset; double baro_offset_tau;
+    ins_real lever_arm[3]; ins_real gnss_std_scale; ins_real gyro_vib_gain, accel_vib_gain, vib_tau; int cov_every;
+    int nhc, nhc_vertical, zupt, zaru;
+    ins_real nhc_std, nhc_std_vertical, nhc_rate, nhc_min_speed;
+    ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std;
+    ins_real aids_gate; ins_real g_local;
 }} ins_ekf_cfg_t;
 typedef struct {{
     ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
-    ins_pos baro_offset; uint32_t accepted[3], rejected[3], consecutive[3]; ins_real last_ratio[3];
+    ins_pos baro_offset; uint32_t accepted[5], rejected[5], consecutive[5]; ins_real last_ratio[5];
     uint32_t n_predict; ...;
 }} ins_ekf_t;
 typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; }} ins_core_t;

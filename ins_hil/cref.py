@@ -8,10 +8,11 @@ compiled at install time by cffi (``firmware_ref/cffi_build.py``) into
 
 The C filter mirrors ``ins_hil.fusion`` (15 states, Joseph sequential scalar
 updates, the same gates and feedback) for the ``NavConfig`` settings it
-supports (others raise ``ValueError`` naming them): GNSS position/velocity
-without lever arm and baro; no magnetometer (ignored), adaptive R, NHC/ZUPT,
-alignment or delayed-fusion roll-back (a fix from the past is shifted by v·Δt
-and fused at the current step; NavCore rolls back instead).
+supports: GNSS position/velocity with lever arm and σ scale, baro, the vibration
+noise, ``cov_every``, NHC and ZUPT/ZARU. Others raise ``ValueError`` naming them
+(the list and the reasons: docs/ref_core.md). Magnetometer samples are ignored
+(``mag.ref_ned`` is refused). A fix from the past is shifted by v·Δt and fused
+at the current step (NavCore rolls back instead).
 
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
 sample's ``dt``), as firmware does: a sample whose ``dt`` differs from it by more
@@ -62,6 +63,10 @@ def available() -> bool:
 def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     """The C filter configuration from a NavConfig; ValueError for what the C core lacks."""
     f = cfg.filter
+    a = cfg.aids
+    # what stays Python-only (docs/ref_core.md, "What the C core runs"): the extra error states, other numerics,
+    # the model switches, adaptive R, the mounted NHC, the drag aid, the no-aid hold, the magnetometer,
+    # alignment, and a velocity delay (it needs the roll-back of delayed fusion)
     unsupported = {
         "filter.gyro_bias": not f.gyro_bias,
         "filter.accel_bias": not f.accel_bias,
@@ -69,18 +74,14 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "filter.gyro_gsens": f.gyro_gsens,
         "filter.mag_bias": f.mag_bias,
         "filter.wind_states": f.wind_states,
-        "filter.gyro_vib_gain": f.gyro_vib_gain != 0.0,
-        "filter.accel_vib_gain": f.accel_vib_gain != 0.0,
+        "filter.mount_states": f.mount_states,
         "filter.numerics": f.numerics != "joseph",
-        "filter.cov_every": f.cov_every != 1,
         "filter.earth_terms": not f.earth_terms,
         "filter.omega_rv_terms": f.omega_rv_terms,
-        "gnss.lever_arm_b": bool(np.any(np.asarray(cfg.gnss.lever_arm_b) != 0.0)),
-        "gnss.std_scale": cfg.gnss.std_scale != 1.0,
         "adaptive": cfg.adaptive,
-        "aids.nhc": cfg.aids.nhc,
-        "aids.zupt": cfg.aids.zupt,
-        "aids.drag": cfg.aids.drag,
+        "aids.nhc_lever_b": a.nhc and bool(np.any(np.asarray(a.nhc_lever_b) != 0.0)),
+        "aids.nhc_pitch_per_accel": a.nhc and a.nhc_pitch_per_accel != 0.0,
+        "aids.drag": a.drag,
         "hold.enabled": cfg.hold.enabled,
         "mag.ref_ned": cfg.mag.ref_ned is not None,
         "alignment.mode": cfg.alignment.mode != "given",
@@ -109,14 +110,39 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "gnss_min_std_d": cfg.gnss.min_std[1],
         "gnss_min_std_vel": cfg.gnss.min_std[2],
         "baro_std": cfg.baro.std,
+        "gnss_std_scale": cfg.gnss.std_scale,
+        "gyro_vib_gain": f.gyro_vib_gain,
+        "accel_vib_gain": f.accel_vib_gain,
+        "vib_tau": f.vib_tau,
+        "nhc_std": a.nhc_std,
+        "nhc_std_vertical": a.nhc_std_vertical,
+        "nhc_rate": a.nhc_rate,
+        "nhc_min_speed": a.nhc_min_speed,
+        "zupt_std": a.zupt_std,
+        "zupt_gyro": a.zupt_gyro,
+        "zupt_accel": a.zupt_accel,
+        "zupt_time": a.zupt_time,
+        "zupt_tau": a.zupt_tau,
+        "zupt_max_speed": a.zupt_max_speed,
+        "zaru_std": a.zaru_std,
+        "aids_gate": a.gate,
     }
     for name, value in pairs.items():
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"CNavCore: config value {name}={value!r} must be finite and >= 0")
         setattr(c, name, float(value))
-    for name in ("gyro_bias_tau", "accel_bias_tau"):
+    for name in ("gyro_bias_tau", "accel_bias_tau", "vib_tau", "nhc_rate", "zupt_tau"):
         if not pairs[name] > 0.0:
-            raise ValueError(f"CNavCore: filter.{name}={pairs[name]!r} must be > 0")
+            raise ValueError(f"CNavCore: {name}={pairs[name]!r} must be > 0")
+    lever = np.asarray(cfg.gnss.lever_arm_b, dtype=np.float64)
+    if lever.shape != (3,) or not np.all(np.isfinite(lever)):
+        raise ValueError(f"CNavCore: gnss.lever_arm_b={cfg.gnss.lever_arm_b!r} must be 3 finite numbers")
+    for i in range(3):
+        c.lever_arm[i] = float(lever[i])
+    c.cov_every = int(f.cov_every)
+    c.nhc, c.nhc_vertical, c.zupt = int(a.nhc), int(a.nhc_vertical), int(a.zupt)
+    c.zaru = int(a.zaru and f.gyro_bias)
+    c.g_local = 9.80665  # NavCore's gravity of the rest detector with alignment.mode = "given"
     c.second_order = 1 if f.second_order else 0
     c.have_baro_offset = 0 if cfg.baro.offset is None else 1
     c.baro_offset = 0.0 if cfg.baro.offset is None else float(cfg.baro.offset)
@@ -128,7 +154,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     return c
 
 
-_GROUPS = ("gnss_pos", "gnss_vel", "baro")
+_GROUPS = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt")
 
 
 #: columns of CNavCore.run's output array

@@ -139,9 +139,19 @@ typedef struct {
     int have_baro_offset;  /* 1: baro_offset is given; 0: from the first sample, then calibrated against GNSS */
     double baro_offset;    /* ellipsoidal height of the baro altitude datum, m */
     double baro_offset_tau; /* time constant of that calibration, s (<= 0: off) */
+    ins_real lever_arm[3];  /* IMU -> GNSS antenna, body FRD, m (NavConfig.gnss.lever_arm_b) */
+    ins_real gnss_std_scale; /* factor on the floored GNSS sigmas (gnss.std_scale) */
+    ins_real gyro_vib_gain, accel_vib_gain, vib_tau; /* vibration noise (FilterConfig.*_vib_gain, vib_tau s) */
+    int cov_every;         /* propagate P every N steps with the averaged specific force (>= 1) */
+    /* ground-vehicle aids (NavConfig.aids, without lever arm / mounting states) */
+    int nhc, nhc_vertical, zupt, zaru;
+    ins_real nhc_std, nhc_std_vertical, nhc_rate, nhc_min_speed;  /* m/s, m/s, Hz, m/s */
+    ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std;
+    ins_real aids_gate;    /* innovation gate of the aids, sigma */
+    ins_real g_local;      /* gravity of the rest detector, m/s^2 */
 } ins_ekf_cfg_t;
 
-enum { INS_GRP_GNSS_POS = 0, INS_GRP_GNSS_VEL = 1, INS_GRP_BARO = 2, INS_NGRP = 3 };
+enum { INS_GRP_GNSS_POS = 0, INS_GRP_GNSS_VEL = 1, INS_GRP_BARO = 2, INS_GRP_NHC = 3, INS_GRP_ZUPT = 4, INS_NGRP = 5 };
 
 typedef struct {
     ins_real P[INS_NX][INS_NX];
@@ -164,6 +174,20 @@ typedef struct {
     uint32_t accepted[INS_NGRP], rejected[INS_NGRP], consecutive[INS_NGRP];
     ins_real last_ratio[INS_NGRP];
     uint32_t n_predict;
+    ins_real lever[3], std_scale;
+    /* vibration noise: gains, tau, previous compensated rate/force (body) and E[d^2] per axis */
+    ins_real vib_gain[2], vib_tau, vib_prev[6], vib_var[6];
+    int vib, have_vib_prev;
+    /* cov_every accumulators */
+    int cov_every, acc_n;
+    ins_real acc_dt, acc_f[3], acc_q[2][3][3];
+    /* ground aids: rest detector and NHC/ZUPT settings */
+    int nhc, nhc_vertical, zupt, zaru;
+    ins_real nhc_std, nhc_std_vertical, nhc_min_speed;
+    double nhc_period; /* s, 1 / nhc_rate (double: the tick times stay those of the Python) */
+    ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std, g_local;
+    double nhc_next, still_time;
+    ins_real ema_w[3], ema_f[3];
 } ins_ekf_t;
 
 /* Default configuration: the defaults of ins_hil.fusion.ekf.FilterConfig / ins_hil.core.NavConfig. */
@@ -172,6 +196,9 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg);
 /* Covariance predict over one step after ins_mech_step(): P = Phi P Phi^T + Q dt, with F from the
  * mechanization's last f_ned, Earth/transport rates and attitude (see ekf.c). */
 void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m);
+/* Predict with the vibration noise (w_b, f_b: this step's compensated body rate rad/s and specific force
+ * m/s^2) and the cov_every accumulation, as ErrorStateEKF.predict. */
+void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[3], const ins_real f_b[3]);
 /* Joseph-form scalar update for the residual z (measured - predicted, before x), row h, noise variance r. */
 void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r);
 /* Symmetrise P (after a group of scalar updates). */

@@ -14,6 +14,8 @@ void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_
     c->steps = 0;
 }
 
+static void ground_aids(ins_core_t *c, const ins_real w_b[3]);
+
 void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end) {
     ins_real a[3], u[3];
     const ins_real dt = c->mech.dt;
@@ -24,7 +26,15 @@ void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], d
     }
     ins_mech_step(&c->mech, a, u);
     c->mech.t = t_end;
-    if (c->filter) ins_ekf_predict(&c->ekf, &c->mech);
+    if (c->filter) {
+        ins_real w_b[3], f_b[3];
+        for (i = 0; i < 3; ++i) {
+            w_b[i] = a[i] / dt;
+            f_b[i] = u[i] / dt;
+        }
+        ins_ekf_predict_full(&c->ekf, &c->mech, w_b, f_b);
+        ground_aids(c, w_b);
+    }
     c->steps++;
 }
 
@@ -52,18 +62,24 @@ static void set_state_sigma(ins_ekf_t *e, int k, const ins_real sd[3]) {
     for (i = 0; i < 3; ++i) e->P[k + i][k + i] = sd[i] * sd[i];
 }
 
-/* One measurement group with rows +-e_j (sign sg[i]) of the state, as NavCore._apply:
- * per-component gate (forced acceptance of a GNSS position after gnss_reset_after rejections),
- * sequential scalar Joseph updates, symmetrise, feedback. Returns 1 if accepted. */
-static int apply_group(ins_core_t *c, int grp, int n, const int *idx, const ins_real *sg, const ins_real *z,
-                       const ins_real *r) {
+/* One measurement group of n rows h (n x INS_NX), as NavCore._apply: per-component gate z_i^2 / (g^2 S_ii),
+ * S_ii = h_i P h_i^T + r_i (forced acceptance of a GNSS position after gnss_reset_after rejections), sequential
+ * scalar Joseph updates, symmetrise, feedback. Returns 1 if accepted. */
+static int apply_rows(ins_core_t *c, int grp, int n, ins_real h[][INS_NX], const ins_real *z, const ins_real *r) {
     ins_ekf_t *e = &c->ekf;
-    ins_real ratio = K(0.0), hv[INS_NX];
+    ins_real ratio = K(0.0);
     const ins_real g2 = e->gate[grp] * e->gate[grp];
-    int i, j, force;
+    int i, j, k, force;
     for (i = 0; i < n; ++i) {
-        const ins_real s = e->P[idx[i]][idx[i]] + r[i];
-        const ins_real q = z[i] * z[i] / (g2 * s);
+        ins_real s = K(0.0), q;
+        for (j = 0; j < INS_NX; ++j) {
+            ins_real acc = K(0.0);
+            if (h[i][j] == K(0.0)) continue;
+            for (k = 0; k < INS_NX; ++k) acc += e->P[j][k] * h[i][k];
+            s += h[i][j] * acc;
+        }
+        s += r[i];
+        q = z[i] * z[i] / (g2 * s);
         if (q > ratio || i == 0) ratio = q;
     }
     e->last_ratio[grp] = ratio;
@@ -75,66 +91,186 @@ static int apply_group(ins_core_t *c, int grp, int n, const int *idx, const ins_
     }
     e->accepted[grp]++;
     e->consecutive[grp] = 0;
-    for (i = 0; i < n; ++i) {
-        for (j = 0; j < INS_NX; ++j) hv[j] = K(0.0);
-        hv[idx[i]] = sg[i];
-        ins_ekf_update_scalar(e, hv, z[i], r[i]);
-    }
+    for (i = 0; i < n; ++i) ins_ekf_update_scalar(e, h[i], z[i], r[i]);
     ins_ekf_symmetrize(e);
     ins_ekf_feedback(e, &c->mech);
     return 1;
 }
 
+/* rows +-e_j (sign sg[i]) of the state */
+static int apply_group(ins_core_t *c, int grp, int n, const int *idx, const ins_real *sg, const ins_real *z,
+                       const ins_real *r) {
+    ins_real h[3][INS_NX];
+    int i, j;
+    for (i = 0; i < n; ++i) {
+        for (j = 0; j < INS_NX; ++j) h[i][j] = K(0.0);
+        h[i][idx[i]] = sg[i];
+    }
+    return apply_rows(c, grp, n, h, z, r);
+}
+
+/* [v x] into rows r0.. of h, columns col.. (h[r][col + k]) */
+static void put_skew(ins_real h[][INS_NX], int col, const ins_real v[3], ins_real s) {
+    h[0][col + 0] = K(0.0);
+    h[0][col + 1] = -s * v[2];
+    h[0][col + 2] = s * v[1];
+    h[1][col + 0] = s * v[2];
+    h[1][col + 1] = K(0.0);
+    h[1][col + 2] = -s * v[0];
+    h[2][col + 0] = -s * v[1];
+    h[2][col + 1] = s * v[0];
+    h[2][col + 2] = K(0.0);
+}
+
+static void mat_vec(const ins_real m[9], const ins_real v[3], ins_real out[3]) {
+    int i;
+    for (i = 0; i < 3; ++i) out[i] = m[3 * i] * v[0] + m[3 * i + 1] * v[1] + m[3 * i + 2] * v[2];
+}
+
 static ins_real maxr(ins_real a, ins_real b) { return a > b ? a : b; }
 
 int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
-    static const int ipos[3] = {0, 1, 2}, ivel[3] = {3, 4, 5};
-    static const ins_real plus[3] = {1, 1, 1};
     ins_mech_t *m = &c->mech;
     ins_ekf_t *e = &c->ekf;
-    const ins_real sne = maxr(g->std_ne, e->min_std[0]), sd = maxr(g->std_d, e->min_std[1]);
+    const ins_real sne = maxr(g->std_ne, e->min_std[0]) * e->std_scale;
+    const ins_real sd = maxr(g->std_d, e->min_std[1]) * e->std_scale;
     const ins_real lat = (ins_real)m->lat, h = (ins_real)m->h;
     const int have_vel = g->vel[0] == g->vel[0] && g->vel[1] == g->vel[1] && g->vel[2] == g->vel[2];
+    const int pos = g->lat == g->lat; /* NaN latitude: a velocity-only fix (gnss.vel_delay) */
     const int assume_now = g->t < m->t - 1.5 * (double)m->dt; /* late fix: valid now, no shift */
     const ins_real dtm = (ins_real)(m->t - g->t);
-    ins_real z[3], r[3], rm, rn;
-    int i, mask = 0;
+    ins_real z[3], r[3], rm, rn, cm[9], la[3], hr[3][INS_NX];
+    int i, j, mask = 0;
     radii(lat, &rm, &rn);
-    /* measured - computed, NED metres (seed 001 eq. 148 in metres), shifted to the step time */
-    z[0] = (ins_real)(g->lat - m->lat) * (rm + h);
-    z[1] = (ins_real)(g->lon - m->lon) * (rn + h) * RCOS(lat);
-    z[2] = -(ins_real)(g->h - m->h);
-    if (!assume_now)
-        for (i = 0; i < 3; ++i) z[i] = z[i] + m->v[i] * dtm;
-    r[0] = r[1] = sne * sne;
-    r[2] = sd * sd;
-    if ((int)e->consecutive[INS_GRP_GNSS_POS] >= e->gnss_reset_after) {
-        /* GNSS rejected for too long: the INS has drifted; re-initialise position/velocity sigma */
-        ins_real sp[3], sv[3];
-        for (i = 0; i < 3; ++i) {
-            sp[i] = RS(z[i] * z[i] + r[i]);
-            sv[i] = (have_vel ? RFABS(g->vel[i] - m->v[i]) : K(0.0)) + K(0.1);
+    ins_dcm_from_quat(m->q, cm);
+    mat_vec(cm, e->lever, la); /* C l: the antenna offset, NED */
+    if (pos) {
+        /* measured - computed antenna position, NED metres (seed 001 eq. 148 in metres), shifted to the step */
+        z[0] = (ins_real)(g->lat - m->lat) * (rm + h);
+        z[1] = (ins_real)(g->lon - m->lon) * (rn + h) * RCOS(lat);
+        z[2] = -(ins_real)(g->h - m->h);
+        for (i = 0; i < 3; ++i) z[i] = z[i] - la[i];
+        if (!assume_now)
+            for (i = 0; i < 3; ++i) z[i] = z[i] + m->v[i] * dtm;
+        r[0] = r[1] = sne * sne;
+        r[2] = sd * sd;
+        if ((int)e->consecutive[INS_GRP_GNSS_POS] >= e->gnss_reset_after) {
+            /* GNSS rejected for too long: the INS has drifted; re-initialise position/velocity sigma */
+            ins_real sp[3], sv[3];
+            for (i = 0; i < 3; ++i) {
+                sp[i] = RS(z[i] * z[i] + r[i]);
+                sv[i] = (have_vel ? RFABS(g->vel[i] - m->v[i]) : K(0.0)) + K(0.1);
+            }
+            set_state_sigma(e, 0, sp);
+            set_state_sigma(e, 3, sv);
+            e->consecutive[INS_GRP_GNSS_VEL] = 0;
         }
-        set_state_sigma(e, 0, sp);
-        set_state_sigma(e, 3, sv);
-        e->consecutive[INS_GRP_GNSS_VEL] = 0;
-    }
-    if (apply_group(c, INS_GRP_GNSS_POS, 3, ipos, plus, z, r)) {
-        mask |= 1;
-        if (g->t > e->t_gnss_ok) e->gnss_dt = g->t - e->t_gnss_ok < 1.0 ? g->t - e->t_gnss_ok : 1.0;
-        e->t_gnss_ok = g->t;
-        e->h_gnss = g->h;
-        e->gnss_var_d = (double)(sd * sd);
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < INS_NX; ++j) hr[i][j] = K(0.0);
+        for (i = 0; i < 3; ++i) hr[i][i] = K(1.0);
+        put_skew(hr, 6, la, K(1.0)); /* H_psi = [(C l) x] */
+        if (apply_rows(c, INS_GRP_GNSS_POS, 3, hr, z, r)) {
+            mask |= 1;
+            if (g->t > e->t_gnss_ok) e->gnss_dt = g->t - e->t_gnss_ok < 1.0 ? g->t - e->t_gnss_ok : 1.0;
+            e->t_gnss_ok = g->t;
+            e->h_gnss = g->h + (double)la[2]; /* the IMU height (BaroDatum.gnss_height: C at the fusion) */
+            e->gnss_var_d = (double)(sd * sd);
+        }
     }
     if (e->use_gnss_vel && have_vel) {
-        const ins_real sv = maxr(g->std_vel, e->min_std[2]);
+        const ins_real sv = maxr(g->std_vel, e->min_std[2]) * e->std_scale;
+        const ins_real *l = e->lever;
+        ins_real wl_b[3], wl[3], w[3];
+        for (i = 0; i < 3; ++i) w[i] = m->dth_prev[i] / m->dt; /* compensated body rate of the last step */
+        wl_b[0] = w[1] * l[2] - w[2] * l[1];
+        wl_b[1] = w[2] * l[0] - w[0] * l[2];
+        wl_b[2] = w[0] * l[1] - w[1] * l[0];
+        ins_dcm_from_quat(m->q, cm); /* after the position feedback */
+        mat_vec(cm, wl_b, wl);
         for (i = 0; i < 3; ++i) {
-            z[i] = g->vel[i] - m->v[i];
+            z[i] = g->vel[i] - (m->v[i] + wl[i]);
             r[i] = sv * sv;
         }
-        if (apply_group(c, INS_GRP_GNSS_VEL, 3, ivel, plus, z, r)) mask |= 2;
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < INS_NX; ++j) hr[i][j] = K(0.0);
+        for (i = 0; i < 3; ++i) hr[i][3 + i] = K(1.0);
+        put_skew(hr, 6, wl, K(1.0)); /* H_psi = [(C (w x l)) x] */
+        for (i = 0; i < 3; ++i) /* H_bg = C [l x] */
+            for (j = 0; j < 3; ++j) {
+                const ins_real s0 = j == 0 ? K(0.0) : j == 1 ? -l[2] : l[1]; /* [l x] column j */
+                const ins_real s1 = j == 0 ? l[2] : j == 1 ? K(0.0) : -l[0];
+                const ins_real s2 = j == 0 ? -l[1] : j == 1 ? l[0] : K(0.0);
+                hr[i][9 + j] = cm[3 * i] * s0 + cm[3 * i + 1] * s1 + cm[3 * i + 2] * s2;
+            }
+        if (apply_rows(c, INS_GRP_GNSS_VEL, 3, hr, z, r)) mask |= 2;
     }
     return mask;
+}
+
+/* ZUPT/ZARU at rest and the NHC in motion after each filter step (ins_hil.core_parts.aids.VehicleAids._ground,
+ * without lever arm, mounting states or suspension pitch). w_b: this step's compensated body rate. */
+static void ground_aids(ins_core_t *c, const ins_real w_b[3]) {
+    ins_ekf_t *e = &c->ekf;
+    ins_mech_t *m = &c->mech;
+    ins_real a, wn, fn, v2, z[3], r[3], hr[3][INS_NX], cm[9], w[3];
+    const double t = m->t;
+    int i, j, still;
+    if (!e->nhc && !e->zupt) return;
+    a = m->dt / e->zupt_tau;
+    if (a > K(1.0)) a = K(1.0);
+    for (i = 0; i < 3; ++i) {
+        e->ema_w[i] = e->ema_w[i] + a * (w_b[i] - e->ema_w[i]);
+        e->ema_f[i] = e->ema_f[i] + a * (m->f_ned[i] - e->ema_f[i]);
+    }
+    wn = RS(e->ema_w[0] * e->ema_w[0] + e->ema_w[1] * e->ema_w[1] + e->ema_w[2] * e->ema_w[2]);
+    fn = RS(e->ema_f[0] * e->ema_f[0] + e->ema_f[1] * e->ema_f[1] +
+            (e->ema_f[2] + e->g_local) * (e->ema_f[2] + e->g_local));
+    v2 = m->v[0] * m->v[0] + m->v[1] * m->v[1] + m->v[2] * m->v[2];
+    still = v2 < e->zupt_max_speed * e->zupt_max_speed && wn < e->zupt_gyro && fn < e->zupt_accel;
+    e->still_time = still ? e->still_time + (double)m->dt : 0.0;
+    if (t < e->nhc_next) return;
+    e->nhc_next = t + e->nhc_period;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < INS_NX; ++j) hr[i][j] = K(0.0);
+    if (e->zupt && e->still_time >= (double)e->zupt_time) {
+        for (i = 0; i < 3; ++i) {
+            w[i] = e->ema_w[i];
+            z[i] = -m->v[i];
+            r[i] = e->zupt_std * e->zupt_std;
+            hr[i][3 + i] = K(1.0);
+        }
+        if (e->zaru) e->ema_w[0] = e->ema_w[1] = e->ema_w[2] = K(0.0);
+        apply_rows(c, INS_GRP_ZUPT, 3, hr, z, r);
+        if (e->zaru) { /* zero angular rate: z = 0 - averaged rate = -dbg */
+            for (i = 0; i < 3; ++i) {
+                hr[i][3 + i] = K(0.0);
+                hr[i][9 + i] = K(-1.0);
+                z[i] = -w[i];
+                r[i] = e->zaru_std * e->zaru_std;
+            }
+            apply_rows(c, INS_GRP_ZUPT, 3, hr, z, r);
+        }
+        return;
+    }
+    if (e->nhc && RS(v2) > e->nhc_min_speed) {
+        /* v_b,y = v_b,z = 0: z = -(C^T v)_{y,z}; H_v = C^T rows, H_psi = -(C^T [v x]) rows */
+        ins_dcm_from_quat(m->q, cm);
+        for (i = 0; i < 2; ++i) {
+            const int row = i + 1;
+            const ins_real c0 = cm[row], c1 = cm[3 + row], c2 = cm[6 + row]; /* row of C^T = column of C */
+            z[i] = -(c0 * m->v[0] + c1 * m->v[1] + c2 * m->v[2]);
+            hr[i][3] = c0;
+            hr[i][4] = c1;
+            hr[i][5] = c2;
+            /* (C^T [v x])_{row, k} = sum_j C^T[row][j] [v x][j][k] */
+            hr[i][6] = -(c1 * m->v[2] - c2 * m->v[1]);
+            hr[i][7] = -(-c0 * m->v[2] + c2 * m->v[0]);
+            hr[i][8] = -(c0 * m->v[1] - c1 * m->v[0]);
+        }
+        r[0] = e->nhc_std * e->nhc_std;
+        r[1] = e->nhc_std_vertical * e->nhc_std_vertical;
+        apply_rows(c, INS_GRP_NHC, e->nhc_vertical ? 2 : 1, hr, z, r);
+    }
 }
 
 int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude) {

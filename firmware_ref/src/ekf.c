@@ -46,6 +46,27 @@ void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg) {
     cfg->have_baro_offset = 0;
     cfg->baro_offset = 0.0;
     cfg->baro_offset_tau = 10.0;
+    cfg->lever_arm[0] = cfg->lever_arm[1] = cfg->lever_arm[2] = K(0.0);
+    cfg->gnss_std_scale = K(1.0);
+    cfg->gyro_vib_gain = cfg->accel_vib_gain = K(0.0);
+    cfg->vib_tau = K(1.0);
+    cfg->cov_every = 1;
+    /* = ins_hil.core_parts.config.AidsConfig() */
+    cfg->nhc = cfg->zupt = 0;
+    cfg->nhc_vertical = cfg->zaru = 1;
+    cfg->nhc_std = K(0.1);
+    cfg->nhc_std_vertical = K(0.1);
+    cfg->nhc_rate = K(10.0);
+    cfg->nhc_min_speed = K(0.5);
+    cfg->zupt_std = K(0.02);
+    cfg->zupt_gyro = K(0.02);
+    cfg->zupt_accel = K(0.15);
+    cfg->zupt_time = K(0.5);
+    cfg->zupt_tau = K(0.3);
+    cfg->zupt_max_speed = K(1.0);
+    cfg->zaru_std = K(0.002);
+    cfg->aids_gate = K(5.0);
+    cfg->g_local = K(9.80665);
 }
 
 void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
@@ -93,6 +114,43 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
         e->last_ratio[i] = K(0.0);
     }
     e->n_predict = 0;
+    for (i = 0; i < 3; ++i) e->lever[i] = cfg->lever_arm[i];
+    e->std_scale = cfg->gnss_std_scale;
+    e->vib_gain[0] = cfg->gyro_vib_gain;
+    e->vib_gain[1] = cfg->accel_vib_gain;
+    e->vib_tau = cfg->vib_tau;
+    e->vib = cfg->gyro_vib_gain > K(0.0) || cfg->accel_vib_gain > K(0.0);
+    e->have_vib_prev = 0;
+    for (i = 0; i < 6; ++i) e->vib_prev[i] = e->vib_var[i] = K(0.0);
+    e->cov_every = cfg->cov_every < 1 ? 1 : cfg->cov_every;
+    e->acc_n = 0;
+    e->acc_dt = K(0.0);
+    for (i = 0; i < 3; ++i) {
+        e->acc_f[i] = K(0.0);
+        for (j = 0; j < 3; ++j) e->acc_q[0][i][j] = e->acc_q[1][i][j] = K(0.0);
+    }
+    e->gate[INS_GRP_NHC] = e->gate[INS_GRP_ZUPT] = cfg->aids_gate;
+    e->nhc = cfg->nhc;
+    e->nhc_vertical = cfg->nhc_vertical;
+    e->zupt = cfg->zupt;
+    e->zaru = cfg->zaru;
+    e->nhc_std = cfg->nhc_std;
+    e->nhc_std_vertical = cfg->nhc_std_vertical;
+    e->nhc_period = 1.0 / (double)cfg->nhc_rate;
+    e->nhc_min_speed = cfg->nhc_min_speed;
+    e->zupt_std = cfg->zupt_std;
+    e->zupt_gyro = cfg->zupt_gyro;
+    e->zupt_accel = cfg->zupt_accel;
+    e->zupt_time = cfg->zupt_time;
+    e->zupt_tau = cfg->zupt_tau;
+    e->zupt_max_speed = cfg->zupt_max_speed;
+    e->zaru_std = cfg->zaru_std;
+    e->g_local = cfg->g_local;
+    e->nhc_next = 0.0;
+    e->still_time = 0.0;
+    for (i = 0; i < 3; ++i) e->ema_w[i] = K(0.0);
+    e->ema_f[0] = e->ema_f[1] = K(0.0);
+    e->ema_f[2] = K(-9.80665);
 }
 
 typedef struct {
@@ -152,19 +210,84 @@ static void skew_into(ins_real m[3][3], ins_real x, ins_real y, ins_real z, ins_
     m[2][2] = K(0.0);
 }
 
-void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) {
+/* The vibration noise of one step (FilterConfig.gyro_vib_gain / accel_vib_gain, ErrorStateEKF._vibration_noise):
+ * updates E[dw^2], E[df^2] (body) with this step's changes and returns q[0] = C diag((g_w dt)^2 E[dw^2]) C^T,
+ * q[1] = C diag((g_f dt)^2 E[df^2]) C^T (NED; rad^2, (m/s)^2). */
+static void vibration_noise(ins_ekf_t *e, ins_real dt, const ins_real c[9], const ins_real w_b[3],
+                            const ins_real f_b[3], ins_real q[2][3][3]) {
+    ins_real x[6], g[2], d[2][3];
+    int i, j, k, b;
+    for (i = 0; i < 3; ++i) {
+        x[i] = w_b[i];
+        x[3 + i] = f_b[i];
+    }
+    if (e->have_vib_prev) {
+        ins_real a = dt / e->vib_tau;
+        if (a > K(1.0)) a = K(1.0);
+        for (i = 0; i < 6; ++i) {
+            const ins_real dd = x[i] - e->vib_prev[i];
+            e->vib_var[i] = e->vib_var[i] + a * (dd * dd - e->vib_var[i]);
+        }
+    }
+    for (i = 0; i < 6; ++i) e->vib_prev[i] = x[i];
+    e->have_vib_prev = 1;
+    for (b = 0; b < 2; ++b) {
+        g[b] = e->vib_gain[b] * dt;
+        g[b] = g[b] * g[b];
+        for (k = 0; k < 3; ++k) d[b][k] = g[b] * e->vib_var[3 * b + k];
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < 3; ++j) {
+                ins_real acc = K(0.0);
+                for (k = 0; k < 3; ++k) acc += c[3 * i + k] * d[b][k] * c[3 * j + k];
+                q[b][i][j] = acc;
+            }
+    }
+}
+
+void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) { ins_ekf_predict_full(e, m, NULL, NULL); }
+
+void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[3], const ins_real f_b[3]) {
     fmat_t f;
     ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX], c9[9];
-    const ins_real *wie = m->omega_ie, *wen = m->omega_en, dt = m->dt;
-    int i, j;
+    ins_real qv[2][3][3], fn[3];
+    const ins_real *wie = m->omega_ie, *wen = m->omega_en;
+    ins_real dt = m->dt;
+    const int vib = e->vib && w_b != NULL && f_b != NULL;
+    int i, j, k;
+    ins_dcm_from_quat(m->q, c9);
+    if (vib) vibration_noise(e, dt, c9, w_b, f_b, qv);
+    for (i = 0; i < 3; ++i) fn[i] = m->f_ned[i];
+    if (e->cov_every > 1) { /* accumulate; propagate every cov_every steps with the averaged f (ErrorStateEKF) */
+        if (vib)
+            for (k = 0; k < 2; ++k)
+                for (i = 0; i < 3; ++i)
+                    for (j = 0; j < 3; ++j) e->acc_q[k][i][j] += qv[k][i][j];
+        e->acc_n++;
+        e->acc_dt += dt;
+        for (i = 0; i < 3; ++i) e->acc_f[i] += m->f_ned[i];
+        if (e->acc_n < e->cov_every) return;
+        dt = e->acc_dt;
+        for (i = 0; i < 3; ++i) {
+            fn[i] = e->acc_f[i] / (ins_real)e->acc_n;
+            e->acc_f[i] = K(0.0);
+        }
+        e->acc_n = 0;
+        e->acc_dt = K(0.0);
+        if (vib)
+            for (k = 0; k < 2; ++k)
+                for (i = 0; i < 3; ++i)
+                    for (j = 0; j < 3; ++j) {
+                        qv[k][i][j] = e->acc_q[k][i][j];
+                        e->acc_q[k][i][j] = K(0.0);
+                    }
+    }
     f.itg = e->inv_tau_g;
     f.ita = e->inv_tau_a;
     /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
     f.g2r = K(2.0 * 9.80665 / 6371000.0);
     skew_into(f.vv, K(2.0) * wie[0] + wen[0], wen[1], K(2.0) * wie[2] + wen[2], K(-1.0));
-    skew_into(f.va, m->f_ned[0], m->f_ned[1], m->f_ned[2], K(1.0));
+    skew_into(f.va, fn[0], fn[1], fn[2], K(1.0));
     skew_into(f.aa, wie[0] + wen[0], wen[1], wie[2] + wen[2], K(-1.0));
-    ins_dcm_from_quat(m->q, c9);
     for (i = 0; i < 3; ++i)
         for (j = 0; j < 3; ++j) f.c[i][j] = c9[3 * i + j];
     phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
@@ -175,6 +298,12 @@ void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) {
         for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (a[i][j] + a[j][i]);
         e->P[i][i] = a[i][i] + e->qc[i] * dt;
     }
+    if (vib)
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < 3; ++j) {
+                e->P[IA + i][IA + j] += qv[0][i][j];
+                e->P[IV + i][IV + j] += qv[1][i][j];
+            }
     e->n_predict++;
 }
 

@@ -153,14 +153,9 @@ def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
 
 
 def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> RealTimeCore:
-    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore).
-
-    ``filter.cov_every`` is a speed setting of the Python core only: the C core propagates the
-    covariance on every step, so it is dropped for ``c`` (every other setting must be supported)."""
-    opts = dict(nav or {})
-    if kind == "c" and isinstance(opts.get("filter"), dict):
-        opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
-    cfg = nav_config(opts)
+    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore; a
+    setting the C core lacks is refused in one line naming it)."""
+    cfg = nav_config(dict(nav or {}))
     from ins_hil.core import NavCore
 
     try:

@@ -1,0 +1,201 @@
+"""The C core's settings beyond the plain GNSS/baro filter, each held against the Python ``NavCore``.
+
+For every setting the C core supports (GNSS lever arm, GNSS σ scale, vibration noise, ``cov_every``, NHC,
+ZUPT/ZARU) and the combination a shipped config uses, the same simulated stream runs through ``NavCore``
+and ``CNavCore`` (double) with the measurements fed at their step; attitude, velocity, position agree to
+≤ 1e-9 relative over the whole run, the biases to ≤ 1e-6, the σ to ≤ 1e-6, and the gate counters exactly.
+The float build's distance from the double build is bounded (the bound of docs/ref_core.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ins_hil.core import NavConfig, NavCore
+from ins_hil.core_parts.config import AidsConfig, GnssConfig
+from ins_hil.cref import CNavCore
+from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.nav import earth
+from ins_hil.nav.mechanization import StrapdownState
+from ins_hil.sim.sensors import GnssModel, baro_samples, corrupt_imu, gnss_fixes, mems_accel, mems_gyro
+from ins_hil.sim.trajectory import car_profile, generate, uav_profile
+from ins_hil.types import ImuSample
+
+LAT0, LON0, H0 = math.radians(50.45), math.radians(30.52), 180.0
+DT = 0.02
+LEVER = np.array((0.3, -0.2, -0.5))
+
+
+class Stream:
+    def __init__(self, kind: str, duration: float) -> None:
+        prof = car_profile(speed=12.0, t_start=5.0, t_stop=60.0) if kind == "car" else uav_profile()
+        self.truth = generate(prof, duration, DT, LAT0, LON0, H0)
+        rng = np.random.default_rng(3)
+        self.imu = corrupt_imu(self.truth, mems_gyro(rng), mems_accel(rng), seed=4)
+        fixes = gnss_fixes(self.truth, GnssModel(rate=5.0, lever_arm_b=LEVER), seed=5)
+        baro = baro_samples(self.truth, rate=10.0, std=0.5, seed=6)
+        self.meas = sorted([*fixes, *baro], key=lambda m: m.t)
+        tr = self.truth
+        self.init = StrapdownState(tr.q_nb[0].copy(), tr.vel_ned[0].copy(), LAT0, LON0, H0, tr.t[0])
+
+    def sample(self, k: int) -> ImuSample:
+        return ImuSample(t=float(self.imu.t[k]), dt=DT, dtheta=self.imu.dtheta[k], dvel=self.imu.dvel[k])
+
+
+@pytest.fixture(scope="module")
+def uav() -> Stream:
+    return Stream("uav", 240.0)
+
+
+@pytest.fixture(scope="module")
+def car() -> Stream:
+    return Stream("car", 90.0)
+
+
+def _cfg(filter_kw: dict[str, Any] | None = None, **kw: Any) -> NavConfig:
+    return NavConfig(filter=FilterConfig(**(filter_kw or {})), **kw)
+
+
+def run_both(st: Stream, cfg: NavConfig, precision: str = "double") -> tuple[np.ndarray, NavCore, CNavCore]:
+    """Both cores over the stream; worst [|Δq|, rel v, rel lat/lon, rel h, rel bias, rel σ] over the run."""
+    py = NavCore(st.init, cfg)
+    c = CNavCore(st.init, cfg, dt=DT, precision=precision)  # type: ignore[arg-type]
+    worst = np.zeros(6)
+    j = 0
+    for k in range(len(st.imu.t)):
+        s = st.sample(k)
+        py.step(s)
+        c.step(s)
+        while j < len(st.meas) and st.meas[j].t <= s.t + 1e-9:
+            py.fuse(st.meas[j])
+            c.fuse(st.meas[j])
+            j += 1
+        if k % 25 == 24:
+            a, b = py.state(), c.state()
+            bias_a = np.r_[a.gyro_bias, a.accel_bias]
+            bias_b = np.r_[b.gyro_bias, b.accel_bias]
+            sd_a = np.r_[a.std_pos, a.std_vel, a.std_att]
+            sd_b = np.r_[b.std_pos, b.std_vel, b.std_att]
+            worst = np.maximum(worst, [
+                float(np.max(np.abs(a.q_nb - b.q_nb))),
+                float(np.max(np.abs(a.vel_ned - b.vel_ned)) / max(1.0, float(np.max(np.abs(a.vel_ned))))),
+                max(abs(a.lat - b.lat) / abs(a.lat), abs(a.lon - b.lon) / abs(a.lon)),
+                abs(a.h - b.h) / max(1.0, abs(a.h)),
+                float(np.max(np.abs(bias_a - bias_b) / np.maximum(1e-6, np.abs(bias_a)))),
+                float(np.max(np.abs(sd_a / sd_b - 1.0))),
+            ])  # fmt: skip
+    return worst, py, c
+
+
+def _counts(py: NavCore, c: CNavCore, kinds: tuple[str, ...]) -> tuple[list[int], list[int]]:
+    e = c._core.ekf
+    names = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt")
+    pa = [py.stats[k].accepted for k in kinds] + [py.stats[k].rejected for k in kinds]
+    ca = [int(e.accepted[names.index(k)]) for k in kinds] + [int(e.rejected[names.index(k)]) for k in kinds]
+    return pa, ca
+
+
+def _assert_parity(worst: np.ndarray) -> None:
+    assert np.all(worst[:4] <= 1e-9), worst
+    assert np.all(worst[4:] <= 1e-6), worst
+
+
+UAV_CASES = {
+    "lever_arm": _cfg(gnss=GnssConfig(lever_arm_b=LEVER)),
+    "std_scale": _cfg(gnss=GnssConfig(std_scale=2.0)),
+    "vibration": _cfg({"gyro_vib_gain": 0.4, "accel_vib_gain": 0.6}),
+    "cov_every": _cfg({"cov_every": 10}),
+    # px4_quad's C-supported part: vibration (the mems preset's gains) and σ × 2
+    "px4_quad_like": _cfg({"gyro_vib_gain": 0.5, "accel_vib_gain": 0.5}, gnss=GnssConfig(std_scale=2.0)),
+}
+
+
+@pytest.mark.parametrize("case", sorted(UAV_CASES))
+def test_c_matches_python_per_setting_uav(uav: Stream, case: str) -> None:
+    cfg = UAV_CASES[case]
+    worst, py, c = run_both(uav, cfg)
+    pa, ca = _counts(py, c, ("gnss_pos", "gnss_vel", "baro"))
+    assert pa == ca
+    assert sum(pa[:3]) > 3000  # the filter really fuses
+    _assert_parity(worst)
+    # the setting really acts: the C state differs from the plain filter's
+    b, p0 = c.state(), _run_c(uav, NavConfig())
+    assert max(abs(b.h - p0.h), float(np.max(np.abs(b.std_vel / p0.std_vel - 1.0)))) > 1e-4
+
+
+def _run_c(st: Stream, cfg: NavConfig) -> Any:
+    c = CNavCore(st.init, cfg, dt=DT)
+    j = 0
+    for k in range(len(st.imu.t)):
+        c.step(st.sample(k))
+        while j < len(st.meas) and st.meas[j].t <= st.imu.t[k] + 1e-9:
+            c.fuse(st.meas[j])
+            j += 1
+    return c.state()
+
+
+CAR_CASES = {
+    "nhc": _cfg(aids=AidsConfig(nhc=True)),
+    "nhc_lateral_only": _cfg(aids=AidsConfig(nhc=True, nhc_vertical=False)),
+    "zupt": _cfg(aids=AidsConfig(zupt=True)),
+    "zupt_no_zaru": _cfg(aids=AidsConfig(zupt=True, zaru=False)),
+    # drive0708's C-supported part: lever arm, vibration, NHC + ZUPT
+    "drive_like": _cfg(
+        {"gyro_vib_gain": 0.4, "accel_vib_gain": 0.6},
+        gnss=GnssConfig(lever_arm_b=LEVER),
+        aids=AidsConfig(nhc=True, zupt=True),
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CAR_CASES))
+def test_c_matches_python_per_setting_car(car: Stream, case: str) -> None:
+    cfg = CAR_CASES[case]
+    worst, py, c = run_both(car, cfg)
+    kinds = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt")
+    pa, ca = _counts(py, c, kinds)
+    assert pa == ca
+    if cfg.aids.nhc:
+        assert py.stats["nhc"].accepted > 300
+    if cfg.aids.zupt:
+        assert py.stats["zupt"].accepted > 20
+    _assert_parity(worst)
+
+
+def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
+    """Float vs double with lever arm, vibration, NHC, ZUPT (the bound docs/ref_core.md gives)."""
+    cfg = CAR_CASES["drive_like"]
+    d = CNavCore(car.init, cfg, dt=DT)
+    f = CNavCore(car.init, cfg, dt=DT, precision="float")
+    worst = np.zeros(3)
+    j = 0
+    for k in range(len(car.imu.t)):
+        s = car.sample(k)
+        a, b = d.step(s), f.step(s)
+        while j < len(car.meas) and car.meas[j].t <= s.t + 1e-9:
+            d.fuse(car.meas[j])
+            f.fuse(car.meas[j])
+            j += 1
+        a, b = d.state(), f.state()
+        dp = earth.ned_from_geodetic(b.lat, b.lon, b.h, a.lat, a.lon, a.h)
+        dq, dv = float(np.max(np.abs(a.q_nb - b.q_nb))), float(np.max(np.abs(a.vel_ned - b.vel_ned)))
+        worst = np.maximum(worst, [dq, dv, float(np.linalg.norm(dp))])
+    assert worst[0] < 1e-3 and worst[1] < 0.05 and worst[2] < 0.5, worst
+
+
+def test_still_refused_settings_name_themselves(car: Stream) -> None:
+    bad = {
+        "filter.scale_factors": _cfg({"scale_factors": True}),
+        "alignment.mode": _cfg(alignment=dataclasses.replace(NavConfig().alignment, mode="static")),
+        "filter.wind_states": _cfg({"wind_states": True}, aids=AidsConfig(drag=True)),
+        "aids.nhc_lever_b": _cfg(aids=AidsConfig(nhc=True, nhc_lever_b=np.array((1.0, 0.0, 0.0)))),
+        "gnss.vel_delay": _cfg(gnss=GnssConfig(vel_delay=0.1)),
+    }
+    for name, cfg in bad.items():
+        with pytest.raises(ValueError, match=rf"not supported by the C core: {name.replace('.', '[.]')}"):
+            CNavCore(car.init, cfg)
