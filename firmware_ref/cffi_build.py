@@ -95,7 +95,14 @@ def _builder(module: str, real: str, defines: list[tuple[str, str | None]]) -> F
         _GLUE,
         sources=[_rel(_HERE / "src" / s) for s in _SOURCES],
         include_dirs=[_rel(_HERE / "include"), _rel(_HERE / "src")],
-        depends=[_rel(p) for p in (*(_HERE / "src").glob("*.[ch]"), _HERE / "include" / "ins_ref.h")],
+        depends=[
+            _rel(p)
+            for p in (
+                *(_HERE / "src").glob("*.[ch]"),
+                *(_HERE / "src" / "generated").glob("*.h"),
+                _HERE / "include" / "ins_ref.h",
+            )
+        ],
         define_macros=defines,
         extra_compile_args=["-std=c99", "-O3", "-ffp-contract=off"],
         libraries=["m"],

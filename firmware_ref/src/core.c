@@ -1,5 +1,6 @@
 /* The core: mechanization + EKF predict per IMU step, GNSS/baro updates. */
 #include "ins_internal.h"
+#include "generated/ins_jacobians.h"
 
 void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_pos lat, ins_pos lon, ins_pos h,
                    double t, ins_real dt, const ins_ekf_cfg_t *cfg, int filter) {
@@ -97,29 +98,11 @@ static int apply_rows(ins_core_t *c, int grp, int n, ins_real h[][INS_NX], const
     return 1;
 }
 
-/* rows +-e_j (sign sg[i]) of the state */
-static int apply_group(ins_core_t *c, int grp, int n, const int *idx, const ins_real *sg, const ins_real *z,
-                       const ins_real *r) {
-    ins_real h[3][INS_NX];
+/* n zero rows */
+static void zero_rows(ins_real h[][INS_NX], int n) {
     int i, j;
-    for (i = 0; i < n; ++i) {
+    for (i = 0; i < n; ++i)
         for (j = 0; j < INS_NX; ++j) h[i][j] = K(0.0);
-        h[i][idx[i]] = sg[i];
-    }
-    return apply_rows(c, grp, n, h, z, r);
-}
-
-/* [v x] into rows r0.. of h, columns col.. (h[r][col + k]) */
-static void put_skew(ins_real h[][INS_NX], int col, const ins_real v[3], ins_real s) {
-    h[0][col + 0] = K(0.0);
-    h[0][col + 1] = -s * v[2];
-    h[0][col + 2] = s * v[1];
-    h[1][col + 0] = s * v[2];
-    h[1][col + 1] = K(0.0);
-    h[1][col + 2] = -s * v[0];
-    h[2][col + 0] = -s * v[1];
-    h[2][col + 1] = s * v[0];
-    h[2][col + 2] = K(0.0);
 }
 
 static void mat_vec(const ins_real m[9], const ins_real v[3], ins_real out[3]) {
@@ -140,7 +123,7 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
     const int assume_now = g->t < m->t - 1.5 * (double)m->dt; /* late fix: valid now, no shift */
     const ins_real dtm = (ins_real)(m->t - g->t);
     ins_real z[3], r[3], rm, rn, cm[9], la[3], hr[3][INS_NX];
-    int i, j, mask = 0;
+    int i, mask = 0;
     radii(lat, &rm, &rn);
     ins_dcm_from_quat(m->q, cm);
     mat_vec(cm, e->lever, la); /* C l: the antenna offset, NED */
@@ -165,10 +148,8 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
             set_state_sigma(e, 3, sv);
             e->consecutive[INS_GRP_GNSS_VEL] = 0;
         }
-        for (i = 0; i < 3; ++i)
-            for (j = 0; j < INS_NX; ++j) hr[i][j] = K(0.0);
-        for (i = 0; i < 3; ++i) hr[i][i] = K(1.0);
-        put_skew(hr, 6, la, K(1.0)); /* H_psi = [(C l) x] */
+        zero_rows(hr, 3);
+        ins_gen_H_gnss_pos(cm, e->lever, hr);
         if (apply_rows(c, INS_GRP_GNSS_POS, 3, hr, z, r)) {
             mask |= 1;
             if (g->t > e->t_gnss_ok) e->gnss_dt = g->t - e->t_gnss_ok < 1.0 ? g->t - e->t_gnss_ok : 1.0;
@@ -191,17 +172,8 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
             z[i] = g->vel[i] - (m->v[i] + wl[i]);
             r[i] = sv * sv;
         }
-        for (i = 0; i < 3; ++i)
-            for (j = 0; j < INS_NX; ++j) hr[i][j] = K(0.0);
-        for (i = 0; i < 3; ++i) hr[i][3 + i] = K(1.0);
-        put_skew(hr, 6, wl, K(1.0)); /* H_psi = [(C (w x l)) x] */
-        for (i = 0; i < 3; ++i) /* H_bg = C [l x] */
-            for (j = 0; j < 3; ++j) {
-                const ins_real s0 = j == 0 ? K(0.0) : j == 1 ? -l[2] : l[1]; /* [l x] column j */
-                const ins_real s1 = j == 0 ? l[2] : j == 1 ? K(0.0) : -l[0];
-                const ins_real s2 = j == 0 ? -l[1] : j == 1 ? l[0] : K(0.0);
-                hr[i][9 + j] = cm[3 * i] * s0 + cm[3 * i + 1] * s1 + cm[3 * i + 2] * s2;
-            }
+        zero_rows(hr, 3);
+        ins_gen_H_gnss_vel(cm, w, l, hr);
         if (apply_rows(c, INS_GRP_GNSS_VEL, 3, hr, z, r)) mask |= 2;
     }
     return mask;
@@ -214,7 +186,7 @@ static void ground_aids(ins_core_t *c, const ins_real w_b[3]) {
     ins_mech_t *m = &c->mech;
     ins_real a, wn, fn, v2, z[3], r[3], hr[3][INS_NX], cm[9], w[3];
     const double t = m->t;
-    int i, j, still;
+    int i, still;
     if (!e->nhc && !e->zupt) return;
     a = m->dt / e->zupt_tau;
     if (a > K(1.0)) a = K(1.0);
@@ -230,21 +202,20 @@ static void ground_aids(ins_core_t *c, const ins_real w_b[3]) {
     e->still_time = still ? e->still_time + (double)m->dt : 0.0;
     if (t < e->nhc_next) return;
     e->nhc_next = t + e->nhc_period;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < INS_NX; ++j) hr[i][j] = K(0.0);
+    zero_rows(hr, 3);
     if (e->zupt && e->still_time >= (double)e->zupt_time) {
         for (i = 0; i < 3; ++i) {
             w[i] = e->ema_w[i];
-            z[i] = -m->v[i];
+            z[i] = -m->v[i]; /* 0 - v */
             r[i] = e->zupt_std * e->zupt_std;
-            hr[i][3 + i] = K(1.0);
         }
+        ins_gen_H_zupt(hr);
         if (e->zaru) e->ema_w[0] = e->ema_w[1] = e->ema_w[2] = K(0.0);
         apply_rows(c, INS_GRP_ZUPT, 3, hr, z, r);
-        if (e->zaru) { /* zero angular rate: z = 0 - averaged rate = -dbg */
+        if (e->zaru) { /* zero angular rate: z = 0 - averaged rate */
+            zero_rows(hr, 3);
+            ins_gen_H_zaru(hr);
             for (i = 0; i < 3; ++i) {
-                hr[i][3 + i] = K(0.0);
-                hr[i][9 + i] = K(-1.0);
                 z[i] = -w[i];
                 r[i] = e->zaru_std * e->zaru_std;
             }
@@ -253,20 +224,13 @@ static void ground_aids(ins_core_t *c, const ins_real w_b[3]) {
         return;
     }
     if (e->nhc && RS(v2) > e->nhc_min_speed) {
-        /* v_b,y = v_b,z = 0: z = -(C^T v)_{y,z}; H_v = C^T rows, H_psi = -(C^T [v x]) rows */
+        /* v_b,y = v_b,z = 0: z = -(C^T v)_{y,z} */
         ins_dcm_from_quat(m->q, cm);
         for (i = 0; i < 2; ++i) {
-            const int row = i + 1;
-            const ins_real c0 = cm[row], c1 = cm[3 + row], c2 = cm[6 + row]; /* row of C^T = column of C */
-            z[i] = -(c0 * m->v[0] + c1 * m->v[1] + c2 * m->v[2]);
-            hr[i][3] = c0;
-            hr[i][4] = c1;
-            hr[i][5] = c2;
-            /* (C^T [v x])_{row, k} = sum_j C^T[row][j] [v x][j][k] */
-            hr[i][6] = -(c1 * m->v[2] - c2 * m->v[1]);
-            hr[i][7] = -(-c0 * m->v[2] + c2 * m->v[0]);
-            hr[i][8] = -(c0 * m->v[1] - c1 * m->v[0]);
+            const int row = i + 1; /* row of C^T = column of C */
+            z[i] = -(cm[row] * m->v[0] + cm[3 + row] * m->v[1] + cm[6 + row] * m->v[2]);
         }
+        ins_gen_H_nhc(cm, m->v, hr);
         r[0] = e->nhc_std * e->nhc_std;
         r[1] = e->nhc_std_vertical * e->nhc_std_vertical;
         apply_rows(c, INS_GRP_NHC, e->nhc_vertical ? 2 : 1, hr, z, r);
@@ -274,10 +238,8 @@ static void ground_aids(ins_core_t *c, const ins_real w_b[3]) {
 }
 
 int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude) {
-    static const int ih[1] = {2};
-    static const ins_real minus[1] = {-1};
     ins_ekf_t *e = &c->ekf;
-    ins_real z, r;
+    ins_real z, r, hr[1][INS_NX];
     if (!e->have_baro_offset) { /* baro datum -> ellipsoid: configured, or from the first sample */
         if (!e->baro_offset_fixed) e->baro_offset = c->mech.h - altitude;
         e->baro_offset_var = (double)e->P[2][2];
@@ -304,7 +266,9 @@ int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude) {
         const double n = 2.0 * e->baro_offset_tau / (e->baro_dt > 1e-3 ? e->baro_dt : 1e-3);
         r += (ins_real)(e->baro_offset_var * (n > 1.0 ? n : 1.0));
     }
-    return apply_group(c, INS_GRP_BARO, 1, ih, minus, &z, &r);
+    zero_rows(hr, 1);
+    ins_gen_H_baro(hr);
+    return apply_rows(c, INS_GRP_BARO, 1, hr, &z, &r);
 }
 
 void ins_core_output(const ins_core_t *c, ins_out_t *o) {

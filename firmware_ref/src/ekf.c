@@ -16,6 +16,7 @@
  * its block sparsity (f_mul), so a predict costs ~4 sparse products.
  */
 #include "ins_internal.h"
+#include "generated/ins_jacobians.h"
 
 enum { IR = 0, IV = 3, IA = 6, IG = 9, IB = 12 };
 
@@ -153,25 +154,24 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->ema_f[2] = K(-9.80665);
 }
 
+/* F: the generated blocks (generated/ins_jacobians.h, from tools/derive_jacobians.py) and the bias rows */
 typedef struct {
-    ins_real itg, ita, g2r;
-    ins_real vv[3][3]; /* -[(2 w_ie + w_en) x] */
-    ins_real va[3][3]; /* [f x] */
-    ins_real aa[3][3]; /* -[w_in x] */
-    ins_real c[3][3];  /* C_b^n */
+    ins_real itg, ita;
+    ins_gen_fblocks_t b;
 } fmat_t;
 
-/* out = F in (F block-sparse, see the file comment) */
+/* out = F in (F block-sparse: the structure derive_jacobians.py checks) */
 static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS_NX][INS_NX]) {
+    const ins_gen_fblocks_t *b = &f->b;
     int i, j, k;
     for (j = 0; j < INS_NX; ++j) {
         for (i = 0; i < 3; ++i) {
             ins_real sv = K(0.0), sa = K(0.0);
             for (k = 0; k < 3; ++k) {
-                sv += f->vv[i][k] * in[IV + k][j] + f->va[i][k] * in[IA + k][j] - f->c[i][k] * in[IB + k][j];
-                sa += f->aa[i][k] * in[IA + k][j] + f->c[i][k] * in[IG + k][j];
+                sv += b->vv[i][k] * in[IV + k][j] + b->va[i][k] * in[IA + k][j] + b->vba[i][k] * in[IB + k][j];
+                sa += b->aa[i][k] * in[IA + k][j] + b->abg[i][k] * in[IG + k][j];
             }
-            if (i == 2) sv += f->g2r * in[IR + 2][j];
+            if (i == 2) sv += b->vr_dd * in[IR + 2][j];
             out[IR + i][j] = in[IV + i][j];
             out[IV + i][j] = sv;
             out[IA + i][j] = sa;
@@ -195,19 +195,6 @@ static void phi_mul(const fmat_t *f, ins_real dt, int second, ins_real in[INS_NX
         for (i = 0; i < INS_NX; ++i)
             for (j = 0; j < INS_NX; ++j) out[i][j] = in[i][j] + dt * tmp[i][j];
     }
-}
-
-static void skew_into(ins_real m[3][3], ins_real x, ins_real y, ins_real z, ins_real s) {
-    /* m = s [v x] */
-    m[0][0] = K(0.0);
-    m[0][1] = -s * z;
-    m[0][2] = s * y;
-    m[1][0] = s * z;
-    m[1][1] = K(0.0);
-    m[1][2] = -s * x;
-    m[2][0] = -s * y;
-    m[2][1] = s * x;
-    m[2][2] = K(0.0);
 }
 
 /* The vibration noise of one step (FilterConfig.gyro_vib_gain / accel_vib_gain, ErrorStateEKF._vibration_noise):
@@ -284,12 +271,7 @@ void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[
     f.itg = e->inv_tau_g;
     f.ita = e->inv_tau_a;
     /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
-    f.g2r = K(2.0 * 9.80665 / 6371000.0);
-    skew_into(f.vv, K(2.0) * wie[0] + wen[0], wen[1], K(2.0) * wie[2] + wen[2], K(-1.0));
-    skew_into(f.va, fn[0], fn[1], fn[2], K(1.0));
-    skew_into(f.aa, wie[0] + wen[0], wen[1], wie[2] + wen[2], K(-1.0));
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) f.c[i][j] = c9[3 * i + j];
+    ins_gen_F_blocks(c9, fn, wie, wen, K(2.0 * 9.80665 / 6371000.0), &f.b);
     phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
     for (i = 0; i < INS_NX; ++i)
         for (j = 0; j < INS_NX; ++j) b[i][j] = a[j][i];
