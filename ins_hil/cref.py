@@ -11,8 +11,8 @@ updates, the same gates and feedback) for the ``NavConfig`` settings it
 supports: GNSS position/velocity with lever arm and σ scale, baro, the vibration
 noise, ``cov_every``, NHC and ZUPT/ZARU. Others raise ``ValueError`` naming them
 (the list and the reasons: docs/ref_core.md). Magnetometer samples are ignored
-(``mag.ref_ned`` is refused). A fix from the past is shifted by v·Δt and fused
-at the current step (NavCore rolls back instead).
+(``mag.ref_ned`` is refused). Delayed fusion (``delay.compensation``) rolls back
+as NavCore does (``ins_hist_t``: a snapshot per step, the log replayed).
 
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
 sample's ``dt``), as firmware does: a sample whose ``dt`` differs from it by more
@@ -23,6 +23,7 @@ running), or rejected with ``ValueError`` (``on_dt_mismatch="raise"``).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import math
 from collections import deque
@@ -85,7 +86,6 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "hold.enabled": cfg.hold.enabled,
         "mag.ref_ned": cfg.mag.ref_ned is not None,
         "alignment.mode": cfg.alignment.mode != "given",
-        "gnss.vel_delay": cfg.gnss.vel_delay != 0.0,
     }
     bad = [k for k, v in unsupported.items() if v]
     if bad:
@@ -193,6 +193,11 @@ class CNavCore:
         self.n_off_step = 0
         self._initial = initial.copy()
         self._core = self._ffi.new("ins_core_t *")
+        # delayed fusion by roll-back (delay.compensation, as NavCore): the C history, else NULL
+        self._delayed = self.cfg.delay.compensation and self.cfg.delay.max_delay > 0
+        self._hist = self._ffi.new("ins_hist_t *") if self._delayed else self._ffi.NULL
+        if self._delayed:
+            self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
         self._cfg = _c_config(self._ffi, self.cfg)
@@ -240,7 +245,9 @@ class CNavCore:
             dth = np.ascontiguousarray(dth, dtype=np.float64)
         if dv.dtype != np.float64 or not dv.flags.c_contiguous:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
-        self._lib_.cref_step(self._core, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t)
+        self._lib_.cref_hstep(
+            self._core, self._hist, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t
+        )
         return self.state()
 
     def step_begin(self, imu: ImuSample) -> NavState:
@@ -256,14 +263,24 @@ class CNavCore:
         yield from ()
 
     def fuse(self, meas: GnssFix | BaroSample | MagSample) -> None:
-        """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.
+        """Apply a GNSS fix (position, then velocity if given) or a baro altitude valid at ``meas.t``.
 
-        Gated like NavCore (per-component test ratio, ``gnss.gate``/``baro.gate``); a fix
-        valid at an earlier time is shifted by v·Δt (no roll-back in the C core).
+        Gated like NavCore (per-component test ratio, ``gnss.gate``/``baro.gate``). With
+        ``delay.compensation`` a measurement older than half a step is fused at its step by the C
+        roll-back (as NavCore); without it, a late fix is shifted by v·Δt to the current step.
+        With ``gnss.vel_delay`` the velocity is a second measurement at its own, earlier time.
         Magnetometer samples are ignored (no magnetometer update in the C core).
         """
         if self.dt is None or not self.filter:
             return None
+        if isinstance(meas, GnssFix) and self.cfg.gnss.vel_delay > 0 and meas.vel_ned is not None:
+            self._fuse_one(dataclasses.replace(meas, vel_ned=None))
+            self._fuse_one(dataclasses.replace(meas, t=meas.t - self.cfg.gnss.vel_delay, lat=math.nan))
+            return None
+        self._fuse_one(meas)
+        return None
+
+    def _fuse_one(self, meas: GnssFix | BaroSample | MagSample) -> None:
         e = self._core.ekf
         before = [int(e.rejected[i]) for i in range(3)]
         cons = [int(e.consecutive[i]) for i in range(3)]
@@ -274,9 +291,12 @@ class CNavCore:
                 sd = getattr(meas, name)
                 if not sd >= 0.0:
                     raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
-            self._hold_reset(meas)
-            self._lib_.cref_fuse_gnss(
+            pos = math.isfinite(meas.lat)  # NaN: the velocity of a gnss.vel_delay split
+            if pos:
+                self._hold_reset(meas)
+            self._lib_.cref_hfuse_gnss(
                 self._core,
+                self._hist,
                 meas.t,
                 meas.lat,
                 meas.lon,
@@ -286,11 +306,13 @@ class CNavCore:
                 meas.std_d,
                 meas.std_vel,
             )
-            groups = (0, 1) if meas.vel_ned is not None and self.cfg.gnss.use_vel else (0,)
-            if int(e.rejected[0]) > before[0]:
-                self._rejected.append((meas, float(e.last_ratio[0])))
-            else:
-                self._rejected.clear()
+            use_vel = meas.vel_ned is not None and self.cfg.gnss.use_vel
+            groups = ((0,) if pos else ()) + ((1,) if use_vel else ())
+            if pos:
+                if int(e.rejected[0]) > before[0]:
+                    self._rejected.append((meas, float(e.last_ratio[0])))
+                else:
+                    self._rejected.clear()
         elif isinstance(meas, BaroSample):
             alt = meas.altitude
             if not math.isfinite(alt):
@@ -299,7 +321,7 @@ class CNavCore:
                 from ins_hil.nav.earth import altitude_from_pressure
 
                 alt = altitude_from_pressure(meas.pressure)
-            self._lib_.cref_fuse_baro(self._core, meas.t, alt)
+            self._lib_.cref_hfuse_baro(self._core, self._hist, meas.t, alt)
             groups = (2,)
         else:
             return None
@@ -398,11 +420,17 @@ class CNavCore:
                 raise ValueError(f"CNavCore.run: t_end must be ({n},), got {t_arr.shape}")
             tp = ffi.from_buffer("double[]", t_arr)
         if every == 0:
-            self._lib_.cref_run(self._core, ffi.from_buffer("double[]", inc), tp, n, ffi.NULL, 0)
+            self._lib_.cref_run(self._core, self._hist, ffi.from_buffer("double[]", inc), tp, n, ffi.NULL, 0)
             return np.empty((0, len(RUN_COLUMNS)))
         out = np.empty((n, len(RUN_COLUMNS)))
         self._lib_.cref_run(
-            self._core, ffi.from_buffer("double[]", inc), tp, n, ffi.from_buffer("double[]", out), len(RUN_COLUMNS)
+            self._core,
+            self._hist,
+            ffi.from_buffer("double[]", inc),
+            tp,
+            n,
+            ffi.from_buffer("double[]", out),
+            len(RUN_COLUMNS),
         )
         return out[every - 1 :: every] if every > 1 else out
 

@@ -24,7 +24,7 @@ from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.sim.sensors import GnssModel, baro_samples, corrupt_imu, gnss_fixes, mems_accel, mems_gyro
 from ins_hil.sim.trajectory import car_profile, generate, uav_profile
-from ins_hil.types import ImuSample
+from ins_hil.types import GnssFix, ImuSample
 
 LAT0, LON0, H0 = math.radians(50.45), math.radians(30.52), 180.0
 DT = 0.02
@@ -61,19 +61,26 @@ def _cfg(filter_kw: dict[str, Any] | None = None, **kw: Any) -> NavConfig:
     return NavConfig(filter=FilterConfig(**(filter_kw or {})), **kw)
 
 
-def run_both(st: Stream, cfg: NavConfig, precision: str = "double") -> tuple[np.ndarray, NavCore, CNavCore]:
-    """Both cores over the stream; worst [|Δq|, rel v, rel lat/lon, rel h, rel bias, rel σ] over the run."""
+def run_both(
+    st: Stream, cfg: NavConfig, precision: str = "double", latency: float = 0.0
+) -> tuple[np.ndarray, NavCore, CNavCore]:
+    """Both cores over the stream; worst [|Δq|, rel v, rel lat/lon, rel h, rel bias, rel σ] over the run.
+    ``latency``: the GNSS fixes arrive this long (s) after their time of validity (delayed fusion)."""
     py = NavCore(st.init, cfg)
     c = CNavCore(st.init, cfg, dt=DT, precision=precision)  # type: ignore[arg-type]
     worst = np.zeros(6)
     j = 0
+    arrivals = sorted(
+        [(m.t + (latency if isinstance(m, GnssFix) else 0.0), i) for i, m in enumerate(st.meas)]
+    )  # fmt: skip
     for k in range(len(st.imu.t)):
         s = st.sample(k)
         py.step(s)
         c.step(s)
-        while j < len(st.meas) and st.meas[j].t <= s.t + 1e-9:
-            py.fuse(st.meas[j])
-            c.fuse(st.meas[j])
+        while j < len(arrivals) and arrivals[j][0] <= s.t + 1e-9:
+            m = st.meas[arrivals[j][1]]
+            py.fuse(m)
+            c.fuse(m)
             j += 1
         if k % 25 == 24:
             a, b = py.state(), c.state()
@@ -167,6 +174,52 @@ def test_c_matches_python_per_setting_car(car: Stream, case: str) -> None:
     _assert_parity(worst)
 
 
+def _sort_log_state_order(self: Any, floor: int) -> None:
+    """``DelayedHistory.sort_log`` with the measurements fused at state k before the IMU sample labelled k
+    (which takes the state from k to k + 1), the order in which they happened and in which the unsorted log
+    holds them. NavCore's key puts the IMU sample first, so a roll-back that reaches into the span of an
+    earlier one (a delay longer than the GNSS interval) replays those measurements one step late."""
+    log = self.log
+    n = len(log)
+    u = min(self.log_sorted, n)
+    b = floor if u >= n else min(floor, log[u][0])
+    cut = u
+    while cut > 0 and log[cut - 1][0] >= b:
+        cut -= 1
+    tail = [log.pop() for _ in range(n - cut)]
+    tail.reverse()
+    tail.sort(key=lambda e: (e[0], e[1] == "imu"))
+    log.extend(tail)
+    self.log_sorted = n
+
+
+@pytest.mark.parametrize("latency", [0.11, 0.25])
+def test_delayed_fusion_rolls_back_like_python(uav: Stream, latency: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    """GNSS fixes arriving ``latency`` s after their time (px4_quad's 0.11 s): both cores roll back. At 0.25 s
+    (longer than the 0.2-s fix interval) a roll-back replays the span of the previous one: NavCore's log order
+    there is patched to the order the C core replays (the report of this branch; history.py)."""
+    if latency > 0.2:
+        from ins_hil.core_parts.history import DelayedHistory
+
+        monkeypatch.setattr(DelayedHistory, "sort_log", _sort_log_state_order)
+    cfg = UAV_CASES["px4_quad_like"]
+    worst, py, c = run_both(uav, cfg, latency=latency)
+    pa, ca = _counts(py, c, ("gnss_pos", "gnss_vel", "baro"))
+    assert pa == ca and pa[0] > 1000
+    assert int(c._hist.rollbacks) >= pa[0] + pa[3] - 2  # every fix (but the first) was fused at its step
+    _assert_parity(worst)
+
+
+def test_velocity_delay_and_ground_aids_like_python(car: Stream) -> None:
+    """drive0708's C-supported part with its velocity delay (0.13 s: a roll-back for every velocity)."""
+    cfg = dataclasses.replace(CAR_CASES["drive_like"], gnss=GnssConfig(lever_arm_b=LEVER, vel_delay=0.13))
+    worst, py, c = run_both(car, cfg)
+    pa, ca = _counts(py, c, ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt"))
+    assert pa == ca and py.stats["gnss_vel"].accepted > 300
+    assert int(c._hist.rollbacks) >= py.stats["gnss_vel"].accepted
+    _assert_parity(worst)
+
+
 def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
     """Float vs double with lever arm, vibration, NHC, ZUPT (the bound docs/ref_core.md gives)."""
     cfg = CAR_CASES["drive_like"]
@@ -194,7 +247,7 @@ def test_still_refused_settings_name_themselves(car: Stream) -> None:
         "alignment.mode": _cfg(alignment=dataclasses.replace(NavConfig().alignment, mode="static")),
         "filter.wind_states": _cfg({"wind_states": True}, aids=AidsConfig(drag=True)),
         "aids.nhc_lever_b": _cfg(aids=AidsConfig(nhc=True, nhc_lever_b=np.array((1.0, 0.0, 0.0)))),
-        "gnss.vel_delay": _cfg(gnss=GnssConfig(vel_delay=0.1)),
+        "hold.enabled": _cfg(hold=dataclasses.replace(NavConfig().hold, enabled=True)),
     }
     for name, cfg in bad.items():
         with pytest.raises(ValueError, match=rf"not supported by the C core: {name.replace('.', '[.]')}"):

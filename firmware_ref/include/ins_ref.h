@@ -188,6 +188,7 @@ typedef struct {
     ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std, g_local;
     double nhc_next, still_time;
     ins_real ema_w[3], ema_f[3];
+    int replaying;         /* a delayed-fusion replay: gates apply, counters do not move */
 } ins_ekf_t;
 
 /* Default configuration: the defaults of ins_hil.fusion.ekf.FilterConfig / ins_hil.core.NavConfig. */
@@ -249,7 +250,48 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g);
  * calibrated against accepted GNSS heights with time constant baro_offset_tau; its variance is added to R).
  * Returns 1 if accepted. */
 int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude);
+/* ins_core_fuse_gnss with the time alignment chosen by the caller (assume_now: no v dt shift). */
+int ins_core_fuse_gnss_at(ins_core_t *c, const ins_gnss_t *g, int assume_now);
 void ins_core_output(const ins_core_t *c, ins_out_t *o);
+
+/* ------------------------------------------------------ delayed fusion (roll-back) */
+
+/* Delayed fusion as ins_hil.core_parts.history.DelayedHistory: a snapshot of the core after every step
+ * (the last max_delay + 2 dt s of them), the IMU increments and the fused measurements since the oldest.
+ * A measurement older than half a step is fused at the snapshot nearest its time, and the logged IMU
+ * steps and measurements are replayed up to now (gated, not counted). Fixed capacity: INS_HIST_N steps
+ * (max_delay / dt + 3 must fit: 1.2 s at 200 Hz, 0.38 s at 1 kHz) and INS_HIST_MEAS measurements; a
+ * measurement older than the history is fused now, as NavCore does beyond its history. */
+#ifndef INS_HIST_N
+#define INS_HIST_N 384
+#endif
+#define INS_HIST_MEAS 256
+typedef struct {
+    uint32_t step;      /* the step it was fused at (NavCore's log label) */
+    int kind;           /* 0 GNSS, 1 baro */
+    ins_gnss_t g;       /* GNSS (NaN lat: velocity only; NaN vel: position only) */
+    double t;           /* baro: time, altitude */
+    ins_pos alt;
+} ins_hmeas_t;
+typedef struct {
+    ins_core_t snap[INS_HIST_N];
+    uint32_t snap_step[INS_HIST_N];
+    double snap_t[INS_HIST_N];
+    uint32_t snap_first, snap_n;       /* ring: oldest index, count */
+    ins_real imu[INS_HIST_N][6];       /* increments of step k at k % INS_HIST_N */
+    double imu_t[INS_HIST_N];
+    ins_hmeas_t meas[INS_HIST_MEAS];
+    uint32_t meas_first, meas_n;
+    double max_delay;
+    uint32_t rollbacks, too_old;       /* roll-backs done; measurements older than the history */
+} ins_hist_t;
+
+void ins_hist_init(ins_hist_t *h, double max_delay);
+/* One IMU step through the history (log, ins_core_step, snapshot). */
+void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end);
+/* A GNSS fix / baro altitude valid at its time: rolled back if older than half a step. */
+int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g);
+int ins_hist_fuse_baro(ins_hist_t *h, ins_core_t *c, double t, ins_pos altitude);
 
 /* ---------------------------------------------------------------------- FDI */
 

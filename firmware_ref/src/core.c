@@ -86,12 +86,16 @@ static int apply_rows(ins_core_t *c, int grp, int n, ins_real h[][INS_NX], const
     e->last_ratio[grp] = ratio;
     force = grp == INS_GRP_GNSS_POS && (int)e->consecutive[grp] >= e->gnss_reset_after;
     if (ratio > K(1.0) && !force) {
-        e->rejected[grp]++;
-        e->consecutive[grp]++;
+        if (!e->replaying) {
+            e->rejected[grp]++;
+            e->consecutive[grp]++;
+        }
         return 0;
     }
-    e->accepted[grp]++;
-    e->consecutive[grp] = 0;
+    if (!e->replaying) {
+        e->accepted[grp]++;
+        e->consecutive[grp] = 0;
+    }
     for (i = 0; i < n; ++i) ins_ekf_update_scalar(e, h[i], z[i], r[i]);
     ins_ekf_symmetrize(e);
     ins_ekf_feedback(e, &c->mech);
@@ -113,6 +117,10 @@ static void mat_vec(const ins_real m[9], const ins_real v[3], ins_real out[3]) {
 static ins_real maxr(ins_real a, ins_real b) { return a > b ? a : b; }
 
 int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
+    return ins_core_fuse_gnss_at(c, g, g->t < c->mech.t - 1.5 * (double)c->mech.dt); /* late fix: valid now */
+}
+
+int ins_core_fuse_gnss_at(ins_core_t *c, const ins_gnss_t *g, int assume_now) {
     ins_mech_t *m = &c->mech;
     ins_ekf_t *e = &c->ekf;
     const ins_real sne = maxr(g->std_ne, e->min_std[0]) * e->std_scale;
@@ -120,7 +128,6 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
     const ins_real lat = (ins_real)m->lat, h = (ins_real)m->h;
     const int have_vel = g->vel[0] == g->vel[0] && g->vel[1] == g->vel[1] && g->vel[2] == g->vel[2];
     const int pos = g->lat == g->lat; /* NaN latitude: a velocity-only fix (gnss.vel_delay) */
-    const int assume_now = g->t < m->t - 1.5 * (double)m->dt; /* late fix: valid now, no shift */
     const ins_real dtm = (ins_real)(m->t - g->t);
     ins_real z[3], r[3], rm, rn, cm[9], la[3], hr[3][INS_NX];
     int i, mask = 0;
@@ -146,7 +153,7 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g) {
             }
             set_state_sigma(e, 0, sp);
             set_state_sigma(e, 3, sv);
-            e->consecutive[INS_GRP_GNSS_VEL] = 0;
+            if (!e->replaying) e->consecutive[INS_GRP_GNSS_VEL] = 0;
         }
         zero_rows(hr, 3);
         ins_gen_H_gnss_pos(cm, e->lever, hr);
@@ -286,4 +293,152 @@ void ins_core_output(const ins_core_t *c, ins_out_t *o) {
     o->lat = c->mech.lat;
     o->lon = c->mech.lon;
     o->h = c->mech.h;
+}
+
+/* ----------------------------------------------------------- delayed fusion (history.py) */
+
+void ins_hist_init(ins_hist_t *h, double max_delay) {
+    h->snap_first = h->snap_n = 0;
+    h->meas_first = h->meas_n = 0;
+    h->max_delay = max_delay;
+    h->rollbacks = h->too_old = 0;
+}
+
+static uint32_t snap_idx(const ins_hist_t *h, uint32_t i) { return (h->snap_first + i) % INS_HIST_N; }
+
+static void push_snap(ins_hist_t *h, const ins_core_t *c) {
+    uint32_t k;
+    if (h->snap_n == INS_HIST_N) { /* full: the oldest goes */
+        h->snap_first = (h->snap_first + 1) % INS_HIST_N;
+        h->snap_n--;
+    }
+    k = snap_idx(h, h->snap_n);
+    h->snap[k] = *c;
+    h->snap[k].ekf.replaying = 0;
+    h->snap_step[k] = c->steps;
+    h->snap_t[k] = c->mech.t;
+    h->snap_n++;
+}
+
+static void log_meas(ins_hist_t *h, const ins_hmeas_t *m) {
+    if (h->meas_n == INS_HIST_MEAS) {
+        h->meas_first = (h->meas_first + 1) % INS_HIST_MEAS;
+        h->meas_n--;
+    }
+    h->meas[(h->meas_first + h->meas_n) % INS_HIST_MEAS] = *m;
+    h->meas_n++;
+}
+
+void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end) {
+    const uint32_t k = c->steps % INS_HIST_N;
+    double horizon;
+    int i;
+    for (i = 0; i < 3; ++i) {
+        h->imu[k][i] = dth[i];
+        h->imu[k][3 + i] = dv[i];
+    }
+    h->imu_t[k] = t_end;
+    ins_core_step(c, dth, dv, t_end);
+    push_snap(h, c);
+    horizon = c->mech.t - h->max_delay - 2.0 * (double)c->mech.dt;
+    while (h->snap_n > 0 && h->snap_t[h->snap_first] < horizon) {
+        h->snap_first = (h->snap_first + 1) % INS_HIST_N;
+        h->snap_n--;
+    }
+    {
+        const uint32_t first = h->snap_n > 0 ? h->snap_step[h->snap_first] : c->steps;
+        while (h->meas_n > 0 && h->meas[h->meas_first].step < first) {
+            h->meas_first = (h->meas_first + 1) % INS_HIST_MEAS;
+            h->meas_n--;
+        }
+    }
+}
+
+static int fuse_now(ins_core_t *c, const ins_hmeas_t *m, int assume_now) {
+    if (m->kind == 0) return ins_core_fuse_gnss_at(c, &m->g, assume_now);
+    return ins_core_fuse_baro(c, m->t, m->alt);
+}
+
+/* NavCore._fuse_one + DelayedHistory.fuse_delayed_steps (in one piece) */
+static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
+    const double dt = (double)c->mech.dt, t_now = c->mech.t;
+    const double tm = m->kind == 0 ? m->g.t : m->t;
+    int r;
+    if (tm < t_now - 0.5 * dt && h->max_delay > 0.0) {
+        uint32_t i, found = 0, ti = 0, cur = c->steps, ts, k, j;
+        for (i = h->snap_n; i-- > 0;) {
+            const uint32_t q = snap_idx(h, i);
+            if (h->snap_t[q] <= tm + 0.5 * dt) {
+                found = 1;
+                ti = i;
+                break;
+            }
+        }
+        if (found && cur - h->snap_step[snap_idx(h, ti)] < INS_HIST_N) {
+            /* counters and the last test ratios are the live ones (not part of NavCore's snapshot) */
+            uint32_t acc[INS_NGRP], rej[INS_NGRP], con[INS_NGRP];
+            ins_real lr[INS_NGRP];
+            for (k = 0; k < INS_NGRP; ++k) {
+                acc[k] = c->ekf.accepted[k];
+                rej[k] = c->ekf.rejected[k];
+                con[k] = c->ekf.consecutive[k];
+                lr[k] = c->ekf.last_ratio[k];
+            }
+            ts = h->snap_step[snap_idx(h, ti)];
+            *c = h->snap[snap_idx(h, ti)];
+            for (k = 0; k < INS_NGRP; ++k) {
+                c->ekf.accepted[k] = acc[k];
+                c->ekf.rejected[k] = rej[k];
+                c->ekf.consecutive[k] = con[k];
+                c->ekf.last_ratio[k] = lr[k];
+            }
+            c->ekf.replaying = 0;
+            r = fuse_now(c, m, 0); /* counted and gated like any measurement */
+            c->ekf.replaying = 1;
+            h->snap_n = ti + 1; /* the snapshots after the target are replayed; the target's is this state */
+            h->snap[snap_idx(h, ti)] = *c;
+            h->snap[snap_idx(h, ti)].ekf.replaying = 0;
+            /* replay in the order things happened: the measurements fused at state k (in their order),
+             * then the IMU sample that takes state k to k + 1 */
+            for (k = ts; k <= cur; ++k) {
+                for (j = 0; j < h->meas_n; ++j) {
+                    const ins_hmeas_t *e = &h->meas[(h->meas_first + j) % INS_HIST_MEAS];
+                    if (e->step == k) fuse_now(c, e, 0);
+                }
+                if (k < cur) {
+                    const uint32_t q = k % INS_HIST_N;
+                    ins_core_step(c, h->imu[q], h->imu[q] + 3, h->imu_t[q]);
+                    push_snap(h, c);
+                }
+            }
+            c->ekf.replaying = 0;
+            m->step = ts;
+            log_meas(h, m);
+            h->rollbacks++;
+            return r;
+        }
+        h->too_old++;
+    }
+    m->step = c->steps;
+    r = fuse_now(c, m, tm < t_now - 1.5 * dt);
+    if (h->max_delay > 0.0) log_meas(h, m);
+    return r;
+}
+
+int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g) {
+    ins_hmeas_t m;
+    m.kind = 0;
+    m.g = *g;
+    m.t = g->t;
+    m.alt = 0.0;
+    return hist_fuse(h, c, &m);
+}
+
+int ins_hist_fuse_baro(ins_hist_t *h, ins_core_t *c, double t, ins_pos altitude) {
+    ins_hmeas_t m;
+    m.kind = 1;
+    m.g.t = t;
+    m.t = t;
+    m.alt = altitude;
+    return hist_fuse(h, c, &m);
 }

@@ -152,6 +152,7 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     for (i = 0; i < 3; ++i) e->ema_w[i] = K(0.0);
     e->ema_f[0] = e->ema_f[1] = K(0.0);
     e->ema_f[2] = K(-9.80665);
+    e->replaying = 0;
 }
 
 /* F: the generated blocks (generated/ins_jacobians.h, from tools/derive_jacobians.py) and the bias rows */

@@ -763,9 +763,9 @@ def fdi_monitor(options: dict[str, Any]) -> Any:
 def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | None = None) -> Any:
     """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key).
 
-    Unless the table sets ``late_fix_as_current``, it follows the core: the C core, and the Python
-    core with ``[core.nav.delay] compensation = false``, fuse a late GNSS fix as current (shifted by
-    v·Δt), so the monitor compares it with the current state; otherwise at the fix's time of validity."""
+    Unless the table sets ``late_fix_as_current``, it follows ``[core.nav.delay] compensation``: without it
+    either core (Python or C) fuses a late GNSS fix as current (shifted by v·Δt), so the monitor compares it
+    with the current state; with it (the default) at the fix's time of validity (both roll back)."""
     from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 
     known = {f.name for f in dataclasses.fields(AidingConfig)}
@@ -781,8 +781,7 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
     try:
         kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
         if "late_fix_as_current" not in kw:
-            # the C core has no roll-back: it always fuses a late fix at the current step, shifted by v·Δt
-            kw["late_fix_as_current"] = core == "c" or not bool(
+            kw["late_fix_as_current"] = not bool(
                 ((nav or {}).get("delay") or {}).get("compensation", True)
             )
         return AidingMonitor(AidingConfig(**kw), ((nav or {}).get("gnss") or {}).get("lever_arm_b"))
