@@ -32,7 +32,8 @@ typedef double ins_pos;
 #define INS_FDI_M 2
 typedef struct {{
     ins_real q[4]; ins_real v[3]; ins_pos lat, lon, h; double t; ins_real dt;
-    ins_real f_ned[3]; ins_real omega_ie[3]; ins_real omega_en[3]; ...;
+    ins_real f_ned[3]; ins_real omega_ie[3]; ins_real omega_en[3];
+    ins_real dth_prev[3], dv_prev[3]; int have_prev; ...;
 }} ins_mech_t;
 typedef struct {{
     ins_real gyro_arw, accel_vrw, gyro_bias_sigma, gyro_bias_tau, accel_bias_sigma, accel_bias_tau;
@@ -48,7 +49,9 @@ typedef struct {{
 }} ins_ekf_cfg_t;
 typedef struct {{
     ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
-    ins_pos baro_offset; uint32_t accepted[5], rejected[5], consecutive[5]; ins_real last_ratio[5];
+    ins_pos baro_offset; int have_baro_offset; double baro_offset_var, t_baro, t_gnss_ok; ins_pos h_gnss;
+    double gnss_var_d, baro_dt, gnss_dt; ins_real g_local;
+    uint32_t accepted[5], rejected[5], consecutive[5]; ins_real last_ratio[5];
     uint32_t n_predict; ...;
 }} ins_ekf_t;
 typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; }} ins_core_t;

@@ -85,7 +85,6 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "aids.drag": a.drag,
         "hold.enabled": cfg.hold.enabled,
         "mag.ref_ned": cfg.mag.ref_ned is not None,
-        "alignment.mode": cfg.alignment.mode != "given",
     }
     bad = [k for k, v in unsupported.items() if v]
     if bad:
@@ -165,7 +164,10 @@ class CNavCore:
     """The C reference core with the ``NavCore`` interface.
 
     initial, config: as for ``NavCore`` (``NavConfig``; settings the C core lacks raise
-    ``ValueError``). dt: the fixed step (s); None = take it from the first IMU sample.
+    ``ValueError``; ``initial`` may be None with an alignment). dt: the fixed step (s); None = take it
+    from the first IMU sample. With ``alignment.mode`` other than "given" the alignment (levelling,
+    gyrocompass, magnetometer/GNSS yaw, the GNSS-velocity yaw bank) runs in the Python ``NavCore``, a
+    one-off start-up; at its end the C core takes over its state, covariance and biases.
     precision: ``"double"`` or ``"float"`` (the C scalar type). filter: run the 15-state
     EKF predict on every step (needed for ``fuse``); False = mechanization only.
     dt_tolerance / on_dt_mismatch: see the module docstring.
@@ -173,7 +175,7 @@ class CNavCore:
 
     def __init__(
         self,
-        initial: StrapdownState,
+        initial: StrapdownState | None,
         config: NavConfig | None = None,
         *,
         dt: float | None = None,
@@ -191,6 +193,16 @@ class CNavCore:
         self.dt_tolerance = dt_tolerance
         self.on_dt_mismatch = on_dt_mismatch
         self.n_off_step = 0
+        self._cfg = _c_config(self._ffi, self.cfg)
+        # the alignment (Python NavCore) until it navigates, then the C core from its state
+        self._align: Any = None
+        if self.cfg.alignment.mode != "given":
+            from ins_hil.core import NavCore
+
+            self._align = NavCore(initial, self.cfg)
+            initial = self._align.ins.state
+        elif initial is None:
+            raise ValueError("CNavCore: alignment.mode='given' needs an initial state")
         self._initial = initial.copy()
         self._core = self._ffi.new("ins_core_t *")
         # delayed fusion by roll-back (delay.compensation, as NavCore): the C history, else NULL
@@ -200,15 +212,47 @@ class CNavCore:
             self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
-        self._cfg = _c_config(self._ffi, self.cfg)
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         # the last rejected GNSS positions with their test ratios: the C core's forced acceptance after
         # gnss.reset_after rejections is let through only when they pass NavCore's consistency test
         self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, int(self.cfg.gnss.reset_after)))
         self.dt: float | None = None
-        if dt is not None:
+        self._dt_fixed = dt
+        if dt is not None and self._align is None:
             self._init(dt)
+
+    def _handover(self, dt: float) -> None:
+        """The alignment navigates: the C core starts from its state, covariance, biases and baro datum."""
+        a = self._align
+        self._align = None
+        self._initial = a.ins.state.copy()
+        self._init(self._dt_fixed if self._dt_fixed is not None else dt)
+        c = self._core
+        ins = a.ins
+        for i in range(3):
+            c.mech.dth_prev[i] = float(ins._dth_prev[i])
+            c.mech.dv_prev[i] = float(ins._dv_prev[i])
+            c.ekf.bg[i] = float(a.bg[i])
+            c.ekf.ba[i] = float(a.ba[i])
+        c.mech.have_prev = 1 if ins._have_prev else 0
+        P = np.asarray(a.kf.P, dtype=np.float64)
+        for i in range(15):
+            for j in range(15):
+                c.ekf.P[i][j] = float(P[i, j])
+        c.ekf.g_local = float(a.g_local)
+        b = a.baro
+        if b.offset is not None:
+            c.ekf.baro_offset = float(b.offset)
+            c.ekf.have_baro_offset = 1
+        c.ekf.baro_offset_var = float(b.offset_var)
+        c.ekf.t_baro = float(b.t_baro)
+        c.ekf.baro_dt = float(b.baro_dt)
+        c.ekf.t_gnss_ok = float(b.t_gnss_ok) if math.isfinite(b.t_gnss_ok) else -1e300
+        c.ekf.h_gnss = float(b.h_gnss)
+        c.ekf.gnss_var_d = float(b.gnss_var_d)
+        c.ekf.gnss_dt = float(b.gnss_dt)
+        self._events += a.drain_events()
 
     def _init(self, dt: float) -> None:
         if not (dt > 0.0 and math.isfinite(dt)):
@@ -233,6 +277,12 @@ class CNavCore:
 
     def step(self, imu: ImuSample) -> NavState:
         """Propagate with one IMU interval (mechanization + EKF predict); returns the state."""
+        if self._align is not None:
+            st = self._align.step(imu)
+            if self._align.phase != "nav":
+                return st
+            self._handover(imu.dt)
+            return self.state()
         if self.dt is None:
             self._init(imu.dt)
         elif abs(imu.dt - self.dt) > self.dt_tolerance * self.dt:
@@ -271,6 +321,11 @@ class CNavCore:
         With ``gnss.vel_delay`` the velocity is a second measurement at its own, earlier time.
         Magnetometer samples are ignored (no magnetometer update in the C core).
         """
+        if self._align is not None:
+            self._align.fuse(meas)
+            if self._align.phase == "nav":
+                self._handover(self._align._dt)
+            return None
         if self.dt is None or not self.filter:
             return None
         if isinstance(meas, GnssFix) and self.cfg.gnss.vel_delay > 0 and meas.vel_ned is not None:
@@ -364,16 +419,25 @@ class CNavCore:
             e.consecutive[0] = n - 1
 
     def align_status(self) -> str:
-        """Always "": the C core starts from its given state (``alignment.mode = "given"``)."""
-        return ""
+        """Why the core is not navigating yet ("" once the C core runs)."""
+        return "" if self._align is None else str(self._align.align_status())
+
+    @property
+    def phase(self) -> str:
+        """The alignment phase ("level", "heading") or "nav" (NavCore's)."""
+        return "nav" if self._align is None else str(self._align.phase)
 
     def drain_events(self) -> list[FaultEvent]:
         """GNSS/baro fault events raised by the innovation gates since the last call."""
+        if self._align is not None:
+            return list(self._align.drain_events())
         ev, self._events = self._events, []
         return ev
 
     def state(self) -> NavState:
         """The current navigation state (biases and 1-σ from the C filter)."""
+        if self._align is not None:
+            return self._align.state()
         if self.dt is None:
             s = self._initial
             return NavState(t=s.t, q_nb=s.q_nb.copy(), vel_ned=s.vel_ned.copy(), lat=s.lat, lon=s.lon, h=s.h)

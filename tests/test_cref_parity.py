@@ -220,6 +220,21 @@ def test_velocity_delay_and_ground_aids_like_python(car: Stream) -> None:
     _assert_parity(worst)
 
 
+@pytest.mark.parametrize("yaw_gsf", [False, True])
+def test_alignment_then_c_like_python(car: Stream, yaw_gsf: bool) -> None:
+    """The static alignment (levelling at rest; yaw from the GNSS course, or from the GNSS-velocity yaw bank as
+    px4_quad) in NavCore, then the C core from its state: as NavCore over the whole run (with drive0708's lever
+    arm, vibration, NHC, ZUPT)."""
+    base = CAR_CASES["drive_like"]
+    al = dataclasses.replace(base.alignment, mode="static", time=3.0, yaw_gsf=yaw_gsf)
+    cfg = dataclasses.replace(base, alignment=al)
+    worst, py, c = run_both(car, cfg)
+    assert py.phase == "nav" and c.phase == "nav" and c._align is None
+    pa, ca = _counts(py, c, ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt"))
+    assert pa == ca and pa[0] > 300
+    _assert_parity(worst)
+
+
 def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
     """Float vs double with lever arm, vibration, NHC, ZUPT (the bound docs/ref_core.md gives)."""
     cfg = CAR_CASES["drive_like"]
@@ -244,7 +259,7 @@ def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
 def test_still_refused_settings_name_themselves(car: Stream) -> None:
     bad = {
         "filter.scale_factors": _cfg({"scale_factors": True}),
-        "alignment.mode": _cfg(alignment=dataclasses.replace(NavConfig().alignment, mode="static")),
+        "mag.ref_ned": _cfg(mag=dataclasses.replace(NavConfig().mag, ref_ned=np.array((0.2, 0.0, 0.4)))),
         "filter.wind_states": _cfg({"wind_states": True}, aids=AidsConfig(drag=True)),
         "aids.nhc_lever_b": _cfg(aids=AidsConfig(nhc=True, nhc_lever_b=np.array((1.0, 0.0, 0.0)))),
         "hold.enabled": _cfg(hold=dataclasses.replace(NavConfig().hold, enabled=True)),
