@@ -46,12 +46,15 @@ typedef struct {{
     ins_real nhc_std, nhc_std_vertical, nhc_rate, nhc_min_speed;
     ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std;
     ins_real aids_gate; ins_real g_local;
+    int have_mag; ins_real mag_ref[3], mag_std, mag_gate;
+    int hold, have_hold_pos; double hold_lat, hold_lon, hold_h;
+    ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
 }} ins_ekf_cfg_t;
 typedef struct {{
     ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
     ins_pos baro_offset; int have_baro_offset; double baro_offset_var, t_baro, t_gnss_ok; ins_pos h_gnss;
     double gnss_var_d, baro_dt, gnss_dt; ins_real g_local;
-    uint32_t accepted[5], rejected[5], consecutive[5]; ins_real last_ratio[5];
+    uint32_t accepted[7], rejected[7], consecutive[7]; ins_real last_ratio[7];
     uint32_t n_predict; ...;
 }} ins_ekf_t;
 typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; }} ins_core_t;
@@ -87,6 +90,7 @@ void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double 
 int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
                     double std_ne, double std_d, double std_vel);
 int cref_hfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude);
+int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3]);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);
 int cref_fuse_baro(ins_core_t *c, double t, double altitude);

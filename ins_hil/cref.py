@@ -9,9 +9,9 @@ compiled at install time by cffi (``firmware_ref/cffi_build.py``) into
 The C filter mirrors ``ins_hil.fusion`` (15 states, Joseph sequential scalar
 updates, the same gates and feedback) for the ``NavConfig`` settings it
 supports: GNSS position/velocity with lever arm and σ scale, baro, the vibration
-noise, ``cov_every``, NHC and ZUPT/ZARU. Others raise ``ValueError`` naming them
-(the list and the reasons: docs/ref_core.md). Magnetometer samples are ignored
-(``mag.ref_ned`` is refused). Delayed fusion (``delay.compensation``) rolls back
+noise, ``cov_every``, NHC and ZUPT/ZARU, the magnetometer, the no-aid hold and the
+alignment (in NavCore, then handed over). Others raise ``ValueError`` naming them
+(the list and the reasons: docs/ref_core.md). Delayed fusion (``delay.compensation``) rolls back
 as NavCore does (``ins_hist_t``: a snapshot per step, the log replayed).
 
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
@@ -65,9 +65,9 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     """The C filter configuration from a NavConfig; ValueError for what the C core lacks."""
     f = cfg.filter
     a = cfg.aids
-    # what stays Python-only (docs/ref_core.md, "What the C core runs"): the extra error states, other numerics,
-    # the model switches, adaptive R, the mounted NHC, the drag aid, the no-aid hold, the magnetometer,
-    # alignment, and a velocity delay (it needs the roll-back of delayed fusion)
+    # what stays Python-only (docs/ref_core.md, "What the C core runs"): the extra error states (scale factors,
+    # g-sensitivity, magnetometer hard iron, wind, mounting), other numerics, the model switches, adaptive R,
+    # the NHC at a lever arm / with suspension pitch, the drag aid
     unsupported = {
         "filter.gyro_bias": not f.gyro_bias,
         "filter.accel_bias": not f.accel_bias,
@@ -83,8 +83,6 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "aids.nhc_lever_b": a.nhc and bool(np.any(np.asarray(a.nhc_lever_b) != 0.0)),
         "aids.nhc_pitch_per_accel": a.nhc and a.nhc_pitch_per_accel != 0.0,
         "aids.drag": a.drag,
-        "hold.enabled": cfg.hold.enabled,
-        "mag.ref_ned": cfg.mag.ref_ned is not None,
     }
     bad = [k for k, v in unsupported.items() if v]
     if bad:
@@ -125,12 +123,19 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "zupt_max_speed": a.zupt_max_speed,
         "zaru_std": a.zaru_std,
         "aids_gate": a.gate,
+        "mag_std": cfg.mag.std,
+        "mag_gate": cfg.mag.gate,
+        "hold_after": cfg.hold.after,
+        "hold_std": cfg.hold.std,
+        "hold_vel_std": cfg.hold.vel_std,
+        "hold_rate": cfg.hold.rate,
+        "hold_gate": cfg.hold.gate,
     }
     for name, value in pairs.items():
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"CNavCore: config value {name}={value!r} must be finite and >= 0")
         setattr(c, name, float(value))
-    for name in ("gyro_bias_tau", "accel_bias_tau", "vib_tau", "nhc_rate", "zupt_tau"):
+    for name in ("gyro_bias_tau", "accel_bias_tau", "vib_tau", "nhc_rate", "zupt_tau", "hold_rate"):
         if not pairs[name] > 0.0:
             raise ValueError(f"CNavCore: {name}={pairs[name]!r} must be > 0")
     lever = np.asarray(cfg.gnss.lever_arm_b, dtype=np.float64)
@@ -142,6 +147,17 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     c.nhc, c.nhc_vertical, c.zupt = int(a.nhc), int(a.nhc_vertical), int(a.zupt)
     c.zaru = int(a.zaru and f.gyro_bias)
     c.g_local = 9.80665  # NavCore's gravity of the rest detector with alignment.mode = "given"
+    if cfg.mag.ref_ned is not None:
+        ref = np.asarray(cfg.mag.ref_ned, dtype=np.float64)
+        if ref.shape != (3,) or not np.all(np.isfinite(ref)) or not float(np.linalg.norm(ref)) > 0.0:
+            raise ValueError(f"CNavCore: mag.ref_ned={cfg.mag.ref_ned!r} must be 3 finite numbers, not all 0")
+        c.have_mag = 1
+        for i in range(3):
+            c.mag_ref[i] = float(ref[i])
+    c.hold = int(cfg.hold.enabled)
+    if cfg.alignment.position is not None:
+        lat, lon, h = cfg.alignment.position
+        c.have_hold_pos, c.hold_lat, c.hold_lon, c.hold_h = 1, math.radians(lat), math.radians(lon), float(h)
     c.second_order = 1 if f.second_order else 0
     c.have_baro_offset = 0 if cfg.baro.offset is None else 1
     c.baro_offset = 0.0 if cfg.baro.offset is None else float(cfg.baro.offset)
@@ -153,7 +169,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     return c
 
 
-_GROUPS = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt")
+_GROUPS = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt", "mag", "hold")
 
 
 #: columns of CNavCore.run's output array
@@ -319,7 +335,7 @@ class CNavCore:
         ``delay.compensation`` a measurement older than half a step is fused at its step by the C
         roll-back (as NavCore); without it, a late fix is shifted by v·Δt to the current step.
         With ``gnss.vel_delay`` the velocity is a second measurement at its own, earlier time.
-        Magnetometer samples are ignored (no magnetometer update in the C core).
+        Magnetometer samples are fused with ``mag.ref_ned`` (ignored without it).
         """
         if self._align is not None:
             self._align.fuse(meas)
@@ -378,12 +394,18 @@ class CNavCore:
                 alt = altitude_from_pressure(meas.pressure)
             self._lib_.cref_hfuse_baro(self._core, self._hist, meas.t, alt)
             groups = (2,)
+        elif isinstance(meas, MagSample) and self.cfg.mag.ref_ned is not None:
+            fb = np.ascontiguousarray(meas.field_b, dtype=np.float64)
+            self._lib_.cref_hfuse_mag(self._core, self._hist, meas.t, self._ffi.from_buffer("double[]", fb))
+            groups = (5,)
         else:
             return None
         ratios = dict(self._ratios)
         for g in groups:
             kind = _GROUPS[g]
             ratios[kind] = float(e.last_ratio[g])
+            if g > 2:  # events for the GNSS and baro gates only (as NavCore)
+                continue
             sensor = "gnss" if kind.startswith("gnss") else "baro"
             if int(e.rejected[g]) > before[g] and cons[g] == 0:
                 self._events.append(

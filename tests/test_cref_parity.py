@@ -22,7 +22,16 @@ from ins_hil.cref import CNavCore
 from ins_hil.fusion.ekf import FilterConfig
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownState
-from ins_hil.sim.sensors import GnssModel, baro_samples, corrupt_imu, gnss_fixes, mems_accel, mems_gyro
+from ins_hil.sim.sensors import (
+    GnssModel,
+    baro_samples,
+    corrupt_imu,
+    earth_field_ned,
+    gnss_fixes,
+    mag_samples,
+    mems_accel,
+    mems_gyro,
+)
 from ins_hil.sim.trajectory import car_profile, generate, uav_profile
 from ins_hil.types import GnssFix, ImuSample
 
@@ -32,14 +41,18 @@ LEVER = np.array((0.3, -0.2, -0.5))
 
 
 class Stream:
-    def __init__(self, kind: str, duration: float) -> None:
+    def __init__(self, kind: str, duration: float, gnss: bool = True, mag: bool = False) -> None:
         prof = car_profile(speed=12.0, t_start=5.0, t_stop=60.0) if kind == "car" else uav_profile()
         self.truth = generate(prof, duration, DT, LAT0, LON0, H0)
         rng = np.random.default_rng(3)
         self.imu = corrupt_imu(self.truth, mems_gyro(rng), mems_accel(rng), seed=4)
         fixes = gnss_fixes(self.truth, GnssModel(rate=5.0, lever_arm_b=LEVER), seed=5)
         baro = baro_samples(self.truth, rate=10.0, std=0.5, seed=6)
-        self.meas = sorted([*fixes, *baro], key=lambda m: m.t)
+        # a magnetometer at 10 Hz off the IMU grid (its samples are rolled back to their step)
+        mags = (
+            [dataclasses.replace(m, t=m.t - 0.013) for m in mag_samples(self.truth, rate=10.0, seed=7)] if mag else []
+        )
+        self.meas = sorted([*(fixes if gnss else []), *baro, *mags], key=lambda m: m.t)
         tr = self.truth
         self.init = StrapdownState(tr.q_nb[0].copy(), tr.vel_ned[0].copy(), LAT0, LON0, H0, tr.t[0])
 
@@ -101,7 +114,7 @@ def run_both(
 
 def _counts(py: NavCore, c: CNavCore, kinds: tuple[str, ...]) -> tuple[list[int], list[int]]:
     e = c._core.ekf
-    names = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt")
+    names = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt", "mag", "hold")
     pa = [py.stats[k].accepted for k in kinds] + [py.stats[k].rejected for k in kinds]
     ca = [int(e.accepted[names.index(k)]) for k in kinds] + [int(e.rejected[names.index(k)]) for k in kinds]
     return pa, ca
@@ -235,6 +248,47 @@ def test_alignment_then_c_like_python(car: Stream, yaw_gsf: bool) -> None:
     _assert_parity(worst)
 
 
+@pytest.fixture(scope="module")
+def uav_mag() -> Stream:
+    return Stream("uav", 120.0, mag=True)
+
+
+@pytest.fixture(scope="module")
+def hover() -> Stream:
+    return Stream("uav", 40.0, gnss=False, mag=True)
+
+
+def _static(cfg: NavConfig, **kw: Any) -> NavConfig:
+    return dataclasses.replace(cfg, alignment=dataclasses.replace(cfg.alignment, mode="static", time=5.0, **kw))
+
+
+def test_magnetometer_like_python(uav_mag: Stream, monkeypatch: pytest.MonkeyPatch) -> None:
+    """ardupilot_copter's set: static alignment (yaw from the magnetometer), vibration, the magnetometer against
+    its reference (samples off the IMU grid: rolled back one step), fixes 0.11 s late (a roll-back through the
+    magnetometer's: NavCore's log order patched as in test_delayed_fusion_rolls_back_like_python)."""
+    from ins_hil.core_parts.history import DelayedHistory
+
+    monkeypatch.setattr(DelayedHistory, "sort_log", _sort_log_state_order)
+    mag = dataclasses.replace(NavConfig().mag, ref_ned=earth_field_ned())
+    cfg = _static(_cfg({"gyro_vib_gain": 0.5, "accel_vib_gain": 0.5}, mag=mag))
+    worst, py, c = run_both(uav_mag, cfg, latency=0.11)
+    pa, ca = _counts(py, c, ("gnss_pos", "gnss_vel", "baro", "mag"))
+    assert pa == ca and py.stats["mag"].accepted > 900
+    _assert_parity(worst)
+
+
+def test_no_aid_hold_like_python(hover: Stream) -> None:
+    """px4_hover's set: no GNSS, the constant-position hold at the configured start, the magnetometer, baro."""
+    mag = dataclasses.replace(NavConfig().mag, ref_ned=earth_field_ned())
+    hold = dataclasses.replace(NavConfig().hold, enabled=True, after=0.0)
+    pos = (math.degrees(LAT0), math.degrees(LON0), H0)
+    cfg = _static(_cfg({"gyro_vib_gain": 0.5, "accel_vib_gain": 0.5}, mag=mag, hold=hold), position=pos)
+    worst, py, c = run_both(hover, cfg)
+    pa, ca = _counts(py, c, ("baro", "mag", "hold"))
+    assert pa == ca and py.stats["hold"].accepted > 100
+    _assert_parity(worst)
+
+
 def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
     """Float vs double with lever arm, vibration, NHC, ZUPT (the bound docs/ref_core.md gives)."""
     cfg = CAR_CASES["drive_like"]
@@ -259,10 +313,10 @@ def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
 def test_still_refused_settings_name_themselves(car: Stream) -> None:
     bad = {
         "filter.scale_factors": _cfg({"scale_factors": True}),
-        "mag.ref_ned": _cfg(mag=dataclasses.replace(NavConfig().mag, ref_ned=np.array((0.2, 0.0, 0.4)))),
+        "filter.mag_bias": _cfg({"mag_bias": True}),
         "filter.wind_states": _cfg({"wind_states": True}, aids=AidsConfig(drag=True)),
         "aids.nhc_lever_b": _cfg(aids=AidsConfig(nhc=True, nhc_lever_b=np.array((1.0, 0.0, 0.0)))),
-        "hold.enabled": _cfg(hold=dataclasses.replace(NavConfig().hold, enabled=True)),
+        "adaptive": _cfg(adaptive=True),
     }
     for name, cfg in bad.items():
         with pytest.raises(ValueError, match=rf"not supported by the C core: {name.replace('.', '[.]')}"):

@@ -149,9 +149,25 @@ typedef struct {
     ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std;
     ins_real aids_gate;    /* innovation gate of the aids, sigma */
     ins_real g_local;      /* gravity of the rest detector, m/s^2 */
+    /* magnetometer (NavConfig.mag; no hard-iron states): reference field NED (any unit), unit-vector sigma */
+    int have_mag;
+    ins_real mag_ref[3], mag_std, mag_gate;
+    /* no-aid hold (NavConfig.hold): constant position / zero velocity while no GNSS position for hold_after s */
+    int hold, have_hold_pos;
+    double hold_lat, hold_lon, hold_h; /* where to hold before any GNSS position (rad, rad, m) */
+    ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
 } ins_ekf_cfg_t;
 
-enum { INS_GRP_GNSS_POS = 0, INS_GRP_GNSS_VEL = 1, INS_GRP_BARO = 2, INS_GRP_NHC = 3, INS_GRP_ZUPT = 4, INS_NGRP = 5 };
+enum {
+    INS_GRP_GNSS_POS = 0,
+    INS_GRP_GNSS_VEL = 1,
+    INS_GRP_BARO = 2,
+    INS_GRP_NHC = 3,
+    INS_GRP_ZUPT = 4,
+    INS_GRP_MAG = 5,
+    INS_GRP_HOLD = 6,
+    INS_NGRP = 7
+};
 
 typedef struct {
     ins_real P[INS_NX][INS_NX];
@@ -189,6 +205,12 @@ typedef struct {
     double nhc_next, still_time;
     ins_real ema_w[3], ema_f[3];
     int replaying;         /* a delayed-fusion replay: gates apply, counters do not move */
+    int have_mag;
+    ins_real mag_ref[3], mag_std;   /* unit reference field (NED) */
+    int hold, have_hold_pos;
+    double hold_pos[3], t_hold_gnss, t_hold;   /* live state (not rolled back, as NoAidHold) */
+    ins_real hold_after, hold_std, hold_vel_std;
+    double hold_period;
 } ins_ekf_t;
 
 /* Default configuration: the defaults of ins_hil.fusion.ekf.FilterConfig / ins_hil.core.NavConfig. */
@@ -250,6 +272,9 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g);
  * calibrated against accepted GNSS heights with time constant baro_offset_tau; its variance is added to R).
  * Returns 1 if accepted. */
 int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude);
+/* Magnetometer field (body FRD, any unit) valid now: the book's two-component update (eqs. 3.28-3.38) against
+ * the configured reference. Returns 1 if accepted (0 also when no reference is configured). */
+int ins_core_fuse_mag(ins_core_t *c, double t, const ins_real field_b[3]);
 /* ins_core_fuse_gnss with the time alignment chosen by the caller (assume_now: no v dt shift). */
 int ins_core_fuse_gnss_at(ins_core_t *c, const ins_gnss_t *g, int assume_now);
 void ins_core_output(const ins_core_t *c, ins_out_t *o);
@@ -268,8 +293,9 @@ void ins_core_output(const ins_core_t *c, ins_out_t *o);
 #define INS_HIST_MEAS 256
 typedef struct {
     uint32_t step;      /* the step it was fused at (NavCore's log label) */
-    int kind;           /* 0 GNSS, 1 baro */
+    int kind;           /* 0 GNSS, 1 baro, 2 magnetometer */
     ins_gnss_t g;       /* GNSS (NaN lat: velocity only; NaN vel: position only) */
+    ins_real field[3];  /* magnetometer */
     double t;           /* baro: time, altitude */
     ins_pos alt;
 } ins_hmeas_t;
@@ -292,6 +318,7 @@ void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const in
 /* A GNSS fix / baro altitude valid at its time: rolled back if older than half a step. */
 int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g);
 int ins_hist_fuse_baro(ins_hist_t *h, ins_core_t *c, double t, ins_pos altitude);
+int ins_hist_fuse_mag(ins_hist_t *h, ins_core_t *c, double t, const ins_real field_b[3]);
 
 /* ---------------------------------------------------------------------- FDI */
 

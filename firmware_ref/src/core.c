@@ -16,6 +16,7 @@ void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_
 }
 
 static void ground_aids(ins_core_t *c, const ins_real w_b[3]);
+static void hold(ins_core_t *c);
 
 void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end) {
     ins_real a[3], u[3];
@@ -37,6 +38,7 @@ void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], d
         ground_aids(c, w_b);
     }
     c->steps++;
+    if (c->filter && c->ekf.hold && !c->ekf.replaying) hold(c);
 }
 
 void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_t n, ins_out_t *out) {
@@ -163,6 +165,13 @@ int ins_core_fuse_gnss_at(ins_core_t *c, const ins_gnss_t *g, int assume_now) {
             e->t_gnss_ok = g->t;
             e->h_gnss = g->h + (double)la[2]; /* the IMU height (BaroDatum.gnss_height: C at the fusion) */
             e->gnss_var_d = (double)(sd * sd);
+            if (!e->replaying) { /* the hold waits, and would hold here (NoAidHold.gnss) */
+                e->t_hold_gnss = g->t;
+                e->hold_pos[0] = g->lat;
+                e->hold_pos[1] = g->lon;
+                e->hold_pos[2] = g->h;
+                e->have_hold_pos = 1;
+            }
         }
     }
     if (e->use_gnss_vel && have_vel) {
@@ -295,6 +304,63 @@ void ins_core_output(const ins_core_t *c, ins_out_t *o) {
     o->h = c->mech.h;
 }
 
+int ins_core_fuse_mag(ins_core_t *c, double t, const ins_real field_b[3]) {
+    /* z = rows 2-3 of tau (m x C mb): m the unit reference, mb the unit measured field (measurements.magnetometer) */
+    ins_ekf_t *e = &c->ekf;
+    const ins_real *m = e->mag_ref;
+    ins_real cm[9], mb[3], cmb[3], x[3], z[2], r[2], hr[2][INS_NX], n, k;
+    int i;
+    (void)t;
+    if (!e->have_mag) return 0;
+    n = RS(field_b[0] * field_b[0] + field_b[1] * field_b[1] + field_b[2] * field_b[2]);
+    if (!(n > K(0.0))) return 0;
+    for (i = 0; i < 3; ++i) mb[i] = field_b[i] / n;
+    ins_dcm_from_quat(c->mech.q, cm);
+    mat_vec(cm, mb, cmb);
+    x[0] = m[1] * cmb[2] - m[2] * cmb[1];
+    x[1] = m[2] * cmb[0] - m[0] * cmb[2];
+    x[2] = m[0] * cmb[1] - m[1] * cmb[0];
+    k = K(1.0) / (K(1.0) + m[0]); /* tau, book eq. 3.33 */
+    z[0] = -m[1] * x[0] + (K(1.0) - m[1] * m[1] * k) * x[1] + (-m[1] * m[2] * k) * x[2];
+    z[1] = -m[2] * x[0] + (-m[1] * m[2] * k) * x[1] + (K(1.0) - m[2] * m[2] * k) * x[2];
+    r[0] = r[1] = e->mag_std * e->mag_std;
+    zero_rows(hr, 2);
+    ins_gen_H_mag(m, hr);
+    return apply_rows(c, INS_GRP_MAG, 2, hr, z, r);
+}
+
+/* the no-aid hold after a live step (NoAidHold.due / measurements; not in a replay) */
+static void hold(ins_core_t *c) {
+    ins_ekf_t *e = &c->ekf;
+    ins_mech_t *m = &c->mech;
+    const double t = m->t;
+    const ins_real lat = (ins_real)m->lat, h = (ins_real)m->h, zero[3] = {0, 0, 0};
+    ins_real z[3], zv[3], r[3], rm, rn, cm[9], hr[3][INS_NX];
+    int i;
+    if (!e->have_hold_pos || t - e->t_hold_gnss < (double)e->hold_after || t - e->t_hold < e->hold_period - 1e-9)
+        return;
+    e->t_hold = t;
+    radii(lat, &rm, &rn);
+    z[0] = (ins_real)(e->hold_pos[0] - m->lat) * (rm + h);
+    z[1] = (ins_real)(e->hold_pos[1] - m->lon) * (rn + h) * RCOS(lat);
+    z[2] = -(ins_real)(e->hold_pos[2] - m->h);
+    for (i = 0; i < 3; ++i) {
+        z[i] = z[i] - K(0.0);
+        zv[i] = -m->v[i];
+        r[i] = e->hold_std * e->hold_std;
+    }
+    ins_dcm_from_quat(m->q, cm);
+    zero_rows(hr, 3);
+    ins_gen_H_gnss_pos(cm, zero, hr);
+    apply_rows(c, INS_GRP_HOLD, 3, hr, z, r);
+    if (e->hold_vel_std > K(0.0)) {
+        for (i = 0; i < 3; ++i) r[i] = e->hold_vel_std * e->hold_vel_std;
+        zero_rows(hr, 3);
+        ins_gen_H_zupt(hr);
+        apply_rows(c, INS_GRP_HOLD, 3, hr, zv, r);
+    }
+}
+
 /* ----------------------------------------------------------- delayed fusion (history.py) */
 
 void ins_hist_init(ins_hist_t *h, double max_delay) {
@@ -356,13 +422,14 @@ void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const in
 
 static int fuse_now(ins_core_t *c, const ins_hmeas_t *m, int assume_now) {
     if (m->kind == 0) return ins_core_fuse_gnss_at(c, &m->g, assume_now);
+    if (m->kind == 2) return ins_core_fuse_mag(c, m->t, m->field);
     return ins_core_fuse_baro(c, m->t, m->alt);
 }
 
 /* NavCore._fuse_one + DelayedHistory.fuse_delayed_steps (in one piece) */
 static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
     const double dt = (double)c->mech.dt, t_now = c->mech.t;
-    const double tm = m->kind == 0 ? m->g.t : m->t;
+    const double tm = m->t;
     int r;
     if (tm < t_now - 0.5 * dt && h->max_delay > 0.0) {
         uint32_t i, found = 0, ti = 0, cur = c->steps, ts, k, j;
@@ -378,6 +445,9 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
             /* counters and the last test ratios are the live ones (not part of NavCore's snapshot) */
             uint32_t acc[INS_NGRP], rej[INS_NGRP], con[INS_NGRP];
             ins_real lr[INS_NGRP];
+            double hp[3], tg = c->ekf.t_hold_gnss, th = c->ekf.t_hold;
+            const int hh = c->ekf.have_hold_pos;
+            for (k = 0; k < 3; ++k) hp[k] = c->ekf.hold_pos[k];
             for (k = 0; k < INS_NGRP; ++k) {
                 acc[k] = c->ekf.accepted[k];
                 rej[k] = c->ekf.rejected[k];
@@ -392,6 +462,10 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
                 c->ekf.consecutive[k] = con[k];
                 c->ekf.last_ratio[k] = lr[k];
             }
+            for (k = 0; k < 3; ++k) c->ekf.hold_pos[k] = hp[k]; /* the hold's state is live (NoAidHold) */
+            c->ekf.t_hold_gnss = tg;
+            c->ekf.t_hold = th;
+            c->ekf.have_hold_pos = hh;
             c->ekf.replaying = 0;
             r = fuse_now(c, m, 0); /* counted and gated like any measurement */
             c->ekf.replaying = 1;
@@ -431,6 +505,18 @@ int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g) {
     m.g = *g;
     m.t = g->t;
     m.alt = 0.0;
+    m.field[0] = m.field[1] = m.field[2] = K(0.0);
+    return hist_fuse(h, c, &m);
+}
+
+int ins_hist_fuse_mag(ins_hist_t *h, ins_core_t *c, double t, const ins_real field_b[3]) {
+    ins_hmeas_t m;
+    int i;
+    m.kind = 2;
+    m.g.t = t;
+    m.t = t;
+    m.alt = 0.0;
+    for (i = 0; i < 3; ++i) m.field[i] = field_b[i];
     return hist_fuse(h, c, &m);
 }
 
@@ -440,5 +526,6 @@ int ins_hist_fuse_baro(ins_hist_t *h, ins_core_t *c, double t, ins_pos altitude)
     m.g.t = t;
     m.t = t;
     m.alt = altitude;
+    m.field[0] = m.field[1] = m.field[2] = K(0.0);
     return hist_fuse(h, c, &m);
 }

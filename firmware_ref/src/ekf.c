@@ -68,6 +68,17 @@ void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg) {
     cfg->zaru_std = K(0.002);
     cfg->aids_gate = K(5.0);
     cfg->g_local = K(9.80665);
+    cfg->have_mag = 0; /* = MagConfig() */
+    cfg->mag_ref[0] = cfg->mag_ref[1] = cfg->mag_ref[2] = K(0.0);
+    cfg->mag_std = K(0.0524);
+    cfg->mag_gate = K(5.0);
+    cfg->hold = cfg->have_hold_pos = 0; /* = HoldConfig() */
+    cfg->hold_lat = cfg->hold_lon = cfg->hold_h = 0.0;
+    cfg->hold_after = K(5.0);
+    cfg->hold_std = K(10.0);
+    cfg->hold_vel_std = K(1.0);
+    cfg->hold_rate = K(5.0);
+    cfg->hold_gate = K(5.0);
 }
 
 void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
@@ -153,6 +164,26 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->ema_f[0] = e->ema_f[1] = K(0.0);
     e->ema_f[2] = K(-9.80665);
     e->replaying = 0;
+    e->have_mag = cfg->have_mag;
+    e->mag_std = cfg->mag_std;
+    e->gate[INS_GRP_MAG] = cfg->mag_gate;
+    {
+        const ins_real n = RS(cfg->mag_ref[0] * cfg->mag_ref[0] + cfg->mag_ref[1] * cfg->mag_ref[1] +
+                              cfg->mag_ref[2] * cfg->mag_ref[2]);
+        for (i = 0; i < 3; ++i) e->mag_ref[i] = n > K(0.0) ? cfg->mag_ref[i] / n : K(0.0);
+        if (!(n > K(0.0))) e->have_mag = 0;
+    }
+    e->hold = cfg->hold;
+    e->have_hold_pos = cfg->have_hold_pos;
+    e->hold_pos[0] = cfg->hold_lat;
+    e->hold_pos[1] = cfg->hold_lon;
+    e->hold_pos[2] = cfg->hold_h;
+    e->t_hold_gnss = e->t_hold = -1e300;
+    e->hold_after = cfg->hold_after;
+    e->hold_std = cfg->hold_std;
+    e->hold_vel_std = cfg->hold_vel_std;
+    e->hold_period = 1.0 / (double)cfg->hold_rate;
+    e->gate[INS_GRP_HOLD] = cfg->hold_gate;
 }
 
 /* F: the generated blocks (generated/ins_jacobians.h, from tools/derive_jacobians.py) and the bias rows */

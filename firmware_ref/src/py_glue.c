@@ -82,3 +82,9 @@ int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const
     for (k = 0; k < n; ++k) acc += cref_fuse_gnss(c, c->mech.t, lat, lon, h, vel, std_ne, std_d, std_vel) == 3;
     return acc;
 }
+int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3]) {
+    ins_real f[3];
+    int i;
+    for (i = 0; i < 3; ++i) f[i] = (ins_real)field[i];
+    return hs != NULL ? ins_hist_fuse_mag(hs, c, t, f) : ins_core_fuse_mag(c, t, f);
+}
