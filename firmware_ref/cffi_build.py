@@ -49,6 +49,7 @@ typedef struct {{
     int have_mag; ins_real mag_ref[3], mag_std, mag_gate;
     int hold, have_hold_pos; double hold_lat, hold_lon, hold_h;
     ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
+    ins_real gap_accel_sigma, gap_rate_sigma;
 }} ins_ekf_cfg_t;
 typedef struct {{
     ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
@@ -86,7 +87,7 @@ void cref_state(const ins_core_t *c, double out[32]);
 void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, size_t n, double *out,
               size_t out_stride);
 void cref_hist_init(ins_hist_t *h, double max_delay);
-void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double dv[3], double t_end);
+void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double dv[3], double t_end, double dt);
 int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
                     double std_ne, double std_d, double std_vel);
 int cref_hfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude);

@@ -130,6 +130,8 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "hold_vel_std": cfg.hold.vel_std,
         "hold_rate": cfg.hold.rate,
         "hold_gate": cfg.hold.gate,
+        "gap_accel_sigma": f.gap_accel_sigma,
+        "gap_rate_sigma": f.gap_rate_sigma,
     }
     for name, value in pairs.items():
         if not (math.isfinite(value) and value >= 0.0):
@@ -186,7 +188,8 @@ class CNavCore:
     one-off start-up; at its end the C core takes over its state, covariance and biases.
     precision: ``"double"`` or ``"float"`` (the C scalar type). filter: run the 15-state
     EKF predict on every step (needed for ``fuse``); False = mechanization only.
-    dt_tolerance / on_dt_mismatch: see the module docstring.
+    dt_tolerance / on_dt_mismatch: see the module docstring. fixed_step=False: each sample is integrated over
+    its own ``dt`` (a log's jittering periods, as NavCore), and lost IMU data is coasted across as NavCore does.
     """
 
     def __init__(
@@ -199,6 +202,7 @@ class CNavCore:
         filter: bool = True,
         dt_tolerance: float = 0.05,
         on_dt_mismatch: Literal["count", "raise"] = "count",
+        fixed_step: bool = True,
     ) -> None:
         if on_dt_mismatch not in ("count", "raise"):
             raise ValueError(f"on_dt_mismatch must be 'count' or 'raise', not {on_dt_mismatch!r}")
@@ -209,6 +213,7 @@ class CNavCore:
         self.dt_tolerance = dt_tolerance
         self.on_dt_mismatch = on_dt_mismatch
         self.n_off_step = 0
+        self.fixed_step = fixed_step
         self._cfg = _c_config(self._ffi, self.cfg)
         # the alignment (Python NavCore) until it navigates, then the C core from its state
         self._align: Any = None
@@ -301,6 +306,8 @@ class CNavCore:
             return self.state()
         if self.dt is None:
             self._init(imu.dt)
+        elif not self.fixed_step:
+            pass
         elif abs(imu.dt - self.dt) > self.dt_tolerance * self.dt:
             if self.on_dt_mismatch == "raise":
                 raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
@@ -312,7 +319,12 @@ class CNavCore:
         if dv.dtype != np.float64 or not dv.flags.c_contiguous:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
         self._lib_.cref_hstep(
-            self._core, self._hist, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t
+            self._core,
+            self._hist,
+            ffi.from_buffer("double[]", dth),
+            ffi.from_buffer("double[]", dv),
+            imu.t,
+            0.0 if self.fixed_step else float(imu.dt),
         )
         return self.state()
 

@@ -156,6 +156,8 @@ typedef struct {
     int hold, have_hold_pos;
     double hold_lat, hold_lon, hold_h; /* where to hold before any GNSS position (rad, rad, m) */
     ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
+    /* lost IMU data: the unknown motion of a gap (FilterConfig.gap_accel_sigma m/s^2, gap_rate_sigma rad/s) */
+    ins_real gap_accel_sigma, gap_rate_sigma;
 } ins_ekf_cfg_t;
 
 enum {
@@ -211,6 +213,7 @@ typedef struct {
     double hold_pos[3], t_hold_gnss, t_hold;   /* live state (not rolled back, as NoAidHold) */
     ins_real hold_after, hold_std, hold_vel_std;
     double hold_period;
+    ins_real gap_accel_sigma, gap_rate_sigma;
 } ins_ekf_t;
 
 /* Default configuration: the defaults of ins_hil.fusion.ekf.FilterConfig / ins_hil.core.NavConfig. */
@@ -222,6 +225,8 @@ void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m);
 /* Predict with the vibration noise (w_b, f_b: this step's compensated body rate rad/s and specific force
  * m/s^2) and the cov_every accumulation, as ErrorStateEKF.predict. */
 void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[3], const ins_real f_b[3]);
+/* Predict across gap s of lost IMU data after a coasting mechanization step (c9: C_b^n before it). */
+void ins_ekf_predict_gap(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], ins_real gap);
 /* Joseph-form scalar update for the residual z (measured - predicted, before x), row h, noise variance r. */
 void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r);
 /* Symmetrise P (after a group of scalar updates). */
@@ -258,6 +263,10 @@ void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_
                    double t, ins_real dt, const ins_ekf_cfg_t *cfg, int filter);
 /* One IMU step: bias-correct the increments, mechanize, EKF predict (if filter). t_end: sensor time. */
 void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end);
+/* One IMU step of its own length dt (s; a log's jittering sample periods): as ins_core_step with the step period
+ * set to dt. A sample whose interval starts more than dt/2 after the last state (lost IMU data) is preceded by a
+ * coasting step at constant velocity and attitude over the gap (at most 10 s) and the gap's covariance growth. */
+void ins_core_step_dt(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end, ins_real dt);
 /* n IMU steps in one call: inc is n x 6 (dtheta, dvel), t_end is n times (or NULL: t += dt);
  * out (n records, or NULL). */
 void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_t n, ins_out_t *out);
@@ -304,7 +313,7 @@ typedef struct {
     uint32_t snap_step[INS_HIST_N];
     double snap_t[INS_HIST_N];
     uint32_t snap_first, snap_n;       /* ring: oldest index, count */
-    ins_real imu[INS_HIST_N][6];       /* increments of step k at k % INS_HIST_N */
+    ins_real imu[INS_HIST_N][7];       /* increments and dt of step k at k % INS_HIST_N */
     double imu_t[INS_HIST_N];
     ins_hmeas_t meas[INS_HIST_MEAS];
     uint32_t meas_first, meas_n;
@@ -314,7 +323,8 @@ typedef struct {
 
 void ins_hist_init(ins_hist_t *h, double max_delay);
 /* One IMU step through the history (log, ins_core_step, snapshot). */
-void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end);
+void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end,
+                   ins_real dt);
 /* A GNSS fix / baro altitude valid at its time: rolled back if older than half a step. */
 int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g);
 int ins_hist_fuse_baro(ins_hist_t *h, ins_core_t *c, double t, ins_pos altitude);

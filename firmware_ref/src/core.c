@@ -41,6 +41,34 @@ void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], d
     if (c->filter && c->ekf.hold && !c->ekf.replaying) hold(c);
 }
 
+/* NavCore._coast: cross lost s of lost IMU data at constant velocity and attitude, covariance grown */
+static void coast(ins_core_t *c, double lost) {
+    ins_mech_t *m = &c->mech;
+    const ins_real dt = m->dt, zero[3] = {0, 0, 0};
+    const double t_end = m->t + lost;
+    ins_real c9[9], u[3], g2, d;
+    int i;
+    m->have_prev = 0;
+    ins_dcm_from_quat(m->q, c9);
+    d = (ins_real)(lost < 10.0 ? lost : 10.0); /* GAP_MAX_S */
+    g2 = -c->ekf.g_local * d;                  /* the specific force of no acceleration (NED), over the gap */
+    for (i = 0; i < 3; ++i) u[i] = c9[i] * K(0.0) + c9[3 + i] * K(0.0) + c9[6 + i] * g2; /* C^T g */
+    m->dt = d;
+    ins_mech_step(m, zero, u);
+    m->dt = dt;
+    m->have_prev = 0;
+    m->t = t_end;
+    if (c->filter) ins_ekf_predict_gap(&c->ekf, m, c9, d);
+}
+
+void ins_core_step_dt(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end, ins_real dt) {
+    double lost;
+    c->mech.dt = dt;
+    lost = t_end - (double)dt - c->mech.t;
+    if (lost > 0.5 * (double)dt && c->steps > 0) coast(c, lost);
+    ins_core_step(c, dth, dv, t_end);
+}
+
 void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_t n, ins_out_t *out) {
     size_t k;
     for (k = 0; k < n; ++k) {
@@ -395,7 +423,8 @@ static void log_meas(ins_hist_t *h, const ins_hmeas_t *m) {
     h->meas_n++;
 }
 
-void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end) {
+void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end,
+                   ins_real dt) {
     const uint32_t k = c->steps % INS_HIST_N;
     double horizon;
     int i;
@@ -403,8 +432,10 @@ void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const in
         h->imu[k][i] = dth[i];
         h->imu[k][3 + i] = dv[i];
     }
+    h->imu[k][6] = dt;
     h->imu_t[k] = t_end;
-    ins_core_step(c, dth, dv, t_end);
+    if (dt > K(0.0)) ins_core_step_dt(c, dth, dv, t_end, dt);
+    else ins_core_step(c, dth, dv, t_end);
     push_snap(h, c);
     horizon = c->mech.t - h->max_delay - 2.0 * (double)c->mech.dt;
     while (h->snap_n > 0 && h->snap_t[h->snap_first] < horizon) {
@@ -481,7 +512,8 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
                 }
                 if (k < cur) {
                     const uint32_t q = k % INS_HIST_N;
-                    ins_core_step(c, h->imu[q], h->imu[q] + 3, h->imu_t[q]);
+                    if (h->imu[q][6] > K(0.0)) ins_core_step_dt(c, h->imu[q], h->imu[q] + 3, h->imu_t[q], h->imu[q][6]);
+                    else ins_core_step(c, h->imu[q], h->imu[q] + 3, h->imu_t[q]);
                     push_snap(h, c);
                 }
             }

@@ -79,6 +79,8 @@ void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg) {
     cfg->hold_vel_std = K(1.0);
     cfg->hold_rate = K(5.0);
     cfg->hold_gate = K(5.0);
+    cfg->gap_accel_sigma = K(1.0);
+    cfg->gap_rate_sigma = K(3.0 * deg);
 }
 
 void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
@@ -183,6 +185,8 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->hold_std = cfg->hold_std;
     e->hold_vel_std = cfg->hold_vel_std;
     e->hold_period = 1.0 / (double)cfg->hold_rate;
+    e->gap_accel_sigma = cfg->gap_accel_sigma;
+    e->gap_rate_sigma = cfg->gap_rate_sigma;
     e->gate[INS_GRP_HOLD] = cfg->hold_gate;
 }
 
@@ -265,11 +269,35 @@ static void vibration_noise(ins_ekf_t *e, ins_real dt, const ins_real c[9], cons
 
 void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) { ins_ekf_predict_full(e, m, NULL, NULL); }
 
-void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[3], const ins_real f_b[3]) {
+/* P = Phi P Phi^T + diag(qd) (+ the vibration blocks qv), F at the mechanization's state with the specific force fn */
+static void propagate(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], const ins_real fn[3], ins_real dt,
+                      const ins_real qd[INS_NX], ins_real qv[2][3][3]) {
     fmat_t f;
-    ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX], c9[9];
-    ins_real qv[2][3][3], fn[3];
-    const ins_real *wie = m->omega_ie, *wen = m->omega_en;
+    ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX];
+    int i, j;
+    f.itg = e->inv_tau_g;
+    f.ita = e->inv_tau_a;
+    /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
+    ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &f.b);
+    phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
+    for (i = 0; i < INS_NX; ++i)
+        for (j = 0; j < INS_NX; ++j) b[i][j] = a[j][i];
+    phi_mul(&f, dt, e->second_order, b, a, t1, t2); /* Phi (Phi P)^T = Phi P Phi^T */
+    for (i = 0; i < INS_NX; ++i) {
+        for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (a[i][j] + a[j][i]);
+        e->P[i][i] = a[i][i] + qd[i];
+    }
+    if (qv != NULL)
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < 3; ++j) {
+                e->P[IA + i][IA + j] += qv[0][i][j];
+                e->P[IV + i][IV + j] += qv[1][i][j];
+            }
+    e->n_predict++;
+}
+
+void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[3], const ins_real f_b[3]) {
+    ins_real c9[9], qv[2][3][3], fn[3], qd[INS_NX];
     ins_real dt = m->dt;
     const int vib = e->vib && w_b != NULL && f_b != NULL;
     int i, j, k;
@@ -300,25 +328,24 @@ void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[
                         e->acc_q[k][i][j] = K(0.0);
                     }
     }
-    f.itg = e->inv_tau_g;
-    f.ita = e->inv_tau_a;
-    /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
-    ins_gen_F_blocks(c9, fn, wie, wen, K(2.0 * 9.80665 / 6371000.0), &f.b);
-    phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
-    for (i = 0; i < INS_NX; ++i)
-        for (j = 0; j < INS_NX; ++j) b[i][j] = a[j][i];
-    phi_mul(&f, dt, e->second_order, b, a, t1, t2); /* Phi (Phi P)^T = Phi P Phi^T */
-    for (i = 0; i < INS_NX; ++i) {
-        for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (a[i][j] + a[j][i]);
-        e->P[i][i] = a[i][i] + e->qc[i] * dt;
+    for (i = 0; i < INS_NX; ++i) qd[i] = e->qc[i] * dt;
+    propagate(e, m, c9, fn, dt, qd, vib ? qv : NULL);
+}
+
+void ins_ekf_predict_gap(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], ins_real gap) {
+    /* ErrorStateEKF.predict_gap: F at the coasted state, the sensor noise over the gap and the unknown motion of
+     * the gap: sigma_v = sa gap, sigma_r = sa gap^2 / 2, sigma_att = sw gap */
+    const ins_real sa = e->gap_accel_sigma * gap, sw = e->gap_rate_sigma * gap;
+    ins_real qd[INS_NX];
+    int i;
+    for (i = 0; i < INS_NX; ++i) qd[i] = e->qc[i] * gap;
+    for (i = 0; i < 3; ++i) {
+        const ins_real r = K(0.5) * sa * gap;
+        qd[IR + i] += r * r;
+        qd[IV + i] += sa * sa;
+        qd[IA + i] += sw * sw;
     }
-    if (vib)
-        for (i = 0; i < 3; ++i)
-            for (j = 0; j < 3; ++j) {
-                e->P[IA + i][IA + j] += qv[0][i][j];
-                e->P[IV + i][IV + j] += qv[1][i][j];
-            }
-    e->n_predict++;
+    propagate(e, m, c9, m->f_ned, gap, qd, NULL);
 }
 
 void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {

@@ -10,8 +10,8 @@ void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, 
     for (i = 0; i < 3; ++i) vv[i] = (ins_real)v[i];
     ins_core_init(c, qq, vv, lat, lon, h, t, (ins_real)dt, cfg, filter);
 }
-/* one step; through the delayed-fusion history h if not NULL */
-void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double dv[3], double t_end) {
+/* one step (dt > 0: of its own length, else the fixed step); through the delayed-fusion history h if not NULL */
+void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double dv[3], double t_end, double dt) {
 #ifdef INS_REF_FLOAT
     ins_real a[3], u[3];
     int i;
@@ -19,11 +19,12 @@ void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double 
 #else
     const ins_real *a = dth, *u = dv;
 #endif
-    if (h != NULL) ins_hist_step(h, c, a, u, t_end);
+    if (h != NULL) ins_hist_step(h, c, a, u, t_end, (ins_real)dt);
+    else if (dt > 0.0) ins_core_step_dt(c, a, u, t_end, (ins_real)dt);
     else ins_core_step(c, a, u, t_end);
 }
 void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end) {
-    cref_hstep(c, NULL, dth, dv, t_end);
+    cref_hstep(c, NULL, dth, dv, t_end, 0.0);
 }
 void cref_hist_init(ins_hist_t *h, double max_delay) { ins_hist_init(h, max_delay); }
 /* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3], omega_b[3], f_b[3] (32 values);
@@ -53,7 +54,8 @@ void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_e
               size_t out_stride) {
     size_t k;
     for (k = 0; k < n; ++k) {
-        cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt);
+        cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt,
+                   0.0);
         if (out != NULL) put(c, out + out_stride * k, out_stride);
     }
 }

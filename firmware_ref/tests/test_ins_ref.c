@@ -341,6 +341,7 @@ static void test_frame(void) {
 /* delayed fusion: a baro altitude that arrives 3 steps late through the history equals the same altitude fused
  * at its step (the history replays the 3 IMU steps); lever arm, vibration noise and the ground aids on */
 static ins_hist_t hist; /* ~1 MB: static, not on the stack */
+#define K0 ((ins_real)0) /* the core's fixed step */
 static void test_delayed(void) {
     ins_ekf_cfg_t cfg;
     ins_core_t a, b;
@@ -361,7 +362,7 @@ static void test_delayed(void) {
     for (k = 0; k < 400; ++k) {
         const double t = 0.005 * (k + 1);
         dth[0] = (ins_real)(1e-4 * sin(0.1 * k));
-        ins_hist_step(&hist, &a, dth, dv, t);
+        ins_hist_step(&hist, &a, dth, dv, t, K0);
         ins_core_step(&b, dth, dv, t);
         if (k == 200) {
             t_m = t;
