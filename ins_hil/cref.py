@@ -495,12 +495,13 @@ class CNavCore:
             test_ratios=self._ratios,
         )
 
-    def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1) -> Vec:
-        """Run a whole log of n IMU intervals in ONE C call (the core must have its dt).
+    def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1, dt: Vec | None = None) -> Vec:
+        """Run n IMU intervals in ONE C call (the core must have its dt; through the roll-back history).
 
         dtheta, dvel: (n, 3) increments (rad, m/s, body FRD); t_end: (n,) sensor times or None
-        (t advances by dt). Returns an (n, 11) array of states, columns ``RUN_COLUMNS``
-        (every=0: no output, returns an empty array).
+        (t advances by dt); dt: (n,) each interval's length (s; ``fixed_step=False``) or None (the fixed
+        step). Returns an (n, 11) array of states, columns ``RUN_COLUMNS`` (every=0: no output, returns an
+        empty array).
         """
         if self.dt is None:
             raise ValueError("CNavCore.run: the fixed step is unknown; pass dt to the constructor")
@@ -511,14 +512,19 @@ class CNavCore:
         n = dtheta.shape[0]
         inc = np.ascontiguousarray(np.hstack((dtheta, dvel)))
         ffi = self._ffi
-        tp = ffi.NULL
+        tp = dp = ffi.NULL
         if t_end is not None:
             t_arr = np.ascontiguousarray(t_end, dtype=np.float64)
             if t_arr.shape != (n,):
                 raise ValueError(f"CNavCore.run: t_end must be ({n},), got {t_arr.shape}")
             tp = ffi.from_buffer("double[]", t_arr)
+        if dt is not None:
+            d_arr = np.ascontiguousarray(dt, dtype=np.float64)
+            if d_arr.shape != (n,) or not np.all(d_arr > 0.0):
+                raise ValueError(f"CNavCore.run: dt must be ({n},) positive values")
+            dp = ffi.from_buffer("double[]", d_arr)
         if every == 0:
-            self._lib_.cref_run(self._core, self._hist, ffi.from_buffer("double[]", inc), tp, n, ffi.NULL, 0)
+            self._lib_.cref_run(self._core, self._hist, ffi.from_buffer("double[]", inc), tp, dp, n, ffi.NULL, 0)
             return np.empty((0, len(RUN_COLUMNS)))
         out = np.empty((n, len(RUN_COLUMNS)))
         self._lib_.cref_run(
@@ -526,6 +532,7 @@ class CNavCore:
             self._hist,
             ffi.from_buffer("double[]", inc),
             tp,
+            dp,
             n,
             ffi.from_buffer("double[]", out),
             len(RUN_COLUMNS),

@@ -373,7 +373,7 @@ def test_bench_core_command_writes_report(tmp_path: Path) -> None:
 
     out = tmp_path / "ref_core.md"
     rc = main(["bench-core", "--duration", "1", "--repeat", "1", "--no-callgrind", "--accuracy-duration", "4",
-               "--out", str(out)])  # fmt: skip
+               "--no-datasets", "--out", str(out)])  # fmt: skip
     assert rc == 0
     text = out.read_text()
     assert "| Python `NavCore` (`step`, `fuse`) |" in text

@@ -50,12 +50,13 @@ static void put(const ins_core_t *c, double *o, size_t n) {
     for (i = 0; i < n; ++i) o[i] = all[i];
 }
 void cref_state(const ins_core_t *c, double out[32]) { put(c, out, 32); }
-void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, size_t n, double *out,
-              size_t out_stride) {
+/* n steps in one call (dts: each step's length, or NULL: the fixed step); out: n records of out_stride values */
+void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
+              double *out, size_t out_stride) {
     size_t k;
     for (k = 0; k < n; ++k) {
         cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt,
-                   0.0);
+                   dts != NULL ? dts[k] : 0.0);
         if (out != NULL) put(c, out + out_stride * k, out_stride);
     }
 }
