@@ -90,6 +90,9 @@ def run(args: argparse.Namespace) -> int:
         drows = core_replay.dataset_rows(_say)
         synth = core_replay.synthetic_rows(say=_say)
         text += core_replay.report_md(drows, synth)
+    from ins_hil.bench import core_replay as _cr
+
+    text += _cr.scope_md()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
     print(f"wrote {args.out}")
