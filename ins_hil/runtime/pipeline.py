@@ -781,9 +781,7 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
     try:
         kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
         if "late_fix_as_current" not in kw:
-            kw["late_fix_as_current"] = not bool(
-                ((nav or {}).get("delay") or {}).get("compensation", True)
-            )
+            kw["late_fix_as_current"] = not bool(((nav or {}).get("delay") or {}).get("compensation", True))
         return AidingMonitor(AidingConfig(**kw), ((nav or {}).get("gnss") or {}).get("lever_arm_b"))
     except ValueError as e:
         raise ValueError(f"fdi.aiding: {e}") from None
