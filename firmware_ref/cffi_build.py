@@ -32,7 +32,8 @@ typedef double ins_pos;
 #define INS_FDI_M 2
 typedef struct {{
     ins_real q[4]; ins_real v[3]; ins_pos lat, lon, h; double t; ins_real dt;
-    ins_real f_ned[3]; ins_real omega_ie[3]; ins_real omega_en[3]; ...;
+    ins_real f_ned[3]; ins_real omega_ie[3]; ins_real omega_en[3];
+    ins_real dth_prev[3], dv_prev[3]; int have_prev; ...;
 }} ins_mech_t;
 typedef struct {{
     ins_real gyro_arw, accel_vrw, gyro_bias_sigma, gyro_bias_tau, accel_bias_sigma, accel_bias_tau;
@@ -40,13 +41,25 @@ typedef struct {{
     int second_order; ins_real gate_gnss, gate_baro; int gnss_reset_after;
     ins_real gnss_min_std_ne, gnss_min_std_d, gnss_min_std_vel; int use_gnss_vel; ins_real baro_std;
     int have_baro_offset; double baro_offset; double baro_offset_tau;
+    ins_real lever_arm[3]; ins_real gnss_std_scale; ins_real gyro_vib_gain, accel_vib_gain, vib_tau; int cov_every;
+    int nhc, nhc_vertical, zupt, zaru;
+    ins_real nhc_std, nhc_std_vertical, nhc_rate, nhc_min_speed;
+    ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std;
+    ins_real aids_gate; ins_real g_local;
+    int have_mag; ins_real mag_ref[3], mag_std, mag_gate;
+    int hold, have_hold_pos; double hold_lat, hold_lon, hold_h;
+    ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
+    ins_real gap_accel_sigma, gap_rate_sigma;
 }} ins_ekf_cfg_t;
 typedef struct {{
     ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
-    ins_pos baro_offset; uint32_t accepted[3], rejected[3], consecutive[3]; ins_real last_ratio[3];
+    ins_pos baro_offset; int have_baro_offset; double baro_offset_var, t_baro, t_gnss_ok; ins_pos h_gnss;
+    double gnss_var_d, baro_dt, gnss_dt; ins_real g_local;
+    uint32_t accepted[7], rejected[7], consecutive[7]; ins_real last_ratio[7];
     uint32_t n_predict; ...;
 }} ins_ekf_t;
 typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; }} ins_core_t;
+typedef struct {{ uint32_t snap_n; uint32_t meas_n; double max_delay; uint32_t rollbacks, too_old; ...; }} ins_hist_t;
 typedef struct {{
     ins_real lam[4]; ins_real w1[3]; ins_real w2[3]; ins_real th_prev[3]; ins_real dt; uint32_t n;
 }} ins_book_att_t;
@@ -71,7 +84,14 @@ void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, 
                double dt, const ins_ekf_cfg_t *cfg, int filter);
 void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end);
 void cref_state(const ins_core_t *c, double out[32]);
-void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride);
+void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
+              double *out, size_t out_stride);
+void cref_hist_init(ins_hist_t *h, double max_delay);
+void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double dv[3], double t_end, double dt);
+int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
+                    double std_ne, double std_d, double std_vel);
+int cref_hfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude);
+int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3]);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);
 int cref_fuse_baro(ins_core_t *c, double t, double altitude);
@@ -90,7 +110,14 @@ def _builder(module: str, real: str, defines: list[tuple[str, str | None]]) -> F
         _GLUE,
         sources=[_rel(_HERE / "src" / s) for s in _SOURCES],
         include_dirs=[_rel(_HERE / "include"), _rel(_HERE / "src")],
-        depends=[_rel(p) for p in (*(_HERE / "src").glob("*.[ch]"), _HERE / "include" / "ins_ref.h")],
+        depends=[
+            _rel(p)
+            for p in (
+                *(_HERE / "src").glob("*.[ch]"),
+                *(_HERE / "src" / "generated").glob("*.h"),
+                _HERE / "include" / "ins_ref.h",
+            )
+        ],
         define_macros=defines,
         extra_compile_args=["-std=c99", "-O3", "-ffp-contract=off"],
         libraries=["m"],

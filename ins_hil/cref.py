@@ -8,10 +8,11 @@ compiled at install time by cffi (``firmware_ref/cffi_build.py``) into
 
 The C filter mirrors ``ins_hil.fusion`` (15 states, Joseph sequential scalar
 updates, the same gates and feedback) for the ``NavConfig`` settings it
-supports (others raise ``ValueError`` naming them): GNSS position/velocity
-without lever arm and baro; no magnetometer (ignored), adaptive R, NHC/ZUPT,
-alignment or delayed-fusion roll-back (a fix from the past is shifted by v·Δt
-and fused at the current step; NavCore rolls back instead).
+supports: GNSS position/velocity with lever arm and σ scale, baro, the vibration
+noise, ``cov_every``, NHC and ZUPT/ZARU, the magnetometer, the no-aid hold and the
+alignment (in NavCore, then handed over). Others raise ``ValueError`` naming them
+(the list and the reasons: docs/ref_core.md). Delayed fusion (``delay.compensation``) rolls back
+as NavCore does (``ins_hist_t``: a snapshot per step, the log replayed).
 
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
 sample's ``dt``), as firmware does: a sample whose ``dt`` differs from it by more
@@ -22,6 +23,7 @@ running), or rejected with ``ValueError`` (``on_dt_mismatch="raise"``).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import math
 from collections import deque
@@ -33,7 +35,7 @@ import numpy as np
 from ins_hil import aids
 from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, ins_off_track
 from ins_hil.nav.mechanization import StrapdownState
-from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState, Vec
+from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 Precision = Literal["double", "float"]
 
@@ -63,6 +65,10 @@ def available() -> bool:
 def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     """The C filter configuration from a NavConfig; ValueError for what the C core lacks."""
     f = cfg.filter
+    a = cfg.aids
+    # what stays Python-only (docs/ref_core.md, "What the C core runs"): the extra error states (scale factors,
+    # g-sensitivity, magnetometer hard iron, wind, mounting), other numerics, the model switches, adaptive R,
+    # the NHC at a lever arm / with suspension pitch, the drag aid
     unsupported = {
         "filter.gyro_bias": not f.gyro_bias,
         "filter.accel_bias": not f.accel_bias,
@@ -70,24 +76,16 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "filter.gyro_gsens": f.gyro_gsens,
         "filter.mag_bias": f.mag_bias,
         "filter.wind_states": f.wind_states,
-        "filter.gyro_vib_gain": f.gyro_vib_gain != 0.0,
-        "filter.accel_vib_gain": f.accel_vib_gain != 0.0,
+        "filter.mount_states": f.mount_states,
         "filter.numerics": f.numerics != "joseph",
-        "filter.cov_every": f.cov_every != 1,
         "filter.earth_terms": not f.earth_terms,
         "filter.omega_rv_terms": f.omega_rv_terms,
-        "gnss.lever_arm_b": bool(np.any(np.asarray(cfg.gnss.lever_arm_b) != 0.0)),
-        "gnss.std_scale": cfg.gnss.std_scale != 1.0,
         "adaptive": cfg.adaptive,
-        "aids.nhc": cfg.aids.nhc,
-        "aids.zupt": cfg.aids.zupt,
-        "aids.drag": cfg.aids.drag,
-        "hold.enabled": cfg.hold.enabled,
-        "mag.ref_ned": cfg.mag.ref_ned is not None,
-        "alignment.mode": cfg.alignment.mode != "given",
-        "gnss.vel_delay": cfg.gnss.vel_delay != 0.0,
+        "aids.nhc_lever_b": a.nhc and bool(np.any(np.asarray(a.nhc_lever_b) != 0.0)),
+        "aids.nhc_pitch_per_accel": a.nhc and a.nhc_pitch_per_accel != 0.0,
+        "aids.drag": a.drag,
         # the aid modules with their own section (ins_hil.aids: odometer, airspeed) are Python-only
-        **{f"{a.name}.enabled": a.enabled(cfg) for a in aids.sources() if a.section is not None},
+        **{f"{src.name}.enabled": src.enabled(cfg) for src in aids.sources() if src.section is not None},
     }
     bad = [k for k, v in unsupported.items() if v]
     if bad:
@@ -112,14 +110,59 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "gnss_min_std_d": cfg.gnss.min_std[1],
         "gnss_min_std_vel": cfg.gnss.min_std[2],
         "baro_std": cfg.baro.std,
+        "gnss_std_scale": cfg.gnss.std_scale,
+        "gyro_vib_gain": f.gyro_vib_gain,
+        "accel_vib_gain": f.accel_vib_gain,
+        "vib_tau": f.vib_tau,
+        "nhc_std": a.nhc_std,
+        "nhc_std_vertical": a.nhc_std_vertical,
+        "nhc_rate": a.nhc_rate,
+        "nhc_min_speed": a.nhc_min_speed,
+        "zupt_std": a.zupt_std,
+        "zupt_gyro": a.zupt_gyro,
+        "zupt_accel": a.zupt_accel,
+        "zupt_time": a.zupt_time,
+        "zupt_tau": a.zupt_tau,
+        "zupt_max_speed": a.zupt_max_speed,
+        "zaru_std": a.zaru_std,
+        "aids_gate": a.gate,
+        "mag_std": cfg.mag.std,
+        "mag_gate": cfg.mag.gate,
+        "hold_after": cfg.hold.after,
+        "hold_std": cfg.hold.std,
+        "hold_vel_std": cfg.hold.vel_std,
+        "hold_rate": cfg.hold.rate,
+        "hold_gate": cfg.hold.gate,
+        "gap_accel_sigma": f.gap_accel_sigma,
+        "gap_rate_sigma": f.gap_rate_sigma,
     }
     for name, value in pairs.items():
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"CNavCore: config value {name}={value!r} must be finite and >= 0")
         setattr(c, name, float(value))
-    for name in ("gyro_bias_tau", "accel_bias_tau"):
+    for name in ("gyro_bias_tau", "accel_bias_tau", "vib_tau", "nhc_rate", "zupt_tau", "hold_rate"):
         if not pairs[name] > 0.0:
-            raise ValueError(f"CNavCore: filter.{name}={pairs[name]!r} must be > 0")
+            raise ValueError(f"CNavCore: {name}={pairs[name]!r} must be > 0")
+    lever = np.asarray(cfg.gnss.lever_arm_b, dtype=np.float64)
+    if lever.shape != (3,) or not np.all(np.isfinite(lever)):
+        raise ValueError(f"CNavCore: gnss.lever_arm_b={cfg.gnss.lever_arm_b!r} must be 3 finite numbers")
+    for i in range(3):
+        c.lever_arm[i] = float(lever[i])
+    c.cov_every = int(f.cov_every)
+    c.nhc, c.nhc_vertical, c.zupt = int(a.nhc), int(a.nhc_vertical), int(a.zupt)
+    c.zaru = int(a.zaru and f.gyro_bias)
+    c.g_local = 9.80665  # NavCore's gravity of the rest detector with alignment.mode = "given"
+    if cfg.mag.ref_ned is not None:
+        ref = np.asarray(cfg.mag.ref_ned, dtype=np.float64)
+        if ref.shape != (3,) or not np.all(np.isfinite(ref)) or not float(np.linalg.norm(ref)) > 0.0:
+            raise ValueError(f"CNavCore: mag.ref_ned={cfg.mag.ref_ned!r} must be 3 finite numbers, not all 0")
+        c.have_mag = 1
+        for i in range(3):
+            c.mag_ref[i] = float(ref[i])
+    c.hold = int(cfg.hold.enabled)
+    if cfg.alignment.position is not None:
+        lat, lon, h = cfg.alignment.position
+        c.have_hold_pos, c.hold_lat, c.hold_lon, c.hold_h = 1, math.radians(lat), math.radians(lon), float(h)
     c.second_order = 1 if f.second_order else 0
     c.have_baro_offset = 0 if cfg.baro.offset is None else 1
     c.baro_offset = 0.0 if cfg.baro.offset is None else float(cfg.baro.offset)
@@ -131,7 +174,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     return c
 
 
-_GROUPS = ("gnss_pos", "gnss_vel", "baro")
+_GROUPS = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt", "mag", "hold")
 
 
 #: columns of CNavCore.run's output array
@@ -142,15 +185,19 @@ class CNavCore:
     """The C reference core with the ``NavCore`` interface.
 
     initial, config: as for ``NavCore`` (``NavConfig``; settings the C core lacks raise
-    ``ValueError``). dt: the fixed step (s); None = take it from the first IMU sample.
+    ``ValueError``; ``initial`` may be None with an alignment). dt: the fixed step (s); None = take it
+    from the first IMU sample. With ``alignment.mode`` other than "given" the alignment (levelling,
+    gyrocompass, magnetometer/GNSS yaw, the GNSS-velocity yaw bank) runs in the Python ``NavCore``, a
+    one-off start-up; at its end the C core takes over its state, covariance and biases.
     precision: ``"double"`` or ``"float"`` (the C scalar type). filter: run the 15-state
     EKF predict on every step (needed for ``fuse``); False = mechanization only.
-    dt_tolerance / on_dt_mismatch: see the module docstring.
+    dt_tolerance / on_dt_mismatch: see the module docstring. fixed_step=False: each sample is integrated over
+    its own ``dt`` (a log's jittering periods, as NavCore), and lost IMU data is coasted across as NavCore does.
     """
 
     def __init__(
         self,
-        initial: StrapdownState,
+        initial: StrapdownState | None,
         config: NavConfig | None = None,
         *,
         dt: float | None = None,
@@ -158,6 +205,7 @@ class CNavCore:
         filter: bool = True,
         dt_tolerance: float = 0.05,
         on_dt_mismatch: Literal["count", "raise"] = "count",
+        fixed_step: bool = True,
     ) -> None:
         if on_dt_mismatch not in ("count", "raise"):
             raise ValueError(f"on_dt_mismatch must be 'count' or 'raise', not {on_dt_mismatch!r}")
@@ -168,19 +216,67 @@ class CNavCore:
         self.dt_tolerance = dt_tolerance
         self.on_dt_mismatch = on_dt_mismatch
         self.n_off_step = 0
+        self.fixed_step = fixed_step
+        self._cfg = _c_config(self._ffi, self.cfg)
+        # the alignment (Python NavCore) until it navigates, then the C core from its state
+        self._align: Any = None
+        if self.cfg.alignment.mode != "given":
+            from ins_hil.core import NavCore
+
+            self._align = NavCore(initial, self.cfg)
+            initial = self._align.ins.state
+        elif initial is None:
+            raise ValueError("CNavCore: alignment.mode='given' needs an initial state")
         self._initial = initial.copy()
         self._core = self._ffi.new("ins_core_t *")
+        # delayed fusion by roll-back (delay.compensation, as NavCore): the C history, else NULL
+        self._delayed = self.cfg.delay.compensation and self.cfg.delay.max_delay > 0
+        self._hist = self._ffi.new("ins_hist_t *") if self._delayed else self._ffi.NULL
+        if self._delayed:
+            self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
-        self._cfg = _c_config(self._ffi, self.cfg)
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         # the last rejected GNSS positions with their test ratios: the C core's forced acceptance after
         # gnss.reset_after rejections is let through only when they pass NavCore's consistency test
         self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, int(self.cfg.gnss.reset_after)))
         self.dt: float | None = None
-        if dt is not None:
+        self._dt_fixed = dt
+        if dt is not None and self._align is None:
             self._init(dt)
+
+    def _handover(self, dt: float) -> None:
+        """The alignment navigates: the C core starts from its state, covariance, biases and baro datum."""
+        a = self._align
+        self._align = None
+        self._initial = a.ins.state.copy()
+        self._init(self._dt_fixed if self._dt_fixed is not None else dt)
+        c = self._core
+        ins = a.ins
+        for i in range(3):
+            c.mech.dth_prev[i] = float(ins._dth_prev[i])
+            c.mech.dv_prev[i] = float(ins._dv_prev[i])
+            c.ekf.bg[i] = float(a.bg[i])
+            c.ekf.ba[i] = float(a.ba[i])
+        c.mech.have_prev = 1 if ins._have_prev else 0
+        P = np.asarray(a.kf.P, dtype=np.float64)
+        for i in range(15):
+            for j in range(15):
+                c.ekf.P[i][j] = float(P[i, j])
+        c.ekf.g_local = float(a.g_local)
+        b = a.baro
+        if b.offset is not None:
+            c.ekf.baro_offset = float(b.offset)
+            c.ekf.have_baro_offset = 1
+        c.ekf.baro_offset_var = float(b.offset_var)
+        c.ekf.t_baro = float(b.t_baro)
+        c.ekf.baro_dt = float(b.baro_dt)
+        c.ekf.t_gnss_ok = float(b.t_gnss_ok) if math.isfinite(b.t_gnss_ok) else -1e300
+        c.ekf.h_gnss = float(b.h_gnss)
+        c.ekf.gnss_var_d = float(b.gnss_var_d)
+        c.ekf.gnss_dt = float(b.gnss_dt)
+        self._events += a.drain_events()
 
     def _init(self, dt: float) -> None:
         if not (dt > 0.0 and math.isfinite(dt)):
@@ -205,8 +301,16 @@ class CNavCore:
 
     def step(self, imu: ImuSample) -> NavState:
         """Propagate with one IMU interval (mechanization + EKF predict); returns the state."""
+        if self._align is not None:
+            st = self._align.step(imu)
+            if self._align.phase != "nav":
+                return st
+            self._handover(imu.dt)
+            return self.state()
         if self.dt is None:
             self._init(imu.dt)
+        elif not self.fixed_step:
+            pass
         elif abs(imu.dt - self.dt) > self.dt_tolerance * self.dt:
             if self.on_dt_mismatch == "raise":
                 raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
@@ -217,7 +321,14 @@ class CNavCore:
             dth = np.ascontiguousarray(dth, dtype=np.float64)
         if dv.dtype != np.float64 or not dv.flags.c_contiguous:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
-        self._lib_.cref_step(self._core, ffi.from_buffer("double[]", dth), ffi.from_buffer("double[]", dv), imu.t)
+        self._lib_.cref_hstep(
+            self._core,
+            self._hist,
+            ffi.from_buffer("double[]", dth),
+            ffi.from_buffer("double[]", dv),
+            imu.t,
+            0.0 if self.fixed_step else float(imu.dt),
+        )
         return self.state()
 
     def step_begin(self, imu: ImuSample) -> NavState:
@@ -233,14 +344,29 @@ class CNavCore:
         yield from ()
 
     def fuse(self, meas: AidSample) -> None:
-        """Apply a GNSS fix (position, then velocity if given) or a baro altitude at the current step.
+        """Apply a GNSS fix (position, then velocity if given) or a baro altitude valid at ``meas.t``.
 
-        Gated like NavCore (per-component test ratio, ``gnss.gate``/``baro.gate``); a fix
-        valid at an earlier time is shifted by v·Δt (no roll-back in the C core).
-        Magnetometer samples are ignored (no magnetometer update in the C core).
+        Gated like NavCore (per-component test ratio, ``gnss.gate``/``baro.gate``). With
+        ``delay.compensation`` a measurement older than half a step is fused at its step by the C
+        roll-back (as NavCore); without it, a late fix is shifted by v·Δt to the current step.
+        With ``gnss.vel_delay`` the velocity is a second measurement at its own, earlier time.
+        Magnetometer samples are fused with ``mag.ref_ned`` (ignored without it).
         """
+        if self._align is not None:
+            self._align.fuse(meas)
+            if self._align.phase == "nav":
+                self._handover(self._align._dt)
+            return None
         if self.dt is None or not self.filter:
             return None
+        if isinstance(meas, GnssFix) and self.cfg.gnss.vel_delay > 0 and meas.vel_ned is not None:
+            self._fuse_one(dataclasses.replace(meas, vel_ned=None))
+            self._fuse_one(dataclasses.replace(meas, t=meas.t - self.cfg.gnss.vel_delay, lat=math.nan))
+            return None
+        self._fuse_one(meas)
+        return None
+
+    def _fuse_one(self, meas: AidSample) -> None:
         e = self._core.ekf
         before = [int(e.rejected[i]) for i in range(3)]
         cons = [int(e.consecutive[i]) for i in range(3)]
@@ -251,9 +377,12 @@ class CNavCore:
                 sd = getattr(meas, name)
                 if not sd >= 0.0:
                     raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
-            self._hold_reset(meas)
-            self._lib_.cref_fuse_gnss(
+            pos = math.isfinite(meas.lat)  # NaN: the velocity of a gnss.vel_delay split
+            if pos:
+                self._hold_reset(meas)
+            self._lib_.cref_hfuse_gnss(
                 self._core,
+                self._hist,
                 meas.t,
                 meas.lat,
                 meas.lon,
@@ -263,11 +392,13 @@ class CNavCore:
                 meas.std_d,
                 meas.std_vel,
             )
-            groups = (0, 1) if meas.vel_ned is not None and self.cfg.gnss.use_vel else (0,)
-            if int(e.rejected[0]) > before[0]:
-                self._rejected.append((meas, float(e.last_ratio[0])))
-            else:
-                self._rejected.clear()
+            use_vel = meas.vel_ned is not None and self.cfg.gnss.use_vel
+            groups = ((0,) if pos else ()) + ((1,) if use_vel else ())
+            if pos:
+                if int(e.rejected[0]) > before[0]:
+                    self._rejected.append((meas, float(e.last_ratio[0])))
+                else:
+                    self._rejected.clear()
         elif isinstance(meas, BaroSample):
             alt = meas.altitude
             if not math.isfinite(alt):
@@ -276,14 +407,20 @@ class CNavCore:
                 from ins_hil.nav.earth import altitude_from_pressure
 
                 alt = altitude_from_pressure(meas.pressure)
-            self._lib_.cref_fuse_baro(self._core, meas.t, alt)
+            self._lib_.cref_hfuse_baro(self._core, self._hist, meas.t, alt)
             groups = (2,)
+        elif isinstance(meas, MagSample) and self.cfg.mag.ref_ned is not None:
+            fb = np.ascontiguousarray(meas.field_b, dtype=np.float64)
+            self._lib_.cref_hfuse_mag(self._core, self._hist, meas.t, self._ffi.from_buffer("double[]", fb))
+            groups = (5,)
         else:
             return None
         ratios = dict(self._ratios)
         for g in groups:
             kind = _GROUPS[g]
             ratios[kind] = float(e.last_ratio[g])
+            if g > 2:  # events for the GNSS and baro gates only (as NavCore)
+                continue
             sensor = "gnss" if kind.startswith("gnss") else "baro"
             if int(e.rejected[g]) > before[g] and cons[g] == 0:
                 self._events.append(
@@ -319,16 +456,25 @@ class CNavCore:
             e.consecutive[0] = n - 1
 
     def align_status(self) -> str:
-        """Always "": the C core starts from its given state (``alignment.mode = "given"``)."""
-        return ""
+        """Why the core is not navigating yet ("" once the C core runs)."""
+        return "" if self._align is None else str(self._align.align_status())
+
+    @property
+    def phase(self) -> str:
+        """The alignment phase ("level", "heading") or "nav" (NavCore's)."""
+        return "nav" if self._align is None else str(self._align.phase)
 
     def drain_events(self) -> list[FaultEvent]:
         """GNSS/baro fault events raised by the innovation gates since the last call."""
+        if self._align is not None:
+            return list(self._align.drain_events())
         ev, self._events = self._events, []
         return ev
 
     def state(self) -> NavState:
         """The current navigation state (biases and 1-σ from the C filter)."""
+        if self._align is not None:
+            return self._align.state()
         if self.dt is None:
             s = self._initial
             return NavState(t=s.t, q_nb=s.q_nb.copy(), vel_ned=s.vel_ned.copy(), lat=s.lat, lon=s.lon, h=s.h)
@@ -352,12 +498,13 @@ class CNavCore:
             test_ratios=self._ratios,
         )
 
-    def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1) -> Vec:
-        """Run a whole log of n IMU intervals in ONE C call (the core must have its dt).
+    def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1, dt: Vec | None = None) -> Vec:
+        """Run n IMU intervals in ONE C call (the core must have its dt; through the roll-back history).
 
         dtheta, dvel: (n, 3) increments (rad, m/s, body FRD); t_end: (n,) sensor times or None
-        (t advances by dt). Returns an (n, 11) array of states, columns ``RUN_COLUMNS``
-        (every=0: no output, returns an empty array).
+        (t advances by dt); dt: (n,) each interval's length (s; ``fixed_step=False``) or None (the fixed
+        step). Returns an (n, 11) array of states, columns ``RUN_COLUMNS`` (every=0: no output, returns an
+        empty array).
         """
         if self.dt is None:
             raise ValueError("CNavCore.run: the fixed step is unknown; pass dt to the constructor")
@@ -368,18 +515,30 @@ class CNavCore:
         n = dtheta.shape[0]
         inc = np.ascontiguousarray(np.hstack((dtheta, dvel)))
         ffi = self._ffi
-        tp = ffi.NULL
+        tp = dp = ffi.NULL
         if t_end is not None:
             t_arr = np.ascontiguousarray(t_end, dtype=np.float64)
             if t_arr.shape != (n,):
                 raise ValueError(f"CNavCore.run: t_end must be ({n},), got {t_arr.shape}")
             tp = ffi.from_buffer("double[]", t_arr)
+        if dt is not None:
+            d_arr = np.ascontiguousarray(dt, dtype=np.float64)
+            if d_arr.shape != (n,) or not np.all(d_arr > 0.0):
+                raise ValueError(f"CNavCore.run: dt must be ({n},) positive values")
+            dp = ffi.from_buffer("double[]", d_arr)
         if every == 0:
-            self._lib_.cref_run(self._core, ffi.from_buffer("double[]", inc), tp, n, ffi.NULL, 0)
+            self._lib_.cref_run(self._core, self._hist, ffi.from_buffer("double[]", inc), tp, dp, n, ffi.NULL, 0)
             return np.empty((0, len(RUN_COLUMNS)))
         out = np.empty((n, len(RUN_COLUMNS)))
         self._lib_.cref_run(
-            self._core, ffi.from_buffer("double[]", inc), tp, n, ffi.from_buffer("double[]", out), len(RUN_COLUMNS)
+            self._core,
+            self._hist,
+            ffi.from_buffer("double[]", inc),
+            tp,
+            dp,
+            n,
+            ffi.from_buffer("double[]", out),
+            len(RUN_COLUMNS),
         )
         return out[every - 1 :: every] if every > 1 else out
 

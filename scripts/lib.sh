@@ -46,7 +46,7 @@ ensure_venv() {
       || { log "could not create the virtualenv $VENV with $py"; return 1; }
   fi
   local stamp="$VENV/.ins_hil_stamp" want
-  want=$(cat "$ROOT/pyproject.toml" "$ROOT"/setup.py "$ROOT"/firmware_ref/cffi_build.py "$ROOT"/firmware_ref/src/*.[ch] "$ROOT"/firmware_ref/include/*.h 2>/dev/null | sha256sum | cut -c1-16)
+  want=$(cat "$ROOT/pyproject.toml" "$ROOT"/setup.py "$ROOT"/firmware_ref/cffi_build.py "$ROOT"/firmware_ref/src/*.[ch] "$ROOT"/firmware_ref/src/generated/*.h "$ROOT"/firmware_ref/include/*.h 2>/dev/null | sha256sum | cut -c1-16)
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     rm -f "$stamp"
     local plog="$VENV/pip-install.log"

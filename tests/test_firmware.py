@@ -23,8 +23,8 @@ import pytest
 from ins_hil.drivers.serial_frame import encode
 
 from ins_hil.core import NavConfig, NavCore
-from ins_hil.core_parts.config import AidsConfig
 from ins_hil.cref import RUN_COLUMNS, CNavCore, make_core
+from ins_hil.fusion.ekf import FilterConfig
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
 from ins_hil.nav.rotation import quat_angle_between, quat_mul, quat_normalize
@@ -357,8 +357,8 @@ def test_cnavcore_interface_and_errors(flight10: Flight) -> None:
         strict.step(odd)
     with pytest.raises(ValueError, match="std_ne must be >= 0"):
         c.fuse(GnssFix(t=0.01, lat=LAT0, lon=LON0, h=H0, std_ne=-1.0))
-    with pytest.raises(ValueError, match=r"not supported by the C core: adaptive, aids\.nhc"):
-        CNavCore(flight10.init, NavConfig(adaptive=True, aids=AidsConfig(nhc=True)))
+    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.scale_factors, adaptive"):
+        CNavCore(flight10.init, NavConfig(adaptive=True, filter=FilterConfig(scale_factors=True)))
     with pytest.raises(ValueError, match="precision"):
         CNavCore(flight10.init, precision="half")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="unknown core 'rust'"):
@@ -373,7 +373,7 @@ def test_bench_core_command_writes_report(tmp_path: Path) -> None:
 
     out = tmp_path / "ref_core.md"
     rc = main(["bench-core", "--duration", "1", "--repeat", "1", "--no-callgrind", "--accuracy-duration", "4",
-               "--out", str(out)])  # fmt: skip
+               "--no-datasets", "--out", str(out)])  # fmt: skip
     assert rc == 0
     text = out.read_text()
     assert "| Python `NavCore` (`step`, `fuse`) |" in text

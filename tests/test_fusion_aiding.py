@@ -487,11 +487,10 @@ def test_vibration_noise_config_errors():
         FilterConfig(accel_vib_gain=0.4, numerics="ud")
 
 
-def test_c_core_refuses_the_vibration_noise():
+def test_c_core_takes_the_vibration_noise():
+    # the C core runs it (held against NavCore in tests/test_cref_parity.py)
     from ins_hil.cref import CNavCore
 
     init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
-    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.gyro_vib_gain"):
-        CNavCore(init, NavConfig(filter=FilterConfig(gyro_vib_gain=0.4)))
-    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.accel_vib_gain"):
-        CNavCore(init, NavConfig(filter=FilterConfig(accel_vib_gain=0.6)))
+    c = CNavCore(init, NavConfig(filter=FilterConfig(gyro_vib_gain=0.4, accel_vib_gain=0.6)))
+    assert c._cfg.gyro_vib_gain == pytest.approx(0.4) and c._cfg.accel_vib_gain == pytest.approx(0.6)

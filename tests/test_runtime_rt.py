@@ -53,9 +53,10 @@ def test_set_realtime_in_a_child_process() -> None:
     assert got == "SCHED_FIFO 10" or "permission" in got
 
 
-def test_the_c_core_fuses_late_fixes_as_current_for_the_drift_monitor() -> None:
-    # the C core has no roll-back: the drift monitor must compare a late fix with the current state
-    assert aiding_monitor({}, "c", {}).cfg.late_fix_as_current
+def test_the_drift_monitor_follows_the_delay_compensation_of_either_core() -> None:
+    # both cores roll back a late fix (delay.compensation, the default) or fuse it as current (off)
+    assert not aiding_monitor({}, "c", {}).cfg.late_fix_as_current
+    assert aiding_monitor({}, "c", {"delay": {"compensation": False}}).cfg.late_fix_as_current
     assert aiding_monitor({}, "python", {"delay": {"compensation": False}}).cfg.late_fix_as_current
     assert not aiding_monitor({}, "python", {}).cfg.late_fix_as_current
 

@@ -139,9 +139,37 @@ typedef struct {
     int have_baro_offset;  /* 1: baro_offset is given; 0: from the first sample, then calibrated against GNSS */
     double baro_offset;    /* ellipsoidal height of the baro altitude datum, m */
     double baro_offset_tau; /* time constant of that calibration, s (<= 0: off) */
+    ins_real lever_arm[3];  /* IMU -> GNSS antenna, body FRD, m (NavConfig.gnss.lever_arm_b) */
+    ins_real gnss_std_scale; /* factor on the floored GNSS sigmas (gnss.std_scale) */
+    ins_real gyro_vib_gain, accel_vib_gain, vib_tau; /* vibration noise (FilterConfig.*_vib_gain, vib_tau s) */
+    int cov_every;         /* propagate P every N steps with the averaged specific force (>= 1) */
+    /* ground-vehicle aids (NavConfig.aids, without lever arm / mounting states) */
+    int nhc, nhc_vertical, zupt, zaru;
+    ins_real nhc_std, nhc_std_vertical, nhc_rate, nhc_min_speed;  /* m/s, m/s, Hz, m/s */
+    ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std;
+    ins_real aids_gate;    /* innovation gate of the aids, sigma */
+    ins_real g_local;      /* gravity of the rest detector, m/s^2 */
+    /* magnetometer (NavConfig.mag; no hard-iron states): reference field NED (any unit), unit-vector sigma */
+    int have_mag;
+    ins_real mag_ref[3], mag_std, mag_gate;
+    /* no-aid hold (NavConfig.hold): constant position / zero velocity while no GNSS position for hold_after s */
+    int hold, have_hold_pos;
+    double hold_lat, hold_lon, hold_h; /* where to hold before any GNSS position (rad, rad, m) */
+    ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
+    /* lost IMU data: the unknown motion of a gap (FilterConfig.gap_accel_sigma m/s^2, gap_rate_sigma rad/s) */
+    ins_real gap_accel_sigma, gap_rate_sigma;
 } ins_ekf_cfg_t;
 
-enum { INS_GRP_GNSS_POS = 0, INS_GRP_GNSS_VEL = 1, INS_GRP_BARO = 2, INS_NGRP = 3 };
+enum {
+    INS_GRP_GNSS_POS = 0,
+    INS_GRP_GNSS_VEL = 1,
+    INS_GRP_BARO = 2,
+    INS_GRP_NHC = 3,
+    INS_GRP_ZUPT = 4,
+    INS_GRP_MAG = 5,
+    INS_GRP_HOLD = 6,
+    INS_NGRP = 7
+};
 
 typedef struct {
     ins_real P[INS_NX][INS_NX];
@@ -164,6 +192,28 @@ typedef struct {
     uint32_t accepted[INS_NGRP], rejected[INS_NGRP], consecutive[INS_NGRP];
     ins_real last_ratio[INS_NGRP];
     uint32_t n_predict;
+    ins_real lever[3], std_scale;
+    /* vibration noise: gains, tau, previous compensated rate/force (body) and E[d^2] per axis */
+    ins_real vib_gain[2], vib_tau, vib_prev[6], vib_var[6];
+    int vib, have_vib_prev;
+    /* cov_every accumulators */
+    int cov_every, acc_n;
+    ins_real acc_dt, acc_f[3], acc_q[2][3][3];
+    /* ground aids: rest detector and NHC/ZUPT settings */
+    int nhc, nhc_vertical, zupt, zaru;
+    ins_real nhc_std, nhc_std_vertical, nhc_min_speed;
+    double nhc_period; /* s, 1 / nhc_rate (double: the tick times stay those of the Python) */
+    ins_real zupt_std, zupt_gyro, zupt_accel, zupt_time, zupt_tau, zupt_max_speed, zaru_std, g_local;
+    double nhc_next, still_time;
+    ins_real ema_w[3], ema_f[3];
+    int replaying;         /* a delayed-fusion replay: gates apply, counters do not move */
+    int have_mag;
+    ins_real mag_ref[3], mag_std;   /* unit reference field (NED) */
+    int hold, have_hold_pos;
+    double hold_pos[3], t_hold_gnss, t_hold;   /* live state (not rolled back, as NoAidHold) */
+    ins_real hold_after, hold_std, hold_vel_std;
+    double hold_period;
+    ins_real gap_accel_sigma, gap_rate_sigma;
 } ins_ekf_t;
 
 /* Default configuration: the defaults of ins_hil.fusion.ekf.FilterConfig / ins_hil.core.NavConfig. */
@@ -172,6 +222,11 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg);
 /* Covariance predict over one step after ins_mech_step(): P = Phi P Phi^T + Q dt, with F from the
  * mechanization's last f_ned, Earth/transport rates and attitude (see ekf.c). */
 void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m);
+/* Predict with the vibration noise (w_b, f_b: this step's compensated body rate rad/s and specific force
+ * m/s^2) and the cov_every accumulation, as ErrorStateEKF.predict. */
+void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[3], const ins_real f_b[3]);
+/* Predict across gap s of lost IMU data after a coasting mechanization step (c9: C_b^n before it). */
+void ins_ekf_predict_gap(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], ins_real gap);
 /* Joseph-form scalar update for the residual z (measured - predicted, before x), row h, noise variance r. */
 void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r);
 /* Symmetrise P (after a group of scalar updates). */
@@ -208,6 +263,10 @@ void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_
                    double t, ins_real dt, const ins_ekf_cfg_t *cfg, int filter);
 /* One IMU step: bias-correct the increments, mechanize, EKF predict (if filter). t_end: sensor time. */
 void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end);
+/* One IMU step of its own length dt (s; a log's jittering sample periods): as ins_core_step with the step period
+ * set to dt. A sample whose interval starts more than dt/2 after the last state (lost IMU data) is preceded by a
+ * coasting step at constant velocity and attitude over the gap (at most 10 s) and the gap's covariance growth. */
+void ins_core_step_dt(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end, ins_real dt);
 /* n IMU steps in one call: inc is n x 6 (dtheta, dvel), t_end is n times (or NULL: t += dt);
  * out (n records, or NULL). */
 void ins_core_run(ins_core_t *c, const ins_real *inc, const double *t_end, size_t n, ins_out_t *out);
@@ -222,7 +281,55 @@ int ins_core_fuse_gnss(ins_core_t *c, const ins_gnss_t *g);
  * calibrated against accepted GNSS heights with time constant baro_offset_tau; its variance is added to R).
  * Returns 1 if accepted. */
 int ins_core_fuse_baro(ins_core_t *c, double t, ins_pos altitude);
+/* Magnetometer field (body FRD, any unit) valid now: the book's two-component update (eqs. 3.28-3.38) against
+ * the configured reference. Returns 1 if accepted (0 also when no reference is configured). */
+int ins_core_fuse_mag(ins_core_t *c, double t, const ins_real field_b[3]);
+/* ins_core_fuse_gnss with the time alignment chosen by the caller (assume_now: no v dt shift). */
+int ins_core_fuse_gnss_at(ins_core_t *c, const ins_gnss_t *g, int assume_now);
 void ins_core_output(const ins_core_t *c, ins_out_t *o);
+
+/* ------------------------------------------------------ delayed fusion (roll-back) */
+
+/* Delayed fusion as ins_hil.core_parts.history.DelayedHistory: a snapshot of the core after every step
+ * (the last max_delay + 2 dt s of them), the IMU increments and the fused measurements since the oldest.
+ * A measurement older than half a step is fused at the snapshot nearest its time, and the logged IMU
+ * steps and measurements are replayed up to now (gated, not counted). Fixed capacity: INS_HIST_N steps
+ * (max_delay / dt + 3 must fit: 1.9 s at 200 Hz, 0.38 s at 1 kHz; 1.35 MB in double, 0.76 MB in float:
+ * allocate it statically or with the caller's allocator) and INS_HIST_MEAS measurements; a measurement older
+ * than the history is fused now, as NavCore does beyond its history. */
+#ifndef INS_HIST_N
+#define INS_HIST_N 384
+#endif
+#define INS_HIST_MEAS 256
+typedef struct {
+    uint32_t step;      /* the step it was fused at (NavCore's log label) */
+    int kind;           /* 0 GNSS, 1 baro, 2 magnetometer */
+    ins_gnss_t g;       /* GNSS (NaN lat: velocity only; NaN vel: position only) */
+    ins_real field[3];  /* magnetometer */
+    double t;           /* baro: time, altitude */
+    ins_pos alt;
+} ins_hmeas_t;
+typedef struct {
+    ins_core_t snap[INS_HIST_N];
+    uint32_t snap_step[INS_HIST_N];
+    double snap_t[INS_HIST_N];
+    uint32_t snap_first, snap_n;       /* ring: oldest index, count */
+    ins_real imu[INS_HIST_N][7];       /* increments and dt of step k at k % INS_HIST_N */
+    double imu_t[INS_HIST_N];
+    ins_hmeas_t meas[INS_HIST_MEAS];
+    uint32_t meas_first, meas_n;
+    double max_delay;
+    uint32_t rollbacks, too_old;       /* roll-backs done; measurements older than the history */
+} ins_hist_t;
+
+void ins_hist_init(ins_hist_t *h, double max_delay);
+/* One IMU step through the history (log, ins_core_step, snapshot). */
+void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const ins_real dv[3], double t_end,
+                   ins_real dt);
+/* A GNSS fix / baro altitude valid at its time: rolled back if older than half a step. */
+int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g);
+int ins_hist_fuse_baro(ins_hist_t *h, ins_core_t *c, double t, ins_pos altitude);
+int ins_hist_fuse_mag(ins_hist_t *h, ins_core_t *c, double t, const ins_real field_b[3]);
 
 /* ---------------------------------------------------------------------- FDI */
 

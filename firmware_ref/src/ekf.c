@@ -16,6 +16,7 @@
  * its block sparsity (f_mul), so a predict costs ~4 sparse products.
  */
 #include "ins_internal.h"
+#include "generated/ins_jacobians.h"
 
 enum { IR = 0, IV = 3, IA = 6, IG = 9, IB = 12 };
 
@@ -46,6 +47,40 @@ void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg) {
     cfg->have_baro_offset = 0;
     cfg->baro_offset = 0.0;
     cfg->baro_offset_tau = 10.0;
+    cfg->lever_arm[0] = cfg->lever_arm[1] = cfg->lever_arm[2] = K(0.0);
+    cfg->gnss_std_scale = K(1.0);
+    cfg->gyro_vib_gain = cfg->accel_vib_gain = K(0.0);
+    cfg->vib_tau = K(1.0);
+    cfg->cov_every = 1;
+    /* = ins_hil.core_parts.config.AidsConfig() */
+    cfg->nhc = cfg->zupt = 0;
+    cfg->nhc_vertical = cfg->zaru = 1;
+    cfg->nhc_std = K(0.1);
+    cfg->nhc_std_vertical = K(0.1);
+    cfg->nhc_rate = K(10.0);
+    cfg->nhc_min_speed = K(0.5);
+    cfg->zupt_std = K(0.02);
+    cfg->zupt_gyro = K(0.02);
+    cfg->zupt_accel = K(0.15);
+    cfg->zupt_time = K(0.5);
+    cfg->zupt_tau = K(0.3);
+    cfg->zupt_max_speed = K(1.0);
+    cfg->zaru_std = K(0.002);
+    cfg->aids_gate = K(5.0);
+    cfg->g_local = K(9.80665);
+    cfg->have_mag = 0; /* = MagConfig() */
+    cfg->mag_ref[0] = cfg->mag_ref[1] = cfg->mag_ref[2] = K(0.0);
+    cfg->mag_std = K(0.0524);
+    cfg->mag_gate = K(5.0);
+    cfg->hold = cfg->have_hold_pos = 0; /* = HoldConfig() */
+    cfg->hold_lat = cfg->hold_lon = cfg->hold_h = 0.0;
+    cfg->hold_after = K(5.0);
+    cfg->hold_std = K(10.0);
+    cfg->hold_vel_std = K(1.0);
+    cfg->hold_rate = K(5.0);
+    cfg->hold_gate = K(5.0);
+    cfg->gap_accel_sigma = K(1.0);
+    cfg->gap_rate_sigma = K(3.0 * deg);
 }
 
 void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
@@ -93,27 +128,86 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
         e->last_ratio[i] = K(0.0);
     }
     e->n_predict = 0;
+    for (i = 0; i < 3; ++i) e->lever[i] = cfg->lever_arm[i];
+    e->std_scale = cfg->gnss_std_scale;
+    e->vib_gain[0] = cfg->gyro_vib_gain;
+    e->vib_gain[1] = cfg->accel_vib_gain;
+    e->vib_tau = cfg->vib_tau;
+    e->vib = cfg->gyro_vib_gain > K(0.0) || cfg->accel_vib_gain > K(0.0);
+    e->have_vib_prev = 0;
+    for (i = 0; i < 6; ++i) e->vib_prev[i] = e->vib_var[i] = K(0.0);
+    e->cov_every = cfg->cov_every < 1 ? 1 : cfg->cov_every;
+    e->acc_n = 0;
+    e->acc_dt = K(0.0);
+    for (i = 0; i < 3; ++i) {
+        e->acc_f[i] = K(0.0);
+        for (j = 0; j < 3; ++j) e->acc_q[0][i][j] = e->acc_q[1][i][j] = K(0.0);
+    }
+    e->gate[INS_GRP_NHC] = e->gate[INS_GRP_ZUPT] = cfg->aids_gate;
+    e->nhc = cfg->nhc;
+    e->nhc_vertical = cfg->nhc_vertical;
+    e->zupt = cfg->zupt;
+    e->zaru = cfg->zaru;
+    e->nhc_std = cfg->nhc_std;
+    e->nhc_std_vertical = cfg->nhc_std_vertical;
+    e->nhc_period = 1.0 / (double)cfg->nhc_rate;
+    e->nhc_min_speed = cfg->nhc_min_speed;
+    e->zupt_std = cfg->zupt_std;
+    e->zupt_gyro = cfg->zupt_gyro;
+    e->zupt_accel = cfg->zupt_accel;
+    e->zupt_time = cfg->zupt_time;
+    e->zupt_tau = cfg->zupt_tau;
+    e->zupt_max_speed = cfg->zupt_max_speed;
+    e->zaru_std = cfg->zaru_std;
+    e->g_local = cfg->g_local;
+    e->nhc_next = 0.0;
+    e->still_time = 0.0;
+    for (i = 0; i < 3; ++i) e->ema_w[i] = K(0.0);
+    e->ema_f[0] = e->ema_f[1] = K(0.0);
+    e->ema_f[2] = K(-9.80665);
+    e->replaying = 0;
+    e->have_mag = cfg->have_mag;
+    e->mag_std = cfg->mag_std;
+    e->gate[INS_GRP_MAG] = cfg->mag_gate;
+    {
+        const ins_real n = RS(cfg->mag_ref[0] * cfg->mag_ref[0] + cfg->mag_ref[1] * cfg->mag_ref[1] +
+                              cfg->mag_ref[2] * cfg->mag_ref[2]);
+        for (i = 0; i < 3; ++i) e->mag_ref[i] = n > K(0.0) ? cfg->mag_ref[i] / n : K(0.0);
+        if (!(n > K(0.0))) e->have_mag = 0;
+    }
+    e->hold = cfg->hold;
+    e->have_hold_pos = cfg->have_hold_pos;
+    e->hold_pos[0] = cfg->hold_lat;
+    e->hold_pos[1] = cfg->hold_lon;
+    e->hold_pos[2] = cfg->hold_h;
+    e->t_hold_gnss = e->t_hold = -1e300;
+    e->hold_after = cfg->hold_after;
+    e->hold_std = cfg->hold_std;
+    e->hold_vel_std = cfg->hold_vel_std;
+    e->hold_period = 1.0 / (double)cfg->hold_rate;
+    e->gap_accel_sigma = cfg->gap_accel_sigma;
+    e->gap_rate_sigma = cfg->gap_rate_sigma;
+    e->gate[INS_GRP_HOLD] = cfg->hold_gate;
 }
 
+/* F: the generated blocks (generated/ins_jacobians.h, from tools/derive_jacobians.py) and the bias rows */
 typedef struct {
-    ins_real itg, ita, g2r;
-    ins_real vv[3][3]; /* -[(2 w_ie + w_en) x] */
-    ins_real va[3][3]; /* [f x] */
-    ins_real aa[3][3]; /* -[w_in x] */
-    ins_real c[3][3];  /* C_b^n */
+    ins_real itg, ita;
+    ins_gen_fblocks_t b;
 } fmat_t;
 
-/* out = F in (F block-sparse, see the file comment) */
+/* out = F in (F block-sparse: the structure derive_jacobians.py checks) */
 static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS_NX][INS_NX]) {
+    const ins_gen_fblocks_t *b = &f->b;
     int i, j, k;
     for (j = 0; j < INS_NX; ++j) {
         for (i = 0; i < 3; ++i) {
             ins_real sv = K(0.0), sa = K(0.0);
             for (k = 0; k < 3; ++k) {
-                sv += f->vv[i][k] * in[IV + k][j] + f->va[i][k] * in[IA + k][j] - f->c[i][k] * in[IB + k][j];
-                sa += f->aa[i][k] * in[IA + k][j] + f->c[i][k] * in[IG + k][j];
+                sv += b->vv[i][k] * in[IV + k][j] + b->va[i][k] * in[IA + k][j] + b->vba[i][k] * in[IB + k][j];
+                sa += b->aa[i][k] * in[IA + k][j] + b->abg[i][k] * in[IG + k][j];
             }
-            if (i == 2) sv += f->g2r * in[IR + 2][j];
+            if (i == 2) sv += b->vr_dd * in[IR + 2][j];
             out[IR + i][j] = in[IV + i][j];
             out[IV + i][j] = sv;
             out[IA + i][j] = sa;
@@ -139,43 +233,119 @@ static void phi_mul(const fmat_t *f, ins_real dt, int second, ins_real in[INS_NX
     }
 }
 
-static void skew_into(ins_real m[3][3], ins_real x, ins_real y, ins_real z, ins_real s) {
-    /* m = s [v x] */
-    m[0][0] = K(0.0);
-    m[0][1] = -s * z;
-    m[0][2] = s * y;
-    m[1][0] = s * z;
-    m[1][1] = K(0.0);
-    m[1][2] = -s * x;
-    m[2][0] = -s * y;
-    m[2][1] = s * x;
-    m[2][2] = K(0.0);
+/* The vibration noise of one step (FilterConfig.gyro_vib_gain / accel_vib_gain, ErrorStateEKF._vibration_noise):
+ * updates E[dw^2], E[df^2] (body) with this step's changes and returns q[0] = C diag((g_w dt)^2 E[dw^2]) C^T,
+ * q[1] = C diag((g_f dt)^2 E[df^2]) C^T (NED; rad^2, (m/s)^2). */
+static void vibration_noise(ins_ekf_t *e, ins_real dt, const ins_real c[9], const ins_real w_b[3],
+                            const ins_real f_b[3], ins_real q[2][3][3]) {
+    ins_real x[6], g[2], d[2][3];
+    int i, j, k, b;
+    for (i = 0; i < 3; ++i) {
+        x[i] = w_b[i];
+        x[3 + i] = f_b[i];
+    }
+    if (e->have_vib_prev) {
+        ins_real a = dt / e->vib_tau;
+        if (a > K(1.0)) a = K(1.0);
+        for (i = 0; i < 6; ++i) {
+            const ins_real dd = x[i] - e->vib_prev[i];
+            e->vib_var[i] = e->vib_var[i] + a * (dd * dd - e->vib_var[i]);
+        }
+    }
+    for (i = 0; i < 6; ++i) e->vib_prev[i] = x[i];
+    e->have_vib_prev = 1;
+    for (b = 0; b < 2; ++b) {
+        g[b] = e->vib_gain[b] * dt;
+        g[b] = g[b] * g[b];
+        for (k = 0; k < 3; ++k) d[b][k] = g[b] * e->vib_var[3 * b + k];
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < 3; ++j) {
+                ins_real acc = K(0.0);
+                for (k = 0; k < 3; ++k) acc += c[3 * i + k] * d[b][k] * c[3 * j + k];
+                q[b][i][j] = acc;
+            }
+    }
 }
 
-void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) {
+void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) { ins_ekf_predict_full(e, m, NULL, NULL); }
+
+/* P = Phi P Phi^T + diag(qd) (+ the vibration blocks qv), F at the mechanization's state with the specific force fn */
+static void propagate(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], const ins_real fn[3], ins_real dt,
+                      const ins_real qd[INS_NX], ins_real qv[2][3][3]) {
     fmat_t f;
-    ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX], c9[9];
-    const ins_real *wie = m->omega_ie, *wen = m->omega_en, dt = m->dt;
+    ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX];
     int i, j;
     f.itg = e->inv_tau_g;
     f.ita = e->inv_tau_a;
     /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
-    f.g2r = K(2.0 * 9.80665 / 6371000.0);
-    skew_into(f.vv, K(2.0) * wie[0] + wen[0], wen[1], K(2.0) * wie[2] + wen[2], K(-1.0));
-    skew_into(f.va, m->f_ned[0], m->f_ned[1], m->f_ned[2], K(1.0));
-    skew_into(f.aa, wie[0] + wen[0], wen[1], wie[2] + wen[2], K(-1.0));
-    ins_dcm_from_quat(m->q, c9);
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) f.c[i][j] = c9[3 * i + j];
+    ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &f.b);
     phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
     for (i = 0; i < INS_NX; ++i)
         for (j = 0; j < INS_NX; ++j) b[i][j] = a[j][i];
     phi_mul(&f, dt, e->second_order, b, a, t1, t2); /* Phi (Phi P)^T = Phi P Phi^T */
     for (i = 0; i < INS_NX; ++i) {
         for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (a[i][j] + a[j][i]);
-        e->P[i][i] = a[i][i] + e->qc[i] * dt;
+        e->P[i][i] = a[i][i] + qd[i];
     }
+    if (qv != NULL)
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < 3; ++j) {
+                e->P[IA + i][IA + j] += qv[0][i][j];
+                e->P[IV + i][IV + j] += qv[1][i][j];
+            }
     e->n_predict++;
+}
+
+void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[3], const ins_real f_b[3]) {
+    ins_real c9[9], qv[2][3][3], fn[3], qd[INS_NX];
+    ins_real dt = m->dt;
+    const int vib = e->vib && w_b != NULL && f_b != NULL;
+    int i, j, k;
+    ins_dcm_from_quat(m->q, c9);
+    if (vib) vibration_noise(e, dt, c9, w_b, f_b, qv);
+    for (i = 0; i < 3; ++i) fn[i] = m->f_ned[i];
+    if (e->cov_every > 1) { /* accumulate; propagate every cov_every steps with the averaged f (ErrorStateEKF) */
+        if (vib)
+            for (k = 0; k < 2; ++k)
+                for (i = 0; i < 3; ++i)
+                    for (j = 0; j < 3; ++j) e->acc_q[k][i][j] += qv[k][i][j];
+        e->acc_n++;
+        e->acc_dt += dt;
+        for (i = 0; i < 3; ++i) e->acc_f[i] += m->f_ned[i];
+        if (e->acc_n < e->cov_every) return;
+        dt = e->acc_dt;
+        for (i = 0; i < 3; ++i) {
+            fn[i] = e->acc_f[i] / (ins_real)e->acc_n;
+            e->acc_f[i] = K(0.0);
+        }
+        e->acc_n = 0;
+        e->acc_dt = K(0.0);
+        if (vib)
+            for (k = 0; k < 2; ++k)
+                for (i = 0; i < 3; ++i)
+                    for (j = 0; j < 3; ++j) {
+                        qv[k][i][j] = e->acc_q[k][i][j];
+                        e->acc_q[k][i][j] = K(0.0);
+                    }
+    }
+    for (i = 0; i < INS_NX; ++i) qd[i] = e->qc[i] * dt;
+    propagate(e, m, c9, fn, dt, qd, vib ? qv : NULL);
+}
+
+void ins_ekf_predict_gap(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], ins_real gap) {
+    /* ErrorStateEKF.predict_gap: F at the coasted state, the sensor noise over the gap and the unknown motion of
+     * the gap: sigma_v = sa gap, sigma_r = sa gap^2 / 2, sigma_att = sw gap */
+    const ins_real sa = e->gap_accel_sigma * gap, sw = e->gap_rate_sigma * gap;
+    ins_real qd[INS_NX];
+    int i;
+    for (i = 0; i < INS_NX; ++i) qd[i] = e->qc[i] * gap;
+    for (i = 0; i < 3; ++i) {
+        const ins_real r = K(0.5) * sa * gap;
+        qd[IR + i] += r * r;
+        qd[IV + i] += sa * sa;
+        qd[IA + i] += sw * sw;
+    }
+    propagate(e, m, c9, m->f_ned, gap, qd, NULL);
 }
 
 void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {

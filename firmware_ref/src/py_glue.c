@@ -10,16 +10,23 @@ void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, 
     for (i = 0; i < 3; ++i) vv[i] = (ins_real)v[i];
     ins_core_init(c, qq, vv, lat, lon, h, t, (ins_real)dt, cfg, filter);
 }
-void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end) {
+/* one step (dt > 0: of its own length, else the fixed step); through the delayed-fusion history h if not NULL */
+void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double dv[3], double t_end, double dt) {
 #ifdef INS_REF_FLOAT
     ins_real a[3], u[3];
     int i;
     for (i = 0; i < 3; ++i) { a[i] = (ins_real)dth[i]; u[i] = (ins_real)dv[i]; }
-    ins_core_step(c, a, u, t_end);
 #else
-    ins_core_step(c, dth, dv, t_end);
+    const ins_real *a = dth, *u = dv;
 #endif
+    if (h != NULL) ins_hist_step(h, c, a, u, t_end, (ins_real)dt);
+    else if (dt > 0.0) ins_core_step_dt(c, a, u, t_end, (ins_real)dt);
+    else ins_core_step(c, a, u, t_end);
 }
+void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end) {
+    cref_hstep(c, NULL, dth, dv, t_end, 0.0);
+}
+void cref_hist_init(ins_hist_t *h, double max_delay) { ins_hist_init(h, max_delay); }
 /* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3], omega_b[3], f_b[3] (32 values);
  * omega_b, f_b: the last bias-compensated increments / dt (rad/s, m/s^2, body) */
 static void put(const ins_core_t *c, double *o, size_t n) {
@@ -43,21 +50,31 @@ static void put(const ins_core_t *c, double *o, size_t n) {
     for (i = 0; i < n; ++i) o[i] = all[i];
 }
 void cref_state(const ins_core_t *c, double out[32]) { put(c, out, 32); }
-void cref_run(ins_core_t *c, const double *inc, const double *t_end, size_t n, double *out, size_t out_stride) {
+/* n steps in one call (dts: each step's length, or NULL: the fixed step); out: n records of out_stride values */
+void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
+              double *out, size_t out_stride) {
     size_t k;
     for (k = 0; k < n; ++k) {
-        cref_step(c, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt);
+        cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt,
+                   dts != NULL ? dts[k] : 0.0);
         if (out != NULL) put(c, out + out_stride * k, out_stride);
     }
 }
-int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
-                   double std_d, double std_vel) {
+int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
+                    double std_ne, double std_d, double std_vel) {
     ins_gnss_t g;
     int i;
     g.t = t; g.lat = lat; g.lon = lon; g.h = h;
     for (i = 0; i < 3; ++i) g.vel[i] = (ins_real)vel[i];
     g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
-    return ins_core_fuse_gnss(c, &g);
+    return hs != NULL ? ins_hist_fuse_gnss(hs, c, &g) : ins_core_fuse_gnss(c, &g);
+}
+int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
+                   double std_d, double std_vel) {
+    return cref_hfuse_gnss(c, NULL, t, lat, lon, h, vel, std_ne, std_d, std_vel);
+}
+int cref_hfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude) {
+    return hs != NULL ? ins_hist_fuse_baro(hs, c, t, altitude) : ins_core_fuse_baro(c, t, altitude);
 }
 int cref_fuse_baro(ins_core_t *c, double t, double altitude) { return ins_core_fuse_baro(c, t, altitude); }
 /* n GNSS updates in one call (benchmark of the update path); returns the number fully accepted */
@@ -67,4 +84,10 @@ int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const
     int acc = 0;
     for (k = 0; k < n; ++k) acc += cref_fuse_gnss(c, c->mech.t, lat, lon, h, vel, std_ne, std_d, std_vel) == 3;
     return acc;
+}
+int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3]) {
+    ins_real f[3];
+    int i;
+    for (i = 0; i < 3; ++i) f[i] = (ins_real)field[i];
+    return hs != NULL ? ins_hist_fuse_mag(hs, c, t, f) : ins_core_fuse_mag(c, t, f);
 }

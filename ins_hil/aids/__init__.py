@@ -42,8 +42,9 @@ class Aid:
 
     ``fuse(meas, assume_now)`` yields between its updates (a real-time caller runs IMU steps there);
     ``after_step(imu)`` runs after every IMU time update (the vehicle aids: no sample of their own);
-    ``arrive(meas)`` sees every sample as it comes; ``align(meas)`` takes a sample before navigation; ``feedback(x)`` applies the aid's own error states of
-    the error estimate ``x``; ``snapshot``/``restore`` keep the aid's state for delayed fusion (references
+    ``arrive(meas)`` sees every sample as it comes; ``align(meas)`` takes a sample before navigation;
+    ``feedback(x)`` applies the aid's own error states of the error estimate ``x``; ``snapshot``/``restore``
+    keep the aid's state for delayed fusion (references
     only, nothing mutated in place). Every hook defaults to nothing."""
 
     #: the aid keeps state across steps (snapshot/restore are called)

@@ -59,7 +59,7 @@ def callgrind(steps: int, updates: int) -> dict[str, float] | str:
         return f"callgrind failed: {r.stderr.strip()[-300:]}"
     ann = subprocess.run(["callgrind_annotate", "--inclusive=yes", str(out)], capture_output=True, text=True).stdout
     res: dict[str, float] = {}
-    for fn in ("ins_core_step", "ins_mech_step", "ins_ekf_predict", "ins_core_fuse_gnss"):
+    for fn in ("ins_core_step", "ins_mech_step", "ins_ekf_predict_full", "ins_core_fuse_gnss"):
         m = re.search(r"^\s*([\d,]+)\s.*\b" + fn + r"\b", ann, re.MULTILINE)
         if m is None:
             return f"callgrind_annotate has no line for {fn}"
@@ -371,7 +371,7 @@ def report(
             "|---|---:|",
             f"| `ins_core_step` (IMU step: bias correction + mechanization + predict) | {cg['ins_core_step']:.0f} |",
             f"| `ins_mech_step` (mechanization) | {cg['ins_mech_step']:.0f} |",
-            f"| `ins_ekf_predict` (15-state covariance predict) | {cg['ins_ekf_predict']:.0f} |",
+            f"| `ins_ekf_predict_full` (15-state covariance predict) | {cg['ins_ekf_predict_full']:.0f} |",
             f"| `ins_core_fuse_gnss` (6 gated scalar Joseph updates + 2 feedbacks) | {cg['ins_core_fuse_gnss']:.0f} |",
             "",
         ]

@@ -25,6 +25,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=bench.ROOT / "docs" / "ref_core.md", help="report file (markdown)")
     p.add_argument("--no-callgrind", action="store_true", help="skip the valgrind instruction count")
     p.add_argument(
+        "--no-datasets",
+        action="store_true",
+        help="skip the replays of the shipped dataset configs (and the 200 Hz synthetic) on Python and C",
+    )
+    p.add_argument(
         "--replay",
         action="store_true",
         help="only the offline replay's cost: 200 Hz IMU with 5 / 20 Hz GNSS and a velocity delay (printed)",
@@ -78,6 +83,16 @@ def run(args: argparse.Namespace) -> int:
             print("  " + line.lstrip("- "))
     text = bench.report(rows, cg, args.duration, args.rate, args.repeat, n, m)
     text += bench.accuracy_md(acc, args.accuracy_duration)
+    if not args.no_datasets:
+        from ins_hil.bench import core_replay
+
+        print("replays: each shipped dataset config on Python and on C (CPU seconds of this process) ...")
+        drows = core_replay.dataset_rows(_say)
+        synth = core_replay.synthetic_rows(say=_say)
+        text += core_replay.report_md(drows, synth)
+    from ins_hil.bench import core_replay as _cr
+
+    text += _cr.scope_md()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
     print(f"wrote {args.out}")

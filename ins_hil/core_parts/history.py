@@ -160,9 +160,10 @@ class DelayedHistory:
                 pass
 
     def sort_log(self, floor: int) -> None:
-        """Put the log in replay order: by step, the IMU sample before the measurements of its step (a
-        stable sort). Only the tail from the first step ≥ min(``floor``, the first step logged since the
-        last sort) is sorted: the entries before it are in order and all of smaller steps."""
+        """Put the log in replay order: by step, the measurements fused at a step (state after IMU step−1)
+        before that step's IMU sample, which takes the state to the next step (a stable sort). Only the tail
+        from the first step ≥ min(``floor``, the first step logged since the last sort) is sorted: the entries
+        before it are in order and all of smaller steps."""
         log = self.log
         n = len(log)
         u = min(self.log_sorted, n)
@@ -172,6 +173,6 @@ class DelayedHistory:
             cut -= 1
         tail = [log.pop() for _ in range(n - cut)]
         tail.reverse()
-        tail.sort(key=lambda e: (e[0], e[1] != "imu"))
+        tail.sort(key=lambda e: (e[0], e[1] == "imu"))
         log.extend(tail)
         self.log_sorted = n

@@ -166,14 +166,9 @@ def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
 
 
 def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> RealTimeCore:
-    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore).
-
-    ``filter.cov_every`` is a speed setting of the Python core only: the C core propagates the
-    covariance on every step, so it is dropped for ``c`` (every other setting must be supported)."""
-    opts = dict(nav or {})
-    if kind == "c" and isinstance(opts.get("filter"), dict):
-        opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
-    cfg = nav_config(opts)
+    """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore; a
+    setting the C core lacks is refused in one line naming it)."""
+    cfg = nav_config(dict(nav or {}))
     from ins_hil.core import NavCore
 
     try:
@@ -770,9 +765,9 @@ def fdi_monitor(options: dict[str, Any]) -> Any:
 def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | None = None) -> Any:
     """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key).
 
-    Unless the table sets ``late_fix_as_current``, it follows the core: the C core, and the Python
-    core with ``[core.nav.delay] compensation = false``, fuse a late GNSS fix as current (shifted by
-    v·Δt), so the monitor compares it with the current state; otherwise at the fix's time of validity."""
+    Unless the table sets ``late_fix_as_current``, it follows ``[core.nav.delay] compensation``: without it
+    either core (Python or C) fuses a late GNSS fix as current (shifted by v·Δt), so the monitor compares it
+    with the current state; with it (the default) at the fix's time of validity (both roll back)."""
     from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 
     known = {f.name for f in dataclasses.fields(AidingConfig)}
@@ -788,10 +783,7 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
     try:
         kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
         if "late_fix_as_current" not in kw:
-            # the C core has no roll-back: it always fuses a late fix at the current step, shifted by v·Δt
-            kw["late_fix_as_current"] = core == "c" or not bool(
-                ((nav or {}).get("delay") or {}).get("compensation", True)
-            )
+            kw["late_fix_as_current"] = not bool(((nav or {}).get("delay") or {}).get("compensation", True))
         return AidingMonitor(AidingConfig(**kw), ((nav or {}).get("gnss") or {}).get("lever_arm_b"))
     except ValueError as e:
         raise ValueError(f"fdi.aiding: {e}") from None

@@ -1,0 +1,289 @@
+"""One symbolic source for the error-state filter's Jacobians (SymPy): the continuous state-transition matrix F
+of the 15-state error model and the measurement rows H, derived once and generated into C
+(``firmware_ref/src/generated/ins_jacobians.h``, the C core's only F and H) and Python
+(``ins_hil/fusion/generated_jacobians.py``).
+
+    python firmware_ref/tools/derive_jacobians.py           # write both files
+    python firmware_ref/tools/derive_jacobians.py --check   # exit 1 if a checked-in file differs (CI)
+
+Conventions (ins_hil.fusion, DIGEST_000 section 9): x = [δr δv ψ δb_g δb_a] (NED m, m/s, rad, body rad/s,
+m/s²), δ = true − computed, Ĉ_b^n = (I + [ψ×]) C_b^n, so C_true = (I − [ψ×]) Ĉ to first order. Each model is
+written as the true quantity minus the computed one, as a function of the error state; F and H are its
+Jacobians at x = 0 (SymPy differentiates, nothing is linearised by hand):
+
+* velocity: δv̇ = (I − [ψ×]) (f^n − Ĉ δb_a) − f^n − (2ω_ie + ω_en) × δv + (0, 0, (2g/R) δr_D)
+  (the specific force through the true attitude with the true bias, minus the computed one);
+  δṙ = δv; ψ̇ = −ω_in × ψ + Ĉ δb_g (book eq. 3.40); δḃ = −δb/τ (Gauss-Markov).
+* GNSS antenna position: r + C_true l − (r̂ + Ĉ l); velocity: v + C_true ((ω̂ − δb_g) × l) − (v̂ + Ĉ (ω̂ × l)).
+* baro height: h_true − ĥ = −δr_D. ZUPT: 0 − v̂ = δv. ZARU: 0 − ω̄ = −δb_g.
+* NHC: (C_true^T v_true − Ĉ^T v̂)_{y,z} with C_true^T = Ĉ^T (I + [ψ×]).
+* magnetometer (book eqs. 3.28-3.38, no hard-iron states): rows 2-3 of τ (m × Ĉ_true^{-1}...) — with the unit
+  reference m and Ĉ m̄ = (I + [ψ×]) m: z = rows 2-3 of τ (m × ((I + [ψ×]) m)), τ of eq. 3.33.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import sympy as sp
+from sympy.printing.c import C99CodePrinter
+
+ROOT = Path(__file__).resolve().parents[2]
+C_OUT = ROOT / "firmware_ref" / "src" / "generated" / "ins_jacobians.h"
+PY_OUT = ROOT / "ins_hil" / "fusion" / "generated_jacobians.py"
+NX = 15
+
+
+def vec(name: str) -> sp.Matrix:
+    return sp.Matrix(sp.symbols(f"{name}0:3", real=True))
+
+
+def skew(a: sp.Matrix) -> sp.Matrix:
+    return sp.Matrix([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+
+
+# error state
+dr, dv, psi, dbg, dba = vec("dr"), vec("dv"), vec("psi"), vec("dbg"), vec("dba")
+X = sp.Matrix.vstack(dr, dv, psi, dbg, dba)
+ZERO = {s: 0 for s in X}
+# inputs
+Cm = sp.Matrix(3, 3, sp.symbols("C0:9", real=True))  # C_b^n, row-major
+f, wie, wen = vec("f"), vec("wie"), vec("wen")
+itg, ita, g2r = sp.symbols("itg ita g2r", real=True)
+lev, w, v, m = vec("l"), vec("w"), vec("v"), vec("m")
+I3 = sp.eye(3)
+
+
+def jac(expr: sp.Matrix) -> sp.Matrix:
+    return sp.simplify(expr.jacobian(X).subs(ZERO))
+
+
+def derive_F() -> sp.Matrix:
+    """Continuous F (15 × 15) of the error model (module doc)."""
+    coriolis = 2 * wie + wen
+    w_in = wie + wen
+    ddr = dv
+    ddv = (I3 - skew(psi)) * (f - Cm * dba) - f - coriolis.cross(dv) + sp.Matrix([0, 0, g2r * dr[2]])
+    dpsi = -w_in.cross(psi) + Cm * dbg
+    ddbg = -itg * dbg
+    ddba = -ita * dba
+    return jac(sp.Matrix.vstack(ddr, ddv, dpsi, ddbg, ddba))
+
+
+def derive_H() -> dict[str, sp.Matrix]:
+    """Measurement rows H (m × 15) by measurement."""
+    C_true = (I3 - skew(psi)) * Cm
+    h: dict[str, sp.Matrix] = {}
+    h["gnss_pos"] = jac(dr + C_true * lev - Cm * lev)
+    h["gnss_vel"] = jac(dv + C_true * (w - dbg).cross(lev) - Cm * w.cross(lev))
+    h["baro"] = jac(sp.Matrix([-dr[2]]))
+    h["zupt"] = jac(dv)
+    h["zaru"] = jac(-dbg)
+    vb = Cm.T * (I3 + skew(psi)) * (v + dv) - Cm.T * v
+    h["nhc"] = jac(vb[1:3, :])
+    k = 1 / (1 + m[0])
+    tau = sp.Matrix(
+        [[m[0], m[1], m[2]], [-m[1], 1 - m[1] ** 2 * k, -m[1] * m[2] * k], [-m[2], -m[1] * m[2] * k, 1 - m[2] ** 2 * k]]
+    )
+    g = tau * m.cross((I3 + skew(psi)) * m)
+    # the reference is a unit vector: reduce modulo |m|^2 = 1
+    h["mag"] = jac(g[1:3, :]).applyfunc(lambda e: sp.factor(sp.ratsimpmodprime(e, [m.dot(m) - 1], *m)))
+    return h
+
+
+# the arguments of each generated function: (name, symbols) in order
+F_ARGS = [("C", list(Cm)), ("f_ned", list(f)), ("w_ie", list(wie)), ("w_en", list(wen)),
+          ("inv_tau_g", [itg]), ("inv_tau_a", [ita]), ("g2r", [g2r])]  # fmt: skip
+H_ARGS = {
+    "gnss_pos": [("C", list(Cm)), ("lever", list(lev))],
+    "gnss_vel": [("C", list(Cm)), ("omega_b", list(w)), ("lever", list(lev))],
+    "baro": [],
+    "zupt": [],
+    "zaru": [],
+    "nhc": [("C", list(Cm)), ("vel", list(v))],
+    "mag": [("m", list(m))],
+}
+H_DOC = {
+    "gnss_pos": "GNSS antenna position (lever arm l, body FRD, m): δr + [(C l)×] ψ",
+    "gnss_vel": "GNSS antenna velocity (compensated body rate ω, rad/s): δv + [(C(ω×l))×] ψ + C [l×] δb_g",
+    "baro": "barometric height: −δr_D",
+    "zupt": "zero velocity: δv",
+    "zaru": "zero angular rate: −δb_g",
+    "nhc": "non-holonomic constraint (body y, z velocity): C^T δv − C^T [v×] ψ",
+    "mag": "magnetometer, unit reference field m (NED): rows 2-3 of τ (book eq. 3.33) on ψ",
+}
+
+
+def _subs_c(args: list[tuple[str, list[sp.Symbol]]]) -> dict[sp.Symbol, sp.Symbol]:
+    out = {}
+    for name, syms in args:
+        for i, s in enumerate(syms):
+            out[s] = sp.Symbol(f"{name}[{i}]") if len(syms) > 1 else sp.Symbol(name)
+    return out
+
+
+class _CPrinter(C99CodePrinter):
+    """C99 in the scalar type ins_real: integer powers as products, no double literals (float build)."""
+
+    def _print_Pow(self, e: sp.Pow) -> str:
+        b, n = e.as_base_exp()
+        if n.is_Integer and 0 < int(n) <= 3:
+            return "*".join([self.parenthesize(b, 60)] * int(n))
+        if n == -1:
+            return f"((ins_real)1/{self.parenthesize(b, 60)})"
+        raise ValueError(f"derive_jacobians: no C form for the power {e}")
+
+    def _print_Rational(self, e: sp.Rational) -> str:
+        return f"((ins_real){e.p}/(ins_real){e.q})"
+
+    def _print_Float(self, e: sp.Float) -> str:
+        raise ValueError(f"derive_jacobians: a float literal {e} in a Jacobian")
+
+
+def _c_expr(e: sp.Expr, sub: dict[sp.Symbol, sp.Symbol]) -> str:
+    return str(_CPrinter().doprint(sp.sympify(e).xreplace(sub)))
+
+
+def _entries(M: sp.Matrix) -> list[tuple[int, int, sp.Expr]]:
+    return [(i, j, M[i, j]) for i in range(M.rows) for j in range(M.cols) if M[i, j] != 0]
+
+
+def gen_c(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
+    out = [
+        "/* GENERATED by firmware_ref/tools/derive_jacobians.py from one SymPy derivation - do not edit.",
+        " * The Jacobians of the 15-state error-state filter (ins_ref.h): F (continuous, block form) and the",
+        " * measurement rows H. tests/test_generated_jacobians.py regenerates and diffs this file. */",
+        "#ifndef INS_GENERATED_JACOBIANS_H",
+        "#define INS_GENERATED_JACOBIANS_H",
+        '#include "ins_ref.h"',
+        "",
+        "/* F = dẋ/dx at x = 0. Structure (checked by the generator): F[0:3][3:6] = I, F[9+i][9+i] = -1/tau_g,",
+        " * F[12+i][12+i] = -1/tau_a, and the blocks below (rows/columns of the velocity, attitude, bias states). */",
+        "typedef struct {",
+        "    ins_real vr_dd;        /* F[5][2]: d(dv_D)/d(dr_D) */",
+        "    ins_real vv[3][3];     /* F[3:6][3:6] */",
+        "    ins_real va[3][3];     /* F[3:6][6:9] */",
+        "    ins_real vba[3][3];    /* F[3:6][12:15] */",
+        "    ins_real aa[3][3];     /* F[6:9][6:9] */",
+        "    ins_real abg[3][3];    /* F[6:9][9:12] */",
+        "} ins_gen_fblocks_t;",
+        "",
+        "static inline void ins_gen_F_blocks(const ins_real C[9], const ins_real f_ned[3], const ins_real w_ie[3],",
+        "                                    const ins_real w_en[3], ins_real g2r, ins_gen_fblocks_t *b) {",
+    ]
+    sub = _subs_c(F_ARGS)
+    blocks = {"vv": (3, 3), "va": (3, 6), "vba": (3, 12), "aa": (6, 6), "abg": (6, 9)}
+    for name, (r0, c0) in blocks.items():
+        for i in range(3):
+            for j in range(3):
+                out.append(f"    b->{name}[{i}][{j}] = {_c_expr(F[r0 + i, c0 + j], sub)};")
+    out.append(f"    b->vr_dd = {_c_expr(F[5, 2], sub)};")
+    out.append("}")
+    for name, M in H.items():
+        args = H_ARGS[name]
+        sub = _subs_c(args)
+        params = "".join(f"const ins_real {a}[{len(s)}], " if len(s) > 1 else f"ins_real {a}, " for a, s in args)
+        out += ["", f"/* {H_DOC[name]}. Writes the nonzero entries of rows 0..{M.rows - 1} (zero h first). */",
+                f"static inline void ins_gen_H_{name}({params}ins_real h[][INS_NX]) {{"]  # fmt: skip
+        out += [f"    h[{i}][{j}] = {_c_expr(e, sub)};" for i, j, e in _entries(M)]
+        out.append("}")
+    out += ["", "#endif"]
+    return "\n".join(out) + "\n"
+
+
+def _py_expr(e: sp.Expr, sub: dict[sp.Symbol, sp.Symbol]) -> str:
+    return sp.pycode(sp.sympify(e).xreplace(sub))
+
+
+def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
+    out = [
+        "# ruff: noqa: E501",
+        "# fmt: off",
+        '"""GENERATED by firmware_ref/tools/derive_jacobians.py from one SymPy derivation - do not edit.',
+        "",
+        "The Jacobians of the 15-state error-state filter (layout of ``ins_hil.fusion.ekf`` with the gyro and",
+        "accelerometer bias states only): the continuous F and the measurement rows H, the same derivation as the",
+        "C core's ``firmware_ref/src/generated/ins_jacobians.h``. Vectors are 3-sequences of floats; C = C_b^n.",
+        '"""',
+        "",
+        "from __future__ import annotations",
+        "",
+        "from collections.abc import Sequence",
+        "",
+        "import numpy as np",
+        "",
+        f"NX = {NX}",
+        "",
+        "",
+        "def F(C: np.ndarray, f_ned: Sequence[float], w_ie: Sequence[float], w_en: Sequence[float],",
+        "      inv_tau_g: float, inv_tau_a: float, g2r: float) -> np.ndarray:",
+        '    """Continuous error-dynamics matrix F (15 × 15) at the nominal state (C: 3 × 3 C_b^n)."""',
+        "    C = np.asarray(C, dtype=np.float64).ravel()",
+        "    out = np.zeros((NX, NX))",
+    ]
+    sub = _subs_c(F_ARGS)
+    out += [f"    out[{i}, {j}] = {_py_expr(e, sub)}" for i, j, e in _entries(F)]
+    out.append("    return out")
+    for name, M in H.items():
+        args = H_ARGS[name]
+        sub = _subs_c(args)
+        params = ", ".join(f"{a}: Sequence[float]" if len(s) > 1 else f"{a}: float" for a, s in args)
+        if any(a == "C" for a, _ in args):
+            pre = ["    C = np.asarray(C, dtype=np.float64).ravel()"]
+            params = params.replace("C: Sequence[float]", "C: np.ndarray")
+        else:
+            pre = []
+        out += ["", "", f"def H_{name}({params}) -> np.ndarray:", f'    """{H_DOC[name]} ({M.rows} × 15)."""']
+        out += [*pre, f"    h = np.zeros(({M.rows}, NX))"]
+        out += [f"    h[{i}, {j}] = {_py_expr(e, sub)}" for i, j, e in _entries(M)]
+        out.append("    return h")
+    return "\n".join(out) + "\n"
+
+
+def check_structure(F: sp.Matrix) -> None:
+    """The block structure the C core's sparse products (ekf.c f_mul) rely on."""
+    allowed = set()
+    for i in range(3):
+        allowed.add((i, 3 + i))
+        assert F[i, 3 + i] == 1
+        assert F[9 + i, 9 + i] == -itg and F[12 + i, 12 + i] == -ita
+        allowed |= {(9 + i, 9 + i), (12 + i, 12 + i)}
+    for r0, c0 in ((3, 3), (3, 6), (3, 12), (6, 6), (6, 9)):
+        allowed |= {(r0 + i, c0 + j) for i in range(3) for j in range(3)}
+    allowed.add((5, 2))
+    extra = [(i, j) for i, j, _ in _entries(F) if (i, j) not in allowed]
+    if extra:
+        raise SystemExit(f"derive_jacobians: F has entries outside the C core's block structure: {extra}")
+
+
+def generate() -> tuple[str, str]:
+    F = derive_F()
+    check_structure(F)
+    H = derive_H()
+    return gen_c(F, H), gen_py(F, H)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--check", action="store_true", help="exit 1 if a checked-in generated file differs")
+    a = ap.parse_args(argv)
+    c_src, py_src = generate()
+    bad = []
+    for path, text in ((C_OUT, c_src), (PY_OUT, py_src)):
+        if a.check:
+            if not path.exists() or path.read_text() != text:
+                bad.append(os.path.relpath(path, ROOT))
+        else:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text)
+    if bad:
+        print(f"derive_jacobians: out of date (run firmware_ref/tools/derive_jacobians.py): {', '.join(bad)}")
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
