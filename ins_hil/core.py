@@ -65,6 +65,7 @@ from ins_hil.fusion.yaw_gsf import YawGsf
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownSnapshot, StrapdownState
 from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
+from ins_hil.settings import setting
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 DEG = math.pi / 180.0
@@ -91,9 +92,13 @@ class NavConfig:
     hold: sections.HoldConfig = field(default_factory=sections.HoldConfig)
     alignment: sections.AlignmentConfig = field(default_factory=sections.AlignmentConfig)
     delay: sections.DelayConfig = field(default_factory=sections.DelayConfig)
-    adaptive: bool = False
-    adaptive_b: float = 0.97
-    gravity: str = "normal"
+    adaptive: bool = setting(False, help="Sage–Husa adaptive R on GNSS/baro")
+    adaptive_b: float = setting(0.97, "", "(0, 1)", "Sage–Husa forgetting factor")
+    gravity: str = setting(
+        "normal",
+        help="strapdown gravity model: 'normal' Somigliana + height series, 'j2' J2 field + centrifugal",
+        choices=("normal", "j2"),
+    )
 
     def __post_init__(self) -> None:
         if self.gravity not in earth.GRAVITY_MODELS:

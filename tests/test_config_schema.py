@@ -209,7 +209,7 @@ def test_a_new_dataclass_field_is_a_key_with_its_metadata() -> None:
         count: int = 3
         band: tuple[float, float] = dataclasses.field(default=(0.5, 2.0), metadata={"range": "(0, 10]"})
 
-    keys = config_schema.dataclass_keys(Guard, "core")
+    keys = config_schema.dataclass_keys(Guard)
     assert keys["max_rate"].unit == "rad/s" and keys["max_rate"].allowed() == "a finite number in (0, 100] rad/s"
     assert keys["max_dt"].allowed() == "a finite number in (0, 1] s"
     assert keys["max_rate"].check(7, "core.max_rate") == 7.0

@@ -8,11 +8,12 @@ section checks its own values; the checks across sections are in ``NavConfig.__p
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from ins_hil.settings import setting
 from ins_hil.types import Vec
 
 DEG = math.pi / 180.0
@@ -30,13 +31,21 @@ class GnssConfig:
     the rejected fixes pass a consistency test of their own (:meth:`ins_hil.core_parts.gnss.GnssReset.ok`).
     """
 
-    lever_arm_b: Vec = field(default_factory=lambda: np.zeros(3))
-    min_std: tuple[float, float, float] = (0.01, 0.01, 0.02)  # NE, D, vel
-    std_scale: float = 1.0
-    use_vel: bool = True
-    vel_delay: float = 0.0
-    gate: float = 5.0
-    reset_after: int = 10
+    lever_arm_b: Vec = setting(
+        factory=lambda: np.zeros(3), unit="m", range="[-100, 100]", help="IMU → GNSS antenna, body FRD"
+    )
+    min_std: tuple[float, float, float] = setting(
+        (0.01, 0.01, 0.02), "m, m, m/s", "(0, 1000]", "floor on the reported GNSS σ: north/east, down, velocity"
+    )
+    std_scale: float = setting(1.0, "", "(0, 1000]", "factor on the reported GNSS σ")
+    use_vel: bool = setting(True, help="fuse the GNSS velocity")
+    vel_delay: float = setting(
+        0.0, "s", "[0, 2]", "the GNSS velocity is valid this long before the fix's position time (≤ delay.max_delay)"
+    )
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of GNSS")
+    reset_after: int = setting(
+        10, "fixes", "[0, 1000000]", "consecutive rejected fixes before the GNSS position is reset"
+    )
 
     def __post_init__(self) -> None:
         if self.vel_delay < 0.0:
@@ -49,10 +58,12 @@ class BaroConfig:
     ellipsoidal height) is ``offset`` (m) if given, else taken from the first sample and then calibrated with
     time constant ``offset_tau`` (s) while GNSS is accepted."""
 
-    std: float = 0.5
-    gate: float = 5.0
-    offset: float | None = None
-    offset_tau: float = 10.0
+    std: float = setting(0.5, "m", "(0, 1000]", "barometer noise")
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the barometer")
+    offset: float | None = setting(
+        None, "m", "[-10000, 10000]", "fixed baro datum offset (baro altitude → ellipsoidal height); not set = learnt"
+    )
+    offset_tau: float = setting(10.0, "s", "(0, 1e6]", "time constant of the baro datum calibration against GNSS")
 
 
 @dataclass
@@ -60,9 +71,15 @@ class MagConfig:
     """Magnetometer (``[core.nav.mag]``): noise ``std`` (unit-vector component, book σ_m); ``ref_ned``: reference
     field (NED, any unit, e.g. from WMM: the declination is in it; None = no magnetometer aiding); gate (σ)."""
 
-    std: float = 0.0524
-    ref_ned: Vec | None = None
-    gate: float = 5.0
+    std: float = setting(0.0524, "", "(0, 10]", "magnetometer noise (unit-vector component, book σ_m)")
+    ref_ned: Vec | None = setting(
+        None,
+        "any unit",
+        "[-1e6, 1e6]",
+        "reference magnetic field, NED (e.g. from WMM); not set = no heading from it",
+        nonzero=True,
+    )
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the magnetometer")
 
 
 @dataclass
@@ -84,30 +101,41 @@ class AidsConfig:
     rest detector sees the vehicle standing (on the ground). gate: innovation gate of these aids (σ).
     """
 
-    nhc: bool = False
-    nhc_std: float = 0.1
-    nhc_rate: float = 10.0
-    nhc_min_speed: float = 0.5
-    nhc_vertical: bool = True
-    nhc_std_vertical: float = 0.1
-    nhc_lever_b: Vec = field(default_factory=lambda: np.zeros(3))
-    nhc_pitch_per_accel: float = 0.0
-    nhc_omega_lp_hz: float = 0.0
-    zupt: bool = False
-    zupt_std: float = 0.02
-    zupt_gyro: float = 0.02
-    zupt_accel: float = 0.15
-    zupt_time: float = 0.5
-    zupt_tau: float = 0.3
-    zupt_max_speed: float = 1.0
-    zaru: bool = True
-    zaru_std: float = 0.002
-    drag: bool = False
-    drag_coef: float = 0.15
-    drag_std: float = 0.2
-    drag_tau: float = 0.25
-    drag_rate: float = 5.0
-    gate: float = 5.0
+    nhc: bool = setting(False, help="non-holonomic constraint (ground vehicles)")
+    nhc_std: float = setting(0.1, "m/s", "(0, 100]", "NHC lateral velocity σ")
+    nhc_rate: float = setting(10.0, "Hz", "(0, 10000]", "NHC update rate")
+    nhc_min_speed: float = setting(0.5, "m/s", "[0, 1000]", "NHC only above this speed")
+    nhc_vertical: bool = setting(True, help="NHC on the vertical axis as well")
+    nhc_std_vertical: float = setting(0.1, "m/s", "(0, 100]", "NHC vertical velocity σ")
+    nhc_lever_b: Vec = setting(
+        factory=lambda: np.zeros(3),
+        unit="m",
+        range="[-100, 100]",
+        help="IMU → the vehicle point whose lateral/vertical velocity is zero, body FRD",
+    )
+    nhc_pitch_per_accel: float = setting(
+        0.0, "rad/(m/s²)", "[-1, 1]", "suspension pitch per forward acceleration (nose-up accelerating)"
+    )
+    nhc_omega_lp_hz: float = setting(
+        0.0, "Hz", "[0, 10000]", "low-pass corner of the body rate in the NHC lever-arm term; 0 = raw"
+    )
+    zupt: bool = setting(False, help="zero-velocity update when at rest")
+    zupt_std: float = setting(0.02, "m/s", "(0, 100]", "ZUPT velocity σ")
+    zupt_gyro: float = setting(0.02, "rad/s", "(0, 10]", "rest detection: averaged rate below this")
+    zupt_accel: float = setting(0.15, "m/s²", "(0, 100]", "rest detection: averaged specific-force change below this")
+    zupt_time: float = setting(0.5, "s", "(0, 3600]", "rest detection: this long")
+    zupt_tau: float = setting(0.3, "s", "(0, 3600]", "averaging time constant of the rest detection")
+    zupt_max_speed: float = setting(1.0, "m/s", "[0, 1000]", "ZUPT only below this speed")
+    zaru: bool = setting(True, help="zero angular rate update on the gyro bias with ZUPT")
+    zaru_std: float = setting(0.002, "rad/s", "(0, 10]", "ZARU σ")
+    drag: bool = setting(False, help="multirotor rotor drag on the body x/y specific force (needs filter.wind_states)")
+    drag_coef: float = setting(
+        0.15, "1/s", "(0, 10]", "drag coefficient: specific force per air speed (PX4 EKF2_MCOEF)"
+    )
+    drag_std: float = setting(0.2, "m/s²", "(0, 100]", "drag aid σ of the averaged specific force")
+    drag_tau: float = setting(0.25, "s", "(0, 60]", "averaging time constant of the specific force for the drag aid")
+    drag_rate: float = setting(5.0, "Hz", "(0, 1000]", "drag aid rate")
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the auxiliary aids (NHC, ZUPT, drag)")
 
     def __post_init__(self) -> None:
         if self.nhc_omega_lp_hz < 0.0:
@@ -124,12 +152,18 @@ class HoldConfig:
     (σ ``std`` m) / zero-velocity (σ ``vel_std`` m/s, 0 = none) pseudo-measurements at ``rate`` Hz once no GNSS
     position has been fused for ``after`` s; gate (σ)."""
 
-    enabled: bool = False
-    after: float = 5.0
-    std: float = 10.0
-    vel_std: float = 1.0
-    rate: float = 5.0
-    gate: float = 5.0
+    enabled: bool = setting(
+        False,
+        help=(
+            "flight without GNSS: constant-position / zero-velocity pseudo-measurements once no GNSS position has "
+            "been fused for `after` s (EKF2's no-aiding mode; for hovers and bench tests, not for a moving car)"
+        ),
+    )
+    after: float = setting(5.0, "s", "[0, 3600]", "seconds without a fused GNSS position before the hold")
+    std: float = setting(10.0, "m", "(0, 1e6]", "σ of the constant-position row")
+    vel_std: float = setting(1.0, "m/s", "[0, 1e3]", "σ of the zero-velocity row; 0 = none")
+    rate: float = setting(5.0, "Hz", "(0, 100]", "pseudo-measurements per second")
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the hold")
 
 
 @dataclass
@@ -153,25 +187,66 @@ class AlignmentConfig:
     h m], a known position (levelling and the hold need no GNSS fix).
     """
 
-    mode: str = "given"
-    time: float = 2.0
-    level_only: bool = False
-    gyrocompass: bool = False
-    gyrocompass_max_std: float = 10.0 * DEG
-    level_tilt_prior: bool = True
-    still_speed: float = 0.3
-    still_delay: float = 1.5
-    still_gyro: float = 3.0 * DEG
-    still_accel: float = 1.0
-    still_tau: float = 0.2
-    gyro_bias_std: float = 0.02 * DEG
-    mag_yaw_std: float = 3.0 * DEG
-    gnss_yaw_speed: float = 1.0
-    gnss_yaw_std: float = 3.0 * DEG
-    gnss_yaw_vel_floor: float = 0.0
-    aligned_yaw_std: float = 5.0 * DEG
-    yaw_gsf: bool = False
-    position: tuple[float, float, float] | None = None
+    mode: str = setting(
+        "given",
+        help="given: trust the initial state; static: level at rest, yaw from magnetometer or GNSS course",
+        choices=("given", "static"),
+    )
+    time: float = setting(2.0, "s", "(0, 3600]", "static alignment: levelling time at rest")
+    level_only: bool = setting(False, help="static alignment: level only (yaw from the initial state)")
+    gyrocompass: bool = setting(
+        False,
+        help=(
+            "static alignment: yaw from the Earth rate (book eq. 4.2) when filter.init_gyro_bias allows σ_ψ ≤ "
+            "gyrocompass_max_std (navigation-grade gyros; MEMS cannot resolve 15 °/h)"
+        ),
+    )
+    gyrocompass_max_std: float = setting(10.0 * DEG, "rad", "(0, 3.1416]", "gyrocompass: the largest yaw σ it may give")
+    level_tilt_prior: bool = setting(True, help="levelled tilt prior correlated with the accelerometer errors")
+    still_speed: float = setting(0.3, "m/s", "[0, 100]", "static alignment: at rest below this GNSS speed")
+    still_delay: float = setting(1.5, "s", "[0, 3600]", "static alignment: at rest for this long")
+    still_gyro: float = setting(
+        3.0 * DEG,
+        "rad/s",
+        "(0, 10]",
+        "static alignment: in motion when the rate departs from the window's mean by this much (RMS over still_tau)",
+    )
+    still_accel: float = setting(
+        1.0,
+        "m/s^2",
+        "(0, 100]",
+        (
+            "static alignment: in motion when the specific force departs from the window's mean by this much (RMS over "
+            "still_tau)"
+        ),
+    )
+    still_tau: float = setting(0.2, "s", "(0, 60]", "static alignment: time constant of the IMU motion test")
+    gyro_bias_std: float = setting(0.02 * DEG, "rad/s", "(0, 1]", "gyro bias σ after the alignment")
+    mag_yaw_std: float = setting(3.0 * DEG, "rad", "(0, 3.1416]", "yaw σ from the magnetometer alignment")
+    gnss_yaw_speed: float = setting(
+        1.0,
+        "m/s",
+        "(0, 1000]",
+        "in-motion yaw from a receiver's velocity course above this speed (else a fitted track)",
+    )
+    gnss_yaw_std: float = setting(3.0 * DEG, "rad", "(0, 3.1416]", "yaw σ of the in-motion alignment (⊕ σ_v/V)")
+    gnss_yaw_vel_floor: float = setting(0.0, "m/s", "[0, 100]", "floor on the receiver's σ_v in the in-motion yaw σ")
+    aligned_yaw_std: float = setting(
+        5.0 * DEG, "rad", "(0, 3.1416]", "the state is 'aligned' when the yaw σ is below this"
+    )
+    yaw_gsf: bool = setting(
+        False,
+        help=(
+            "heading phase: yaw from the GNSS-velocity yaw bank (PX4 EKF-GSF, σ < 15°) instead of the GNSS course "
+            "(a multicopter without magnetometer)"
+        ),
+    )
+    position: tuple[float, float, float] | None = setting(
+        None,
+        help="[lat deg, lon deg, h m]: a known position (levelling and the hold need no GNSS fix)",
+        length=3,
+        optional=True,
+    )
 
     def __post_init__(self) -> None:
         if self.mode not in ("given", "static"):
@@ -183,8 +258,10 @@ class DelayConfig:
     """Delayed fusion (``[core.nav.delay]``): with ``compensation`` a late measurement is fused at its time of
     validity by rolling the filter back (history ``max_delay`` s); without, at the current step, shifted by v·Δt."""
 
-    compensation: bool = True
-    max_delay: float = 0.3
+    compensation: bool = setting(
+        True, help="fuse a late GNSS fix at its time (roll-back); false: at the current step, shifted by v·Δt"
+    )
+    max_delay: float = setting(0.3, "s", "[0, 2]", "history kept for delayed fusion")
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.max_delay <= 2.0:

@@ -62,6 +62,7 @@ import numpy as np
 
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
+from ins_hil.settings import setting
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, FixType, GnssFix, ImuSample, MagSample, NavState
 from ins_hil.validation import Limits, SampleValidator
 
@@ -182,25 +183,41 @@ def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = N
 class PipelineConfig:
     """Settings of the pipeline (the ``[core]`` table of a config, plus FDI and calibration)."""
 
-    core: str = "python"
-    init: str = "gnss"  # "gnss" (first 3-D fix + levelling) or "config"
-    init_lat_deg: float = 0.0
-    init_lon_deg: float = 0.0
-    init_h: float = 0.0
-    init_roll_deg: float = 0.0
-    init_pitch_deg: float = 0.0
-    init_yaw_deg: float = 0.0
-    level_samples: int = 200
+    core: str = setting(
+        "python",
+        help="navigation core: python (ins_hil.core) or c (the C reference core, ins_hil.cref)",
+        choices=("python", "c"),
+    )
+    init: str = setting(
+        "gnss",
+        help="gnss: start at the first 3-D fix, levelled from the accelerometers; config: the init_* keys",
+        choices=("gnss", "config"),
+    )
+    init_lat_deg: float = setting(
+        0.0, "°", "[-89, 89]", "initial latitude (init = 'config'); the NED mechanization is singular at the poles"
+    )
+    init_lon_deg: float = setting(0.0, "°", "[-180, 180]", "initial longitude (init = 'config')")
+    init_h: float = setting(0.0, "m", "[-1000, 100000]", "initial height above the WGS84 ellipsoid (init = 'config')")
+    init_roll_deg: float = setting(0.0, "°", "[-180, 180]", "initial roll (init = 'config')")
+    init_pitch_deg: float = setting(0.0, "°", "[-90, 90]", "initial pitch (init = 'config')")
+    init_yaw_deg: float = setting(
+        0.0, "°", "[-360, 360]", "initial yaw (init = 'config'; with gnss: when not moving at the first fix)"
+    )
+    level_samples: int = setting(200, "IMU intervals", "[1, 100000]", "intervals averaged for the levelling")
     imu_ids: list[int] = field(default_factory=lambda: [0])
     # redundant IMUs: an epoch (one sensor time) waits at most this many IMU periods of arrival time
     # for the units that have not delivered yet, then runs with what is there (imu_epoch_incomplete)
-    epoch_wait_periods: float = 3.0
+    epoch_wait_periods: float = setting(
+        3.0, "IMU periods", "(0, 1000]", "redundant IMUs: how long an epoch waits (arrival time) for a missing unit"
+    )
     fdi: bool = False
     fdi_options: dict[str, Any] = field(default_factory=dict)
-    calibration: str = ""
+    calibration: str = setting(
+        "", help="IMU calibration file (ins-hil calibrate; ins_hil.nav.calibration); '' = none", file=True
+    )
     aiding_fdi: bool = True  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
     aiding_options: dict[str, Any] = field(default_factory=dict)  # AidingConfig fields
-    nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig sections ([core.nav] table)
+    nav: dict[str, Any] = setting(factory=dict, help="the [core.nav] table")
     # the validation boundary: every sample is checked at the pipeline's entry (its keys sit in [core], flat)
     limits: Limits = field(default_factory=Limits)
 
