@@ -128,8 +128,8 @@ class Section:
 
 def sections() -> list[Section]:
     """Every section of a gateway configuration file, in the order of the docs."""
-    from ins_hil.core import NavConfig
     from ins_hil.core_parts.config import SECTIONS as NAV_SECTIONS
+    from ins_hil.core_parts.config import NavConfig
     from ins_hil.drivers.dbc_codec import DbcProfile
     from ins_hil.fdi.aiding import AidingConfig
     from ins_hil.fdi.monitor import FdiConfig

@@ -41,15 +41,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from ins_hil.core_parts import config as sections
 from ins_hil.core_parts.aids import AidsSnapshot, VehicleAids
 from ins_hil.core_parts.alignment import Alignment
 from ins_hil.core_parts.baro_datum import BaroDatum, BaroSnapshot
+from ins_hil.core_parts.config import NavConfig as NavConfig  # re-exported (defined beside its sections)
 from ins_hil.core_parts.contract import Measurement, check_aid, check_imu
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
 from ins_hil.core_parts.gnss import GnssReset, gnss_position, gnss_velocity
@@ -59,67 +59,18 @@ from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.core_parts.sensor_check import SensorCheck
 from ins_hil.fusion import measurements as mm
-from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
+from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
 from ins_hil.fusion.yaw_gsf import YawGsf
 from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownNED, StrapdownSnapshot, StrapdownState
 from ins_hil.nav.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
-from ins_hil.settings import setting
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 DEG = math.pi / 180.0
 #: lost IMU data is coasted across for at most this long (s; NavCore._coast: a sensor time gone far ahead)
 GAP_MAX_S = 10.0
 _KINDS = ("gnss_pos", "gnss_vel", "baro", "mag", "nhc", "zupt")
-
-
-@dataclass
-class NavConfig:
-    """NavCore configuration in sections (SI units; gates in σ; times in s): ``gnss``, ``baro``, ``mag``, ``aids``
-    (NHC/ZUPT/ZARU), ``hold`` (flight without GNSS), ``alignment``, ``delay`` (delayed fusion), ``filter``
-    (:class:`~ins_hil.fusion.ekf.FilterConfig`); each section's keys and units are in its class
-    (:mod:`ins_hil.core_parts.config`) and in docs/configuration.md. ``adaptive``: Sage–Husa R on GNSS/baro with
-    forgetting factor ``adaptive_b``. ``gravity``: the strapdown's gravity model, ``"normal"`` (Somigliana with
-    the height series, the default) or ``"j2"`` (J2 field + centrifugal, :func:`ins_hil.nav.earth.gravity_j2_ned`).
-    """
-
-    filter: FilterConfig = field(default_factory=FilterConfig)
-    gnss: sections.GnssConfig = field(default_factory=sections.GnssConfig)
-    baro: sections.BaroConfig = field(default_factory=sections.BaroConfig)
-    mag: sections.MagConfig = field(default_factory=sections.MagConfig)
-    aids: sections.AidsConfig = field(default_factory=sections.AidsConfig)
-    hold: sections.HoldConfig = field(default_factory=sections.HoldConfig)
-    alignment: sections.AlignmentConfig = field(default_factory=sections.AlignmentConfig)
-    delay: sections.DelayConfig = field(default_factory=sections.DelayConfig)
-    adaptive: bool = setting(False, help="Sage–Husa adaptive R on GNSS/baro")
-    adaptive_b: float = setting(0.97, "", "(0, 1)", "Sage–Husa forgetting factor")
-    gravity: str = setting(
-        "normal",
-        help="strapdown gravity model: 'normal' Somigliana + height series, 'j2' J2 field + centrifugal",
-        choices=("normal", "j2"),
-    )
-
-    def __post_init__(self) -> None:
-        if self.gravity not in earth.GRAVITY_MODELS:
-            raise ValueError(f"NavConfig.gravity={self.gravity!r}: expected one of {', '.join(earth.GRAVITY_MODELS)}")
-        for name, cls in (("filter", FilterConfig), *sections.SECTIONS.items()):
-            v = getattr(self, name)
-            if isinstance(v, dict):  # dataclasses.asdict(NavConfig) loaded back
-                setattr(self, name, cls(**v))
-            elif not isinstance(v, cls):
-                raise TypeError(f"NavConfig.{name}: expected a {cls.__name__}, got {type(v).__name__}")
-        if self.gnss.vel_delay > self.delay.max_delay:
-            raise ValueError(
-                f"NavConfig.gnss.vel_delay={self.gnss.vel_delay}: expected 0..delay.max_delay "
-                f"({self.delay.max_delay} s)"
-            )
-        if self.filter.mount_states and not self.aids.nhc:
-            raise ValueError(
-                "NavConfig.filter.mount_states=True needs aids.nhc=True (the boresight is seen by the NHC only)"
-            )
-        if self.aids.drag and not self.filter.wind_states:
-            raise ValueError("NavConfig.aids.drag=True needs filter.wind_states=True (drag acts on the air velocity)")
 
 
 #: builds a NamedTuple from a tuple without its generated ``__new__`` (half the cost: a snapshot per IMU step)

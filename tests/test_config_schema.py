@@ -225,6 +225,37 @@ def test_a_new_dataclass_field_is_a_key_with_its_metadata() -> None:
         keys["band"].check([0, 1], "core.band")
 
 
+def test_a_setting_built_in_code_obeys_the_range_of_its_key_in_a_file() -> None:
+    """One range per key, from its field's metadata: the dataclass refuses what the TOML loader refuses (drag_coef
+    was '(0, 10]' in the schema's table but '> 0' in AidsConfig.__post_init__), in one line naming the key."""
+    from ins_hil.core_parts.config import SECTIONS, AidsConfig, NavConfig
+    from ins_hil.fusion.ekf import FilterConfig
+    from ins_hil.settings import dataclass_keys
+
+    with pytest.raises(
+        ValueError, match=r"^NavConfig\.aids\.drag_coef=20\.0: expected a finite number in \(0, 10\] 1/s$"
+    ):
+        AidsConfig(drag_coef=20.0)
+    with pytest.raises(
+        ConfigError, match=r"^core\.nav\.aids\.drag_coef = 20\.0: expected a finite number in \(0, 10\] 1/s$"
+    ):
+        config_schema.validate("core.nav.aids", {"drag_coef": 20.0})
+    with pytest.raises(ValueError, match=r"^NavConfig\.gravity='flat': expected one of 'normal', 'j2'$"):
+        NavConfig(gravity="flat")
+    checked = 0
+    for name, cls in [*SECTIONS.items(), ("filter", FilterConfig)]:
+        for k in dataclass_keys(cls).values():
+            if k.type not in ("float", "int") or not k.range or math.isinf(k.interval.hi):
+                continue
+            bad = int(k.interval.hi) + 1 if k.type == "int" else 2.0 * k.interval.hi + 1.0
+            with pytest.raises(ValueError, match=rf"\.{k.name}="):
+                cls(**{k.attr: bad})
+            with pytest.raises(ConfigError, match=rf"core\.nav\.{name}\.{k.name} = "):
+                config_schema.validate(f"core.nav.{name}", {k.name: bad})
+            checked += 1
+    assert checked > 60
+
+
 def test_every_pipeline_field_is_a_core_key() -> None:
     from ins_hil.runtime.pipeline import PipelineConfig
 

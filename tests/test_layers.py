@@ -82,8 +82,24 @@ def test_no_known_exceptions() -> None:
     import tomllib
 
     contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
-    assert len(contracts) == 4
+    assert len(contracts) == 6
     assert {c["id"]: c.get("ignore_imports", []) for c in contracts} == {c["id"]: [] for c in contracts}
+
+
+def test_the_import_circles_break_the_contract(tmp_path: Path) -> None:
+    """config_schema importing config, and a core part importing the core, break a contract, even when the import
+    is for type checking only (NavConfig used to be imported so by every core part)."""
+    repo = _copy(tmp_path)
+    for rel, line in (
+        ("ins_hil/config_schema.py", "import ins_hil.config"),
+        ("ins_hil/core_parts/gnss.py", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import ins_hil.core"),
+    ):
+        f = repo / rel
+        f.write_text(f.read_text() + f"\n{line}  # noqa: E402\n")
+    r = _lint(repo)
+    assert r.returncode == 1, r.stdout + r.stderr
+    for imp in ("ins_hil.config_schema -> ins_hil.config", "ins_hil.core_parts.gnss -> ins_hil.core"):
+        assert imp in r.stdout, r.stdout
 
 
 def test_the_former_exceptions_break_the_contract(tmp_path: Path) -> None:

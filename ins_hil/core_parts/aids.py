@@ -4,7 +4,7 @@ drag on the body specific force (multirotor)."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -14,11 +14,8 @@ from ins_hil.nav.mechanization import StrapdownNED
 from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.types import ImuSample, Vec
 
+from .config import NavConfig
 from .contract import Measurement
-
-if TYPE_CHECKING:
-    from ins_hil.core import NavConfig
-
 
 _new = tuple.__new__  # a NamedTuple without its generated __new__ (a snapshot per IMU step)
 

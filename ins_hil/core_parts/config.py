@@ -1,19 +1,22 @@
-"""The sections of :class:`ins_hil.core.NavConfig` (``[core.nav.gnss]``, ``[core.nav.baro]``, ...).
+"""The navigation core's configuration, :class:`NavConfig`, and its sections (``[core.nav.gnss]``, ...).
 
-SI units, gates in σ, times in s; the unit, range and help of each key are in the ``core.nav.*`` tables of
-:mod:`ins_hil.config_schema` (``ins-hil config --docs`` prints them per key, docs/configuration.md). Each
-section checks its own values; the checks across sections are in ``NavConfig.__post_init__``.
+SI units, gates in σ, times in s. Each key's unit, range, default and help are its field's metadata
+(:func:`ins_hil.settings.setting`), the one description docs/configuration.md and the TOML loader read; each
+section checks its fields against it when built (:func:`ins_hil.settings.check_fields`), and ``NavConfig`` the
+checks across sections.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from ins_hil.settings import setting
+from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.nav import earth
+from ins_hil.settings import check_fields, setting
 from ins_hil.types import Vec
 
 DEG = math.pi / 180.0
@@ -21,15 +24,10 @@ DEG = math.pi / 180.0
 
 @dataclass
 class GnssConfig:
-    """GNSS position/velocity aiding (``[core.nav.gnss]``).
-
-    lever_arm_b: IMU → antenna (m, body FRD). min_std: floor on the reported σ (m north/east, m down, m/s).
-    std_scale: factor on the reported σ. use_vel: fuse the velocity. vel_delay: the velocity is valid this long (s)
-    before the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
-    separately at its own time of validity (delayed fusion). gate: innovation gate (σ). reset_after: a position
-    rejected this many times in a row may reset the position/velocity σ and be accepted over its gate, only when
-    the rejected fixes pass a consistency test of their own (:meth:`ins_hil.core_parts.gnss.GnssReset.ok`).
-    """
+    """GNSS position/velocity aiding (``[core.nav.gnss]``). A velocity valid ``vel_delay`` before its fix's position
+    time (RTKLIB .pos velocities lag by ~0.13 s) is fused at its own time (delayed fusion). After ``reset_after``
+    rejected positions in a row the position/velocity σ may be reset, only when the rejected fixes agree among
+    themselves (:meth:`ins_hil.core_parts.gnss.GnssReset.ok`). Units, ranges and help: the fields' metadata."""
 
     lever_arm_b: Vec = setting(
         factory=lambda: np.zeros(3), unit="m", range="[-100, 100]", help="IMU → GNSS antenna, body FRD"
@@ -48,15 +46,14 @@ class GnssConfig:
     )
 
     def __post_init__(self) -> None:
-        if self.vel_delay < 0.0:
-            raise ValueError(f"NavConfig.gnss.vel_delay={self.vel_delay}: expected >= 0 s")
+        check_fields(self, "NavConfig.gnss")
 
 
 @dataclass
 class BaroConfig:
-    """Barometric height (``[core.nav.baro]``): noise ``std`` (m), gate (σ). The datum offset (baro altitude →
-    ellipsoidal height) is ``offset`` (m) if given, else taken from the first sample and then calibrated with
-    time constant ``offset_tau`` (s) while GNSS is accepted."""
+    """Barometric height (``[core.nav.baro]``). The datum offset (baro altitude → ellipsoidal height) is ``offset``
+    if given, else taken from the first sample and calibrated against accepted GNSS with time constant
+    ``offset_tau``. Units, ranges and help: the fields' metadata."""
 
     std: float = setting(0.5, "m", "(0, 1000]", "barometer noise")
     gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the barometer")
@@ -65,11 +62,14 @@ class BaroConfig:
     )
     offset_tau: float = setting(10.0, "s", "(0, 1e6]", "time constant of the baro datum calibration against GNSS")
 
+    def __post_init__(self) -> None:
+        check_fields(self, "NavConfig.baro")
+
 
 @dataclass
 class MagConfig:
-    """Magnetometer (``[core.nav.mag]``): noise ``std`` (unit-vector component, book σ_m); ``ref_ned``: reference
-    field (NED, any unit, e.g. from WMM: the declination is in it; None = no magnetometer aiding); gate (σ)."""
+    """Magnetometer (``[core.nav.mag]``): the reference field ``ref_ned`` (NED, any unit, e.g. from WMM; the
+    declination is in it) switches the aiding on. Units, ranges and help: the fields' metadata."""
 
     std: float = setting(0.0524, "", "(0, 10]", "magnetometer noise (unit-vector component, book σ_m)")
     ref_ned: Vec | None = setting(
@@ -81,25 +81,18 @@ class MagConfig:
     )
     gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the magnetometer")
 
+    def __post_init__(self) -> None:
+        check_fields(self, "NavConfig.mag")
+
 
 @dataclass
 class AidsConfig:
-    """Ground-vehicle aids (``[core.nav.aids]``).
-
-    nhc: non-holonomic constraint at ``nhc_rate`` Hz above ``nhc_min_speed`` m/s (lateral σ ``nhc_std`` m/s,
-    optionally the vertical axis, σ ``nhc_std_vertical``). nhc_lever_b: IMU → the vehicle point whose
-    lateral/vertical velocity is zero (m, body FRD); with ``filter.mount_states`` the residual IMU → vehicle
-    boresight is estimated. nhc_pitch_per_accel: suspension pitch per forward acceleration (rad per m/s²,
-    nose-up accelerating): the vertical NHC is applied in the road frame, the body pitched by k a_x from it.
-    nhc_omega_lp_hz: corner (Hz) of a causal first-order low-pass of the body rate in the lever-arm term ω × l
-    only (0 = the raw rate). zupt: zero velocity (σ ``zupt_std`` m/s) — and zero angular rate on the gyro bias
-    with ``zaru`` (σ ``zaru_std`` rad/s) — when the averaged IMU (time constant ``zupt_tau`` s) looks at rest
-    (rate < ``zupt_gyro`` rad/s, specific-force change < ``zupt_accel`` m/s²) for ``zupt_time`` s and the speed
-    is below ``zupt_max_speed`` m/s. drag: a multirotor's rotor drag on the body x/y specific force (averaged
-    over ``drag_tau`` s, σ ``drag_std`` m/s², at ``drag_rate`` Hz, coefficient ``drag_coef`` 1/s: PX4's
-    EKF2_MCOEF default) against the air velocity, with the wind states (``filter.wind_states``); not while the
-    rest detector sees the vehicle standing (on the ground). gate: innovation gate of these aids (σ).
-    """
+    """Ground-vehicle and multirotor aids (``[core.nav.aids]``): the non-holonomic constraint (NHC; the vertical one
+    in the road frame, the body pitched by ``nhc_pitch_per_accel`` × the forward acceleration; with
+    ``filter.mount_states`` the IMU → vehicle boresight is estimated), zero velocity (ZUPT) and zero angular rate
+    (ZARU) while the averaged IMU looks at rest, and the rotor drag on the body x/y specific force against the air
+    velocity (with ``filter.wind_states``; not while the rest detector sees the vehicle standing). Units, ranges and
+    help: the fields' metadata."""
 
     nhc: bool = setting(False, help="non-holonomic constraint (ground vehicles)")
     nhc_std: float = setting(0.1, "m/s", "(0, 100]", "NHC lateral velocity σ")
@@ -138,19 +131,14 @@ class AidsConfig:
     gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the auxiliary aids (NHC, ZUPT, drag)")
 
     def __post_init__(self) -> None:
-        if self.nhc_omega_lp_hz < 0.0:
-            raise ValueError(f"NavConfig.aids.nhc_omega_lp_hz={self.nhc_omega_lp_hz}: expected >= 0 (0 = raw rate)")
-        for name in ("drag_coef", "drag_std", "drag_tau", "drag_rate"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0.0):
-                raise ValueError(f"NavConfig.aids.{name}={v!r}: expected a finite value > 0")
+        check_fields(self, "NavConfig.aids")
 
 
 @dataclass
 class HoldConfig:
-    """Flight without GNSS (``[core.nav.hold]``, core_parts/hold.py): with ``enabled``, constant-position
-    (σ ``std`` m) / zero-velocity (σ ``vel_std`` m/s, 0 = none) pseudo-measurements at ``rate`` Hz once no GNSS
-    position has been fused for ``after`` s; gate (σ)."""
+    """Flight without GNSS (``[core.nav.hold]``, core_parts/hold.py): constant-position / zero-velocity
+    pseudo-measurements once no GNSS position has been fused for ``after`` s. Units, ranges and help: the fields'
+    metadata."""
 
     enabled: bool = setting(
         False,
@@ -165,27 +153,19 @@ class HoldConfig:
     rate: float = setting(5.0, "Hz", "(0, 100]", "pseudo-measurements per second")
     gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the hold")
 
+    def __post_init__(self) -> None:
+        check_fields(self, "NavConfig.hold")
+
 
 @dataclass
 class AlignmentConfig:
     """The alignment before navigation (``[core.nav.alignment]``, core_parts/alignment.py).
 
-    mode: ``"given"`` trusts the initial state; ``"static"`` levels from the mean specific force over ``time`` s
-    at rest (book §4.1.1), then takes yaw from the magnetometer (σ ``mag_yaw_std`` rad) when a field reference is
-    configured, else from the GNSS course once the speed exceeds ``gnss_yaw_speed`` m/s (σ ``gnss_yaw_std`` ⊕
-    σ_v/V rad with the receiver's σ_v floored at ``gnss_yaw_vel_floor`` m/s); for a position-only receiver from a
-    robust straight-line fit over up to 5 s of fixes once its speed exceeds ``still_speed`` and the yaw σ it gives
-    is below ``aligned_yaw_std``. level_only: level only (yaw from the
-    initial state). gyrocompass: yaw from the Earth rate when σ_ψ ≤ ``gyrocompass_max_std`` (rad).
-    level_tilt_prior: the levelled tilt's prior correlated with the accelerometer error states. At rest: GNSS
-    speed below ``still_speed`` m/s for ``still_delay`` s; ``still_gyro`` (rad/s) / ``still_accel`` (m/s²), RMS
-    departure of the rate / specific force from the window's mean over ``still_tau`` s, mark motion.
-    gyro_bias_std: gyro bias σ after the alignment (rad/s). aligned_yaw_std: ``state().aligned`` once the yaw σ is
-    below this (rad). yaw_gsf: the heading phase takes its yaw from the GNSS-velocity yaw bank
-    (:mod:`ins_hil.fusion.yaw_gsf`, PX4's EKF-GSF) once its σ is below 15°, instead of the GNSS course: for a
-    vehicle whose course is not its heading (a multicopter) and that has no magnetometer. position: [lat °, lon °,
-    h m], a known position (levelling and the hold need no GNSS fix).
-    """
+    ``mode = "static"`` levels from the mean specific force at rest (book §4.1.1), then takes yaw from the
+    magnetometer when a field reference is configured, else from the GNSS course once moving (for a position-only
+    receiver from a robust straight-line fit over up to 5 s of fixes), from the gyrocompass, or from the GNSS-velocity
+    yaw bank (:mod:`ins_hil.fusion.yaw_gsf`, PX4's EKF-GSF) for a vehicle whose course is not its heading.
+    Units, ranges and help: the fields' metadata."""
 
     mode: str = setting(
         "given",
@@ -249,14 +229,13 @@ class AlignmentConfig:
     )
 
     def __post_init__(self) -> None:
-        if self.mode not in ("given", "static"):
-            raise ValueError(f"NavConfig.alignment.mode={self.mode!r}: expected 'given' or 'static'")
+        check_fields(self, "NavConfig.alignment")
 
 
 @dataclass
 class DelayConfig:
     """Delayed fusion (``[core.nav.delay]``): with ``compensation`` a late measurement is fused at its time of
-    validity by rolling the filter back (history ``max_delay`` s); without, at the current step, shifted by v·Δt."""
+    validity by rolling the filter back (history ``max_delay``); without, at the current step, shifted by v·Δt."""
 
     compensation: bool = setting(
         True, help="fuse a late GNSS fix at its time (roll-back); false: at the current step, shifted by v·Δt"
@@ -264,8 +243,7 @@ class DelayConfig:
     max_delay: float = setting(0.3, "s", "[0, 2]", "history kept for delayed fusion")
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.max_delay <= 2.0:
-            raise ValueError(f"NavConfig.delay.max_delay={self.max_delay}: expected 0..2 s")
+        check_fields(self, "NavConfig.delay")
 
 
 #: the sections of NavConfig by field name (the order of docs/configuration.md)
@@ -278,6 +256,53 @@ SECTIONS: dict[str, type] = {
     "alignment": AlignmentConfig,
     "delay": DelayConfig,
 }
+
+
+@dataclass
+class NavConfig:
+    """NavCore configuration in sections (SI units; gates in σ; times in s): ``gnss``, ``baro``, ``mag``, ``aids``
+    (NHC/ZUPT/ZARU), ``hold`` (flight without GNSS), ``alignment``, ``delay`` (delayed fusion), ``filter``
+    (:class:`~ins_hil.fusion.ekf.FilterConfig`); each section's keys and units are in its class
+    (:mod:`ins_hil.core_parts.config`) and in docs/configuration.md. ``adaptive``: Sage–Husa R on GNSS/baro with
+    forgetting factor ``adaptive_b``. ``gravity``: the strapdown's gravity model, ``"normal"`` (Somigliana with
+    the height series, the default) or ``"j2"`` (J2 field + centrifugal, :func:`ins_hil.nav.earth.gravity_j2_ned`).
+    """
+
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    gnss: GnssConfig = field(default_factory=GnssConfig)
+    baro: BaroConfig = field(default_factory=BaroConfig)
+    mag: MagConfig = field(default_factory=MagConfig)
+    aids: AidsConfig = field(default_factory=AidsConfig)
+    hold: HoldConfig = field(default_factory=HoldConfig)
+    alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
+    delay: DelayConfig = field(default_factory=DelayConfig)
+    adaptive: bool = setting(False, help="Sage–Husa adaptive R on GNSS/baro")
+    adaptive_b: float = setting(0.97, "", "(0, 1)", "Sage–Husa forgetting factor")
+    gravity: str = setting(
+        "normal",
+        help="strapdown gravity model: 'normal' Somigliana + height series, 'j2' J2 field + centrifugal",
+        choices=earth.GRAVITY_MODELS,
+    )
+
+    def __post_init__(self) -> None:
+        check_fields(self, "NavConfig")
+        for name, cls in (("filter", FilterConfig), *SECTIONS.items()):
+            v = getattr(self, name)
+            if isinstance(v, dict):  # dataclasses.asdict(NavConfig) loaded back
+                setattr(self, name, cls(**v))
+            elif not isinstance(v, cls):
+                raise TypeError(f"NavConfig.{name}: expected a {cls.__name__}, got {type(v).__name__}")
+        if self.gnss.vel_delay > self.delay.max_delay:
+            raise ValueError(
+                f"NavConfig.gnss.vel_delay={self.gnss.vel_delay}: expected 0..delay.max_delay "
+                f"({self.delay.max_delay} s)"
+            )
+        if self.filter.mount_states and not self.aids.nhc:
+            raise ValueError(
+                "NavConfig.filter.mount_states=True needs aids.nhc=True (the boresight is seen by the NHC only)"
+            )
+        if self.aids.drag and not self.filter.wind_states:
+            raise ValueError("NavConfig.aids.drag=True needs filter.wind_states=True (drag acts on the air velocity)")
 
 
 def _moved(sec: str, keys: str) -> dict[str, tuple[str, str]]:

@@ -42,7 +42,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ins_hil.nav import earth
-from ins_hil.settings import setting
+from ins_hil.settings import check_fields, setting
 from ins_hil.types import Vec
 
 DEG = math.pi / 180.0
@@ -157,18 +157,7 @@ class FilterConfig:
     )
 
     def __post_init__(self) -> None:
-        if self.numerics not in ("joseph", "conventional", "qr", "cholesky", "ud"):
-            raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
-        if self.cov_every < 1:
-            raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
-        vib_mag = ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias", "wind_sigma_rw",
-                   "init_wind")  # fmt: skip
-        for name in (*vib_mag, "gap_accel_sigma", "gap_rate_sigma"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0.0):
-                raise ValueError(f"FilterConfig.{name}={v!r}: expected a finite value >= 0")
-        if not (math.isfinite(self.vib_tau) and self.vib_tau > 0.0):
-            raise ValueError(f"FilterConfig.vib_tau={self.vib_tau!r}: expected a finite value > 0 (s)")
+        check_fields(self, "FilterConfig")  # each field against its metadata (as [core.nav.filter] is checked)
         if self.vibration and self.numerics == "ud":
             raise ValueError("FilterConfig: the vibration noise (gyro_vib_gain/accel_vib_gain > 0) needs a full "
                              "process-noise root: not with numerics='ud'")  # fmt: skip
