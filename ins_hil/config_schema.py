@@ -14,17 +14,16 @@ The few keys the loader handles itself (``[sim] enabled``, ``[fdi]``, a can_imu 
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import re
 import sys
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ins_hil.settings import KNOWN_LIST_MAX, Key, dataclass_keys, show
+from ins_hil.settings import KNOWN_LIST_MAX as KNOWN_LIST_MAX
 from ins_hil.settings import TYPES as TYPES
 from ins_hil.settings import ConfigError as ConfigError  # the runtime raises it too
+from ins_hil.settings import Key, dataclass_keys, known_hint, show
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "configuration.md"
 #: the keys the loader handles itself (not dataclass fields): [sim] enabled, [fdi.aiding] enabled, ...
@@ -205,22 +204,6 @@ def section(name: str) -> Section:
         light = name.startswith("outputs[]") and "gateway" not in _CACHE  # the outputs' alone: no core imported
         _CACHE.update({s.name: s for s in (_output_sections() if light else sections())})
     return _CACHE[name]
-
-
-def known_hint(k: str, known: Iterable[str], section: str = "") -> str:
-    """What to say about an unknown name ``k`` in one line: the close matches (``did you mean``), else the
-    known names when they fit in :data:`KNOWN_LIST_MAX` characters, else how many there are and where
-    they are documented (``section``: its name in docs/configuration.md, e.g. ``core.nav.filter``)."""
-    names = sorted(known)
-    near = difflib.get_close_matches(k, names, n=2)
-    if near:
-        return f"did you mean {' or '.join(repr(n) for n in near)}?"
-    listed = ", ".join(names)
-    if len(listed) <= KNOWN_LIST_MAX:
-        return f"known: {listed}"
-    sec = section.replace("[]", "")
-    table = f"[[{sec}]]" if section.endswith("[]") and "." not in sec else f"[{sec}]"
-    return f"{len(names)} known keys: docs/configuration.md, {table}" if section else f"{len(names)} known"
 
 
 def validate(name: str, table: Any, where: str | None = None) -> dict[str, Any]:

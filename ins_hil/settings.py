@@ -20,9 +20,12 @@ import dataclasses
 import difflib
 import math
 import re
+from collections.abc import Iterable
 from dataclasses import MISSING, dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 
 class ConfigError(ValueError):
@@ -429,3 +432,56 @@ def check_fields(obj: Any, prefix: str) -> None:
             key.check(_plain(v), f"{prefix}.{attr}")
         except ConfigError:
             raise ConfigError(f"{prefix}.{attr}={show(_plain(v))}: expected {key.allowed()}") from None
+
+
+def known_hint(k: str, known: Iterable[str], section: str = "") -> str:
+    """What to say about an unknown name ``k`` in one line: the close matches (``did you mean``), else the
+    known names when they fit in :data:`KNOWN_LIST_MAX` characters, else how many there are and where
+    they are documented (``section``: its name in docs/configuration.md, e.g. ``core.nav.filter``)."""
+    names = sorted(known)
+    near = difflib.get_close_matches(k, names, n=2)
+    if near:
+        return f"did you mean {' or '.join(repr(n) for n in near)}?"
+    listed = ", ".join(names)
+    if len(listed) <= KNOWN_LIST_MAX:
+        return f"known: {listed}"
+    sec = section.replace("[]", "")
+    table = f"[[{sec}]]" if section.endswith("[]") and "." not in sec else f"[{sec}]"
+    return f"{len(names)} known keys: docs/configuration.md, {table}" if section else f"{len(names)} known"
+
+
+def build(cls: type, table: Any, where: str, **fixed: Any) -> Any:
+    """The settings dataclass ``cls`` from its TOML table, each key checked once against its metadata
+    (:meth:`Key.check`): ConfigError in one line naming ``<where>.<key>``. A field holding a settings dataclass
+    is a sub-table built the same way; a 3-vector field annotated ``Vec`` becomes a numpy array, a tuple field a
+    tuple. ``fixed``: constructor arguments the table does not hold (e.g. an object built from a name)."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where} = {show(table)}: expected a table")
+    keys = {n: k for n, k in dataclass_keys(cls).items() if k.attr not in fixed}
+    nested = {f.name: f for f in dataclasses.fields(cls) if f.name not in keys and f.name not in fixed}
+    ann = {f.name: str(f.type).replace(" ", "") for f in dataclasses.fields(cls)}
+    kw: dict[str, Any] = dict(fixed)
+    for k, v in table.items():
+        key = keys.get(k)
+        if key is None:
+            f = nested.get(k)
+            sub = f.default_factory if f is not None else MISSING
+            if sub is MISSING or not dataclasses.is_dataclass(sub):
+                raise ConfigError(f"unknown key {show(f'{where}.{k}')} ({known_hint(str(k), [*keys, *nested], where)})")
+            kw[k] = build(sub, v, f"{where}.{k}")
+            continue
+        x = key.check(v, f"{where}.{k}")
+        a = ann[key.attr or k]
+        if isinstance(x, list) and ("Vec" in a or "ndarray" in a):
+            x = np.array(x, dtype=np.float64)
+        elif isinstance(x, list) and a.startswith("tuple"):
+            x = tuple(x)
+        kw[key.attr or k] = x
+    for k, key in keys.items():
+        if key.required and k not in table:
+            raise ConfigError(f"{where}: missing key {k!r} ({key.allowed()})")
+    try:
+        return cls(**kw)
+    except (TypeError, ValueError) as e:  # a check across keys (ConfigError is a ValueError)
+        msg = str(e)
+        raise ConfigError(msg if msg.startswith(where) else f"{where}: {msg}") from None

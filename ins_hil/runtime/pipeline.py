@@ -60,9 +60,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ins_hil.core_parts.config import MOVED, NavConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
-from ins_hil.settings import setting
+from ins_hil.settings import ConfigError, build, setting
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, FixType, GnssFix, ImuSample, MagSample, NavState
 from ins_hil.validation import Limits, SampleValidator
 
@@ -97,49 +98,17 @@ class RealTimeCore(Protocol):
 CORE_KINDS = ("python", "c")
 
 
-def nav_config(options: dict[str, Any]) -> Any:
-    """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table: its sections as sub-tables (``gnss``, ``baro``,
-    ``mag``, ``aids``, ``hold``, ``alignment``, ``delay``, ``filter``) and the top-level ``adaptive`` keys.
-
-    Raises ValueError naming the bad key (an old flat key: where it moved)."""
-    from ins_hil.core import NavConfig
-    from ins_hil.core_parts.config import MOVED, SECTIONS
-    from ins_hil.fusion.ekf import FilterConfig
-
-    known = {f.name: f for f in dataclasses.fields(NavConfig)}
-    vectors = {"gnss": ("lever_arm_b",), "mag": ("ref_ned",), "aids": ("nhc_lever_b",)}
-    kw: dict[str, Any] = {}
-    for k, v in options.items():
+def nav_config(options: dict[str, Any]) -> NavConfig:
+    """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table (its sections as sub-tables: ``gnss``, ``baro``,
+    ``mag``, ``aids``, ``hold``, ``alignment``, ``delay``, ``filter``), built by the one builder of every settings table
+    (:func:`ins_hil.settings.build`, the key checks of docs/configuration.md). Raises ConfigError (a ValueError) in
+    one line naming the bad key (an old flat key: where it moved)."""
+    for k in options:
         if k in MOVED:
             sec, new = MOVED[k]
-            raise ValueError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
-        if k not in known:
-            raise ValueError(f"unknown key 'core.nav.{k}' (known: {', '.join(sorted(known))})")
-        cls = FilterConfig if k == "filter" else SECTIONS.get(k)
-        if cls is not None:
-            if not isinstance(v, dict):
-                raise ValueError(f"core.nav.{k} = {v!r}: expected a table")
-            fk = {f.name for f in dataclasses.fields(cls)}
-            bad = set(v) - fk
-            if bad:
-                raise ValueError(f"core.nav.{k}: unknown key(s) {sorted(bad)} (known: {', '.join(sorted(fk))})")
-            sub = dict(v)
-            for name in vectors.get(k, ()):
-                if name in sub:
-                    sub[name] = np.array(sub[name], dtype=np.float64)
-                    if sub[name].shape != (3,):
-                        raise ValueError(f"core.nav.{k}.{name} = {v[name]!r}: expected 3 numbers")
-            if k == "gnss" and "min_std" in sub:
-                sub["min_std"] = tuple(float(x) for x in sub["min_std"])
-            try:
-                v = cls(**sub)
-            except (TypeError, ValueError) as e:
-                raise ValueError(f"core.nav.{k}: {e}") from None
-        kw[k] = v
-    try:
-        return NavConfig(**kw)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"core.nav: {e}") from None
+            raise ConfigError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
+    cfg: NavConfig = build(NavConfig, options, "core.nav")
+    return cfg
 
 
 def _initial_placeholder() -> StrapdownState:
@@ -763,53 +732,35 @@ def _load_calibration(path: str) -> Any:
 
 
 def fdi_monitor(options: dict[str, Any]) -> Any:
-    """``FdiMonitor`` from the ``[fdi.options]`` table: ``geometry`` (a name of
-    ``ins_hil.fdi.geometry.CONFIGS``) plus ``FdiConfig`` fields (dt, gyro_noise, accel_noise, ...)."""
+    """``FdiMonitor`` from the ``[fdi.options]`` table: ``geometry`` (a name of ``ins_hil.fdi.geometry.CONFIGS``)
+    plus ``FdiConfig`` fields (dt, gyro_noise, accel_noise, ...), built by :func:`ins_hil.settings.build`."""
     from ins_hil.fdi.geometry import by_name
     from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
 
     opts = dict(options)
-    known = {f.name for f in dataclasses.fields(FdiConfig)}
-    bad = set(opts) - known
-    if bad:
-        raise ValueError(
-            f"unknown key(s) {sorted('fdi.options.' + b for b in bad)} (known: {', '.join(sorted(known))})"
-        )
+    name = opts.pop("geometry", "triple_imu")
     try:
-        opts["geometry"] = by_name(str(opts.get("geometry", "triple_imu")))
-        return FdiMonitor(FdiConfig(**opts))
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"fdi.options: {e}") from None
+        geo = by_name(str(name))
+    except (KeyError, ValueError) as e:
+        raise ConfigError(f"fdi.options.geometry = {name!r}: {e}") from None
+    return FdiMonitor(build(FdiConfig, opts, "fdi.options", geometry=geo))
 
 
 def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | None = None) -> Any:
-    """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key).
+    """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields, built by :func:`ins_hil.settings.build`).
 
     Unless the table sets ``late_fix_as_current``, it follows the core: the C core, and the Python
     core with ``[core.nav.delay] compensation = false``, fuse a late GNSS fix as current (shifted by
     v·Δt), so the monitor compares it with the current state; otherwise at the fix's time of validity."""
     from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 
-    known = {f.name for f in dataclasses.fields(AidingConfig)}
-    bad = set(options) - known
-    if bad:
-        raise ValueError(
-            f"unknown key(s) {sorted('fdi.aiding.' + b for b in bad)} (known: enabled, {', '.join(sorted(known))})"
+    opts = dict(options)
+    if "late_fix_as_current" not in opts:
+        # the C core has no roll-back: it always fuses a late fix at the current step, shifted by v·Δt
+        opts["late_fix_as_current"] = core == "c" or not bool(
+            ((nav or {}).get("delay") or {}).get("compensation", True)
         )
-    for k, v in options.items():
-        want_bool = isinstance(getattr(AidingConfig(), k), bool)
-        if isinstance(v, bool) != want_bool or not isinstance(v, (int, float)):
-            raise ValueError(f"fdi.aiding.{k} = {v!r}: expected {'true or false' if want_bool else 'a number'}")
-    try:
-        kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
-        if "late_fix_as_current" not in kw:
-            # the C core has no roll-back: it always fuses a late fix at the current step, shifted by v·Δt
-            kw["late_fix_as_current"] = core == "c" or not bool(
-                ((nav or {}).get("delay") or {}).get("compensation", True)
-            )
-        return AidingMonitor(AidingConfig(**kw), ((nav or {}).get("gnss") or {}).get("lever_arm_b"))
-    except ValueError as e:
-        raise ValueError(f"fdi.aiding: {e}") from None
+    return AidingMonitor(build(AidingConfig, opts, "fdi.aiding"), ((nav or {}).get("gnss") or {}).get("lever_arm_b"))
 
 
 def _make_fdi(cfg: PipelineConfig) -> Any:
