@@ -470,7 +470,7 @@ def build(cls: type, table: Any, where: str, **fixed: Any) -> Any:
                 raise ConfigError(f"unknown key {show(f'{where}.{k}')} ({known_hint(str(k), [*keys, *nested], where)})")
             kw[k] = build(sub, v, f"{where}.{k}")
             continue
-        x = key.check(v, f"{where}.{k}")
+        x = key.check(_plain(v), f"{where}.{k}")  # a vector built in code (tuple, array) as in a file
         a = ann[key.attr or k]
         if isinstance(x, list) and ("Vec" in a or "ndarray" in a):
             x = np.array(x, dtype=np.float64)
