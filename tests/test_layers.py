@@ -121,3 +121,20 @@ def test_the_former_exceptions_break_the_contract(tmp_path: Path) -> None:
         "ins_hil.runtime.mavlink_params -> ins_hil.config",
     ):
         assert imp in r.stdout, r.stdout
+
+
+def test_the_architecture_picture_is_the_contract() -> None:
+    """ARCHITECTURE.md's layer picture lists the layers of the contract, in its order (bench, calibration and
+    core_parts placed)."""
+    import re
+    import tomllib
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    layers = next(c["layers"] for c in contracts if c["id"] == "layers")
+    text = (ROOT / "ARCHITECTURE.md").read_text()
+    picture = re.search(r"## Layers.*?```\n(.*?)```", text, re.S)
+    assert picture is not None
+    drawn = [" | ".join(x.strip() for x in p.split("|")) for p in " ".join(picture[1].split()).split(" > ")]
+    assert [" | ".join(x.strip() for x in layer.split("|")) for layer in layers] == drawn
+    for name in ("bench", "core_parts", "calibration.files", "calibration.bench"):
+        assert any(name in layer.split(" | ") for layer in drawn), name
