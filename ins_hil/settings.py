@@ -426,7 +426,7 @@ def check_fields(obj: Any, prefix: str) -> None:
         }
     for attr, key in keys.items():
         v = getattr(obj, attr)
-        if v is None and (key.optional or key.required):
+        if (v is None and (key.optional or key.required)) or key.type == "any":  # "any": an object, not a value
             continue
         try:
             key.check(_plain(v), f"{prefix}.{attr}")

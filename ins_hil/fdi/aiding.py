@@ -71,7 +71,7 @@ import numpy as np
 from ins_hil.fdi.thresholds import chi2_threshold
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat
-from ins_hil.settings import setting
+from ins_hil.settings import check_fields, setting
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, NavState, Vec
 
 
@@ -119,22 +119,10 @@ class AidingConfig:
     )
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.p_fa_hour < 1.0:
-            raise ValueError(f"p_fa_hour = {self.p_fa_hour}: expected a probability in (0, 1)")
-        for name in (
-            "window", "min_span", "cusum_k", "clear_gate", "gnss_rate", "baro_rate", "baro_std", "min_std", "lag_tau",
-        ):  # fmt: skip
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} = {getattr(self, name)}: expected a positive number")
+        check_fields(self, "AidingConfig")  # each field against its [fdi.aiding] metadata
         if self.min_span > self.window:
             raise ValueError(f"min_span = {self.min_span} must not exceed window = {self.window}")
-        if self.clear_time < 0 or self.rate_floor < 0 or self.max_gap <= 0:
-            raise ValueError("clear_time and rate_floor must be ≥ 0, max_gap > 0")
-        if self.lag_margin < 0 or self.max_lag < 0 or self.ins_vel_floor < 0:
-            raise ValueError(
-                f"lag_margin = {self.lag_margin}, max_lag = {self.max_lag}, "
-                f"ins_vel_floor = {self.ins_vel_floor}: expected ≥ 0"
-            )
+
 
 
 def cusum_arl0(h: float, k: float) -> float:

@@ -49,7 +49,7 @@ import numpy as np
 from ins_hil.fdi.geometry import SensorGeometry
 from ins_hil.fdi.parity import parity_basis
 from ins_hil.fdi.thresholds import fast_threshold, increment_sigma, slow_threshold, slow_variance
-from ins_hil.settings import setting
+from ins_hil.settings import check_fields, setting
 from ins_hil.types import FaultEvent, FaultMode, ImuSample, Vec
 
 # ufuncs/reductions called directly on the hot path (the ndarray methods add Python-level wrappers)
@@ -122,22 +122,7 @@ class FdiConfig:
     )
 
     def __post_init__(self) -> None:
-        for key in ("dt", "gyro_noise", "accel_noise", "slow_tau", "history"):
-            v = getattr(self, key)
-            if not (isinstance(v, int | float) and v > 0 and math.isfinite(v)):
-                raise ValueError(f"FdiConfig.{key} must be a positive number, got {v!r}")
-        for key in ("gyro_bias", "accel_bias", "classify_time", "readmit_after"):
-            v = getattr(self, key)
-            if not (isinstance(v, int | float) and v >= 0 and math.isfinite(v)):
-                raise ValueError(f"FdiConfig.{key} must be a non-negative number, got {v!r}")
-        if not 0.0 < self.p_false_alarm < 1.0:
-            raise ValueError(f"FdiConfig.p_false_alarm must be in (0, 1), got {self.p_false_alarm!r}")
-        if self.persistence < 1:
-            raise ValueError(f"FdiConfig.persistence must be ≥ 1, got {self.persistence!r}")
-        if self.stuck_samples < 0:
-            raise ValueError(f"FdiConfig.stuck_samples must be ≥ 0, got {self.stuck_samples!r}")
-        if self.dropout_samples < 1:
-            raise ValueError(f"FdiConfig.dropout_samples must be ≥ 1, got {self.dropout_samples!r}")
+        check_fields(self, "FdiConfig")  # each field against its [fdi.options] metadata
 
 
 @dataclass
