@@ -19,7 +19,6 @@ from typing import Any
 
 from ins_hil import config_schema as schema
 from ins_hil.config_schema import ConfigError
-from ins_hil.core_parts.config import MOVED
 from ins_hil.drivers.factory import driver_class, make_driver
 from ins_hil.drivers.mavlink_in import GNSS_MESSAGES as MAVLINK_GNSS_MESSAGES
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
@@ -33,7 +32,7 @@ from ins_hil.runtime.mavlink_msgs.common import MAV_TYPES as MAV_TYPES
 from ins_hil.runtime.mavlink_msgs.common import read_key_file
 from ins_hil.runtime.mavlink_out import EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
-from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor
+from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor, nav_config
 from ins_hil.types import SimConfig
 from ins_hil.validation import Limits
 
@@ -56,7 +55,11 @@ class Config:
     source: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """Plain values (a recording's header): the ``[core.nav]`` settings as their TOML table (the keys that
+        differ from the defaults, :func:`ins_hil.settings.table`)."""
+        d = dataclasses.asdict(self)
+        d["pipeline"] = self.pipeline.to_dict()
+        return d
 
     def mavlink_ids(self) -> list[tuple[int, int]]:
         """Every MAVLink identity (system, component) the gateway's outputs send as: its inputs refuse them."""
@@ -135,21 +138,6 @@ def _key(key: str, v: str) -> None:
             raise ConfigError(f"{key} = {v!r}: must be 64 hex digits (a 32-byte MAVLink signing key)") from None
         if len(b) != 32:
             raise ConfigError(f"{key}: must be 64 hex digits (32 bytes), got {len(v)} characters")
-
-
-def _nav(nav: dict[str, Any]) -> dict[str, Any]:
-    """The ``[core.nav]`` table and its sections (``[core.nav.gnss]``, ..., ``[core.nav.filter]``) checked key by
-    key; a flat key of the tables before the sections names where it moved."""
-    if isinstance(nav, dict):
-        for k in nav:
-            if k in MOVED:
-                sec, new = MOVED[k]
-                raise ConfigError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
-    out = schema.validate("core.nav", nav)
-    for k, key in schema.section("core.nav").keys.items():
-        if key.type == "table" and k in out:
-            out[k] = schema.validate(f"core.nav.{k}", out[k])
-    return out
 
 
 def _fdi(cfg: Config, fdi: Any) -> None:
@@ -295,7 +283,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     core = _fill(cfg.pipeline, d.get("core", {}), "core")
     p = cfg.pipeline
     p.limits = Limits(**{f.name: core[f.name] for f in dataclasses.fields(Limits) if f.name in core})
-    p.nav = _nav(core.get("nav", {}))
+    p.nav = nav_config(core.get("nav", {}))  # built once, each key checked (an old flat key: where it moved)
     if p.calibration:
         from ins_hil.calibration.files import load_calibration
 

@@ -145,6 +145,7 @@ def sections() -> list[Section]:
     aid.update(dataclass_keys(AidingConfig))
     core = dataclass_keys(PipelineConfig, rename={"core": "kind"},
                           skip=("imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options", "limits"))  # fmt: skip
+    core["nav"] = Key("nav", "table", None, help="the [core.nav] table")  # built by runtime.pipeline.nav_config
     # the validation limits (PipelineConfig.limits) are flat keys of [core]; the loader builds the Limits
     core.update({k: dataclasses.replace(v, attr=None) for k, v in dataclass_keys(Limits).items()})
     nav = dataclass_keys(NavConfig)  # the sections are tables of their own

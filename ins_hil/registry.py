@@ -55,14 +55,16 @@ class Registry(Mapping[str, T], Generic[T]):
         return name in self._entries and not _lazy(self._entries[name])
 
     def __getitem__(self, name: str) -> T:
-        if name not in self._entries and self.group and isinstance(name, str) and name:
+        if not isinstance(name, str):  # e.g. a list from a config file: no such entry
+            raise KeyError(name)
+        if name not in self._entries and self.group and name:
             for ep in entry_points(group=self.group):
                 if ep.name == name:
                     self._entries[name] = ep.load()
                     break
         try:
             e = self._entries[name]
-        except (KeyError, TypeError):
+        except KeyError:
             raise KeyError(name) from None
         if _lazy(e):
             module, attr = e  # type: ignore[misc]
@@ -86,7 +88,7 @@ class Registry(Mapping[str, T], Generic[T]):
         return len(self._entries)
 
     def __contains__(self, name: object) -> bool:
-        return name in self._entries
+        return isinstance(name, str) and name in self._entries
 
     def __repr__(self) -> str:
         return f"Registry({self.what!r}, {list(self._entries)})"

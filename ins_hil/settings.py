@@ -470,6 +470,9 @@ def build(cls: type, table: Any, where: str, **fixed: Any) -> Any:
                 raise ConfigError(f"unknown key {show(f'{where}.{k}')} ({known_hint(str(k), [*keys, *nested], where)})")
             kw[k] = build(sub, v, f"{where}.{k}")
             continue
+        if v is None and key.optional:  # not set (a table written from the dataclass; TOML has no None)
+            kw[key.attr or k] = None
+            continue
         x = key.check(_plain(v), f"{where}.{k}")  # a vector built in code (tuple, array) as in a file
         a = ann[key.attr or k]
         if isinstance(x, list) and ("Vec" in a or "ndarray" in a):
@@ -485,3 +488,29 @@ def build(cls: type, table: Any, where: str, **fixed: Any) -> Any:
     except (TypeError, ValueError) as e:  # a check across keys (ConfigError is a ValueError)
         msg = str(e)
         raise ConfigError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+
+
+def table(obj: Any) -> dict[str, Any]:
+    """The TOML table of a settings dataclass: the fields that differ from their defaults (a settings field as a
+    sub-table of its own differences, left out when there are none; vectors as lists of floats), so that
+    :func:`build` of it gives ``obj`` back. What a recording's header and a configuration document hold."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(obj):
+        if not f.init or f.name.startswith("_"):
+            continue
+        v = getattr(obj, f.name)
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            sub = table(v)
+            if sub:
+                out[f.name] = sub
+            continue
+        if f.default is not MISSING:
+            d: Any = f.default
+        elif f.default_factory is not MISSING:
+            d = f.default_factory()
+        else:
+            d = MISSING
+        pv, pd = _plain(v), _plain(d)
+        if d is MISSING or pv != pd:
+            out[f.name] = pv
+    return out

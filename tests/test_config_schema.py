@@ -165,8 +165,8 @@ def test_empty_strings_mean_none_in_the_dbc_profile() -> None:
 
 def test_int_for_a_float_key_is_converted_and_floats_stay_exact() -> None:
     cfg = from_dict(_set(SIM, "core.nav.gnss.gate", 4))
-    assert cfg.pipeline.nav["gnss"]["gate"] == 4.0 and isinstance(cfg.pipeline.nav["gnss"]["gate"], float)
-    assert cfg.pipeline.nav["filter"] == {"cov_every": 10}
+    assert cfg.pipeline.nav.gnss.gate == 4.0 and isinstance(cfg.pipeline.nav.gnss.gate, float)
+    assert cfg.pipeline.nav.filter.cov_every == 10 and cfg.to_dict()["pipeline"]["nav"]["filter"] == {"cov_every": 10}
 
 
 def test_non_utf8_file_is_named(tmp_path: Path) -> None:
@@ -262,6 +262,8 @@ def test_every_pipeline_field_is_a_core_key() -> None:
     core = config_schema.section("core").keys
     loader = {"imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options"}  # set from the [fdi] tables
     loader.add("limits")  # built from its flat [core] keys, checked below
+    loader.add("nav")  # the [core.nav] table, built once as a NavConfig (runtime.pipeline.nav_config)
+    assert core["nav"].type == "table"
     attrs = {k.attr for k in core.values()}
     missing = {f.name for f in dataclasses.fields(PipelineConfig)} - loader - attrs
     assert not missing, f"PipelineConfig fields that are no [core] key (a nested dataclass needs a section): {missing}"

@@ -63,7 +63,7 @@ import numpy as np
 from ins_hil.core_parts.config import MOVED, NavConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
-from ins_hil.settings import ConfigError, build, setting
+from ins_hil.settings import ConfigError, build, setting, table
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, FixType, GnssFix, ImuSample, MagSample, NavState
 from ins_hil.validation import Limits, SampleValidator
 
@@ -98,11 +98,13 @@ class RealTimeCore(Protocol):
 CORE_KINDS = ("python", "c")
 
 
-def nav_config(options: dict[str, Any]) -> NavConfig:
+def nav_config(options: dict[str, Any] | NavConfig) -> NavConfig:
     """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table (its sections as sub-tables: ``gnss``, ``baro``,
     ``mag``, ``aids``, ``hold``, ``alignment``, ``delay``, ``filter``), built by the one builder of every settings table
     (:func:`ins_hil.settings.build`, the key checks of docs/configuration.md). Raises ConfigError (a ValueError) in
-    one line naming the bad key (an old flat key: where it moved)."""
+    one line naming the bad key (an old flat key: where it moved). A ``NavConfig`` is returned as it is."""
+    if isinstance(options, NavConfig):
+        return options
     for k in options:
         if k in MOVED:
             sec, new = MOVED[k]
@@ -115,22 +117,21 @@ def _initial_placeholder() -> StrapdownState:
     return StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.9, 0.5, 100.0)
 
 
-def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
+def check_core(kind: str, nav: dict[str, Any] | NavConfig | None = None) -> None:
     """Raise now (before anything starts) if the core ``kind`` cannot be built with these options."""
     if kind not in CORE_KINDS:
         raise ValueError(f"unknown core {kind!r} (choose from {', '.join(CORE_KINDS)})")
     make_core(kind, _initial_placeholder(), nav or {})
 
 
-def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> RealTimeCore:
+def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | NavConfig | None = None) -> RealTimeCore:
     """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore).
 
     ``filter.cov_every`` is a speed setting of the Python core only: the C core propagates the
     covariance on every step, so it is dropped for ``c`` (every other setting must be supported)."""
-    opts = dict(nav or {})
-    if kind == "c" and isinstance(opts.get("filter"), dict):
-        opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
-    cfg = nav_config(opts)
+    cfg = nav_config(nav or {})
+    if kind == "c" and cfg.filter.cov_every != 1:
+        cfg = dataclasses.replace(cfg, filter=dataclasses.replace(cfg.filter, cov_every=1))
     from ins_hil.core import NavCore
 
     try:
@@ -186,9 +187,21 @@ class PipelineConfig:
     )
     aiding_fdi: bool = True  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
     aiding_options: dict[str, Any] = field(default_factory=dict)  # AidingConfig fields
-    nav: dict[str, Any] = setting(factory=dict, help="the [core.nav] table")
+    # the [core.nav] table, built once (settings.build); a table given here (a recording's header, a test) is built
+    nav: NavConfig = field(default_factory=NavConfig)
     # the validation boundary: every sample is checked at the pipeline's entry (its keys sit in [core], flat)
     limits: Limits = field(default_factory=Limits)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.nav, NavConfig):
+            self.nav = nav_config(self.nav)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values (a recording's header, read back by ``ins_hil.runtime.replay.pipeline_config_from_header``):
+        ``nav`` as its ``[core.nav]`` table, the keys that differ from the defaults (:func:`ins_hil.settings.table`)."""
+        d = dataclasses.asdict(self)
+        d["nav"] = table(self.nav)
+        return d
 
 
 def limits_of(cfg: PipelineConfig) -> Limits:
@@ -322,7 +335,7 @@ class Pipeline:
         if why.startswith("imu"):
             self._imu_rejects += 1
 
-    def _start(self, initial: StrapdownState, nav: dict[str, Any] | None = None) -> None:
+    def _start(self, initial: StrapdownState, nav: NavConfig | None = None) -> None:
         old = self.core
         self._resets += 1 + (getattr(old, "gnss_resets", 0) if old is not None else 0)
         self.core = make_core(self.cfg.core, initial, self.cfg.nav if nav is None else nav)
@@ -692,18 +705,14 @@ class Pipeline:
         if self._aid_mon is not None:
             self._aid_mon.ins_disturbed(t)
         g = self._good
-        nav = dict(self.cfg.nav)
-        restart = (
-            g is not None
-            and not self._fault_open
-            and (g.aligned or (nav.get("alignment") or {}).get("mode", "given") == "given")
-        )
+        nav = self.cfg.nav
+        restart = g is not None and not self._fault_open and (g.aligned or nav.alignment.mode == "given")
         self._fault_open = True
         self._fault_clear_t = t + FAULT_CLEAR_S
         if restart:
             assert g is not None
             q = np.array(g.q_nb, dtype=np.float64)
-            nav["alignment"] = {**(nav.get("alignment") or {}), "mode": "given"}
+            nav = dataclasses.replace(nav, alignment=dataclasses.replace(nav.alignment, mode="given"))
             try:
                 self._start(StrapdownState(q / math.sqrt(float(q @ q)), np.array(g.vel_ned, dtype=np.float64),
                                            g.lat, g.lon, g.h, g.t), nav)  # fmt: skip
@@ -746,7 +755,7 @@ def fdi_monitor(options: dict[str, Any]) -> Any:
     return FdiMonitor(build(FdiConfig, opts, "fdi.options", geometry=geo))
 
 
-def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | None = None) -> Any:
+def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | NavConfig | None = None) -> Any:
     """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields, built by :func:`ins_hil.settings.build`).
 
     Unless the table sets ``late_fix_as_current``, it follows the core: the C core, and the Python
@@ -755,12 +764,11 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
     from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 
     opts = dict(options)
+    ncfg = nav_config(nav or {})
     if "late_fix_as_current" not in opts:
         # the C core has no roll-back: it always fuses a late fix at the current step, shifted by v·Δt
-        opts["late_fix_as_current"] = core == "c" or not bool(
-            ((nav or {}).get("delay") or {}).get("compensation", True)
-        )
-    return AidingMonitor(build(AidingConfig, opts, "fdi.aiding"), ((nav or {}).get("gnss") or {}).get("lever_arm_b"))
+        opts["late_fix_as_current"] = core == "c" or not ncfg.delay.compensation
+    return AidingMonitor(build(AidingConfig, opts, "fdi.aiding"), ncfg.gnss.lever_arm_b)
 
 
 def _make_fdi(cfg: PipelineConfig) -> Any:
