@@ -256,6 +256,21 @@ def test_a_setting_built_in_code_obeys_the_range_of_its_key_in_a_file() -> None:
     assert checked > 60
 
 
+def test_the_validation_limits_have_one_range_in_the_file_the_docs_and_the_check() -> None:
+    """[core] gnss_min_fix_type was '[0, 8]' in the schema and docs but 2..6 in Limits.check: one range now, from
+    the field's metadata, with the file's one-line message."""
+    from ins_hil.validation import Limits
+
+    for bad, allowed in ((7, r"an integer 2\.\.6"), (1, r"an integer 2\.\.6")):
+        with pytest.raises(ConfigError, match=rf"core\.gnss_min_fix_type = {bad}: expected {allowed}$"):
+            from_dict(sim_doc(core={"gnss_min_fix_type": bad}), "t")
+        with pytest.raises(ValueError, match=rf"^core\.gnss_min_fix_type = {bad}: expected {allowed}$"):
+            Limits(gnss_min_fix_type=bad).check("core")
+    assert "| `gnss_min_fix_type` | int |  | 3 | an integer 2..6 |" in config_schema.markdown()
+    with pytest.raises(ValueError, match=r"^core\.imu_period_s = 1e-06: expected a finite number 0 or in \[1e-05, 1\]"):
+        Limits(imu_period_s=1e-6).check("core")
+
+
 def test_every_pipeline_field_is_a_core_key() -> None:
     from ins_hil.runtime.pipeline import PipelineConfig
 
