@@ -244,8 +244,9 @@ def markdown() -> str:
     lines = [
         "# Configuration",
         "",
-        "Every key of a gateway configuration file (`ins-hil run --config FILE`, TOML), generated from the schema",
-        "(`ins_hil/config_schema.py`) by `ins-hil config --docs` (or `python -m ins_hil.config_schema`);",
+        "Every key of a gateway configuration file (`ins-hil run --config FILE`, TOML), generated from the keys'",
+        "field metadata (`ins_hil/settings.py` `setting`: unit, range, default, help; collected by",
+        "`ins_hil/config_schema.py`) by `ins-hil config --docs` (or `python -m ins_hil.config_schema`);",
         "`ins-hil config --check FILE` validates a file and prints `ok` or the error. See `configs/*.toml` for",
         "working examples.",
         "",

@@ -196,7 +196,7 @@ class FaultEvent:
 class SimConfig:
     """What the simulated sensors simulate: the ``[sim]`` table of a gateway config (read by
     :mod:`ins_hil.sim.devices`; here, below both, so the config and the replay name it without the
-    simulator). Units and ranges per key: ``ins_hil.config_schema.TABLES["sim"]``, docs/configuration.md."""
+    simulator). Units and ranges per key: each field's metadata (docs/configuration.md)."""
 
     profile: str = setting(
         "uav", help="uav: 10 s at rest, then sweeping turns at 20 m/s; static: at rest", choices=("uav", "static")
