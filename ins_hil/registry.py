@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Iterator, Mapping
-from importlib.metadata import entry_points
 from typing import Any, Generic, TypeVar
 
 T = TypeVar("T")
@@ -58,7 +57,7 @@ class Registry(Mapping[str, T], Generic[T]):
         if not isinstance(name, str):  # e.g. a list from a config file: no such entry
             raise KeyError(name)
         if name not in self._entries and self.group and name:
-            for ep in entry_points(group=self.group):
+            for ep in entry_points(group=self.group):  # imported here: importlib.metadata is slow to import
                 if ep.name == name:
                     self._entries[name] = ep.load()
                     break
@@ -96,3 +95,10 @@ class Registry(Mapping[str, T], Generic[T]):
 
 def _lazy(e: Any) -> bool:
     return isinstance(e, tuple) and len(e) == 2 and all(isinstance(x, str) for x in e)
+
+
+def entry_points(group: str) -> Any:
+    """The Python entry points of ``group`` (importlib.metadata imported on first use: ``ins-hil --help``)."""
+    from importlib.metadata import entry_points as eps
+
+    return eps(group=group)
