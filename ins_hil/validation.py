@@ -62,9 +62,9 @@ class Limits:
     """Physical ranges of the validation boundary (units in the names; see the module doc)."""
 
     gyro_range_dps: float = setting(
-        2000.0, "°/s", "(0, 100000]", "per-axis gyro full scale; beyond range × range_margin: rejected"
+        2000.0, "°/s", "(0, inf)", "per-axis gyro full scale; beyond range × range_margin: rejected"
     )
-    accel_range_g: float = setting(16.0, "g", "(0, 1000]", "per-axis accelerometer full scale (g = 9.80665 m/s²)")
+    accel_range_g: float = setting(16.0, "g", "(0, inf)", "per-axis accelerometer full scale (g = 9.80665 m/s²)")
     range_margin: float = setting(1.5, "", "[1, 100]", "factor on the full scales before a reading is rejected")
     imu_period_s: float = setting(
         0.0, "s", "0 | [1e-05, 1]", "nominal IMU interval; 0 = learnt per IMU id (median of its first 8)"
