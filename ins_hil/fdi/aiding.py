@@ -124,7 +124,6 @@ class AidingConfig:
             raise ValueError(f"min_span = {self.min_span} must not exceed window = {self.window}")
 
 
-
 def cusum_arl0(h: float, k: float) -> float:
     """Siegmund's approximation of the in-control ARL (samples) of a one-sided N(0,1) CUSUM."""
     b = 2.0 * k * (h + 1.166)
