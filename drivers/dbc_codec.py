@@ -30,6 +30,7 @@ import cantools
 import numpy as np
 from ins_hil.drivers.clock import SourceClock
 
+from ins_hil.settings import setting
 from ins_hil.types import ImuSample
 
 DEFAULT_DBC = Path(__file__).resolve().parent.parent / "configs" / "imu_dbc.dbc"
@@ -60,15 +61,23 @@ def crc8_j1850(data: bytes | bytearray | memoryview) -> int:
 class DbcProfile:
     """Which DBC messages/signals carry what (names as in the DBC file)."""
 
-    dbc: str = str(DEFAULT_DBC)
-    gyro_message: str = "IMU_GYRO"
-    gyro_signals: tuple[str, str, str] = ("GyroX", "GyroY", "GyroZ")
-    accel_message: str = "IMU_ACCEL"
-    accel_signals: tuple[str, str, str] = ("AccelX", "AccelY", "AccelZ")
-    status_message: str | None = "IMU_STATUS"
-    counter_signal: str | None = "Counter"
-    crc_signal: str | None = "Crc8"  # CRC-8/SAE-J1850 over bytes 0..6 (the last byte holds it)
-    rate_hz: float = 200.0
+    dbc: str = setting(
+        str(DEFAULT_DBC), help="the DBC file", file=True, nonempty=True, doc_default="configs/imu_dbc.dbc (shipped)"
+    )
+    gyro_message: str = setting("IMU_GYRO", help="DBC message with the angular rates", nonempty=True)
+    gyro_signals: tuple[str, str, str] = setting(
+        ("GyroX", "GyroY", "GyroZ"), help="its x, y, z signals (rad/s)", length=3
+    )
+    accel_message: str = setting("IMU_ACCEL", help="DBC message with the specific force", nonempty=True)
+    accel_signals: tuple[str, str, str] = setting(
+        ("AccelX", "AccelY", "AccelZ"), help="its x, y, z signals (m/s²)", length=3
+    )
+    status_message: str | None = setting("IMU_STATUS", help="DBC message with Temperature/flags; '' = none")
+    counter_signal: str | None = setting(
+        "Counter", help="the sample counter signal in both messages (pairs them, times the samples); '' = none"
+    )
+    crc_signal: str | None = setting("Crc8", help="the CRC-8/SAE-J1850 signal in the last byte; '' = none")
+    rate_hz: float = setting(200.0, "Hz", "[1, 10000]", "nominal sample rate")
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> DbcProfile:

@@ -1,6 +1,7 @@
 """Build a driver from one configuration table (e.g. a ``[[inputs]]`` entry of the runtime's TOML).
 
-One registry, :data:`DRIVERS`, maps the table's ``type`` to a driver class with
+One registry, :data:`DRIVERS` (an :class:`ins_hil.registry.Registry`: name → (module, class), imported
+when first named, as python-can's ``BACKENDS``), maps the table's ``type`` to a driver class with
 ``from_config(table)``; the gateway (``ins_hil.runtime.loop``) builds every input
 through :func:`make_driver`. A third-party driver registers itself with
 :func:`register`, or is found by name in the Python entry points group ``ins_hil.drivers``
@@ -18,11 +19,11 @@ keys raise ValueError naming them, in one line.
 
 from __future__ import annotations
 
-import importlib
-from importlib.metadata import entry_points
 from typing import Any, Protocol
 
 from ins_hil.drivers.base import Driver
+
+from ins_hil.registry import Registry
 
 #: the entry points group searched for a ``type`` that is not registered
 ENTRY_POINT_GROUP = "ins_hil.drivers"
@@ -34,42 +35,35 @@ class DriverClass(Protocol):
     def from_config(self, cfg: dict[str, Any]) -> Driver: ...
 
 
-#: ``type`` → the driver class, or ``"module:Class"`` imported on first use (a serial-only
-#: setup never imports python-can)
-DRIVERS: dict[str, DriverClass | str] = {
-    "serial_imu": "ins_hil.drivers.serial_imu:SerialImuDriver",
-    "can_imu": "ins_hil.drivers.can_imu:CanImuDriver",
-    "mavlink": "ins_hil.drivers.mavlink_in:MavlinkDriver",
-}
+#: ``type`` → the driver class, ``(module, class)`` imported on first use (a serial-only setup never imports
+#: python-can)
+DRIVERS: Registry[DriverClass] = Registry(
+    "driver type",
+    {
+        "serial_imu": ("ins_hil.drivers.serial_imu", "SerialImuDriver"),
+        "can_imu": ("ins_hil.drivers.can_imu", "CanImuDriver"),
+        "mavlink": ("ins_hil.drivers.mavlink_in", "MavlinkDriver"),
+    },
+    group=ENTRY_POINT_GROUP,
+)
 TYPES = tuple(DRIVERS)  # the built-in types
 
 
 def register(kind: str, cls: DriverClass | str) -> None:
     """Make ``type = kind`` build ``cls`` (a class with ``from_config``, or ``"module:Class"``)."""
-    DRIVERS[kind] = cls
-
-
-def _entry_point(kind: str) -> DriverClass | None:
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name == kind:
-            cls: DriverClass = ep.load()
-            return cls
-    return None
+    if isinstance(cls, str):
+        module, _, name = cls.partition(":")
+        DRIVERS.register(kind, (module, name))
+    else:
+        DRIVERS.register(kind, cls)
 
 
 def driver_class(kind: Any) -> DriverClass:
     """The class registered for ``kind`` (:data:`DRIVERS`, then the entry points); ValueError if none."""
-    cls = DRIVERS.get(kind) if isinstance(kind, str) else None
-    if cls is None and isinstance(kind, str) and kind:
-        cls = _entry_point(kind)
-        if cls is not None:
-            DRIVERS[kind] = cls
-    if cls is None:
-        raise ValueError(f"driver config: 'type' must be one of {sorted(DRIVERS)}, got {kind!r}")
-    if isinstance(cls, str):
-        module, _, name = cls.partition(":")
-        cls = DRIVERS[kind] = getattr(importlib.import_module(module), name)
-    return cls
+    try:
+        return DRIVERS[kind]
+    except KeyError:
+        raise ValueError(f"driver config: 'type' must be one of {sorted(DRIVERS)}, got {kind!r}") from None
 
 
 def make_driver(cfg: dict[str, Any]) -> Driver:

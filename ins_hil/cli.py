@@ -1,10 +1,11 @@
 """`ins-hil` command line: one subcommand per module in ``ins_hil.commands``.
 
 A command module defines ``NAME``, ``HELP`` (string literals), ``add_arguments(parser)`` and
-``run(args) -> int``; it is found automatically, so adding a command is adding a file. The command
-list is read from the modules' source (their ``NAME`` and ``HELP`` literals, :func:`command_table`)
-without importing them: ``ins-hil --help`` imports no command, and ``ins-hil CMD ...`` imports only
-CMD's module, when argparse reaches its name (:class:`_LazyCommands`).
+``run(args) -> int``, and is registered by name in ``ins_hil.commands.COMMANDS`` (one line; the registry
+style of the drivers and readers, :mod:`ins_hil.registry`). The command list is read from the registered
+modules' source (their ``HELP`` literals, :func:`command_table`) without importing them: ``ins-hil --help``
+imports no command, and ``ins-hil CMD ...`` imports only CMD's module, when argparse reaches its name
+(:class:`_LazyCommands`).
 
 No command prints a traceback for a bad input: a :class:`~ins_hil.config.ConfigError` or a file that
 cannot be read or decoded is one line on stderr and exit status 2; any other exception is one line
@@ -17,8 +18,8 @@ from __future__ import annotations
 import argparse
 import ast
 import importlib
+import importlib.util
 import os
-import pkgutil
 import re
 import struct
 import sys
@@ -68,20 +69,25 @@ def _literals(path: Path) -> dict[str, Any] | None:
 
 
 def command_table() -> dict[str, Command]:
-    """Every command of ``ins_hil.commands`` by name, in name order, read without importing the modules
-    (a module whose ``NAME``/``HELP`` are not string literals is imported to read them)."""
+    """Every command of the registry ``ins_hil.commands.COMMANDS`` by name, in name order, its help read from
+    its module's source without importing it (a module whose ``NAME``/``HELP`` are not string literals is
+    imported to read them)."""
     out: dict[str, Command] = {}
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
-        if info.name.startswith("_"):
+    for name in commands.COMMANDS:
+        where = commands.COMMANDS.where(name)
+        if where is None:  # registered as a loaded object: its module is imported already
+            run = commands.COMMANDS[name]
+            mod = importlib.import_module(run.__module__)
+            out[name] = Command(name, getattr(mod, "HELP", ""), run.__module__)
             continue
-        module = f"ins_hil.commands.{info.name}"
-        lit = _literals(Path(commands.__path__[0]) / f"{info.name}.py")
+        module = where[0]
+        spec = importlib.util.find_spec(module)  # imports the parent package only
+        lit = _literals(Path(spec.origin)) if spec is not None and spec.origin else None
         if lit is None:
             mod = importlib.import_module(module)
-            if hasattr(mod, "NAME") and hasattr(mod, "run"):
-                out[mod.NAME] = Command(mod.NAME, mod.HELP, module)
-        elif "NAME" in lit and lit.get("run"):
-            out[lit["NAME"]] = Command(lit["NAME"], lit.get("HELP", ""), module)
+            out[name] = Command(name, getattr(mod, "HELP", ""), module)
+        else:
+            out[name] = Command(name, lit.get("HELP", ""), module)
     return dict(sorted(out.items()))
 
 

@@ -19,81 +19,25 @@ from typing import Any
 
 from ins_hil import config_schema as schema
 from ins_hil.config_schema import ConfigError
-from ins_hil.core_parts.config import MOVED
 from ins_hil.drivers.factory import driver_class, make_driver
 from ins_hil.drivers.mavlink_in import GNSS_MESSAGES as MAVLINK_GNSS_MESSAGES
 from ins_hil.drivers.mavlink_link import SCHEMES as MAVLINK_SCHEMES
 from ins_hil.drivers.mavlink_link import parse_url
 from ins_hil.drivers.mavlink_link import parse_url as mavlink_in_url
+from ins_hil.gateway_settings import GatewaySettings as GatewaySettings
+from ins_hil.gateway_settings import InputConfig as InputConfig
+from ins_hil.gateway_settings import RecorderConfig as RecorderConfig
+from ins_hil.gateway_settings import gps_input_echo
+from ins_hil.runtime.mavlink_msgs.common import MAV_TYPES as MAV_TYPES
 from ins_hil.runtime.mavlink_msgs.common import read_key_file
 from ins_hil.runtime.mavlink_out import EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
-from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor
+from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor, nav_config
 from ins_hil.types import SimConfig
 from ins_hil.validation import Limits
 
 REPO_CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 INPUT_TYPES = ("serial_imu", "mavlink", "can_imu")
-MAV_TYPES = ("QUADROTOR", "FIXED_WING", "HELICOPTER", "HEXAROTOR", "OCTOROTOR", "VTOL_FIXEDROTOR", "GROUND_ROVER",
-             "SURFACE_BOAT", "GENERIC", "ONBOARD_CONTROLLER")  # fmt: skip
-
-
-@dataclass
-class GatewaySettings:
-    name: str = "ins-hil"
-    late_threshold_ms: float = 5.0
-    queue_size: int = 4096
-    status_period: float = 0.5
-    rt_priority: int = 0  # SCHED_FIFO priority of the gateway process (1-99; 0 = time-sharing)
-    input_timeout: float = 10.0  # s: `ins-hil run` fails when an input delivered nothing by then (0 = wait for ever)
-
-
-@dataclass
-class InputConfig:
-    """One ``[[inputs]]`` table: ``serial_imu`` (port, baud), ``mavlink`` (url, signing_key, sysid, compid,
-    gnss_messages, fc_gnss_lag_s) or ``can_imu`` (``[inputs.options]``: the CAN IMU driver's keys,
-    ins_hil.drivers.can_imu)."""
-
-    name: str = ""
-    type: str = "serial_imu"
-    port: str = "sim"  # serial device, or "sim" for the simulator's pty
-    baud: int = 921600
-    url: str = "udpin:127.0.0.1:0"
-    signing_key: str = ""
-    sysid: int = 1  # MAVLink: the flight controller's system id (ArduPilot's and PX4's default); 0 = any
-    compid: int = 0  # MAVLink: GNSS only from this component; 0 = any (never one of ours)
-    gnss_messages: list[str] = field(default_factory=list)  # MAVLink: [] = every one but our GPS_INPUT's echo
-    fc_gnss_lag_s: float = 0.0  # s: the FC's GNSS lag, removed from GPS_RAW_INT/GPS2_RAW's arrival stamp
-    options: dict[str, Any] = field(default_factory=dict)
-
-    def driver_table(self, cfg: Config | None = None) -> dict[str, Any]:
-        """The ``ins_hil.drivers.factory.make_driver`` table of this input. The gateway's MAVLink input
-        emits GNSS and baro only (the IMU comes from its own input); with the gateway's configuration ``cfg``
-        it refuses messages from the gateway's own MAVLink identities (:meth:`Config.mavlink_ids`) and, when
-        ``gnss_messages`` is left empty, GPS_RAW_INT from a system an ``fc`` output sends GPS_INPUT to."""
-        if self.type == "serial_imu":
-            return {"type": self.type, "name": self.name, "port": self.port, "baudrate": self.baud}
-        if self.type == "mavlink":
-            gnss = list(self.gnss_messages or MAVLINK_GNSS_MESSAGES)
-            echo = _gps_input_echo(self, cfg) if cfg is not None and not self.gnss_messages else None
-            if echo is not None:
-                gnss.remove("GPS_RAW_INT")
-            return {"type": self.type, "name": self.name, "url": self.url, "system_id": self.sysid or None,
-                    "component_id": self.compid or None, "gnss_messages": gnss, "fc_gnss_lag_s": self.fc_gnss_lag_s,
-                    "own_ids": cfg.mavlink_ids() if cfg is not None else [],
-                    "gnss_refused_why": f"{echo} (GPS1_TYPE = 14 echoes it back as GPS_RAW_INT)" if echo else "",
-                    "signing_key": self.signing_key or None, "emit": ["gnss", "baro"]}  # fmt: skip
-        return {"type": self.type, "name": self.name, **self.options}
-
-
-@dataclass
-class RecorderConfig:
-    enabled: bool = True
-    dir: str = "recordings"
-    max_mb: float = 256.0
-    flush_period: float = 0.05
-    total_mb: float = 8192.0  # MiB: all parts of one run; its oldest parts deleted first (≈ 25 h at 1 kHz)
-    dir_total_mb: float = 0.0  # MiB: every .ihlog in dir (other runs' oldest files deleted first); 0 = no limit
 
 
 @dataclass
@@ -111,7 +55,11 @@ class Config:
     source: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """Plain values (a recording's header): the ``[core.nav]`` settings as their TOML table (the keys that
+        differ from the defaults, :func:`ins_hil.settings.table`)."""
+        d = dataclasses.asdict(self)
+        d["pipeline"] = self.pipeline.to_dict()
+        return d
 
     def mavlink_ids(self) -> list[tuple[int, int]]:
         """Every MAVLink identity (system, component) the gateway's outputs send as: its inputs refuse them."""
@@ -190,21 +138,6 @@ def _key(key: str, v: str) -> None:
             raise ConfigError(f"{key} = {v!r}: must be 64 hex digits (a 32-byte MAVLink signing key)") from None
         if len(b) != 32:
             raise ConfigError(f"{key}: must be 64 hex digits (32 bytes), got {len(v)} characters")
-
-
-def _nav(nav: dict[str, Any]) -> dict[str, Any]:
-    """The ``[core.nav]`` table and its sections (``[core.nav.gnss]``, ..., ``[core.nav.filter]``) checked key by
-    key; a flat key of the tables before the sections names where it moved."""
-    if isinstance(nav, dict):
-        for k in nav:
-            if k in MOVED:
-                sec, new = MOVED[k]
-                raise ConfigError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
-    out = schema.validate("core.nav", nav)
-    for k, key in schema.section("core.nav").keys.items():
-        if key.type == "table" and k in out:
-            out[k] = schema.validate(f"core.nav.{k}", out[k])
-    return out
 
 
 def _fdi(cfg: Config, fdi: Any) -> None:
@@ -350,7 +283,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     core = _fill(cfg.pipeline, d.get("core", {}), "core")
     p = cfg.pipeline
     p.limits = Limits(**{f.name: core[f.name] for f in dataclasses.fields(Limits) if f.name in core})
-    p.nav = _nav(core.get("nav", {}))
+    p.nav = nav_config(core.get("nav", {}))  # built once, each key checked (an old flat key: where it moved)
     if p.calibration:
         from ins_hil.calibration.files import load_calibration
 
@@ -469,23 +402,13 @@ def _mqtt_auth(mq: MqttConfig) -> None:
         raise ConfigError("mqtt.tls_key: needs mqtt.tls_cert (the client certificate of that key)")
 
 
-def _gps_input_echo(ic: InputConfig, cfg: Config) -> str | None:
-    """Why GPS_RAW_INT from the MAVLink input ``ic``'s source may be our own fix echoed ("outputs[j] sends GPS_INPUT
-    to system S"), or None: an ``fc`` output sends GPS_INPUT to the system the input takes GNSS from (ArduPilot
-    with GPS1_TYPE = 14 sends it back as its GPS_RAW_INT)."""
-    for j, o in enumerate(cfg.outputs):
-        if o.role == "fc" and o.effective_rates().get("GPS_INPUT", 0) > 0 and ic.sysid in (0, o.sysid):
-            return f"outputs[{j}] sends GPS_INPUT to system {o.sysid}"
-    return None
-
-
 def _gnss_sources(cfg: Config) -> None:
     """MAVLink GNSS that would feed the gateway its own output back, refused in one line: an input whose
     ``gnss_messages`` names GPS_RAW_INT from the system an ``fc`` output sends GPS_INPUT to (left empty, the
     input leaves GPS_RAW_INT out itself); and an input that would refuse the simulator's GNSS."""
     mav = [(i, ic) for i, ic in enumerate(cfg.inputs) if ic.type == "mavlink"]
     for i, ic in mav:
-        echo = _gps_input_echo(ic, cfg) if "GPS_RAW_INT" in ic.gnss_messages else None
+        echo = gps_input_echo(ic, cfg) if "GPS_RAW_INT" in ic.gnss_messages else None
         if echo is not None:
             raise ConfigError(
                 f"inputs[{i}].gnss_messages takes GPS_RAW_INT from system {ic.sysid or 'any'} while {echo} "

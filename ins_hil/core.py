@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -52,9 +51,9 @@ import numpy as np
 from ins_hil import aids as registry
 from ins_hil.aids import Aid
 from ins_hil.aids.vehicle import VehicleAids
-from ins_hil.core_parts import config as sections
 from ins_hil.core_parts.alignment import Alignment
 from ins_hil.core_parts.baro_datum import BaroDatum
+from ins_hil.core_parts.config import NavConfig as NavConfig  # re-exported (defined beside its sections)
 from ins_hil.core_parts.contract import Measurement, check_imu
 from ins_hil.core_parts.gnss import RESET_GATE_FACTOR as RESET_GATE_FACTOR
 from ins_hil.core_parts.gnss import GnssReset, gnss_position
@@ -64,7 +63,7 @@ from ins_hil.core_parts.history import DelayedHistory
 from ins_hil.core_parts.hold import NoAidHold
 from ins_hil.core_parts.sensor_check import SensorCheck
 from ins_hil.core_parts.yaw_reset import YawReset
-from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF, FilterConfig
+from ins_hil.fusion.ekf import EkfSnapshot, ErrorStateEKF
 from ins_hil.fusion.innovation import GateStats, SageHusa, test_ratio
 from ins_hil.fusion.yaw_gsf import YawGsf
 from ins_hil.nav import alignment, earth
@@ -75,67 +74,6 @@ from ins_hil.types import AidSample, FaultEvent, FaultMode, GnssFix, ImuSample, 
 DEG = math.pi / 180.0
 #: lost IMU data is coasted across for at most this long (s; NavCore._coast: a sensor time gone far ahead)
 GAP_MAX_S = 10.0
-
-
-@dataclass
-class NavConfig:
-    """NavCore configuration in sections (SI units; gates in σ; times in s): ``gnss``, ``baro``, ``mag``, ``aids``
-    (NHC/ZUPT/ZARU), ``hold`` (flight without GNSS), ``alignment``, ``delay`` (delayed fusion), ``filter``
-    (:class:`~ins_hil.fusion.ekf.FilterConfig`); each section's keys and units are in its class
-    (:mod:`ins_hil.core_parts.config`) and in docs/configuration.md. ``sources``: the sections of the aid modules
-    that keep their own (``[core.nav.<name>]``, :func:`ins_hil.aids.sections`: ``odometer``, ``airspeed``), by
-    name; a missing one is its default, a dict is built into its class. ``adaptive``: Sage–Husa R on GNSS/baro with
-    forgetting factor ``adaptive_b``. ``gravity``: the strapdown's gravity model, ``"normal"`` (Somigliana with
-    the height series, the default) or ``"j2"`` (J2 field + centrifugal, :func:`ins_hil.nav.earth.gravity_j2_ned`).
-    """
-
-    filter: FilterConfig = field(default_factory=FilterConfig)
-    gnss: sections.GnssConfig = field(default_factory=sections.GnssConfig)
-    baro: sections.BaroConfig = field(default_factory=sections.BaroConfig)
-    mag: sections.MagConfig = field(default_factory=sections.MagConfig)
-    aids: sections.AidsConfig = field(default_factory=sections.AidsConfig)
-    hold: sections.HoldConfig = field(default_factory=sections.HoldConfig)
-    alignment: sections.AlignmentConfig = field(default_factory=sections.AlignmentConfig)
-    delay: sections.DelayConfig = field(default_factory=sections.DelayConfig)
-    adaptive: bool = False
-    adaptive_b: float = 0.97
-    gravity: str = "normal"
-    sources: dict[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if self.gravity not in earth.GRAVITY_MODELS:
-            raise ValueError(f"NavConfig.gravity={self.gravity!r}: expected one of {', '.join(earth.GRAVITY_MODELS)}")
-        for name, cls in (("filter", FilterConfig), *sections.SECTIONS.items()):
-            v = getattr(self, name)
-            if isinstance(v, dict):  # dataclasses.asdict(NavConfig) loaded back
-                setattr(self, name, cls(**v))
-            elif not isinstance(v, cls):
-                raise TypeError(f"NavConfig.{name}: expected a {cls.__name__}, got {type(v).__name__}")
-        known = registry.sections()
-        bad = set(self.sources) - set(known)
-        if bad:
-            raise ValueError(f"NavConfig.sources: unknown aid section(s) {sorted(bad)} (known: {', '.join(known)})")
-        src = dict(self.sources)
-        for name, cls in known.items():
-            v = src.get(name)
-            if v is None:
-                src[name] = cls()
-            elif isinstance(v, dict):
-                src[name] = cls(**v)
-            elif not isinstance(v, cls):
-                raise TypeError(f"NavConfig.sources[{name!r}]: expected a {cls.__name__}, got {type(v).__name__}")
-        self.sources = src
-        if self.gnss.vel_delay > self.delay.max_delay:
-            raise ValueError(
-                f"NavConfig.gnss.vel_delay={self.gnss.vel_delay}: expected 0..delay.max_delay "
-                f"({self.delay.max_delay} s)"
-            )
-        if self.filter.mount_states and not self.aids.nhc:
-            raise ValueError(
-                "NavConfig.filter.mount_states=True needs aids.nhc=True (the boresight is seen by the NHC only)"
-            )
-        if self.aids.drag and not self.filter.wind_states:
-            raise ValueError("NavConfig.aids.drag=True needs filter.wind_states=True (drag acts on the air velocity)")
 
 
 def initial_state(f_b: Vec, fix: GnssFix, t: float, yaw: float, cfg: NavConfig) -> StrapdownState:
@@ -180,6 +118,7 @@ class NavCore:
 
     def __init__(self, initial: StrapdownState | None = None, config: NavConfig | None = None) -> None:
         self.cfg = config if config is not None else NavConfig()
+        registry.check_sources(self.cfg)
         if initial is None:
             if self.cfg.alignment.mode == "given":
                 raise ValueError("NavCore: alignment.mode='given' needs an initial state")

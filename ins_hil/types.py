@@ -9,13 +9,15 @@ clock-offset correction by the runtime) and the monotonic arrival time
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
 from typing import Any, Protocol, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
+
+from ins_hil.settings import ConfigError as ConfigError  # the runtime raises it too
+from ins_hil.settings import setting
 
 #: float arrays of any shape (3-vectors, quaternions, matrices); float64 by convention
 Vec: TypeAlias = NDArray[Any]
@@ -205,38 +207,32 @@ class FaultEvent:
     detail: str = ""
 
 
-class ConfigError(ValueError):
-    """A configuration problem; a single line naming the file, the dotted key, the value and what is allowed
-    (raised by ``ins_hil.config`` and by the runtime for its parameter override file)."""
-
-    def __init__(self, msg: object = "") -> None:
-        super().__init__(re.sub(r"\s*[\r\n]+\s*", " ", str(msg)).strip())
-
-
 @dataclass
 class SimConfig:
     """What the simulated sensors simulate: the ``[sim]`` table of a gateway config (read by
     :mod:`ins_hil.sim.devices`; here, below both, so the config and the replay name it without the
-    simulator). Units and ranges per key: ``ins_hil.config_schema.TABLES["sim"]``, docs/configuration.md."""
+    simulator). Units and ranges per key: each field's metadata (docs/configuration.md)."""
 
-    profile: str = "uav"  # uav | static
-    imu_rate: float = 1000.0  # Hz
-    imu_errors: str = "mems"  # mems | none
-    gnss_rate: float = 5.0  # Hz
-    gnss_latency: float = 0.05  # s, time of validity to sending
-    gnss_std_ne: float = 1.0  # m
-    gnss_std_d: float = 2.0  # m
-    gnss_std_vel: float = 0.1  # m/s
-    baro_rate: float = 25.0  # Hz
-    baro_std: float = 0.5  # m
-    lat_deg: float = 50.45  # deg, start
-    lon_deg: float = 30.52  # deg, start
-    h: float = 180.0  # m above the WGS84 ellipsoid, start
-    seed: int = 7
-    chunk_s: float = 10.0  # s
-    duration: float = 0.0  # s; 0 = until stopped
-    gnss_sysid: int = 1
-    sign_key: str = ""  # hex, 32 bytes: sign the GNSS/baro MAVLink messages
+    profile: str = setting(
+        "uav", help="uav: 10 s at rest, then sweeping turns at 20 m/s; static: at rest", choices=("uav", "static")
+    )
+    imu_rate: float = setting(1000.0, "Hz", "[1, 10000]", "simulated IMU rate (serial frames into a pty)")
+    imu_errors: str = setting("mems", help="mems: UAV-grade MEMS errors; none: error-free", choices=("mems", "none"))
+    gnss_rate: float = setting(5.0, "Hz", "(0, 100]", "GNSS rate (GPS_INPUT over MAVLink)")
+    gnss_latency: float = setting(0.05, "s", "[0, 1]", "from the time of validity to sending")
+    gnss_std_ne: float = setting(1.0, "m", "(0, 1000]", "GNSS horizontal noise")
+    gnss_std_d: float = setting(2.0, "m", "(0, 1000]", "GNSS vertical noise")
+    gnss_std_vel: float = setting(0.1, "m/s", "(0, 100]", "GNSS velocity noise")
+    baro_rate: float = setting(25.0, "Hz", "(0, 1000]", "baro rate (SCALED_PRESSURE over MAVLink)")
+    baro_std: float = setting(0.5, "m", "[0, 100]", "baro noise")
+    lat_deg: float = setting(50.45, "°", "[-89, 89]", "start latitude")
+    lon_deg: float = setting(30.52, "°", "[-180, 180]", "start longitude")
+    h: float = setting(180.0, "m", "[-1000, 100000]", "start height above the WGS84 ellipsoid")
+    seed: int = setting(7, "", "[0, 4294967295]", "random seed (the same seed gives the same run)")
+    chunk_s: float = setting(10.0, "s", "[0.1, 60]", "simulated in chunks of this length")
+    duration: float = setting(0.0, "s", "0 | [0.1, 1e7]", "stop the simulator after this long; 0 = until stopped")
+    gnss_sysid: int = setting(1, "", "[1, 255]", "MAVLink system id of the simulated GNSS")
+    sign_key: str = setting("", help="MAVLink 2 signing key (32 bytes); '' = unsigned", hex_bytes=32)
 
 
 #: GPS time − UTC (s), the leap seconds since 1980 (constant since 2017-01-01)

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ins_hil import aids
+from ins_hil.settings import dataclass_keys, setting
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Sample
 
 #: absolute bounds of an IMU interval (s), whatever the nominal period
@@ -61,23 +62,35 @@ REASONS = ("imu_nonfinite", "imu_dt", "imu_rate", "imu_accel", "imu_time", *aids
 class Limits:
     """Physical ranges of the validation boundary (units in the names; see the module doc)."""
 
-    gyro_range_dps: float = 2000.0
-    accel_range_g: float = 16.0
-    range_margin: float = 1.5
-    imu_period_s: float = 0.0  # 0: learnt per IMU id
-    imu_dt_min_periods: float = 0.2
-    imu_dt_max_periods: float = 5.0
-    gnss_min_fix_type: int = 3
-    gnss_h_min_m: float = -1000.0
-    gnss_h_max_m: float = 50000.0
-    gnss_speed_max_mps: float = 600.0
-    gnss_std_max_m: float = 1000.0
-    gnss_std_vel_max_mps: float = 100.0
-    baro_pressure_min_pa: float = 1000.0
-    baro_pressure_max_pa: float = 120000.0
-    baro_alt_min_m: float = -1000.0
-    baro_alt_max_m: float = 50000.0
-    mag_max_t: float = 1e-3
+    gyro_range_dps: float = setting(
+        2000.0, "°/s", "(0, inf)", "per-axis gyro full scale; beyond range × range_margin: rejected"
+    )
+    accel_range_g: float = setting(16.0, "g", "(0, inf)", "per-axis accelerometer full scale (g = 9.80665 m/s²)")
+    range_margin: float = setting(1.5, "", "[1, 100]", "factor on the full scales before a reading is rejected")
+    imu_period_s: float = setting(
+        0.0, "s", "0 | [1e-05, 1]", "nominal IMU interval; 0 = learnt per IMU id (median of its first 8)"
+    )
+    imu_dt_min_periods: float = setting(
+        0.2, "", "(0, 1]", "shortest accepted dt, in nominal periods (never below 1e-5 s)"
+    )
+    imu_dt_max_periods: float = setting(
+        5.0, "", "[1, 1000]", "longest accepted dt, in nominal periods (never above 1 s)"
+    )
+    gnss_min_fix_type: int = setting(
+        3, "", "[2, 6]", "lowest GNSS fix type fused (MAVLink GPS_FIX_TYPE: 2 = 2-D, 3 = 3-D, 6 = RTK fixed)"
+    )
+    gnss_h_min_m: float = setting(-1000.0, "m", "[-100000, 100000]", "lowest plausible GNSS ellipsoidal height")
+    gnss_h_max_m: float = setting(50000.0, "m", "[-100000, 1000000]", "highest plausible GNSS ellipsoidal height")
+    gnss_speed_max_mps: float = setting(600.0, "m/s", "(0, 100000]", "highest plausible GNSS speed")
+    gnss_std_max_m: float = setting(1000.0, "m", "(0, 1000000]", "a fix reporting a larger position σ is rejected")
+    gnss_std_vel_max_mps: float = setting(
+        100.0, "m/s", "(0, 100000]", "a fix reporting a larger velocity σ is rejected"
+    )
+    baro_pressure_min_pa: float = setting(1000.0, "Pa", "(0, 1000000]", "lowest plausible static pressure")
+    baro_pressure_max_pa: float = setting(120000.0, "Pa", "(0, 10000000]", "highest plausible static pressure")
+    baro_alt_min_m: float = setting(-1000.0, "m", "[-100000, 100000]", "lowest plausible barometric altitude")
+    baro_alt_max_m: float = setting(50000.0, "m", "[-100000, 1000000]", "highest plausible barometric altitude")
+    mag_max_t: float = setting(1e-3, "T", "(0, 1]", "a magnetometer reading with a larger field magnitude is rejected")
 
     def check(self, where: str = "") -> None:
         """Raise ValueError (one line naming the key, its value and what is allowed) for a bad limit."""
@@ -88,26 +101,13 @@ class Limits:
             if not ok:
                 raise ValueError(f"{pre}{name} = {v!r}: must be {allowed}")
 
-        def num(name: str) -> float:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ValueError(f"{pre}{name} = {v!r}: must be a finite number")
-            return float(v)
+        for key in dataclass_keys(Limits).values():  # each key against its metadata, as in a config file
+            key.check(getattr(self, key.name), f"{pre}{key.name}")
 
-        for name in self.__dataclass_fields__:
-            num(name)
-        for name in ("gyro_range_dps", "accel_range_g", "gnss_speed_max_mps", "gnss_std_max_m",
-                     "gnss_std_vel_max_mps", "mag_max_t"):  # fmt: skip
-            need(name, num(name) > 0, "> 0")
-        need("range_margin", num("range_margin") >= 1.0, ">= 1")
-        need("imu_period_s", num("imu_period_s") == 0 or DT_FLOOR <= num("imu_period_s") <= DT_CEIL,
-             f"0 (learnt) or in [{DT_FLOOR:g}, {DT_CEIL:g}] s")  # fmt: skip
-        need("imu_dt_min_periods", 0 < num("imu_dt_min_periods") <= 1.0, "in (0, 1]")
-        need("imu_dt_max_periods", num("imu_dt_max_periods") >= 1.0, ">= 1")
-        need("gnss_min_fix_type", isinstance(self.gnss_min_fix_type, int) and 2 <= self.gnss_min_fix_type <= 6,
-             "an integer 2 (2-D) to 6 (RTK fixed)")  # fmt: skip
+        def num(name: str) -> float:
+            return float(getattr(self, name))
+
         need("gnss_h_max_m", num("gnss_h_max_m") > num("gnss_h_min_m"), "> gnss_h_min_m")
-        need("baro_pressure_min_pa", num("baro_pressure_min_pa") > 0, "> 0")
         need("baro_pressure_max_pa", num("baro_pressure_max_pa") > num("baro_pressure_min_pa"),
              "> baro_pressure_min_pa")  # fmt: skip
         need("baro_alt_max_m", num("baro_alt_max_m") > num("baro_alt_min_m"), "> baro_alt_min_m")

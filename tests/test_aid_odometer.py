@@ -47,8 +47,8 @@ def test_config_validation_and_record() -> None:
     with pytest.raises(ValueError, match=r"odometer\.std"):
         OdometerConfig(std=0.0)
     with pytest.raises(ValueError, match="unknown aid section"):
-        NavConfig(sources={"odometre": {}})
-    assert NavConfig(sources={"odometer": {"enabled": True}}).sources["odometer"].enabled
+        aids.check_sources(NavConfig(sources={"odometre": {}}))  # NavCore's and the config loader's check
+    assert aids.by_name()["odometer"].config(NavConfig(sources={"odometer": {"enabled": True}})).enabled
     v = SampleValidator()
     assert v.check(OdometerSample(1.0, 5.0)) is None
     assert v.check(OdometerSample(1.0, math.nan)) == "odometer_nonfinite"

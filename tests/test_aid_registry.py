@@ -66,7 +66,7 @@ def test_the_odometer_live_through_the_pipeline_and_replayed_bit_for_bit(tmp_pat
     cfg = PipelineConfig(init="config", init_lat_deg=45.0, init_lon_deg=math.degrees(0.5), init_h=100.0,
                          aiding_fdi=False, nav=nav)  # fmt: skip
     pipe = Pipeline(cfg)
-    rec = Recorder(tmp_path / "odo.ihlog", header={"pipeline": dataclasses.asdict(cfg)})
+    rec = Recorder(tmp_path / "odo.ihlog", header={"pipeline": cfg.to_dict()})
     live = []
     for s in _inputs():
         rec.write(s)

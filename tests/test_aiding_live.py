@@ -55,7 +55,7 @@ def _fly(
     cfg = from_dict(d)
     p, sim = cfg.pipeline, cfg.sim
     # the configuration this test is about (fails loudly if it changes)
-    assert p.core == "python" and p.nav.get("delay", {}).get("compensation") is not as_current and p.aiding_fdi
+    assert p.core == "python" and p.nav.delay.compensation is not as_current and p.aiding_fdi
     assert sim.imu_rate == 1000.0 and sim.gnss_latency == 0.05 and sim.profile == "uav"
     pipe = Pipeline(p)
     mon = pipe._aid_mon

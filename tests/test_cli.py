@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from ins_hil.registry import Registry
+
 
 def test_help_lists_commands() -> None:
     out = subprocess.run([sys.executable, "-m", "ins_hil", "--help"], capture_output=True, text=True, check=True)
@@ -100,7 +102,8 @@ def test_a_commands_help_imports_that_command_only(command: str) -> None:
 
 
 def test_a_new_command_file_is_listed_without_being_imported(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A command added as a file (another helper's, a plugin) is found by name; its heavy imports wait."""
+    """A command added as a module plus one registry line (another helper's, a plugin) is listed by name; its
+    heavy imports wait; a module in the folder that is not registered is no command."""
     from ins_hil import cli, commands
 
     (tmp_path / "zz_new.py").write_text(
@@ -109,10 +112,27 @@ def test_a_new_command_file_is_listed_without_being_imported(tmp_path: Path, mon
         "def add_arguments(p: argparse.ArgumentParser) -> None:\n"
         '    p.add_argument("--x")\n\n\ndef run(args: argparse.Namespace) -> int:\n    return 0\n'
     )
-    (tmp_path / "zz_helper.py").write_text('"""Not a command: no NAME."""\n\ndef run() -> None: ...\n')
+    (tmp_path / "zz_helper.py").write_text('"""Not a command: not registered."""\n\ndef run() -> None: ...\n')
     monkeypatch.setattr(commands, "__path__", [str(tmp_path)])
+    reg = Registry("command", {"zz-new": ("ins_hil.commands.zz_new", "run")})
+    monkeypatch.setattr(commands, "COMMANDS", reg)
     table = cli.command_table()
     assert table == {"zz-new": cli.Command("zz-new", "a new command, in two pieces", "ins_hil.commands.zz_new")}
     assert "ins_hil.commands.zz_new" not in sys.modules
     assert "a new command, in two pieces" in cli.build_parser().format_help()
     assert "ins_hil.commands.zz_new" not in sys.modules
+
+
+def test_every_command_module_is_registered_under_its_name() -> None:
+    """One registry line per command module, under the module's NAME (a module left out is no command)."""
+    import pkgutil
+
+    from ins_hil import commands
+
+    files = {
+        f"ins_hil.commands.{i.name}" for i in pkgutil.iter_modules(commands.__path__) if not i.name.startswith("_")
+    }
+    where = {n: commands.COMMANDS.where(n) for n in commands.COMMANDS}
+    assert {w[0] for w in where.values() if w} == files
+    for name, w in where.items():
+        assert w is not None and importlib.import_module(w[0]).NAME == name

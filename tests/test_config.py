@@ -80,7 +80,7 @@ def test_a_flat_nav_key_names_its_section(tmp_path: Path) -> None:
     p.write_text(
         text.replace("\n[core.nav.delay]", "\n[core.nav.gnss]\nlever_arm_b = [0.0, 0.0, -0.1]\n[core.nav.delay]", 1)
     )
-    assert load(p).pipeline.nav["gnss"] == {"lever_arm_b": [0.0, 0.0, -0.1]}
+    assert load(p).pipeline.nav.gnss.lever_arm_b.tolist() == [0.0, 0.0, -0.1]
     for old, (sec, new) in MOVED.items():
         with pytest.raises(ConfigError, match=rf"^\[core\.nav\] {old} moved to \[core\.nav\.{sec}\] {new}$"):
             from_dict(sim_config_dict(core={"nav": {old: 1.0}}))

@@ -165,8 +165,8 @@ def test_empty_strings_mean_none_in_the_dbc_profile() -> None:
 
 def test_int_for_a_float_key_is_converted_and_floats_stay_exact() -> None:
     cfg = from_dict(_set(SIM, "core.nav.gnss.gate", 4))
-    assert cfg.pipeline.nav["gnss"]["gate"] == 4.0 and isinstance(cfg.pipeline.nav["gnss"]["gate"], float)
-    assert cfg.pipeline.nav["filter"] == {"cov_every": 10}
+    assert cfg.pipeline.nav.gnss.gate == 4.0 and isinstance(cfg.pipeline.nav.gnss.gate, float)
+    assert cfg.pipeline.nav.filter.cov_every == 10 and cfg.to_dict()["pipeline"]["nav"]["filter"] == {"cov_every": 10}
 
 
 def test_non_utf8_file_is_named(tmp_path: Path) -> None:
@@ -209,7 +209,7 @@ def test_a_new_dataclass_field_is_a_key_with_its_metadata() -> None:
         count: int = 3
         band: tuple[float, float] = dataclasses.field(default=(0.5, 2.0), metadata={"range": "(0, 10]"})
 
-    keys = config_schema.dataclass_keys(Guard, "core")
+    keys = config_schema.dataclass_keys(Guard)
     assert keys["max_rate"].unit == "rad/s" and keys["max_rate"].allowed() == "a finite number in (0, 100] rad/s"
     assert keys["max_dt"].allowed() == "a finite number in (0, 1] s"
     assert keys["max_rate"].check(7, "core.max_rate") == 7.0
@@ -225,12 +225,60 @@ def test_a_new_dataclass_field_is_a_key_with_its_metadata() -> None:
         keys["band"].check([0, 1], "core.band")
 
 
+def test_a_setting_built_in_code_obeys_the_range_of_its_key_in_a_file() -> None:
+    """One range per key, from its field's metadata: the dataclass refuses what the TOML loader refuses (drag_coef
+    was '(0, 10]' in the schema's table but '> 0' in AidsConfig.__post_init__), in one line naming the key."""
+    from ins_hil.core_parts.config import SECTIONS, AidsConfig, NavConfig
+    from ins_hil.fusion.ekf import FilterConfig
+    from ins_hil.settings import dataclass_keys
+
+    with pytest.raises(
+        ValueError, match=r"^NavConfig\.aids\.drag_coef=20\.0: expected a finite number in \(0, 10\] 1/s$"
+    ):
+        AidsConfig(drag_coef=20.0)
+    with pytest.raises(
+        ConfigError, match=r"^core\.nav\.aids\.drag_coef = 20\.0: expected a finite number in \(0, 10\] 1/s$"
+    ):
+        config_schema.validate("core.nav.aids", {"drag_coef": 20.0})
+    with pytest.raises(ValueError, match=r"^NavConfig\.gravity='flat': expected one of 'normal', 'j2'$"):
+        NavConfig(gravity="flat")
+    checked = 0
+    for name, cls in [*SECTIONS.items(), ("filter", FilterConfig)]:
+        for k in dataclass_keys(cls).values():
+            if k.type not in ("float", "int") or not k.range or math.isinf(k.interval.hi):
+                continue
+            bad = int(k.interval.hi) + 1 if k.type == "int" else 2.0 * k.interval.hi + 1.0
+            with pytest.raises(ValueError, match=rf"\.{k.name}="):
+                cls(**{k.attr: bad})
+            with pytest.raises(ConfigError, match=rf"core\.nav\.{name}\.{k.name} = "):
+                config_schema.validate(f"core.nav.{name}", {k.name: bad})
+            checked += 1
+    assert checked > 60
+
+
+def test_the_validation_limits_have_one_range_in_the_file_the_docs_and_the_check() -> None:
+    """[core] gnss_min_fix_type was '[0, 8]' in the schema and docs but 2..6 in Limits.check: one range now, from
+    the field's metadata, with the file's one-line message."""
+    from ins_hil.validation import Limits
+
+    for bad, allowed in ((7, r"an integer 2\.\.6"), (1, r"an integer 2\.\.6")):
+        with pytest.raises(ConfigError, match=rf"core\.gnss_min_fix_type = {bad}: expected {allowed}$"):
+            from_dict(sim_doc(core={"gnss_min_fix_type": bad}), "t")
+        with pytest.raises(ValueError, match=rf"^core\.gnss_min_fix_type = {bad}: expected {allowed}$"):
+            Limits(gnss_min_fix_type=bad).check("core")
+    assert "| `gnss_min_fix_type` | int |  | 3 | an integer 2..6 |" in config_schema.markdown()
+    with pytest.raises(ValueError, match=r"^core\.imu_period_s = 1e-06: expected a finite number 0 or in \[1e-05, 1\]"):
+        Limits(imu_period_s=1e-6).check("core")
+
+
 def test_every_pipeline_field_is_a_core_key() -> None:
     from ins_hil.runtime.pipeline import PipelineConfig
 
     core = config_schema.section("core").keys
     loader = {"imu_ids", "fdi", "fdi_options", "aiding_fdi", "aiding_options"}  # set from the [fdi] tables
     loader.add("limits")  # built from its flat [core] keys, checked below
+    loader.add("nav")  # the [core.nav] table, built once as a NavConfig (runtime.pipeline.nav_config)
+    assert core["nav"].type == "table"
     attrs = {k.attr for k in core.values()}
     missing = {f.name for f in dataclasses.fields(PipelineConfig)} - loader - attrs
     assert not missing, f"PipelineConfig fields that are no [core] key (a nested dataclass needs a section): {missing}"

@@ -80,7 +80,7 @@ def test_config_loads_shipped_and_validates(tmp_path: Path):
         "[dataset]\nformat='px4-ulog'\n": "missing key dataset.name",
         "[dataset]\nname='x'\n[sensor]\ngrade='navigation'\n": "sensor.grade = 'navigation': expected one of",
         "[dataset]\nname='x'\n[nav]\nwarp=1\n": "unknown key nav.warp",
-        "[dataset]\nname='x'\n[nav.filter]\ngyro_noise=1\n": "nav.filter: unknown key",
+        "[dataset]\nname='x'\n[nav.filter]\ngyro_noise=1\n": "unknown key 'nav.filter.gyro_noise' (did you mean",
         "[dataset]\nname='x'\n[mounting]\ngnss_lever_arm_m=[0,1]\n": "gnss_lever_arm_m = [0, 1]: expected 3",
         "[dataset]\nname='x'\n[outages]\nrelative_to='landing'\n": "outages.relative_to = 'landing'",
         "[dataset]\nname='x'\n[gnss]\nuse=true\n": "unknown table [gnss]",
@@ -105,7 +105,7 @@ def test_dataset_nav_sections_and_a_flat_key(tmp_path: Path):
     n = c.nav_config()
     assert n.gnss.gate == 10.0 and n.aids.nhc and n.mag.std == 0.2  # over the mems grade's 0.15
     assert n.gnss.lever_arm_b.tolist() == [0.0, 0.5, 0.0] and n.alignment.mode == "static"  # the defaults kept
-    with pytest.raises(dcfg.DatasetConfigError, match=r"nav\.gnss: unknown key\(s\) \['gaet'\]"):
+    with pytest.raises(dcfg.DatasetConfigError, match=r"unknown key 'nav\.gnss\.gaet' \(did you mean 'gate'\?\)$"):
         dcfg.load(_toml(tmp_path / "bad.toml", head + "[nav.gnss]\ngaet = 1.0\n"))
 
 

@@ -22,7 +22,7 @@ from ins_hil.types import GnssFix, ImuSample
 def test_default_config_fuses_late_fixes_at_their_time() -> None:
     cfg = from_dict(tomllib.loads(default_path().read_text()), "default")
     p = Pipeline(cfg.pipeline)
-    assert cfg.pipeline.nav["delay"]["compensation"] is True
+    assert cfg.pipeline.nav.delay.compensation is True
     assert p._aid_mon is not None and not p._aid_mon.cfg.late_fix_as_current  # the monitor follows the core
 
 

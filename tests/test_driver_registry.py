@@ -34,8 +34,8 @@ class ThirdPartyImu:
 
 
 @pytest.fixture
-def registry(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
-    monkeypatch.setattr(factory, "DRIVERS", dict(factory.DRIVERS))
+def registry(monkeypatch: pytest.MonkeyPatch) -> Any:
+    monkeypatch.setattr(factory, "DRIVERS", factory.DRIVERS.copy())
     ThirdPartyImu.built = []
     return factory.DRIVERS
 
@@ -65,7 +65,9 @@ def test_an_entry_point_is_picked_up(registry: dict[str, Any], monkeypatch: pyte
         seen.append(group)
         return [ep]
 
-    monkeypatch.setattr(factory, "entry_points", entry_points)
+    import ins_hil.registry
+
+    monkeypatch.setattr(ins_hil.registry, "entry_points", entry_points)
     d = factory.make_driver({"type": "ep_imu", "name": "y"})
     assert isinstance(d, ThirdPartyImu) and seen == ["ins_hil.drivers"]
     assert factory.DRIVERS["ep_imu"] is ThirdPartyImu  # looked up once

@@ -165,7 +165,7 @@ def test_param_read_set_good_bad_and_other_system(tmp_path: Path) -> None:
         ok = _param_set(v, "NAV_GATE_GNSS", 4.0)
         assert ok is not None and math.isclose(ok.param_value, 4.0)
         assert v.pipeline.core is not None and v.pipeline.core.cfg.gnss.gate == 4.0
-        assert v.pipeline.cfg.nav["gnss"]["gate"] == 4.0
+        assert v.pipeline.cfg.nav.gnss.gate == 4.0
         # a rate: applied to the stream
         r = _param_set(v, "SR_VFR_HUD", 2.0)
         assert r is not None and math.isclose(r.param_value, 2.0) and v.ep.rates["VFR_HUD"] == 2.0
@@ -281,7 +281,7 @@ def test_parameters_saved_and_loaded_at_start(tmp_path: Path) -> None:
     assert "NAV_BARO_STD = 0.8" in text and "[params.gcs]" in text and "SR_GLOBAL_POS = 3.0" in text
     # a new start with the file: the values are in the configuration it runs
     store = ParamStore(sim_config(**_outputs(v.port)), tmp_path / "params.toml")
-    assert store.cfg.pipeline.nav["baro"]["std"] == 0.8
+    assert store.cfg.pipeline.nav.baro.std == 0.8
     assert store.cfg.outputs[0].effective_rates()["GLOBAL_POSITION_INT"] == 3.0
     # a bad file is a config error naming the file and the parameter (the config's own validation)
     (tmp_path / "bad.toml").write_text("[params]\nFLT_COV_EVERY = 0\n")

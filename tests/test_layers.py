@@ -82,8 +82,24 @@ def test_no_known_exceptions() -> None:
     import tomllib
 
     contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
-    assert len(contracts) == 4
+    assert len(contracts) == 6
     assert {c["id"]: c.get("ignore_imports", []) for c in contracts} == {c["id"]: [] for c in contracts}
+
+
+def test_the_import_circles_break_the_contract(tmp_path: Path) -> None:
+    """config_schema importing config, and a core part importing the core, break a contract, even when the import
+    is for type checking only (NavConfig used to be imported so by every core part)."""
+    repo = _copy(tmp_path)
+    for rel, line in (
+        ("ins_hil/config_schema.py", "import ins_hil.config"),
+        ("ins_hil/core_parts/gnss.py", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import ins_hil.core"),
+    ):
+        f = repo / rel
+        f.write_text(f.read_text() + f"\n{line}  # noqa: E402\n")
+    r = _lint(repo)
+    assert r.returncode == 1, r.stdout + r.stderr
+    for imp in ("ins_hil.config_schema -> ins_hil.config", "ins_hil.core_parts.gnss -> ins_hil.core"):
+        assert imp in r.stdout, r.stdout
 
 
 def test_the_former_exceptions_break_the_contract(tmp_path: Path) -> None:
@@ -105,3 +121,20 @@ def test_the_former_exceptions_break_the_contract(tmp_path: Path) -> None:
         "ins_hil.runtime.mavlink_params -> ins_hil.config",
     ):
         assert imp in r.stdout, r.stdout
+
+
+def test_the_architecture_picture_is_the_contract() -> None:
+    """ARCHITECTURE.md's layer picture lists the layers of the contract, in its order (bench, calibration and
+    core_parts placed)."""
+    import re
+    import tomllib
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    layers = next(c["layers"] for c in contracts if c["id"] == "layers")
+    text = (ROOT / "ARCHITECTURE.md").read_text()
+    picture = re.search(r"## Layers.*?```\n(.*?)```", text, re.S)
+    assert picture is not None
+    drawn = [" | ".join(x.strip() for x in p.split("|")) for p in " ".join(picture[1].split()).split(" > ")]
+    assert [" | ".join(x.strip() for x in layer.split("|")) for layer in layers] == drawn
+    for name in ("bench", "core_parts", "calibration.files", "calibration.bench"):
+        assert any(name in layer.split(" | ") for layer in drawn), name

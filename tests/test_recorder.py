@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 
@@ -84,7 +83,7 @@ def _sim_inputs(seconds: float) -> list:
 @pytest.mark.slow
 def test_rotation_by_size_and_replay_across_parts(tmp_path: Path) -> None:
     inputs = _sim_inputs(20.0)
-    header = {"pipeline": dataclasses.asdict(PipelineConfig())}
+    header = {"pipeline": PipelineConfig().to_dict()}
     big = Recorder(tmp_path / "one.ihlog", header=header)
     small = Recorder(tmp_path / "rot.ihlog", header=header, max_bytes=64 * 1024)
     for k, s in enumerate(inputs):

@@ -290,7 +290,7 @@ def test_rejections_are_reproduced_by_the_replay_of_a_recording(tmp_path: Path) 
 
     cfg = PipelineConfig(init="config", init_lat_deg=50.0, init_lon_deg=30.0, init_h=100.0)
     live = Pipeline(cfg)
-    rec = Recorder(tmp_path / "r.ihlog", header={"pipeline": dict(cfg.__dict__)})
+    rec = Recorder(tmp_path / "r.ihlog", header={"pipeline": cfg.to_dict()})
     dv = np.array([0.0, 0.0, -9.80665e-3])
     inputs: list = [ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=dv) for k in range(1, 50)]
     inputs[20] = ImuSample(t=0.021, dt=0.0, dtheta=np.zeros(3), dvel=dv)

@@ -37,7 +37,7 @@ def test_step_fault_isolated_in_the_pipeline_and_replayed(tmp_path: Path) -> Non
                      "accel_noise": 70e-6 * 9.80665},
     )  # fmt: skip
     pipe = Pipeline(cfg)
-    rec = Recorder(tmp_path / "fdi.ihlog", header={"pipeline": cfg.__dict__})
+    rec = Recorder(tmp_path / "fdi.ihlog", header={"pipeline": cfg.to_dict()})
     states, events = [], []
     # the three IMUs arrive interleaved, in varying order, as from three drivers
     for k in range(len(series.t)):

@@ -136,7 +136,7 @@ def test_unknown_system_cannot_retune_save_or_command(tmp_path: Path) -> None:
     assert not _texts(p.param_set(99, "SR_ATTITUDE", 0.0))
     assert p.refused() == 5
     # nothing changed, nothing saved
-    assert p.store.cfg.pipeline.nav.get("gnss", {}).get("gate", GATE) == GATE
+    assert p.store.cfg.pipeline.nav.gnss.gate == GATE
     assert p.ep.rates["ATTITUDE"] == 50.0 and not p.store.changed
     assert not override.exists()
     # reading stays open to anyone: PARAM_REQUEST_READ and REQUEST_MESSAGE are answered
@@ -150,7 +150,7 @@ def test_unknown_system_cannot_retune_save_or_command(tmp_path: Path) -> None:
     # a gateway started afterwards runs with the config's values
     gw = Gateway(load(cfg_path))
     assert not gw.params.loaded
-    assert gw.cfg.pipeline.nav.get("gnss", {}).get("gate", GATE) == GATE
+    assert gw.cfg.pipeline.nav.gnss.gate == GATE
 
 
 def test_a_ground_station_is_allowed_by_id(tmp_path: Path) -> None:
@@ -200,7 +200,7 @@ def test_override_file_is_announced_and_can_be_switched_off(tmp_path: Path, capl
     override.write_text("[params]\nNAV_GATE_GNSS = 1000.0\n[params.gcs]\nSR_ATTITUDE = 5.0\n")
     gw = Gateway(load(cfg_path))
     assert gw.params.loaded == {"NAV_GATE_GNSS": 1000.0, "SR_ATTITUDE@gcs": 5.0}
-    assert gw.cfg.pipeline.nav["gnss"]["gate"] == 1000.0
+    assert gw.cfg.pipeline.nav.gnss.gate == 1000.0
     # the start-up log names the file and every overridden value
     gw.log = logging.getLogger("ins_hil")
     gw.input_paths = {ic.name: f"inputs[{i}] ({ic.name})" for i, ic in enumerate(gw.cfg.inputs)}
@@ -220,7 +220,7 @@ def test_override_file_is_announced_and_can_be_switched_off(tmp_path: Path, capl
 
     # params_file = "off": the file is not loaded, and a save is refused
     off = Gateway(load(_write_config(tmp_path / "gw.toml", params_file="off")))
-    assert not off.params.loaded and off.cfg.pipeline.nav.get("gnss", {}).get("gate", GATE) == GATE
+    assert not off.params.loaded and off.cfg.pipeline.nav.gnss.gate == GATE
     assert off.params.path is None
     ep = off.mav_outputs[0]
     ep.tr = sink  # type: ignore[assignment]

@@ -128,10 +128,25 @@ class AidSource:
         1-σ, random-walk σ per √s), appended after the filter's own states."""
         return ()
 
+    def config(self, nav: Any) -> Any:
+        """This aid's own section of ``nav`` (``NavConfig.sources[name]``): its default when absent, a table
+        (dict) built into its class; None for an aid whose section is in :mod:`ins_hil.core_parts.config`."""
+        if self.section is None:
+            return None
+        v = nav.sources.get(self.name)
+        if v is None:
+            return self.section()
+        if isinstance(v, dict):
+            return self.section(**v)
+        if not isinstance(v, self.section):
+            raise TypeError(
+                f"NavConfig.sources[{self.name!r}]: expected a {self.section.__name__}, got {type(v).__name__}"
+            )
+        return v
+
     def enabled(self, nav: Any) -> bool:
         """Whether ``nav`` (``NavConfig``) turns this aid on (the C core's "not supported" list)."""
-        sec = nav.sources.get(self.name) if self.section is not None else None
-        return bool(getattr(sec, "enabled", False))
+        return bool(getattr(self.config(nav), "enabled", False))
 
     def stat_kinds(self, nav: Any) -> tuple[str, ...]:
         """The gate-statistics kinds a core under ``nav`` keeps (``NavCore.stats``): :attr:`kinds` when
@@ -199,6 +214,16 @@ def source_of(s: Any) -> AidSource:
 def sections() -> dict[str, type]:
     """The config sections of the aid modules (``[core.nav.<name>]`` → dataclass)."""
     return {s.name: s.section for s in sources() if s.section is not None}
+
+
+def check_sources(nav: Any) -> None:
+    """ValueError (one line) for a name in ``nav.sources`` (``NavConfig``) that no aid module has a section for."""
+    known = sections()
+    bad = set(nav.sources) - set(known)
+    if bad:
+        raise ValueError(f"NavConfig.sources: unknown aid section(s) {sorted(bad)} (known: {', '.join(known)})")
+    for name in nav.sources:
+        by_name()[name].config(nav)  # a table builds (its checks), an object is of its class
 
 
 def section_keys(cls: type) -> set[str]:

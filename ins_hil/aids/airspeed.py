@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ins_hil.core_parts.contract import Measurement
+from ins_hil.settings import check_fields
 from ins_hil.types import Vec
 
 from . import Aid, AidSource
@@ -61,12 +62,7 @@ class AirspeedConfig:
     )
 
     def __post_init__(self) -> None:
-        for k in ("std", "gate"):
-            v = getattr(self, k)
-            if not (isinstance(v, int | float) and 0.0 < v < math.inf):
-                raise ValueError(f"NavConfig.airspeed.{k}={v!r}: expected a finite number > 0")
-        if not (isinstance(self.min_airspeed, int | float) and 0.0 < self.min_airspeed < math.inf):
-            raise ValueError(f"NavConfig.airspeed.min_airspeed={self.min_airspeed!r}: expected a finite number > 0")
+        check_fields(self, "NavConfig.airspeed")  # the ranges of the fields' metadata (docs/configuration.md)
 
 
 def true_airspeed(idx: StateIndex, vel: Vec, wind_ne: Vec, tas: float) -> tuple[Vec, Vec]:
@@ -128,7 +124,7 @@ class AirspeedSource(AidSource):
         return AirspeedSample(t, tas, sd, src, arr)
 
     def bind(self, core: Any) -> Aid:
-        c = core.cfg.sources[self.name]
+        c = self.config(core.cfg)
         if not c.enabled:
             return Aid()
         if core.idx.wind is None:

@@ -25,6 +25,7 @@ import numpy as np
 
 from ins_hil.core_parts.contract import Measurement
 from ins_hil.nav.rotation import dcm_from_quat, skew
+from ins_hil.settings import check_fields
 from ins_hil.types import Vec
 
 from . import Aid, AidSource
@@ -69,12 +70,7 @@ class OdometerConfig:
     )
 
     def __post_init__(self) -> None:
-        for k in ("std", "gate", "init_scale_std"):
-            v = getattr(self, k)
-            if not (isinstance(v, int | float) and 0.0 < v < math.inf):
-                raise ValueError(f"NavConfig.odometer.{k}={v!r}: expected a finite number > 0")
-        if not (isinstance(self.scale_rw, int | float) and 0.0 <= self.scale_rw < math.inf):
-            raise ValueError(f"NavConfig.odometer.scale_rw={self.scale_rw!r}: expected a finite number >= 0")
+        check_fields(self, "NavConfig.odometer")  # the ranges of the fields' metadata (docs/configuration.md)
 
 
 def odometer_speed(idx: StateIndex, C_bn: Vec, vel: Vec, scale: float, speed: float) -> tuple[Vec, Vec]:
@@ -151,11 +147,11 @@ class OdometerSource(AidSource):
         return OdometerSample(t, sp, sd, src, arr)
 
     def blocks(self, nav: Any) -> tuple[tuple[str, int, float, float], ...]:
-        c = nav.sources[self.name]
+        c = self.config(nav)
         return (("odo_sf", 1, c.init_scale_std, c.scale_rw),) if c.enabled else ()
 
     def bind(self, core: Any) -> Aid:
-        c = core.cfg.sources[self.name]
+        c = self.config(core.cfg)
         return OdometerAid(core, c) if c.enabled else _Disabled()
 
 

@@ -16,7 +16,7 @@ from ins_hil.types import ImuSample, Vec
 from . import Aid, AidSource
 
 if TYPE_CHECKING:
-    from ins_hil.core import NavConfig
+    from ins_hil.core_parts.config import NavConfig
     from ins_hil.fusion.ekf import StateIndex
     from ins_hil.nav.mechanization import StrapdownNED
 

@@ -11,8 +11,8 @@ HELP = "validate a configuration file (--check FILE) or regenerate docs/configur
 DESCRIPTION = (
     "Validate configuration files the way `ins-hil run --config` does before it starts anything (every key "
     "typed and ranged, then the pipeline, endpoints and drivers built without opening a device): prints 'ok' "
-    "or the one-line error (exit status 2). --docs writes docs/configuration.md from the schema "
-    "(ins_hil/config_schema.py)."
+    "or the one-line error (exit status 2). --docs writes docs/configuration.md from the keys' field metadata "
+    "(ins_hil/settings.py, collected by ins_hil/config_schema.py)."
 )
 
 

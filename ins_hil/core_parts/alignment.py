@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -20,10 +20,7 @@ from ins_hil.nav.rotation import dcm_from_euler, dcm_from_quat, euler_from_quat,
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Vec
 
 from .baro_datum import BaroDatum, baro_altitude
-
-if TYPE_CHECKING:
-    from ins_hil.core import NavConfig
-
+from .config import NavConfig
 
 #: s: the longest interval between two position-only fixes whose difference is taken as a velocity
 MAX_DIFF_S = 2.0

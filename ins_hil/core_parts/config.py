@@ -1,8 +1,9 @@
-"""The sections of :class:`ins_hil.core.NavConfig` (``[core.nav.gnss]``, ``[core.nav.baro]``, ...).
+"""The navigation core's configuration, :class:`NavConfig`, and its sections (``[core.nav.gnss]``, ...).
 
-SI units, gates in σ, times in s; the unit, range and help of each key are in the ``core.nav.*`` tables of
-:mod:`ins_hil.config_schema` (``ins-hil config --docs`` prints them per key, docs/configuration.md). Each
-section checks its own values; the checks across sections are in ``NavConfig.__post_init__``.
+SI units, gates in σ, times in s. Each key's unit, range, default and help are its field's metadata
+(:func:`ins_hil.settings.setting`), the one description docs/configuration.md and the TOML loader read; each
+section checks its fields against it when built (:func:`ins_hil.settings.check_fields`), and ``NavConfig`` the
+checks across sections.
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.fusion.ekf import FilterConfig
+from ins_hil.nav import earth
+from ins_hil.settings import check_fields, setting
 from ins_hil.types import Vec
 
 DEG = math.pi / 180.0
@@ -20,175 +24,226 @@ DEG = math.pi / 180.0
 
 @dataclass
 class GnssConfig:
-    """GNSS position/velocity aiding (``[core.nav.gnss]``).
+    """GNSS position/velocity aiding (``[core.nav.gnss]``). A velocity valid ``vel_delay`` before its fix's position
+    time (RTKLIB .pos velocities lag by ~0.13 s) is fused at its own time (delayed fusion). After ``reset_after``
+    rejected positions in a row the position/velocity σ may be reset, only when the rejected fixes agree among
+    themselves (:meth:`ins_hil.core_parts.gnss.GnssReset.ok`). Units, ranges and help: the fields' metadata."""
 
-    lever_arm_b: IMU → antenna (m, body FRD). min_std: floor on the reported σ (m north/east, m down, m/s).
-    std_scale: factor on the reported σ. use_vel: fuse the velocity. vel_delay: the velocity is valid this long (s)
-    before the fix's position time (RTKLIB .pos velocities lag their positions by ~0.13 s); it is then fused
-    separately at its own time of validity (delayed fusion). gate: innovation gate (σ). reset_after: a position
-    rejected this many times in a row may reset the position/velocity σ and be accepted over its gate, only when
-    the rejected fixes pass a consistency test of their own (:meth:`ins_hil.core_parts.gnss.GnssReset.ok`).
-    """
-
-    lever_arm_b: Vec = field(default_factory=lambda: np.zeros(3))
-    min_std: tuple[float, float, float] = (0.01, 0.01, 0.02)  # NE, D, vel
-    std_scale: float = 1.0
-    use_vel: bool = True
-    vel_delay: float = 0.0
-    gate: float = 5.0
-    reset_after: int = 10
+    lever_arm_b: Vec = setting(
+        factory=lambda: np.zeros(3), unit="m", range="[-100, 100]", help="IMU → GNSS antenna, body FRD"
+    )
+    min_std: tuple[float, float, float] = setting(
+        (0.01, 0.01, 0.02), "m, m, m/s", "(0, 1000]", "floor on the reported GNSS σ: north/east, down, velocity"
+    )
+    std_scale: float = setting(1.0, "", "(0, 1000]", "factor on the reported GNSS σ")
+    use_vel: bool = setting(True, help="fuse the GNSS velocity")
+    vel_delay: float = setting(
+        0.0, "s", "[0, 2]", "the GNSS velocity is valid this long before the fix's position time (≤ delay.max_delay)"
+    )
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of GNSS")
+    reset_after: int = setting(
+        10, "fixes", "[0, 1000000]", "consecutive rejected fixes before the GNSS position is reset"
+    )
 
     def __post_init__(self) -> None:
-        if self.vel_delay < 0.0:
-            raise ValueError(f"NavConfig.gnss.vel_delay={self.vel_delay}: expected >= 0 s")
+        check_fields(self, "NavConfig.gnss")
 
 
 @dataclass
 class BaroConfig:
-    """Barometric height (``[core.nav.baro]``): noise ``std`` (m), gate (σ). The datum offset (baro altitude →
-    ellipsoidal height) is ``offset`` (m) if given, else taken from the first sample and then calibrated with
-    time constant ``offset_tau`` (s) while GNSS is accepted."""
+    """Barometric height (``[core.nav.baro]``). The datum offset (baro altitude → ellipsoidal height) is ``offset``
+    if given, else taken from the first sample and calibrated against accepted GNSS with time constant
+    ``offset_tau``. Units, ranges and help: the fields' metadata."""
 
-    std: float = 0.5
-    gate: float = 5.0
-    offset: float | None = None
-    offset_tau: float = 10.0
+    std: float = setting(0.5, "m", "(0, 1000]", "barometer noise")
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the barometer")
+    offset: float | None = setting(
+        None, "m", "[-10000, 10000]", "fixed baro datum offset (baro altitude → ellipsoidal height); not set = learnt"
+    )
+    offset_tau: float = setting(10.0, "s", "(0, 1e6]", "time constant of the baro datum calibration against GNSS")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "NavConfig.baro")
 
 
 @dataclass
 class MagConfig:
-    """Magnetometer (``[core.nav.mag]``): noise ``std`` (unit-vector component, book σ_m); ``ref_ned``: reference
-    field (NED, any unit, e.g. from WMM: the declination is in it; None = no magnetometer aiding); gate (σ)."""
+    """Magnetometer (``[core.nav.mag]``): the reference field ``ref_ned`` (NED, any unit, e.g. from WMM; the
+    declination is in it) switches the aiding on. Units, ranges and help: the fields' metadata."""
 
-    std: float = 0.0524
-    ref_ned: Vec | None = None
-    gate: float = 5.0
+    std: float = setting(0.0524, "", "(0, 10]", "magnetometer noise (unit-vector component, book σ_m)")
+    ref_ned: Vec | None = setting(
+        None,
+        "any unit",
+        "[-1e6, 1e6]",
+        "reference magnetic field, NED (e.g. from WMM); not set = no heading from it",
+        nonzero=True,
+    )
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the magnetometer")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "NavConfig.mag")
 
 
 @dataclass
 class AidsConfig:
-    """Ground-vehicle aids (``[core.nav.aids]``).
+    """Ground-vehicle and multirotor aids (``[core.nav.aids]``): the non-holonomic constraint (NHC; the vertical one
+    in the road frame, the body pitched by ``nhc_pitch_per_accel`` × the forward acceleration; with
+    ``filter.mount_states`` the IMU → vehicle boresight is estimated), zero velocity (ZUPT) and zero angular rate
+    (ZARU) while the averaged IMU looks at rest, and the rotor drag on the body x/y specific force against the air
+    velocity (with ``filter.wind_states``; not while the rest detector sees the vehicle standing). Units, ranges and
+    help: the fields' metadata."""
 
-    nhc: non-holonomic constraint at ``nhc_rate`` Hz above ``nhc_min_speed`` m/s (lateral σ ``nhc_std`` m/s,
-    optionally the vertical axis, σ ``nhc_std_vertical``). nhc_lever_b: IMU → the vehicle point whose
-    lateral/vertical velocity is zero (m, body FRD); with ``filter.mount_states`` the residual IMU → vehicle
-    boresight is estimated. nhc_pitch_per_accel: suspension pitch per forward acceleration (rad per m/s²,
-    nose-up accelerating): the vertical NHC is applied in the road frame, the body pitched by k a_x from it.
-    nhc_omega_lp_hz: corner (Hz) of a causal first-order low-pass of the body rate in the lever-arm term ω × l
-    only (0 = the raw rate). zupt: zero velocity (σ ``zupt_std`` m/s) — and zero angular rate on the gyro bias
-    with ``zaru`` (σ ``zaru_std`` rad/s) — when the averaged IMU (time constant ``zupt_tau`` s) looks at rest
-    (rate < ``zupt_gyro`` rad/s, specific-force change < ``zupt_accel`` m/s²) for ``zupt_time`` s and the speed
-    is below ``zupt_max_speed`` m/s. drag: a multirotor's rotor drag on the body x/y specific force (averaged
-    over ``drag_tau`` s, σ ``drag_std`` m/s², at ``drag_rate`` Hz, coefficient ``drag_coef`` 1/s: PX4's
-    EKF2_MCOEF default) against the air velocity, with the wind states (``filter.wind_states``); not while the
-    rest detector sees the vehicle standing (on the ground). gate: innovation gate of these aids (σ).
-    """
-
-    nhc: bool = False
-    nhc_std: float = 0.1
-    nhc_rate: float = 10.0
-    nhc_min_speed: float = 0.5
-    nhc_vertical: bool = True
-    nhc_std_vertical: float = 0.1
-    nhc_lever_b: Vec = field(default_factory=lambda: np.zeros(3))
-    nhc_pitch_per_accel: float = 0.0
-    nhc_omega_lp_hz: float = 0.0
-    zupt: bool = False
-    zupt_std: float = 0.02
-    zupt_gyro: float = 0.02
-    zupt_accel: float = 0.15
-    zupt_time: float = 0.5
-    zupt_tau: float = 0.3
-    zupt_max_speed: float = 1.0
-    zaru: bool = True
-    zaru_std: float = 0.002
-    drag: bool = False
-    drag_coef: float = 0.15
-    drag_std: float = 0.2
-    drag_tau: float = 0.25
-    drag_rate: float = 5.0
-    gate: float = 5.0
+    nhc: bool = setting(False, help="non-holonomic constraint (ground vehicles)")
+    nhc_std: float = setting(0.1, "m/s", "(0, 100]", "NHC lateral velocity σ")
+    nhc_rate: float = setting(10.0, "Hz", "(0, 10000]", "NHC update rate")
+    nhc_min_speed: float = setting(0.5, "m/s", "[0, 1000]", "NHC only above this speed")
+    nhc_vertical: bool = setting(True, help="NHC on the vertical axis as well")
+    nhc_std_vertical: float = setting(0.1, "m/s", "(0, 100]", "NHC vertical velocity σ")
+    nhc_lever_b: Vec = setting(
+        factory=lambda: np.zeros(3),
+        unit="m",
+        range="[-100, 100]",
+        help="IMU → the vehicle point whose lateral/vertical velocity is zero, body FRD",
+    )
+    nhc_pitch_per_accel: float = setting(
+        0.0, "rad/(m/s²)", "[-1, 1]", "suspension pitch per forward acceleration (nose-up accelerating)"
+    )
+    nhc_omega_lp_hz: float = setting(
+        0.0, "Hz", "[0, 10000]", "low-pass corner of the body rate in the NHC lever-arm term; 0 = raw"
+    )
+    zupt: bool = setting(False, help="zero-velocity update when at rest")
+    zupt_std: float = setting(0.02, "m/s", "(0, 100]", "ZUPT velocity σ")
+    zupt_gyro: float = setting(0.02, "rad/s", "(0, 10]", "rest detection: averaged rate below this")
+    zupt_accel: float = setting(0.15, "m/s²", "(0, 100]", "rest detection: averaged specific-force change below this")
+    zupt_time: float = setting(0.5, "s", "(0, 3600]", "rest detection: this long")
+    zupt_tau: float = setting(0.3, "s", "(0, 3600]", "averaging time constant of the rest detection")
+    zupt_max_speed: float = setting(1.0, "m/s", "[0, 1000]", "ZUPT only below this speed")
+    zaru: bool = setting(True, help="zero angular rate update on the gyro bias with ZUPT")
+    zaru_std: float = setting(0.002, "rad/s", "(0, 10]", "ZARU σ")
+    drag: bool = setting(False, help="multirotor rotor drag on the body x/y specific force (needs filter.wind_states)")
+    drag_coef: float = setting(
+        0.15, "1/s", "(0, 10]", "drag coefficient: specific force per air speed (PX4 EKF2_MCOEF)"
+    )
+    drag_std: float = setting(0.2, "m/s²", "(0, 100]", "drag aid σ of the averaged specific force")
+    drag_tau: float = setting(0.25, "s", "(0, 60]", "averaging time constant of the specific force for the drag aid")
+    drag_rate: float = setting(5.0, "Hz", "(0, 1000]", "drag aid rate")
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the auxiliary aids (NHC, ZUPT, drag)")
 
     def __post_init__(self) -> None:
-        if self.nhc_omega_lp_hz < 0.0:
-            raise ValueError(f"NavConfig.aids.nhc_omega_lp_hz={self.nhc_omega_lp_hz}: expected >= 0 (0 = raw rate)")
-        for name in ("drag_coef", "drag_std", "drag_tau", "drag_rate"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0.0):
-                raise ValueError(f"NavConfig.aids.{name}={v!r}: expected a finite value > 0")
+        check_fields(self, "NavConfig.aids")
 
 
 @dataclass
 class HoldConfig:
-    """Flight without GNSS (``[core.nav.hold]``, core_parts/hold.py): with ``enabled``, constant-position
-    (σ ``std`` m) / zero-velocity (σ ``vel_std`` m/s, 0 = none) pseudo-measurements at ``rate`` Hz once no GNSS
-    position has been fused for ``after`` s; gate (σ)."""
+    """Flight without GNSS (``[core.nav.hold]``, core_parts/hold.py): constant-position / zero-velocity
+    pseudo-measurements once no GNSS position has been fused for ``after`` s. Units, ranges and help: the fields'
+    metadata."""
 
-    enabled: bool = False
-    after: float = 5.0
-    std: float = 10.0
-    vel_std: float = 1.0
-    rate: float = 5.0
-    gate: float = 5.0
+    enabled: bool = setting(
+        False,
+        help=(
+            "flight without GNSS: constant-position / zero-velocity pseudo-measurements once no GNSS position has "
+            "been fused for `after` s (EKF2's no-aiding mode; for hovers and bench tests, not for a moving car)"
+        ),
+    )
+    after: float = setting(5.0, "s", "[0, 3600]", "seconds without a fused GNSS position before the hold")
+    std: float = setting(10.0, "m", "(0, 1e6]", "σ of the constant-position row")
+    vel_std: float = setting(1.0, "m/s", "[0, 1e3]", "σ of the zero-velocity row; 0 = none")
+    rate: float = setting(5.0, "Hz", "(0, 100]", "pseudo-measurements per second")
+    gate: float = setting(5.0, "σ", "(0, 1e6]", "innovation gate of the hold")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "NavConfig.hold")
 
 
 @dataclass
 class AlignmentConfig:
     """The alignment before navigation (``[core.nav.alignment]``, core_parts/alignment.py).
 
-    mode: ``"given"`` trusts the initial state; ``"static"`` levels from the mean specific force over ``time`` s
-    at rest (book §4.1.1), then takes yaw from the magnetometer (σ ``mag_yaw_std`` rad) when a field reference is
-    configured, else from the GNSS course once the speed exceeds ``gnss_yaw_speed`` m/s (σ ``gnss_yaw_std`` ⊕
-    σ_v/V rad with the receiver's σ_v floored at ``gnss_yaw_vel_floor`` m/s); for a position-only receiver from a
-    robust straight-line fit over up to 5 s of fixes once its speed exceeds ``still_speed`` and the yaw σ it gives
-    is below ``aligned_yaw_std``. level_only: level only (yaw from the
-    initial state). gyrocompass: yaw from the Earth rate when σ_ψ ≤ ``gyrocompass_max_std`` (rad).
-    level_tilt_prior: the levelled tilt's prior correlated with the accelerometer error states. At rest: GNSS
-    speed below ``still_speed`` m/s for ``still_delay`` s; ``still_gyro`` (rad/s) / ``still_accel`` (m/s²), RMS
-    departure of the rate / specific force from the window's mean over ``still_tau`` s, mark motion.
-    gyro_bias_std: gyro bias σ after the alignment (rad/s). aligned_yaw_std: ``state().aligned`` once the yaw σ is
-    below this (rad). yaw_gsf: the heading phase takes its yaw from the GNSS-velocity yaw bank
-    (:mod:`ins_hil.fusion.yaw_gsf`, PX4's EKF-GSF) once its σ is below 15°, instead of the GNSS course: for a
-    vehicle whose course is not its heading (a multicopter) and that has no magnetometer. position: [lat °, lon °,
-    h m], a known position (levelling and the hold need no GNSS fix).
-    """
+    ``mode = "static"`` levels from the mean specific force at rest (book §4.1.1), then takes yaw from the
+    magnetometer when a field reference is configured, else from the GNSS course once moving (for a position-only
+    receiver from a robust straight-line fit over up to 5 s of fixes), from the gyrocompass, or from the GNSS-velocity
+    yaw bank (:mod:`ins_hil.fusion.yaw_gsf`, PX4's EKF-GSF) for a vehicle whose course is not its heading.
+    Units, ranges and help: the fields' metadata."""
 
-    mode: str = "given"
-    time: float = 2.0
-    level_only: bool = False
-    gyrocompass: bool = False
-    gyrocompass_max_std: float = 10.0 * DEG
-    level_tilt_prior: bool = True
-    still_speed: float = 0.3
-    still_delay: float = 1.5
-    still_gyro: float = 3.0 * DEG
-    still_accel: float = 1.0
-    still_tau: float = 0.2
-    gyro_bias_std: float = 0.02 * DEG
-    mag_yaw_std: float = 3.0 * DEG
-    gnss_yaw_speed: float = 1.0
-    gnss_yaw_std: float = 3.0 * DEG
-    gnss_yaw_vel_floor: float = 0.0
-    aligned_yaw_std: float = 5.0 * DEG
-    yaw_gsf: bool = False
-    position: tuple[float, float, float] | None = None
+    mode: str = setting(
+        "given",
+        help="given: trust the initial state; static: level at rest, yaw from magnetometer or GNSS course",
+        choices=("given", "static"),
+    )
+    time: float = setting(2.0, "s", "(0, 3600]", "static alignment: levelling time at rest")
+    level_only: bool = setting(False, help="static alignment: level only (yaw from the initial state)")
+    gyrocompass: bool = setting(
+        False,
+        help=(
+            "static alignment: yaw from the Earth rate (book eq. 4.2) when filter.init_gyro_bias allows σ_ψ ≤ "
+            "gyrocompass_max_std (navigation-grade gyros; MEMS cannot resolve 15 °/h)"
+        ),
+    )
+    gyrocompass_max_std: float = setting(10.0 * DEG, "rad", "(0, 3.1416]", "gyrocompass: the largest yaw σ it may give")
+    level_tilt_prior: bool = setting(True, help="levelled tilt prior correlated with the accelerometer errors")
+    still_speed: float = setting(0.3, "m/s", "[0, 100]", "static alignment: at rest below this GNSS speed")
+    still_delay: float = setting(1.5, "s", "[0, 3600]", "static alignment: at rest for this long")
+    still_gyro: float = setting(
+        3.0 * DEG,
+        "rad/s",
+        "(0, 10]",
+        "static alignment: in motion when the rate departs from the window's mean by this much (RMS over still_tau)",
+    )
+    still_accel: float = setting(
+        1.0,
+        "m/s^2",
+        "(0, 100]",
+        (
+            "static alignment: in motion when the specific force departs from the window's mean by this much (RMS over "
+            "still_tau)"
+        ),
+    )
+    still_tau: float = setting(0.2, "s", "(0, 60]", "static alignment: time constant of the IMU motion test")
+    gyro_bias_std: float = setting(0.02 * DEG, "rad/s", "(0, 1]", "gyro bias σ after the alignment")
+    mag_yaw_std: float = setting(3.0 * DEG, "rad", "(0, 3.1416]", "yaw σ from the magnetometer alignment")
+    gnss_yaw_speed: float = setting(
+        1.0,
+        "m/s",
+        "(0, 1000]",
+        "in-motion yaw from a receiver's velocity course above this speed (else a fitted track)",
+    )
+    gnss_yaw_std: float = setting(3.0 * DEG, "rad", "(0, 3.1416]", "yaw σ of the in-motion alignment (⊕ σ_v/V)")
+    gnss_yaw_vel_floor: float = setting(0.0, "m/s", "[0, 100]", "floor on the receiver's σ_v in the in-motion yaw σ")
+    aligned_yaw_std: float = setting(
+        5.0 * DEG, "rad", "(0, 3.1416]", "the state is 'aligned' when the yaw σ is below this"
+    )
+    yaw_gsf: bool = setting(
+        False,
+        help=(
+            "heading phase: yaw from the GNSS-velocity yaw bank (PX4 EKF-GSF, σ < 15°) instead of the GNSS course "
+            "(a multicopter without magnetometer)"
+        ),
+    )
+    position: tuple[float, float, float] | None = setting(
+        None,
+        help="[lat deg, lon deg, h m]: a known position (levelling and the hold need no GNSS fix)",
+        length=3,
+        optional=True,
+    )
 
     def __post_init__(self) -> None:
-        if self.mode not in ("given", "static"):
-            raise ValueError(f"NavConfig.alignment.mode={self.mode!r}: expected 'given' or 'static'")
+        check_fields(self, "NavConfig.alignment")
 
 
 @dataclass
 class DelayConfig:
     """Delayed fusion (``[core.nav.delay]``): with ``compensation`` a late measurement is fused at its time of
-    validity by rolling the filter back (history ``max_delay`` s); without, at the current step, shifted by v·Δt."""
+    validity by rolling the filter back (history ``max_delay``); without, at the current step, shifted by v·Δt."""
 
-    compensation: bool = True
-    max_delay: float = 0.3
+    compensation: bool = setting(
+        True, help="fuse a late GNSS fix at its time (roll-back); false: at the current step, shifted by v·Δt"
+    )
+    max_delay: float = setting(0.3, "s", "[0, 2]", "history kept for delayed fusion")
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.max_delay <= 2.0:
-            raise ValueError(f"NavConfig.delay.max_delay={self.max_delay}: expected 0..2 s")
+        check_fields(self, "NavConfig.delay")
 
 
 #: the sections of NavConfig by field name (the order of docs/configuration.md)
@@ -201,6 +256,57 @@ SECTIONS: dict[str, type] = {
     "alignment": AlignmentConfig,
     "delay": DelayConfig,
 }
+
+
+@dataclass
+class NavConfig:
+    """NavCore configuration in sections (SI units; gates in σ; times in s): ``gnss``, ``baro``, ``mag``, ``aids``
+    (NHC/ZUPT/ZARU), ``hold`` (flight without GNSS), ``alignment``, ``delay`` (delayed fusion), ``filter``
+    (:class:`~ins_hil.fusion.ekf.FilterConfig`); each section's keys and units are in its class
+    (:mod:`ins_hil.core_parts.config`) and in docs/configuration.md. ``sources``: the sections of the aid modules
+    that keep their own (``[core.nav.<name>]``, :func:`ins_hil.aids.sections`: ``odometer``, ``airspeed``), by
+    name (a missing one is its default, :meth:`ins_hil.aids.AidSource.config`). ``adaptive``: Sage–Husa R on
+    GNSS/baro with forgetting factor ``adaptive_b``. ``gravity``: the strapdown's gravity model, ``"normal"``
+    (Somigliana with the height series, the default) or ``"j2"`` (J2 field + centrifugal,
+    :func:`ins_hil.nav.earth.gravity_j2_ned`).
+    """
+
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    gnss: GnssConfig = field(default_factory=GnssConfig)
+    baro: BaroConfig = field(default_factory=BaroConfig)
+    mag: MagConfig = field(default_factory=MagConfig)
+    aids: AidsConfig = field(default_factory=AidsConfig)
+    hold: HoldConfig = field(default_factory=HoldConfig)
+    alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
+    delay: DelayConfig = field(default_factory=DelayConfig)
+    adaptive: bool = setting(False, help="Sage–Husa adaptive R on GNSS/baro")
+    adaptive_b: float = setting(0.97, "", "(0, 1)", "Sage–Husa forgetting factor")
+    gravity: str = setting(
+        "normal",
+        help="strapdown gravity model: 'normal' Somigliana + height series, 'j2' J2 field + centrifugal",
+        choices=earth.GRAVITY_MODELS,
+    )
+    sources: dict[str, Any] = field(default_factory=dict, metadata={"sections": True})
+
+    def __post_init__(self) -> None:
+        check_fields(self, "NavConfig")
+        for name, cls in (("filter", FilterConfig), *SECTIONS.items()):
+            v = getattr(self, name)
+            if isinstance(v, dict):  # dataclasses.asdict(NavConfig) loaded back
+                setattr(self, name, cls(**v))
+            elif not isinstance(v, cls):
+                raise TypeError(f"NavConfig.{name}: expected a {cls.__name__}, got {type(v).__name__}")
+        if self.gnss.vel_delay > self.delay.max_delay:
+            raise ValueError(
+                f"NavConfig.gnss.vel_delay={self.gnss.vel_delay}: expected 0..delay.max_delay "
+                f"({self.delay.max_delay} s)"
+            )
+        if self.filter.mount_states and not self.aids.nhc:
+            raise ValueError(
+                "NavConfig.filter.mount_states=True needs aids.nhc=True (the boresight is seen by the NHC only)"
+            )
+        if self.aids.drag and not self.filter.wind_states:
+            raise ValueError("NavConfig.aids.drag=True needs filter.wind_states=True (drag acts on the air velocity)")
 
 
 def _moved(sec: str, keys: str) -> dict[str, tuple[str, str]]:

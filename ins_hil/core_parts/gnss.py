@@ -8,7 +8,6 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,10 +18,8 @@ from ins_hil.nav import earth
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.types import GnssFix, Vec
 
+from .config import NavConfig
 from .contract import Measurement
-
-if TYPE_CHECKING:
-    from ins_hil.core import NavConfig
 
 #: a GNSS reset needs every rejected fix within this many gates of the INS (GnssReset.ok)
 RESET_GATE_FACTOR = 20.0
@@ -102,9 +99,7 @@ class GnssReset:
         return True
 
 
-def ins_off_track(
-    fixes: list[GnssFix], vel_ins: Vec, var_vel_ins: Vec, c: NavConfig
-) -> tuple[float, Vec] | None:
+def ins_off_track(fixes: list[GnssFix], vel_ins: Vec, var_vel_ins: Vec, c: NavConfig) -> tuple[float, Vec] | None:
     """How far (m/s) the INS velocity (NED m/s, variance m²/s²) is off the velocity of the fixes' own track, when
     beyond ``gnss.gate`` σ of both (χ² over the three axes), with that track velocity (NED m/s); None when it
     agrees. The track's velocity: the last fix's receiver velocity, or without one the last fix's velocity of a

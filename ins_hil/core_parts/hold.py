@@ -8,7 +8,6 @@ vehicle that moves, so it is for hovering and ground tests, not for a car in a t
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,10 +16,8 @@ from ins_hil.fusion.ekf import StateIndex
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.types import Vec
 
+from .config import NavConfig
 from .contract import Measurement
-
-if TYPE_CHECKING:
-    from ins_hil.core import NavConfig
 
 
 class NoAidHold:

@@ -7,15 +7,13 @@ process noise is several times too small rejects good fixes and diverges), never
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ins_hil.nav import alignment
 from ins_hil.types import ImuSample
 
-if TYPE_CHECKING:
-    from ins_hil.core import NavConfig
+from .config import NavConfig
 
 #: s of samples the check takes (at most; the levelling window's length when shorter)
 CHECK_S = 2.0

@@ -35,7 +35,7 @@ from ins_hil.nav.rotation import euler_from_quat
 from ins_hil.types import GnssFix, ImuSample, Vec
 
 if TYPE_CHECKING:
-    from ins_hil.core import NavConfig
+    from ins_hil.core_parts.config import NavConfig
 
 #: rad: the smallest yaw disagreement called a failure (EKF2 ``isYawFailure``: 25°)
 YAW_FAIL = math.radians(25.0)

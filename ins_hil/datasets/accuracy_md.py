@@ -75,7 +75,8 @@ def _whatif_baro_md(
     )
 
 
-#: the flight-log targets (docs/datasets.md): (config, quantity, value from the replay's metrics, target, bound)
+#: the flight-log targets (docs/design/flight_log_findings.md): (config, quantity, value from the replay's
+#: metrics, target, bound)
 FLIGHT_LOG_TARGETS: tuple[tuple[str, str, str, str, float], ...] = (
     ("px4_hover", "roll vs EKF2, RMS (°)", "onboard.attitude_deg.roll.rms", "≤ 0.7°", 0.7),
     ("px4_hover", "pitch vs EKF2, RMS (°)", "onboard.attitude_deg.pitch.rms", "≤ 0.7°", 0.7),
@@ -139,7 +140,7 @@ def flight_logs_md(logs: dict[str, dict[str, Any]]) -> str:
         "## Flight logs (`configs/datasets/`)\n\n"
         "Each shipped flight log replayed with its dataset config (only the sensor grade, mounting, lever arms and "
         "time offsets set; `ins-hil replay --dataset configs/datasets/NAME.toml`); what the figures mean and why "
-        "some fall short: docs/datasets.md.\n\n"
+        "some fall short: docs/design/flight_log_findings.md.\n\n"
         + _md_table(("log", "quantity", "measured", "target", ""), tuple(rows))
         + "\n"
     )

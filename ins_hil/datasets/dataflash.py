@@ -35,7 +35,6 @@ from ins_hil.datasets.dataset import (
     count_of,
     fix_type_of,
     increasing,
-    register,
 )
 from ins_hil.geoid import ellipsoidal_height
 from ins_hil.nav.rotation import quat_from_euler
@@ -404,23 +403,19 @@ def _read(path: Path, text: bool) -> Dataset:
     return ds
 
 
-register(
-    Reader(
-        "ardupilot-bin",
-        "an ArduPilot DataFlash .bin",
-        _is_dataflash,
-        read_dataflash,
-        suffixes=(".bin",),
-        family="ardupilot",
-    )
+BIN_READER = Reader(
+    "ardupilot-bin",
+    "an ArduPilot DataFlash .bin",
+    _is_dataflash,
+    read_dataflash,
+    suffixes=(".bin",),
+    family="ardupilot",
 )
-register(
-    Reader(
-        "ardupilot-log",
-        "an ArduPilot DataFlash text log (.log: 'FMT, 128, 89, FMT, …' lines)",
-        _is_dataflash_text,
-        read_dataflash_text,
-        suffixes=(".log",),
-        family="ardupilot",
-    )
+TEXT_READER = Reader(
+    "ardupilot-log",
+    "an ArduPilot DataFlash text log (.log: 'FMT, 128, 89, FMT, …' lines)",
+    _is_dataflash_text,
+    read_dataflash_text,
+    suffixes=(".log",),
+    family="ardupilot",
 )

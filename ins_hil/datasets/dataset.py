@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.registry import Registry
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample, Vec
 
 
@@ -191,17 +192,30 @@ class Reader:
     family: str = ""
 
 
-READERS: dict[str, Reader] = {}
+#: the readers by name, in the order detection tries them: (module, attribute) imported when first used
+#: (:class:`ins_hil.registry.Registry`; a reader module imports this one, never the other way round)
+READERS: Registry[Reader] = Registry(
+    "dataset format",
+    {
+        "ardupilot-bin": ("ins_hil.datasets.dataflash", "BIN_READER"),
+        "ardupilot-log": ("ins_hil.datasets.dataflash", "TEXT_READER"),
+        "csv": ("ins_hil.datasets.generic_csv", "READER"),
+        "ihlog": ("ins_hil.datasets.ihlog", "READER"),
+        "px4-ulog": ("ins_hil.datasets.px4", "ULOG_READER"),
+        "px4-csv": ("ins_hil.datasets.px4", "CSV_READER"),
+        "rtklib": ("ins_hil.datasets.rtklib", "READER"),
+    },
+)
 
 
 def register(reader: Reader) -> Reader:
-    READERS[reader.name] = reader
+    """Add a reader (another package's) after the built-in ones."""
+    READERS.register(reader.name, reader)
     return reader
 
 
 def _load_builtin() -> None:
-    # the readers register themselves on import
-    from ins_hil.datasets import dataflash, generic_csv, ihlog, px4, rtklib  # noqa: F401
+    """Kept for callers: the registry imports a reader when it is first used."""
 
 
 def expected() -> str:

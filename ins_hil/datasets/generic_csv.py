@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, fix_type_of, register
+from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, fix_type_of
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuSample, MagSample
@@ -167,4 +167,4 @@ def write_generic_csv(path: Path, ds: Dataset) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-register(Reader("csv", f"an ins-hil dataset CSV starting with {MAGIC!r}", _is_generic, read_generic_csv))
+READER = Reader("csv", f"an ins-hil dataset CSV starting with {MAGIC!r}", _is_generic, read_generic_csv)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, register
+from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory
 from ins_hil.nav import earth
 from ins_hil.runtime import recorder
 from ins_hil.runtime.replay import SimTruth, sim_config_from_header
@@ -97,6 +97,6 @@ def read_ihlog(path: Path) -> Dataset:
     return ds
 
 
-register(
-    Reader("ihlog", "a gateway recording (*.ihlog, IHLOG1/IHLOG2 magic)", _is_ihlog, read_ihlog, suffixes=(".ihlog",))
+READER = Reader(
+    "ihlog", "a gateway recording (*.ihlog, IHLOG1/IHLOG2 magic)", _is_ihlog, read_ihlog, suffixes=(".ihlog",)
 )

@@ -48,7 +48,6 @@ from ins_hil.datasets.dataset import (
     count_of,
     fix_type_of,
     increasing,
-    register,
 )
 from ins_hil.geoid import ellipsoidal_height
 from ins_hil.types import BaroSample, FixType, GnssFix, ImuFlags, ImuSample, MagSample, Vec
@@ -580,13 +579,11 @@ def read_px4_csv(path: Path) -> Dataset:
         raise _named(path, e) from None
 
 
-register(Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog, suffixes=(".ulg",), family="px4"))
-register(
-    Reader(
-        "px4-csv",
-        "a PX4 ulog2csv folder (*sensor_combined*.csv or *vehicle_imu*.csv)",
-        _is_px4_csv_dir,
-        read_px4_csv,
-        family="px4",
-    )
+ULOG_READER = Reader("px4-ulog", "a PX4 .ulg file", _is_ulog, read_ulog, suffixes=(".ulg",), family="px4")
+CSV_READER = Reader(
+    "px4-csv",
+    "a PX4 ulog2csv folder (*sensor_combined*.csv or *vehicle_imu*.csv)",
+    _is_px4_csv_dir,
+    read_px4_csv,
+    family="px4",
 )

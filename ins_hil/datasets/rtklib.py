@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, register
+from ins_hil.datasets.dataset import Dataset, DatasetError, Reader
 from ins_hil.nav.earth import G0
 from ins_hil.types import FixType, GnssFix, ImuSample, Vec
 
@@ -369,5 +369,5 @@ def _read(path: Path, cfg: DatasetConfig | None = None) -> Dataset:
         raise DatasetError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
 
 
-register(Reader("rtklib", "a folder with an IMU csv, its RTKLIB time tag (*.csv.tag) and an RTKLIB *.pos",
+READER = (Reader("rtklib", "a folder with an IMU csv, its RTKLIB time tag (*.csv.tag) and an RTKLIB *.pos",
                 _is_rtklib, _read, configured=True))  # fmt: skip

@@ -71,6 +71,7 @@ import numpy as np
 from ins_hil.fdi.thresholds import chi2_threshold
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat
+from ins_hil.settings import check_fields, setting
 from ins_hil.types import BaroSample, FaultEvent, FaultMode, GnssFix, NavState, Vec
 
 
@@ -87,45 +88,40 @@ class AidingConfig:
     ``lag_margin``·(½·lag·|a|, lag·|v − v̄|) (``lag_tau``: time constant of v̄); see ``_lag``.
     ``ins_vel_floor``: the INS velocity σ used by the CUSUM is at least this × the fix's σ_vel."""
 
-    p_fa_hour: float = 1e-3
-    window: float = 20.0
-    min_span: float = 8.0
-    cusum_k: float = 0.5
-    clear_gate: float = 3.0
-    clear_time: float = 10.0
-    rate_floor: float = 0.005
-    baro_std: float = 0.5
-    gnss_rate: float = 5.0
-    baro_rate: float = 25.0
-    min_std: float = 0.01
-    jump_gate: float = 5.0
-    vertical_cusum: bool = False
-    clear_fraction: float = 0.25
-    max_gap: float = 2.0
-    exclude: bool = True
-    lag_margin: float = 1.0
-    lag_tau: float = 10.0
-    max_lag: float = 0.5
-    late_fix_as_current: bool = False
-    ins_vel_floor: float = 1.0
+    p_fa_hour: float = setting(
+        1e-3, "per hour", "[1e-12, 1)", "false-alarm probability per hour (thresholds are derived from it)"
+    )
+    window: float = setting(20.0, "s", "(0, 3600]", "sliding window of the slope tests")
+    min_span: float = setting(8.0, "s", "(0, 3600]", "shortest filled window a slope test runs on (≤ window)")
+    cusum_k: float = setting(0.5, "σ", "[0.01, 100]", "CUSUM allowance")
+    clear_gate: float = setting(3.0, "σ", "(0, 100]", "a flag clears below this")
+    clear_time: float = setting(10.0, "s", "[0, 3600]", "time below clear_gate to clear")
+    rate_floor: float = setting(0.005, "m/s", "[0, 100]", "floor of the drift-rate σ (time-correlated receiver errors)")
+    baro_std: float = setting(0.5, "m", "(0, 100]", "barometer noise")
+    gnss_rate: float = setting(5.0, "Hz", "(0, 1000]", "nominal GNSS rate (counts trials per hour)")
+    baro_rate: float = setting(25.0, "Hz", "(0, 1000]", "nominal baro rate (counts trials per hour)")
+    min_std: float = setting(0.01, "m", "(0, 100]", "floor on a fix's σ")
+    jump_gate: float = setting(5.0, "σ", "(0, 1e6]", "normalised innovations are clipped here in the CUSUM")
+    vertical_cusum: bool = setting(False, help="CUSUM on the vertical axis as well")
+    clear_fraction: float = setting(
+        0.25, "", "[0, 1]", "hysteresis: a CUSUM clears below this fraction of its threshold"
+    )
+    max_gap: float = setting(2.0, "s", "(0, 3600]", "a GNSS gap that restarts the windows")
+    exclude: bool = setting(True, help="stop fusing a sensor while it is flagged")
+    lag_margin: float = setting(1.0, "", "[0, 100]", "dead zone factor on the error a late fix's lag can cause")
+    lag_tau: float = setting(10.0, "s", "(0, 3600]", "time constant of the mean velocity in the lag dead zone")
+    max_lag: float = setting(0.5, "s", "[0, 10]", "a fix up to this late is compared at its time (or as current)")
+    late_fix_as_current: bool = setting(
+        False, help="compare a late fix with the current state; default follows the core"
+    )
+    ins_vel_floor: float = setting(
+        1.0, "", "[0, 100]", "the INS velocity σ in the CUSUM is at least this × the fix's σ_vel"
+    )
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.p_fa_hour < 1.0:
-            raise ValueError(f"p_fa_hour = {self.p_fa_hour}: expected a probability in (0, 1)")
-        for name in (
-            "window", "min_span", "cusum_k", "clear_gate", "gnss_rate", "baro_rate", "baro_std", "min_std", "lag_tau",
-        ):  # fmt: skip
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} = {getattr(self, name)}: expected a positive number")
+        check_fields(self, "AidingConfig")  # each field against its [fdi.aiding] metadata
         if self.min_span > self.window:
             raise ValueError(f"min_span = {self.min_span} must not exceed window = {self.window}")
-        if self.clear_time < 0 or self.rate_floor < 0 or self.max_gap <= 0:
-            raise ValueError("clear_time and rate_floor must be ≥ 0, max_gap > 0")
-        if self.lag_margin < 0 or self.max_lag < 0 or self.ins_vel_floor < 0:
-            raise ValueError(
-                f"lag_margin = {self.lag_margin}, max_lag = {self.max_lag}, "
-                f"ins_vel_floor = {self.ins_vel_floor}: expected ≥ 0"
-            )
 
 
 def cusum_arl0(h: float, k: float) -> float:

@@ -49,6 +49,7 @@ import numpy as np
 from ins_hil.fdi.geometry import SensorGeometry
 from ins_hil.fdi.parity import parity_basis
 from ins_hil.fdi.thresholds import fast_threshold, increment_sigma, slow_threshold, slow_variance
+from ins_hil.settings import check_fields, setting
 from ins_hil.types import FaultEvent, FaultMode, ImuSample, Vec
 
 # ufuncs/reductions called directly on the hot path (the ndarray methods add Python-level wrappers)
@@ -83,40 +84,45 @@ class FdiConfig:
     """
 
     geometry: SensorGeometry
-    dt: float
-    gyro_noise: float
-    accel_noise: float
-    gyro_bias: float = 0.0
-    accel_bias: float = 0.0
-    p_false_alarm: float = 1e-3
-    persistence: int = 3
-    slow_tau: float = 1.0
-    classify_time: float = 1.0
-    readmit_after: float = 0.0
-    stuck_samples: int = 10
-    dropout_samples: int = 3
-    exclude_unit: bool = False
-    history: float = 5.0
-    isolation_margin: float = 16.0
-    compensate_leak: bool = True
+    dt: float = setting(
+        unit="s", range="(0, 1]", help="nominal IMU interval", required=False, doc_default="required with FDI"
+    )
+    gyro_noise: float = setting(
+        unit="rad/s/√Hz",
+        range="(0, 1]",
+        help="white-noise density of one gyro",
+        required=False,
+        doc_default="required with FDI",
+    )
+    accel_noise: float = setting(
+        unit="m/s²/√Hz",
+        range="(0, 10]",
+        help="white-noise density of one accelerometer",
+        required=False,
+        doc_default="required with FDI",
+    )
+    gyro_bias: float = setting(0.0, "rad/s", "[0, 1]", "1-σ residual bias of one gyro after calibration")
+    accel_bias: float = setting(0.0, "m/s²", "[0, 10]", "1-σ residual bias of one accelerometer after calibration")
+    p_false_alarm: float = setting(1e-3, "per hour", "[1e-12, 1)", "false-alarm probability per hour and test")
+    persistence: int = setting(3, "samples", "[1, 1000000]", "consecutive exceedances to trip")
+    slow_tau: float = setting(1.0, "s", "(0, 3600]", "averaging time constant of the slow test")
+    classify_time: float = setting(1.0, "s", "[0, 3600]", "post-exclusion time used to classify the failure mode")
+    readmit_after: float = setting(0.0, "s", "[0, 1e6]", "healthy time before re-admission; 0 = never")
+    stuck_samples: int = setting(
+        10, "samples", "[0, 1000000]", "identical consecutive outputs that mean STUCK; 0 = off"
+    )
+    dropout_samples: int = setting(3, "samples", "[1, 1000000]", "consecutive missing epochs that mean DROPOUT")
+    exclude_unit: bool = setting(False, help="exclude every row of the failed unit (whole IMU), not only the axis")
+    history: float = setting(5.0, "s", "(0, 3600]", "pre-isolation residual history kept for classification")
+    isolation_margin: float = setting(
+        16.0, "χ²", "[0, 1e6]", "best candidate's score margin over the second before excluding"
+    )
+    compensate_leak: bool = setting(
+        True, help="on exclusion, remove what the fault put into the output since its onset"
+    )
 
     def __post_init__(self) -> None:
-        for key in ("dt", "gyro_noise", "accel_noise", "slow_tau", "history"):
-            v = getattr(self, key)
-            if not (isinstance(v, int | float) and v > 0 and math.isfinite(v)):
-                raise ValueError(f"FdiConfig.{key} must be a positive number, got {v!r}")
-        for key in ("gyro_bias", "accel_bias", "classify_time", "readmit_after"):
-            v = getattr(self, key)
-            if not (isinstance(v, int | float) and v >= 0 and math.isfinite(v)):
-                raise ValueError(f"FdiConfig.{key} must be a non-negative number, got {v!r}")
-        if not 0.0 < self.p_false_alarm < 1.0:
-            raise ValueError(f"FdiConfig.p_false_alarm must be in (0, 1), got {self.p_false_alarm!r}")
-        if self.persistence < 1:
-            raise ValueError(f"FdiConfig.persistence must be ≥ 1, got {self.persistence!r}")
-        if self.stuck_samples < 0:
-            raise ValueError(f"FdiConfig.stuck_samples must be ≥ 0, got {self.stuck_samples!r}")
-        if self.dropout_samples < 1:
-            raise ValueError(f"FdiConfig.dropout_samples must be ≥ 1, got {self.dropout_samples!r}")
+        check_fields(self, "FdiConfig")  # each field against its [fdi.options] metadata
 
 
 @dataclass

@@ -42,6 +42,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ins_hil.nav import earth
+from ins_hil.settings import check_fields, setting
 from ins_hil.types import Vec
 
 DEG = math.pi / 180.0
@@ -90,62 +91,73 @@ class FilterConfig:
     "qr", "cholesky", "ud" (see ``ins_hil.fusion.sqrt``).
     """
 
-    gyro_bias: bool = True
-    accel_bias: bool = True
-    scale_factors: bool = False
-    gyro_arw: float = 0.15 * DEG / 60.0
-    accel_vrw: float = 70e-6 * 9.80665
-    gyro_bias_sigma: float = 20.0 * DEG / 3600.0
-    gyro_bias_tau: float = 300.0
-    accel_bias_sigma: float = 0.5e-3 * 9.80665
-    accel_bias_tau: float = 300.0
-    gyro_sf_sigma: float = 1e-3
-    accel_sf_sigma: float = 2e-3
-    sf_tau: float = 3600.0
-    gyro_gsens: bool = False
-    gsens_sigma_rw: float = 0.0
-    init_gsens: float = 3e-4
-    mount_states: bool = False
-    mount_sigma_rw: float = 0.0
-    init_mount: float = 1.0 * DEG
-    mag_bias: bool = False
-    mag_bias_sigma_rw: float = 1e-4
-    init_mag_bias: float = 0.3
-    wind_states: bool = False
-    wind_sigma_rw: float = 0.1
-    init_wind: float = 3.0
-    gyro_vib_gain: float = 0.0
-    accel_vib_gain: float = 0.0
-    vib_tau: float = 1.0
-    gap_accel_sigma: float = 1.0
-    gap_rate_sigma: float = 3.0 * DEG
-    init_pos: float = 5.0
-    init_vel: float = 1.0
-    init_att: float = 2.0 * DEG
-    init_yaw: float = 10.0 * DEG
-    init_gyro_bias: float = 0.3 * DEG
-    init_accel_bias: float = 0.3
-    init_sf: float = 2e-3
-    init_accel_sf: tuple[float, float, float] | None = None
-    cov_every: int = 1
-    second_order: bool = True
-    earth_terms: bool = True
-    omega_rv_terms: bool = False
-    numerics: str = "joseph"
+    gyro_bias: bool = setting(True, help="estimate the gyro bias (3 states)")
+    accel_bias: bool = setting(True, help="estimate the accelerometer bias (3 states)")
+    scale_factors: bool = setting(False, help="estimate the gyro and accelerometer scale factors (6 states)")
+    gyro_arw: float = setting(0.15 * DEG / 60.0, "rad/s/√Hz", "(0, 1]", "gyro white noise")
+    accel_vrw: float = setting(70e-6 * 9.80665, "m/s²/√Hz", "(0, 10]", "accelerometer white noise")
+    gyro_bias_sigma: float = setting(20.0 * DEG / 3600.0, "rad/s", "[0, 1]", "1-σ of the Gauss–Markov gyro bias")
+    gyro_bias_tau: float = setting(300.0, "s", "(0, 1e7]", "correlation time of the gyro bias")
+    accel_bias_sigma: float = setting(0.5e-3 * 9.80665, "m/s²", "[0, 10]", "1-σ of the Gauss–Markov accelerometer bias")
+    accel_bias_tau: float = setting(300.0, "s", "(0, 1e7]", "correlation time of the accelerometer bias")
+    gyro_sf_sigma: float = setting(1e-3, "", "[0, 1]", "1-σ of the gyro scale factor")
+    accel_sf_sigma: float = setting(2e-3, "", "[0, 1]", "1-σ of the accelerometer scale factor")
+    sf_tau: float = setting(3600.0, "s", "(0, 1e7]", "correlation time of the scale factors")
+    gyro_gsens: bool = setting(False, help="estimate the gyro g-sensitivity matrix (9 states)")
+    gsens_sigma_rw: float = setting(0.0, "rad/s/(m/s²)/√s", "[0, 1]", "random walk of the g-sensitivity")
+    init_gsens: float = setting(3e-4, "rad/s/(m/s²)", "(0, 1]", "initial 1-σ of the g-sensitivity")
+    mount_states: bool = setting(False, help="estimate the residual IMU → vehicle boresight (3 states; needs nhc)")
+    mount_sigma_rw: float = setting(0.0, "rad/√s", "[0, 1]", "random walk of the boresight")
+    init_mount: float = setting(1.0 * DEG, "rad", "(0, 3.1416]", "initial 1-σ of the boresight")
+    mag_bias: bool = setting(
+        False, help="estimate the magnetometer hard iron (3 states; field and reference in one unit)"
+    )
+    mag_bias_sigma_rw: float = setting(
+        1e-4, "|m_ref|/√s", "[0, 1]", "random walk of the hard iron (fraction of the field)"
+    )
+    init_mag_bias: float = setting(0.3, "|m_ref|", "(0, 10]", "initial 1-σ of the hard iron (fraction of the field)")
+    wind_states: bool = setting(False, help="estimate the horizontal wind (2 states; the multirotor drag aid)")
+    wind_sigma_rw: float = setting(0.1, "m/s/√s", "[0, 100]", "random walk of the wind")
+    init_wind: float = setting(3.0, "m/s", "[0, 100]", "initial 1-σ of the wind")
+    gyro_vib_gain: float = setting(
+        0.0, "", "[0, 1000]", "attitude process noise from the measured rate change; 0 = off"
+    )
+    accel_vib_gain: float = setting(
+        0.0, "", "[0, 1000]", "velocity process noise from the measured specific-force change; 0 = off"
+    )
+    vib_tau: float = setting(1.0, "s", "(0, 3600]", "averaging time of the vibration measure")
+    gap_accel_sigma: float = setting(
+        1.0, "m/s²", "[0, 100]", "unknown acceleration across lost IMU data (velocity σ = it × gap)"
+    )
+    gap_rate_sigma: float = setting(
+        3.0 * DEG, "rad/s", "[0, 10]", "unknown rotation rate across lost IMU data (attitude σ = it × gap)"
+    )
+    init_pos: float = setting(5.0, "m", "(0, 1e6]", "initial 1-σ position")
+    init_vel: float = setting(1.0, "m/s", "(0, 1000]", "initial 1-σ velocity")
+    init_att: float = setting(2.0 * DEG, "rad", "(0, 3.1416]", "initial 1-σ roll/pitch")
+    init_yaw: float = setting(10.0 * DEG, "rad", "(0, 3.1416]", "initial 1-σ yaw")
+    init_gyro_bias: float = setting(0.3 * DEG, "rad/s", "(0, 10]", "initial 1-σ gyro bias")
+    init_accel_bias: float = setting(0.3, "m/s²", "(0, 100]", "initial 1-σ accelerometer bias")
+    init_sf: float = setting(2e-3, "", "(0, 1]", "initial 1-σ scale factors")
+    init_accel_sf: tuple[float, float, float] | None = setting(
+        None, "", "(0, 1]", "initial 1-σ accelerometer scale factors x, y, z; not set = init_sf"
+    )
+    cov_every: int = setting(
+        1, "IMU steps", "[1, 1000]", "propagate the covariance every N IMU steps (Python core only)"
+    )
+    second_order: bool = setting(True, help="second-order transition matrix")
+    earth_terms: bool = setting(True, help="Earth rate and transport rate terms in the error model")
+    omega_rv_terms: bool = setting(
+        False, help="∂ω/∂r, ∂ω/∂v terms of Earth and transport rate in F (seed 001 F21/F22/F31/F32)"
+    )
+    numerics: str = setting(
+        "joseph",
+        help="measurement update form (ins_hil.fusion.sqrt)",
+        choices=("joseph", "conventional", "qr", "cholesky", "ud"),
+    )
 
     def __post_init__(self) -> None:
-        if self.numerics not in ("joseph", "conventional", "qr", "cholesky", "ud"):
-            raise ValueError(f"FilterConfig.numerics={self.numerics!r}: expected joseph|conventional|qr|cholesky|ud")
-        if self.cov_every < 1:
-            raise ValueError(f"FilterConfig.cov_every={self.cov_every}: must be >= 1")
-        vib_mag = ("gyro_vib_gain", "accel_vib_gain", "mag_bias_sigma_rw", "init_mag_bias", "wind_sigma_rw",
-                   "init_wind")  # fmt: skip
-        for name in (*vib_mag, "gap_accel_sigma", "gap_rate_sigma"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0.0):
-                raise ValueError(f"FilterConfig.{name}={v!r}: expected a finite value >= 0")
-        if not (math.isfinite(self.vib_tau) and self.vib_tau > 0.0):
-            raise ValueError(f"FilterConfig.vib_tau={self.vib_tau!r}: expected a finite value > 0 (s)")
+        check_fields(self, "FilterConfig")  # each field against its metadata (as [core.nav.filter] is checked)
         if self.vibration and self.numerics == "ud":
             raise ValueError("FilterConfig: the vibration noise (gyro_vib_gain/accel_vib_gain > 0) needs a full "
                              "process-noise root: not with numerics='ud'")  # fmt: skip

@@ -44,6 +44,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ins_hil.nav.rotation import quat_from_rotvec, quat_mul
+from ins_hil.registry import Registry
 from ins_hil.types import Vec
 
 __all__ = [
@@ -297,17 +298,23 @@ _BOOK = {
 }
 
 
-def _registry() -> dict[str, tuple[str, Callable[..., AttitudeAlgorithm]]]:
-    from ins_hil.nav import onestep, poisson  # late: they build on this module
-
-    reg: dict[str, tuple[str, Callable[..., AttitudeAlgorithm]]] = {
+#: the attitude algorithms by name: (one-line summary, factory), the seeds' modules imported when first named
+#: (:class:`ins_hil.registry.Registry`; ``ins_hil.nav.onestep`` and ``poisson`` build on this module, which
+#: therefore never imports them)
+ALGORITHMS: Registry[tuple[str, Callable[..., AttitudeAlgorithm]]] = Registry(
+    "attitude algorithm",
+    {
         "rotvec": (RotationVector.summary, RotationVector),
-    }
-    for k, s in _BOOK.items():
-        reg[k] = (s, lambda _k=k, **kw: ElementaryQuaternion(_k, **kw))
-    reg.update(onestep.ALGORITHMS)
-    reg.update(poisson.ALGORITHMS)
-    return reg
+        **{k: (s, lambda _k=k, **kw: ElementaryQuaternion(_k, **kw)) for k, s in _BOOK.items()},
+        **{k: ("ins_hil.nav.onestep", "ALGORITHMS")
+           for k in ("revers1h", "rk21", "exprvrs1h", "picard1", "picard", "picard_literal")},
+        "poisson": ("ins_hil.nav.poisson", "ALGORITHMS"),
+    },
+)  # fmt: skip
+
+
+def _registry() -> Registry[tuple[str, Callable[..., AttitudeAlgorithm]]]:
+    return ALGORITHMS
 
 
 def attitude_names() -> dict[str, str]:
@@ -317,7 +324,6 @@ def attitude_names() -> dict[str, str]:
 
 def make_attitude(name: str, **params: Any) -> AttitudeAlgorithm:
     """A fresh attitude algorithm by name (see :func:`attitude_names`); ``params`` go to its constructor."""
-    reg = _registry()
-    if name not in reg:
-        raise ValueError(f"unknown attitude algorithm {name!r}; known: {', '.join(sorted(reg))}")
-    return reg[name][1](**params)
+    if name not in ALGORITHMS:
+        raise ValueError(f"unknown attitude algorithm {name!r}; known: {', '.join(sorted(ALGORITHMS))}")
+    return ALGORITHMS[name][1](**params)

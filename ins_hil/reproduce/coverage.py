@@ -137,8 +137,8 @@ BOOK_CASES: tuple[Case, ...] = (
         "28e",
         "§6.5 flight RMS (static/dynamic); Exp. 2 and the IG-500N specification",
         why="not reproduced: RMS relative to the flight's own GNSS, no data; the analogues are the shipped PX4 / "
-        "ArduPilot logs replayed in docs/datasets.md (other vehicles and sensors, not rows); the IG-500N figures "
-        "are a vendor specification, not a result",
+        "ArduPilot logs (docs/design/flight_log_findings.md; other vehicles and sensors, not rows); the IG-500N "
+        "figures are a vendor specification, not a result",
     ),
     Case("29–31", "chapter 2 identities", why="identities, tested in tests/test_book_ch2.py, not rows"),
     Case("32–33", "gyro-free identities", "^Ex 2.4 constants", "rank|det"),

@@ -32,7 +32,7 @@ from collections import deque
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 from ins_hil.drivers.base import Sample
 from ins_hil.drivers.factory import make_driver
@@ -45,9 +45,6 @@ from ins_hil.runtime.pipeline import Pipeline
 from ins_hil.runtime.recorder import Recorder
 from ins_hil.runtime.rt import enter_realtime, policy
 from ins_hil.types import FaultEvent, GnssFix, ImuSample, NavState
-
-if TYPE_CHECKING:
-    from ins_hil.config import Config
 
 
 class Devices(Protocol):
@@ -79,7 +76,7 @@ class Gateway:
 
     def __init__(
         self,
-        cfg: Config,
+        cfg: Any,  # an ins_hil.config.Config (the layer above: the runtime does not import it)
         record_path: str | Path | None = None,
         devices: DevicesFactory | None = None,
         outputs: OpenOutputs | None = None,

@@ -312,7 +312,7 @@ class ParamStore:
             ncfg = getattr(core, "cfg", None)
             if ncfg is None or type(ncfg).__name__ != "NavConfig":
                 raise ParamError(f"{p.name}: this core: needs a restart")
-            fresh = nav_config(new.pipeline.nav)
+            fresh = nav_config(new.pipeline.nav)  # built once by the loader: returned as it is
             sec, k, _ = _split(p.key)
             if sec is None:
                 core.cfg = dataclasses.replace(ncfg, **{k: getattr(fresh, k)})
@@ -320,8 +320,7 @@ class ParamStore:
                 sub = dataclasses.replace(getattr(ncfg, sec), **{k: getattr(getattr(fresh, sec), k)})
                 core.cfg = dataclasses.replace(ncfg, **{sec: sub})
         if pipe is not None:
-            pipe.cfg.nav.clear()
-            pipe.cfg.nav.update(copy.deepcopy(new.pipeline.nav))
+            pipe.cfg.nav = copy.deepcopy(new.pipeline.nav)
         self.warnings.append(f"{p.name} applied to the running core (a replay of the recording uses the start value)")
 
     # -- running gateway ---------------------------------------------------------------

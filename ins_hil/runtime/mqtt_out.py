@@ -57,6 +57,7 @@ from typing import Any
 
 from ins_hil.nav.rotation import euler_from_quat
 from ins_hil.runtime.metrics import RuntimeMetrics
+from ins_hil.settings import setting
 from ins_hil.types import FaultEvent, NavState
 
 _log = logging.getLogger("ins_hil")
@@ -66,21 +67,23 @@ _log = logging.getLogger("ins_hil")
 class MqttConfig:
     """The ``[mqtt]`` table."""
 
-    enabled: bool = True
-    host: str = "127.0.0.1"
-    port: int = 1883
-    topic_prefix: str = "ins_hil"
-    state_rate: float = 10.0
-    health_period: float = 1.0
-    client_id: str = ""
-    username: str = ""
-    password: str = ""
-    tls: bool = False
-    tls_ca: str = ""
-    tls_cert: str = ""
-    tls_key: str = ""
-    tls_insecure: bool = False
-    keepalive: int = 10
+    enabled: bool = setting(True, help="publish state/fault/health to an MQTT broker (reconnects with backoff)")
+    host: str = setting("127.0.0.1", help="broker host", nonempty=True)
+    port: int = setting(1883, "", "[1, 65535]", "broker port")
+    topic_prefix: str = setting(
+        "ins_hil", help="topics <prefix>/state, <prefix>/fault, <prefix>/health (no + or #)", nonempty=True
+    )
+    state_rate: float = setting(10.0, "Hz", "0 | [0.01, 1000]", "state messages per second; 0 = none")
+    health_period: float = setting(1.0, "s", "[0.01, 3600]", "period of the health message")
+    client_id: str = setting("", help="MQTT client id; '' = generated")
+    username: str = setting("", help="'' = anonymous")
+    password: str = setting("", help="with username")
+    tls: bool = setting(False, help="TLS to the broker")
+    tls_ca: str = setting("", help="CA certificate file; '' = system CAs", file=True)
+    tls_cert: str = setting("", help="client certificate file; '' = none", file=True)
+    tls_key: str = setting("", help="client key file; '' = none", file=True)
+    tls_insecure: bool = setting(False, help="do not verify the broker's certificate nor its host name (tests only)")
+    keepalive: int = setting(10, "s", "[1, 65535]", "MQTT keep-alive")
 
 
 def state_json(st: NavState, seq: int) -> dict[str, Any]:

@@ -63,8 +63,10 @@ from typing import Any, Protocol, cast
 import numpy as np
 
 from ins_hil import aids
+from ins_hil.core_parts.config import MOVED, NavConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
+from ins_hil.settings import ConfigError, build, setting, table
 from ins_hil.types import AidSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState
 from ins_hil.validation import Limits, SampleValidator
 
@@ -100,75 +102,45 @@ class RealTimeCore(Protocol):
 CORE_KINDS = ("python", "c")
 
 
-def nav_config(options: dict[str, Any]) -> Any:
-    """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table: its sections as sub-tables (``gnss``, ``baro``,
-    ``mag``, ``aids``, ``hold``, ``alignment``, ``delay``, ``filter``) and the top-level ``adaptive`` keys.
-
-    Raises ValueError naming the bad key (an old flat key: where it moved)."""
-    from ins_hil.core import NavConfig
-    from ins_hil.core_parts.config import MOVED, SECTIONS
-    from ins_hil.fusion.ekf import FilterConfig
-
-    known = {f.name: f for f in dataclasses.fields(NavConfig) if f.name != "sources"}
-    vectors = {"gnss": ("lever_arm_b",), "mag": ("ref_ned",), "aids": ("nhc_lever_b",)}
-    kw: dict[str, Any] = {}
-    own = aids.sections()  # the aid modules' own sections ([core.nav.odometer], ...): NavConfig.sources
-    for k, v in options.items():
-        if k in own:
-            if not isinstance(v, dict):
-                raise ValueError(f"core.nav.{k} = {v!r}: expected a table")
-            try:
-                kw.setdefault("sources", {})[k] = own[k](**v)
-            except (TypeError, ValueError) as e:
-                raise ValueError(f"core.nav.{k}: {e}") from None
-            continue
+def nav_config(options: dict[str, Any] | NavConfig) -> NavConfig:
+    """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table (its sections as sub-tables: ``gnss``, ``baro``,
+    ``mag``, ``aids``, ``hold``, ``alignment``, ``delay``, ``filter``, and the aid modules' own sections,
+    ``[core.nav.odometer]``, ... into ``NavConfig.sources``), built by the one builder of every settings table
+    (:func:`ins_hil.settings.build`, the key checks of docs/configuration.md). Raises ConfigError (a ValueError) in
+    one line naming the bad key (an old flat key: where it moved). A ``NavConfig`` is returned as it is."""
+    if isinstance(options, NavConfig):
+        return options
+    for k in options:
         if k in MOVED:
             sec, new = MOVED[k]
-            raise ValueError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
-        if k not in known:
-            raise ValueError(f"unknown key 'core.nav.{k}' (known: {', '.join(sorted([*known, *own]))})")
-        cls = FilterConfig if k == "filter" else SECTIONS.get(k)
-        if cls is not None:
-            if not isinstance(v, dict):
-                raise ValueError(f"core.nav.{k} = {v!r}: expected a table")
-            fk = {f.name for f in dataclasses.fields(cls)}
-            bad = set(v) - fk
-            if bad:
-                raise ValueError(f"core.nav.{k}: unknown key(s) {sorted(bad)} (known: {', '.join(sorted(fk))})")
-            sub = dict(v)
-            for name in vectors.get(k, ()):
-                if name in sub:
-                    sub[name] = np.array(sub[name], dtype=np.float64)
-                    if sub[name].shape != (3,):
-                        raise ValueError(f"core.nav.{k}.{name} = {v[name]!r}: expected 3 numbers")
-            if k == "gnss" and "min_std" in sub:
-                sub["min_std"] = tuple(float(x) for x in sub["min_std"])
-            try:
-                v = cls(**sub)
-            except (TypeError, ValueError) as e:
-                raise ValueError(f"core.nav.{k}: {e}") from None
-        kw[k] = v
-    try:
-        return NavConfig(**kw)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"core.nav: {e}") from None
+            raise ConfigError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
+    own = aids.sections()  # the aid modules' own sections: NavConfig.sources
+    options = dict(options)
+    held = options.pop("sources", None) or {}  # dataclasses.asdict(NavConfig) (a header written by it)
+    if not isinstance(held, dict):
+        raise ConfigError(f"core.nav.sources = {held!r}: expected a table of aid sections")
+    options.update(held)
+    opts = {k: v for k, v in options.items() if k not in own}
+    src = {k: build(own[k], v, f"core.nav.{k}") for k, v in options.items() if k in own}
+    cfg: NavConfig = build(NavConfig, opts, "core.nav", sources=src) if src else build(NavConfig, opts, "core.nav")
+    return cfg
 
 
 def _initial_placeholder() -> StrapdownState:
     return StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.9, 0.5, 100.0)
 
 
-def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
+def check_core(kind: str, nav: dict[str, Any] | NavConfig | None = None) -> None:
     """Raise now (before anything starts) if the core ``kind`` cannot be built with these options."""
     if kind not in CORE_KINDS:
         raise ValueError(f"unknown core {kind!r} (choose from {', '.join(CORE_KINDS)})")
     make_core(kind, _initial_placeholder(), nav or {})
 
 
-def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> RealTimeCore:
+def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | NavConfig | None = None) -> RealTimeCore:
     """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore; a
     setting the C core lacks is refused in one line naming it)."""
-    cfg = nav_config(dict(nav or {}))
+    cfg = nav_config(nav or {})
     from ins_hil.core import NavCore
 
     try:
@@ -190,27 +162,55 @@ def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = N
 class PipelineConfig:
     """Settings of the pipeline (the ``[core]`` table of a config, plus FDI and calibration)."""
 
-    core: str = "python"
-    init: str = "gnss"  # "gnss" (first 3-D fix + levelling) or "config"
-    init_lat_deg: float = 0.0
-    init_lon_deg: float = 0.0
-    init_h: float = 0.0
-    init_roll_deg: float = 0.0
-    init_pitch_deg: float = 0.0
-    init_yaw_deg: float = 0.0
-    level_samples: int = 200
+    core: str = setting(
+        "python",
+        help="navigation core: python (ins_hil.core) or c (the C reference core, ins_hil.cref)",
+        choices=("python", "c"),
+    )
+    init: str = setting(
+        "gnss",
+        help="gnss: start at the first 3-D fix, levelled from the accelerometers; config: the init_* keys",
+        choices=("gnss", "config"),
+    )
+    init_lat_deg: float = setting(
+        0.0, "°", "[-89, 89]", "initial latitude (init = 'config'); the NED mechanization is singular at the poles"
+    )
+    init_lon_deg: float = setting(0.0, "°", "[-180, 180]", "initial longitude (init = 'config')")
+    init_h: float = setting(0.0, "m", "[-1000, 100000]", "initial height above the WGS84 ellipsoid (init = 'config')")
+    init_roll_deg: float = setting(0.0, "°", "[-180, 180]", "initial roll (init = 'config')")
+    init_pitch_deg: float = setting(0.0, "°", "[-90, 90]", "initial pitch (init = 'config')")
+    init_yaw_deg: float = setting(
+        0.0, "°", "[-360, 360]", "initial yaw (init = 'config'; with gnss: when not moving at the first fix)"
+    )
+    level_samples: int = setting(200, "IMU intervals", "[1, 100000]", "intervals averaged for the levelling")
     imu_ids: list[int] = field(default_factory=lambda: [0])
     # redundant IMUs: an epoch (one sensor time) waits at most this many IMU periods of arrival time
     # for the units that have not delivered yet, then runs with what is there (imu_epoch_incomplete)
-    epoch_wait_periods: float = 3.0
+    epoch_wait_periods: float = setting(
+        3.0, "IMU periods", "(0, 1000]", "redundant IMUs: how long an epoch waits (arrival time) for a missing unit"
+    )
     fdi: bool = False
     fdi_options: dict[str, Any] = field(default_factory=dict)
-    calibration: str = ""
+    calibration: str = setting(
+        "", help="IMU calibration file (ins-hil calibrate; ins_hil.nav.calibration); '' = none", file=True
+    )
     aiding_fdi: bool = True  # GNSS/baro drift monitor (ins_hil.fdi.aiding), the [fdi.aiding] table
     aiding_options: dict[str, Any] = field(default_factory=dict)  # AidingConfig fields
-    nav: dict[str, Any] = field(default_factory=dict)  # ins_hil.core.NavConfig sections ([core.nav] table)
+    # the [core.nav] table, built once (settings.build); a table given here (a recording's header, a test) is built
+    nav: NavConfig = field(default_factory=NavConfig)
     # the validation boundary: every sample is checked at the pipeline's entry (its keys sit in [core], flat)
     limits: Limits = field(default_factory=Limits)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.nav, NavConfig):
+            self.nav = nav_config(self.nav)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values (a recording's header, read back by ``ins_hil.runtime.replay.pipeline_config_from_header``):
+        ``nav`` as its ``[core.nav]`` table, the keys that differ from the defaults (:func:`ins_hil.settings.table`)."""
+        d = dataclasses.asdict(self)
+        d["nav"] = table(self.nav)
+        return d
 
 
 def limits_of(cfg: PipelineConfig) -> Limits:
@@ -333,7 +333,7 @@ class Pipeline:
         if why.startswith("imu"):
             self._imu_rejects += 1
 
-    def _start(self, initial: StrapdownState, nav: dict[str, Any] | None = None) -> None:
+    def _start(self, initial: StrapdownState, nav: NavConfig | None = None) -> None:
         old = self.core
         self._resets += 1 + (getattr(old, "gnss_resets", 0) if old is not None else 0)
         self.core = make_core(self.cfg.core, initial, self.cfg.nav if nav is None else nav)
@@ -703,18 +703,14 @@ class Pipeline:
         if self._aid_mon is not None:
             self._aid_mon.ins_disturbed(t)
         g = self._good
-        nav = dict(self.cfg.nav)
-        restart = (
-            g is not None
-            and not self._fault_open
-            and (g.aligned or (nav.get("alignment") or {}).get("mode", "given") == "given")
-        )
+        nav = self.cfg.nav
+        restart = g is not None and not self._fault_open and (g.aligned or nav.alignment.mode == "given")
         self._fault_open = True
         self._fault_clear_t = t + FAULT_CLEAR_S
         if restart:
             assert g is not None
             q = np.array(g.q_nb, dtype=np.float64)
-            nav["alignment"] = {**(nav.get("alignment") or {}), "mode": "given"}
+            nav = dataclasses.replace(nav, alignment=dataclasses.replace(nav.alignment, mode="given"))
             try:
                 self._start(StrapdownState(q / math.sqrt(float(q @ q)), np.array(g.vel_ned, dtype=np.float64),
                                            g.lat, g.lon, g.h, g.t), nav)  # fmt: skip
@@ -743,50 +739,33 @@ def _load_calibration(path: str) -> Any:
 
 
 def fdi_monitor(options: dict[str, Any]) -> Any:
-    """``FdiMonitor`` from the ``[fdi.options]`` table: ``geometry`` (a name of
-    ``ins_hil.fdi.geometry.CONFIGS``) plus ``FdiConfig`` fields (dt, gyro_noise, accel_noise, ...)."""
+    """``FdiMonitor`` from the ``[fdi.options]`` table: ``geometry`` (a name of ``ins_hil.fdi.geometry.CONFIGS``)
+    plus ``FdiConfig`` fields (dt, gyro_noise, accel_noise, ...), built by :func:`ins_hil.settings.build`."""
     from ins_hil.fdi.geometry import by_name
     from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
 
     opts = dict(options)
-    known = {f.name for f in dataclasses.fields(FdiConfig)}
-    bad = set(opts) - known
-    if bad:
-        raise ValueError(
-            f"unknown key(s) {sorted('fdi.options.' + b for b in bad)} (known: {', '.join(sorted(known))})"
-        )
+    name = opts.pop("geometry", "triple_imu")
     try:
-        opts["geometry"] = by_name(str(opts.get("geometry", "triple_imu")))
-        return FdiMonitor(FdiConfig(**opts))
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"fdi.options: {e}") from None
+        geo = by_name(str(name))
+    except (KeyError, ValueError) as e:
+        raise ConfigError(f"fdi.options.geometry = {name!r}: {e}") from None
+    return FdiMonitor(build(FdiConfig, opts, "fdi.options", geometry=geo))
 
 
-def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | None = None) -> Any:
-    """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields; ValueError names the bad key).
+def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | NavConfig | None = None) -> Any:
+    """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields, built by :func:`ins_hil.settings.build`).
 
     Unless the table sets ``late_fix_as_current``, it follows ``[core.nav.delay] compensation``: without it
     either core (Python or C) fuses a late GNSS fix as current (shifted by v·Δt), so the monitor compares it
     with the current state; with it (the default) at the fix's time of validity (both roll back)."""
     from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
 
-    known = {f.name for f in dataclasses.fields(AidingConfig)}
-    bad = set(options) - known
-    if bad:
-        raise ValueError(
-            f"unknown key(s) {sorted('fdi.aiding.' + b for b in bad)} (known: enabled, {', '.join(sorted(known))})"
-        )
-    for k, v in options.items():
-        want_bool = isinstance(getattr(AidingConfig(), k), bool)
-        if isinstance(v, bool) != want_bool or not isinstance(v, (int, float)):
-            raise ValueError(f"fdi.aiding.{k} = {v!r}: expected {'true or false' if want_bool else 'a number'}")
-    try:
-        kw: dict[str, Any] = {k: (v if isinstance(v, bool) else float(v)) for k, v in options.items()}
-        if "late_fix_as_current" not in kw:
-            kw["late_fix_as_current"] = not bool(((nav or {}).get("delay") or {}).get("compensation", True))
-        return AidingMonitor(AidingConfig(**kw), ((nav or {}).get("gnss") or {}).get("lever_arm_b"))
-    except ValueError as e:
-        raise ValueError(f"fdi.aiding: {e}") from None
+    opts = dict(options)
+    ncfg = nav_config(nav or {})
+    if "late_fix_as_current" not in opts:
+        opts["late_fix_as_current"] = not ncfg.delay.compensation
+    return AidingMonitor(build(AidingConfig, opts, "fdi.aiding"), ncfg.gnss.lever_arm_b)
 
 
 def _make_fdi(cfg: PipelineConfig) -> Any:

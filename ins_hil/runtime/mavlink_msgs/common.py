@@ -11,12 +11,13 @@ import math
 import secrets
 import struct
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from ins_hil.geoid import undulation
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import euler_from_quat
+from ins_hil.settings import setting
 from ins_hil.types import FaultEvent, GnssFix, NavState, unix_from_gps
 
 if TYPE_CHECKING:
@@ -201,28 +202,66 @@ def read_key_file(path: str) -> str:
     return text
 
 
+#: HEARTBEAT vehicle types an output may announce (MAV_TYPE_*)
+MAV_TYPES = ("QUADROTOR", "FIXED_WING", "HELICOPTER", "HEXAROTOR", "OCTOROTOR", "VTOL_FIXEDROTOR", "GROUND_ROVER",
+             "SURFACE_BOAT", "GENERIC", "ONBOARD_CONTROLLER")  # fmt: skip
+
+
 @dataclass
 class EndpointConfig:
     """One MAVLink output (the ``[[outputs]]`` tables of type mavlink)."""
 
-    name: str = "gcs"
-    url: str = "udpout:127.0.0.1:14550"
-    role: str = "gcs"  # gcs | fc
-    sysid: int = 42
-    compid: int = 1
-    mav_type: str = "QUADROTOR"
-    signing_key: str = ""  # 64 hex digits
-    rates: dict[str, float] = field(default_factory=dict)
-    params_file: str = ""  # parameter override file (default: <config>.params.toml), ins_hil.runtime.mavlink_params
+    name: str = setting("gcs", help="the output's name (status view, counters)", nonempty=True, doc_default="mav<N>")
+    url: str = setting(
+        "udpout:127.0.0.1:14550",
+        help=(
+            "udpout:HOST:PORT (send to), udpin:HOST:PORT (listen, answer the last sender), tcp:HOST:PORT "
+            "(connect), tcpin:HOST:PORT (listen), serial:DEVICE:BAUD or DEVICE,BAUD (MAVProxy's grammar)"
+        ),
+    )
+    role: str = setting(
+        "gcs", help="gcs: a ground station view; fc: external navigation for a flight controller", choices=("gcs", "fc")
+    )
+    sysid: int = setting(42, "", "[1, 255]", "our MAVLink system id")
+    compid: int = setting(1, "", "[0, 255]", "our MAVLink component id (197: MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY)")
+    mav_type: str = setting("QUADROTOR", help="HEARTBEAT vehicle type (MAV_TYPE_*)", choices=MAV_TYPES)
+    signing_key: str = setting("", help="MAVLink 2 signing key (32 bytes); '' = unsigned", hex_bytes=32)
+    rates: dict[str, float] = setting(factory=dict, help="the [outputs.rates] table")
+    params_file: str = setting(
+        "", help="parameter override file (MAV_CMD_PREFLIGHT_STORAGE); '' = <config>.params.toml"
+    )
     # ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only LOCAL_FRD; same values: x north)
-    odometry_frame: str = "LOCAL_NED"
+    odometry_frame: str = setting(
+        "LOCAL_NED",
+        help="ODOMETRY frame_id: LOCAL_NED (PX4) or LOCAL_FRD (ArduPilot accepts only this)",
+        choices=("LOCAL_NED", "LOCAL_FRD"),
+    )
     # INT32 parameters in PARAM_VALUE: "bytewise" (the int's bytes: MAVSDK, QGroundControl) or "c_cast" (the
     # int's float value: MAVProxy, Mission Planner, which decode bytewise only for PX4); AUTOPILOT_VERSION says which
-    param_encoding: str = "bytewise"
+    param_encoding: str = setting(
+        "bytewise",
+        help="INT32 parameters on the wire: bytewise (MAVSDK, QGroundControl), c_cast (MAVProxy, Mission Planner)",
+        choices=("bytewise", "c_cast"),
+    )
     # system ids whose PARAM_SET, parameter save and state-changing commands are obeyed (0 = any system);
     # 255: QGroundControl, MAVProxy, Mission Planner; 245: MAVSDK's ground-station default. [] = none (read-only)
-    allowed_gcs_sysids: list[int] = field(default_factory=lambda: list(GCS_SYSIDS))
-    signing_key_file: str = ""  # a file holding the signing key (a passphrase or 64 hex digits), `ins-hil keygen`
+    allowed_gcs_sysids: list[int] = setting(
+        factory=lambda: list(GCS_SYSIDS),
+        range="[0, 255]",
+        help=(
+            "system ids obeyed for PARAM_SET, parameter saves and state-changing commands (255: QGroundControl, "
+            "MAVProxy; 245: MAVSDK); [] = none (read-only); [0] = any system"
+        ),
+        unique=True,
+    )
+    signing_key_file: str = setting(
+        "",
+        help=(
+            "file holding the signing key: a passphrase (its SHA-256, as MAVProxy and QGroundControl make it) or "
+            "64 hex digits, mode 0600; `ins-hil keygen` writes one; '' = signing_key"
+        ),
+        file=True,
+    )
 
     def signing_secret(self) -> str:
         """The signing key text (``signing_key``, or the content of ``signing_key_file``); '' = unsigned.
