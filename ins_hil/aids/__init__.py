@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import importlib
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import fields
 from typing import Any
 
@@ -137,6 +137,17 @@ class AidSource:
         """This source's part of one core (:class:`ins_hil.core.NavCore`)."""
         return Aid()
 
+    def decoders(self, protocol: str, cfg: Any) -> dict[Any, Decoder]:
+        """The decoders of this source's samples from a driver's messages, for one driver (a decoder may keep
+        state, e.g. the air density): ``protocol`` ``"mavlink"`` (message type → ``fn(msg, t, arrival_ns)``,
+        ``msg`` a pymavlink message, ``t`` its time on our clock, s) or ``"dronecan"`` (data type id →
+        ``fn(payload, t, arrival_ns)``, ``payload`` the transfer's bytes); ``cfg``: the source's config section.
+        A decoder returns the sample, None (nothing to deliver) or a reason (str) the driver counts."""
+        return {}
+
+
+#: a driver-message decoder (:meth:`AidSource.decoders`): (message, t (s), arrival (ns)) → sample | None | reason
+Decoder = Callable[[Any, float, int], Any]
 
 _SOURCES: tuple[AidSource, ...] | None = None
 _BY_SAMPLE: dict[type, AidSource] = {}
@@ -204,3 +215,17 @@ def section_keys(cls: type) -> set[str]:
 def reasons() -> tuple[str, ...]:
     """Every validation reason of the aid sources."""
     return tuple(r for s in sources() for r in s.reasons)
+
+
+def decoders(protocol: str, nav: Mapping[str, Any] | None) -> dict[Any, tuple[Decoder, ...]]:
+    """The decoders of the aids enabled in ``nav`` (the ``[core.nav]`` table: ``nav[<name>]["enabled"]``) for
+    one driver of ``protocol`` (:meth:`AidSource.decoders`), by message key. The runtime hands these to the
+    drivers as plain callables (the drivers sit below the aids and never import them)."""
+    out: dict[Any, tuple[Decoder, ...]] = {}
+    for src in sources():
+        raw = (nav or {}).get(src.name) if src.section is not None else None
+        if not (isinstance(raw, Mapping) and raw.get("enabled")):
+            continue
+        for key, fn in src.decoders(protocol, src.section(**raw)).items():  # type: ignore[misc]
+            out[key] = (*out.get(key, ()), fn)
+    return out
