@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import math
+import struct
+from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
 import pytest
 from ins_hil.drivers import factory
 from ins_hil.drivers.base import DriverHealth
@@ -15,6 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ins_hil import aids
 from ins_hil.aids.airspeed import AirspeedSample, eas2tas, isa_temperature
+from ins_hil.datasets.dataset import DatasetError, read_dataset
 from ins_hil.types import BaroSample
 
 ON = {"airspeed": {"enabled": True}}
@@ -118,3 +122,62 @@ def test_the_gateway_hands_the_enabled_aids_decoders_to_its_drivers(monkeypatch:
         gw = Gateway(cfg)
         asyncio.run(gw.run(duration=0.1, signals=False))
     assert [sorted(t) for t in _DecodingImu.tables] == [[], ["AIRSPEED", "SCALED_PRESSURE"]]
+
+
+# ------------------------------------------------------------------------------------------------ readers
+def _df(mid: int, name: str, form: str, cols: str) -> bytes:
+    length = 3 + struct.calcsize("<" + form)
+    return b"\xa3\x95\x80" + struct.pack("<BB4s16s64s", mid, length, name.encode(), form.encode(), cols.encode())
+
+
+def test_dataflash_arsp_is_read_as_true_airspeed(tmp_path: Path) -> None:
+    """A DataFlash .bin with ARSP (EAS, two sensors, an unhealthy row) and BARO: TAS with BARO's pressure."""
+    log = bytearray(_df(0x81, "IMU", "Qffffff", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"))
+    log += _df(0x82, "BARO", "Qff", "TimeUS,Alt,Press") + _df(0x83, "ARSP", "QBffB", "TimeUS,I,Airspeed,Temp,H")
+    for k in range(100):
+        log += b"\xa3\x95\x81" + struct.pack("<Qffffff", 10_000 * k, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8)
+        if k % 10 == 0:
+            log += b"\xa3\x95\x82" + struct.pack("<Qff", 10_000 * k, 1000.0, 89_000.0)
+            log += b"\xa3\x95\x83" + struct.pack("<QBffB", 10_000 * k + 5000, 0, 22.0, 5.0, int(k != 50))
+            log += b"\xa3\x95\x83" + struct.pack("<QBffB", 10_000 * k + 5000, 1, 99.0, 5.0, 1)  # second sensor
+    p = tmp_path / "fw.bin"
+    p.write_bytes(bytes(log))
+    ds = read_dataset(p)
+    assert all(isinstance(a, AirspeedSample) for a in ds.aids) and len(ds.aids) == 9  # k = 50 unhealthy
+    rho = 89_000.0 / (287.05287 * 278.15)
+    assert ds.aids[0].tas_mps == pytest.approx(22.0 * math.sqrt(1.225 / rho), rel=1e-6)
+    assert ds.aids[0].t == pytest.approx(0.005)
+
+
+def test_px4_airspeed_topics() -> None:
+    from ins_hil.datasets.px4 import airspeed_from_topics
+
+    ts = np.arange(5) * 1e5
+    validated = {"timestamp": ts, "true_airspeed_m_s": np.array([20.0, 21.0, 22.0, np.nan, 24.0]),
+                 "airspeed_source": np.array([1, 0, 2, 1, 4])}  # fmt: skip
+    got, name = airspeed_from_topics({"airspeed_validated": validated})
+    assert name == "airspeed_validated" and [a.tas_mps for a in got] == [20.0, 22.0]
+    assert [a.t for a in got] == pytest.approx([0.0, 0.2])
+    sensor = {"timestamp": ts + 50, "timestamp_sample": ts, "true_airspeed_m_s": np.full(5, 18.0)}
+    got, name = airspeed_from_topics({"airspeed_validated": validated, "airspeed": sensor})
+    assert name == "airspeed" and len(got) == 5 and got[1].t == pytest.approx(0.1)
+    assert airspeed_from_topics({}) == ([], "")
+
+
+def test_generic_csv_odometer_and_airspeed_records(tmp_path: Path) -> None:
+    from ins_hil.aids.odometer import OdometerSample
+    from ins_hil.datasets.generic_csv import MAGIC, read_generic_csv, write_generic_csv
+
+    p = tmp_path / "d.csv"
+    p.write_text(f"{MAGIC}\nimu,0.01,0.01,0,0,0,0,0,-9.8\nimu,0.02,0.01,0,0,0,0,0,-9.8\n"
+                 "odo,0.015,12.5,\nairspeed,0.012,20.5,0.4\nodo,0.005,-1.5,0.1\n")  # fmt: skip
+    ds = read_generic_csv(p)
+    assert [type(a).__name__ for a in ds.aids] == ["OdometerSample", "AirspeedSample", "OdometerSample"]
+    assert ds.aids[0] == OdometerSample(0.005, -1.5, 0.1)
+    assert ds.aids[1].tas_mps == 20.5 and ds.aids[1].sigma == 0.4 and math.isnan(ds.aids[2].sigma)
+    q = tmp_path / "again.csv"
+    write_generic_csv(q, ds)
+    assert read_generic_csv(q).aids == ds.aids
+    p.write_text(f"{MAGIC}\nimu,0.01,0.01,0,0,0,0,0,-9.8\nodo,0.015\n")
+    with pytest.raises(DatasetError, match=r"d.csv:3: odo: expected t and 2 fields \(at least 1 given\)"):
+        read_generic_csv(p)

@@ -94,6 +94,11 @@ class AidSource:
     drift_monitor: bool = False
     #: the pipeline's drift-monitor check of a sample and its update run in separate gaps
     split_check: bool = False
+    #: its generic-CSV record (:mod:`ins_hil.datasets.generic_csv`): the kind, the columns after ``t`` (the first
+    #: ``csv_required`` of them required); "" = none
+    csv_kind: str = ""
+    csv_columns: tuple[str, ...] = ()
+    csv_required: int = 0
 
     def check(self, s: Any) -> None:
         """The core's input contract: ValueError (one line) for a sample the core cannot fuse. Default: a
@@ -116,6 +121,14 @@ class AidSource:
 
     def build(self, vals: tuple[Any, ...]) -> Any:
         """The sample of a record payload's values (:meth:`fields` reversed)."""
+        raise NotImplementedError
+
+    def from_csv(self, row: list[float]) -> Any:
+        """The sample of a generic-CSV record's values ``[t, *csv_columns]`` (NaN: an empty optional field)."""
+        raise NotImplementedError
+
+    def to_csv(self, s: Any) -> tuple[float, ...]:
+        """A sample's generic-CSV values ``(t, *csv_columns)`` (:meth:`from_csv` reversed; NaN: left empty)."""
         raise NotImplementedError
 
     def blocks(self, nav: Any) -> tuple[tuple[str, int, float, float], ...]:

@@ -119,6 +119,28 @@ def eas2tas(pressure_pa: float, temp_k: float) -> float:
     return math.sqrt(RHO0 * R_AIR * temp_k / pressure_pa)
 
 
+def tas_from_eas(
+    t: Vec, eas: Vec, t_p: Vec, p: Vec, temp_c: Vec | None = None, source: int = 0
+) -> list[AirspeedSample]:
+    """True airspeeds (logs) of the equivalent (≈ calibrated) airspeeds ``eas`` (m/s) at ``t`` (s): each with the
+    last static pressure ``p`` (Pa, at ``t_p``, increasing) at most :data:`PRESSURE_MAX_AGE_S` before it and the
+    air temperature ``temp_c`` (°C; None or outside −60…+60 °C: the ISA temperature at that pressure); samples
+    without a pressure, or non-finite, are left out."""
+    t, eas, t_p, p = (np.asarray(x, dtype=np.float64) for x in (t, eas, t_p, p))
+    k = np.searchsorted(t_p, t, "right") - 1
+    out = []
+    for i in range(len(t)):
+        j = int(k[i])
+        if j < 0 or not (t[i] - t_p[j] <= PRESSURE_MAX_AGE_S and 100.0 <= p[j] <= 120_000.0):
+            continue
+        if not (math.isfinite(t[i]) and math.isfinite(eas[i])):
+            continue
+        tc = float(temp_c[i]) if temp_c is not None else math.nan
+        tk = tc + 273.15 if -60.0 <= tc <= 60.0 else isa_temperature(float(p[j]))
+        out.append(AirspeedSample(float(t[i]), float(eas[i]) * eas2tas(float(p[j]), tk), source=source))
+    return out
+
+
 class _MavlinkAirspeed:
     """One MAVLink link's airspeed decoders: the static pressure of its ``SCALED_PRESSURE`` kept for the density."""
 
@@ -207,6 +229,14 @@ class AirspeedSource(AidSource):
         if not 0.0 <= s.tas_mps <= TAS_MAX:
             return "airspeed_range"
         return None
+
+    csv_kind, csv_columns, csv_required = "airspeed", ("tas", "sigma"), 1
+
+    def from_csv(self, row: list[float]) -> AirspeedSample:
+        return AirspeedSample(row[0], row[1], row[2])
+
+    def to_csv(self, s: AirspeedSample) -> tuple[float, ...]:
+        return (s.t, s.tas_mps, s.sigma)
 
     def fields(self, s: AirspeedSample) -> tuple[Any, ...]:
         return (s.t, s.tas_mps, s.sigma, s.t_arrival_ns, s.source & 0xFF)

@@ -143,6 +143,14 @@ class OdometerSource(AidSource):
             return "odometer_range"
         return None
 
+    csv_kind, csv_columns, csv_required = "odo", ("speed", "sigma"), 1
+
+    def from_csv(self, row: list[float]) -> OdometerSample:
+        return OdometerSample(row[0], row[1], row[2])
+
+    def to_csv(self, s: OdometerSample) -> tuple[float, ...]:
+        return (s.t, s.speed_mps, s.sigma)
+
     def fields(self, s: OdometerSample) -> tuple[Any, ...]:
         return (s.t, s.speed_mps, s.sigma, s.t_arrival_ns, s.source & 0xFF)
 
