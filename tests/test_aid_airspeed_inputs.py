@@ -9,6 +9,7 @@ import struct
 from pathlib import Path
 from typing import Any, ClassVar
 
+import dronecan
 import numpy as np
 import pytest
 from ins_hil.drivers import factory
@@ -181,3 +182,33 @@ def test_generic_csv_odometer_and_airspeed_records(tmp_path: Path) -> None:
     p.write_text(f"{MAGIC}\nimu,0.01,0.01,0,0,0,0,0,-9.8\nodo,0.015\n")
     with pytest.raises(DatasetError, match=r"d.csv:3: odo: expected t and 2 fields \(at least 1 given\)"):
         read_generic_csv(p)
+
+
+# ------------------------------------------------------------------------------------------------ DroneCAN
+def test_dronecan_true_airspeed_through_the_driver() -> None:
+    """uavcan.equipment.air_data.TrueAirspeed (1020), encoded by dronecan itself, through the CAN driver's decoder
+    with the registry's table; without the table it is an ignored type, as before."""
+    from ins_hil.drivers import dronecan_codec as dc
+    from ins_hil.drivers.can_imu import CanImuDriver
+
+    obj = dronecan.TYPENAMES["uavcan.equipment.air_data.TrueAirspeed"]()
+    obj.true_airspeed, obj.true_airspeed_variance = 23.5, 0.25
+    payload = bytes(dronecan.transport.Transfer(payload=obj).payload)
+    frames = dc.split_transfer(1020, payload, transfer_id=3)
+    can_id = dc.message_can_id(1020, source_node=42)
+
+    plain = CanImuDriver({"interface": "virtual"})
+    assert plain.dronecan.feed(can_id, frames[0], True, 10**9) is None and plain.dronecan.counts == {"ignored": 1}
+
+    drv = CanImuDriver({"interface": "virtual"})
+    assert drv.decoder_protocol == "dronecan"
+    drv.set_decoders(aids.decoders("dronecan", ON))
+    got = [drv.dronecan.feed(can_id, f, True, 7 * 10**9) for f in frames]
+    a = got[-1]
+    assert isinstance(a, AirspeedSample) and got[:-1] == [None] * (len(frames) - 1)
+    assert a.tas_mps == pytest.approx(23.5, abs=0.02) and a.sigma == pytest.approx(0.5, abs=1e-3)
+    assert a.source == 42 and a.t == 7.0 and a.t_arrival_ns == 7 * 10**9
+    assert aids.source_of(a).validate(None, a) is None
+    with pytest.raises(ValueError, match="not a free DroneCAN message type"):
+        drv.set_decoders({"uavcan.equipment.ahrs.RawIMU": ()})
+    assert aids.decoders("dronecan", {"odometer": {"enabled": True}}) == {}  # no standard wheel-speed message
