@@ -227,7 +227,9 @@ def test_a_fixed_wing_log_with_airspeed_replays_through_the_pipeline_and_learns_
     from ins_hil.types import ImuSample
 
     wind = np.array((5.0, -3.0))
-    truth = tr.generate(tr.uav_profile(speed=20.0, turn_period=60.0), 150.0, 0.01, math.radians(47.0), math.radians(8.0), 600.0)
+    truth = tr.generate(
+        tr.uav_profile(speed=20.0, turn_period=60.0), 150.0, 0.01, math.radians(47.0), math.radians(8.0), 600.0
+    )
     rng = np.random.default_rng(1)
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=2).samples()
     fixes = se.gnss_fixes(truth, se.GnssModel(rate=5, std_ne=0.5, std_d=1.0, std_vel=0.1), seed=3)
