@@ -353,6 +353,7 @@ class MavlinkDriver:
         self._last_rx_ns = 0
         self._backoff = Backoff()
         self._decoders: dict[str, tuple[Callable[[Any, float, int], Any], ...]] = {}
+        self._last_map: tuple[tuple[int, int] | None, float | None] = (None, None)  # (FC µs, arrival) → t
         self._handlers = {
             "GPS_RAW_INT": self._gps_raw,
             "GPS2_RAW": self._gps_raw,
@@ -378,12 +379,13 @@ class MavlinkDriver:
 
     def _decode(self, m: Any, decs: tuple[Callable[[Any, float, int], Any], ...], now: int) -> None:
         """Run the aid decoders of message ``m``: its FC time on our clock (else its arrival); deliver samples."""
-        if hasattr(m, "time_boot_ms"):
-            t = self._time_s(m.time_boot_ms * 1000, now)
-        elif hasattr(m, "time_usec"):
-            t = self._time_s(m.time_usec, now)
+        fc_us = m.time_boot_ms * 1000 if hasattr(m, "time_boot_ms") else getattr(m, "time_usec", None)
+        if fc_us is None:
+            t: float | None = now * 1e-9
+        elif self._last_map[0] == (fc_us, now):  # the driver's own handler mapped this message already
+            t = self._last_map[1]
         else:
-            t = now * 1e-9
+            t = self._time_s(fc_us, now)
         if t is None:
             return
         for fn in decs:
@@ -505,6 +507,11 @@ class MavlinkDriver:
     def _time_s(self, fc_us: int, now: int) -> float | None:
         """FC time (µs since boot, or UNIX µs) → our monotonic seconds; None (counted
         ``time_implausible``) when that is more than ``max_skew_s`` from the arrival ``now``."""
+        t = self._map_time(fc_us, now)
+        self._last_map = ((fc_us, now), t)  # the aid decoders of the same message map it once (_decode)
+        return t
+
+    def _map_time(self, fc_us: int, now: int) -> float | None:
         if fc_us > UNIX_US:  # UNIX epoch µs: map through the wall clock
             t = fc_us * 1e-6 - (time.time() - time.monotonic())
             if abs(t - now * 1e-9) <= self.max_skew_s:

@@ -63,6 +63,14 @@ def test_mavlink_airspeed_to_true_airspeed() -> None:
     assert aids.source_of(a).validate(None, a) is None
 
 
+def test_a_message_with_aid_decoders_is_timed_once() -> None:
+    """SCALED_PRESSURE feeds the baro and the airspeed's density: an implausible FC time is counted once."""
+    drv, got, (mav, feed) = _driver(ON)
+    feed(mav.scaled_pressure_encode(10_000, 900.0, 0.0, 2000), 50.0)  # anchors the FC clock
+    feed(mav.scaled_pressure_encode(110_000, 900.0, 0.0, 2000), 50.1)  # 100 s ahead of its arrival
+    assert drv.health.errors.get("time_implausible") == 1 and len(got) == 1
+
+
 def test_mavlink_vfr_hud_only_when_asked_and_no_airspeed_message() -> None:
     vfr = mavlink.MAVLink_vfr_hud_message(25.0, 24.0, 90, 50, 300.0, 0.5)
     for nav, n in ((ON, 0), ({"airspeed": {"enabled": True, "vfr_hud": True}}, 1)):

@@ -97,13 +97,13 @@ FIELDS = {
 
 def airspeed_from_arsp(arsp: list[dict[str, Any]], baro: list[dict[str, Any]]) -> list[AirspeedSample]:
     """True airspeeds of the first airspeed sensor's ``ARSP`` rows (``Airspeed``: ArduPilot's EAS, m/s; rows with
-    ``H`` (healthy) 0 left out) with the density of the ``BARO`` static pressure ``Press`` (Pa) and ``ARSP``'s
+    ``H``, 3.x ``Health``, 0 left out) with the density of the ``BARO`` static pressure ``Press`` (Pa) and ``ARSP``'s
     ``Temp`` (°C): :func:`ins_hil.aids.airspeed.tas_from_eas`."""
 
     def num(x: Any) -> float:
         return float(x) if isinstance(x, int | float) else math.nan
 
-    arsp = [d for d in arsp if num(d.get("H", 1)) != 0]
+    arsp = [d for d in arsp if num(d.get("H", d.get("Health", 1))) != 0]
     bp = sorted((num(d["TimeUS"]) * 1e-6, num(d.get("Press"))) for d in baro)
     if not arsp or not bp:
         return []
