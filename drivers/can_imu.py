@@ -74,6 +74,8 @@ class CanImuDriver:
         self.rcvbuf = rcvbuf
         self.health = DriverHealth(name)
         self.dronecan = dc.DroneCanDecoder(nodes=frozenset(nodes) if nodes else None)
+        #: the protocol of the aid decoders this driver takes (``ins_hil.aids.decoders``; "" = none)
+        self.decoder_protocol = "dronecan" if protocol == "dronecan" else ""
         self.dbc = DbcImuDecoder(dbc or DbcProfile()) if protocol == "dbc" else None
         self._backoff = Backoff()
         self._bus: can.BusABC | None = None
@@ -81,6 +83,10 @@ class CanImuDriver:
         self._ns_tid = 0
         self.node_status_sent = 0
         self.frames_rx = 0  # every CAN frame handed to the driver (good or not)
+
+    def set_decoders(self, table: dict[Any, Any]) -> None:
+        """The aid decoders by DroneCAN type name (:meth:`DroneCanDecoder.set_decoders`)."""
+        self.dronecan.set_decoders(table)
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> CanImuDriver:

@@ -32,6 +32,12 @@ Sample mapping (SI, body FRD as DroneCAN's ahrs types use it):
 - ``uavcan.equipment.ahrs.MagneticFieldStrength2`` (1002) and
   ``MagneticFieldStrength`` (1001): MagSample, gauss → tesla (×1e-4), host time.
 - ``uavcan.equipment.air_data.StaticPressure`` (1028): BaroSample (Pa), host time.
+- Aid types (e.g. ``uavcan.equipment.air_data.TrueAirspeed``, 1020, for the airspeed aid): the decoders handed
+  over by the runtime (:meth:`DroneCanDecoder.set_decoders`, built from the aid registry: this layer never
+  imports the aids), by DSDL type name, each called as ``fn(fields, t, arrival_ns)`` with the transfer's
+  decoded fields (plus ``source_node``) and the host time; it returns the sample, None, or a reason counted.
+  DroneCAN has no standard wheel-speed / odometer message (``uavcan.equipment.*`` as dronecan's DSDL ships
+  it), so the odometer aid declares no DroneCAN decoder.
 - ``uavcan.protocol.NodeStatus`` (341): an uptime going back is a node restart
   (``clock_node_restart``): its transfer ids and time map start afresh and its
   IMU clock re-anchors on the first sample of the new time base.
@@ -459,6 +465,33 @@ class DroneCanDecoder:
     _uptime: dict[int, int] = field(default_factory=dict)
     _seq: dict[int, int] = field(default_factory=dict)
 
+    _aid: dict[int, tuple[Callable[[dict[str, Any], float, int], Any], ...]] = field(default_factory=dict)
+
+    def set_decoders(self, table: dict[Any, Any]) -> None:
+        """The aid decoders by DroneCAN message type name (see the module doc); ValueError naming an unknown
+        type."""
+        aid: dict[int, tuple[Callable[[dict[str, Any], float, int], Any], ...]] = {}
+        for name, fns in table.items():
+            ty = dronecan.TYPENAMES.get(name)
+            dtid = getattr(ty, "default_dtid", None)
+            if not isinstance(dtid, int) or dtid in _HANDLERS:
+                raise ValueError(f"DroneCAN: an aid decoder names {name!r}, not a free DroneCAN message type")
+            if dtid not in TYPE_NAMES:
+                TYPE_NAMES[dtid] = str(name)
+                LAYOUTS[dtid] = compile_layout(dtid)
+            aid[dtid] = tuple(fns)
+        self._aid = aid
+
+    def _aid_sample(self, dtid: int, src: int, v: dict[str, Any], now_ns: int) -> Sample | None:
+        out = None
+        for fn in self._aid[dtid]:
+            s = fn({**v, "source_node": src}, now_ns * 1e-9, now_ns)
+            if isinstance(s, str):
+                self._count(s)
+            elif s is not None and out is None:
+                out = s
+        return out
+
     def reopen(self) -> None:
         """The bus was re-opened: partial transfers and transfer ids start afresh; the nodes' time
         bases are kept (the output continues) and re-anchor at once if a node restarted meanwhile."""
@@ -547,7 +580,7 @@ class DroneCanDecoder:
             return None
         dtid = (can_id >> 8) & 0xFFFF
         src = can_id & 0x7F
-        if dtid not in _HANDLERS:
+        if dtid not in _HANDLERS and dtid not in self._aid:
             self._count("ignored")
             return None
         if src == 0:  # anonymous transfers carry no usable source
@@ -576,7 +609,8 @@ class DroneCanDecoder:
                 return None
         elif dtid != DTID_NODE_STATUS and not self._transfer_id((src, dtid), tid, now_ns):
             return None
-        return _HANDLERS[dtid](self, src, vals, now_ns)
+        h = _HANDLERS.get(dtid)
+        return h(self, src, vals, now_ns) if h is not None else self._aid_sample(dtid, src, vals, now_ns)
 
     def _imu(self, src: int, v: dict[str, Any], now_ns: int) -> ImuSample | None:
         dt = v["integration_interval"]

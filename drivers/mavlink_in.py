@@ -46,6 +46,12 @@ messages are):
   the 50–250 Hz MAVLink carries. Their magnetometer fields → MagSample
   (gauss → T) when present/updated.
 
+Aid samples (airspeed, ...): decoders handed over by the runtime (:meth:`MavlinkDriver.set_decoders`, built
+from the aid registry, ``ins_hil.aids.decoders``: this layer never imports the aids), by message type, called as
+``fn(msg, t, arrival_ns)`` with ``t`` the message's ``time_boot_ms``/``time_usec`` on our clock (its arrival
+when it has neither); a decoder returns the sample, None, or a reason counted in ``health``. They run beside the
+driver's own handling of the same message (e.g. ``SCALED_PRESSURE``: the baro and the air density).
+
 Sources: GNSS is taken only from ``system_id`` (when set) and ``component_id``
 (when set), only in the ``gnss_messages`` types, and never from one of our own
 MAVLink identities (``own_ids``: every output of the gateway, plus this link's own
@@ -256,7 +262,10 @@ class ClockSync:
 
 
 class MavlinkDriver:
-    """GNSS / baro / IMU / mag samples from a MAVLink flight controller."""
+    """GNSS / baro / IMU / mag samples from a MAVLink flight controller (and the aids' through their decoders)."""
+
+    #: the protocol of the aid decoders this driver takes (``ins_hil.aids.decoders``)
+    decoder_protocol = "mavlink"
 
     def __init__(
         self,
@@ -343,6 +352,8 @@ class MavlinkDriver:
         self._last_imu: dict[tuple[str, int], int] = {}  # (stream, id) -> FC time ns
         self._last_rx_ns = 0
         self._backoff = Backoff()
+        self._decoders: dict[str, tuple[Callable[[Any, float, int], Any], ...]] = {}
+        self._last_map: tuple[tuple[int, int] | None, float | None] = (None, None)  # (FC µs, arrival) → t
         self._handlers = {
             "GPS_RAW_INT": self._gps_raw,
             "GPS2_RAW": self._gps_raw,
@@ -358,6 +369,31 @@ class MavlinkDriver:
             "TIMESYNC": self._timesync,
             "HEARTBEAT": self._heartbeat,
         }
+
+    def set_decoders(self, table: dict[Any, tuple[Callable[[Any, float, int], Any], ...]]) -> None:
+        """The aid decoders by MAVLink message type (see the module doc); ValueError naming an unknown type."""
+        for k in table:
+            if getattr(mavlink, f"MAVLINK_MSG_ID_{k}", None) is None:
+                raise ValueError(f"MAVLink: an aid decoder names unknown message {k!r}")
+        self._decoders = {str(k): tuple(v) for k, v in table.items()}
+
+    def _decode(self, m: Any, decs: tuple[Callable[[Any, float, int], Any], ...], now: int) -> None:
+        """Run the aid decoders of message ``m``: its FC time on our clock (else its arrival); deliver samples."""
+        fc_us = m.time_boot_ms * 1000 if hasattr(m, "time_boot_ms") else getattr(m, "time_usec", None)
+        if fc_us is None:
+            t: float | None = now * 1e-9
+        elif self._last_map[0] == (fc_us, now):  # the driver's own handler mapped this message already
+            t = self._last_map[1]
+        else:
+            t = self._time_s(fc_us, now)
+        if t is None:
+            return
+        for fn in decs:
+            s = fn(m, t, now)
+            if isinstance(s, str):
+                self.health.count(s)
+            elif s is not None:
+                self._deliver(s, now)
 
     def _rejected(self, reason: str, n: int) -> None:
         """A frame the link layer's receiver rejected (unsigned counts as ``bad_signature`` here)."""
@@ -421,11 +457,15 @@ class MavlinkDriver:
                     h.count("seq_gap", d - 1)
             self._last_seq[key] = seq
             fn = self._handlers.get(t)
-            if fn is None:
+            decs = self._decoders.get(t)
+            if fn is None and decs is None:
                 continue
             self.counts_by_type[t] = self.counts_by_type.get(t, 0) + 1
             try:
-                fn(m, now)
+                if fn is not None:
+                    fn(m, now)
+                if decs is not None:
+                    self._decode(m, decs, now)
             except Exception as e:  # a handler bug must not kill the link
                 h.count("internal")
                 h.last_error = f"{t}: {type(e).__name__}: {e}"
@@ -467,6 +507,11 @@ class MavlinkDriver:
     def _time_s(self, fc_us: int, now: int) -> float | None:
         """FC time (µs since boot, or UNIX µs) → our monotonic seconds; None (counted
         ``time_implausible``) when that is more than ``max_skew_s`` from the arrival ``now``."""
+        t = self._map_time(fc_us, now)
+        self._last_map = ((fc_us, now), t)  # the aid decoders of the same message map it once (_decode)
+        return t
+
+    def _map_time(self, fc_us: int, now: int) -> float | None:
         if fc_us > UNIX_US:  # UNIX epoch µs: map through the wall clock
             t = fc_us * 1e-6 - (time.time() - time.monotonic())
             if abs(t - now * 1e-9) <= self.max_skew_s:

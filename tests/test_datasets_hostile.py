@@ -8,7 +8,6 @@ import math
 import struct
 from pathlib import Path
 
-import numpy as np
 import pytest
 from test_datasets_readers import _ardupilot4_text_log, _sensor_combined, _write_topic
 
@@ -207,11 +206,12 @@ def test_an_unforeseen_reader_failure_is_one_line_naming_the_file(tmp_path: Path
     def broken(path: Path) -> dsm.Dataset:
         return {}["x"]  # type: ignore[no-any-return]
 
-    monkeypatch.setitem(dsm.READERS, "csv", dsm.Reader(r.name, r.expects, r.detect, broken))
+    readers = dsm.READERS.copy()
+    readers.register("csv", dsm.Reader(r.name, r.expects, r.detect, broken))
+    monkeypatch.setattr(dsm, "READERS", readers)
     with pytest.raises(DatasetError, match=r"damaged or not an ins-hil dataset CSV .*KeyError") as e:
         read_dataset(p)
     _one_line_naming(e, p)
-    assert np.isfinite(1.0)
 
 
 #: four float splices into the first 120 kB of the shipped hover.ulg (found by the reader_px4_ulog fuzz target):

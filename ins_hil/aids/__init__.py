@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import importlib
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import fields
 from typing import Any
 
@@ -99,6 +99,11 @@ class AidSource:
     drift_monitor: bool = False
     #: the pipeline's drift-monitor check of a sample and its update run in separate gaps
     split_check: bool = False
+    #: its generic-CSV record (:mod:`ins_hil.datasets.generic_csv`): the kind, the columns after ``t`` (the first
+    #: ``csv_required`` of them required); "" = none
+    csv_kind: str = ""
+    csv_columns: tuple[str, ...] = ()
+    csv_required: int = 0
 
     def check(self, s: Any) -> None:
         """The core's input contract: ValueError (one line) for a sample the core cannot fuse. Default: a
@@ -121,6 +126,14 @@ class AidSource:
 
     def build(self, vals: tuple[Any, ...]) -> Any:
         """The sample of a record payload's values (:meth:`fields` reversed)."""
+        raise NotImplementedError
+
+    def from_csv(self, row: list[float]) -> Any:
+        """The sample of a generic-CSV record's values ``[t, *csv_columns]`` (NaN: an empty optional field)."""
+        raise NotImplementedError
+
+    def to_csv(self, s: Any) -> tuple[float, ...]:
+        """A sample's generic-CSV values ``(t, *csv_columns)`` (:meth:`from_csv` reversed; NaN: left empty)."""
         raise NotImplementedError
 
     def blocks(self, nav: Any) -> tuple[tuple[str, int, float, float], ...]:
@@ -157,6 +170,17 @@ class AidSource:
         """This source's part of one core (:class:`ins_hil.core.NavCore`)."""
         return Aid()
 
+    def decoders(self, protocol: str, cfg: Any) -> dict[Any, Decoder]:
+        """The decoders of this source's samples from a driver's messages, for one driver (a decoder may keep
+        state, e.g. the air density): ``protocol`` ``"mavlink"`` (message type → ``fn(msg, t, arrival_ns)``,
+        ``msg`` a pymavlink message, ``t`` its time on our clock, s) or ``"dronecan"`` (data type id →
+        ``fn(payload, t, arrival_ns)``, ``payload`` the transfer's bytes); ``cfg``: the source's config section.
+        A decoder returns the sample, None (nothing to deliver) or a reason (str) the driver counts."""
+        return {}
+
+
+#: a driver-message decoder (:meth:`AidSource.decoders`): (message, t (s), arrival (ns)) → sample | None | reason
+Decoder = Callable[[Any, float, int], Any]
 
 _SOURCES: tuple[AidSource, ...] | None = None
 _BY_SAMPLE: dict[type, AidSource] = {}
@@ -234,3 +258,23 @@ def section_keys(cls: type) -> set[str]:
 def reasons() -> tuple[str, ...]:
     """Every validation reason of the aid sources."""
     return tuple(r for s in sources() for r in s.reasons)
+
+
+def decoders(protocol: str, nav: Any) -> dict[Any, tuple[Decoder, ...]]:
+    """The decoders of the aids enabled in ``nav`` (``NavConfig``; or a ``[core.nav]`` table, of which the aid
+    sections are read; None: none enabled) for one driver of ``protocol`` (:meth:`AidSource.decoders`), by
+    message key. The runtime hands these to the drivers as plain callables (the drivers sit below the aids and
+    never import them)."""
+    out: dict[Any, tuple[Decoder, ...]] = {}
+    if nav is None:
+        return out
+    if isinstance(nav, Mapping):
+        from ins_hil.core_parts.config import NavConfig
+
+        nav = NavConfig(sources={k: v for k, v in nav.items() if k in sections()})
+    for src in sources():
+        if src.section is None or not src.enabled(nav):
+            continue
+        for key, fn in src.decoders(protocol, src.config(nav)).items():
+            out[key] = (*out.get(key, ()), fn)
+    return out

@@ -11,6 +11,21 @@ low speed; the linearisation too).
 
 Config ``[core.nav.airspeed]`` (:class:`AirspeedConfig`; needs ``filter.wind_states``); sample
 :class:`AirspeedSample`; record type 6.
+
+Inputs (:meth:`AirspeedSource.decoders`, handed to the drivers by the runtime when the aid is enabled):
+
+- MAVLink ``AIRSPEED`` (295: ``airspeed`` the calibrated airspeed CAS, m/s, ``temperature`` cdegC, ``flags``;
+  ``AIRSPEED_SENSOR_UNHEALTHY`` refused): TAS = CAS·√(ρ0/ρ) (:func:`eas2tas`, CAS ≈ EAS below ~100 m/s), ρ from
+  the last ``SCALED_PRESSURE`` static pressure of the same link (at most 5 s old) and the message's temperature
+  (ISA temperature at that pressure when outside −60…+60 °C). Timed at its arrival (no time field).
+- MAVLink ``VFR_HUD`` only with ``vfr_hud = true`` and while the link sends no ``AIRSPEED``: its ``airspeed``
+  is not always a measured airspeed. ArduPilot (``libraries/GCS_MAVLink/GCS_Common.cpp``,
+  ``GCS_MAVLINK::vfr_hud_airspeed``) sends ``AP_Airspeed::get_airspeed()`` (EAS) when the sensor is healthy and
+  the GPS ground speed otherwise; PX4 (``src/modules/mavlink/streams/VFR_HUD.hpp``) sends
+  ``airspeed_validated.calibrated_airspeed_m_s`` (CAS, 0 without the topic). Converted as ``AIRSPEED``'s CAS
+  with the ISA temperature.
+- DroneCAN ``uavcan.equipment.air_data.TrueAirspeed`` (1020): ``true_airspeed`` (m/s) and its variance as σ,
+  timed at its arrival.
 """
 
 from __future__ import annotations
@@ -60,6 +75,11 @@ class AirspeedConfig:
     min_airspeed: float = field(
         default=5.0, metadata={"unit": "m/s", "range": "(0, 400)", "help": "not fused below this airspeed"}
     )
+    vfr_hud: bool = field(
+        default=False,
+        metadata={"help": "MAVLink input: take VFR_HUD.airspeed when the link sends no AIRSPEED (ArduPilot sends "
+                  "the GPS ground speed there without a healthy airspeed sensor)"},
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         check_fields(self, "NavConfig.airspeed")  # the ranges of the fields' metadata (docs/configuration.md)
@@ -74,6 +94,96 @@ def true_airspeed(idx: StateIndex, vel: Vec, wind_ne: Vec, tas: float) -> tuple[
     if idx.wind is not None:
         H[0, idx.wind : idx.wind + 2] = -u[0:2] / n
     return np.array((tas - n,)), H
+
+
+#: ISA sea-level density (kg/m³), pressure (Pa), temperature (K); dry-air gas constant (J/(kg·K))
+RHO0, P0, T0, R_AIR = 1.225, 101325.0, 288.15, 287.05287
+#: the exponent of the ISA troposphere's T(p) = T0 (p/P0)^(R L/g), L = 6.5 K/km
+_ISA_EXP = R_AIR * 0.0065 / 9.80665
+#: the oldest static pressure a MAVLink airspeed is converted with (s)
+PRESSURE_MAX_AGE_S = 5.0
+AIRSPEED_SENSOR_UNHEALTHY = 1  # MAVLink AIRSPEED_SENSOR_FLAGS
+
+
+def isa_temperature(pressure_pa: float) -> float:
+    """The ISA temperature (K) at static pressure ``pressure_pa`` (Pa; troposphere, ≥ 216.65 K)."""
+    return max(216.65, T0 * (pressure_pa / P0) ** _ISA_EXP)
+
+
+def eas2tas(pressure_pa: float, temp_k: float) -> float:
+    """TAS/EAS = √(ρ0/ρ), ρ = p/(R T): static pressure ``pressure_pa`` (Pa), air temperature ``temp_k`` (K)."""
+    return math.sqrt(RHO0 * R_AIR * temp_k / pressure_pa)
+
+
+def tas_from_eas(
+    t: Vec, eas: Vec, t_p: Vec, p: Vec, temp_c: Vec | None = None, source: int = 0
+) -> list[AirspeedSample]:
+    """True airspeeds (logs) of the equivalent (≈ calibrated) airspeeds ``eas`` (m/s) at ``t`` (s): each with the
+    last static pressure ``p`` (Pa, at ``t_p``, increasing) at most :data:`PRESSURE_MAX_AGE_S` before it and the
+    air temperature ``temp_c`` (°C; None or outside −60…+60 °C: the ISA temperature at that pressure); samples
+    without a pressure, or non-finite, are left out."""
+    t, eas, t_p, p = (np.asarray(x, dtype=np.float64) for x in (t, eas, t_p, p))
+    k = np.searchsorted(t_p, t, "right") - 1
+    out = []
+    for i in range(len(t)):
+        j = int(k[i])
+        if j < 0 or not (t[i] - t_p[j] <= PRESSURE_MAX_AGE_S and 100.0 <= p[j] <= 120_000.0):
+            continue
+        if not (math.isfinite(t[i]) and math.isfinite(eas[i])):
+            continue
+        tc = float(temp_c[i]) if temp_c is not None else math.nan
+        tk = tc + 273.15 if -60.0 <= tc <= 60.0 else isa_temperature(float(p[j]))
+        out.append(AirspeedSample(float(t[i]), float(eas[i]) * eas2tas(float(p[j]), tk), source=source))
+    return out
+
+
+class _MavlinkAirspeed:
+    """One MAVLink link's airspeed decoders: the static pressure of its ``SCALED_PRESSURE`` kept for the density."""
+
+    def __init__(self, cfg: AirspeedConfig) -> None:
+        self.cfg = cfg
+        self.p, self.t_p = math.nan, -math.inf
+        self.seen_airspeed = False  # the link sends AIRSPEED: VFR_HUD is not used
+
+    def table(self) -> dict[Any, Any]:
+        out: dict[Any, Any] = {"SCALED_PRESSURE": self.pressure, "AIRSPEED": self.airspeed}
+        if self.cfg.vfr_hud:
+            out["VFR_HUD"] = self.vfr_hud
+        return out
+
+    def pressure(self, m: Any, t: float, arrival_ns: int) -> None:
+        p = m.press_abs * 100.0
+        if 100.0 <= p <= 120_000.0:
+            self.p, self.t_p = p, t
+        return None
+
+    def tas(self, cas: float, temp_c: float, t: float, source: int, arrival_ns: int) -> AirspeedSample | str:
+        if not math.isfinite(cas):
+            return "nonfinite"
+        if not (math.isfinite(self.p) and abs(t - self.t_p) <= PRESSURE_MAX_AGE_S):
+            return "airspeed_no_pressure"
+        tk = temp_c + 273.15 if -60.0 <= temp_c <= 60.0 else isa_temperature(self.p)
+        return AirspeedSample(t, cas * eas2tas(self.p, tk), source=source, t_arrival_ns=arrival_ns)
+
+    def airspeed(self, m: Any, t: float, arrival_ns: int) -> AirspeedSample | str:
+        self.seen_airspeed = True
+        if m.flags & AIRSPEED_SENSOR_UNHEALTHY:
+            return "airspeed_unhealthy"
+        return self.tas(m.airspeed, m.temperature * 0.01, t, m.id, arrival_ns)
+
+    def vfr_hud(self, m: Any, t: float, arrival_ns: int) -> AirspeedSample | str | None:
+        if self.seen_airspeed:
+            return None
+        return self.tas(m.airspeed, math.nan, t, 0, arrival_ns)
+
+
+def _dronecan_true_airspeed(v: dict[str, Any], t: float, arrival_ns: int) -> AirspeedSample | str:
+    """``uavcan.equipment.air_data.TrueAirspeed``: m/s and its variance (m²/s²; ≤ 0 or NaN: the configured σ)."""
+    tas, var = float(v["true_airspeed"]), float(v["true_airspeed_variance"])
+    if not math.isfinite(tas):
+        return "nonfinite"
+    sd = math.sqrt(var) if math.isfinite(var) and var > 0.0 else math.nan
+    return AirspeedSample(t, tas, sd, source=int(v.get("source_node", 0)) & 0xFF, t_arrival_ns=arrival_ns)
 
 
 class AirspeedAid(Aid):
@@ -116,6 +226,14 @@ class AirspeedSource(AidSource):
             return "airspeed_range"
         return None
 
+    csv_kind, csv_columns, csv_required = "airspeed", ("tas", "sigma"), 1
+
+    def from_csv(self, row: list[float]) -> AirspeedSample:
+        return AirspeedSample(row[0], row[1], row[2])
+
+    def to_csv(self, s: AirspeedSample) -> tuple[float, ...]:
+        return (s.t, s.tas_mps, s.sigma)
+
     def fields(self, s: AirspeedSample) -> tuple[Any, ...]:
         return (s.t, s.tas_mps, s.sigma, s.t_arrival_ns, s.source & 0xFF)
 
@@ -130,6 +248,13 @@ class AirspeedSource(AidSource):
         if core.idx.wind is None:
             raise ValueError("NavConfig.airspeed.enabled=True needs filter.wind_states=True (the wind states)")
         return AirspeedAid(core, c)
+
+    def decoders(self, protocol: str, cfg: Any) -> dict[Any, Any]:
+        if protocol == "mavlink":
+            return _MavlinkAirspeed(cfg).table()
+        if protocol == "dronecan":
+            return {"uavcan.equipment.air_data.TrueAirspeed": _dronecan_true_airspeed}
+        return {}
 
 
 SOURCE = AirspeedSource()

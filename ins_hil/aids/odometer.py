@@ -12,6 +12,13 @@ z = s̃ − (1 + k̂) v_b,x = (1 + k̂) (Ĉ^T δv − Ĉ^T [v̂×] μ)_x + v_b,x
 H_v = (1 + k̂) (Ĉ^T)_x, H_μ = −(1 + k̂) (Ĉ^T [v̂×])_x, H_k = v_b,x.
 
 Config ``[core.nav.odometer]`` (:class:`OdometerConfig`); sample :class:`OdometerSample`; record type 5.
+
+Inputs (:meth:`OdometerSource.decoders`, handed to the drivers by the runtime when the aid is enabled): MAVLink
+``WHEEL_DISTANCE`` (9000: ``time_usec``, ``count``, ``distance[count]`` m, forward rotations increasing; ArduPilot
+Rover's ``Rover::send_wheel_encoder_distance``, PX4's ``streams/WHEEL_DISTANCE.hpp`` left/right): the speed is
+the mean of the wheels' distance increments over the time between two messages (at most
+:data:`MAX_GAP_S`), valid at the middle of that interval. DroneCAN has no standard wheel-speed message: none.
+The generic CSV's ``odo`` record.
 """
 
 from __future__ import annotations
@@ -85,6 +92,32 @@ def odometer_speed(idx: StateIndex, C_bn: Vec, vel: Vec, scale: float, speed: fl
     return np.array((speed - g * vb_x,)), H
 
 
+#: the longest interval (s) between two WHEEL_DISTANCE messages a speed is taken over
+MAX_GAP_S = 1.0
+
+
+class _WheelDistance:
+    """One MAVLink link's WHEEL_DISTANCE → speed: the previous message's time and distances."""
+
+    def __init__(self) -> None:
+        self.last: tuple[float, tuple[float, ...]] | None = None
+
+    def __call__(self, m: Any, t: float, arrival_ns: int) -> OdometerSample | str | None:
+        n = int(m.count)
+        d = tuple(float(x) for x in m.distance[: max(0, min(n, len(m.distance)))])
+        if not d or not all(math.isfinite(x) for x in d):
+            self.last = None
+            return "nonfinite" if d else "odometer_no_wheels"
+        last, self.last = self.last, (t, d)
+        if last is None or len(last[1]) != len(d):
+            return None
+        dt = t - last[0]
+        if not 0.0 < dt <= MAX_GAP_S:
+            return None
+        speed = sum(a - b for a, b in zip(d, last[1], strict=True)) / (len(d) * dt)
+        return OdometerSample(0.5 * (t + last[0]), speed, t_arrival_ns=arrival_ns)
+
+
 class OdometerAid(Aid):
     stateful = True
 
@@ -139,6 +172,14 @@ class OdometerSource(AidSource):
             return "odometer_range"
         return None
 
+    csv_kind, csv_columns, csv_required = "odo", ("speed", "sigma"), 1
+
+    def from_csv(self, row: list[float]) -> OdometerSample:
+        return OdometerSample(row[0], row[1], row[2])
+
+    def to_csv(self, s: OdometerSample) -> tuple[float, ...]:
+        return (s.t, s.speed_mps, s.sigma)
+
     def fields(self, s: OdometerSample) -> tuple[Any, ...]:
         return (s.t, s.speed_mps, s.sigma, s.t_arrival_ns, s.source & 0xFF)
 
@@ -153,6 +194,9 @@ class OdometerSource(AidSource):
     def bind(self, core: Any) -> Aid:
         c = self.config(core.cfg)
         return OdometerAid(core, c) if c.enabled else _Disabled()
+
+    def decoders(self, protocol: str, cfg: Any) -> dict[Any, Any]:
+        return {"WHEEL_DISTANCE": _WheelDistance()} if protocol == "mavlink" else {}
 
 
 SOURCE = OdometerSource()

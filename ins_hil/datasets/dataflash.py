@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from ins_hil.aids.airspeed import AirspeedSample, tas_from_eas
 from ins_hil.datasets.dataset import (
     Dataset,
     DatasetError,
@@ -85,11 +86,29 @@ FIELDS = {
     "GPA": ("TimeUS",),
     "BARO": ("TimeUS", "Alt"),
     "MAG": ("TimeUS", "MagX", "MagY", "MagZ"),
+    "ARSP": ("TimeUS", "Airspeed"),
     "NKF1": ("TimeUS", "Roll", "Pitch", "Yaw", "VN", "VE", "VD", "PN", "PE", "PD"),
     "XKF1": ("TimeUS", "Roll", "Pitch", "Yaw", "VN", "VE", "VD", "PN", "PE", "PD"),
     "ORGN": ("Lat", "Lng", "Alt"),
     "MSG": (),
 }
+
+
+def airspeed_from_arsp(arsp: list[dict[str, Any]], baro: list[dict[str, Any]]) -> list[AirspeedSample]:
+    """True airspeeds of the first airspeed sensor's ``ARSP`` rows (``Airspeed``: ArduPilot's EAS, m/s; rows with
+    ``H``, 3.x ``Health``, 0 left out) with the density of the ``BARO`` static pressure ``Press`` (Pa) and ``ARSP``'s
+    ``Temp`` (°C): :func:`ins_hil.aids.airspeed.tas_from_eas`."""
+
+    def num(x: Any) -> float:
+        return float(x) if isinstance(x, int | float) else math.nan
+
+    arsp = [d for d in arsp if num(d.get("H", d.get("Health", 1))) != 0]
+    bp = sorted((num(d["TimeUS"]) * 1e-6, num(d.get("Press"))) for d in baro)
+    if not arsp or not bp:
+        return []
+    t_p, p = zip(*bp, strict=True)
+    return tas_from_eas(np.array([num(d["TimeUS"]) * 1e-6 for d in arsp]), np.array([num(d["Airspeed"]) for d in arsp]),
+                        np.array(t_p), np.array(p), np.array([num(d.get("Temp")) for d in arsp]))  # fmt: skip
 
 
 def _check_fields(path: Path, rows: dict[str, list[dict[str, Any]]]) -> None:
@@ -333,7 +352,7 @@ def _read(path: Path, text: bool) -> Dataset:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
     _check_fields(path, rows)
     try:
-        for name in ("IMU", "GPS", "GPA", "BARO", "MAG"):
+        for name in ("IMU", "GPS", "GPA", "BARO", "MAG", "ARSP"):
             rows[name] = first_instance(rows[name])
     except DatasetError as e:
         raise DatasetError(f"{path}: {e}") from None
@@ -386,6 +405,7 @@ def _read(path: Path, text: bool) -> Dataset:
         onboard = Trajectory(name, te, q, te, v, te, p, origin)
     t_end, why = end_of_valid_data(ti, g, a, gnss[-1].t if gnss else None)
     ds = Dataset(imu, gnss, baro, mag, None, onboard, t_end)
+    ds.aids = airspeed_from_arsp(rows["ARSP"], rows["BARO"])
     if t_end is not None:
         ds.events.append((t_end, "end of valid data"))
         imu_n = sum(1 for s in imu if s.t > t_end)

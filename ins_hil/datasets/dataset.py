@@ -133,7 +133,8 @@ class Trajectory:
 class Dataset:
     """One recording, read by a reader of :data:`READERS`.
 
-    imu / gnss / baro / mag: time-ordered samples (see the module docstring). ``reference``: an
+    imu / gnss / baro / mag: time-ordered samples (see the module docstring); ``aids``: the samples of the
+    other aid sources (:mod:`ins_hil.aids`: odometer, airspeed), time-ordered. ``reference``: an
     independent reference trajectory (None for a flight log). ``onboard``: the flight controller's own
     estimate (EKF2, EKF3; None if not logged). ``t_end_valid``: the end of the valid data (s; e.g. the
     last sample before a crash), None = the end of the log. ``events``: (t s, text) flight events
@@ -150,6 +151,7 @@ class Dataset:
     t_end_valid: float | None = None
     events: list[tuple[float, str]] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
+    aids: list[Any] = field(default_factory=list)
 
     @property
     def t0(self) -> float:

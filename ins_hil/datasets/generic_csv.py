@@ -10,6 +10,9 @@ The first line is ``# ins-hil dataset csv 1``; then one record per line, the kin
                                             0, 1 = no fix: the record is skipped)
     baro,t,alt                              barometric altitude (m)
     mag,t,mx,my,mz                          magnetic field in the IMU's axes (µT)
+    odo,t,speed,sigma                       wheel odometer: speed along the body x axis (m/s; σ m/s, empty =
+                                            the configured ``[core.nav.odometer] std``)
+    airspeed,t,tas,sigma                    true airspeed (m/s; σ m/s, empty = ``[core.nav.airspeed] std``)
     ref,t,lat,lon,h,vn,ve,vd,roll,pitch,yaw reference trajectory (deg, deg, m, m/s, deg; empty = none)
     onboard,t,…                             the flight controller's estimate, as ``ref``
     event,t,name                            a flight event: ``takeoff`` or ``landing`` (optional; the outage
@@ -30,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ins_hil import aids
 from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory, fix_type_of
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import quat_from_euler
@@ -39,6 +43,11 @@ MAGIC = "# ins-hil dataset csv 1"
 FIELDS = {"imu": 8, "gnss": 11, "baro": 1, "mag": 3, "ref": 9, "onboard": 9}
 #: the minimum number of fields after ``t`` that must be given
 REQUIRED = {"imu": 7, "gnss": 3, "baro": 1, "mag": 3, "ref": 3, "onboard": 3}
+
+
+def _aid_records() -> dict[str, aids.AidSource]:
+    """The aid sources' generic-CSV records by kind (``odo``, ``airspeed``: the aid modules declare them)."""
+    return {s.csv_kind: s for s in aids.sources() if s.csv_kind}
 
 
 def _is_generic(path: Path) -> bool:
@@ -88,7 +97,10 @@ def read_generic_csv(path: Path) -> Dataset:
     """Read the generic dataset CSV."""
     if not _is_generic(path):
         raise DatasetError(f"{path}: not an ins-hil dataset CSV (expected the first line {MAGIC!r})")
-    recs: dict[str, list[list[float]]] = {k: [] for k in FIELDS}
+    by_kind = _aid_records()
+    fields = {**FIELDS, **{k: len(a.csv_columns) for k, a in by_kind.items()}}
+    required = {**REQUIRED, **{k: a.csv_required for k, a in by_kind.items()}}
+    recs: dict[str, list[list[float]]] = {k: [] for k in fields}
     events: list[tuple[float, str]] = []
     with path.open("rb") as f:
         for n, raw in enumerate(f, 1):
@@ -102,19 +114,19 @@ def read_generic_csv(path: Path) -> Dataset:
             if kind == "event":
                 events.append(_event(path, n, vals, line))
                 continue
-            if kind not in FIELDS:
+            if kind not in fields:
                 raise DatasetError(f"{path}:{n}: unknown record kind {kind!r} (expected one of "
-                                   f"{', '.join(FIELDS)}, event)")  # fmt: skip
-            want = FIELDS[kind] + 1
+                                   f"{', '.join(fields)}, event)")  # fmt: skip
+            want = fields[kind] + 1
             try:
                 row = [_num(v) for v in vals] + [math.nan] * (want - len(vals))
             except ValueError:
                 raise DatasetError(f"{path}:{n}: {kind}: a field is not a number: {line[:80]!r}") from None
-            if len(vals) > want or any(math.isnan(x) for x in row[: REQUIRED[kind] + 1]):
-                raise DatasetError(f"{path}:{n}: {kind}: expected t and {FIELDS[kind]} fields "
-                                   f"(at least {REQUIRED[kind]} given): {line[:80]!r}")  # fmt: skip
-            if not all(math.isfinite(x) for x in row[: REQUIRED[kind] + 1]):
-                raise DatasetError(f"{path}:{n}: {kind}: t and the first {REQUIRED[kind]} fields must be finite "
+            if len(vals) > want or any(math.isnan(x) for x in row[: required[kind] + 1]):
+                raise DatasetError(f"{path}:{n}: {kind}: expected t and {fields[kind]} fields "
+                                   f"(at least {required[kind]} given): {line[:80]!r}")  # fmt: skip
+            if not all(math.isfinite(x) for x in row[: required[kind] + 1]):
+                raise DatasetError(f"{path}:{n}: {kind}: t and the first {required[kind]} fields must be finite "
                                    f"numbers: {line[:80]!r}")  # fmt: skip
             recs[kind].append(row)
     imu = []
@@ -138,6 +150,7 @@ def read_generic_csv(path: Path) -> Dataset:
     baro = [BaroSample(r[0], math.nan, r[1]) for r in sorted(recs["baro"], key=lambda r: r[0])]
     mag = [MagSample(r[0], np.array(r[1:4]) * 1e-6) for r in sorted(recs["mag"], key=lambda r: r[0])]
     ds = Dataset(imu, gnss, baro, mag, events=sorted(events))
+    ds.aids = sorted((a.from_csv(r) for k, a in by_kind.items() for r in recs[k]), key=lambda x: x.t)
     if recs["ref"]:
         ds.reference = _trajectory("reference", recs["ref"])
     if recs["onboard"]:
@@ -147,8 +160,8 @@ def read_generic_csv(path: Path) -> Dataset:
 
 
 def write_generic_csv(path: Path, ds: Dataset) -> None:
-    """Write ``ds`` (IMU, GNSS, baro, magnetometer, take-off and landing events) in the generic layout (the
-    reader's inverse)."""
+    """Write ``ds`` (IMU, GNSS, baro, magnetometer, the aid samples with a CSV record, take-off and landing events)
+    in the generic layout (the reader's inverse)."""
     lines = [MAGIC]
     for s in ds.imu:
         w, f = s.dtheta / s.dt, s.dvel / s.dt
@@ -161,6 +174,10 @@ def write_generic_csv(path: Path, ds: Dataset) -> None:
         lines.append(f"baro,{b.t:.6f},{b.altitude:.4f}")
     for m in ds.mag:
         lines.append(f"mag,{m.t:.6f}," + ",".join(f"{x * 1e6:.4f}" for x in m.field_b))
+    for a in ds.aids:
+        src = aids.source_of(a)
+        if src.csv_kind:
+            lines.append(src.csv_kind + "," + ",".join("" if math.isnan(x) else f"{x:.9g}" for x in src.to_csv(a)))
     for t, e in ds.events:
         if e in EVENTS:
             lines.append(f"event,{t:.6f},{e}")

@@ -34,6 +34,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
 
+from ins_hil.aids import decoders as aid_decoders
 from ins_hil.drivers.base import Sample
 from ins_hil.drivers.factory import make_driver
 from ins_hil.runtime.clock import SensorClock
@@ -403,6 +404,9 @@ class Gateway:
         self._tasks.append(t)
 
     def _add_driver(self, drv: Any, name: str) -> None:
+        proto = getattr(drv, "decoder_protocol", None)  # the aids' decoders of this driver's messages
+        if proto:
+            drv.set_decoders(aid_decoders(proto, self.cfg.pipeline.nav))
         self.drivers.append(drv)
         self._tasks.append(asyncio.create_task(drv.run(self._sink_for(name)), name=name))
 
