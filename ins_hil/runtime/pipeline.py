@@ -40,7 +40,14 @@ state with the initial covariance (``core_restart``), or re-aligns from the next
 (``core_realign``) when there is none or a second fault comes before the first cleared.
 :meth:`Pipeline.imu` and :meth:`Pipeline.aid` never raise (anything else: ``pipeline_error``).
 
-Initialisation (until the core aligns itself): the core is created at the
+Observers (:class:`Observer`: scoring and recording of an offline replay, ``ins_hil.datasets.run.replay``)
+are called after each IMU epoch with its published state and around each aiding fusion (before the drift
+monitor's check, after the core's update or the exclusion); they read, never change, the core.
+
+Initialisation (until the core aligns itself): ``init = "core"`` (offline replay) creates the core at
+the first IMU sample and leaves the whole alignment to it (``ins_hil.core_parts.alignment``: levelling,
+yaw from the course, the magnetometer or the GNSS yaw bank), or starts it at a given ``initial`` state
+(a simulated scenario). Otherwise the core is created at the
 first 3-D GNSS fix, at its position and velocity, with roll/pitch levelled
 from the mean specific force of the last ``level_samples`` IMU intervals
 (standard levelling, the x-forward reading of book eq. 4.1 — DIGEST_000
@@ -54,7 +61,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -94,6 +101,27 @@ class RealTimeCore(Protocol):
 
 
 CORE_KINDS = ("python", "c")
+
+
+class Observer:
+    """Read-only callbacks of a :class:`Pipeline` (an offline replay's scoring and recording; no-ops here).
+
+    ``epoch``: after each IMU epoch, with the state it published; ``before_fuse``: an aiding measurement's
+    fusion begins (the core has not seen it: the a-priori state); ``segment``: around each segment of the
+    core's update; ``after_fuse``: it ended, ``fused`` False when the drift monitor excluded it. They must not
+    change the core (``pipe.core``)."""
+
+    def epoch(self, pipe: Pipeline, st: NavState) -> None:
+        """An IMU epoch ran and published ``st``."""
+
+    def before_fuse(self, pipe: Pipeline, m: Aid) -> None:
+        """The fusion of ``m`` begins."""
+
+    def segment(self, pipe: Pipeline, m: Aid, start: bool) -> None:
+        """A segment of the core's update of ``m`` begins (``start``) or ends: no IMU step runs inside one."""
+
+    def after_fuse(self, pipe: Pipeline, m: Aid, fused: bool) -> None:
+        """The fusion of ``m`` ended (``fused`` False: excluded by the drift monitor)."""
 
 
 def nav_config(options: dict[str, Any]) -> Any:
@@ -152,16 +180,24 @@ def check_core(kind: str, nav: dict[str, Any] | None = None) -> None:
     make_core(kind, _initial_placeholder(), nav or {})
 
 
-def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = None) -> RealTimeCore:
+def make_core(kind: str, initial: StrapdownState | None, nav: Any = None) -> RealTimeCore:
     """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore).
 
-    ``filter.cov_every`` is a speed setting of the Python core only: the C core propagates the
-    covariance on every step, so it is dropped for ``c`` (every other setting must be supported)."""
-    opts = dict(nav or {})
-    if kind == "c" and isinstance(opts.get("filter"), dict):
-        opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
-    cfg = nav_config(opts)
-    from ins_hil.core import NavCore
+    ``nav``: the ``[core.nav]`` table, or a built ``NavConfig`` (an offline replay's, as the dataset config
+    resolved it). ``initial`` None: the core aligns itself (Python core). ``filter.cov_every`` is a speed
+    setting of the Python core only: the C core propagates the covariance on every step, so it is dropped
+    for ``c`` (every other setting must be supported)."""
+    from ins_hil.core import NavConfig, NavCore
+
+    if isinstance(nav, NavConfig):
+        cfg = nav
+        if kind == "c":
+            cfg = dataclasses.replace(cfg, filter=dataclasses.replace(cfg.filter, cov_every=1))
+    else:
+        opts = dict(nav or {})
+        if kind == "c" and isinstance(opts.get("filter"), dict):
+            opts["filter"] = {k: v for k, v in opts["filter"].items() if k != "cov_every"}
+        cfg = nav_config(opts)
 
     try:
         from ins_hil import cref
@@ -169,8 +205,11 @@ def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | None = N
         if kind == "c":
             raise RuntimeError(f"core 'c': the C reference core (ins_hil.cref) is not available: {e}") from e
         return NavCore(initial, cfg)
+    if kind == "c" and initial is None:
+        raise ValueError("core 'c' needs an initial state (it has no self-alignment)")
     try:
-        core: RealTimeCore = cref.CNavCore(initial, cfg) if kind == "c" else NavCore(initial, cfg)
+        c_core = kind == "c" and initial is not None
+        core: RealTimeCore = cref.CNavCore(initial, cfg) if c_core else NavCore(initial, cfg)
     except (ImportError, OSError) as e:
         raise RuntimeError(f"core {kind!r}: cannot load the C reference core: {e}") from e
     except ValueError as e:
@@ -183,7 +222,7 @@ class PipelineConfig:
     """Settings of the pipeline (the ``[core]`` table of a config, plus FDI and calibration)."""
 
     core: str = "python"
-    init: str = "gnss"  # "gnss" (first 3-D fix + levelling) or "config"
+    init: str = "gnss"  # "gnss" (first 3-D fix + levelling), "config", or "core" (the core aligns itself: replay)
     init_lat_deg: float = 0.0
     init_lon_deg: float = 0.0
     init_h: float = 0.0
@@ -264,8 +303,21 @@ def state_ok(st: NavState) -> bool:
 class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
-    def __init__(self, cfg: PipelineConfig) -> None:
-        check_core(cfg.core, cfg.nav)
+    def __init__(
+        self, cfg: PipelineConfig, observers: Iterable[Observer] = (), nav: Any = None,
+        initial: StrapdownState | None = None,
+    ) -> None:  # fmt: skip
+        """``observers``: :class:`Observer` callbacks; ``nav``: a built ``NavConfig`` used instead of ``cfg.nav``
+        (an offline replay's); ``initial``: with ``cfg.init = "core"``, the state the core starts from (None: it
+        aligns itself from the first IMU sample)."""
+        self._nav: Any = nav if nav is not None else cfg.nav
+        if nav is None:
+            check_core(cfg.core, cfg.nav)
+        elif cfg.core not in CORE_KINDS:
+            raise ValueError(f"unknown core {cfg.core!r} (choose from {', '.join(CORE_KINDS)})")
+        if cfg.init not in ("gnss", "config", "core"):
+            raise ValueError(f"core.init = {cfg.init!r}: expected 'gnss', 'config' or 'core'")
+        self.observers: list[Observer] = list(observers)
         if not (isinstance(cfg.epoch_wait_periods, int | float) and 0 < cfg.epoch_wait_periods < math.inf):
             raise ValueError(f"core.epoch_wait_periods = {cfg.epoch_wait_periods!r}: must be a number > 0")
         self.cfg = cfg
@@ -306,14 +358,16 @@ class Pipeline:
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
         # the validator checked the raw sample: only calibration or FDI can make it non-finite again
         self._recheck = self._calib is not None or self._fdi is not None
-        self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, cfg.nav) if cfg.aiding_fdi else None
+        self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, _nav_table(self._nav)) if cfg.aiding_fdi else None
         self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
         self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
         self._gap_free = False  # no aiding segment has run since the last IMU step
         self._step_pending = False  # core.step_end of the last step has not run yet
         self.last_state: NavState | None = None
-        if cfg.init == "config":
+        if cfg.init == "core":
+            self._start(initial)
+        elif cfg.init == "config":
             self._start(
                 StrapdownState(
                     quat_from_euler(
@@ -336,10 +390,10 @@ class Pipeline:
         if why.startswith("imu"):
             self._imu_rejects += 1
 
-    def _start(self, initial: StrapdownState, nav: dict[str, Any] | None = None) -> None:
+    def _start(self, initial: StrapdownState | None, nav: Any = None) -> None:
         old = self.core
         self._resets += 1 + (getattr(old, "gnss_resets", 0) if old is not None else 0)
-        self.core = make_core(self.cfg.core, initial, self.cfg.nav if nav is None else nav)
+        self.core = make_core(self.cfg.core, initial, self._nav if nav is None else nav)
 
     # -- IMU ------------------------------------------------------------------
     def imu(self, s: ImuSample) -> NavState | None:
@@ -535,6 +589,9 @@ class Pipeline:
             while self._held and self._held[0].t <= s.t:
                 self._jobs.append(self._fuse(self._held.pop(0)))
         self.last_state = st
+        if self.observers:
+            for o in self.observers:
+                o.epoch(self, st)
         return st
 
     def work(self) -> bool:
@@ -643,6 +700,9 @@ class Pipeline:
         monitor's check, then the core's update(s) (``core.fuse_steps``)."""
         core = self.core
         assert core is not None
+        obs = self.observers
+        for o in obs:
+            o.before_fuse(self, m)
         mon = self._aid_mon
         if mon is not None and not isinstance(m, MagSample):
             # IMU epochs skipped since the last check: the INS is not evidence against the GNSS for a while
@@ -658,11 +718,27 @@ class Pipeline:
                 self.events.extend(mon.drain_events())
             if excluded:
                 self._count("excluded_" + type(m).__name__)
+                for o in obs:
+                    o.after_fuse(self, m, False)
                 return
             if isinstance(m, GnssFix):
                 yield  # the check of a fix (O(window) work) and its update in separate gaps
-        yield from core.fuse_steps(m)
+        if not obs:
+            yield from core.fuse_steps(m)
+        else:  # each segment of the core's update bracketed by the observers (no IMU step inside one)
+            steps = core.fuse_steps(m)
+            while True:
+                for o in obs:
+                    o.segment(self, m, True)
+                more = next(steps, _DONE) is not _DONE
+                for o in obs:
+                    o.segment(self, m, False)
+                if not more:
+                    break
+                yield
         self._count("fused_" + type(m).__name__)
+        for o in obs:
+            o.after_fuse(self, m, True)
 
     def _init_from_gnss(self, g: GnssFix) -> None:
         f_b = self._lvl_sum / self._lvl_dt
@@ -706,21 +782,22 @@ class Pipeline:
         if self._aid_mon is not None:
             self._aid_mon.ins_disturbed(t)
         g = self._good
-        nav = dict(self.cfg.nav)
-        restart = (
-            g is not None
-            and not self._fault_open
-            and (g.aligned or (nav.get("alignment") or {}).get("mode", "given") == "given")
-        )
+        nav = _nav_table(self._nav) if isinstance(self._nav, dict) else None
+        mode = (nav.get("alignment") or {}).get("mode", "given") if nav is not None else self._nav.alignment.mode
+        restart = g is not None and not self._fault_open and (g.aligned or mode == "given")
         self._fault_open = True
         self._fault_clear_t = t + FAULT_CLEAR_S
         if restart:
             assert g is not None
             q = np.array(g.q_nb, dtype=np.float64)
-            nav["alignment"] = {**(nav.get("alignment") or {}), "mode": "given"}
+            given: Any
+            if nav is not None:
+                given = {**nav, "alignment": {**(nav.get("alignment") or {}), "mode": "given"}}
+            else:
+                given = dataclasses.replace(self._nav, alignment=dataclasses.replace(self._nav.alignment, mode="given"))
             try:
                 self._start(StrapdownState(q / math.sqrt(float(q @ q)), np.array(g.vel_ned, dtype=np.float64),
-                                           g.lat, g.lon, g.h, g.t), nav)  # fmt: skip
+                                           g.lat, g.lon, g.h, g.t), given)  # fmt: skip
                 self._count("core_restart")
                 return
             except Exception:  # fall back to a re-alignment
@@ -736,6 +813,14 @@ class Pipeline:
     def drain_events(self) -> list[FaultEvent]:
         ev, self.events = self.events, []
         return ev
+
+
+def _nav_table(nav: Any) -> dict[str, Any]:
+    """The ``[core.nav]`` table as a dict: ``nav`` itself, or what the aiding monitor reads of a built
+    ``NavConfig`` (delay compensation, the GNSS lever arm)."""
+    if isinstance(nav, dict):
+        return dict(nav)
+    return {"delay": {"compensation": nav.delay.compensation}, "gnss": {"lever_arm_b": nav.gnss.lever_arm_b}}
 
 
 def _load_calibration(path: str) -> Any:
