@@ -154,6 +154,7 @@ class Prepared:
     mag_ref_source: str = ""
     mag_heading_only: bool = True
     source: str = ""  # the recording, for the errors
+    aiding_fdi: bool = True  # the gateway's aiding drift monitor in the replay's pipeline ([fdi] aiding)
 
 
 def _decimal_year(unix_s: float) -> float:
@@ -270,6 +271,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
         notes.append("no magnetometer: the yaw from the GNSS-velocity yaw bank (EKF2's EKF-GSF), not the course")
     p.nav = nav
     p.mag_heading_only = cfg.mag_heading_only
+    p.aiding_fdi = cfg.aiding_fdi
     p.aux = sorted([*baro, *mag], key=lambda m: m.t)
     if not gnss and cfg.no_gnss_hold:
         # no absolute aiding in the log: the core's own hold (core_parts/hold.py; EKF2's fake position) from the
@@ -558,13 +560,14 @@ class GnssScore(Observer):
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
                 progress: Progress | None = None, observers: Sequence[Observer] = (),
-                aiding_fdi: bool = True) -> RunResult:  # fmt: skip
+                aiding_fdi: bool | None = None) -> RunResult:  # fmt: skip
     """Replay ``p`` through the gateway's pipeline (:func:`replay`); GNSS inside ``outages`` (s, absolute) is
     scored, never fused. ``observers``: more scoring (e.g. a reference trajectory's). ReplayError (one line
-    naming the recording and the time) when the state becomes non-finite or the core fails numerically."""
+    naming the recording and the time) when the state becomes non-finite or the core fails numerically.
+    ``aiding_fdi``: the drift monitor on or off (None: the dataset config's ``[fdi] aiding``)."""
     src = p.source or label or "replay"
     try:
-        return _run_dataset(p, outages, label, progress, observers, aiding_fdi)
+        return _run_dataset(p, outages, label, progress, observers, p.aiding_fdi if aiding_fdi is None else aiding_fdi)
     except ReplayError:
         raise
     except (ArithmeticError, ValueError, np.linalg.LinAlgError) as e:
