@@ -371,11 +371,13 @@ def jsonable(m: Any) -> Any:
 
 
 def replay_to_dir(
-    source: Path | None, config: Path | None, out: Path, plots: bool = True, progress: ProgressFactory | None = None
-) -> tuple[dict[str, Any], str]:
+    source: Path | None, config: Path | None, out: Path, plots: bool = True, progress: ProgressFactory | None = None,
+    export: Path | None = None,
+) -> tuple[dict[str, Any], str]:  # fmt: skip
     """``ins-hil replay FILE|DIR [--dataset CONFIG]``: read, replay, write ``metrics.json`` and the plots into
-    ``out``; (metrics, the summary text). ``source`` None: the config's ``dataset.path``. DatasetError /
-    DatasetConfigError (one line) on bad input."""
+    ``out``; (metrics, the summary text). ``source`` None: the config's ``dataset.path``. ``export``: the GNSS-present
+    replay's trajectory as CSV (:mod:`ins_hil.datasets.export`). DatasetError / DatasetConfigError (one line) on bad
+    input."""
     import json
 
     from ins_hil.datasets.config import DatasetConfig, DatasetConfigError
@@ -404,4 +406,9 @@ def replay_to_dir(
     lines.append(format_table(summary(m)))
     lines += [f"WARNING: {w}" for w in m.get("warnings", [])]
     lines.append(f"metrics: {out / 'metrics.json'}")
+    if export is not None:
+        from ins_hil.datasets import export as ex
+
+        r = runs["gnss"]
+        lines.append(f"trajectory: {ex.write_csv(export, ex.rows_from_run(r))} ({len(r.t)} states)")
     return m, "\n".join(lines)
