@@ -65,7 +65,7 @@ def test_dataset_replay_exports_its_trajectory():
 
     from ins_hil.datasets import report
 
-    m, runs = report.replay(_ds(_rest()), _cfg())
+    _, runs = report.replay(_ds(_rest()), _cfg())
     r = runs["gnss"]
     rows = export.rows_from_run(r)
     assert rows.shape == (len(r.t), len(export.COLUMNS)) and len(r.t) > 1000

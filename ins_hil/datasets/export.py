@@ -38,7 +38,7 @@ def rows_from_states(states: Sequence[NavState]) -> Vec:
     """The rows of a list of navigation states (a gateway log's replay, a live run)."""
     if not states:
         return np.zeros((0, len(COLUMNS)))
-    a = lambda f: np.array([f(s) for s in states], dtype=np.float64)  # noqa: E731
+    a = lambda f: np.array([f(s) for s in states], dtype=np.float64)
     return rows(a(lambda s: s.t), a(lambda s: (s.lat, s.lon, s.h)), a(lambda s: s.vel_ned), a(lambda s: s.q_nb),
                 a(lambda s: s.std_pos), a(lambda s: s.std_vel), a(lambda s: s.std_att))  # fmt: skip
 
