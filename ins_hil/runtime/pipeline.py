@@ -208,8 +208,11 @@ def make_core(kind: str, initial: StrapdownState | None, nav: Any = None) -> Rea
     if kind == "c" and initial is None:
         raise ValueError("core 'c' needs an initial state (it has no self-alignment)")
     try:
-        c_core = kind == "c" and initial is not None
-        core: RealTimeCore = cref.CNavCore(initial, cfg) if c_core else NavCore(initial, cfg)
+        core: RealTimeCore
+        if kind == "c" and initial is not None:
+            core = cref.CNavCore(initial, cfg)
+        else:
+            core = NavCore(initial, cfg)
     except (ImportError, OSError) as e:
         raise RuntimeError(f"core {kind!r}: cannot load the C reference core: {e}") from e
     except ValueError as e:
