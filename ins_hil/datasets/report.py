@@ -7,6 +7,7 @@ table; :func:`plot` writes the figures (ours overlaid on the flight controller's
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ins_hil.datasets import compare as cmp
+from ins_hil.datasets import reference as refscore
 from ins_hil.datasets.config import DatasetConfig
 from ins_hil.datasets.dataset import Dataset, read_dataset, reader_for
 from ins_hil.datasets.run import (
@@ -103,9 +105,17 @@ def replay(
         else:
             t_ref = _protocol_ref(ds, p, cfg)
             assert t_ref is not None
-            ro = run_dataset(p, wins, "outages", prog("replay (outage protocol)"))
+            refs: list[refscore.ReferenceScore] = []
+            tr = ds.reference
+            if "reference" in cfg.score and tr is not None and tr.t_pos is not None:
+                refs = [refscore.ReferenceScore(tr, p.origin, refscore.lever_of(tr, cfg.reference_lever_arm), wins)]
+            ro = run_dataset(p, wins, "outages", prog("replay (outage protocol)"), observers=refs)
             runs["outages"] = ro
             m["outages"] = outage_scores(ro, p.gnss, cfg.min_fix_type)
+            if refs:  # the same windows against the reference trajectory (its lever arm applied)
+                m["outages"]["reference"] = refscore.outage_scores(refs[0], ro.t_nav)
+                if m["outages"]["reference"] is None:
+                    m["outages"]["reference"] = "no reference position inside the windows (or no origin)"
             m["outages"]["protocol"] = {"relative_to": cfg.outages.relative_to, "t_ref_s": t_ref - p.t0,
                                         "start_s": cfg.outages.start_s, "on_s": cfg.outages.on_s,
                                         "off_s": cfg.outages.off_s}  # fmt: skip
@@ -113,13 +123,16 @@ def replay(
     if "onboard" in cfg.score:
         if ds.onboard is None:
             m["onboard"] = "no onboard estimate in the log"
-        else:
-            m["onboard"] = cmp.compare(r, ds.onboard, t_from, p.t1)
+        else:  # its valid part: in the air, before its own status says invalid
+            a, b, why = cmp.valid_span(ds.onboard, t_from, p.t1, ds.event("takeoff"), ds.event("landing"))
+            m["onboard"] = cmp.compare(r, ds.onboard, a, b)
+            m["onboard"]["trimmed"] = why
     if "reference" in cfg.score:
         if ds.reference is None:
             m["reference"] = "no reference"
         else:
-            m["reference"] = cmp.compare(r, ds.reference, t_from, p.t1)
+            tr = dataclasses.replace(ds.reference, lever_b=refscore.lever_of(ds.reference, cfg.reference_lever_arm))
+            m["reference"] = cmp.compare(r, tr, t_from, p.t1)
     ref = p.nav.mag.ref_ned
     mags = [a for a in p.aux if isinstance(a, MagSample)]
     if ref is not None and mags and len(r.t):
@@ -233,6 +246,14 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
                 rows.append(("  filter's tilt σ at the starts (°)", f"{o['start_tilt_std_rms_deg']:.2f}",
                              f"{o['start_tilt_std_max_deg']:.2f}"))  # fmt: skip
         rows.append(("  below both predictors in every outage", "yes" if o["beats_both_in_every_outage"] else "no", ""))
+        rf = o.get("reference")
+        if isinstance(rf, dict):
+            rows.append((f"  vs reference ({rf['outages_scored']} scored): h error (m)", num(rf["h_rms_m"], ".2f"),
+                         num(rf["h_max_m"], ".2f")))  # fmt: skip
+            rows.append(("  vs reference: v error RMS (m), NEES", f"{num(rf['v_rms_m'], '.2f')}, "
+                         f"{num(rf['nees_2dof_mean'], '.2f')}", ""))  # fmt: skip
+        elif rf:
+            rows.append(("  vs reference", str(rf), ""))
         scored = [w for w in o["windows"] if w.get("scored")]
         for k, w in enumerate(scored, 1):
             if w["beats_both"] or "before" not in w:
@@ -244,6 +265,9 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
     for key in ("onboard", "reference"):
         c = m.get(key)
         if isinstance(c, dict):
+            if c.get("trimmed"):
+                span = f"{c['from_s'] - m['t0_s']:.1f}–{c['to_s'] - m['t0_s']:.1f} s"
+                rows.append((f"vs {c['against']}: compared", span, c["trimmed"]))
             rows += [(f"vs {c['against']}: {a}", b, x) for a, b, x in cmp.summary_rows(c)]
         elif c:
             rows.append((key, str(c), ""))
