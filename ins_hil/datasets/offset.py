@@ -265,6 +265,9 @@ def _search(
         cost_c = pc[:, ok].sum(axis=1) / max(float(cc[ok].sum()), 1.0)
         coarse = (full[idx], cost_c, pc, ok)
         i0 = int(idx[int(np.argmin(cost_c))])
+        v = _vertex(full[idx], cost_c)  # the fine candidates centred on the coarse vertex where it has one
+        if math.isfinite(v):
+            i0 = int(np.clip(round((v - full[0]) / step), 0, 2 * n))
         lo, hi = max(0, i0 - 2), min(2 * n, i0 + 2)
         done = len(idx)
         per_of: dict[int, Vec] = {}
