@@ -51,6 +51,7 @@ def run_scenario(
 ) -> tuple[dict[str, Any], Series, NavCore]:
     """Replay a built simulated scenario ``sc`` (``ins_hil.sim.scenarios.build(name, seed=...)``: ``initial``,
     ``config``, ``imu``, ``meas``, ``truth``, ``info``) against its truth; (metrics, series, core)."""
+
     def keep_nis(pipe: Any) -> None:
         pipe.core.keep_nis = True
 
