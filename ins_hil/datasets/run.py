@@ -395,7 +395,8 @@ def replay(
     Offline, the measurements handed over after an IMU sample are fused completely before the next one
     (``Pipeline.flush``: the live loop with time to spare); ``live_schedule`` runs them instead one segment per
     gap between IMU epochs as the live loop under load does (the same updates, a step or two later, through the
-    core's delayed fusion: slower, figures within a few mm on the shipped logs).
+    core's delayed fusion; slower: on px4_quad the GNSS-present prior error is 0.148 m either way, the outages'
+    RMS / max 2.05 / 7.81 m offline and 2.06 / 7.65 m on the live schedule).
 
     ``setup`` is called with the pipeline before the first sample. Returns the pipeline (after its ``flush``)
     and every fault event it raised. ReplayError (one line: the recording and the time) when the core fails
