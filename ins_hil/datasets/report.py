@@ -84,12 +84,12 @@ def replay(
                      for k, v in m["rejection"].items() if v["rate"] > REJECT_WARN]  # fmt: skip
     if not math.isfinite(r.t_nav):
         m["warnings"].append(f"the core never left its alignment: {r.align_status}")
-    for kind, what in (("GnssFix", "gnss: the drift monitor (the gateway's [fdi.aiding]) excluded {} of {} fixes"),
-                       ("BaroSample", "baro: the drift monitor (the gateway's [fdi.aiding]) excluded {} of {} samples")):
+    for kind, sensor, unit in (("GnssFix", "gnss", "fixes"), ("BaroSample", "baro", "samples")):
         fused, excl = r.counts.get("fused_" + kind, 0), r.counts.get("excluded_" + kind, 0)
         if excl and excl > REJECT_WARN * (fused + excl):
-            m["warnings"].append(what.format(excl, fused + excl) + f" ({excl / (fused + excl):.1%}); [fdi] aiding "
-                                 "= false replays without it")  # fmt: skip
+            m["warnings"].append(f"{sensor}: the drift monitor (the gateway's [fdi.aiding]) excluded {excl} of "
+                                 f"{fused + excl} {unit} ({excl / (fused + excl):.1%}); [fdi] aiding = false "
+                                 "replays without it")  # fmt: skip
     m["warnings"] += r.sensor_warnings  # the core's start-up check: a wrong mounting, a preset below the IMU's noise
     m["divergences"] = [[round(t - p.t0, 3), why] for t, why in r.divergences]
     m["warnings"] += [f"the filter diverged at t = {t - p.t0:.1f} s and was reset to GNSS ({why}): the figures "
