@@ -13,6 +13,7 @@ from ins_hil.datasets import config as dataset_config
 from ins_hil.datasets import rtklib as dd
 from ins_hil.datasets import study
 from ins_hil.datasets.dataset import DatasetError, detect_format, read_dataset
+from ins_hil.datasets.evaluate import run_drive
 from ins_hil.datasets.report import protocol_windows
 from ins_hil.datasets.run import prepare
 
@@ -275,8 +276,17 @@ def test_replay_of_the_drive_folder_with_its_config_gives_the_protocol_figures(d
                  "--quiet"]) == 0  # fmt: skip
     m = json.loads((out / "metrics.json").read_text())
     assert m["outages"]["outages_scored"] == 11
-    assert m["outages"]["outage_h_rms_m"] == pytest.approx(doc["outage_h_rms_m"], rel=1e-12)  # 1.326941 m
-    assert m["outages"]["outage_h_max_m"] == pytest.approx(doc["outage_h_max_m"], rel=1e-12)  # 9.188699 m
+    # the study's run of the same protocol (one replay loop: the same figures to the last digit)
+    cfg = dataset_config.load(DRIVE_TOML)
+    _, p, outages = study.load(cfg, drive_dir)
+    ref, _, _ = run_drive(p.imu, p.gnss, [f.fix_type >= cfg.min_fix_type for f in p.gnss], p.nav, outages,
+                          aiding_fdi=cfg.aiding_fdi)  # fmt: skip
+    assert m["outages"]["outage_h_rms_m"] == pytest.approx(ref["outage_h_rms_m"], rel=1e-12)  # 1.325789 m
+    assert m["outages"]["outage_h_max_m"] == pytest.approx(ref["outage_h_max_m"], rel=1e-12)  # 9.188699 m
+    # docs/accuracy/metrics.json (1.326941 m: scored at the state after each step's fusion, before the replay
+    # ran through the pipeline; now at the state the pipeline publishes)
+    assert m["outages"]["outage_h_rms_m"] == pytest.approx(doc["outage_h_rms_m"], rel=2e-3)
+    assert m["outages"]["outage_h_max_m"] == pytest.approx(doc["outage_h_max_m"], rel=2e-3)
     assert m["outages"]["beats_both_in_every_outage"]
 
 

@@ -109,21 +109,50 @@ def test_no_valid_imu_sample_is_one_line():
         prepare(_ds(imu), _cfg())
 
 
-def test_non_finite_states_fail_and_say_where_they_began():
+def test_a_sample_past_prepare_meets_the_pipelines_boundary():
+    """The replay runs through the gateway's pipeline: a sample slipped into a hand-made Prepared (past
+    prepare's screening) is refused at the pipeline's own validation boundary, counted, and never integrated."""
     p = prepare(_ds(_rest()), _cfg())
-    k = 2000
-    # past the boundary (a hand-made Prepared): finite, so the core's own contract takes it, but it overflows the state
-    p.imu[k] = dataclasses.replace(p.imu[k], dvel=np.full(3, 1e308))
+    p.imu[2000] = dataclasses.replace(p.imu[2000], dvel=np.full(3, 1e308))
+    p.imu[2100] = dataclasses.replace(p.imu[2100], dvel=np.full(3, math.nan))
+    r = run_dataset(p)
+    assert r.counts.get("reject_imu_accel") == 1 and r.counts.get("reject_imu_nonfinite") == 1, r.counts
+    assert np.all(np.isfinite(r.ned)) and float(np.max(np.abs(r.ned))) < 100.0
+    assert any("reject_imu_accel 1" in n for n in r.notes), r.notes
+
+
+def test_non_finite_states_fail_and_say_where_they_began(monkeypatch):
+    """A core whose state turns non-finite (the pipeline's guard catches it) gives no figures: one line, its time."""
+    from ins_hil.core import NavCore
+
+    step = NavCore.step_begin
+
+    def bad(self, imu):
+        st = step(self, imu)
+        if imu.t > 20.0:
+            self.ins.state.vel_ned = np.full(3, math.inf)
+            return self.state()
+        return st
+
+    monkeypatch.setattr(NavCore, "step_begin", bad)
     with pytest.raises(ReplayError, match=r"mem\.csv: non-finite navigation states from t = 20\.010 s"):
-        run_dataset(p)
+        run_dataset(prepare(_ds(_rest()), _cfg()))
 
 
-def test_a_sample_the_core_refuses_fails_the_replay_in_one_line():
-    """A NaN sample past the boundary is refused by the core's own contract (NavCore.step): one line, its time."""
-    p = prepare(_ds(_rest()), _cfg())
-    p.imu[2000] = dataclasses.replace(p.imu[2000], dvel=np.full(3, math.nan))
-    with pytest.raises(ReplayError, match=r"mem\.csv: the replay failed at t = 20\.010 s \(ValueError: NavCore\.step"):
-        run_dataset(p)
+def test_a_core_exception_fails_the_replay_in_one_line(monkeypatch):
+    """An exception inside the core (recovered from live by a restart) fails the replay: one line, its time."""
+    from ins_hil.core import NavCore
+
+    step = NavCore.step_begin
+
+    def bad(self, imu):
+        if imu.t > 20.0:
+            raise np.linalg.LinAlgError("singular")
+        return step(self, imu)
+
+    monkeypatch.setattr(NavCore, "step_begin", bad)
+    with pytest.raises(ReplayError, match=r"mem\.csv: the replay failed at t = 20\.010 s \(LinAlgError: singular"):
+        run_dataset(prepare(_ds(_rest()), _cfg()))
 
 
 def test_outage_windows_always_advance():

@@ -38,11 +38,30 @@ def test_offset_found_within_its_uncertainty(offset: float, seed: int) -> None:
     steps: list[int] = []
     est = estimate_imu_offset(_flight(offset, seed), _cfg(), span_s=0.15, step_s=0.03, settle_s=20.0,
                               progress=lambda k, n: steps.append(k))  # fmt: skip
-    assert steps == list(range(1, len(est.grid) + 1))
+    assert steps == list(range(1, len(est.grid) + len(est.coarse_grid) + 1))  # one call per replay, coarse and fine
     # measured: +60 ms → +51.3 ± 7.6 ms, −40 ms → −45.4 ± 6.6 ms; returning the config's 0 would fail
     assert math.isfinite(est.value) and 0.0 < est.std < 0.02
     assert abs(est.value - offset) < 3.0 * est.std + 0.005
     assert "ms ±" in est.summary()
+
+
+@pytest.mark.slow  # 11 full replays of a 150-s flight, then 6 decimated and 5-7 full
+def test_coarse_to_fine_search_finds_the_exhaustive_offset_with_fewer_full_replays() -> None:
+    """The coarse stage (every other candidate, IMU decimated, baro thinned) puts the fine full replays around the
+    minimum: the same vertex, from the same replays, as replaying every candidate in full."""
+    from ins_hil.datasets.offset import decimate
+
+    ds = _flight(0.06, 3)
+    full = estimate_imu_offset(ds, _cfg(), span_s=0.15, step_s=0.03, settle_s=20.0, exhaustive=True)
+    fast = estimate_imu_offset(ds, _cfg(), span_s=0.15, step_s=0.03, settle_s=20.0)
+    assert len(full.grid) == 11 and not len(full.coarse_grid)
+    assert len(fast.coarse_grid) == 6 and 5 <= len(fast.grid) <= 7
+    assert math.isfinite(fast.value) and fast.value == full.value
+    i = np.searchsorted(full.grid, fast.grid[0] - 1e-12)
+    assert np.array_equal(fast.cost_m2, full.cost_m2[i : i + len(fast.grid)])  # the same full replays
+    assert "coarse (decimated replays)" in "\n".join(fast.table())
+    d = decimate(ds, 50.0)
+    assert len(d.imu) == len(ds.imu) // 2 and d.imu[0].dt == pytest.approx(0.02)
 
 
 @pytest.mark.slow  # 12 s on a busy 2-core machine

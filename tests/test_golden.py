@@ -102,7 +102,7 @@ def test_drive_protocol_headline_figures(shared_dir: Path):
     doc = json.loads((REPO / "docs" / "accuracy" / "metrics.json").read_text())["drive"]["outages_aids"]
     cfg = dataset_config.load(REPO / "configs" / "datasets" / "drive0708.toml")
     _, p, outages = study.load(cfg, shared_dir / "data" / "gnss_imu_drive_0708")
-    m, _, _ = run_drive(p.imu, p.gnss, [f.fix_type == 6 for f in p.gnss], p.nav, outages)
+    m, _, _ = run_drive(p.imu, p.gnss, [f.fix_type == 6 for f in p.gnss], p.nav, outages, aiding_fdi=cfg.aiding_fdi)
     assert m["outage_h_rms_m"] == pytest.approx(doc["outage_h_rms_m"], rel=0.02)
     assert m["outage_h_max_m"] == pytest.approx(doc["outage_h_max_m"], rel=0.02)
     assert m["outage_h_rms_m"] <= 1.5  # the protocol's RMS target

@@ -99,22 +99,26 @@ def test_short_valid_log_prints_not_scored_instead_of_nan(tmp_path: Path, capsys
 
 
 def test_non_finite_states_exit_1_naming_the_file_and_the_time(tmp_path: Path, capsys, monkeypatch):
-    from ins_hil.datasets import run
+    """A core whose state overflows (the pipeline's guard catches it; the gateway would restart the core): the
+    replay gives no figures, exit 1 and one line naming the file and the time."""
+    import numpy as np
+
+    from ins_hil.core import NavCore
 
     data = tmp_path / "static.csv"
     _static_csv(data, seconds=20.0)
     cfg = tmp_path / "static.toml"
     cfg.write_text(GOOD)
-    real = run.screen
+    step = NavCore.step_begin
 
-    def poisoned(imu, gnss, aux, source, limits=run.REPLAY_LIMITS):  # type: ignore[no-untyped-def]
-        sc = real(imu, gnss, aux, source, limits)
-        k = len(sc.imu) // 2
-        # past the boundary, finite (the core's own contract takes it) but overflowing the state
-        sc.imu[k] = run.dataclasses.replace(sc.imu[k], dvel=sc.imu[k].dvel * 0.0 + 1e308)
-        return sc
+    def poisoned(self, imu):  # type: ignore[no-untyped-def]
+        st = step(self, imu)
+        if imu.t >= 10.0 and self.phase == "nav":  # the state overflows from here on
+            self.ins.state.vel_ned = np.full(3, np.inf)
+            return self.state()
+        return st
 
-    monkeypatch.setattr(run, "screen", poisoned)
+    monkeypatch.setattr(NavCore, "step_begin", poisoned)
     rc = main(["replay", str(data), "--dataset", str(cfg), "--out", str(tmp_path / "out"), "--no-plots", "--quiet"])
     err = capsys.readouterr().err
     assert rc == 1 and "static.csv: non-finite navigation states from t = 10.0" in err and len(err.splitlines()) == 1

@@ -61,6 +61,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=int, default=0, help="Monte-Carlo runs for the NEES/NIS check (simulations)")
     p.add_argument("--no-aids", action="store_true", help="real drive: skip the run with ZUPT/NHC")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
+    p.add_argument("--export", type=Path, default=None, metavar="CSV",
+                   help="write the trajectory (a flight log / dataset: its GNSS-present replay; a *.ihlog: every "
+                   "state of the pipeline replay) as CSV: time, lat, lon, h, vN, vE, vD, roll, pitch, yaw and the "
+                   "1-sigma of each (ins_hil.datasets.export)")  # fmt: skip
     p.add_argument("--docs", action="store_true", help="full report: regenerate docs/accuracy.md and its plots")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument(
@@ -365,7 +369,15 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             print("ins-hil replay: gateway-log replay needs ins_hil.runtime.replay (not installed)", file=sys.stderr)
             return 2
-        return int(mod.replay_log(Path(src), args) or 0)
+        if args.export is None:
+            return int(mod.replay_log(Path(src), args) or 0)
+        from ins_hil.datasets import export
+
+        states: list[Any] = []
+        rc = int(mod.replay_log(Path(src), args, on_state=states.append) or 0)
+        path = export.write_csv(args.export, export.rows_from_states(states))
+        print(f"trajectory: {path} ({len(states)} states)")
+        return rc
     if src == "sim":  # the [sim] flight of a config through its pipeline, over --runs seeds from --seed
         return int(_runtime_replay().sim_cli(args))
     if args.docs:
@@ -435,7 +447,7 @@ def _replay_dataset(src: str, args: argparse.Namespace) -> int:
     source = None if (args.dataset is not None and src == "drive") else Path(src)
     try:
         _, text = report.replay_to_dir(source, args.dataset, args.out, not args.no_plots,
-                                       lambda label: _Progress(label, args.quiet))  # fmt: skip
+                                       lambda label: _Progress(label, args.quiet), export=args.export)  # fmt: skip
     except ReplayError as e:  # read, but no figures: non-finite states, a numerical failure, no valid IMU data
         print(f"ins-hil replay: {_one_line(e)}", file=sys.stderr)
         return 1

@@ -21,6 +21,7 @@ import numpy as np
 
 from ins_hil.datasets.dataset import Trajectory
 from ins_hil.datasets.run import RunResult, euler_series
+from ins_hil.geoid import ellipsoidal_height
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.types import ImuSample, MagSample, Vec
@@ -54,8 +55,40 @@ def _stats(d: Vec, names: tuple[str, ...]) -> dict[str, Any]:
     return out
 
 
+def datum_origin(tr: Trajectory) -> tuple[float, float, float] | None:
+    """The trajectory's origin on our datum (WGS84 ellipsoidal height): an MSL origin height (``origin_datum``
+    "msl") plus the EGM96 undulation there (:func:`ins_hil.geoid.ellipsoidal_height`)."""
+    if tr.origin is None:
+        return None
+    lat, lon, h = tr.origin
+    if tr.origin_datum == "msl":
+        return (lat, lon, ellipsoidal_height(lat, lon, h))
+    if tr.origin_datum != "wgs84":
+        raise ValueError(f"{tr.name}: origin datum {tr.origin_datum!r}: expected 'wgs84' or 'msl'")
+    return tr.origin
+
+
+def valid_span(tr: Trajectory, t_from: float, t_to: float, takeoff: float | None = None,
+               landing: float | None = None) -> tuple[float, float, str]:  # fmt: skip
+    """The part of [t_from, t_to] (s) where an onboard estimate is compared: in the air (``takeoff`` to ``landing``
+    when the log has them) and before its own status says it is invalid (``Trajectory.t_valid_end``); (from, to,
+    why it was trimmed, "" when not)."""
+    a, b, why = t_from, t_to, []
+    if takeoff is not None and takeoff > a:
+        a = takeoff
+        why.append("from take-off")
+    if landing is not None and landing < b:
+        b = landing
+        why.append("to landing")
+    if tr.t_valid_end is not None and tr.t_valid_end < b:
+        b = tr.t_valid_end
+        why.append(f"until {tr.name}'s status says invalid")
+    return a, b, ", ".join(why)
+
+
 def compare(r: RunResult, tr: Trajectory, t_from: float, t_to: float) -> dict[str, Any]:
-    """Differences ours − ``tr`` in [t_from, t_to] (s): attitude (deg), velocity (m/s), position (m)."""
+    """Differences ours − ``tr`` in [t_from, t_to] (s): attitude (deg), velocity (m/s), position (m) of the point
+    ``tr.lever_b`` (body FRD from the IMU) on one datum (WGS84 heights: :func:`datum_origin`)."""
     out: dict[str, Any] = {"against": tr.name, "from_s": t_from, "to_s": t_to}
     series: dict[str, Vec] = {}
     if tr.q_nb is not None and tr.t_att is not None:
@@ -83,9 +116,13 @@ def compare(r: RunResult, tr: Trajectory, t_from: float, t_to: float) -> dict[st
         m, i = _ours_at(r, tr.t_pos, t_from, t_to)
         if np.any(m):
             ours = r.ned[i]
-            if tr.origin is not None:
-                ours = ours + earth.ned_from_geodetic(*r.origin, *tr.origin)
-                how = "about the estimator's origin"
+            lever = np.asarray(tr.lever_b, dtype=np.float64)
+            if np.any(lever != 0.0):  # the point the positions refer to: our IMU + C_nb lever
+                ours = ours + np.array([dcm_from_quat(q) @ lever for q in r.q_nb[i]]).reshape(-1, 3)
+            origin = datum_origin(tr)
+            if origin is not None:
+                ours = ours + earth.ned_from_geodetic(*r.origin, *origin)
+                how = "about the estimator's origin (WGS84 heights)"
             else:
                 how = ""
             d = ours - tr.pos_ned[m]

@@ -27,6 +27,8 @@ Tables and keys (all optional except ``[dataset].name``; see ``docs/datasets.md`
                (``ins_hil.runtime.pipeline.nav_config``)
     [outages]  relative_to = "takeoff" | "start" | "first_gnss", start_s, on_s (outage), off_s (GNSS between),
                end_s (s from ``relative_to``), tail_s (the last outage ends ≥ tail_s before the last fix or the end)
+    [fdi]      aiding (bool, default true): the gateway's GNSS/baro drift monitor (``ins_hil.fdi.aiding``, the
+               ``[fdi.aiding]`` of a gateway config) on the replayed aiding, as the live pipeline runs it
     [score]    against = ["gnss", "onboard", "reference"], settle_s (s after the core starts navigating),
                min_fix_type (only fixes of this ins_hil.types.FixType or better are scored, e.g. 6 = RTK fixed)
     [rtklib]   file names and conventions of an RTKLIB recording (``ins_hil.datasets.rtklib``)
@@ -96,6 +98,7 @@ SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
     "nav": {},  # NavConfig sections (tables) and top-level keys
     "outages": {"relative_to": str, "start_s": (int, float), "on_s": (int, float), "off_s": (int, float),
                 "end_s": (int, float), "tail_s": (int, float)},
+    "fdi": {"aiding": bool},
     "score": {"against": list, "settle_s": (int, float), "min_fix_type": int},
     "rtklib": rtklib.OPTIONS,
     "study": {"validation_shifts_s": list, "startup_restart_s": (int, float), "startup_score_until_s": (int, float),
@@ -169,6 +172,7 @@ class DatasetConfig:
     nav: dict[str, Any] = field(default_factory=dict)
     filter_overrides: dict[str, Any] = field(default_factory=dict)
     outages: OutageProtocol | None = None
+    aiding_fdi: bool = True  # the gateway's aiding drift monitor in the replay's pipeline
     score: tuple[str, ...] = ("gnss", "onboard", "reference")
     settle_s: float = 0.0
     min_fix_type: int = 0
@@ -416,6 +420,7 @@ def from_dict(d: dict[str, Any], source: str = "<dict>", base: Path | None = Non
                                      f"expected one of {', '.join(RELATIVE_TO)}")  # fmt: skip
         if c.outages.on_s <= 0 or c.outages.off_s < 0 or c.outages.tail_s < 0:
             raise DatasetConfigError(f"{source}: outages.on_s must be > 0, off_s and tail_s >= 0")
+    c.aiding_fdi = bool(d.get("fdi", {}).get("aiding", True))
     sc = d.get("score", {})
     c.score = tuple(sc.get("against", ["gnss", "onboard", "reference"]))
     if not all(isinstance(x, str) for x in c.score):

@@ -108,6 +108,7 @@ class Trajectory:
     the positions refer to. ``name``: e.g. "EKF2", "NKF1 (EKF2)". ``vel_ned_unaided``: the estimator's
     velocity at ``t_vel`` where it flags its horizontal velocity as unaided (NaN in ``vel_ned`` there, not
     compared; NaN elsewhere), None when it flags none: what :func:`ins_hil.datasets.compare.rotor_drag` checks.
+    ``origin_datum``, ``t_valid_end``: below.
     """
 
     name: str
@@ -120,6 +121,11 @@ class Trajectory:
     origin: tuple[float, float, float] | None = None
     lever_b: Vec = field(default_factory=lambda: np.zeros(3))
     vel_ned_unaided: Vec | None = None
+    #: the datum of ``origin``'s height: "wgs84" (ellipsoidal, ours) or "msl" (the comparison converts it with
+    #: the EGM96 undulation, ``ins_hil.geoid.ellipsoidal_height``)
+    origin_datum: str = "wgs84"
+    #: the time (s) from which the estimator's own status says its solution is invalid (None: valid to the end)
+    t_valid_end: float | None = None
 
     def vel_ned_all(self) -> Vec | None:
         """The estimator's velocity (m/s, NED) at ``t_vel`` with its unaided samples filled in (``vel_ned``

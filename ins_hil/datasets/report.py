@@ -7,6 +7,7 @@ table; :func:`plot` writes the figures (ours overlaid on the flight controller's
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ins_hil.datasets import compare as cmp
+from ins_hil.datasets import reference as refscore
 from ins_hil.datasets.config import DatasetConfig
 from ins_hil.datasets.dataset import Dataset, read_dataset, reader_for
 from ins_hil.datasets.run import (
@@ -87,6 +89,12 @@ def replay(
                      for k, v in m["rejection"].items() if v["rate"] > REJECT_WARN]  # fmt: skip
     if not math.isfinite(r.t_nav):
         m["warnings"].append(f"the core never left its alignment: {r.align_status}")
+    for kind, sensor, unit in (("GnssFix", "gnss", "fixes"), ("BaroSample", "baro", "samples")):
+        fused, excl = r.counts.get("fused_" + kind, 0), r.counts.get("excluded_" + kind, 0)
+        if excl and excl > REJECT_WARN * (fused + excl):
+            m["warnings"].append(f"{sensor}: the drift monitor (the gateway's [fdi.aiding]) excluded {excl} of "
+                                 f"{fused + excl} {unit} ({excl / (fused + excl):.1%}); [fdi] aiding = false "
+                                 "replays without it")  # fmt: skip
     m["warnings"] += r.sensor_warnings  # the core's start-up check: a wrong mounting, a preset below the IMU's noise
     m["divergences"] = [[round(t - p.t0, 3), why] for t, why in r.divergences]
     m["warnings"] += [f"the filter diverged at t = {t - p.t0:.1f} s and was reset to GNSS ({why}): the figures "
@@ -106,9 +114,17 @@ def replay(
         else:
             t_ref = _protocol_ref(ds, p, cfg)
             assert t_ref is not None
-            ro = run_dataset(p, wins, "outages", prog("replay (outage protocol)"))
+            refs: list[refscore.ReferenceScore] = []
+            tr = ds.reference
+            if "reference" in cfg.score and tr is not None and tr.t_pos is not None:
+                refs = [refscore.ReferenceScore(tr, p.origin, refscore.lever_of(tr, cfg.reference_lever_arm), wins)]
+            ro = run_dataset(p, wins, "outages", prog("replay (outage protocol)"), observers=refs)
             runs["outages"] = ro
             m["outages"] = outage_scores(ro, p.gnss, cfg.min_fix_type)
+            if refs:  # the same windows against the reference trajectory (its lever arm applied)
+                m["outages"]["reference"] = refscore.outage_scores(refs[0], ro.t_nav)
+                if m["outages"]["reference"] is None:
+                    m["outages"]["reference"] = "no reference position inside the windows (or no origin)"
             m["outages"]["protocol"] = {"relative_to": cfg.outages.relative_to, "t_ref_s": t_ref - p.t0,
                                         "start_s": cfg.outages.start_s, "on_s": cfg.outages.on_s,
                                         "off_s": cfg.outages.off_s}  # fmt: skip
@@ -116,13 +132,16 @@ def replay(
     if "onboard" in cfg.score:
         if ds.onboard is None:
             m["onboard"] = "no onboard estimate in the log"
-        else:
-            m["onboard"] = cmp.compare(r, ds.onboard, t_from, p.t1)
+        else:  # its valid part: in the air, before its own status says invalid
+            a, b, why = cmp.valid_span(ds.onboard, t_from, p.t1, ds.event("takeoff"), ds.event("landing"))
+            m["onboard"] = cmp.compare(r, ds.onboard, a, b)
+            m["onboard"]["trimmed"] = why
     if "reference" in cfg.score:
         if ds.reference is None:
             m["reference"] = "no reference"
         else:
-            m["reference"] = cmp.compare(r, ds.reference, t_from, p.t1)
+            tr = dataclasses.replace(ds.reference, lever_b=refscore.lever_of(ds.reference, cfg.reference_lever_arm))
+            m["reference"] = cmp.compare(r, tr, t_from, p.t1)
     ref = p.nav.mag.ref_ned
     mags = [a for a in p.aux if isinstance(a, MagSample)]
     if ref is not None and mags and len(r.t):
@@ -236,6 +255,14 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
                 rows.append(("  filter's tilt σ at the starts (°)", f"{o['start_tilt_std_rms_deg']:.2f}",
                              f"{o['start_tilt_std_max_deg']:.2f}"))  # fmt: skip
         rows.append(("  below both predictors in every outage", "yes" if o["beats_both_in_every_outage"] else "no", ""))
+        rf = o.get("reference")
+        if isinstance(rf, dict):
+            rows.append((f"  vs reference ({rf['outages_scored']} scored): h error (m)", num(rf["h_rms_m"], ".2f"),
+                         num(rf["h_max_m"], ".2f")))  # fmt: skip
+            rows.append(("  vs reference: v error RMS (m), NEES", f"{num(rf['v_rms_m'], '.2f')}, "
+                         f"{num(rf['nees_2dof_mean'], '.2f')}", ""))  # fmt: skip
+        elif rf:
+            rows.append(("  vs reference", str(rf), ""))
         scored = [w for w in o["windows"] if w.get("scored")]
         for k, w in enumerate(scored, 1):
             if w["beats_both"] or "before" not in w:
@@ -247,6 +274,9 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
     for key in ("onboard", "reference"):
         c = m.get(key)
         if isinstance(c, dict):
+            if c.get("trimmed"):
+                span = f"{c['from_s'] - m['t0_s']:.1f}–{c['to_s'] - m['t0_s']:.1f} s"
+                rows.append((f"vs {c['against']}: compared", span, c["trimmed"]))
             rows += [(f"vs {c['against']}: {a}", b, x) for a, b, x in cmp.summary_rows(c)]
         elif c:
             rows.append((key, str(c), ""))
@@ -374,11 +404,13 @@ def jsonable(m: Any) -> Any:
 
 
 def replay_to_dir(
-    source: Path | None, config: Path | None, out: Path, plots: bool = True, progress: ProgressFactory | None = None
-) -> tuple[dict[str, Any], str]:
+    source: Path | None, config: Path | None, out: Path, plots: bool = True, progress: ProgressFactory | None = None,
+    export: Path | None = None,
+) -> tuple[dict[str, Any], str]:  # fmt: skip
     """``ins-hil replay FILE|DIR [--dataset CONFIG]``: read, replay, write ``metrics.json`` and the plots into
-    ``out``; (metrics, the summary text). ``source`` None: the config's ``dataset.path``. DatasetError /
-    DatasetConfigError (one line) on bad input."""
+    ``out``; (metrics, the summary text). ``source`` None: the config's ``dataset.path``. ``export``: the GNSS-present
+    replay's trajectory as CSV (:mod:`ins_hil.datasets.export`). DatasetError / DatasetConfigError (one line) on bad
+    input."""
     import json
 
     from ins_hil.datasets.config import DatasetConfig, DatasetConfigError
@@ -410,4 +442,9 @@ def replay_to_dir(
     lines.append(format_table(summary(m)))
     lines += [f"WARNING: {w}" for w in m.get("warnings", [])]
     lines.append(f"metrics: {out / 'metrics.json'}")
+    if export is not None:
+        from ins_hil.datasets import export as ex
+
+        r = runs["gnss"]
+        lines.append(f"trajectory: {ex.write_csv(export, ex.rows_from_run(r))} ({len(r.t)} states)")
     return m, "\n".join(lines)

@@ -51,10 +51,13 @@ def run_scenario(
 ) -> tuple[dict[str, Any], Series, NavCore]:
     """Replay a built simulated scenario ``sc`` (``ins_hil.sim.scenarios.build(name, seed=...)``: ``initial``,
     ``config``, ``imu``, ``meas``, ``truth``, ``info``) against its truth; (metrics, series, core)."""
-    core = NavCore(sc.initial, nav_config(sc.nav))
-    core.keep_nis = True
+
+    def keep_nis(pipe: Any) -> None:
+        pipe.core.keep_nis = True
+
     t0 = time.perf_counter()
-    ser = run_truth(core, sc.imu, sc.meas, sc.truth, record_every=10, progress=progress)
+    ser, core = run_truth(nav_config(sc.nav), sc.initial, sc.imu, sc.meas, sc.truth, record_every=10,
+                          progress=progress, setup=keep_nis)  # fmt: skip
     el = time.perf_counter() - t0
     span = float(sc.truth.t[-1] - sc.truth.t[0])
     m = scenario_metrics(ser, min(float(sc.info.get("steady_from", 0.25 * span)), 0.5 * span))

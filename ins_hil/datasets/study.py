@@ -12,6 +12,7 @@ GNSS height (a sensor study, never a protocol figure).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -127,6 +128,7 @@ def study(
     """Run the study (module docstring); (metrics, series by run label). Labels ``outages_aids``,
     ``gnss_aids``, ``outages_no_aids``, ``gnss_no_aids``; times in the metrics are s from the first fix."""
     prog = progress or (lambda label: None)
+    drive = functools.partial(run_drive, aiding_fdi=cfg.aiding_fdi)  # the drift monitor as configured
     ds, p, outages = load(cfg, path)
     imu, gnss = p.imu, p.gnss
     t_first = gnss[0].t
@@ -145,7 +147,7 @@ def study(
         label: str, imu: list[ImuSample], gnss: list[GnssFix], scored: list[bool], nav: NavConfig, outs: Windows
     ) -> tuple[dict[str, Any], Series]:
         t0 = time.perf_counter()
-        m, ser, _ = run_drive(imu, gnss, scored, nav, outs, prog(label))
+        m, ser, _ = drive(imu, gnss, scored, nav, outs, prog(label))
         m["realtime_factor"] = duration / (time.perf_counter() - t0)
         return m, ser
 
@@ -163,7 +165,7 @@ def study(
             sq = n = 0.0
             mx = 0.0
             for shift in st.get("validation_shifts_s", []):
-                m, _, _ = run_drive(imu, gnss, scored, nav(aids), shifted_windows(cfg, p, float(shift)),
+                m, _, _ = drive(imu, gnss, scored, nav(aids), shifted_windows(cfg, p, float(shift)),
                                     prog(f"{cfg.name} validation +{shift:g} s"))  # fmt: skip
                 sq += m["outage_h_rms_m"] ** 2 * m["outage_epochs"]
                 n += m["outage_epochs"]
@@ -176,7 +178,7 @@ def study(
             restart = float(st["startup_restart_s"])
             imu_s, gnss_s, outs_s = startup_validation(imu, gnss, restart, float(st["startup_score_until_s"]),
                                                        p.nav.alignment.gnss_yaw_speed)  # fmt: skip
-            m, _, _ = run_drive(imu_s, gnss_s, [f.fix_type >= cfg.min_fix_type for f in gnss_s], p.nav, outs_s,
+            m, _, _ = drive(imu_s, gnss_s, [f.fix_type >= cfg.min_fix_type for f in gnss_s], p.nav, outs_s,
                                 prog(f"{cfg.name} start-up validation"))  # fmt: skip
             res["startup_aids"] = {k: m[k] for k in ("outage_h_rms_m", "outage_h_max_m", "outage_epochs")}
             # the core must have entered navigation at the fix that opens the outage (0.25 s before it)
@@ -189,7 +191,7 @@ def study(
                 cfg_b = dataclasses.replace(p.nav, baro=dataclasses.replace(p.nav.baro, std=white))
                 aux = synthetic_baro(gnss, white, drift, seed, float(st.get("whatif_baro_datum_m", 0.0)),
                                      max(cfg.min_fix_type, 1))  # fmt: skip
-                m, ser, _ = run_drive(imu, gnss, scored, cfg_b, outages,
+                m, ser, _ = drive(imu, gnss, scored, cfg_b, outages,
                                       prog(f"{cfg.name} what-if {name} baro seed {seed}"), aux=aux)  # fmt: skip
                 res["whatif_baro"].append({"baro": name, "white_m": white, "drift_m_sqrt_s": drift, "seed": seed,
                                            **{k: m[k] for k in ("outage_h_rms_m", "outage_h_max_m", "outage_v_rms_m")},

@@ -15,6 +15,7 @@ import argparse
 import copy
 import json
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +28,10 @@ from ins_hil.sim.devices import send_order, truth_chunks
 from ins_hil.types import ImuSample, NavState, SimConfig
 
 
-def replay_log(path: str | Path, args: argparse.Namespace) -> int:
+def replay_log(path: str | Path, args: argparse.Namespace, on_state: Callable[[NavState], None] | None = None) -> int:
     """``ins-hil replay LOG.ihlog``: the runtime's replay and summary; a simulated run scored against the
-    regenerated truth (:func:`sim_truth`). Exit status 0, 2 on a bad log."""
-    return replay_cli(path, args, truth=sim_truth)
+    regenerated truth (:func:`sim_truth`); ``on_state`` sees every state. Exit status 0, 2 on a bad log."""
+    return replay_cli(path, args, truth=sim_truth, on_state=on_state)
 
 
 def sim_truth(sim: SimConfig, duration: float) -> SimTruth:

@@ -40,7 +40,14 @@ state with the initial covariance (``core_restart``), or re-aligns from the next
 (``core_realign``) when there is none or a second fault comes before the first cleared.
 :meth:`Pipeline.imu` and :meth:`Pipeline.aid` never raise (anything else: ``pipeline_error``).
 
-Initialisation (until the core aligns itself): the core is created at the
+Observers (:class:`Observer`: scoring and recording of an offline replay, ``ins_hil.datasets.run.replay``)
+are called after each IMU epoch with its published state and around each aiding fusion (before the drift
+monitor's check, after the core's update or the exclusion); they read, never change, the core.
+
+Initialisation (until the core aligns itself): ``init = "core"`` (offline replay) creates the core at
+the first IMU sample and leaves the whole alignment to it (``ins_hil.core_parts.alignment``: levelling,
+yaw from the course, the magnetometer or the GNSS yaw bank), or starts it at a given ``initial`` state
+(a simulated scenario). ``init = "gnss"``: the core is created at the
 first 3-D GNSS fix (the fix an aid source may start a core from,
 :meth:`ins_hil.aids.AidSource.starts_core`) by the core's own initialisation,
 :func:`ins_hil.core.initial_state`: at the fix's position and velocity, with
@@ -56,7 +63,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol, cast
 
@@ -102,6 +109,27 @@ class RealTimeCore(Protocol):
 CORE_KINDS = ("python", "c")
 
 
+class Observer:
+    """Read-only callbacks of a :class:`Pipeline` (an offline replay's scoring and recording; no-ops here).
+
+    ``epoch``: after each IMU epoch, with the state it published; ``before_fuse``: an aiding measurement's
+    fusion begins (the core has not seen it: the a-priori state); ``segment``: around each segment of the
+    core's update; ``after_fuse``: it ended, ``fused`` False when the drift monitor excluded it. They must not
+    change the core (``pipe.core``)."""
+
+    def epoch(self, pipe: Pipeline, st: NavState) -> None:
+        """An IMU epoch ran and published ``st``."""
+
+    def before_fuse(self, pipe: Pipeline, m: Aid) -> None:
+        """The fusion of ``m`` begins."""
+
+    def segment(self, pipe: Pipeline, m: Aid, start: bool) -> None:
+        """A segment of the core's update of ``m`` begins (``start``) or ends: no IMU step runs inside one."""
+
+    def after_fuse(self, pipe: Pipeline, m: Aid, fused: bool) -> None:
+        """The fusion of ``m`` ended (``fused`` False: excluded by the drift monitor)."""
+
+
 def nav_config(options: dict[str, Any] | NavConfig) -> NavConfig:
     """``ins_hil.core.NavConfig`` from the ``[core.nav]`` table (its sections as sub-tables: ``gnss``, ``baro``,
     ``mag``, ``aids``, ``hold``, ``alignment``, ``delay``, ``filter``, and the aid modules' own sections,
@@ -137,9 +165,10 @@ def check_core(kind: str, nav: dict[str, Any] | NavConfig | None = None) -> None
     make_core(kind, _initial_placeholder(), nav or {})
 
 
-def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | NavConfig | None = None) -> RealTimeCore:
+def make_core(kind: str, initial: StrapdownState | None, nav: dict[str, Any] | NavConfig | None = None) -> RealTimeCore:
     """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore; a
-    setting the C core lacks is refused in one line naming it)."""
+    setting the C core lacks is refused in one line naming it). ``nav``: the ``[core.nav]`` table or a built
+    ``NavConfig``; ``initial`` None: the core aligns itself (Python core)."""
     cfg = nav_config(nav or {})
     from ins_hil.core import NavCore
 
@@ -149,8 +178,14 @@ def make_core(kind: str, initial: StrapdownState, nav: dict[str, Any] | NavConfi
         if kind == "c":
             raise RuntimeError(f"core 'c': the C reference core (ins_hil.cref) is not available: {e}") from e
         return NavCore(initial, cfg)
+    if kind == "c" and initial is None:
+        raise ValueError("core 'c' needs an initial state (it has no self-alignment)")
     try:
-        core: RealTimeCore = cref.CNavCore(initial, cfg) if kind == "c" else NavCore(initial, cfg)
+        core: RealTimeCore
+        if kind == "c" and initial is not None:
+            core = cref.CNavCore(initial, cfg)
+        else:
+            core = NavCore(initial, cfg)
     except (ImportError, OSError) as e:
         raise RuntimeError(f"core {kind!r}: cannot load the C reference core: {e}") from e
     except ValueError as e:
@@ -169,8 +204,9 @@ class PipelineConfig:
     )
     init: str = setting(
         "gnss",
-        help="gnss: start at the first 3-D fix, levelled from the accelerometers; config: the init_* keys",
-        choices=("gnss", "config"),
+        help="gnss: start at the first 3-D fix, levelled from the accelerometers; config: the init_* keys; "
+        "core: the core aligns itself from the first IMU sample (offline replay)",
+        choices=("gnss", "config", "core"),
     )
     init_lat_deg: float = setting(
         0.0, "°", "[-89, 89]", "initial latitude (init = 'config'); the NED mechanization is singular at the poles"
@@ -261,8 +297,21 @@ def state_ok(st: NavState) -> bool:
 class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
-    def __init__(self, cfg: PipelineConfig) -> None:
-        check_core(cfg.core, cfg.nav)
+    def __init__(
+        self, cfg: PipelineConfig, observers: Iterable[Observer] = (), nav: Any = None,
+        initial: StrapdownState | None = None,
+    ) -> None:  # fmt: skip
+        """``observers``: :class:`Observer` callbacks; ``nav``: a built ``NavConfig`` used instead of ``cfg.nav``
+        (an offline replay's); ``initial``: with ``cfg.init = "core"``, the state the core starts from (None: it
+        aligns itself from the first IMU sample)."""
+        self._nav: NavConfig = nav_config(nav) if nav is not None else cfg.nav
+        if nav is None:
+            check_core(cfg.core, cfg.nav)
+        elif cfg.core not in CORE_KINDS:
+            raise ValueError(f"unknown core {cfg.core!r} (choose from {', '.join(CORE_KINDS)})")
+        if cfg.init not in ("gnss", "config", "core"):
+            raise ValueError(f"core.init = {cfg.init!r}: expected 'gnss', 'config' or 'core'")
+        self.observers: list[Observer] = list(observers)
         if not (isinstance(cfg.epoch_wait_periods, int | float) and 0 < cfg.epoch_wait_periods < math.inf):
             raise ValueError(f"core.epoch_wait_periods = {cfg.epoch_wait_periods!r}: must be a number > 0")
         self.cfg = cfg
@@ -303,14 +352,16 @@ class Pipeline:
         self._fdi = _make_fdi(cfg) if cfg.fdi else None
         # the validator checked the raw sample: only calibration or FDI can make it non-finite again
         self._recheck = self._calib is not None or self._fdi is not None
-        self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, cfg.nav) if cfg.aiding_fdi else None
+        self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, self._nav) if cfg.aiding_fdi else None
         self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
         self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
         self._gap_free = False  # no aiding segment has run since the last IMU step
         self._step_pending = False  # core.step_end of the last step has not run yet
         self.last_state: NavState | None = None
-        if cfg.init == "config":
+        if cfg.init == "core":
+            self._start(initial)
+        elif cfg.init == "config":
             self._start(
                 StrapdownState(
                     quat_from_euler(
@@ -333,10 +384,10 @@ class Pipeline:
         if why.startswith("imu"):
             self._imu_rejects += 1
 
-    def _start(self, initial: StrapdownState, nav: NavConfig | None = None) -> None:
+    def _start(self, initial: StrapdownState | None, nav: NavConfig | None = None) -> None:
         old = self.core
         self._resets += 1 + (getattr(old, "gnss_resets", 0) if old is not None else 0)
-        self.core = make_core(self.cfg.core, initial, self.cfg.nav if nav is None else nav)
+        self.core = make_core(self.cfg.core, initial, self._nav if nav is None else nav)
 
     # -- IMU ------------------------------------------------------------------
     def imu(self, s: ImuSample) -> NavState | None:
@@ -532,6 +583,9 @@ class Pipeline:
             while self._held and self._held[0].t <= s.t:
                 self._jobs.append(self._fuse(self._held.pop(0)))
         self.last_state = st
+        if self.observers:
+            for o in self.observers:
+                o.epoch(self, st)
         return st
 
     def work(self) -> bool:
@@ -640,6 +694,9 @@ class Pipeline:
         monitor's check, then the core's update(s) (``core.fuse_steps``)."""
         core = self.core
         assert core is not None
+        obs = self.observers
+        for o in obs:
+            o.before_fuse(self, m)
         mon = self._aid_mon
         src = aids.source_of(m)
         if mon is not None and src.drift_monitor:
@@ -656,11 +713,27 @@ class Pipeline:
                 self.events.extend(mon.drain_events())
             if excluded:
                 self._count("excluded_" + type(m).__name__)
+                for o in obs:
+                    o.after_fuse(self, m, False)
                 return
             if src.split_check:
                 yield  # the check of a fix (O(window) work) and its update in separate gaps
-        yield from core.fuse_steps(m)
+        if not obs:
+            yield from core.fuse_steps(m)
+        else:  # each segment of the core's update bracketed by the observers (no IMU step inside one)
+            steps = core.fuse_steps(m)
+            while True:
+                for o in obs:
+                    o.segment(self, m, True)
+                more = next(steps, _DONE) is not _DONE
+                for o in obs:
+                    o.segment(self, m, False)
+                if not more:
+                    break
+                yield
         self._count("fused_" + type(m).__name__)
+        for o in obs:
+            o.after_fuse(self, m, True)
 
     def _init_from_gnss(self, g: GnssFix) -> None:
         from ins_hil.core import initial_state
@@ -703,17 +776,17 @@ class Pipeline:
         if self._aid_mon is not None:
             self._aid_mon.ins_disturbed(t)
         g = self._good
-        nav = self.cfg.nav
+        nav = self._nav
         restart = g is not None and not self._fault_open and (g.aligned or nav.alignment.mode == "given")
         self._fault_open = True
         self._fault_clear_t = t + FAULT_CLEAR_S
         if restart:
             assert g is not None
             q = np.array(g.q_nb, dtype=np.float64)
-            nav = dataclasses.replace(nav, alignment=dataclasses.replace(nav.alignment, mode="given"))
+            given = dataclasses.replace(nav, alignment=dataclasses.replace(nav.alignment, mode="given"))
             try:
                 self._start(StrapdownState(q / math.sqrt(float(q @ q)), np.array(g.vel_ned, dtype=np.float64),
-                                           g.lat, g.lon, g.h, g.t), nav)  # fmt: skip
+                                           g.lat, g.lon, g.h, g.t), given)  # fmt: skip
                 self._count("core_restart")
                 return
             except Exception:  # fall back to a re-alignment

@@ -133,9 +133,13 @@ def replay_log(
     return res
 
 
-def replay_cli(path: str | Path, args: argparse.Namespace | None = None, truth: TruthSource | None = None) -> int:
+def replay_cli(
+    path: str | Path, args: argparse.Namespace | None = None, truth: TruthSource | None = None,
+    on_state: Callable[[NavState], None] | None = None,
+) -> int:  # fmt: skip
     """``ins-hil replay LOG.ihlog``: replay and print what came out (exit status 0, 2 on a bad log); a
-    simulated run is scored against ``truth`` of its ``[sim]`` table when given (:func:`truth_report`)."""
+    simulated run is scored against ``truth`` of its ``[sim]`` table when given (:func:`truth_report`).
+    ``on_state``: called with every state (the command's ``--export``)."""
     from ins_hil.nav.rotation import euler_from_quat
 
     seen: list[Any] = [None, 0]  # last state, count
@@ -144,6 +148,8 @@ def replay_cli(path: str | Path, args: argparse.Namespace | None = None, truth: 
     def keep(st: NavState) -> None:
         seen[0] = st
         seen[1] += 1
+        if on_state is not None:
+            on_state(st)
         if seen[1] % SCORE_EVERY == 0:
             scored.append(st)
 
