@@ -157,5 +157,8 @@ def test_the_filter_takes_its_F_and_H_from_the_generated_code(states: dict[str, 
     np.testing.assert_array_equal(H, mm.placed(gj.H_nhc(C, s["v"]), idx))
     _, H = mm.magnetometer(idx, C, C.T @ s["m"], s["m"])
     np.testing.assert_allclose(H, mm.placed(gj.H_mag(s["m"]), idx), rtol=1e-12, atol=1e-15)  # m renormalised
+    z, H = mm.zero_rate(idx, s["w"])
+    np.testing.assert_array_equal(H, mm.placed(gj.H_zaru(), idx))
+    np.testing.assert_array_equal(z, -s["w"])
     _, H = mm.baro_height(idx, h, h)
     assert H.shape == (1, idx.n) and H[0, 2] == -1.0 and np.count_nonzero(H) == 1

@@ -149,6 +149,12 @@ def zero_velocity(idx: StateIndex, vel: Vec) -> tuple[Vec, Vec]:
     return -vel, placed(gj.H_zupt(), idx)
 
 
+def zero_rate(idx: StateIndex, omega_b: Vec) -> tuple[Vec, Vec]:
+    """(z, H) of a zero-angular-rate update: the averaged compensated rate ``omega_b`` (rad/s, body) of a
+    vehicle at rest is the residual gyro bias, z = 0 − ω̄ = −δb_g (needs the gyro bias states)."""
+    return -omega_b, placed(gj.H_zaru(), idx)
+
+
 def nonholonomic_mounted(
     idx: StateIndex, C_bn: Vec, vel: Vec, R_vb: Vec, omega_b: Vec, lever_b: Vec
 ) -> tuple[Vec, Vec, Vec]:
