@@ -6,6 +6,7 @@ of is refused in one line naming it."""
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -85,7 +86,12 @@ def test_a_config_the_c_core_lacks_a_setting_of_is_refused_in_one_line(capsys: p
     assert "--core c" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_batch_jobs_carry_the_core(tmp_path: Path) -> None:
     js = batch.jobs([(None, str(CONFIGS / "ardupilot_copter.toml"))], 2, tmp_path, False, core="c")
     assert [j.core for j in js] == ["c", "c"]
     assert batch.jobs([(None, str(CONFIGS / "ardupilot_copter.toml"))], 1, tmp_path, False)[0].core == "python"
+    row = batch.run_job(js[0])
+    assert row.get("error") is None and row["core"] == "c"
+    m = json.loads((Path(js[0].out) / "metrics.json").read_text())
+    assert m["core"] == "c" and m["samples"]["gnss"] > 500

@@ -76,6 +76,8 @@ def replay(
         "mag_reference": p.mag_ref_source or None,
         "mag_reference_ned_uT": (p.mag_ref_ned_T * 1e6).round(3).tolist() if p.mag_ref_ned_T is not None else None,
     }
+    if core != "python":
+        m["core"] = core
     if ds.meta.get("end_of_valid_data"):
         m["end_of_valid_data"] = ds.meta["end_of_valid_data"]
     r = run_dataset(p, [], "gnss", prog("replay (GNSS present)" if p.gnss else "replay"), core=core)
@@ -425,8 +427,6 @@ def replay_to_dir(
         raise DatasetConfigError(f"{config}: no dataset.path and no FILE|DIR given")
     ds = load(Path(path), cfg)
     m, runs = replay(ds, cfg, progress, core)
-    if core != "python":
-        m["core"] = core
     notes = m.setdefault("notes", [])
     if config is None and not any(str(n).startswith("no dataset config") for n in notes):
         notes.insert(0, NO_CONFIG_NOTE)

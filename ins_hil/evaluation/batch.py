@@ -287,7 +287,7 @@ def run_job(job: Job) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     row: dict[str, Any] = {"job": job.name, "source": job.source, "config": job.config, "seed": job.seed,
-                           "log": job.log, "variant": job.variant or BASELINE, "shift_s": job.shift_s,
+                           "log": job.log, "variant": job.variant or BASELINE, "shift_s": job.shift_s, "core": job.core,
                            "pid": os.getpid()}  # fmt: skip
     try:
         cfg = _config(job)
