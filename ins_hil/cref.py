@@ -326,6 +326,14 @@ class CNavCore:
             if self.on_dt_mismatch == "raise":
                 raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
             self.n_off_step += 1
+        if not self.fixed_step:  # the C core coasts across lost IMU data (core.c): NavCore's record of it
+            lost = imu.t - imu.dt - float(self._core.mech.t)
+            if lost > 0.5 * imu.dt and int(self._core.steps) > 0:
+                self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lost)
+                self._events.append(
+                    FaultEvent(imu.t - imu.dt, "imu", FaultMode.DROPOUT, lost, True, True,
+                               f"IMU data lost for {lost:.3f} s: coasted at constant velocity, covariance grown")
+                )  # fmt: skip
         ffi = self._ffi
         dth, dv = imu.dtheta, imu.dvel
         if dth.dtype != np.float64 or not dth.flags.c_contiguous:

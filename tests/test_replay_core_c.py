@@ -95,3 +95,26 @@ def test_batch_jobs_carry_the_core(tmp_path: Path) -> None:
     assert row.get("error") is None and row["core"] == "c"
     m = json.loads((Path(js[0].out) / "metrics.json").read_text())
     assert m["core"] == "c" and m["samples"]["gnss"] > 500
+
+
+def test_the_c_core_records_the_imu_gaps_it_coasts_across() -> None:
+    """With per-sample steps the C core coasts across lost IMU data; its record (``imu_lost`` and a DROPOUT
+    event) is NavCore's, which the replay's figures take (px4_quad: 6 gaps, 5.64 s)."""
+    from ins_hil.core import NavCore
+    from ins_hil.nav.mechanization import StrapdownState
+    from ins_hil.types import FaultMode, ImuSample
+
+    nav = config.from_dict({"dataset": {"name": "t"}, "nav": {"alignment": {"mode": "given"}}}).nav_config()
+    init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.8, 0.5, 100.0, 0.0)
+    dv = np.array([0.0, 0.0, -9.80665 * 0.01])
+    cores = [CNavCore(init.copy(), nav, fixed_step=False), NavCore(init.copy(), nav)]
+    for core in cores:
+        t = 0.0
+        for k in range(200):
+            t += 0.5 if k == 120 else 0.01  # 0.49 s lost before sample 120
+            core.step(ImuSample(t, 0.01, np.zeros(3), dv))
+    c, py = cores
+    assert c.imu_lost[0] == py.imu_lost[0] == 1
+    assert c.imu_lost[1] == pytest.approx(py.imu_lost[1], rel=1e-12) and c.imu_lost[1] == pytest.approx(0.49)
+    ev = [e for e in c.drain_events() if e.sensor == "imu" and e.mode == FaultMode.DROPOUT]
+    assert len(ev) == 1 and ev[0].magnitude == pytest.approx(0.49)
