@@ -34,6 +34,7 @@ import numpy as np
 
 from ins_hil import aids
 from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, ins_off_track
+from ins_hil.fusion.innovation import GateStats
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
@@ -243,6 +244,13 @@ class CNavCore:
         self._rejected: deque[tuple[GnssFix, float]] = deque(maxlen=max(1, int(self.cfg.gnss.reset_after)))
         self.dt: float | None = None
         self._dt_fixed = dt
+        # what the offline replay reads of a core (NavCore's attributes): the C core keeps no innovation log and
+        # does not coast IMU gaps itself; the gate counters are the C core's plus the alignment's
+        self.imu_lost: tuple[int, float] = (0, 0.0)
+        self.innov_log: list[tuple[float, str, Vec]] = []
+        self.divergences: list[tuple[float, str]] = []
+        self.sensor_warnings: list[str] = []
+        self._align_stats: dict[str, GateStats] = dict(self._align.stats) if self._align is not None else {}
         if dt is not None and self._align is None:
             self._init(dt)
 
@@ -251,6 +259,9 @@ class CNavCore:
         a = self._align
         self._align = None
         self._initial = a.ins.state.copy()
+        self._align_stats = {k: dataclasses.replace(v) for k, v in a.stats.items()}
+        self.sensor_warnings = list(a.sensor_warnings)
+        self.imu_lost = a.imu_lost
         self._init(self._dt_fixed if self._dt_fixed is not None else dt)
         c = self._core
         ins = a.ins
@@ -315,6 +326,14 @@ class CNavCore:
             if self.on_dt_mismatch == "raise":
                 raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
             self.n_off_step += 1
+        if not self.fixed_step:  # the C core coasts across lost IMU data (core.c): NavCore's record of it
+            lost = imu.t - imu.dt - float(self._core.mech.t)
+            if lost > 0.5 * imu.dt and int(self._core.steps) > 0:
+                self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lost)
+                self._events.append(
+                    FaultEvent(imu.t - imu.dt, "imu", FaultMode.DROPOUT, lost, True, True,
+                               f"IMU data lost for {lost:.3f} s: coasted at constant velocity, covariance grown")
+                )  # fmt: skip
         ffi = self._ffi
         dth, dv = imu.dtheta, imu.dvel
         if dth.dtype != np.float64 or not dth.flags.c_contiguous:
@@ -454,6 +473,23 @@ class CNavCore:
             ok = ins_off_track([f for f, _ in fixes] + [meas], st.vel_ned, var, self.cfg) is not None  # no _recover
         if not ok:
             e.consecutive[0] = n - 1
+
+    @property
+    def stats(self) -> dict[str, GateStats]:
+        """Accepted / rejected counts per measurement kind (NavCore's ``stats``): the alignment's, then the C
+        core's gate counters added."""
+        if self._align is not None:
+            return dict(self._align.stats)
+        e = self._core.ekf
+        out = {k: dataclasses.replace(v) for k, v in self._align_stats.items()}
+        for g, kind in enumerate(_GROUPS):
+            a, r = int(e.accepted[g]), int(e.rejected[g])
+            if kind in out or a or r:
+                st = out.setdefault(kind, GateStats())
+                st.accepted += a
+                st.rejected += r
+                st.last_ratio = self._ratios.get(kind, st.last_ratio)
+        return out
 
     def align_status(self) -> str:
         """Why the core is not navigating yet ("" once the C core runs)."""

@@ -2,8 +2,10 @@
 
 * change indication (as PX4's EKF2 derivation): regenerating gives the checked-in C header and Python module
   byte for byte, so an edit of the derivation without regenerating (or of a generated file by hand) fails;
-* the generated Python F and H equal the hand-written ones of ``ins_hil.fusion`` (15-state layout) on random
-  states, to rounding; the C core uses the generated header (its parity with NavCore: tests/test_cref_parity.py).
+* the generated F and H are the derivatives of the nonlinear error models (central differences on random states);
+* the Python filter takes its F (``ErrorStateEKF.build_F``) and H (``ins_hil.fusion.measurements``) from the
+  generated module, placed in its state layout; the C core uses the generated header (its parity with NavCore:
+  tests/test_cref_parity.py).
 """
 
 from __future__ import annotations
@@ -72,33 +74,91 @@ def _random_state(rng: np.random.Generator) -> dict[str, np.ndarray]:
     }
 
 
+def _sk(a: np.ndarray) -> np.ndarray:
+    return np.array(((0.0, -a[2], a[1]), (a[2], 0.0, -a[0]), (-a[1], a[0], 0.0)))
+
+
+def _numjac(fn, n_out: int, eps: float = 1e-6) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """Central differences of ``fn`` (15 error states → n_out) at the zero error state."""
+    J = np.zeros((n_out, gj.NX))
+    for k in range(gj.NX):
+        d = np.zeros(gj.NX)
+        d[k] = eps
+        J[:, k] = (np.asarray(fn(d)) - np.asarray(fn(-d))) / (2 * eps)
+    return J
+
+
+def _parts(x: np.ndarray) -> tuple[np.ndarray, ...]:
+    return x[0:3], x[3:6], x[6:9], x[9:12], x[12:15]
+
+
 @pytest.mark.parametrize("seed", range(20))
-def test_generated_python_equals_the_hand_written_jacobians(seed: int) -> None:
+def test_generated_jacobians_are_the_derivatives_of_the_nonlinear_models(seed: int) -> None:
+    """The generated F and H against central differences of the nonlinear error models (δ = true − computed,
+    Ĉ = (I + [μ×]) C): the error dynamics of the strapdown equations and each measurement's prediction."""
     rng = np.random.default_rng(seed)
     s = _random_state(rng)
+    C, f, wie, wen, w, lev, v, m = s["C"], s["f"], s["wie"], s["wen"], s["w"], s["l"], s["v"], s["m"]
+    itg, ita, g2r = 1.0 / 300.0, 1.0 / 200.0, 3.08e-6
+    I3 = np.eye(3)
+
+    def dyn(x: np.ndarray) -> np.ndarray:
+        dr, dv, psi, dbg, dba = _parts(x)
+        ddv = (I3 - _sk(psi)) @ (f - C @ dba) - f - np.cross(2 * wie + wen, dv) + np.array((0.0, 0.0, g2r * dr[2]))
+        dpsi = -np.cross(wie + wen, psi) + C @ dbg
+        return np.concatenate((dv, ddv, dpsi, -itg * dbg, -ita * dba))
+
+    tol = {"rtol": 1e-6, "atol": 1e-8}
+    np.testing.assert_allclose(gj.F(C, f, wie, wen, itg, ita, g2r), _numjac(dyn, 15), **tol)
+    Ct = lambda psi: (I3 - _sk(psi)) @ C
+    np.testing.assert_allclose(gj.H_gnss_pos(C, lev), _numjac(lambda x: x[0:3] + Ct(x[6:9]) @ lev - C @ lev, 3), **tol)
+    np.testing.assert_allclose(
+        gj.H_gnss_vel(C, w, lev),
+        _numjac(lambda x: x[3:6] + Ct(x[6:9]) @ np.cross(w - x[9:12], lev) - C @ np.cross(w, lev), 3),
+        **tol,
+    )
+    np.testing.assert_allclose(gj.H_baro(), _numjac(lambda x: -x[2:3], 1), **tol)
+    np.testing.assert_allclose(gj.H_zupt(), _numjac(lambda x: x[3:6], 3), **tol)
+    np.testing.assert_allclose(gj.H_zaru(), _numjac(lambda x: -x[9:12], 3), **tol)
+    np.testing.assert_allclose(
+        gj.H_nhc(C, v), _numjac(lambda x: (C.T @ (I3 + _sk(x[6:9])) @ (v + x[3:6]) - C.T @ v)[1:3], 2), **tol
+    )
+    tau = mm.tau_matrix(m)
+    np.testing.assert_allclose(
+        gj.H_mag(m), _numjac(lambda x: (tau @ np.cross(m, (I3 + _sk(x[6:9])) @ m))[1:3], 2), **tol
+    )
+
+
+@pytest.mark.parametrize("states", [{}, {"accel_bias": False}, {"gyro_bias": False, "accel_bias": False},
+                                    {"scale_factors": True}])  # fmt: skip
+def test_the_filter_takes_its_F_and_H_from_the_generated_code(states: dict[str, bool]) -> None:
+    """ErrorStateEKF.build_F and the measurement builders are the generated Jacobians placed in the filter's
+    layout (bias columns moved or dropped; the states the derivation does not cover filled besides)."""
+    rng = np.random.default_rng(7)
+    s = _random_state(rng)
     C = s["C"]
-    kf = ErrorStateEKF(FilterConfig())
-    assert kf.n == gj.NX
+    kf = ErrorStateEKF(FilterConfig(omega_rv_terms=False, **states))  # (those terms are not derived)
     idx = kf.idx
-    F_hand = kf.build_F(C, s["f"], s["wie"], s["wen"], C.T @ s["f"], s["w"], 0.8, 100.0).copy()
     itg, ita = 1.0 / kf.cfg.gyro_bias_tau, 1.0 / kf.cfg.accel_bias_tau
     F_gen = gj.F(C, s["f"], s["wie"], s["wen"], itg, ita, kf._g2r)
-    np.testing.assert_allclose(F_gen, F_hand, rtol=1e-12, atol=1e-15)
+    rows = [r for r in range(15) if r < 9 or (idx.bg is not None and r < 12) or (idx.ba is not None and r >= 12)]
+    to = [r if r < 9 else (idx.bg + r - 9 if r < 12 else idx.ba + r - 12) for r in rows]  # type: ignore[operator]
+    F_hand = kf.build_F(C, s["f"], s["wie"], s["wen"], C.T @ s["f"], s["w"], 0.8, 100.0)
+    np.testing.assert_array_equal(F_hand[np.ix_(to, to)], F_gen[np.ix_(rows, rows)])
+    assert np.any(F_hand[6:9, 6:9] != 0.0) and np.any(F_hand[3:6, 6:9] != 0.0)
 
     lat, lon, h = 0.8, 0.5, 100.0
     _, H = mm.gnss_position(idx, C, lat, lon, h, lat, lon, h, s["l"])
-    np.testing.assert_allclose(gj.H_gnss_pos(C, s["l"]), H, rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(H, mm.placed(gj.H_gnss_pos(C, s["l"]), idx))
     _, H = mm.gnss_velocity(idx, C, s["v"], s["w"], s["v"], s["l"])
-    np.testing.assert_allclose(gj.H_gnss_vel(C, s["w"], s["l"]), H, rtol=1e-12, atol=1e-14)
-    _, H = mm.baro_height(idx, h, h)
-    np.testing.assert_array_equal(gj.H_baro(), H)
-    _, H = mm.zero_velocity(idx, s["v"])
-    np.testing.assert_array_equal(gj.H_zupt(), H)
+    np.testing.assert_array_equal(H, mm.placed(gj.H_gnss_vel(C, s["w"], s["l"]), idx))
+    assert H.shape == (3, idx.n) and (idx.bg is None or np.any(H[:, idx.bg : idx.bg + 3] != 0.0))
     _, H = mm.nonholonomic(idx, C, s["v"])
-    np.testing.assert_allclose(gj.H_nhc(C, s["v"]), H, rtol=1e-12, atol=1e-13)
+    np.testing.assert_array_equal(H, mm.placed(gj.H_nhc(C, s["v"]), idx))
     _, H = mm.magnetometer(idx, C, C.T @ s["m"], s["m"])
-    np.testing.assert_allclose(gj.H_mag(s["m"]), H, rtol=1e-12, atol=1e-14)
-    # the ZARU rows of core_parts/aids.py: −δb_g
-    H = np.zeros((3, idx.n))
-    H[:, idx.bg : idx.bg + 3] = -np.eye(3)
-    np.testing.assert_array_equal(gj.H_zaru(), H)
+    np.testing.assert_allclose(H, mm.placed(gj.H_mag(s["m"]), idx), rtol=1e-12, atol=1e-15)  # m renormalised
+    z, H = mm.zero_rate(idx, s["w"])
+    np.testing.assert_array_equal(H, mm.placed(gj.H_zaru(), idx))
+    np.testing.assert_array_equal(z, -s["w"])
+    _, H = mm.baro_height(idx, h, h)
+    assert H.shape == (1, idx.n) and H[0, 2] == -1.0 and np.count_nonzero(H) == 1

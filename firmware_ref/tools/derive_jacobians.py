@@ -212,30 +212,49 @@ def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
         "from __future__ import annotations",
         "",
         "from collections.abc import Sequence",
+        "from typing import Any",
         "",
         "import numpy as np",
         "",
         f"NX = {NX}",
         "",
         "",
+        "#: the (row, column) of every entry of F that is not identically zero, in the order of :func:`F_values`",
+        "F_CELLS: tuple[tuple[int, int], ...] = (",
+    ]
+    ent = _entries(F)
+    out += [f"    ({i}, {j})," for i, j, _ in ent]
+    out += [
+        ")",
+        "",
+        "",
+        "def F_values(C: Sequence[float], f_ned: Sequence[float], w_ie: Sequence[float], w_en: Sequence[float],",
+        "             inv_tau_g: float, inv_tau_a: float, g2r: float) -> tuple[float, ...]:",
+        '    """The entries of F at :data:`F_CELLS` (C: the 9 entries of C_b^n row by row, floats): one',
+        '    ``ndarray.put`` fills a caller-owned F (the hot path: no array built per step)."""',
+        "    return (",
+    ]
+    sub = _subs_c(F_ARGS)
+    out += [f"        {_py_expr(e, sub)}," for _, _, e in ent]
+    out += [
+        "    )",
+        "",
+        "",
         "def F(C: np.ndarray, f_ned: Sequence[float], w_ie: Sequence[float], w_en: Sequence[float],",
         "      inv_tau_g: float, inv_tau_a: float, g2r: float) -> np.ndarray:",
         '    """Continuous error-dynamics matrix F (15 × 15) at the nominal state (C: 3 × 3 C_b^n)."""',
-        "    C = np.asarray(C, dtype=np.float64).ravel()",
         "    out = np.zeros((NX, NX))",
+        "    c = np.asarray(C, dtype=np.float64).ravel().tolist()",
+        "    vals = F_values(c, f_ned, w_ie, w_en, inv_tau_g, inv_tau_a, g2r)",
+        "    out.put([i * NX + j for i, j in F_CELLS], vals)",
+        "    return out",
     ]
-    sub = _subs_c(F_ARGS)
-    out += [f"    out[{i}, {j}] = {_py_expr(e, sub)}" for i, j, e in _entries(F)]
-    out.append("    return out")
     for name, M in H.items():
         args = H_ARGS[name]
         sub = _subs_c(args)
-        params = ", ".join(f"{a}: Sequence[float]" if len(s) > 1 else f"{a}: float" for a, s in args)
-        if any(a == "C" for a, _ in args):
-            pre = ["    C = np.asarray(C, dtype=np.float64).ravel()"]
-            params = params.replace("C: Sequence[float]", "C: np.ndarray")
-        else:
-            pre = []
+        params = ", ".join(f"{a}: Any" if len(s) > 1 else f"{a}: float" for a, s in args)  # array-like
+        # the vectors as Python floats (scalar arithmetic on numpy scalars is several times slower)
+        pre = [f"    {a} = np.asarray({a}, dtype=np.float64).ravel().tolist()" for a, sy in args if len(sy) > 1]
         out += ["", "", f"def H_{name}({params}) -> np.ndarray:", f'    """{H_DOC[name]} ({M.rows} × 15)."""']
         out += [*pre, f"    h = np.zeros(({M.rows}, NX))"]
         out += [f"    h[{i}, {j}] = {_py_expr(e, sub)}" for i, j, e in _entries(M)]

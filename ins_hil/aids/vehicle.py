@@ -47,7 +47,7 @@ class VehicleAids(Aid):
         from ins_hil.fusion import measurements  # the models: not at import (see the registry)
 
         mm = measurements  # its functions (a NavCore is deep-copyable: no module in its state)
-        self.drag_model, self.zero_velocity = mm.multirotor_drag, mm.zero_velocity
+        self.drag_model, self.zero_velocity, self.zero_rate = mm.multirotor_drag, mm.zero_velocity, mm.zero_rate
         self.nhc, self.nhc_mounted = mm.nonholonomic, mm.nonholonomic_mounted
         self.cfg, self.idx = cfg, idx
         self.on = cfg.aids.nhc or cfg.aids.zupt or cfg.aids.drag
@@ -132,10 +132,9 @@ class VehicleAids(Aid):
             if not (c.aids.zaru and idx.bg is not None):
                 return (zupt,)
             # zero angular rate: the averaged compensated rate is the residual gyro bias, z = 0 − ω̄ = −δb_g
-            H = np.zeros((3, idx.n))
-            H[:, idx.bg : idx.bg + 3] = -np.eye(3)
+            z, H = self.zero_rate(idx, w)
             self.ema_w = np.zeros(3)
-            return zupt, Measurement("zupt", -w, H, np.full(3, c.aids.zaru_std**2), c.aids.gate)
+            return zupt, Measurement("zupt", z, H, np.full(3, c.aids.zaru_std**2), c.aids.gate)
         if c.aids.nhc and float(np.linalg.norm(s.vel_ned)) > c.aids.nhc_min_speed:
             C = dcm_from_quat(s.q_nb)
             if self.mounted:

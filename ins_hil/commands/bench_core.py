@@ -90,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         drows = core_replay.dataset_rows(_say)
         synth = core_replay.synthetic_rows(say=_say)
         text += core_replay.report_md(drows, synth)
+        text += core_replay.cli_md(core_replay.cli_rows(_say))
     from ins_hil.bench import core_replay as _cr
 
     text += _cr.scope_md()

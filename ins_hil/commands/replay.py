@@ -55,6 +55,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dataset", type=Path, default=None, metavar="CONFIG",
                    help="dataset config (configs/datasets/*.toml): format, mounting, lever arms, time offsets, "
                    "sensor grade, [nav] overrides, outage protocol")  # fmt: skip
+    p.add_argument("--core", choices=("python", "c"), default="python",
+                   help="navigation core of a flight log / dataset replay (and --batch): python (default) or c, the "
+                   "C reference core (aligned by the Python core, then handed over; a setting it lacks is refused "
+                   "in one line)")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("replay_out"), help="output directory (default ./replay_out)")
     p.add_argument("--seed", type=int, default=0, help="random seed of a simulated scenario")
     p.add_argument("--duration", type=float, default=None, help="scenario length in s (default: the scenario's)")
@@ -226,7 +230,9 @@ def _batch(args: argparse.Namespace) -> int:
     try:
         pairs = batch.expand(list(args.batch), str(args.dataset) if args.dataset else None)
         variants = batch.load_variants(args.variants) if args.variants is not None else None
-        js = batch.jobs(pairs, seeds, args.out, not args.no_plots, variants, args.shifts)
+        js = batch.jobs(
+            pairs, seeds, args.out, not args.no_plots, variants, args.shifts, getattr(args, "core", "python")
+        )
     except (DatasetError, DatasetConfigError) as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
@@ -256,7 +262,9 @@ def _batch(args: argparse.Namespace) -> int:
         """The same jobs once more, for a comparison (in ``--out``/``sub``): their rows, wall time, breakdown."""
         if not args.quiet:
             print(f"batch: {what}", file=sys.stderr)
-        ref_jobs = batch.jobs(pairs, seeds, args.out / sub, not args.no_plots, variants, args.shifts)
+        ref_jobs = batch.jobs(
+            pairs, seeds, args.out / sub, not args.no_plots, variants, args.shifts, getattr(args, "core", "python")
+        )
         ref_rows, ref_wall = batch.run_batch(ref_jobs, workers, None, done, worker_config=worker_config)
         return {"rows": ref_rows, "wall_s": ref_wall, "breakdown": batch.breakdown(ref_rows, ref_wall, max(workers, 1))}
 
@@ -358,6 +366,13 @@ def run(args: argparse.Namespace) -> int:
             args.dataset = None
     if args.batch:
         return _batch(args)
+    core = getattr(args, "core", "python")
+    if core != "python" and ((src == "drive" and args.dataset is None) or src == "sim" or src in scenarios.NAMES
+                             or args.estimate_offset or args.estimate_mounting
+                             or (src.endswith(".ihlog") and args.dataset is None)):  # fmt: skip
+        print(f"ins-hil replay: --core {core}: only a flight log / dataset replay (--dataset) or --batch runs "
+              "on it", file=sys.stderr)  # fmt: skip
+        return 2
     if args.estimate_offset or args.estimate_mounting:
         if args.estimate_offset and args.estimate_mounting:
             print("ins-hil replay: --estimate-offset and --estimate-mounting: one at a time", file=sys.stderr)
@@ -447,11 +462,17 @@ def _replay_dataset(src: str, args: argparse.Namespace) -> int:
     source = None if (args.dataset is not None and src == "drive") else Path(src)
     try:
         _, text = report.replay_to_dir(source, args.dataset, args.out, not args.no_plots,
-                                       lambda label: _Progress(label, args.quiet), export=args.export)  # fmt: skip
+                                       lambda label: _Progress(label, args.quiet), export=args.export,
+                                       core=getattr(args, "core", "python"))  # fmt: skip
     except ReplayError as e:  # read, but no figures: non-finite states, a numerical failure, no valid IMU data
         print(f"ins-hil replay: {_one_line(e)}", file=sys.stderr)
         return 1
     except (DatasetError, ValueError) as e:
+        print(f"ins-hil replay: {_one_line(e)}", file=sys.stderr)
+        return 2
+    except RuntimeError as e:  # the core cannot be built (--core c: a setting the C core lacks)
+        if not str(e).startswith("core "):
+            raise
         print(f"ins-hil replay: {_one_line(e)}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemExit):

@@ -50,9 +50,9 @@ def load(path: Path, cfg: DatasetConfig) -> Dataset:
 
 
 def replay(
-    ds: Dataset, cfg: DatasetConfig, progress: ProgressFactory | None = None
+    ds: Dataset, cfg: DatasetConfig, progress: ProgressFactory | None = None, core: str = "python"
 ) -> tuple[dict[str, Any], dict[str, RunResult]]:
-    """Run ``ds`` through the core with ``cfg``; (metrics, runs by label)."""
+    """Run ``ds`` through the core (``core``: "python" or "c") with ``cfg``; (metrics, runs by label)."""
     p = prepare(ds, cfg)
     prog = progress or (lambda label: None)
     runs: dict[str, RunResult] = {}
@@ -76,9 +76,11 @@ def replay(
         "mag_reference": p.mag_ref_source or None,
         "mag_reference_ned_uT": (p.mag_ref_ned_T * 1e6).round(3).tolist() if p.mag_ref_ned_T is not None else None,
     }
+    if core != "python":
+        m["core"] = core
     if ds.meta.get("end_of_valid_data"):
         m["end_of_valid_data"] = ds.meta["end_of_valid_data"]
-    r = run_dataset(p, [], "gnss", prog("replay (GNSS present)" if p.gnss else "replay"))
+    r = run_dataset(p, [], "gnss", prog("replay (GNSS present)" if p.gnss else "replay"), core=core)
     runs["gnss"] = r
     m["notes"] = r.notes
     m["t_nav_s"] = r.t_nav - p.t0 if math.isfinite(r.t_nav) else None
@@ -118,7 +120,7 @@ def replay(
             tr = ds.reference
             if "reference" in cfg.score and tr is not None and tr.t_pos is not None:
                 refs = [refscore.ReferenceScore(tr, p.origin, refscore.lever_of(tr, cfg.reference_lever_arm), wins)]
-            ro = run_dataset(p, wins, "outages", prog("replay (outage protocol)"), observers=refs)
+            ro = run_dataset(p, wins, "outages", prog("replay (outage protocol)"), observers=refs, core=core)
             runs["outages"] = ro
             m["outages"] = outage_scores(ro, p.gnss, cfg.min_fix_type)
             if refs:  # the same windows against the reference trajectory (its lever arm applied)
@@ -405,12 +407,12 @@ def jsonable(m: Any) -> Any:
 
 def replay_to_dir(
     source: Path | None, config: Path | None, out: Path, plots: bool = True, progress: ProgressFactory | None = None,
-    export: Path | None = None,
+    export: Path | None = None, core: str = "python",
 ) -> tuple[dict[str, Any], str]:  # fmt: skip
     """``ins-hil replay FILE|DIR [--dataset CONFIG]``: read, replay, write ``metrics.json`` and the plots into
     ``out``; (metrics, the summary text). ``source`` None: the config's ``dataset.path``. ``export``: the GNSS-present
-    replay's trajectory as CSV (:mod:`ins_hil.datasets.export`). DatasetError / DatasetConfigError (one line) on bad
-    input."""
+    replay's trajectory as CSV (:mod:`ins_hil.datasets.export`). ``core``: "python" or "c". DatasetError /
+    DatasetConfigError (one line) on bad input."""
     import json
 
     from ins_hil.datasets.config import DatasetConfig, DatasetConfigError
@@ -424,7 +426,7 @@ def replay_to_dir(
     if path is None:
         raise DatasetConfigError(f"{config}: no dataset.path and no FILE|DIR given")
     ds = load(Path(path), cfg)
-    m, runs = replay(ds, cfg, progress)
+    m, runs = replay(ds, cfg, progress, core)
     notes = m.setdefault("notes", [])
     if config is None and not any(str(n).startswith("no dataset config") for n in notes):
         notes.insert(0, NO_CONFIG_NOTE)

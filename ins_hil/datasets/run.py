@@ -359,9 +359,10 @@ def antenna_ned(st: Any, lever: Vec, t: float, origin: tuple[float, float, float
 
 #: the pipeline settings of an offline replay: the Python core aligning itself from the first IMU sample, the
 #: gateway's drift monitor on the aiding, the replay's validation limits (``REPLAY_LIMITS``)
-def offline_config(aiding_fdi: bool = True) -> PipelineConfig:
-    """The :class:`~ins_hil.runtime.pipeline.PipelineConfig` of an offline replay (``init = "core"``)."""
-    return PipelineConfig(core="python", init="core", aiding_fdi=aiding_fdi, limits=REPLAY_LIMITS)
+def offline_config(aiding_fdi: bool = True, core: str = "python") -> PipelineConfig:
+    """The :class:`~ins_hil.runtime.pipeline.PipelineConfig` of an offline replay (``init = "core"``); ``core``
+    "c": the C reference core (aligned by the Python core's alignment, then handed over)."""
+    return PipelineConfig(core=core, init="core", aiding_fdi=aiding_fdi, limits=REPLAY_LIMITS)
 
 
 def navigating(pipe: Pipeline) -> bool:
@@ -563,14 +564,17 @@ class GnssScore(Observer):
 
 def run_dataset(p: Prepared, outages: list[tuple[float, float]] = (), label: str = "",  # type: ignore[assignment]
                 progress: Progress | None = None, observers: Sequence[Observer] = (),
-                aiding_fdi: bool | None = None) -> RunResult:  # fmt: skip
+                aiding_fdi: bool | None = None, core: str = "python") -> RunResult:  # fmt: skip
     """Replay ``p`` through the gateway's pipeline (:func:`replay`); GNSS inside ``outages`` (s, absolute) is
     scored, never fused. ``observers``: more scoring (e.g. a reference trajectory's). ReplayError (one line
     naming the recording and the time) when the state becomes non-finite or the core fails numerically.
-    ``aiding_fdi``: the drift monitor on or off (None: the dataset config's ``[fdi] aiding``)."""
+    ``aiding_fdi``: the drift monitor on or off (None: the dataset config's ``[fdi] aiding``). ``core``: "python"
+    or "c" (a setting the C core lacks: RuntimeError naming it)."""
     src = p.source or label or "replay"
     try:
-        return _run_dataset(p, outages, label, progress, observers, p.aiding_fdi if aiding_fdi is None else aiding_fdi)
+        return _run_dataset(
+            p, outages, label, progress, observers, p.aiding_fdi if aiding_fdi is None else aiding_fdi, core
+        )
     except ReplayError:
         raise
     except (ArithmeticError, ValueError, np.linalg.LinAlgError) as e:
@@ -583,7 +587,7 @@ def _inside(t: float, outages: Sequence[tuple[float, float]]) -> bool:
 
 
 def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str, progress: Progress | None,
-                 observers: Sequence[Observer], aiding_fdi: bool) -> RunResult:  # fmt: skip
+                 observers: Sequence[Observer], aiding_fdi: bool, core_kind: str = "python") -> RunResult:  # fmt: skip
     """:func:`run_dataset` on the one loop: a :class:`Track` and a :class:`GnssScore` observe it."""
     origin = p.origin
     fused = [f for f in p.gnss if not _inside(f.t, outages)]
@@ -605,7 +609,7 @@ def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str
 
     t_start = time.perf_counter()
     pipe, events = replay(p.imu, aids, p.nav, [track, score, *observers], on_aid=heading if p.mag_heading_only
-                          else None, pipeline=offline_config(aiding_fdi), progress=progress,
+                          else None, pipeline=offline_config(aiding_fdi, core_kind), progress=progress,
                           source=p.source or label or "replay", setup=setup)  # fmt: skip
     core: Any = pipe.core
     tr = track.arrays()

@@ -47,7 +47,8 @@ from ins_hil.datasets.dataset import Dataset, DatasetError, detect_format
 @dataclass(frozen=True)
 class Job:
     """One replay: ``source`` (a log; None = the config's ``dataset.path``), ``config`` (a dataset TOML;
-    None = the defaults), ``seed``, the folder ``out`` for its report, and whether it writes its ``plots``."""
+    None = the defaults), ``seed``, the folder ``out`` for its report, whether it writes its ``plots``, and the
+    navigation ``core`` ("python" or "c")."""
 
     source: str | None
     config: str | None
@@ -58,6 +59,7 @@ class Job:
     variant: str | None = None
     overrides: dict[str, Any] | None = field(default=None, hash=False)
     shift_s: float = 0.0
+    core: str = "python"
 
     @property
     def log(self) -> str:
@@ -140,17 +142,18 @@ def jobs(
     plots: bool = True,
     variants: list[tuple[str, dict[str, Any]]] | None = None,
     shifts: list[float] | None = None,
+    core: str = "python",
 ) -> list[Job]:
     """Every pair times seeds 0 … seeds − 1, each with its folder under ``out``; with ``variants``, each
     also with every variant (the config as it is first), and with ``shifts``, each at every shift of its
     outage protocol (s; a config without one runs once, unshifted). DatasetConfigError when a variant does
-    not fit a log's config (checked here, before anything runs)."""
+    not fit a log's config (checked here, before anything runs). ``core``: every job's navigation core."""
     vs: list[tuple[str | None, dict[str, Any] | None]] = [(None, None)]
     vs += [(n, v) for n, v in variants or []]
     js = []
     for i, (src, cfg) in enumerate(pairs):
         for name, over in vs:
-            base = Job(src, cfg, 0, "", plots, name, over)
+            base = Job(src, cfg, 0, "", plots, name, over, core=core)
             has_outages = _config(base).outages is not None  # the variant checked against this config
             for sh in (shifts or [0.0]) if has_outages else [0.0]:
                 for s in range(seeds):
@@ -284,14 +287,14 @@ def run_job(job: Job) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     row: dict[str, Any] = {"job": job.name, "source": job.source, "config": job.config, "seed": job.seed,
-                           "log": job.log, "variant": job.variant or BASELINE, "shift_s": job.shift_s,
+                           "log": job.log, "variant": job.variant or BASELINE, "shift_s": job.shift_s, "core": job.core,
                            "pid": os.getpid()}  # fmt: skip
     try:
         cfg = _config(job)
         ds, row["cached"] = load_cached(_log_path(job, cfg), cfg)
         t1 = time.perf_counter()
         row["load_s"] = t1 - t0
-        m, runs = report.replay(ds, cfg)
+        m, runs = report.replay(ds, cfg, core=job.core)
         t2 = time.perf_counter()
         row["replay_s"] = t2 - t1
         out = Path(job.out)

@@ -41,6 +41,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ins_hil.fusion import generated_jacobians as gj
 from ins_hil.nav import earth
 from ins_hil.settings import check_fields, setting
 from ins_hil.types import Vec
@@ -218,6 +219,12 @@ class StateIndex:
         return StateIndex(k, 0, 3, 6, bg, ba, sg, sa, mnt, gs, mb, wind, extra)
 
 
+def _floats(a: Vec) -> list[float]:
+    """The entries of an array (any shape, row by row) or a sequence as Python floats (the generated code's
+    scalar arithmetic is faster on floats than on numpy scalars)."""
+    return a.ravel().tolist() if isinstance(a, np.ndarray) else [float(x) for x in a]
+
+
 def skew(a: Vec) -> Vec:
     """[a×] (local fast copy of rotation.skew for floats)."""
     return np.array(((0.0, -a[2], a[1]), (a[2], 0.0, -a[0]), (-a[1], a[0], 0.0)))
@@ -308,9 +315,22 @@ class ErrorStateEKF:
                 self._F[k, k] = -1.0 / self._tau[k]
         self._eye = np.eye(n)
         self._g2r = 2.0 * 9.80665 / 6371000.0  # vertical-channel gravity gradient 2g/R (seed 001 eq. 96)
-        cells = [(3, 7), (3, 8), (4, 6), (4, 8), (5, 6), (5, 7), (3, 4), (3, 5), (4, 3), (4, 5), (5, 3), (5, 4),
-                 (6, 7), (6, 8), (7, 6), (7, 8), (8, 6), (8, 7), (5, 2)]  # fmt: skip
-        self._var_idx = np.array([r * n + c for r, c in cells])
+        # the generated F (ins_hil.fusion.generated_jacobians, 15-state layout) placed into this layout: its
+        # cells as flat indices of self._F (the bias cells dropped when those states are off)
+        i0 = self.idx
+
+        def at(k: int) -> int | None:
+            if k < 9:
+                return k
+            b = i0.bg if k < 12 else i0.ba
+            return None if b is None else b + (k - 9) % 3
+
+        cells = [(m, at(r), at(col)) for m, (r, col) in enumerate(gj.F_CELLS)]
+        kept = [(m, r, col) for m, r, col in cells if r is not None and col is not None]
+        self._gen_idx = np.array([r * n + col for _, r, col in kept])
+        self._gen_keep: list[int] | None = None if len(kept) == len(cells) else [m for m, _, _ in kept]
+        self._inv_tau_g = 1.0 / self._tau[i0.bg] if i0.bg is not None else 0.0
+        self._inv_tau_a = 1.0 / self._tau[i0.ba] if i0.ba is not None else 0.0
         self._qd_cache: tuple[float, Vec] = (-1.0, np.zeros((n, n)))
         self._diag = np.arange(n) * (n + 1)
         # accumulation for cov_every > 1
@@ -405,30 +425,20 @@ class ErrorStateEKF:
         self._reset_P(P)
 
     def build_F(self, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, f_b: Vec, w_b: Vec, lat: float, h: float) -> Vec:
-        """Continuous error-dynamics matrix F (n×n) at the current nominal state (see module doc).
-
-        Filled in place with scalar stores (hot path: numpy slicing costs ~1 µs per call)."""
+        """Continuous error-dynamics matrix F (n×n) at the current nominal state (see module doc): the entries
+        of the generated derivation (``ins_hil.fusion.generated_jacobians``: [f×] in δv̇/μ (book eq. 3.1),
+        −[(2ω_ie + ω_en)×] on δv, −[ω_in×] on μ, 2g/R on δr_D, ±C on the biases) in one vectorised store, then
+        the states the derivation does not cover (scale factors, g-sensitivity, the ∂ω/∂r, ∂ω/∂v terms)."""
         F = self._F
         i = self.idx
-        fN, fE, fD = float(f_ned[0]), float(f_ned[1]), float(f_ned[2])
         if self.cfg.earth_terms:
-            iN, iD = float(w_ie[0]), float(w_ie[2])
-            eN, eE, eD = float(w_en[0]), float(w_en[1]), float(w_en[2])
-            cN, cE, cD = 2.0 * iN + eN, eE, 2.0 * iD + eD  # 2ω_ie + ω_en
-            oN, oE, oD = iN + eN, eE, iD + eD  # ω_in
-            g2r = self._g2r
+            wie, wen, g2r = _floats(w_ie), _floats(w_en), self._g2r
         else:
-            cN = cE = cD = oN = oE = oD = g2r = 0.0
-        # one vectorised store of the time-varying scalar entries (order of self._var_idx):
-        # [f×] in δv̇/μ (book eq. 3.1, block C), −[(2ω_ie + ω_en)×] on δv, −[ω_in×] on μ, 2g/R on δr_D
-        F.put(
-            self._var_idx,
-            (-fD, fE, fD, -fN, -fE, fN, cD, -cE, -cD, cN, cE, -cN, oD, -oE, -oD, oN, oE, -oN, g2r),
-        )
-        if i.bg is not None:
-            F[6:9, i.bg : i.bg + 3] = C_bn  # μ̇ = C δb_g   (book eq. 3.40, A^T)
-        if i.ba is not None:
-            F[3:6, i.ba : i.ba + 3] = -C_bn
+            wie = wen = [0.0, 0.0, 0.0]
+            g2r = 0.0
+        vals = gj.F_values(_floats(C_bn), _floats(f_ned), wie, wen, self._inv_tau_g, self._inv_tau_a, g2r)
+        keep = self._gen_keep
+        F.put(self._gen_idx, vals if keep is None else [vals[k] for k in keep])
         if i.sg is not None and i.sa is not None:
             F[6:9, i.sg : i.sg + 3] = C_bn * w_b[None, :]
             F[3:6, i.sa : i.sa + 3] = -C_bn * f_b[None, :]
@@ -436,7 +446,8 @@ class ErrorStateEKF:
             # ω̂ − ω = δb_g + δG f^b: μ̇ gains C δG f^b, ∂/∂G_jk = C[:, j] f_k (the bias column scaled by f_k)
             F[6:9, i.gs : i.gs + 9] = np.kron(C_bn, f_b[None, :])
         if self.cfg.omega_rv_terms and self.cfg.earth_terms:
-            self._omega_rv_terms(F, w_ie, w_en, lat, h, (cN, cE, cD), g2r)
+            c = (2.0 * wie[0] + wen[0], wen[1], 2.0 * wie[2] + wen[2])  # 2ω_ie + ω_en (ω_ie,E = 0)
+            self._omega_rv_terms(F, w_ie, w_en, lat, h, c, g2r)
         return F
 
     @staticmethod

@@ -10,69 +10,132 @@ C core's ``firmware_ref/src/generated/ins_jacobians.h``. Vectors are 3-sequences
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 NX = 15
 
 
+#: the (row, column) of every entry of F that is not identically zero, in the order of :func:`F_values`
+F_CELLS: tuple[tuple[int, int], ...] = (
+    (0, 3),
+    (1, 4),
+    (2, 5),
+    (3, 4),
+    (3, 5),
+    (3, 7),
+    (3, 8),
+    (3, 12),
+    (3, 13),
+    (3, 14),
+    (4, 3),
+    (4, 5),
+    (4, 6),
+    (4, 8),
+    (4, 12),
+    (4, 13),
+    (4, 14),
+    (5, 2),
+    (5, 3),
+    (5, 4),
+    (5, 6),
+    (5, 7),
+    (5, 12),
+    (5, 13),
+    (5, 14),
+    (6, 7),
+    (6, 8),
+    (6, 9),
+    (6, 10),
+    (6, 11),
+    (7, 6),
+    (7, 8),
+    (7, 9),
+    (7, 10),
+    (7, 11),
+    (8, 6),
+    (8, 7),
+    (8, 9),
+    (8, 10),
+    (8, 11),
+    (9, 9),
+    (10, 10),
+    (11, 11),
+    (12, 12),
+    (13, 13),
+    (14, 14),
+)
+
+
+def F_values(C: Sequence[float], f_ned: Sequence[float], w_ie: Sequence[float], w_en: Sequence[float],
+             inv_tau_g: float, inv_tau_a: float, g2r: float) -> tuple[float, ...]:
+    """The entries of F at :data:`F_CELLS` (C: the 9 entries of C_b^n row by row, floats): one
+    ``ndarray.put`` fills a caller-owned F (the hot path: no array built per step)."""
+    return (
+        1,
+        1,
+        1,
+        w_en[2] + 2*w_ie[2],
+        -w_en[1] - 2*w_ie[1],
+        -f_ned[2],
+        f_ned[1],
+        -C[0],
+        -C[1],
+        -C[2],
+        -w_en[2] - 2*w_ie[2],
+        w_en[0] + 2*w_ie[0],
+        f_ned[2],
+        -f_ned[0],
+        -C[3],
+        -C[4],
+        -C[5],
+        g2r,
+        w_en[1] + 2*w_ie[1],
+        -w_en[0] - 2*w_ie[0],
+        -f_ned[1],
+        f_ned[0],
+        -C[6],
+        -C[7],
+        -C[8],
+        w_en[2] + w_ie[2],
+        -w_en[1] - w_ie[1],
+        C[0],
+        C[1],
+        C[2],
+        -w_en[2] - w_ie[2],
+        w_en[0] + w_ie[0],
+        C[3],
+        C[4],
+        C[5],
+        w_en[1] + w_ie[1],
+        -w_en[0] - w_ie[0],
+        C[6],
+        C[7],
+        C[8],
+        -inv_tau_g,
+        -inv_tau_g,
+        -inv_tau_g,
+        -inv_tau_a,
+        -inv_tau_a,
+        -inv_tau_a,
+    )
+
+
 def F(C: np.ndarray, f_ned: Sequence[float], w_ie: Sequence[float], w_en: Sequence[float],
       inv_tau_g: float, inv_tau_a: float, g2r: float) -> np.ndarray:
     """Continuous error-dynamics matrix F (15 × 15) at the nominal state (C: 3 × 3 C_b^n)."""
-    C = np.asarray(C, dtype=np.float64).ravel()
     out = np.zeros((NX, NX))
-    out[0, 3] = 1
-    out[1, 4] = 1
-    out[2, 5] = 1
-    out[3, 4] = w_en[2] + 2*w_ie[2]
-    out[3, 5] = -w_en[1] - 2*w_ie[1]
-    out[3, 7] = -f_ned[2]
-    out[3, 8] = f_ned[1]
-    out[3, 12] = -C[0]
-    out[3, 13] = -C[1]
-    out[3, 14] = -C[2]
-    out[4, 3] = -w_en[2] - 2*w_ie[2]
-    out[4, 5] = w_en[0] + 2*w_ie[0]
-    out[4, 6] = f_ned[2]
-    out[4, 8] = -f_ned[0]
-    out[4, 12] = -C[3]
-    out[4, 13] = -C[4]
-    out[4, 14] = -C[5]
-    out[5, 2] = g2r
-    out[5, 3] = w_en[1] + 2*w_ie[1]
-    out[5, 4] = -w_en[0] - 2*w_ie[0]
-    out[5, 6] = -f_ned[1]
-    out[5, 7] = f_ned[0]
-    out[5, 12] = -C[6]
-    out[5, 13] = -C[7]
-    out[5, 14] = -C[8]
-    out[6, 7] = w_en[2] + w_ie[2]
-    out[6, 8] = -w_en[1] - w_ie[1]
-    out[6, 9] = C[0]
-    out[6, 10] = C[1]
-    out[6, 11] = C[2]
-    out[7, 6] = -w_en[2] - w_ie[2]
-    out[7, 8] = w_en[0] + w_ie[0]
-    out[7, 9] = C[3]
-    out[7, 10] = C[4]
-    out[7, 11] = C[5]
-    out[8, 6] = w_en[1] + w_ie[1]
-    out[8, 7] = -w_en[0] - w_ie[0]
-    out[8, 9] = C[6]
-    out[8, 10] = C[7]
-    out[8, 11] = C[8]
-    out[9, 9] = -inv_tau_g
-    out[10, 10] = -inv_tau_g
-    out[11, 11] = -inv_tau_g
-    out[12, 12] = -inv_tau_a
-    out[13, 13] = -inv_tau_a
-    out[14, 14] = -inv_tau_a
+    c = np.asarray(C, dtype=np.float64).ravel().tolist()
+    vals = F_values(c, f_ned, w_ie, w_en, inv_tau_g, inv_tau_a, g2r)
+    out.put([i * NX + j for i, j in F_CELLS], vals)
     return out
 
 
-def H_gnss_pos(C: np.ndarray, lever: Sequence[float]) -> np.ndarray:
+def H_gnss_pos(C: Any, lever: Any) -> np.ndarray:
     """GNSS antenna position (lever arm l, body FRD, m): δr + [(C l)×] ψ (3 × 15)."""
-    C = np.asarray(C, dtype=np.float64).ravel()
+    C = np.asarray(C, dtype=np.float64).ravel().tolist()
+    lever = np.asarray(lever, dtype=np.float64).ravel().tolist()
     h = np.zeros((3, NX))
     h[0, 0] = 1
     h[0, 7] = -C[6]*lever[0] - C[7]*lever[1] - C[8]*lever[2]
@@ -86,9 +149,11 @@ def H_gnss_pos(C: np.ndarray, lever: Sequence[float]) -> np.ndarray:
     return h
 
 
-def H_gnss_vel(C: np.ndarray, omega_b: Sequence[float], lever: Sequence[float]) -> np.ndarray:
+def H_gnss_vel(C: Any, omega_b: Any, lever: Any) -> np.ndarray:
     """GNSS antenna velocity (compensated body rate ω, rad/s): δv + [(C(ω×l))×] ψ + C [l×] δb_g (3 × 15)."""
-    C = np.asarray(C, dtype=np.float64).ravel()
+    C = np.asarray(C, dtype=np.float64).ravel().tolist()
+    omega_b = np.asarray(omega_b, dtype=np.float64).ravel().tolist()
+    lever = np.asarray(lever, dtype=np.float64).ravel().tolist()
     h = np.zeros((3, NX))
     h[0, 3] = 1
     h[0, 7] = C[6]*(lever[1]*omega_b[2] - lever[2]*omega_b[1]) - C[7]*(lever[0]*omega_b[2] - lever[2]*omega_b[0]) + C[8]*(lever[0]*omega_b[1] - lever[1]*omega_b[0])
@@ -136,9 +201,10 @@ def H_zaru() -> np.ndarray:
     return h
 
 
-def H_nhc(C: np.ndarray, vel: Sequence[float]) -> np.ndarray:
+def H_nhc(C: Any, vel: Any) -> np.ndarray:
     """non-holonomic constraint (body y, z velocity): C^T δv − C^T [v×] ψ (2 × 15)."""
-    C = np.asarray(C, dtype=np.float64).ravel()
+    C = np.asarray(C, dtype=np.float64).ravel().tolist()
+    vel = np.asarray(vel, dtype=np.float64).ravel().tolist()
     h = np.zeros((2, NX))
     h[0, 3] = C[1]
     h[0, 4] = C[4]
@@ -155,8 +221,9 @@ def H_nhc(C: np.ndarray, vel: Sequence[float]) -> np.ndarray:
     return h
 
 
-def H_mag(m: Sequence[float]) -> np.ndarray:
+def H_mag(m: Any) -> np.ndarray:
     """magnetometer, unit reference field m (NED): rows 2-3 of τ (book eq. 3.33) on ψ (2 × 15)."""
+    m = np.asarray(m, dtype=np.float64).ravel().tolist()
     h = np.zeros((2, NX))
     h[0, 6] = -m[1]
     h[0, 7] = (m[0] - m[1]**2 + 1)/(m[0] + 1)

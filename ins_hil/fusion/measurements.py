@@ -26,9 +26,24 @@ import math
 
 import numpy as np
 
+from ins_hil.fusion import generated_jacobians as gj
 from ins_hil.fusion.ekf import StateIndex, skew
 from ins_hil.nav import earth
 from ins_hil.types import Vec
+
+
+def placed(h: Vec, idx: StateIndex) -> Vec:
+    """Rows of the generated Jacobians (``ins_hil.fusion.generated_jacobians``: the 15-state layout δr, δv, μ,
+    δb_g, δb_a) in the filter's layout ``idx`` (the bias columns moved, or dropped with their states off)."""
+    if idx.n == gj.NX and idx.bg == 9 and idx.ba == 12:
+        return h
+    H = np.zeros((h.shape[0], idx.n))
+    H[:, 0:9] = h[:, 0:9]
+    if idx.bg is not None:
+        H[:, idx.bg : idx.bg + 3] = h[:, 9:12]
+    if idx.ba is not None:
+        H[:, idx.ba : idx.ba + 3] = h[:, 12:15]
+    return H
 
 
 def ned_residual(lat_m: float, lon_m: float, h_m: float, lat: float, lon: float, h: float) -> Vec:
@@ -54,10 +69,7 @@ def gnss_position(
     z = ned_residual(meas_lat, meas_lon, meas_h, lat, lon, h) - la
     if shift_ned is not None:
         z = z + shift_ned
-    H = np.zeros((3, idx.n))
-    H[:, idx.pos : idx.pos + 3] = np.eye(3)
-    H[:, idx.att : idx.att + 3] = skew(la)
-    return z, H
+    return z, placed(gj.H_gnss_pos(C_bn, lever_b), idx)
 
 
 def gnss_velocity(idx: StateIndex, C_bn: Vec, vel: Vec, omega_b: Vec, meas_vel: Vec, lever_b: Vec) -> tuple[Vec, Vec]:
@@ -67,19 +79,12 @@ def gnss_velocity(idx: StateIndex, C_bn: Vec, vel: Vec, omega_b: Vec, meas_vel: 
     # ω × l component-wise (the numbers of np.cross, without its ~50 µs of overhead on 3-vectors)
     wl = C_bn @ np.array((w1 * l2 - w2 * l1, w2 * l0 - w0 * l2, w0 * l1 - w1 * l0))
     z = meas_vel - (vel + wl)
-    H = np.zeros((3, idx.n))
-    H[:, idx.vel : idx.vel + 3] = np.eye(3)
-    H[:, idx.att : idx.att + 3] = skew(wl)
-    if idx.bg is not None:
-        H[:, idx.bg : idx.bg + 3] = C_bn @ skew(lever_b)
-    return z, H
+    return z, placed(gj.H_gnss_vel(C_bn, omega_b, lever_b), idx)
 
 
 def baro_height(idx: StateIndex, h: float, baro_h: float) -> tuple[Vec, Vec]:
     """(z, H) of a barometric height already referred to the ellipsoid (m)."""
-    H = np.zeros((1, idx.n))
-    H[0, idx.pos + 2] = -1.0
-    return np.array((baro_h - h,)), H
+    return np.array((baro_h - h,)), placed(gj.H_baro(), idx)
 
 
 def tau_matrix(m: Vec) -> Vec:
@@ -123,12 +128,11 @@ def magnetometer(idx: StateIndex, C_bn: Vec, field_b: Vec, ref_ned: Vec, bias_b:
         mb = field_b / np.linalg.norm(field_b)
     tau = tau_matrix(m)
     g = tau @ np.cross(m, C_bn @ mb)  # −γ̄ = m × τ Ā m̄  (eq. 3.38, in τ coordinates)
+    h_att = placed(gj.H_mag(m), idx)  # rows 2-3 of τ on μ
     if mb_s is None:
-        H = np.zeros((2, idx.n))
-        H[:, idx.att : idx.att + 3] = tau[1:3]
-        return g[1:3], H
+        return g[1:3], h_att
     H = np.zeros((3, idx.n))
-    H[0:2, idx.att : idx.att + 3] = tau[1:3]
+    H[0:2] = h_att
     H[0:2, mb_s : mb_s + 3] = (tau[1:3] @ skew(m) @ C_bn @ (np.eye(3) - np.outer(mb, mb))) / un
     H[2, mb_s : mb_s + 3] = -mb
     return np.array((g[1], g[2], 1.0 - un)), H
@@ -136,19 +140,19 @@ def magnetometer(idx: StateIndex, C_bn: Vec, field_b: Vec, ref_ned: Vec, bias_b:
 
 def nonholonomic(idx: StateIndex, C_bn: Vec, vel: Vec) -> tuple[Vec, Vec]:
     """(z, H) of the non-holonomic constraint v_b,y = v_b,z = 0 (ground vehicle)."""
-    Cnb = C_bn.T
-    vb = Cnb @ vel
-    H = np.zeros((2, idx.n))
-    H[:, idx.vel : idx.vel + 3] = Cnb[1:3]
-    H[:, idx.att : idx.att + 3] = -(Cnb @ skew(vel))[1:3]
-    return -vb[1:3], H
+    vb = C_bn.T @ vel
+    return -vb[1:3], placed(gj.H_nhc(C_bn, vel), idx)
 
 
 def zero_velocity(idx: StateIndex, vel: Vec) -> tuple[Vec, Vec]:
     """(z, H) of a zero-velocity update."""
-    H = np.zeros((3, idx.n))
-    H[:, idx.vel : idx.vel + 3] = np.eye(3)
-    return -vel, H
+    return -vel, placed(gj.H_zupt(), idx)
+
+
+def zero_rate(idx: StateIndex, omega_b: Vec) -> tuple[Vec, Vec]:
+    """(z, H) of a zero-angular-rate update: the averaged compensated rate ``omega_b`` (rad/s, body) of a
+    vehicle at rest is the residual gyro bias, z = 0 − ω̄ = −δb_g (needs the gyro bias states)."""
+    return -omega_b, placed(gj.H_zaru(), idx)
 
 
 def nonholonomic_mounted(

@@ -168,7 +168,9 @@ def check_core(kind: str, nav: dict[str, Any] | NavConfig | None = None) -> None
 def make_core(kind: str, initial: StrapdownState | None, nav: dict[str, Any] | NavConfig | None = None) -> RealTimeCore:
     """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore; a
     setting the C core lacks is refused in one line naming it). ``nav``: the ``[core.nav]`` table or a built
-    ``NavConfig``; ``initial`` None: the core aligns itself (Python core)."""
+    ``NavConfig``; ``initial`` None: the core aligns itself (the C core through the Python core's alignment,
+    handed over when it navigates, and stepping with each sample's own dt: ``CNavCore(None, nav,
+    fixed_step=False)``)."""
     cfg = nav_config(nav or {})
     from ins_hil.core import NavCore
 
@@ -178,11 +180,11 @@ def make_core(kind: str, initial: StrapdownState | None, nav: dict[str, Any] | N
         if kind == "c":
             raise RuntimeError(f"core 'c': the C reference core (ins_hil.cref) is not available: {e}") from e
         return NavCore(initial, cfg)
-    if kind == "c" and initial is None:
-        raise ValueError("core 'c' needs an initial state (it has no self-alignment)")
     try:
         core: RealTimeCore
-        if kind == "c" and initial is not None:
+        if kind == "c" and initial is None:
+            core = cref.CNavCore(None, cfg, fixed_step=False)
+        elif kind == "c":
             core = cref.CNavCore(initial, cfg)
         else:
             core = NavCore(initial, cfg)
