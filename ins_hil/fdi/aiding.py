@@ -64,7 +64,9 @@ baro/GNSS test (the GNSS CUSUM usually fires first).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -150,6 +152,8 @@ def _dead_zone(x: np.ndarray, dz: np.ndarray) -> np.ndarray:
     return np.sign(x) * np.maximum(0.0, np.abs(x) - dz)
 
 
+_N_ANCHORS = 3  # accepted fixes an outlier run can be bridged from (outliers up to 2 fixes long)
+
 _sum = np.add.reduce  # the reduction ``ndarray.mean``/``sum`` call, without their Python-level wrappers
 
 
@@ -234,6 +238,8 @@ class AidingMonitor:
         self._cn = np.zeros(6)  # CUSUM S⁻
         self._prev: GnssFix | None = None
         self._e = np.zeros(3)  # accumulated position − integrated velocity (m, NED)
+        #: the last ``_N_ANCHORS`` accepted fixes: [fix, its e, velocity integrated since (m, NED)]
+        self._anchors: deque[list[Any]] = deque(maxlen=_N_ANCHORS)
         self._win = _RowWindow(6)  # rows t, e(3), σ_p², σ_v²Δt
         self._cp_len = np.zeros(6)  # samples since S⁺ was last zero
         self._cn_len = np.zeros(6)
@@ -323,18 +329,39 @@ class AidingMonitor:
         if prev is not None and (g.t - prev.t > c.max_gap or g.t <= prev.t):
             self._reset_windows()
             prev = None
+        fix_ok = True  # False: an outlier in position (the baro/GNSS test leaves it out too)
         if prev is not None and prev.vel_ned is not None and g.vel_ned is not None:
+            fix_ok = False
             dt = g.t - prev.t
+            trap = 0.5 * (np.asarray(prev.vel_ned) + np.asarray(g.vel_ned)) * dt
             dp = earth.ned_delta_small(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h)
-            de = dp - 0.5 * (np.asarray(prev.vel_ned) + np.asarray(g.vel_ned)) * dt
-            if (
-                float(np.max(np.abs(de[:2]))) < c.jump_gate * 1.4142 * sp_ne
-                and abs(de[2]) < c.jump_gate * 1.4142 * sp_d
-            ):
-                self._e = self._e + de  # a single-epoch jump is left to the filter's gate (JUMP)
+            de = dp - trap
+            # Outliers: the fix is bridged from the newest of the last accepted fixes (anchors) its
+            # position agrees with (p_k − p_a − ∫v within the jump gate), so that e_k = n_k − n_0 − ∫w
+            # stays a telescoping sum of the position noise over an outlier. Dropping the outlier's
+            # steps instead (or one of them, when the other is within the gate) leaves a step
+            # ~ N(0, 2σ_p²) in e that the slope test reads as a pull for a whole window.
+            for anc in self._anchors:
+                anc[2] += trap
+            for a_fix, a_e, a_int in reversed(self._anchors):
+                db = earth.ned_delta_small(g.lat - a_fix.lat, g.lon - a_fix.lon, g.h - a_fix.h, g.lat, g.h) - a_int
+                if self._step_ok(db, sp_ne, sp_d):
+                    self._e = a_e + db
+                    self._push_anchor(g)
+                    fix_ok = True
+                    break
+            else:
+                if self._step_ok(de, sp_ne, sp_d):  # a persisting jump: its level is accepted (the filter gates it)
+                    self._e = self._e + de
+                    self._anchors.clear()
+                    self._push_anchor(g)
+                    fix_ok = True
+                # else a single-epoch jump is left to the filter's gate (JUMP)
             self._win.append((g.t, *self._e, sp_ne * sp_ne, sv * sv * dt))
         elif g.vel_ned is not None:
             self._e = np.zeros(3)
+            self._anchors.clear()
+            self._push_anchor(g)
             self._win.append((g.t, 0.0, 0.0, 0.0, sp_ne * sp_ne, 0.0))
         self._prev = g
         while self._win and self._win.first_t() < g.t - c.window:
@@ -391,7 +418,8 @@ class AidingMonitor:
                 self._cn[:] = 0.0
                 self._clear(self.gnss, "gnss", g.t)
         # --- baro vs GNSS height (only against a healthy GNSS)
-        self._baro_vs_gnss(g, sp_d)
+        if fix_ok:
+            self._baro_vs_gnss(g, sp_d)
 
     def _lag(self, g: GnssFix, st: NavState) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """Lag of the fix behind the state (s, ≥ 0), the state's NED acceleration (m/s²) and the
@@ -448,9 +476,18 @@ class AidingMonitor:
         stat = b0 * b0 / v_h + b1 * b1 / v_h + b2 * b2 / (var_ne * ratio_d * ratio_d + var_v + fl)
         return stat, math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
 
+    def _push_anchor(self, g: GnssFix) -> None:
+        self._anchors.append([g, self._e.copy(), np.zeros(3)])
+
+    def _step_ok(self, de: np.ndarray, sp_ne: float, sp_d: float) -> bool:
+        """A position-minus-integrated-velocity step (m, NED) within the jump gate (√2 σ_p per axis)."""
+        g = self.cfg.jump_gate * 1.4142
+        return float(np.max(np.abs(de[:2]))) < g * sp_ne and abs(float(de[2])) < g * sp_d
+
     def _reset_windows(self) -> None:
         self._win.clear()
         self._e = np.zeros(3)
+        self._anchors.clear()
 
     # ---------------------------------------------------------------- baro
     def _baro_vs_gnss(self, g: GnssFix, sp_d: float) -> None:
