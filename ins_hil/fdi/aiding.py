@@ -238,7 +238,7 @@ class AidingMonitor:
         self._cn = np.zeros(6)  # CUSUM S⁻
         self._prev: GnssFix | None = None
         self._e = np.zeros(3)  # accumulated position − integrated velocity (m, NED)
-        #: the last ``_N_ANCHORS`` accepted fixes: [fix, its e, velocity integrated since (m, NED)]
+        #: the last ``_N_ANCHORS`` accepted fixes: [fix, its e, velocity integrated since, its dead zone (m, NED)]
         self._anchors: deque[list[Any]] = deque(maxlen=_N_ANCHORS)
         self._win = _RowWindow(6)  # rows t, e(3), σ_p², σ_v²Δt
         self._cp_len = np.zeros(6)  # samples since S⁺ was last zero
@@ -250,6 +250,8 @@ class AidingMonitor:
         self._v_t = math.nan
         self._ins_hold = -math.inf  # INS-innovation CUSUMs held until this time (see ins_disturbed)
         self._gnss_by_cusum = False
+        self._st_prev: NavState | None = None  # the state the previous fix was checked against
+        self._prev_outlier = False  # the previous fix was a position outlier (see _gnss)
         self._lever = lever
         self._has_lever = bool(np.any(self._lever != 0.0))
 
@@ -298,6 +300,7 @@ class AidingMonitor:
         c = self.cfg
         sp_ne, sp_d = max(g.std_ne, c.min_std), max(g.std_d, c.min_std)
         var_p = np.array((sp_ne * sp_ne, sp_ne * sp_ne, sp_d * sp_d))
+        sp0, self._st_prev = self._st_prev, st
         # --- innovations against the INS at the fix's time of validity
         lag, a_n, dz_p, dz_v = self._lag(g, st)
         v_f = np.asarray(st.vel_ned, dtype=np.float64)
@@ -330,10 +333,14 @@ class AidingMonitor:
             self._reset_windows()
             prev = None
         fix_ok = True  # False: an outlier in position (the baro/GNSS test leaves it out too)
+        bridged = False  # accepted against an anchor older than the previous fix (that one was an outlier)
         if prev is not None and prev.vel_ned is not None and g.vel_ned is not None:
             fix_ok = False
             dt = g.t - prev.t
             trap = 0.5 * (np.asarray(prev.vel_ned) + np.asarray(g.vel_ned)) * dt
+            # the trapezoid rule's error on the real motion: up to about ½·|v − v_prev|·Δt per axis (a walk's
+            # gait at 1 Hz: ~0.1 m, beyond the jump gate of RTK); a dead zone of the outlier test
+            dz = 0.5 * np.abs(np.asarray(g.vel_ned) - np.asarray(prev.vel_ned)) * dt
             dp = earth.ned_delta_small(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h)
             de = dp - trap
             # Outliers: the fix is bridged from the newest of the last accepted fixes (anchors) its
@@ -343,15 +350,17 @@ class AidingMonitor:
             # ~ N(0, 2σ_p²) in e that the slope test reads as a pull for a whole window.
             for anc in self._anchors:
                 anc[2] += trap
-            for a_fix, a_e, a_int in reversed(self._anchors):
+                anc[3] += dz
+            for a_fix, a_e, a_int, a_dz in reversed(self._anchors):
                 db = earth.ned_delta_small(g.lat - a_fix.lat, g.lon - a_fix.lon, g.h - a_fix.h, g.lat, g.h) - a_int
-                if self._step_ok(db, sp_ne, sp_d):
+                if self._step_ok(db, sp_ne, sp_d, a_dz):
                     self._e = a_e + db
+                    bridged = a_fix is not prev
                     self._push_anchor(g)
                     fix_ok = True
                     break
             else:
-                if self._step_ok(de, sp_ne, sp_d):  # a persisting jump: its level is accepted (the filter gates it)
+                if self._step_ok(de, sp_ne, sp_d, dz):  # a persisting jump: its level is accepted (the filter gates it)
                     self._e = self._e + de
                     self._anchors.clear()
                     self._push_anchor(g)
@@ -373,6 +382,21 @@ class AidingMonitor:
         if not c.vertical_cusum:  # the filter height follows the baro: vertical GNSS checked by the slope tests
             z[2] = z[5] = 0.0
         z = np.clip(z, -c.jump_gate, c.jump_gate)  # an outlier adds at most jump_gate − k
+        if bridged and self._prev_outlier and sp0 is not None and 0.0 < st.t - sp0.t <= c.max_gap:
+            # The previous fix was a position outlier (it agreed with none of the last accepted fixes, this one
+            # agrees with one before it) and the horizontal state stepped after it: p − p₀ − ½(v₀ + v)Δt, the
+            # corrections fused in between, beyond
+            # ``jump_gate`` × their σ (a correction K·ν has covariance P Hᵀ S⁻¹ H P ≤ P: at most the prior σ_pos
+            # of that fix, the state ``sp0`` it was checked against). The filter fused the outlier (its gate is
+            # wide while it converges): its innovations now measure that step, not the GNSS, so the CUSUMs
+            # restart as after lost IMU samples (excluding the GNSS would keep the filter on the outlier).
+            step = earth.ned_delta_small(st.lat - sp0.lat, st.lon - sp0.lon, st.h - sp0.h, st.lat, st.h) - 0.5 * (
+                np.asarray(sp0.vel_ned, dtype=np.float64) + np.asarray(st.vel_ned, dtype=np.float64)
+            ) * (st.t - sp0.t)
+            s_corr = np.maximum(np.asarray(sp0.std_pos, dtype=np.float64)[:2], c.min_std)
+            if float(np.max(np.abs(step[:2]) / s_corr)) > c.jump_gate:
+                self.ins_disturbed(g.t)
+        self._prev_outlier = not fix_ok
         if g.t < self._ins_hold:
             z = np.zeros(6)  # the INS lost samples: its innovations are no evidence (ins_disturbed)
         if not (self.gnss.faulted and c.exclude):
@@ -477,12 +501,14 @@ class AidingMonitor:
         return stat, math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
 
     def _push_anchor(self, g: GnssFix) -> None:
-        self._anchors.append([g, self._e.copy(), np.zeros(3)])
+        self._anchors.append([g, self._e.copy(), np.zeros(3), np.zeros(3)])
 
-    def _step_ok(self, de: np.ndarray, sp_ne: float, sp_d: float) -> bool:
-        """A position-minus-integrated-velocity step (m, NED) within the jump gate (√2 σ_p per axis)."""
+    def _step_ok(self, de: np.ndarray, sp_ne: float, sp_d: float, dz: np.ndarray) -> bool:
+        """A position-minus-integrated-velocity step (m, NED) within the jump gate (√2 σ_p per axis) beyond
+        the dead zone ``dz`` (m, NED: the trapezoid rule's error on the motion)."""
         g = self.cfg.jump_gate * 1.4142
-        return float(np.max(np.abs(de[:2]))) < g * sp_ne and abs(float(de[2])) < g * sp_d
+        x = _dead_zone(de, dz)
+        return float(np.max(np.abs(x[:2]))) < g * sp_ne and abs(float(x[2])) < g * sp_d
 
     def _reset_windows(self) -> None:
         self._win.clear()
