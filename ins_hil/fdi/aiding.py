@@ -216,12 +216,32 @@ class _Status:
 class AidingMonitor:
     """GNSS / baro drift monitor (see module doc). Call :meth:`check` before fusing.
 
-    ``gnss_lever_arm_b`` (m, body FRD): IMU → antenna, the core's ``NavConfig.gnss.lever_arm_b`` (not a
+    ``gnss_min_std`` (m NE, m D, m/s) and ``gnss_std_scale``: the core's ``NavConfig.gnss`` σ floors and scale,
+    applied to each fix's σ as the core does; ``gnss_vel_delay`` (s): its ``gnss.vel_delay`` (a fix's velocity is
+    valid that long before its position). ``gnss_lever_arm_b`` (m, body FRD): IMU → antenna, the core's
+    ``NavConfig.gnss.lever_arm_b`` (not a
     setting of its own: the monitor must compare the fix where the core fuses it); the INS is moved to the
     antenna (p + C_b^n l, v + C_b^n (ω × l)) before it is compared with the fix."""
 
-    def __init__(self, cfg: AidingConfig | None = None, gnss_lever_arm_b: Vec | None = None) -> None:
+    def __init__(
+        self,
+        cfg: AidingConfig | None = None,
+        gnss_lever_arm_b: Vec | None = None,
+        gnss_min_std: Vec | tuple[float, float, float] | None = None,
+        gnss_std_scale: float = 1.0,
+        gnss_vel_delay: float = 0.0,
+    ) -> None:
         c = cfg or AidingConfig()
+        mn = (0.0, 0.0, 0.0) if gnss_min_std is None else tuple(float(x) for x in gnss_min_std)
+        if len(mn) != 3 or not all(math.isfinite(x) and x >= 0.0 for x in mn):
+            raise ValueError(f"gnss_min_std = {gnss_min_std!r}: expected three finite σ ≥ 0 (m, m, m/s)")
+        if not (math.isfinite(gnss_std_scale) and gnss_std_scale > 0.0):
+            raise ValueError(f"gnss_std_scale = {gnss_std_scale!r}: expected a finite factor > 0")
+        self._core_min_std = mn
+        self._core_std_scale = float(gnss_std_scale)
+        if not (math.isfinite(gnss_vel_delay) and 0.0 <= gnss_vel_delay <= 10.0):
+            raise ValueError(f"gnss_vel_delay = {gnss_vel_delay!r}: expected 0..10 s")
+        self._vel_delay = float(gnss_vel_delay)
         lever = np.zeros(3) if gnss_lever_arm_b is None else np.array(gnss_lever_arm_b, dtype=np.float64)
         if lever.shape != (3,) or not np.all(np.isfinite(lever)):
             raise ValueError(f"gnss_lever_arm_b = {gnss_lever_arm_b!r}: expected three finite numbers (m)")
@@ -298,7 +318,12 @@ class AidingMonitor:
     # ---------------------------------------------------------------- GNSS
     def _gnss(self, g: GnssFix, st: NavState) -> None:
         c = self.cfg
-        sp_ne, sp_d = max(g.std_ne, c.min_std), max(g.std_d, c.min_std)
+        # the fix's σ as the core weighs it (floors ``gnss.min_std``, ``gnss.std_scale``): normalised by the
+        # reported RTK σ alone (1 cm/s velocity where the core assumes 6 cm/s), the filter's own innovations
+        # read as a pull (the drive: its east-velocity CUSUM tripped 14 s into navigation)
+        mn, sc = self._core_min_std, self._core_std_scale
+        sp_ne = max(max(g.std_ne, mn[0]) * sc, c.min_std)
+        sp_d = max(max(g.std_d, mn[1]) * sc, c.min_std)
         var_p = np.array((sp_ne * sp_ne, sp_ne * sp_ne, sp_d * sp_d))
         sp0, self._st_prev = self._st_prev, st
         # --- innovations against the INS at the fix's time of validity
@@ -320,8 +345,17 @@ class AidingMonitor:
         s_ins = np.asarray(st.std_pos) ** 2
         z_p = _dead_zone(nu_p, dz_p) / np.sqrt(s_ins + var_p)
         if g.vel_ned is not None:
-            sv = max(g.std_vel, c.min_std)
-            nu_v = np.asarray(g.vel_ned, dtype=np.float64) - (v_f - back * a_n)
+            sv = max(max(g.std_vel, mn[2]) * sc, c.min_std)
+            back_v = back
+            if self._vel_delay > 0.0:
+                # the fix's velocity is valid ``gnss_vel_delay`` before its position (the core fuses it there):
+                # the state's velocity moved back by that much more (v − a·(lag + delay))
+                if lag <= 0.0:
+                    a_n = dcm_from_quat(st.q_nb) @ np.asarray(st.accel_b, dtype=np.float64) + earth.gravity_ned(
+                        st.lat, st.h
+                    )
+                back_v = back + self._vel_delay
+            nu_v = np.asarray(g.vel_ned, dtype=np.float64) - (v_f - back_v * a_n)
             sd_ins = np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv)
             z_v = _dead_zone(nu_v, dz_v) / np.sqrt(sd_ins**2 + sv * sv)
         else:
