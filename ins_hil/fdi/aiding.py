@@ -57,6 +57,9 @@ The INS is compared at the antenna (the core's lever arm, ``AidingMonitor(gnss_l
 compared at the IMU point, the antenna turning about it on a slow, turning trajectory with RTK (a 0.3 m
 lever arm against a 1-cm σ) reads as a pull; a simulated 150-s walk with 1 Hz RTK had 131 of 151 good
 fixes excluded that way (tests/test_aiding_walk.py).
+A position outlier is bridged in the consistency sum (the next fix is compared with the last accepted one), so the
+sum stays a telescoping sum of the position noise; an outlier the filter fused restarts the CUSUMs. Each fix's σ is
+taken as the core weighs it (its ``gnss.min_std`` floors and ``std_scale``; velocity at ``gnss.vel_delay``).
 Simplifications: a vertical GNSS pull with matching vertical velocity is blamed on the baro by the
 baro/GNSS test (the GNSS CUSUM usually fires first).
 """
