@@ -57,6 +57,9 @@ The INS is compared at the antenna (the core's lever arm, ``AidingMonitor(gnss_l
 compared at the IMU point, the antenna turning about it on a slow, turning trajectory with RTK (a 0.3 m
 lever arm against a 1-cm σ) reads as a pull; a simulated 150-s walk with 1 Hz RTK had 131 of 151 good
 fixes excluded that way (tests/test_aiding_walk.py).
+A position outlier is bridged in the consistency sum (the next fix is compared with the last accepted one), so the
+sum stays a telescoping sum of the position noise; an outlier the filter fused restarts the CUSUMs. Each fix's σ is
+taken as the core weighs it (its ``gnss.min_std`` floors and ``std_scale``; velocity at ``gnss.vel_delay``).
 Simplifications: a vertical GNSS pull with matching vertical velocity is blamed on the baro by the
 baro/GNSS test (the GNSS CUSUM usually fires first).
 """
@@ -64,7 +67,9 @@ baro/GNSS test (the GNSS CUSUM usually fires first).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -150,6 +155,8 @@ def _dead_zone(x: np.ndarray, dz: np.ndarray) -> np.ndarray:
     return np.sign(x) * np.maximum(0.0, np.abs(x) - dz)
 
 
+_N_ANCHORS = 3  # accepted fixes an outlier run can be bridged from (outliers up to 2 fixes long)
+
 _sum = np.add.reduce  # the reduction ``ndarray.mean``/``sum`` call, without their Python-level wrappers
 
 
@@ -212,12 +219,32 @@ class _Status:
 class AidingMonitor:
     """GNSS / baro drift monitor (see module doc). Call :meth:`check` before fusing.
 
-    ``gnss_lever_arm_b`` (m, body FRD): IMU → antenna, the core's ``NavConfig.gnss.lever_arm_b`` (not a
+    ``gnss_min_std`` (m NE, m D, m/s) and ``gnss_std_scale``: the core's ``NavConfig.gnss`` σ floors and scale,
+    applied to each fix's σ as the core does; ``gnss_vel_delay`` (s): its ``gnss.vel_delay`` (a fix's velocity is
+    valid that long before its position). ``gnss_lever_arm_b`` (m, body FRD): IMU → antenna, the core's
+    ``NavConfig.gnss.lever_arm_b`` (not a
     setting of its own: the monitor must compare the fix where the core fuses it); the INS is moved to the
     antenna (p + C_b^n l, v + C_b^n (ω × l)) before it is compared with the fix."""
 
-    def __init__(self, cfg: AidingConfig | None = None, gnss_lever_arm_b: Vec | None = None) -> None:
+    def __init__(
+        self,
+        cfg: AidingConfig | None = None,
+        gnss_lever_arm_b: Vec | None = None,
+        gnss_min_std: Vec | tuple[float, float, float] | None = None,
+        gnss_std_scale: float = 1.0,
+        gnss_vel_delay: float = 0.0,
+    ) -> None:
         c = cfg or AidingConfig()
+        mn = (0.0, 0.0, 0.0) if gnss_min_std is None else tuple(float(x) for x in gnss_min_std)
+        if len(mn) != 3 or not all(math.isfinite(x) and x >= 0.0 for x in mn):
+            raise ValueError(f"gnss_min_std = {gnss_min_std!r}: expected three finite σ ≥ 0 (m, m, m/s)")
+        if not (math.isfinite(gnss_std_scale) and gnss_std_scale > 0.0):
+            raise ValueError(f"gnss_std_scale = {gnss_std_scale!r}: expected a finite factor > 0")
+        self._core_min_std = mn
+        self._core_std_scale = float(gnss_std_scale)
+        if not (math.isfinite(gnss_vel_delay) and 0.0 <= gnss_vel_delay <= 10.0):
+            raise ValueError(f"gnss_vel_delay = {gnss_vel_delay!r}: expected 0..10 s")
+        self._vel_delay = float(gnss_vel_delay)
         lever = np.zeros(3) if gnss_lever_arm_b is None else np.array(gnss_lever_arm_b, dtype=np.float64)
         if lever.shape != (3,) or not np.all(np.isfinite(lever)):
             raise ValueError(f"gnss_lever_arm_b = {gnss_lever_arm_b!r}: expected three finite numbers (m)")
@@ -234,6 +261,8 @@ class AidingMonitor:
         self._cn = np.zeros(6)  # CUSUM S⁻
         self._prev: GnssFix | None = None
         self._e = np.zeros(3)  # accumulated position − integrated velocity (m, NED)
+        #: the last ``_N_ANCHORS`` accepted fixes: [fix, its e, velocity integrated since, its dead zone (m, NED)]
+        self._anchors: deque[list[Any]] = deque(maxlen=_N_ANCHORS)
         self._win = _RowWindow(6)  # rows t, e(3), σ_p², σ_v²Δt
         self._cp_len = np.zeros(6)  # samples since S⁺ was last zero
         self._cn_len = np.zeros(6)
@@ -244,6 +273,8 @@ class AidingMonitor:
         self._v_t = math.nan
         self._ins_hold = -math.inf  # INS-innovation CUSUMs held until this time (see ins_disturbed)
         self._gnss_by_cusum = False
+        self._st_prev: NavState | None = None  # the state the previous fix was checked against
+        self._prev_outlier = False  # the previous fix was a position outlier (see _gnss)
         self._lever = lever
         self._has_lever = bool(np.any(self._lever != 0.0))
 
@@ -290,8 +321,14 @@ class AidingMonitor:
     # ---------------------------------------------------------------- GNSS
     def _gnss(self, g: GnssFix, st: NavState) -> None:
         c = self.cfg
-        sp_ne, sp_d = max(g.std_ne, c.min_std), max(g.std_d, c.min_std)
+        # the fix's σ as the core weighs it (floors ``gnss.min_std``, ``gnss.std_scale``): normalised by the
+        # reported RTK σ alone (1 cm/s velocity where the core assumes 6 cm/s), the filter's own innovations
+        # read as a pull (the drive: its east-velocity CUSUM tripped 14 s into navigation)
+        mn, sc = self._core_min_std, self._core_std_scale
+        sp_ne = max(max(g.std_ne, mn[0]) * sc, c.min_std)
+        sp_d = max(max(g.std_d, mn[1]) * sc, c.min_std)
         var_p = np.array((sp_ne * sp_ne, sp_ne * sp_ne, sp_d * sp_d))
+        sp0, self._st_prev = self._st_prev, st
         # --- innovations against the INS at the fix's time of validity
         lag, a_n, dz_p, dz_v = self._lag(g, st)
         v_f = np.asarray(st.vel_ned, dtype=np.float64)
@@ -311,8 +348,17 @@ class AidingMonitor:
         s_ins = np.asarray(st.std_pos) ** 2
         z_p = _dead_zone(nu_p, dz_p) / np.sqrt(s_ins + var_p)
         if g.vel_ned is not None:
-            sv = max(g.std_vel, c.min_std)
-            nu_v = np.asarray(g.vel_ned, dtype=np.float64) - (v_f - back * a_n)
+            sv = max(max(g.std_vel, mn[2]) * sc, c.min_std)
+            back_v = back
+            if self._vel_delay > 0.0:
+                # the fix's velocity is valid ``gnss_vel_delay`` before its position (the core fuses it there):
+                # the state's velocity moved back by that much more (v − a·(lag + delay))
+                if lag <= 0.0:
+                    a_n = dcm_from_quat(st.q_nb) @ np.asarray(st.accel_b, dtype=np.float64) + earth.gravity_ned(
+                        st.lat, st.h
+                    )
+                back_v = back + self._vel_delay
+            nu_v = np.asarray(g.vel_ned, dtype=np.float64) - (v_f - back_v * a_n)
             sd_ins = np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv)
             z_v = _dead_zone(nu_v, dz_v) / np.sqrt(sd_ins**2 + sv * sv)
         else:
@@ -323,18 +369,45 @@ class AidingMonitor:
         if prev is not None and (g.t - prev.t > c.max_gap or g.t <= prev.t):
             self._reset_windows()
             prev = None
+        fix_ok = True  # False: an outlier in position (the baro/GNSS test leaves it out too)
+        bridged = False  # accepted against an anchor older than the previous fix (that one was an outlier)
         if prev is not None and prev.vel_ned is not None and g.vel_ned is not None:
+            fix_ok = False
             dt = g.t - prev.t
+            trap = 0.5 * (np.asarray(prev.vel_ned) + np.asarray(g.vel_ned)) * dt
+            # the trapezoid rule's error on the real motion: up to about ½·|v − v_prev|·Δt per axis (a walk's
+            # gait at 1 Hz: ~0.1 m, beyond the jump gate of RTK); a dead zone of the outlier test
+            dz = 0.5 * np.abs(np.asarray(g.vel_ned) - np.asarray(prev.vel_ned)) * dt
             dp = earth.ned_delta_small(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h)
-            de = dp - 0.5 * (np.asarray(prev.vel_ned) + np.asarray(g.vel_ned)) * dt
-            if (
-                float(np.max(np.abs(de[:2]))) < c.jump_gate * 1.4142 * sp_ne
-                and abs(de[2]) < c.jump_gate * 1.4142 * sp_d
-            ):
-                self._e = self._e + de  # a single-epoch jump is left to the filter's gate (JUMP)
+            de = dp - trap
+            # Outliers: the fix is bridged from the newest of the last accepted fixes (anchors) its
+            # position agrees with (p_k − p_a − ∫v within the jump gate), so that e_k = n_k − n_0 − ∫w
+            # stays a telescoping sum of the position noise over an outlier. Dropping the outlier's
+            # steps instead (or one of them, when the other is within the gate) leaves a step
+            # ~ N(0, 2σ_p²) in e that the slope test reads as a pull for a whole window.
+            for anc in self._anchors:
+                anc[2] += trap
+                anc[3] += dz
+            for a_fix, a_e, a_int, a_dz in reversed(self._anchors):
+                db = earth.ned_delta_small(g.lat - a_fix.lat, g.lon - a_fix.lon, g.h - a_fix.h, g.lat, g.h) - a_int
+                if self._step_ok(db, sp_ne, sp_d, a_dz):
+                    self._e = a_e + db
+                    bridged = a_fix is not prev
+                    self._push_anchor(g)
+                    fix_ok = True
+                    break
+            else:
+                if self._step_ok(de, sp_ne, sp_d, dz):  # a persisting jump: its level is accepted (the filter gates it)
+                    self._e = self._e + de
+                    self._anchors.clear()
+                    self._push_anchor(g)
+                    fix_ok = True
+                # else a single-epoch jump is left to the filter's gate (JUMP)
             self._win.append((g.t, *self._e, sp_ne * sp_ne, sv * sv * dt))
         elif g.vel_ned is not None:
             self._e = np.zeros(3)
+            self._anchors.clear()
+            self._push_anchor(g)
             self._win.append((g.t, 0.0, 0.0, 0.0, sp_ne * sp_ne, 0.0))
         self._prev = g
         while self._win and self._win.first_t() < g.t - c.window:
@@ -346,6 +419,21 @@ class AidingMonitor:
         if not c.vertical_cusum:  # the filter height follows the baro: vertical GNSS checked by the slope tests
             z[2] = z[5] = 0.0
         z = np.clip(z, -c.jump_gate, c.jump_gate)  # an outlier adds at most jump_gate − k
+        if bridged and self._prev_outlier and sp0 is not None and 0.0 < st.t - sp0.t <= c.max_gap:
+            # The previous fix was a position outlier (it agreed with none of the last accepted fixes, this one
+            # agrees with one before it) and the horizontal state stepped after it: p − p₀ − ½(v₀ + v)Δt, the
+            # corrections fused in between, beyond
+            # ``jump_gate`` × their σ (a correction K·ν has covariance P Hᵀ S⁻¹ H P ≤ P: at most the prior σ_pos
+            # of that fix, the state ``sp0`` it was checked against). The filter fused the outlier (its gate is
+            # wide while it converges): its innovations now measure that step, not the GNSS, so the CUSUMs
+            # restart as after lost IMU samples (excluding the GNSS would keep the filter on the outlier).
+            step = earth.ned_delta_small(st.lat - sp0.lat, st.lon - sp0.lon, st.h - sp0.h, st.lat, st.h) - 0.5 * (
+                np.asarray(sp0.vel_ned, dtype=np.float64) + np.asarray(st.vel_ned, dtype=np.float64)
+            ) * (st.t - sp0.t)
+            s_corr = np.maximum(np.asarray(sp0.std_pos, dtype=np.float64)[:2], c.min_std)
+            if float(np.max(np.abs(step[:2]) / s_corr)) > c.jump_gate:
+                self.ins_disturbed(g.t)
+        self._prev_outlier = not fix_ok
         if g.t < self._ins_hold:
             z = np.zeros(6)  # the INS lost samples: its innovations are no evidence (ins_disturbed)
         if not (self.gnss.faulted and c.exclude):
@@ -391,7 +479,8 @@ class AidingMonitor:
                 self._cn[:] = 0.0
                 self._clear(self.gnss, "gnss", g.t)
         # --- baro vs GNSS height (only against a healthy GNSS)
-        self._baro_vs_gnss(g, sp_d)
+        if fix_ok:
+            self._baro_vs_gnss(g, sp_d)
 
     def _lag(self, g: GnssFix, st: NavState) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """Lag of the fix behind the state (s, ≥ 0), the state's NED acceleration (m/s²) and the
@@ -448,9 +537,20 @@ class AidingMonitor:
         stat = b0 * b0 / v_h + b1 * b1 / v_h + b2 * b2 / (var_ne * ratio_d * ratio_d + var_v + fl)
         return stat, math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
 
+    def _push_anchor(self, g: GnssFix) -> None:
+        self._anchors.append([g, self._e.copy(), np.zeros(3), np.zeros(3)])
+
+    def _step_ok(self, de: np.ndarray, sp_ne: float, sp_d: float, dz: np.ndarray) -> bool:
+        """A position-minus-integrated-velocity step (m, NED) within the jump gate (√2 σ_p per axis) beyond
+        the dead zone ``dz`` (m, NED: the trapezoid rule's error on the motion)."""
+        g = self.cfg.jump_gate * 1.4142
+        x = _dead_zone(de, dz)
+        return float(np.max(np.abs(x[:2]))) < g * sp_ne and abs(float(x[2])) < g * sp_d
+
     def _reset_windows(self) -> None:
         self._win.clear()
         self._e = np.zeros(3)
+        self._anchors.clear()
 
     # ---------------------------------------------------------------- baro
     def _baro_vs_gnss(self, g: GnssFix, sp_d: float) -> None:

@@ -840,7 +840,8 @@ def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str,
     ncfg = nav_config(nav or {})
     if "late_fix_as_current" not in opts:
         opts["late_fix_as_current"] = not ncfg.delay.compensation
-    return AidingMonitor(build(AidingConfig, opts, "fdi.aiding"), ncfg.gnss.lever_arm_b)
+    g = ncfg.gnss
+    return AidingMonitor(build(AidingConfig, opts, "fdi.aiding"), g.lever_arm_b, g.min_std, g.std_scale, g.vel_delay)
 
 
 def _make_fdi(cfg: PipelineConfig) -> Any:
