@@ -84,6 +84,7 @@ def test_fast_mutations_are_caught_in_process() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.campaign  # 226 s on an idle 2-vCPU machine: `ins-hil reproduce --mutations` is its command
 def test_every_mutation_is_caught() -> None:
     """Each mutation in a fresh interpreter (`ins-hil reproduce --mutations`): a row fails, nothing crashes."""
     outcomes = mu.run()
