@@ -450,6 +450,9 @@ def known_hint(k: str, known: Iterable[str], section: str = "") -> str:
     return f"{len(names)} known keys: docs/configuration.md, {table}" if section else f"{len(names)} known"
 
 
+_BUILD_KEYS: dict[type, dict[str, Key]] = {}
+
+
 def build(cls: type, table: Any, where: str, **fixed: Any) -> Any:
     """The settings dataclass ``cls`` from its TOML table, each key checked once against its metadata
     (:meth:`Key.check`): ConfigError in one line naming ``<where>.<key>``. A field holding a settings dataclass
@@ -457,7 +460,10 @@ def build(cls: type, table: Any, where: str, **fixed: Any) -> Any:
     tuple. ``fixed``: constructor arguments the table does not hold (e.g. an object built from a name)."""
     if not isinstance(table, dict):
         raise ConfigError(f"{where} = {show(table)}: expected a table")
-    keys = {n: k for n, k in dataclass_keys(cls).items() if k.attr not in fixed}
+    all_keys = _BUILD_KEYS.get(cls)
+    if all_keys is None:  # the keys of a class are fixed: made once (a replay builds its settings many times)
+        all_keys = _BUILD_KEYS[cls] = dataclass_keys(cls)
+    keys = {n: k for n, k in all_keys.items() if k.attr not in fixed}
     nested = {f.name: f for f in dataclasses.fields(cls) if f.name not in keys and f.name not in fixed}
     ann = {f.name: str(f.type).replace(" ", "") for f in dataclasses.fields(cls)}
     kw: dict[str, Any] = dict(fixed)

@@ -19,12 +19,15 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import random
 import re
+import shutil
 import struct
 import tempfile
 import time
 import tomllib
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -80,6 +83,20 @@ def _splice(rng: random.Random, b: bytearray, lo: int, hi: int) -> None:
             else struct.pack("<Q", rng.choice(SPECIAL_I) & (2**64 - 1))
         )
     b[off : off + w] = v
+
+
+def _scratch() -> Path:
+    """A new scratch folder for a harness's files, on the RAM file system where there is one (/dev/shm: a file
+    rewritten on a disk file system can cost milliseconds of wall time an input)."""
+    shm = "/dev/shm"
+    ram = os.path.isdir(shm) and os.access(shm, os.W_OK)
+    return Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-", dir=shm if ram else None))
+
+
+def _owned(step: Step, tmp: Path) -> Step:
+    """``step``, its scratch folder ``tmp`` removed when the harness is dropped (a new chunk, a rebuild)."""
+    weakref.finalize(step, shutil.rmtree, tmp, True)
+    return step
 
 
 def _f32(x: float) -> float:
@@ -369,6 +386,15 @@ _TEXT_VALUES = [
 ]  # fmt: skip
 
 
+def _copy_tree(d: Any) -> Any:
+    """A copy of a TOML tree (its tables and arrays copied; the other values are immutable)."""
+    if isinstance(d, dict):
+        return {k: _copy_tree(v) for k, v in d.items()}
+    if isinstance(d, list):
+        return [_copy_tree(v) for v in d]
+    return d
+
+
 def _mutate_tree(rng: random.Random, d: Any, depth: int = 0) -> None:
     if isinstance(d, dict) and d:
         k = rng.choice(list(d))
@@ -394,7 +420,7 @@ def _config(rng: random.Random) -> Step:
 
     seeds = [(p, p.read_text()) for p in sorted((ROOT / "configs").glob("*.toml"))]
     trees = [tomllib.loads(t) for _, t in seeds]
-    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    tmp = _scratch()
     for f in (ROOT / "configs").glob("*.dbc"):
         (tmp / f.name).write_bytes(f.read_bytes())  # configs name their DBC relative to themselves
 
@@ -435,7 +461,7 @@ def _config(rng: random.Random) -> Step:
             pass
         return 1, []
 
-    return step
+    return _owned(step, tmp)
 
 
 # ------------------------------------------------------------------------------ recorder reader
@@ -454,7 +480,7 @@ def _key(s: Any) -> tuple[Any, ...]:
 def _recorder(rng: random.Random) -> Step:
     from ins_hil.runtime import recorder as rec
 
-    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    tmp = _scratch()
     src: list[Any] = []
     for k in range(60):
         t = 0.005 * k
@@ -515,7 +541,7 @@ def _recorder(rng: random.Random) -> Step:
                 out.append(Wrong("skip_damaged read returned records that were not recorded"))
         return 1, out
 
-    return step
+    return _owned(step, tmp)
 
 
 # ------------------------------------------------------------------------------ dataset readers and configs
@@ -898,6 +924,22 @@ def _reader_seeds(fmt: str, tmp: Path, short: bool = False) -> list[dict[str, by
     return seeds
 
 
+_SEEDS: dict[tuple[str, bool], list[dict[str, bytes]]] = {}
+
+
+def reader_seeds(fmt: str, short: bool = False) -> list[dict[str, bytes]]:
+    """:func:`_reader_seeds`, cut once per process (a harness rebuilt every chunk reuses them; their record spans stay
+    in ``SPANS``)."""
+    key = (fmt, short)
+    if key not in _SEEDS:
+        tmp = _scratch()
+        try:
+            _SEEDS[key] = _reader_seeds(fmt, tmp, short)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return list(_SEEDS[key])
+
+
 def _replay_check(ds: Any, cfg: Any) -> list[Any]:
     """Replay ``ds`` with ``cfg`` through the dataset replay (prepare, the core, the scores) and its summary:
     [] when it gives finite figures or refuses in one line (ReplayError), else a ``Wrong`` naming the NaN."""
@@ -958,11 +1000,11 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
         from ins_hil.datasets.run import ReplayError, screen
         from ins_hil.fuzz import Checked, suspects
 
-        tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
-        seeds = _reader_seeds(fmt, tmp)
+        tmp = _scratch()
+        seeds = reader_seeds(fmt)
         if not seeds:
             raise RuntimeError(f"{fmt}: no seed ({SHARED_DATA} missing)")
-        short = _reader_seeds(fmt, tmp, short=True)
+        short = reader_seeds(fmt, short=True)
         clock = [time.perf_counter(), 0.0]  # the start, the seconds spent replaying
 
         def step() -> tuple[int, list[Any]]:
@@ -987,7 +1029,7 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
                 clock[1] += time.perf_counter() - now
             return 1, out
 
-        return step
+        return _owned(step, tmp)
 
     return setup
 
@@ -1018,7 +1060,7 @@ def replay_oracle(rc: int, out: str, err: str, path: Path) -> list[Any]:
 
 
 def _replay_seeds(tmp: Path) -> list[tuple[str, dict[str, bytes]]]:
-    seeds = [(fmt, s) for fmt in REPLAY_FORMATS for s in _reader_seeds(fmt, tmp)]
+    seeds = [(fmt, s) for fmt in REPLAY_FORMATS for s in reader_seeds(fmt)]
     if not seeds:
         raise RuntimeError(f"replay: no seed ({SHARED_DATA} missing)")
     return seeds
@@ -1036,7 +1078,7 @@ def _replay_dataset(rng: random.Random) -> Step:
     from ins_hil.evaluation.sim_flight import sim_truth
 
     ihlog.set_truth_source(sim_truth)  # as the command does: a simulated gateway log against its truth
-    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    tmp = _scratch()
     seeds = _replay_seeds(tmp)
 
     def step() -> tuple[int, list[Any]]:
@@ -1050,7 +1092,7 @@ def _replay_dataset(rng: random.Random) -> Step:
             return 1, replay_oracle(2, "", f"ins-hil replay: {e}", path)
         return 1, replay_oracle(0, text, "", path)
 
-    return step
+    return _owned(step, tmp)
 
 
 def _replay_process(rng: random.Random) -> Step:
@@ -1065,7 +1107,7 @@ def _replay_process(rng: random.Random) -> Step:
 
     from ins_hil.fuzz import Measure
 
-    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
+    tmp = _scratch()
     seeds = _replay_seeds(tmp)
 
     def cap() -> None:
@@ -1097,7 +1139,7 @@ def _replay_process(rng: random.Random) -> Step:
         found = replay_oracle(child.returncode, out, err, path)
         return 1, [*found, Measure("replay wall s", wall), Measure("replay peak RSS MiB", ru.ru_maxrss / 1024.0)]
 
-    return step
+    return _owned(step, tmp)
 
 
 def _dataset_config(rng: random.Random) -> Step:
@@ -1111,8 +1153,7 @@ def _dataset_config(rng: random.Random) -> Step:
     files = sorted((ROOT / "configs" / "datasets").glob("*.toml"))
     seeds = [(p, p.read_text()) for p in files]
     trees = [tomllib.loads(t) for _, t in seeds]
-    tmp = Path(tempfile.mkdtemp(prefix="ins-hil-fuzz-"))
-    ds0 = _synthetic_dataset(3.0)
+    tmp = _scratch()
     n = [0]
 
     def step() -> tuple[int, list[Any]]:
@@ -1120,7 +1161,7 @@ def _dataset_config(rng: random.Random) -> Step:
         n[0] += 1
         try:
             if rng.random() < 0.5:
-                d = copy.deepcopy(trees[i])
+                d = _copy_tree(trees[i])
                 for _ in range(rng.choice((1, 1, 2, 3))):
                     _mutate_tree(rng, d)
                 cfg = from_dict(d, "<fuzz>", tmp)
@@ -1150,11 +1191,11 @@ def _dataset_config(rng: random.Random) -> Step:
         if n[0] % 4:
             return 1, []
         try:  # one accepted config in four replays the small data set with it
-            return 1, _replay_check(copy.deepcopy(ds0), cfg)
+            return 1, _replay_check(_synthetic_dataset(3.0), cfg)  # a fresh one (a tenth of a deep copy's time)
         except (DatasetError, DatasetConfigError):
             return 1, []
 
-    return step
+    return _owned(step, tmp)
 
 
 TARGETS: list[Target] = [
