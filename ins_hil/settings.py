@@ -385,8 +385,19 @@ def _from_metadata(md: Any) -> dict[str, Any]:
 def dataclass_keys(cls: type, rename: dict[str, str] | None = None, skip: tuple[str, ...] = ()) -> dict[str, Key]:
     """The keys of a section from the fields of dataclass ``cls``: type from the default (or annotation), unit,
     range, help, ... from the field's metadata (:func:`setting`). A field holding a dataclass is a section of its
-    own and left out."""
-    rename = rename or {}
+    own and left out. The keys of a class are made once (they are fixed; a replay builds its settings many times):
+    each call returns a new dict of the same (frozen) keys."""
+    memo = (cls, tuple(sorted((rename or {}).items())), skip)
+    got = _KEYS.get(memo)
+    if got is None:
+        got = _KEYS[memo] = _dataclass_keys(cls, rename or {}, skip)
+    return dict(got)
+
+
+_KEYS: dict[tuple[type, tuple[tuple[str, str], ...], tuple[str, ...]], dict[str, Key]] = {}
+
+
+def _dataclass_keys(cls: type, rename: dict[str, str], skip: tuple[str, ...]) -> dict[str, Key]:
     out: dict[str, Key] = {}
     for f in dataclasses.fields(cls):
         if f.name in skip or not f.init or f.name.startswith("_") or f.metadata.get("sections"):
@@ -450,9 +461,6 @@ def known_hint(k: str, known: Iterable[str], section: str = "") -> str:
     return f"{len(names)} known keys: docs/configuration.md, {table}" if section else f"{len(names)} known"
 
 
-_BUILD_KEYS: dict[type, dict[str, Key]] = {}
-
-
 def build(cls: type, table: Any, where: str, **fixed: Any) -> Any:
     """The settings dataclass ``cls`` from its TOML table, each key checked once against its metadata
     (:meth:`Key.check`): ConfigError in one line naming ``<where>.<key>``. A field holding a settings dataclass
@@ -460,10 +468,7 @@ def build(cls: type, table: Any, where: str, **fixed: Any) -> Any:
     tuple. ``fixed``: constructor arguments the table does not hold (e.g. an object built from a name)."""
     if not isinstance(table, dict):
         raise ConfigError(f"{where} = {show(table)}: expected a table")
-    all_keys = _BUILD_KEYS.get(cls)
-    if all_keys is None:  # the keys of a class are fixed: made once (a replay builds its settings many times)
-        all_keys = _BUILD_KEYS[cls] = dataclass_keys(cls)
-    keys = {n: k for n, k in all_keys.items() if k.attr not in fixed}
+    keys = {n: k for n, k in dataclass_keys(cls).items() if k.attr not in fixed}
     nested = {f.name: f for f in dataclasses.fields(cls) if f.name not in keys and f.name not in fixed}
     ann = {f.name: str(f.type).replace(" ", "") for f in dataclasses.fields(cls)}
     kw: dict[str, Any] = dict(fixed)
