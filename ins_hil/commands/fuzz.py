@@ -374,9 +374,13 @@ def run(args: argparse.Namespace) -> int:
 JOB_MIN_INPUTS = 2000
 
 
+def _worker_exit(signum: int, frame: Any) -> None:
+    raise SystemExit(0)  # not caught by a harness (a BaseException): the worker exits, its scratch folders removed
+
+
 def _worker_init() -> None:
     """A worker of ``--jobs``: SIGTERM ends it (the campaign's process stops its workers), Ctrl-C is the campaign's."""
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, _worker_exit)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
