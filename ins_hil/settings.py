@@ -385,8 +385,19 @@ def _from_metadata(md: Any) -> dict[str, Any]:
 def dataclass_keys(cls: type, rename: dict[str, str] | None = None, skip: tuple[str, ...] = ()) -> dict[str, Key]:
     """The keys of a section from the fields of dataclass ``cls``: type from the default (or annotation), unit,
     range, help, ... from the field's metadata (:func:`setting`). A field holding a dataclass is a section of its
-    own and left out."""
-    rename = rename or {}
+    own and left out. The keys of a class are made once (they are fixed; a replay builds its settings many times):
+    each call returns a new dict of the same (frozen) keys."""
+    memo = (cls, tuple(sorted((rename or {}).items())), skip)
+    got = _KEYS.get(memo)
+    if got is None:
+        got = _KEYS[memo] = _dataclass_keys(cls, rename or {}, skip)
+    return dict(got)
+
+
+_KEYS: dict[tuple[type, tuple[tuple[str, str], ...], tuple[str, ...]], dict[str, Key]] = {}
+
+
+def _dataclass_keys(cls: type, rename: dict[str, str], skip: tuple[str, ...]) -> dict[str, Key]:
     out: dict[str, Key] = {}
     for f in dataclasses.fields(cls):
         if f.name in skip or not f.init or f.name.startswith("_") or f.metadata.get("sections"):

@@ -141,3 +141,20 @@ def test_an_import_that_fails_discards_the_chunk_and_is_retried(
     assert "environment: env: ModuleNotFoundError" in err and "retried" in err
     with pytest.raises(fuzz.EnvironmentFault):
         run_target(_target("env2", lambda: (_ for _ in ()).throw(ImportError("x"))), None, inputs=3)
+
+
+def test_jobs_run_chunks_side_by_side_into_one_resumable_state(tmp_path: Path) -> None:
+    """--jobs 2: two worker processes, their counts added into the one state file (the format a single process
+    writes), resumable by either mode; each target ends on its input budget exactly."""
+    state = tmp_path / "state.json"
+    args = ["fuzz", "--targets", "dbc", "serial_frame", "--no-doc", "--state", str(state), "--progress", "0.3"]
+    assert main([*args, "--inputs", "300", "--jobs", "2"]) == 0
+    d = json.loads(state.read_text())
+    assert {k: v["inputs"] for k, v in d["results"].items()} == {"dbc": 300, "serial_frame": 300}
+    assert all(n >= 1 for n in d["chunks"].values())
+    assert main([*args, "--inputs", "500", "--resume"]) == 0  # one process goes on from the workers' counts
+    assert main([*args, "--inputs", "900", "--resume", "--jobs", "2"]) == 0
+    d = json.loads(state.read_text())
+    assert {k: v["inputs"] for k, v in d["results"].items()} == {"dbc": 900, "serial_frame": 900}
+    assert all(r["cpu_seconds"] > 0 and r["escaped"] == 0 for r in d["results"].values())
+    assert main([*args, "--inputs", "10", "--jobs", "0"]) == 2

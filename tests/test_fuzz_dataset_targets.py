@@ -67,3 +67,96 @@ def test_replay_targets_measure_the_guarantee(shared_dir):
     r = run_target(t, None, seed=39, inputs=2)
     assert r.inputs == 2 and r.accepted_bad == 0 and r.escaped == 0
     assert 0 < r.maxima["replay wall s"] and 0 < r.maxima["replay peak RSS MiB"] < 1024
+
+
+def test_suspects_covers_every_sample_the_oracle_flags() -> None:
+    """The reader targets check every screened sample at once (numpy) and pass on only the doubtful ones: that set
+    must hold every sample bad_sample flags, plausible ones left out."""
+    import math
+
+    import numpy as np
+
+    from ins_hil.fuzz import DT_RANGE, MAX_ACCEL, MAX_RATE, suspects
+    from ins_hil.types import FixType, GnssFix, ImuSample, MagSample
+
+    rng = random.Random(39)
+    special = [0.0, -0.0, 1e-300, 1e308, -1e308, math.inf, -math.inf, math.nan, DT_RANGE[0], DT_RANGE[1]]
+    samples: list = []
+    for k in range(3000):
+        dt = 0.005 if rng.random() < 0.6 else rng.choice([*special, DT_RANGE[0] * (1 - 1e-12), DT_RANGE[1] * 1.0001])
+        th, dv = [1e-4, -2e-4, 3e-5], [0.01, 0.0, -0.049]
+        r = rng.random()
+        if r < 0.1:  # every component at the bound: the norm is the limit, within rounding
+            th = [MAX_RATE * dt * rng.choice((1.0, 1.0 + 1e-15, 1.0 - 1e-15))] * 3
+        elif r < 0.2:
+            dv = [MAX_ACCEL * dt * rng.choice((1.0, 1.0 + 1e-15, 1.0 - 1e-15))] * 3
+        elif r < 0.35:
+            (th if rng.random() < 0.5 else dv)[rng.randrange(3)] = rng.choice(special)
+        samples.append(ImuSample(0.01 * k, dt, np.array(th), np.array(dv)))
+    samples += [GnssFix(1.0, 0.8, 0.2, 100.0, None, 1.0, 2.0, 0.3, FixType.FIX_3D),
+                GnssFix(1.0, 0.8, 0.2, math.nan, None), MagSample(1.0, np.array((1.0, 0, 0))),
+                MagSample(1.0, np.array((2e-5, 0, 4e-5)))]  # fmt: skip
+    got = {id(s) for s in suspects(samples)}
+    bad = [s for s in samples if bad_sample(s)]
+    assert len(bad) > 500 and all(id(s) in got for s in bad)
+    assert len(got) < len(samples) - 500  # the plausible ones are not passed on
+    ok = ImuSample(1.0, 0.005, np.array((1e-4, 0, 0)), np.array((0, 0, -0.049)))
+    assert suspects([ok, samples[-1]]) == []
+
+
+def test_engine_counts_checked_samples_and_checks_the_suspects() -> None:
+    import numpy as np
+
+    from ins_hil.fuzz import Checked, Target, run_target
+    from ins_hil.types import ImuSample
+
+    def setup(rng: random.Random):
+        def step():
+            return 1, [ImuSample(1.0, 0.0, np.zeros(3), np.zeros(3)), Checked(7)]
+
+        return step
+
+    r = run_target(Target("toy", "a toy", setup, nav=False), None, inputs=5)
+    assert r.inputs == 5 and r.accepted == 5 * 8 and r.decoded_bad == 5
+
+
+@pytest.mark.parametrize("fmt", ["csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "rtklib", "ihlog"])
+def test_short_seeds_are_valid_logs_of_every_kind_of_record(fmt: str, shared_dir, tmp_path) -> None:
+    """Most reader inputs are cut from the short seeds: they still read as valid logs with IMU and GNSS samples, and
+    the long seeds the replays are cut from are the longer cuts."""
+    from ins_hil.datasets.dataset import read_dataset
+    from ins_hil.fuzz.targets import FOLDERS, SHORT_RECORDS, _reader_seeds
+
+    def read(seed: dict[str, bytes], name: str):
+        d = tmp_path / name
+        d.mkdir()
+        for k, b in seed.items():
+            (d / k).write_bytes(b)
+        return read_dataset(d if fmt in FOLDERS else d / next(iter(seed)), fmt)
+
+    shorts, longs = _reader_seeds(fmt, tmp_path, short=True), _reader_seeds(fmt, tmp_path)
+    assert len(shorts) == len(longs) >= 1
+    for i, (s, lg) in enumerate(zip(shorts, longs, strict=True)):
+        a, b = read(s, f"s{i}"), read(lg, f"l{i}")
+        assert SHORT_RECORDS * 0.6 <= len(a.imu) <= SHORT_RECORDS < len(b.imu)
+        assert a.gnss and set(s) == set(lg)
+        assert sum(map(len, s.values())) < sum(map(len, lg.values()))
+
+
+def test_reader_target_still_replays_and_catches_a_nan_figure(shared_dir, monkeypatch) -> None:
+    """An accepted input of a reader target is replayed while the replays are within their share (here all of the
+    time): a NaN figure in its summary is returned as a finding."""
+    from ins_hil.datasets import report
+    from ins_hil.fuzz import targets
+
+    monkeypatch.setattr(report, "format_table", lambda rows: "roll error rms nan deg")
+    monkeypatch.setattr(targets, "REPLAY_SHARE", 1.0)
+    for name in ("reader_csv", "reader_ardupilot_bin"):
+        (t,) = by_name([name])
+        step = t.setup(random.Random(1))
+        found: list = []
+        for _ in range(20):  # until an input is accepted (a mutated seed may be refused)
+            found = [s for s in step()[1] if isinstance(s, Wrong)]
+            if found:
+                break
+        assert found and "NaN" in found[0].what

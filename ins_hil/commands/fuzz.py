@@ -58,6 +58,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="chunk length: a progress line (and the --state file) every S seconds (default 60)",
     )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="worker processes running chunks side by side, each under --memory-mib (default 1); their counts are "
+        "added in this process and in --state as one campaign's",
+    )
     p.add_argument("--state", type=Path, metavar="FILE", help="keep the counts so far in FILE (JSON) after every chunk")
     p.add_argument("--resume", action="store_true", help="go on from the counts in --state (targets done are skipped)")
     p.add_argument("--doc", type=Path, default=ROOT / "docs" / "robustness.md", help="report to write")
@@ -266,6 +274,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.progress > 0 or not math.isfinite(args.progress):
         print(f"ins-hil fuzz: --progress {args.progress}: must be > 0 s", file=sys.stderr)
         return 2
+    if args.jobs < 1:
+        print(f"ins-hil fuzz: --jobs {args.jobs}: must be >= 1", file=sys.stderr)
+        return 2
     if args.resume and args.state is None:
         print("ins-hil fuzz: --resume needs --state FILE", file=sys.stderr)
         return 2
@@ -289,7 +300,9 @@ def run(args: argparse.Namespace) -> int:
     faults = 0
     t0 = time.perf_counter()
     try:
-        for i, t in enumerate(targets):
+        if args.jobs > 1:
+            faults = _run_jobs(args, targets, results, chunks, by_count, total_w)
+        for i, t in enumerate(targets if args.jobs == 1 else []):
             acc = results.setdefault(t.name, TargetResult(t.name, t.what, decoder=t.decoder, goal=t.goal))
             acc.goal, acc.decoder = t.goal, t.decoder
             want = (args.inputs if args.inputs is not None else t.goal) if by_count else None
@@ -355,6 +368,121 @@ def run(args: argparse.Namespace) -> int:
     if interrupted:
         return 130
     return 1 if env_failed or any(r.failures() for r in shown) else 0
+
+
+#: with --jobs, a rest of fewer inputs than this per worker runs as one chunk
+JOB_MIN_INPUTS = 2000
+
+
+def _worker_exit(signum: int, frame: Any) -> None:
+    raise SystemExit(0)  # not caught by a harness (a BaseException): the worker exits, its scratch folders removed
+
+
+def _worker_init() -> None:
+    """A worker of ``--jobs``: SIGTERM ends it (the campaign's process stops its workers), Ctrl-C is the campaign's."""
+    signal.signal(signal.SIGTERM, _worker_exit)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _chunk(name: str, seconds: float, seed: int, inputs: int | None) -> TargetResult:
+    """One chunk of the target ``name`` in a worker (a Target's setup is a closure: found again by its name)."""
+    from ins_hil.fuzz.targets import by_name
+
+    return run_target(by_name([name])[0], seconds, seed=seed, inputs=inputs)
+
+
+def _run_jobs(
+    args: argparse.Namespace,
+    targets: list[Any],
+    results: dict[str, TargetResult],
+    chunks: dict[str, int],
+    by_count: bool,
+    total_w: float,
+) -> int:
+    """The campaign's chunks on ``args.jobs`` worker processes (forked: each under the memory cap set before): the
+    targets in order, a free worker taking the next chunk of the first target whose rest is not yet running (an input
+    budget or a time share split between the chunks in flight), the counts added here as they come, the state saved
+    after each. Returns the environment faults met (raises EnvironmentFault after ``MAX_FAULTS``)."""
+    import multiprocessing as mp
+
+    order = {t.name: i for i, t in enumerate(targets)}
+    want: dict[str, float] = {}
+    for t in targets:
+        acc = results.setdefault(t.name, TargetResult(t.name, t.what, decoder=t.decoder, goal=t.goal))
+        acc.goal, acc.decoder = t.goal, t.decoder
+        want[t.name] = (
+            float(args.inputs if args.inputs is not None else t.goal) if by_count else args.budget * t.weight / total_w
+        )
+    flight: dict[str, float] = {t.name: 0.0 for t in targets}  # inputs (or seconds) the running chunks may add
+    announced: set[str] = set()
+    faults = 0
+
+    def done(name: str) -> float:
+        r = results[name]
+        return float(r.inputs) if by_count else r.seconds
+
+    def next_chunk() -> tuple[str, float, int, int | None] | None:
+        for t in targets:
+            left = want[t.name] - done(t.name) - flight[t.name]
+            if left <= (0 if by_count else 0.5):
+                continue
+            if t.name not in announced:
+                announced.add(t.name)
+                what = f"until {want[t.name]:,.0f} inputs" if by_count else f"{want[t.name]:.0f} s"
+                print(f"[fuzz] {t.name}: {what} on {t.what} ({args.jobs} jobs)", file=sys.stderr, flush=True)
+            k = chunks.get(t.name, 0)
+            chunks[t.name] = k + 1
+            seed = args.seed * 1000 + order[t.name] + 100_003 * k
+            if by_count:
+                # split between the workers while there is much left; the rest in one chunk (no tail of tiny ones)
+                n = math.ceil(left / args.jobs) if left >= JOB_MIN_INPUTS * args.jobs else math.ceil(left)
+                flight[t.name] += n
+                return t.name, args.progress, seed, n
+            sec = min(args.progress, left)
+            flight[t.name] += sec
+            return t.name, sec, seed, None
+        return None
+
+    ctx = mp.get_context("fork")
+    pool = ctx.Pool(args.jobs, initializer=_worker_init)
+    running: list[tuple[Any, str, float]] = []
+    try:
+        while True:
+            while len(running) < args.jobs and (job := next_chunk()) is not None:
+                name, sec, seed, n = job
+                running.append((pool.apply_async(_chunk, (name, sec, seed, n)), name, n if n is not None else sec))
+            if not running:
+                break
+            ready = [j for j in running if j[0].ready()]
+            if not ready:
+                time.sleep(0.05)
+                continue
+            for j in ready:
+                running.remove(j)
+                fut, name, held = j
+                flight[name] -= held
+                try:
+                    r = fut.get()
+                except fuzz.EnvironmentFault as e:
+                    faults += 1
+                    print(f"[fuzz] environment: {e}; the chunk is discarded ({faults} of {MAX_FAULTS}), retried "
+                          f"in {FAULT_WAIT:g} s", file=sys.stderr, flush=True)  # fmt: skip
+                    if faults >= MAX_FAULTS:
+                        raise
+                    time.sleep(FAULT_WAIT)
+                    continue
+                acc = results[name]
+                acc.add(r)
+                print(f"[fuzz] {_line(acc)}", file=sys.stderr, flush=True)
+                if args.state is not None:
+                    _save_state(args.state, results, chunks)
+                if done(name) + flight[name] >= want[name] - (0 if by_count else 0.5) and not flight[name]:
+                    print(_line(acc), flush=True)
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+    return faults
 
 
 def _ordered(results: dict[str, TargetResult]) -> list[TargetResult]:

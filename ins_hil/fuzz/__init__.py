@@ -49,6 +49,15 @@ class Measure:
         self.value = value
 
 
+class Checked:
+    """Samples a step checked against the physical ranges itself (:func:`suspects`) and found plausible: the campaign
+    counts them as accepted samples without taking them one by one (a sample the step's check doubts is returned
+    as itself and goes through :func:`bad_sample` and the validation boundary as before)."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+
+
 class Wrong:
     """A record the recorder reader returned that is not the one recorded (a silent misread)."""
 
@@ -111,6 +120,31 @@ def bad_sample(s: Any) -> str:
             return "mag_field"
         return ""
     return ""
+
+
+def suspects(samples: list[Any]) -> list[Any]:
+    """The samples of ``samples`` that may be outside the physical ranges, IMU samples checked all at once (numpy): a
+    superset of those :func:`bad_sample` flags (the bounds taken 1e-9 tighter; a sample whose values do not form
+    3-vectors, and every sample of another type that :func:`bad_sample` flags, included). The rest are plausible."""
+    imu = [s for s in samples if type(s) is ImuSample]
+    out = [s for s in samples if type(s) is not ImuSample and bad_sample(s)]
+    if not imu:
+        return out
+    try:
+        t = np.array([s.t for s in imu], dtype=float)
+        dt = np.array([s.dt for s in imu], dtype=float)
+        th = np.array([s.dtheta for s in imu], dtype=float).reshape(len(imu), 3)
+        dv = np.array([s.dvel for s in imu], dtype=float).reshape(len(imu), 3)
+    except (TypeError, ValueError):
+        return out + [s for s in imu if bad_sample(s)]
+    tight = 1.0 - 1e-9
+    ok = np.isfinite(t) & np.isfinite(dt) & (dt >= DT_RANGE[0] / tight) & (dt <= DT_RANGE[1] * tight)
+    ok &= np.isfinite(th).all(axis=1) & np.isfinite(dv).all(axis=1)
+    with np.errstate(all="ignore"):
+        lim = dt * math.sqrt(3) * tight
+        ok &= np.sqrt((th * th).sum(axis=1)) <= MAX_RATE * lim
+        ok &= np.sqrt((dv * dv).sum(axis=1)) <= MAX_ACCEL * lim
+    return out + [imu[i] for i in np.flatnonzero(~ok)]
 
 
 @dataclass
@@ -377,11 +411,13 @@ def _run_target(
             now = mono()
             continue
         res.inputs += n
-        if out and any(isinstance(s, Measure) for s in out):
+        if out and any(isinstance(s, Measure | Checked) for s in out):
             for s in out:
                 if isinstance(s, Measure):
                     res.maxima[s.name] = max(s.value, res.maxima.get(s.name, s.value))
-            out = [s for s in out if not isinstance(s, Measure)]
+                elif isinstance(s, Checked):
+                    res.accepted += s.n
+            out = [s for s in out if not isinstance(s, Measure | Checked)]
         if out:
             res.accepted += len(out)
             for s in out:
