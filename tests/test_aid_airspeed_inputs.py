@@ -20,12 +20,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from ins_hil import aids
 from ins_hil.aids.airspeed import AirspeedSample, eas2tas, isa_temperature
 from ins_hil.datasets.dataset import DatasetError, read_dataset
+from ins_hil.runtime.pipeline import nav_config
 from ins_hil.types import BaroSample
 
-ON = {"airspeed": {"enabled": True}}
+ON = nav_config({"airspeed": {"enabled": True}})
 
 
-def _driver(nav: dict[str, Any]) -> tuple[MavlinkDriver, list, Any]:
+def _driver(nav: Any) -> tuple[MavlinkDriver, list, Any]:
     drv = MavlinkDriver("udpin:127.0.0.1:0", system_id=1)
     drv.set_decoders(aids.decoders("mavlink", nav))
     got: list = []
@@ -73,7 +74,7 @@ def test_a_message_with_aid_decoders_is_timed_once() -> None:
 
 def test_mavlink_vfr_hud_only_when_asked_and_no_airspeed_message() -> None:
     vfr = mavlink.MAVLink_vfr_hud_message(25.0, 24.0, 90, 50, 300.0, 0.5)
-    for nav, n in ((ON, 0), ({"airspeed": {"enabled": True, "vfr_hud": True}}, 1)):
+    for nav, n in ((ON, 0), (nav_config({"airspeed": {"enabled": True, "vfr_hud": True}}), 1)):
         _, got, (mav, feed) = _driver(nav)
         feed(mav.scaled_pressure_encode(10_000, 950.0, 0.0, 4000), 10.0)
         feed(vfr, 10.05)
@@ -89,9 +90,9 @@ def test_mavlink_vfr_hud_only_when_asked_and_no_airspeed_message() -> None:
 
 
 def test_no_decoders_when_the_aid_is_off() -> None:
-    assert aids.decoders("mavlink", {}) == {}
-    assert aids.decoders("mavlink", {"airspeed": {"enabled": False}}) == {}
-    _, got, (mav, feed) = _driver({})
+    assert aids.decoders("mavlink", nav_config({})) == {}
+    assert aids.decoders("mavlink", nav_config({"airspeed": {"enabled": False}})) == {}
+    _, got, (mav, feed) = _driver(nav_config({}))
     feed(mav.scaled_pressure_encode(10_000, 900.0, 0.0, 2000), 50.0)
     feed(mav.airspeed_encode(0, 20.0, 1500, 2.5, 0), 50.1)
     assert [type(s) for s in got] == [BaroSample]
@@ -219,7 +220,8 @@ def test_dronecan_true_airspeed_through_the_driver() -> None:
     assert aids.source_of(a).validate(None, a) is None
     with pytest.raises(ValueError, match="not a free DroneCAN message type"):
         drv.set_decoders({"uavcan.equipment.ahrs.RawIMU": ()})
-    assert aids.decoders("dronecan", {"odometer": {"enabled": True}}) == {}  # no standard wheel-speed message
+    odo = nav_config({"odometer": {"enabled": True}})
+    assert aids.decoders("dronecan", odo) == {}  # no standard wheel-speed message
 
 
 # ------------------------------------------------------------------------------------------------ replay

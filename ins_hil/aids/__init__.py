@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import importlib
 import math
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from dataclasses import fields
 from typing import Any
 
@@ -142,15 +142,15 @@ class AidSource:
         return ()
 
     def config(self, nav: Any) -> Any:
-        """This aid's own section of ``nav`` (``NavConfig.sources[name]``): its default when absent, a table
-        (dict) built into its class; None for an aid whose section is in :mod:`ins_hil.core_parts.config`."""
+        """This aid's own section of ``nav`` (``NavConfig.sources[name]``, built by
+        :func:`ins_hil.runtime.pipeline.nav_config`): its default when absent; None for an aid whose section is in
+        :mod:`ins_hil.core_parts.config`. TypeError (one line) for anything but its class (a table is built once,
+        by the config loader, not here)."""
         if self.section is None:
             return None
         v = nav.sources.get(self.name)
         if v is None:
             return self.section()
-        if isinstance(v, dict):
-            return self.section(**v)
         if not isinstance(v, self.section):
             raise TypeError(
                 f"NavConfig.sources[{self.name!r}]: expected a {self.section.__name__}, got {type(v).__name__}"
@@ -247,7 +247,7 @@ def check_sources(nav: Any) -> None:
     if bad:
         raise ValueError(f"NavConfig.sources: unknown aid section(s) {sorted(bad)} (known: {', '.join(known)})")
     for name in nav.sources:
-        by_name()[name].config(nav)  # a table builds (its checks), an object is of its class
+        by_name()[name].config(nav)  # of its class
 
 
 def section_keys(cls: type) -> set[str]:
@@ -261,17 +261,12 @@ def reasons() -> tuple[str, ...]:
 
 
 def decoders(protocol: str, nav: Any) -> dict[Any, tuple[Decoder, ...]]:
-    """The decoders of the aids enabled in ``nav`` (``NavConfig``; or a ``[core.nav]`` table, of which the aid
-    sections are read; None: none enabled) for one driver of ``protocol`` (:meth:`AidSource.decoders`), by
-    message key. The runtime hands these to the drivers as plain callables (the drivers sit below the aids and
-    never import them)."""
+    """The decoders of the aids enabled in ``nav`` (``NavConfig``; None: none enabled) for one driver of
+    ``protocol`` (:meth:`AidSource.decoders`), by message key. The runtime hands these to the drivers as plain
+    callables (the drivers sit below the aids and never import them)."""
     out: dict[Any, tuple[Decoder, ...]] = {}
     if nav is None:
         return out
-    if isinstance(nav, Mapping):
-        from ins_hil.core_parts.config import NavConfig
-
-        nav = NavConfig(sources={k: v for k, v in nav.items() if k in sections()})
     for src in sources():
         if src.section is None or not src.enabled(nav):
             continue
