@@ -194,6 +194,8 @@ def sources() -> tuple[AidSource, ...]:
         out = tuple(importlib.import_module(f"{__name__}.{m}").SOURCE for m in AID_MODULES)
         for s in out:
             if s.sample is not None:
+                if getattr(s.sample, "kind", None) != s.name:
+                    raise RuntimeError(f"aid source {s.name!r}: its sample {s.sample.__name__} needs kind = {s.name!r}")
                 if s.sample in _BY_SAMPLE:
                     raise RuntimeError(f"aid sources {_BY_SAMPLE[s.sample].name!r} and {s.name!r} read one sample")
                 _BY_SAMPLE[s.sample] = s

@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 
@@ -54,6 +54,7 @@ TAS_MAX = 400.0
 class AirspeedSample:
     """True airspeed (m/s, ≥ 0) valid at ``t`` (s); ``sigma``: its 1-σ (m/s; NaN = ``airspeed.std``)."""
 
+    kind: ClassVar[Literal["airspeed"]] = "airspeed"
     t: float
     tas_mps: float
     sigma: float = math.nan

@@ -966,7 +966,7 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
                 return 1, []
             # (a baro sample of a log carries its altitude alone: the campaign's oracle wants a pressure)
             out: list[Any] = [*sc.imu[:100], *sc.imu[-20:], *sc.gnss[:20],
-                              *[m for m in sc.aux if isinstance(m, MagSample)][:20]]  # fmt: skip
+                              *[m for m in sc.aux if m.kind == "mag"][:20]]  # fmt: skip
             now = time.perf_counter()
             if clock[1] <= REPLAY_SHARE * (now - clock[0]):
                 out += _replay_check(ds, DatasetConfig(name="fuzz", rtklib={}))
