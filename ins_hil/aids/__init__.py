@@ -25,9 +25,9 @@ from __future__ import annotations
 
 import importlib
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import fields
-from typing import Any
+from typing import Any, ClassVar
 
 from ins_hil.types import Vec
 
@@ -104,6 +104,11 @@ class AidSource:
     csv_kind: str = ""
     csv_columns: tuple[str, ...] = ()
     csv_required: int = 0
+    #: the PX4 ULog topics it reads (the ULog and ulog2csv readers load them for :meth:`from_ulog`)
+    ulog_topics: tuple[str, ...] = ()
+    #: the DataFlash messages it reads, each with the fields it needs (the reader refuses a log whose rows lack
+    #: them, and keeps the first instance of each), for :meth:`from_dataflash`
+    dataflash_messages: ClassVar[Mapping[str, tuple[str, ...]]] = {}
 
     def check(self, s: Any) -> None:
         """The core's input contract: ValueError (one line) for a sample the core cannot fuse. Default: a
@@ -135,6 +140,16 @@ class AidSource:
     def to_csv(self, s: Any) -> tuple[float, ...]:
         """A sample's generic-CSV values ``(t, *csv_columns)`` (:meth:`from_csv` reversed; NaN: left empty)."""
         raise NotImplementedError
+
+    def from_ulog(self, topics: Mapping[str, Mapping[str, Vec]], time: Callable[[Any], Vec]) -> tuple[list[Any], str]:
+        """Its samples from a PX4 log's topics (:attr:`ulog_topics`; a topic: field name → column) and a note for
+        the dataset's notes ("" none); ``time(topic)``: the topic's time of validity (s)."""
+        return [], ""
+
+    def from_dataflash(self, rows: Mapping[str, list[dict[str, Any]]]) -> tuple[list[Any], str]:
+        """Its samples from a DataFlash log's rows (:attr:`dataflash_messages` and the reader's own messages, the
+        first instance of each; a row: field → value, ``TimeUS`` in µs) and a note ("" none)."""
+        return [], ""
 
     def blocks(self, nav: Any) -> tuple[tuple[str, int, float, float], ...]:
         """The error-state blocks this aid adds under config ``nav`` (``NavConfig``): (name, size, initial
@@ -255,6 +270,43 @@ def check_sources(nav: Any) -> None:
 def section_keys(cls: type) -> set[str]:
     """The keys of a config section."""
     return {f.name for f in fields(cls)}
+
+
+def ulog_topics() -> tuple[str, ...]:
+    """The PX4 ULog topics the aid sources read (:attr:`AidSource.ulog_topics`)."""
+    return tuple(t for s in sources() for t in s.ulog_topics)
+
+
+def dataflash_messages() -> dict[str, tuple[str, ...]]:
+    """The DataFlash messages the aid sources read, with the fields they need (:attr:`AidSource.dataflash_messages`;
+    a message two aids read: the union of their fields)."""
+    out: dict[str, tuple[str, ...]] = {}
+    for s in sources():
+        for name, cols in s.dataflash_messages.items():
+            out[name] = (*out.get(name, ()), *(c for c in cols if c not in out.get(name, ())))
+    return out
+
+
+def from_ulog(topics: Mapping[str, Mapping[str, Vec]], time: Callable[[Any], Vec]) -> tuple[list[Any], list[str]]:
+    """Every aid source's samples of a PX4 log (:meth:`AidSource.from_ulog`), time-ordered, and their notes."""
+    return _read(lambda s: s.from_ulog(topics, time))
+
+
+def from_dataflash(rows: Mapping[str, list[dict[str, Any]]]) -> tuple[list[Any], list[str]]:
+    """Every aid source's samples of a DataFlash log (:meth:`AidSource.from_dataflash`), time-ordered, and their
+    notes."""
+    return _read(lambda s: s.from_dataflash(rows))
+
+
+def _read(one: Callable[[AidSource], tuple[list[Any], str]]) -> tuple[list[Any], list[str]]:
+    out: list[Any] = []
+    notes: list[str] = []
+    for s in sources():
+        got, note = one(s)
+        out += got
+        if note:
+            notes.append(note)
+    return sorted(out, key=lambda m: m.t), notes
 
 
 def reasons() -> tuple[str, ...]:

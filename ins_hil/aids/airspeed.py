@@ -31,7 +31,7 @@ Inputs (:meth:`AirspeedSource.decoders`, handed to the drivers by the runtime wh
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
@@ -228,6 +228,45 @@ class AirspeedSource(AidSource):
         return None
 
     csv_kind, csv_columns, csv_required = "airspeed", ("tas", "sigma"), 1
+    ulog_topics = ("airspeed", "airspeed_validated")
+    dataflash_messages: ClassVar[Mapping[str, tuple[str, ...]]] = {"ARSP": ("TimeUS", "Airspeed"), "BARO": ("TimeUS",)}
+
+    def from_ulog(self, topics: Mapping[str, Mapping[str, Vec]], time: Callable[[Any], Vec]) -> tuple[list[Any], str]:
+        """True airspeeds (``true_airspeed_m_s``): the sensor's ``airspeed`` topic (instance 0, ``timestamp_sample``),
+        else ``airspeed_validated``'s rows from a pitot tube (``airspeed_source`` or, before PX4 1.14,
+        ``selected_airspeed_index`` 1–3; not the ground-minus-wind or synthetic estimates)."""
+        for name in self.ulog_topics:
+            t = topics.get(name)
+            if t is None or "true_airspeed_m_s" not in t:
+                continue
+            tas = np.asarray(t["true_airspeed_m_s"], dtype=np.float64)
+            ts = time(t)
+            keep = np.isfinite(tas) & np.isfinite(ts)
+            src = next((t[c] for c in ("airspeed_source", "selected_airspeed_index") if c in t), None)
+            if name == "airspeed_validated" and src is not None:
+                src = np.asarray(src, dtype=np.float64)
+                keep &= (src >= 1) & (src <= 3)
+            out = [AirspeedSample(float(ts[k]), float(tas[k])) for k in np.nonzero(keep)[0]]
+            return out, f"airspeed: {len(out)} true airspeeds from {name}"
+        return [], ""
+
+    def from_dataflash(self, rows: Mapping[str, list[dict[str, Any]]]) -> tuple[list[Any], str]:
+        """True airspeeds of the first airspeed sensor's ``ARSP`` rows (``Airspeed``: ArduPilot's EAS, m/s; rows with
+        ``H``, 3.x ``Health``, 0 left out) with the density of the ``BARO`` static pressure ``Press`` (Pa) and
+        ``ARSP``'s ``Temp`` (°C): :func:`tas_from_eas`."""
+
+        def num(x: Any) -> float:
+            return float(x) if isinstance(x, int | float) else math.nan
+
+        arsp = [d for d in rows.get("ARSP", ()) if num(d.get("H", d.get("Health", 1))) != 0]
+        bp = sorted((num(d["TimeUS"]) * 1e-6, num(d.get("Press"))) for d in rows.get("BARO", ()))
+        if not arsp or not bp:
+            return [], ""
+        t_p, p = zip(*bp, strict=True)
+        out = tas_from_eas(np.array([num(d["TimeUS"]) * 1e-6 for d in arsp]),
+                           np.array([num(d["Airspeed"]) for d in arsp]), np.array(t_p), np.array(p),
+                           np.array([num(d.get("Temp")) for d in arsp]))  # fmt: skip
+        return out, ""
 
     def from_csv(self, row: list[float]) -> AirspeedSample:
         return AirspeedSample(row[0], row[1], row[2])
