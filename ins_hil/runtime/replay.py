@@ -67,7 +67,7 @@ class ReplayResult:
 def pipeline_config_from_header(header: dict[str, Any], core: str | None = None) -> PipelineConfig:
     """The PipelineConfig stored in a log header (``core`` overrides the core kind)."""
     d = dict(header.get("pipeline", {}))
-    names = {f.name for f in dataclasses.fields(PipelineConfig)} - {"limits"}
+    names = {f.name for f in dataclasses.fields(PipelineConfig) if f.init} - {"limits"}
     lim = {f.name for f in dataclasses.fields(Limits)}
     # the validation limits: a table, or (logs written before PipelineConfig.limits) flat pipeline keys
     table = d.get("limits")
