@@ -169,7 +169,7 @@ def odometer_md(od: dict[str, Any]) -> str:
         "The simulated car (`ins_hil.sim.scenarios.odometer_car`: 12 m/s, weaving, 100 s) with a consumer-grade IMU "
         "(100 °/h gyro and 5 mg accelerometer bias instability, τ 60 s), GNSS 5 Hz (σ 0.1 m) withheld in "
         f"{o}, NHC + ZUPT in both runs, the odometer at 10 Hz (σ 0.05 m/s, reading {od['scale_true']:.0%} fast), "
-        f"seeds {od['seeds'][0]}–{od['seeds'][-1]} ({od['runs']} outages each), through the gateway's Pipeline "
+        f"seeds {od['seeds'][0]}–{od['seeds'][-1]} ({od['runs']} outages in all), through the gateway's Pipeline "
         "(`ins_hil.datasets.simulated.odometer_outages`):\n",
         "| horizontal error in the 30-s outage | with the odometer (m) | without (m) |",
         "|---|---|---|",
@@ -277,9 +277,6 @@ def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path)
           + " (1.0 = consistent); yaw error RMS over the runs "
           + f"{mc['yaw_err_rms_deg']:.3f}° against the filter's own yaw σ (RMS) "
           + f"{mc['yaw_std_rms_deg']:.3f}°.\n")  # fmt: skip
-    od = r.get("odometer")
-    if od:
-        a(odometer_md(od))
     a("The Example 3.2 yaw floor with the book's sensors (the filter's own steady-state yaw σ ≈ 0.18°): "
       "`docs/design/drive-tuning.md`, last section.\n")  # fmt: skip
     for name in r["scenarios"]:
@@ -287,6 +284,9 @@ def render_markdown(r: dict[str, Any], plots: dict[str, list[Path]], docs: Path)
             if p.stem.endswith("errors"):
                 a(f"![{p.stem}]({p.relative_to(docs)})")
     a("")
+    od = r.get("odometer")
+    if od:
+        a(odometer_md(od))
     a("## Hot path (µs per IMU step, Python)\n")
     hp = r["hot_path"]
     scale = 21.0 / hp["mechanization_us"]
