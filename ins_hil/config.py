@@ -32,7 +32,7 @@ from ins_hil.runtime.mavlink_msgs.common import MAV_TYPES as MAV_TYPES
 from ins_hil.runtime.mavlink_msgs.common import read_key_file
 from ins_hil.runtime.mavlink_out import EndpointConfig
 from ins_hil.runtime.mqtt_out import MqttConfig
-from ins_hil.runtime.pipeline import PipelineConfig, aiding_monitor, check_core, fdi_monitor, nav_config
+from ins_hil.runtime.pipeline import PipelineConfig, check_core, nav_config
 from ins_hil.types import SimConfig
 from ins_hil.validation import Limits
 
@@ -146,22 +146,15 @@ def _fdi(cfg: Config, fdi: Any) -> None:
     p.fdi = vals.get("enabled", p.fdi)
     p.imu_ids = vals.get("imu_ids", p.imu_ids)
     if "options" in vals:
-        p.fdi_options = schema.validate("fdi.options", vals["options"])
+        p.fdi_options = vals["options"]
     if "aiding" in vals:
-        opts = schema.validate("fdi.aiding", vals["aiding"])
-        en = opts.pop("enabled", True)
-        try:
-            aiding_monitor(opts)
-        except ValueError as e:
-            raise ConfigError(str(e)) from None
-        p.aiding_fdi, p.aiding_options = en, opts
+        opts = schema.validate("fdi.aiding", vals["aiding"])  # its `enabled` (the loader's key) as well
+        p.aiding_fdi, p.aiding_options = opts.pop("enabled", True), opts
+        p.aiding_config()  # built once, here (ConfigError naming the key); the pipeline's monitor uses it
     if p.fdi:
-        try:
-            mon = fdi_monitor(p.fdi_options)
-        except ValueError as e:
-            raise ConfigError(str(e)) from None
-        if len(p.imu_ids) != mon.geo.units:
-            raise ConfigError(f"fdi.imu_ids = {p.imu_ids}: the geometry {mon.geo.name!r} has {mon.geo.units} IMUs")
+        geo = p.fdi_config().geometry  # built once, here; the pipeline's monitor uses it
+        if len(p.imu_ids) != geo.units:
+            raise ConfigError(f"fdi.imu_ids = {p.imu_ids}: the geometry {geo.name!r} has {geo.units} IMUs")
 
 
 def _registered(kind: Any) -> bool:

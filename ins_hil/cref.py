@@ -28,7 +28,7 @@ import importlib
 import math
 from collections import deque
 from collections.abc import Iterator
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -378,7 +378,8 @@ class CNavCore:
             return None
         if self.dt is None or not self.filter:
             return None
-        if isinstance(meas, GnssFix) and self.cfg.gnss.vel_delay > 0 and meas.vel_ned is not None:
+        if meas.kind == "gnss" and self.cfg.gnss.vel_delay > 0 and cast(GnssFix, meas).vel_ned is not None:
+            meas = cast(GnssFix, meas)
             self._fuse_one(dataclasses.replace(meas, vel_ned=None))
             self._fuse_one(dataclasses.replace(meas, t=meas.t - self.cfg.gnss.vel_delay, lat=math.nan))
             return None
@@ -389,7 +390,9 @@ class CNavCore:
         e = self._core.ekf
         before = [int(e.rejected[i]) for i in range(3)]
         cons = [int(e.consecutive[i]) for i in range(3)]
-        if isinstance(meas, GnssFix):
+        kind = meas.kind  # the C core's functions of the aids it supports (the others: its "not supported" list)
+        if kind == "gnss":
+            meas = cast(GnssFix, meas)
             vel = meas.vel_ned if meas.vel_ned is not None else np.full(3, np.nan)
             vel = np.ascontiguousarray(vel, dtype=np.float64)
             for name in ("std_ne", "std_d", "std_vel"):
@@ -418,7 +421,8 @@ class CNavCore:
                     self._rejected.append((meas, float(e.last_ratio[0])))
                 else:
                     self._rejected.clear()
-        elif isinstance(meas, BaroSample):
+        elif kind == "baro":
+            meas = cast(BaroSample, meas)
             alt = meas.altitude
             if not math.isfinite(alt):
                 if not meas.pressure > 0.0:
@@ -428,7 +432,8 @@ class CNavCore:
                 alt = altitude_from_pressure(meas.pressure)
             self._lib_.cref_hfuse_baro(self._core, self._hist, meas.t, alt)
             groups = (2,)
-        elif isinstance(meas, MagSample) and self.cfg.mag.ref_ned is not None:
+        elif kind == "mag" and self.cfg.mag.ref_ned is not None:
+            meas = cast(MagSample, meas)
             fb = np.ascontiguousarray(meas.field_b, dtype=np.float64)
             self._lib_.cref_hfuse_mag(self._core, self._hist, meas.t, self._ffi.from_buffer("double[]", fb))
             groups = (5,)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
-from typing import Any, Protocol, TypeAlias
+from typing import Any, ClassVar, Literal, Protocol, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,6 +46,9 @@ class ImuSample:
     ``dvel``: delta velocity over the interval (m/s, body FRD, ∫f_b dt).
     ``dt``: interval length (s); ``t``: sensor time at the END of the interval (s).
     """
+
+    #: the sample's kind (:attr:`ins_hil.types.AidSample.kind`)
+    kind: ClassVar[Literal["imu"]] = "imu"
 
     t: float
     dt: float
@@ -89,6 +92,9 @@ class GnssFix:
     (NaN = unknown). They go to the outputs only (GPS_INPUT, SYSTEM_TIME, GPS_RAW_INT), never to the core.
     """
 
+    #: the sample's kind (:attr:`ins_hil.types.AidSample.kind`)
+    kind: ClassVar[Literal["gnss"]] = "gnss"
+
     t: float
     lat: float
     lon: float
@@ -111,6 +117,9 @@ class GnssFix:
 class BaroSample:
     """Static pressure (Pa) and/or barometric altitude (m, above the baro datum)."""
 
+    #: the sample's kind (:attr:`ins_hil.types.AidSample.kind`)
+    kind: ClassVar[Literal["baro"]] = "baro"
+
     t: float
     pressure: float
     altitude: float = float("nan")
@@ -123,6 +132,9 @@ class BaroSample:
 class MagSample:
     """Magnetic field in body FRD (tesla)."""
 
+    #: the sample's kind (:attr:`ins_hil.types.AidSample.kind`)
+    kind: ClassVar[Literal["mag"]] = "mag"
+
     t: float
     field_b: Vec
     source: int = 0
@@ -133,10 +145,18 @@ class AidSample(Protocol):
     """What every aiding sample has: its time of validity ``t`` (s, sensor clock) and its arrival time
     ``t_arrival_ns`` (ns, host monotonic; 0 offline). The aiding sample types are :class:`GnssFix`,
     :class:`BaroSample`, :class:`MagSample` and those of the aid modules (:mod:`ins_hil.aids`, one per aid
-    source: its sample type, model, validation and record codec); the core dispatches on the registry."""
+    source: its sample type, model, validation and record codec); the core dispatches on the registry.
+
+    ``kind``: a class attribute of every sample type, ``"imu"`` for :class:`ImuSample` and the name of the aid
+    source that reads it for an aiding sample (``"gnss"``, ``"baro"``, ``"mag"``, ``"odometer"``, ...; the
+    registry checks it, :func:`ins_hil.aids.sources`). Code that tells samples apart reads ``s.kind`` (and
+    :func:`ins_hil.aids.source_of` for what the aid does with it), never ``isinstance`` on the sample types."""
 
     t: float
     t_arrival_ns: int
+
+    @property
+    def kind(self) -> str: ...
 
 
 #: every sample a driver, a reader or the simulator hands to the runtime: the IMU's or an aid source's (the one

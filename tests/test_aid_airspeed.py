@@ -46,7 +46,7 @@ def test_config_validation_and_record() -> None:
         AirspeedConfig(std=-1.0)
     init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
     with pytest.raises(ValueError, match="wind_states"):
-        NavCore(init, NavConfig(sources={"airspeed": {"enabled": True}}))
+        NavCore(init, NavConfig(sources={"airspeed": AirspeedConfig(enabled=True)}))
     v = SampleValidator()
     assert v.check(AirspeedSample(1.0, 20.0)) is None
     assert v.check(AirspeedSample(1.0, -2.0)) == "airspeed_range"
@@ -72,7 +72,7 @@ def fly(airspeed: bool, seconds: float = 150.0, seed: int = 1) -> NavCore:
     init = StrapdownState(quat_from_euler(e[0], e[1], e[2] + 0.02), truth.vel_ned[0].copy(), truth.lat[0],
                           truth.lon[0], truth.h[0], truth.t[0])  # fmt: skip
     filt = FilterConfig(wind_states=True, init_wind=5.0, wind_sigma_rw=0.01)
-    core = NavCore(init, NavConfig(filter=filt, sources={"airspeed": {"enabled": airspeed}}))
+    core = NavCore(init, NavConfig(filter=filt, sources={"airspeed": AirspeedConfig(enabled=airspeed)}))
     meas = sorted([*fixes, *(tas if airspeed else [])], key=lambda m: m.t)
     j = 0
     for s in imu:

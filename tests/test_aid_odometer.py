@@ -47,8 +47,8 @@ def test_config_validation_and_record() -> None:
     with pytest.raises(ValueError, match=r"odometer\.std"):
         OdometerConfig(std=0.0)
     with pytest.raises(ValueError, match="unknown aid section"):
-        aids.check_sources(NavConfig(sources={"odometre": {}}))  # NavCore's and the config loader's check
-    assert aids.by_name()["odometer"].config(NavConfig(sources={"odometer": {"enabled": True}})).enabled
+        aids.check_sources(NavConfig(sources={"odometre": OdometerConfig()}))  # NavCore's and the config loader's check
+    assert aids.by_name()["odometer"].config(NavConfig(sources={"odometer": OdometerConfig(enabled=True)})).enabled
     v = SampleValidator()
     assert v.check(OdometerSample(1.0, 5.0)) is None
     assert v.check(OdometerSample(1.0, math.nan)) == "odometer_nonfinite"
@@ -89,7 +89,7 @@ def outage_error(truth, imu, odo: bool, outage=(60.0, 90.0)) -> tuple[float, flo
     e = truth.euler[0]
     init = StrapdownState(quat_from_euler(e[0], e[1], e[2] + 0.02), truth.vel_ned[0].copy(), truth.lat[0],
                           truth.lon[0], truth.h[0], truth.t[0])  # fmt: skip
-    cfg = NavConfig(aids=AidsConfig(nhc=True, zupt=True), sources={"odometer": {"enabled": odo}})
+    cfg = NavConfig(aids=AidsConfig(nhc=True, zupt=True), sources={"odometer": OdometerConfig(enabled=odo)})
     core = NavCore(init, cfg)
     meas = sorted([*fixes, *(odometer_samples(truth) if odo else [])], key=lambda m: m.t)
     j = 0
@@ -132,4 +132,4 @@ def test_the_c_core_refuses_the_odometer() -> None:
 
     init = StrapdownState(np.array([1.0, 0, 0, 0]), np.zeros(3), LAT0, LON0, H0)
     with pytest.raises(ValueError, match=r"odometer\.enabled"):
-        CNavCore(init, NavConfig(sources={"odometer": {"enabled": True}}))
+        CNavCore(init, NavConfig(sources={"odometer": OdometerConfig(enabled=True)}))

@@ -8,11 +8,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ins_hil import aids
 from ins_hil.aids.odometer import OdometerSample
+from ins_hil.runtime.pipeline import nav_config
 
 
 def test_wheel_distance_to_speed() -> None:
     drv = MavlinkDriver("udpin:127.0.0.1:0", system_id=1)
-    drv.set_decoders(aids.decoders("mavlink", {"odometer": {"enabled": True}}))
+    drv.set_decoders(aids.decoders("mavlink", nav_config({"odometer": {"enabled": True}})))
     got: list = []
     drv._sink = got.append
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -33,4 +34,4 @@ def test_wheel_distance_to_speed() -> None:
     assert b.t - a.t == pytest.approx(0.15)  # the middles of (1.0, 1.1) and (1.1, 1.3)
     assert a.t_arrival_ns == round(101.1e9)
     assert aids.source_of(a).validate(None, a) is None
-    assert aids.decoders("mavlink", {"odometer": {"enabled": False}}) == {}
+    assert aids.decoders("mavlink", nav_config({"odometer": {"enabled": False}})) == {}

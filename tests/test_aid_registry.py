@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -70,7 +71,7 @@ def test_the_odometer_live_through_the_pipeline_and_replayed_bit_for_bit(tmp_pat
     live = []
     for s in _inputs():
         rec.write(s)
-        if isinstance(s, ImuSample):
+        if s.kind == "imu":
             st = pipe.imu(s)
             if st is not None:
                 live.append(st)
@@ -85,6 +86,42 @@ def test_the_odometer_live_through_the_pipeline_and_replayed_bit_for_bit(tmp_pat
     for a, b in zip(live, res.states, strict=True):
         assert a.t == b.t and a.lat == b.lat and a.lon == b.lon and np.array_equal(a.vel_ned, b.vel_ned)
         assert np.array_equal(a.q_nb, b.q_nb)
+    # the .ihlog reader keeps the aid modules' records (Dataset.of_samples sorts them by kind)
+    from ins_hil.datasets.ihlog import read_ihlog
+
+    ds = read_ihlog(tmp_path / "odo.ihlog")
+    assert len(ds.aids) == pipe.counts["fused_OdometerSample"] and all(a.kind == "odometer" for a in ds.aids)
+    assert ds.gnss and all(g.kind == "gnss" for g in ds.gnss)
+
+
+def test_every_sample_type_names_its_kind_and_nothing_dispatches_on_the_types_outside_the_registry() -> None:
+    assert ImuSample.kind == "imu" and all(s.sample.kind == s.name for s in aids.sources() if s.sample is not None)
+    root = Path(__file__).resolve().parent.parent
+    names = "|".join(["ImuSample", "AidSample", *(t.__name__ for t in aids.sample_types())])
+    pat = re.compile(rf"isinstance\([^)]*\b({names})\b")
+    hits = [f"{p.relative_to(root)}:{k}" for d in ("ins_hil", "drivers", "scripts") for p in (root / d).rglob("*.py")
+            if "aids" not in p.relative_to(root).parts
+            for k, line in enumerate(p.read_text().splitlines(), 1) if pat.search(line)]  # fmt: skip
+    assert not hits, hits
+
+
+def test_the_fdi_and_aiding_monitor_configs_are_built_once() -> None:
+    from runtime_helpers import sim_config_dict
+
+    from ins_hil.config import from_dict
+    from ins_hil.runtime.pipeline import nav_config
+    from ins_hil.settings import ConfigError
+
+    d = sim_config_dict()
+    d["fdi"] = {"aiding": {"p_fa_hour": 1e-4}}
+    p = from_dict(d).pipeline
+    built = p.aiding_config()
+    pipe = Pipeline(p)
+    assert pipe._aid_mon is not None and pipe._aid_mon.cfg is built  # the loader's object, not a second build
+    p.aiding_options = {"p_fa_hour": 1e-3}  # a changed table is built again
+    assert p.aiding_config() is not built and p.aiding_config().p_fa_hour == 1e-3
+    with pytest.raises(ConfigError, match=r"core\.nav\.sources"):  # a header's old `sources` table is no key
+        nav_config({"sources": {"odometer": {"enabled": True}}})
 
 
 def test_the_runtime_starts_the_core_with_the_cores_yaw_from_course() -> None:

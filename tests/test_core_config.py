@@ -48,10 +48,12 @@ def test_a_saved_navconfig_loads_back() -> None:
         alignment=AlignmentConfig(mode="static", time=30.0, position=(50.0, 8.0, 100.0)),
         adaptive=True,
     )
-    saved = dataclasses.asdict(cfg)
+    saved = table(cfg)  # what a recording's header holds: built back by the one builder, nav_config
     assert isinstance(saved["gnss"], dict) and saved["gnss"]["gate"] == 10.0
-    back = NavConfig(**saved)
+    back = nav_config(saved)
     assert isinstance(back.gnss, GnssConfig) and isinstance(back.filter, FilterConfig)
+    with pytest.raises(TypeError, match=r"^NavConfig\.filter: expected a FilterConfig, got dict$"):
+        NavConfig(**dataclasses.asdict(cfg))  # an untyped table is not re-validated deeper in
     assert _flat(back) == _flat(cfg)
     assert _flat(back) != _flat(NavConfig())
 

@@ -174,6 +174,10 @@ def test_accuracy_markdown_renders_the_saved_metrics():
     assert any(x.startswith("| target | ≤ 1.5 | ≤ 6 |") for x in rows)
     assert any(x.startswith("| upstream filter, causal | 3.09 | 12.8 | 0.41 |") for x in rows)
     assert any("configs/datasets/drive0708.toml" in x for x in md)
+    # the simulated car with its odometer beats the same car without it in the 30-s outages (issue 41)
+    od = r["odometer"]
+    assert od["runs"] == 10 and od["with"]["rms_mean_m"] < 0.6 * od["without"]["rms_mean_m"]
+    assert f"| RMS over the outage, mean | {od['with']['rms_mean_m']:.2f} | {od['without']['rms_mean_m']:.2f} |" in doc
 
 
 def test_flight_log_targets_are_judged_from_the_metrics():

@@ -10,7 +10,7 @@ import pytest
 from runtime_helpers import sim_config, sim_config_dict, sim_gateway
 
 from ins_hil.config import ConfigError, from_dict
-from ins_hil.runtime.pipeline import aiding_monitor
+from ins_hil.runtime.pipeline import PipelineConfig, aiding_config, aiding_monitor, nav_config
 from ins_hil.runtime.rt import lock_memory, policy, set_realtime
 from ins_hil.types import BaroSample, GnssFix, ImuSample
 
@@ -55,10 +55,13 @@ def test_set_realtime_in_a_child_process() -> None:
 
 def test_the_drift_monitor_follows_the_delay_compensation_of_either_core() -> None:
     # both cores roll back a late fix (delay.compensation, the default) or fuse it as current (off)
-    assert not aiding_monitor({}, "c", {}).cfg.late_fix_as_current
-    assert aiding_monitor({}, "c", {"delay": {"compensation": False}}).cfg.late_fix_as_current
-    assert aiding_monitor({}, "python", {"delay": {"compensation": False}}).cfg.late_fix_as_current
-    assert not aiding_monitor({}, "python", {}).cfg.late_fix_as_current
+    off = nav_config({"delay": {"compensation": False}})
+    for core in ("c", "python"):
+        assert not PipelineConfig(core=core).aiding_config().late_fix_as_current
+        assert PipelineConfig(core=core, nav=off).aiding_config().late_fix_as_current
+        assert not PipelineConfig(core=core, nav=off, aiding_options={"late_fix_as_current": False}).aiding_config(
+        ).late_fix_as_current
+    assert aiding_monitor(aiding_config({}, off), off).cfg.late_fix_as_current
 
 
 def test_aiding_is_fused_in_segments_one_per_gap_after_the_published_state() -> None:

@@ -27,7 +27,7 @@ import importlib
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import fields
-from typing import Any
+from typing import Any, ClassVar
 
 from ins_hil.types import Vec
 
@@ -104,6 +104,11 @@ class AidSource:
     csv_kind: str = ""
     csv_columns: tuple[str, ...] = ()
     csv_required: int = 0
+    #: the PX4 ULog topics it reads (the ULog and ulog2csv readers load them for :meth:`from_ulog`)
+    ulog_topics: tuple[str, ...] = ()
+    #: the DataFlash messages it reads, each with the fields it needs (the reader refuses a log whose rows lack
+    #: them, and keeps the first instance of each), for :meth:`from_dataflash`
+    dataflash_messages: ClassVar[Mapping[str, tuple[str, ...]]] = {}
 
     def check(self, s: Any) -> None:
         """The core's input contract: ValueError (one line) for a sample the core cannot fuse. Default: a
@@ -136,21 +141,31 @@ class AidSource:
         """A sample's generic-CSV values ``(t, *csv_columns)`` (:meth:`from_csv` reversed; NaN: left empty)."""
         raise NotImplementedError
 
+    def from_ulog(self, topics: Mapping[str, Mapping[str, Vec]], time: Callable[[Any], Vec]) -> tuple[list[Any], str]:
+        """Its samples from a PX4 log's topics (:attr:`ulog_topics`; a topic: field name → column) and a note for
+        the dataset's notes ("" none); ``time(topic)``: the topic's time of validity (s)."""
+        return [], ""
+
+    def from_dataflash(self, rows: Mapping[str, list[dict[str, Any]]]) -> tuple[list[Any], str]:
+        """Its samples from a DataFlash log's rows (:attr:`dataflash_messages` and the reader's own messages, the
+        first instance of each; a row: field → value, ``TimeUS`` in µs) and a note ("" none)."""
+        return [], ""
+
     def blocks(self, nav: Any) -> tuple[tuple[str, int, float, float], ...]:
         """The error-state blocks this aid adds under config ``nav`` (``NavConfig``): (name, size, initial
         1-σ, random-walk σ per √s), appended after the filter's own states."""
         return ()
 
     def config(self, nav: Any) -> Any:
-        """This aid's own section of ``nav`` (``NavConfig.sources[name]``): its default when absent, a table
-        (dict) built into its class; None for an aid whose section is in :mod:`ins_hil.core_parts.config`."""
+        """This aid's own section of ``nav`` (``NavConfig.sources[name]``, built by
+        :func:`ins_hil.runtime.pipeline.nav_config`): its default when absent; None for an aid whose section is in
+        :mod:`ins_hil.core_parts.config`. TypeError (one line) for anything but its class (a table is built once,
+        by the config loader, not here)."""
         if self.section is None:
             return None
         v = nav.sources.get(self.name)
         if v is None:
             return self.section()
-        if isinstance(v, dict):
-            return self.section(**v)
         if not isinstance(v, self.section):
             raise TypeError(
                 f"NavConfig.sources[{self.name!r}]: expected a {self.section.__name__}, got {type(v).__name__}"
@@ -194,6 +209,8 @@ def sources() -> tuple[AidSource, ...]:
         out = tuple(importlib.import_module(f"{__name__}.{m}").SOURCE for m in AID_MODULES)
         for s in out:
             if s.sample is not None:
+                if getattr(s.sample, "kind", None) != s.name:
+                    raise RuntimeError(f"aid source {s.name!r}: its sample {s.sample.__name__} needs kind = {s.name!r}")
                 if s.sample in _BY_SAMPLE:
                     raise RuntimeError(f"aid sources {_BY_SAMPLE[s.sample].name!r} and {s.name!r} read one sample")
                 _BY_SAMPLE[s.sample] = s
@@ -247,12 +264,49 @@ def check_sources(nav: Any) -> None:
     if bad:
         raise ValueError(f"NavConfig.sources: unknown aid section(s) {sorted(bad)} (known: {', '.join(known)})")
     for name in nav.sources:
-        by_name()[name].config(nav)  # a table builds (its checks), an object is of its class
+        by_name()[name].config(nav)  # of its class
 
 
 def section_keys(cls: type) -> set[str]:
     """The keys of a config section."""
     return {f.name for f in fields(cls)}
+
+
+def ulog_topics() -> tuple[str, ...]:
+    """The PX4 ULog topics the aid sources read (:attr:`AidSource.ulog_topics`)."""
+    return tuple(t for s in sources() for t in s.ulog_topics)
+
+
+def dataflash_messages() -> dict[str, tuple[str, ...]]:
+    """The DataFlash messages the aid sources read, with the fields they need (:attr:`AidSource.dataflash_messages`;
+    a message two aids read: the union of their fields)."""
+    out: dict[str, tuple[str, ...]] = {}
+    for s in sources():
+        for name, cols in s.dataflash_messages.items():
+            out[name] = (*out.get(name, ()), *(c for c in cols if c not in out.get(name, ())))
+    return out
+
+
+def from_ulog(topics: Mapping[str, Mapping[str, Vec]], time: Callable[[Any], Vec]) -> tuple[list[Any], list[str]]:
+    """Every aid source's samples of a PX4 log (:meth:`AidSource.from_ulog`), time-ordered, and their notes."""
+    return _read(lambda s: s.from_ulog(topics, time))
+
+
+def from_dataflash(rows: Mapping[str, list[dict[str, Any]]]) -> tuple[list[Any], list[str]]:
+    """Every aid source's samples of a DataFlash log (:meth:`AidSource.from_dataflash`), time-ordered, and their
+    notes."""
+    return _read(lambda s: s.from_dataflash(rows))
+
+
+def _read(one: Callable[[AidSource], tuple[list[Any], str]]) -> tuple[list[Any], list[str]]:
+    out: list[Any] = []
+    notes: list[str] = []
+    for s in sources():
+        got, note = one(s)
+        out += got
+        if note:
+            notes.append(note)
+    return sorted(out, key=lambda m: m.t), notes
 
 
 def reasons() -> tuple[str, ...]:
@@ -261,17 +315,12 @@ def reasons() -> tuple[str, ...]:
 
 
 def decoders(protocol: str, nav: Any) -> dict[Any, tuple[Decoder, ...]]:
-    """The decoders of the aids enabled in ``nav`` (``NavConfig``; or a ``[core.nav]`` table, of which the aid
-    sections are read; None: none enabled) for one driver of ``protocol`` (:meth:`AidSource.decoders`), by
-    message key. The runtime hands these to the drivers as plain callables (the drivers sit below the aids and
-    never import them)."""
+    """The decoders of the aids enabled in ``nav`` (``NavConfig``; None: none enabled) for one driver of
+    ``protocol`` (:meth:`AidSource.decoders`), by message key. The runtime hands these to the drivers as plain
+    callables (the drivers sit below the aids and never import them)."""
     out: dict[Any, tuple[Decoder, ...]] = {}
     if nav is None:
         return out
-    if isinstance(nav, Mapping):
-        from ins_hil.core_parts.config import NavConfig
-
-        nav = NavConfig(sources={k: v for k, v in nav.items() if k in sections()})
     for src in sources():
         if src.section is None or not src.enabled(nav):
             continue

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 
@@ -49,6 +49,7 @@ class OdometerSample:
     """Speed along the vehicle's forward (body x) axis (m/s, negative reversing) valid at ``t`` (s); ``sigma``:
     its 1-σ (m/s; NaN = the configured ``odometer.std``)."""
 
+    kind: ClassVar[Literal["odometer"]] = "odometer"
     t: float
     speed_mps: float
     sigma: float = math.nan

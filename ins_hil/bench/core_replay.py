@@ -27,7 +27,6 @@ def feed(p: Any, core: Any) -> None:
     """Replay a prepared log through ``core`` (NavCore or CNavCore) as ``run_dataset`` feeds it (no outages).
     On the C core, once it navigates, the IMU samples between two aids go in one call (``CNavCore.run``)."""
     from ins_hil.datasets.run import heading_only
-    from ins_hil.types import MagSample
 
     meas = sorted([(f.t, 0, f) for f in p.gnss] + [(m.t, 2, m) for m in p.aux], key=lambda x: (x[0], x[1]))
     ref = p.nav.mag.ref_ned
@@ -55,7 +54,7 @@ def feed(p: Any, core: Any) -> None:
         while j < n and meas[j][0] <= s.t:
             m = meas[j][2]
             j += 1
-            if p.mag_heading_only and isinstance(m, MagSample) and core.phase == "nav":
+            if p.mag_heading_only and m.kind == "mag" and core.phase == "nav":
                 m = heading_only(m, core.state().q_nb if is_c else core.ins.state.q_nb, ref)
             core.fuse(m)
 

@@ -512,7 +512,7 @@ def _aid_live_run(seed: int, fault: str, size: float) -> tuple[list, dict[str, i
         return fixes, baro
 
     for s in send_order(sim, AID_LIVE_T_END, alter):
-        if isinstance(s, ImuSample):
+        if s.kind == "imu":
             pipe.imu(s)
             ev += pipe.drain_events()
         else:

@@ -17,6 +17,7 @@ import csv
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -112,7 +113,7 @@ def read_csv_log(path: Path, imu_id: int | None = None) -> LogData:
     return log
 
 
-def log_from_records(records: Iterable[object], imu_id: int | None = None, where: str = "log") -> LogData:
+def log_from_records(records: Iterable[Any], imu_id: int | None = None, where: str = "log") -> LogData:
     """LogData from recorded samples (``ImuSample``/``MagSample``; other records are skipped).
 
     This is how ``.ihlog`` files of the runtime recorder are read: no step labels (the quiet
@@ -121,9 +122,9 @@ def log_from_records(records: Iterable[object], imu_id: int | None = None, where
     imu: list[ImuSample] = []
     mag: list[MagSample] = []
     for r in records:
-        if isinstance(r, ImuSample):
+        if r.kind == "imu":
             imu.append(r)
-        elif isinstance(r, MagSample):
+        elif r.kind == "mag":
             mag.append(r)
     ids = sorted({s.imu_id for s in imu})
     if imu_id is not None:

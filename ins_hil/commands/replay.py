@@ -532,6 +532,16 @@ def flight_logs(quiet: bool) -> dict[str, dict[str, Any]]:
     return out
 
 
+def odometer_study(quiet: bool) -> dict[str, Any]:
+    """The simulated car with and without its wheel odometer in 30-s GNSS outages (docs/accuracy.md):
+    :func:`ins_hil.datasets.simulated.odometer_outages` of :func:`ins_hil.sim.scenarios.odometer_car`, seeds 1–5."""
+    from ins_hil.sim.scenarios import odometer_car
+
+    if not quiet:
+        print("odometer car: seeds 1-5, outages 30-60 s and 60-90 s, with and without the odometer", file=sys.stderr)
+    return simulated.odometer_outages(odometer_car)
+
+
 def full_report(args: argparse.Namespace) -> int:
     """Regenerate docs/accuracy.md and docs/accuracy/*.png."""
     docs = REPO / "docs"
@@ -556,6 +566,7 @@ def full_report(args: argparse.Namespace) -> int:
     report["flight_logs"] = flight_logs(quiet)
     report["monte_carlo"] = monte_carlo("example32_gnss", 10, None, quiet)
     report["monte_carlo_uav"] = monte_carlo("uav_modelled", 10, 140.0, quiet)
+    report["odometer"] = odometer_study(quiet)
     report["elapsed_s"] = time.perf_counter() - t_start
     (figdir / "metrics.json").write_text(json.dumps(report, indent=2, default=float))
     (docs / "accuracy.md").write_text(render_markdown(report, plots, docs))

@@ -195,14 +195,14 @@ class Alignment:
         starts learning."""
         core = self.core
         s = core.ins.state
-        if isinstance(meas, MagSample):
+        if meas.kind == "mag":
             self.last_mag = np.asarray(meas.field_b)
             return
-        if isinstance(meas, BaroSample):
+        if meas.kind == "baro":
             # learn the datum before navigation starts, so that the baro holds the height from the first step
             core.baro.learn(meas.t, baro_altitude(meas))
             return
-        if not isinstance(meas, GnssFix):
+        if meas.kind != "gnss":
             return
         if math.isfinite(meas.h):
             core.baro.gnss_height(

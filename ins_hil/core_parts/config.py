@@ -292,9 +292,7 @@ class NavConfig:
         check_fields(self, "NavConfig")
         for name, cls in (("filter", FilterConfig), *SECTIONS.items()):
             v = getattr(self, name)
-            if isinstance(v, dict):  # dataclasses.asdict(NavConfig) loaded back
-                setattr(self, name, cls(**v))
-            elif not isinstance(v, cls):
+            if not isinstance(v, cls):  # a table is built by runtime.pipeline.nav_config (settings.build), once
                 raise TypeError(f"NavConfig.{name}: expected a {cls.__name__}, got {type(v).__name__}")
         if self.gnss.vel_delay > self.delay.max_delay:
             raise ValueError(

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ins_hil.aids.airspeed import AirspeedSample, tas_from_eas
+from ins_hil import aids
 from ins_hil.datasets.dataset import (
     Dataset,
     DatasetError,
@@ -86,7 +86,6 @@ FIELDS = {
     "GPA": ("TimeUS",),
     "BARO": ("TimeUS", "Alt"),
     "MAG": ("TimeUS", "MagX", "MagY", "MagZ"),
-    "ARSP": ("TimeUS", "Airspeed"),
     "NKF1": ("TimeUS", "Roll", "Pitch", "Yaw", "VN", "VE", "VD", "PN", "PE", "PD"),
     "XKF1": ("TimeUS", "Roll", "Pitch", "Yaw", "VN", "VE", "VD", "PN", "PE", "PD"),
     "ORGN": ("Lat", "Lng", "Alt"),
@@ -94,26 +93,18 @@ FIELDS = {
 }
 
 
-def airspeed_from_arsp(arsp: list[dict[str, Any]], baro: list[dict[str, Any]]) -> list[AirspeedSample]:
-    """True airspeeds of the first airspeed sensor's ``ARSP`` rows (``Airspeed``: ArduPilot's EAS, m/s; rows with
-    ``H``, 3.x ``Health``, 0 left out) with the density of the ``BARO`` static pressure ``Press`` (Pa) and ``ARSP``'s
-    ``Temp`` (°C): :func:`ins_hil.aids.airspeed.tas_from_eas`."""
-
-    def num(x: Any) -> float:
-        return float(x) if isinstance(x, int | float) else math.nan
-
-    arsp = [d for d in arsp if num(d.get("H", d.get("Health", 1))) != 0]
-    bp = sorted((num(d["TimeUS"]) * 1e-6, num(d.get("Press"))) for d in baro)
-    if not arsp or not bp:
-        return []
-    t_p, p = zip(*bp, strict=True)
-    return tas_from_eas(np.array([num(d["TimeUS"]) * 1e-6 for d in arsp]), np.array([num(d["Airspeed"]) for d in arsp]),
-                        np.array(t_p), np.array(p), np.array([num(d.get("Temp")) for d in arsp]))  # fmt: skip
+def all_fields() -> dict[str, tuple[str, ...]]:
+    """The messages the reader reads with the fields it needs: its own (:data:`FIELDS`) and the aid sources'
+    (:func:`ins_hil.aids.dataflash_messages`)."""
+    out = dict(FIELDS)
+    for name, cols in aids.dataflash_messages().items():
+        out[name] = (*out.get(name, ()), *(c for c in cols if c not in out.get(name, ())))
+    return out
 
 
-def _check_fields(path: Path, rows: dict[str, list[dict[str, Any]]]) -> None:
+def _check_fields(path: Path, rows: dict[str, list[dict[str, Any]]], fields: dict[str, tuple[str, ...]]) -> None:
     """DatasetError naming the message and the missing or non-numeric field (a damaged or redefined FMT)."""
-    for name, cols in FIELDS.items():
+    for name, cols in fields.items():
         for k, d in enumerate(rows[name]):
             for c in cols:
                 v = d.get(c)
@@ -346,13 +337,14 @@ def _read(path: Path, text: bool) -> Dataset:
         what = "an ArduPilot DataFlash .bin (expected the 0xA3 0x95 FMT header)"
     if not ok:
         raise DatasetError(f"{path}: not {what}")
-    want = set(FIELDS)
+    fields = all_fields()
+    want = set(fields)
     rows = text_rows(path, path.read_bytes(), want) if text else binary_rows(path.read_bytes(), want, str(path))
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
-    _check_fields(path, rows)
+    _check_fields(path, rows, fields)
     try:
-        for name in ("IMU", "GPS", "GPA", "BARO", "MAG", "ARSP"):
+        for name in ("IMU", "GPS", "GPA", "BARO", "MAG", *(m for m in aids.dataflash_messages() if m != "BARO")):
             rows[name] = first_instance(rows[name])
     except DatasetError as e:
         raise DatasetError(f"{path}: {e}") from None
@@ -405,7 +397,7 @@ def _read(path: Path, text: bool) -> Dataset:
         onboard = Trajectory(name, te, q, te, v, te, p, origin)
     t_end, why = end_of_valid_data(ti, g, a, gnss[-1].t if gnss else None)
     ds = Dataset(imu, gnss, baro, mag, None, onboard, t_end)
-    ds.aids = airspeed_from_arsp(rows["ARSP"], rows["BARO"])
+    ds.aids, aid_notes = aids.from_dataflash(rows)  # the aid sources' own messages (ins_hil.aids: airspeed, ...)
     if t_end is not None:
         ds.events.append((t_end, "end of valid data"))
         imu_n = sum(1 for s in imu if s.t > t_end)
@@ -415,7 +407,8 @@ def _read(path: Path, text: bool) -> Dataset:
     if wk:  # GPS time (s since 1980-01-06) → UNIX s (leap seconds ignored: a field-model date)
         utc = 315964800.0 + float(wk[0]["GWk"]) * 604800.0 + float(wk[0].get("GMS", 0.0)) * 1e-3
         utc = utc if math.isfinite(utc) and UTC_RANGE[0] <= utc <= UTC_RANGE[1] else None  # a damaged week
-    ds.meta.update({"source": str(path), "format": fmt, "vehicle": "ArduPilot", "notes": [], "utc_start_s": utc})
+    ds.meta.update({"source": str(path), "format": fmt, "vehicle": "ArduPilot", "notes": aid_notes,
+                    "utc_start_s": utc})  # fmt: skip
     fw = next((d["Message"] for d in rows["MSG"] if str(d.get("Message", "")).startswith(FIRMWARES)), None)
     if fw is not None:  # the firmware banner names the vehicle type
         ds.meta["firmware"] = str(fw)

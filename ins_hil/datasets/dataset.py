@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import contextlib
 import math
+import operator
 import os
 import struct
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -158,6 +159,18 @@ class Dataset:
     events: list[tuple[float, str]] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
     aids: list[Any] = field(default_factory=list)
+
+    @classmethod
+    def of_samples(cls, imu: list[ImuSample], aiding: Iterable[Any], **kw: Any) -> Dataset:
+        """A dataset of ``imu`` and the aiding samples ``aiding`` (any order), each list time-ordered: GNSS, baro
+        and magnetometer by their ``kind`` into their lists, the other aid sources' samples into ``aids``."""
+        lists: dict[str, list[Any]] = {"gnss": [], "baro": [], "mag": []}
+        rest: list[Any] = []
+        for m in aiding:
+            lists.get(m.kind, rest).append(m)
+        by_t = operator.attrgetter("t")
+        return cls(imu, sorted(lists["gnss"], key=by_t), sorted(lists["baro"], key=by_t),
+                   sorted(lists["mag"], key=by_t), aids=sorted(rest, key=by_t), **kw)  # fmt: skip
 
     @property
     def t0(self) -> float:

@@ -54,7 +54,7 @@ class _FirstNav(Observer):
         self.t = math.nan
 
     def after_fuse(self, pipe: Pipeline, m: Any, fused: bool) -> None:
-        if math.isnan(self.t) and isinstance(m, GnssFix) and navigating(pipe):
+        if math.isnan(self.t) and m.kind == "gnss" and navigating(pipe):
             self.t = m.t
 
 
@@ -80,7 +80,7 @@ def run_drive(
     score = GnssScore(cfg.gnss.lever_arm_b, origin, [f for f, i in zip(gnss, inside, strict=True) if i])
     first = _FirstNav()
     aids: list[Any] = sorted([*aux, *(f for f, i in zip(gnss, inside, strict=True) if not i)],
-                             key=lambda m: (m.t, 1 if isinstance(m, GnssFix) else 0))  # fmt: skip
+                             key=lambda m: (m.t, 1 if m.kind == "gnss" else 0))  # fmt: skip
     pipe, _ = replay(imu, aids, cfg, [score, first], pipeline=offline_config(aiding_fdi), progress=progress,
                      source="drive")  # fmt: skip
     core: Any = pipe.core

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory
 from ins_hil.nav import earth
 from ins_hil.runtime import recorder
 from ins_hil.runtime.replay import SimTruth, sim_config_from_header
-from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, SimConfig
+from ins_hil.types import ImuSample, SimConfig
 
 #: reference rate (Hz) of a simulated run's regenerated truth
 REFERENCE_HZ = 10.0
@@ -75,15 +75,12 @@ def read_ihlog(path: Path) -> Dataset:
         records = list(recorder.read_records(path))
     except (ValueError, OSError) as e:
         raise DatasetError(f"{path}: not a readable gateway log ({e})") from None
-    imu_all = [r for r in records if isinstance(r, ImuSample)]
+    imu_all = [cast(ImuSample, r) for r in records if r.kind == "imu"]
     if not imu_all:
         raise DatasetError(f"{path}: no IMU records in the gateway log")
     primary = min(s.imu_id for s in imu_all)
     imu = sorted((s for s in imu_all if s.imu_id == primary), key=lambda s: s.t)
-    gnss = sorted((r for r in records if isinstance(r, GnssFix)), key=lambda r: r.t)
-    baro = sorted((r for r in records if isinstance(r, BaroSample)), key=lambda r: r.t)
-    mag = sorted((r for r in records if isinstance(r, MagSample)), key=lambda r: r.t)
-    ds = Dataset(imu, gnss, baro, mag)
+    ds = Dataset.of_samples(imu, [r for r in records if r.kind != "imu"])
     notes = []
     if len({s.imu_id for s in imu_all}) > 1:
         notes.append(f"redundant IMUs in the log: imu_id {primary} replayed")

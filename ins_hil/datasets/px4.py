@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ins_hil.aids.airspeed import AirspeedSample
+from ins_hil import aids
 from ins_hil.datasets.dataset import (
     Dataset,
     DatasetError,
@@ -60,11 +60,16 @@ MAX_BRIDGE = 0.05
 TOPICS = ("sensor_combined", "vehicle_imu", "vehicle_gps_position", "sensor_gps", "vehicle_air_data",
           "vehicle_magnetometer", "vehicle_attitude", "vehicle_local_position", "vehicle_global_position",
           "estimator_states", "vehicle_land_detected", "sensor_selection", "estimator_selector_status",
-          "estimator_sensor_bias", "vehicle_status", "airspeed", "airspeed_validated")  # fmt: skip
+          "estimator_sensor_bias", "vehicle_status")  # fmt: skip
 #: m/s: EKF2's unaided horizontal velocity above which the notes say it dead-reckons
 DEAD_RECKONING_SPEED = 1.0
 #: the share of its time span that ``vehicle_imu``'s intervals must cover to be read as the IMU
 MIN_IMU_COVER = 0.9
+
+
+def all_topics() -> tuple[str, ...]:
+    """The topics the reader loads: its own (:data:`TOPICS`) and the aid sources' (:func:`ins_hil.aids.ulog_topics`)."""
+    return (*TOPICS, *(t for t in aids.ulog_topics() if t not in TOPICS))
 
 
 def _col(t: Topic, *names: str) -> Vec | None:
@@ -240,24 +245,6 @@ def mag_from_magnetometer(t: Topic) -> list[MagSample]:
     return [MagSample(float(ts[k]), m[k]) for k in range(len(ts)) if np.all(np.isfinite(m[k]))]
 
 
-def airspeed_from_topics(topics: dict[str, Topic]) -> tuple[list[AirspeedSample], str]:
-    """True airspeeds (``true_airspeed_m_s``): the sensor's ``airspeed`` topic (instance 0, ``timestamp_sample``),
-    else ``airspeed_validated``'s rows from a pitot tube (``airspeed_source`` or, before PX4 1.14,
-    ``selected_airspeed_index`` 1–3; not the ground-minus-wind or synthetic estimates); the topic read."""
-    for name in ("airspeed", "airspeed_validated"):
-        t = topics.get(name)
-        tas = _col(t, "true_airspeed_m_s") if t is not None else None
-        if t is None or tas is None:
-            continue
-        ts = _time(t)
-        keep = np.isfinite(tas) & np.isfinite(ts)
-        src = _col(t, "airspeed_source", "selected_airspeed_index") if name == "airspeed_validated" else None
-        if src is not None:
-            keep &= (src >= 1) & (src <= 3)
-        return [AirspeedSample(float(ts[k]), float(tas[k])) for k in np.nonzero(keep)[0]], name
-    return [], ""
-
-
 def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
     """EKF2's output: attitude (``vehicle_attitude`` or ``estimator_states``), velocity and position."""
     tr = Trajectory("EKF2")
@@ -420,9 +407,8 @@ def dataset_from_topics(topics: dict[str, Topic], source: str, fmt: str) -> Data
         ds.baro = baro_from_air_data(topics["vehicle_air_data"])
     if "vehicle_magnetometer" in topics:
         ds.mag = mag_from_magnetometer(topics["vehicle_magnetometer"])
-    ds.aids, tas_topic = airspeed_from_topics(topics)
-    if tas_topic:
-        notes.append(f"airspeed: {len(ds.aids)} true airspeeds from {tas_topic}")
+    ds.aids, more = aids.from_ulog(topics, _time)  # the aid sources' own topics (ins_hil.aids: airspeed, ...)
+    notes += more
     ds.onboard = onboard_from_ekf2(topics)
     check: dict[str, object] = {}
     if ds.onboard is not None:
@@ -496,7 +482,7 @@ def read_ulog(path: Path) -> Dataset:
         raise DatasetError(f"{path}: not a PX4 ULog file (expected the 'ULog' header)")
     try:
         with _Bounded(path) as f:
-            u = ULog(f, list(TOPICS))
+            u = ULog(f, list(all_topics()))
     except Exception as e:  # pyulog raises plain Exceptions on corrupt files
         raise DatasetError(f"{path}: cannot parse as ULog ({' '.join(str(e).split())[:160]})") from None
     topics: dict[str, Topic] = {}
@@ -519,7 +505,7 @@ def topic_files(folder: Path) -> dict[str, Path]:
     """Topic name → CSV file (instance 0 preferred) in a ulog2csv folder; found by the name inside the file name."""
     files = sorted(folder.glob("*.csv"))
     out: dict[str, Path] = {}
-    for topic in TOPICS:
+    for topic in all_topics():
         pat = re.compile(rf"(^|_){topic}_(\d+)\.csv$")
         hits = sorted((int(m.group(2)), f.name, f) for f in files if (m := pat.search(f.name)))
         if hits:

@@ -31,7 +31,6 @@ from ins_hil.datasets.run import (
     rejection,
     run_dataset,
 )
-from ins_hil.types import MagSample
 
 #: warn when the gates reject more than this fraction of a kind of measurement
 REJECT_WARN = 0.03
@@ -145,7 +144,7 @@ def replay(
             tr = dataclasses.replace(ds.reference, lever_b=refscore.lever_of(ds.reference, cfg.reference_lever_arm))
             m["reference"] = cmp.compare(r, tr, t_from, p.t1)
     ref = p.nav.mag.ref_ned
-    mags = [a for a in p.aux if isinstance(a, MagSample)]
+    mags = [a for a in p.aux if a.kind == "mag"]
     if ref is not None and mags and len(r.t):
         mh: dict[str, Any] = {"ours": cmp.mag_heading(mags, r.t, r.q_nb, ref, t_from, p.t1)}
         ob = ds.onboard

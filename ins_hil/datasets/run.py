@@ -226,9 +226,9 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     sc = screen(imu, gnss, [*baro, *mag, *ds.aids], source)  # ds.aids: the aid modules' samples (odometer, ...)
     notes += sc.notes
     imu, gnss = sc.imu, sc.gnss
-    baro = [m for m in sc.aux if isinstance(m, BaroSample)]
-    mag = [m for m in sc.aux if isinstance(m, MagSample)]
-    other = [m for m in sc.aux if not isinstance(m, BaroSample | MagSample)]
+    baro = [m for m in sc.aux if m.kind == "baro"]
+    mag = [m for m in sc.aux if m.kind == "mag"]
+    other = [m for m in sc.aux if m.kind not in ("baro", "mag")]
     nav = cfg.nav_config()
     if gnss:
         origin = (gnss[0].lat, gnss[0].lon, gnss[0].h)
@@ -523,7 +523,7 @@ class GnssScore(Observer):
                                           np.full(3, math.nan), ref, st))  # fmt: skip
 
     def before_fuse(self, pipe: Pipeline, m: Any) -> None:
-        if not isinstance(m, GnssFix) or not navigating(pipe):
+        if m.kind != "gnss" or not navigating(pipe):
             return
         assert pipe.core is not None
         st = pipe.core.state()
@@ -592,14 +592,14 @@ def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str
     origin = p.origin
     fused = [f for f in p.gnss if not _inside(f.t, outages)]
     withheld = [f for f in p.gnss if _inside(f.t, outages)]
-    aids: list[Any] = sorted([*fused, *p.aux], key=lambda m: (m.t, 0 if isinstance(m, GnssFix) else 2))
+    aids: list[Any] = sorted([*fused, *p.aux], key=lambda m: (m.t, 0 if m.kind == "gnss" else 2))
     track = Track(origin)
     score = GnssScore(p.nav.gnss.lever_arm_b, origin, withheld)
     ref_ned = p.nav.mag.ref_ned
 
     def heading(pipe: Pipeline, m: Any) -> Any:
         st = pipe.last_state
-        if isinstance(m, MagSample) and st is not None and navigating(pipe):
+        if m.kind == "mag" and st is not None and navigating(pipe):
             return heading_only(m, st.q_nb, ref_ned)
         return m
 

@@ -17,8 +17,10 @@ import numpy as np
 from ins_hil.core import NavConfig, NavCore
 from ins_hil.core_parts.config import DelayConfig
 from ins_hil.datasets.evaluate import Progress, Series, run_truth
+from ins_hil.datasets.run import offline_config, replay
 from ins_hil.fusion.ekf import FilterConfig
-from ins_hil.runtime.pipeline import nav_config
+from ins_hil.nav import earth
+from ins_hil.runtime.pipeline import Observer, Pipeline, nav_config
 from ins_hil.types import ImuSample
 
 ProgressFactory = Callable[[str], Progress | None]
@@ -154,3 +156,73 @@ def benchmark_hot_path(n: int = 20000) -> dict[str, float]:
         kf.predict(0.01, C, dv / 0.01, z3, z3, z3, z3, 0.7, 100.0)
     out["predict_15_alone_us"] = (time.perf_counter() - t0) / n * 1e6
     return out
+
+
+class _OutageError(Observer):
+    """The horizontal position error (m) against ``truth`` at each whole second inside ``outage`` (and at its last
+    step before the next fix)."""
+
+    def __init__(self, truth: Any, outage: tuple[float, float]) -> None:
+        self.truth, self.outage = truth, outage
+        self.errs: list[float] = []
+        self._last: float | None = None
+
+    def epoch(self, pipe: Pipeline, st: Any) -> None:
+        t0, t1 = self.outage
+        if not t0 < st.t < t1:
+            return
+        tr = self.truth
+        i = round((st.t - tr.t[0]) / tr.dt)
+        d = earth.ned_delta_small(st.lat - tr.lat[i], st.lon - tr.lon[i], st.h - tr.h[i], tr.lat[i], tr.h[i])
+        e = float(np.hypot(d[0], d[1]))
+        if abs(st.t - round(st.t)) < 0.5 * tr.dt:
+            self.errs.append(e)
+        self._last = e
+
+    def result(self) -> tuple[float, float]:
+        """(RMS over the outage, the error at its end) (m)."""
+        errs = [*self.errs, self._last] if self._last is not None else self.errs
+        return float(np.sqrt(np.mean(np.square(errs)))), float(errs[-1])
+
+
+def odometer_outages(
+    build: Callable[[int], Any], seeds: tuple[int, ...] = (1, 2, 3, 4, 5),
+    outages: tuple[tuple[float, float], ...] = ((30.0, 60.0), (60.0, 90.0)),
+) -> dict[str, Any]:  # fmt: skip
+    """The simulated car with and without its wheel odometer in GNSS outages, through the gateway's Pipeline (the
+    one offline loop, :func:`ins_hil.datasets.run.replay`; NHC + ZUPT in both runs): ``build(seed)`` →
+    ``ins_hil.sim.scenarios.CarRun``. Per seed and outage the horizontal error's RMS over the outage and at its end
+    (m), their means and medians over the seed × outage runs, and the odometer scale factor learnt before the
+    outages (its truth ``scale``)."""
+    from ins_hil.aids.odometer import OdometerSample
+
+    runs: dict[str, list[tuple[float, float]]] = {"with": [], "without": []}
+    scale: list[float] = []
+    truth_scale = math.nan
+    for seed in seeds:
+        car = build(seed)
+        truth_scale = car.scale
+        odo = [OdometerSample(t, v) for t, v in car.odometer]
+        for out in outages:
+            fixes = [f for f in car.fixes if not out[0] < f.t < out[1]]
+            for tag, on in (("with", True), ("without", False)):
+                nav = nav_config({"aids": {"nhc": True, "zupt": True}, "odometer": {"enabled": on}})
+                obs = _OutageError(car.truth, out)
+                aids = sorted([*fixes, *(odo if on else [])], key=lambda m: m.t)
+                pipe, _ = replay(car.imu, aids, nav, [obs], initial=car.initial, pipeline=offline_config(False),
+                                 source="odometer car")  # fmt: skip
+                runs[tag].append(obs.result())
+                if on and out == outages[0]:
+                    scale.append(float(getattr(pipe.core.aid("odometer"), "scale", math.nan)))  # type: ignore[union-attr]
+
+    def stats(tag: str) -> dict[str, float]:
+        rms, end = (np.array([r[k] for r in runs[tag]]) for k in (0, 1))
+        return {"rms_mean_m": float(rms.mean()), "rms_median_m": float(np.median(rms)),
+                "end_mean_m": float(end.mean()), "end_median_m": float(np.median(end))}  # fmt: skip
+
+    return {
+        "seeds": list(seeds), "outages_s": [list(o) for o in outages], "runs": len(runs["with"]),
+        "with": stats("with"), "without": stats("without"),
+        "per_run": {k: [[round(a, 3), round(b, 3)] for a, b in v] for k, v in runs.items()},
+        "scale_learnt": [round(s, 4) for s in scale], "scale_true": truth_scale,
+    }  # fmt: skip

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import math
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -22,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from ins_hil.config import default_path, from_dict
-from ins_hil.runtime.pipeline import Pipeline
+from ins_hil.datasets.run import replay
+from ins_hil.runtime.pipeline import Observer, Pipeline
 from ins_hil.runtime.replay import SimTruth, errors, replay_cli, score
 from ins_hil.sim.devices import send_order, truth_chunks
 from ins_hil.types import ImuSample, NavState, SimConfig
@@ -53,6 +55,19 @@ def sim_truth(sim: SimConfig, duration: float) -> SimTruth:
     )  # fmt: skip
 
 
+class _Every(Observer):
+    """Every ``every``-th state the pipeline publishes."""
+
+    def __init__(self, every: int) -> None:
+        self.every, self.n = every, 0
+        self.states: list[NavState] = []
+
+    def epoch(self, pipe: Pipeline, st: NavState) -> None:
+        self.n += 1
+        if self.n % self.every == 0:
+            self.states.append(st)
+
+
 def fly_sim(
     config: dict[str, Any], seed: int | None = None, duration: float = 60.0, every: int = 100
 ) -> tuple[list[NavState], SimTruth, dict[str, int]]:
@@ -65,19 +80,21 @@ def fly_sim(
     if seed is not None:
         d["sim"]["seed"] = seed
     cfg = from_dict(d, "sim flight")
-    pipe = Pipeline(cfg.pipeline)
-    states: list[NavState] = []
-    n = 0
+    # the devices' send order, as the one offline loop (ins_hil.datasets.run.replay) takes it: each aiding
+    # sample handed over after the IMU sample sent before it, fused a segment per gap as the live loop does
+    imu: list[ImuSample] = []
+    aids: list[Any] = []
+    hand_at: list[float] = []
     for s in send_order(cfg.sim, duration):
-        if isinstance(s, ImuSample):
-            st = pipe.imu(s)
-            if st is not None:
-                n += 1
-                if n % every == 0:
-                    states.append(st)
+        if s.kind == "imu":
+            imu.append(s)
         else:
-            pipe.aid(s)
-    pipe.flush()
+            aids.append(s)
+            hand_at.append(imu[-1].t if imu else -math.inf)
+    keep = _Every(every)
+    pipe, _ = replay(imu, aids, cfg.pipeline.nav, [keep], hand_at=hand_at, pipeline=cfg.pipeline,
+                     source="sim flight", live_schedule=True)  # fmt: skip
+    states = keep.states
     return states, sim_truth(cfg.sim, duration), dict(pipe.counts)
 
 

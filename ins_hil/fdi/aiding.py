@@ -285,10 +285,10 @@ class AidingMonitor:
         Nothing is tested (False) until ``state.aligned``: the INS is not trustworthy before."""
         if not state.aligned:
             return False
-        if isinstance(meas, GnssFix):
+        if meas.kind == "gnss":
             self._gnss(meas, state)
             return self.cfg.exclude and self.gnss.faulted
-        if isinstance(meas, BaroSample):
+        if meas.kind == "baro":
             if math.isfinite(meas.altitude):
                 self._baro_last = meas
             return self.cfg.exclude and self.baro.faulted

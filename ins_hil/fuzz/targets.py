@@ -678,12 +678,13 @@ def _ulog_fields(fmt: bytes) -> dict[str, tuple[int, str]]:
 
 def ulog_seed(b: bytes, records: int = SEED_RECORDS, start: float = SEED_FROM) -> tuple[bytes, list[tuple[int, int]]]:
     """A small valid ULog cut from ``b`` (a whole log): the header, the flag bits (no appended data), the formats of
-    the topics the reader reads (:data:`ins_hil.datasets.px4.TOPICS`, nested types included), ``SEED_PARAMS``
+    the topics the reader reads (:func:`ins_hil.datasets.px4.all_topics`, nested types included), ``SEED_PARAMS``
     EKF2_ parameters, their subscriptions, and their data from ``start`` (a share of the file) on until ``records``
     ``sensor_combined`` records and ``SEED_FIXES`` GNSS records (a 3-D fix written into them: ``_ULOG_FIX``).
     Returns it and its message spans (offset, length) for the record mutations."""
-    from ins_hil.datasets.px4 import TOPICS
+    from ins_hil.datasets.px4 import all_topics
 
+    TOPICS = all_topics()
     recs = _ulog_records(b)
     formats: dict[str, bytes] = {}
     for off, n, t in recs:
@@ -766,10 +767,11 @@ def dataflash_seed(
     b: bytes, records: int = SEED_RECORDS, start: float = SEED_FROM
 ) -> tuple[bytes, list[tuple[int, int]]]:
     """A small valid DataFlash .bin cut from ``b`` (a whole log): the FMT definitions of what it keeps, the first
-    ORGN and firmware MSG, and the messages the reader reads (:data:`ins_hil.datasets.dataflash.FIELDS`) and PARM
+    ORGN and firmware MSG, and the messages the reader reads (:func:`ins_hil.datasets.dataflash.all_fields`) and PARM
     from ``start`` (a share of the file) on until ``records`` IMU messages. Returns it and its message spans."""
-    from ins_hil.datasets.dataflash import FIELDS
+    from ins_hil.datasets.dataflash import all_fields
 
+    FIELDS = all_fields()
     out = bytearray()
     spans: list[tuple[int, int]] = []
     cut = int(start * len(b))
@@ -1043,7 +1045,7 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
             except ReplayError:
                 return 1, []
             # (a baro sample of a log carries its altitude alone: the campaign's oracle wants a pressure)
-            checked = [*sc.imu, *sc.gnss, *[m for m in sc.aux if isinstance(m, MagSample)]]
+            checked = [*sc.imu, *sc.gnss, *[m for m in sc.aux if m.kind == "mag"]]
             out: list[Any] = suspects(checked)
             out.append(Checked(len(checked) - len(out)))
             if replay:

@@ -45,7 +45,7 @@ from ins_hil.runtime.mqtt_out import MqttPublisher
 from ins_hil.runtime.pipeline import Pipeline
 from ins_hil.runtime.recorder import Recorder
 from ins_hil.runtime.rt import enter_realtime, policy
-from ins_hil.types import FaultEvent, GnssFix, ImuSample, NavState
+from ins_hil.types import FaultEvent, NavState
 
 
 class Devices(Protocol):
@@ -178,7 +178,7 @@ class Gateway:
         while q:
             s, name = q.popleft()
             self._current = name
-            if isinstance(s, ImuSample):
+            if s.kind == "imu":
                 t0 = mono()
                 st = pipe.imu(s)
                 ready = mono()
@@ -208,7 +208,7 @@ class Gateway:
                     m.source(name).drop("before_imu_clock")
                     continue
                 s.t = t
-                if isinstance(s, GnssFix):
+                if s.kind == "gnss":  # the MAVLink outputs forward the fixes (GPS_INPUT, GPS_RAW_INT)
                     for e in self.mav_outputs:
                         e.offer_gnss(s)
                 if rec is not None:

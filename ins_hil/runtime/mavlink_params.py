@@ -307,12 +307,10 @@ class ParamStore:
         if pipe is not None and pipe.cfg.core != "python":
             raise ParamError(f"{p.name}: C core: needs a restart")
         if core is not None:
-            from ins_hil.runtime.pipeline import nav_config
-
             ncfg = getattr(core, "cfg", None)
             if ncfg is None or type(ncfg).__name__ != "NavConfig":
                 raise ParamError(f"{p.name}: this core: needs a restart")
-            fresh = nav_config(new.pipeline.nav)  # built once by the loader: returned as it is
+            fresh = new.pipeline.nav  # built once by the loader
             sec, k, _ = _split(p.key)
             if sec is None:
                 core.cfg = dataclasses.replace(ncfg, **{k: getattr(fresh, k)})

@@ -60,10 +60,11 @@ configured state instead.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol, cast
 
@@ -143,11 +144,6 @@ def nav_config(options: dict[str, Any] | NavConfig) -> NavConfig:
             sec, new = MOVED[k]
             raise ConfigError(f"[core.nav] {k} moved to [core.nav.{sec}] {new}")
     own = aids.sections()  # the aid modules' own sections: NavConfig.sources
-    options = dict(options)
-    held = options.pop("sources", None) or {}  # dataclasses.asdict(NavConfig) (a header written by it)
-    if not isinstance(held, dict):
-        raise ConfigError(f"core.nav.sources = {held!r}: expected a table of aid sections")
-    options.update(held)
     opts = {k: v for k, v in options.items() if k not in own}
     src = {k: build(own[k], v, f"core.nav.{k}") for k, v in options.items() if k in own}
     cfg: NavConfig = build(NavConfig, opts, "core.nav", sources=src) if src else build(NavConfig, opts, "core.nav")
@@ -158,20 +154,21 @@ def _initial_placeholder() -> StrapdownState:
     return StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.9, 0.5, 100.0)
 
 
-def check_core(kind: str, nav: dict[str, Any] | NavConfig | None = None) -> None:
-    """Raise now (before anything starts) if the core ``kind`` cannot be built with these options."""
+def check_core(kind: str, nav: NavConfig | None = None) -> None:
+    """Raise now (before anything starts) if the core ``kind`` cannot be built with ``nav`` (None: the
+    defaults)."""
     if kind not in CORE_KINDS:
         raise ValueError(f"unknown core {kind!r} (choose from {', '.join(CORE_KINDS)})")
-    make_core(kind, _initial_placeholder(), nav or {})
+    make_core(kind, _initial_placeholder(), nav)
 
 
-def make_core(kind: str, initial: StrapdownState | None, nav: dict[str, Any] | NavConfig | None = None) -> RealTimeCore:
+def make_core(kind: str, initial: StrapdownState | None, nav: NavConfig | None = None) -> RealTimeCore:
     """The navigation core by name: ``python`` (ins_hil.core.NavCore) or ``c`` (ins_hil.cref.CNavCore; a
-    setting the C core lacks is refused in one line naming it). ``nav``: the ``[core.nav]`` table or a built
-    ``NavConfig``; ``initial`` None: the core aligns itself (the C core through the Python core's alignment,
+    setting the C core lacks is refused in one line naming it). ``nav``: the built ``NavConfig`` (None: the
+    defaults); ``initial`` None: the core aligns itself (the C core through the Python core's alignment,
     handed over when it navigates, and stepping with each sample's own dt: ``CNavCore(None, nav,
     fixed_step=False)``)."""
-    cfg = nav_config(nav or {})
+    cfg = nav if nav is not None else NavConfig()
     from ins_hil.core import NavCore
 
     try:
@@ -238,15 +235,34 @@ class PipelineConfig:
     nav: NavConfig = field(default_factory=NavConfig)
     # the validation boundary: every sample is checked at the pipeline's entry (its keys sit in [core], flat)
     limits: Limits = field(default_factory=Limits)
+    # the typed FDI / aiding-monitor configs of the tables above, each built once (fdi_config, aiding_config)
+    _built: dict[str, tuple[Any, Any]] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.nav, NavConfig):
             self.nav = nav_config(self.nav)
 
+    def fdi_config(self) -> Any:
+        """The ``FdiConfig`` of :attr:`fdi_options` (``[fdi.options]``), built once: the loader's check builds it,
+        the pipeline's monitor uses the same object (built again only if the table changed)."""
+        return self._once("fdi", self.fdi_options, lambda: fdi_config(self.fdi_options))
+
+    def aiding_config(self) -> Any:
+        """The ``AidingConfig`` of :attr:`aiding_options` (``[fdi.aiding]``) under :attr:`nav`, built once."""
+        key = (self.aiding_options, self.nav.delay.compensation)
+        return self._once("aiding", key, lambda: aiding_config(self.aiding_options, self.nav))
+
+    def _once(self, name: str, key: Any, make: Callable[[], Any]) -> Any:
+        hit = self._built.get(name)
+        if hit is None or hit[0] != key:
+            hit = self._built[name] = (copy.deepcopy(key), make())
+        return hit[1]
+
     def to_dict(self) -> dict[str, Any]:
         """Plain values (a recording's header, read back by ``ins_hil.runtime.replay.pipeline_config_from_header``):
         ``nav`` as its ``[core.nav]`` table, the keys that differ from the defaults (:func:`ins_hil.settings.table`)."""
         d = dataclasses.asdict(self)
+        del d["_built"]
         d["nav"] = table(self.nav)
         return d
 
@@ -300,13 +316,13 @@ class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
     def __init__(
-        self, cfg: PipelineConfig, observers: Iterable[Observer] = (), nav: Any = None,
+        self, cfg: PipelineConfig, observers: Iterable[Observer] = (), nav: NavConfig | None = None,
         initial: StrapdownState | None = None,
     ) -> None:  # fmt: skip
         """``observers``: :class:`Observer` callbacks; ``nav``: a built ``NavConfig`` used instead of ``cfg.nav``
         (an offline replay's); ``initial``: with ``cfg.init = "core"``, the state the core starts from (None: it
         aligns itself from the first IMU sample)."""
-        self._nav: NavConfig = nav_config(nav) if nav is not None else cfg.nav
+        self._nav: NavConfig = nav if nav is not None else cfg.nav
         if nav is None:
             check_core(cfg.core, cfg.nav)
         elif cfg.core not in CORE_KINDS:
@@ -351,10 +367,10 @@ class Pipeline:
         self._miss: dict[int, int] = {}  # imu_id → consecutive epochs run without it
         self._unit_key: dict[int, int] = {}  # imu_id → newest sensor time (µs) it delivered
         self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
-        self._fdi = _make_fdi(cfg) if cfg.fdi else None
+        self._fdi = fdi_monitor(cfg.fdi_config()) if cfg.fdi else None
         # the validator checked the raw sample: only calibration or FDI can make it non-finite again
         self._recheck = self._calib is not None or self._fdi is not None
-        self._aid_mon = aiding_monitor(cfg.aiding_options, cfg.core, self._nav) if cfg.aiding_fdi else None
+        self._aid_mon = aiding_monitor(cfg.aiding_config(), self._nav) if cfg.aiding_fdi else None
         self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
         self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
@@ -742,7 +758,7 @@ class Pipeline:
 
         f_b = self._lvl_sum / self._lvl_dt
         yaw = math.radians(self.cfg.init_yaw_deg)
-        self._start(initial_state(f_b, g, self._t_imu, yaw, nav_config(self.cfg.nav)))
+        self._start(initial_state(f_b, g, self._t_imu, yaw, self.cfg.nav))
         self._count("init_gnss")
         if self._fault_open:  # re-aligned after a core fault: cleared after FAULT_CLEAR_S of good states
             self._fault_clear_t = self._t_imu + FAULT_CLEAR_S
@@ -813,11 +829,11 @@ def _load_calibration(path: str) -> Any:
     return load_calibration(path)
 
 
-def fdi_monitor(options: dict[str, Any]) -> Any:
-    """``FdiMonitor`` from the ``[fdi.options]`` table: ``geometry`` (a name of ``ins_hil.fdi.geometry.CONFIGS``)
+def fdi_config(options: dict[str, Any]) -> Any:
+    """``FdiConfig`` from the ``[fdi.options]`` table: ``geometry`` (a name of ``ins_hil.fdi.geometry.CONFIGS``)
     plus ``FdiConfig`` fields (dt, gyro_noise, accel_noise, ...), built by :func:`ins_hil.settings.build`."""
     from ins_hil.fdi.geometry import by_name
-    from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
+    from ins_hil.fdi.monitor import FdiConfig
 
     opts = dict(options)
     name = opts.pop("geometry", "triple_imu")
@@ -825,24 +841,35 @@ def fdi_monitor(options: dict[str, Any]) -> Any:
         geo = by_name(str(name))
     except (KeyError, ValueError) as e:
         raise ConfigError(f"fdi.options.geometry = {name!r}: {e}") from None
-    return FdiMonitor(build(FdiConfig, opts, "fdi.options", geometry=geo))
+    return build(FdiConfig, opts, "fdi.options", geometry=geo)
 
 
-def aiding_monitor(options: dict[str, Any], core: str = "python", nav: dict[str, Any] | NavConfig | None = None) -> Any:
-    """``AidingMonitor`` from the ``[fdi.aiding]`` table (AidingConfig fields, built by :func:`ins_hil.settings.build`).
+def fdi_monitor(cfg: Any) -> Any:
+    """The IMU ``FdiMonitor`` of a built ``FdiConfig`` (:meth:`PipelineConfig.fdi_config`)."""
+    from ins_hil.fdi.monitor import FdiMonitor
 
-    Unless the table sets ``late_fix_as_current``, it follows ``[core.nav.delay] compensation``: without it
-    either core (Python or C) fuses a late GNSS fix as current (shifted by v·Δt), so the monitor compares it
+    return FdiMonitor(cfg)
+
+
+def aiding_config(options: dict[str, Any], nav: NavConfig | None = None) -> Any:
+    """``AidingConfig`` from the ``[fdi.aiding]`` table (built by :func:`ins_hil.settings.build`).
+
+    Unless the table sets ``late_fix_as_current``, it follows ``nav``'s ``[core.nav.delay] compensation``: without
+    it either core (Python or C) fuses a late GNSS fix as current (shifted by v·Δt), so the monitor compares it
     with the current state; with it (the default) at the fix's time of validity (both roll back)."""
-    from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
+    from ins_hil.fdi.aiding import AidingConfig
 
     opts = dict(options)
-    ncfg = nav_config(nav or {})
     if "late_fix_as_current" not in opts:
-        opts["late_fix_as_current"] = not ncfg.delay.compensation
-    g = ncfg.gnss
-    return AidingMonitor(build(AidingConfig, opts, "fdi.aiding"), g.lever_arm_b, g.min_std, g.std_scale, g.vel_delay)
+        opts["late_fix_as_current"] = not (nav if nav is not None else NavConfig()).delay.compensation
+    return build(AidingConfig, opts, "fdi.aiding")
 
 
-def _make_fdi(cfg: PipelineConfig) -> Any:
-    return fdi_monitor(cfg.fdi_options)
+def aiding_monitor(cfg: Any, nav: NavConfig | None = None) -> Any:
+    """The GNSS/baro drift monitor (``AidingMonitor``) of a built ``AidingConfig``
+    (:meth:`PipelineConfig.aiding_config`), comparing fixes as the core under ``nav`` weighs them (its GNSS
+    lever arm, σ floors, σ scale and velocity delay)."""
+    from ins_hil.fdi.aiding import AidingMonitor
+
+    g = (nav if nav is not None else NavConfig()).gnss
+    return AidingMonitor(cfg, g.lever_arm_b, g.min_std, g.std_scale, g.vel_delay)

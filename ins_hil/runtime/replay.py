@@ -24,7 +24,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, overload
+from typing import Any, cast, overload
 
 import numpy as np
 
@@ -67,7 +67,7 @@ class ReplayResult:
 def pipeline_config_from_header(header: dict[str, Any], core: str | None = None) -> PipelineConfig:
     """The PipelineConfig stored in a log header (``core`` overrides the core kind)."""
     d = dict(header.get("pipeline", {}))
-    names = {f.name for f in dataclasses.fields(PipelineConfig)} - {"limits"}
+    names = {f.name for f in dataclasses.fields(PipelineConfig) if f.init} - {"limits"}
     lim = {f.name for f in dataclasses.fields(Limits)}
     # the validation limits: a table, or (logs written before PipelineConfig.limits) flat pipeline keys
     table = d.get("limits")
@@ -113,8 +113,8 @@ def replay_log(
     reader = LogReader(path)  # stops at the first damaged record: the intact prefix is replayed
     for rec in reader:
         res.records += 1
-        if isinstance(rec, ImuSample):
-            st = pipe.imu(rec)
+        if rec.kind == "imu":
+            st = pipe.imu(cast(ImuSample, rec))
             if st is not None:
                 if keep_states:
                     res.states.append(st)
@@ -202,7 +202,7 @@ def truth_report(path: str | Path, sim: SimConfig, states: list[NavState], truth
     """Lines for ``ins-hil replay LOG`` of a simulated run: the recorded IMU samples against the regenerated
     ones, then the error of ``states`` against the regenerated ``truth`` of ``sim`` (:func:`score`; the
     truth covers the states, ``ins_hil.evaluation.sim_flight.sim_truth(sim, states[-1].t + 1)``)."""
-    imu = [r for r in read_records(path) if isinstance(r, ImuSample)]
+    imu = [cast(ImuSample, r) for r in read_records(path) if r.kind == "imu"]
     chk = check_imu(truth, imu)
     same = "all equal" if chk["equal"] == chk["samples"] else f"{chk['samples'] - chk['equal']} differ"
     out = [

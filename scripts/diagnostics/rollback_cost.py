@@ -76,7 +76,7 @@ def run(dc: bool, seconds: float) -> dict[str, float]:
         wrapped[0] = True
 
     for s in send_order(cfg.sim, seconds):
-        if isinstance(s, ImuSample):
+        if s.kind == "imu":
             pipe.imu(s)
             if not wrapped[0] and pipe.core is not None:
                 wrap(pipe.core)
