@@ -126,6 +126,10 @@ class AidingConfig:
     ins_vel_floor: float = setting(
         1.0, "", "[0, 100]", "the INS velocity σ in the CUSUM is at least this × the fix's σ_vel"
     )
+    diverged_speed: float = setting(
+        2.0, "m/s", "(0, 1000]",
+        "a GNSS excluded by the CUSUM alone, self-consistent, is re-admitted when the INS is this far off it"
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         check_fields(self, "AidingConfig")  # each field against its [fdi.aiding] metadata
@@ -158,6 +162,9 @@ def _dead_zone(x: np.ndarray, dz: np.ndarray) -> np.ndarray:
     within dz adds nothing to a CUSUM, the noise only shrinks (the ARL₀ stays conservative)."""
     return np.sign(x) * np.maximum(0.0, np.abs(x) - dz)
 
+
+#: s a CUSUM-excluded, self-consistent GNSS must be ``diverged_speed`` off the INS before it is re-admitted
+DIVERGED_PERSIST_S = 2.0
 
 _N_ANCHORS = 3  # accepted fixes an outlier run can be bridged from (outliers up to 2 fixes long)
 
@@ -296,6 +303,7 @@ class AidingMonitor:
         self._gnss_by_cusum = False
         self._st_prev: NavState | None = None  # the state the previous fix was checked against
         self._prev_outlier = False  # the previous fix was a position outlier (see _gnss)
+        self._t_div = math.nan  # since when a CUSUM-excluded, self-consistent GNSS is diverged_speed off the INS
         self._t_nav = math.nan  # the first aligned state's time (s), again after a reset of the solution
         self._resets = 0
         self._lever = lever
@@ -319,7 +327,7 @@ class AidingMonitor:
             return self.cfg.exclude and self.baro.faulted
         return False
 
-    def ins_disturbed(self, t: float) -> None:
+    def ins_disturbed(self, t: float, why: str = "re-admitted: the INS lost IMU samples") -> None:
         """The INS missed IMU samples at about ``t`` (s) (e.g. lost frames, no FDI output): for
         ``clear_time`` s its innovations are no evidence against the GNSS, so the INS-innovation
         CUSUMs restart and hold (the position/velocity and baro slope tests go on). A GNSS flagged
@@ -330,9 +338,7 @@ class AidingMonitor:
         if self.gnss.faulted and self._gnss_by_cusum:
             s = self.gnss
             s.faulted, s.t_ok = False, math.nan
-            self.events.append(
-                FaultEvent(t, "gnss", FaultMode.DRIFT, 0.0, True, True, "re-admitted: the INS lost IMU samples")
-            )
+            self.events.append(FaultEvent(t, "gnss", FaultMode.DRIFT, 0.0, True, True, why))
 
     def faulted(self, sensor: str) -> bool:
         """True while ``"gnss"`` or ``"baro"`` is flagged."""
@@ -393,6 +399,7 @@ class AidingMonitor:
         else:
             sv = math.nan
             z_v = np.zeros(3)
+            nu_v = np.zeros(3)
         # --- position vs velocity consistency window
         prev = self._prev
         if prev is not None and (g.t - prev.t > c.max_gap or g.t <= prev.t):
@@ -503,6 +510,20 @@ class AidingMonitor:
                 self._gnss_by_cusum = not bad_c
                 self._raise(self.gnss, "gnss", g.t, rate, det)
         else:
+            # The INS, not the GNSS, diverged: a GNSS flagged by the INS-innovation CUSUM alone that stays
+            # consistent with itself while the INS velocity is more than ``diverged_speed`` off it (a pull the CUSUM
+            # guards against is slower) for DIVERGED_PERSIST_S is re-admitted, so that the core sees its rejections
+            # and resets (a tactical preset on the ArduCopter flight: excluded for good at 25 s, 1 km off)
+            off = math.hypot(float(nu_v[0]), float(nu_v[1])) if g.vel_ned is not None else 0.0
+            if self._gnss_by_cusum and cons < c.clear_fraction * self.thr_gnss and off > c.diverged_speed:
+                if math.isnan(self._t_div):
+                    self._t_div = g.t
+                if g.t - self._t_div >= DIVERGED_PERSIST_S:
+                    self._t_div = math.nan
+                    self.ins_disturbed(g.t, f"re-admitted: the INS is {off:.1f} m/s off a self-consistent GNSS")
+                    return
+            else:
+                self._t_div = math.nan
             healthy = cons < c.clear_fraction * self.thr_gnss and float(np.max(np.abs(z))) < c.clear_gate
             if not healthy:
                 self.gnss.t_ok = math.nan
