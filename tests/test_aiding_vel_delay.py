@@ -13,7 +13,6 @@ import math
 import numpy as np
 import pytest
 
-from ins_hil.bench.replay_cost import _vel_at
 from ins_hil.datasets import config as dcfg
 from ins_hil.datasets.dataset import Dataset
 from ins_hil.datasets.run import prepare, run_dataset
@@ -26,8 +25,12 @@ from ins_hil.types import GnssFix, NavState
 DELAY = 0.1
 
 
+def _vel_at(truth: tr.TruthSeries, t: float) -> np.ndarray:
+    return np.array([np.interp(t, truth.t, truth.vel_ned[:, k]) for k in range(3)])
+
+
 @pytest.fixture(scope="module")
-def mission() -> tuple[tr.Truth, list, list[GnssFix]]:
+def mission() -> tuple[tr.TruthSeries, list, list[GnssFix]]:
     rng = np.random.default_rng(1)
     truth = tr.generate(tr.mission_profile(), 30.0, 1.0 / 200.0, math.radians(45.0), math.radians(7.0), 100.0)
     imu = se.corrupt_imu(truth, se.mems_gyro(rng), se.mems_accel(rng), seed=rng).samples()
