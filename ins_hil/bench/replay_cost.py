@@ -37,8 +37,8 @@ def replay_cost(seconds: float = 120.0, imu_hz: float = 200.0, seed: int = 1,
         fixes = list(se.gnss_fixes(truth, se.GnssModel(rate=rate, std_ne=0.02, std_d=0.04, std_vel=0.02), seed=seed))
         if delay > 0:  # the receiver's velocity is valid `delay` s before its position (what the config says)
             fixes = [dataclasses.replace(f, vel_ned=_vel_at(truth, f.t - delay)) for f in fixes]
-        # the drift monitor off: this times the core's delayed fusion (with it on, the monitor flags the
-        # velocity-delayed fixes of this accelerating profile at 12.6 s, an open finding of docs/fdi.md)
+        # the drift monitor off: this times the core's delayed fusion alone (on, it flags none of these fixes:
+        # tests/test_aiding_vel_delay.py)
         c = dcfg.from_dict({"dataset": {"name": "replay-cost"}, "nav": {"gnss": {"vel_delay": delay}},
                             "fdi": {"aiding": False}})  # fmt: skip
         c.use_mag = c.use_baro = False

@@ -91,6 +91,14 @@ FIELDS = {
     "ORGN": ("Lat", "Lng", "Alt"),
     "MSG": (),
 }
+#: messages read when the log has them, their fields not required (a row without a number there is not used): the
+#: land detector's events (``EV``) and the EKF's solution status (``NKF4``/``XKF4`` ``SS``) for ``t_valid_end``
+OPTIONAL_FIELDS = {"EV": ("TimeUS", "Id"), "NKF4": ("TimeUS", "SS"), "XKF4": ("TimeUS", "SS")}
+#: ArduPilot's ``LogEvent`` ids (AP_Logger.h): the land detector's "landed" and "in the air"
+EV_LAND_COMPLETE, EV_NOT_LANDED = 18, 28
+#: the EKF solution status bits (``nav_filter_status``) a valid navigation solution has: attitude, horizontal
+#: velocity, vertical velocity, absolute horizontal position (bits 0, 1, 2, 4)
+SS_VALID = 0b10111
 
 
 def all_fields() -> dict[str, tuple[str, ...]]:
@@ -316,6 +324,32 @@ def end_of_valid_data(t: Vec, gyro: Vec, acc: Vec, t_last_gps: float | None) -> 
     return float(t[k]) - 0.5, why
 
 
+def _numbers(rows: list[dict[str, Any]], *cols: str) -> Vec:
+    """(N, len(cols)) of the rows whose ``cols`` are all finite numbers (the others left out)."""
+    out = [[float(d[c]) for c in cols] for d in rows
+           if all(isinstance(d.get(c), int | float) and math.isfinite(d[c]) for c in cols)]  # fmt: skip
+    return np.array(out, dtype=np.float64).reshape(-1, len(cols))
+
+
+def valid_end(rows: dict[str, list[dict[str, Any]]], status: str) -> float | None:
+    """The time (s) from which the log says the onboard estimate no longer describes a flight, None if never: the
+    land detector's last "landed" (``EV`` LAND_COMPLETE after its last NOT_LANDED), or the start of the EKF's last
+    run of solution statuses (``status``: NKF4/XKF4 ``SS``, core 0) without :data:`SS_VALID` after a valid one."""
+    ends: list[float] = []
+    ev = _numbers(rows.get("EV", []), "TimeUS", "Id")
+    air = ev[ev[:, 1] == EV_NOT_LANDED, 0]
+    landed = ev[ev[:, 1] == EV_LAND_COMPLETE, 0]
+    if len(air) and np.any(landed > air[-1]):
+        ends.append(float(landed[landed > air[-1]][0]) * 1e-6)
+    ss = _numbers([d for d in rows.get(status, []) if d.get("C", 0) == 0], "TimeUS", "SS")
+    if len(ss):
+        ok = (ss[:, 1].astype(np.int64) & SS_VALID) == SS_VALID
+        if np.any(ok) and not ok[-1]:
+            last_ok = int(np.nonzero(ok)[0][-1])
+            ends.append(float(ss[last_ok + 1, 0]) * 1e-6)
+    return min(ends) if ends else None
+
+
 def read_dataflash(path: Path) -> Dataset:
     """Read an ArduPilot DataFlash ``.bin``."""
     return _read(path, text=False)
@@ -338,7 +372,7 @@ def _read(path: Path, text: bool) -> Dataset:
     if not ok:
         raise DatasetError(f"{path}: not {what}")
     fields = all_fields()
-    want = set(fields)
+    want = set(fields) | set(OPTIONAL_FIELDS)
     rows = text_rows(path, path.read_bytes(), want) if text else binary_rows(path.read_bytes(), want, str(path))
     if not rows["IMU"]:
         raise DatasetError(f"{path}: no IMU messages in the DataFlash log")
@@ -395,6 +429,7 @@ def _read(path: Path, text: bool) -> Dataset:
             olat, olon = math.radians(o["Lat"]), math.radians(o["Lng"])
             origin = (olat, olon, ellipsoidal_height(olat, olon, float(o["Alt"])))
         onboard = Trajectory(name, te, q, te, v, te, p, origin)
+        onboard.t_valid_end = valid_end(rows, "XKF4" if rows["XKF1"] else "NKF4")
     t_end, why = end_of_valid_data(ti, g, a, gnss[-1].t if gnss else None)
     ds = Dataset(imu, gnss, baro, mag, None, onboard, t_end)
     ds.aids, aid_notes = aids.from_dataflash(rows)  # the aid sources' own messages (ins_hil.aids: airspeed, ...)

@@ -245,6 +245,20 @@ def mag_from_magnetometer(t: Topic) -> list[MagSample]:
     return [MagSample(float(ts[k]), m[k]) for k in range(len(ts)) if np.all(np.isfinite(m[k]))]
 
 
+def status_end(t: Vec, flags: list[Vec | None]) -> float | None:
+    """The time (s) of the first sample of the estimator's last run of samples with one of its validity ``flags``
+    (columns at ``t``, None: not logged) false, after a sample with all of them true; None when the log ends valid.
+    A flag never true is left out (EKF2 without GNSS keeps ``xy_valid`` false throughout: the rest still counts)."""
+    cols = [np.asarray(f) != 0 for f in flags if f is not None and len(f) == len(t)]
+    cols = [c for c in cols if np.any(c)]
+    if not cols or not len(t):
+        return None
+    ok = np.logical_and.reduce(cols)
+    if not np.any(ok) or ok[-1]:
+        return None
+    return float(t[int(np.nonzero(ok)[0][-1]) + 1])
+
+
 def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
     """EKF2's output: attitude (``vehicle_attitude`` or ``estimator_states``), velocity and position."""
     tr = Trajectory("EKF2")
@@ -270,6 +284,7 @@ def onboard_from_ekf2(topics: dict[str, Topic]) -> Trajectory | None:
         if xy is not None:
             pos[xy == 0, :2] = math.nan
         tr.pos_ned = pos
+        tr.t_valid_end = status_end(t, [_col(lp, c) for c in ("xy_valid", "v_xy_valid", "z_valid", "v_z_valid")])
         glob = _col(lp, "xy_global")
         rl, rlo, ra = _col(lp, "ref_lat"), _col(lp, "ref_lon"), _col(lp, "ref_alt")
         if rl is not None and rlo is not None and ra is not None and (glob is None or glob[-1] != 0):

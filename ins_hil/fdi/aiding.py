@@ -21,7 +21,8 @@ time *before* the measurement is fused, and runs sequential tests:
   A pull with consistent velocity shows here (the INS disagrees with the GNSS velocity).
 * **Baro vs GNSS height** at every healthy GNSS fix (the latest baro sample moved to the
   fix time with the GNSS vertical velocity): the LS slope of d = h_baro − h_gnss over the
-  window is the baro drift rate; variance (σ_b² + σ_d²)/Σ(t−t̄)² + ``rate_floor``²; χ²₁.
+  window is the baro drift rate; variance (σ_b² + σ_d²)/Σ(t−t̄)² inflated by (1+ρ)/(1−ρ) for
+  residuals correlated in time (AR(1), ρ their lag-1 correlation: :func:`baro_slope_var`) + ``rate_floor``²; χ²₁.
 
 Thresholds come from ``p_fa_hour`` (false-alarm probability per hour, per sensor), not
 hand-picked constants:
@@ -60,6 +61,9 @@ fixes excluded that way (tests/test_aiding_walk.py).
 A position outlier is bridged in the consistency sum (the next fix is compared with the last accepted one), so the
 sum stays a telescoping sum of the position noise; an outlier the filter fused restarts the CUSUMs. Each fix's σ is
 taken as the core weighs it (its ``gnss.min_std`` floors and ``std_scale``; velocity at ``gnss.vel_delay``).
+With ``gnss.vel_delay`` the position/velocity sum integrates each velocity at its own time (Δp − v̄Δt − Δv·delay),
+and for ``clear_time`` s after the state is first aligned the velocity innovations have a dead zone of
+|a|·delay: the core's first velocities are older than its delayed-fusion history and fused as current.
 Simplifications: a vertical GNSS pull with matching vertical velocity is blamed on the baro by the
 baro/GNSS test (the GNSS CUSUM usually fires first).
 """
@@ -122,6 +126,10 @@ class AidingConfig:
     ins_vel_floor: float = setting(
         1.0, "", "[0, 100]", "the INS velocity σ in the CUSUM is at least this × the fix's σ_vel"
     )
+    diverged_speed: float = setting(
+        2.0, "m/s", "(0, 1000]",
+        "a GNSS excluded by the CUSUM alone, self-consistent, is re-admitted when the INS is this far off it"
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         check_fields(self, "AidingConfig")  # each field against its [fdi.aiding] metadata
@@ -155,9 +163,29 @@ def _dead_zone(x: np.ndarray, dz: np.ndarray) -> np.ndarray:
     return np.sign(x) * np.maximum(0.0, np.abs(x) - dz)
 
 
+#: s a CUSUM-excluded, self-consistent GNSS must be ``diverged_speed`` off the INS before it is re-admitted
+DIVERGED_PERSIST_S = 2.0
+
 _N_ANCHORS = 3  # accepted fixes an outlier run can be bridged from (outliers up to 2 fixes long)
 
 _sum = np.add.reduce  # the reduction ``ndarray.mean``/``sum`` call, without their Python-level wrappers
+
+
+def baro_slope_var(a: np.ndarray, rate: float, sxx: float) -> float:
+    """The variance ((m/s)²) of the OLS slope ``rate`` of baro − GNSS height over a window ``a`` (rows t s, d m,
+    nominal white variance m²; Σ(t − t̄)² = ``sxx``) with time-correlated errors: the residuals as a first-order
+    Gauss–Markov (AR(1)) sequence of lag-1 correlation ρ (measured on the window's own residuals, ≥ 0) inflate it by
+    (1 + ρ)/(1 − ρ) (the effective number of independent samples of a smooth regressor); their variance is the
+    larger of the nominal one and the residuals' own. A steady drift leaves white residuals (ρ ≈ 0): unchanged.
+    A baro's errors from airflow and temperature are correlated over seconds (an ArduCopter flight: residuals
+    0.40 m RMS, ρ 0.74 at 5 Hz), which a white-noise slope variance reads as a drift."""
+    t, d = a[:, 0], a[:, 1]
+    n = len(t)
+    r = d - _sum(d) / n - rate * (t - _sum(t) / n)
+    rr = float(r @ r)
+    var = max(float(_sum(a[:, 2])) / n, rr / max(1, n - 2))
+    rho = min(0.95, max(0.0, float(r[1:] @ r[:-1]) / rr)) if rr > 0.0 else 0.0
+    return var / sxx * (1.0 + rho) / (1.0 - rho)
 
 
 def _slope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
@@ -275,6 +303,9 @@ class AidingMonitor:
         self._gnss_by_cusum = False
         self._st_prev: NavState | None = None  # the state the previous fix was checked against
         self._prev_outlier = False  # the previous fix was a position outlier (see _gnss)
+        self._t_div = math.nan  # since when a CUSUM-excluded, self-consistent GNSS is diverged_speed off the INS
+        self._t_nav = math.nan  # the first aligned state's time (s), again after a reset of the solution
+        self._resets = 0
         self._lever = lever
         self._has_lever = bool(np.any(self._lever != 0.0))
 
@@ -285,6 +316,8 @@ class AidingMonitor:
         Nothing is tested (False) until ``state.aligned``: the INS is not trustworthy before."""
         if not state.aligned:
             return False
+        if math.isnan(self._t_nav) or state.resets != self._resets:
+            self._t_nav, self._resets = state.t, state.resets
         if meas.kind == "gnss":
             self._gnss(meas, state)
             return self.cfg.exclude and self.gnss.faulted
@@ -294,7 +327,7 @@ class AidingMonitor:
             return self.cfg.exclude and self.baro.faulted
         return False
 
-    def ins_disturbed(self, t: float) -> None:
+    def ins_disturbed(self, t: float, why: str = "re-admitted: the INS lost IMU samples") -> None:
         """The INS missed IMU samples at about ``t`` (s) (e.g. lost frames, no FDI output): for
         ``clear_time`` s its innovations are no evidence against the GNSS, so the INS-innovation
         CUSUMs restart and hold (the position/velocity and baro slope tests go on). A GNSS flagged
@@ -305,9 +338,7 @@ class AidingMonitor:
         if self.gnss.faulted and self._gnss_by_cusum:
             s = self.gnss
             s.faulted, s.t_ok = False, math.nan
-            self.events.append(
-                FaultEvent(t, "gnss", FaultMode.DRIFT, 0.0, True, True, "re-admitted: the INS lost IMU samples")
-            )
+            self.events.append(FaultEvent(t, "gnss", FaultMode.DRIFT, 0.0, True, True, why))
 
     def faulted(self, sensor: str) -> bool:
         """True while ``"gnss"`` or ``"baro"`` is flagged."""
@@ -358,12 +389,17 @@ class AidingMonitor:
                         st.lat, st.h
                     )
                 back_v = back + self._vel_delay
+                if st.t - self._t_nav < c.clear_time:
+                    # the core's first velocities are older than its delayed-fusion history and fused as current
+                    # (NavCore and the C core alike): its velocity is off by up to a·vel_delay while it settles
+                    dz_v = dz_v + self._vel_delay * np.abs(a_n)
             nu_v = np.asarray(g.vel_ned, dtype=np.float64) - (v_f - back_v * a_n)
             sd_ins = np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv)
             z_v = _dead_zone(nu_v, dz_v) / np.sqrt(sd_ins**2 + sv * sv)
         else:
             sv = math.nan
             z_v = np.zeros(3)
+            nu_v = np.zeros(3)
         # --- position vs velocity consistency window
         prev = self._prev
         if prev is not None and (g.t - prev.t > c.max_gap or g.t <= prev.t):
@@ -379,7 +415,10 @@ class AidingMonitor:
             # gait at 1 Hz: ~0.1 m, beyond the jump gate of RTK); a dead zone of the outlier test
             dz = 0.5 * np.abs(np.asarray(g.vel_ned) - np.asarray(prev.vel_ned)) * dt
             dp = earth.ned_delta_small(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h)
-            de = dp - trap
+            # velocities valid ``gnss_vel_delay`` before their positions integrate to the positions at those times:
+            # p(t − d) ≈ p − v·d (else an acceleration a reads as a pull of a·d: 0.2 m/s at 2 m/s², d = 0.1 s)
+            vd = self._vel_delay
+            de = dp - trap - (np.asarray(g.vel_ned) - np.asarray(prev.vel_ned)) * vd
             # Outliers: the fix is bridged from the newest of the last accepted fixes (anchors) its
             # position agrees with (p_k − p_a − ∫v within the jump gate), so that e_k = n_k − n_0 − ∫w
             # stays a telescoping sum of the position noise over an outlier. Dropping the outlier's
@@ -390,6 +429,8 @@ class AidingMonitor:
                 anc[3] += dz
             for a_fix, a_e, a_int, a_dz in reversed(self._anchors):
                 db = earth.ned_delta_small(g.lat - a_fix.lat, g.lon - a_fix.lon, g.h - a_fix.h, g.lat, g.h) - a_int
+                if vd > 0.0:
+                    db = db - (np.asarray(g.vel_ned) - np.asarray(a_fix.vel_ned)) * vd
                 if self._step_ok(db, sp_ne, sp_d, a_dz):
                     self._e = a_e + db
                     bridged = a_fix is not prev
@@ -469,6 +510,20 @@ class AidingMonitor:
                 self._gnss_by_cusum = not bad_c
                 self._raise(self.gnss, "gnss", g.t, rate, det)
         else:
+            # The INS, not the GNSS, diverged: a GNSS flagged by the INS-innovation CUSUM alone that stays
+            # consistent with itself while the INS velocity is more than ``diverged_speed`` off it (a pull the CUSUM
+            # guards against is slower) for DIVERGED_PERSIST_S is re-admitted, so that the core sees its rejections
+            # and resets (a tactical preset on the ArduCopter flight: excluded for good at 25 s, 1 km off)
+            off = math.hypot(float(nu_v[0]), float(nu_v[1])) if g.vel_ned is not None else 0.0
+            if self._gnss_by_cusum and cons < c.clear_fraction * self.thr_gnss and off > c.diverged_speed:
+                if math.isnan(self._t_div):
+                    self._t_div = g.t
+                if g.t - self._t_div >= DIVERGED_PERSIST_S:
+                    self._t_div = math.nan
+                    self.ins_disturbed(g.t, f"re-admitted: the INS is {off:.1f} m/s off a self-consistent GNSS")
+                    return
+            else:
+                self._t_div = math.nan
             healthy = cons < c.clear_fraction * self.thr_gnss and float(np.max(np.abs(z))) < c.clear_gate
             if not healthy:
                 self.gnss.t_ok = math.nan
@@ -571,7 +626,7 @@ class AidingMonitor:
             a = bw.array()
             s, sxx = _slope(a[:, 0], a[:, 1:2])
             rate = float(s[0])
-            stat = rate * rate / (float(_sum(a[:, 2]) / len(a)) / sxx + c.rate_floor**2)
+            stat = rate * rate / (baro_slope_var(a, rate, sxx) + c.rate_floor**2)
             tested = True
         self.stats["baro_slope"] = stat
         bad = stat > self.thr_baro
