@@ -58,7 +58,8 @@ typedef struct {{
     uint32_t accepted[7], rejected[7], consecutive[7]; ins_real last_ratio[7];
     uint32_t n_predict; ...;
 }} ins_ekf_t;
-typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; }} ins_core_t;
+typedef struct ins_out_s {{ double t; ...; }} ins_out_t;
+typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; ins_out_t *pub; }} ins_core_t;
 typedef struct {{ uint32_t snap_n; uint32_t meas_n; double max_delay; uint32_t rollbacks, too_old; ...; }} ins_hist_t;
 typedef struct {{
     ins_real lam[4]; ins_real w1[3]; ins_real w2[3]; ins_real th_prev[3]; ins_real dt; uint32_t n;
@@ -84,6 +85,7 @@ void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, 
                double dt, const ins_ekf_cfg_t *cfg, int filter);
 void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end);
 void cref_state(const ins_core_t *c, double out[32]);
+void cref_pub_state(const ins_core_t *c, double out[32]);
 void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
               double *out, size_t out_stride);
 void cref_hist_init(ins_hist_t *h, double max_delay);

@@ -236,6 +236,7 @@ class CNavCore:
         if self._delayed:
             self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
+        self._pub: Any = None  # ins_out_t the C step writes its post-mechanization state to (step_begin)
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
@@ -308,6 +309,8 @@ class CNavCore:
             self._cfg,
             1 if self.filter else 0,
         )
+        if self._pub is not None:
+            self._core.pub = self._pub
         self.dt = dt
 
     def step(self, imu: ImuSample) -> NavState:
@@ -351,8 +354,17 @@ class CNavCore:
         return self.state()
 
     def step_begin(self, imu: ImuSample) -> NavState:
-        """:meth:`step` (the C step is one piece: the filter time update runs in it too)."""
-        return self.step(imu)
+        """:meth:`step`, returning the state after the mechanization, as ``NavCore.step_begin`` does: before the
+        filter time update, the ground aids and the hold of this step (σ of the previous step). The C step is one
+        piece (it writes that state to ``ins_core_t.pub`` on its way); :meth:`state` is the state after it all."""
+        if self._align is not None or self.dt is None:
+            return self.step(imu)
+        if self._pub is None:
+            self._pub = self._ffi.new("ins_out_t *")
+            self._core.pub = self._pub
+        self.step(imu)
+        self._lib_.cref_pub_state(self._core, self._out)
+        return self._nav_state(self._out_np.copy())
 
     def step_end(self) -> None:
         """Nothing left of the step :meth:`step_begin` ran (the ``RealTimeCore`` split step)."""
@@ -515,7 +527,10 @@ class CNavCore:
             s = self._initial
             return NavState(t=s.t, q_nb=s.q_nb.copy(), vel_ned=s.vel_ned.copy(), lat=s.lat, lon=s.lon, h=s.h)
         self._lib_.cref_state(self._core, self._out)
-        o = self._out_np.copy()
+        return self._nav_state(self._out_np.copy())
+
+    def _nav_state(self, o: Vec) -> NavState:
+        """The NavState of a 32-value C state record (``cref_state``)."""
         return NavState(
             t=float(o[0]),
             q_nb=o[1:5],

@@ -248,10 +248,14 @@ typedef struct {
     ins_ekf_t ekf;
     int filter;           /* 0: mechanization only; 1: + EKF predict each step */
     uint32_t steps;
+    /* if not NULL (caller-owned, set after ins_core_init): each step writes here the state after its
+     * mechanization, before the filter time update, the ground aids and the hold (the state a real-time loop
+     * publishes at once: NavCore.step_begin; sigma of the previous step). Not written during a roll-back replay. */
+    struct ins_out_s *pub;
 } ins_core_t;
 
 /* Flat output record of one state (for logs and the Python wrapper). */
-typedef struct {
+typedef struct ins_out_s {
     double t;
     ins_real q[4], v[3];
     ins_pos lat, lon, h;

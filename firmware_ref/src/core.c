@@ -13,6 +13,7 @@ void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_
     ins_ekf_init(&c->ekf, cfg);
     c->filter = filter;
     c->steps = 0;
+    c->pub = NULL;
 }
 
 static void ground_aids(ins_core_t *c, const ins_real w_b[3]);
@@ -28,6 +29,7 @@ void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], d
     }
     ins_mech_step(&c->mech, a, u);
     c->mech.t = t_end;
+    if (c->pub != NULL && !c->ekf.replaying) ins_core_output(c, c->pub);
     if (c->filter) {
         ins_real w_b[3], f_b[3];
         for (i = 0; i < 3; ++i) {
