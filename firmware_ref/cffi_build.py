@@ -27,7 +27,7 @@ def _rel(p: Path) -> str:
 _CDEF = """
 typedef {real} ins_real;
 typedef double ins_pos;
-#define INS_NX 15
+#define INS_NX 21
 #define INS_FDI_N 5
 #define INS_FDI_M 2
 typedef struct {{
@@ -50,9 +50,10 @@ typedef struct {{
     int hold, have_hold_pos; double hold_lat, hold_lon, hold_h;
     ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
     ins_real gap_accel_sigma, gap_rate_sigma;
+    int scale_factors; ins_real gyro_sf_sigma, accel_sf_sigma, sf_tau, p0_sg, p0_sa[3];
 }} ins_ekf_cfg_t;
 typedef struct {{
-    ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
+    ins_real P[21][21]; ins_real x[21]; ins_real bg[3], ba[3]; ins_real qc[21]; int nx; ins_real sg[3], sa[3];
     ins_pos baro_offset; int have_baro_offset; double baro_offset_var, t_baro, t_gnss_ok; ins_pos h_gnss;
     double gnss_var_d, baro_dt, gnss_dt; ins_real g_local;
     uint32_t accepted[7], rejected[7], consecutive[7]; ins_real last_ratio[7];

@@ -82,15 +82,31 @@ def test_make_core_c_without_an_initial_state_aligns_through_the_python_core() -
     assert core.stats == {} or all(v.accepted == 0 for v in core.stats.values())
 
 
-def test_a_config_the_c_core_lacks_a_setting_of_is_refused_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
-    cfg = config.load(CONFIGS / "drive0708.toml")
-    with pytest.raises(RuntimeError, match=r"^core 'c': .*not supported by the C core: filter\.scale_factors$"):
+def test_a_config_the_c_core_lacks_a_setting_of_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    text = (CONFIGS / "drive0708.toml").read_text()
+    text = text.replace('path = "../../../', f'path = "{REPO.parent.parent}/').replace(
+        "scale_factors = true", "scale_factors = true\nwind_states = true"
+    )
+    assert "wind_states = true" in text
+    (tmp_path / "wind.toml").write_text(text)
+    cfg = config.load(tmp_path / "wind.toml")
+    with pytest.raises(RuntimeError, match=r"^core 'c': .*not supported by the C core: filter\.wind_states$"):
         make_core("c", None, cfg.nav_config())
     p = argparse.ArgumentParser()
     cmd.add_arguments(p)
-    args = p.parse_args(["drive", "--core", "c", "--out", "/nonexistent/x"])
+    args = p.parse_args(["--dataset", str(tmp_path / "wind.toml"), "--core", "c", "--out", str(tmp_path / "x")])
     assert cmd.run(args) == 2
-    assert "--core c" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "core 'c'" in err and "filter.wind_states" in err and err.count("\n") == 1
+
+
+def test_every_shipped_dataset_config_builds_on_c() -> None:
+    """No shipped dataset config is refused by the C core (drive0708's scale factors included)."""
+    for path in sorted(CONFIGS.glob("*.toml")):
+        core = make_core("c", None, config.load(path).nav_config())
+        assert isinstance(core, CNavCore), path.name
 
 
 @pytest.mark.slow

@@ -27,6 +27,11 @@ void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], d
         a[i] = dth[i] - c->ekf.bg[i] * dt;
         u[i] = dv[i] - c->ekf.ba[i] * dt;
     }
+    if (c->ekf.nx == 21)
+        for (i = 0; i < 3; ++i) { /* and scale-factor corrected (NavCore._mechanize) */
+            a[i] = a[i] / (K(1.0) + c->ekf.sg[i]);
+            u[i] = u[i] / (K(1.0) + c->ekf.sa[i]);
+        }
     ins_mech_step(&c->mech, a, u);
     c->mech.t = t_end;
     if (c->pub != NULL && !c->ekf.replaying) ins_core_output(c, c->pub);
