@@ -305,7 +305,7 @@ void ins_core_output(const ins_core_t *c, ins_out_t *o);
  * (the last max_delay + 2 dt s of them), the IMU increments and the fused measurements since the oldest.
  * A measurement older than half a step is fused at the snapshot nearest its time, and the logged IMU
  * steps and measurements are replayed up to now (gated, not counted). Fixed capacity: INS_HIST_N steps
- * (max_delay / dt + 3 must fit: 1.9 s at 200 Hz, 0.38 s at 1 kHz; 1.35 MB in double, 0.76 MB in float:
+ * (max_delay / dt + 3 must fit: 1.9 s at 200 Hz, 0.38 s at 1 kHz; 2.1 MB in double, 1.1 MB in float (21 states):
  * allocate it statically or with the caller's allocator) and INS_HIST_MEAS measurements; a measurement older
  * than the history is fused now, as NavCore does beyond its history. */
 #ifndef INS_HIST_N
