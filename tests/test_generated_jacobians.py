@@ -127,10 +127,30 @@ def test_generated_jacobians_are_the_derivatives_of_the_nonlinear_models(seed: i
     np.testing.assert_allclose(
         gj.H_mag(m), _numjac(lambda x: (tau @ np.cross(m, (I3 + _sk(x[6:9])) @ m))[1:3], 2), **tol
     )
+    # the sensor-error columns: scale factors (f̃ = (1 + s) f + b) and the gyro g-sensitivity (ω̃ = ω + b + G f)
+    fb, its = C.T @ f, 1.0 / 3600.0
+
+    def dyn_s(xs: np.ndarray) -> np.ndarray:
+        dsg, dsa, dG = xs[0:3], xs[3:6], xs[6:15].reshape(3, 3)
+        out = np.zeros(gj.NXS)
+        out[3:6] = -C @ (fb * dsa)
+        out[6:9] = C @ (w * dsg + dG @ fb)
+        out[15:21] = -its * xs[0:6]
+        return out
+
+    J = np.zeros((gj.NXS, 15))
+    for k in range(15):
+        d = np.zeros(15)
+        d[k] = 1e-6
+        J[:, k] = (dyn_s(d) - dyn_s(-d)) / 2e-6
+    FS = gj.F_sensor(C, fb, w, its)
+    np.testing.assert_allclose(FS[:, 15:], J, **tol)
+    assert not np.any(FS[:, :15])
 
 
 @pytest.mark.parametrize("states", [{}, {"accel_bias": False}, {"gyro_bias": False, "accel_bias": False},
-                                    {"scale_factors": True}])  # fmt: skip
+                                    {"scale_factors": True}, {"gyro_gsens": True},
+                                    {"scale_factors": True, "gyro_gsens": True}])  # fmt: skip
 def test_the_filter_takes_its_F_and_H_from_the_generated_code(states: dict[str, bool]) -> None:
     """ErrorStateEKF.build_F and the measurement builders are the generated Jacobians placed in the filter's
     layout (bias columns moved or dropped; the states the derivation does not cover filled besides)."""
@@ -146,6 +166,13 @@ def test_the_filter_takes_its_F_and_H_from_the_generated_code(states: dict[str, 
     F_hand = kf.build_F(C, s["f"], s["wie"], s["wen"], C.T @ s["f"], s["w"], 0.8, 100.0)
     np.testing.assert_array_equal(F_hand[np.ix_(to, to)], F_gen[np.ix_(rows, rows)])
     assert np.any(F_hand[6:9, 6:9] != 0.0) and np.any(F_hand[3:6, 6:9] != 0.0)
+    # the sensor-error columns from the generated F_sensor, placed (full layout 15-17 s_g, 18-20 s_a, 21-29 G)
+    FS = gj.F_sensor(C, C.T @ s["f"], s["w"], 1.0 / kf.cfg.sf_tau)
+    for start, lo, hi in ((idx.sg, 15, 18), (idx.sa, 18, 21), (idx.gs, 21, 30)):
+        if start is not None:
+            cols = list(range(start, start + hi - lo))
+            np.testing.assert_array_equal(F_hand[np.ix_(range(9), cols)], FS[0:9, lo:hi])
+            assert np.any(FS[0:9, lo:hi] != 0.0)
 
     lat, lon, h = 0.8, 0.5, 100.0
     _, H = mm.gnss_position(idx, C, lat, lon, h, lat, lon, h, s["l"])

@@ -214,7 +214,7 @@ typedef struct {
     ins_real itg, ita, its;
     ins_gen_fblocks_t b;
     int nx;
-    ins_real sg[3][3], sa[3][3]; /* F[6:9][15:18] = C diag(w_b), F[3:6][18:21] = -C diag(f_b) (scale factors) */
+    ins_gen_fsf_t s; /* the scale-factor columns (generated: F[6:9][15:18], F[3:6][18:21]) */
 } fmat_t;
 
 /* out = F in (F block-sparse: the structure derive_jacobians.py checks) */
@@ -240,8 +240,8 @@ static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS
             for (i = 0; i < 3; ++i) {
                 ins_real sv = K(0.0), sa = K(0.0);
                 for (k = 0; k < 3; ++k) {
-                    sv += f->sa[i][k] * in[ISA + k][j];
-                    sa += f->sg[i][k] * in[ISG + k][j];
+                    sv += f->s.vsa[i][k] * in[ISA + k][j];
+                    sa += f->s.asg[i][k] * in[ISG + k][j];
                 }
                 out[IV + i][j] += sv;
                 out[IA + i][j] += sa;
@@ -316,12 +316,7 @@ static void propagate(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], c
     f.ita = e->inv_tau_a;
     f.its = e->inv_tau_s;
     f.nx = n;
-    if (n == 21)
-        for (i = 0; i < 3; ++i)
-            for (j = 0; j < 3; ++j) {
-                f.sg[i][j] = c9[3 * i + j] * wb[j];
-                f.sa[i][j] = -c9[3 * i + j] * fb[j];
-            }
+    if (n == 21) ins_gen_F_sf(c9, fb, wb, &f.s);
     /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
     ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &f.b);
     phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */

@@ -329,6 +329,21 @@ class ErrorStateEKF:
         kept = [(m, r, col) for m, r, col in cells if r is not None and col is not None]
         self._gen_idx = np.array([r * n + col for _, r, col in kept])
         self._gen_keep: list[int] | None = None if len(kept) == len(cells) else [m for m, _, _ in kept]
+        # the generated scale-factor / g-sensitivity columns (gj.F_SENSOR_CELLS, full layout) placed likewise
+
+        def at_s(k: int) -> int | None:
+            if k < gj.NX:
+                return at(k)
+            for start, lo, hi in ((i0.sg, 15, 18), (i0.sa, 18, 21), (i0.gs, 21, 30)):
+                if lo <= k < hi:
+                    return None if start is None else start + k - lo
+            return None
+
+        cells_s = [(m, at_s(r), at_s(col)) for m, (r, col) in enumerate(gj.F_SENSOR_CELLS)]
+        kept_s = [(m, r, col) for m, r, col in cells_s if r is not None and col is not None]
+        self._sens_idx = np.array([r * n + col for _, r, col in kept_s]) if kept_s else None
+        self._sens_keep = [m for m, _, _ in kept_s]
+        self._inv_tau_s = 1.0 / c.sf_tau
         self._inv_tau_g = 1.0 / self._tau[i0.bg] if i0.bg is not None else 0.0
         self._inv_tau_a = 1.0 / self._tau[i0.ba] if i0.ba is not None else 0.0
         self._qd_cache: tuple[float, Vec] = (-1.0, np.zeros((n, n)))
@@ -428,9 +443,9 @@ class ErrorStateEKF:
         """Continuous error-dynamics matrix F (n×n) at the current nominal state (see module doc): the entries
         of the generated derivation (``ins_hil.fusion.generated_jacobians``: [f×] in δv̇/μ (book eq. 3.1),
         −[(2ω_ie + ω_en)×] on δv, −[ω_in×] on μ, 2g/R on δr_D, ±C on the biases) in one vectorised store, then
-        the states the derivation does not cover (scale factors, g-sensitivity, the ∂ω/∂r, ∂ω/∂v terms)."""
+        the generated scale-factor and g-sensitivity columns (``gj.F_sensor_values``) when those states are on,
+        then the ∂ω/∂r, ∂ω/∂v terms (``omega_rv_terms``; not derived yet)."""
         F = self._F
-        i = self.idx
         if self.cfg.earth_terms:
             wie, wen, g2r = _floats(w_ie), _floats(w_en), self._g2r
         else:
@@ -439,12 +454,9 @@ class ErrorStateEKF:
         vals = gj.F_values(_floats(C_bn), _floats(f_ned), wie, wen, self._inv_tau_g, self._inv_tau_a, g2r)
         keep = self._gen_keep
         F.put(self._gen_idx, vals if keep is None else [vals[k] for k in keep])
-        if i.sg is not None and i.sa is not None:
-            F[6:9, i.sg : i.sg + 3] = C_bn * w_b[None, :]
-            F[3:6, i.sa : i.sa + 3] = -C_bn * f_b[None, :]
-        if i.gs is not None:
-            # ω̂ − ω = δb_g + δG f^b: μ̇ gains C δG f^b, ∂/∂G_jk = C[:, j] f_k (the bias column scaled by f_k)
-            F[6:9, i.gs : i.gs + 9] = np.kron(C_bn, f_b[None, :])
+        if self._sens_idx is not None:  # scale factors (C diag(ω^b), −C diag(f^b)), g-sensitivity (C δG f^b)
+            sv = gj.F_sensor_values(_floats(C_bn), _floats(f_b), _floats(w_b), self._inv_tau_s)
+            F.put(self._sens_idx, [sv[k] for k in self._sens_keep])
         if self.cfg.omega_rv_terms and self.cfg.earth_terms:
             c = (2.0 * wie[0] + wen[0], wen[1], 2.0 * wie[2] + wen[2])  # 2ω_ie + ω_en (ω_ie,E = 0)
             self._omega_rv_terms(F, w_ie, w_en, lat, h, c, g2r)

@@ -132,6 +132,134 @@ def F(C: np.ndarray, f_ned: Sequence[float], w_ie: Sequence[float], w_en: Sequen
     return out
 
 
+#: the full layout of the sensor-error columns: 15 base states, gyro / accelerometer scale factors,
+#: gyro g-sensitivity (row-major)
+NXS = 30
+#: the (row, column) in that layout of every entry of the scale-factor and g-sensitivity columns of F that is
+#: not identically zero, in the order of :func:`F_sensor_values`
+F_SENSOR_CELLS: tuple[tuple[int, int], ...] = (
+    (3, 18),
+    (3, 19),
+    (3, 20),
+    (4, 18),
+    (4, 19),
+    (4, 20),
+    (5, 18),
+    (5, 19),
+    (5, 20),
+    (6, 15),
+    (6, 16),
+    (6, 17),
+    (6, 21),
+    (6, 22),
+    (6, 23),
+    (6, 24),
+    (6, 25),
+    (6, 26),
+    (6, 27),
+    (6, 28),
+    (6, 29),
+    (7, 15),
+    (7, 16),
+    (7, 17),
+    (7, 21),
+    (7, 22),
+    (7, 23),
+    (7, 24),
+    (7, 25),
+    (7, 26),
+    (7, 27),
+    (7, 28),
+    (7, 29),
+    (8, 15),
+    (8, 16),
+    (8, 17),
+    (8, 21),
+    (8, 22),
+    (8, 23),
+    (8, 24),
+    (8, 25),
+    (8, 26),
+    (8, 27),
+    (8, 28),
+    (8, 29),
+    (15, 15),
+    (16, 16),
+    (17, 17),
+    (18, 18),
+    (19, 19),
+    (20, 20),
+)
+
+
+def F_sensor_values(C: Sequence[float], f_b: Sequence[float], w_b: Sequence[float],
+                    inv_tau_s: float) -> tuple[float, ...]:
+    """The entries of F at :data:`F_SENSOR_CELLS` (C: C_b^n row by row; f_b, w_b: the compensated body
+    specific force and rate; inv_tau_s: 1 / the scale factors' correlation time)."""
+    return (
+        -C[0]*f_b[0],
+        -C[1]*f_b[1],
+        -C[2]*f_b[2],
+        -C[3]*f_b[0],
+        -C[4]*f_b[1],
+        -C[5]*f_b[2],
+        -C[6]*f_b[0],
+        -C[7]*f_b[1],
+        -C[8]*f_b[2],
+        C[0]*w_b[0],
+        C[1]*w_b[1],
+        C[2]*w_b[2],
+        C[0]*f_b[0],
+        C[0]*f_b[1],
+        C[0]*f_b[2],
+        C[1]*f_b[0],
+        C[1]*f_b[1],
+        C[1]*f_b[2],
+        C[2]*f_b[0],
+        C[2]*f_b[1],
+        C[2]*f_b[2],
+        C[3]*w_b[0],
+        C[4]*w_b[1],
+        C[5]*w_b[2],
+        C[3]*f_b[0],
+        C[3]*f_b[1],
+        C[3]*f_b[2],
+        C[4]*f_b[0],
+        C[4]*f_b[1],
+        C[4]*f_b[2],
+        C[5]*f_b[0],
+        C[5]*f_b[1],
+        C[5]*f_b[2],
+        C[6]*w_b[0],
+        C[7]*w_b[1],
+        C[8]*w_b[2],
+        C[6]*f_b[0],
+        C[6]*f_b[1],
+        C[6]*f_b[2],
+        C[7]*f_b[0],
+        C[7]*f_b[1],
+        C[7]*f_b[2],
+        C[8]*f_b[0],
+        C[8]*f_b[1],
+        C[8]*f_b[2],
+        -inv_tau_s,
+        -inv_tau_s,
+        -inv_tau_s,
+        -inv_tau_s,
+        -inv_tau_s,
+        -inv_tau_s,
+    )
+
+
+def F_sensor(C: np.ndarray, f_b: Sequence[float], w_b: Sequence[float], inv_tau_s: float) -> np.ndarray:
+    """The sensor-error columns of F in the full layout (NXS × NXS; the base columns zero)."""
+    out = np.zeros((NXS, NXS))
+    c = np.asarray(C, dtype=np.float64).ravel().tolist()
+    vals = F_sensor_values(c, [float(x) for x in f_b], [float(x) for x in w_b], inv_tau_s)
+    out.put([i * NXS + j for i, j in F_SENSOR_CELLS], vals)
+    return out
+
+
 def H_gnss_pos(C: Any, lever: Any) -> np.ndarray:
     """GNSS antenna position (lever arm l, body FRD, m): δr + [(C l)×] ψ (3 × 15)."""
     C = np.asarray(C, dtype=np.float64).ravel().tolist()
