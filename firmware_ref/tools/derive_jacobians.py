@@ -95,6 +95,34 @@ def derive_F_sensor() -> sp.Matrix:
     return jac(_dynamics(), XS)
 
 
+lat, rm, rn, vN, vE = sp.symbols("lat rm rn vN vE", real=True)
+
+
+def derive_F_omega_rv() -> sp.Matrix:
+    """The ∂ω/∂r, ∂ω/∂v terms of F (``FilterConfig.omega_rv_terms``; seed 001 eqs. 94–98 in NED), 15 × 15: what
+    the position and velocity errors add through the Earth rate and the transport rate, beyond the base F.
+
+    The true rates at the true position and velocity, with δr = (δN, δE, δD) m: φ = φ̂ + δN/(M+h),
+    h = ĥ − δD (M, N held constant, as seed 001), v = v̂ + δv (v_D enters only at order v_D/R: 0):
+    ω_ie = Ω (cos φ, 0, −sin φ), written with the computed (ω_ie,N, ω_ie,D) = Ω (cos φ̂, −sin φ̂) rotated by
+    δN/(M+h); ω_en = (v_E/(N+h), −v_N/(M+h), −v_E tan φ/(N+h)). The attitude rows gain ∂ω_in/∂x (the true
+    rate minus the computed one), the velocity rows ∂/∂x of −(2ω_ie + ω_en) × v beyond −(2ω_ie + ω_en) × δv."""
+    d = dr[0] / rm
+    rm_t, rn_t = rm - dr[2], rn - dr[2]
+    iN, iD = wie[0], wie[2]
+    w_ie_t = sp.Matrix([iN * sp.cos(d) + iD * sp.sin(d), 0, iD * sp.cos(d) - iN * sp.sin(d)])
+    vt = sp.Matrix([vN + dv[0], vE + dv[1], 0])
+    w_en_t = sp.Matrix([vt[1] / rn_t, -vt[0] / rm_t, -vt[1] * sp.tan(lat + d) / rn_t])
+    v0 = sp.Matrix([vN, vE, 0])
+    w_en_0 = w_en_t.subs(ZERO)
+    datt = (w_ie_t + w_en_t) - (wie.subs({wie[1]: 0}) + w_en_0)
+    c_t = 2 * w_ie_t + w_en_t
+    c_0 = c_t.subs(ZERO)
+    dvel = -c_t.cross(v0) + c_0.cross(v0) - (c_t - c_0).cross(dv)
+    rows = sp.Matrix.vstack(sp.zeros(3, 1), dvel, datt, sp.zeros(6, 1))
+    return jac(rows)
+
+
 def derive_H() -> dict[str, sp.Matrix]:
     """Measurement rows H (m × 15) by measurement."""
     C_true = (I3 - skew(psi)) * Cm
@@ -119,6 +147,7 @@ def derive_H() -> dict[str, sp.Matrix]:
 # the arguments of each generated function: (name, symbols) in order
 F_ARGS = [("C", list(Cm)), ("f_ned", list(f)), ("w_ie", list(wie)), ("w_en", list(wen)),
           ("inv_tau_g", [itg]), ("inv_tau_a", [ita]), ("g2r", [g2r])]  # fmt: skip
+FRV_ARGS = [("w_ie", list(wie)), ("lat", [lat]), ("rm", [rm]), ("rn", [rn]), ("vN", [vN]), ("vE", [vE])]
 FS_ARGS = [("C", list(Cm)), ("f_b", list(fb)), ("w_b", list(wb)), ("inv_tau_s", [its])]
 H_ARGS = {
     "gnss_pos": [("C", list(Cm)), ("lever", list(lev))],
@@ -239,7 +268,7 @@ def _py_expr(e: sp.Expr, sub: dict[sp.Symbol, sp.Symbol]) -> str:
     return sp.pycode(sp.sympify(e).xreplace(sub))
 
 
-def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix) -> str:
+def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix, FR: sp.Matrix) -> str:
     out = [
         "# ruff: noqa: E501",
         "# fmt: off",
@@ -252,6 +281,7 @@ def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix) -> str:
         "",
         "from __future__ import annotations",
         "",
+        "import math",
         "from collections.abc import Sequence",
         "from typing import Any",
         "",
@@ -323,7 +353,27 @@ def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix) -> str:
         "    vals = F_sensor_values(c, [float(x) for x in f_b], [float(x) for x in w_b], inv_tau_s)",
         "    out.put([i * NXS + j for i, j in F_SENSOR_CELLS], vals)",
         "    return out",
+        "",
+        "",
+        "#: the (row, column) of every entry the ∂ω/∂r, ∂ω/∂v terms add to F (15-state layout; omega_rv_terms), in",
+        "#: the order of :func:`F_omega_rv_values`",
+        "F_OMEGA_RV_CELLS: tuple[tuple[int, int], ...] = (",
     ]
+    ent_r = _entries(FR)
+    out += [f"    ({i}, {j})," for i, j, _ in ent_r]
+    out += [
+        ")",
+        "",
+        "",
+        "def F_omega_rv_values(w_ie: Sequence[float], lat: float, rm: float, rn: float, vN: float,",
+        "                      vE: float) -> tuple[float, ...]:",
+        '    """What the ∂ω/∂r, ∂ω/∂v terms add to F at :data:`F_OMEGA_RV_CELLS` (w_ie: the Earth rate NED, rad/s;',
+        '    lat rad; rm, rn: M + h, N + h, m; vN, vE: the velocity, m/s)."""',
+        "    return (",
+    ]
+    sub = _subs_c(FRV_ARGS)
+    out += [f"        {_py_expr(e, sub)}," for _, _, e in ent_r]
+    out += ["    )"]
     for name, M in H.items():
         args = H_ARGS[name]
         sub = _subs_c(args)
@@ -373,7 +423,8 @@ def generate() -> tuple[str, str]:
     FS = derive_F_sensor()
     check_sensor_structure(FS)
     H = derive_H()
-    return gen_c(F, H, FS), gen_py(F, H, FS)
+    FR = derive_F_omega_rv()
+    return gen_c(F, H, FS), gen_py(F, H, FS, FR)
 
 
 def main(argv: list[str] | None = None) -> int:

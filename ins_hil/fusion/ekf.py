@@ -344,6 +344,11 @@ class ErrorStateEKF:
         self._sens_idx = np.array([r * n + col for _, r, col in kept_s]) if kept_s else None
         self._sens_keep = [m for m, _, _ in kept_s]
         self._inv_tau_s = 1.0 / c.sf_tau
+        # the generated ∂ω/∂r, ∂ω/∂v terms (gj.F_OMEGA_RV_CELLS, 15-state layout: rows and columns < 9): added to
+        # the base cells they share, stored into the others
+        base = {(r, col) for r, col in gj.F_CELLS}
+        self._rv_idx = np.array([r * n + col for r, col in gj.F_OMEGA_RV_CELLS])
+        self._rv_shared = np.array([(r, col) in base for r, col in gj.F_OMEGA_RV_CELLS])
         self._inv_tau_g = 1.0 / self._tau[i0.bg] if i0.bg is not None else 0.0
         self._inv_tau_a = 1.0 / self._tau[i0.ba] if i0.ba is not None else 0.0
         self._qd_cache: tuple[float, Vec] = (-1.0, np.zeros((n, n)))
@@ -444,7 +449,7 @@ class ErrorStateEKF:
         of the generated derivation (``ins_hil.fusion.generated_jacobians``: [f×] in δv̇/μ (book eq. 3.1),
         −[(2ω_ie + ω_en)×] on δv, −[ω_in×] on μ, 2g/R on δr_D, ±C on the biases) in one vectorised store, then
         the generated scale-factor and g-sensitivity columns (``gj.F_sensor_values``) when those states are on,
-        then the ∂ω/∂r, ∂ω/∂v terms (``omega_rv_terms``; not derived yet)."""
+        then the generated ∂ω/∂r, ∂ω/∂v terms (``omega_rv_terms``, ``gj.F_omega_rv_values``)."""
         F = self._F
         if self.cfg.earth_terms:
             wie, wen, g2r = _floats(w_ie), _floats(w_en), self._g2r
@@ -458,53 +463,13 @@ class ErrorStateEKF:
             sv = gj.F_sensor_values(_floats(C_bn), _floats(f_b), _floats(w_b), self._inv_tau_s)
             F.put(self._sens_idx, [sv[k] for k in self._sens_keep])
         if self.cfg.omega_rv_terms and self.cfg.earth_terms:
-            c = (2.0 * wie[0] + wen[0], wen[1], 2.0 * wie[2] + wen[2])  # 2ω_ie + ω_en (ω_ie,E = 0)
-            self._omega_rv_terms(F, w_ie, w_en, lat, h, c, g2r)
+            # the velocity from the transport rate (the mechanization's ω_en, v_D taken as 0: seed 001 eqs. 94-98)
+            M, N = earth.radii(lat)
+            rm, rn = M + h, N + h
+            add = gj.F_omega_rv_values(wie, lat, rm, rn, -wen[1] * rm, wen[0] * rn)
+            idx = self._rv_idx
+            F.put(idx, np.where(self._rv_shared, F.take(idx), 0.0) + np.array(add))
         return F
-
-    @staticmethod
-    def _omega_rv_terms(F: Vec, w_ie: Vec, w_en: Vec, lat: float, h: float, c: tuple, g2r: float) -> None:
-        """The ∂ω/∂r and ∂ω/∂v terms of F (``FilterConfig.omega_rv_terms``; seed 001 eqs. 94–98 in NED).
-
-        ω_ie = (Ω cos φ, 0, −Ω sin φ), ω_en = (v_E/(N+h), −v_N/(M+h), −v_E tan φ/(N+h)); δr = (δN, δE, δD)
-        metres with ∂/∂δN = (1/(M+h)) ∂/∂φ, ∂/∂δD = −∂/∂h; M, N held constant (seed 001 neglects ∂M/∂φ,
-        ∂N/∂φ). δ = true − computed, so μ̇ = C δb_g − δω_in − ω_in × μ gains +J_in δx and the Coriolis
-        term −(2ω_ie + ω_en) × v gains v × J_c δx. v_N, v_E come from ω_en; v_D enters these terms only
-        through products of order v_D/R (< 1e-6 /s) and is taken as 0."""
-        M, N = earth.radii(lat)
-        rm, rn = M + h, N + h
-        iN, iD = float(w_ie[0]), float(w_ie[2])  # Ω cos φ, −Ω sin φ
-        eN, eE, eD = float(w_en[0]), float(w_en[1]), float(w_en[2])
-        vN, vE = -eE * rm, eN * rn
-        cl = math.cos(lat)
-        t = math.tan(lat)
-        # ∂ω_ie/∂δN = (−Ω sin φ, 0, −Ω cos φ)/(M+h) = (iD, 0, −iN)/(M+h); ∂ω_en,D/∂δN = −v_E/((N+h) cos²φ (M+h))
-        en_dN = -vE / (rn * cl * cl * rm)
-        # ∂ω_en/∂δD = +ω_en/(R+h) per axis
-        en_D = (eN / rn, eE / rm, eD / rn)
-        # ∂ω_en/∂v: rows N, E, D; columns v_N, v_E (v_D: none)
-        a, b, d = 1.0 / rn, -1.0 / rm, -t / rn
-        # attitude rows: J_in (ω_in = ω_ie + ω_en)
-        F[6, 0], F[6, 1], F[6, 2] = iD / rm, 0.0, en_D[0]
-        F[7, 0], F[7, 1], F[7, 2] = 0.0, 0.0, en_D[1]
-        F[8, 0], F[8, 1], F[8, 2] = -iN / rm + en_dN, 0.0, en_D[2]
-        F[6, 3], F[6, 4], F[6, 5] = 0.0, a, 0.0
-        F[7, 3], F[7, 4], F[7, 5] = b, 0.0, 0.0
-        F[8, 3], F[8, 4], F[8, 5] = 0.0, d, 0.0
-        # velocity rows: v × J_c, J_c = ∂(2ω_ie + ω_en)/∂x, v = (v_N, v_E, 0)
-        kN = (2.0 * iD / rm, 0.0, en_D[0])
-        kE = (0.0, 0.0, en_D[1])
-        kD = (-2.0 * iN / rm + en_dN, 0.0, en_D[2])
-        for j in range(3):
-            F[3, j] = vE * kD[j]  # (v × k)_N = v_E k_D − v_D k_E
-            F[4, j] = -vN * kD[j]  # (v × k)_E = v_D k_N − v_N k_D
-            F[5, j] = vN * kE[j] - vE * kN[j]  # (v × k)_D = v_N k_E − v_E k_N
-        F[5, 2] += g2r
-        cN, cE, cD = c
-        # δv block: −[(2ω_ie + ω_en)×] + v × ∂ω_en/∂v (columns v_N, v_E)
-        F[3, 3], F[3, 4], F[3, 5] = 0.0, cD + vE * d, -cE
-        F[4, 3], F[4, 4], F[4, 5] = -cD, -vN * d, cN
-        F[5, 3], F[5, 4], F[5, 5] = cE + vN * b, -cN - vE * a, 0.0
 
     def predict(
         self, dt: float, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, f_b: Vec, w_b: Vec, lat: float, h: float

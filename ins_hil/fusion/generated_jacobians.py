@@ -9,6 +9,7 @@ C core's ``firmware_ref/src/generated/ins_jacobians.h``. Vectors are 3-sequences
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -258,6 +259,56 @@ def F_sensor(C: np.ndarray, f_b: Sequence[float], w_b: Sequence[float], inv_tau_
     vals = F_sensor_values(c, [float(x) for x in f_b], [float(x) for x in w_b], inv_tau_s)
     out.put([i * NXS + j for i, j in F_SENSOR_CELLS], vals)
     return out
+
+
+#: the (row, column) of every entry the ∂ω/∂r, ∂ω/∂v terms add to F (15-state layout; omega_rv_terms), in
+#: the order of :func:`F_omega_rv_values`
+F_OMEGA_RV_CELLS: tuple[tuple[int, int], ...] = (
+    (3, 0),
+    (3, 2),
+    (3, 4),
+    (4, 0),
+    (4, 2),
+    (4, 4),
+    (5, 0),
+    (5, 2),
+    (5, 3),
+    (5, 4),
+    (6, 0),
+    (6, 2),
+    (6, 4),
+    (7, 2),
+    (7, 3),
+    (8, 0),
+    (8, 2),
+    (8, 4),
+)
+
+
+def F_omega_rv_values(w_ie: Sequence[float], lat: float, rm: float, rn: float, vN: float,
+                      vE: float) -> tuple[float, ...]:
+    """What the ∂ω/∂r, ∂ω/∂v terms add to F at :data:`F_OMEGA_RV_CELLS` (w_ie: the Earth rate NED, rad/s;
+    lat rad; rm, rn: M + h, N + h, m; vN, vE: the velocity, m/s)."""
+    return (
+        -vE*(2*rn*w_ie[0] + vE/math.cos(lat)**2)/(rm*rn),
+        -vE**2*math.tan(lat)/rn**2,
+        -vE*math.tan(lat)/rn,
+        vN*(2*rn*w_ie[0] + vE/math.cos(lat)**2)/(rm*rn),
+        vE*vN*math.tan(lat)/rn**2,
+        vN*math.tan(lat)/rn,
+        -2*vE*w_ie[2]/rm,
+        -vE**2/rn**2 - vN**2/rm**2,
+        -vN/rm,
+        -vE/rn,
+        w_ie[2]/rm,
+        vE/rn**2,
+        1/rn,
+        -vN/rm**2,
+        -1/rm,
+        -(rn*w_ie[0] + vE/math.cos(lat)**2)/(rm*rn),
+        -vE*math.tan(lat)/rn**2,
+        -math.tan(lat)/rn,
+    )
 
 
 def H_gnss_pos(C: Any, lever: Any) -> np.ndarray:
