@@ -148,6 +148,99 @@ def test_generated_jacobians_are_the_derivatives_of_the_nonlinear_models(seed: i
     assert not np.any(FS[:, :15])
 
 
+def _numjac_n(fn, n_in: int, n_out: int, eps: float = 1e-6) -> np.ndarray:  # type: ignore[no-untyped-def]
+    J = np.zeros((n_out, n_in))
+    for k in range(n_in):
+        d = np.zeros(n_in)
+        d[k] = eps
+        J[:, k] = (np.asarray(fn(d)) - np.asarray(fn(-d))) / (2 * eps)
+    return J
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_generated_aid_rows_are_the_derivatives_of_their_models(seed: int) -> None:
+    """The aid rows with their own states (airspeed, odometer, drag, the mounted NHC, the magnetometer hard iron):
+    central differences of each nonlinear model by [15 base states, the aid's states]."""
+    rng = np.random.default_rng(100 + seed)
+    s = _random_state(rng)
+    C, w, lev, v = s["C"], s["w"], s["l"], s["v"]
+    I3 = np.eye(3)
+    tol = {"rtol": 1e-6, "atol": 1e-8}
+    Ct_T = lambda psi: C.T @ (I3 + _sk(psi))  # C_true^T
+    wind = rng.normal(0.0, 5.0, 2)
+    u = v - np.array((wind[0], wind[1], 0.0))
+
+    def ut(x: np.ndarray) -> np.ndarray:
+        return u + x[3:6] - np.array((x[15], x[16], 0.0))
+
+    np.testing.assert_allclose(gj.H_airspeed(u), _numjac_n(lambda x: [np.linalg.norm(ut(x))], 17, 1), **tol)
+    k = 0.03
+    np.testing.assert_allclose(
+        gj.H_odometer(C, v, k), _numjac_n(lambda x: [(1 + k + x[15]) * (Ct_T(x[6:9]) @ (v + x[3:6]))[0]], 16, 1), **tol
+    )
+    mu = 0.3
+    np.testing.assert_allclose(
+        gj.H_drag(C, u, mu), _numjac_n(lambda x: -mu * (Ct_T(x[6:9]) @ ut(x))[0:2] + x[12:14], 17, 2), **tol
+    )
+    R = dcm_from_quat(quat_normalize(rng.normal(size=4)))
+    np.testing.assert_allclose(
+        gj.H_nhc_mounted(C, v, R, w, lev),
+        _numjac_n(
+            lambda x: ((I3 - _sk(x[15:18])) @ R @ (Ct_T(x[6:9]) @ (v + x[3:6]) + np.cross(w - x[9:12], lev)))[1:3],
+            18,
+            2,
+        ),
+        **tol,
+    )
+    m = s["m"]
+    uu = rng.normal(size=3)
+    tau = mm.tau_matrix(m)
+
+    def mag(db: np.ndarray) -> np.ndarray:
+        ub = uu + db
+        nb = float(np.linalg.norm(ub))
+        return np.concatenate(((tau @ np.cross(m, C @ (ub / nb)))[1:3], [-nb]))
+
+    un = float(np.linalg.norm(uu))
+    np.testing.assert_allclose(gj.H_mag_bias(m, C, uu / un, un), _numjac_n(mag, 3, 3), **tol)
+
+
+def test_the_aid_modules_take_their_rows_from_the_generated_code() -> None:
+    """mm / the aid modules place the generated rows: the base columns, then the aid's own states."""
+    from ins_hil.aids.airspeed import true_airspeed
+    from ins_hil.aids.odometer import odometer_speed
+    from ins_hil.fusion.ekf import StateIndex
+
+    rng = np.random.default_rng(3)
+    s = _random_state(rng)
+    C, v, w, lev = s["C"], s["v"], s["w"], s["l"]
+    idx = StateIndex.build(FilterConfig(wind_states=True, mount_states=True), (("odo_sf", 1, 0.02, 0.0),))
+    wind = np.array((2.0, -1.0))
+    u = v - np.array((wind[0], wind[1], 0.0))
+    _, H = true_airspeed(idx, v, wind, 10.0)
+    g = gj.H_airspeed(u)
+    np.testing.assert_array_equal(H[:, 3:6], g[:, 3:6])
+    np.testing.assert_array_equal(H[:, idx.wind : idx.wind + 2], g[:, 15:17])
+    _, H = mm.multirotor_drag(idx, C, v, wind, np.zeros(3), 0.3)
+    g = gj.H_drag(C, u, 0.3)
+    np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])
+    np.testing.assert_array_equal(H[:, idx.ba : idx.ba + 3], g[:, 12:15])
+    np.testing.assert_array_equal(H[:, idx.wind : idx.wind + 2], g[:, 15:17])
+    R = dcm_from_quat(quat_normalize(rng.normal(size=4)))
+    _, H, _ = mm.nonholonomic_mounted(idx, C, v, R, w, lev)
+    g = gj.H_nhc_mounted(C, v, R, w, lev)
+    np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])
+    np.testing.assert_array_equal(H[:, idx.bg : idx.bg + 3], g[:, 9:12])
+    np.testing.assert_array_equal(H[:, idx.mnt : idx.mnt + 3], g[:, 15:18])
+    _, H = odometer_speed(idx, C, v, 0.01, 5.0)
+    g = gj.H_odometer(C, v, 0.01)
+    np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])
+    assert H[0, idx.extra["odo_sf"]] == g[0, 15] and H.shape == (1, idx.n)
+    idx_m = StateIndex.build(FilterConfig(mag_bias=True))
+    _, H = mm.magnetometer(idx_m, C, C.T @ s["m"] * 40.0, s["m"] * 40.0, np.array((0.01, 0.0, -0.02)))
+    assert idx_m.mb is not None and np.all(H[:, idx_m.mb : idx_m.mb + 3] != 0.0)
+
+
 @pytest.mark.parametrize("states", [{}, {"accel_bias": False}, {"gyro_bias": False, "accel_bias": False},
                                     {"scale_factors": True}, {"gyro_gsens": True},
                                     {"scale_factors": True, "gyro_gsens": True}])  # fmt: skip

@@ -144,6 +144,54 @@ def derive_H() -> dict[str, sp.Matrix]:
     return h
 
 
+# the aid rows with states of their own (Python only: the C core refuses those aids): the model's true value minus
+# its computed one, by the 15 base states and the aid's own states (columns 15.. of the generated row)
+dw = sp.Matrix(sp.symbols("dw0:2", real=True))  # wind north, east (m/s)
+deps = vec("deps")  # IMU → vehicle boresight error (R_true = (I − [δε×]) R̂)
+dk = sp.Symbol("dk", real=True)  # odometer scale factor
+db_m = vec("dbm")  # magnetometer hard iron (units of |m_ref|)
+u, R, ub = vec("u"), sp.Matrix(3, 3, sp.symbols("R0:9", real=True)), vec("ub")
+un = sp.Symbol("un", positive=True)
+mu, k_hat = sp.symbols("mu k", real=True)
+for _s in (*dw, *deps, dk, *db_m):
+    ZERO[_s] = 0
+
+
+def jac_ext(expr: sp.Matrix, extra: sp.Matrix) -> sp.Matrix:
+    """∂expr/∂[x, extra] at zero, not simplified (the aid rows are short)."""
+    return expr.jacobian(sp.Matrix.vstack(X, extra)).subs(ZERO).applyfunc(sp.factor_terms)
+
+
+def derive_H_aids() -> dict[str, sp.Matrix]:
+    """The aid rows with their own states (module doc conventions; u: the computed quantity the row is taken at)."""
+    C_true_T = Cm.T * (I3 + skew(psi))  # C_true^T = Ĉ^T (I + [ψ×])
+    h: dict[str, sp.Matrix] = {}
+    # true airspeed |v − w| (u = v̂ − ŵ, NED; the wind horizontal), by [x, δw_N, δw_E]
+    ut = u + dv - sp.Matrix([dw[0], dw[1], 0])
+    h["airspeed"] = jac_ext(sp.Matrix([sp.sqrt(ut.dot(ut))]), dw)
+    # odometer speed (1 + k) (C^T v)_x, by [x, δk]
+    h["odometer"] = jac_ext(sp.Matrix([(1 + k_hat + dk) * (C_true_T * (v + dv))[0]]), sp.Matrix([dk]))
+    # multirotor drag on the bias-compensated specific force: −μ (C^T (v − w))_xy + δb_a,xy, by [x, δw_N, δw_E]
+    fd = -mu * (C_true_T * ut)[0:2, :] + dba[0:2, :]
+    h["drag"] = jac_ext(fd, dw)
+    # NHC at a reference point in vehicle axes: R (C^T v + ω × l), rows y, z (ω = ω̂ − δb_g), by [x, δε]
+    u_ref = (I3 - skew(deps)) * R * (C_true_T * (v + dv) + (w - dbg).cross(lev))
+    h["nhc_mounted"] = jac_ext(u_ref[1:3, :], deps)
+    # magnetometer hard iron: rows 2-3 of τ (m × Ĉ ū), ū = (u + δb_m)/|u + δb_m| (u = |u| ū: the corrected field,
+    # the computed u = u_true + δb_m), and the magnitude −|u + δb_m|, by δb_m only (the ψ columns: H_mag); ū is a
+    # unit vector (reduced modulo |ū|² = 1)
+    k = 1 / (1 + m[0])
+    tau = sp.Matrix(
+        [[m[0], m[1], m[2]], [-m[1], 1 - m[1] ** 2 * k, -m[1] * m[2] * k], [-m[2], -m[1] * m[2] * k, 1 - m[2] ** 2 * k]]
+    )
+    ut_b = un * ub + db_m
+    nb = sp.sqrt(ut_b.dot(ut_b))
+    g = tau * m.cross(Cm * (ut_b / nb))
+    jb = sp.Matrix.vstack(g[1:3, :], sp.Matrix([-nb])).jacobian(db_m).subs(ZERO)
+    h["mag_bias"] = jb.applyfunc(lambda e: sp.factor_terms(sp.factor_terms(e).subs(ub.dot(ub), 1)))
+    return h
+
+
 # the arguments of each generated function: (name, symbols) in order
 F_ARGS = [("C", list(Cm)), ("f_ned", list(f)), ("w_ie", list(wie)), ("w_en", list(wen)),
           ("inv_tau_g", [itg]), ("inv_tau_a", [ita]), ("g2r", [g2r])]  # fmt: skip
@@ -167,6 +215,26 @@ H_DOC = {
     "nhc": "non-holonomic constraint (body y, z velocity): C^T δv − C^T [v×] ψ",
     "mag": "magnetometer, unit reference field m (NED): rows 2-3 of τ (book eq. 3.33) on ψ",
 }
+
+
+HA_ARGS = {
+    "airspeed": [("u", list(u))],
+    "odometer": [("C", list(Cm)), ("vel", list(v)), ("k", [k_hat])],
+    "drag": [("C", list(Cm)), ("u", list(u)), ("mu", [mu])],
+    "nhc_mounted": [("C", list(Cm)), ("vel", list(v)), ("R", list(R)), ("omega_b", list(w)), ("lever", list(lev))],
+    "mag_bias": [("m", list(m)), ("C", list(Cm)), ("ubar", list(ub)), ("un", [un])],
+}
+HA_DOC = {
+    "airspeed": "true airspeed |v − w| at u = v̂ − ŵ (NED m/s): u^T δv / |u| − u_NE^T δw / |u|; columns 15-16: the wind",
+    "odometer": "odometer speed (1 + k) (C^T v)_x: (1 + k) (C^T δv − C^T [v×] ψ)_x + (C^T v)_x δk; column 15: δk",
+    "drag": "multirotor drag −μ (C^T u)_xy + δb_a,xy, u = v̂ − ŵ: −μ C^T δv + μ C^T [u×] ψ + μ C^T δw; "
+    "columns 15-16: the wind",
+    "nhc_mounted": "NHC at a reference point, vehicle axes y, z: R C^T δv − R C^T [v×] ψ + R [l×] δb_g + [û×] δε; "
+    "columns 15-17: the boresight",
+    "mag_bias": "magnetometer hard iron (3 × 3, by δb_m; ū = u/|u|, un = |u|): rows 2-3 of τ [m×] C (I − ū ū^T)/|u|, "
+    "magnitude −ū^T",
+}
+HA_EXTRA = {"airspeed": 2, "odometer": 1, "drag": 2, "nhc_mounted": 3, "mag_bias": 0}
 
 
 def _subs_c(args: list[tuple[str, list[sp.Symbol]]]) -> dict[sp.Symbol, sp.Symbol]:
@@ -268,7 +336,7 @@ def _py_expr(e: sp.Expr, sub: dict[sp.Symbol, sp.Symbol]) -> str:
     return sp.pycode(sp.sympify(e).xreplace(sub))
 
 
-def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix, FR: sp.Matrix) -> str:
+def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix, FR: sp.Matrix, HA: dict[str, sp.Matrix]) -> str:
     out = [
         "# ruff: noqa: E501",
         "# fmt: off",
@@ -384,6 +452,16 @@ def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix, FR: sp.Matrix) 
         out += [*pre, f"    h = np.zeros(({M.rows}, NX))"]
         out += [f"    h[{i}, {j}] = {_py_expr(e, sub)}" for i, j, e in _entries(M)]
         out.append("    return h")
+    for name, M in HA.items():
+        args = HA_ARGS[name]
+        sub = _subs_c(args)
+        params = ", ".join(f"{a}: Any" if len(s) > 1 else f"{a}: float" for a, s in args)
+        pre = [f"    {a} = np.asarray({a}, dtype=np.float64).ravel().tolist()" for a, sy in args if len(sy) > 1]
+        shape = f"{M.rows} × {M.cols}"
+        out += ["", "", f"def H_{name}({params}) -> np.ndarray:", f'    """{HA_DOC[name]} ({shape})."""']
+        out += [*pre, f"    h = np.zeros(({M.rows}, {M.cols}))"]
+        out += [f"    h[{i}, {j}] = {_py_expr(e, sub)}" for i, j, e in _entries(M)]
+        out.append("    return h")
     return "\n".join(out) + "\n"
 
 
@@ -424,7 +502,10 @@ def generate() -> tuple[str, str]:
     check_sensor_structure(FS)
     H = derive_H()
     FR = derive_F_omega_rv()
-    return gen_c(F, H, FS), gen_py(F, H, FS, FR)
+    HA = derive_H_aids()
+    for name, M in HA.items():
+        assert M.cols == (NX + HA_EXTRA[name] if HA_EXTRA[name] else 3), name
+    return gen_c(F, H, FS), gen_py(F, H, FS, FR, HA)
 
 
 def main(argv: list[str] | None = None) -> int:
