@@ -308,11 +308,7 @@ class ErrorStateEKF:
             qc[k0 : k0 + size] = rw**2
         self.qc = qc
         self.P = np.diag(sig**2)
-        self._F = np.zeros((n, n))
-        self._F[0:3, 3:6] = np.eye(3)
-        for k in range(n):
-            if math.isfinite(self._tau[k]):
-                self._F[k, k] = -1.0 / self._tau[k]
+        self._F = np.zeros((n, n))  # its cells: the generated ones (build_F), the rest stays 0
         self._eye = np.eye(n)
         self._g2r = 2.0 * 9.80665 / 6371000.0  # vertical-channel gravity gradient 2g/R (seed 001 eq. 96)
         # the generated F (ins_hil.fusion.generated_jacobians, 15-state layout) placed into this layout: its
@@ -423,20 +419,21 @@ class ErrorStateEKF:
         i = self.idx
         cols: list[int] = []
         blocks: list[Vec] = []
+        f_n = C_bn @ f_b
+        F15 = gj.F(C_bn, _floats(f_n), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, 0.0, 0.0)  # the generated δv̇ rows
         if i.ba is not None:
             cols += range(i.ba, i.ba + 3)
-            blocks.append(-C_bn[0:2, :])
+            blocks.append(F15[3:5, 12:15])  # −Ĉ
         if i.sa is not None:
             cols += range(i.sa, i.sa + 3)
-            blocks.append(-(C_bn * f_b[None, :])[0:2, :])
+            blocks.append(gj.F_sensor(C_bn, _floats(f_b), (0.0, 0.0, 0.0), 0.0)[3:5, 18:21])  # −Ĉ diag(f^b), generated
         if not cols:
             return
-        f_n = C_bn @ f_b
         P = self.P.copy()  # replaced, never mutated in place
         r = slice(6, 8)
         P[r, :] = 0.0
         P[:, r] = 0.0
-        M = np.array(((0.0, -float(f_n[2])), (float(f_n[2]), 0.0)))  # [f^n×] rows N, E; columns μ_N, μ_E
+        M = F15[3:5, 6:8]  # [f^n×] rows N, E; columns μ_N, μ_E
         A = -np.linalg.solve(M, np.hstack(blocks))
         X = np.array(cols)
         P[r, :] = A @ P[X, :]
