@@ -6,13 +6,12 @@ either core (``make_core("python" | "c", initial)``). The C sources are
 compiled at install time by cffi (``firmware_ref/cffi_build.py``) into
 ``ins_hil._cref`` (double) and ``ins_hil._cref_f32`` (float).
 
-The C filter mirrors ``ins_hil.fusion`` (15 states, Joseph sequential scalar
-updates, the same gates and feedback) for the ``NavConfig`` settings it
-supports: GNSS position/velocity with lever arm and σ scale, baro, the vibration
-noise, ``cov_every``, NHC and ZUPT/ZARU, the magnetometer, the no-aid hold and the
-alignment (in NavCore, then handed over). Others raise ``ValueError`` naming them
-(the list and the reasons: docs/ref_core.md). Delayed fusion (``delay.compensation``) rolls back
-as NavCore does (``ins_hist_t``: a snapshot per step, the log replayed).
+The C filter mirrors ``ins_hil.fusion`` (15 states, or 21 with ``filter.scale_factors``; Joseph sequential
+scalar updates, the same gates and feedback) for the ``NavConfig`` settings it supports: GNSS
+position/velocity with lever arm and σ scale, baro, the vibration noise, ``cov_every``, NHC and ZUPT/ZARU,
+the magnetometer, the no-aid hold and the alignment (in NavCore, then handed over). Others raise
+``ValueError`` naming them (the list and the reasons: docs/ref_core.md). Delayed fusion
+(``delay.compensation``) rolls back as NavCore does (``ins_hist_t``: a snapshot per step, the log replayed).
 
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
 sample's ``dt``), as firmware does: a sample whose ``dt`` differs from it by more
