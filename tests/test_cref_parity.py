@@ -270,9 +270,11 @@ def test_no_aid_hold_like_python(hover: Stream) -> None:
     _assert_parity(worst)
 
 
-def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
-    """Float vs double with lever arm, vibration, NHC, ZUPT (the bound docs/ref_core.md gives)."""
-    cfg = CAR_CASES["drive_like"]
+@pytest.mark.parametrize("case", ["drive_like", "scale_factors"])
+def test_float_build_with_the_settings_is_bounded(car: Stream, case: str) -> None:
+    """Float vs double with lever arm, vibration, NHC, ZUPT, and with the 21 states (scale factors): the bound
+    docs/ref_core.md gives."""
+    cfg = CAR_CASES[case]
     d = CNavCore(car.init, cfg, dt=DT)
     f = CNavCore(car.init, cfg, dt=DT, precision="float")
     worst = np.zeros(3)
