@@ -50,11 +50,12 @@ def _compare(a: Any, b: Any, path: str, out: list[str], n: list[int]) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["ardupilot_copter", "px4_hover", "px4_quad"])
+@pytest.mark.parametrize("name", ["ardupilot_copter", "px4_hover", "px4_quad", "drive0708"])
 def test_config_on_c_gives_the_python_figures(name: str) -> None:
     """Every figure of ``ins-hil replay`` (GNSS present, the outage protocol where the config has one) within
     1e-6 relative: px4_hover's hold / magnetometer and px4_quad's outage NEES and specific-force corrections
-    included (they differed by 1.6e-3 and 0.56 % while the C core published its state after the time update)."""
+    included (they differed by 1.6e-3 and 0.56 % while the C core published its state after the time update);
+    drive0708 on the 21-state C filter (248 figures)."""
     cfg = config.load(CONFIGS / f"{name}.toml")
     assert cfg.path is not None
     ds = report.load(cfg.path, cfg)
