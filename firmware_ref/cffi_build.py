@@ -27,7 +27,7 @@ def _rel(p: Path) -> str:
 _CDEF = """
 typedef {real} ins_real;
 typedef double ins_pos;
-#define INS_NX 15
+#define INS_NX 21
 #define INS_FDI_N 5
 #define INS_FDI_M 2
 typedef struct {{
@@ -50,15 +50,17 @@ typedef struct {{
     int hold, have_hold_pos; double hold_lat, hold_lon, hold_h;
     ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
     ins_real gap_accel_sigma, gap_rate_sigma;
+    int scale_factors; ins_real gyro_sf_sigma, accel_sf_sigma, sf_tau, p0_sg, p0_sa[3];
 }} ins_ekf_cfg_t;
 typedef struct {{
-    ins_real P[15][15]; ins_real x[15]; ins_real bg[3], ba[3]; ins_real qc[15];
+    ins_real P[21][21]; ins_real x[21]; ins_real bg[3], ba[3]; ins_real qc[21]; int nx; ins_real sg[3], sa[3];
     ins_pos baro_offset; int have_baro_offset; double baro_offset_var, t_baro, t_gnss_ok; ins_pos h_gnss;
     double gnss_var_d, baro_dt, gnss_dt; ins_real g_local;
     uint32_t accepted[7], rejected[7], consecutive[7]; ins_real last_ratio[7];
     uint32_t n_predict; ...;
 }} ins_ekf_t;
-typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; }} ins_core_t;
+typedef struct ins_out_s {{ double t; ...; }} ins_out_t;
+typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; ins_out_t *pub; }} ins_core_t;
 typedef struct {{ uint32_t snap_n; uint32_t meas_n; double max_delay; uint32_t rollbacks, too_old; ...; }} ins_hist_t;
 typedef struct {{
     ins_real lam[4]; ins_real w1[3]; ins_real w2[3]; ins_real th_prev[3]; ins_real dt; uint32_t n;
@@ -84,6 +86,7 @@ void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, 
                double dt, const ins_ekf_cfg_t *cfg, int filter);
 void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_end);
 void cref_state(const ins_core_t *c, double out[32]);
+void cref_pub_state(const ins_core_t *c, double out[32]);
 void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
               double *out, size_t out_stride);
 void cref_hist_init(ins_hist_t *h, double max_delay);

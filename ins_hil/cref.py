@@ -6,13 +6,12 @@ either core (``make_core("python" | "c", initial)``). The C sources are
 compiled at install time by cffi (``firmware_ref/cffi_build.py``) into
 ``ins_hil._cref`` (double) and ``ins_hil._cref_f32`` (float).
 
-The C filter mirrors ``ins_hil.fusion`` (15 states, Joseph sequential scalar
-updates, the same gates and feedback) for the ``NavConfig`` settings it
-supports: GNSS position/velocity with lever arm and σ scale, baro, the vibration
-noise, ``cov_every``, NHC and ZUPT/ZARU, the magnetometer, the no-aid hold and the
-alignment (in NavCore, then handed over). Others raise ``ValueError`` naming them
-(the list and the reasons: docs/ref_core.md). Delayed fusion (``delay.compensation``) rolls back
-as NavCore does (``ins_hist_t``: a snapshot per step, the log replayed).
+The C filter mirrors ``ins_hil.fusion`` (15 states, or 21 with ``filter.scale_factors``; Joseph sequential
+scalar updates, the same gates and feedback) for the ``NavConfig`` settings it supports: GNSS
+position/velocity with lever arm and σ scale, baro, the vibration noise, ``cov_every``, NHC and ZUPT/ZARU,
+the magnetometer, the no-aid hold and the alignment (in NavCore, then handed over). Others raise
+``ValueError`` naming them (the list and the reasons: docs/ref_core.md). Delayed fusion
+(``delay.compensation``) rolls back as NavCore does (``ins_hist_t``: a snapshot per step, the log replayed).
 
 The C core steps at a fixed period, set at initialisation (``dt``, or the first
 sample's ``dt``), as firmware does: a sample whose ``dt`` differs from it by more
@@ -67,13 +66,12 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     """The C filter configuration from a NavConfig; ValueError for what the C core lacks."""
     f = cfg.filter
     a = cfg.aids
-    # what stays Python-only (docs/ref_core.md, "What the C core runs"): the extra error states (scale factors,
-    # g-sensitivity, magnetometer hard iron, wind, mounting), other numerics, the model switches, adaptive R,
-    # the NHC at a lever arm / with suspension pitch, the drag aid
+    # what stays Python-only (docs/ref_core.md, "What the C core runs"): the extra error states (g-sensitivity,
+    # magnetometer hard iron, wind, mounting), other numerics, the model switches, adaptive R, the NHC at a lever
+    # arm / with suspension pitch, the drag aid
     unsupported = {
         "filter.gyro_bias": not f.gyro_bias,
         "filter.accel_bias": not f.accel_bias,
-        "filter.scale_factors": f.scale_factors,
         "filter.gyro_gsens": f.gyro_gsens,
         "filter.mag_bias": f.mag_bias,
         "filter.wind_states": f.wind_states,
@@ -136,12 +134,16 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "hold_gate": cfg.hold.gate,
         "gap_accel_sigma": f.gap_accel_sigma,
         "gap_rate_sigma": f.gap_rate_sigma,
+        "gyro_sf_sigma": f.gyro_sf_sigma,
+        "accel_sf_sigma": f.accel_sf_sigma,
+        "sf_tau": f.sf_tau,
+        "p0_sg": f.init_sf,
     }
     for name, value in pairs.items():
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"CNavCore: config value {name}={value!r} must be finite and >= 0")
         setattr(c, name, float(value))
-    for name in ("gyro_bias_tau", "accel_bias_tau", "vib_tau", "nhc_rate", "zupt_tau", "hold_rate"):
+    for name in ("gyro_bias_tau", "accel_bias_tau", "vib_tau", "nhc_rate", "zupt_tau", "hold_rate", "sf_tau"):
         if not pairs[name] > 0.0:
             raise ValueError(f"CNavCore: {name}={pairs[name]!r} must be > 0")
     lever = np.asarray(cfg.gnss.lever_arm_b, dtype=np.float64)
@@ -150,6 +152,12 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     for i in range(3):
         c.lever_arm[i] = float(lever[i])
     c.cov_every = int(f.cov_every)
+    c.scale_factors = 1 if f.scale_factors else 0  # the 21-state layout: + gyro and accelerometer scale factors
+    sa0 = (f.init_sf,) * 3 if f.init_accel_sf is None else tuple(f.init_accel_sf)
+    if len(sa0) != 3 or not all(math.isfinite(x) and x >= 0.0 for x in sa0):
+        raise ValueError(f"CNavCore: filter.init_accel_sf={f.init_accel_sf!r} must be 3 finite numbers >= 0")
+    for i in range(3):
+        c.p0_sa[i] = float(sa0[i])
     c.nhc, c.nhc_vertical, c.zupt = int(a.nhc), int(a.nhc_vertical), int(a.zupt)
     c.zaru = int(a.zaru and f.gyro_bias)
     c.g_local = 9.80665  # NavCore's gravity of the rest detector with alignment.mode = "given"
@@ -236,6 +244,7 @@ class CNavCore:
         if self._delayed:
             self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
+        self._pub: Any = None  # ins_out_t the C step writes its post-mechanization state to (step_begin)
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
@@ -270,10 +279,15 @@ class CNavCore:
             c.mech.dv_prev[i] = float(ins._dv_prev[i])
             c.ekf.bg[i] = float(a.bg[i])
             c.ekf.ba[i] = float(a.ba[i])
+            c.ekf.sg[i] = float(a.sg[i])
+            c.ekf.sa[i] = float(a.sa[i])
         c.mech.have_prev = 1 if ins._have_prev else 0
         P = np.asarray(a.kf.P, dtype=np.float64)
-        for i in range(15):
-            for j in range(15):
+        n = int(c.ekf.nx)
+        if P.shape != (n, n):  # the layouts agree by construction (_c_config refuses the others)
+            raise ValueError(f"CNavCore: the alignment's covariance is {P.shape}, the C core's {n} states")
+        for i in range(n):
+            for j in range(n):
                 c.ekf.P[i][j] = float(P[i, j])
         c.ekf.g_local = float(a.g_local)
         b = a.baro
@@ -308,6 +322,8 @@ class CNavCore:
             self._cfg,
             1 if self.filter else 0,
         )
+        if self._pub is not None:
+            self._core.pub = self._pub
         self.dt = dt
 
     def step(self, imu: ImuSample) -> NavState:
@@ -351,8 +367,17 @@ class CNavCore:
         return self.state()
 
     def step_begin(self, imu: ImuSample) -> NavState:
-        """:meth:`step` (the C step is one piece: the filter time update runs in it too)."""
-        return self.step(imu)
+        """:meth:`step`, returning the state after the mechanization, as ``NavCore.step_begin`` does: before the
+        filter time update, the ground aids and the hold of this step (σ of the previous step). The C step is one
+        piece (it writes that state to ``ins_core_t.pub`` on its way); :meth:`state` is the state after it all."""
+        if self._align is not None or self.dt is None:
+            return self.step(imu)
+        if self._pub is None:
+            self._pub = self._ffi.new("ins_out_t *")
+            self._core.pub = self._pub
+        self.step(imu)
+        self._lib_.cref_pub_state(self._core, self._out)
+        return self._nav_state(self._out_np.copy())
 
     def step_end(self) -> None:
         """Nothing left of the step :meth:`step_begin` ran (the ``RealTimeCore`` split step)."""
@@ -520,7 +545,10 @@ class CNavCore:
             s = self._initial
             return NavState(t=s.t, q_nb=s.q_nb.copy(), vel_ned=s.vel_ned.copy(), lat=s.lat, lon=s.lon, h=s.h)
         self._lib_.cref_state(self._core, self._out)
-        o = self._out_np.copy()
+        return self._nav_state(self._out_np.copy())
+
+    def _nav_state(self, o: Vec) -> NavState:
+        """The NavState of a 32-value C state record (``cref_state``)."""
         return NavState(
             t=float(o[0]),
             q_nb=o[1:5],
@@ -584,9 +612,11 @@ class CNavCore:
         return out[every - 1 :: every] if every > 1 else out
 
     def covariance(self) -> Vec:
-        """The EKF covariance P (15 × 15; order δr NED, δv NED, ψ NED, δb_g, δb_a)."""
+        """The EKF covariance P (15 × 15, order δr NED, δv NED, ψ NED, δb_g, δb_a; 21 × 21 with the scale factors
+        δs_g, δs_a after them, as ``NavCore.kf.P``)."""
         p = self._core.ekf.P
-        return np.array([[float(p[i][j]) for j in range(15)] for i in range(15)])
+        n = int(self._core.ekf.nx)
+        return np.array([[float(p[i][j]) for j in range(n)] for i in range(n)])
 
 
 def make_core(kind: str, initial: StrapdownState, config: NavConfig | None = None, **kwargs: Any) -> Any:

@@ -170,6 +170,13 @@ CAR_CASES = {
         gnss=GnssConfig(lever_arm_b=LEVER),
         aids=AidsConfig(nhc=True, zupt=True),
     ),
+    # drive0708's filter: the 21 states (gyro and accelerometer scale factors) with its own priors
+    "scale_factors": _cfg(
+        {"scale_factors": True, "init_accel_sf": (0.01, 0.002, 0.002), "gyro_vib_gain": 0.4},
+        gnss=GnssConfig(lever_arm_b=LEVER),
+        aids=AidsConfig(nhc=True, zupt=True),
+    ),
+    "scale_factors_cov_every": _cfg({"scale_factors": True, "cov_every": 4}, aids=AidsConfig(nhc=True)),
 }
 
 
@@ -263,9 +270,11 @@ def test_no_aid_hold_like_python(hover: Stream) -> None:
     _assert_parity(worst)
 
 
-def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
-    """Float vs double with lever arm, vibration, NHC, ZUPT (the bound docs/ref_core.md gives)."""
-    cfg = CAR_CASES["drive_like"]
+@pytest.mark.parametrize("case", ["drive_like", "scale_factors"])
+def test_float_build_with_the_settings_is_bounded(car: Stream, case: str) -> None:
+    """Float vs double with lever arm, vibration, NHC, ZUPT, and with the 21 states (scale factors): the bound
+    docs/ref_core.md gives."""
+    cfg = CAR_CASES[case]
     d = CNavCore(car.init, cfg, dt=DT)
     f = CNavCore(car.init, cfg, dt=DT, precision="float")
     worst = np.zeros(3)
@@ -286,7 +295,7 @@ def test_float_build_with_the_settings_is_bounded(car: Stream) -> None:
 
 def test_still_refused_settings_name_themselves(car: Stream) -> None:
     bad = {
-        "filter.scale_factors": _cfg({"scale_factors": True}),
+        "filter.gyro_gsens": _cfg({"gyro_gsens": True}),
         "filter.mag_bias": _cfg({"mag_bias": True}),
         "filter.wind_states": _cfg({"wind_states": True}, aids=AidsConfig(drag=True)),
         "aids.nhc_lever_b": _cfg(aids=AidsConfig(nhc=True, nhc_lever_b=np.array((1.0, 0.0, 0.0)))),

@@ -357,8 +357,8 @@ def test_cnavcore_interface_and_errors(flight10: Flight) -> None:
         strict.step(odd)
     with pytest.raises(ValueError, match="std_ne must be >= 0"):
         c.fuse(GnssFix(t=0.01, lat=LAT0, lon=LON0, h=H0, std_ne=-1.0))
-    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.scale_factors, adaptive"):
-        CNavCore(flight10.init, NavConfig(adaptive=True, filter=FilterConfig(scale_factors=True)))
+    with pytest.raises(ValueError, match=r"not supported by the C core: filter\.wind_states, adaptive"):
+        CNavCore(flight10.init, NavConfig(adaptive=True, filter=FilterConfig(wind_states=True)))
     with pytest.raises(ValueError, match="precision"):
         CNavCore(flight10.init, precision="half")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="unknown core 'rust'"):

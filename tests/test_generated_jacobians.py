@@ -127,10 +127,123 @@ def test_generated_jacobians_are_the_derivatives_of_the_nonlinear_models(seed: i
     np.testing.assert_allclose(
         gj.H_mag(m), _numjac(lambda x: (tau @ np.cross(m, (I3 + _sk(x[6:9])) @ m))[1:3], 2), **tol
     )
+    # the sensor-error columns: scale factors (f̃ = (1 + s) f + b) and the gyro g-sensitivity (ω̃ = ω + b + G f)
+    fb, its = C.T @ f, 1.0 / 3600.0
+
+    def dyn_s(xs: np.ndarray) -> np.ndarray:
+        dsg, dsa, dG = xs[0:3], xs[3:6], xs[6:15].reshape(3, 3)
+        out = np.zeros(gj.NXS)
+        out[3:6] = -C @ (fb * dsa)
+        out[6:9] = C @ (w * dsg + dG @ fb)
+        out[15:21] = -its * xs[0:6]
+        return out
+
+    J = np.zeros((gj.NXS, 15))
+    for k in range(15):
+        d = np.zeros(15)
+        d[k] = 1e-6
+        J[:, k] = (dyn_s(d) - dyn_s(-d)) / 2e-6
+    FS = gj.F_sensor(C, fb, w, its)
+    np.testing.assert_allclose(FS[:, 15:], J, **tol)
+    assert not np.any(FS[:, :15])
+
+
+def _numjac_n(fn, n_in: int, n_out: int, eps: float = 1e-6) -> np.ndarray:  # type: ignore[no-untyped-def]
+    J = np.zeros((n_out, n_in))
+    for k in range(n_in):
+        d = np.zeros(n_in)
+        d[k] = eps
+        J[:, k] = (np.asarray(fn(d)) - np.asarray(fn(-d))) / (2 * eps)
+    return J
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_generated_aid_rows_are_the_derivatives_of_their_models(seed: int) -> None:
+    """The aid rows with their own states (airspeed, odometer, drag, the mounted NHC, the magnetometer hard iron):
+    central differences of each nonlinear model by [15 base states, the aid's states]."""
+    rng = np.random.default_rng(100 + seed)
+    s = _random_state(rng)
+    C, w, lev, v = s["C"], s["w"], s["l"], s["v"]
+    I3 = np.eye(3)
+    tol = {"rtol": 1e-6, "atol": 1e-8}
+    Ct_T = lambda psi: C.T @ (I3 + _sk(psi))  # C_true^T
+    wind = rng.normal(0.0, 5.0, 2)
+    u = v - np.array((wind[0], wind[1], 0.0))
+
+    def ut(x: np.ndarray) -> np.ndarray:
+        return u + x[3:6] - np.array((x[15], x[16], 0.0))
+
+    np.testing.assert_allclose(gj.H_airspeed(u), _numjac_n(lambda x: [np.linalg.norm(ut(x))], 17, 1), **tol)
+    k = 0.03
+    np.testing.assert_allclose(
+        gj.H_odometer(C, v, k), _numjac_n(lambda x: [(1 + k + x[15]) * (Ct_T(x[6:9]) @ (v + x[3:6]))[0]], 16, 1), **tol
+    )
+    mu = 0.3
+    np.testing.assert_allclose(
+        gj.H_drag(C, u, mu), _numjac_n(lambda x: -mu * (Ct_T(x[6:9]) @ ut(x))[0:2] + x[12:14], 17, 2), **tol
+    )
+    R = dcm_from_quat(quat_normalize(rng.normal(size=4)))
+    np.testing.assert_allclose(
+        gj.H_nhc_mounted(C, v, R, w, lev),
+        _numjac_n(
+            lambda x: ((I3 - _sk(x[15:18])) @ R @ (Ct_T(x[6:9]) @ (v + x[3:6]) + np.cross(w - x[9:12], lev)))[1:3],
+            18,
+            2,
+        ),
+        **tol,
+    )
+    m = s["m"]
+    uu = rng.normal(size=3)
+    tau = mm.tau_matrix(m)
+
+    def mag(db: np.ndarray) -> np.ndarray:
+        ub = uu + db
+        nb = float(np.linalg.norm(ub))
+        return np.concatenate(((tau @ np.cross(m, C @ (ub / nb)))[1:3], [-nb]))
+
+    un = float(np.linalg.norm(uu))
+    np.testing.assert_allclose(gj.H_mag_bias(m, C, uu / un, un), _numjac_n(mag, 3, 3), **tol)
+
+
+def test_the_aid_modules_take_their_rows_from_the_generated_code() -> None:
+    """mm / the aid modules place the generated rows: the base columns, then the aid's own states."""
+    from ins_hil.aids.airspeed import true_airspeed
+    from ins_hil.aids.odometer import odometer_speed
+    from ins_hil.fusion.ekf import StateIndex
+
+    rng = np.random.default_rng(3)
+    s = _random_state(rng)
+    C, v, w, lev = s["C"], s["v"], s["w"], s["l"]
+    idx = StateIndex.build(FilterConfig(wind_states=True, mount_states=True), (("odo_sf", 1, 0.02, 0.0),))
+    wind = np.array((2.0, -1.0))
+    u = v - np.array((wind[0], wind[1], 0.0))
+    _, H = true_airspeed(idx, v, wind, 10.0)
+    g = gj.H_airspeed(u)
+    np.testing.assert_array_equal(H[:, 3:6], g[:, 3:6])
+    np.testing.assert_array_equal(H[:, idx.wind : idx.wind + 2], g[:, 15:17])
+    _, H = mm.multirotor_drag(idx, C, v, wind, np.zeros(3), 0.3)
+    g = gj.H_drag(C, u, 0.3)
+    np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])
+    np.testing.assert_array_equal(H[:, idx.ba : idx.ba + 3], g[:, 12:15])
+    np.testing.assert_array_equal(H[:, idx.wind : idx.wind + 2], g[:, 15:17])
+    R = dcm_from_quat(quat_normalize(rng.normal(size=4)))
+    _, H, _ = mm.nonholonomic_mounted(idx, C, v, R, w, lev)
+    g = gj.H_nhc_mounted(C, v, R, w, lev)
+    np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])
+    np.testing.assert_array_equal(H[:, idx.bg : idx.bg + 3], g[:, 9:12])
+    np.testing.assert_array_equal(H[:, idx.mnt : idx.mnt + 3], g[:, 15:18])
+    _, H = odometer_speed(idx, C, v, 0.01, 5.0)
+    g = gj.H_odometer(C, v, 0.01)
+    np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])
+    assert H[0, idx.extra["odo_sf"]] == g[0, 15] and H.shape == (1, idx.n)
+    idx_m = StateIndex.build(FilterConfig(mag_bias=True))
+    _, H = mm.magnetometer(idx_m, C, C.T @ s["m"] * 40.0, s["m"] * 40.0, np.array((0.01, 0.0, -0.02)))
+    assert idx_m.mb is not None and np.all(H[:, idx_m.mb : idx_m.mb + 3] != 0.0)
 
 
 @pytest.mark.parametrize("states", [{}, {"accel_bias": False}, {"gyro_bias": False, "accel_bias": False},
-                                    {"scale_factors": True}])  # fmt: skip
+                                    {"scale_factors": True}, {"gyro_gsens": True},
+                                    {"scale_factors": True, "gyro_gsens": True}])  # fmt: skip
 def test_the_filter_takes_its_F_and_H_from_the_generated_code(states: dict[str, bool]) -> None:
     """ErrorStateEKF.build_F and the measurement builders are the generated Jacobians placed in the filter's
     layout (bias columns moved or dropped; the states the derivation does not cover filled besides)."""
@@ -146,6 +259,13 @@ def test_the_filter_takes_its_F_and_H_from_the_generated_code(states: dict[str, 
     F_hand = kf.build_F(C, s["f"], s["wie"], s["wen"], C.T @ s["f"], s["w"], 0.8, 100.0)
     np.testing.assert_array_equal(F_hand[np.ix_(to, to)], F_gen[np.ix_(rows, rows)])
     assert np.any(F_hand[6:9, 6:9] != 0.0) and np.any(F_hand[3:6, 6:9] != 0.0)
+    # the sensor-error columns from the generated F_sensor, placed (full layout 15-17 s_g, 18-20 s_a, 21-29 G)
+    FS = gj.F_sensor(C, C.T @ s["f"], s["w"], 1.0 / kf.cfg.sf_tau)
+    for start, lo, hi in ((idx.sg, 15, 18), (idx.sa, 18, 21), (idx.gs, 21, 30)):
+        if start is not None:
+            cols = list(range(start, start + hi - lo))
+            np.testing.assert_array_equal(F_hand[np.ix_(range(9), cols)], FS[0:9, lo:hi])
+            assert np.any(FS[0:9, lo:hi] != 0.0)
 
     lat, lon, h = 0.8, 0.5, 100.0
     _, H = mm.gnss_position(idx, C, lat, lon, h, lat, lon, h, s["l"])

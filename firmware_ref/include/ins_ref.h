@@ -19,11 +19,11 @@
  * (body -> NED), SI units (rad, m, m/s, s); latitude/longitude in rad,
  * ellipsoidal height in m.
  *
- * Error state (15): x = [dr_N dr_E dr_D | dv_N dv_E dv_D | psi_N psi_E psi_D |
- * dbg_x dbg_y dbg_z | dba_x dba_y dba_z] with dr, dv = true - computed (m,
- * m/s, NED), psi the attitude error with C_hat = (I + [psi x]) C_true
+ * Error state (15, or 21 with the scale factors): x = [dr_N dr_E dr_D | dv_N dv_E dv_D | psi_N psi_E psi_D |
+ * dbg_x dbg_y dbg_z | dba_x dba_y dba_z (| dsg_x dsg_y dsg_z | dsa_x dsa_y dsa_z)] with dr, dv = true - computed
+ * (m, m/s, NED), psi the attitude error with C_hat = (I + [psi x]) C_true
  * (DIGEST_000 section 9), dbg/dba = true - estimated gyro/accel bias (body,
- * rad/s and m/s^2). The filter feeds back and resets x after each measurement
+ * rad/s and m/s^2), dsg/dsa = true - estimated gyro/accel scale factor (w~ = (1 + s) w + b). The filter feeds back and resets x after each measurement
  * group. Model, gates and feedback mirror ins_hil.fusion.ekf / ins_hil.core.NavCore
  * (checked to 1e-9 relative by tests/test_firmware.py).
  */
@@ -49,7 +49,7 @@ typedef double ins_real;
  * flight firmware that keeps lat/lon in double or integers). */
 typedef double ins_pos;
 
-#define INS_NX 15 /* error states */
+#define INS_NX 21 /* error states at most: 15, + 6 scale factors (ins_ekf_t.nx) */
 
 /* ---------------------------------------------------------------- quaternions */
 
@@ -158,6 +158,9 @@ typedef struct {
     ins_real hold_after, hold_std, hold_vel_std, hold_rate, hold_gate;
     /* lost IMU data: the unknown motion of a gap (FilterConfig.gap_accel_sigma m/s^2, gap_rate_sigma rad/s) */
     ins_real gap_accel_sigma, gap_rate_sigma;
+    /* scale-factor states (FilterConfig.scale_factors: 21 states): Gauss-Markov 1-sigma, tau (s), initial 1-sigma */
+    int scale_factors;
+    ins_real gyro_sf_sigma, accel_sf_sigma, sf_tau, p0_sg, p0_sa[3];
 } ins_ekf_cfg_t;
 
 enum {
@@ -214,6 +217,10 @@ typedef struct {
     ins_real hold_after, hold_std, hold_vel_std;
     double hold_period;
     ins_real gap_accel_sigma, gap_rate_sigma;
+    int nx;                 /* active error states: 15, or 21 with the scale factors */
+    ins_real sg[3], sa[3];  /* estimated gyro / accel scale factors (w~ = (1 + s) w + b) */
+    ins_real inv_tau_s;     /* 1 / sf_tau */
+    ins_real acc_w[3], acc_fb[3]; /* cov_every accumulators of the body rate and specific force (scale factors) */
 } ins_ekf_t;
 
 /* Default configuration: the defaults of ins_hil.fusion.ekf.FilterConfig / ins_hil.core.NavConfig. */
@@ -248,10 +255,14 @@ typedef struct {
     ins_ekf_t ekf;
     int filter;           /* 0: mechanization only; 1: + EKF predict each step */
     uint32_t steps;
+    /* if not NULL (caller-owned, set after ins_core_init): each step writes here the state after its
+     * mechanization, before the filter time update, the ground aids and the hold (the state a real-time loop
+     * publishes at once: NavCore.step_begin; sigma of the previous step). Not written during a roll-back replay. */
+    struct ins_out_s *pub;
 } ins_core_t;
 
 /* Flat output record of one state (for logs and the Python wrapper). */
-typedef struct {
+typedef struct ins_out_s {
     double t;
     ins_real q[4], v[3];
     ins_pos lat, lon, h;
@@ -294,7 +305,7 @@ void ins_core_output(const ins_core_t *c, ins_out_t *o);
  * (the last max_delay + 2 dt s of them), the IMU increments and the fused measurements since the oldest.
  * A measurement older than half a step is fused at the snapshot nearest its time, and the logged IMU
  * steps and measurements are replayed up to now (gated, not counted). Fixed capacity: INS_HIST_N steps
- * (max_delay / dt + 3 must fit: 1.9 s at 200 Hz, 0.38 s at 1 kHz; 1.35 MB in double, 0.76 MB in float:
+ * (max_delay / dt + 3 must fit: 1.9 s at 200 Hz, 0.38 s at 1 kHz; 2.1 MB in double, 1.1 MB in float (21 states):
  * allocate it statically or with the caller's allocator) and INS_HIST_MEAS measurements; a measurement older
  * than the history is fused now, as NavCore does beyond its history. */
 #ifndef INS_HIST_N

@@ -13,6 +13,7 @@ void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_
     ins_ekf_init(&c->ekf, cfg);
     c->filter = filter;
     c->steps = 0;
+    c->pub = NULL;
 }
 
 static void ground_aids(ins_core_t *c, const ins_real w_b[3]);
@@ -26,8 +27,14 @@ void ins_core_step(ins_core_t *c, const ins_real dth[3], const ins_real dv[3], d
         a[i] = dth[i] - c->ekf.bg[i] * dt;
         u[i] = dv[i] - c->ekf.ba[i] * dt;
     }
+    if (c->ekf.nx == 21)
+        for (i = 0; i < 3; ++i) { /* and scale-factor corrected (NavCore._mechanize) */
+            a[i] = a[i] / (K(1.0) + c->ekf.sg[i]);
+            u[i] = u[i] / (K(1.0) + c->ekf.sa[i]);
+        }
     ins_mech_step(&c->mech, a, u);
     c->mech.t = t_end;
+    if (c->pub != NULL && !c->ekf.replaying) ins_core_output(c, c->pub);
     if (c->filter) {
         ins_real w_b[3], f_b[3];
         for (i = 0; i < 3; ++i) {

@@ -18,7 +18,7 @@
 #include "ins_internal.h"
 #include "generated/ins_jacobians.h"
 
-enum { IR = 0, IV = 3, IA = 6, IG = 9, IB = 12 };
+enum { IR = 0, IV = 3, IA = 6, IG = 9, IB = 12, ISG = 15, ISA = 18 };
 
 void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg) {
     /* = ins_hil.fusion.ekf.FilterConfig() and ins_hil.core.NavConfig() */
@@ -81,6 +81,12 @@ void ins_ekf_default_cfg(ins_ekf_cfg_t *cfg) {
     cfg->hold_gate = K(5.0);
     cfg->gap_accel_sigma = K(1.0);
     cfg->gap_rate_sigma = K(3.0 * deg);
+    cfg->scale_factors = 0; /* = FilterConfig(): gyro_sf_sigma, accel_sf_sigma, sf_tau, init_sf */
+    cfg->gyro_sf_sigma = K(1e-3);
+    cfg->accel_sf_sigma = K(2e-3);
+    cfg->sf_tau = K(3600.0);
+    cfg->p0_sg = K(2e-3);
+    cfg->p0_sa[0] = cfg->p0_sa[1] = cfg->p0_sa[2] = K(2e-3);
 }
 
 void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
@@ -88,10 +94,23 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     const ins_real sig[INS_NX] = {cfg->p0_pos, cfg->p0_pos, cfg->p0_pos, cfg->p0_vel, cfg->p0_vel,
                                   cfg->p0_vel, cfg->p0_att, cfg->p0_att, cfg->p0_yaw, cfg->p0_bg,
                                   cfg->p0_bg,  cfg->p0_bg,  cfg->p0_ba,  cfg->p0_ba,  cfg->p0_ba};
+    e->nx = cfg->scale_factors ? 21 : 15;
     for (i = 0; i < INS_NX; ++i) {
         for (j = 0; j < INS_NX; ++j) e->P[i][j] = K(0.0);
-        e->P[i][i] = sig[i] * sig[i];
+        e->P[i][i] = i < 15 ? sig[i] * sig[i] : K(0.0);
         e->x[i] = K(0.0);
+        e->qc[i] = K(0.0);
+    }
+    e->inv_tau_s = K(0.0);
+    for (i = 0; i < 3; ++i) {
+        e->sg[i] = e->sa[i] = e->acc_w[i] = e->acc_fb[i] = K(0.0);
+        if (e->nx == 21) { /* ErrorStateEKF: init_sf / init_accel_sf, 2 sigma^2 / tau */
+            e->P[ISG + i][ISG + i] = cfg->p0_sg * cfg->p0_sg;
+            e->P[ISA + i][ISA + i] = cfg->p0_sa[i] * cfg->p0_sa[i];
+            e->qc[ISG + i] = K(2.0) * cfg->gyro_sf_sigma * cfg->gyro_sf_sigma / cfg->sf_tau;
+            e->qc[ISA + i] = K(2.0) * cfg->accel_sf_sigma * cfg->accel_sf_sigma / cfg->sf_tau;
+            e->inv_tau_s = K(1.0) / cfg->sf_tau;
+        }
     }
     for (i = 0; i < 3; ++i) {
         e->bg[i] = e->ba[i] = K(0.0);
@@ -192,15 +211,18 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
 
 /* F: the generated blocks (generated/ins_jacobians.h, from tools/derive_jacobians.py) and the bias rows */
 typedef struct {
-    ins_real itg, ita;
+    ins_real itg, ita, its;
     ins_gen_fblocks_t b;
+    int nx;
+    ins_gen_fsf_t s; /* the scale-factor columns (generated: F[6:9][15:18], F[3:6][18:21]) */
 } fmat_t;
 
 /* out = F in (F block-sparse: the structure derive_jacobians.py checks) */
 static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS_NX][INS_NX]) {
     const ins_gen_fblocks_t *b = &f->b;
+    const int n = f->nx;
     int i, j, k;
-    for (j = 0; j < INS_NX; ++j) {
+    for (j = 0; j < n; ++j) {
         for (i = 0; i < 3; ++i) {
             ins_real sv = K(0.0), sa = K(0.0);
             for (k = 0; k < 3; ++k) {
@@ -214,6 +236,18 @@ static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS
             out[IG + i][j] = -f->itg * in[IG + i][j];
             out[IB + i][j] = -f->ita * in[IB + i][j];
         }
+        if (n == 21)
+            for (i = 0; i < 3; ++i) {
+                ins_real sv = K(0.0), sa = K(0.0);
+                for (k = 0; k < 3; ++k) {
+                    sv += f->s.vsa[i][k] * in[ISA + k][j];
+                    sa += f->s.asg[i][k] * in[ISG + k][j];
+                }
+                out[IV + i][j] += sv;
+                out[IA + i][j] += sa;
+                out[ISG + i][j] = -f->its * in[ISG + i][j];
+                out[ISA + i][j] = -f->its * in[ISA + i][j];
+            }
     }
 }
 
@@ -221,15 +255,16 @@ static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS
 static void phi_mul(const fmat_t *f, ins_real dt, int second, ins_real in[INS_NX][INS_NX],
                     ins_real out[INS_NX][INS_NX], ins_real tmp[INS_NX][INS_NX], ins_real tmp2[INS_NX][INS_NX]) {
     const ins_real h2 = K(0.5) * dt * dt;
+    const int n = f->nx;
     int i, j;
     f_mul(f, in, tmp);
     if (second) {
         f_mul(f, tmp, tmp2);
-        for (i = 0; i < INS_NX; ++i)
-            for (j = 0; j < INS_NX; ++j) out[i][j] = in[i][j] + dt * tmp[i][j] + h2 * tmp2[i][j];
+        for (i = 0; i < n; ++i)
+            for (j = 0; j < n; ++j) out[i][j] = in[i][j] + dt * tmp[i][j] + h2 * tmp2[i][j];
     } else {
-        for (i = 0; i < INS_NX; ++i)
-            for (j = 0; j < INS_NX; ++j) out[i][j] = in[i][j] + dt * tmp[i][j];
+        for (i = 0; i < n; ++i)
+            for (j = 0; j < n; ++j) out[i][j] = in[i][j] + dt * tmp[i][j];
     }
 }
 
@@ -269,21 +304,26 @@ static void vibration_noise(ins_ekf_t *e, ins_real dt, const ins_real c[9], cons
 
 void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) { ins_ekf_predict_full(e, m, NULL, NULL); }
 
-/* P = Phi P Phi^T + diag(qd) (+ the vibration blocks qv), F at the mechanization's state with the specific force fn */
+/* P = Phi P Phi^T + diag(qd) (+ the vibration blocks qv), F at the mechanization's state with the specific force fn
+ * (NED) and, for the scale-factor columns, the body rate wb and specific force fb */
 static void propagate(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], const ins_real fn[3], ins_real dt,
-                      const ins_real qd[INS_NX], ins_real qv[2][3][3]) {
+                      const ins_real qd[INS_NX], ins_real qv[2][3][3], const ins_real wb[3], const ins_real fb[3]) {
     fmat_t f;
     ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX];
+    const int n = e->nx;
     int i, j;
     f.itg = e->inv_tau_g;
     f.ita = e->inv_tau_a;
+    f.its = e->inv_tau_s;
+    f.nx = n;
+    if (n == 21) ins_gen_F_sf(c9, fb, wb, &f.s);
     /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
     ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &f.b);
     phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
-    for (i = 0; i < INS_NX; ++i)
-        for (j = 0; j < INS_NX; ++j) b[i][j] = a[j][i];
+    for (i = 0; i < n; ++i)
+        for (j = 0; j < n; ++j) b[i][j] = a[j][i];
     phi_mul(&f, dt, e->second_order, b, a, t1, t2); /* Phi (Phi P)^T = Phi P Phi^T */
-    for (i = 0; i < INS_NX; ++i) {
+    for (i = 0; i < n; ++i) {
         for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (a[i][j] + a[j][i]);
         e->P[i][i] = a[i][i] + qd[i];
     }
@@ -297,13 +337,18 @@ static void propagate(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], c
 }
 
 void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[3], const ins_real f_b[3]) {
-    ins_real c9[9], qv[2][3][3], fn[3], qd[INS_NX];
+    ins_real c9[9], qv[2][3][3], fn[3], qd[INS_NX], wb[3] = {0, 0, 0}, fb[3] = {0, 0, 0};
     ins_real dt = m->dt;
     const int vib = e->vib && w_b != NULL && f_b != NULL;
     int i, j, k;
     ins_dcm_from_quat(m->q, c9);
     if (vib) vibration_noise(e, dt, c9, w_b, f_b, qv);
     for (i = 0; i < 3; ++i) fn[i] = m->f_ned[i];
+    if (w_b != NULL && f_b != NULL)
+        for (i = 0; i < 3; ++i) {
+            wb[i] = w_b[i];
+            fb[i] = f_b[i];
+        }
     if (e->cov_every > 1) { /* accumulate; propagate every cov_every steps with the averaged f (ErrorStateEKF) */
         if (vib)
             for (k = 0; k < 2; ++k)
@@ -312,11 +357,18 @@ void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[
         e->acc_n++;
         e->acc_dt += dt;
         for (i = 0; i < 3; ++i) e->acc_f[i] += m->f_ned[i];
+        if (e->nx == 21)
+            for (i = 0; i < 3; ++i) {
+                e->acc_fb[i] += fb[i];
+                e->acc_w[i] += wb[i];
+            }
         if (e->acc_n < e->cov_every) return;
         dt = e->acc_dt;
         for (i = 0; i < 3; ++i) {
             fn[i] = e->acc_f[i] / (ins_real)e->acc_n;
-            e->acc_f[i] = K(0.0);
+            fb[i] = e->acc_fb[i] / (ins_real)e->acc_n;
+            wb[i] = e->acc_w[i] / (ins_real)e->acc_n;
+            e->acc_f[i] = e->acc_fb[i] = e->acc_w[i] = K(0.0);
         }
         e->acc_n = 0;
         e->acc_dt = K(0.0);
@@ -329,15 +381,17 @@ void ins_ekf_predict_full(ins_ekf_t *e, const ins_mech_t *m, const ins_real w_b[
                     }
     }
     for (i = 0; i < INS_NX; ++i) qd[i] = e->qc[i] * dt;
-    propagate(e, m, c9, fn, dt, qd, vib ? qv : NULL);
+    propagate(e, m, c9, fn, dt, qd, vib ? qv : NULL, wb, fb);
 }
 
 void ins_ekf_predict_gap(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], ins_real gap) {
     /* ErrorStateEKF.predict_gap: F at the coasted state, the sensor noise over the gap and the unknown motion of
      * the gap: sigma_v = sa gap, sigma_r = sa gap^2 / 2, sigma_att = sw gap */
     const ins_real sa = e->gap_accel_sigma * gap, sw = e->gap_rate_sigma * gap;
-    ins_real qd[INS_NX];
+    ins_real qd[INS_NX], wb[3] = {0, 0, 0}, fb[3];
     int i;
+    for (i = 0; i < 3; ++i) /* C^T f_ned: the body specific force of the coasted state */
+        fb[i] = c9[i] * m->f_ned[0] + c9[3 + i] * m->f_ned[1] + c9[6 + i] * m->f_ned[2];
     for (i = 0; i < INS_NX; ++i) qd[i] = e->qc[i] * gap;
     for (i = 0; i < 3; ++i) {
         const ins_real r = K(0.5) * sa * gap;
@@ -345,7 +399,7 @@ void ins_ekf_predict_gap(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9]
         qd[IV + i] += sa * sa;
         qd[IA + i] += sw * sw;
     }
-    propagate(e, m, c9, m->f_ned, gap, qd, NULL);
+    propagate(e, m, c9, m->f_ned, gap, qd, NULL, wb, fb);
 }
 
 void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {
@@ -354,41 +408,43 @@ void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, i
      * evaluated as two rank-1 products: A = P - k (h^T P), P = A - (A h) k^T + r k k^T. */
     ins_real u[INS_NX], k[INS_NX], hp[INS_NX], ah[INS_NX];
     ins_real s = K(0.0), hx = K(0.0), innov;
+    const int n = e->nx;
     int i, j;
-    for (i = 0; i < INS_NX; ++i) {
+    for (i = 0; i < n; ++i) {
         ins_real acc = K(0.0);
-        for (j = 0; j < INS_NX; ++j) acc += e->P[i][j] * h[j];
+        for (j = 0; j < n; ++j) acc += e->P[i][j] * h[j];
         u[i] = acc; /* P h */
     }
-    for (i = 0; i < INS_NX; ++i) {
+    for (i = 0; i < n; ++i) {
         s += h[i] * u[i];
         hx += h[i] * e->x[i];
     }
     s += r;
     innov = z - hx;
-    for (i = 0; i < INS_NX; ++i) {
+    for (i = 0; i < n; ++i) {
         k[i] = u[i] / s; /* book eq. 3.17 */
         e->x[i] += k[i] * innov;
     }
-    for (j = 0; j < INS_NX; ++j) {
+    for (j = 0; j < n; ++j) {
         ins_real acc = K(0.0);
-        for (i = 0; i < INS_NX; ++i) acc += h[i] * e->P[i][j];
+        for (i = 0; i < n; ++i) acc += h[i] * e->P[i][j];
         hp[j] = acc; /* h^T P */
     }
-    for (i = 0; i < INS_NX; ++i)
-        for (j = 0; j < INS_NX; ++j) e->P[i][j] -= k[i] * hp[j];
-    for (i = 0; i < INS_NX; ++i) {
+    for (i = 0; i < n; ++i)
+        for (j = 0; j < n; ++j) e->P[i][j] -= k[i] * hp[j];
+    for (i = 0; i < n; ++i) {
         ins_real acc = K(0.0);
-        for (j = 0; j < INS_NX; ++j) acc += e->P[i][j] * h[j];
+        for (j = 0; j < n; ++j) acc += e->P[i][j] * h[j];
         ah[i] = acc; /* A h */
     }
-    for (i = 0; i < INS_NX; ++i)
-        for (j = 0; j < INS_NX; ++j) e->P[i][j] += -ah[i] * k[j] + r * k[i] * k[j];
+    for (i = 0; i < n; ++i)
+        for (j = 0; j < n; ++j) e->P[i][j] += -ah[i] * k[j] + r * k[i] * k[j];
 }
 
 void ins_ekf_symmetrize(ins_ekf_t *e) {
+    const int n = e->nx;
     int i, j;
-    for (i = 0; i < INS_NX; ++i)
+    for (i = 0; i < n; ++i)
         for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (e->P[i][j] + e->P[j][i]);
 }
 
@@ -407,6 +463,10 @@ void ins_ekf_feedback(ins_ekf_t *e, ins_mech_t *m) {
         mpsi[i] = -e->x[IA + i];
         e->bg[i] += e->x[IG + i];
         e->ba[i] += e->x[IB + i];
+        if (e->nx == 21) {
+            e->sg[i] += e->x[ISG + i];
+            e->sa[i] += e->x[ISA + i];
+        }
     }
     /* attitude: C <- (I - [psi x]) C_hat, i.e. q <- q(-psi) (x) q (DIGEST_000 section 9);
      * not renormalised here: the next mechanization step renormalises */

@@ -29,11 +29,10 @@ void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_
 void cref_hist_init(ins_hist_t *h, double max_delay) { ins_hist_init(h, max_delay); }
 /* t, q[4], v[3], lat, lon, h, bg[3], ba[3], std_pos[3], std_vel[3], std_att[3], omega_b[3], f_b[3] (32 values);
  * omega_b, f_b: the last bias-compensated increments / dt (rad/s, m/s^2, body) */
-static void put(const ins_core_t *c, double *o, size_t n) {
-    ins_out_t r;
+static void put_out(const ins_core_t *c, const ins_out_t *rp, double *o, size_t n) {
+    const ins_out_t r = *rp;
     double all[32];
     size_t i;
-    ins_core_output(c, &r);
     all[0] = r.t;
     for (i = 0; i < 4; ++i) all[1 + i] = (double)r.q[i];
     for (i = 0; i < 3; ++i) {
@@ -49,7 +48,14 @@ static void put(const ins_core_t *c, double *o, size_t n) {
     all[8] = r.lat; all[9] = r.lon; all[10] = r.h;
     for (i = 0; i < n; ++i) o[i] = all[i];
 }
+static void put(const ins_core_t *c, double *o, size_t n) {
+    ins_out_t r;
+    ins_core_output(c, &r);
+    put_out(c, &r, o, n);
+}
 void cref_state(const ins_core_t *c, double out[32]) { put(c, out, 32); }
+/* the state the last step published after its mechanization (c->pub; as cref_state) */
+void cref_pub_state(const ins_core_t *c, double out[32]) { put_out(c, c->pub, out, 32); }
 /* n steps in one call (dts: each step's length, or NULL: the fixed step); out: n records of out_stride values */
 void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
               double *out, size_t out_stride) {

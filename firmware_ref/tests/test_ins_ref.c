@@ -220,7 +220,7 @@ static void test_ekf(void) {
     g.std_vel = (ins_real)0.05;
     for (k = 0; k < 60; ++k) { /* 60 s, GNSS at 1 Hz */
         for (i = 0; i < 100; ++i) ins_core_step(&c, dth, dv, c.mech.t + dt);
-        for (i = 0; i < INS_NX; ++i) {
+        for (i = 0; i < c.ekf.nx; ++i) {
             CHECK(c.ekf.P[i][i] > 0, "P[%d][%d] = %g not positive", i, i, (double)c.ekf.P[i][i]);
             for (j = 0; j < i; ++j) CHECK(c.ekf.P[i][j] == c.ekf.P[j][i], "P not symmetric");
         }
@@ -253,20 +253,20 @@ static void test_ekf(void) {
         ins_real hv[INS_NX], u[INS_NX], Pc[INS_NX][INS_NX];
         double s = 0.3, maxd = 0.0;
         ins_ekf_init(&e, &cfg);
-        for (i = 0; i < INS_NX; ++i)
-            for (j = 0; j < INS_NX; ++j) e.P[i][j] += (ins_real)(0.01 * cos((double)(i + j)) * (i == j ? 10.0 : 1.0));
-        for (i = 0; i < INS_NX; ++i) hv[i] = (ins_real)(i % 4 == 0 ? 1.0 : (i % 3 == 0 ? -0.5 : 0.0));
-        for (i = 0; i < INS_NX; ++i) {
+        for (i = 0; i < e.nx; ++i)
+            for (j = 0; j < e.nx; ++j) e.P[i][j] += (ins_real)(0.01 * cos((double)(i + j)) * (i == j ? 10.0 : 1.0));
+        for (i = 0; i < e.nx; ++i) hv[i] = (ins_real)(i % 4 == 0 ? 1.0 : (i % 3 == 0 ? -0.5 : 0.0));
+        for (i = 0; i < e.nx; ++i) {
             double acc = 0.0;
-            for (j = 0; j < INS_NX; ++j) acc += (double)(e.P[i][j] * hv[j]);
+            for (j = 0; j < e.nx; ++j) acc += (double)(e.P[i][j] * hv[j]);
             u[i] = (ins_real)acc;
             s += acc * (double)hv[i];
         }
-        for (i = 0; i < INS_NX; ++i)
-            for (j = 0; j < INS_NX; ++j) Pc[i][j] = (ins_real)((double)e.P[i][j] - (double)(u[i] * u[j]) / s);
+        for (i = 0; i < e.nx; ++i)
+            for (j = 0; j < e.nx; ++j) Pc[i][j] = (ins_real)((double)e.P[i][j] - (double)(u[i] * u[j]) / s);
         ins_ekf_update_scalar(&e, hv, (ins_real)0.1, (ins_real)0.3);
-        for (i = 0; i < INS_NX; ++i)
-            for (j = 0; j < INS_NX; ++j)
+        for (i = 0; i < e.nx; ++i)
+            for (j = 0; j < e.nx; ++j)
                 if (fabs((double)(e.P[i][j] - Pc[i][j])) > maxd) maxd = fabs((double)(e.P[i][j] - Pc[i][j]));
         CHECK(maxd < 1e3 * EPS, "Joseph vs conventional %g", maxd);
     }

@@ -11,9 +11,13 @@ m/s²), δ = true − computed, Ĉ_b^n = (I + [ψ×]) C_b^n, so C_true = (I − 
 written as the true quantity minus the computed one, as a function of the error state; F and H are its
 Jacobians at x = 0 (SymPy differentiates, nothing is linearised by hand):
 
-* velocity: δv̇ = (I − [ψ×]) (f^n − Ĉ δb_a) − f^n − (2ω_ie + ω_en) × δv + (0, 0, (2g/R) δr_D)
-  (the specific force through the true attitude with the true bias, minus the computed one);
-  δṙ = δv; ψ̇ = −ω_in × ψ + Ĉ δb_g (book eq. 3.40); δḃ = −δb/τ (Gauss-Markov).
+* velocity: δv̇ = (I − [ψ×]) (f^n − Ĉ (δb_a + diag(f^b) δs_a)) − f^n − (2ω_ie + ω_en) × δv + (0, 0, (2g/R) δr_D)
+  (the specific force through the true attitude with the true bias and scale factor, minus the computed one;
+  f̃ = (1 + s) f + b, to first order in δs at the compensated f^b);
+  δṙ = δv; ψ̇ = −ω_in × ψ + Ĉ (δb_g + diag(ω^b) δs_g + δG f^b) (book eq. 3.40, with the gyro scale factor and
+  g-sensitivity G, row-major); δḃ = −δb/τ, δṡ = −δs/τ_s (Gauss-Markov); δĠ = 0 (random walk).
+  F (15 × 15) is the base model's; the sensor-error columns (scale factors, g-sensitivity: ``F_sensor``) are the
+  same model's derivatives by the extra states, generated apart so a filter without them does not pay for them.
 * GNSS antenna position: r + C_true l − (r̂ + Ĉ l); velocity: v + C_true ((ω̂ − δb_g) × l) − (v̂ + Ĉ (ω̂ × l)).
 * baro height: h_true − ĥ = −δr_D. ZUPT: 0 − v̂ = δv. ZARU: 0 − ω̄ = −δb_g.
 * NHC: (C_true^T v_true − Ĉ^T v̂)_{y,z} with C_true^T = Ĉ^T (I + [ψ×]).
@@ -45,32 +49,78 @@ def skew(a: sp.Matrix) -> sp.Matrix:
     return sp.Matrix([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
 
 
-# error state
+# error state: the base 15, then the sensor-error states (scale factors, gyro g-sensitivity row-major)
 dr, dv, psi, dbg, dba = vec("dr"), vec("dv"), vec("psi"), vec("dbg"), vec("dba")
+dsg, dsa = vec("dsg"), vec("dsa")
+dG = sp.Matrix(3, 3, sp.symbols("dG0:9", real=True))
 X = sp.Matrix.vstack(dr, dv, psi, dbg, dba)
-ZERO = {s: 0 for s in X}
+XS = sp.Matrix.vstack(dsg, dsa, dG.reshape(9, 1))
+NXS = NX + XS.rows  # the full layout of F_SENSOR_CELLS: [δr δv ψ δb_g δb_a δs_g δs_a δG]
+ZERO = {s: 0 for s in (*X, *XS)}
 # inputs
 Cm = sp.Matrix(3, 3, sp.symbols("C0:9", real=True))  # C_b^n, row-major
 f, wie, wen = vec("f"), vec("wie"), vec("wen")
-itg, ita, g2r = sp.symbols("itg ita g2r", real=True)
+itg, ita, its, g2r = sp.symbols("itg ita its g2r", real=True)
+fb, wb = vec("fb"), vec("wb")  # compensated body specific force (m/s²) and rate (rad/s)
 lev, w, v, m = vec("l"), vec("w"), vec("v"), vec("m")
 I3 = sp.eye(3)
 
 
-def jac(expr: sp.Matrix) -> sp.Matrix:
-    return sp.simplify(expr.jacobian(X).subs(ZERO))
+def jac(expr: sp.Matrix, by: sp.Matrix = X) -> sp.Matrix:
+    return sp.simplify(expr.jacobian(by).subs(ZERO))
 
 
-def derive_F() -> sp.Matrix:
-    """Continuous F (15 × 15) of the error model (module doc)."""
+def _dynamics() -> sp.Matrix:
+    """ẋ of the full error state [δr δv ψ δb_g δb_a δs_g δs_a δG] (module doc)."""
     coriolis = 2 * wie + wen
     w_in = wie + wen
     ddr = dv
-    ddv = (I3 - skew(psi)) * (f - Cm * dba) - f - coriolis.cross(dv) + sp.Matrix([0, 0, g2r * dr[2]])
-    dpsi = -w_in.cross(psi) + Cm * dbg
-    ddbg = -itg * dbg
-    ddba = -ita * dba
-    return jac(sp.Matrix.vstack(ddr, ddv, dpsi, ddbg, ddba))
+    ddv = (
+        (I3 - skew(psi)) * (f - Cm * (dba + sp.diag(*fb) * dsa))
+        - f
+        - coriolis.cross(dv)
+        + sp.Matrix([0, 0, g2r * dr[2]])
+    )
+    dpsi = -w_in.cross(psi) + Cm * (dbg + sp.diag(*wb) * dsg + dG * fb)
+    return sp.Matrix.vstack(ddr, ddv, dpsi, -itg * dbg, -ita * dba, -its * dsg, -its * dsa, sp.zeros(9, 1))
+
+
+def derive_F() -> sp.Matrix:
+    """Continuous F (15 × 15) of the base error model (module doc): ∂ẋ/∂x of the first 15 states."""
+    return jac(_dynamics()[:NX, :])
+
+
+def derive_F_sensor() -> sp.Matrix:
+    """The sensor-error columns of F (NXS × 15): ∂ẋ/∂[δs_g δs_a δG] of every state, full layout."""
+    return jac(_dynamics(), XS)
+
+
+lat, rm, rn, vN, vE = sp.symbols("lat rm rn vN vE", real=True)
+
+
+def derive_F_omega_rv() -> sp.Matrix:
+    """The ∂ω/∂r, ∂ω/∂v terms of F (``FilterConfig.omega_rv_terms``; seed 001 eqs. 94–98 in NED), 15 × 15: what
+    the position and velocity errors add through the Earth rate and the transport rate, beyond the base F.
+
+    The true rates at the true position and velocity, with δr = (δN, δE, δD) m: φ = φ̂ + δN/(M+h),
+    h = ĥ − δD (M, N held constant, as seed 001), v = v̂ + δv (v_D enters only at order v_D/R: 0):
+    ω_ie = Ω (cos φ, 0, −sin φ), written with the computed (ω_ie,N, ω_ie,D) = Ω (cos φ̂, −sin φ̂) rotated by
+    δN/(M+h); ω_en = (v_E/(N+h), −v_N/(M+h), −v_E tan φ/(N+h)). The attitude rows gain ∂ω_in/∂x (the true
+    rate minus the computed one), the velocity rows ∂/∂x of −(2ω_ie + ω_en) × v beyond −(2ω_ie + ω_en) × δv."""
+    d = dr[0] / rm
+    rm_t, rn_t = rm - dr[2], rn - dr[2]
+    iN, iD = wie[0], wie[2]
+    w_ie_t = sp.Matrix([iN * sp.cos(d) + iD * sp.sin(d), 0, iD * sp.cos(d) - iN * sp.sin(d)])
+    vt = sp.Matrix([vN + dv[0], vE + dv[1], 0])
+    w_en_t = sp.Matrix([vt[1] / rn_t, -vt[0] / rm_t, -vt[1] * sp.tan(lat + d) / rn_t])
+    v0 = sp.Matrix([vN, vE, 0])
+    w_en_0 = w_en_t.subs(ZERO)
+    datt = (w_ie_t + w_en_t) - (wie.subs({wie[1]: 0}) + w_en_0)
+    c_t = 2 * w_ie_t + w_en_t
+    c_0 = c_t.subs(ZERO)
+    dvel = -c_t.cross(v0) + c_0.cross(v0) - (c_t - c_0).cross(dv)
+    rows = sp.Matrix.vstack(sp.zeros(3, 1), dvel, datt, sp.zeros(6, 1))
+    return jac(rows)
 
 
 def derive_H() -> dict[str, sp.Matrix]:
@@ -94,9 +144,59 @@ def derive_H() -> dict[str, sp.Matrix]:
     return h
 
 
+# the aid rows with states of their own (Python only: the C core refuses those aids): the model's true value minus
+# its computed one, by the 15 base states and the aid's own states (columns 15.. of the generated row)
+dw = sp.Matrix(sp.symbols("dw0:2", real=True))  # wind north, east (m/s)
+deps = vec("deps")  # IMU → vehicle boresight error (R_true = (I − [δε×]) R̂)
+dk = sp.Symbol("dk", real=True)  # odometer scale factor
+db_m = vec("dbm")  # magnetometer hard iron (units of |m_ref|)
+u, R, ub = vec("u"), sp.Matrix(3, 3, sp.symbols("R0:9", real=True)), vec("ub")
+un = sp.Symbol("un", positive=True)
+mu, k_hat = sp.symbols("mu k", real=True)
+for _s in (*dw, *deps, dk, *db_m):
+    ZERO[_s] = 0
+
+
+def jac_ext(expr: sp.Matrix, extra: sp.Matrix) -> sp.Matrix:
+    """∂expr/∂[x, extra] at zero, not simplified (the aid rows are short)."""
+    return expr.jacobian(sp.Matrix.vstack(X, extra)).subs(ZERO).applyfunc(sp.factor_terms)
+
+
+def derive_H_aids() -> dict[str, sp.Matrix]:
+    """The aid rows with their own states (module doc conventions; u: the computed quantity the row is taken at)."""
+    C_true_T = Cm.T * (I3 + skew(psi))  # C_true^T = Ĉ^T (I + [ψ×])
+    h: dict[str, sp.Matrix] = {}
+    # true airspeed |v − w| (u = v̂ − ŵ, NED; the wind horizontal), by [x, δw_N, δw_E]
+    ut = u + dv - sp.Matrix([dw[0], dw[1], 0])
+    h["airspeed"] = jac_ext(sp.Matrix([sp.sqrt(ut.dot(ut))]), dw)
+    # odometer speed (1 + k) (C^T v)_x, by [x, δk]
+    h["odometer"] = jac_ext(sp.Matrix([(1 + k_hat + dk) * (C_true_T * (v + dv))[0]]), sp.Matrix([dk]))
+    # multirotor drag on the bias-compensated specific force: −μ (C^T (v − w))_xy + δb_a,xy, by [x, δw_N, δw_E]
+    fd = -mu * (C_true_T * ut)[0:2, :] + dba[0:2, :]
+    h["drag"] = jac_ext(fd, dw)
+    # NHC at a reference point in vehicle axes: R (C^T v + ω × l), rows y, z (ω = ω̂ − δb_g), by [x, δε]
+    u_ref = (I3 - skew(deps)) * R * (C_true_T * (v + dv) + (w - dbg).cross(lev))
+    h["nhc_mounted"] = jac_ext(u_ref[1:3, :], deps)
+    # magnetometer hard iron: rows 2-3 of τ (m × Ĉ ū), ū = (u + δb_m)/|u + δb_m| (u = |u| ū: the corrected field,
+    # the computed u = u_true + δb_m), and the magnitude −|u + δb_m|, by δb_m only (the ψ columns: H_mag); ū is a
+    # unit vector (reduced modulo |ū|² = 1)
+    k = 1 / (1 + m[0])
+    tau = sp.Matrix(
+        [[m[0], m[1], m[2]], [-m[1], 1 - m[1] ** 2 * k, -m[1] * m[2] * k], [-m[2], -m[1] * m[2] * k, 1 - m[2] ** 2 * k]]
+    )
+    ut_b = un * ub + db_m
+    nb = sp.sqrt(ut_b.dot(ut_b))
+    g = tau * m.cross(Cm * (ut_b / nb))
+    jb = sp.Matrix.vstack(g[1:3, :], sp.Matrix([-nb])).jacobian(db_m).subs(ZERO)
+    h["mag_bias"] = jb.applyfunc(lambda e: sp.factor_terms(sp.factor_terms(e).subs(ub.dot(ub), 1)))
+    return h
+
+
 # the arguments of each generated function: (name, symbols) in order
 F_ARGS = [("C", list(Cm)), ("f_ned", list(f)), ("w_ie", list(wie)), ("w_en", list(wen)),
           ("inv_tau_g", [itg]), ("inv_tau_a", [ita]), ("g2r", [g2r])]  # fmt: skip
+FRV_ARGS = [("w_ie", list(wie)), ("lat", [lat]), ("rm", [rm]), ("rn", [rn]), ("vN", [vN]), ("vE", [vE])]
+FS_ARGS = [("C", list(Cm)), ("f_b", list(fb)), ("w_b", list(wb)), ("inv_tau_s", [its])]
 H_ARGS = {
     "gnss_pos": [("C", list(Cm)), ("lever", list(lev))],
     "gnss_vel": [("C", list(Cm)), ("omega_b", list(w)), ("lever", list(lev))],
@@ -115,6 +215,26 @@ H_DOC = {
     "nhc": "non-holonomic constraint (body y, z velocity): C^T δv − C^T [v×] ψ",
     "mag": "magnetometer, unit reference field m (NED): rows 2-3 of τ (book eq. 3.33) on ψ",
 }
+
+
+HA_ARGS = {
+    "airspeed": [("u", list(u))],
+    "odometer": [("C", list(Cm)), ("vel", list(v)), ("k", [k_hat])],
+    "drag": [("C", list(Cm)), ("u", list(u)), ("mu", [mu])],
+    "nhc_mounted": [("C", list(Cm)), ("vel", list(v)), ("R", list(R)), ("omega_b", list(w)), ("lever", list(lev))],
+    "mag_bias": [("m", list(m)), ("C", list(Cm)), ("ubar", list(ub)), ("un", [un])],
+}
+HA_DOC = {
+    "airspeed": "true airspeed |v − w| at u = v̂ − ŵ (NED m/s): u^T δv / |u| − u_NE^T δw / |u|; columns 15-16: the wind",
+    "odometer": "odometer speed (1 + k) (C^T v)_x: (1 + k) (C^T δv − C^T [v×] ψ)_x + (C^T v)_x δk; column 15: δk",
+    "drag": "multirotor drag −μ (C^T u)_xy + δb_a,xy, u = v̂ − ŵ: −μ C^T δv + μ C^T [u×] ψ + μ C^T δw; "
+    "columns 15-16: the wind",
+    "nhc_mounted": "NHC at a reference point, vehicle axes y, z: R C^T δv − R C^T [v×] ψ + R [l×] δb_g + [û×] δε; "
+    "columns 15-17: the boresight",
+    "mag_bias": "magnetometer hard iron (3 × 3, by δb_m; ū = u/|u|, un = |u|): rows 2-3 of τ [m×] C (I − ū ū^T)/|u|, "
+    "magnitude −ū^T",
+}
+HA_EXTRA = {"airspeed": 2, "odometer": 1, "drag": 2, "nhc_mounted": 3, "mag_bias": 0}
 
 
 def _subs_c(args: list[tuple[str, list[sp.Symbol]]]) -> dict[sp.Symbol, sp.Symbol]:
@@ -151,7 +271,7 @@ def _entries(M: sp.Matrix) -> list[tuple[int, int, sp.Expr]]:
     return [(i, j, M[i, j]) for i in range(M.rows) for j in range(M.cols) if M[i, j] != 0]
 
 
-def gen_c(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
+def gen_c(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix) -> str:
     out = [
         "/* GENERATED by firmware_ref/tools/derive_jacobians.py from one SymPy derivation - do not edit.",
         " * The Jacobians of the 15-state error-state filter (ins_ref.h): F (continuous, block form) and the",
@@ -182,6 +302,24 @@ def gen_c(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
                 out.append(f"    b->{name}[{i}][{j}] = {_c_expr(F[r0 + i, c0 + j], sub)};")
     out.append(f"    b->vr_dd = {_c_expr(F[5, 2], sub)};")
     out.append("}")
+    out += [
+        "",
+        "/* The scale-factor columns of F (21-state layout: states 15-17 = gyro, 18-20 = accelerometer scale factor);",
+        " * their own rows are -1/tau_s on the diagonal (checked by the generator). */",
+        "typedef struct {",
+        "    ins_real asg[3][3];    /* F[6:9][15:18] */",
+        "    ins_real vsa[3][3];    /* F[3:6][18:21] */",
+        "} ins_gen_fsf_t;",
+        "",
+        "static inline void ins_gen_F_sf(const ins_real C[9], const ins_real f_b[3], const ins_real w_b[3],",
+        "                                ins_gen_fsf_t *b) {",
+    ]
+    sub = _subs_c(FS_ARGS)
+    for name, (r0, c0) in {"asg": (6, 0), "vsa": (3, 3)}.items():
+        for i in range(3):
+            for j in range(3):
+                out.append(f"    b->{name}[{i}][{j}] = {_c_expr(FS[r0 + i, c0 + j], sub)};")
+    out.append("}")
     for name, M in H.items():
         args = H_ARGS[name]
         sub = _subs_c(args)
@@ -198,7 +336,7 @@ def _py_expr(e: sp.Expr, sub: dict[sp.Symbol, sp.Symbol]) -> str:
     return sp.pycode(sp.sympify(e).xreplace(sub))
 
 
-def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
+def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix, FR: sp.Matrix, HA: dict[str, sp.Matrix]) -> str:
     out = [
         "# ruff: noqa: E501",
         "# fmt: off",
@@ -211,6 +349,7 @@ def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
         "",
         "from __future__ import annotations",
         "",
+        "import math",
         "from collections.abc import Sequence",
         "from typing import Any",
         "",
@@ -248,7 +387,61 @@ def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
         "    vals = F_values(c, f_ned, w_ie, w_en, inv_tau_g, inv_tau_a, g2r)",
         "    out.put([i * NX + j for i, j in F_CELLS], vals)",
         "    return out",
+        "",
+        "",
+        f"#: the full layout of the sensor-error columns: {NX} base states, gyro / accelerometer scale factors,",
+        "#: gyro g-sensitivity (row-major)",
+        f"NXS = {NXS}",
+        "#: the (row, column) in that layout of every entry of the scale-factor and g-sensitivity columns of F that is",
+        "#: not identically zero, in the order of :func:`F_sensor_values`",
+        "F_SENSOR_CELLS: tuple[tuple[int, int], ...] = (",
     ]
+    ent_s = [(i, NX + j, e) for i, j, e in _entries(FS)]
+    out += [f"    ({i}, {j})," for i, j, _ in ent_s]
+    out += [
+        ")",
+        "",
+        "",
+        "def F_sensor_values(C: Sequence[float], f_b: Sequence[float], w_b: Sequence[float],",
+        "                    inv_tau_s: float) -> tuple[float, ...]:",
+        '    """The entries of F at :data:`F_SENSOR_CELLS` (C: C_b^n row by row; f_b, w_b: the compensated body',
+        '    specific force and rate; inv_tau_s: 1 / the scale factors\' correlation time)."""',
+        "    return (",
+    ]
+    sub = _subs_c(FS_ARGS)
+    out += [f"        {_py_expr(e, sub)}," for _, _, e in ent_s]
+    out += [
+        "    )",
+        "",
+        "",
+        "def F_sensor(C: np.ndarray, f_b: Sequence[float], w_b: Sequence[float], inv_tau_s: float) -> np.ndarray:",
+        '    """The sensor-error columns of F in the full layout (NXS × NXS; the base columns zero)."""',
+        "    out = np.zeros((NXS, NXS))",
+        "    c = np.asarray(C, dtype=np.float64).ravel().tolist()",
+        "    vals = F_sensor_values(c, [float(x) for x in f_b], [float(x) for x in w_b], inv_tau_s)",
+        "    out.put([i * NXS + j for i, j in F_SENSOR_CELLS], vals)",
+        "    return out",
+        "",
+        "",
+        "#: the (row, column) of every entry the ∂ω/∂r, ∂ω/∂v terms add to F (15-state layout; omega_rv_terms), in",
+        "#: the order of :func:`F_omega_rv_values`",
+        "F_OMEGA_RV_CELLS: tuple[tuple[int, int], ...] = (",
+    ]
+    ent_r = _entries(FR)
+    out += [f"    ({i}, {j})," for i, j, _ in ent_r]
+    out += [
+        ")",
+        "",
+        "",
+        "def F_omega_rv_values(w_ie: Sequence[float], lat: float, rm: float, rn: float, vN: float,",
+        "                      vE: float) -> tuple[float, ...]:",
+        '    """What the ∂ω/∂r, ∂ω/∂v terms add to F at :data:`F_OMEGA_RV_CELLS` (w_ie: the Earth rate NED, rad/s;',
+        '    lat rad; rm, rn: M + h, N + h, m; vN, vE: the velocity, m/s)."""',
+        "    return (",
+    ]
+    sub = _subs_c(FRV_ARGS)
+    out += [f"        {_py_expr(e, sub)}," for _, _, e in ent_r]
+    out += ["    )"]
     for name, M in H.items():
         args = H_ARGS[name]
         sub = _subs_c(args)
@@ -257,6 +450,16 @@ def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix]) -> str:
         pre = [f"    {a} = np.asarray({a}, dtype=np.float64).ravel().tolist()" for a, sy in args if len(sy) > 1]
         out += ["", "", f"def H_{name}({params}) -> np.ndarray:", f'    """{H_DOC[name]} ({M.rows} × 15)."""']
         out += [*pre, f"    h = np.zeros(({M.rows}, NX))"]
+        out += [f"    h[{i}, {j}] = {_py_expr(e, sub)}" for i, j, e in _entries(M)]
+        out.append("    return h")
+    for name, M in HA.items():
+        args = HA_ARGS[name]
+        sub = _subs_c(args)
+        params = ", ".join(f"{a}: Any" if len(s) > 1 else f"{a}: float" for a, s in args)
+        pre = [f"    {a} = np.asarray({a}, dtype=np.float64).ravel().tolist()" for a, sy in args if len(sy) > 1]
+        shape = f"{M.rows} × {M.cols}"
+        out += ["", "", f"def H_{name}({params}) -> np.ndarray:", f'    """{HA_DOC[name]} ({shape})."""']
+        out += [*pre, f"    h = np.zeros(({M.rows}, {M.cols}))"]
         out += [f"    h[{i}, {j}] = {_py_expr(e, sub)}" for i, j, e in _entries(M)]
         out.append("    return h")
     return "\n".join(out) + "\n"
@@ -278,11 +481,31 @@ def check_structure(F: sp.Matrix) -> None:
         raise SystemExit(f"derive_jacobians: F has entries outside the C core's block structure: {extra}")
 
 
+def check_sensor_structure(FS: sp.Matrix) -> None:
+    """The scale-factor / g-sensitivity columns: only the velocity / attitude rows and the Gauss-Markov diagonal
+    (the C core's f_mul fills the blocks of ins_gen_F_sf and the diagonal)."""
+    allowed = set()
+    for i in range(3):
+        assert FS[NX + i, i] == -its and FS[NX + 3 + i, 3 + i] == -its
+        allowed |= {(NX + i, i), (NX + 3 + i, 3 + i)}
+        allowed |= {(6 + i, j) for j in range(3)} | {(3 + i, 3 + j) for j in range(3)}
+        allowed |= {(6 + i, 6 + j) for j in range(9)}
+    extra = [(i, j) for i, j, _ in _entries(FS) if (i, j) not in allowed]
+    if extra:
+        raise SystemExit(f"derive_jacobians: the sensor columns of F have unexpected entries: {extra}")
+
+
 def generate() -> tuple[str, str]:
     F = derive_F()
     check_structure(F)
+    FS = derive_F_sensor()
+    check_sensor_structure(FS)
     H = derive_H()
-    return gen_c(F, H), gen_py(F, H)
+    FR = derive_F_omega_rv()
+    HA = derive_H_aids()
+    for name, M in HA.items():
+        assert M.cols == (NX + HA_EXTRA[name] if HA_EXTRA[name] else 3), name
+    return gen_c(F, H, FS), gen_py(F, H, FS, FR, HA)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -88,13 +88,12 @@ class AirspeedConfig:
 
 def true_airspeed(idx: StateIndex, vel: Vec, wind_ne: Vec, tas: float) -> tuple[Vec, Vec]:
     """(z, H) of a true airspeed ``tas`` (m/s) with the velocity ``vel`` (NED m/s) and wind ``wind_ne`` (m/s)."""
+    from ins_hil.fusion import generated_jacobians as gj  # the models: not at import (as aids/vehicle.py)
+    from ins_hil.fusion import measurements as mm
+
     u = np.array((float(vel[0]) - float(wind_ne[0]), float(vel[1]) - float(wind_ne[1]), float(vel[2])))
     n = float(np.linalg.norm(u))
-    H = np.zeros((1, idx.n))
-    H[0, idx.vel : idx.vel + 3] = u / n
-    if idx.wind is not None:
-        H[0, idx.wind : idx.wind + 2] = -u[0:2] / n
-    return np.array((tas - n,)), H
+    return np.array((tas - n,)), mm.placed_ext(gj.H_airspeed(u), idx, (idx.wind, 2))
 
 
 #: ISA sea-level density (kg/m³), pressure (Pa), temperature (K); dry-air gas constant (J/(kg·K))

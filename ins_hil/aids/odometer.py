@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 import numpy as np
 
 from ins_hil.core_parts.contract import Measurement
-from ins_hil.nav.rotation import dcm_from_quat, skew
+from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.settings import check_fields
 from ins_hil.types import Vec
 
@@ -83,14 +83,12 @@ class OdometerConfig:
 
 def odometer_speed(idx: StateIndex, C_bn: Vec, vel: Vec, scale: float, speed: float) -> tuple[Vec, Vec]:
     """(z, H) of an odometer speed ``speed`` (m/s) with the scale factor k̂ = ``scale`` (see the module doc)."""
-    Cnb = C_bn.T
-    vb_x = float(Cnb[0] @ vel)
-    g = 1.0 + scale
-    H = np.zeros((1, idx.n))
-    H[0, idx.vel : idx.vel + 3] = g * Cnb[0]
-    H[0, idx.att : idx.att + 3] = -g * (Cnb @ skew(vel))[0]
-    H[0, idx.extra["odo_sf"]] = vb_x
-    return np.array((speed - g * vb_x,)), H
+    from ins_hil.fusion import generated_jacobians as gj  # the models: not at import (as aids/vehicle.py)
+    from ins_hil.fusion import measurements as mm
+
+    vb_x = float(C_bn.T[0] @ vel)
+    H = mm.placed_ext(gj.H_odometer(C_bn, vel, scale), idx, (idx.extra["odo_sf"], 1))
+    return np.array((speed - (1.0 + scale) * vb_x,)), H
 
 
 #: the longest interval (s) between two WHEEL_DISTANCE messages a speed is taken over

@@ -173,9 +173,10 @@ def cli_md(rows: list[dict[str, Any]]) -> str:
         "`ins-hil replay --dataset configs/datasets/<name>.toml --core python|c --no-plots` in a child process,"
         " the two one after the other (reading, preparing, the GNSS-present replay, the outage protocol's replay"
         " where the config has one, the metrics; the C core aligned by the Python core's alignment and handed"
-        " over). On ardupilot_copter the figures of `--core c` equal those of `--core python` within 1e-6"
-        " relative (`tests/test_replay_core_c.py`), except the GNSS-velocity innovation whiteness the C core keeps"
-        " no log for; on px4_hover and px4_quad some differ by up to 1.6e-3 and 0.56 % (see docs/ref_core.md).",
+        " over). On ardupilot_copter, px4_hover and px4_quad every figure of `--core c` equals that of"
+        " `--core python` within 1e-6 relative (`tests/test_replay_core_c.py`), except the GNSS-velocity innovation"
+        " whiteness the C core keeps no log for; the states through the Pipeline agree to ≤ 1e-9 on every shipped"
+        " config, drive0708 included (`tests/test_cref_pipeline.py`).",
         "",
         "| config | Python wall [s] | Python CPU [s] | C wall [s] | C CPU [s] | C / Python throughput (CPU) |",
         "|---|---:|---:|---:|---:|---:|",
@@ -283,7 +284,8 @@ def scope_md() -> str:
         "",
         "## What the C core runs",
         "",
-        "`CNavCore` (`ins_hil/cref.py`, `firmware_ref/`) runs the 15-state filter with: GNSS position/velocity"
+        "`CNavCore` (`ins_hil/cref.py`, `firmware_ref/`) runs the 15-state filter, or the 21-state one with the"
+        " gyro and accelerometer scale factors (`filter.scale_factors`, drive0708), with: GNSS position/velocity"
         " with lever arm and σ scale (`gnss.lever_arm_b`, `gnss.std_scale`), the velocity delay"
         " (`gnss.vel_delay`), baro with its datum, the vibration noise (`filter.gyro_vib_gain`/`accel_vib_gain`),"
         " `filter.cov_every`, NHC (without lever arm / suspension pitch), ZUPT/ZARU, the magnetometer against"
@@ -297,9 +299,9 @@ def scope_md() -> str:
         "",
         "Refused in one line naming the setting (Python only):",
         "",
-        "- `filter.scale_factors`, `filter.gyro_gsens`, `filter.mag_bias`, `filter.wind_states`,"
-        " `filter.mount_states`: the extra error states (21–30 states) — the C core's layout and its sparse"
-        " Φ products are the 15-state model's; drive0708 is the shipped config that needs it (scale factors).",
+        "- `filter.gyro_gsens`, `filter.mag_bias`, `filter.wind_states`, `filter.mount_states`: error states no"
+        " shipped config or documented real-hardware use selects (studies: ArduCopter/px4_hover what-ifs); the C"
+        " layout stops at the scale factors (`INS_NX` = 21).",
         "- `aids.drag` (needs the wind states), `aids.nhc_lever_b` / `aids.nhc_pitch_per_accel` (the mounted"
         " NHC with the boresight states).",
         "- `filter.numerics` other than Joseph, `filter.earth_terms = false`, `filter.omega_rv_terms`,"
@@ -317,10 +319,19 @@ def scope_md() -> str:
         "- each shipped flight-log config over its whole log (`tests/test_cref_datasets.py`, 1 sample per 0.5 s):"
         " ardupilot_copter q 6.7e-16, v 7.3e-15, h 2.1e-16 (1803 roll-backs); px4_hover q 6.0e-15, v 8.7e-14,"
         " h 2.9e-14 (the hold, magnetometer); px4_quad q 2.0e-15, v 5.3e-15, h 2.6e-16 (yaw bank,"
-        " 5560 roll-backs). drive0708 is refused (`filter.scale_factors`).",
+        " 5560 roll-backs).",
+        "- each shipped dataset config through the Pipeline as `ins-hil replay` runs it, the published state at"
+        " every IMU epoch (`tests/test_cref_pipeline.py`; a 15-s prefix after the alignment by default, the whole"
+        " log marked slow; biases relative to max(1e-3, |b|)): drive0708 (21 states) q 6.2e-15, v 2.0e-13,"
+        " b_g 1.9e-12, b_a 6.8e-12; ardupilot_copter q 3.3e-16, v 5.7e-15, b_a 2.3e-12; px4_hover q 6.0e-15,"
+        " v 8.8e-14, b_a 9.9e-11; px4_quad q 2.1e-15, v 1.4e-14, b_a 1.5e-12. The C step"
+        " publishes the state after its mechanization (`ins_core_t.pub`), as `NavCore.step_begin`: before the"
+        " time update, the ground aids and the hold of the step (it published the state after them until"
+        " 2026-12-07, which moved px4_hover's figures by up to 1.6e-3 and px4_quad's outage NEES by 0.56 %).",
         "- per setting on simulated runs (`tests/test_cref_parity.py`): lever arm, σ scale, vibration, cov_every,"
         " NHC, ZUPT/ZARU, static alignment then C, the velocity delay, late fixes (0.11 s, 0.25 s), the"
-        " magnetometer, the hold: all ≤ 1e-9 (in fact ≤ 1e-13), gate counts equal.",
+        " magnetometer, the hold, the scale factors (with `cov_every`): all ≤ 1e-9 (in fact ≤ 1e-13), gate"
+        " counts equal.",
         "- The roll-back replays the measurements fused at a step before that step's IMU sample (the order in"
         " which they happened). NavCore's `DelayedHistory.sort_log` puts the IMU sample first once the log has"
         " been sorted by an earlier roll-back, so a roll-back reaching into an earlier one's span re-fuses those"
@@ -328,21 +339,27 @@ def scope_md() -> str:
         " (px4_quad), 1.1e-3 / 2.1e-2 (ardupilot_copter); the tests hold NavCore to the event order"
         " (`_sort_log_state_order`).",
         "- float build against double (lever arm, vibration, NHC, ZUPT; 90-s car run): q 4.8e-5, v 8.4e-3 m/s,"
-        " position 2.8e-2 m (bound in the test: 1e-3, 0.05 m/s, 0.5 m).",
+        " position 2.8e-2 m (bound in the test: 1e-3, 0.05 m/s, 0.5 m; the 21-state filter is held to the same"
+        " bound).",
         "",
         "## One source for the Jacobians",
         "",
-        "`firmware_ref/tools/derive_jacobians.py` derives F (15 × 15) and the measurement rows H (GNSS position"
-        " and velocity with lever arm, baro, ZUPT, ZARU, NHC, magnetometer) once with SymPy from the true-minus-"
-        "computed models and generates `firmware_ref/src/generated/ins_jacobians.h` (the C core's only F and H)"
-        " and `ins_hil/fusion/generated_jacobians.py`. `tests/test_generated_jacobians.py` regenerates and diffs"
-        " both (the change indication) and checks the generated F and H against central differences of the"
-        " nonlinear error models on random states. The Python filter takes them from there:"
-        " `ErrorStateEKF.build_F` fills F from `F_CELLS` / `F_values` in one vectorised store, and the GNSS"
-        " position / velocity, baro, ZUPT, ZARU, NHC and magnetometer rows of `ins_hil.fusion.measurements` are"
-        " the generated rows placed in the filter's state layout. Still written by hand (the derivation covers"
-        " the 15-state model only): the scale-factor, g-sensitivity, mounting, hard-iron and wind columns, the"
-        " ∂ω/∂r, ∂ω/∂v terms (`filter.omega_rv_terms`), the mounted NHC, drag, odometer and airspeed rows."
-        " `python firmware_ref/tools/derive_jacobians.py` regenerates, `--check` exits 1 when a file is stale.",
+        "`firmware_ref/tools/derive_jacobians.py` derives, once with SymPy from the true-minus-computed models: F"
+        " (15 × 15), its scale-factor and g-sensitivity columns (`F_sensor`), the ∂ω/∂r, ∂ω/∂v terms"
+        " (`filter.omega_rv_terms`), the measurement rows H (GNSS position and velocity with lever arm, baro, ZUPT,"
+        " ZARU, NHC, magnetometer) and the aid rows with their own states (airspeed and drag with the wind, the"
+        " odometer with its scale factor, the NHC at a lever arm with the boresight, the magnetometer hard iron)."
+        " It generates `firmware_ref/src/generated/ins_jacobians.h` (the C core's only F and H: the 15-state"
+        " blocks, the scale-factor columns, the rows of the aids the C core runs) and"
+        " `ins_hil/fusion/generated_jacobians.py` (all of them). `tests/test_generated_jacobians.py` regenerates"
+        " and diffs both (the change indication) and checks every generated F and H against central differences"
+        " of the nonlinear models on random states. The Python filter takes them from there:"
+        " `ErrorStateEKF.build_F` stores `F_CELLS` / `F_SENSOR_CELLS` / `F_OMEGA_RV_CELLS` in vectorised puts (no"
+        " other F cell is written), `level_tilt` takes its blocks from the generated F, and the rows of"
+        " `ins_hil.fusion.measurements` and the aid modules are the generated rows placed in the filter's state"
+        " layout (`placed`, `placed_ext`). Filters of other models keep their own matrices: the book's examples"
+        " (`fusion/book.py`, `fdi/bias.py`: the book's state order and equations as printed) and the yaw bank's"
+        " 3-state EKFs (`fusion/yaw_gsf.py`). `python firmware_ref/tools/derive_jacobians.py` regenerates,"
+        " `--check` exits 1 when a file is stale.",
         "",
     ])  # fmt: skip

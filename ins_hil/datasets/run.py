@@ -498,7 +498,10 @@ class GnssScore(Observer):
     """Scores each GNSS fix: the fused ones before and after their update (:meth:`before_fuse` /
     :meth:`after_fuse`), the ``withheld`` ones (outages, never handed to the pipeline) at the first epoch at or
     after their time; only while the core navigates. Per fused fix also how far its update moved the specific
-    force an unaccelerated vehicle would feel (its attitude and accelerometer-bias corrections, NED)."""
+    force an unaccelerated vehicle would feel (its attitude and accelerometer-bias corrections, NED): from the
+    state before its update to the state after it, summed over the spans its update ran in without an IMU epoch
+    between (so the figure does not depend on how a core cuts an update into segments: the Python core's position
+    and velocity parts, its roll-back's pauses, the C core's one piece)."""
 
     def __init__(self, lever: Vec, origin: tuple[float, float, float], withheld: Sequence[GnssFix] = ()) -> None:
         self.lever = np.asarray(lever, dtype=np.float64)
@@ -508,11 +511,14 @@ class GnssScore(Observer):
         self.rows: list[FixScore] = []
         self._open: dict[int, FixScore] = {}
         self._f_raw: dict[int, Vec] = {}
+        self._span: dict[int, tuple[int, Vec]] = {}  # per open fix: the epoch count and f at its last segment end
+        self._epochs = 0
 
     def _ref(self, f: GnssFix) -> Vec:
         return earth.ned_from_geodetic(f.lat, f.lon, f.h, *self.origin)
 
     def epoch(self, pipe: Pipeline, st: NavState) -> None:
+        self._epochs += 1
         w = self.withheld
         while self._w < len(w) and w[self._w].t <= st.t:
             f = w[self._w]
@@ -537,19 +543,33 @@ class GnssScore(Observer):
         if row is None or pipe.core is None:
             return
         st = pipe.core.state()
+        k = id(m)
         if start:
-            # the accelerometer reading of an unaccelerated vehicle at the attitude and bias before this segment
+            span = self._span.get(k)
+            if span is not None and span[0] == self._epochs:
+                return  # no IMU epoch since the last segment: the span goes on
+            self._close(k, row)
+            # the accelerometer reading of an unaccelerated vehicle at the attitude and bias before this span
             g_n = np.array((0.0, 0.0, -earth.normal_gravity(st.lat, st.h)))
-            self._f_raw[id(m)] = dcm_from_quat(st.q_nb).T @ g_n + st.accel_bias
+            self._f_raw[k] = dcm_from_quat(st.q_nb).T @ g_n + st.accel_bias
             return
-        f_raw = self._f_raw.pop(id(m), None)
+        f_raw = self._f_raw.get(k)
         if f_raw is not None:  # seen through the updated attitude and bias: the horizontal f the update moved
-            f1 = dcm_from_quat(st.q_nb) @ (f_raw - st.accel_bias)
+            self._span[k] = (self._epochs, dcm_from_quat(st.q_nb) @ (f_raw - st.accel_bias))
+
+    def _close(self, k: int, row: FixScore) -> None:
+        """Add the horizontal f of the span that ended at the last segment end to the fix's correction."""
+        span = self._span.pop(k, None)
+        self._f_raw.pop(k, None)
+        if span is not None:
+            f1 = span[1]
             c = row.corr or (0.0, 0.0)
             row.corr = (c[0] + float(f1[0]), c[1] + float(f1[1]))
 
     def after_fuse(self, pipe: Pipeline, m: Any, fused: bool) -> None:
         row = self._open.pop(id(m), None)
+        if row is not None:
+            self._close(id(m), row)
         if row is None or pipe.core is None:
             return
         row.fused = fused

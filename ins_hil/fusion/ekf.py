@@ -308,11 +308,7 @@ class ErrorStateEKF:
             qc[k0 : k0 + size] = rw**2
         self.qc = qc
         self.P = np.diag(sig**2)
-        self._F = np.zeros((n, n))
-        self._F[0:3, 3:6] = np.eye(3)
-        for k in range(n):
-            if math.isfinite(self._tau[k]):
-                self._F[k, k] = -1.0 / self._tau[k]
+        self._F = np.zeros((n, n))  # its cells: the generated ones (build_F), the rest stays 0
         self._eye = np.eye(n)
         self._g2r = 2.0 * 9.80665 / 6371000.0  # vertical-channel gravity gradient 2g/R (seed 001 eq. 96)
         # the generated F (ins_hil.fusion.generated_jacobians, 15-state layout) placed into this layout: its
@@ -329,6 +325,26 @@ class ErrorStateEKF:
         kept = [(m, r, col) for m, r, col in cells if r is not None and col is not None]
         self._gen_idx = np.array([r * n + col for _, r, col in kept])
         self._gen_keep: list[int] | None = None if len(kept) == len(cells) else [m for m, _, _ in kept]
+        # the generated scale-factor / g-sensitivity columns (gj.F_SENSOR_CELLS, full layout) placed likewise
+
+        def at_s(k: int) -> int | None:
+            if k < gj.NX:
+                return at(k)
+            for start, lo, hi in ((i0.sg, 15, 18), (i0.sa, 18, 21), (i0.gs, 21, 30)):
+                if lo <= k < hi:
+                    return None if start is None else start + k - lo
+            return None
+
+        cells_s = [(m, at_s(r), at_s(col)) for m, (r, col) in enumerate(gj.F_SENSOR_CELLS)]
+        kept_s = [(m, r, col) for m, r, col in cells_s if r is not None and col is not None]
+        self._sens_idx = np.array([r * n + col for _, r, col in kept_s]) if kept_s else None
+        self._sens_keep = [m for m, _, _ in kept_s]
+        self._inv_tau_s = 1.0 / c.sf_tau
+        # the generated ∂ω/∂r, ∂ω/∂v terms (gj.F_OMEGA_RV_CELLS, 15-state layout: rows and columns < 9): added to
+        # the base cells they share, stored into the others
+        base = {(r, col) for r, col in gj.F_CELLS}
+        self._rv_idx = np.array([r * n + col for r, col in gj.F_OMEGA_RV_CELLS])
+        self._rv_shared = np.array([(r, col) in base for r, col in gj.F_OMEGA_RV_CELLS])
         self._inv_tau_g = 1.0 / self._tau[i0.bg] if i0.bg is not None else 0.0
         self._inv_tau_a = 1.0 / self._tau[i0.ba] if i0.ba is not None else 0.0
         self._qd_cache: tuple[float, Vec] = (-1.0, np.zeros((n, n)))
@@ -403,20 +419,21 @@ class ErrorStateEKF:
         i = self.idx
         cols: list[int] = []
         blocks: list[Vec] = []
+        f_n = C_bn @ f_b
+        F15 = gj.F(C_bn, _floats(f_n), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, 0.0, 0.0)  # the generated δv̇ rows
         if i.ba is not None:
             cols += range(i.ba, i.ba + 3)
-            blocks.append(-C_bn[0:2, :])
+            blocks.append(F15[3:5, 12:15])  # −Ĉ
         if i.sa is not None:
             cols += range(i.sa, i.sa + 3)
-            blocks.append(-(C_bn * f_b[None, :])[0:2, :])
+            blocks.append(gj.F_sensor(C_bn, _floats(f_b), (0.0, 0.0, 0.0), 0.0)[3:5, 18:21])  # −Ĉ diag(f^b), generated
         if not cols:
             return
-        f_n = C_bn @ f_b
         P = self.P.copy()  # replaced, never mutated in place
         r = slice(6, 8)
         P[r, :] = 0.0
         P[:, r] = 0.0
-        M = np.array(((0.0, -float(f_n[2])), (float(f_n[2]), 0.0)))  # [f^n×] rows N, E; columns μ_N, μ_E
+        M = F15[3:5, 6:8]  # [f^n×] rows N, E; columns μ_N, μ_E
         A = -np.linalg.solve(M, np.hstack(blocks))
         X = np.array(cols)
         P[r, :] = A @ P[X, :]
@@ -428,9 +445,9 @@ class ErrorStateEKF:
         """Continuous error-dynamics matrix F (n×n) at the current nominal state (see module doc): the entries
         of the generated derivation (``ins_hil.fusion.generated_jacobians``: [f×] in δv̇/μ (book eq. 3.1),
         −[(2ω_ie + ω_en)×] on δv, −[ω_in×] on μ, 2g/R on δr_D, ±C on the biases) in one vectorised store, then
-        the states the derivation does not cover (scale factors, g-sensitivity, the ∂ω/∂r, ∂ω/∂v terms)."""
+        the generated scale-factor and g-sensitivity columns (``gj.F_sensor_values``) when those states are on,
+        then the generated ∂ω/∂r, ∂ω/∂v terms (``omega_rv_terms``, ``gj.F_omega_rv_values``)."""
         F = self._F
-        i = self.idx
         if self.cfg.earth_terms:
             wie, wen, g2r = _floats(w_ie), _floats(w_en), self._g2r
         else:
@@ -439,60 +456,17 @@ class ErrorStateEKF:
         vals = gj.F_values(_floats(C_bn), _floats(f_ned), wie, wen, self._inv_tau_g, self._inv_tau_a, g2r)
         keep = self._gen_keep
         F.put(self._gen_idx, vals if keep is None else [vals[k] for k in keep])
-        if i.sg is not None and i.sa is not None:
-            F[6:9, i.sg : i.sg + 3] = C_bn * w_b[None, :]
-            F[3:6, i.sa : i.sa + 3] = -C_bn * f_b[None, :]
-        if i.gs is not None:
-            # ω̂ − ω = δb_g + δG f^b: μ̇ gains C δG f^b, ∂/∂G_jk = C[:, j] f_k (the bias column scaled by f_k)
-            F[6:9, i.gs : i.gs + 9] = np.kron(C_bn, f_b[None, :])
+        if self._sens_idx is not None:  # scale factors (C diag(ω^b), −C diag(f^b)), g-sensitivity (C δG f^b)
+            sv = gj.F_sensor_values(_floats(C_bn), _floats(f_b), _floats(w_b), self._inv_tau_s)
+            F.put(self._sens_idx, [sv[k] for k in self._sens_keep])
         if self.cfg.omega_rv_terms and self.cfg.earth_terms:
-            c = (2.0 * wie[0] + wen[0], wen[1], 2.0 * wie[2] + wen[2])  # 2ω_ie + ω_en (ω_ie,E = 0)
-            self._omega_rv_terms(F, w_ie, w_en, lat, h, c, g2r)
+            # the velocity from the transport rate (the mechanization's ω_en, v_D taken as 0: seed 001 eqs. 94-98)
+            M, N = earth.radii(lat)
+            rm, rn = M + h, N + h
+            add = gj.F_omega_rv_values(wie, lat, rm, rn, -wen[1] * rm, wen[0] * rn)
+            idx = self._rv_idx
+            F.put(idx, np.where(self._rv_shared, F.take(idx), 0.0) + np.array(add))
         return F
-
-    @staticmethod
-    def _omega_rv_terms(F: Vec, w_ie: Vec, w_en: Vec, lat: float, h: float, c: tuple, g2r: float) -> None:
-        """The ∂ω/∂r and ∂ω/∂v terms of F (``FilterConfig.omega_rv_terms``; seed 001 eqs. 94–98 in NED).
-
-        ω_ie = (Ω cos φ, 0, −Ω sin φ), ω_en = (v_E/(N+h), −v_N/(M+h), −v_E tan φ/(N+h)); δr = (δN, δE, δD)
-        metres with ∂/∂δN = (1/(M+h)) ∂/∂φ, ∂/∂δD = −∂/∂h; M, N held constant (seed 001 neglects ∂M/∂φ,
-        ∂N/∂φ). δ = true − computed, so μ̇ = C δb_g − δω_in − ω_in × μ gains +J_in δx and the Coriolis
-        term −(2ω_ie + ω_en) × v gains v × J_c δx. v_N, v_E come from ω_en; v_D enters these terms only
-        through products of order v_D/R (< 1e-6 /s) and is taken as 0."""
-        M, N = earth.radii(lat)
-        rm, rn = M + h, N + h
-        iN, iD = float(w_ie[0]), float(w_ie[2])  # Ω cos φ, −Ω sin φ
-        eN, eE, eD = float(w_en[0]), float(w_en[1]), float(w_en[2])
-        vN, vE = -eE * rm, eN * rn
-        cl = math.cos(lat)
-        t = math.tan(lat)
-        # ∂ω_ie/∂δN = (−Ω sin φ, 0, −Ω cos φ)/(M+h) = (iD, 0, −iN)/(M+h); ∂ω_en,D/∂δN = −v_E/((N+h) cos²φ (M+h))
-        en_dN = -vE / (rn * cl * cl * rm)
-        # ∂ω_en/∂δD = +ω_en/(R+h) per axis
-        en_D = (eN / rn, eE / rm, eD / rn)
-        # ∂ω_en/∂v: rows N, E, D; columns v_N, v_E (v_D: none)
-        a, b, d = 1.0 / rn, -1.0 / rm, -t / rn
-        # attitude rows: J_in (ω_in = ω_ie + ω_en)
-        F[6, 0], F[6, 1], F[6, 2] = iD / rm, 0.0, en_D[0]
-        F[7, 0], F[7, 1], F[7, 2] = 0.0, 0.0, en_D[1]
-        F[8, 0], F[8, 1], F[8, 2] = -iN / rm + en_dN, 0.0, en_D[2]
-        F[6, 3], F[6, 4], F[6, 5] = 0.0, a, 0.0
-        F[7, 3], F[7, 4], F[7, 5] = b, 0.0, 0.0
-        F[8, 3], F[8, 4], F[8, 5] = 0.0, d, 0.0
-        # velocity rows: v × J_c, J_c = ∂(2ω_ie + ω_en)/∂x, v = (v_N, v_E, 0)
-        kN = (2.0 * iD / rm, 0.0, en_D[0])
-        kE = (0.0, 0.0, en_D[1])
-        kD = (-2.0 * iN / rm + en_dN, 0.0, en_D[2])
-        for j in range(3):
-            F[3, j] = vE * kD[j]  # (v × k)_N = v_E k_D − v_D k_E
-            F[4, j] = -vN * kD[j]  # (v × k)_E = v_D k_N − v_N k_D
-            F[5, j] = vN * kE[j] - vE * kN[j]  # (v × k)_D = v_N k_E − v_E k_N
-        F[5, 2] += g2r
-        cN, cE, cD = c
-        # δv block: −[(2ω_ie + ω_en)×] + v × ∂ω_en/∂v (columns v_N, v_E)
-        F[3, 3], F[3, 4], F[3, 5] = 0.0, cD + vE * d, -cE
-        F[4, 3], F[4, 4], F[4, 5] = -cD, -vN * d, cN
-        F[5, 3], F[5, 4], F[5, 5] = cE + vN * b, -cN - vE * a, 0.0
 
     def predict(
         self, dt: float, C_bn: Vec, f_ned: Vec, w_ie: Vec, w_en: Vec, f_b: Vec, w_b: Vec, lat: float, h: float

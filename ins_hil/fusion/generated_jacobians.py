@@ -9,6 +9,7 @@ C core's ``firmware_ref/src/generated/ins_jacobians.h``. Vectors are 3-sequences
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -132,6 +133,184 @@ def F(C: np.ndarray, f_ned: Sequence[float], w_ie: Sequence[float], w_en: Sequen
     return out
 
 
+#: the full layout of the sensor-error columns: 15 base states, gyro / accelerometer scale factors,
+#: gyro g-sensitivity (row-major)
+NXS = 30
+#: the (row, column) in that layout of every entry of the scale-factor and g-sensitivity columns of F that is
+#: not identically zero, in the order of :func:`F_sensor_values`
+F_SENSOR_CELLS: tuple[tuple[int, int], ...] = (
+    (3, 18),
+    (3, 19),
+    (3, 20),
+    (4, 18),
+    (4, 19),
+    (4, 20),
+    (5, 18),
+    (5, 19),
+    (5, 20),
+    (6, 15),
+    (6, 16),
+    (6, 17),
+    (6, 21),
+    (6, 22),
+    (6, 23),
+    (6, 24),
+    (6, 25),
+    (6, 26),
+    (6, 27),
+    (6, 28),
+    (6, 29),
+    (7, 15),
+    (7, 16),
+    (7, 17),
+    (7, 21),
+    (7, 22),
+    (7, 23),
+    (7, 24),
+    (7, 25),
+    (7, 26),
+    (7, 27),
+    (7, 28),
+    (7, 29),
+    (8, 15),
+    (8, 16),
+    (8, 17),
+    (8, 21),
+    (8, 22),
+    (8, 23),
+    (8, 24),
+    (8, 25),
+    (8, 26),
+    (8, 27),
+    (8, 28),
+    (8, 29),
+    (15, 15),
+    (16, 16),
+    (17, 17),
+    (18, 18),
+    (19, 19),
+    (20, 20),
+)
+
+
+def F_sensor_values(C: Sequence[float], f_b: Sequence[float], w_b: Sequence[float],
+                    inv_tau_s: float) -> tuple[float, ...]:
+    """The entries of F at :data:`F_SENSOR_CELLS` (C: C_b^n row by row; f_b, w_b: the compensated body
+    specific force and rate; inv_tau_s: 1 / the scale factors' correlation time)."""
+    return (
+        -C[0]*f_b[0],
+        -C[1]*f_b[1],
+        -C[2]*f_b[2],
+        -C[3]*f_b[0],
+        -C[4]*f_b[1],
+        -C[5]*f_b[2],
+        -C[6]*f_b[0],
+        -C[7]*f_b[1],
+        -C[8]*f_b[2],
+        C[0]*w_b[0],
+        C[1]*w_b[1],
+        C[2]*w_b[2],
+        C[0]*f_b[0],
+        C[0]*f_b[1],
+        C[0]*f_b[2],
+        C[1]*f_b[0],
+        C[1]*f_b[1],
+        C[1]*f_b[2],
+        C[2]*f_b[0],
+        C[2]*f_b[1],
+        C[2]*f_b[2],
+        C[3]*w_b[0],
+        C[4]*w_b[1],
+        C[5]*w_b[2],
+        C[3]*f_b[0],
+        C[3]*f_b[1],
+        C[3]*f_b[2],
+        C[4]*f_b[0],
+        C[4]*f_b[1],
+        C[4]*f_b[2],
+        C[5]*f_b[0],
+        C[5]*f_b[1],
+        C[5]*f_b[2],
+        C[6]*w_b[0],
+        C[7]*w_b[1],
+        C[8]*w_b[2],
+        C[6]*f_b[0],
+        C[6]*f_b[1],
+        C[6]*f_b[2],
+        C[7]*f_b[0],
+        C[7]*f_b[1],
+        C[7]*f_b[2],
+        C[8]*f_b[0],
+        C[8]*f_b[1],
+        C[8]*f_b[2],
+        -inv_tau_s,
+        -inv_tau_s,
+        -inv_tau_s,
+        -inv_tau_s,
+        -inv_tau_s,
+        -inv_tau_s,
+    )
+
+
+def F_sensor(C: np.ndarray, f_b: Sequence[float], w_b: Sequence[float], inv_tau_s: float) -> np.ndarray:
+    """The sensor-error columns of F in the full layout (NXS × NXS; the base columns zero)."""
+    out = np.zeros((NXS, NXS))
+    c = np.asarray(C, dtype=np.float64).ravel().tolist()
+    vals = F_sensor_values(c, [float(x) for x in f_b], [float(x) for x in w_b], inv_tau_s)
+    out.put([i * NXS + j for i, j in F_SENSOR_CELLS], vals)
+    return out
+
+
+#: the (row, column) of every entry the ∂ω/∂r, ∂ω/∂v terms add to F (15-state layout; omega_rv_terms), in
+#: the order of :func:`F_omega_rv_values`
+F_OMEGA_RV_CELLS: tuple[tuple[int, int], ...] = (
+    (3, 0),
+    (3, 2),
+    (3, 4),
+    (4, 0),
+    (4, 2),
+    (4, 4),
+    (5, 0),
+    (5, 2),
+    (5, 3),
+    (5, 4),
+    (6, 0),
+    (6, 2),
+    (6, 4),
+    (7, 2),
+    (7, 3),
+    (8, 0),
+    (8, 2),
+    (8, 4),
+)
+
+
+def F_omega_rv_values(w_ie: Sequence[float], lat: float, rm: float, rn: float, vN: float,
+                      vE: float) -> tuple[float, ...]:
+    """What the ∂ω/∂r, ∂ω/∂v terms add to F at :data:`F_OMEGA_RV_CELLS` (w_ie: the Earth rate NED, rad/s;
+    lat rad; rm, rn: M + h, N + h, m; vN, vE: the velocity, m/s)."""
+    return (
+        -vE*(2*rn*w_ie[0] + vE/math.cos(lat)**2)/(rm*rn),
+        -vE**2*math.tan(lat)/rn**2,
+        -vE*math.tan(lat)/rn,
+        vN*(2*rn*w_ie[0] + vE/math.cos(lat)**2)/(rm*rn),
+        vE*vN*math.tan(lat)/rn**2,
+        vN*math.tan(lat)/rn,
+        -2*vE*w_ie[2]/rm,
+        -vE**2/rn**2 - vN**2/rm**2,
+        -vN/rm,
+        -vE/rn,
+        w_ie[2]/rm,
+        vE/rn**2,
+        1/rn,
+        -vN/rm**2,
+        -1/rm,
+        -(rn*w_ie[0] + vE/math.cos(lat)**2)/(rm*rn),
+        -vE*math.tan(lat)/rn**2,
+        -math.tan(lat)/rn,
+    )
+
+
 def H_gnss_pos(C: Any, lever: Any) -> np.ndarray:
     """GNSS antenna position (lever arm l, body FRD, m): δr + [(C l)×] ψ (3 × 15)."""
     C = np.asarray(C, dtype=np.float64).ravel().tolist()
@@ -231,4 +410,108 @@ def H_mag(m: Any) -> np.ndarray:
     h[1, 6] = -m[2]
     h[1, 7] = -m[1]*m[2]/(m[0] + 1)
     h[1, 8] = (m[0] - m[2]**2 + 1)/(m[0] + 1)
+    return h
+
+
+def H_airspeed(u: Any) -> np.ndarray:
+    """true airspeed |v − w| at u = v̂ − ŵ (NED m/s): u^T δv / |u| − u_NE^T δw / |u|; columns 15-16: the wind (1 × 17)."""
+    u = np.asarray(u, dtype=np.float64).ravel().tolist()
+    h = np.zeros((1, 17))
+    h[0, 3] = u[0]/math.sqrt(u[0]**2 + u[1]**2 + u[2]**2)
+    h[0, 4] = u[1]/math.sqrt(u[0]**2 + u[1]**2 + u[2]**2)
+    h[0, 5] = u[2]/math.sqrt(u[0]**2 + u[1]**2 + u[2]**2)
+    h[0, 15] = -u[0]/math.sqrt(u[0]**2 + u[1]**2 + u[2]**2)
+    h[0, 16] = -u[1]/math.sqrt(u[0]**2 + u[1]**2 + u[2]**2)
+    return h
+
+
+def H_odometer(C: Any, vel: Any, k: float) -> np.ndarray:
+    """odometer speed (1 + k) (C^T v)_x: (1 + k) (C^T δv − C^T [v×] ψ)_x + (C^T v)_x δk; column 15: δk (1 × 16)."""
+    C = np.asarray(C, dtype=np.float64).ravel().tolist()
+    vel = np.asarray(vel, dtype=np.float64).ravel().tolist()
+    h = np.zeros((1, 16))
+    h[0, 3] = C[0]*(k + 1)
+    h[0, 4] = C[3]*(k + 1)
+    h[0, 5] = C[6]*(k + 1)
+    h[0, 6] = (k + 1)*(-C[3]*vel[2] + C[6]*vel[1])
+    h[0, 7] = (k + 1)*(C[0]*vel[2] - C[6]*vel[0])
+    h[0, 8] = (k + 1)*(-C[0]*vel[1] + C[3]*vel[0])
+    h[0, 15] = C[0]*vel[0] + C[3]*vel[1] + C[6]*vel[2]
+    return h
+
+
+def H_drag(C: Any, u: Any, mu: float) -> np.ndarray:
+    """multirotor drag −μ (C^T u)_xy + δb_a,xy, u = v̂ − ŵ: −μ C^T δv + μ C^T [u×] ψ + μ C^T δw; columns 15-16: the wind (2 × 17)."""
+    C = np.asarray(C, dtype=np.float64).ravel().tolist()
+    u = np.asarray(u, dtype=np.float64).ravel().tolist()
+    h = np.zeros((2, 17))
+    h[0, 3] = -C[0]*mu
+    h[0, 4] = -C[3]*mu
+    h[0, 5] = -C[6]*mu
+    h[0, 6] = -mu*(-C[3]*u[2] + C[6]*u[1])
+    h[0, 7] = -mu*(C[0]*u[2] - C[6]*u[0])
+    h[0, 8] = -mu*(-C[0]*u[1] + C[3]*u[0])
+    h[0, 12] = 1
+    h[0, 15] = C[0]*mu
+    h[0, 16] = C[3]*mu
+    h[1, 3] = -C[1]*mu
+    h[1, 4] = -C[4]*mu
+    h[1, 5] = -C[7]*mu
+    h[1, 6] = -mu*(-C[4]*u[2] + C[7]*u[1])
+    h[1, 7] = -mu*(C[1]*u[2] - C[7]*u[0])
+    h[1, 8] = -mu*(-C[1]*u[1] + C[4]*u[0])
+    h[1, 13] = 1
+    h[1, 15] = C[1]*mu
+    h[1, 16] = C[4]*mu
+    return h
+
+
+def H_nhc_mounted(C: Any, vel: Any, R: Any, omega_b: Any, lever: Any) -> np.ndarray:
+    """NHC at a reference point, vehicle axes y, z: R C^T δv − R C^T [v×] ψ + R [l×] δb_g + [û×] δε; columns 15-17: the boresight (2 × 18)."""
+    C = np.asarray(C, dtype=np.float64).ravel().tolist()
+    vel = np.asarray(vel, dtype=np.float64).ravel().tolist()
+    R = np.asarray(R, dtype=np.float64).ravel().tolist()
+    omega_b = np.asarray(omega_b, dtype=np.float64).ravel().tolist()
+    lever = np.asarray(lever, dtype=np.float64).ravel().tolist()
+    h = np.zeros((2, 18))
+    h[0, 3] = C[0]*R[3] + C[1]*R[4] + C[2]*R[5]
+    h[0, 4] = C[3]*R[3] + C[4]*R[4] + C[5]*R[5]
+    h[0, 5] = C[6]*R[3] + C[7]*R[4] + C[8]*R[5]
+    h[0, 6] = R[3]*(-C[3]*vel[2] + C[6]*vel[1]) + R[4]*(-C[4]*vel[2] + C[7]*vel[1]) + R[5]*(-C[5]*vel[2] + C[8]*vel[1])
+    h[0, 7] = R[3]*(C[0]*vel[2] - C[6]*vel[0]) + R[4]*(C[1]*vel[2] - C[7]*vel[0]) + R[5]*(C[2]*vel[2] - C[8]*vel[0])
+    h[0, 8] = R[3]*(-C[0]*vel[1] + C[3]*vel[0]) + R[4]*(-C[1]*vel[1] + C[4]*vel[0]) + R[5]*(-C[2]*vel[1] + C[5]*vel[0])
+    h[0, 9] = R[4]*lever[2] - R[5]*lever[1]
+    h[0, 10] = -R[3]*lever[2] + R[5]*lever[0]
+    h[0, 11] = R[3]*lever[1] - R[4]*lever[0]
+    h[0, 15] = R[6]*(C[0]*vel[0] + C[3]*vel[1] + C[6]*vel[2] - lever[1]*omega_b[2] + lever[2]*omega_b[1]) + R[7]*(C[1]*vel[0] + C[4]*vel[1] + C[7]*vel[2] + lever[0]*omega_b[2] - lever[2]*omega_b[0]) + R[8]*(C[2]*vel[0] + C[5]*vel[1] + C[8]*vel[2] - lever[0]*omega_b[1] + lever[1]*omega_b[0])
+    h[0, 17] = -R[0]*(C[0]*vel[0] + C[3]*vel[1] + C[6]*vel[2] - lever[1]*omega_b[2] + lever[2]*omega_b[1]) - R[1]*(C[1]*vel[0] + C[4]*vel[1] + C[7]*vel[2] + lever[0]*omega_b[2] - lever[2]*omega_b[0]) - R[2]*(C[2]*vel[0] + C[5]*vel[1] + C[8]*vel[2] - lever[0]*omega_b[1] + lever[1]*omega_b[0])
+    h[1, 3] = C[0]*R[6] + C[1]*R[7] + C[2]*R[8]
+    h[1, 4] = C[3]*R[6] + C[4]*R[7] + C[5]*R[8]
+    h[1, 5] = C[6]*R[6] + C[7]*R[7] + C[8]*R[8]
+    h[1, 6] = R[6]*(-C[3]*vel[2] + C[6]*vel[1]) + R[7]*(-C[4]*vel[2] + C[7]*vel[1]) + R[8]*(-C[5]*vel[2] + C[8]*vel[1])
+    h[1, 7] = R[6]*(C[0]*vel[2] - C[6]*vel[0]) + R[7]*(C[1]*vel[2] - C[7]*vel[0]) + R[8]*(C[2]*vel[2] - C[8]*vel[0])
+    h[1, 8] = R[6]*(-C[0]*vel[1] + C[3]*vel[0]) + R[7]*(-C[1]*vel[1] + C[4]*vel[0]) + R[8]*(-C[2]*vel[1] + C[5]*vel[0])
+    h[1, 9] = R[7]*lever[2] - R[8]*lever[1]
+    h[1, 10] = -R[6]*lever[2] + R[8]*lever[0]
+    h[1, 11] = R[6]*lever[1] - R[7]*lever[0]
+    h[1, 15] = -R[3]*(C[0]*vel[0] + C[3]*vel[1] + C[6]*vel[2] - lever[1]*omega_b[2] + lever[2]*omega_b[1]) - R[4]*(C[1]*vel[0] + C[4]*vel[1] + C[7]*vel[2] + lever[0]*omega_b[2] - lever[2]*omega_b[0]) - R[5]*(C[2]*vel[0] + C[5]*vel[1] + C[8]*vel[2] - lever[0]*omega_b[1] + lever[1]*omega_b[0])
+    h[1, 16] = R[0]*(C[0]*vel[0] + C[3]*vel[1] + C[6]*vel[2] - lever[1]*omega_b[2] + lever[2]*omega_b[1]) + R[1]*(C[1]*vel[0] + C[4]*vel[1] + C[7]*vel[2] + lever[0]*omega_b[2] - lever[2]*omega_b[0]) + R[2]*(C[2]*vel[0] + C[5]*vel[1] + C[8]*vel[2] - lever[0]*omega_b[1] + lever[1]*omega_b[0])
+    return h
+
+
+def H_mag_bias(m: Any, C: Any, ubar: Any, un: float) -> np.ndarray:
+    """magnetometer hard iron (3 × 3, by δb_m; ū = u/|u|, un = |u|): rows 2-3 of τ [m×] C (I − ū ū^T)/|u|, magnitude −ū^T (3 × 3)."""
+    m = np.asarray(m, dtype=np.float64).ravel().tolist()
+    C = np.asarray(C, dtype=np.float64).ravel().tolist()
+    ubar = np.asarray(ubar, dtype=np.float64).ravel().tolist()
+    h = np.zeros((3, 3))
+    h[0, 0] = (-m[1]*m[2]*(m[0]*(-C[3]*ubar[0]**2 + C[3] - C[4]*ubar[0]*ubar[1] - C[5]*ubar[0]*ubar[2]) - m[1]*(-C[0]*ubar[0]**2 + C[0] - C[1]*ubar[0]*ubar[1] - C[2]*ubar[0]*ubar[2]))/(m[0] + 1) - m[1]*(m[1]*(-C[6]*ubar[0]**2 + C[6] - C[7]*ubar[0]*ubar[1] - C[8]*ubar[0]*ubar[2]) - m[2]*(-C[3]*ubar[0]**2 + C[3] - C[4]*ubar[0]*ubar[1] - C[5]*ubar[0]*ubar[2])) + (-m[0]*(-C[6]*ubar[0]**2 + C[6] - C[7]*ubar[0]*ubar[1] - C[8]*ubar[0]*ubar[2]) + m[2]*(-C[0]*ubar[0]**2 + C[0] - C[1]*ubar[0]*ubar[1] - C[2]*ubar[0]*ubar[2]))*(-m[1]**2/(m[0] + 1) + 1))/un
+    h[0, 1] = (-m[1]*m[2]*(m[0]*(-C[3]*ubar[0]*ubar[1] - C[4]*ubar[1]**2 + C[4] - C[5]*ubar[1]*ubar[2]) - m[1]*(-C[0]*ubar[0]*ubar[1] - C[1]*ubar[1]**2 + C[1] - C[2]*ubar[1]*ubar[2]))/(m[0] + 1) - m[1]*(m[1]*(-C[6]*ubar[0]*ubar[1] - C[7]*ubar[1]**2 + C[7] - C[8]*ubar[1]*ubar[2]) - m[2]*(-C[3]*ubar[0]*ubar[1] - C[4]*ubar[1]**2 + C[4] - C[5]*ubar[1]*ubar[2])) + (-m[0]*(-C[6]*ubar[0]*ubar[1] - C[7]*ubar[1]**2 + C[7] - C[8]*ubar[1]*ubar[2]) + m[2]*(-C[0]*ubar[0]*ubar[1] - C[1]*ubar[1]**2 + C[1] - C[2]*ubar[1]*ubar[2]))*(-m[1]**2/(m[0] + 1) + 1))/un
+    h[0, 2] = (-m[1]*m[2]*(m[0]*(-C[3]*ubar[0]*ubar[2] - C[4]*ubar[1]*ubar[2] - C[5]*ubar[2]**2 + C[5]) - m[1]*(-C[0]*ubar[0]*ubar[2] - C[1]*ubar[1]*ubar[2] - C[2]*ubar[2]**2 + C[2]))/(m[0] + 1) - m[1]*(m[1]*(-C[6]*ubar[0]*ubar[2] - C[7]*ubar[1]*ubar[2] - C[8]*ubar[2]**2 + C[8]) - m[2]*(-C[3]*ubar[0]*ubar[2] - C[4]*ubar[1]*ubar[2] - C[5]*ubar[2]**2 + C[5])) + (-m[0]*(-C[6]*ubar[0]*ubar[2] - C[7]*ubar[1]*ubar[2] - C[8]*ubar[2]**2 + C[8]) + m[2]*(-C[0]*ubar[0]*ubar[2] - C[1]*ubar[1]*ubar[2] - C[2]*ubar[2]**2 + C[2]))*(-m[1]**2/(m[0] + 1) + 1))/un
+    h[1, 0] = (-m[1]*m[2]*(-m[0]*(-C[6]*ubar[0]**2 + C[6] - C[7]*ubar[0]*ubar[1] - C[8]*ubar[0]*ubar[2]) + m[2]*(-C[0]*ubar[0]**2 + C[0] - C[1]*ubar[0]*ubar[1] - C[2]*ubar[0]*ubar[2]))/(m[0] + 1) - m[2]*(m[1]*(-C[6]*ubar[0]**2 + C[6] - C[7]*ubar[0]*ubar[1] - C[8]*ubar[0]*ubar[2]) - m[2]*(-C[3]*ubar[0]**2 + C[3] - C[4]*ubar[0]*ubar[1] - C[5]*ubar[0]*ubar[2])) + (m[0]*(-C[3]*ubar[0]**2 + C[3] - C[4]*ubar[0]*ubar[1] - C[5]*ubar[0]*ubar[2]) - m[1]*(-C[0]*ubar[0]**2 + C[0] - C[1]*ubar[0]*ubar[1] - C[2]*ubar[0]*ubar[2]))*(-m[2]**2/(m[0] + 1) + 1))/un
+    h[1, 1] = (-m[1]*m[2]*(-m[0]*(-C[6]*ubar[0]*ubar[1] - C[7]*ubar[1]**2 + C[7] - C[8]*ubar[1]*ubar[2]) + m[2]*(-C[0]*ubar[0]*ubar[1] - C[1]*ubar[1]**2 + C[1] - C[2]*ubar[1]*ubar[2]))/(m[0] + 1) - m[2]*(m[1]*(-C[6]*ubar[0]*ubar[1] - C[7]*ubar[1]**2 + C[7] - C[8]*ubar[1]*ubar[2]) - m[2]*(-C[3]*ubar[0]*ubar[1] - C[4]*ubar[1]**2 + C[4] - C[5]*ubar[1]*ubar[2])) + (m[0]*(-C[3]*ubar[0]*ubar[1] - C[4]*ubar[1]**2 + C[4] - C[5]*ubar[1]*ubar[2]) - m[1]*(-C[0]*ubar[0]*ubar[1] - C[1]*ubar[1]**2 + C[1] - C[2]*ubar[1]*ubar[2]))*(-m[2]**2/(m[0] + 1) + 1))/un
+    h[1, 2] = (-m[1]*m[2]*(-m[0]*(-C[6]*ubar[0]*ubar[2] - C[7]*ubar[1]*ubar[2] - C[8]*ubar[2]**2 + C[8]) + m[2]*(-C[0]*ubar[0]*ubar[2] - C[1]*ubar[1]*ubar[2] - C[2]*ubar[2]**2 + C[2]))/(m[0] + 1) - m[2]*(m[1]*(-C[6]*ubar[0]*ubar[2] - C[7]*ubar[1]*ubar[2] - C[8]*ubar[2]**2 + C[8]) - m[2]*(-C[3]*ubar[0]*ubar[2] - C[4]*ubar[1]*ubar[2] - C[5]*ubar[2]**2 + C[5])) + (m[0]*(-C[3]*ubar[0]*ubar[2] - C[4]*ubar[1]*ubar[2] - C[5]*ubar[2]**2 + C[5]) - m[1]*(-C[0]*ubar[0]*ubar[2] - C[1]*ubar[1]*ubar[2] - C[2]*ubar[2]**2 + C[2]))*(-m[2]**2/(m[0] + 1) + 1))/un
+    h[2, 0] = -ubar[0]
+    h[2, 1] = -ubar[1]
+    h[2, 2] = -ubar[2]
     return h

@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from ins_hil.fusion import generated_jacobians as gj
-from ins_hil.fusion.ekf import StateIndex, skew
+from ins_hil.fusion.ekf import StateIndex
 from ins_hil.nav import earth
 from ins_hil.types import Vec
 
@@ -43,6 +43,19 @@ def placed(h: Vec, idx: StateIndex) -> Vec:
         H[:, idx.bg : idx.bg + 3] = h[:, 9:12]
     if idx.ba is not None:
         H[:, idx.ba : idx.ba + 3] = h[:, 12:15]
+    return H
+
+
+def placed_ext(h: Vec, idx: StateIndex, *blocks: tuple[int | None, int]) -> Vec:
+    """A generated aid row (the 15 base columns, then the aid's own states, ``gj.H_<aid>``) in the filter's layout:
+    the base columns by :func:`placed`, then each of ``blocks`` (its start in ``idx`` or None when off, its size)
+    in turn from column 15."""
+    H = np.ascontiguousarray(placed(h[:, : gj.NX], idx))  # a fresh array when idx has more states than 15
+    k = gj.NX
+    for start, size in blocks:
+        if start is not None:
+            H[:, start : start + size] = h[:, k : k + size]
+        k += size
     return H
 
 
@@ -133,8 +146,7 @@ def magnetometer(idx: StateIndex, C_bn: Vec, field_b: Vec, ref_ned: Vec, bias_b:
         return g[1:3], h_att
     H = np.zeros((3, idx.n))
     H[0:2] = h_att
-    H[0:2, mb_s : mb_s + 3] = (tau[1:3] @ skew(m) @ C_bn @ (np.eye(3) - np.outer(mb, mb))) / un
-    H[2, mb_s : mb_s + 3] = -mb
+    H[:, mb_s : mb_s + 3] = gj.H_mag_bias(m, C_bn, mb, un)  # rows 2-3 of τ [m×] Ĉ (I − m̄ m̄^T)/|u|; −m̄^T
     return np.array((g[1], g[2], 1.0 - un)), H
 
 
@@ -165,16 +177,8 @@ def nonholonomic_mounted(
     boresight error state ``idx.mnt`` if estimated); lever_b: IMU → reference point (body FRD, m).
     Linearisation (δv, μ, δb_g as in :func:`nonholonomic`; ω = ω̂ − δb_g):
     H_v = R̂ Ĉ^T, H_μ = −R̂ Ĉ^T [v̂×], H_bg = R̂ [l×], H_ε = [u×]  (rows y, z)."""
-    Cnb = C_bn.T
-    A = R_vb @ Cnb
-    u = A @ vel + R_vb @ np.cross(omega_b, lever_b)
-    H = np.zeros((2, idx.n))
-    H[:, idx.vel : idx.vel + 3] = A[1:3]
-    H[:, idx.att : idx.att + 3] = -(A @ skew(vel))[1:3]
-    if idx.bg is not None:
-        H[:, idx.bg : idx.bg + 3] = (R_vb @ skew(lever_b))[1:3]
-    if idx.mnt is not None:
-        H[:, idx.mnt : idx.mnt + 3] = skew(u)[1:3]
+    u = R_vb @ (C_bn.T @ vel) + R_vb @ np.cross(omega_b, lever_b)
+    H = placed_ext(gj.H_nhc_mounted(C_bn, vel, R_vb, omega_b, lever_b), idx, (idx.mnt, 3))
     return -u[1:3], H, u
 
 
@@ -186,12 +190,4 @@ def multirotor_drag(idx: StateIndex, C_bn: Vec, vel: Vec, wind_ne: Vec, f_b: Vec
     u = np.array((float(vel[0]) - float(wind_ne[0]), float(vel[1]) - float(wind_ne[1]), float(vel[2])))
     A = Cnb[0:2]
     z = np.asarray(f_b[0:2], dtype=np.float64) + mu * (A @ u)
-    H = np.zeros((2, idx.n))
-    H[:, idx.vel : idx.vel + 3] = -mu * A
-    H[:, idx.att : idx.att + 3] = mu * (Cnb @ skew(u))[0:2]
-    if idx.wind is not None:
-        H[:, idx.wind : idx.wind + 2] = mu * A[:, 0:2]
-    if idx.ba is not None:
-        H[0, idx.ba] = 1.0
-        H[1, idx.ba + 1] = 1.0
-    return z, H
+    return z, placed_ext(gj.H_drag(C_bn, u, mu), idx, (idx.wind, 2))

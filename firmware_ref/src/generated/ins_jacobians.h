@@ -66,6 +66,35 @@ static inline void ins_gen_F_blocks(const ins_real C[9], const ins_real f_ned[3]
     b->vr_dd = g2r;
 }
 
+/* The scale-factor columns of F (21-state layout: states 15-17 = gyro, 18-20 = accelerometer scale factor);
+ * their own rows are -1/tau_s on the diagonal (checked by the generator). */
+typedef struct {
+    ins_real asg[3][3];    /* F[6:9][15:18] */
+    ins_real vsa[3][3];    /* F[3:6][18:21] */
+} ins_gen_fsf_t;
+
+static inline void ins_gen_F_sf(const ins_real C[9], const ins_real f_b[3], const ins_real w_b[3],
+                                ins_gen_fsf_t *b) {
+    b->asg[0][0] = C[0]*w_b[0];
+    b->asg[0][1] = C[1]*w_b[1];
+    b->asg[0][2] = C[2]*w_b[2];
+    b->asg[1][0] = C[3]*w_b[0];
+    b->asg[1][1] = C[4]*w_b[1];
+    b->asg[1][2] = C[5]*w_b[2];
+    b->asg[2][0] = C[6]*w_b[0];
+    b->asg[2][1] = C[7]*w_b[1];
+    b->asg[2][2] = C[8]*w_b[2];
+    b->vsa[0][0] = -C[0]*f_b[0];
+    b->vsa[0][1] = -C[1]*f_b[1];
+    b->vsa[0][2] = -C[2]*f_b[2];
+    b->vsa[1][0] = -C[3]*f_b[0];
+    b->vsa[1][1] = -C[4]*f_b[1];
+    b->vsa[1][2] = -C[5]*f_b[2];
+    b->vsa[2][0] = -C[6]*f_b[0];
+    b->vsa[2][1] = -C[7]*f_b[1];
+    b->vsa[2][2] = -C[8]*f_b[2];
+}
+
 /* GNSS antenna position (lever arm l, body FRD, m): δr + [(C l)×] ψ. Writes the nonzero entries of rows 0..2 (zero h first). */
 static inline void ins_gen_H_gnss_pos(const ins_real C[9], const ins_real lever[3], ins_real h[][INS_NX]) {
     h[0][0] = 1;
