@@ -237,6 +237,10 @@ class CNavCore:
             self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
+        # the last NavState built by state(), until the core changes (a step, an update, the hand-over): the
+        # runtime asks for the same state several times per step (the guard, the observers)
+        self._st: NavState | None = None
+        self._vel_nan = np.full(3, np.nan)
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         # the last rejected GNSS positions with their test ratios: the C core's forced acceptance after
@@ -258,6 +262,7 @@ class CNavCore:
         """The alignment navigates: the C core starts from its state, covariance, biases and baro datum."""
         a = self._align
         self._align = None
+        self._st = None
         self._initial = a.ins.state.copy()
         self._align_stats = {k: dataclasses.replace(v) for k, v in a.stats.items()}
         self.sensor_warnings = list(a.sensor_warnings)
@@ -296,6 +301,7 @@ class CNavCore:
         q = np.ascontiguousarray(s.q_nb, dtype=np.float64)
         v = np.ascontiguousarray(s.vel_ned, dtype=np.float64)
         ffi = self._ffi
+        self._st = None
         self._lib_.cref_init(
             self._core,
             ffi.from_buffer("double[]", q),
@@ -334,20 +340,18 @@ class CNavCore:
                     FaultEvent(imu.t - imu.dt, "imu", FaultMode.DROPOUT, lost, True, True,
                                f"IMU data lost for {lost:.3f} s: coasted at constant velocity, covariance grown")
                 )  # fmt: skip
-        ffi = self._ffi
+        fb = self._ffi.from_buffer
         dth, dv = imu.dtheta, imu.dvel
-        if dth.dtype != np.float64 or not dth.flags.c_contiguous:
+        try:  # the sample's own arrays when they are C doubles (a reader's, a driver's): no copy
+            a, b = fb("double[]", dth), fb("double[]", dv)
+            if dth.dtype != np.float64 or dv.dtype != np.float64:
+                raise TypeError
+        except (TypeError, ValueError, AttributeError):  # not contiguous float64 arrays
             dth = np.ascontiguousarray(dth, dtype=np.float64)
-        if dv.dtype != np.float64 or not dv.flags.c_contiguous:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
-        self._lib_.cref_hstep(
-            self._core,
-            self._hist,
-            ffi.from_buffer("double[]", dth),
-            ffi.from_buffer("double[]", dv),
-            imu.t,
-            0.0 if self.fixed_step else float(imu.dt),
-        )
+            a, b = fb("double[]", dth), fb("double[]", dv)
+        self._st = None
+        self._lib_.cref_hstep(self._core, self._hist, a, b, imu.t, 0.0 if self.fixed_step else float(imu.dt))
         return self.state()
 
     def step_begin(self, imu: ImuSample) -> NavState:
@@ -378,45 +382,59 @@ class CNavCore:
             return None
         if self.dt is None or not self.filter:
             return None
-        if isinstance(meas, GnssFix) and self.cfg.gnss.vel_delay > 0 and meas.vel_ned is not None:
-            self._fuse_one(dataclasses.replace(meas, vel_ned=None))
-            self._fuse_one(dataclasses.replace(meas, t=meas.t - self.cfg.gnss.vel_delay, lat=math.nan))
-            return None
-        self._fuse_one(meas)
+        try:
+            if isinstance(meas, GnssFix) and self.cfg.gnss.vel_delay > 0 and meas.vel_ned is not None:
+                # the position at the fix's time, the velocity at its own earlier time (as two measurements)
+                self._fuse_one(meas, vel=False)
+                self._st = None
+                self._fuse_one(meas, pos=False, t=meas.t - self.cfg.gnss.vel_delay)
+            else:
+                self._fuse_one(meas)
+        finally:
+            self._st = None  # the state changed (a roll-back too)
         return None
 
-    def _fuse_one(self, meas: AidSample) -> None:
+    def _fuse_one(self, meas: AidSample, *, pos: bool = True, vel: bool = True, t: float | None = None) -> None:
+        """One measurement into the C core (through the roll-back history). A GNSS fix: its position unless
+        ``pos`` is False, its velocity unless ``vel`` is False, at ``t`` (default its own time)."""
         e = self._core.ekf
-        before = [int(e.rejected[i]) for i in range(3)]
-        cons = [int(e.consecutive[i]) for i in range(3)]
+        before = (int(e.rejected[0]), int(e.rejected[1]), int(e.rejected[2]))
+        cons = (int(e.consecutive[0]), int(e.consecutive[1]), int(e.consecutive[2]))
         if isinstance(meas, GnssFix):
-            vel = meas.vel_ned if meas.vel_ned is not None else np.full(3, np.nan)
-            vel = np.ascontiguousarray(vel, dtype=np.float64)
-            for name in ("std_ne", "std_d", "std_vel"):
-                sd = getattr(meas, name)
-                if not sd >= 0.0:
-                    raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
-            pos = math.isfinite(meas.lat)  # NaN: the velocity of a gnss.vel_delay split
+            v = meas.vel_ned if vel else None
+            if v is None:
+                v = self._vel_nan
+            elif not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.flags.c_contiguous):
+                v = np.ascontiguousarray(v, dtype=np.float64)
+            if not (meas.std_ne >= 0.0 and meas.std_d >= 0.0 and meas.std_vel >= 0.0):
+                for name in ("std_ne", "std_d", "std_vel"):
+                    sd = getattr(meas, name)
+                    if not sd >= 0.0:
+                        raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
+            pos = pos and math.isfinite(meas.lat)  # NaN: a velocity-only fix
+            # the fix as this update sees it (the position alone of a gnss.vel_delay split): made when needed
+            own = meas if vel or meas.vel_ned is None else None
             if pos:
-                self._hold_reset(meas)
+                self._hold_reset(meas if own is not None else dataclasses.replace(meas, vel_ned=None))
             self._lib_.cref_hfuse_gnss(
                 self._core,
                 self._hist,
-                meas.t,
-                meas.lat,
+                meas.t if t is None else t,
+                meas.lat if pos else math.nan,
                 meas.lon,
                 meas.h,
-                self._ffi.from_buffer("double[]", vel),
+                self._ffi.from_buffer("double[]", v),
                 meas.std_ne,
                 meas.std_d,
                 meas.std_vel,
             )
-            use_vel = meas.vel_ned is not None and self.cfg.gnss.use_vel
+            use_vel = vel and meas.vel_ned is not None and self.cfg.gnss.use_vel
             groups = ((0,) if pos else ()) + ((1,) if use_vel else ())
             if pos:
                 if int(e.rejected[0]) > before[0]:
-                    self._rejected.append((meas, float(e.last_ratio[0])))
-                else:
+                    kept = own if own is not None else dataclasses.replace(meas, vel_ned=None)
+                    self._rejected.append((kept, float(e.last_ratio[0])))
+                elif self._rejected:
                     self._rejected.clear()
         elif isinstance(meas, BaroSample):
             alt = meas.altitude
@@ -443,12 +461,12 @@ class CNavCore:
             sensor = "gnss" if kind.startswith("gnss") else "baro"
             if int(e.rejected[g]) > before[g] and cons[g] == 0:
                 self._events.append(
-                    FaultEvent(meas.t, sensor, FaultMode.JUMP, float("nan"), True, False,
+                    FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, float("nan"), True, False,
                                f"{kind} innovation test ratio {ratios[kind]:.2f}")
                 )  # fmt: skip
             elif int(e.consecutive[g]) == 0 and cons[g] > 0:
                 self._events.append(
-                    FaultEvent(meas.t, sensor, FaultMode.JUMP, 0.0, True, True,
+                    FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, 0.0, True, True,
                                f"{kind} accepted again after {cons[g]} rejections")
                 )  # fmt: skip
         self._ratios = ratios
@@ -514,9 +532,12 @@ class CNavCore:
         if self.dt is None:
             s = self._initial
             return NavState(t=s.t, q_nb=s.q_nb.copy(), vel_ned=s.vel_ned.copy(), lat=s.lat, lon=s.lon, h=s.h)
+        st = self._st
+        if st is not None and st.test_ratios is self._ratios:
+            return st
         self._lib_.cref_state(self._core, self._out)
         o = self._out_np.copy()
-        return NavState(
+        st = self._st = NavState(
             t=float(o[0]),
             q_nb=o[1:5],
             vel_ned=o[5:8],
@@ -533,6 +554,7 @@ class CNavCore:
             aligned=bool(o[25] < self.cfg.alignment.aligned_yaw_std),
             test_ratios=self._ratios,
         )
+        return st
 
     def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1, dt: Vec | None = None) -> Vec:
         """Run n IMU intervals in ONE C call (the core must have its dt; through the roll-back history).
@@ -549,6 +571,7 @@ class CNavCore:
         if dtheta.ndim != 2 or dtheta.shape[1] != 3 or dvel.shape != dtheta.shape:
             raise ValueError(f"CNavCore.run: dtheta and dvel must both be (n, 3), got {dtheta.shape} and {dvel.shape}")
         n = dtheta.shape[0]
+        self._st = None
         inc = np.ascontiguousarray(np.hstack((dtheta, dvel)))
         ffi = self._ffi
         tp = dp = ffi.NULL

@@ -472,7 +472,7 @@ class Track(Observer):
                     "std_vel": z, "std_att": z}  # fmt: skip
         llh = np.array([(s.lat, s.lon, s.h) for s in st])
         lat0, lon0, h0 = self.origin
-        ned = np.array([earth.ned_from_geodetic(a, b, c, lat0, lon0, h0) for a, b, c in llh])
+        ned = earth.ned_from_geodetic_many(llh, lat0, lon0, h0)
         return {"t": np.array([s.t for s in st]), "q_nb": np.array([s.q_nb for s in st]),
                 "vel_ned": np.array([s.vel_ned for s in st]), "ned": ned, "llh": llh,
                 "std_pos": np.array([s.std_pos for s in st]), "std_vel": np.array([s.std_vel for s in st]),
