@@ -398,8 +398,9 @@ class CNavCore:
         """One measurement into the C core (through the roll-back history). A GNSS fix: its position unless
         ``pos`` is False, its velocity unless ``vel`` is False, at ``t`` (default its own time)."""
         e = self._core.ekf
-        before = (int(e.rejected[0]), int(e.rejected[1]), int(e.rejected[2]))
-        cons = (int(e.consecutive[0]), int(e.consecutive[1]), int(e.consecutive[2]))
+        unpack = self._ffi.unpack  # the C counters, one call per array
+        before = unpack(e.rejected, 3)
+        cons = unpack(e.consecutive, 3)
         if isinstance(meas, GnssFix):
             v = meas.vel_ned if vel else None
             if v is None:
@@ -415,7 +416,7 @@ class CNavCore:
             # the fix as this update sees it (the position alone of a gnss.vel_delay split): made when needed
             own = meas if vel or meas.vel_ned is None else None
             if pos:
-                self._hold_reset(meas if own is not None else dataclasses.replace(meas, vel_ned=None))
+                self._hold_reset(meas, strip_vel=own is None)
             self._lib_.cref_hfuse_gnss(
                 self._core,
                 self._hist,
@@ -431,7 +432,7 @@ class CNavCore:
             use_vel = vel and meas.vel_ned is not None and self.cfg.gnss.use_vel
             groups = ((0,) if pos else ()) + ((1,) if use_vel else ())
             if pos:
-                if int(e.rejected[0]) > before[0]:
+                if e.rejected[0] > before[0]:
                     kept = own if own is not None else dataclasses.replace(meas, vel_ned=None)
                     self._rejected.append((kept, float(e.last_ratio[0])))
                 elif self._rejected:
@@ -453,18 +454,20 @@ class CNavCore:
         else:
             return None
         ratios = dict(self._ratios)
+        last = unpack(e.last_ratio, len(_GROUPS))
+        rej, con = unpack(e.rejected, 3), unpack(e.consecutive, 3)
         for g in groups:
             kind = _GROUPS[g]
-            ratios[kind] = float(e.last_ratio[g])
+            ratios[kind] = float(last[g])
             if g > 2:  # events for the GNSS and baro gates only (as NavCore)
                 continue
             sensor = "gnss" if kind.startswith("gnss") else "baro"
-            if int(e.rejected[g]) > before[g] and cons[g] == 0:
+            if rej[g] > before[g] and cons[g] == 0:
                 self._events.append(
                     FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, float("nan"), True, False,
                                f"{kind} innovation test ratio {ratios[kind]:.2f}")
                 )  # fmt: skip
-            elif int(e.consecutive[g]) == 0 and cons[g] > 0:
+            elif con[g] == 0 and cons[g] > 0:
                 self._events.append(
                     FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, 0.0, True, True,
                                f"{kind} accepted again after {cons[g]} rejections")
@@ -472,7 +475,7 @@ class CNavCore:
         self._ratios = ratios
         return None
 
-    def _hold_reset(self, meas: GnssFix) -> None:
+    def _hold_reset(self, meas: GnssFix, strip_vel: bool = False) -> None:
         """Before a fix reaches the C core: when its count of rejected positions would force this one in (a
         GNSS reset), allow it only if the rejected fixes and this one pass the consistency test of the Python
         core (``ins_hil.core.gnss_fixes_agree``, each rejected one within ``RESET_GATE_FACTOR`` gates unless
@@ -481,6 +484,8 @@ class CNavCore:
         n = int(self.cfg.gnss.reset_after)
         if int(e.consecutive[0]) < n:
             return
+        if strip_vel:  # the position alone of a gnss.vel_delay split
+            meas = dataclasses.replace(meas, vel_ned=None)
         fixes = [(f, q) for f, q in self._rejected if f.t < meas.t]
         ok = len(fixes) >= n
         if ok:
@@ -600,6 +605,19 @@ class CNavCore:
             len(RUN_COLUMNS),
         )
         return out[every - 1 :: every] if every > 1 else out
+
+    def run_increments(self, inc: Vec, t_end: Vec, dt: Vec) -> None:
+        """:meth:`run` without output for a caller that has its increments stacked already: ``inc`` (n, 6)
+        C-contiguous float64 (dθ rad, dv m/s, body FRD), ``t_end`` and ``dt`` (n,) float64 (s); slices of the
+        whole log's arrays (no copy). The delayed-fusion replay loop of a log (``ins_hil.bench.core_replay``)."""
+        n = len(t_end)
+        if self.dt is None or inc.shape != (n, 6) or len(dt) != n or not inc.flags.c_contiguous:
+            self.run(inc[:, :3], inc[:, 3:], t_end, every=0, dt=dt)  # checks and says what is wrong
+            return
+        fb = self._ffi.from_buffer
+        self._st = None
+        self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
+                            self._ffi.NULL, 0)  # fmt: skip
 
     def covariance(self) -> Vec:
         """The EKF covariance P (15 × 15; order δr NED, δv NED, ψ NED, δb_g, δb_a)."""

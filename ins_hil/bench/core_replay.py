@@ -34,8 +34,7 @@ def feed(p: Any, core: Any) -> None:
     is_c = not hasattr(core, "ins")
     imu = p.imu
     if is_c:
-        dth = np.array([s.dtheta for s in imu])
-        dv = np.array([s.dvel for s in imu])
+        inc = np.ascontiguousarray(np.hstack([np.array([s.dtheta for s in imu]), np.array([s.dvel for s in imu])]))
         t = np.array([s.t for s in imu])
         dts = np.array([s.dt for s in imu])
     j, n, k, n_imu = 0, len(meas), 0, len(imu)
@@ -46,7 +45,7 @@ def feed(p: Any, core: Any) -> None:
             t_next = meas[j][0] if j < n else math.inf
             k_end = max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1) if j < n else n_imu
             k_end = min(k_end, n_imu)
-            core.run(dth[k:k_end], dv[k:k_end], t[k:k_end], every=0, dt=dts[k:k_end])
+            core.run_increments(inc[k:k_end], t[k:k_end], dts[k:k_end])
             s = imu[k_end - 1]
             k = k_end
         else:
