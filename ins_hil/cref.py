@@ -241,6 +241,8 @@ class CNavCore:
         # runtime asks for the same state several times per step (the guard, the observers)
         self._st: NavState | None = None
         self._vel_nan = np.full(3, np.nan)
+        #: the rows of the last run_states call that had lost IMU data before them (one DROPOUT event each)
+        self.run_gap_rows: list[int] = []
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         # the last rejected GNSS positions with their test ratios: the C core's forced acceptance after
@@ -605,6 +607,58 @@ class CNavCore:
             len(RUN_COLUMNS),
         )
         return out[every - 1 :: every] if every > 1 else out
+
+    def can_run(self) -> bool:
+        """True when :meth:`run_states` may take the next samples: the C core navigates (the alignment has
+        handed over) and steps each sample over its own ``dt`` (``fixed_step=False``)."""
+        return self._align is None and self.dt is not None and not self.fixed_step and self.filter
+
+    def run_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
+        """:meth:`step` on n samples in ONE C call (through the roll-back history): ``inc`` (n, 6) float64 dθ, dv
+        (rad, m/s, body FRD), ``t_end``, ``dt`` (n,) s. Returns the state after each step, as :meth:`step` would
+        (the same values: the C core's one state record), and records the IMU data lost before a sample as
+        :meth:`step` does (``imu_lost``, a DROPOUT event). Only when :meth:`can_run`."""
+        n = len(t_end)
+        self.run_gap_rows = []
+        inc = np.ascontiguousarray(inc, dtype=np.float64)
+        t_end = np.ascontiguousarray(t_end, dtype=np.float64)
+        dt = np.ascontiguousarray(dt, dtype=np.float64)
+        if inc.shape != (n, 6) or dt.shape != (n,) or not self.can_run():
+            raise ValueError("CNavCore.run_states: (n, 6) increments, (n,) times and steps, on a navigating core "
+                             "with fixed_step=False")  # fmt: skip
+        if n:  # the IMU data lost before each sample (step()'s record, in one pass; none before the first step)
+            prev = np.empty(n)
+            prev[0] = float(self._core.mech.t)
+            prev[1:] = t_end[:-1]
+            lost = t_end - dt - prev
+            gap = lost > 0.5 * dt
+            if int(self._core.steps) == 0:
+                gap[0] = False
+            self.run_gap_rows = np.nonzero(gap)[0].tolist()
+            for k in self.run_gap_rows:
+                lk = float(lost[k])
+                tk = float(t_end[k] - dt[k])
+                self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lk)
+                self._events.append(
+                    FaultEvent(tk, "imu", FaultMode.DROPOUT, lk, True, True,
+                               f"IMU data lost for {lk:.3f} s: coasted at constant velocity, covariance grown")
+                )  # fmt: skip
+        out = np.empty((n, 32))
+        fb = self._ffi.from_buffer
+        self._st = None
+        self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
+                            fb("double[]", out), 32)  # fmt: skip
+        aligned = (out[:, 25] < self.cfg.alignment.aligned_yaw_std).tolist()
+        ratios = self._ratios
+        sts = [
+            NavState(t=float(o[0]), q_nb=o[1:5], vel_ned=o[5:8], lat=float(o[8]), lon=float(o[9]), h=float(o[10]),
+                     gyro_bias=o[11:14], accel_bias=o[14:17], std_pos=o[17:20], std_vel=o[20:23], std_att=o[23:26],
+                     omega_b=o[26:29], accel_b=o[29:32], aligned=a, test_ratios=ratios)
+            for o, a in zip(out, aligned, strict=True)
+        ]  # fmt: skip
+        if sts:
+            self._st = sts[-1]
+        return sts
 
     def run_increments(self, inc: Vec, t_end: Vec, dt: Vec) -> None:
         """:meth:`run` without output for a caller that has its increments stacked already: ``inc`` (n, 6)

@@ -191,6 +191,88 @@ def cli_md(rows: list[dict[str, Any]]) -> str:
     return "\n".join(out)
 
 
+def batch_row(seeds: int = 4, workers: int = 2, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """The Dask batch on the C core: ``ins-hil replay --batch <each shipped dataset config the C core runs>
+    --seeds N --workers W --core c --compare-serial --no-plots`` in a child process (the jobs one after the other
+    in it, then on a LocalCluster of W workers): both wall times, their ratio, whether every job gave the same
+    results, the load average before and after. Configs the C core refuses are left out (named)."""
+    import os
+    import re
+    import subprocess
+    import sys
+    import tempfile
+
+    from ins_hil.datasets import config
+
+    ok, refused = [], []
+    for path in sorted(CONFIGS.glob("*.toml")):
+        cfg = config.load(path)
+        if cfg.path is None or not cfg.path.exists():
+            continue
+        try:
+            from ins_hil.cref import CNavCore
+
+            CNavCore(None, cfg.nav_config(), fixed_step=False)
+            ok.append(path)
+        except ValueError as e:
+            refused.append(f"{path.stem} ({str(e).split(': ', 1)[-1]})")
+    row: dict[str, Any] = {"configs": [p.stem for p in ok], "refused": refused, "seeds": seeds, "workers": workers,
+                           "load_before": os.getloadavg()}  # fmt: skip
+    with tempfile.TemporaryDirectory() as out:
+        t0 = time.perf_counter()
+        pr = subprocess.run(
+            [sys.executable, "-m", "ins_hil.cli", "replay", "--batch", *map(str, ok), "--seeds", str(seeds),
+             "--workers", str(workers), "--core", "c", "--compare-serial", "--no-plots", "--quiet", "--out", out],
+            capture_output=True, text=True, check=False,
+        )  # fmt: skip
+        row["wall_s"] = time.perf_counter() - t0
+    row["load_after"] = os.getloadavg()
+    m = re.search(r"serial ([0-9.]+) s, parallel ([0-9.]+) s \(([^)]*)\): ([0-9.]+)x; (.*)", pr.stdout)
+    if pr.returncode or m is None:
+        row["error"] = (pr.stderr.strip().splitlines() or ["no ratio printed"])[-1]
+    else:
+        row.update(serial_s=float(m.group(1)), parallel_s=float(m.group(2)), ratio=float(m.group(4)),
+                   same=m.group(5).strip())  # fmt: skip
+    if say:
+        say("  " + batch_line(row))
+    return row
+
+
+def batch_line(r: dict[str, Any]) -> str:
+    """One line of :func:`batch_row`."""
+    if "error" in r:
+        return f"batch on C: failed ({r['error']})"
+    return (f"batch on C, {len(r['configs'])} logs x {r['seeds']} seeds: serial {r['serial_s']:.1f} s, "
+            f"{r['workers']} Dask workers {r['parallel_s']:.1f} s wall: {r['ratio']:.2f}x ({r['same']}; load "
+            f"{r['load_before'][0]:.1f} before, {r['load_after'][0]:.1f} after)")  # fmt: skip
+
+
+def batch_md(r: dict[str, Any]) -> str:
+    """The Markdown section of :func:`batch_row`."""
+    out = ["", "## Batch on the C core (Dask)", ""]
+    if "error" in r:
+        return "\n".join([*out, f"`ins-hil replay --batch … --core c --compare-serial` failed: {r['error']}", ""])
+    out += [
+        f"`ins-hil replay --batch configs/datasets/{{{','.join(r['configs'])}}}.toml --seeds {r['seeds']} --workers"
+        f" {r['workers']} --core c --compare-serial --no-plots` in a child process: the"
+        f" {len(r['configs']) * r['seeds']} jobs one after the other in it, then on a LocalCluster of"
+        f" {r['workers']} workers ({r['same']}). Left out (refused by the C core):"
+        f" {', '.join(r['refused']) or 'none'}.",
+        "",
+        "| serial [s wall] | Dask, 2 workers [s wall] | Dask / serial throughput | load average before / after |",
+        "|---:|---:|---:|---|",
+        f"| {r['serial_s']:.1f} | {r['parallel_s']:.1f} | {r['ratio']:.2f}× |"
+        f" {r['load_before'][0]:.2f} / {r['load_after'][0]:.2f} |",
+        "",
+        f"Target (issue 42): ≥ 1.7× serial C — {'met' if r['ratio'] >= 1.7 else 'NOT met'}"
+        + ("" if r["ratio"] >= 1.7 or r["load_before"][0] < 1.0 else
+           f" in this run; with a load average of {r['load_before'][0]:.1f} on 2 CPUs the 2 workers did not have"
+           " 2 CPUs, so the ratio is a lower bound of the machine's") + ".",
+        "",
+    ]  # fmt: skip
+    return "\n".join(out)
+
+
 def synthetic_rows(seconds: float = 60.0, say: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """200 Hz IMU with 20 Hz GNSS and a 0.1-s velocity delay on both cores (process time, real-time factor)."""
     from ins_hil.bench.replay_cost import _vel_at
@@ -270,10 +352,39 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
             rt = r["span_s"] / r["c_s"]
             out.append(f"- 200-Hz IMU, 20-Hz GNSS, 0.1-s velocity delay ≥ 2,000× real time on C: {rt:.0f}× —"
                        f" {'met' if rt >= 2000 else 'NOT met'}.")  # fmt: skip
-        out.append("- batch over the logs × 4 seeds with 2 Dask workers on C; the live gateway at 1 kHz × 2 IMUs on"
-                   " C against the soak's targets: not measured here.")  # fmt: skip
+        out.append("- batch over the logs × 4 seeds with 2 Dask workers on C ≥ 1.7× serial C: the section \"Batch on"
+                   " the C core\" below; the live gateway at 1 kHz × 2 IMUs on C: \"The live gateway on the C core\"."
+                   )  # fmt: skip
     out.append("")
     return "\n".join(out)
+
+
+def live_md() -> str:
+    """The live gateway on the C core against the soak's targets (static text: ``ins-hil soak`` is minutes to hours
+    of real time, not part of this benchmark; the figures of the run named, measured when the text was written)."""
+    return "\n".join([
+        "",
+        "## The live gateway on the C core",
+        "",
+        "`scripts/soak --duration 120 --rate 1000 --imus 2 --core c --interleave 30 --baseline 0 --faults auto`"
+        " (docs/soak.md explains the set-up): 8 interleaved blocks of 30 s (4 min), the gateway on the C core"
+        " against the null relay, IMU 1 kHz × 2 with FDI, measured 2026-12-07 03:02 UTC on the machine above with a"
+        " load average of 8.0 at the start and 13.7 at the end (other work on the 2 CPUs: contaminated, upper"
+        " bounds). Python core: the campaign of docs/soak.md (30 + 30 blocks of 60 s, 2026-12-02, load 0.7).",
+        "",
+        "| figure | target | Python core (docs/soak.md) | C core (this run) |",
+        "|---|---|---:|---:|",
+        "| e2e p99, gateway / floor | ≤ 1.2 | 1.52 | 1.46 — NOT met |",
+        "| e2e p99.9, gateway / floor | ≤ 1.5 | 2.06 | 1.47 — met |",
+        "| loop arrival → state p99.9, steal-free seconds | ≤ 1,000 µs | 1,977 µs | 609 µs — met |",
+        "| core step (FDI + INS/EKF) p50 | — | 93 µs | 73 µs |",
+        "| lost IMU frames; injected faults isolated; false alarms | 0; all; 0 | 0; 60/60; 0 | 0; 8/8; 0 |",
+        "",
+        "On the C core the step proper is a few µs: what remains of the 73 µs is the Python around it (the FDI"
+        " over the two IMUs, validation, grouping). The e2e p99 ratio is decided by the host's tail in this run"
+        " (the null relay's own p99.9 was 7,180 µs in the steal-free seconds).",
+        "",
+    ])  # fmt: skip
 
 
 def scope_md() -> str:

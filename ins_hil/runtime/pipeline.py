@@ -421,6 +421,98 @@ class Pipeline:
             self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
             return None
 
+    def imu_run(self, samples: list[ImuSample]) -> None:
+        """:meth:`imu` on each of ``samples`` in order, with nothing handed over in between (an offline replay's
+        IMU samples up to the next aiding measurement). The same states, counts, events and observer calls; on
+        the C core, once it navigates, the samples that pass the validation boundary go into the core in one
+        call (``CNavCore.run_states``) instead of one call each."""
+        k, n = 0, len(samples)
+        while k < n:
+            if not self._can_run():
+                self.imu(samples[k])
+                k += 1
+                continue
+            j = k
+            val, t_prev = self._val_imu, self._t_imu
+            while j < n:  # the run that passes the validation boundary as it is (no clock re-anchoring)
+                s = samples[j]
+                if s.t <= t_prev or val(s) is not None:
+                    break
+                t_prev = s.t
+                j += 1
+            if j == k:  # refused (or re-anchored): the per-sample path says why
+                self.imu(samples[k])
+                k += 1
+                continue
+            try:
+                self._epochs_c(samples[k:j])
+            except Exception as e:  # counted; the gateway keeps running (as imu())
+                self._count("pipeline_error")
+                self._core_fault(samples[j - 1].t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}",
+                                 "pipeline")  # fmt: skip
+            k = j
+
+    def _can_run(self) -> bool:
+        """The batched C path of :meth:`imu_run` applies: one IMU, no calibration, FDI, clock offset, held
+        aiding or queued work, no open core fault, and a C core that navigates (``CNavCore.can_run``)."""
+        core = self.core
+        return (core is not None and not self._multi and self._calib is None and self._fdi is None
+                and not self._t_off and not self._held and not self._jobs and not self._new_jobs
+                and not self._fault_open and not self._step_pending and hasattr(core, "run_states")
+                and cast(Any, core).can_run())  # fmt: skip
+
+    def _epochs_c(self, run: list[ImuSample]) -> None:
+        """The epochs of ``run`` (validated, in time order) through the C core in one call: each state checked
+        by the core guard, published to the observers; at the first bad state the core fault as in
+        :meth:`_epoch` and the rest of the run sample by sample."""
+        core = cast(Any, self.core)
+        n = len(run)
+        inc = np.empty((n, 6))
+        t = np.empty(n)
+        dt = np.empty(n)
+        for i, s in enumerate(run):
+            inc[i, :3] = s.dtheta
+            inc[i, 3:] = s.dvel
+            t[i] = s.t
+            dt[i] = s.dt
+        self.imu_t = run[-1].t
+        pre = core.drain_events()  # what the core raised since the last epoch (an update's gate events)
+        states = core.run_states(inc, t, dt)
+        ev = core.drain_events()  # the lost-data events of the run, one per row of core.run_gap_rows
+        by_row: dict[int, list[FaultEvent]] = {}
+        for r, e in zip(core.run_gap_rows, ev, strict=True):
+            by_row.setdefault(r, []).append(e)
+        resets = self._resets + getattr(core, "gnss_resets", 0)
+        obs = self.observers
+        for i, st in enumerate(states):
+            s = run[i]
+            self._t_imu = s.t
+            self._last_arrival = s.t_arrival_ns
+            if not state_ok(st):  # as _epoch: the core restarts (its events since the last good state dropped)
+                self._core_fault(s.t, "core step: non-finite or implausible state", "state")
+                for r in run[i + 1 :]:  # validated already: straight to the epoch, as imu() would
+                    self.imu_t = r.t
+                    try:
+                        self._epoch([r])
+                    except Exception as e:
+                        self._count("pipeline_error")
+                        self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+                return
+            st.resets = resets
+            self._good = st
+            self._gap_free = True
+            if i == 0 and pre:
+                self.events.extend(pre)
+            if i in by_row:
+                self.events.extend(by_row[i])
+            self.last_state = st
+            try:
+                for o in obs:
+                    o.epoch(self, st)
+            except Exception as e:  # counted, as imu() does for an epoch
+                self._count("pipeline_error")
+                self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+
     def _clock_restart(self, s: ImuSample) -> ImuSample | None:
         """A sample refused because its time did not increase: the IMU's clock may have restarted (a driver
         passed the restarted times through). The rule of :class:`ins_hil.drivers.clock.SourceClock`: the
