@@ -240,3 +240,34 @@ def test_ned_from_geodetic_many_is_the_one_point_routine() -> None:
     assert np.allclose(earth.ned_from_geodetic_many(llh, 0.6, 0.1, 90.0), one, rtol=0.0, atol=1e-9)
     assert earth.ned_from_geodetic_many(np.zeros((0, 3)), 0.6, 0.1, 90.0).shape == (0, 3)
     assert math.isfinite(float(one[0, 0]))
+
+
+def test_bench_core_reads_the_batch_ratio_off_the_replay_command(monkeypatch: pytest.MonkeyPatch) -> None:
+    """bench-core's Dask section takes serial / parallel wall times and the ratio from the line `ins-hil replay
+    --batch … --compare-serial` prints (ins_hil/commands/replay.py), and leaves out what the C core refuses."""
+    from ins_hil.bench import core_replay
+
+    seen: list[list[str]] = []
+
+    class Done:
+        returncode = 0
+        stdout = ("| job | ... |\nserial 62.8 s, parallel 91.0 s (LocalCluster of 2 workers): 0.69x; every job the "
+                  "same results\n")  # fmt: skip
+        stderr = ""
+
+    def fake_run(cmd: list[str], **kw: Any) -> Done:
+        seen.append(cmd)
+        return Done()
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    row = core_replay.batch_row(seeds=4, workers=2)
+    assert (row["serial_s"], row["parallel_s"], row["ratio"]) == (62.8, 91.0, 0.69)
+    assert row["same"] == "every job the same results"
+    # every shipped config with its recording on disk is either run or named as refused (with the reason)
+    have = {p.stem for p in core_replay.CONFIGS.glob("*.toml") if (c := config.load(p)).path and c.path.exists()}
+    assert set(row["configs"]) | {r.split(" ")[0] for r in row["refused"]} == have
+    assert all("(" in r for r in row["refused"])
+    cmd = seen[0]
+    assert cmd[cmd.index("--core") + 1] == "c" and "--compare-serial" in cmd and cmd[cmd.index("--seeds") + 1] == "4"
+    md = core_replay.batch_md(row)
+    assert "| 62.8 | 91.0 | 0.69× |" in md and "NOT met" in md
