@@ -243,6 +243,8 @@ class CNavCore:
         self._vel_nan = np.full(3, np.nan)
         #: the rows of the last run_states call that had lost IMU data before them (one DROPOUT event each)
         self.run_gap_rows: list[int] = []
+        #: the state records of the last run_states call, (n, 32) (``ins_hil.runtime.pipeline.states_ok``)
+        self.run_out: Vec = np.zeros((0, 32))
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         # the last rejected GNSS positions with their test ratios: the C core's forced acceptance after
@@ -648,6 +650,7 @@ class CNavCore:
         self._st = None
         self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
                             fb("double[]", out), 32)  # fmt: skip
+        self.run_out = out
         aligned = (out[:, 25] < self.cfg.alignment.aligned_yaw_std).tolist()
         ratios = self._ratios
         sts = [

@@ -271,3 +271,48 @@ def test_bench_core_reads_the_batch_ratio_off_the_replay_command(monkeypatch: py
     assert cmd[cmd.index("--core") + 1] == "c" and "--compare-serial" in cmd and cmd[cmd.index("--seeds") + 1] == "4"
     md = core_replay.batch_md(row)
     assert "| 62.8 | 91.0 | 0.69× |" in md and "NOT met" in md
+
+
+def test_states_ok_is_state_ok_row_by_row() -> None:
+    from ins_hil.runtime.pipeline import state_ok, states_ok
+
+    rng = np.random.default_rng(5)
+    rows = np.zeros((64, 32))
+    q = rng.standard_normal((64, 4))
+    rows[:, 1:5] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    rows[:, 5:8] = rng.standard_normal((64, 3))
+    rows[:, 8], rows[:, 9], rows[:, 10] = 0.8, 0.5, 100.0
+    rows[:, 17:26] = np.abs(rng.standard_normal((64, 9)))
+    bad = [(1, 1, 1.1), (2, 5, 2e4), (3, 8, 1.6), (4, 9, 2e3), (5, 10, -2e5), (6, 10, 2e6), (7, 17, -0.1),
+           (8, 22, math.inf), (9, 25, math.nan), (10, 6, math.nan), (11, 2, math.inf), (12, 8, math.nan)]  # fmt: skip
+    for r, c, x in bad:
+        rows[r, c] = x
+    want = [state_ok(NavState(t=o[0], q_nb=o[1:5], vel_ned=o[5:8], lat=o[8], lon=o[9], h=o[10], std_pos=o[17:20],
+                              std_vel=o[20:23], std_att=o[23:26])) for o in rows]  # fmt: skip
+    assert states_ok(rows).tolist() == want and want.count(False) == len(bad)
+
+
+def test_a_bad_state_inside_a_batched_run_is_the_per_sample_core_fault() -> None:
+    """A run whose state leaves the plausible range (here 15 g forward for 75 s: over 10 km/s) faults the core at
+    the same sample on both paths: the same counts (core_bad_state, core_restart), events and published states."""
+
+    def feed(batched: bool) -> tuple[Pipeline, Track]:
+        init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
+        track = Track(ORIGIN)
+        pipe = Pipeline(offline_config(False, "c"), [track], nav=_nav(), initial=init)
+        pipe.core = CNavCore(init.copy(), _nav(), fixed_step=False)
+        dv = np.array([15.0 * 9.80665 * 0.01, 0.0, -9.80665 * 0.01])
+        imu = [ImuSample(0.01 * (k + 1), 0.01, np.zeros(3), dv) for k in range(7500)]
+        if batched:
+            pipe.imu_run(imu)
+        else:
+            for s in imu:
+                pipe.imu(s)
+        return pipe, track
+
+    (one, t1), (run, t2) = feed(False), feed(True)
+    assert one.counts.get("core_bad_state", 0) >= 1 and one.counts.get("core_restart") == 1 and one.counts == run.counts
+    assert [(e.t, e.detail) for e in one.drain_events()] == [(e.t, e.detail) for e in run.drain_events()]
+    assert len(t1.states) == len(t2.states)
+    for a, b in zip(t1.states, t2.states, strict=True):
+        _same_state(a, b)

@@ -296,6 +296,24 @@ def state_ok(st: NavState) -> bool:
     )  # fmt: skip
 
 
+def states_ok(rows: np.ndarray) -> np.ndarray:
+    """:func:`state_ok` of many states at once: ``rows`` (n, ≥ 26) in the C core's state record (t, q[4], v[3],
+    lat, lon, h, bg[3], ba[3], σ pos[3], σ vel[3], σ att[3]: ``ins_hil.cref``) → (n,) bool, the same comparisons
+    in the same order (NaN fails each)."""
+    q, v = rows[:, 1:5], rows[:, 5:8]
+    qn = q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3]
+    sd = rows[:, 17:26]
+    with np.errstate(invalid="ignore"):
+        return (
+            (np.abs(qn - 1.0) < QNORM_TOL)
+            & (v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2] < STATE_SPEED_MAX * STATE_SPEED_MAX)
+            & (-1.5707963267948966 <= rows[:, 8]) & (rows[:, 8] <= 1.5707963267948966)
+            & (-1e3 < rows[:, 9]) & (rows[:, 9] < 1e3)
+            & (STATE_H_MIN < rows[:, 10]) & (rows[:, 10] < STATE_H_MAX)
+            & np.all((0.0 <= sd) & (sd < _INF), axis=1)
+        )  # fmt: skip
+
+
 class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
@@ -484,11 +502,12 @@ class Pipeline:
             by_row.setdefault(r, []).append(e)
         resets = self._resets + getattr(core, "gnss_resets", 0)
         obs = self.observers
+        good = states_ok(core.run_out).tolist()  # the core guard of every state, in one pass
         for i, st in enumerate(states):
             s = run[i]
             self._t_imu = s.t
             self._last_arrival = s.t_arrival_ns
-            if not state_ok(st):  # as _epoch: the core restarts (its events since the last good state dropped)
+            if not good[i]:  # as _epoch: the core restarts (its events since the last good state dropped)
                 self._core_fault(s.t, "core step: non-finite or implausible state", "state")
                 for r in run[i + 1 :]:  # validated already: straight to the epoch, as imu() would
                     self.imu_t = r.t
