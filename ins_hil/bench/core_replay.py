@@ -197,10 +197,10 @@ def cli_md(rows: list[dict[str, Any]]) -> str:
             " (a sampling profile, px4_quad, 2026-12-07): about a third in the alignment, which runs in the Python"
             " core on both (the GNSS-velocity yaw bank of a log without magnetometer, until the hand-over), a fifth"
             " in the aiding path around the core (the drift monitor's check, the observers' scoring, per"
-            " measurement), the imports, the reading and the scoring after the replay; the C steps themselves"
-            " (one call per run of IMU samples between two aiding measurements, `Pipeline.imu_run`) are a few"
-            " per cent. On ardupilot_copter (25-Hz IMU, 30 aiding samples a second) the per-measurement Python"
-            " dominates.",
+            " measurement), the imports, the reading and the scoring after the replay; the C steps (one call per"
+            " run of IMU samples between two aiding measurements, `Pipeline.imu_run`) with the state built per"
+            " step for the observers under a fifth, the C work itself a few per cent. On ardupilot_copter (25-Hz"
+            " IMU, 30 aiding samples a second) the per-measurement Python dominates.",
         ]
     out.append("")
     return "\n".join(out)
