@@ -125,15 +125,38 @@ class Section:
     open: bool = False  # other keys are allowed (passed on, e.g. to python-can)
 
 
-def sections() -> list[Section]:
-    """Every section of a gateway configuration file, in the order of the docs."""
+def _nav_sections() -> list[Section]:
+    """The ``[core.nav]`` section and its sub-sections (the core's settings only: what a dataset config's
+    ``[sensor]`` / ``[nav]`` tables are checked against, without the gateway's drivers and outputs)."""
     from ins_hil import aids
     from ins_hil.core_parts.config import SECTIONS as NAV_SECTIONS
     from ins_hil.core_parts.config import NavConfig
+    from ins_hil.fusion.ekf import FilterConfig
+
+    nav = dataclass_keys(NavConfig)  # the sections are tables of their own
+    nav_secs: list[tuple[str, type, str]] = [
+        (k, c, f"{(c.__doc__ or '').split(' (``')[0]} (ins_hil.core_parts.config.{c.__name__}).")
+        for k, c in NAV_SECTIONS.items()
+    ]
+    # the aid modules' own sections (ins_hil.aids: the registry collects them; NavConfig.sources)
+    nav_secs += [(k, c, f"{(c.__doc__ or '').split(' (``')[0]} (ins_hil.aids.{k}.{c.__name__}).")
+                 for k, c in aids.sections().items()]  # fmt: skip
+    nav_secs.append(("filter", FilterConfig, "The error-state Kalman filter (ins_hil.fusion.ekf.FilterConfig; noise "
+                     "densities per √Hz)."))  # fmt: skip
+    for k, _, _ in nav_secs:
+        nav[k] = Key(k, "table", None, optional=True, help=f"the [core.nav.{k}] table")
+    return [
+        Section("core.nav", nav,
+                "The navigation core (ins_hil.core.NavConfig; SI units, gates in σ)."),
+        *(Section(f"core.nav.{k}", dataclass_keys(c), doc) for k, c, doc in nav_secs),
+    ]  # fmt: skip
+
+
+def sections() -> list[Section]:
+    """Every section of a gateway configuration file, in the order of the docs."""
     from ins_hil.drivers.dbc_codec import DbcProfile
     from ins_hil.fdi.aiding import AidingConfig
     from ins_hil.fdi.monitor import FdiConfig
-    from ins_hil.fusion.ekf import FilterConfig
     from ins_hil.gateway_settings import GatewaySettings, InputConfig, RecorderConfig
     from ins_hil.runtime.mqtt_out import MqttConfig
     from ins_hil.runtime.pipeline import PipelineConfig
@@ -149,25 +172,11 @@ def sections() -> list[Section]:
     core["nav"] = Key("nav", "table", None, help="the [core.nav] table")  # built by runtime.pipeline.nav_config
     # the validation limits (PipelineConfig.limits) are flat keys of [core]; the loader builds the Limits
     core.update({k: dataclasses.replace(v, attr=None) for k, v in dataclass_keys(Limits).items()})
-    nav = dataclass_keys(NavConfig)  # the sections are tables of their own
-    nav_secs: list[tuple[str, type, str]] = [
-        (k, c, f"{(c.__doc__ or '').split(' (``')[0]} (ins_hil.core_parts.config.{c.__name__}).")
-        for k, c in NAV_SECTIONS.items()
-    ]
-    # the aid modules' own sections (ins_hil.aids: the registry collects them; NavConfig.sources)
-    nav_secs += [(k, c, f"{(c.__doc__ or '').split(' (``')[0]} (ins_hil.aids.{k}.{c.__name__}).")
-                 for k, c in aids.sections().items()]  # fmt: skip
-    nav_secs.append(("filter", FilterConfig, "The error-state Kalman filter (ins_hil.fusion.ekf.FilterConfig; noise "
-                     "densities per √Hz)."))  # fmt: skip
-    for k, _, _ in nav_secs:
-        nav[k] = Key(k, "table", None, optional=True, help=f"the [core.nav.{k}] table")
     fdi_opts = {"geometry": FDI_GEOMETRY, **dataclass_keys(FdiConfig, skip=("geometry",))}
     return [
         Section("gateway", dataclass_keys(GatewaySettings), "The gateway process."),
         Section("core", core, "The navigation pipeline (ins_hil.runtime.pipeline.PipelineConfig)."),
-        Section("core.nav", nav,
-                "The navigation core (ins_hil.core.NavConfig; SI units, gates in σ)."),
-        *(Section(f"core.nav.{k}", dataclass_keys(c), doc) for k, c, doc in nav_secs),
+        *_nav_sections(),
         Section("fdi", FDI_KEYS, "Inertial-sensor fault detection and isolation over redundant IMUs."),
         Section("fdi.options", fdi_opts, "The FDI monitor (ins_hil.fdi.monitor.FdiConfig); dt, gyro_noise and "
                 "accel_noise are required when [fdi] enabled = true."),
@@ -206,8 +215,15 @@ def section(name: str) -> Section:
     """A section by its dotted name (``inputs[0].options`` → ``inputs[].options``)."""
     name = re.sub(r"\[\d+\]", "[]", name)
     if name not in _CACHE:
-        light = name.startswith("outputs[]") and "gateway" not in _CACHE  # the outputs' alone: no core imported
-        _CACHE.update({s.name: s for s in (_output_sections() if light else sections())})
+        light = "gateway" not in _CACHE  # one group alone: the outputs' without the core, the core's without
+        # the drivers and outputs (a dataset config's check)
+        if light and name.startswith("outputs[]"):
+            built = _output_sections()
+        elif light and (name == "core.nav" or name.startswith("core.nav.")):
+            built = _nav_sections()
+        else:
+            built = sections()
+        _CACHE.update({s.name: s for s in built})
     return _CACHE[name]
 
 

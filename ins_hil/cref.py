@@ -246,6 +246,14 @@ class CNavCore:
         self._out = self._ffi.new("double[32]")
         self._pub: Any = None  # ins_out_t the C step writes its post-mechanization state to (step_begin)
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
+        # the last NavState built by state(), until the core changes (a step, an update, the hand-over): the
+        # runtime asks for the same state several times per step (the guard, the observers)
+        self._st: NavState | None = None
+        self._vel_nan = np.full(3, np.nan)
+        #: the rows of the last run_states call that had lost IMU data before them (one DROPOUT event each)
+        self.run_gap_rows: list[int] = []
+        #: the state records of the last run_states call, (n, 32) (``ins_hil.runtime.pipeline.states_ok``)
+        self.run_out: Vec = np.zeros((0, 32))
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
         # the last rejected GNSS positions with their test ratios: the C core's forced acceptance after
@@ -267,6 +275,7 @@ class CNavCore:
         """The alignment navigates: the C core starts from its state, covariance, biases and baro datum."""
         a = self._align
         self._align = None
+        self._st = None
         self._initial = a.ins.state.copy()
         self._align_stats = {k: dataclasses.replace(v) for k, v in a.stats.items()}
         self.sensor_warnings = list(a.sensor_warnings)
@@ -310,6 +319,7 @@ class CNavCore:
         q = np.ascontiguousarray(s.q_nb, dtype=np.float64)
         v = np.ascontiguousarray(s.vel_ned, dtype=np.float64)
         ffi = self._ffi
+        self._st = None
         self._lib_.cref_init(
             self._core,
             ffi.from_buffer("double[]", q),
@@ -350,20 +360,18 @@ class CNavCore:
                     FaultEvent(imu.t - imu.dt, "imu", FaultMode.DROPOUT, lost, True, True,
                                f"IMU data lost for {lost:.3f} s: coasted at constant velocity, covariance grown")
                 )  # fmt: skip
-        ffi = self._ffi
+        fb = self._ffi.from_buffer
         dth, dv = imu.dtheta, imu.dvel
-        if dth.dtype != np.float64 or not dth.flags.c_contiguous:
+        try:  # the sample's own arrays when they are C doubles (a reader's, a driver's): no copy
+            a, b = fb("double[]", dth), fb("double[]", dv)
+            if dth.dtype != np.float64 or dv.dtype != np.float64:
+                raise TypeError
+        except (TypeError, ValueError, AttributeError):  # not contiguous float64 arrays
             dth = np.ascontiguousarray(dth, dtype=np.float64)
-        if dv.dtype != np.float64 or not dv.flags.c_contiguous:
             dv = np.ascontiguousarray(dv, dtype=np.float64)
-        self._lib_.cref_hstep(
-            self._core,
-            self._hist,
-            ffi.from_buffer("double[]", dth),
-            ffi.from_buffer("double[]", dv),
-            imu.t,
-            0.0 if self.fixed_step else float(imu.dt),
-        )
+            a, b = fb("double[]", dth), fb("double[]", dv)
+        self._st = None
+        self._lib_.cref_hstep(self._core, self._hist, a, b, imu.t, 0.0 if self.fixed_step else float(imu.dt))
         return self.state()
 
     def step_begin(self, imu: ImuSample) -> NavState:
@@ -403,48 +411,63 @@ class CNavCore:
             return None
         if self.dt is None or not self.filter:
             return None
-        if meas.kind == "gnss" and self.cfg.gnss.vel_delay > 0 and cast(GnssFix, meas).vel_ned is not None:
-            meas = cast(GnssFix, meas)
-            self._fuse_one(dataclasses.replace(meas, vel_ned=None))
-            self._fuse_one(dataclasses.replace(meas, t=meas.t - self.cfg.gnss.vel_delay, lat=math.nan))
-            return None
-        self._fuse_one(meas)
+        try:
+            if meas.kind == "gnss" and self.cfg.gnss.vel_delay > 0 and cast(GnssFix, meas).vel_ned is not None:
+                meas = cast(GnssFix, meas)
+                # the position at the fix's time, the velocity at its own earlier time (as two measurements)
+                self._fuse_one(meas, vel=False)
+                self._st = None
+                self._fuse_one(meas, pos=False, t=meas.t - self.cfg.gnss.vel_delay)
+            else:
+                self._fuse_one(meas)
+        finally:
+            self._st = None  # the state changed (a roll-back too)
         return None
 
-    def _fuse_one(self, meas: AidSample) -> None:
+    def _fuse_one(self, meas: AidSample, *, pos: bool = True, vel: bool = True, t: float | None = None) -> None:
+        """One measurement into the C core (through the roll-back history). A GNSS fix: its position unless
+        ``pos`` is False, its velocity unless ``vel`` is False, at ``t`` (default its own time)."""
         e = self._core.ekf
-        before = [int(e.rejected[i]) for i in range(3)]
-        cons = [int(e.consecutive[i]) for i in range(3)]
+        unpack = self._ffi.unpack  # the C counters, one call per array
+        before = unpack(e.rejected, 3)
+        cons = unpack(e.consecutive, 3)
         kind = meas.kind  # the C core's functions of the aids it supports (the others: its "not supported" list)
         if kind == "gnss":
             meas = cast(GnssFix, meas)
-            vel = meas.vel_ned if meas.vel_ned is not None else np.full(3, np.nan)
-            vel = np.ascontiguousarray(vel, dtype=np.float64)
-            for name in ("std_ne", "std_d", "std_vel"):
-                sd = getattr(meas, name)
-                if not sd >= 0.0:
-                    raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
-            pos = math.isfinite(meas.lat)  # NaN: the velocity of a gnss.vel_delay split
+            v = meas.vel_ned if vel else None
+            if v is None:
+                v = self._vel_nan
+            elif not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.flags.c_contiguous):
+                v = np.ascontiguousarray(v, dtype=np.float64)
+            if not (meas.std_ne >= 0.0 and meas.std_d >= 0.0 and meas.std_vel >= 0.0):
+                for name in ("std_ne", "std_d", "std_vel"):
+                    sd = getattr(meas, name)
+                    if not sd >= 0.0:
+                        raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
+            pos = pos and math.isfinite(meas.lat)  # NaN: a velocity-only fix
+            # the fix as this update sees it (the position alone of a gnss.vel_delay split): made when needed
+            own = meas if vel or meas.vel_ned is None else None
             if pos:
-                self._hold_reset(meas)
+                self._hold_reset(meas, strip_vel=own is None)
             self._lib_.cref_hfuse_gnss(
                 self._core,
                 self._hist,
-                meas.t,
-                meas.lat,
+                meas.t if t is None else t,
+                meas.lat if pos else math.nan,
                 meas.lon,
                 meas.h,
-                self._ffi.from_buffer("double[]", vel),
+                self._ffi.from_buffer("double[]", v),
                 meas.std_ne,
                 meas.std_d,
                 meas.std_vel,
             )
-            use_vel = meas.vel_ned is not None and self.cfg.gnss.use_vel
+            use_vel = vel and meas.vel_ned is not None and self.cfg.gnss.use_vel
             groups = ((0,) if pos else ()) + ((1,) if use_vel else ())
             if pos:
-                if int(e.rejected[0]) > before[0]:
-                    self._rejected.append((meas, float(e.last_ratio[0])))
-                else:
+                if e.rejected[0] > before[0]:
+                    kept = own if own is not None else dataclasses.replace(meas, vel_ned=None)
+                    self._rejected.append((kept, float(e.last_ratio[0])))
+                elif self._rejected:
                     self._rejected.clear()
         elif kind == "baro":
             meas = cast(BaroSample, meas)
@@ -465,26 +488,28 @@ class CNavCore:
         else:
             return None
         ratios = dict(self._ratios)
+        last = unpack(e.last_ratio, len(_GROUPS))
+        rej, con = unpack(e.rejected, 3), unpack(e.consecutive, 3)
         for g in groups:
             kind = _GROUPS[g]
-            ratios[kind] = float(e.last_ratio[g])
+            ratios[kind] = float(last[g])
             if g > 2:  # events for the GNSS and baro gates only (as NavCore)
                 continue
             sensor = "gnss" if kind.startswith("gnss") else "baro"
-            if int(e.rejected[g]) > before[g] and cons[g] == 0:
+            if rej[g] > before[g] and cons[g] == 0:
                 self._events.append(
-                    FaultEvent(meas.t, sensor, FaultMode.JUMP, float("nan"), True, False,
+                    FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, float("nan"), True, False,
                                f"{kind} innovation test ratio {ratios[kind]:.2f}")
                 )  # fmt: skip
-            elif int(e.consecutive[g]) == 0 and cons[g] > 0:
+            elif con[g] == 0 and cons[g] > 0:
                 self._events.append(
-                    FaultEvent(meas.t, sensor, FaultMode.JUMP, 0.0, True, True,
+                    FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, 0.0, True, True,
                                f"{kind} accepted again after {cons[g]} rejections")
                 )  # fmt: skip
         self._ratios = ratios
         return None
 
-    def _hold_reset(self, meas: GnssFix) -> None:
+    def _hold_reset(self, meas: GnssFix, strip_vel: bool = False) -> None:
         """Before a fix reaches the C core: when its count of rejected positions would force this one in (a
         GNSS reset), allow it only if the rejected fixes and this one pass the consistency test of the Python
         core (``ins_hil.core.gnss_fixes_agree``, each rejected one within ``RESET_GATE_FACTOR`` gates unless
@@ -493,6 +518,8 @@ class CNavCore:
         n = int(self.cfg.gnss.reset_after)
         if int(e.consecutive[0]) < n:
             return
+        if strip_vel:  # the position alone of a gnss.vel_delay split
+            meas = dataclasses.replace(meas, vel_ned=None)
         fixes = [(f, q) for f, q in self._rejected if f.t < meas.t]
         ok = len(fixes) >= n
         if ok:
@@ -544,8 +571,12 @@ class CNavCore:
         if self.dt is None:
             s = self._initial
             return NavState(t=s.t, q_nb=s.q_nb.copy(), vel_ned=s.vel_ned.copy(), lat=s.lat, lon=s.lon, h=s.h)
+        st = self._st
+        if st is not None and st.test_ratios is self._ratios:
+            return st
         self._lib_.cref_state(self._core, self._out)
-        return self._nav_state(self._out_np.copy())
+        st = self._st = self._nav_state(self._out_np.copy())
+        return st
 
     def _nav_state(self, o: Vec) -> NavState:
         """The NavState of a 32-value C state record (``cref_state``)."""
@@ -582,6 +613,7 @@ class CNavCore:
         if dtheta.ndim != 2 or dtheta.shape[1] != 3 or dvel.shape != dtheta.shape:
             raise ValueError(f"CNavCore.run: dtheta and dvel must both be (n, 3), got {dtheta.shape} and {dvel.shape}")
         n = dtheta.shape[0]
+        self._st = None
         inc = np.ascontiguousarray(np.hstack((dtheta, dvel)))
         ffi = self._ffi
         tp = dp = ffi.NULL
@@ -610,6 +642,72 @@ class CNavCore:
             len(RUN_COLUMNS),
         )
         return out[every - 1 :: every] if every > 1 else out
+
+    def can_run(self) -> bool:
+        """True when :meth:`run_states` may take the next samples: the C core navigates (the alignment has
+        handed over) and steps each sample over its own ``dt`` (``fixed_step=False``)."""
+        return self._align is None and self.dt is not None and not self.fixed_step and self.filter
+
+    def run_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
+        """:meth:`step` on n samples in ONE C call (through the roll-back history): ``inc`` (n, 6) float64 dθ, dv
+        (rad, m/s, body FRD), ``t_end``, ``dt`` (n,) s. Returns the state after each step, as :meth:`step` would
+        (the same values: the C core's one state record), and records the IMU data lost before a sample as
+        :meth:`step` does (``imu_lost``, a DROPOUT event). Only when :meth:`can_run`."""
+        n = len(t_end)
+        self.run_gap_rows = []
+        inc = np.ascontiguousarray(inc, dtype=np.float64)
+        t_end = np.ascontiguousarray(t_end, dtype=np.float64)
+        dt = np.ascontiguousarray(dt, dtype=np.float64)
+        if inc.shape != (n, 6) or dt.shape != (n,) or not self.can_run():
+            raise ValueError("CNavCore.run_states: (n, 6) increments, (n,) times and steps, on a navigating core "
+                             "with fixed_step=False")  # fmt: skip
+        if n:  # the IMU data lost before each sample (step()'s record, in one pass; none before the first step)
+            prev = np.empty(n)
+            prev[0] = float(self._core.mech.t)
+            prev[1:] = t_end[:-1]
+            lost = t_end - dt - prev
+            gap = lost > 0.5 * dt
+            if int(self._core.steps) == 0:
+                gap[0] = False
+            self.run_gap_rows = np.nonzero(gap)[0].tolist()
+            for k in self.run_gap_rows:
+                lk = float(lost[k])
+                tk = float(t_end[k] - dt[k])
+                self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lk)
+                self._events.append(
+                    FaultEvent(tk, "imu", FaultMode.DROPOUT, lk, True, True,
+                               f"IMU data lost for {lk:.3f} s: coasted at constant velocity, covariance grown")
+                )  # fmt: skip
+        out = np.empty((n, 32))
+        fb = self._ffi.from_buffer
+        self._st = None
+        self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
+                            fb("double[]", out), 32)  # fmt: skip
+        self.run_out = out
+        aligned = (out[:, 25] < self.cfg.alignment.aligned_yaw_std).tolist()
+        ratios = self._ratios
+        sts = [
+            NavState(t=float(o[0]), q_nb=o[1:5], vel_ned=o[5:8], lat=float(o[8]), lon=float(o[9]), h=float(o[10]),
+                     gyro_bias=o[11:14], accel_bias=o[14:17], std_pos=o[17:20], std_vel=o[20:23], std_att=o[23:26],
+                     omega_b=o[26:29], accel_b=o[29:32], aligned=a, test_ratios=ratios)
+            for o, a in zip(out, aligned, strict=True)
+        ]  # fmt: skip
+        if sts:
+            self._st = sts[-1]
+        return sts
+
+    def run_increments(self, inc: Vec, t_end: Vec, dt: Vec) -> None:
+        """:meth:`run` without output for a caller that has its increments stacked already: ``inc`` (n, 6)
+        C-contiguous float64 (dθ rad, dv m/s, body FRD), ``t_end`` and ``dt`` (n,) float64 (s); slices of the
+        whole log's arrays (no copy). The delayed-fusion replay loop of a log (``ins_hil.bench.core_replay``)."""
+        n = len(t_end)
+        if self.dt is None or inc.shape != (n, 6) or len(dt) != n or not inc.flags.c_contiguous:
+            self.run(inc[:, :3], inc[:, 3:], t_end, every=0, dt=dt)  # checks and says what is wrong
+            return
+        fb = self._ffi.from_buffer
+        self._st = None
+        self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
+                            self._ffi.NULL, 0)  # fmt: skip
 
     def covariance(self) -> Vec:
         """The EKF covariance P (15 × 15, order δr NED, δv NED, ψ NED, δb_g, δb_a; 21 × 21 with the scale factors

@@ -33,8 +33,7 @@ def feed(p: Any, core: Any) -> None:
     is_c = not hasattr(core, "ins")
     imu = p.imu
     if is_c:
-        dth = np.array([s.dtheta for s in imu])
-        dv = np.array([s.dvel for s in imu])
+        inc = np.ascontiguousarray(np.hstack([np.array([s.dtheta for s in imu]), np.array([s.dvel for s in imu])]))
         t = np.array([s.t for s in imu])
         dts = np.array([s.dt for s in imu])
     j, n, k, n_imu = 0, len(meas), 0, len(imu)
@@ -45,7 +44,7 @@ def feed(p: Any, core: Any) -> None:
             t_next = meas[j][0] if j < n else math.inf
             k_end = max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1) if j < n else n_imu
             k_end = min(k_end, n_imu)
-            core.run(dth[k:k_end], dv[k:k_end], t[k:k_end], every=0, dt=dts[k:k_end])
+            core.run_increments(inc[k:k_end], t[k:k_end], dts[k:k_end])
             s = imu[k_end - 1]
             k = k_end
         else:
@@ -188,7 +187,104 @@ def cli_md(rows: list[dict[str, Any]]) -> str:
         else:
             cells = [f"{c['wall_s']:.2f}", f"{c['cpu_s']:.2f}", f"{py['cpu_s'] / c['cpu_s']:.2f}×"]
         out.append(f"| {r['name']} | {py['wall_s']:.2f} | {py['cpu_s']:.2f} | " + " | ".join(cells) + " |")
+    ran = [r["python"]["cpu_s"] / r["c"]["cpu_s"] for r in rows if r["c"]["rc"] == 0 and r["c"]["cpu_s"] > 0]
+    if ran:
+        lo, hi = min(ran), max(ran)
+        out += [
+            "",
+            f"Target (issue 42): each shipped flight log on C ≥ 20× the Python's throughput, whole process —"
+            f" {'met' if lo >= 20 else 'NOT met'}: {lo:.1f}–{hi:.1f}×. Where the `--core c` process spends its CPU"
+            " (a sampling profile, px4_quad, 2026-12-07): about a third in the alignment, which runs in the Python"
+            " core on both (the GNSS-velocity yaw bank of a log without magnetometer, until the hand-over), a fifth"
+            " in the aiding path around the core (the drift monitor's check, the observers' scoring, per"
+            " measurement), the imports, the reading and the scoring after the replay; the C steps (one call per"
+            " run of IMU samples between two aiding measurements, `Pipeline.imu_run`) with the state built per"
+            " step for the observers under a fifth, the C work itself a few per cent. On ardupilot_copter (25-Hz"
+            " IMU, 30 aiding samples a second) the per-measurement Python dominates.",
+        ]
     out.append("")
+    return "\n".join(out)
+
+
+def batch_row(seeds: int = 4, workers: int = 2, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """The Dask batch on the C core: ``ins-hil replay --batch <each shipped dataset config the C core runs>
+    --seeds N --workers W --core c --compare-serial --no-plots`` in a child process (the jobs one after the other
+    in it, then on a LocalCluster of W workers): both wall times, their ratio, whether every job gave the same
+    results, the load average before and after. Configs the C core refuses are left out (named)."""
+    import os
+    import re
+    import subprocess
+    import sys
+    import tempfile
+
+    from ins_hil.datasets import config
+
+    ok, refused = [], []
+    for path in sorted(CONFIGS.glob("*.toml")):
+        cfg = config.load(path)
+        if cfg.path is None or not cfg.path.exists():
+            continue
+        try:
+            from ins_hil.cref import CNavCore
+
+            CNavCore(None, cfg.nav_config(), fixed_step=False)
+            ok.append(path)
+        except ValueError as e:
+            refused.append(f"{path.stem} ({str(e).split(': ', 1)[-1]})")
+    row: dict[str, Any] = {"configs": [p.stem for p in ok], "refused": refused, "seeds": seeds, "workers": workers,
+                           "load_before": os.getloadavg()}  # fmt: skip
+    with tempfile.TemporaryDirectory() as out:
+        t0 = time.perf_counter()
+        pr = subprocess.run(
+            [sys.executable, "-m", "ins_hil.cli", "replay", "--batch", *map(str, ok), "--seeds", str(seeds),
+             "--workers", str(workers), "--core", "c", "--compare-serial", "--no-plots", "--quiet", "--out", out],
+            capture_output=True, text=True, check=False,
+        )  # fmt: skip
+        row["wall_s"] = time.perf_counter() - t0
+    row["load_after"] = os.getloadavg()
+    m = re.search(r"serial ([0-9.]+) s, parallel ([0-9.]+) s \(([^)]*)\): ([0-9.]+)x; (.*)", pr.stdout)
+    if pr.returncode or m is None:
+        row["error"] = (pr.stderr.strip().splitlines() or ["no ratio printed"])[-1]
+    else:
+        row.update(serial_s=float(m.group(1)), parallel_s=float(m.group(2)), ratio=float(m.group(4)),
+                   same=m.group(5).strip())  # fmt: skip
+    if say:
+        say("  " + batch_line(row))
+    return row
+
+
+def batch_line(r: dict[str, Any]) -> str:
+    """One line of :func:`batch_row`."""
+    if "error" in r:
+        return f"batch on C: failed ({r['error']})"
+    return (f"batch on C, {len(r['configs'])} logs x {r['seeds']} seeds: serial {r['serial_s']:.1f} s, "
+            f"{r['workers']} Dask workers {r['parallel_s']:.1f} s wall: {r['ratio']:.2f}x ({r['same']}; load "
+            f"{r['load_before'][0]:.1f} before, {r['load_after'][0]:.1f} after)")  # fmt: skip
+
+
+def batch_md(r: dict[str, Any]) -> str:
+    """The Markdown section of :func:`batch_row`."""
+    out = ["", "## Batch on the C core (Dask)", ""]
+    if "error" in r:
+        return "\n".join([*out, f"`ins-hil replay --batch … --core c --compare-serial` failed: {r['error']}", ""])
+    out += [
+        f"`ins-hil replay --batch configs/datasets/{{{','.join(r['configs'])}}}.toml --seeds {r['seeds']} --workers"
+        f" {r['workers']} --core c --compare-serial --no-plots` in a child process: the"
+        f" {len(r['configs']) * r['seeds']} jobs one after the other in it, then on a LocalCluster of"
+        f" {r['workers']} workers ({r['same']}). Left out (refused by the C core):"
+        f" {', '.join(r['refused']) or 'none'}.",
+        "",
+        "| serial [s wall] | Dask, 2 workers [s wall] | Dask / serial throughput | load average before / after |",
+        "|---:|---:|---:|---|",
+        f"| {r['serial_s']:.1f} | {r['parallel_s']:.1f} | {r['ratio']:.2f}× |"
+        f" {r['load_before'][0]:.2f} / {r['load_after'][0]:.2f} |",
+        "",
+        f"Target (issue 42): ≥ 1.7× serial C — {'met' if r['ratio'] >= 1.7 else 'NOT met'}"
+        + ("" if r["ratio"] >= 1.7 or r["load_before"][0] < 1.0 else
+           f" in this run; with a load average of {r['load_before'][0]:.1f} on 2 CPUs the 2 workers did not have"
+           " 2 CPUs, so the ratio is a lower bound of the machine's") + ".",
+        "",
+    ]  # fmt: skip
     return "\n".join(out)
 
 
@@ -264,17 +360,50 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
             "",
             f"- replay of each shipped flight log on C ≥ 20× the Python's throughput, whole process: replay alone"
             f" ≥ {rep:.1f}×, whole process (reading included) ≥ {whole:.1f}× — {'met' if whole >= 20 else 'NOT met'}"
-            " (the reading and preparation, shared by both, take longer than the C replay; the alignment phase"
-            " runs in Python).",
+            " (the alignment runs in Python on both; the reading, the imports and the scoring are shared: see the"
+            " whole-process section).",
         ]
         for r in synth:
             rt = r["span_s"] / r["c_s"]
             out.append(f"- 200-Hz IMU, 20-Hz GNSS, 0.1-s velocity delay ≥ 2,000× real time on C: {rt:.0f}× —"
-                       f" {'met' if rt >= 2000 else 'NOT met'}.")  # fmt: skip
-        out.append("- batch over the logs × 4 seeds with 2 Dask workers on C; the live gateway at 1 kHz × 2 IMUs on"
-                   " C against the soak's targets: not measured here.")  # fmt: skip
+                       f" {'met' if rt >= 2000 else 'NOT met'}" + ("" if rt >= 2000 else
+                       " (measured 2026-12-07 with process-time probes: of the C run's ~0.13 s, about 0.05 s is the"
+                       " static alignment's 2,450 steps in the Python core, 0.05 s the C work itself — 9,600 steps"
+                       " and 953 roll-backs of 20 re-propagated steps each, ~1.7 µs a step —, the rest the Python"
+                       " around the calls: the C work alone would be about 1,200×)") + ".")  # fmt: skip
+        out.append("- batch over the logs × 4 seeds with 2 Dask workers on C ≥ 1.7× serial C: the section \"Batch on"
+                   " the C core\" below; the live gateway at 1 kHz × 2 IMUs on C: \"The live gateway on the C core\"."
+                   )  # fmt: skip
     out.append("")
     return "\n".join(out)
+
+
+def live_md() -> str:
+    """The live gateway on the C core against the soak's targets (static text: ``ins-hil soak`` is minutes to hours
+    of real time, not part of this benchmark; the figures of the run named, measured when the text was written)."""
+    return "\n".join([
+        "",
+        "## The live gateway on the C core",
+        "",
+        "`scripts/soak --duration 120 --rate 1000 --imus 2 --core c --interleave 30 --baseline 0 --faults auto`"
+        " (docs/soak.md explains the set-up): 8 interleaved blocks of 30 s (4 min), the gateway on the C core"
+        " against the null relay, IMU 1 kHz × 2 with FDI, measured 2026-12-07 03:02 UTC on the machine above with a"
+        " load average of 8.0 at the start and 13.7 at the end (other work on the 2 CPUs: contaminated, upper"
+        " bounds). Python core: the campaign of docs/soak.md (30 + 30 blocks of 60 s, 2026-12-02, load 0.7).",
+        "",
+        "| figure | target | Python core (docs/soak.md) | C core (this run) |",
+        "|---|---|---:|---:|",
+        "| e2e p99, gateway / floor | ≤ 1.2 | 1.52 | 1.46 — NOT met |",
+        "| e2e p99.9, gateway / floor | ≤ 1.5 | 2.06 | 1.47 — met |",
+        "| loop arrival → state p99.9, steal-free seconds | ≤ 1,000 µs | 1,977 µs | 609 µs — met |",
+        "| core step (FDI + INS/EKF) p50 | — | 93 µs | 73 µs |",
+        "| lost IMU frames; injected faults isolated; false alarms | 0; all; 0 | 0; 60/60; 0 | 0; 8/8; 0 |",
+        "",
+        "On the C core the step proper is a few µs: what remains of the 73 µs is the Python around it (the FDI"
+        " over the two IMUs, validation, grouping). The e2e p99 ratio is decided by the host's tail in this run"
+        " (the null relay's own p99.9 was 7,180 µs in the steal-free seconds).",
+        "",
+    ])  # fmt: skip
 
 
 def scope_md() -> str:

@@ -30,6 +30,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="skip the replays of the shipped dataset configs (and the 200 Hz synthetic) on Python and C",
     )
     p.add_argument(
+        "--no-batch",
+        action="store_true",
+        help="skip the Dask batch on the C core (the dataset configs x --batch-seeds, 2 workers vs serial)",
+    )
+    p.add_argument("--batch-seeds", type=int, default=4, help="seeds per log of the Dask batch (default 4)")
+    p.add_argument(
         "--replay",
         action="store_true",
         help="only the offline replay's cost: 200 Hz IMU with 5 / 20 Hz GNSS and a velocity delay (printed)",
@@ -91,8 +97,12 @@ def run(args: argparse.Namespace) -> int:
         synth = core_replay.synthetic_rows(say=_say)
         text += core_replay.report_md(drows, synth)
         text += core_replay.cli_md(core_replay.cli_rows(_say))
+        if not args.no_batch:
+            print(f"batch: the dataset configs x {args.batch_seeds} seeds on C, serial then 2 Dask workers ...")
+            text += core_replay.batch_md(core_replay.batch_row(args.batch_seeds, 2, _say))
     from ins_hil.bench import core_replay as _cr
 
+    text += _cr.live_md()
     text += _cr.scope_md()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)

@@ -453,9 +453,9 @@ def _is_dataset(src: str, args: argparse.Namespace) -> bool:
 def _replay_dataset(src: str, args: argparse.Namespace) -> int:
     from ins_hil.datasets import ihlog, report
     from ins_hil.datasets.dataset import DatasetError
-    from ins_hil.evaluation.sim_flight import sim_truth
+    from ins_hil.evaluation import sim_truth_on_demand
 
-    ihlog.set_truth_source(sim_truth)  # a simulated gateway log is scored against its regenerated truth
+    ihlog.set_truth_source(sim_truth_on_demand)  # a simulated gateway log is scored against its regenerated truth
 
     from ins_hil.datasets.run import ReplayError
 

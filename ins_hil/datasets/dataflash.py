@@ -238,6 +238,10 @@ def binary_rows(data: bytes, want: set[str], source: str = "<bytes>") -> dict[st
 
     formats: dict[int, Any] = {FMT_ID: DFFormat(FMT_ID, "FMT", FMT_LEN, "BBnNZ", "Type,Length,Name,Format,Columns")}
     unpack: dict[int, Any] = {}
+    # per message id not wanted (nor FMT): its body length (the log ends where one is cut short) and how far to
+    # step over it without unpacking it: its length when its body unpacks (its FMT's struct has that size),
+    # else 3 (skipped after its header, as when unpacked)
+    skip: dict[int, tuple[int, int]] = {}
     rows: dict[str, list[dict[str, Any]]] = {k: [] for k in want}
     end = len(data)
     off = 0
@@ -250,6 +254,12 @@ def binary_rows(data: bytes, want: set[str], source: str = "<bytes>") -> dict[st
             off = nxt
             continue
         mid = data[off + 2]
+        sk = skip.get(mid)
+        if sk is not None:
+            if end - off - 3 < sk[0]:
+                break  # cut short: the end of the log
+            off += sk[1]
+            continue
         fm = formats[mid]
         body_len = fm.len - 3
         if body_len < 0:  # a damaged FMT's length: pymavlink would step back onto the same message for ever
@@ -261,7 +271,10 @@ def binary_rows(data: bytes, want: set[str], source: str = "<bytes>") -> dict[st
         try:
             up = unpack.get(mid)
             if up is None:
-                up = unpack[mid] = struct.Struct(fm.msg_struct).unpack
+                ss = struct.Struct(fm.msg_struct)
+                up = unpack[mid] = ss.unpack
+                if mid != FMT_ID and fm.name not in want:  # from now on stepped over without unpacking
+                    skip[mid] = (body_len, fm.len if ss.size == body_len else 3)
             el = up(body)
         except (struct.error, ValueError):
             off += 3  # as pymavlink: the message is skipped after its header
@@ -280,6 +293,7 @@ def binary_rows(data: bytes, want: set[str], source: str = "<bytes>") -> dict[st
                 _FMT_CACHE[body] = nf
             formats[el[0]] = nf
             unpack.pop(el[0], None)
+            skip.pop(el[0], None)
         elif fm.name in want:
             conv = _CONV.get(id(fm))
             if conv is None or conv[0] is not fm:

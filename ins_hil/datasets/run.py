@@ -16,6 +16,7 @@ it. The onboard-estimator comparison is :mod:`ins_hil.datasets.compare`.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 import time
@@ -412,6 +413,30 @@ def replay(
     events: list[FaultEvent] = []
     j, na, n = 0, len(aids), len(imu)
     t = math.nan
+    if pipe.cfg.core == "c" and not live_schedule and n:
+        # the C core: the IMU samples up to the next hand-over in one call of the pipeline (Pipeline.imu_run:
+        # the same epochs, one C call for the run once the core navigates)
+        ts = [s.t for s in imu]
+        k = 0
+        while k < n:
+            k_end = n if j >= na else min(n, max(k + 1, bisect.bisect_left(ts, when[j], k) + 1))
+            pipe.imu_run(list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end])
+            t = ts[k_end - 1]
+            if j < na and when[j] <= t:
+                while j < na and when[j] <= t:
+                    m = aids[j]
+                    j += 1
+                    pipe.aid(m if on_aid is None else on_aid(pipe, m))
+                pipe.flush()
+            if pipe.events:
+                _take_events(pipe, events, source, t)
+            if progress is not None and ((k_end - 1) // 2000 > (k - 1) // 2000 or k_end == n):
+                progress(k_end, n)
+            k = k_end
+        pipe.flush()
+        if pipe.events:
+            _take_events(pipe, events, source, t)
+        return pipe, events
     for k, s in enumerate(imu):
         t = s.t
         pipe.imu(s)
@@ -472,7 +497,7 @@ class Track(Observer):
                     "std_vel": z, "std_att": z}  # fmt: skip
         llh = np.array([(s.lat, s.lon, s.h) for s in st])
         lat0, lon0, h0 = self.origin
-        ned = np.array([earth.ned_from_geodetic(a, b, c, lat0, lon0, h0) for a, b, c in llh])
+        ned = earth.ned_from_geodetic_many(llh, lat0, lon0, h0)
         return {"t": np.array([s.t for s in st]), "q_nb": np.array([s.q_nb for s in st]),
                 "vel_ned": np.array([s.vel_ned for s in st]), "ned": ned, "llh": llh,
                 "std_pos": np.array([s.std_pos for s in st]), "std_vel": np.array([s.std_vel for s in st]),

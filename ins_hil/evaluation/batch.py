@@ -281,9 +281,9 @@ def run_job(job: Job) -> dict[str, Any]:
     import json
 
     from ins_hil.datasets import ihlog, report
-    from ins_hil.evaluation.sim_flight import sim_truth
+    from ins_hil.evaluation import sim_truth_on_demand
 
-    ihlog.set_truth_source(sim_truth)  # in this (worker) process: simulated gateway logs get their truth
+    ihlog.set_truth_source(sim_truth_on_demand)  # in this (worker) process: simulated gateway logs get their truth
 
     t0 = time.perf_counter()
     row: dict[str, Any] = {"job": job.name, "source": job.source, "config": job.config, "seed": job.seed,

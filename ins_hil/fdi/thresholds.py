@@ -18,17 +18,47 @@ from __future__ import annotations
 import math
 
 
-def chi2_threshold(p: float, dof: int) -> float:
-    """x with P(χ²_dof > x) = p: 2·Q⁻¹(dof/2, p), Q the regularised upper incomplete gamma function (what
-    ``scipy.stats.chi2.isf`` computes; scipy.special alone loads in half the time of scipy.stats, which every
-    replay paid at start-up)."""
-    from scipy.special import gammainccinv
+def chi2_sf(x: float, dof: int) -> float:
+    """P(χ²_dof > x) for an integer ``dof`` ≥ 1, in closed form (the regularised upper incomplete gamma function
+    Q(dof/2, x/2): a finite sum for an even ``dof``, erfc plus a finite sum for an odd one)."""
+    if x <= 0.0:
+        return 1.0
+    y = 0.5 * x
+    if dof % 2 == 0:
+        term, total = 1.0, 1.0
+        for k in range(1, dof // 2):
+            term *= y / k
+            total += term
+        return math.exp(-y) * total
+    r = math.sqrt(y)
+    term = r / math.gamma(1.5)  # y^(k-1/2) / Γ(k+1/2), k = 1
+    total = term if dof > 1 else 0.0
+    for k in range(2, (dof + 1) // 2):
+        term *= y / (k - 0.5)
+        total += term
+    return math.erfc(r) + math.exp(-y) * total
 
+
+def chi2_threshold(p: float, dof: int) -> float:
+    """x with P(χ²_dof > x) = p (what ``scipy.stats.chi2.isf`` computes, to a few ulps): :func:`chi2_sf` inverted
+    by bisection, without scipy (its import cost every replay a quarter of a second at start-up)."""
     if not 0.0 < p < 1.0:
         raise ValueError(f"false-alarm probability must be in (0, 1), got {p}")
-    if dof < 1:
-        raise ValueError(f"degrees of freedom must be ≥ 1, got {dof}")
-    return float(2.0 * gammainccinv(0.5 * dof, p))
+    if dof < 1 or int(dof) != dof:
+        raise ValueError(f"degrees of freedom must be an integer ≥ 1, got {dof}")
+    dof = int(dof)
+    lo, hi = 0.0, float(dof) + 10.0
+    while chi2_sf(hi, dof) > p:  # bracket the root
+        lo, hi = hi, 2.0 * hi
+    for _ in range(200):  # bisection to adjacent floats: Q is monotone, so this cannot fail
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        if chi2_sf(mid, dof) > p:
+            lo = mid
+        else:
+            hi = mid
+    return hi if abs(chi2_sf(hi, dof) - p) <= abs(chi2_sf(lo, dof) - p) else lo
 
 
 def fast_threshold(p_fa_hour: float, dt: float, persistence: int, dof: int) -> float:

@@ -180,6 +180,19 @@ def ned_from_geodetic(lat: float, lon: float, h: float, lat0: float, lon0: float
     return dcm_ecef_to_ned(lat0, lon0) @ d
 
 
+def ned_from_geodetic_many(llh: Vec, lat0: float, lon0: float, h0: float) -> Vec:
+    """:func:`ned_from_geodetic` of many points at once: ``llh`` (N, 3) lat, lon (rad), h (m) → (N, 3) NED (m)
+    from the reference (a replay's track: one call instead of N)."""
+    llh = np.asarray(llh, dtype=np.float64).reshape(-1, 3)
+    if not len(llh):
+        return np.zeros((0, 3))
+    d = np.array([ecef_xyz(a, b, c) for a, b, c in llh.tolist()]) - np.array(ecef_xyz(lat0, lon0, h0))
+    c = dcm_ecef_to_ned(lat0, lon0)
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    return np.column_stack([c[0, 0] * x + c[0, 1] * y + c[0, 2] * z, c[1, 0] * x + c[1, 1] * y + c[1, 2] * z,
+                            c[2, 0] * x + c[2, 1] * y + c[2, 2] * z])  # fmt: skip
+
+
 def geodetic_from_ned(ned: Vec, lat0: float, lon0: float, h0: float) -> tuple[float, float, float]:
     """Geodetic point at NED offset (m) from a reference (inverse of ned_from_geodetic)."""
     r = geodetic_to_ecef(lat0, lon0, h0) + dcm_ecef_to_ned(lat0, lon0).T @ np.asarray(ned, dtype=np.float64)

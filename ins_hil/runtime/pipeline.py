@@ -312,6 +312,24 @@ def state_ok(st: NavState) -> bool:
     )  # fmt: skip
 
 
+def states_ok(rows: np.ndarray) -> np.ndarray:
+    """:func:`state_ok` of many states at once: ``rows`` (n, ≥ 26) in the C core's state record (t, q[4], v[3],
+    lat, lon, h, bg[3], ba[3], σ pos[3], σ vel[3], σ att[3]: ``ins_hil.cref``) → (n,) bool, the same comparisons
+    in the same order (NaN fails each)."""
+    q, v = rows[:, 1:5], rows[:, 5:8]
+    qn = q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3]
+    sd = rows[:, 17:26]
+    with np.errstate(invalid="ignore"):
+        return (
+            (np.abs(qn - 1.0) < QNORM_TOL)
+            & (v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2] < STATE_SPEED_MAX * STATE_SPEED_MAX)
+            & (-1.5707963267948966 <= rows[:, 8]) & (rows[:, 8] <= 1.5707963267948966)
+            & (-1e3 < rows[:, 9]) & (rows[:, 9] < 1e3)
+            & (STATE_H_MIN < rows[:, 10]) & (rows[:, 10] < STATE_H_MAX)
+            & np.all((0.0 <= sd) & (sd < _INF), axis=1)
+        )  # fmt: skip
+
+
 class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
@@ -436,6 +454,99 @@ class Pipeline:
             self._count("pipeline_error")
             self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
             return None
+
+    def imu_run(self, samples: list[ImuSample]) -> None:
+        """:meth:`imu` on each of ``samples`` in order, with nothing handed over in between (an offline replay's
+        IMU samples up to the next aiding measurement). The same states, counts, events and observer calls; on
+        the C core, once it navigates, the samples that pass the validation boundary go into the core in one
+        call (``CNavCore.run_states``) instead of one call each."""
+        k, n = 0, len(samples)
+        while k < n:
+            if not self._can_run():
+                self.imu(samples[k])
+                k += 1
+                continue
+            j = k
+            val, t_prev = self._val_imu, self._t_imu
+            while j < n:  # the run that passes the validation boundary as it is (no clock re-anchoring)
+                s = samples[j]
+                if s.t <= t_prev or val(s) is not None:
+                    break
+                t_prev = s.t
+                j += 1
+            if j == k:  # refused (or re-anchored): the per-sample path says why
+                self.imu(samples[k])
+                k += 1
+                continue
+            try:
+                self._epochs_c(samples[k:j])
+            except Exception as e:  # counted; the gateway keeps running (as imu())
+                self._count("pipeline_error")
+                self._core_fault(samples[j - 1].t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}",
+                                 "pipeline")  # fmt: skip
+            k = j
+
+    def _can_run(self) -> bool:
+        """The batched C path of :meth:`imu_run` applies: one IMU, no calibration, FDI, clock offset, held
+        aiding or queued work, no open core fault, and a C core that navigates (``CNavCore.can_run``)."""
+        core = self.core
+        return (core is not None and not self._multi and self._calib is None and self._fdi is None
+                and not self._t_off and not self._held and not self._jobs and not self._new_jobs
+                and not self._fault_open and not self._step_pending and hasattr(core, "run_states")
+                and cast(Any, core).can_run())  # fmt: skip
+
+    def _epochs_c(self, run: list[ImuSample]) -> None:
+        """The epochs of ``run`` (validated, in time order) through the C core in one call: each state checked
+        by the core guard, published to the observers; at the first bad state the core fault as in
+        :meth:`_epoch` and the rest of the run sample by sample."""
+        core = cast(Any, self.core)
+        n = len(run)
+        inc = np.empty((n, 6))
+        t = np.empty(n)
+        dt = np.empty(n)
+        for i, s in enumerate(run):
+            inc[i, :3] = s.dtheta
+            inc[i, 3:] = s.dvel
+            t[i] = s.t
+            dt[i] = s.dt
+        self.imu_t = run[-1].t
+        pre = core.drain_events()  # what the core raised since the last epoch (an update's gate events)
+        states = core.run_states(inc, t, dt)
+        ev = core.drain_events()  # the lost-data events of the run, one per row of core.run_gap_rows
+        by_row: dict[int, list[FaultEvent]] = {}
+        for r, e in zip(core.run_gap_rows, ev, strict=True):
+            by_row.setdefault(r, []).append(e)
+        resets = self._resets + getattr(core, "gnss_resets", 0)
+        obs = self.observers
+        good = states_ok(core.run_out).tolist()  # the core guard of every state, in one pass
+        for i, st in enumerate(states):
+            s = run[i]
+            self._t_imu = s.t
+            self._last_arrival = s.t_arrival_ns
+            if not good[i]:  # as _epoch: the core restarts (its events since the last good state dropped)
+                self._core_fault(s.t, "core step: non-finite or implausible state", "state")
+                for r in run[i + 1 :]:  # validated already: straight to the epoch, as imu() would
+                    self.imu_t = r.t
+                    try:
+                        self._epoch([r])
+                    except Exception as e:
+                        self._count("pipeline_error")
+                        self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+                return
+            st.resets = resets
+            self._good = st
+            self._gap_free = True
+            if i == 0 and pre:
+                self.events.extend(pre)
+            if i in by_row:
+                self.events.extend(by_row[i])
+            self.last_state = st
+            try:
+                for o in obs:
+                    o.epoch(self, st)
+            except Exception as e:  # counted, as imu() does for an epoch
+                self._count("pipeline_error")
+                self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
 
     def _clock_restart(self, s: ImuSample) -> ImuSample | None:
         """A sample refused because its time did not increase: the IMU's clock may have restarted (a driver

@@ -1,0 +1,318 @@
+"""The fast paths of a replay (``ins-hil replay … --core c``, whole process): they give what the slow paths gave.
+
+The C core's batched epochs (``Pipeline.imu_run`` → ``CNavCore.run_states``: one C call for the IMU samples up
+to the next hand-over) against one ``Pipeline.imu`` per sample; the χ² thresholds without scipy; a dataset
+config's check without the gateway's drivers; the DataFlash reader stepping over the messages it does not want;
+the track's NED in one call."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import struct
+import subprocess
+import sys
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ins_hil.cref import CNavCore
+from ins_hil.datasets import config, dataflash
+from ins_hil.datasets.run import GnssScore, Track, offline_config
+from ins_hil.fdi.thresholds import chi2_sf, chi2_threshold
+from ins_hil.nav import earth
+from ins_hil.nav.mechanization import StrapdownState
+from ins_hil.runtime.pipeline import Pipeline
+from ins_hil.types import FaultMode, GnssFix, ImuSample, NavState
+
+ORIGIN = (0.8, 0.5, 100.0)
+
+
+def _nav() -> Any:
+    return config.from_dict({"dataset": {"name": "t"}, "nav": {"alignment": {"mode": "given"}}}).nav_config()
+
+
+def _imu(n: int = 400, seed: int = 3) -> list[ImuSample]:
+    """A jittering 100-Hz IMU with 0.3 s of lost data before sample 150, a sample whose time goes back (200)
+    and one with an impossible interval (260): the validation boundary refuses those two."""
+    rng = np.random.default_rng(seed)
+    out, t = [], 0.0
+    for k in range(n):
+        dt = 0.01 * (1.0 + 0.02 * rng.standard_normal())
+        t += dt + (0.3 if k == 150 else 0.0)
+        dth = 1e-3 * rng.standard_normal(3)
+        dv = np.array([0.02, -0.01, -9.80665 * dt]) + 1e-3 * rng.standard_normal(3)
+        out.append(ImuSample(t, dt, dth, dv))
+    out[200] = dataclasses.replace(out[200], t=out[199].t - 0.005)
+    out[260] = dataclasses.replace(out[260], dt=5.0)
+    return out
+
+
+def _fixes(imu: list[ImuSample]) -> list[GnssFix]:
+    lat, lon, h = ORIGIN
+    return [GnssFix(s.t, lat, lon, h, np.zeros(3), 1.0, 2.0, 0.3) for s in imu[10::20]]
+
+
+def _replay(batched: bool) -> tuple[Pipeline, Track, GnssScore]:
+    """The offline loop's feed (every fix after the IMU sample that reaches its time, then flushed), through
+    ``Pipeline.imu_run`` (batched) or one ``Pipeline.imu`` per sample."""
+    imu = _imu()
+    fixes = _fixes(imu)
+    withheld = fixes[5:7]
+    fused = [f for f in fixes if f not in withheld]
+    track, score = Track(ORIGIN), GnssScore(np.zeros(3), ORIGIN, withheld)
+    init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
+    pipe = Pipeline(offline_config(True, "c"), [track, score], nav=_nav(), initial=init)
+    # the core of an offline replay: per-sample step lengths (make_core's with no initial state, after the
+    # alignment's hand-over)
+    core = pipe.core = CNavCore(init.copy(), _nav(), fixed_step=False)
+    core.batched = 0  # type: ignore[attr-defined]
+    run_states = core.run_states
+
+    def counted(*a: Any) -> list[NavState]:
+        core.batched += 1  # type: ignore[attr-defined]
+        return run_states(*a)
+
+    core.run_states = counted  # type: ignore[method-assign]
+    j, k = 0, 0
+    while k < len(imu):
+        k_end = k + 1
+        if batched:
+            while k_end < len(imu) and not (j < len(fused) and fused[j].t <= imu[k_end - 1].t):
+                k_end += 1
+            pipe.imu_run(imu[k:k_end])
+        else:
+            pipe.imu(imu[k])
+        t = imu[k_end - 1].t
+        while j < len(fused) and fused[j].t <= t:
+            pipe.aid(fused[j])
+            j += 1
+        pipe.flush()
+        k = k_end
+    return pipe, track, score
+
+
+def _same_state(a: NavState, b: NavState) -> None:
+    for f in dataclasses.fields(NavState):
+        u, v = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(u, np.ndarray):
+            assert np.array_equal(u, v), f.name
+        else:
+            assert u == v, f.name
+
+
+def test_the_batched_c_epochs_are_the_per_sample_ones() -> None:
+    one, t1, s1 = _replay(batched=False)
+    run, t2, s2 = _replay(batched=True)
+    assert isinstance(run.core, CNavCore) and len(t1.states) > 300
+    assert len(t1.states) == len(t2.states)
+    for a, b in zip(t1.states, t2.states, strict=True):
+        _same_state(a, b)  # the same C steps: bit for bit
+    assert one.counts == run.counts and one.counts.get("reject_imu_time") == 1 and one.counts.get("reject_imu_dt") == 1
+    assert [(e.t, e.sensor, e.mode, e.detail) for e in one.drain_events()] == [
+        (e.t, e.sensor, e.mode, e.detail) for e in run.drain_events()
+    ]
+    # the 0.3 s lost, and the interval of each refused sample
+    assert one.core.imu_lost == run.core.imu_lost and run.core.imu_lost[0] == 3  # type: ignore[union-attr]
+    assert run.core.batched > 5 and one.core.batched == 0  # type: ignore[union-attr]
+    assert [(r.fix.t, r.inside, r.prior.tolist()) for r in s1.sorted_rows()] == [
+        (r.fix.t, r.inside, r.prior.tolist()) for r in s2.sorted_rows()
+    ]
+
+
+def test_run_states_gives_the_states_and_the_lost_data_of_step() -> None:
+    imu = [s for k, s in enumerate(_imu()) if k not in (200, 260)]
+    init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
+    a, b = CNavCore(init.copy(), _nav(), fixed_step=False), CNavCore(init.copy(), _nav(), fixed_step=False)
+    a.step(imu[0])
+    b.step(imu[0])
+    one = [a.step(s) for s in imu[1:]]
+    inc = np.array([np.concatenate([s.dtheta, s.dvel]) for s in imu[1:]])
+    assert b.can_run()
+    run = b.run_states(inc, np.array([s.t for s in imu[1:]]), np.array([s.dt for s in imu[1:]]))
+    for u, v in zip(one, run, strict=True):
+        _same_state(u, v)
+    _same_state(a.state(), b.state())
+    assert b.run_gap_rows == [149, 199, 258] and a.imu_lost == b.imu_lost  # the 0.3 s; samples 200, 260 left out
+    ea, eb = a.drain_events(), b.drain_events()
+    assert [(e.t, e.magnitude, e.detail) for e in ea] == [(e.t, e.magnitude, e.detail) for e in eb]
+    assert len(eb) == 3 and all(e.mode == FaultMode.DROPOUT for e in eb)
+    with pytest.raises(ValueError, match="fixed_step=False"):
+        CNavCore(init.copy(), _nav()).run_states(inc[:2], np.ones(2), np.ones(2))
+
+
+def test_the_c_state_follows_every_change_of_the_core() -> None:
+    """CNavCore.state() is built once per change: a step, an update (with a velocity-delay roll-back) each give
+    a new state, and asking twice between them gives the same one."""
+    nav = dataclasses.replace(_nav(), gnss=dataclasses.replace(_nav().gnss, vel_delay=0.05))
+    init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
+    c = CNavCore(init, nav, fixed_step=False)
+    imu = [s for k, s in enumerate(_imu()) if k < 100]
+    for s in imu:
+        c.step(s)
+    st = c.state()
+    assert c.state() is st
+    lat, lon, h = ORIGIN
+    c.fuse(GnssFix(imu[-1].t, lat + 1e-6, lon, h + 1.0, np.array([0.5, 0.0, 0.0]), 1.0, 2.0, 0.3))
+    st2 = c.state()
+    assert st2 is not st and st2.lat != st.lat and not np.array_equal(st2.vel_ned, st.vel_ned)
+    assert int(c._hist.rollbacks) == 1  # the velocity, 0.05 s older, by roll-back
+    c.step(ImuSample(imu[-1].t + 0.01, 0.01, np.zeros(3), np.array([0.0, 0.0, -0.0980665])))
+    assert c.state() is not st2 and c.state().t == pytest.approx(imu[-1].t + 0.01)
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 5, 6, 9])
+def test_chi2_threshold_is_scipys_isf(dof: int) -> None:
+    from scipy.special import gammainccinv
+
+    for p in (1e-12, 1e-9, 1e-6, 1e-3, 0.05, 0.5):
+        x = chi2_threshold(p, dof)
+        assert x == pytest.approx(2.0 * gammainccinv(0.5 * dof, p), rel=1e-12)
+        assert chi2_sf(x, dof) == pytest.approx(p, rel=1e-12)
+    with pytest.raises(ValueError, match="integer"):
+        chi2_threshold(0.01, 0)
+
+
+def test_a_dataset_replay_starts_without_scipy_cantools_or_pymavlink() -> None:
+    """What ``ins-hil replay --dataset`` loads before reading: the command, the dataset config (its [nav] tables
+    checked against the core's schema), the pipeline with its drift monitor. Not the gateway's drivers (cantools,
+    pymavlink), nor scipy for the monitor's χ² thresholds."""
+    code = (
+        "import sys\n"
+        "from pathlib import Path\n"
+        "import ins_hil.commands.replay\n"
+        "from ins_hil.datasets import config\n"
+        "from ins_hil.datasets.run import offline_config\n"
+        "from ins_hil.runtime.pipeline import Pipeline\n"
+        "c = config.load(Path('configs/datasets/px4_quad.toml'))\n"
+        "Pipeline(offline_config(True, 'c'), nav=c.nav_config())\n"
+        "print(sorted(m for m in ('scipy', 'cantools', 'pymavlink', 'can') if m in sys.modules))\n"
+    )
+    root = __import__("pathlib").Path(__file__).resolve().parent.parent
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_the_core_nav_schema_alone_is_the_full_schemas() -> None:
+    from ins_hil import config_schema
+
+    full = {s.name: s for s in config_schema.sections()}
+    for s in config_schema._nav_sections():
+        assert s == full[s.name]
+
+
+def _fmt(mid: int, name: str, length: int, form: str, cols: str) -> bytes:
+    return b"\xa3\x95\x80" + struct.pack("<BB4s16s64s", mid, length, name.encode(), form.encode(), cols.encode())
+
+
+def test_dataflash_messages_not_wanted_are_stepped_over_as_if_unpacked() -> None:
+    """A message type the reader does not want is stepped over without unpacking it: by its length when its
+    body unpacks, by its header when its FMT length does not fit its format (as an unpacked one would be), and a
+    log cut inside one ends there."""
+    imu = _fmt(0x81, "IMU", 11, "Q", "TimeUS")
+    good = _fmt(0x82, "GOOD", 7, "I", "A")
+    bad = _fmt(0x83, "BAD", 9, "I", "A")  # 6 bytes of body for a 4-byte format: skipped after its header
+
+    def m(mid: int, body: bytes) -> bytes:
+        return b"\xa3\x95" + bytes([mid]) + body
+
+    body = b"".join(
+        m(0x81, struct.pack("<Q", k)) + m(0x82, struct.pack("<I", k)) + m(0x83, struct.pack("<I", k) + b"\0\0")
+        for k in range(20)
+    )
+    log = imu + good + bad + body
+    for tail in (b"", m(0x82, b"\x01\x02")):  # complete, or cut inside a GOOD message
+        data = log + tail
+        want_all = dataflash.binary_rows(data, {"IMU", "GOOD", "BAD"})
+        want_imu = dataflash.binary_rows(data, {"IMU"})
+        assert want_imu["IMU"] == want_all["IMU"] and [d["TimeUS"] for d in want_imu["IMU"]] == list(range(20))
+        assert len(want_all["GOOD"]) == 20 and want_all["BAD"] == []
+    cut = log[: -len(m(0x83, b"\0" * 6)) - 9]  # the last IMU message cut: the log ends before it
+    assert [d["TimeUS"] for d in dataflash.binary_rows(cut, {"IMU"})["IMU"]] == list(range(19))
+
+
+def test_ned_from_geodetic_many_is_the_one_point_routine() -> None:
+    rng = np.random.default_rng(1)
+    llh = np.column_stack([0.6 + 1e-4 * rng.standard_normal(200), 0.1 + 1e-4 * rng.standard_normal(200),
+                           100.0 + 10.0 * rng.standard_normal(200)])  # fmt: skip
+    one = np.array([earth.ned_from_geodetic(*r, 0.6, 0.1, 90.0) for r in llh])
+    assert np.allclose(earth.ned_from_geodetic_many(llh, 0.6, 0.1, 90.0), one, rtol=0.0, atol=1e-9)
+    assert earth.ned_from_geodetic_many(np.zeros((0, 3)), 0.6, 0.1, 90.0).shape == (0, 3)
+    assert math.isfinite(float(one[0, 0]))
+
+
+def test_bench_core_reads_the_batch_ratio_off_the_replay_command(monkeypatch: pytest.MonkeyPatch) -> None:
+    """bench-core's Dask section takes serial / parallel wall times and the ratio from the line `ins-hil replay
+    --batch … --compare-serial` prints (ins_hil/commands/replay.py), and leaves out what the C core refuses."""
+    from ins_hil.bench import core_replay
+
+    seen: list[list[str]] = []
+
+    class Done:
+        returncode = 0
+        stdout = ("| job | ... |\nserial 62.8 s, parallel 91.0 s (LocalCluster of 2 workers): 0.69x; every job the "
+                  "same results\n")  # fmt: skip
+        stderr = ""
+
+    def fake_run(cmd: list[str], **kw: Any) -> Done:
+        seen.append(cmd)
+        return Done()
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    row = core_replay.batch_row(seeds=4, workers=2)
+    assert (row["serial_s"], row["parallel_s"], row["ratio"]) == (62.8, 91.0, 0.69)
+    assert row["same"] == "every job the same results"
+    # every shipped config with its recording on disk is either run or named as refused (with the reason)
+    have = {p.stem for p in core_replay.CONFIGS.glob("*.toml") if (c := config.load(p)).path and c.path.exists()}
+    assert set(row["configs"]) | {r.split(" ")[0] for r in row["refused"]} == have
+    assert all("(" in r for r in row["refused"])
+    cmd = seen[0]
+    assert cmd[cmd.index("--core") + 1] == "c" and "--compare-serial" in cmd and cmd[cmd.index("--seeds") + 1] == "4"
+    md = core_replay.batch_md(row)
+    assert "| 62.8 | 91.0 | 0.69× |" in md and "NOT met" in md
+
+
+def test_states_ok_is_state_ok_row_by_row() -> None:
+    from ins_hil.runtime.pipeline import state_ok, states_ok
+
+    rng = np.random.default_rng(5)
+    rows = np.zeros((64, 32))
+    q = rng.standard_normal((64, 4))
+    rows[:, 1:5] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    rows[:, 5:8] = rng.standard_normal((64, 3))
+    rows[:, 8], rows[:, 9], rows[:, 10] = 0.8, 0.5, 100.0
+    rows[:, 17:26] = np.abs(rng.standard_normal((64, 9)))
+    bad = [(1, 1, 1.1), (2, 5, 2e4), (3, 8, 1.6), (4, 9, 2e3), (5, 10, -2e5), (6, 10, 2e6), (7, 17, -0.1),
+           (8, 22, math.inf), (9, 25, math.nan), (10, 6, math.nan), (11, 2, math.inf), (12, 8, math.nan)]  # fmt: skip
+    for r, c, x in bad:
+        rows[r, c] = x
+    want = [state_ok(NavState(t=o[0], q_nb=o[1:5], vel_ned=o[5:8], lat=o[8], lon=o[9], h=o[10], std_pos=o[17:20],
+                              std_vel=o[20:23], std_att=o[23:26])) for o in rows]  # fmt: skip
+    assert states_ok(rows).tolist() == want and want.count(False) == len(bad)
+
+
+def test_a_bad_state_inside_a_batched_run_is_the_per_sample_core_fault() -> None:
+    """A run whose state leaves the plausible range (here 15 g forward for 75 s: over 10 km/s) faults the core at
+    the same sample on both paths: the same counts (core_bad_state, core_restart), events and published states."""
+
+    def feed(batched: bool) -> tuple[Pipeline, Track]:
+        init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
+        track = Track(ORIGIN)
+        pipe = Pipeline(offline_config(False, "c"), [track], nav=_nav(), initial=init)
+        pipe.core = CNavCore(init.copy(), _nav(), fixed_step=False)
+        dv = np.array([15.0 * 9.80665 * 0.01, 0.0, -9.80665 * 0.01])
+        imu = [ImuSample(0.01 * (k + 1), 0.01, np.zeros(3), dv) for k in range(7500)]
+        if batched:
+            pipe.imu_run(imu)
+        else:
+            for s in imu:
+                pipe.imu(s)
+        return pipe, track
+
+    (one, t1), (run, t2) = feed(False), feed(True)
+    assert one.counts.get("core_bad_state", 0) >= 1 and one.counts.get("core_restart") == 1 and one.counts == run.counts
+    assert [(e.t, e.detail) for e in one.drain_events()] == [(e.t, e.detail) for e in run.drain_events()]
+    assert len(t1.states) == len(t2.states)
+    for a, b in zip(t1.states, t2.states, strict=True):
+        _same_state(a, b)
