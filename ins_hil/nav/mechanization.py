@@ -11,10 +11,15 @@ inputs:
   (ω_in = ω_ie + ω_en, Earth rate + transport rate);
 * velocity: Δv_n = (I − ½[ζ×]) C_b^n(k−1) (Δv + ½ Δθ × Δv + (1/12)(Δθ_{k−1} × Δv + Δv_{k−1} × Δθ))
   (rotation + sculling correction), then the Coriolis/transport and gravity
-  terms −(2ω_ie + ω_en) × v + g (seed 001 eq. 57), evaluated at the
-  mid-interval state extrapolated from the previous step;
+  terms −(2ω_ie + ω_en) × v + g (seed 001 eq. 57);
 * position: trapezoidal integration of φ̇ = v_N/(M+h), λ̇ = v_E/((N+h)cos φ),
   ḣ = −v_D (seed 001 eq. 55/56).
+
+ω_ie, ω_en, g and the radii M, N are taken at the mid-interval state, as in Savage's and KF-GINS's
+mechanizations: the mid-interval latitude and height extrapolated with the start velocity, the
+mid-interval velocity predicted over half the step (specific force, gravity and the start-velocity
+Coriolis term). Each is then second order in the step: the mechanization agrees with the e- and
+i-frame ones (:mod:`ins_hil.nav.mechanization_ie`) to O(Δt²) (tests/test_mechanization_ie.py).
 
 The state is mutated in place; one step allocates only a handful of small
 arrays. Pure: no I/O, no clock.

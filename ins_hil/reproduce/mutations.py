@@ -87,8 +87,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         "seed 001",
         "the strapdown's east transport rate −v_N/(M + h) with + (Schuler loop)",
         "ins_hil.nav.mechanization:StrapdownNED.step",
-        "enE = -vN / (rm + h)",
-        "enE = vN / (rm + h)",
+        "enE = -wN / rmh",
+        "enE = wN / rmh",
         "^Seed 001: Schuler",
     ),
     Mutation(
