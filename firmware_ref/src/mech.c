@@ -106,13 +106,22 @@ void ins_mech_step(ins_mech_t *m, const ins_real dth[3], const ins_real dvel[3])
         const ins_real rnh = rn + hm0, rmh = rm + hm0, tlat = slat / clat;
         ieN = K(INS_OMEGA_E) * clat; /* omega_ie^n, seed 001 eq. 67 in NED */
         ieD = -K(INS_OMEGA_E) * slat;
-        /* mid-interval velocity predicted with the start velocity's Coriolis/transport term */
-        cN = K(2.0) * ieN + vE / rnh;
-        cE = -vN / rmh;
-        cD = K(2.0) * ieD - vE * tlat / rnh;
-        wN = vN + K(0.5) * (nN + (K(0.0) - (cE * vD - cD * vE)) * dt);
-        wE = vE + K(0.5) * (nE - (cD * vN - cN * vD) * dt);
-        wD = vD + K(0.5) * (nD + (g - (cN * vE - cE * vN)) * dt);
+        /* mid-interval velocity predicted with the start velocity's transport rate (frame rotation, Coriolis) */
+        enN = vE / rnh;
+        enE = -vN / rmh;
+        enD = -vE * tlat / rnh;
+        zN = (ieN + enN) * dt;
+        zE = enE * dt;
+        zD = (ieD + enD) * dt;
+        fN = nN - K(0.5) * (zE * nD - zD * nE);
+        fE = nE - K(0.5) * (zD * nN - zN * nD);
+        fD = nD - K(0.5) * (zN * nE - zE * nN);
+        cN = K(2.0) * ieN + enN;
+        cE = enE;
+        cD = K(2.0) * ieD + enD;
+        wN = vN + K(0.5) * (fN + (K(0.0) - (cE * vD - cD * vE)) * dt);
+        wE = vE + K(0.5) * (fE - (cD * vN - cN * vD) * dt);
+        wD = vD + K(0.5) * (fD + (g - (cN * vE - cE * vN)) * dt);
         enN = wE / rnh; /* omega_en^n, transport rate, at the mid-interval state */
         enE = -wN / rmh;
         enD = -wE * tlat / rnh;

@@ -204,12 +204,17 @@ class StrapdownNED:
             )
         if self.earth_rate:
             ieN, ieD = earth.OMEGA_E * clat, -earth.OMEGA_E * slat  # ω_ie^n (seed 001 eq. 67, NED)
-            # mid-interval velocity predicted with the start velocity's Coriolis/transport term
+            # mid-interval velocity predicted with the start velocity's transport rate (frame rotation, Coriolis)
             rnh, rmh, tlat = rn + hm0, rm + hm0, slat / clat
-            cN, cE, cD = 2.0 * ieN + vE / rnh, -vN / rmh, 2.0 * ieD - vE * tlat / rnh
-            wN = vN + 0.5 * (nN + (gN - (cE * vD - cD * vE)) * dt)
-            wE = vE + 0.5 * (nE - (cD * vN - cN * vD) * dt)
-            wD = vD + 0.5 * (nD + (g - (cN * vE - cE * vN)) * dt)
+            enN, enE, enD = vE / rnh, -vN / rmh, -vE * tlat / rnh
+            zN, zE, zD = (ieN + enN) * dt, enE * dt, (ieD + enD) * dt
+            fN = nN - 0.5 * (zE * nD - zD * nE)
+            fE = nE - 0.5 * (zD * nN - zN * nD)
+            fD = nD - 0.5 * (zN * nE - zE * nN)
+            cN, cE, cD = 2.0 * ieN + enN, enE, 2.0 * ieD + enD
+            wN = vN + 0.5 * (fN + (gN - (cE * vD - cD * vE)) * dt)
+            wE = vE + 0.5 * (fE - (cD * vN - cN * vD) * dt)
+            wD = vD + 0.5 * (fD + (g - (cN * vE - cE * vN)) * dt)
             enN = wE / rnh  # ω_en^n, transport rate, at the mid-interval state
             enE = -wN / rmh
             enD = -wE * tlat / rnh
