@@ -110,6 +110,15 @@ MUTATIONS: tuple[Mutation, ...] = (
         "^Seed 001: i- and e-frame",
     ),
     Mutation(
+        "001 NED rates at the step start",
+        "seed 001",
+        "the NED mechanization takes ω_ie, gravity and the radii at the step's start latitude (first order)",
+        "ins_hil.nav.mechanization:StrapdownNED.step",
+        "latm = lat + 0.5 * vN / (rm0 + h) * dt",
+        "latm = lat",
+        "^Seed 001: i- and e-frame",
+    ),
+    Mutation(
         "002 ExpRvrs1h coefficient",
         "seed 002",
         "ExpRvrs1h's c = 1/12 (eq. 7) becomes 1/12.5",
