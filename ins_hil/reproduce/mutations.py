@@ -98,7 +98,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ins_hil.nav.mechanization_ie:StrapdownECEF.step",
         "v1 = s.v + dvf + (g - 2.0 * _cross(_WZ, v_mid)) * dt",
         "v1 = s.v + dvf + (g - 1.0 * _cross(_WZ, v_mid)) * dt",
-        "^Seed 001: i- and e-frame",
+        "^Seed 001: i-, e-frame and NED mechanizations, order",
     ),
     Mutation(
         "001 i-frame gravity for gravitation",
@@ -107,7 +107,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ins_hil.nav.mechanization_ie:StrapdownECI._gravitation",
         "earth.gravitation_ecef(",
         "earth.gravity_ecef(",
-        "^Seed 001: i- and e-frame",
+        "^Seed 001: i-, e-frame and NED mechanizations, order",
     ),
     Mutation(
         "001 NED rates at the step start",
@@ -116,7 +116,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ins_hil.nav.mechanization:StrapdownNED.step",
         "latm = lat + 0.5 * vN / (rm0 + h) * dt",
         "latm = lat",
-        "^Seed 001: i- and e-frame",
+        "^Seed 001: i-, e-frame and NED mechanizations, order",
     ),
     Mutation(
         "002 ExpRvrs1h coefficient",
