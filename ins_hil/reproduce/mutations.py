@@ -80,7 +80,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ins_hil.nav.earth:normal_gravity",
         "return g0 - (3.0877e-6 - 4.4e-9 * s2) * h",
         "return g0 + (3.0877e-6 - 4.4e-9 * s2) * h",
-        "^Seed 001",
+        "^Seed 001: (Schuler|WGS84|error-model|i-, e-frame and NED)",  # not the 1-h mechanization runs (minutes)
     ),
     Mutation(
         "001 transport rate sign",
