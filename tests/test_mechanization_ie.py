@@ -57,17 +57,28 @@ def test_static_ten_minutes_agree_with_ned() -> None:
         assert pos <= 1e-9 and vel <= 1e-9 and att <= 1e-9, (key, w[key])
 
 
-def test_cruise_i_and_e_agree_and_ned_converges_to_them_at_first_order() -> None:
-    c10, c20 = compare("cruise", 0.1, 300.0), compare("cruise", 0.05, 300.0)
-    assert max(c10["i-e"]) <= 1e-9
-    # the NED mechanization's start-of-interval rates: an error linear in the step
-    assert 1e-9 < c10["e-NED"][2] and c10["e-NED"][2] / c20["e-NED"][2] == pytest.approx(2.0, rel=0.05)
+@pytest.mark.parametrize("profile", ["cruise", "turns"])
+def test_moving_ned_agrees_with_e_and_i_frames_at_second_order(profile: str) -> None:
+    """The NED mechanization takes Earth rate, transport rate, gravity and radii at the mid-interval state: at
+    100 m/s its position and velocity differences to the e- and i-frame ones are second order in the step (they
+    quarter when the step halves). Taken at the step start they halved, and the position differed by 6e-8
+    (cruise) and 9e-6 (turns) of the distance travelled after 5 min at 10 Hz."""
+    c10, c20 = compare(profile, 0.1, 300.0), compare(profile, 0.05, 300.0)
+    for key in ("e-NED", "i-NED"):
+        assert c10[key][0] <= 5e-9, (key, c10[key])
+        for j in (0, 1):  # position over the distance travelled, velocity over the ground speed
+            assert c10[key][j] / c20[key][j] == pytest.approx(4.0, rel=0.1), (key, c10[key], c20[key])
 
 
 @pytest.mark.slow
-def test_one_hour_earth_fixed_at_100_hz_within_1e_9() -> None:
-    w = compare("static", 0.01, 3600.0)
-    for key in ("e-NED", "i-NED"):
+@pytest.mark.parametrize("profile", ["cruise", "turns"])
+def test_one_hour_at_100_m_s_and_100_hz_within_1e_9(profile: str) -> None:
+    """1 h at 100 m/s (straight, or turning and climbing): position over the distance travelled (360 km),
+    velocity over the ground speed and attitude (rad) of the NED mechanization agree with the e- and i-frame
+    ones to ≤ 1e-9 (seed001_mech's module docstring; the NED one taking the rates at the step start drifted
+    ~0.2 m from them, 6e-7 of the distance)."""
+    w = compare(profile, 0.01, 3600.0)
+    for key in ("e-NED", "i-NED", "i-e"):
         assert max(w[key]) <= 1e-9, (key, w[key])
 
 

@@ -39,30 +39,12 @@ void ins_mech_step(ins_mech_t *m, const ins_real dth[3], const ins_real dvel[3])
     const ins_real vN = m->v[0], vE = m->v[1], vD = m->v[2];
     const ins_real ax = dth[0], ay = dth[1], az = dth[2];
     const ins_real ux = dvel[0], uy = dvel[1], uz = dvel[2];
-    ins_real slat, clat, w2, rn, rm, ieN, ieD, enN, enE, enD, inN, inE, inD;
+    ins_real slat, clat, w2, rn, rm, rm0, ieN, ieD, enN, enE, enD, inN, inE, inD, wN, wE, wD;
     ins_real px, py, pz, bx = K(0.0), by = K(0.0), bz = K(0.0), cx = K(0.0), cy = K(0.0), cz = K(0.0);
     ins_real dx, dy, dz, q0, q1, q2, q3, q00, q11, q22, q33, nN, nE, nD, zN, zE, zD, fN, fE, fD;
-    ins_real hm0, s2, g, cN, cE, cD, vN1, vE1, vD1;
-    ins_real r[4], a0, a1, a2, a3, mN, mE, mD, hm, latm, sm, rnm;
+    ins_real hm0, latm, s2, g, cN, cE, cD, vN1, vE1, vD1;
+    ins_real r[4], a0, a1, a2, a3, mN, mE, mD, hm;
     ins_pos h1, lat1;
-
-    slat = RSIN(lat);
-    clat = RCOS(lat);
-    w2 = K(1.0) - K(INS_E2_WGS84) * slat * slat;
-    rn = K(INS_A_WGS84) / RS(w2);               /* seed 001 eq. 2 */
-    rm = rn * (K(1.0) - K(INS_E2_WGS84)) / w2;  /* seed 001 eq. 3 */
-    if (m->earth_rate) {
-        ieN = K(INS_OMEGA_E) * clat; /* omega_ie^n, seed 001 eq. 67 in NED */
-        ieD = -K(INS_OMEGA_E) * slat;
-        enN = vE / (rn + h); /* omega_en^n, transport rate */
-        enE = -vN / (rm + h);
-        enD = -vE * slat / clat / (rn + h);
-    } else {
-        ieN = ieD = enN = enE = enD = K(0.0);
-    }
-    inN = ieN + enN;
-    inE = enE;
-    inD = ieD + enD;
 
     /* body rotation vector with coning correction (1/12) dth_{k-1} x dth_k */
     px = ax;
@@ -103,6 +85,53 @@ void ins_mech_step(ins_mech_t *m, const ins_real dth[3], const ins_real dvel[3])
     nN = (q00 + q11 - q22 - q33) * dx + K(2.0) * (q1 * q2 - q0 * q3) * dy + K(2.0) * (q1 * q3 + q0 * q2) * dz;
     nE = K(2.0) * (q1 * q2 + q0 * q3) * dx + (q00 - q11 + q22 - q33) * dy + K(2.0) * (q2 * q3 - q0 * q1) * dz;
     nD = K(2.0) * (q1 * q3 - q0 * q2) * dx + K(2.0) * (q2 * q3 + q0 * q1) * dy + (q00 - q11 - q22 + q33) * dz;
+
+    /* mid-interval position, extrapolated with the start velocity and the start meridian radius (an O(dt^2)
+       position error: the rates, gravity and radii taken there are second order in the step); latm in double */
+    slat = RSIN(lat);
+    w2 = K(1.0) - K(INS_E2_WGS84) * slat * slat;
+    rm0 = K(INS_A_WGS84) * (K(1.0) - K(INS_E2_WGS84)) / (w2 * RS(w2)); /* seed 001 eq. 3 */
+    hm0 = h - K(0.5) * vD * dt;
+    latm = (ins_real)(m->lat + (ins_pos)(K(0.5) * vN / (rm0 + h) * dt));
+    slat = RSIN(latm);
+    clat = RCOS(latm);
+    w2 = K(1.0) - K(INS_E2_WGS84) * slat * slat;
+    rn = K(INS_A_WGS84) / RS(w2);              /* seed 001 eq. 2 */
+    rm = rn * (K(1.0) - K(INS_E2_WGS84)) / w2; /* seed 001 eq. 3 */
+    /* gravity at the mid-interval point (seed 001 eqs. 12, 16) */
+    s2 = slat * slat;
+    g = K(INS_GAMMA_A) * (K(1.0) + K(INS_K_SOMIGLIANA) * s2) / RS(w2) - (K(3.0877e-6) - K(4.4e-9) * s2) * hm0 +
+        K(0.72e-12) * hm0 * hm0;
+    if (m->earth_rate) {
+        const ins_real rnh = rn + hm0, rmh = rm + hm0, tlat = slat / clat;
+        ieN = K(INS_OMEGA_E) * clat; /* omega_ie^n, seed 001 eq. 67 in NED */
+        ieD = -K(INS_OMEGA_E) * slat;
+        /* mid-interval velocity predicted with the start velocity's transport rate (frame rotation, Coriolis) */
+        enN = vE / rnh;
+        enE = -vN / rmh;
+        enD = -vE * tlat / rnh;
+        zN = (ieN + enN) * dt;
+        zE = enE * dt;
+        zD = (ieD + enD) * dt;
+        fN = nN - K(0.5) * (zE * nD - zD * nE);
+        fE = nE - K(0.5) * (zD * nN - zN * nD);
+        fD = nD - K(0.5) * (zN * nE - zE * nN);
+        cN = K(2.0) * ieN + enN;
+        cE = enE;
+        cD = K(2.0) * ieD + enD;
+        wN = vN + K(0.5) * (fN + (K(0.0) - (cE * vD - cD * vE)) * dt);
+        wE = vE + K(0.5) * (fE - (cD * vN - cN * vD) * dt);
+        wD = vD + K(0.5) * (fD + (g - (cN * vE - cE * vN)) * dt);
+        enN = wE / rnh; /* omega_en^n, transport rate, at the mid-interval state */
+        enE = -wN / rmh;
+        enD = -wE * tlat / rnh;
+    } else {
+        ieN = ieD = enN = enE = enD = wN = wE = wD = K(0.0);
+    }
+    inN = ieN + enN;
+    inE = enE;
+    inD = ieD + enD;
+
     /* nav-frame rotation over the interval: (I - 1/2 [zeta x]), zeta = omega_in^n dt */
     zN = inN * dt;
     zE = inE * dt;
@@ -114,17 +143,13 @@ void ins_mech_step(ins_mech_t *m, const ins_real dth[3], const ins_real dvel[3])
     m->f_ned[1] = fE / dt;
     m->f_ned[2] = fD / dt;
 
-    /* gravity at mid-interval height; Coriolis/transport -(2 omega_ie + omega_en) x v (seed 001 eq. 57) */
-    hm0 = h - K(0.5) * vD * dt;
-    s2 = slat * slat;
-    g = K(INS_GAMMA_A) * (K(1.0) + K(INS_K_SOMIGLIANA) * s2) / RS(w2) - (K(3.0877e-6) - K(4.4e-9) * s2) * hm0 +
-        K(0.72e-12) * hm0 * hm0; /* seed 001 eqs. 12, 16 */
+    /* Coriolis/transport -(2 omega_ie + omega_en) x v at the mid-interval state, plus gravity (seed 001 eq. 57) */
     cN = K(2.0) * ieN + enN;
     cE = enE;
     cD = K(2.0) * ieD + enD;
-    vN1 = vN + fN - (cE * vD - cD * vE) * dt;
-    vE1 = vE + fE - (cD * vN - cN * vD) * dt;
-    vD1 = vD + fD + (g - (cN * vE - cE * vN)) * dt;
+    vN1 = vN + fN + (K(0.0) - (cE * wD - cD * wE)) * dt;
+    vE1 = vE + fE - (cD * wN - cN * wD) * dt;
+    vD1 = vD + fD + (g - (cN * wE - cE * wN)) * dt;
 
     /* attitude: q(-zeta) (x) q (x) q(phi)  (book eq. 2.15/2.16 for the body part) */
     rotvec_quat(px, py, pz, r);
@@ -154,17 +179,15 @@ void ins_mech_step(ins_mech_t *m, const ins_real dth[3], const ins_real dvel[3])
         a3 = a3 * nq;
     }
 
-    /* position: trapezoidal in velocity (seed 001 eq. 55/56 in NED); lat/lon/h in double */
+    /* position: trapezoidal in velocity, radii at the mid-interval latitude (seed 001 eq. 55/56 in NED);
+       lat/lon/h in double */
     mN = K(0.5) * (vN + vN1);
     mE = K(0.5) * (vE + vE1);
     mD = K(0.5) * (vD + vD1);
     h1 = m->h - (ins_pos)(mD * dt);
     hm = (ins_real)(0.5 * (m->h + h1));
     lat1 = m->lat + (ins_pos)(mN / (rm + hm) * dt);
-    latm = (ins_real)(0.5 * (m->lat + lat1));
-    sm = RSIN(latm);
-    rnm = K(INS_A_WGS84) / RS(K(1.0) - K(INS_E2_WGS84) * sm * sm);
-    m->lon = m->lon + (ins_pos)(mE / ((rnm + hm) * RCOS(latm)) * dt);
+    m->lon = m->lon + (ins_pos)(mE / ((rn + hm) * clat) * dt);
 
     m->q[0] = a0;
     m->q[1] = a1;

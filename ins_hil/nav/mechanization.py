@@ -11,10 +11,15 @@ inputs:
   (ω_in = ω_ie + ω_en, Earth rate + transport rate);
 * velocity: Δv_n = (I − ½[ζ×]) C_b^n(k−1) (Δv + ½ Δθ × Δv + (1/12)(Δθ_{k−1} × Δv + Δv_{k−1} × Δθ))
   (rotation + sculling correction), then the Coriolis/transport and gravity
-  terms −(2ω_ie + ω_en) × v + g (seed 001 eq. 57), evaluated at the
-  mid-interval state extrapolated from the previous step;
+  terms −(2ω_ie + ω_en) × v + g (seed 001 eq. 57);
 * position: trapezoidal integration of φ̇ = v_N/(M+h), λ̇ = v_E/((N+h)cos φ),
   ḣ = −v_D (seed 001 eq. 55/56).
+
+ω_ie, ω_en, g and the radii M, N are taken at the mid-interval state, as in Savage's and KF-GINS's
+mechanizations: the mid-interval latitude and height extrapolated with the start velocity, the
+mid-interval velocity predicted over half the step (specific force, gravity and the start-velocity
+Coriolis term). Each is then second order in the step: the mechanization agrees with the e- and
+i-frame ones (:mod:`ins_hil.nav.mechanization_ie`) to O(Δt²) (tests/test_mechanization_ie.py).
 
 The state is mutated in place; one step allocates only a handful of small
 arrays. Pure: no I/O, no clock.
@@ -150,19 +155,6 @@ class StrapdownNED:
         ax, ay, az = float(dtheta[0]), float(dtheta[1]), float(dtheta[2])
         ux, uy, uz = float(dvel[0]), float(dvel[1]), float(dvel[2])
 
-        slat, clat = math.sin(lat), math.cos(lat)
-        w2 = 1.0 - earth.E2_WGS84 * slat * slat
-        rn = earth.A_WGS84 / math.sqrt(w2)  # seed 001 eq. 2
-        rm = rn * (1.0 - earth.E2_WGS84) / w2  # seed 001 eq. 3
-        if self.earth_rate:
-            ieN, ieD = earth.OMEGA_E * clat, -earth.OMEGA_E * slat  # ω_ie^n (seed 001 eq. 67, NED)
-            enN = vE / (rn + h)  # ω_en^n, transport rate
-            enE = -vN / (rm + h)
-            enD = -vE * slat / clat / (rn + h)
-        else:
-            ieN = ieD = enN = enE = enD = 0.0
-        inN, inE, inD = ieN + enN, enE, ieD + enD
-
         # body rotation vector φ with coning correction (1/12) Δθ_{k-1} × Δθ_k
         px, py, pz = ax, ay, az
         if self._have_prev:
@@ -187,6 +179,49 @@ class StrapdownNED:
         nN = (q00 + q11 - q22 - q33) * dx + 2.0 * (q1 * q2 - q0 * q3) * dy + 2.0 * (q1 * q3 + q0 * q2) * dz
         nE = 2.0 * (q1 * q2 + q0 * q3) * dx + (q00 - q11 + q22 - q33) * dy + 2.0 * (q2 * q3 - q0 * q1) * dz
         nD = 2.0 * (q1 * q3 - q0 * q2) * dx + 2.0 * (q2 * q3 + q0 * q1) * dy + (q00 - q11 - q22 + q33) * dz
+
+        # mid-interval position, extrapolated with the start velocity and the start meridian radius (an
+        # O(dt²) position error: the rates, gravity and radii taken there are second order in the step)
+        slat = math.sin(lat)
+        w2 = 1.0 - earth.E2_WGS84 * slat * slat
+        rm0 = earth.A_WGS84 * (1.0 - earth.E2_WGS84) / (w2 * math.sqrt(w2))  # seed 001 eq. 3
+        hm0 = h - 0.5 * vD * dt
+        latm = lat + 0.5 * vN / (rm0 + h) * dt
+        slat, clat = math.sin(latm), math.cos(latm)
+        w2 = 1.0 - earth.E2_WGS84 * slat * slat
+        rn = earth.A_WGS84 / math.sqrt(w2)  # seed 001 eq. 2
+        rm = rn * (1.0 - earth.E2_WGS84) / w2  # seed 001 eq. 3
+        # gravity at the mid-interval point (seed 001 eqs. 12, 16; or seed 003 eq. 1.9, J2 field + centrifugal)
+        s2 = slat * slat
+        gN = 0.0
+        if self._j2:
+            gN, g = earth.j2_gravity_nd(slat, clat, hm0)
+        else:
+            g = (
+                earth.GAMMA_A * (1.0 + earth.K_SOMIGLIANA * s2) / math.sqrt(w2)
+                - (3.0877e-6 - 4.4e-9 * s2) * hm0
+                + 0.72e-12 * hm0 * hm0
+            )
+        if self.earth_rate:
+            ieN, ieD = earth.OMEGA_E * clat, -earth.OMEGA_E * slat  # ω_ie^n (seed 001 eq. 67, NED)
+            # mid-interval velocity predicted with the start velocity's transport rate (frame rotation, Coriolis)
+            rnh, rmh, tlat = rn + hm0, rm + hm0, slat / clat
+            enN, enE, enD = vE / rnh, -vN / rmh, -vE * tlat / rnh
+            zN, zE, zD = (ieN + enN) * dt, enE * dt, (ieD + enD) * dt
+            fN = nN - 0.5 * (zE * nD - zD * nE)
+            fE = nE - 0.5 * (zD * nN - zN * nD)
+            fD = nD - 0.5 * (zN * nE - zE * nN)
+            cN, cE, cD = 2.0 * ieN + enN, enE, 2.0 * ieD + enD
+            wN = vN + 0.5 * (fN + (gN - (cE * vD - cD * vE)) * dt)
+            wE = vE + 0.5 * (fE - (cD * vN - cN * vD) * dt)
+            wD = vD + 0.5 * (fD + (g - (cN * vE - cE * vN)) * dt)
+            enN = wE / rnh  # ω_en^n, transport rate, at the mid-interval state
+            enE = -wN / rmh
+            enD = -wE * tlat / rnh
+        else:
+            ieN = ieD = enN = enE = enD = wN = wE = wD = 0.0
+        inN, inE, inD = ieN + enN, enE, ieD + enD
+
         # nav-frame rotation over the interval: (I − ½[ζ×]), ζ = ω_in^n Δt
         zN, zE, zD = inN * dt, inE * dt, inD * dt
         fN = nN - 0.5 * (zE * nD - zD * nE)
@@ -194,23 +229,11 @@ class StrapdownNED:
         fD = nD - 0.5 * (zN * nE - zE * nN)
         self.f_ned = np.array((fN / dt, fE / dt, fD / dt))
 
-        # gravity at mid-interval height; Coriolis/transport −(2ω_ie + ω_en) × v (seed 001 eq. 57)
-        hm0 = h - 0.5 * vD * dt
-        s2 = slat * slat
-        if self._j2:
-            gN, g = earth.j2_gravity_nd(slat, clat, hm0)  # seed 003 eq. 1.9 (J2 field + centrifugal)
-        else:
-            g = (
-                earth.GAMMA_A * (1.0 + earth.K_SOMIGLIANA * s2) / math.sqrt(w2)
-                - (3.0877e-6 - 4.4e-9 * s2) * hm0
-                + 0.72e-12 * hm0 * hm0
-            )  # seed 001 eqs. 12, 16
+        # Coriolis/transport −(2ω_ie + ω_en) × v at the mid-interval state, plus gravity (seed 001 eq. 57)
         cN, cE, cD = 2.0 * ieN + enN, enE, 2.0 * ieD + enD
-        vN1 = vN + fN - (cE * vD - cD * vE) * dt
-        if self._j2:
-            vN1 += gN * dt
-        vE1 = vE + fE - (cD * vN - cN * vD) * dt
-        vD1 = vD + fD + (g - (cN * vE - cE * vN)) * dt
+        vN1 = vN + fN + (gN - (cE * wD - cD * wE)) * dt
+        vE1 = vE + fE - (cD * wN - cN * wD) * dt
+        vD1 = vD + fD + (g - (cN * wE - cE * wN)) * dt
 
         # attitude: q(−ζ) ⊗ q ⊗ q(φ)  (book eq. 2.15/2.16 for the body part)
         if self._att is None:
@@ -236,15 +259,12 @@ class StrapdownNED:
                 nq = -nq
             a0, a1, a2, a3 = a0 * nq, a1 * nq, a2 * nq, a3 * nq
 
-        # position: trapezoidal in velocity (seed 001 eq. 55/56 in NED)
+        # position: trapezoidal in velocity, radii at the mid-interval latitude (seed 001 eq. 55/56 in NED)
         mN, mE, mD = 0.5 * (vN + vN1), 0.5 * (vE + vE1), 0.5 * (vD + vD1)
         h1 = h - mD * dt
         hm = 0.5 * (h + h1)
         lat1 = lat + mN / (rm + hm) * dt
-        latm = 0.5 * (lat + lat1)
-        sm = math.sin(latm)
-        rnm = earth.A_WGS84 / math.sqrt(1.0 - earth.E2_WGS84 * sm * sm)
-        lon1 = s.lon + mE / ((rnm + hm) * math.cos(latm)) * dt
+        lon1 = s.lon + mE / ((rn + hm) * clat) * dt
 
         s.q_nb = np.array((a0, a1, a2, a3))
         s.vel_ned = np.array((vN1, vE1, vD1))

@@ -134,6 +134,10 @@ def groups() -> list[tuple[str, Callable[[], list[Row]]]]:
         ),
         ("Seed 001: error-model F vs finite differences (DIGEST_001_004 §6 case 11)", seed001_jacobian.rows),
         ("Seed 001: i- and e-frame mechanizations vs the NED one (seed 001 §3.2.1–3.2.2)", seed001_mech.rows),
+        (
+            "Seed 001: i-, e-frame and NED mechanizations, order in the step (seed 001 §3.2.1–3.2.2)",
+            seed001_mech.order_rows,
+        ),
         ("Book §3.1: square-root QR with a singular r, operation counts (DIGEST_000 §8 cases 16, 36)", book_ch3.rows),
         (
             "Book Ex 3.1–3.3 closed loops, the §6.1 lab and §6.5 outage analogues (DIGEST_000 §8 cases 27, 28)",

@@ -80,15 +80,15 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ins_hil.nav.earth:normal_gravity",
         "return g0 - (3.0877e-6 - 4.4e-9 * s2) * h",
         "return g0 + (3.0877e-6 - 4.4e-9 * s2) * h",
-        "^Seed 001",
+        "^Seed 001: (Schuler|WGS84|error-model|i-, e-frame and NED)",  # not the 1-h mechanization runs (minutes)
     ),
     Mutation(
         "001 transport rate sign",
         "seed 001",
         "the strapdown's east transport rate −v_N/(M + h) with + (Schuler loop)",
         "ins_hil.nav.mechanization:StrapdownNED.step",
-        "enE = -vN / (rm + h)",
-        "enE = vN / (rm + h)",
+        "enE = -wN / rmh",
+        "enE = wN / rmh",
         "^Seed 001: Schuler",
     ),
     Mutation(
@@ -98,7 +98,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ins_hil.nav.mechanization_ie:StrapdownECEF.step",
         "v1 = s.v + dvf + (g - 2.0 * _cross(_WZ, v_mid)) * dt",
         "v1 = s.v + dvf + (g - 1.0 * _cross(_WZ, v_mid)) * dt",
-        "^Seed 001: i- and e-frame",
+        "^Seed 001: i-, e-frame and NED mechanizations, order",
     ),
     Mutation(
         "001 i-frame gravity for gravitation",
@@ -107,7 +107,16 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ins_hil.nav.mechanization_ie:StrapdownECI._gravitation",
         "earth.gravitation_ecef(",
         "earth.gravity_ecef(",
-        "^Seed 001: i- and e-frame",
+        "^Seed 001: i-, e-frame and NED mechanizations, order",
+    ),
+    Mutation(
+        "001 NED rates at the step start",
+        "seed 001",
+        "the NED mechanization takes ω_ie, gravity and the radii at the step's start latitude (first order)",
+        "ins_hil.nav.mechanization:StrapdownNED.step",
+        "latm = lat + 0.5 * vN / (rm0 + h) * dt",
+        "latm = lat",
+        "^Seed 001: i-, e-frame and NED mechanizations, order",
     ),
     Mutation(
         "002 ExpRvrs1h coefficient",
