@@ -380,12 +380,16 @@ class CNavCore:
         piece (it writes that state to ``ins_core_t.pub`` on its way); :meth:`state` is the state after it all."""
         if self._align is not None or self.dt is None:
             return self.step(imu)
-        if self._pub is None:
-            self._pub = self._ffi.new("ins_out_t *")
-            self._core.pub = self._pub
+        self._publish()
         self.step(imu)
         self._lib_.cref_pub_state(self._core, self._out)
         return self._nav_state(self._out_np.copy())
+
+    def _publish(self) -> None:
+        """Let the C step write its post-mechanization state to ``ins_core_t.pub`` (from now on)."""
+        if self._pub is None:
+            self._pub = self._ffi.new("ins_out_t *")
+            self._core.pub = self._pub
 
     def step_end(self) -> None:
         """Nothing left of the step :meth:`step_begin` ran (the ``RealTimeCore`` split step)."""
@@ -650,9 +654,10 @@ class CNavCore:
 
     def run_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
         """:meth:`step` on n samples in ONE C call (through the roll-back history): ``inc`` (n, 6) float64 dθ, dv
-        (rad, m/s, body FRD), ``t_end``, ``dt`` (n,) s. Returns the state after each step, as :meth:`step` would
-        (the same values: the C core's one state record), and records the IMU data lost before a sample as
-        :meth:`step` does (``imu_lost``, a DROPOUT event). Only when :meth:`can_run`."""
+        (rad, m/s, body FRD), ``t_end``, ``dt`` (n,) s. Returns, per step, the state :meth:`step_begin` returns
+        (the one published after the mechanization, the same C record), and records the IMU data lost before a
+        sample as :meth:`step` does (``imu_lost``, a DROPOUT event); :meth:`state` is the state after the last
+        step (time update included). Only when :meth:`can_run`."""
         n = len(t_end)
         self.run_gap_rows = []
         inc = np.ascontiguousarray(inc, dtype=np.float64)
@@ -680,9 +685,10 @@ class CNavCore:
                 )  # fmt: skip
         out = np.empty((n, 32))
         fb = self._ffi.from_buffer
-        self._st = None
-        self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
-                            fb("double[]", out), 32)  # fmt: skip
+        self._st = None  # the state after the time update: built by state() when asked
+        self._publish()
+        self._lib_.cref_run_pub(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end),
+                                fb("double[]", dt), n, fb("double[]", out), 32)  # fmt: skip
         self.run_out = out
         aligned = (out[:, 25] < self.cfg.alignment.aligned_yaw_std).tolist()
         ratios = self._ratios
@@ -692,8 +698,6 @@ class CNavCore:
                      omega_b=o[26:29], accel_b=o[29:32], aligned=a, test_ratios=ratios)
             for o, a in zip(out, aligned, strict=True)
         ]  # fmt: skip
-        if sts:
-            self._st = sts[-1]
         return sts
 
     def run_increments(self, inc: Vec, t_end: Vec, dt: Vec) -> None:

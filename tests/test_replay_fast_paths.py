@@ -121,13 +121,17 @@ def test_the_batched_c_epochs_are_the_per_sample_ones() -> None:
     ]
 
 
-def test_run_states_gives_the_states_and_the_lost_data_of_step() -> None:
+@pytest.mark.parametrize("precision", ["double", "float"])
+def test_run_states_gives_the_states_and_the_lost_data_of_step(precision: Any) -> None:
+    """run_states gives step_begin's states (after the mechanization, before the time update); state() after it
+    is step()'s (after the time update)."""
     imu = [s for k, s in enumerate(_imu()) if k not in (200, 260)]
     init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
-    a, b = CNavCore(init.copy(), _nav(), fixed_step=False), CNavCore(init.copy(), _nav(), fixed_step=False)
+    a, b = (CNavCore(init.copy(), _nav(), fixed_step=False, precision=precision) for _ in range(2))
     a.step(imu[0])
     b.step(imu[0])
-    one = [a.step(s) for s in imu[1:]]
+    one = [a.step_begin(s) for s in imu[1:]]
+    assert not np.array_equal(one[-1].std_pos, a.state().std_pos)  # the time update grew σ after the publication
     inc = np.array([np.concatenate([s.dtheta, s.dvel]) for s in imu[1:]])
     assert b.can_run()
     run = b.run_states(inc, np.array([s.t for s in imu[1:]]), np.array([s.dt for s in imu[1:]]))

@@ -66,6 +66,17 @@ void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_e
         if (out != NULL) put(c, out + out_stride * k, out_stride);
     }
 }
+/* cref_run recording, per step, the state the step published after its mechanization (c->pub, as
+ * cref_pub_state after cref_hstep: CNavCore.step_begin); c->pub must be set */
+void cref_run_pub(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
+                  double *out, size_t out_stride) {
+    size_t k;
+    for (k = 0; k < n; ++k) {
+        cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt,
+                   dts != NULL ? dts[k] : 0.0);
+        put_out(c, c->pub, out + out_stride * k, out_stride);
+    }
+}
 int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
                     double std_ne, double std_d, double std_vel) {
     ins_gnss_t g;
