@@ -87,7 +87,7 @@ def test_a_config_the_c_core_lacks_a_setting_of_is_refused_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     text = (CONFIGS / "drive0708.toml").read_text()
-    text = text.replace('path = "../../../', f'path = "{REPO.parent.parent}/').replace(
+    text = text.replace('path = "../../../', f'path = "{(CONFIGS / "../../..").resolve()}/').replace(
         "scale_factors = true", "scale_factors = true\nwind_states = true"
     )
     assert "wind_states = true" in text
