@@ -28,8 +28,37 @@ INTEGRATION_MODULES = frozenset({
 })  # fmt: skip
 
 
+#: the modules that take longest in the default run (their own seconds, measured on an idle 2-core machine), longest
+#: first: on pytest-xdist workers (`scripts/test`: --dist loadfile --no-loadscope-reorder) they are handed out
+#: first, so that no long module starts last while the other worker idles; the rest follow by test count
+LONG_MODULES = (
+    "test_soak_smoke",  # 130 s: a 2-minute real-time soak (a quarter of one core; the worker only waits)
+    "test_datasets_offset",  # 90 s: time-offset and mounting-yaw searches, 5 to 11 replays each
+    "test_mechanization_ie",  # 45 s: one hour of the e- and i-frame mechanizations at 100 Hz
+    "test_book_ch3_examples",  # 35 s: the chapter's examples in full (cached for the module)
+    "test_dataset",  # 35 s: the drive's protocol replayed twice
+    "test_gcs_protocols",  # 30 s: live endpoints, MAVProxy, a gateway with sensor pauses
+    "test_replay",  # 25 s: Monte-Carlo NEES replays
+    "test_reproduce",  # 20 s: the reproduction report
+    "test_interop_mavsdk",  # 16 s: MAVSDK against a running gateway
+)
+
+
+def _module(item: pytest.Item) -> str:
+    return item.module.__name__.rsplit(".", 1)[-1] if item.module is not None else ""
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
-        mod = item.module.__name__.rsplit(".", 1)[-1] if item.module is not None else ""
-        if mod in INTEGRATION_MODULES:
+        if _module(item) in INTEGRATION_MODULES:
             item.add_marker(pytest.mark.integration)
+    if hasattr(config, "workerinput"):  # a pytest-xdist worker: the long modules first, then by test count
+        count: dict[str, int] = {}
+        for item in items:
+            count[item.nodeid.split("::")[0]] = count.get(item.nodeid.split("::")[0], 0) + 1
+        rank = {m: k for k, m in enumerate(LONG_MODULES)}
+
+        def key(item: pytest.Item) -> tuple[int, int]:
+            return rank.get(_module(item), len(rank)), -count[item.nodeid.split("::")[0]]
+
+        items.sort(key=key)  # stable: a module's tests keep their order

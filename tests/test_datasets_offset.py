@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from pathlib import Path
 
@@ -11,11 +12,12 @@ import pytest
 
 from ins_hil.datasets import config as dcfg
 from ins_hil.datasets.dataset import Dataset
-from ins_hil.datasets.offset import estimate_imu_offset
+from ins_hil.datasets.offset import GridEstimate, estimate_imu_offset
 from ins_hil.sim import sensors as se
 from ins_hil.sim import trajectory as tr
 
 
+@functools.cache  # one flight per (offset, seed, seconds) in this process: the estimates do not change it
 def _flight(offset: float, seed: int, seconds: float = 150.0) -> Dataset:
     """The simulated UAV mission (MEMS IMU 100 Hz, RTK-grade GNSS 5 Hz) with its IMU stamped ``offset`` s
     early: the offset to find is +offset."""
@@ -32,12 +34,19 @@ def _cfg() -> dcfg.DatasetConfig:
     return c
 
 
-@pytest.mark.slow  # 11 replays of a 150-s flight each (~20 s on an idle 2-core machine)
-@pytest.mark.parametrize(("offset", "seed"), [(0.06, 3), (-0.04, 5)])
-def test_offset_found_within_its_uncertainty(offset: float, seed: int) -> None:
+@functools.cache  # the +60 ms search is also the coarse-to-fine one of the test below: run once
+def _found(offset: float, seed: int) -> tuple[GridEstimate, list[int]]:
+    """The coarse-to-fine search (±150 ms in 30-ms steps) on ``_flight(offset, seed)``: (estimate, progress calls)."""
     steps: list[int] = []
     est = estimate_imu_offset(_flight(offset, seed), _cfg(), span_s=0.15, step_s=0.03, settle_s=20.0,
                               progress=lambda k, n: steps.append(k))  # fmt: skip
+    return est, steps
+
+
+@pytest.mark.slow  # 11 replays of a 150-s flight each (~20 s on an idle 2-core machine)
+@pytest.mark.parametrize(("offset", "seed"), [(0.06, 3), (-0.04, 5)])
+def test_offset_found_within_its_uncertainty(offset: float, seed: int) -> None:
+    est, steps = _found(offset, seed)
     assert steps == list(range(1, len(est.grid) + len(est.coarse_grid) + 1))  # one call per replay, coarse and fine
     # measured: +60 ms → +51.3 ± 7.6 ms, −40 ms → −45.4 ± 6.6 ms; returning the config's 0 would fail
     assert math.isfinite(est.value) and 0.0 < est.std < 0.02
@@ -53,7 +62,7 @@ def test_coarse_to_fine_search_finds_the_exhaustive_offset_with_fewer_full_repla
 
     ds = _flight(0.06, 3)
     full = estimate_imu_offset(ds, _cfg(), span_s=0.15, step_s=0.03, settle_s=20.0, exhaustive=True)
-    fast = estimate_imu_offset(ds, _cfg(), span_s=0.15, step_s=0.03, settle_s=20.0)
+    fast, _ = _found(0.06, 3)  # the same search on the same flight as test_offset_found_within_its_uncertainty
     assert len(full.grid) == 11 and not len(full.coarse_grid)
     assert len(fast.coarse_grid) == 6 and 5 <= len(fast.grid) <= 7
     assert math.isfinite(fast.value) and fast.value == full.value

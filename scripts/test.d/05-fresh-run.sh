@@ -5,6 +5,8 @@
 # from the gateway on the ground-station port (UDP 127.0.0.1:14550, the default config's udpout), and a
 # recording recordings/*.ihlog in the clone. Every failure says in one line what failed and the log to read;
 # the temporary folder is kept on failure, removed on success.
+# It mostly waits (an install, a 20-s run): scripts/test runs it beside the other stages and pytest.
+# scripts/test: background
 set -uo pipefail
 source "$(dirname "$0")/../lib.sh"
 cd "$ROOT"
