@@ -161,3 +161,70 @@ def test_reader_target_still_replays_and_catches_a_nan_figure(shared_dir, monkey
             if found:
                 break
         assert found and "NaN" in found[0].what
+
+
+#: the reader formats whose long (replayed) seeds get the core navigating under the replay config
+NAV_FORMATS = ["csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "ihlog"]
+
+
+def _long_seeds(fmt: str, tmp_path):
+    from ins_hil.datasets.dataset import read_dataset
+    from ins_hil.fuzz.targets import _mutated, reader_seeds
+
+    seeds = reader_seeds(fmt)
+    assert seeds
+    return [read_dataset(_mutated(random.Random(0), {}, fmt, tmp_path / f"in{i}", s), fmt) for i, s in
+            enumerate(seeds)]  # fmt: skip
+
+
+@pytest.mark.parametrize("fmt", NAV_FORMATS)
+def test_replayed_seeds_navigate_and_a_nan_after_alignment_is_caught(fmt: str, shared_dir, tmp_path, monkeypatch):
+    """The unmutated long seed of each reader target, replayed as the target replays an accepted input, gets the
+    core navigating (the NaN-state oracle sees a navigating filter); a NaN put into the navigating filter's state
+    (here by the mechanization, late in the seed) is a finding, not a clean refusal."""
+    from ins_hil.fuzz import Replayed
+    from ins_hil.fuzz.targets import _replay_check, replay_config
+    from ins_hil.nav.mechanization import StrapdownNED
+
+    for ds in _long_seeds(fmt, tmp_path):
+        out = _replay_check(ds, replay_config())
+        assert [type(s) for s in out] == [Replayed] and out[0].navigating, out
+        t_nan = ds.imu[0].t + 0.9 * (ds.imu[-1].t - ds.imu[0].t)
+        step = StrapdownNED.step
+
+        def poisoned(self, *a, _step=step, _t=t_nan, **k):
+            _step(self, *a, **k)
+            if self.state.t >= _t:
+                self.state.vel_ned = self.state.vel_ned * float("nan")
+
+        monkeypatch.setattr(StrapdownNED, "step", poisoned)
+        out = _replay_check(ds, replay_config())
+        monkeypatch.setattr(StrapdownNED, "step", step)
+        wrong = [s for s in out if isinstance(s, Wrong)]
+        assert wrong and "non-finite" in wrong[0].what, out
+
+
+def test_dataset_config_replays_navigate(shared_dir) -> None:
+    """The synthetic data set an accepted dataset config replays is long enough for the shipped flight configs'
+    alignment: their cores navigate."""
+    from ins_hil.datasets.config import load
+    from ins_hil.fuzz.targets import CONFIG_SECONDS, ROOT, _replay_check, _synthetic_dataset
+
+    for name in ("ardupilot_copter", "px4_quad"):
+        out = _replay_check(_synthetic_dataset(CONFIG_SECONDS), load(ROOT / "configs/datasets" / f"{name}.toml"))
+        assert len(out) == 1 and out[0].navigating, (name, out)
+
+
+def test_campaign_counts_the_replays_that_navigated(shared_dir) -> None:
+    """The counts (and the state file) carry how many replayed inputs reached "navigating" per target."""
+    from ins_hil.fuzz import TargetResult, run_target
+    from ins_hil.fuzz import targets as T
+
+    (t,) = by_name(["reader_ihlog"])
+    r = run_target(t, None, seed=5, inputs=40)
+    assert 0 < r.replays_nav <= r.replays <= r.inputs
+    back = TargetResult.from_dict(r.to_dict())
+    assert (back.replays, back.replays_nav) == (r.replays, r.replays_nav)
+    old = {k: v for k, v in r.to_dict().items() if k not in ("replays", "replays_nav")}  # a state written before
+    assert TargetResult.from_dict(old).replays == 0
+    assert T.REPLAY_SHARE < 1.0

@@ -106,6 +106,7 @@ def _line(r: TargetResult) -> str:
         f"to go {_to_go(r)}): escaped {r.escaped}, accepted-bad {r.accepted_bad:,}, "
         f"NaN states/figures {r.nan_states}, pipeline exceptions {r.nav_exceptions}, stalls {r.nav_stalls}, "
         f"blow-ups {r.blowups}, hangs {r.hangs}"
+        + (f", replays navigating {r.replays_nav:,} / {r.replays:,}" if r.replays else "")
     )
 
 
@@ -159,7 +160,8 @@ def report(results: list[TargetResult], command: str, machine_line: str, load: s
         "  (`Pipeline` with the default `PipelineConfig`, a fixed 3-D GNSS fix every 100th sample): one as",
         "  delivered, one retimed 5 ms apart (their dt kept) so the values reach the core even when the",
         "  decoder's time is poisoned; a non-finite state; for the dataset targets, a `nan` printed as a figure",
-        "  by a replay of an accepted input; **pipeline exceptions**: raised by them;",
+        "  by a replay of an accepted input, or its replay refused for non-finite states or a pipeline error;",
+        "  **pipeline exceptions**: raised by them;",
         f"  **stalls** (as delivered): {fuzz.STALL} samples in a row without a state ({2 * fuzz.STALL} before",
         "  the first), after which the pipeline is rebuilt;",
         "- **blow-ups**: a MemoryError out of one input under the cap; **hangs**: one input over the CPU limit.",
@@ -174,6 +176,21 @@ def report(results: list[TargetResult], command: str, machine_line: str, load: s
             if r.maxima
         ],
         *([""] if any(r.maxima for r in results) else []),
+        *(
+            [
+                "Replays of accepted inputs (the dataset targets; the NaN-state oracle sees a navigating filter in",
+                "those whose core left its alignment): "
+                + "; ".join(
+                    f"{r.name} {r.replays_nav:,} of {r.replays:,} navigating ({r.replays_nav / r.replays:.0%})"
+                    for r in results
+                    if r.replays
+                )
+                + ".",
+                "",
+            ]
+            if any(r.replays for r in results)
+            else []
+        ),
         "Against the goals (≥ 1 million inputs per decoder and per dataset reader, 10,000 gateway config",
         "documents, 100,000 dataset configs; 0 escaped exceptions, 0 accepted samples outside the physical ranges,",
         "0 NaN states or figures, 0 blow-ups, 0 hangs):",

@@ -58,6 +58,14 @@ class Checked:
         self.n = n
 
 
+class Replayed:
+    """A step replayed an accepted input through the dataset replay (prepare, the core, the scores);
+    ``navigating``: the core left its alignment (the NaN-state oracle saw a navigating filter)."""
+
+    def __init__(self, navigating: bool) -> None:
+        self.navigating = navigating
+
+
 class Wrong:
     """A record the recorder reader returned that is not the one recorded (a silent misread)."""
 
@@ -186,6 +194,8 @@ class TargetResult:
     nav_stalls: int = 0  # the pipeline produced no state for STALL samples in a row after its start
     blowups: int = 0  # a MemoryError out of one input (the campaign runs under an address-space cap)
     hangs: int = 0  # one input that used more than the step's CPU-time limit
+    replays: int = 0  # accepted inputs a dataset target replayed (prepare, the core, the scores, the summary)
+    replays_nav: int = 0  # ... whose core navigated (left its alignment)
     findings: dict[str, Finding] = field(default_factory=dict)
     maxima: dict[str, float] = field(default_factory=dict)  # the largest of each Measure the steps returned
     decoder: bool = True
@@ -230,7 +240,8 @@ class TargetResult:
 
 #: the summed fields of a TargetResult
 COUNTS = ("seconds", "cpu_seconds", "inputs", "escaped", "accepted", "decoded_bad", "accepted_bad", "nav_fed",
-          "nav_states", "nan_states", "nav_exceptions", "nav_stalls", "blowups", "hangs")  # fmt: skip
+          "nav_states", "nan_states", "nav_exceptions", "nav_stalls", "blowups", "hangs", "replays",
+          "replays_nav")  # fmt: skip
 #: CPU seconds one input may use before it counts as a hang (SIGVTALRM; the main thread only)
 STEP_CPU_LIMIT = 20.0
 
@@ -412,13 +423,16 @@ def _run_target(
             now = mono()
             continue
         res.inputs += n
-        if out and any(isinstance(s, Measure | Checked) for s in out):
+        if out and any(isinstance(s, Measure | Checked | Replayed) for s in out):
             for s in out:
+                if isinstance(s, Replayed):
+                    res.replays += 1
+                    res.replays_nav += s.navigating
                 if isinstance(s, Measure):
                     res.maxima[s.name] = max(s.value, res.maxima.get(s.name, s.value))
                 elif isinstance(s, Checked):
                     res.accepted += s.n
-            out = [s for s in out if not isinstance(s, Measure | Checked)]
+            out = [s for s in out if not isinstance(s, Measure | Checked | Replayed)]
         if out:
             res.accepted += len(out)
             for s in out:

@@ -853,6 +853,14 @@ def _synthetic_dataset(seconds: float = 3.0) -> Any:
                    meta={"source": "<fuzz>", "format": "csv", "utc_start_s": 1.7e9})  # fmt: skip
 
 
+def _px4_mag(t0_us: int, seconds: float) -> bytes:
+    """A ulog2csv ``vehicle_magnetometer_0.csv`` of ``seconds`` from ``t0_us`` (µs) at 10 Hz: a field of 0.5 G at
+    yaw 0 and level (``REPLAY_MAG_NED`` in gauss)."""
+    g = [v * 1e4 for v in REPLAY_MAG_NED]
+    rows = [f"{t0_us + 100_000 * k},{g[0]:.4f},{g[1]:.4f},{g[2]:.4f}" for k in range(int(seconds * 10))]
+    return ("\n".join(["timestamp,magnetometer_ga[0],magnetometer_ga[1],magnetometer_ga[2]", *rows]) + "\n").encode()
+
+
 def _head_lines(p: Path, n: int = SEED_LINES) -> bytes:
     with p.open("rb") as f:
         return b"".join(f.readline() for _ in range(n))
@@ -881,6 +889,9 @@ def _reader_seeds(fmt: str, tmp: Path, short: bool = False) -> list[dict[str, by
         q = d / "uav/px4_quad_157s"
         if q.is_dir():
             seeds.append({f.name: _head_lines(f, lines) for f in sorted(q.glob("*.csv"))})
+            # the folder has no magnetometer: one written for the replay's alignment (REPLAY_MAG_NED)
+            t0 = int(seeds[-1]["sensor_combined_0.csv"].split(b"\n")[1].split(b",")[0])
+            seeds[-1]["vehicle_magnetometer_0.csv"] = _px4_mag(t0, 2.0)
         cols = ["timestamp", "gyro_rad[0]", "gyro_rad[1]", "gyro_rad[2]", "gyro_integral_dt", "accelerometer_m_s2[0]",
                 "accelerometer_m_s2[1]", "accelerometer_m_s2[2]", "accelerometer_integral_dt"]  # fmt: skip
         rows = [f"{1_000_000 + 4000 * k},0.01,0,0,4000,0.1,0,-9.8,4000" for k in range(lines)]
@@ -888,6 +899,7 @@ def _reader_seeds(fmt: str, tmp: Path, short: bool = False) -> list[dict[str, by
         gps += [f"{1_000_000 + 200_000 * k},470000000,80000000,400000,3,1.0,2.0,0.3,0,0,0,9" for k in range(6)]
         seeds.append({"sensor_combined_0.csv": ("\n".join([",".join(cols), *rows]) + "\n").encode(),
                       "vehicle_gps_position_0.csv": ("\n".join(gps) + "\n").encode()})  # fmt: skip
+        seeds[-1]["vehicle_magnetometer_0.csv"] = _px4_mag(1_000_000, 2.0)
     elif fmt in ("ardupilot-bin", "ardupilot-log") and (d / "uav/ardupilot_copter_150s/flight.bin").is_file():
         head, spans = dataflash_seed((d / "uav/ardupilot_copter_150s/flight.bin").read_bytes(), records)
         SPANS[head] = (spans, 3)  # a message: header, then TimeUS
@@ -959,18 +971,41 @@ def _warm(key: Any, run: Callable[[], Any]) -> None:
 
 def _replay_check(ds: Any, cfg: Any) -> list[Any]:
     """Replay ``ds`` with ``cfg`` through the dataset replay (prepare, the core, the scores) and its summary:
-    [] when it gives finite figures or refuses in one line (ReplayError), else a ``Wrong`` naming the NaN."""
+    ``Replayed`` (whether the core navigated) when it gives finite figures, [] when it refuses the data in one line
+    (ReplayError), a ``Wrong`` for a NaN printed as a figure, non-finite states or a pipeline error."""
     from ins_hil.datasets import report
     from ins_hil.datasets.run import ReplayError
+    from ins_hil.fuzz import Replayed
 
     try:
         m, _ = report.replay(ds, cfg)
-    except ReplayError:
+    except ReplayError as e:
+        # the clean refusals of bad data; but what passed the validation boundary must never give the core a
+        # non-finite state or raise in the pipeline: those are findings (the replay refuses them in one line)
+        why = str(e)
+        if "non-finite navigation states" in why or "a pipeline error" in why:
+            return [Replayed(True), Wrong(f"a replay of validated samples: {why[-200:]}")]
         return []
+    done: list[Any] = [Replayed(m.get("t_nav_s") is not None)]
     text = report.format_table(report.summary(m)).lower()
     if "nan" in text.replace("not scored", "").replace("nanos", ""):
-        return [Wrong(f"a NaN printed as a figure: {text[:300]!r}")]
-    return []
+        return [*done, Wrong(f"a NaN printed as a figure: {text[:300]!r}")]
+    return done
+
+
+#: T: the Earth field (NED) the reader targets' replays take as the magnetometer reference (a mid-latitude field;
+#: any field gives the refined alignment a yaw, so a seed with a magnetometer navigates without motion)
+REPLAY_MAG_NED = [2.0e-5, 0.0, 4.4e-5]
+
+
+def replay_config() -> Any:
+    """The dataset config the reader targets replay their accepted inputs with: a quick static alignment (0.5 s
+    levelling after 0.2 s at rest, yaw from the magnetometer against ``REPLAY_MAG_NED``), so the seeds' cores
+    navigate within their second of data (the default 2 s + 1.5 s would outlast every seed but the DataFlash one)."""
+    from ins_hil.datasets.config import DatasetConfig
+
+    return DatasetConfig(name="fuzz", rtklib={}, nav={"alignment": {"time": 0.5, "still_delay": 0.2},
+                                                      "mag": {"ref_ned": list(REPLAY_MAG_NED)}})  # fmt: skip
 
 
 #: the reader formats whose input is a folder, and those that are text
@@ -1018,7 +1053,6 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
     navigates) and replayed if accepted, otherwise from the short one (``SHORT_RECORDS``) and not replayed."""
 
     def setup(rng: random.Random) -> Step:
-        from ins_hil.datasets.config import DatasetConfig
         from ins_hil.datasets.dataset import DatasetError, read_dataset
         from ins_hil.datasets.run import ReplayError, screen
         from ins_hil.fuzz import Checked, suspects
@@ -1029,8 +1063,9 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
             raise RuntimeError(f"{fmt}: no seed ({SHARED_DATA} missing)")
         short = reader_seeds(fmt, short=True)
         _warm(("reader", fmt), lambda: _replay_check(read_dataset(_mutated(rng, {}, fmt, tmp / "in", seeds[0]), fmt),
-                                                     DatasetConfig(name="fuzz", rtklib={})))  # fmt: skip
+                                                     replay_config()))  # fmt: skip
         clock = [time.perf_counter(), 0.0]  # the start, the seconds spent replaying
+        cfg = replay_config()
 
         def step() -> tuple[int, list[Any]]:
             t0 = time.perf_counter()
@@ -1050,7 +1085,7 @@ def _reader(fmt: str) -> Callable[[random.Random], Step]:
             out.append(Checked(len(checked) - len(out)))
             if replay:
                 now = time.perf_counter()
-                out += _replay_check(ds, DatasetConfig(name="fuzz", rtklib={}))
+                out += _replay_check(ds, cfg)
                 clock[1] += time.perf_counter() - now
             return 1, out
 
@@ -1167,6 +1202,11 @@ def _replay_process(rng: random.Random) -> Step:
     return _owned(step, tmp)
 
 
+#: s of the synthetic data set an accepted dataset config replays: the shipped configs' alignment (2 s levelling
+#: after 1.5 s at rest) ends within it, so their cores navigate (those that take the yaw from the magnetometer)
+CONFIG_SECONDS = 4.0
+
+
 def _dataset_config(rng: random.Random) -> Step:
     """The dataset config: the shipped configs/datasets/*.toml mutated (as TOML trees and as text), loaded; a
     DatasetConfigError is the clean refusal. An accepted config replays a small synthetic data set (prepare, the
@@ -1180,7 +1220,7 @@ def _dataset_config(rng: random.Random) -> Step:
     trees = [tomllib.loads(t) for _, t in seeds]
     tmp = _scratch()
     n = [0]
-    _warm("dataset_config", lambda: _replay_check(_synthetic_dataset(3.0), load(files[0])))
+    _warm("dataset_config", lambda: _replay_check(_synthetic_dataset(CONFIG_SECONDS), load(files[0])))
 
     def step() -> tuple[int, list[Any]]:
         i = rng.randrange(len(seeds))
@@ -1217,7 +1257,8 @@ def _dataset_config(rng: random.Random) -> Step:
         if n[0] % 4:
             return 1, []
         try:  # one accepted config in four replays the small data set with it
-            return 1, _replay_check(_synthetic_dataset(3.0), cfg)  # a fresh one (a tenth of a deep copy's time)
+            # a fresh data set each time (a tenth of a deep copy's time)
+            return 1, _replay_check(_synthetic_dataset(CONFIG_SECONDS), cfg)
         except (DatasetError, DatasetConfigError):
             return 1, []
 
