@@ -416,7 +416,7 @@ def _run_jobs(
     by_count: bool,
     total_w: float,
 ) -> int:
-    """The campaign's chunks on ``args.jobs`` worker processes (forked: each under the memory cap set before): the
+    """The campaign's chunks on ``args.jobs`` worker processes (a fork server's: each under the memory cap): the
     targets in order, a free worker taking the next chunk of the first target whose rest is not yet running (an input
     budget or a time share split between the chunks in flight), the counts added here as they come, the state saved
     after each. Returns the environment faults met (raises EnvironmentFault after ``MAX_FAULTS``)."""
@@ -460,7 +460,9 @@ def _run_jobs(
             return t.name, sec, seed, None
         return None
 
-    ctx = mp.get_context("fork")
+    # forkserver, not fork: a fork copies the campaign's threads' held locks (a worker forked while another thread
+    # held one waited for ever: seen in a test process); the server process inherits the memory cap (RLIMIT_AS)
+    ctx = mp.get_context("forkserver")
     pool = ctx.Pool(args.jobs, initializer=_worker_init)
     running: list[tuple[Any, str, float]] = []
     try:
