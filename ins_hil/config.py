@@ -151,9 +151,9 @@ def _fdi(cfg: Config, fdi: Any) -> None:
         opts = schema.validate("fdi.aiding", vals["aiding"])  # its `enabled` (the loader's key) as well
         p.aiding_fdi, p.aiding_options = opts.pop("enabled", True), opts
         p.aiding_config()  # built once, here (ConfigError naming the key); the pipeline's monitor uses it
-    if p.fdi:
+    if p.fdi or "options" in vals:  # checked even while FDI is off: a bad key is an error now, not when enabled
         geo = p.fdi_config().geometry  # built once, here; the pipeline's monitor uses it
-        if len(p.imu_ids) != geo.units:
+        if p.fdi and len(p.imu_ids) != geo.units:
             raise ConfigError(f"fdi.imu_ids = {p.imu_ids}: the geometry {geo.name!r} has {geo.units} IMUs")
 
 

@@ -43,11 +43,39 @@ def test_reproduce_command_writes_the_report(tmp_path: Path, capsys) -> None:
 
 
 @pytest.mark.slow
+def _same_row(a: str, b: str) -> bool:
+    """Two table rows alike: text cells equal, number cells equal to their printed digits or both round-off
+    (|x| <= 1e-12: a difference of two equal formulas, whose last bits vary with the host's BLAS and CPU)."""
+    ca, cb = a.split(" | "), b.split(" | ")
+    if len(ca) != len(cb):
+        return False
+    for x, y in zip(ca, cb, strict=True):
+        if x == y:
+            continue
+        try:
+            fx, fy = float(x), float(y)
+        except ValueError:
+            return False
+        if not (abs(fx) <= 1e-12 and abs(fy) <= 1e-12):
+            return False
+    return True
+
+
+def test_same_row_tells_a_moved_value_from_round_off() -> None:
+    row = "| 001-K | μ ← δr | — | {} | 0 | {} | ±1e-09 | pass | J |"
+    assert _same_row(row.format("0", "0"), row.format("3.724e-16", "3.724e-16"))
+    assert not _same_row(row.format("0", "0"), row.format("2.1e-06", "2.1e-06"))
+    assert not _same_row(row.format("1.5", "x"), row.format("1.5", "y"))
+
+
 def test_committed_report_is_current(tmp_path: Path) -> None:
     out = tmp_path / "r.md"
     assert main(["reproduce", "--output", str(out), "--quiet", "--no-plots"]) == 0
-    committed = (ROOT / "docs" / "reproduction.md").read_text(encoding="utf-8")
-    assert _table_lines(committed) == _table_lines(out.read_text(encoding="utf-8")), "run `ins-hil reproduce`"
+    committed = _table_lines((ROOT / "docs" / "reproduction.md").read_text(encoding="utf-8"))
+    fresh = _table_lines(out.read_text(encoding="utf-8"))
+    assert len(committed) == len(fresh), "run `ins-hil reproduce`"
+    moved = [(c, f) for c, f in zip(committed, fresh, strict=True) if not _same_row(c, f)]
+    assert not moved, f"run `ins-hil reproduce`: {len(moved)} rows differ, the first: {moved[0]}"
 
 
 def test_unwritable_output_is_reported(tmp_path: Path, capsys) -> None:

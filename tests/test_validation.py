@@ -197,7 +197,8 @@ def test_recorded_limits_load_back_in_both_header_layouts() -> None:
     from ins_hil.runtime.replay import pipeline_config_from_header
 
     cfg = PipelineConfig(limits=Limits(gyro_range_dps=900.0, gnss_min_fix_type=4))
-    new = pipeline_config_from_header({"pipeline": dataclasses.asdict(cfg)})
+    new = pipeline_config_from_header({"pipeline": cfg.to_dict()})
+    assert pipeline_config_from_header({"pipeline": dataclasses.asdict(cfg)}).limits == cfg.limits  # older header
     old = pipeline_config_from_header({"pipeline": {"gyro_range_dps": 900.0, "gnss_min_fix_type": 4}})
     assert new.limits == old.limits == cfg.limits
     assert pipeline_config_from_header({}).limits == Limits()

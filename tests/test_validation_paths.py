@@ -219,7 +219,12 @@ def test_the_pipeline_entries_validate_first_and_only_they_reach_the_core() -> N
         reach[root] = seen
     public = {n for n in methods if not n.startswith("_")}
     entries = {n for n in public if reach[n] & touching or n in touching}
-    assert entries <= {"imu", "aid", "work", "flush"}, entries
+    assert entries <= {"imu", "aid", "imu_run", "work", "flush"}, entries
+    # imu_run (an offline replay's IMU samples up to the next aid): each sample through the validator before the
+    # batched C path takes it; every other sample through imu()
+    run = ast.unparse(_method(P, "imu_run"))
+    assert "val(s) is not None" in run and run.index("val(s) is not None") < run.index("self._epochs_c(")
+    assert "val, t_prev = (self._val_imu, self._t_imu)" in run
     for n in ("work", "flush"):  # they run queued work only: no sample comes in
         assert [a.arg for a in methods[n].args.args] == ["self"]
 
@@ -229,7 +234,7 @@ def test_the_gateway_hands_every_sample_to_a_pipeline_entry_and_nothing_else_fee
     assert "pipe.imu(s)" in src and "pipe.aid(s)" in src
     tree = ast.parse(textwrap.dedent(src))
     branch = next(
-        n for n in ast.walk(tree) if isinstance(n, ast.If) and "isinstance(s, ImuSample)" in ast.unparse(n.test)
+        n for n in ast.walk(tree) if isinstance(n, ast.If) and ast.unparse(n.test) == "s.kind == 'imu'"
     )
     assert "pipe.imu(s)" in ast.unparse(ast.Module(branch.body, []))  # an IMU sample: the pipeline's IMU entry
     assert "pipe.aid(s)" in ast.unparse(ast.Module(branch.orelse, []))  # anything else: its aiding entry

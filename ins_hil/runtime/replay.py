@@ -72,7 +72,11 @@ def pipeline_config_from_header(header: dict[str, Any], core: str | None = None)
     # the validation limits: a table, or (logs written before PipelineConfig.limits) flat pipeline keys
     table = d.get("limits")
     limits = {k: v for k, v in {**d, **(table if isinstance(table, dict) else {})}.items() if k in lim}
-    d["nav"] = nest(d.get("nav") or {})  # a recording made before the [core.nav] sections: its flat keys moved
+    nav = dict(d.get("nav") or {})
+    held = nav.pop("sources", None)  # a header written with dataclasses.asdict (before PipelineConfig.to_dict)
+    if isinstance(held, dict):
+        nav.update(held)  # its aid sections back at [core.nav.<aid>]
+    d["nav"] = nest(nav)  # a recording made before the [core.nav] sections: its flat keys moved
     cfg = PipelineConfig(**{k: v for k, v in d.items() if k in names}, limits=Limits(**limits))
     if core is not None:
         cfg.core = core

@@ -189,7 +189,7 @@ class SlcanParser:
             except Exception:  # as the gateway's CAN driver: one frame never stops the reader, it is counted
                 self.counts["internal"] = self.counts.get("internal", 0) + 1
                 continue
-            if s.kind == "imu":
+            if s is not None and s.kind == "imu":
                 out.append(s)
         return out
 
