@@ -339,12 +339,7 @@ def run(args: argparse.Namespace) -> int:
                     r = run_target(t, min(args.progress, left_s) if left_s is not None else args.progress,
                                    seed=args.seed * 1000 + i + 100_003 * k, inputs=left_n)  # fmt: skip
                 except fuzz.EnvironmentFault as e:
-                    faults += 1
-                    print(f"[fuzz] environment: {e}; the chunk is discarded ({faults} of {MAX_FAULTS}), retried "
-                          f"in {FAULT_WAIT:g} s", file=sys.stderr, flush=True)  # fmt: skip
-                    if faults >= MAX_FAULTS:
-                        raise
-                    time.sleep(FAULT_WAIT)
+                    faults = _environment_fault(e, faults)
                     continue
                 acc.add(r)
                 print(f"[fuzz] {_line(acc)}", file=sys.stderr, flush=True)
@@ -385,6 +380,18 @@ def run(args: argparse.Namespace) -> int:
     if interrupted:
         return 130
     return 1 if env_failed or any(r.failures() for r in shown) else 0
+
+
+def _environment_fault(e: Exception, faults: int) -> int:
+    """An environment fault (an import that fails) of one chunk: the chunk is discarded and retried after
+    ``FAULT_WAIT`` s; the fault is raised again once ``MAX_FAULTS`` have been met. Returns the faults so far."""
+    faults += 1
+    print(f"[fuzz] environment: {e}; the chunk is discarded ({faults} of {MAX_FAULTS}), retried in {FAULT_WAIT:g} s",
+          file=sys.stderr, flush=True)  # fmt: skip
+    if faults >= MAX_FAULTS:
+        raise e
+    time.sleep(FAULT_WAIT)
+    return faults
 
 
 #: with --jobs, a rest of fewer inputs than this per worker runs as one chunk
@@ -483,12 +490,7 @@ def _run_jobs(
                 try:
                     r = fut.get()
                 except fuzz.EnvironmentFault as e:
-                    faults += 1
-                    print(f"[fuzz] environment: {e}; the chunk is discarded ({faults} of {MAX_FAULTS}), retried "
-                          f"in {FAULT_WAIT:g} s", file=sys.stderr, flush=True)  # fmt: skip
-                    if faults >= MAX_FAULTS:
-                        raise
-                    time.sleep(FAULT_WAIT)
+                    faults = _environment_fault(e, faults)
                     continue
                 acc = results[name]
                 acc.add(r)
