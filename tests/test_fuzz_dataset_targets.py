@@ -163,8 +163,9 @@ def test_reader_target_still_replays_and_catches_a_nan_figure(shared_dir, monkey
         assert found and "NaN" in found[0].what
 
 
-#: the reader formats whose long (replayed) seeds get the core navigating under the replay config
-NAV_FORMATS = ["csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "ihlog"]
+#: the reader formats whose long (replayed) seeds get the core navigating under the replay config (every one: the
+#: RTKLIB seed is the drive's drive-off, whose yaw comes from the GNSS course)
+NAV_FORMATS = ["csv", "px4-ulog", "px4-csv", "ardupilot-bin", "ardupilot-log", "rtklib", "ihlog"]
 
 
 def _long_seeds(fmt: str, tmp_path):

@@ -18,6 +18,7 @@ returns a ``step()`` that makes and feeds one or a few inputs and returns ``(inp
 from __future__ import annotations
 
 import copy
+import io
 import math
 import os
 import random
@@ -626,6 +627,8 @@ SEED_RECORDS = 200
 #: IMU records (binary logs) or lines (text logs) of the short seeds most inputs of a reader target are cut from: every
 #: kind of record and the file's definitions as in the long seed, a fifth of the records (a fifth of the reading)
 SHORT_RECORDS = 40
+#: ms after the drive's IMU start where its RTKLIB seed begins: a second before the car's speed passes 1 m/s
+RTKLIB_SEED_MS = 35_000
 #: parameters kept in a ULog seed (the reader keeps EKF2_, SENS_ and CAL_MAG ones in the dataset's meta)
 SEED_PARAMS = 12
 #: GNSS records a ULog seed keeps at least (the other topics go on after the IMU's records until then)
@@ -871,7 +874,7 @@ def _reader_seeds(fmt: str, tmp: Path, short: bool = False) -> list[dict[str, by
     the shipped logs where ../shared/data has them, and a synthetic one where the format allows. ``short``: the same
     cuts with ``SHORT_RECORDS`` IMU records or lines (a text file's lines, a synthetic log's IMU samples) instead of
     ``SEED_RECORDS`` / ``SEED_LINES`` / 3 s at 100 Hz."""
-    from ins_hil.datasets import generic_csv
+    from ins_hil.datasets import generic_csv, rtklib
 
     seeds: list[dict[str, bytes]] = []
     d = SHARED_DATA
@@ -917,14 +920,27 @@ def _reader_seeds(fmt: str, tmp: Path, short: bool = False) -> list[dict[str, by
                 out.append(", ".join([m.get_type()] + [str(getattr(m, c)) for c in m.fmt.columns]))
             seeds.append({"d.log": ("\n".join(out) + "\n").encode()})
     elif fmt == "rtklib" and (d / "gnss_imu_drive_0708/imu_1934.csv").is_file():
+        # the window where the car drives off (its speed passes 1 m/s 36 s after the IMU's start): the replay's
+        # core levels in motion and takes its yaw from the GNSS course, so the seed navigates (the log's head is
+        # at rest, and RTKLIB files have no magnetometer); the time tags' byte offsets rebased to the window
         g = d / "gnss_imu_drive_0708"
-        imu = _head_lines(g / "imu_1934.csv", lines)
+        whole = (g / "imu_1934.csv").read_bytes()
         tag = (g / "imu_1934.csv.tag").read_bytes()
-        tags = np.frombuffer(tag[76 : 76 + 8 * ((len(tag) - 76) // 8)], dtype="<u4").reshape(-1, 2)
-        keep = tags[tags[:, 1] < len(imu)]
-        last = np.array([[keep[-1, 0] + 10 if len(keep) else 0, len(imu)]], dtype="<u4")
+        tags = np.frombuffer(tag[76 : 76 + 8 * ((len(tag) - 76) // 8)], dtype="<u4").reshape(-1, 2).astype(np.int64)
+        b0 = int(tags[np.searchsorted(tags[:, 0], RTKLIB_SEED_MS), 1])
+        b0 = whole.rfind(b"\n", 0, b0) + 1
+        rest = io.BytesIO(whole[b0:])
+        imu = b"".join(rest.readline() for _ in range(lines))
+        keep = tags[(tags[:, 1] >= b0) & (tags[:, 1] < b0 + len(imu))] - np.array([0, b0])
+        last = np.array([[keep[-1, 0] + 10 if len(keep) else 0, len(imu)]])
         tag = tag[:76] + np.vstack([keep, last]).astype("<u4").tobytes()
-        pos = _head_lines(g / "gnss_1934_sf.pos", 10 if short else 60)
+        tt = rtklib.read_timetag(g / "imu_1934.csv.tag")
+        t_win = tt.start + tt.frac + (keep[0, 0] if len(keep) else RTKLIB_SEED_MS) / 1000.0
+        pos_lines = (g / "gnss_1934_sf.pos").read_bytes().splitlines(keepends=True)
+        head = [ln for ln in pos_lines if ln.startswith(b"%")]
+        body = [ln for ln in pos_lines if not ln.startswith(b"%")]
+        k0 = int(np.searchsorted(rtklib.read_pos(g / "gnss_1934_sf.pos").t, t_win - 1.0))  # a second before it
+        pos = b"".join(head + body[k0 : k0 + (10 if short else 60)])
         seeds.append({"imu.csv": imu, "imu.csv.tag": tag, "sol.pos": pos})
     elif fmt == "ihlog":
         from ins_hil.runtime import recorder as rec
