@@ -173,7 +173,11 @@ class AlignmentConfig:
         choices=("given", "static"),
     )
     time: float = setting(2.0, "s", "(0, 3600]", "static alignment: levelling time at rest")
-    level_only: bool = setting(False, help="static alignment: level only (yaw from the initial state)")
+    level_only: bool = setting(
+        False,
+        help="static alignment: level at rest without a yaw source (magnetometer or motion); the yaw then comes "
+        "from the GNSS course",
+    )
     gyrocompass: bool = setting(
         False,
         help=(
