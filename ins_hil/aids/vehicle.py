@@ -1,6 +1,7 @@
-"""Vehicle aids: ZUPT/ZARU at rest, the non-holonomic constraint (NHC) and the longitudinal-acceleration prior in
-motion (ground vehicle); the rotor drag on the body specific force (multirotor). No sample of their own: they run after every IMU time update
-(``[core.nav.aids]`` in :mod:`ins_hil.core_parts.config`; the models in :mod:`ins_hil.fusion.measurements`)."""
+"""Vehicle aids: ZUPT/ZARU at rest, the non-holonomic constraint (NHC) and the longitudinal-acceleration prior in motion
+(ground vehicle); the rotor drag on the body specific force (multirotor). No sample of their own: they run after
+every IMU time update (``[core.nav.aids]`` in :mod:`ins_hil.core_parts.config`; the models in
+:mod:`ins_hil.fusion.measurements`)."""
 
 from __future__ import annotations
 
@@ -94,7 +95,7 @@ class VehicleAids(Aid):
             return ()
         ground = self._ground(imu, ins, omega_b, q_mount, g_local)
         if self.la_on:
-            ground = (*ground, *self._long_accel(imu, ins, q_mount, g_local))
+            ground = (*ground, *self._long_accel(imu, ins, q_mount, g_local, f_b))
         if not c.aids.drag:
             return ground
         b = min(1.0, imu.dt / c.aids.drag_tau)
@@ -106,17 +107,26 @@ class VehicleAids(Aid):
         z, H = self.drag_model(self.idx, dcm_from_quat(s.q_nb), s.vel_ned, wind, self.ema_fb, c.aids.drag_coef)
         return (*ground, Measurement("drag", z, H, np.full(2, c.aids.drag_std**2), c.aids.gate))
 
-    def _long_accel(self, imu: ImuSample, ins: StrapdownNED, q_mount: Vec, g_local: float) -> tuple[Measurement, ...]:
+    def _long_accel(
+        self, imu: ImuSample, ins: StrapdownNED, q_mount: Vec, g_local: float, f_b: Vec
+    ) -> tuple[Measurement, ...]:
         """The longitudinal-acceleration prior (``long_accel_std``): the kinematic acceleration along the vehicle's
-        forward axis, a_x = (R Ĉ^T (f^n + g))_x, averaged over 1/``long_accel_rate`` s, is fused as 0 with the variance
-        σ² + s²/n (σ = ``long_accel_std``; s²/n: the window's sample variance over its n samples, the vibration
-        left in the average)."""
+        forward axis, a_x = (R (f_b + Ĉ^T g))_x (R: IMU body → vehicle; g = (0, 0, g) NED; Coriolis left out),
+        averaged over 1/``long_accel_rate`` s, is fused as 0 with the variance σ² + s²/(n − 1) (σ =
+        ``long_accel_std``; s²: the window's variance of a_x over its n samples, the vibration left in the mean)."""
         c = self.cfg.aids
-        s = ins.state
-        C = dcm_from_quat(s.q_nb)
-        a_n = ins.f_ned + np.array((0.0, 0.0, g_local))
-        fwd = C @ dcm_from_quat(q_mount)[0] if self.mounted else C[:, 0]  # the vehicle's forward axis, NED
-        ax = float(fwd @ a_n)
+        q0, q1, q2, q3 = (float(x) for x in ins.state.q_nb)
+        down_b = (
+            2.0 * (q1 * q3 - q0 * q2),
+            2.0 * (q2 * q3 + q0 * q1),
+            q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3,
+        )  # Ĉ^T e_D
+        a_b = [float(f_b[i]) + g_local * down_b[i] for i in range(3)]
+        if self.mounted:
+            r0 = dcm_from_quat(q_mount)[0]
+            ax = float(r0[0]) * a_b[0] + float(r0[1]) * a_b[1] + float(r0[2]) * a_b[2]
+        else:
+            ax = a_b[0]
         t_next, sx, sxx, n = self.la
         sx, sxx, n = sx + ax, sxx + ax * ax, n + 1.0
         if imu.t < t_next:
@@ -128,7 +138,7 @@ class VehicleAids(Aid):
         mean = sx / n
         var = max(sxx / n - mean * mean, 0.0) / (n - 1.0)  # the mean's variance (samples independent)
         R = dcm_from_quat(q_mount) if self.mounted else np.eye(3)
-        z, H = self.long_accel(self.idx, C, R, mean, g_local)
+        z, H = self.long_accel(self.idx, dcm_from_quat(ins.state.q_nb), R, mean, g_local)
         return (Measurement("long_accel", z, H, np.array((c.long_accel_std**2 + var,)), c.gate),)
 
     def _ground(

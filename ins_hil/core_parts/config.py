@@ -87,13 +87,13 @@ class MagConfig:
 
 @dataclass
 class AidsConfig:
-    """Ground-vehicle and multirotor aids (``[core.nav.aids]``): the non-holonomic constraint (NHC; the vertical one
-    in the road frame, the body pitched by ``nhc_pitch_per_accel`` × the forward acceleration; with
-    ``filter.mount_states`` the IMU → vehicle boresight is estimated), zero velocity (ZUPT) and zero angular rate
-    (ZARU) while the averaged IMU looks at rest, the longitudinal-acceleration prior of a wheeled vehicle (its
-    averaged forward kinematic acceleration is 0 ± ``long_accel_std``), and the rotor drag on the body x/y specific force against the air
-    velocity (with ``filter.wind_states``; not while the rest detector sees the vehicle standing). Units, ranges and
-    help: the fields' metadata."""
+    """Ground-vehicle and multirotor aids (``[core.nav.aids]``): the non-holonomic constraint (NHC; the vertical one in
+    the road frame, the body pitched by ``nhc_pitch_per_accel`` × the forward acceleration; with ``filter.mount_states``
+    the IMU → vehicle boresight is estimated), zero velocity (ZUPT) and zero angular rate (ZARU) while the averaged IMU
+    looks at rest, the longitudinal-acceleration prior of a wheeled vehicle (its averaged forward kinematic acceleration
+    is 0 ± ``long_accel_std``), and the rotor drag on the body x/y specific force against the air velocity (with
+    ``filter.wind_states``; not while the rest detector sees the vehicle standing). Units, ranges and help: the fields'
+    metadata."""
 
     nhc: bool = setting(False, help="non-holonomic constraint (ground vehicles)")
     nhc_std: float = setting(0.1, "m/s", "(0, 100]", "NHC lateral velocity σ")
