@@ -68,7 +68,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
     a = cfg.aids
     # what stays Python-only (docs/ref_core.md, "What the C core runs"): the extra error states (g-sensitivity,
     # magnetometer hard iron, wind, mounting), other numerics, the model switches, adaptive R, the NHC at a lever
-    # arm / with suspension pitch, the drag aid
+    # arm / with suspension pitch, the drag aid, the longitudinal-acceleration prior
     unsupported = {
         "filter.gyro_bias": not f.gyro_bias,
         "filter.accel_bias": not f.accel_bias,
@@ -83,6 +83,7 @@ def _c_config(ffi: Any, cfg: NavConfig) -> Any:
         "aids.nhc_lever_b": a.nhc and bool(np.any(np.asarray(a.nhc_lever_b) != 0.0)),
         "aids.nhc_pitch_per_accel": a.nhc and a.nhc_pitch_per_accel != 0.0,
         "aids.drag": a.drag,
+        "aids.long_accel_std": a.long_accel_std > 0.0,
         # the aid modules with their own section (ins_hil.aids: odometer, airspeed) are Python-only
         **{f"{src.name}.enabled": src.enabled(cfg) for src in aids.sources() if src.section is not None},
     }

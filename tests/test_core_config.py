@@ -36,7 +36,10 @@ def test_every_old_key_maps_to_one_field_of_its_section() -> None:
     targets = list(MOVED.values())
     assert len(set(targets)) == len(targets)  # no two old keys on one new key
     fields = {(s, f.name) for s, c in SECTIONS.items() for f in dataclasses.fields(c)}
-    newer = {("aids", k) for k in ("drag", "drag_coef", "drag_std", "drag_tau", "drag_rate")}  # after the sections
+    newer = {
+        ("aids", k)
+        for k in ("drag", "drag_coef", "drag_std", "drag_tau", "drag_rate", "long_accel_std", "long_accel_rate")
+    }  # after the sections
     assert set(targets) == fields - newer  # and every other section key was a flat key before
 
 
@@ -88,6 +91,10 @@ def test_nav_config_reads_the_sections_and_names_a_moved_key() -> None:
         ValueError, match=r"^core\.nav\.aids\.drag_coef = 20: expected a finite number in \(0, 10\] 1/s$"
     ):
         nav_config({"aids": {"drag_coef": 20}})
+    with pytest.raises(
+        ValueError, match=r"^core\.nav\.aids\.long_accel_std = -0\.1: expected a finite number in \[0, 100\] m/s²$"
+    ):
+        nav_config({"aids": {"long_accel_std": -0.1}})
 
 
 def test_a_recording_with_the_flat_keys_replays_in_the_sections() -> None:

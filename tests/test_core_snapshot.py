@@ -48,7 +48,9 @@ def _flat(d: object) -> list[object]:
 def test_restore_replays_bit_for_bit() -> None:
     init = StrapdownState(quat_from_euler(0.01, -0.02, 0.3), np.array((5.0, 1.0, 0.0)), 0.87, 0.52, 100.0, 0.0)
     # aids and baro datum carry state too; no delayed fusion: the history (log, snapshots) is not restored
-    core = NavCore(init, NavConfig(aids=AidsConfig(nhc=True, zupt=True), delay=DelayConfig(compensation=False)))
+    # (the longitudinal-acceleration prior: its averaging window, 0.7 s, straddles the snapshot)
+    aids = AidsConfig(nhc=True, zupt=True, long_accel_std=0.5, long_accel_rate=1 / 0.7)
+    core = NavCore(init, NavConfig(aids=aids, delay=DelayConfig(compensation=False)))
     _run(core, _inputs(1, 300))
     snap = core.snapshot()
     assert isinstance(snap, CoreSnapshot) and snap.sources[0].offset is not None  # the baro datum
@@ -58,3 +60,4 @@ def test_restore_replays_bit_for_bit() -> None:
     core.restore(snap)
     assert _run(core, later) == first
     assert _flat(core.snapshot()) == end  # every field of every part, not only the published state
+    assert core.stats["long_accel"].accepted > 4

@@ -299,6 +299,7 @@ def test_still_refused_settings_name_themselves(car: Stream) -> None:
         "filter.mag_bias": _cfg({"mag_bias": True}),
         "filter.wind_states": _cfg({"wind_states": True}, aids=AidsConfig(drag=True)),
         "aids.nhc_lever_b": _cfg(aids=AidsConfig(nhc=True, nhc_lever_b=np.array((1.0, 0.0, 0.0)))),
+        "aids.long_accel_std": _cfg(aids=AidsConfig(nhc=True, long_accel_std=0.1)),
         "adaptive": _cfg(adaptive=True),
     }
     for name, cfg in bad.items():

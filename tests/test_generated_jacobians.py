@@ -159,8 +159,8 @@ def _numjac_n(fn, n_in: int, n_out: int, eps: float = 1e-6) -> np.ndarray:  # ty
 
 @pytest.mark.parametrize("seed", range(10))
 def test_generated_aid_rows_are_the_derivatives_of_their_models(seed: int) -> None:
-    """The aid rows with their own states (airspeed, odometer, drag, the mounted NHC, the magnetometer hard iron):
-    central differences of each nonlinear model by [15 base states, the aid's states]."""
+    """The aid rows (airspeed, odometer, drag, the mounted NHC, the longitudinal-acceleration prior, the magnetometer
+    hard iron): central differences of each nonlinear model by [15 base states, the aid's states]."""
     rng = np.random.default_rng(100 + seed)
     s = _random_state(rng)
     C, w, lev, v = s["C"], s["w"], s["l"], s["v"]
@@ -190,6 +190,12 @@ def test_generated_aid_rows_are_the_derivatives_of_their_models(seed: int) -> No
             18,
             2,
         ),
+        **tol,
+    )
+    g = 9.81
+    np.testing.assert_allclose(  # the longitudinal-acceleration prior: (R (f_b − δb_a + C_true^T g))_x
+        gj.H_long_accel(C, R, g),
+        _numjac_n(lambda x: (R @ (w - x[12:15] + Ct_T(x[6:9]) @ np.array((0.0, 0.0, g))))[0:1], 15, 1),
         **tol,
     )
     m = s["m"]
@@ -232,6 +238,10 @@ def test_the_aid_modules_take_their_rows_from_the_generated_code() -> None:
     np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])
     np.testing.assert_array_equal(H[:, idx.bg : idx.bg + 3], g[:, 9:12])
     np.testing.assert_array_equal(H[:, idx.mnt : idx.mnt + 3], g[:, 15:18])
+    _, H = mm.longitudinal_accel(idx, C, R, 0.2, 9.81)
+    g = gj.H_long_accel(C, R, 9.81)
+    np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])
+    np.testing.assert_array_equal(H[:, idx.ba : idx.ba + 3], g[:, 12:15])
     _, H = odometer_speed(idx, C, v, 0.01, 5.0)
     g = gj.H_odometer(C, v, 0.01)
     np.testing.assert_array_equal(H[:, 0:9], g[:, 0:9])

@@ -152,7 +152,7 @@ dk = sp.Symbol("dk", real=True)  # odometer scale factor
 db_m = vec("dbm")  # magnetometer hard iron (units of |m_ref|)
 u, R, ub = vec("u"), sp.Matrix(3, 3, sp.symbols("R0:9", real=True)), vec("ub")
 un = sp.Symbol("un", positive=True)
-mu, k_hat = sp.symbols("mu k", real=True)
+mu, k_hat, g_loc = sp.symbols("mu k g", real=True)
 for _s in (*dw, *deps, dk, *db_m):
     ZERO[_s] = 0
 
@@ -177,6 +177,10 @@ def derive_H_aids() -> dict[str, sp.Matrix]:
     # NHC at a reference point in vehicle axes: R (C^T v + ω × l), rows y, z (ω = ω̂ − δb_g), by [x, δε]
     u_ref = (I3 - skew(deps)) * R * (C_true_T * (v + dv) + (w - dbg).cross(lev))
     h["nhc_mounted"] = jac_ext(u_ref[1:3, :], deps)
+    # ground-vehicle longitudinal acceleration: the kinematic acceleration along the vehicle's forward axis,
+    # (R (f_b − δb_a + C^T g))_x with g = (0, 0, g) NED (Coriolis and transport rate left out), by x only
+    a_b = fb - dba + C_true_T * sp.Matrix([0, 0, g_loc])
+    h["long_accel"] = jac_ext((R * a_b)[0:1, :], sp.zeros(0, 1))
     # magnetometer hard iron: rows 2-3 of τ (m × Ĉ ū), ū = (u + δb_m)/|u + δb_m| (u = |u| ū: the corrected field,
     # the computed u = u_true + δb_m), and the magnitude −|u + δb_m|, by δb_m only (the ψ columns: H_mag); ū is a
     # unit vector (reduced modulo |ū|² = 1)
@@ -223,6 +227,7 @@ HA_ARGS = {
     "drag": [("C", list(Cm)), ("u", list(u)), ("mu", [mu])],
     "nhc_mounted": [("C", list(Cm)), ("vel", list(v)), ("R", list(R)), ("omega_b", list(w)), ("lever", list(lev))],
     "mag_bias": [("m", list(m)), ("C", list(Cm)), ("ubar", list(ub)), ("un", [un])],
+    "long_accel": [("C", list(Cm)), ("R", list(R)), ("g", [g_loc])],
 }
 HA_DOC = {
     "airspeed": "true airspeed |v − w| at u = v̂ − ŵ (NED m/s): u^T δv / |u| − u_NE^T δw / |u|; columns 15-16: the wind",
@@ -233,8 +238,10 @@ HA_DOC = {
     "columns 15-17: the boresight",
     "mag_bias": "magnetometer hard iron (3 × 3, by δb_m; ū = u/|u|, un = |u|): rows 2-3 of τ [m×] C (I − ū ū^T)/|u|, "
     "magnitude −ū^T",
+    "long_accel": "ground-vehicle forward kinematic acceleration (R (f_b + C^T g))_x, g = (0, 0, g) NED: "
+    "−R (C^T [g×] ψ + δb_a), row x; no states of its own",
 }
-HA_EXTRA = {"airspeed": 2, "odometer": 1, "drag": 2, "nhc_mounted": 3, "mag_bias": 0}
+HA_EXTRA = {"airspeed": 2, "odometer": 1, "drag": 2, "nhc_mounted": 3, "mag_bias": 0, "long_accel": 0}
 
 
 def _subs_c(args: list[tuple[str, list[sp.Symbol]]]) -> dict[sp.Symbol, sp.Symbol]:
@@ -504,7 +511,7 @@ def generate() -> tuple[str, str]:
     FR = derive_F_omega_rv()
     HA = derive_H_aids()
     for name, M in HA.items():
-        assert M.cols == (NX + HA_EXTRA[name] if HA_EXTRA[name] else 3), name
+        assert M.cols == (3 if name == "mag_bias" else NX + HA_EXTRA[name]), name
     return gen_c(F, H, FS), gen_py(F, H, FS, FR, HA)
 
 

@@ -1,6 +1,7 @@
-"""Vehicle aids: ZUPT/ZARU at rest and the non-holonomic constraint (NHC) in motion (ground vehicle); the rotor
-drag on the body specific force (multirotor). No sample of their own: they run after every IMU time update
-(``[core.nav.aids]`` in :mod:`ins_hil.core_parts.config`; the models in :mod:`ins_hil.fusion.measurements`)."""
+"""Vehicle aids: ZUPT/ZARU at rest, the non-holonomic constraint (NHC) and the longitudinal-acceleration prior in motion
+(ground vehicle); the rotor drag on the body specific force (multirotor). No sample of their own: they run after
+every IMU time update (``[core.nav.aids]`` in :mod:`ins_hil.core_parts.config`; the models in
+:mod:`ins_hil.fusion.measurements`)."""
 
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ class AidsSnapshot(NamedTuple):
     w_lp: Vec
     drag_next: float
     ema_fb: Vec
+    la: tuple[float, float, float, float]
 
 
 class VehicleAids(Aid):
@@ -49,8 +51,12 @@ class VehicleAids(Aid):
         mm = measurements  # its functions (a NavCore is deep-copyable: no module in its state)
         self.drag_model, self.zero_velocity, self.zero_rate = mm.multirotor_drag, mm.zero_velocity, mm.zero_rate
         self.nhc, self.nhc_mounted = mm.nonholonomic, mm.nonholonomic_mounted
+        self.long_accel = mm.longitudinal_accel
         self.cfg, self.idx = cfg, idx
-        self.on = cfg.aids.nhc or cfg.aids.zupt or cfg.aids.drag
+        self.la_on = cfg.aids.long_accel_std > 0.0
+        self.on = cfg.aids.nhc or cfg.aids.zupt or cfg.aids.drag or self.la_on
+        # the longitudinal-acceleration prior's window: next fusion time (s), Σa_x, Σa_x² (m/s², (m/s²)²), samples
+        self.la: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
         self.drag_next = 0.0  # s, the next drag-aid time (drag_rate)
         self.ema_fb = np.zeros(3)  # averaged compensated body specific force (m/s², drag_tau)
         self.nhc_next = 0.0  # s, the next aid time (nhc_rate)
@@ -72,10 +78,10 @@ class VehicleAids(Aid):
 
     def snapshot(self) -> AidsSnapshot:
         return _new(AidsSnapshot, (self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp, self.drag_next,
-                                   self.ema_fb))  # fmt: skip
+                                   self.ema_fb, self.la))  # fmt: skip
 
     def restore(self, d: AidsSnapshot) -> None:
-        self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp, self.drag_next, self.ema_fb = d
+        self.nhc_next, self.still_time, self.ema_w, self.ema_f, self.w_lp, self.drag_next, self.ema_fb, self.la = d
 
     def measurements(
         self, imu: ImuSample, ins: StrapdownNED, omega_b: Vec, q_mount: Vec, g_local: float, f_b: Vec, wind: Vec
@@ -88,6 +94,8 @@ class VehicleAids(Aid):
         if not self.on:
             return ()
         ground = self._ground(imu, ins, omega_b, q_mount, g_local)
+        if self.la_on:
+            ground = (*ground, *self._long_accel(imu, ins, q_mount, g_local, f_b))
         if not c.aids.drag:
             return ground
         b = min(1.0, imu.dt / c.aids.drag_tau)
@@ -98,6 +106,40 @@ class VehicleAids(Aid):
         s = ins.state
         z, H = self.drag_model(self.idx, dcm_from_quat(s.q_nb), s.vel_ned, wind, self.ema_fb, c.aids.drag_coef)
         return (*ground, Measurement("drag", z, H, np.full(2, c.aids.drag_std**2), c.aids.gate))
+
+    def _long_accel(
+        self, imu: ImuSample, ins: StrapdownNED, q_mount: Vec, g_local: float, f_b: Vec
+    ) -> tuple[Measurement, ...]:
+        """The longitudinal-acceleration prior (``long_accel_std``): the kinematic acceleration along the vehicle's
+        forward axis, a_x = (R (f_b + Ĉ^T g))_x (R: IMU body → vehicle; g = (0, 0, g) NED; Coriolis left out),
+        averaged over 1/``long_accel_rate`` s, is fused as 0 with the variance σ² + s²/(n − 1) (σ =
+        ``long_accel_std``; s²: the window's variance of a_x over its n samples, the vibration left in the mean)."""
+        c = self.cfg.aids
+        q0, q1, q2, q3 = (float(x) for x in ins.state.q_nb)
+        down_b = (
+            2.0 * (q1 * q3 - q0 * q2),
+            2.0 * (q2 * q3 + q0 * q1),
+            q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3,
+        )  # Ĉ^T e_D
+        a_b = [float(f_b[i]) + g_local * down_b[i] for i in range(3)]
+        if self.mounted:
+            r0 = dcm_from_quat(q_mount)[0]
+            ax = float(r0[0]) * a_b[0] + float(r0[1]) * a_b[1] + float(r0[2]) * a_b[2]
+        else:
+            ax = a_b[0]
+        t_next, sx, sxx, n = self.la
+        sx, sxx, n = sx + ax, sxx + ax * ax, n + 1.0
+        if imu.t < t_next:
+            self.la = (t_next, sx, sxx, n)
+            return ()
+        self.la = (imu.t + 1.0 / c.long_accel_rate, 0.0, 0.0, 0.0)
+        if n < 2.0:
+            return ()
+        mean = sx / n
+        var = max(sxx / n - mean * mean, 0.0) / (n - 1.0)  # the mean's variance (samples independent)
+        R = dcm_from_quat(q_mount) if self.mounted else np.eye(3)
+        z, H = self.long_accel(self.idx, dcm_from_quat(ins.state.q_nb), R, mean, g_local)
+        return (Measurement("long_accel", z, H, np.array((c.long_accel_std**2 + var,)), c.gate),)
 
     def _ground(
         self, imu: ImuSample, ins: StrapdownNED, omega_b: Vec, q_mount: Vec, g_local: float
@@ -161,13 +203,14 @@ class VehicleAids(Aid):
 
 class VehicleSource(AidSource):
     name = "vehicle"
-    kinds = ("nhc", "zupt", "drag")
+    kinds = ("nhc", "zupt", "drag", "long_accel")
 
     def enabled(self, nav: Any) -> bool:
-        return bool(nav.aids.nhc or nav.aids.zupt or nav.aids.drag)
+        return bool(nav.aids.nhc or nav.aids.zupt or nav.aids.drag or nav.aids.long_accel_std > 0.0)
 
     def stat_kinds(self, nav: Any) -> tuple[str, ...]:
-        return ("nhc", "zupt", "drag") if nav.aids.drag else ("nhc", "zupt")
+        extra = ("drag",) if nav.aids.drag else ()
+        return ("nhc", "zupt", *extra, *(("long_accel",) if nav.aids.long_accel_std > 0.0 else ()))
 
     def bind(self, core: Any) -> VehicleAids:
         a = VehicleAids(core.cfg, core.idx)

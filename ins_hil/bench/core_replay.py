@@ -432,7 +432,8 @@ def scope_md() -> str:
         " shipped config or documented real-hardware use selects (studies: ArduCopter/px4_hover what-ifs); the C"
         " layout stops at the scale factors (`INS_NX` = 21).",
         "- `aids.drag` (needs the wind states), `aids.nhc_lever_b` / `aids.nhc_pitch_per_accel` (the mounted"
-        " NHC with the boresight states).",
+        " NHC with the boresight states), `aids.long_accel_std` (the ground-vehicle longitudinal-acceleration"
+        " prior, docs/integrity.md).",
         "- `filter.numerics` other than Joseph, `filter.earth_terms = false`, `filter.omega_rv_terms`,"
         " `adaptive`: numerics and model switches for studies, not for a flight computer.",
         "",

@@ -87,12 +87,13 @@ class MagConfig:
 
 @dataclass
 class AidsConfig:
-    """Ground-vehicle and multirotor aids (``[core.nav.aids]``): the non-holonomic constraint (NHC; the vertical one
-    in the road frame, the body pitched by ``nhc_pitch_per_accel`` × the forward acceleration; with
-    ``filter.mount_states`` the IMU → vehicle boresight is estimated), zero velocity (ZUPT) and zero angular rate
-    (ZARU) while the averaged IMU looks at rest, and the rotor drag on the body x/y specific force against the air
-    velocity (with ``filter.wind_states``; not while the rest detector sees the vehicle standing). Units, ranges and
-    help: the fields' metadata."""
+    """Ground-vehicle and multirotor aids (``[core.nav.aids]``): the non-holonomic constraint (NHC; the vertical one in
+    the road frame, the body pitched by ``nhc_pitch_per_accel`` × the forward acceleration; with ``filter.mount_states``
+    the IMU → vehicle boresight is estimated), zero velocity (ZUPT) and zero angular rate (ZARU) while the averaged IMU
+    looks at rest, the longitudinal-acceleration prior of a wheeled vehicle (its averaged forward kinematic acceleration
+    is 0 ± ``long_accel_std``), and the rotor drag on the body x/y specific force against the air velocity (with
+    ``filter.wind_states``; not while the rest detector sees the vehicle standing). Units, ranges and help: the fields'
+    metadata."""
 
     nhc: bool = setting(False, help="non-holonomic constraint (ground vehicles)")
     nhc_std: float = setting(0.1, "m/s", "(0, 100]", "NHC lateral velocity σ")
@@ -111,6 +112,16 @@ class AidsConfig:
     )
     nhc_omega_lp_hz: float = setting(
         0.0, "Hz", "[0, 10000]", "low-pass corner of the body rate in the NHC lever-arm term; 0 = raw"
+    )
+    long_accel_std: float = setting(
+        0.0,
+        "m/s²",
+        "[0, 100]",
+        "ground-vehicle motion prior: σ of the forward acceleration (about the vehicle's largest); the averaged "
+        "forward kinematic acceleration is fused as 0 ± this and the averaging's vibration; 0 = off",
+    )
+    long_accel_rate: float = setting(
+        1.0, "Hz", "(0, 100]", "longitudinal-acceleration prior rate: the acceleration is averaged over 1/rate s"
     )
     zupt: bool = setting(False, help="zero-velocity update when at rest")
     zupt_std: float = setting(0.02, "m/s", "(0, 100]", "ZUPT velocity σ")

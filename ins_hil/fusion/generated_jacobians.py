@@ -499,6 +499,19 @@ def H_nhc_mounted(C: Any, vel: Any, R: Any, omega_b: Any, lever: Any) -> np.ndar
     return h
 
 
+def H_long_accel(C: Any, R: Any, g: float) -> np.ndarray:
+    """ground-vehicle forward kinematic acceleration (R (f_b + C^T g))_x, g = (0, 0, g) NED: −R (C^T [g×] ψ + δb_a), row x; no states of its own (1 × 15)."""
+    C = np.asarray(C, dtype=np.float64).ravel().tolist()
+    R = np.asarray(R, dtype=np.float64).ravel().tolist()
+    h = np.zeros((1, 15))
+    h[0, 6] = -g*(C[3]*R[0] + C[4]*R[1] + C[5]*R[2])
+    h[0, 7] = g*(C[0]*R[0] + C[1]*R[1] + C[2]*R[2])
+    h[0, 12] = -R[0]
+    h[0, 13] = -R[1]
+    h[0, 14] = -R[2]
+    return h
+
+
 def H_mag_bias(m: Any, C: Any, ubar: Any, un: float) -> np.ndarray:
     """magnetometer hard iron (3 × 3, by δb_m; ū = u/|u|, un = |u|): rows 2-3 of τ [m×] C (I − ū ū^T)/|u|, magnitude −ū^T (3 × 3)."""
     m = np.asarray(m, dtype=np.float64).ravel().tolist()

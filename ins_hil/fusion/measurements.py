@@ -15,6 +15,9 @@ Conventions of :mod:`ins_hil.fusion.ekf` (DIGEST_000 §9): δr = true − comput
 * non-holonomic constraint (ground vehicle): body lateral/vertical velocity 0:
   z = 0 − (Ĉ^T v̂)_{y,z} = rows of Ĉ^T δv − Ĉ^T [v̂×] μ
 * zero-velocity update: z = 0 − v̂ = δv.
+* ground-vehicle longitudinal acceleration (a motion prior: a wheeled vehicle's speed changes slowly): the
+  kinematic acceleration along the vehicle's forward axis, averaged over a window, is 0 ± the vehicle's
+  acceleration; z = 0 − (R (f̂_b + Ĉ^T g))_x = −(R (Ĉ^T [g×] μ + δb_a))_x, g = (0, 0, g) NED, R: IMU body → vehicle.
 * multirotor drag (rotor momentum drag, a multirotor's only horizontal body force besides noise): the body
   x/y specific force f̃ = −μ (C^T (v − w))_{x,y} + b_a, w = (w_N, w_E, 0) the wind;
   z = f̃ − f̂ = −μ (Ĉ^T δv − Ĉ^T [û×] μ_att − Ĉ^T δw)_{x,y} + δb_a,{x,y}, û = v̂ − ŵ.
@@ -154,6 +157,13 @@ def nonholonomic(idx: StateIndex, C_bn: Vec, vel: Vec) -> tuple[Vec, Vec]:
     """(z, H) of the non-holonomic constraint v_b,y = v_b,z = 0 (ground vehicle)."""
     vb = C_bn.T @ vel
     return -vb[1:3], placed(gj.H_nhc(C_bn, vel), idx)
+
+
+def longitudinal_accel(idx: StateIndex, C_bn: Vec, R_vb: Vec, a_x: float, g: float) -> tuple[Vec, Vec]:
+    """(z, H) of the ground-vehicle longitudinal-acceleration prior: ``a_x`` (m/s²) is the averaged kinematic
+    acceleration along the vehicle's forward axis, (R (f_b + Ĉ^T g))_x (R: IMU body → vehicle; g m/s², down);
+    the constraint is a_x,true = 0 (its σ, the vehicle's acceleration, in R of the update)."""
+    return np.array((-a_x,)), placed(gj.H_long_accel(C_bn, R_vb, g), idx)
 
 
 def zero_velocity(idx: StateIndex, vel: Vec) -> tuple[Vec, Vec]:
