@@ -937,10 +937,10 @@ def _reader_seeds(fmt: str, tmp: Path, short: bool = False) -> list[dict[str, by
         tt = rtklib.read_timetag(g / "imu_1934.csv.tag")
         t_win = tt.start + tt.frac + (keep[0, 0] if len(keep) else RTKLIB_SEED_MS) / 1000.0
         pos_lines = (g / "gnss_1934_sf.pos").read_bytes().splitlines(keepends=True)
-        head = [ln for ln in pos_lines if ln.startswith(b"%")]
-        body = [ln for ln in pos_lines if not ln.startswith(b"%")]
+        pos_head = [ln for ln in pos_lines if ln.startswith(b"%")]
+        pos_body = [ln for ln in pos_lines if not ln.startswith(b"%")]
         k0 = int(np.searchsorted(rtklib.read_pos(g / "gnss_1934_sf.pos").t, t_win - 1.0))  # a second before it
-        pos = b"".join(head + body[k0 : k0 + (10 if short else 60)])
+        pos = b"".join(pos_head + pos_body[k0 : k0 + (10 if short else 60)])
         seeds.append({"imu.csv": imu, "imu.csv.tag": tag, "sol.pos": pos})
     elif fmt == "ihlog":
         from ins_hil.runtime import recorder as rec
