@@ -33,7 +33,9 @@ import numpy as np
 
 from ins_hil import aids
 from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, ins_off_track
+from ins_hil.core_parts.yaw_reset import YawReset
 from ins_hil.fusion.innovation import GateStats
+from ins_hil.fusion.yaw_gsf import GsfConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
@@ -190,6 +192,76 @@ _GROUPS = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt", "mag", "hold")
 RUN_COLUMNS = ("t", "q0", "q1", "q2", "q3", "vN", "vE", "vD", "lat", "lon", "h")
 
 
+class _NoYawReset(YawReset):
+    """The emergency yaw reset's bank of an alignment whose NavCore never navigates (CNavCore's): not fed."""
+
+    def imu(self, imu: ImuSample, bg: Vec) -> None:
+        """Not fed (nothing reads the bank before the hand-over)."""
+
+    def gnss(self, meas: GnssFix) -> None:
+        """Not fed."""
+
+
+class CYawGsf:
+    """The GNSS-velocity yaw bank (:class:`ins_hil.fusion.yaw_gsf.YawGsf`, PX4's EKF-GSF) on the C core
+    (``ins_gsf_t``, ``firmware_ref/src/gsf.c``, double build): the same interface and numbers to round-off; the
+    alignment of a :class:`CNavCore` without magnetometer runs its bank here. Only the default ``GsfConfig``."""
+
+    def __init__(self, cfg: GsfConfig | None = None) -> None:
+        self.cfg = cfg if cfg is not None else GsfConfig()
+        if self.cfg != GsfConfig(n_models=self.cfg.n_models) or self.cfg.n_models > 8:
+            raise ValueError("CYawGsf: the C yaw bank has PX4's settings (GsfConfig defaults, at most 8 models)")
+        self._ffi, self._lib_ = _lib("double")
+        self._g = self._ffi.new("ins_gsf_t *")
+        self._lib_.ins_gsf_init(self._g, self.cfg.n_models)
+
+    @property
+    def started(self) -> bool:
+        """Velocity fusion started (the yaw states are live)."""
+        return bool(self._g.started)
+
+    @property
+    def tilt_aligned(self) -> bool:
+        """The models' tilt set from a 1-g specific force."""
+        return bool(self._g.tilt_aligned)
+
+    @property
+    def yaw(self) -> float:
+        """The composite yaw (rad)."""
+        return float(self._g.yaw)
+
+    @property
+    def yaw_var(self) -> float:
+        """The composite yaw variance (rad², inf before the first velocity)."""
+        return float(self._g.yaw_var)
+
+    @property
+    def updates(self) -> int:
+        """GNSS velocities fused."""
+        return int(self._g.updates)
+
+    @property
+    def W(self) -> Vec:
+        """The model weights (sum 1)."""
+        return np.array([float(self._g.W[i]) for i in range(self.cfg.n_models)])
+
+    def predict(self, dtheta: Vec, dvel: Vec, dt: float, forward_speed: float = 0.0) -> None:
+        """One IMU interval (:meth:`YawGsf.predict`): Δθ (rad), Δv (m/s) body FRD over ``dt`` s."""
+        fb = self._ffi.from_buffer
+        self._lib_.cref_gsf_predict(self._g, fb("double[]", np.ascontiguousarray(dtheta, dtype=np.float64)),
+                                    fb("double[]", np.ascontiguousarray(dvel, dtype=np.float64)), float(dt),
+                                    float(forward_speed))  # fmt: skip
+
+    def fuse_velocity(self, vel_ne: Vec, std: float) -> None:
+        """A GNSS horizontal velocity (m/s, NE; a longer vector's first two) with its σ (m/s)."""
+        v = np.ascontiguousarray(np.asarray(vel_ne, dtype=np.float64)[:2])
+        self._lib_.cref_gsf_fuse_vel(self._g, self._ffi.from_buffer("double[]", v), float(std))
+
+    def converged(self) -> bool:
+        """The composite yaw σ is below :attr:`GsfConfig.converged_std`."""
+        return self.started and self.yaw_var < self.cfg.converged_std**2
+
+
 class CNavCore:
     """The C reference core with the ``NavCore`` interface.
 
@@ -233,6 +305,11 @@ class CNavCore:
             from ins_hil.core import NavCore
 
             self._align = NavCore(initial, self.cfg)
+            # the alignment's GNSS-velocity yaw bank on C; the emergency yaw reset's bank is not run (the C core has
+            # no yaw reset, and the alignment's NavCore never checks one: it goes at the hand-over)
+            if self._align.yaw_gsf is not None:
+                self._align.yaw_gsf = CYawGsf()
+            self._align.yaw_reset = _NoYawReset(self.cfg)
             initial = self._align.ins.state
         elif initial is None:
             raise ValueError("CNavCore: alignment.mode='given' needs an initial state")
@@ -632,7 +709,7 @@ class CNavCore:
                 raise ValueError(f"CNavCore.run: dt must be ({n},) positive values")
             dp = ffi.from_buffer("double[]", d_arr)
         if every == 0:
-            self._lib_.cref_run(self._core, self._hist, ffi.from_buffer("double[]", inc), tp, dp, n, ffi.NULL, 0)
+            self._lib_.cref_run(self._core, self._hist, ffi.from_buffer("double[]", inc), tp, dp, n, ffi.NULL, 0, 0)
             return np.empty((0, len(RUN_COLUMNS)))
         out = np.empty((n, len(RUN_COLUMNS)))
         self._lib_.cref_run(
@@ -644,6 +721,7 @@ class CNavCore:
             n,
             ffi.from_buffer("double[]", out),
             len(RUN_COLUMNS),
+            0,
         )
         return out[every - 1 :: every] if every > 1 else out
 
@@ -687,8 +765,8 @@ class CNavCore:
         fb = self._ffi.from_buffer
         self._st = None  # the state after the time update: built by state() when asked
         self._publish()
-        self._lib_.cref_run_pub(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end),
-                                fb("double[]", dt), n, fb("double[]", out), 32)  # fmt: skip
+        self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end),
+                            fb("double[]", dt), n, fb("double[]", out), 32, 1)  # fmt: skip
         self.run_out = out
         aligned = (out[:, 25] < self.cfg.alignment.aligned_yaw_std).tolist()
         ratios = self._ratios
@@ -711,7 +789,7 @@ class CNavCore:
         fb = self._ffi.from_buffer
         self._st = None
         self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
-                            self._ffi.NULL, 0)  # fmt: skip
+                            self._ffi.NULL, 0, 0)  # fmt: skip
 
     def covariance(self) -> Vec:
         """The EKF covariance P (15 × 15, order δr NED, δv NED, ψ NED, δb_g, δb_a; 21 × 21 with the scale factors

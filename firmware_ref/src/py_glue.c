@@ -56,25 +56,18 @@ static void put(const ins_core_t *c, double *o, size_t n) {
 void cref_state(const ins_core_t *c, double out[32]) { put(c, out, 32); }
 /* the state the last step published after its mechanization (c->pub; as cref_state) */
 void cref_pub_state(const ins_core_t *c, double out[32]) { put_out(c, c->pub, out, 32); }
-/* n steps in one call (dts: each step's length, or NULL: the fixed step); out: n records of out_stride values */
+/* n steps in one call (dts: each step's length, or NULL: the fixed step); out (or NULL): n records of out_stride
+ * values, per step the state after the step (pub = 0, as cref_state) or the state the step published after its
+ * mechanization (pub != 0: c->pub, as cref_pub_state after cref_hstep, CNavCore.step_begin; c->pub must be set) */
 void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
-              double *out, size_t out_stride) {
+              double *out, size_t out_stride, int pub) {
     size_t k;
     for (k = 0; k < n; ++k) {
         cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt,
                    dts != NULL ? dts[k] : 0.0);
-        if (out != NULL) put(c, out + out_stride * k, out_stride);
-    }
-}
-/* cref_run recording, per step, the state the step published after its mechanization (c->pub, as
- * cref_pub_state after cref_hstep: CNavCore.step_begin); c->pub must be set */
-void cref_run_pub(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
-                  double *out, size_t out_stride) {
-    size_t k;
-    for (k = 0; k < n; ++k) {
-        cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt,
-                   dts != NULL ? dts[k] : 0.0);
-        put_out(c, c->pub, out + out_stride * k, out_stride);
+        if (out == NULL) continue;
+        if (pub) put_out(c, c->pub, out + out_stride * k, out_stride);
+        else put(c, out + out_stride * k, out_stride);
     }
 }
 int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
@@ -107,4 +100,17 @@ int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3
     int i;
     for (i = 0; i < 3; ++i) f[i] = (ins_real)field[i];
     return hs != NULL ? ins_hist_fuse_mag(hs, c, t, f) : ins_core_fuse_mag(c, t, f);
+}
+/* the GNSS-velocity yaw bank (ins_gsf_t) in double for both builds */
+void cref_gsf_predict(ins_gsf_t *g, const double dth[3], const double dv[3], double dt, double forward_speed) {
+    ins_real a[3], u[3];
+    int i;
+    for (i = 0; i < 3; ++i) { a[i] = (ins_real)dth[i]; u[i] = (ins_real)dv[i]; }
+    ins_gsf_predict(g, a, u, (ins_real)dt, (ins_real)forward_speed);
+}
+void cref_gsf_fuse_vel(ins_gsf_t *g, const double vel_ne[2], double std) {
+    ins_real v[2];
+    v[0] = (ins_real)vel_ne[0];
+    v[1] = (ins_real)vel_ne[1];
+    ins_gsf_fuse_vel(g, v, (ins_real)std);
 }
