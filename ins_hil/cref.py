@@ -744,17 +744,24 @@ class CNavCore:
         if inc.shape != (n, 6) or dt.shape != (n,) or not self.can_run():
             raise ValueError("CNavCore.run_states: (n, 6) increments, (n,) times and steps, on a navigating core "
                              "with fixed_step=False")  # fmt: skip
-        if n:  # the IMU data lost before each sample (step()'s record, in one pass; none before the first step)
-            prev = np.empty(n)
-            prev[0] = float(self._core.mech.t)
-            prev[1:] = t_end[:-1]
-            lost = t_end - dt - prev
-            gap = lost > 0.5 * dt
-            if int(self._core.steps) == 0:
-                gap[0] = False
-            self.run_gap_rows = np.nonzero(gap)[0].tolist()
-            for k in self.run_gap_rows:
-                lk = float(lost[k])
+        if n:  # the IMU data lost before each sample (step()'s record; none before the first step)
+            t0 = float(self._core.mech.t)
+            if n <= 16:  # a short run (a replay's samples between two aiding measurements): in Python floats
+                tl, dl = t_end.tolist(), dt.tolist()
+                lost_l = [tl[0] - dl[0] - t0] + [tl[k] - dl[k] - tl[k - 1] for k in range(1, n)]
+                rows = [k for k in range(n) if lost_l[k] > 0.5 * dl[k]]
+            else:  # in one numpy pass
+                prev = np.empty(n)
+                prev[0] = t0
+                prev[1:] = t_end[:-1]
+                lost = t_end - dt - prev
+                rows = np.nonzero(lost > 0.5 * dt)[0].tolist()
+                lost_l = lost.tolist()
+            if rows and rows[0] == 0 and int(self._core.steps) == 0:
+                rows = rows[1:]
+            self.run_gap_rows = rows
+            for k in rows:
+                lk = float(lost_l[k])
                 tk = float(t_end[k] - dt[k])
                 self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lk)
                 self._events.append(
