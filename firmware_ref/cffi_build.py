@@ -105,6 +105,10 @@ int cref_fuse_baro(ins_core_t *c, double t, double altitude);
 void ins_gsf_init(ins_gsf_t *g, int n);
 void cref_gsf_predict(ins_gsf_t *g, const double dth[3], const double dv[3], double dt, double forward_speed);
 void cref_gsf_fuse_vel(ins_gsf_t *g, const double vel_ne[2], double std);
+void cref_mech_set(ins_mech_t *m, const double q[4], const double v[3], double lat, double lon, double h, double t,
+                   const double dth_prev[3], const double dv_prev[3], int have_prev);
+void cref_heading_run(ins_mech_t *m, ins_gsf_t *g, const double *inc, const double *t_end, const double *dts, size_t n,
+                      const double bg[3], const double ba[3], double *out);
 int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
                           double std_d, double std_vel, size_t n);
 """

@@ -322,6 +322,7 @@ class CNavCore:
             self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
         self._pub: Any = None  # ins_out_t the C step writes its post-mechanization state to (step_begin)
+        self._hmech: Any = None  # ins_mech_t of the alignment's heading phase on C (run_states before the hand-over)
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
         # the last NavState built by state(), until the core changes (a step, an update, the hand-over): the
         # runtime asks for the same state several times per step (the guard, the observers)
@@ -727,8 +728,73 @@ class CNavCore:
 
     def can_run(self) -> bool:
         """True when :meth:`run_states` may take the next samples: the C core navigates (the alignment has
-        handed over) and steps each sample over its own ``dt`` (``fixed_step=False``)."""
-        return self._align is None and self.dt is not None and not self.fixed_step and self.filter
+        handed over) and steps each sample over its own ``dt`` (``fixed_step=False``); or the alignment waits for
+        its yaw with nothing but gyro-only steps to run (:meth:`_heading_runs`)."""
+        if self._align is not None:
+            return not self.fixed_step and self._heading_runs()
+        return self.dt is not None and not self.fixed_step and self.filter
+
+    def _heading_runs(self) -> bool:
+        """The alignment is in its heading phase (levelled, waiting for the GNSS course or the yaw bank), its
+        start-up sensor check judged, with the mechanization the C step mirrors (NavCore's default StrapdownNED)
+        and its yaw bank on C (or none): its IMU steps may run on C (``ins_align_heading_step``)."""
+        a = self._align
+        if a is None or a.phase != "heading" or a.sensor_check is not None or a.pending_end is not None:
+            return False
+        ins = a.ins
+        return bool(
+            ins._att is None and not ins._j2 and ins.coning and ins.sculling and ins.earth_rate
+            and ins.renorm_every == 1 and not a.replaying and (a.yaw_gsf is None or isinstance(a.yaw_gsf, CYawGsf))
+        )  # fmt: skip
+
+    def _heading_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
+        """:meth:`run_states` in the alignment's heading phase: the n gyro-only steps (and the yaw bank) of the
+        alignment's ``NavCore`` in one C call (``cref_heading_run``, the double build: the alignment's numbers),
+        its StrapdownNED set before and read back after; per step the state ``NavCore.step`` returns."""
+        a = self._align
+        ins = a.ins
+        s = ins.state
+        ffi, lib = _lib("double")
+        fb = ffi.from_buffer
+        if self._hmech is None:
+            self._hmech = ffi.new("ins_mech_t *")
+        m = self._hmech
+
+        def f64(x: Any) -> Any:
+            return fb("double[]", np.ascontiguousarray(x, dtype=np.float64))
+
+        lib.cref_mech_set(m, f64(s.q_nb), f64(s.vel_ned), s.lat, s.lon, s.h, s.t, f64(ins._dth_prev),
+                          f64(ins._dv_prev), 1 if ins._have_prev else 0)  # fmt: skip
+        n = len(t_end)
+        out = np.empty((n, 11))  # t, q[4], lat, lon, h, omega_b[3]
+        gsf = a.yaw_gsf._g if a.yaw_gsf is not None else ffi.NULL
+        lib.cref_heading_run(m, gsf, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n, f64(a.bg),
+                             f64(a.ba), fb("double[]", out))  # fmt: skip
+        last = out[-1]
+        s.q_nb = last[1:5].copy()
+        s.lat, s.lon, s.h, s.t = float(last[5]), float(last[6]), float(last[7]), float(last[0])
+        s.vel_ned = np.zeros(3)
+        ins._dth_prev = np.array([float(m.dth_prev[i]) for i in range(3)])
+        ins._dv_prev = np.array([float(m.dv_prev[i]) for i in range(3)])
+        ins._have_prev = bool(m.have_prev)
+        ins._n += n
+        ins.f_ned = np.array([float(m.f_ned[i]) for i in range(3)])
+        ins.omega_ie = np.array([float(m.omega_ie[i]) for i in range(3)])
+        ins.omega_en = np.array([float(m.omega_en[i]) for i in range(3)])
+        a.omega_b = last[8:11].copy()
+        a._dt = float(dt[-1])
+        st = a.state()  # the σ (P does not change before the hand-over), the biases, f_b and the gate ratios
+        sp, sv, sa, bg, ba, fbd, ratios = st.std_pos, st.std_vel, st.std_att, a.bg, a.ba, a.f_b, st.test_ratios
+        ro = np.zeros((n, 32))  # the C record layout for the core guard (states_ok)
+        ro[:, 0:5] = out[:, 0:5]
+        ro[:, 8:11] = out[:, 5:8]
+        ro[:, 17:20], ro[:, 20:23], ro[:, 23:26] = sp, sv, sa
+        self.run_out = ro
+        tl = out[:, [0, 5, 6, 7]].tolist()
+        return [
+            NavState(r[0], o[1:5], np.zeros(3), r[1], r[2], r[3], bg, ba, sp, sv, sa, o[8:11], fbd, False, ratios)
+            for r, o in zip(tl, out, strict=True)
+        ]
 
     def run_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
         """:meth:`step` on n samples in ONE C call (through the roll-back history): ``inc`` (n, 6) float64 dθ, dv
@@ -744,6 +810,8 @@ class CNavCore:
         if inc.shape != (n, 6) or dt.shape != (n,) or not self.can_run():
             raise ValueError("CNavCore.run_states: (n, 6) increments, (n,) times and steps, on a navigating core "
                              "with fixed_step=False")  # fmt: skip
+        if self._align is not None:
+            return self._heading_states(inc, t_end, dt) if n else []
         if n:  # the IMU data lost before each sample (step()'s record; none before the first step)
             t0 = float(self._core.mech.t)
             if n <= 16:  # a short run (a replay's samples between two aiding measurements): in Python floats

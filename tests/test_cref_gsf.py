@@ -12,6 +12,7 @@ import pytest
 from ins_hil.core import NavConfig
 from ins_hil.cref import CNavCore, CYawGsf
 from ins_hil.fusion.yaw_gsf import GsfConfig, YawGsf
+from ins_hil.types import GnssFix, ImuSample
 
 
 def _accelerating_flight(seed: int = 1) -> list[tuple[str, tuple]]:
@@ -72,3 +73,58 @@ def test_c_core_alignment_runs_the_c_bank() -> None:
     c = CNavCore(None, cfg)
     assert isinstance(c._align.yaw_gsf, CYawGsf)
     assert not isinstance(c._align.yaw_reset.gsf, CYawGsf) and c._align.yaw_reset.gsf.updates == 0
+
+
+def _car_stream(seconds: float = 60.0) -> tuple[list[ImuSample], list[GnssFix]]:
+    """A car at rest for 5 s, then slowly driving off (50-Hz MEMS IMU, 5-Hz GNSS with velocity): the static
+    alignment levels at rest and waits in its heading phase (from 9 s to 15 s) until the yaw bank converges."""
+    from ins_hil.sim.sensors import GnssModel, corrupt_imu, gnss_fixes, mems_accel, mems_gyro
+    from ins_hil.sim.trajectory import car_profile, generate
+
+    truth = generate(car_profile(speed=5.0, t_start=5.0, t_stop=60.0, ramp=20.0), seconds, 0.02, 0.88, 0.53, 180.0)
+    rng = np.random.default_rng(3)
+    imu = corrupt_imu(truth, mems_gyro(rng), mems_accel(rng), seed=4)
+    samples = [ImuSample(t=float(imu.t[k]), dt=0.02, dtheta=imu.dtheta[k], dvel=imu.dvel[k]) for k in range(len(imu.t))]
+    return samples, list(gnss_fixes(truth, GnssModel(rate=5.0), seed=5))
+
+
+def test_the_heading_phase_on_c_is_navcores_step_by_step() -> None:
+    """The alignment's heading phase through ``CNavCore.run_states`` (its gyro-only steps and the yaw bank in one
+    C call per run of samples) gives the states ``step_begin`` gives one sample at a time (NavCore's Python
+    mechanization), and the same hand-over."""
+    base = NavConfig()
+    cfg = dataclasses.replace(base, alignment=dataclasses.replace(base.alignment, mode="static", time=3.0,
+                                                                  yaw_gsf=True))  # fmt: skip
+    imu, fixes = _car_stream()
+    one, run = CNavCore(None, cfg, fixed_step=False), CNavCore(None, cfg, fixed_step=False)
+    rng = np.random.default_rng(7)
+    k = j = batched = 0
+    worst = 0.0
+    while k < len(imu) and one.phase != "nav":
+        if run.can_run():
+            n = int(min(rng.integers(1, 12), len(imu) - k))
+            while j < len(fixes) and n > 1 and fixes[j].t <= imu[k + n - 2].t:
+                n -= 1  # the run ends at the sample that reaches the next fix
+            part = imu[k : k + n]
+            inc = np.array([np.r_[s.dtheta, s.dvel] for s in part])
+            got = run.run_states(inc, np.array([s.t for s in part]), np.array([s.dt for s in part]))
+            want = [one.step_begin(s) for s in part]
+            batched += 1
+            for a, b in zip(want, got, strict=True):
+                assert (a.t, a.lat, a.lon, a.h, a.aligned) == (b.t, b.lat, b.lon, b.h, b.aligned)
+                for f in ("q_nb", "vel_ned", "omega_b", "gyro_bias", "std_att"):
+                    worst = max(worst, float(np.max(np.abs(getattr(a, f) - getattr(b, f)))))
+            k += n
+        else:
+            one.step_begin(imu[k])
+            run.step_begin(imu[k])
+            k += 1
+        while j < len(fixes) and fixes[j].t <= imu[k - 1].t:
+            one.fuse(fixes[j])
+            run.fuse(fixes[j])
+            j += 1
+        assert one.phase == run.phase
+    assert one.phase == run.phase == "nav" and batched > 40
+    assert worst == 0.0  # the C mechanization is the Python one bit for bit (the same formulas in the same order)
+    a, b = one.state(), run.state()
+    assert (a.t, a.lat, a.lon, a.h) == (b.t, b.lat, b.lon, b.h) and np.array_equal(a.q_nb, b.q_nb)

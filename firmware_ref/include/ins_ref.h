@@ -392,6 +392,12 @@ void ins_gsf_predict(ins_gsf_t *g, const ins_real dtheta[3], const ins_real dvel
                      ins_real forward_speed);
 /* A GNSS horizontal velocity (m/s, NE) with its sigma (m/s). */
 void ins_gsf_fuse_vel(ins_gsf_t *g, const ins_real vel_ne[2], ins_real std);
+/* One IMU interval of the alignment's heading phase (levelled, waiting for the yaw; NavCore's Alignment.step):
+ * the increments bias-compensated (bg rad/s, ba m/s^2), the yaw bank g (or NULL) fed with the compensated
+ * dtheta and the raw dvel, then the strapdown step over dt with the velocity held at zero afterwards; the time
+ * set to t_end; omega_b: the compensated rate (rad/s). */
+void ins_align_heading_step(ins_mech_t *m, ins_gsf_t *g, const ins_real dtheta[3], const ins_real dvel[3], ins_real dt,
+                            double t_end, const ins_real bg[3], const ins_real ba[3], ins_real omega_b[3]);
 
 /* ------------------------------------------------------------ serial frame */
 

@@ -114,3 +114,40 @@ void cref_gsf_fuse_vel(ins_gsf_t *g, const double vel_ne[2], double std) {
     v[1] = (ins_real)vel_ne[1];
     ins_gsf_fuse_vel(g, v, (ins_real)std);
 }
+/* the mechanization of the alignment's heading phase (CNavCore before the hand-over) from NavCore's StrapdownNED */
+void cref_mech_set(ins_mech_t *m, const double q[4], const double v[3], double lat, double lon, double h, double t,
+                   const double dth_prev[3], const double dv_prev[3], int have_prev) {
+    ins_real qq[4], vv[3];
+    int i;
+    for (i = 0; i < 4; ++i) qq[i] = (ins_real)q[i];
+    for (i = 0; i < 3; ++i) vv[i] = (ins_real)v[i];
+    ins_mech_init(m, qq, vv, lat, lon, h, t, (ins_real)0.01);
+    for (i = 0; i < 3; ++i) {
+        m->dth_prev[i] = (ins_real)dth_prev[i];
+        m->dv_prev[i] = (ins_real)dv_prev[i];
+    }
+    m->have_prev = have_prev;
+}
+/* n heading-phase steps (ins_align_heading_step; g may be NULL); out: per step t, q[4], lat, lon, h, omega_b[3] */
+void cref_heading_run(ins_mech_t *m, ins_gsf_t *g, const double *inc, const double *t_end, const double *dts, size_t n,
+                      const double bg[3], const double ba[3], double *out) {
+    ins_real b[3], c[3], a[3], u[3], w[3];
+    size_t k;
+    int i;
+    for (i = 0; i < 3; ++i) {
+        b[i] = (ins_real)bg[i];
+        c[i] = (ins_real)ba[i];
+    }
+    for (k = 0; k < n; ++k) {
+        double *o = out + 11 * k;
+        for (i = 0; i < 3; ++i) {
+            a[i] = (ins_real)inc[6 * k + (size_t)i];
+            u[i] = (ins_real)inc[6 * k + 3 + (size_t)i];
+        }
+        ins_align_heading_step(m, g, a, u, (ins_real)dts[k], t_end[k], b, c, w);
+        o[0] = m->t;
+        for (i = 0; i < 4; ++i) o[1 + i] = (double)m->q[i];
+        o[5] = m->lat; o[6] = m->lon; o[7] = m->h;
+        for (i = 0; i < 3; ++i) o[8 + i] = (double)w[i];
+    }
+}
