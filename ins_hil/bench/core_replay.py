@@ -26,7 +26,8 @@ CONFIGS = ROOT / "configs" / "datasets"
 
 def feed(p: Any, core: Any) -> None:
     """Replay a prepared log through ``core`` (NavCore or CNavCore) as ``run_dataset`` feeds it (no outages).
-    On the C core, once it navigates, the IMU samples between two aids go in one call (``CNavCore.run``)."""
+    On the C core, once it navigates, the IMU samples between two aids go in one call (``CNavCore.run``), and so
+    do those of the alignment's heading phase (``CNavCore.run_states``, as ``Pipeline.imu_run``)."""
     from ins_hil.datasets.run import heading_only
 
     meas = sorted([(f.t, 0, f) for f in p.gnss] + [(m.t, 2, m) for m in p.aux], key=lambda x: (x[0], x[1]))
@@ -40,7 +41,14 @@ def feed(p: Any, core: Any) -> None:
     j, n, k, n_imu = 0, len(meas), 0, len(imu)
     while k < n_imu:
         s = imu[k]
-        if is_c and core.phase == "nav" and core.dt is not None:
+        if is_c and core.phase != "nav" and core.can_run():
+            # the alignment's heading phase on C (CNavCore.run_states), up to the next aid's time
+            t_next = meas[j][0] if j < n else math.inf
+            k_end = min(max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1), n_imu)
+            core.run_states(inc[k:k_end], t[k:k_end], dts[k:k_end])
+            s = imu[k_end - 1]
+            k = k_end
+        elif is_c and core.phase == "nav" and core.dt is not None:
             # every sample up to the next aid's time in one call
             t_next = meas[j][0] if j < n else math.inf
             k_end = max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1) if j < n else n_imu
@@ -212,8 +220,8 @@ def cli_md(rows: list[dict[str, Any]]) -> str:
         "",
         "`ins-hil replay --dataset configs/datasets/<name>.toml --core python|c --no-plots` in a child process,"
         " the two one after the other (reading, preparing, the GNSS-present replay, the outage protocol's replay"
-        " where the config has one, the metrics; the C core aligned by the Python core's alignment, its"
-        " GNSS-velocity yaw bank on C, and handed over), with the bytecode cache on (`PYTHONPYCACHEPREFIX`, warmed"
+        " where the config has one, the metrics; the C core aligned by the Python core's alignment, its heading"
+        " phase on C, and handed over), with the bytecode cache on (`PYTHONPYCACHEPREFIX`, warmed"
         " by one unmeasured run of each core: an installed package's start-up; this machine's sessions set"
         " `PYTHONDONTWRITEBYTECODE`, which adds ~0.15 CPU s of compiling to every process). On ardupilot_copter,"
         " px4_hover and px4_quad every figure of `--core c` equals that of `--core python` within 1e-6 relative"
@@ -259,14 +267,15 @@ def cli_md(rows: list[dict[str, Any]]) -> str:
                 if walled
                 else ""
             )
-            + " Where the `--core c` process spends its CPU (cProfile, px4_quad and ardupilot_copter, 2026-12-07,"
-            " after the yaw bank moved to C): the imports; the reading (the DataFlash / ULog parsers, shared by both"
-            " cores); the alignment's levelling and gyro-only heading steps, still in the Python `NavCore` (on"
-            " px4_quad 9,400 steps until the hand-over); per aiding measurement the Python around the core (the"
-            " drift monitor's check, the observers' scoring: on ardupilot_copter, 25-Hz IMU with 30 aiding samples"
-            " a second, these dominate); per run of IMU samples between two measurements one C call, the guard and"
-            " a `NavState` per step for the observers (the track keeps every one); the scoring after the replay. The"
-            " C work itself is a few per cent.",
+            + " Where the `--core c` process spends its CPU (cProfile of px4_quad, drive0708 and ardupilot_copter,"
+            " 2026-12-07, after the alignment's heading phase moved to C): the imports; the reading (the DataFlash,"
+            " ULog and RTKLIB parsers, shared by both cores); per aiding measurement the Python around the core (the"
+            " drift monitor's check — on drive0708 a seventh of the process —, the observers' scoring: on"
+            " ardupilot_copter, 25-Hz IMU with 30 aiding samples a second, these dominate); per run of IMU samples"
+            " between two measurements one C call, the validation of each sample, the guard and a `NavState` per"
+            " step for the observers (the track keeps every one); the track's arrays and the scoring after the"
+            " replay; the alignment's levelling in the Python `NavCore` (a few per cent: drive0708 7,000 steps,"
+            " px4_quad 2,500 until the start-up sensor check has judged). The C work itself is a few per cent.",
         ]
     out.append("")
     return "\n".join(out)
@@ -356,7 +365,8 @@ def batch_md(r: dict[str, Any]) -> str:
 
 def _c_parts(p: Any) -> dict[str, float]:
     """One more C run of ``feed`` with process-time probes round the core's calls: CPU s of the alignment steps
-    (``CNavCore.step`` until the hand-over: the Python ``NavCore``), of the runs of IMU samples between two
+    (``CNavCore.step`` until the hand-over: the levelling in the Python ``NavCore``; ``run_states``: its heading
+    phase on C), of the runs of IMU samples between two
     measurements (``run_increments``: C), of the measurements (``fuse``: the C update and roll-back with the
     Python that calls it), and the rest (the loop; the probes' own cost included)."""
     _, cc, _ = _cores(p.nav)
@@ -372,7 +382,9 @@ def _c_parts(p: Any) -> dict[str, float]:
 
         return g
 
+    heading = cc.run_states
     cc.step, cc.run_increments, cc.fuse = probe("align", step), probe("runs", run), probe("fuse", fuse)
+    cc.run_states = probe("align", heading)
     t0 = time.process_time()
     feed(p, cc)
     total = time.process_time() - t0
@@ -419,9 +431,10 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
         "Each shipped dataset config, read and prepared once as `ins-hil replay` does, then replayed through"
         " `NavCore` and `CNavCore` (double, per-sample step, delayed fusion by roll-back) in the same process;"
         " CPU seconds of the process (`time.process_time`). The replay figures include the per-step Python"
-        " around the core (the loop, `NavState` per step, the magnetometer heading); the alignment's levelling"
-        " and gyro-only heading steps run in the Python `NavCore` on both, the GNSS-velocity yaw bank of the"
-        " alignment (px4_quad) on C on the C core (`CYawGsf`, `firmware_ref/src/gsf.c`).",
+        " around the core (the loop, `NavState` per step, the magnetometer heading). The alignment's levelling"
+        " runs in the Python `NavCore` on both; on the C core its heading phase (once the start-up sensor check"
+        " has judged: the gyro-only steps and the GNSS-velocity yaw bank of px4_quad) runs on C, a run of samples"
+        " between two measurements in one call (`ins_align_heading_step`, `ins_gsf_t`: `firmware_ref/src/gsf.c`).",
         "",
         "| config | log [s] | read + prepare [s] | Python [× real time] | C [× real time] | C / Python, replay |"
         " C / Python, whole process |",
@@ -439,7 +452,8 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
     for r in synth:
         out += [
             "",
-            f"Synthetic: {r['name']}, {r['span_s']:.0f} s (static alignment first, in the Python `NavCore` on both):"
+            f"Synthetic: {r['name']}, {r['span_s']:.0f} s (static alignment first: the levelling in the Python"
+            " `NavCore` on both):"
             f" Python {r['span_s'] / r['python_s']:.0f}× real time, C {r['span_s'] / r['c_s']:.0f}× real time"
             f" ({r['rollbacks']} roll-backs; the IMU samples between two fixes in one `CNavCore.run` call).",
         ]
@@ -448,7 +462,8 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
             out.append("")
             out.append(
                 f"Where the C run's CPU goes (one more run with process-time probes round the core's calls,"
-                f" {q['total']:.3f} s in all): the static alignment's steps in the Python core {q['align']:.3f} s,"
+                f" {q['total']:.3f} s in all): the static alignment's steps (the levelling in the Python core,"
+                f" the heading phase on C) {q['align']:.3f} s,"
                 f" the C runs of IMU samples between two fixes {q['runs']:.3f} s, the fixes (the C update, the"
                 f" roll-back re-propagating the 0.1 s of delay at every fix, the Python calling it) {q['fuse']:.3f} s,"
                 f" the loop {q['rest']:.3f} s."
@@ -463,9 +478,8 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
             "",
             f"- replay of each shipped flight log on C ≥ 20× the Python's throughput, whole process: replay alone"
             f" ≥ {rep:.1f}×, whole process (reading included) ≥ {whole:.1f}× — {'met' if whole >= 20 else 'NOT met'}"
-            " (the alignment's levelling and gyro steps run in the Python `NavCore` on both, its GNSS-velocity yaw"
-            " bank on C on the C core; the reading, the imports and the scoring are shared: see the whole-process"
-            " section).",
+            " (the alignment's levelling runs in the Python `NavCore` on both; the reading, the imports and the"
+            " scoring are shared: see the whole-process section).",
         ]
         for r in synth:
             rt = r["span_s"] / r["c_s"]
