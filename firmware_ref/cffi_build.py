@@ -13,7 +13,7 @@ from pathlib import Path
 from cffi import FFI
 
 _HERE = Path(__file__).resolve().parent
-_SOURCES = ["quat.c", "mech.c", "ekf.c", "core.c", "fdi.c", "frame.c"]
+_SOURCES = ["quat.c", "mech.c", "ekf.c", "core.c", "fdi.c", "frame.c", "gsf.c"]
 
 
 def _rel(p: Path) -> str:
@@ -60,6 +60,10 @@ typedef struct {{
     uint32_t n_predict; ...;
 }} ins_ekf_t;
 typedef struct ins_out_s {{ double t; ...; }} ins_out_t;
+#define INS_GSF_N 8
+typedef struct {{
+    int n; int tilt_aligned, started; ins_real W[8]; ins_real yaw, yaw_var; uint32_t updates; ...;
+}} ins_gsf_t;
 typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; ins_out_t *pub; }} ins_core_t;
 typedef struct {{ uint32_t snap_n; uint32_t meas_n; double max_delay; uint32_t rollbacks, too_old; ...; }} ins_hist_t;
 typedef struct {{
@@ -88,9 +92,7 @@ void cref_step(ins_core_t *c, const double dth[3], const double dv[3], double t_
 void cref_state(const ins_core_t *c, double out[32]);
 void cref_pub_state(const ins_core_t *c, double out[32]);
 void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
-              double *out, size_t out_stride);
-void cref_run_pub(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
-                  double *out, size_t out_stride);
+              double *out, size_t out_stride, int pub);
 void cref_hist_init(ins_hist_t *h, double max_delay);
 void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double dv[3], double t_end, double dt);
 int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
@@ -100,6 +102,13 @@ int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);
 int cref_fuse_baro(ins_core_t *c, double t, double altitude);
+void ins_gsf_init(ins_gsf_t *g, int n);
+void cref_gsf_predict(ins_gsf_t *g, const double dth[3], const double dv[3], double dt, double forward_speed);
+void cref_gsf_fuse_vel(ins_gsf_t *g, const double vel_ne[2], double std);
+void cref_mech_set(ins_mech_t *m, const double q[4], const double v[3], double lat, double lon, double h, double t,
+                   const double dth_prev[3], const double dv_prev[3], int have_prev);
+void cref_heading_run(ins_mech_t *m, ins_gsf_t *g, const double *inc, const double *t_end, const double *dts, size_t n,
+                      const double bg[3], const double ba[3], double *out);
 int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
                           double std_d, double std_vel, size_t n);
 """

@@ -33,7 +33,9 @@ import numpy as np
 
 from ins_hil import aids
 from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, ins_off_track
+from ins_hil.core_parts.yaw_reset import YawReset
 from ins_hil.fusion.innovation import GateStats
+from ins_hil.fusion.yaw_gsf import GsfConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
@@ -191,6 +193,76 @@ _GROUPS = ("gnss_pos", "gnss_vel", "baro", "nhc", "zupt", "mag", "hold")
 RUN_COLUMNS = ("t", "q0", "q1", "q2", "q3", "vN", "vE", "vD", "lat", "lon", "h")
 
 
+class _NoYawReset(YawReset):
+    """The emergency yaw reset's bank of an alignment whose NavCore never navigates (CNavCore's): not fed."""
+
+    def imu(self, imu: ImuSample, bg: Vec) -> None:
+        """Not fed (nothing reads the bank before the hand-over)."""
+
+    def gnss(self, meas: GnssFix) -> None:
+        """Not fed."""
+
+
+class CYawGsf:
+    """The GNSS-velocity yaw bank (:class:`ins_hil.fusion.yaw_gsf.YawGsf`, PX4's EKF-GSF) on the C core
+    (``ins_gsf_t``, ``firmware_ref/src/gsf.c``, double build): the same interface and numbers to round-off; the
+    alignment of a :class:`CNavCore` without magnetometer runs its bank here. Only the default ``GsfConfig``."""
+
+    def __init__(self, cfg: GsfConfig | None = None) -> None:
+        self.cfg = cfg if cfg is not None else GsfConfig()
+        if self.cfg != GsfConfig(n_models=self.cfg.n_models) or self.cfg.n_models > 8:
+            raise ValueError("CYawGsf: the C yaw bank has PX4's settings (GsfConfig defaults, at most 8 models)")
+        self._ffi, self._lib_ = _lib("double")
+        self._g = self._ffi.new("ins_gsf_t *")
+        self._lib_.ins_gsf_init(self._g, self.cfg.n_models)
+
+    @property
+    def started(self) -> bool:
+        """Velocity fusion started (the yaw states are live)."""
+        return bool(self._g.started)
+
+    @property
+    def tilt_aligned(self) -> bool:
+        """The models' tilt set from a 1-g specific force."""
+        return bool(self._g.tilt_aligned)
+
+    @property
+    def yaw(self) -> float:
+        """The composite yaw (rad)."""
+        return float(self._g.yaw)
+
+    @property
+    def yaw_var(self) -> float:
+        """The composite yaw variance (rad², inf before the first velocity)."""
+        return float(self._g.yaw_var)
+
+    @property
+    def updates(self) -> int:
+        """GNSS velocities fused."""
+        return int(self._g.updates)
+
+    @property
+    def W(self) -> Vec:
+        """The model weights (sum 1)."""
+        return np.array([float(self._g.W[i]) for i in range(self.cfg.n_models)])
+
+    def predict(self, dtheta: Vec, dvel: Vec, dt: float, forward_speed: float = 0.0) -> None:
+        """One IMU interval (:meth:`YawGsf.predict`): Δθ (rad), Δv (m/s) body FRD over ``dt`` s."""
+        fb = self._ffi.from_buffer
+        self._lib_.cref_gsf_predict(self._g, fb("double[]", np.ascontiguousarray(dtheta, dtype=np.float64)),
+                                    fb("double[]", np.ascontiguousarray(dvel, dtype=np.float64)), float(dt),
+                                    float(forward_speed))  # fmt: skip
+
+    def fuse_velocity(self, vel_ne: Vec, std: float) -> None:
+        """A GNSS horizontal velocity (m/s, NE; a longer vector's first two) with its σ (m/s)."""
+        v = np.ascontiguousarray(np.asarray(vel_ne, dtype=np.float64)[:2])
+        self._lib_.cref_gsf_fuse_vel(self._g, self._ffi.from_buffer("double[]", v), float(std))
+
+    def converged(self) -> bool:
+        """The composite yaw σ is below :attr:`GsfConfig.converged_std`."""
+        return self.started and self.yaw_var < self.cfg.converged_std**2
+
+
 class CNavCore:
     """The C reference core with the ``NavCore`` interface.
 
@@ -234,6 +306,11 @@ class CNavCore:
             from ins_hil.core import NavCore
 
             self._align = NavCore(initial, self.cfg)
+            # the alignment's GNSS-velocity yaw bank on C; the emergency yaw reset's bank is not run (the C core has
+            # no yaw reset, and the alignment's NavCore never checks one: it goes at the hand-over)
+            if self._align.yaw_gsf is not None:
+                self._align.yaw_gsf = CYawGsf()
+            self._align.yaw_reset = _NoYawReset(self.cfg)
             initial = self._align.ins.state
         elif initial is None:
             raise ValueError("CNavCore: alignment.mode='given' needs an initial state")
@@ -246,6 +323,7 @@ class CNavCore:
             self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
         self._pub: Any = None  # ins_out_t the C step writes its post-mechanization state to (step_begin)
+        self._hmech: Any = None  # ins_mech_t of the alignment's heading phase on C (run_states before the hand-over)
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
         # the last NavState built by state(), until the core changes (a step, an update, the hand-over): the
         # runtime asks for the same state several times per step (the guard, the observers)
@@ -633,7 +711,7 @@ class CNavCore:
                 raise ValueError(f"CNavCore.run: dt must be ({n},) positive values")
             dp = ffi.from_buffer("double[]", d_arr)
         if every == 0:
-            self._lib_.cref_run(self._core, self._hist, ffi.from_buffer("double[]", inc), tp, dp, n, ffi.NULL, 0)
+            self._lib_.cref_run(self._core, self._hist, ffi.from_buffer("double[]", inc), tp, dp, n, ffi.NULL, 0, 0)
             return np.empty((0, len(RUN_COLUMNS)))
         out = np.empty((n, len(RUN_COLUMNS)))
         self._lib_.cref_run(
@@ -645,13 +723,79 @@ class CNavCore:
             n,
             ffi.from_buffer("double[]", out),
             len(RUN_COLUMNS),
+            0,
         )
         return out[every - 1 :: every] if every > 1 else out
 
     def can_run(self) -> bool:
         """True when :meth:`run_states` may take the next samples: the C core navigates (the alignment has
-        handed over) and steps each sample over its own ``dt`` (``fixed_step=False``)."""
-        return self._align is None and self.dt is not None and not self.fixed_step and self.filter
+        handed over) and steps each sample over its own ``dt`` (``fixed_step=False``); or the alignment waits for
+        its yaw with nothing but gyro-only steps to run (:meth:`_heading_runs`)."""
+        if self._align is not None:
+            return not self.fixed_step and self._heading_runs()
+        return self.dt is not None and not self.fixed_step and self.filter
+
+    def _heading_runs(self) -> bool:
+        """The alignment is in its heading phase (levelled, waiting for the GNSS course or the yaw bank), its
+        start-up sensor check judged, with the mechanization the C step mirrors (NavCore's default StrapdownNED)
+        and its yaw bank on C (or none): its IMU steps may run on C (``ins_align_heading_step``)."""
+        a = self._align
+        if a is None or a.phase != "heading" or a.sensor_check is not None or a.pending_end is not None:
+            return False
+        ins = a.ins
+        return bool(
+            ins._att is None and not ins._j2 and ins.coning and ins.sculling and ins.earth_rate
+            and ins.renorm_every == 1 and not a.replaying and (a.yaw_gsf is None or isinstance(a.yaw_gsf, CYawGsf))
+        )  # fmt: skip
+
+    def _heading_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
+        """:meth:`run_states` in the alignment's heading phase: the n gyro-only steps (and the yaw bank) of the
+        alignment's ``NavCore`` in one C call (``cref_heading_run``, the double build: the alignment's numbers),
+        its StrapdownNED set before and read back after; per step the state ``NavCore.step`` returns."""
+        a = self._align
+        ins = a.ins
+        s = ins.state
+        ffi, lib = _lib("double")
+        fb = ffi.from_buffer
+        if self._hmech is None:
+            self._hmech = ffi.new("ins_mech_t *")
+        m = self._hmech
+
+        def f64(x: Any) -> Any:
+            return fb("double[]", np.ascontiguousarray(x, dtype=np.float64))
+
+        lib.cref_mech_set(m, f64(s.q_nb), f64(s.vel_ned), s.lat, s.lon, s.h, s.t, f64(ins._dth_prev),
+                          f64(ins._dv_prev), 1 if ins._have_prev else 0)  # fmt: skip
+        n = len(t_end)
+        out = np.empty((n, 11))  # t, q[4], lat, lon, h, omega_b[3]
+        gsf = a.yaw_gsf._g if a.yaw_gsf is not None else ffi.NULL
+        lib.cref_heading_run(m, gsf, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n, f64(a.bg),
+                             f64(a.ba), fb("double[]", out))  # fmt: skip
+        last = out[-1]
+        s.q_nb = last[1:5].copy()
+        s.lat, s.lon, s.h, s.t = float(last[5]), float(last[6]), float(last[7]), float(last[0])
+        s.vel_ned = np.zeros(3)
+        ins._dth_prev = np.array([float(m.dth_prev[i]) for i in range(3)])
+        ins._dv_prev = np.array([float(m.dv_prev[i]) for i in range(3)])
+        ins._have_prev = bool(m.have_prev)
+        ins._n += n
+        ins.f_ned = np.array([float(m.f_ned[i]) for i in range(3)])
+        ins.omega_ie = np.array([float(m.omega_ie[i]) for i in range(3)])
+        ins.omega_en = np.array([float(m.omega_en[i]) for i in range(3)])
+        a.omega_b = last[8:11].copy()
+        a._dt = float(dt[-1])
+        st = a.state()  # the σ (P does not change before the hand-over), the biases, f_b and the gate ratios
+        sp, sv, sa, bg, ba, fbd, ratios = st.std_pos, st.std_vel, st.std_att, a.bg, a.ba, a.f_b, st.test_ratios
+        ro = np.zeros((n, 32))  # the C record layout for the core guard (states_ok)
+        ro[:, 0:5] = out[:, 0:5]
+        ro[:, 8:11] = out[:, 5:8]
+        ro[:, 17:20], ro[:, 20:23], ro[:, 23:26] = sp, sv, sa
+        self.run_out = ro
+        tl = out[:, [0, 5, 6, 7]].tolist()
+        return [
+            NavState(r[0], o[1:5], np.zeros(3), r[1], r[2], r[3], bg, ba, sp, sv, sa, o[8:11], fbd, False, ratios)
+            for r, o in zip(tl, out, strict=True)
+        ]
 
     def run_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
         """:meth:`step` on n samples in ONE C call (through the roll-back history): ``inc`` (n, 6) float64 dθ, dv
@@ -667,17 +811,26 @@ class CNavCore:
         if inc.shape != (n, 6) or dt.shape != (n,) or not self.can_run():
             raise ValueError("CNavCore.run_states: (n, 6) increments, (n,) times and steps, on a navigating core "
                              "with fixed_step=False")  # fmt: skip
-        if n:  # the IMU data lost before each sample (step()'s record, in one pass; none before the first step)
-            prev = np.empty(n)
-            prev[0] = float(self._core.mech.t)
-            prev[1:] = t_end[:-1]
-            lost = t_end - dt - prev
-            gap = lost > 0.5 * dt
-            if int(self._core.steps) == 0:
-                gap[0] = False
-            self.run_gap_rows = np.nonzero(gap)[0].tolist()
-            for k in self.run_gap_rows:
-                lk = float(lost[k])
+        if self._align is not None:
+            return self._heading_states(inc, t_end, dt) if n else []
+        if n:  # the IMU data lost before each sample (step()'s record; none before the first step)
+            t0 = float(self._core.mech.t)
+            if n <= 16:  # a short run (a replay's samples between two aiding measurements): in Python floats
+                tl, dl = t_end.tolist(), dt.tolist()
+                lost_l = [tl[0] - dl[0] - t0] + [tl[k] - dl[k] - tl[k - 1] for k in range(1, n)]
+                rows = [k for k in range(n) if lost_l[k] > 0.5 * dl[k]]
+            else:  # in one numpy pass
+                prev = np.empty(n)
+                prev[0] = t0
+                prev[1:] = t_end[:-1]
+                lost = t_end - dt - prev
+                rows = np.nonzero(lost > 0.5 * dt)[0].tolist()
+                lost_l = lost.tolist()
+            if rows and rows[0] == 0 and int(self._core.steps) == 0:
+                rows = rows[1:]
+            self.run_gap_rows = rows
+            for k in rows:
+                lk = float(lost_l[k])
                 tk = float(t_end[k] - dt[k])
                 self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lk)
                 self._events.append(
@@ -688,8 +841,8 @@ class CNavCore:
         fb = self._ffi.from_buffer
         self._st = None  # the state after the time update: built by state() when asked
         self._publish()
-        self._lib_.cref_run_pub(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end),
-                                fb("double[]", dt), n, fb("double[]", out), 32)  # fmt: skip
+        self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end),
+                            fb("double[]", dt), n, fb("double[]", out), 32, 1)  # fmt: skip
         self.run_out = out
         aligned = (out[:, 25] < self.cfg.alignment.aligned_yaw_std).tolist()
         ratios = self._ratios
@@ -712,7 +865,7 @@ class CNavCore:
         fb = self._ffi.from_buffer
         self._st = None
         self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
-                            self._ffi.NULL, 0)  # fmt: skip
+                            self._ffi.NULL, 0, 0)  # fmt: skip
 
     def covariance(self) -> Vec:
         """The EKF covariance P (15 × 15, order δr NED, δv NED, ψ NED, δb_g, δb_a; 21 × 21 with the scale factors

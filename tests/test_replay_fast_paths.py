@@ -278,7 +278,7 @@ def test_bench_core_reads_the_batch_ratio_off_the_replay_command(monkeypatch: py
 
 
 def test_states_ok_is_state_ok_row_by_row() -> None:
-    from ins_hil.runtime.pipeline import state_ok, states_ok
+    from ins_hil.runtime.pipeline import GUARD_ROWS_SCALAR, guard_rows, state_ok, states_ok
 
     rng = np.random.default_rng(5)
     rows = np.zeros((64, 32))
@@ -294,6 +294,10 @@ def test_states_ok_is_state_ok_row_by_row() -> None:
     want = [state_ok(NavState(t=o[0], q_nb=o[1:5], vel_ned=o[5:8], lat=o[8], lon=o[9], h=o[10], std_pos=o[17:20],
                               std_vel=o[20:23], std_att=o[23:26])) for o in rows]  # fmt: skip
     assert states_ok(rows).tolist() == want and want.count(False) == len(bad)
+    # the guard of a batched run: row by row in Python floats up to GUARD_ROWS_SCALAR rows, numpy beyond
+    assert guard_rows(rows) == want
+    short = [ok for k in range(0, 64, GUARD_ROWS_SCALAR) for ok in guard_rows(rows[k : k + GUARD_ROWS_SCALAR])]
+    assert short == want
 
 
 def test_a_bad_state_inside_a_batched_run_is_the_per_sample_core_fault() -> None:

@@ -364,6 +364,41 @@ void ins_fdi_cone5_u2t(ins_real u2t[INS_FDI_M * INS_FDI_N]);
 void ins_fdi_parity(const ins_real u2t[INS_FDI_M * INS_FDI_N], const ins_real y[INS_FDI_N], ins_real threshold,
                     ins_fdi_result_t *r);
 
+/* ------------------------------------------------------- GNSS-velocity yaw bank */
+
+/* The EKF-GSF yaw estimator (PX4 EKF2 EKFGSF_yaw; ins_hil.fusion.yaw_gsf.YawGsf, whose numbers the double
+ * build reproduces to round-off): n yaw hypotheses, each an attitude reference (gyro + accelerometer tilt
+ * correction, its own gyro bias) and a 3-state EKF [v_N, v_E, psi] corrected by the GNSS velocity; the composite
+ * yaw is the weighted circular mean. The alignment phase of a log without magnetometer (alignment.yaw_gsf). */
+#define INS_GSF_N 8 /* hypotheses at most */
+typedef struct {
+    int n;                                   /* hypotheses (2..INS_GSF_N) */
+    ins_real tilt_gain, gyro_bias_gain, gyro_bias_max, bias_spin_max, gyro_noise, accel_noise, vel_std_min;
+    int tilt_aligned, started;               /* tilt set from a 1-g specific force; velocity fusion started */
+    ins_real R[INS_GSF_N][9];                /* C_b^n of each model (row-major) */
+    ins_real bias[INS_GSF_N][3];             /* each model's gyro bias (rad/s, body) */
+    ins_real X[INS_GSF_N][3];                /* [v_N, v_E, psi] (m/s, m/s, rad) */
+    ins_real P[INS_GSF_N][9];                /* its covariance (row-major 3x3) */
+    ins_real W[INS_GSF_N];                   /* model weights (sum 1) */
+    ins_real accel[3];                       /* low-passed specific force (m/s^2, body) */
+    ins_real yaw, yaw_var;                   /* composite yaw (rad) and its variance (rad^2; infinite: none yet) */
+    uint32_t updates;                        /* GNSS velocities fused */
+} ins_gsf_t;
+
+/* PX4's defaults (GsfConfig) for n models. */
+void ins_gsf_init(ins_gsf_t *g, int n);
+/* One IMU interval: dtheta (rad), dvel (m/s) body FRD over dt s; forward_speed (m/s along body x, 0 = unknown). */
+void ins_gsf_predict(ins_gsf_t *g, const ins_real dtheta[3], const ins_real dvel[3], ins_real dt,
+                     ins_real forward_speed);
+/* A GNSS horizontal velocity (m/s, NE) with its sigma (m/s). */
+void ins_gsf_fuse_vel(ins_gsf_t *g, const ins_real vel_ne[2], ins_real std);
+/* One IMU interval of the alignment's heading phase (levelled, waiting for the yaw; NavCore's Alignment.step):
+ * the increments bias-compensated (bg rad/s, ba m/s^2), the yaw bank g (or NULL) fed with the compensated
+ * dtheta and the raw dvel, then the strapdown step over dt with the velocity held at zero afterwards; the time
+ * set to t_end; omega_b: the compensated rate (rad/s). */
+void ins_align_heading_step(ins_mech_t *m, ins_gsf_t *g, const ins_real dtheta[3], const ins_real dvel[3], ins_real dt,
+                            double t_end, const ins_real bg[3], const ins_real ba[3], ins_real omega_b[3]);
+
 /* ------------------------------------------------------------ serial frame */
 
 /* ins_hil serial IMU frame v1 (drivers/SERIAL_FRAME.md), 41 bytes little endian. */

@@ -56,25 +56,18 @@ static void put(const ins_core_t *c, double *o, size_t n) {
 void cref_state(const ins_core_t *c, double out[32]) { put(c, out, 32); }
 /* the state the last step published after its mechanization (c->pub; as cref_state) */
 void cref_pub_state(const ins_core_t *c, double out[32]) { put_out(c, c->pub, out, 32); }
-/* n steps in one call (dts: each step's length, or NULL: the fixed step); out: n records of out_stride values */
+/* n steps in one call (dts: each step's length, or NULL: the fixed step); out (or NULL): n records of out_stride
+ * values, per step the state after the step (pub = 0, as cref_state) or the state the step published after its
+ * mechanization (pub != 0: c->pub, as cref_pub_state after cref_hstep, CNavCore.step_begin; c->pub must be set) */
 void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
-              double *out, size_t out_stride) {
+              double *out, size_t out_stride, int pub) {
     size_t k;
     for (k = 0; k < n; ++k) {
         cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt,
                    dts != NULL ? dts[k] : 0.0);
-        if (out != NULL) put(c, out + out_stride * k, out_stride);
-    }
-}
-/* cref_run recording, per step, the state the step published after its mechanization (c->pub, as
- * cref_pub_state after cref_hstep: CNavCore.step_begin); c->pub must be set */
-void cref_run_pub(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
-                  double *out, size_t out_stride) {
-    size_t k;
-    for (k = 0; k < n; ++k) {
-        cref_hstep(c, h, inc + 6 * k, inc + 6 * k + 3, t_end != NULL ? t_end[k] : c->mech.t + (double)c->mech.dt,
-                   dts != NULL ? dts[k] : 0.0);
-        put_out(c, c->pub, out + out_stride * k, out_stride);
+        if (out == NULL) continue;
+        if (pub) put_out(c, c->pub, out + out_stride * k, out_stride);
+        else put(c, out + out_stride * k, out_stride);
     }
 }
 int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
@@ -107,4 +100,54 @@ int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3
     int i;
     for (i = 0; i < 3; ++i) f[i] = (ins_real)field[i];
     return hs != NULL ? ins_hist_fuse_mag(hs, c, t, f) : ins_core_fuse_mag(c, t, f);
+}
+/* the GNSS-velocity yaw bank (ins_gsf_t) in double for both builds */
+void cref_gsf_predict(ins_gsf_t *g, const double dth[3], const double dv[3], double dt, double forward_speed) {
+    ins_real a[3], u[3];
+    int i;
+    for (i = 0; i < 3; ++i) { a[i] = (ins_real)dth[i]; u[i] = (ins_real)dv[i]; }
+    ins_gsf_predict(g, a, u, (ins_real)dt, (ins_real)forward_speed);
+}
+void cref_gsf_fuse_vel(ins_gsf_t *g, const double vel_ne[2], double std) {
+    ins_real v[2];
+    v[0] = (ins_real)vel_ne[0];
+    v[1] = (ins_real)vel_ne[1];
+    ins_gsf_fuse_vel(g, v, (ins_real)std);
+}
+/* the mechanization of the alignment's heading phase (CNavCore before the hand-over) from NavCore's StrapdownNED */
+void cref_mech_set(ins_mech_t *m, const double q[4], const double v[3], double lat, double lon, double h, double t,
+                   const double dth_prev[3], const double dv_prev[3], int have_prev) {
+    ins_real qq[4], vv[3];
+    int i;
+    for (i = 0; i < 4; ++i) qq[i] = (ins_real)q[i];
+    for (i = 0; i < 3; ++i) vv[i] = (ins_real)v[i];
+    ins_mech_init(m, qq, vv, lat, lon, h, t, (ins_real)0.01);
+    for (i = 0; i < 3; ++i) {
+        m->dth_prev[i] = (ins_real)dth_prev[i];
+        m->dv_prev[i] = (ins_real)dv_prev[i];
+    }
+    m->have_prev = have_prev;
+}
+/* n heading-phase steps (ins_align_heading_step; g may be NULL); out: per step t, q[4], lat, lon, h, omega_b[3] */
+void cref_heading_run(ins_mech_t *m, ins_gsf_t *g, const double *inc, const double *t_end, const double *dts, size_t n,
+                      const double bg[3], const double ba[3], double *out) {
+    ins_real b[3], c[3], a[3], u[3], w[3];
+    size_t k;
+    int i;
+    for (i = 0; i < 3; ++i) {
+        b[i] = (ins_real)bg[i];
+        c[i] = (ins_real)ba[i];
+    }
+    for (k = 0; k < n; ++k) {
+        double *o = out + 11 * k;
+        for (i = 0; i < 3; ++i) {
+            a[i] = (ins_real)inc[6 * k + (size_t)i];
+            u[i] = (ins_real)inc[6 * k + 3 + (size_t)i];
+        }
+        ins_align_heading_step(m, g, a, u, (ins_real)dts[k], t_end[k], b, c, w);
+        o[0] = m->t;
+        for (i = 0; i < 4; ++i) o[1 + i] = (double)m->q[i];
+        o[5] = m->lat; o[6] = m->lon; o[7] = m->h;
+        for (i = 0; i < 3; ++i) o[8 + i] = (double)w[i];
+    }
 }

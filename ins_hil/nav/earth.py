@@ -186,7 +186,13 @@ def ned_from_geodetic_many(llh: Vec, lat0: float, lon0: float, h0: float) -> Vec
     llh = np.asarray(llh, dtype=np.float64).reshape(-1, 3)
     if not len(llh):
         return np.zeros((0, 3))
-    d = np.array([ecef_xyz(a, b, c) for a, b, c in llh.tolist()]) - np.array(ecef_xyz(lat0, lon0, h0))
+    # ecef_xyz's operations element-wise, in its order (numpy's sin/cos/sqrt are libm's on the hosts measured)
+    lat, lon, h = llh[:, 0], llh[:, 1], llh[:, 2]
+    sl = np.sin(lat)
+    n = A_WGS84 / np.sqrt(1.0 - E2_WGS84 * sl * sl)
+    ncl = (n + h) * np.cos(lat)
+    xyz = np.column_stack([ncl * np.cos(lon), ncl * np.sin(lon), (n * (1.0 - E2_WGS84) + h) * sl])
+    d = xyz - np.array(ecef_xyz(lat0, lon0, h0))
     c = dcm_ecef_to_ned(lat0, lon0)
     x, y, z = d[:, 0], d[:, 1], d[:, 2]
     return np.column_stack([c[0, 0] * x + c[0, 1] * y + c[0, 2] * z, c[1, 0] * x + c[1, 1] * y + c[1, 2] * z,

@@ -330,6 +330,33 @@ def states_ok(rows: np.ndarray) -> np.ndarray:
         )  # fmt: skip
 
 
+#: runs of at most this many states are guarded row by row in Python floats (numpy's per-call cost is larger)
+GUARD_ROWS_SCALAR = 16
+
+
+def guard_rows(rows: np.ndarray) -> list[bool]:
+    """:func:`states_ok` of ``rows`` as a list: a short run (≤ :data:`GUARD_ROWS_SCALAR` rows, a replay's few
+    samples between two aiding measurements) row by row with :func:`state_ok`'s comparisons in Python floats,
+    a longer one in numpy; the same result."""
+    if len(rows) > GUARD_ROWS_SCALAR:
+        return cast(list[bool], states_ok(rows).tolist())
+    out = []
+    for r in rows[:, :26].tolist():
+        _, q0, q1, q2, q3, v0, v1, v2, lat, lon, h = r[:11]
+        p0, p1, p2, u0, u1, u2, a0, a1, a2 = r[17:26]
+        out.append(
+            abs(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3 - 1.0) < QNORM_TOL
+            and v0 * v0 + v1 * v1 + v2 * v2 < STATE_SPEED_MAX * STATE_SPEED_MAX
+            and -1.5707963267948966 <= lat <= 1.5707963267948966
+            and -1e3 < lon < 1e3
+            and STATE_H_MIN < h < STATE_H_MAX
+            and 0.0 <= p0 < _INF and 0.0 <= p1 < _INF and 0.0 <= p2 < _INF
+            and 0.0 <= u0 < _INF and 0.0 <= u1 < _INF and 0.0 <= u2 < _INF
+            and 0.0 <= a0 < _INF and 0.0 <= a1 < _INF and 0.0 <= a2 < _INF
+        )  # fmt: skip
+    return out
+
+
 class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
@@ -518,7 +545,7 @@ class Pipeline:
             by_row.setdefault(r, []).append(e)
         resets = self._resets + getattr(core, "gnss_resets", 0)
         obs = self.observers
-        good = states_ok(core.run_out).tolist()  # the core guard of every state, in one pass
+        good = guard_rows(core.run_out)  # the core guard of every state
         for i, st in enumerate(states):
             s = run[i]
             self._t_imu = s.t
