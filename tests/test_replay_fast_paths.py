@@ -324,3 +324,34 @@ def test_a_bad_state_inside_a_batched_run_is_the_per_sample_core_fault() -> None
     assert len(t1.states) == len(t2.states)
     for a, b in zip(t1.states, t2.states, strict=True):
         _same_state(a, b)
+
+
+def test_the_batched_c_runs_reach_the_track_as_rows_with_the_same_arrays() -> None:
+    """On the batched C path the track keeps each run's state-record rows (``RunStates``: a ``NavState`` built
+    only for the run's last state and for the withheld fixes scored in it), and its arrays are the per-sample
+    path's, bit for bit."""
+    from ins_hil.cref import RunStates
+
+    built = [0]
+    getitem = RunStates.__getitem__
+
+    def counting(self: RunStates, i: Any) -> Any:
+        built[0] += 1
+        return getitem(self, i)
+
+    RunStates.__getitem__ = counting  # type: ignore[method-assign,assignment]
+    try:
+        one, t1, s1 = _replay(batched=False)
+        run, t2, s2 = _replay(batched=True)
+    finally:
+        RunStates.__getitem__ = getitem  # type: ignore[method-assign]
+    runs = [c for c in t2._chunks if isinstance(c, RunStates)]
+    assert runs and sum(len(c) for c in runs) > 250
+    assert built[0] <= len(runs) + 2 + 2  # the last state of each run, the 2 withheld fixes (and the slack of 2)
+    a1, a2 = t1.arrays(), t2.arrays()
+    assert a1.keys() == a2.keys()
+    for k in a1:
+        assert np.array_equal(a1[k], a2[k]), k
+    assert [(r.fix.t, r.prior.tolist(), r.state.t) for r in s1.sorted_rows() if r.inside] == [
+        (r.fix.t, r.prior.tolist(), r.state.t) for r in s2.sorted_rows() if r.inside
+    ]

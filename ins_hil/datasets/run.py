@@ -22,7 +22,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -477,8 +477,18 @@ class Track(Observer):
     def __init__(self, origin: tuple[float, float, float]) -> None:
         self.origin = origin
         self.t_nav = math.nan
-        self.states: list[NavState] = []
+        # the states in order: lists of NavState (one per epoch) and the C core's runs as their state-record
+        # rows (``RunStates.rows``: no NavState built)
+        self._chunks: list[Any] = []
         self._nav = False
+
+    @property
+    def states(self) -> list[NavState]:
+        """Every state kept, in order (the C core's runs built into ``NavState`` here)."""
+        out: list[NavState] = []
+        for c in self._chunks:
+            out.extend(c)
+        return out
 
     def epoch(self, pipe: Pipeline, st: NavState) -> None:
         if not self._nav:
@@ -486,10 +496,35 @@ class Track(Observer):
                 return
             self._nav = True
             self.t_nav = st.t
-        self.states.append(st)
+        ch = self._chunks
+        if not ch or not isinstance(ch[-1], list):
+            ch.append([])
+        ch[-1].append(st)
+
+    def epochs(self, pipe: Pipeline, states: Sequence[NavState]) -> None:
+        if not states:
+            return
+        if not self._nav:
+            if not navigating(pipe):  # the run's states share the core's alignment status
+                return
+            self._nav = True
+            self.t_nav = states[0].t
+        if hasattr(states, "rows"):
+            self._chunks.append(states)
+        else:
+            for st in states:
+                self.epoch(pipe, st)
 
     def arrays(self) -> dict[str, Vec]:
         """t (N,), q_nb (N, 4), vel_ned, ned, llh (lat rad, lon rad, h m), std_pos, std_vel, std_att (N, 3)."""
+        if any(hasattr(c, "rows") for c in self._chunks):  # the C core's runs: their rows, the rest as NavStates
+            parts = [c.rows[:, :26] if hasattr(c, "rows") else _record_rows(c) for c in self._chunks]
+            rows = np.concatenate(parts) if len(parts) > 1 else parts[0]
+            llh = np.ascontiguousarray(rows[:, 8:11])
+            ned = earth.ned_from_geodetic_many(llh, *self.origin)
+            return {"t": rows[:, 0].copy(), "q_nb": rows[:, 1:5].copy(), "vel_ned": rows[:, 5:8].copy(), "ned": ned,
+                    "llh": llh, "std_pos": rows[:, 17:20].copy(), "std_vel": rows[:, 20:23].copy(),
+                    "std_att": rows[:, 23:26].copy()}  # fmt: skip
         st = self.states
         if not st:
             z = np.zeros((0, 3))
@@ -502,6 +537,23 @@ class Track(Observer):
                 "vel_ned": np.array([s.vel_ned for s in st]), "ned": ned, "llh": llh,
                 "std_pos": np.array([s.std_pos for s in st]), "std_vel": np.array([s.std_vel for s in st]),
                 "std_att": np.array([s.std_att for s in st])}  # fmt: skip
+
+
+def _record_rows(states: Sequence[NavState]) -> Vec:
+    """(n, 26) rows of the C state record (t, q[4], v[3], lat, lon, h, b_g[3], b_a[3], σ pos, vel, att) of
+    ``states``."""
+    out = np.empty((len(states), 26))
+    for k, s in enumerate(states):
+        out[k, 0] = s.t
+        out[k, 1:5] = s.q_nb
+        out[k, 5:8] = s.vel_ned
+        out[k, 8:11] = (s.lat, s.lon, s.h)
+        out[k, 11:14] = s.gyro_bias
+        out[k, 14:17] = s.accel_bias
+        out[k, 17:20] = s.std_pos
+        out[k, 20:23] = s.std_vel
+        out[k, 23:26] = s.std_att
+    return out
 
 
 @dataclass
@@ -549,6 +601,29 @@ class GnssScore(Observer):
             f = w[self._w]
             self._w += 1
             if navigating(pipe):
+                ref = self._ref(f)
+                self.rows.append(FixScore(f, True, antenna_ned(st, self.lever, f.t, self.origin) - ref,
+                                          np.full(3, math.nan), ref, st))  # fmt: skip
+
+    def epochs(self, pipe: Pipeline, states: Sequence[NavState]) -> None:
+        n = len(states)
+        if not n:
+            return
+        self._epochs += n
+        w = self.withheld
+        if self._w >= len(w):
+            return
+        ts = cast(Any, states).times() if hasattr(states, "times") else [s.t for s in states]
+        if w[self._w].t > ts[-1]:
+            return
+        nav = navigating(pipe)
+        i = 0
+        while self._w < len(w) and w[self._w].t <= ts[-1]:  # each at the first state at or after its time
+            f = w[self._w]
+            self._w += 1
+            i = bisect.bisect_left(ts, f.t, i)
+            if nav:
+                st = states[i]
                 ref = self._ref(f)
                 self.rows.append(FixScore(f, True, antenna_ned(st, self.lever, f.t, self.origin) - ref,
                                           np.full(3, math.nan), ref, st))  # fmt: skip
