@@ -873,7 +873,7 @@ class RunStates(Sequence[NavState]):
     builds it (the arrays views of the row), with ``resets`` set; an observer that only keeps the arrays reads
     ``rows`` (and ``times``) and builds none."""
 
-    def __init__(self, rows: Vec, aligned_yaw_std: float, ratios: dict[str, float] | None, resets: int = 0) -> None:
+    def __init__(self, rows: Vec, aligned_yaw_std: float, ratios: dict[str, float], resets: int = 0) -> None:
         self.rows = rows
         self.resets = resets
         self._thr = aligned_yaw_std

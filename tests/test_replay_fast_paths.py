@@ -341,8 +341,8 @@ def test_the_batched_c_runs_reach_the_track_as_rows_with_the_same_arrays() -> No
 
     RunStates.__getitem__ = counting  # type: ignore[method-assign,assignment]
     try:
-        one, t1, s1 = _replay(batched=False)
-        run, t2, s2 = _replay(batched=True)
+        _, t1, s1 = _replay(batched=False)
+        _, t2, s2 = _replay(batched=True)
     finally:
         RunStates.__getitem__ = getitem  # type: ignore[method-assign]
     runs = [c for c in t2._chunks if isinstance(c, RunStates)]

@@ -598,9 +598,9 @@ class Pipeline:
         if bad:
             if pre:
                 self.events.extend(pre)
-            for r in sorted(by_row):
-                if r < bad:
-                    self.events.extend(by_row[r])
+            for row in sorted(by_row):
+                if row < bad:
+                    self.events.extend(by_row[row])
             last = states[bad - 1]
             self._good = last
             self._gap_free = True
