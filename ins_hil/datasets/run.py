@@ -19,6 +19,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
+import operator
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -156,6 +157,15 @@ class Prepared:
     mag_heading_only: bool = True
     source: str = ""  # the recording, for the errors
     aiding_fdi: bool = True  # the gateway's aiding drift monitor in the replay's pipeline ([fdi] aiding)
+    # what every replay of these streams computes alike (the outage protocol's run after the GNSS-present one)
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def rate_bins(self) -> Vec:
+        """:func:`rate_bins` of ``imu``, computed once."""
+        rb = self._cache.get("rate_bins")
+        if rb is None:
+            rb = self._cache["rate_bins"] = rate_bins(self.imu)
+        return cast(Vec, rb.copy())
 
 
 def _decimal_year(unix_s: float) -> float:
@@ -196,6 +206,24 @@ def field_at_rest(imu: list[ImuSample], mag: list[MagSample], t_from: float, t_t
     return np.array((hz * math.cos(decl), hz * math.sin(decl), float(mn[2])))
 
 
+_IMU_FIELDS = operator.attrgetter(*(f.name for f in dataclasses.fields(ImuSample)))
+
+
+def _shifted(imu: list[ImuSample], t1: float, off: float, R: Vec | None) -> list[ImuSample]:
+    """The samples of ``imu`` up to ``t1`` s with their time moved by ``off`` s and, with ``R``, their increments
+    turned by it (``dataclasses.replace`` of each, without its per-call cost: copied field by field)."""
+    out = []
+    for s in imu:
+        if s.t <= t1:
+            n = ImuSample(*_IMU_FIELDS(s))
+            n.t = s.t + off
+            if R is not None:
+                n.dtheta = R @ s.dtheta
+                n.dvel = R @ s.dvel
+            out.append(n)
+    return out
+
+
 def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     """Apply the dataset config to ``ds`` (causal streams for the core; nothing from the onboard estimate)."""
     notes: list[str] = list(ds.meta.get("notes", []))
@@ -218,8 +246,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     if applied and not rot and off == 0.0:
         imu = [s for s in ds.imu if s.t <= t1]
     else:
-        imu = [dataclasses.replace(s, t=s.t + off, dtheta=R @ s.dtheta, dvel=R @ s.dvel) if rot else
-               dataclasses.replace(s, t=s.t + off) for s in ds.imu if s.t <= t1]  # fmt: skip
+        imu = _shifted(ds.imu, t1, off, R if rot else None)
     gnss = [dataclasses.replace(f, t=f.t + cfg.gnss_time_offset) for f in ds.gnss] if cfg.use_gnss else []
     mag = [dataclasses.replace(m, field_b=R @ m.field_b) if rot else m for m in ds.mag] if cfg.use_mag else []
     baro = list(ds.baro) if cfg.use_baro else []
@@ -752,7 +779,7 @@ def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str
         arr([r.ref for r in rows], 3), np.array([int(r.fix.fix_type) for r in rows], dtype=int), list(outages),
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, notes, core.align_status(), core.imu_lost,
-        np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), rate_bins(p.imu),
+        np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), p.rate_bins(),
         arr(corr, 3), list(core.divergences), list(core.sensor_warnings), tr["llh"], tr["std_vel"],
         dict(pipe.counts), events, list(getattr(core, "yaw_resets", ())),
     )  # fmt: skip

@@ -369,7 +369,10 @@ class AidingMonitor:
             # fusion.measurements); the lever arm turns with the heading, by up to 2|l| on a turn of 180°
             C = dcm_from_quat(st.q_nb)
             d_ant = C @ self._lever
-            v_f = v_f + C @ np.cross(np.asarray(st.omega_b, dtype=np.float64), self._lever)
+            # ω × l in Python floats (numpy's cross of two 3-vectors: the same products and differences)
+            w0, w1, w2 = np.asarray(st.omega_b, dtype=np.float64).tolist()
+            l0, l1, l2 = self._lever.tolist()
+            v_f = v_f + C @ np.array((w1 * l2 - w2 * l1, w2 * l0 - w0 * l2, w0 * l1 - w1 * l0))
         # p(t_g) = p(t) − v·lag + ½·a·lag², v(t_g) = v(t) − a·lag: the state moved back to the fix time
         # with its own velocity/acceleration, unless the core fuses late fixes as current (see _lag)
         back = 0.0 if c.late_fix_as_current else lag
