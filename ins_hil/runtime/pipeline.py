@@ -427,6 +427,7 @@ class Pipeline:
         self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
         self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
+        self._seg_ok: NavState | None = None  # the last state a segment's core guard passed
         self._gap_free = False  # no aiding segment has run since the last IMU step
         self._step_pending = False  # core.step_end of the last step has not run yet
         self.last_state: NavState | None = None
@@ -819,7 +820,9 @@ class Pipeline:
         while self._jobs:
             self._segment()
         core = self.core
-        if core is not None and not state_ok(core.state()):  # the last time update, unchecked until now
+        # the last time update, unchecked until now (unless the state is the one the last segment checked: a core
+        # that hands out the same NavState while it does not change, the C core)
+        if core is not None and (st := core.state()) is not self._seg_ok and not state_ok(st):
             self._core_fault(self._t_imu, "core time update: non-finite or implausible state", "state")
 
     def _finish_step(self) -> None:
@@ -850,8 +853,12 @@ class Pipeline:
         if done:
             self._jobs.popleft()
         core = self.core
-        if core is not None and not state_ok(core.state()):
-            self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
+        if core is not None:
+            st = core.state()
+            if state_ok(st):
+                self._seg_ok = st
+            else:
+                self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
 
     def _level_add(self, s: ImuSample) -> None:
         if len(self._lvl) == self._lvl.maxlen:
