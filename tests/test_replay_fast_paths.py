@@ -54,7 +54,7 @@ def _fixes(imu: list[ImuSample]) -> list[GnssFix]:
     return [GnssFix(s.t, lat, lon, h, np.zeros(3), 1.0, 2.0, 0.3) for s in imu[10::20]]
 
 
-def _replay(batched: bool) -> tuple[Pipeline, Track, GnssScore]:
+def _replay(batched: bool, extra: tuple[Any, ...] = ()) -> tuple[Pipeline, Track, GnssScore]:
     """The offline loop's feed (every fix after the IMU sample that reaches its time, then flushed), through
     ``Pipeline.imu_run`` (batched) or one ``Pipeline.imu`` per sample."""
     imu = _imu()
@@ -63,7 +63,7 @@ def _replay(batched: bool) -> tuple[Pipeline, Track, GnssScore]:
     fused = [f for f in fixes if f not in withheld]
     track, score = Track(ORIGIN), GnssScore(np.zeros(3), ORIGIN, withheld)
     init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
-    pipe = Pipeline(offline_config(True, "c"), [track, score], nav=_nav(), initial=init)
+    pipe = Pipeline(offline_config(True, "c"), [track, score, *extra], nav=_nav(), initial=init)
     # the core of an offline replay: per-sample step lengths (make_core's with no initial state, after the
     # alignment's hand-over)
     core = pipe.core = CNavCore(init.copy(), _nav(), fixed_step=False)
@@ -355,3 +355,22 @@ def test_the_batched_c_runs_reach_the_track_as_rows_with_the_same_arrays() -> No
     assert [(r.fix.t, r.prior.tolist(), r.state.t) for r in s1.sorted_rows() if r.inside] == [
         (r.fix.t, r.prior.tolist(), r.state.t) for r in s2.sorted_rows() if r.inside
     ]
+
+
+def test_the_reference_score_takes_a_batched_run_as_it_takes_each_epoch() -> None:
+    """``ReferenceScore.epochs`` scores each reference point inside a window at the first state at or after its
+    time, as its per-epoch path does: the same rows (time, error, σ) on the batched C path."""
+    from ins_hil.datasets.dataset import Trajectory
+    from ins_hil.datasets.reference import ReferenceScore
+
+    imu = _imu()
+    t_ref = np.arange(0.05, imu[-1].t, 0.037)  # not on the IMU times; some between a run's samples
+    pos = np.column_stack((0.1 * t_ref, -0.05 * t_ref, np.zeros_like(t_ref)))
+    tr = Trajectory("ref", t_pos=t_ref, pos_ned=pos, origin=ORIGIN)
+    windows = [(0.5, 1.2), (2.0, 2.6), (3.1, 3.9)]
+    one, two = (ReferenceScore(tr, ORIGIN, np.array([0.1, 0.0, -0.05]), windows) for _ in range(2))
+    _replay(False, (one,))
+    _replay(True, (two,))
+    assert len(one.rows) > 40
+    rows = [[(t, e.tolist(), s.tolist()) for t, e, s in sc.rows] for sc in (one, two)]
+    assert rows[0] == rows[1]
