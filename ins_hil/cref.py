@@ -26,8 +26,8 @@ import dataclasses
 import importlib
 import math
 from collections import deque
-from collections.abc import Iterator
-from typing import Any, Literal, cast
+from collections.abc import Iterator, Sequence
+from typing import Any, Literal, cast, overload
 
 import numpy as np
 
@@ -797,7 +797,7 @@ class CNavCore:
             for r, o in zip(tl, out, strict=True)
         ]
 
-    def run_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
+    def run_states(self, inc: Vec, t_end: Vec, dt: Vec) -> Sequence[NavState]:
         """:meth:`step` on n samples in ONE C call (through the roll-back history): ``inc`` (n, 6) float64 dθ, dv
         (rad, m/s, body FRD), ``t_end``, ``dt`` (n,) s. Returns, per step, the state :meth:`step_begin` returns
         (the one published after the mechanization, the same C record), and records the IMU data lost before a
@@ -844,15 +844,7 @@ class CNavCore:
         self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end),
                             fb("double[]", dt), n, fb("double[]", out), 32, 1)  # fmt: skip
         self.run_out = out
-        aligned = (out[:, 25] < self.cfg.alignment.aligned_yaw_std).tolist()
-        ratios = self._ratios
-        sts = [
-            NavState(t=float(o[0]), q_nb=o[1:5], vel_ned=o[5:8], lat=float(o[8]), lon=float(o[9]), h=float(o[10]),
-                     gyro_bias=o[11:14], accel_bias=o[14:17], std_pos=o[17:20], std_vel=o[20:23], std_att=o[23:26],
-                     omega_b=o[26:29], accel_b=o[29:32], aligned=a, test_ratios=ratios)
-            for o, a in zip(out, aligned, strict=True)
-        ]  # fmt: skip
-        return sts
+        return RunStates(out, self.cfg.alignment.aligned_yaw_std, self._ratios)
 
     def run_increments(self, inc: Vec, t_end: Vec, dt: Vec) -> None:
         """:meth:`run` without output for a caller that has its increments stacked already: ``inc`` (n, 6)
@@ -873,6 +865,48 @@ class CNavCore:
         p = self._core.ekf.P
         n = int(self._core.ekf.nx)
         return np.array([[float(p[i][j]) for j in range(n)] for i in range(n)])
+
+
+class RunStates(Sequence[NavState]):
+    """The states of one :meth:`CNavCore.run_states` call as a sequence: each ``NavState`` built from its row of
+    the C state record (``rows``, (n, 32): ``cref_state``'s layout) when asked for, as ``CNavCore._nav_state``
+    builds it (the arrays views of the row), with ``resets`` set; an observer that only keeps the arrays reads
+    ``rows`` (and ``times``) and builds none."""
+
+    def __init__(self, rows: Vec, aligned_yaw_std: float, ratios: dict[str, float], resets: int = 0) -> None:
+        self.rows = rows
+        self.resets = resets
+        self._thr = aligned_yaw_std
+        self._ratios = ratios
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def times(self) -> list[float]:
+        """Each state's time (s)."""
+        return cast(list[float], self.rows[:, 0].tolist())
+
+    def head(self, n: int) -> RunStates:
+        """The first ``n`` states."""
+        return RunStates(self.rows[:n], self._thr, self._ratios, self.resets)
+
+    @overload
+    def __getitem__(self, i: int) -> NavState: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> Sequence[NavState]: ...
+
+    def __getitem__(self, i: int | slice) -> NavState | Sequence[NavState]:
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self.rows)))]
+        o = self.rows[i]
+        st = NavState(
+            t=float(o[0]), q_nb=o[1:5], vel_ned=o[5:8], lat=float(o[8]), lon=float(o[9]), h=float(o[10]),
+            gyro_bias=o[11:14], accel_bias=o[14:17], std_pos=o[17:20], std_vel=o[20:23], std_att=o[23:26],
+            omega_b=o[26:29], accel_b=o[29:32], aligned=bool(o[25] < self._thr), test_ratios=self._ratios,
+        )  # fmt: skip
+        st.resets = self.resets
+        return st
 
 
 def make_core(kind: str, initial: StrapdownState, config: NavConfig | None = None, **kwargs: Any) -> Any:

@@ -54,7 +54,7 @@ def _fixes(imu: list[ImuSample]) -> list[GnssFix]:
     return [GnssFix(s.t, lat, lon, h, np.zeros(3), 1.0, 2.0, 0.3) for s in imu[10::20]]
 
 
-def _replay(batched: bool) -> tuple[Pipeline, Track, GnssScore]:
+def _replay(batched: bool, extra: tuple[Any, ...] = ()) -> tuple[Pipeline, Track, GnssScore]:
     """The offline loop's feed (every fix after the IMU sample that reaches its time, then flushed), through
     ``Pipeline.imu_run`` (batched) or one ``Pipeline.imu`` per sample."""
     imu = _imu()
@@ -63,7 +63,7 @@ def _replay(batched: bool) -> tuple[Pipeline, Track, GnssScore]:
     fused = [f for f in fixes if f not in withheld]
     track, score = Track(ORIGIN), GnssScore(np.zeros(3), ORIGIN, withheld)
     init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
-    pipe = Pipeline(offline_config(True, "c"), [track, score], nav=_nav(), initial=init)
+    pipe = Pipeline(offline_config(True, "c"), [track, score, *extra], nav=_nav(), initial=init)
     # the core of an offline replay: per-sample step lengths (make_core's with no initial state, after the
     # alignment's hand-over)
     core = pipe.core = CNavCore(init.copy(), _nav(), fixed_step=False)
@@ -324,3 +324,53 @@ def test_a_bad_state_inside_a_batched_run_is_the_per_sample_core_fault() -> None
     assert len(t1.states) == len(t2.states)
     for a, b in zip(t1.states, t2.states, strict=True):
         _same_state(a, b)
+
+
+def test_the_batched_c_runs_reach_the_track_as_rows_with_the_same_arrays() -> None:
+    """On the batched C path the track keeps each run's state-record rows (``RunStates``: a ``NavState`` built
+    only for the run's last state and for the withheld fixes scored in it), and its arrays are the per-sample
+    path's, bit for bit."""
+    from ins_hil.cref import RunStates
+
+    built = [0]
+    getitem = RunStates.__getitem__
+
+    def counting(self: RunStates, i: Any) -> Any:
+        built[0] += 1
+        return getitem(self, i)
+
+    RunStates.__getitem__ = counting  # type: ignore[method-assign,assignment]
+    try:
+        _, t1, s1 = _replay(batched=False)
+        _, t2, s2 = _replay(batched=True)
+    finally:
+        RunStates.__getitem__ = getitem  # type: ignore[method-assign]
+    runs = [c for c in t2._chunks if isinstance(c, RunStates)]
+    assert runs and sum(len(c) for c in runs) > 250
+    assert built[0] <= len(runs) + 2 + 2  # the last state of each run, the 2 withheld fixes (and the slack of 2)
+    a1, a2 = t1.arrays(), t2.arrays()
+    assert a1.keys() == a2.keys()
+    for k in a1:
+        assert np.array_equal(a1[k], a2[k]), k
+    assert [(r.fix.t, r.prior.tolist(), r.state.t) for r in s1.sorted_rows() if r.inside] == [
+        (r.fix.t, r.prior.tolist(), r.state.t) for r in s2.sorted_rows() if r.inside
+    ]
+
+
+def test_the_reference_score_takes_a_batched_run_as_it_takes_each_epoch() -> None:
+    """``ReferenceScore.epochs`` scores each reference point inside a window at the first state at or after its
+    time, as its per-epoch path does: the same rows (time, error, σ) on the batched C path."""
+    from ins_hil.datasets.dataset import Trajectory
+    from ins_hil.datasets.reference import ReferenceScore
+
+    imu = _imu()
+    t_ref = np.arange(0.05, imu[-1].t, 0.037)  # not on the IMU times; some between a run's samples
+    pos = np.column_stack((0.1 * t_ref, -0.05 * t_ref, np.zeros_like(t_ref)))
+    tr = Trajectory("ref", t_pos=t_ref, pos_ned=pos, origin=ORIGIN)
+    windows = [(0.5, 1.2), (2.0, 2.6), (3.1, 3.9)]
+    one, two = (ReferenceScore(tr, ORIGIN, np.array([0.1, 0.0, -0.05]), windows) for _ in range(2))
+    _replay(False, (one,))
+    _replay(True, (two,))
+    assert len(one.rows) > 40
+    rows = [[(t, e.tolist(), s.tolist()) for t, e, s in sc.rows] for sc in (one, two)]
+    assert rows[0] == rows[1]

@@ -12,9 +12,10 @@ scored absolutely (None).
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -53,6 +54,26 @@ class ReferenceScore(Observer):
         nav = navigating(pipe)
         while k < len(t) and t[k] <= st.t:
             if nav:
+                p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *self.origin)
+                ours = p + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t[k] - st.t)
+                self.rows.append((float(t[k]), ours - self.ref[k], np.asarray(st.std_pos)))
+            k += 1
+        self._k = k
+
+    def epochs(self, pipe: Pipeline, states: Sequence[NavState]) -> None:
+        t = self.t
+        k = self._k
+        if not len(states) or k >= len(t):
+            return
+        ts = cast(Any, states).times() if hasattr(states, "times") else [s.t for s in states]
+        if t[k] > ts[-1]:
+            return
+        nav = navigating(pipe)
+        i = 0
+        while k < len(t) and t[k] <= ts[-1]:  # each reference point at the first state at or after its time
+            i = bisect.bisect_left(ts, t[k], i)
+            if nav:
+                st = states[i]
                 p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *self.origin)
                 ours = p + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t[k] - st.t)
                 self.rows.append((float(t[k]), ours - self.ref[k], np.asarray(st.std_pos)))

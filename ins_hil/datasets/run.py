@@ -19,10 +19,11 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
+import operator
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -156,6 +157,15 @@ class Prepared:
     mag_heading_only: bool = True
     source: str = ""  # the recording, for the errors
     aiding_fdi: bool = True  # the gateway's aiding drift monitor in the replay's pipeline ([fdi] aiding)
+    # what every replay of these streams computes alike (the outage protocol's run after the GNSS-present one)
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def rate_bins(self) -> Vec:
+        """:func:`rate_bins` of ``imu``, computed once."""
+        rb = self._cache.get("rate_bins")
+        if rb is None:
+            rb = self._cache["rate_bins"] = rate_bins(self.imu)
+        return cast(Vec, rb.copy())
 
 
 def _decimal_year(unix_s: float) -> float:
@@ -196,6 +206,24 @@ def field_at_rest(imu: list[ImuSample], mag: list[MagSample], t_from: float, t_t
     return np.array((hz * math.cos(decl), hz * math.sin(decl), float(mn[2])))
 
 
+_IMU_FIELDS = operator.attrgetter(*(f.name for f in dataclasses.fields(ImuSample)))
+
+
+def _shifted(imu: list[ImuSample], t1: float, off: float, R: Vec | None) -> list[ImuSample]:
+    """The samples of ``imu`` up to ``t1`` s with their time moved by ``off`` s and, with ``R``, their increments
+    turned by it (``dataclasses.replace`` of each, without its per-call cost: copied field by field)."""
+    out = []
+    for s in imu:
+        if s.t <= t1:
+            n = ImuSample(*_IMU_FIELDS(s))
+            n.t = s.t + off
+            if R is not None:
+                n.dtheta = R @ s.dtheta
+                n.dvel = R @ s.dvel
+            out.append(n)
+    return out
+
+
 def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     """Apply the dataset config to ``ds`` (causal streams for the core; nothing from the onboard estimate)."""
     notes: list[str] = list(ds.meta.get("notes", []))
@@ -218,8 +246,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     if applied and not rot and off == 0.0:
         imu = [s for s in ds.imu if s.t <= t1]
     else:
-        imu = [dataclasses.replace(s, t=s.t + off, dtheta=R @ s.dtheta, dvel=R @ s.dvel) if rot else
-               dataclasses.replace(s, t=s.t + off) for s in ds.imu if s.t <= t1]  # fmt: skip
+        imu = _shifted(ds.imu, t1, off, R if rot else None)
     gnss = [dataclasses.replace(f, t=f.t + cfg.gnss_time_offset) for f in ds.gnss] if cfg.use_gnss else []
     mag = [dataclasses.replace(m, field_b=R @ m.field_b) if rot else m for m in ds.mag] if cfg.use_mag else []
     baro = list(ds.baro) if cfg.use_baro else []
@@ -477,8 +504,18 @@ class Track(Observer):
     def __init__(self, origin: tuple[float, float, float]) -> None:
         self.origin = origin
         self.t_nav = math.nan
-        self.states: list[NavState] = []
+        # the states in order: lists of NavState (one per epoch) and the C core's runs as their state-record
+        # rows (``RunStates.rows``: no NavState built)
+        self._chunks: list[Any] = []
         self._nav = False
+
+    @property
+    def states(self) -> list[NavState]:
+        """Every state kept, in order (the C core's runs built into ``NavState`` here)."""
+        out: list[NavState] = []
+        for c in self._chunks:
+            out.extend(c)
+        return out
 
     def epoch(self, pipe: Pipeline, st: NavState) -> None:
         if not self._nav:
@@ -486,10 +523,35 @@ class Track(Observer):
                 return
             self._nav = True
             self.t_nav = st.t
-        self.states.append(st)
+        ch = self._chunks
+        if not ch or not isinstance(ch[-1], list):
+            ch.append([])
+        ch[-1].append(st)
+
+    def epochs(self, pipe: Pipeline, states: Sequence[NavState]) -> None:
+        if not states:
+            return
+        if not self._nav:
+            if not navigating(pipe):  # the run's states share the core's alignment status
+                return
+            self._nav = True
+            self.t_nav = states[0].t
+        if hasattr(states, "rows"):
+            self._chunks.append(states)
+        else:
+            for st in states:
+                self.epoch(pipe, st)
 
     def arrays(self) -> dict[str, Vec]:
         """t (N,), q_nb (N, 4), vel_ned, ned, llh (lat rad, lon rad, h m), std_pos, std_vel, std_att (N, 3)."""
+        if any(hasattr(c, "rows") for c in self._chunks):  # the C core's runs: their rows, the rest as NavStates
+            parts = [c.rows[:, :26] if hasattr(c, "rows") else _record_rows(c) for c in self._chunks]
+            rows = np.concatenate(parts) if len(parts) > 1 else parts[0]
+            llh = np.ascontiguousarray(rows[:, 8:11])
+            ned = earth.ned_from_geodetic_many(llh, *self.origin)
+            return {"t": rows[:, 0].copy(), "q_nb": rows[:, 1:5].copy(), "vel_ned": rows[:, 5:8].copy(), "ned": ned,
+                    "llh": llh, "std_pos": rows[:, 17:20].copy(), "std_vel": rows[:, 20:23].copy(),
+                    "std_att": rows[:, 23:26].copy()}  # fmt: skip
         st = self.states
         if not st:
             z = np.zeros((0, 3))
@@ -502,6 +564,23 @@ class Track(Observer):
                 "vel_ned": np.array([s.vel_ned for s in st]), "ned": ned, "llh": llh,
                 "std_pos": np.array([s.std_pos for s in st]), "std_vel": np.array([s.std_vel for s in st]),
                 "std_att": np.array([s.std_att for s in st])}  # fmt: skip
+
+
+def _record_rows(states: Sequence[NavState]) -> Vec:
+    """(n, 26) rows of the C state record (t, q[4], v[3], lat, lon, h, b_g[3], b_a[3], σ pos, vel, att) of
+    ``states``."""
+    out = np.empty((len(states), 26))
+    for k, s in enumerate(states):
+        out[k, 0] = s.t
+        out[k, 1:5] = s.q_nb
+        out[k, 5:8] = s.vel_ned
+        out[k, 8:11] = (s.lat, s.lon, s.h)
+        out[k, 11:14] = s.gyro_bias
+        out[k, 14:17] = s.accel_bias
+        out[k, 17:20] = s.std_pos
+        out[k, 20:23] = s.std_vel
+        out[k, 23:26] = s.std_att
+    return out
 
 
 @dataclass
@@ -549,6 +628,29 @@ class GnssScore(Observer):
             f = w[self._w]
             self._w += 1
             if navigating(pipe):
+                ref = self._ref(f)
+                self.rows.append(FixScore(f, True, antenna_ned(st, self.lever, f.t, self.origin) - ref,
+                                          np.full(3, math.nan), ref, st))  # fmt: skip
+
+    def epochs(self, pipe: Pipeline, states: Sequence[NavState]) -> None:
+        n = len(states)
+        if not n:
+            return
+        self._epochs += n
+        w = self.withheld
+        if self._w >= len(w):
+            return
+        ts = cast(Any, states).times() if hasattr(states, "times") else [s.t for s in states]
+        if w[self._w].t > ts[-1]:
+            return
+        nav = navigating(pipe)
+        i = 0
+        while self._w < len(w) and w[self._w].t <= ts[-1]:  # each at the first state at or after its time
+            f = w[self._w]
+            self._w += 1
+            i = bisect.bisect_left(ts, f.t, i)
+            if nav:
+                st = states[i]
                 ref = self._ref(f)
                 self.rows.append(FixScore(f, True, antenna_ned(st, self.lever, f.t, self.origin) - ref,
                                           np.full(3, math.nan), ref, st))  # fmt: skip
@@ -677,7 +779,7 @@ def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str
         arr([r.ref for r in rows], 3), np.array([int(r.fix.fix_type) for r in rows], dtype=int), list(outages),
         {k: {"accepted": v.accepted, "rejected": v.rejected} for k, v in core.stats.items()},
         time.perf_counter() - t_start, notes, core.align_status(), core.imu_lost,
-        np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), rate_bins(p.imu),
+        np.array([(t, *z) for t, _, z in core.innov_log]).reshape(-1, 4), arr(gaps, 2), p.rate_bins(),
         arr(corr, 3), list(core.divergences), list(core.sensor_warnings), tr["llh"], tr["std_vel"],
         dict(pipe.counts), events, list(getattr(core, "yaw_resets", ())),
     )  # fmt: skip

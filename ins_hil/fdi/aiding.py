@@ -169,6 +169,7 @@ DIVERGED_PERSIST_S = 2.0
 _N_ANCHORS = 3  # accepted fixes an outlier run can be bridged from (outliers up to 2 fixes long)
 
 _sum = np.add.reduce  # the reduction ``ndarray.mean``/``sum`` call, without their Python-level wrappers
+_max = np.maximum.reduce  # ``ndarray.max``'s reduction (NaN propagates), without its wrapper
 
 
 def baro_slope_var(a: np.ndarray, rate: float, sxx: float) -> float:
@@ -369,7 +370,10 @@ class AidingMonitor:
             # fusion.measurements); the lever arm turns with the heading, by up to 2|l| on a turn of 180°
             C = dcm_from_quat(st.q_nb)
             d_ant = C @ self._lever
-            v_f = v_f + C @ np.cross(np.asarray(st.omega_b, dtype=np.float64), self._lever)
+            # ω × l in Python floats (numpy's cross of two 3-vectors: the same products and differences)
+            w0, w1, w2 = np.asarray(st.omega_b, dtype=np.float64).tolist()
+            l0, l1, l2 = self._lever.tolist()
+            v_f = v_f + C @ np.array((w1 * l2 - w2 * l1, w2 * l0 - w0 * l2, w0 * l1 - w1 * l0))
         # p(t_g) = p(t) − v·lag + ½·a·lag², v(t_g) = v(t) − a·lag: the state moved back to the fix time
         # with its own velocity/acceleration, unless the core fuses late fixes as current (see _lag)
         back = 0.0 if c.late_fix_as_current else lag
@@ -459,7 +463,7 @@ class AidingMonitor:
         z = np.concatenate((z_p, z_v))
         if not c.vertical_cusum:  # the filter height follows the baro: vertical GNSS checked by the slope tests
             z[2] = z[5] = 0.0
-        z = np.clip(z, -c.jump_gate, c.jump_gate)  # an outlier adds at most jump_gate − k
+        z = np.minimum(np.maximum(z, -c.jump_gate), c.jump_gate)  # np.clip's numbers: an outlier adds ≤ jump_gate − k
         if bridged and self._prev_outlier and sp0 is not None and 0.0 < st.t - sp0.t <= c.max_gap:
             # The previous fix was a position outlier (it agreed with none of the last accepted fixes, this one
             # agrees with one before it) and the horizontal state stepped after it: p − p₀ − ½(v₀ + v)Δt, the
@@ -486,7 +490,7 @@ class AidingMonitor:
                 self._sv = np.sqrt(np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv) ** 2 + sv * sv)
             else:
                 self._sv = np.asarray(st.std_vel, dtype=np.float64).copy()
-        cus = float(max(self._cp.max(), self._cn.max()))
+        cus = float(max(_max(self._cp), _max(self._cn)))
         self.stats["gnss_cusum"] = cus
         bad_c = cons > self.thr_gnss
         bad_u = cus > self.h_cusum
@@ -599,8 +603,9 @@ class AidingMonitor:
         """A position-minus-integrated-velocity step (m, NED) within the jump gate (√2 σ_p per axis) beyond
         the dead zone ``dz`` (m, NED: the trapezoid rule's error on the motion)."""
         g = self.cfg.jump_gate * 1.4142
-        x = _dead_zone(de, dz)
-        return float(np.max(np.abs(x[:2]))) < g * sp_ne and abs(float(x[2])) < g * sp_d
+        x0, x1, x2 = _dead_zone(de, dz).tolist()
+        lim = g * sp_ne  # max(|x0|, |x1|) < lim, NaN failing as in np.max
+        return abs(x0) < lim and abs(x1) < lim and abs(x2) < g * sp_d
 
     def _reset_windows(self) -> None:
         self._win.clear()

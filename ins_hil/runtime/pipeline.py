@@ -64,7 +64,7 @@ import copy
 import dataclasses
 import math
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, cast
 
@@ -120,6 +120,14 @@ class Observer:
 
     def epoch(self, pipe: Pipeline, st: NavState) -> None:
         """An IMU epoch ran and published ``st``."""
+
+    def epochs(self, pipe: Pipeline, states: Sequence[NavState]) -> None:
+        """A run of IMU epochs ran (the C core's samples up to the next aiding measurement, ``Pipeline.imu_run``)
+        and published ``states``: :meth:`epoch` on each, in order. An observer that overrides it takes the run at
+        once (the pipeline then calls it once per run, after the run's states, counts and events; a sequence that
+        builds each ``NavState`` when indexed, its rows ``states.rows`` in the C state record when it has them)."""
+        for st in states:
+            self.epoch(pipe, st)
 
     def before_fuse(self, pipe: Pipeline, m: Aid) -> None:
         """The fusion of ``m`` begins."""
@@ -419,6 +427,7 @@ class Pipeline:
         self._aid_lost = 0  # skipped IMU epochs seen by the aiding monitor
         self._jobs: deque[Iterator[None]] = deque()  # aiding fusions in progress, one segment per gap
         self._new_jobs: list[Iterator[None]] = []  # handed over in this gap: their first segment is in the next
+        self._seg_ok: NavState | None = None  # the last state a segment's core guard passed
         self._gap_free = False  # no aiding segment has run since the last IMU step
         self._step_pending = False  # core.step_end of the last step has not run yet
         self.last_state: NavState | None = None
@@ -546,6 +555,9 @@ class Pipeline:
         resets = self._resets + getattr(core, "gnss_resets", 0)
         obs = self.observers
         good = guard_rows(core.run_out)  # the core guard of every state
+        if hasattr(states, "rows") and all(type(o).epochs is not Observer.epochs for o in obs):
+            self._epochs_rows(run, states, good, pre, by_row, resets)
+            return
         for i, st in enumerate(states):
             s = run[i]
             self._t_imu = s.t
@@ -574,6 +586,46 @@ class Pipeline:
             except Exception as e:  # counted, as imu() does for an epoch
                 self._count("pipeline_error")
                 self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+
+    def _epochs_rows(self, run: list[ImuSample], states: Any, good: list[bool], pre: list[FaultEvent],
+                     by_row: dict[int, list[FaultEvent]], resets: int) -> None:  # fmt: skip
+        """:meth:`_epochs_c`'s publication when every observer takes a run at once (:meth:`Observer.epochs`) and
+        the core gives its states as rows (``ins_hil.cref.RunStates``): the same counts, events, states and
+        observer calls (each observer's in the order of the states), a ``NavState`` built only for the last
+        state (``last_state``) and for what an observer asks for."""
+        n = len(run)
+        bad = good.index(False) if False in good else n
+        states.resets = resets
+        if bad:
+            if pre:
+                self.events.extend(pre)
+            for row in sorted(by_row):
+                if row < bad:
+                    self.events.extend(by_row[row])
+            last = states[bad - 1]
+            self._good = last
+            self._gap_free = True
+            self.last_state = last
+            part = states if bad == n else states.head(bad)
+            for o in self.observers:
+                try:
+                    o.epochs(self, part)
+                except Exception as e:  # counted, as imu() does for an epoch
+                    self._count("pipeline_error")
+                    self._core_fault(run[bad - 1].t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}",
+                                     "pipeline")  # fmt: skip
+        s = run[min(bad, n - 1)]
+        self._t_imu = s.t
+        self._last_arrival = s.t_arrival_ns
+        if bad < n:  # as _epoch: the core restarts (its events since the last good state dropped)
+            self._core_fault(s.t, "core step: non-finite or implausible state", "state")
+            for r in run[bad + 1 :]:  # validated already: straight to the epoch, as imu() would
+                self.imu_t = r.t
+                try:
+                    self._epoch([r])
+                except Exception as e:
+                    self._count("pipeline_error")
+                    self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
 
     def _clock_restart(self, s: ImuSample) -> ImuSample | None:
         """A sample refused because its time did not increase: the IMU's clock may have restarted (a driver
@@ -768,7 +820,9 @@ class Pipeline:
         while self._jobs:
             self._segment()
         core = self.core
-        if core is not None and not state_ok(core.state()):  # the last time update, unchecked until now
+        # the last time update, unchecked until now (unless the state is the one the last segment checked: a core
+        # that hands out the same NavState while it does not change, the C core)
+        if core is not None and (st := core.state()) is not self._seg_ok and not state_ok(st):
             self._core_fault(self._t_imu, "core time update: non-finite or implausible state", "state")
 
     def _finish_step(self) -> None:
@@ -799,8 +853,12 @@ class Pipeline:
         if done:
             self._jobs.popleft()
         core = self.core
-        if core is not None and not state_ok(core.state()):
-            self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
+        if core is not None:
+            st = core.state()
+            if state_ok(st):
+                self._seg_ok = st
+            else:
+                self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
 
     def _level_add(self, s: ImuSample) -> None:
         if len(self._lvl) == self._lvl.maxlen:
