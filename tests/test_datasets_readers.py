@@ -438,3 +438,21 @@ def test_px4_onboard_notes_on_written_topics():
     topics["vehicle_local_position"]["vx"] = np.arange(n) * 2.0  # 8 m/s after 4 s: 2 m/s²
     notes, chk = px4.onboard_notes(topics)
     assert chk["ekf2_unaided_accel_error_mps2"] == pytest.approx(2.0) and "dead-reckons" in notes[-1]
+
+
+def test_end_of_valid_data_names_a_corrupted_rate_without_printing_inf():
+    """A corrupted IMU value (±inf, or components near 1e308 whose norm overflows) ends the valid data like an
+    impact, and the message a replay prints says so in words: "inf" printed as a figure is what the replay's
+    contract forbids (the fuzz campaign's replay_dataset found it on a mutated DataFlash log)."""
+    from ins_hil.datasets.dataflash import end_of_valid_data
+    from ins_hil.fuzz.targets import replay_oracle
+
+    t = np.arange(4.0)
+    acc = np.tile([0.0, 0.0, -9.8], (4, 1))
+    for bad, shown in (([np.inf, 0.0, 0.0], "|ω| not finite"), ([1.7e308, 1.7e308, 0.0], "|ω| ≥ 1.7e+308 rad/s"),
+                       ([3.0e7, 0.0, 0.0], "|ω| 3e+07 rad/s"), ([40.0, 0.0, 0.0], "|ω| 40.0 rad/s")):  # fmt: skip
+        gyro = np.zeros((4, 3))
+        gyro[2] = bad
+        t_end, why = end_of_valid_data(t, gyro, acc, 3.5)
+        assert t_end == 1.5 and "loss of control from 2.00 s (|f| 10 m/s², " in why and shown in why, why
+        assert replay_oracle(0, f"end of valid data: {why}", "", Path("x")) == []

@@ -328,14 +328,27 @@ def _is_dataflash_text(path: Path) -> bool:
 def end_of_valid_data(t: Vec, gyro: Vec, acc: Vec, t_last_gps: float | None) -> tuple[float | None, str]:
     """(t s, why) of the end of valid data: 0.5 s before the first IMU sample with |f| > CRASH_ACCEL or
     |ω| > CRASH_RATE (an impact or a tumble), else None. ``t_last_gps``: the last GNSS sample, reported with it."""
-    bad = (np.linalg.norm(acc, axis=1) > CRASH_ACCEL) | (np.linalg.norm(gyro, axis=1) > CRASH_RATE)
+    with np.errstate(over="ignore"):  # a corrupted value near 1e308: its norm is inf, still above the bound
+        bad = (np.linalg.norm(acc, axis=1) > CRASH_ACCEL) | (np.linalg.norm(gyro, axis=1) > CRASH_RATE)
     if not np.any(bad):
         return None, ""
     k = int(np.argmax(bad))
-    why = (f"loss of control from {t[k]:.2f} s (|f| {np.linalg.norm(acc[k]):.0f} m/s², "
-           f"|ω| {np.linalg.norm(gyro[k]):.1f} rad/s)"
+    why = (f"loss of control from {t[k]:.2f} s (|f| {_magnitude(acc[k], '.0f', 'm/s²')}, "
+           f"|ω| {_magnitude(gyro[k], '.1f', 'rad/s')})"
            + (f"; last GNSS fix {t_last_gps:.2f} s" if t_last_gps is not None else ""))  # fmt: skip
     return float(t[k]) - 0.5, why
+
+
+def _magnitude(v: Vec, fmt: str, unit: str) -> str:
+    """|v| for a message: in ``fmt`` when it is ordinary, else in 3 digits, or "≥ m" (m: the largest component)
+    when the norm overflows a double, "not finite" for a non-finite component (a corrupted value must not print as
+    "inf")."""
+    with np.errstate(over="ignore"):
+        n = float(np.linalg.norm(v))
+    if math.isfinite(n):
+        return f"{format(n, fmt) if n < 1e6 else format(n, '.3g')} {unit}"
+    m = float(np.max(np.abs(v)))
+    return f"≥ {m:.3g} {unit}" if math.isfinite(m) else "not finite"
 
 
 def _numbers(rows: list[dict[str, Any]], *cols: str) -> Vec:
