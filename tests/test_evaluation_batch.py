@@ -8,6 +8,7 @@ import dataclasses
 import json
 import os
 import re
+import sys
 from pathlib import Path
 
 import pytest
@@ -63,6 +64,7 @@ def test_a_failing_log_does_not_stop_the_batch_and_dask_gives_the_serial_rows(tm
         assert r["gnss_h_rms_m"] < 0.2 and r["outage_h_rms_m"] < 1.0
     m = json.loads((Path(batch.jobs(pairs, 2, tmp_path / "s")[1].out) / "metrics.json").read_text())
     assert m["seed"] == 1 and m["outages"]["protocol"]["start_s"] != 20.0
+    batch.clear_cache()  # as the command does: forked workers would start with this process's parsed logs
     dask_rows, _ = batch.run_batch(batch.jobs(pairs, 2, tmp_path / "d"), workers=2)
     keys = ("job", "gnss_h_rms_m", "outage_h_rms_m", "outage_h_max_m", "error")
     same = repr([{k: r.get(k) for k in keys} for r in dask_rows]) == repr([{k: r.get(k) for k in keys} for r in serial])
@@ -222,12 +224,15 @@ def test_our_local_cluster_runs_its_workers_without_the_profiler_and_with_a_slow
     cluster = batch.local_cluster(1)
     try:
         with Client(cluster) as client:
+            # forked on Linux: the worker already holds this process's imports (spawned, it would not)
+            forked = client.run(lambda: "ins_hil.evaluation.batch" in __import__("sys").modules)
             seen = client.run(lambda: {k: dask.config.get(k) for k in keys})
             # the worker's own event loop watchdog runs at the setting's interval (ms)
             ticks = client.run(lambda dask_worker: dask_worker.periodic_callbacks["tick"].callback_time)
     finally:
         cluster.close()
     assert list(seen.values()) == [batch.WORKER_CONFIG]
+    assert list(forked.values()) == [sys.platform.startswith("linux")]
     assert list(ticks.values()) == [1000]
     cluster = batch.local_cluster(1, {})  # Dask's own settings (--compare-dask-defaults)
     try:
