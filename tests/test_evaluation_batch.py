@@ -8,6 +8,7 @@ import dataclasses
 import json
 import os
 import re
+import sys
 from pathlib import Path
 
 import pytest
@@ -63,10 +64,14 @@ def test_a_failing_log_does_not_stop_the_batch_and_dask_gives_the_serial_rows(tm
         assert r["gnss_h_rms_m"] < 0.2 and r["outage_h_rms_m"] < 1.0
     m = json.loads((Path(batch.jobs(pairs, 2, tmp_path / "s")[1].out) / "metrics.json").read_text())
     assert m["seed"] == 1 and m["outages"]["protocol"]["start_s"] != 20.0
+    batch.clear_cache()  # as the command does: forked workers would start with this process's parsed logs
     dask_rows, _ = batch.run_batch(batch.jobs(pairs, 2, tmp_path / "d"), workers=2)
     keys = ("job", "gnss_h_rms_m", "outage_h_rms_m", "outage_h_max_m", "error")
     same = repr([{k: r.get(k) for k in keys} for r in dask_rows]) == repr([{k: r.get(k) for k in keys} for r in serial])
     assert same  # repr: a seed whose outages fall past the end scores NaN on both
+    # each good log parsed once on the cluster (its seeds on the worker that parsed it), not once per worker
+    assert sum(r.get("cached") is False for r in dask_rows) == 2
+    assert len({r["pid"] for r in dask_rows if "pid" in r}) == 2
     text = batch.table(serial)
     assert text.count("\n") == 7 and "bad.csv#0" in text and "bad.csv:2" in text
 
@@ -104,6 +109,15 @@ def test_order_is_longest_first_with_the_seeds_of_a_log_together(tmp_path: Path)
     assert sorted(seq) == list(range(len(js)))
     assert [pairs.index((js[i].source, js[i].config)) for i in seq] == [2, 2, 3, 3, 0, 0, 1, 1]  # unreadable: last
     assert [js[i].seed for i in seq] == [0, 1] * 4
+
+
+def test_a_freed_worker_takes_a_log_it_parsed_else_one_nobody_started_else_the_longest() -> None:
+    left = ["long", "long", "mid", "mid", "short"]  # the jobs left, in order(): their logs
+    assert batch.pick(left, [], set()) == 0  # the first worker: the longest
+    assert batch.pick(left[1:], [], {"long"}) == 1  # the second: not the log the first is parsing
+    assert batch.pick(left[1:], ["mid"], {"long", "mid"}) == 1  # its own log's next seed before a longer one
+    assert batch.pick(["long", "short"], ["mid"], {"long", "mid"}) == 1  # short: nobody parsed it yet
+    assert batch.pick(["long", "short"], ["mid"], {"long", "mid", "short"}) == 0  # else the longest left
 
 
 def test_the_parsed_log_cache_hits_for_seeds_and_misses_on_a_changed_file(tmp_path: Path) -> None:
@@ -210,12 +224,15 @@ def test_our_local_cluster_runs_its_workers_without_the_profiler_and_with_a_slow
     cluster = batch.local_cluster(1)
     try:
         with Client(cluster) as client:
+            # forked on Linux: the worker already holds this process's imports (spawned, it would not)
+            forked = client.run(lambda: "ins_hil.evaluation.batch" in __import__("sys").modules)
             seen = client.run(lambda: {k: dask.config.get(k) for k in keys})
             # the worker's own event loop watchdog runs at the setting's interval (ms)
             ticks = client.run(lambda dask_worker: dask_worker.periodic_callbacks["tick"].callback_time)
     finally:
         cluster.close()
     assert list(seen.values()) == [batch.WORKER_CONFIG]
+    assert list(forked.values()) == [sys.platform.startswith("linux")]
     assert list(ticks.values()) == [1000]
     cluster = batch.local_cluster(1, {})  # Dask's own settings (--compare-dask-defaults)
     try:

@@ -17,10 +17,11 @@ outage errors side by side.
 
 Scheduling: the job sizes are very unequal (a log with an outage protocol replays twice), so the jobs are
 handed out longest-first (:func:`order`, by :func:`cost`; the seeds of one log together) with at most one
-job in flight per worker thread, each with its Dask ``priority``: the long jobs do not come last, leaving
-one worker busy while the other idles. Each process keeps its last :data:`CACHE_SIZE` parsed logs
-(:func:`load_cached`), so the seeds of one log parse it once per worker. Each row carries its load /
-replay / plot times (:func:`breakdown` sums them).
+job in flight per worker thread: the long jobs do not come last, leaving one worker busy while the other
+idles. Each process keeps its last :data:`CACHE_SIZE` parsed logs (:func:`load_cached`), and a freed worker
+is handed (:func:`pick`) the next job of a log it has parsed, else of a log no worker has started, else the
+longest left: each log is parsed about once in the whole batch, not once per worker. Each row carries its
+load / replay / plot times (:func:`breakdown` sums them).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import dataclasses
 import glob
 import os
 import re
+import sys
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
@@ -228,6 +230,17 @@ def order(js: list[Job]) -> list[int]:
                                                  first[(js[i].source, js[i].config)], js[i].seed))  # fmt: skip
 
 
+def pick(keys: list[Hashable], held: list[Hashable], started: set[Hashable]) -> int:
+    """Which of the jobs left (their logs' ``keys``, in :func:`order`) a freed worker takes: the first of a
+    log in ``held`` (the logs it parsed, its cache), else the first of a log not in ``started`` (no worker
+    has parsed it yet), else the first (the longest left). ``keys`` is not empty."""
+    for want in (lambda k: k in held, lambda k: k not in started):
+        for n, k in enumerate(keys):
+            if want(k):
+                return n
+    return 0
+
+
 #: parsed logs kept per process by :func:`load_cached`
 CACHE_SIZE = 4
 _CACHE: OrderedDict[Hashable, Dataset] = OrderedDict()
@@ -338,20 +351,24 @@ def _row(m: dict[str, Any]) -> dict[str, Any]:
 
 #: the workers' settings on our LocalCluster: no statistical profiler (a 10-ms stack sample of every running
 #: task) and the event-loop watchdog and system monitor at 1 s / 2 s instead of 20 ms / 500 ms: each wakes the
-#: worker's event-loop thread, which then takes the GIL from the replay (docs/datasets.md, "Batch replays")
+#: worker's event-loop thread, which then takes the GIL from the replay (docs/datasets.md, "Batch replays").
+#: On Linux the worker processes are forked, not spawned: they start with this process's imports (Dask,
+#: numpy, the readers and the core, already loaded by a serial run) instead of importing them again: 4 logs x
+#: 4 seeds on C, 2 workers, the cluster's start, first-job imports and close take 0.2 s instead of 0.7 s
 WORKER_CONFIG: dict[str, Any] = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
     "distributed.admin.system-monitor.interval": "2s",
+    **({"distributed.worker.multiprocessing-method": "fork"} if sys.platform.startswith("linux") else {}),
 }
 
 
 def local_cluster(workers: int, worker_config: dict[str, Any] | None = None) -> Any:
     """A ``dask.distributed`` LocalCluster of ``workers`` processes, one thread each, no memory limit, no
-    dashboard, with ``worker_config`` (default :data:`WORKER_CONFIG`; ``{}``: Dask's own settings). With
-    2 workers and 12 replays: 1.43–1.67x the serial throughput with Dask's settings, 1.73–1.76x with these
-    (docs/datasets.md; ``ins-hil replay --batch … --compare-serial --compare-dask-defaults``). A given
-    scheduler keeps its own settings."""
+    dashboard, with ``worker_config`` (default :data:`WORKER_CONFIG`; ``{}``: Dask's own settings, spawned
+    workers). With 2 workers and 12 replays: 1.43–1.67x the serial throughput with Dask's settings, 1.73–1.76x
+    with these (docs/datasets.md; ``ins-hil replay --batch … --compare-serial --compare-dask-defaults``). A
+    given scheduler keeps its own settings."""
     import dask
     from dask.distributed import LocalCluster
 
@@ -371,7 +388,7 @@ def run_batch(
     ``tcp://host:8786``); else a LocalCluster of ``workers`` processes (one thread each, no memory limit,
     ``worker_config`` as :func:`local_cluster`);
     ``workers = 0``: serial here. Either way the jobs start in :func:`order`; on Dask at most one job per
-    worker thread is in flight, so a freed worker takes the next longest one. ``on_done(row, k, n)`` after
+    worker thread is in flight, and a freed worker takes the next by :func:`pick`. ``on_done(row, k, n)`` after
     each job (k done of n)."""
     t0 = time.perf_counter()
     rows: dict[int, dict[str, Any]] = {}
@@ -388,21 +405,33 @@ def run_batch(
     client = Client(scheduler if scheduler is not None else cluster)
     try:
         client.run(warm_up)  # the imports on every worker at once, before the first job
-        slots = max(1, sum(client.nthreads().values()))
         todo = list(seq)
-        futs: dict[Any, int] = {}
+        futs: dict[Any, tuple[int, str | None]] = {}
+        held: dict[str | None, list[Hashable]] = {}  # each worker's parsed logs, as its cache holds them
+        started: set[Hashable] = set()
 
-        def submit() -> Any:
-            i = todo.pop(0)
-            f = client.submit(run_job, js[i], pure=False, priority=len(todo) + 1)  # the first: the highest
-            futs[f] = i
+        def key(i: int) -> Hashable:
+            return js[i].source, js[i].config
+
+        def submit(addr: str | None) -> Any:
+            mine = held.setdefault(addr, [])
+            i = todo.pop(pick([key(t) for t in todo], mine, started))
+            started.add(key(i))
+            if key(i) in mine:
+                mine.remove(key(i))
+            mine[:] = [*mine, key(i)][-CACHE_SIZE:]
+            # on that worker (where its log may be parsed); elsewhere if it is gone
+            f = client.submit(run_job, js[i], pure=False, workers=[addr] if addr else None, allow_other_workers=True)
+            futs[f] = i, addr
             return f
 
-        ac = as_completed([submit() for _ in range(min(slots, len(todo)))])
+        first: list[str | None] = [a for a, n in sorted(client.nthreads().items()) for _ in range(max(1, n))]
+        first = first or [None]  # no worker yet (a scheduler's): the first that joins
+        ac = as_completed([submit(a) for a in first[: len(todo)]])
         for f in ac:
-            i = futs.pop(f)
+            i, addr = futs.pop(f)
             if todo:
-                ac.add(submit())
+                ac.add(submit(addr))
             try:
                 rows[i] = f.result()
             except Exception as e:  # the worker died (not a failing log: run_job never raises)
