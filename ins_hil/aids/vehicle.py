@@ -115,16 +115,13 @@ class VehicleAids(Aid):
         averaged over 1/``long_accel_rate`` s, is fused as 0 with the variance σ² + s²/(n − 1) (σ =
         ``long_accel_std``; s²: the window's variance of a_x over its n samples, the vibration left in the mean)."""
         c = self.cfg.aids
-        q0, q1, q2, q3 = (float(x) for x in ins.state.q_nb)
-        down_b = (
-            2.0 * (q1 * q3 - q0 * q2),
-            2.0 * (q2 * q3 + q0 * q1),
-            q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3,
-        )  # Ĉ^T e_D
+        C = dcm_from_quat(ins.state.q_nb)
+        down_b = C[2].tolist()  # Ĉ^T e_D
         a_b = [float(f_b[i]) + g_local * down_b[i] for i in range(3)]
-        if self.mounted:
-            r0 = dcm_from_quat(q_mount)[0]
-            ax = float(r0[0]) * a_b[0] + float(r0[1]) * a_b[1] + float(r0[2]) * a_b[2]
+        R = dcm_from_quat(q_mount) if self.mounted else None
+        if R is not None:
+            r0 = R[0].tolist()
+            ax = r0[0] * a_b[0] + r0[1] * a_b[1] + r0[2] * a_b[2]
         else:
             ax = a_b[0]
         t_next, sx, sxx, n = self.la
@@ -137,8 +134,7 @@ class VehicleAids(Aid):
             return ()
         mean = sx / n
         var = max(sxx / n - mean * mean, 0.0) / (n - 1.0)  # the mean's variance (samples independent)
-        R = dcm_from_quat(q_mount) if self.mounted else np.eye(3)
-        z, H = self.long_accel(self.idx, dcm_from_quat(ins.state.q_nb), R, mean, g_local)
+        z, H = self.long_accel(self.idx, C, R if R is not None else np.eye(3), mean, g_local)
         return (Measurement("long_accel", z, H, np.array((c.long_accel_std**2 + var,)), c.gate),)
 
     def _ground(

@@ -54,9 +54,7 @@ class ReferenceScore(Observer):
         nav = navigating(pipe)
         while k < len(t) and t[k] <= st.t:
             if nav:
-                p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *self.origin)
-                ours = p + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t[k] - st.t)
-                self.rows.append((float(t[k]), ours - self.ref[k], np.asarray(st.std_pos)))
+                self._row(k, st)
             k += 1
         self._k = k
 
@@ -73,12 +71,17 @@ class ReferenceScore(Observer):
         while k < len(t) and t[k] <= ts[-1]:  # each reference point at the first state at or after its time
             i = bisect.bisect_left(ts, t[k], i)
             if nav:
-                st = states[i]
-                p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *self.origin)
-                ours = p + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t[k] - st.t)
-                self.rows.append((float(t[k]), ours - self.ref[k], np.asarray(st.std_pos)))
+                self._row(k, states[i])
             k += 1
         self._k = k
+
+    def _row(self, k: int, st: NavState) -> None:
+        """Reference point ``k`` scored against ``st`` (the first state at or after its time), the lever arm turned
+        with our attitude and our position carried to the point's time with our velocity."""
+        t = float(self.t[k])
+        p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *self.origin)
+        ours = p + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t - st.t)
+        self.rows.append((t, ours - self.ref[k], np.asarray(st.std_pos)))
 
 
 def outage_scores(sc: ReferenceScore, t_nav: float) -> dict[str, Any] | None:

@@ -9,6 +9,7 @@ are the same relations re-expressed in NED (north, east, down).
 from __future__ import annotations
 
 import math
+from typing import Any, cast
 
 import numpy as np
 
@@ -137,9 +138,16 @@ def geodetic_rates(lat: float, h: float, v_ned: Vec) -> tuple[float, float, floa
 
 def ecef_xyz(lat: float, lon: float, h: float) -> tuple[float, float, float]:
     """ECEF position (m) of a geodetic point as Python floats (no array: the per-message MAVLink path)."""
-    _, n = radii(lat)
-    cl, sl = math.cos(lat), math.sin(lat)
-    return (n + h) * cl * math.cos(lon), (n + h) * cl * math.sin(lon), (n * (1.0 - E2_WGS84) + h) * sl
+    return cast(tuple[float, float, float], _ecef(lat, lon, h, math))
+
+
+def _ecef(lat: Any, lon: Any, h: Any, m: Any) -> tuple[Any, Any, Any]:
+    """ECEF x, y, z (m) of geodetic points (rad, rad, m) with the functions of ``m``: ``math`` for floats,
+    ``numpy`` for arrays (element-wise the same operations; N as in :func:`radii`)."""
+    sl = m.sin(lat)
+    n = A_WGS84 / m.sqrt(1.0 - E2_WGS84 * sl * sl)
+    ncl = (n + h) * m.cos(lat)
+    return ncl * m.cos(lon), ncl * m.sin(lon), (n * (1.0 - E2_WGS84) + h) * sl
 
 
 def geodetic_to_ecef(lat: float, lon: float, h: float) -> Vec:
@@ -186,12 +194,7 @@ def ned_from_geodetic_many(llh: Vec, lat0: float, lon0: float, h0: float) -> Vec
     llh = np.asarray(llh, dtype=np.float64).reshape(-1, 3)
     if not len(llh):
         return np.zeros((0, 3))
-    # ecef_xyz's operations element-wise, in its order (numpy's sin/cos/sqrt are libm's on the hosts measured)
-    lat, lon, h = llh[:, 0], llh[:, 1], llh[:, 2]
-    sl = np.sin(lat)
-    n = A_WGS84 / np.sqrt(1.0 - E2_WGS84 * sl * sl)
-    ncl = (n + h) * np.cos(lat)
-    xyz = np.column_stack([ncl * np.cos(lon), ncl * np.sin(lon), (n * (1.0 - E2_WGS84) + h) * sl])
+    xyz = np.column_stack(_ecef(llh[:, 0], llh[:, 1], llh[:, 2], np))  # ecef_xyz element-wise
     d = xyz - np.array(ecef_xyz(lat0, lon0, h0))
     c = dcm_ecef_to_ned(lat0, lon0)
     x, y, z = d[:, 0], d[:, 1], d[:, 2]

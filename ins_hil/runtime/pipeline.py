@@ -307,12 +307,19 @@ def state_ok(st: NavState) -> bool:
         a0, a1, a2 = st.std_att.tolist()
     except (AttributeError, TypeError, ValueError):
         return False
-    lat, h = st.lat, st.h
+    return _plausible(q0, q1, q2, q3, v0, v1, v2, st.lat, st.lon, st.h, p0, p1, p2, u0, u1, u2, a0, a1, a2)
+
+
+def _plausible(q0: float, q1: float, q2: float, q3: float, v0: float, v1: float, v2: float, lat: float, lon: float,
+               h: float, p0: float, p1: float, p2: float, u0: float, u1: float, u2: float, a0: float, a1: float,
+               a2: float) -> bool:  # fmt: skip
+    """The core guard's comparisons on one state's numbers (q_nb, v NED m/s, lat/lon rad, h m, then the nine σ of
+    position, velocity, attitude), in Python floats: NaN fails each of them."""
     return bool(
         abs(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3 - 1.0) < QNORM_TOL
         and v0 * v0 + v1 * v1 + v2 * v2 < STATE_SPEED_MAX * STATE_SPEED_MAX
         and -1.5707963267948966 <= lat <= 1.5707963267948966
-        and -1e3 < st.lon < 1e3
+        and -1e3 < lon < 1e3
         and STATE_H_MIN < h < STATE_H_MAX
         and 0.0 <= p0 < _INF and 0.0 <= p1 < _INF and 0.0 <= p2 < _INF
         and 0.0 <= u0 < _INF and 0.0 <= u1 < _INF and 0.0 <= u2 < _INF
@@ -348,21 +355,7 @@ def guard_rows(rows: np.ndarray) -> list[bool]:
     a longer one in numpy; the same result."""
     if len(rows) > GUARD_ROWS_SCALAR:
         return cast(list[bool], states_ok(rows).tolist())
-    out = []
-    for r in rows[:, :26].tolist():
-        _, q0, q1, q2, q3, v0, v1, v2, lat, lon, h = r[:11]
-        p0, p1, p2, u0, u1, u2, a0, a1, a2 = r[17:26]
-        out.append(
-            abs(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3 - 1.0) < QNORM_TOL
-            and v0 * v0 + v1 * v1 + v2 * v2 < STATE_SPEED_MAX * STATE_SPEED_MAX
-            and -1.5707963267948966 <= lat <= 1.5707963267948966
-            and -1e3 < lon < 1e3
-            and STATE_H_MIN < h < STATE_H_MAX
-            and 0.0 <= p0 < _INF and 0.0 <= p1 < _INF and 0.0 <= p2 < _INF
-            and 0.0 <= u0 < _INF and 0.0 <= u1 < _INF and 0.0 <= u2 < _INF
-            and 0.0 <= a0 < _INF and 0.0 <= a1 < _INF and 0.0 <= a2 < _INF
-        )  # fmt: skip
-    return out
+    return [_plausible(*r[1:11], *r[17:26]) for r in rows[:, :26].tolist()]
 
 
 class Pipeline:
@@ -564,13 +557,7 @@ class Pipeline:
             self._last_arrival = s.t_arrival_ns
             if not good[i]:  # as _epoch: the core restarts (its events since the last good state dropped)
                 self._core_fault(s.t, "core step: non-finite or implausible state", "state")
-                for r in run[i + 1 :]:  # validated already: straight to the epoch, as imu() would
-                    self.imu_t = r.t
-                    try:
-                        self._epoch([r])
-                    except Exception as e:
-                        self._count("pipeline_error")
-                        self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+                self._epochs_after_fault(run[i + 1 :])
                 return
             st.resets = resets
             self._good = st
@@ -619,13 +606,18 @@ class Pipeline:
         self._last_arrival = s.t_arrival_ns
         if bad < n:  # as _epoch: the core restarts (its events since the last good state dropped)
             self._core_fault(s.t, "core step: non-finite or implausible state", "state")
-            for r in run[bad + 1 :]:  # validated already: straight to the epoch, as imu() would
-                self.imu_t = r.t
-                try:
-                    self._epoch([r])
-                except Exception as e:
-                    self._count("pipeline_error")
-                    self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+            self._epochs_after_fault(run[bad + 1 :])
+
+    def _epochs_after_fault(self, rest: list[ImuSample]) -> None:
+        """The rest of a C run after a state the core guard failed (the core restarts, its events since the last
+        good state dropped): each sample, validated already, straight to the epoch as :meth:`imu` would."""
+        for r in rest:
+            self.imu_t = r.t
+            try:
+                self._epoch([r])
+            except Exception as e:
+                self._count("pipeline_error")
+                self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
 
     def _clock_restart(self, s: ImuSample) -> ImuSample | None:
         """A sample refused because its time did not increase: the IMU's clock may have restarted (a driver
