@@ -11,6 +11,8 @@ No command prints a traceback for a bad input: a :class:`~ins_hil.config.ConfigE
 cannot be read or decoded is one line on stderr and exit status 2; any other exception is one line
 plus "(run with --debug for the traceback)" and exit status 1. ``--debug`` (before or after the
 command name) or ``INS_HIL_DEBUG=1`` shows the traceback instead.
+
+OpenBLAS runs on one thread (``OPENBLAS_NUM_THREADS=1``) unless the environment sets it.
 """
 
 from __future__ import annotations
@@ -26,6 +28,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
+
+# One BLAS thread unless the user says otherwise: the core's matrices are at most 21 x 21 (below OpenBLAS's
+# threading threshold), and its thread pool costs ~0.05 CPU s at numpy's import and competes with the gateway's
+# loop on a 2-core host. Set before any command imports numpy.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from ins_hil import __version__, commands
 
