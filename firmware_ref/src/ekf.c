@@ -12,8 +12,8 @@
  *   d(db)/dt  = -db / tau + w                      (seed 001 eqs. 87/88)
  * Phi = I + F dt + (F dt)^2 / 2 (book eq. 3.2), P = Phi P Phi^T + Q dt (book
  * eq. 3.19) with diagonal Q: VRW^2, ARW^2, 2 sigma_b^2 / tau.
- * Phi is never formed: Phi M = M + dt (F M) + dt^2/2 F (F M) with F applied by
- * its block sparsity (f_mul), so a predict costs ~4 sparse products.
+ * F and Phi are kept block-sparse (bmat_t: 3x3 blocks, zero / diagonal / dense), so a predict is one sparse
+ * product Phi P and the upper triangle of (Phi P) Phi^T.
  */
 #include "ins_internal.h"
 #include "generated/ins_jacobians.h"
@@ -209,63 +209,265 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->gate[INS_GRP_HOLD] = cfg->hold_gate;
 }
 
-/* F: the generated blocks (generated/ins_jacobians.h, from tools/derive_jacobians.py) and the bias rows */
+/* A block-sparse matrix of 3x3 blocks (the 5 or 7 state groups r, v, psi, bg, ba (, sg, sa)): each block zero,
+ * diagonal or dense (kind 0, 1, 2; a diagonal block keeps zeros off its diagonal), with the list of the non-zero
+ * blocks of each block row. F (from the generated blocks, generated/ins_jacobians.h) and Phi = I + F dt (+ F^2
+ * dt^2 / 2) are built in it, so the products below touch only the non-zero blocks. */
+enum { NB = INS_NX / 3, BR = 0, BV = 1, BA = 2, BG = 3, BB = 4, BS = 5, BT = 6 };
 typedef struct {
-    ins_real itg, ita, its;
-    ins_gen_fblocks_t b;
-    int nx;
-    ins_gen_fsf_t s; /* the scale-factor columns (generated: F[6:9][15:18], F[3:6][18:21]) */
-} fmat_t;
+    int nb;
+    unsigned char kind[NB][NB], nnz[NB], col[NB][NB];
+    ins_real b[NB][NB][3][3];
+} bmat_t;
 
-/* out = F in (F block-sparse: the structure derive_jacobians.py checks) */
-static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS_NX][INS_NX]) {
-    const ins_gen_fblocks_t *b = &f->b;
-    const int n = f->nx;
-    int i, j, k;
-    for (j = 0; j < n; ++j) {
-        for (i = 0; i < 3; ++i) {
-            ins_real sv = K(0.0), sa = K(0.0);
-            for (k = 0; k < 3; ++k) {
-                sv += b->vv[i][k] * in[IV + k][j] + b->va[i][k] * in[IA + k][j] + b->vba[i][k] * in[IB + k][j];
-                sa += b->aa[i][k] * in[IA + k][j] + b->abg[i][k] * in[IG + k][j];
-            }
-            if (i == 2) sv += b->vr_dd * in[IR + 2][j];
-            out[IR + i][j] = in[IV + i][j];
-            out[IV + i][j] = sv;
-            out[IA + i][j] = sa;
-            out[IG + i][j] = -f->itg * in[IG + i][j];
-            out[IB + i][j] = -f->ita * in[IB + i][j];
-        }
-        if (n == 21)
-            for (i = 0; i < 3; ++i) {
-                ins_real sv = K(0.0), sa = K(0.0);
-                for (k = 0; k < 3; ++k) {
-                    sv += f->s.vsa[i][k] * in[ISA + k][j];
-                    sa += f->s.asg[i][k] * in[ISG + k][j];
-                }
-                out[IV + i][j] += sv;
-                out[IA + i][j] += sa;
-                out[ISG + i][j] = -f->its * in[ISG + i][j];
-                out[ISA + i][j] = -f->its * in[ISA + i][j];
-            }
+static void bm_clear(bmat_t *m, int nb) {
+    int i, j;
+    m->nb = nb;
+    for (i = 0; i < nb; ++i) {
+        m->nnz[i] = 0;
+        for (j = 0; j < nb; ++j) m->kind[i][j] = 0;
     }
 }
 
-/* out = Phi in = in + dt F in (+ dt^2/2 F F in); tmp, tmp2 scratch */
-static void phi_mul(const fmat_t *f, ins_real dt, int second, ins_real in[INS_NX][INS_NX],
-                    ins_real out[INS_NX][INS_NX], ins_real tmp[INS_NX][INS_NX], ins_real tmp2[INS_NX][INS_NX]) {
-    const ins_real h2 = K(0.5) * dt * dt;
-    const int n = f->nx;
-    int i, j;
-    f_mul(f, in, tmp);
-    if (second) {
-        f_mul(f, tmp, tmp2);
-        for (i = 0; i < n; ++i)
-            for (j = 0; j < n; ++j) out[i][j] = in[i][j] + dt * tmp[i][j] + h2 * tmp2[i][j];
-    } else {
-        for (i = 0; i < n; ++i)
-            for (j = 0; j < n; ++j) out[i][j] = in[i][j] + dt * tmp[i][j];
+/* block (I, J), made at least of kind `kind` (a new block starts at zero) */
+static ins_real (*bm_at(bmat_t *m, int I, int J, int kind))[3] {
+    ins_real(*b)[3] = m->b[I][J];
+    if (m->kind[I][J] == 0) {
+        int i, j;
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < 3; ++j) b[i][j] = K(0.0);
+        m->col[I][m->nnz[I]++] = (unsigned char)J;
     }
+    if (m->kind[I][J] < kind) m->kind[I][J] = (unsigned char)kind;
+    return b;
+}
+
+static void bm_diag(bmat_t *m, int I, int J, ins_real d0, ins_real d1, ins_real d2) {
+    ins_real(*b)[3] = bm_at(m, I, J, 1);
+    b[0][0] = d0;
+    b[1][1] = d1;
+    b[2][2] = d2;
+}
+
+static void bm_dense(bmat_t *m, int I, int J, const ins_real s[3][3]) {
+    ins_real(*b)[3] = bm_at(m, I, J, 2);
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) b[i][j] = s[i][j];
+}
+
+/* o += a b (3x3; a of kind ka, row stride sa; b dense, row stride sb) */
+static void mac_ab(ins_real o[3][3], const ins_real *a, int sa, int ka, const ins_real *b, int sb) {
+    int i, j;
+    if (ka == 1) {
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < 3; ++j) o[i][j] += a[i * sa + i] * b[i * sb + j];
+    } else {
+        for (i = 0; i < 3; ++i)
+            for (j = 0; j < 3; ++j)
+                o[i][j] += a[i * sa] * b[j] + a[i * sa + 1] * b[sb + j] + a[i * sa + 2] * b[2 * sb + j];
+    }
+}
+
+/* F from the generated blocks (the structure derive_jacobians.py checks: F[0:3][3:6] = I, F[5][2], the velocity
+ * and attitude blocks, -1/tau on the diagonal of the bias / scale-factor rows) */
+static void build_f(bmat_t *f, int nb, const ins_gen_fblocks_t *g, const ins_gen_fsf_t *s, ins_real itg, ins_real ita,
+                    ins_real its) {
+    bm_clear(f, nb);
+    bm_diag(f, BR, BV, K(1.0), K(1.0), K(1.0));
+    bm_diag(f, BV, BR, K(0.0), K(0.0), g->vr_dd);
+    bm_dense(f, BV, BV, g->vv);
+    bm_dense(f, BV, BA, g->va);
+    bm_dense(f, BV, BB, g->vba);
+    bm_dense(f, BA, BA, g->aa);
+    bm_dense(f, BA, BG, g->abg);
+    bm_diag(f, BG, BG, -itg, -itg, -itg);
+    bm_diag(f, BB, BB, -ita, -ita, -ita);
+    if (nb == NB) {
+        bm_dense(f, BV, BT, s->vsa);
+        bm_dense(f, BA, BS, s->asg);
+        bm_diag(f, BS, BS, -its, -its, -its);
+        bm_diag(f, BT, BT, -its, -its, -its);
+    }
+}
+
+/* The blocks of Phi the products below read (the pattern of I + F dt + F^2 dt^2 / 2 for the F of build_f; absent
+ * ones are zero): diagonal on the block diagonal, dense elsewhere */
+static void phi_pattern(bmat_t *phi, int nb) {
+    static const unsigned char rows[NB][NB] = {{BR, BV, BA, BB, BT, NB, NB}, {BR, BV, BA, BG, BB, BS, BT},
+                                               {BA, BG, BS, NB, NB, NB, NB}, {BG, NB, NB, NB, NB, NB, NB},
+                                               {BB, NB, NB, NB, NB, NB, NB}, {BS, NB, NB, NB, NB, NB, NB},
+                                               {BT, NB, NB, NB, NB, NB, NB}};
+    int X, k;
+    for (X = 0; X < nb; ++X)
+        for (k = 0; k < NB && rows[X][k] < NB; ++k)
+            if (rows[X][k] < nb) bm_at(phi, X, rows[X][k], rows[X][k] == X ? 1 : 2);
+}
+
+/* phi = I + dt F (+ dt^2 / 2 F F if second) */
+static void build_phi(bmat_t *phi, const bmat_t *f, ins_real dt, int second) {
+    const int nb = f->nb;
+    const ins_real h2 = K(0.5) * dt * dt;
+    int I, k, l, i, j;
+    bm_clear(phi, nb);
+    phi_pattern(phi, nb);
+    for (I = 0; I < nb; ++I) {
+        if (second) /* the block row I of F F, over the non-zero blocks */
+            for (k = 0; k < f->nnz[I]; ++k) {
+                const int Kb = f->col[I][k], ka = f->kind[I][Kb];
+                for (l = 0; l < f->nnz[Kb]; ++l) {
+                    const int Jb = f->col[Kb][l], kb = f->kind[Kb][Jb];
+                    ins_real(*o)[3] = bm_at(phi, I, Jb, ka == 1 && kb == 1 ? 1 : 2);
+                    if (kb == 1) {
+                        const ins_real(*b)[3] = f->b[Kb][Jb];
+                        if (ka == 1) {
+                            for (i = 0; i < 3; ++i) o[i][i] += f->b[I][Kb][i][i] * b[i][i];
+                        } else {
+                            for (i = 0; i < 3; ++i)
+                                for (j = 0; j < 3; ++j) o[i][j] += f->b[I][Kb][i][j] * b[j][j];
+                        }
+                    } else {
+                        mac_ab(o, &f->b[I][Kb][0][0], 3, ka, &f->b[Kb][Jb][0][0], 3);
+                    }
+                }
+            }
+        for (l = 0; l < phi->nnz[I]; ++l) { /* h2 F F + dt F */
+            const int Jb = phi->col[I][l];
+            ins_real(*o)[3] = phi->b[I][Jb];
+            for (i = 0; i < 3; ++i)
+                for (j = 0; j < 3; ++j) o[i][j] *= h2;
+        }
+        for (k = 0; k < f->nnz[I]; ++k) {
+            const int Jb = f->col[I][k];
+            const ins_real(*a)[3] = f->b[I][Jb];
+            ins_real(*o)[3] = bm_at(phi, I, Jb, f->kind[I][Jb]);
+            for (i = 0; i < 3; ++i)
+                for (j = 0; j < 3; ++j) o[i][j] += dt * a[i][j];
+        }
+        {
+            ins_real(*o)[3] = bm_at(phi, I, I, 1);
+            for (i = 0; i < 3; ++i) o[i][i] += K(1.0);
+        }
+    }
+}
+
+/* 3x3 kernels on a local block o (row-major 9) and blocks of P / A (row stride INS_NX) or of Phi (3x3) */
+static inline void k_zero(ins_real o[9]) {
+    int i;
+    for (i = 0; i < 9; ++i) o[i] = K(0.0);
+}
+/* o += f p */
+static inline void k_mac(ins_real o[9], const ins_real f[3][3], const ins_real *p) {
+    const ins_real *p0 = p, *p1 = p + INS_NX, *p2 = p + 2 * INS_NX;
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) o[3 * i + j] += f[i][0] * p0[j] + f[i][1] * p1[j] + f[i][2] * p2[j];
+}
+/* o += diag(f) p */
+static inline void k_macd(ins_real o[9], const ins_real f[3][3], const ins_real *p) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) o[3 * i + j] += f[i][i] * p[i * INS_NX + j];
+}
+/* o += a f^T */
+static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j)
+            o[3 * i + j] += a[i * INS_NX] * f[j][0] + a[i * INS_NX + 1] * f[j][1] + a[i * INS_NX + 2] * f[j][2];
+}
+/* o += a diag(f) */
+static inline void k_mactd(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + j] * f[j][j];
+}
+static inline void k_put(ins_real *a, const ins_real o[9]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) a[i * INS_NX + j] = o[3 * i + j];
+}
+
+#define PB(W, Z) (&p[3 * (W)][3 * (Z)])
+#define AB(X, Z) (&a[3 * (X)][3 * (Z)])
+#define PHI(X, W) ((const ins_real(*)[3])phi->b[X][W])
+
+/* P <- Phi P Phi^T on the 3x3 blocks of the pattern of phi_pattern: A = Phi P (the blocks A[X][Z] the upper
+ * triangle of the result reads: Z in the pattern of a block row Y >= X), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
+ * for X <= Y, mirrored into the lower triangle. */
+static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
+    ins_real a[INS_NX][INS_NX], o[9];
+    const int nb = phi->nb, sf = nb == NB;
+    int X, Y, Z, i, j;
+    for (Z = 0; Z < nb; ++Z) {
+        k_zero(o); /* rows r */
+        k_macd(o, PHI(BR, BR), PB(BR, Z));
+        k_mac(o, PHI(BR, BV), PB(BV, Z));
+        k_mac(o, PHI(BR, BA), PB(BA, Z));
+        k_mac(o, PHI(BR, BB), PB(BB, Z));
+        if (sf) k_mac(o, PHI(BR, BT), PB(BT, Z));
+        k_put(AB(BR, Z), o);
+        k_zero(o); /* rows v */
+        k_mac(o, PHI(BV, BR), PB(BR, Z));
+        k_mac(o, PHI(BV, BV), PB(BV, Z));
+        k_mac(o, PHI(BV, BA), PB(BA, Z));
+        k_mac(o, PHI(BV, BG), PB(BG, Z));
+        k_mac(o, PHI(BV, BB), PB(BB, Z));
+        if (sf) {
+            k_mac(o, PHI(BV, BS), PB(BS, Z));
+            k_mac(o, PHI(BV, BT), PB(BT, Z));
+        }
+        k_put(AB(BV, Z), o);
+        if (Z < BA || Z == BB || Z == BT) continue;
+        k_zero(o); /* rows psi: the columns psi, bg, ba (, sg, sa) */
+        k_mac(o, PHI(BA, BA), PB(BA, Z));
+        k_mac(o, PHI(BA, BG), PB(BG, Z));
+        if (sf) k_mac(o, PHI(BA, BS), PB(BS, Z));
+        k_put(AB(BA, Z), o);
+    }
+    for (Z = BB; Z < nb; Z += Z == BB ? 2 : 1) { /* rows psi: the columns ba, sa */
+        if (Z == BS) continue;
+        k_zero(o);
+        k_mac(o, PHI(BA, BA), PB(BA, Z));
+        k_mac(o, PHI(BA, BG), PB(BG, Z));
+        if (sf) k_mac(o, PHI(BA, BS), PB(BS, Z));
+        k_put(AB(BA, Z), o);
+    }
+    for (X = BG; X < nb; ++X) /* the diagonal block rows: columns Z >= X */
+        for (Z = X; Z < nb; ++Z) {
+            k_zero(o);
+            k_macd(o, PHI(X, X), PB(X, Z));
+            k_put(AB(X, Z), o);
+        }
+    for (Y = 0; Y < nb; ++Y)
+        for (X = 0; X <= Y; ++X) {
+            k_zero(o);
+            if (Y == BR) {
+                k_mactd(o, AB(X, BR), PHI(BR, BR));
+                k_mact(o, AB(X, BV), PHI(BR, BV));
+                k_mact(o, AB(X, BA), PHI(BR, BA));
+                k_mact(o, AB(X, BB), PHI(BR, BB));
+                if (sf) k_mact(o, AB(X, BT), PHI(BR, BT));
+            } else if (Y == BV) {
+                k_mact(o, AB(X, BR), PHI(BV, BR));
+                k_mact(o, AB(X, BV), PHI(BV, BV));
+                k_mact(o, AB(X, BA), PHI(BV, BA));
+                k_mact(o, AB(X, BG), PHI(BV, BG));
+                k_mact(o, AB(X, BB), PHI(BV, BB));
+                if (sf) {
+                    k_mact(o, AB(X, BS), PHI(BV, BS));
+                    k_mact(o, AB(X, BT), PHI(BV, BT));
+                }
+            } else if (Y == BA) {
+                k_mact(o, AB(X, BA), PHI(BA, BA));
+                k_mact(o, AB(X, BG), PHI(BA, BG));
+                if (sf) k_mact(o, AB(X, BS), PHI(BA, BS));
+            } else {
+                k_mactd(o, AB(X, Y), PHI(Y, Y));
+            }
+            for (i = 0; i < 3; ++i)
+                for (j = X < Y ? 0 : i; j < 3; ++j) p[3 * X + i][3 * Y + j] = p[3 * Y + j][3 * X + i] = o[3 * i + j];
+        }
 }
 
 /* The vibration noise of one step (FilterConfig.gyro_vib_gain / accel_vib_gain, ErrorStateEKF._vibration_noise):
@@ -308,25 +510,18 @@ void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) { ins_ekf_predict_full(e
  * (NED) and, for the scale-factor columns, the body rate wb and specific force fb */
 static void propagate(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], const ins_real fn[3], ins_real dt,
                       const ins_real qd[INS_NX], ins_real qv[2][3][3], const ins_real wb[3], const ins_real fb[3]) {
-    fmat_t f;
-    ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX];
+    ins_gen_fblocks_t g;
+    ins_gen_fsf_t sf;
+    bmat_t f, phi;
     const int n = e->nx;
     int i, j;
-    f.itg = e->inv_tau_g;
-    f.ita = e->inv_tau_a;
-    f.its = e->inv_tau_s;
-    f.nx = n;
-    if (n == 21) ins_gen_F_sf(c9, fb, wb, &f.s);
+    if (n == 21) ins_gen_F_sf(c9, fb, wb, &sf);
     /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
-    ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &f.b);
-    phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
-    for (i = 0; i < n; ++i)
-        for (j = 0; j < n; ++j) b[i][j] = a[j][i];
-    phi_mul(&f, dt, e->second_order, b, a, t1, t2); /* Phi (Phi P)^T = Phi P Phi^T */
-    for (i = 0; i < n; ++i) {
-        for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (a[i][j] + a[j][i]);
-        e->P[i][i] = a[i][i] + qd[i];
-    }
+    ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &g);
+    build_f(&f, n / 3, &g, &sf, e->inv_tau_g, e->inv_tau_a, e->inv_tau_s);
+    build_phi(&phi, &f, dt, e->second_order);
+    phi_p_phit(&phi, e->P);
+    for (i = 0; i < n; ++i) e->P[i][i] += qd[i];
     if (qv != NULL)
         for (i = 0; i < 3; ++i)
             for (j = 0; j < 3; ++j) {
@@ -406,18 +601,26 @@ void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, i
     /* Joseph form (book eqs. 3.16-3.18) for one scalar, as in ErrorStateEKF.update:
      *   k = P h / (h^T P h + r); x += k (z - h^T x); P = (I - k h^T) P (I - k h^T)^T + r k k^T,
      * evaluated as two rank-1 products: A = P - k (h^T P), P = A - (A h) k^T + r k k^T. */
-    ins_real u[INS_NX], k[INS_NX], hp[INS_NX], ah[INS_NX];
+    ins_real u[INS_NX], k[INS_NX], hp[INS_NX], ah[INS_NX], hv[INS_NX];
     ins_real s = K(0.0), hx = K(0.0), innov;
     const int n = e->nx;
-    int i, j;
+    int i, j, t, m = 0;
+    unsigned char nz[INS_NX];
+    /* the products with h over its non-zero entries only (a measurement row touches a few states): the sums of
+     * the full products less their exact zero terms, so the same numbers */
+    for (j = 0; j < n; ++j)
+        if (h[j] != K(0.0)) {
+            nz[m] = (unsigned char)j;
+            hv[m++] = h[j];
+        }
     for (i = 0; i < n; ++i) {
         ins_real acc = K(0.0);
-        for (j = 0; j < n; ++j) acc += e->P[i][j] * h[j];
+        for (t = 0; t < m; ++t) acc += e->P[i][nz[t]] * hv[t];
         u[i] = acc; /* P h */
     }
-    for (i = 0; i < n; ++i) {
-        s += h[i] * u[i];
-        hx += h[i] * e->x[i];
+    for (t = 0; t < m; ++t) {
+        s += hv[t] * u[nz[t]];
+        hx += hv[t] * e->x[nz[t]];
     }
     s += r;
     innov = z - hx;
@@ -427,14 +630,14 @@ void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, i
     }
     for (j = 0; j < n; ++j) {
         ins_real acc = K(0.0);
-        for (i = 0; i < n; ++i) acc += h[i] * e->P[i][j];
+        for (t = 0; t < m; ++t) acc += hv[t] * e->P[nz[t]][j];
         hp[j] = acc; /* h^T P */
     }
     for (i = 0; i < n; ++i)
         for (j = 0; j < n; ++j) e->P[i][j] -= k[i] * hp[j];
     for (i = 0; i < n; ++i) {
         ins_real acc = K(0.0);
-        for (j = 0; j < n; ++j) acc += e->P[i][j] * h[j];
+        for (t = 0; t < m; ++t) acc += e->P[i][nz[t]] * hv[t];
         ah[i] = acc; /* A h */
     }
     for (i = 0; i < n; ++i)
