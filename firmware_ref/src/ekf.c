@@ -242,57 +242,8 @@ static ins_real (*bm_at(bmat_t *m, int I, int J, int kind))[3] {
     return b;
 }
 
-static void bm_diag(bmat_t *m, int I, int J, ins_real d0, ins_real d1, ins_real d2) {
-    ins_real(*b)[3] = bm_at(m, I, J, 1);
-    b[0][0] = d0;
-    b[1][1] = d1;
-    b[2][2] = d2;
-}
-
-static void bm_dense(bmat_t *m, int I, int J, const ins_real s[3][3]) {
-    ins_real(*b)[3] = bm_at(m, I, J, 2);
-    int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) b[i][j] = s[i][j];
-}
-
-/* o += a b (3x3; a of kind ka, row stride sa; b dense, row stride sb) */
-static void mac_ab(ins_real o[3][3], const ins_real *a, int sa, int ka, const ins_real *b, int sb) {
-    int i, j;
-    if (ka == 1) {
-        for (i = 0; i < 3; ++i)
-            for (j = 0; j < 3; ++j) o[i][j] += a[i * sa + i] * b[i * sb + j];
-    } else {
-        for (i = 0; i < 3; ++i)
-            for (j = 0; j < 3; ++j)
-                o[i][j] += a[i * sa] * b[j] + a[i * sa + 1] * b[sb + j] + a[i * sa + 2] * b[2 * sb + j];
-    }
-}
-
-/* F from the generated blocks (the structure derive_jacobians.py checks: F[0:3][3:6] = I, F[5][2], the velocity
- * and attitude blocks, -1/tau on the diagonal of the bias / scale-factor rows) */
-static void build_f(bmat_t *f, int nb, const ins_gen_fblocks_t *g, const ins_gen_fsf_t *s, ins_real itg, ins_real ita,
-                    ins_real its) {
-    bm_clear(f, nb);
-    bm_diag(f, BR, BV, K(1.0), K(1.0), K(1.0));
-    bm_diag(f, BV, BR, K(0.0), K(0.0), g->vr_dd);
-    bm_dense(f, BV, BV, g->vv);
-    bm_dense(f, BV, BA, g->va);
-    bm_dense(f, BV, BB, g->vba);
-    bm_dense(f, BA, BA, g->aa);
-    bm_dense(f, BA, BG, g->abg);
-    bm_diag(f, BG, BG, -itg, -itg, -itg);
-    bm_diag(f, BB, BB, -ita, -ita, -ita);
-    if (nb == NB) {
-        bm_dense(f, BV, BT, s->vsa);
-        bm_dense(f, BA, BS, s->asg);
-        bm_diag(f, BS, BS, -its, -its, -its);
-        bm_diag(f, BT, BT, -its, -its, -its);
-    }
-}
-
-/* The blocks of Phi the products below read (the pattern of I + F dt + F^2 dt^2 / 2 for the F of build_f; absent
- * ones are zero): diagonal on the block diagonal, dense elsewhere */
+/* The blocks of Phi (the pattern of I + F dt + F^2 dt^2 / 2; those a first-order Phi lacks are zero): diagonal for
+ * r and the bias / scale-factor states on the block diagonal, dense elsewhere */
 static void phi_pattern(bmat_t *phi, int nb) {
     static const unsigned char rows[NB][NB] = {{BR, BV, BA, BB, BT, NB, NB}, {BR, BV, BA, BG, BB, BS, BT},
                                                {BA, BG, BS, NB, NB, NB, NB}, {BG, NB, NB, NB, NB, NB, NB},
@@ -301,73 +252,13 @@ static void phi_pattern(bmat_t *phi, int nb) {
     int X, k;
     for (X = 0; X < nb; ++X)
         for (k = 0; k < NB && rows[X][k] < NB; ++k)
-            if (rows[X][k] < nb) bm_at(phi, X, rows[X][k], rows[X][k] == X ? 1 : 2);
-}
-
-/* phi = I + dt F (+ dt^2 / 2 F F if second) */
-static void build_phi(bmat_t *phi, const bmat_t *f, ins_real dt, int second) {
-    const int nb = f->nb;
-    const ins_real h2 = K(0.5) * dt * dt;
-    int I, k, l, i, j;
-    bm_clear(phi, nb);
-    phi_pattern(phi, nb);
-    for (I = 0; I < nb; ++I) {
-        if (second) /* the block row I of F F, over the non-zero blocks */
-            for (k = 0; k < f->nnz[I]; ++k) {
-                const int Kb = f->col[I][k], ka = f->kind[I][Kb];
-                for (l = 0; l < f->nnz[Kb]; ++l) {
-                    const int Jb = f->col[Kb][l], kb = f->kind[Kb][Jb];
-                    ins_real(*o)[3] = bm_at(phi, I, Jb, ka == 1 && kb == 1 ? 1 : 2);
-                    if (kb == 1) {
-                        const ins_real(*b)[3] = f->b[Kb][Jb];
-                        if (ka == 1) {
-                            for (i = 0; i < 3; ++i) o[i][i] += f->b[I][Kb][i][i] * b[i][i];
-                        } else {
-                            for (i = 0; i < 3; ++i)
-                                for (j = 0; j < 3; ++j) o[i][j] += f->b[I][Kb][i][j] * b[j][j];
-                        }
-                    } else {
-                        mac_ab(o, &f->b[I][Kb][0][0], 3, ka, &f->b[Kb][Jb][0][0], 3);
-                    }
-                }
-            }
-        for (l = 0; l < phi->nnz[I]; ++l) { /* h2 F F + dt F */
-            const int Jb = phi->col[I][l];
-            ins_real(*o)[3] = phi->b[I][Jb];
-            for (i = 0; i < 3; ++i)
-                for (j = 0; j < 3; ++j) o[i][j] *= h2;
-        }
-        for (k = 0; k < f->nnz[I]; ++k) {
-            const int Jb = f->col[I][k];
-            const ins_real(*a)[3] = f->b[I][Jb];
-            ins_real(*o)[3] = bm_at(phi, I, Jb, f->kind[I][Jb]);
-            for (i = 0; i < 3; ++i)
-                for (j = 0; j < 3; ++j) o[i][j] += dt * a[i][j];
-        }
-        {
-            ins_real(*o)[3] = bm_at(phi, I, I, 1);
-            for (i = 0; i < 3; ++i) o[i][i] += K(1.0);
-        }
-    }
+            if (rows[X][k] < nb) bm_at(phi, X, rows[X][k], rows[X][k] == X && X != BV && X != BA ? 1 : 2);
 }
 
 /* 3x3 kernels on a local block o (row-major 9) and blocks of P / A (row stride INS_NX) or of Phi (3x3) */
 static inline void k_zero(ins_real o[9]) {
     int i;
     for (i = 0; i < 9; ++i) o[i] = K(0.0);
-}
-/* o += f p */
-static inline void k_mac(ins_real o[9], const ins_real f[3][3], const ins_real *p) {
-    const ins_real *p0 = p, *p1 = p + INS_NX, *p2 = p + 2 * INS_NX;
-    int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) o[3 * i + j] += f[i][0] * p0[j] + f[i][1] * p1[j] + f[i][2] * p2[j];
-}
-/* o += diag(f) p */
-static inline void k_macd(ins_real o[9], const ins_real f[3][3], const ins_real *p) {
-    int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) o[3 * i + j] += f[i][i] * p[i * INS_NX + j];
 }
 /* o += a f^T */
 static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
@@ -382,63 +273,128 @@ static inline void k_mactd(ins_real o[9], const ins_real *a, const ins_real f[3]
     for (i = 0; i < 3; ++i)
         for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + j] * f[j][j];
 }
-static inline void k_put(ins_real *a, const ins_real o[9]) {
-    int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) a[i * INS_NX + j] = o[3 * i + j];
-}
-
-#define PB(W, Z) (&p[3 * (W)][3 * (Z)])
 #define AB(X, Z) (&a[3 * (X)][3 * (Z)])
 #define PHI(X, W) ((const ins_real(*)[3])phi->b[X][W])
 
-/* P <- Phi P Phi^T on the 3x3 blocks of the pattern of phi_pattern: A = Phi P (the blocks A[X][Z] the upper
- * triangle of the result reads: Z in the pattern of a block row Y >= X), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
+#define CB(x) ((const ins_real(*)[3])(x))
+
+/* o = a b (3x3) */
+static void m3(const ins_real a[3][3], const ins_real b[3][3], ins_real o[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) o[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+}
+
+/* o = dt a + h2 (s - t c) (h2 = dt^2 / 2, or 0: first order), s = a2 b2 (if a2) */
+static void phi_blk(ins_real o[3][3], ins_real dt, ins_real h2, const ins_real a[3][3], const ins_real s[3][3],
+                    ins_real t, const ins_real c[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) {
+            ins_real q = K(0.0);
+            if (s != NULL) q += s[i][j];
+            if (c != NULL) q -= t * c[i][j];
+            o[i][j] = (a != NULL ? dt * a[i][j] : K(0.0)) + h2 * q;
+        }
+}
+
+/* Phi = I + F dt (+ F^2 dt^2 / 2) block by block from the generated blocks of F (build_f's structure: the F^2 blocks
+ * written out: row r of F^2 is row v of F; row v: F_vr F_r + F_vv F_v + F_vpsi F_psi + F_vba F_ba (+ F_vsa F_sa); row
+ * psi: F_psipsi F_psi + F_psibg F_bg (+ F_psisg F_sg); the bias / scale-factor rows diagonal) into phi's pattern */
+static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const ins_gen_fsf_t *sf, ins_real itg,
+                       ins_real ita, ins_real its, ins_real dt, int second) {
+    const ins_real h2 = second ? K(0.5) * dt * dt : K(0.0), d = g->vr_dd;
+    ins_real t[3][3], u[3][3];
+    ins_real(*o)[3];
+    int i;
+    bm_clear(phi, nb);
+    phi_pattern(phi, nb);
+    o = phi->b[BR][BR]; /* I + h2 D, D = F_vr = diag(0, 0, d) */
+    o[0][0] = o[1][1] = K(1.0);
+    o[2][2] = K(1.0) + h2 * d;
+    phi_blk(phi->b[BR][BV], dt, h2, NULL, g->vv, K(0.0), NULL);
+    for (i = 0; i < 3; ++i) phi->b[BR][BV][i][i] += dt;
+    phi_blk(phi->b[BR][BA], dt, h2, NULL, g->va, K(0.0), NULL);
+    phi_blk(phi->b[BR][BB], dt, h2, NULL, g->vba, K(0.0), NULL);
+    o = phi->b[BV][BR]; /* dt D + h2 F_vv D: column d only */
+    for (i = 0; i < 3; ++i) o[i][2] = h2 * (g->vv[i][2] * d);
+    o[2][2] += dt * d;
+    m3(g->vv, g->vv, t); /* vv: I + dt F_vv + h2 (D + F_vv F_vv) */
+    t[2][2] += d;
+    phi_blk(phi->b[BV][BV], dt, h2, g->vv, CB(t), K(0.0), NULL);
+    for (i = 0; i < 3; ++i) phi->b[BV][BV][i][i] += K(1.0);
+    m3(g->vv, g->va, t); /* v psi: dt F_vpsi + h2 (F_vv F_vpsi + F_vpsi F_psipsi) */
+    m3(g->va, g->aa, u);
+    for (i = 0; i < 9; ++i) t[i / 3][i % 3] += u[i / 3][i % 3];
+    phi_blk(phi->b[BV][BA], dt, h2, g->va, CB(t), K(0.0), NULL);
+    m3(g->va, g->abg, t); /* v bg: h2 F_vpsi F_psibg */
+    phi_blk(phi->b[BV][BG], dt, h2, NULL, CB(t), K(0.0), NULL);
+    m3(g->vv, g->vba, t); /* v ba: dt F_vba + h2 (F_vv F_vba - F_vba / tau_a) */
+    phi_blk(phi->b[BV][BB], dt, h2, g->vba, CB(t), ita, g->vba);
+    m3(g->aa, g->aa, t); /* psi psi: I + dt F_psipsi + h2 F_psipsi^2 */
+    phi_blk(phi->b[BA][BA], dt, h2, g->aa, CB(t), K(0.0), NULL);
+    for (i = 0; i < 3; ++i) phi->b[BA][BA][i][i] += K(1.0);
+    m3(g->aa, g->abg, t); /* psi bg: dt F_psibg + h2 (F_psipsi F_psibg - F_psibg / tau_g) */
+    phi_blk(phi->b[BA][BG], dt, h2, g->abg, CB(t), itg, g->abg);
+    for (i = 0; i < 3; ++i) {
+        phi->b[BG][BG][i][i] = K(1.0) - dt * itg + h2 * (itg * itg);
+        phi->b[BB][BB][i][i] = K(1.0) - dt * ita + h2 * (ita * ita);
+    }
+    if (nb == NB) {
+        phi_blk(phi->b[BR][BT], dt, h2, NULL, sf->vsa, K(0.0), NULL);
+        m3(g->va, sf->asg, t); /* v sg: h2 F_vpsi F_psisg */
+        phi_blk(phi->b[BV][BS], dt, h2, NULL, CB(t), K(0.0), NULL);
+        m3(g->vv, sf->vsa, t); /* v sa: dt F_vsa + h2 (F_vv F_vsa - F_vsa / tau_s) */
+        phi_blk(phi->b[BV][BT], dt, h2, sf->vsa, CB(t), its, sf->vsa);
+        m3(g->aa, sf->asg, t); /* psi sg: dt F_psisg + h2 (F_psipsi F_psisg - F_psisg / tau_s) */
+        phi_blk(phi->b[BA][BS], dt, h2, sf->asg, CB(t), its, sf->asg);
+        for (i = 0; i < 3; ++i)
+            phi->b[BS][BS][i][i] = phi->b[BT][BT][i][i] = K(1.0) - dt * its + h2 * (its * its);
+    }
+}
+
+/* a = phi p, block row X from column j0 (0 for r, v; 3 X after: the upper triangle of the result reads no
+ * more of it) on: the three rows at once, each a combination of the rows of p the
+ * non-zero blocks of the block row pick, over contiguous columns (vectorised); n a constant in each inlined copy */
+static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins_real a[INS_NX][INS_NX], const int n) {
+    int X, k, j;
+    for (X = 0; X < phi->nb; ++X) {
+        const int j0 = X <= BV ? 0 : 3 * X;
+        ins_real *o0 = a[3 * X], *o1 = a[3 * X + 1], *o2 = a[3 * X + 2];
+        for (j = j0; j < n; ++j) o0[j] = o1[j] = o2[j] = K(0.0);
+        for (k = 0; k < phi->nnz[X]; ++k) {
+            const int W = phi->col[X][k];
+            const ins_real(*b)[3] = phi->b[X][W];
+            const ins_real *x0 = p[3 * W], *x1 = p[3 * W + 1], *x2 = p[3 * W + 2];
+            if (phi->kind[X][W] == 1) {
+                const ins_real d0 = b[0][0], d1 = b[1][1], d2 = b[2][2];
+                for (j = j0; j < n; ++j) {
+                    o0[j] += d0 * x0[j];
+                    o1[j] += d1 * x1[j];
+                    o2[j] += d2 * x2[j];
+                }
+            } else {
+                const ins_real b00 = b[0][0], b01 = b[0][1], b02 = b[0][2], b10 = b[1][0], b11 = b[1][1];
+                const ins_real b12 = b[1][2], b20 = b[2][0], b21 = b[2][1], b22 = b[2][2];
+                for (j = j0; j < n; ++j) {
+                    const ins_real v0 = x0[j], v1 = x1[j], v2 = x2[j];
+                    o0[j] += b00 * v0 + b01 * v1 + b02 * v2;
+                    o1[j] += b10 * v0 + b11 * v1 + b12 * v2;
+                    o2[j] += b20 * v0 + b21 * v1 + b22 * v2;
+                }
+            }
+        }
+    }
+}
+
+/* P <- Phi P Phi^T on the 3x3 blocks of the pattern of phi_pattern: A = Phi P (phi_p_rows), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
  * for X <= Y, mirrored into the lower triangle. */
 static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
     ins_real a[INS_NX][INS_NX], o[9];
     const int nb = phi->nb, sf = nb == NB;
-    int X, Y, Z, i, j;
-    for (Z = 0; Z < nb; ++Z) {
-        k_zero(o); /* rows r */
-        k_macd(o, PHI(BR, BR), PB(BR, Z));
-        k_mac(o, PHI(BR, BV), PB(BV, Z));
-        k_mac(o, PHI(BR, BA), PB(BA, Z));
-        k_mac(o, PHI(BR, BB), PB(BB, Z));
-        if (sf) k_mac(o, PHI(BR, BT), PB(BT, Z));
-        k_put(AB(BR, Z), o);
-        k_zero(o); /* rows v */
-        k_mac(o, PHI(BV, BR), PB(BR, Z));
-        k_mac(o, PHI(BV, BV), PB(BV, Z));
-        k_mac(o, PHI(BV, BA), PB(BA, Z));
-        k_mac(o, PHI(BV, BG), PB(BG, Z));
-        k_mac(o, PHI(BV, BB), PB(BB, Z));
-        if (sf) {
-            k_mac(o, PHI(BV, BS), PB(BS, Z));
-            k_mac(o, PHI(BV, BT), PB(BT, Z));
-        }
-        k_put(AB(BV, Z), o);
-        if (Z < BA || Z == BB || Z == BT) continue;
-        k_zero(o); /* rows psi: the columns psi, bg, ba (, sg, sa) */
-        k_mac(o, PHI(BA, BA), PB(BA, Z));
-        k_mac(o, PHI(BA, BG), PB(BG, Z));
-        if (sf) k_mac(o, PHI(BA, BS), PB(BS, Z));
-        k_put(AB(BA, Z), o);
-    }
-    for (Z = BB; Z < nb; Z += Z == BB ? 2 : 1) { /* rows psi: the columns ba, sa */
-        if (Z == BS) continue;
-        k_zero(o);
-        k_mac(o, PHI(BA, BA), PB(BA, Z));
-        k_mac(o, PHI(BA, BG), PB(BG, Z));
-        if (sf) k_mac(o, PHI(BA, BS), PB(BS, Z));
-        k_put(AB(BA, Z), o);
-    }
-    for (X = BG; X < nb; ++X) /* the diagonal block rows: columns Z >= X */
-        for (Z = X; Z < nb; ++Z) {
-            k_zero(o);
-            k_macd(o, PHI(X, X), PB(X, Z));
-            k_put(AB(X, Z), o);
-        }
+    int X, Y, i, j;
+    if (sf) phi_p_rows(phi, p, a, INS_NX);
+    else phi_p_rows(phi, p, a, 15);
     for (Y = 0; Y < nb; ++Y)
         for (X = 0; X <= Y; ++X) {
             k_zero(o);
@@ -512,14 +468,13 @@ static void propagate(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], c
                       const ins_real qd[INS_NX], ins_real qv[2][3][3], const ins_real wb[3], const ins_real fb[3]) {
     ins_gen_fblocks_t g;
     ins_gen_fsf_t sf;
-    bmat_t f, phi;
+    bmat_t phi;
     const int n = e->nx;
     int i, j;
     if (n == 21) ins_gen_F_sf(c9, fb, wb, &sf);
     /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
     ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &g);
-    build_f(&f, n / 3, &g, &sf, e->inv_tau_g, e->inv_tau_a, e->inv_tau_s);
-    build_phi(&phi, &f, dt, e->second_order);
+    phi_blocks(&phi, n / 3, &g, &sf, e->inv_tau_g, e->inv_tau_a, e->inv_tau_s, dt, e->second_order);
     phi_p_phit(&phi, e->P);
     for (i = 0; i < n; ++i) e->P[i][i] += qd[i];
     if (qv != NULL)

@@ -382,6 +382,51 @@ static void test_delayed(void) {
     CHECK(hist.too_old == 1, "too old: fused now");
 }
 
+/* the ring of snapshots grows while wrapped: 0.5 s of history at 50 Hz (the first ring size holds it and wraps),
+ * then at 200 Hz (grown twice); baro altitudes 0.3 s late through it equal the same altitudes fused at their steps */
+static void test_delayed_growth(void) {
+    ins_ekf_cfg_t cfg;
+    ins_core_t a, b;
+    const ins_real q[4] = {1, 0, 0, 0}, v[3] = {(ins_real)2.0, 0, 0};
+    ins_real dth[3] = {(ins_real)1e-4, (ins_real)-2e-4, (ins_real)3e-4}, dv[3] = {(ins_real)0.01, 0, 0};
+    double t_m[40], t = 0.0;
+    int k, i, n = 0, late = 0, k_m[40];
+    uint32_t cap0;
+    ins_ekf_default_cfg(&cfg);
+    cfg.gyro_vib_gain = (ins_real)0.4;
+    ins_core_init(&a, q, v, 0.8, 0.5, 100.0, 0.0, (ins_real)0.02, &cfg, 1);
+    b = a;
+    ins_hist_init(&hist, 0.5);
+    cap0 = hist.snap_cap;
+    for (k = 0; k < 700; ++k) {
+        const ins_real dt = (ins_real)(k < 100 ? 0.02 : 0.005);
+        t += (double)dt;
+        dth[0] = (ins_real)(1e-4 * sin(0.1 * k));
+        dv[2] = -(ins_real)9.80665 * dt;
+        ins_hist_step(&hist, &a, dth, dv, t, dt);
+        ins_core_step_dt(&b, dth, dv, t, dt);
+        if (k >= 100 && k % 9 == 3 && k + 60 < 700 && n < 40) { /* fused at its step here, 60 steps late there */
+            k_m[n] = k;
+            t_m[n++] = t;
+            CHECK(ins_core_fuse_baro(&b, t, -3.0 + 0.1 * n) == 1, "baro at its step");
+        }
+        if (late < n && k == k_m[late] + 60) {
+            CHECK(ins_hist_fuse_baro(&hist, &a, t_m[late], -3.0 + 0.1 * (late + 1)) == 1, "late baro rolled back");
+            late++;
+        }
+        if (k == 99) CHECK(hist.snap_cap == cap0 && hist.snap_first > 0, "wrapped at the first size");
+    }
+    CHECK(hist.snap_cap == 4 * cap0, "the ring grew twice (%u -> %u)", cap0, hist.snap_cap);
+    CHECK(late == n && n > 10 && hist.rollbacks == (uint32_t)n && hist.too_old == 0, "roll-backs %u of %d",
+          hist.rollbacks, n);
+    CHECK(fabs(a.mech.h - b.mech.h) < 1e-9 && fabs(a.mech.lat - b.mech.lat) < 1e-15, "height %.12g vs %.12g",
+          a.mech.h, b.mech.h);
+    for (i = 0; i < 3; ++i) CHECK(fabs((double)(a.mech.v[i] - b.mech.v[i])) < 100 * EPS, "velocity %d", i);
+    for (i = 0; i < INS_NX; ++i)
+        CHECK(fabs((double)(a.ekf.P[i][i] - b.ekf.P[i][i])) <= 100 * EPS * (double)b.ekf.P[i][i], "P[%d]", i);
+    CHECK(a.ekf.accepted[INS_GRP_BARO] == (uint32_t)n, "counted once each");
+}
+
 int main(void) {
     test_quat();
     test_book_attitude();
@@ -391,6 +436,7 @@ int main(void) {
     test_fdi();
     test_frame();
     test_delayed();
+    test_delayed_growth();
     printf("ins_ref tests (%d-bit scalar): %d checks, %d failed\n", INS_REF_SCALAR_BITS, checks, failures);
     return failures != 0;
 }
