@@ -588,15 +588,13 @@ void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, i
         for (t = 0; t < m; ++t) acc += hv[t] * e->P[nz[t]][j];
         hp[j] = acc; /* h^T P */
     }
-    for (i = 0; i < n; ++i)
-        for (j = 0; j < n; ++j) e->P[i][j] -= k[i] * hp[j];
-    for (i = 0; i < n; ++i) {
+    for (i = 0; i < n; ++i) { /* A = P - k hp, A h from the same rounded entries, then P = A - (A h) k^T + r k k^T */
         ins_real acc = K(0.0);
-        for (t = 0; t < m; ++t) acc += e->P[i][nz[t]] * hv[t];
-        ah[i] = acc; /* A h */
+        for (t = 0; t < m; ++t) acc += (e->P[i][nz[t]] - k[i] * hp[nz[t]]) * hv[t];
+        ah[i] = acc;
     }
     for (i = 0; i < n; ++i)
-        for (j = 0; j < n; ++j) e->P[i][j] += -ah[i] * k[j] + r * k[i] * k[j];
+        for (j = 0; j < n; ++j) e->P[i][j] = (e->P[i][j] - k[i] * hp[j]) + (-ah[i] * k[j] + r * k[i] * k[j]);
 }
 
 void ins_ekf_symmetrize(ins_ekf_t *e) {
