@@ -209,51 +209,21 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->gate[INS_GRP_HOLD] = cfg->hold_gate;
 }
 
-/* A block-sparse matrix of 3x3 blocks (the 5 or 7 state groups r, v, psi, bg, ba (, sg, sa)): each block zero,
- * diagonal or dense (kind 0, 1, 2; a diagonal block keeps zeros off its diagonal), with the list of the non-zero
- * blocks of each block row. F (from the generated blocks, generated/ins_jacobians.h) and Phi = I + F dt (+ F^2
- * dt^2 / 2) are built in it, so the products below touch only the non-zero blocks. */
+/* Phi = I + F dt (+ F^2 dt^2 / 2) by 3x3 blocks (the 5 or 7 state groups r, v, psi, bg, ba (, sg, sa)): the
+ * non-zero blocks of each block row (BLK_COL, BLK_NNZ: the pattern of the second-order Phi of the F of the generated
+ * blocks; those a first-order Phi lacks are zero), each diagonal (r and the bias / scale-factor states on the block
+ * diagonal: only its diagonal is read) or dense */
 enum { NB = INS_NX / 3, BR = 0, BV = 1, BA = 2, BG = 3, BB = 4, BS = 5, BT = 6 };
+static const unsigned char BLK_COL[2][NB][NB] = {
+    {{BR, BV, BA, BB}, {BR, BV, BA, BG, BB}, {BA, BG}, {BG}, {BB}},
+    {{BR, BV, BA, BB, BT}, {BR, BV, BA, BG, BB, BS, BT}, {BA, BG, BS}, {BG}, {BB}, {BS}, {BT}}};
+static const unsigned char BLK_NNZ[2][NB] = {{4, 5, 2, 1, 1}, {5, 7, 3, 1, 1, 1, 1}};
+#define BLK_DIAG(X, W) ((X) == (W) && (X) != BV && (X) != BA)
 typedef struct {
     int nb;
-    unsigned char kind[NB][NB], nnz[NB], col[NB][NB];
+    const unsigned char *nnz, (*col)[NB];
     ins_real b[NB][NB][3][3];
 } bmat_t;
-
-static void bm_clear(bmat_t *m, int nb) {
-    int i, j;
-    m->nb = nb;
-    for (i = 0; i < nb; ++i) {
-        m->nnz[i] = 0;
-        for (j = 0; j < nb; ++j) m->kind[i][j] = 0;
-    }
-}
-
-/* block (I, J), made at least of kind `kind` (a new block starts at zero) */
-static ins_real (*bm_at(bmat_t *m, int I, int J, int kind))[3] {
-    ins_real(*b)[3] = m->b[I][J];
-    if (m->kind[I][J] == 0) {
-        int i, j;
-        for (i = 0; i < 3; ++i)
-            for (j = 0; j < 3; ++j) b[i][j] = K(0.0);
-        m->col[I][m->nnz[I]++] = (unsigned char)J;
-    }
-    if (m->kind[I][J] < kind) m->kind[I][J] = (unsigned char)kind;
-    return b;
-}
-
-/* The blocks of Phi (the pattern of I + F dt + F^2 dt^2 / 2; those a first-order Phi lacks are zero): diagonal for
- * r and the bias / scale-factor states on the block diagonal, dense elsewhere */
-static void phi_pattern(bmat_t *phi, int nb) {
-    static const unsigned char rows[NB][NB] = {{BR, BV, BA, BB, BT, NB, NB}, {BR, BV, BA, BG, BB, BS, BT},
-                                               {BA, BG, BS, NB, NB, NB, NB}, {BG, NB, NB, NB, NB, NB, NB},
-                                               {BB, NB, NB, NB, NB, NB, NB}, {BS, NB, NB, NB, NB, NB, NB},
-                                               {BT, NB, NB, NB, NB, NB, NB}};
-    int X, k;
-    for (X = 0; X < nb; ++X)
-        for (k = 0; k < NB && rows[X][k] < NB; ++k)
-            if (rows[X][k] < nb) bm_at(phi, X, rows[X][k], rows[X][k] == X && X != BV && X != BA ? 1 : 2);
-}
 
 /* 3x3 kernels on a local block o (row-major 9) and blocks of P / A (row stride INS_NX) or of Phi (3x3) */
 static inline void k_zero(ins_real o[9]) {
@@ -307,8 +277,9 @@ static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const in
     ins_real t[3][3], u[3][3];
     ins_real(*o)[3];
     int i;
-    bm_clear(phi, nb);
-    phi_pattern(phi, nb);
+    phi->nb = nb;
+    phi->nnz = BLK_NNZ[nb == NB];
+    phi->col = BLK_COL[nb == NB];
     o = phi->b[BR][BR]; /* I + h2 D, D = F_vr = diag(0, 0, d) */
     o[0][0] = o[1][1] = K(1.0);
     o[2][2] = K(1.0) + h2 * d;
@@ -317,7 +288,10 @@ static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const in
     phi_blk(phi->b[BR][BA], dt, h2, NULL, g->va, K(0.0), NULL);
     phi_blk(phi->b[BR][BB], dt, h2, NULL, g->vba, K(0.0), NULL);
     o = phi->b[BV][BR]; /* dt D + h2 F_vv D: column d only */
-    for (i = 0; i < 3; ++i) o[i][2] = h2 * (g->vv[i][2] * d);
+    for (i = 0; i < 3; ++i) {
+        o[i][0] = o[i][1] = K(0.0);
+        o[i][2] = h2 * (g->vv[i][2] * d);
+    }
     o[2][2] += dt * d;
     m3(g->vv, g->vv, t); /* vv: I + dt F_vv + h2 (D + F_vv F_vv) */
     t[2][2] += d;
@@ -366,7 +340,7 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
             const int W = phi->col[X][k];
             const ins_real(*b)[3] = phi->b[X][W];
             const ins_real *x0 = p[3 * W], *x1 = p[3 * W + 1], *x2 = p[3 * W + 2];
-            if (phi->kind[X][W] == 1) {
+            if (BLK_DIAG(X, W)) {
                 const ins_real d0 = b[0][0], d1 = b[1][1], d2 = b[2][2];
                 for (j = j0; j < n; ++j) {
                     o0[j] += d0 * x0[j];
@@ -387,7 +361,7 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
     }
 }
 
-/* P <- Phi P Phi^T on the 3x3 blocks of the pattern of phi_pattern: A = Phi P (phi_p_rows), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
+/* P <- Phi P Phi^T on the 3x3 blocks of Phi: A = Phi P (phi_p_rows), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
  * for X <= Y, mirrored into the lower triangle. */
 static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
     ins_real a[INS_NX][INS_NX], o[9];
