@@ -237,6 +237,12 @@ static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real f[3][
         for (j = 0; j < 3; ++j)
             o[3 * i + j] += a[i * INS_NX] * f[j][0] + a[i * INS_NX + 1] * f[j][1] + a[i * INS_NX + 2] * f[j][2];
 }
+/* o += a f^T for an f whose last column alone is non-zero */
+static inline void k_mact2(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + 2] * f[j][2];
+}
 /* o += a diag(f) */
 static inline void k_mactd(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
     int i, j;
@@ -340,7 +346,14 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
             const int W = phi->col[X][k];
             const ins_real(*b)[3] = phi->b[X][W];
             const ins_real *x0 = p[3 * W], *x1 = p[3 * W + 1], *x2 = p[3 * W + 2];
-            if (BLK_DIAG(X, W)) {
+            if (X == BV && W == BR) { /* dt D + h2 F_vv D: its last column alone is non-zero */
+                const ins_real d0 = b[0][2], d1 = b[1][2], d2 = b[2][2];
+                for (j = j0; j < n; ++j) {
+                    o0[j] += d0 * x2[j];
+                    o1[j] += d1 * x2[j];
+                    o2[j] += d2 * x2[j];
+                }
+            } else if (BLK_DIAG(X, W)) {
                 const ins_real d0 = b[0][0], d1 = b[1][1], d2 = b[2][2];
                 for (j = j0; j < n; ++j) {
                     o0[j] += d0 * x0[j];
@@ -379,7 +392,7 @@ static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
                 k_mact(o, AB(X, BB), PHI(BR, BB));
                 if (sf) k_mact(o, AB(X, BT), PHI(BR, BT));
             } else if (Y == BV) {
-                k_mact(o, AB(X, BR), PHI(BV, BR));
+                k_mact2(o, AB(X, BR), PHI(BV, BR));
                 k_mact(o, AB(X, BV), PHI(BV, BV));
                 k_mact(o, AB(X, BA), PHI(BV, BA));
                 k_mact(o, AB(X, BG), PHI(BV, BG));
