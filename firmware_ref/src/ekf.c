@@ -12,8 +12,8 @@
  *   d(db)/dt  = -db / tau + w                      (seed 001 eqs. 87/88)
  * Phi = I + F dt + (F dt)^2 / 2 (book eq. 3.2), P = Phi P Phi^T + Q dt (book
  * eq. 3.19) with diagonal Q: VRW^2, ARW^2, 2 sigma_b^2 / tau.
- * F and Phi are kept block-sparse (bmat_t: 3x3 blocks, zero / diagonal / dense), so a predict is one sparse
- * product Phi P and the upper triangle of (Phi P) Phi^T.
+ * Phi is written block by block (3x3, zero / diagonal / dense) from the generated blocks of F (phi_blocks), so a
+ * predict is one block-sparse product A = Phi P (by rows, vectorised) and the upper triangle of A Phi^T.
  */
 #include "ins_internal.h"
 #include "generated/ins_jacobians.h"
@@ -261,7 +261,7 @@ static void m3(const ins_real a[3][3], const ins_real b[3][3], ins_real o[3][3])
         for (j = 0; j < 3; ++j) o[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
 }
 
-/* o = dt a + h2 (s - t c) (h2 = dt^2 / 2, or 0: first order), s = a2 b2 (if a2) */
+/* o = dt a + h2 (s - t c) (h2 = dt^2 / 2, or 0: first order; a NULL a, s or c: zero) */
 static void phi_blk(ins_real o[3][3], ins_real dt, ins_real h2, const ins_real a[3][3], const ins_real s[3][3],
                     ins_real t, const ins_real c[3][3]) {
     int i, j;
@@ -274,9 +274,12 @@ static void phi_blk(ins_real o[3][3], ins_real dt, ins_real h2, const ins_real a
         }
 }
 
-/* Phi = I + F dt (+ F^2 dt^2 / 2) block by block from the generated blocks of F (build_f's structure: the F^2 blocks
- * written out: row r of F^2 is row v of F; row v: F_vr F_r + F_vv F_v + F_vpsi F_psi + F_vba F_ba (+ F_vsa F_sa); row
- * psi: F_psipsi F_psi + F_psibg F_bg (+ F_psisg F_sg); the bias / scale-factor rows diagonal) into phi's pattern */
+/* Phi = I + F dt (+ F^2 dt^2 / 2) block by block from the generated blocks of F (generated/ins_jacobians.h; the block
+ * structure derive_jacobians.py checks: F_rv = I, F_vr = diag(0, 0, 2 g / R), the v and psi blocks, -1/tau on the
+ * diagonal of the bias / scale-factor rows). The F^2 blocks written out: row r of F^2 is row v of F; row v:
+ * F_vr F_r + F_vv F_v + F_vpsi F_psi + F_vba F_ba (+ F_vsa F_sa); row psi: F_psipsi F_psi + F_psibg F_bg (+ F_psisg
+ * F_sg); the diagonal rows their squares. (Checked against the product of the full F by tests/test_firmware.py's
+ * parity with the Python filter, which forms F @ F.) */
 static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const ins_gen_fsf_t *sf, ins_real itg,
                        ins_real ita, ins_real its, ins_real dt, int second) {
     const ins_real h2 = second ? K(0.5) * dt * dt : K(0.0), d = g->vr_dd;
