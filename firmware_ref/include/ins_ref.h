@@ -325,6 +325,7 @@ typedef struct {
     uint32_t snap_step[INS_HIST_N];
     double snap_t[INS_HIST_N];
     uint32_t snap_first, snap_n;       /* ring: oldest index, count */
+    uint32_t snap_cap;                 /* ring slots in use (doubled when full, up to INS_HIST_N) */
     ins_real imu[INS_HIST_N][7];       /* increments and dt of step k at k % INS_HIST_N */
     double imu_t[INS_HIST_N];
     ins_hmeas_t meas[INS_HIST_MEAS];

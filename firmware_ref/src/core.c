@@ -400,17 +400,36 @@ static void hold(ins_core_t *c) {
 
 void ins_hist_init(ins_hist_t *h, double max_delay) {
     h->snap_first = h->snap_n = 0;
+    /* the ring starts small (its slots stay in cache) and doubles when full, up to INS_HIST_N */
+    h->snap_cap = INS_HIST_N;
+    while (h->snap_cap % 2 == 0 && h->snap_cap > 64) h->snap_cap /= 2;
     h->meas_first = h->meas_n = 0;
     h->max_delay = max_delay;
     h->rollbacks = h->too_old = 0;
 }
 
-static uint32_t snap_idx(const ins_hist_t *h, uint32_t i) { return (h->snap_first + i) % INS_HIST_N; }
+static uint32_t snap_idx(const ins_hist_t *h, uint32_t i) { return (h->snap_first + i) % h->snap_cap; }
+
+/* the ring full below INS_HIST_N: twice the slots, the wrapped snapshots moved past the old end (the same ring) */
+static void grow_snaps(ins_hist_t *h) {
+    const uint32_t cap = h->snap_cap;
+    uint32_t i;
+    for (i = 0; i < h->snap_n; ++i) {
+        const uint32_t from = h->snap_first + i;
+        if (from >= cap) {
+            h->snap[from] = h->snap[from - cap];
+            h->snap_step[from] = h->snap_step[from - cap];
+            h->snap_t[from] = h->snap_t[from - cap];
+        }
+    }
+    h->snap_cap = 2 * cap;
+}
 
 static void push_snap(ins_hist_t *h, const ins_core_t *c) {
     uint32_t k;
-    if (h->snap_n == INS_HIST_N) { /* full: the oldest goes */
-        h->snap_first = (h->snap_first + 1) % INS_HIST_N;
+    if (h->snap_n == h->snap_cap && 2 * h->snap_cap <= INS_HIST_N) grow_snaps(h);
+    if (h->snap_n == h->snap_cap) { /* full: the oldest goes */
+        h->snap_first = (h->snap_first + 1) % h->snap_cap;
         h->snap_n--;
     }
     k = snap_idx(h, h->snap_n);
@@ -446,7 +465,7 @@ void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const in
     push_snap(h, c);
     horizon = c->mech.t - h->max_delay - 2.0 * (double)c->mech.dt;
     while (h->snap_n > 0 && h->snap_t[h->snap_first] < horizon) {
-        h->snap_first = (h->snap_first + 1) % INS_HIST_N;
+        h->snap_first = (h->snap_first + 1) % h->snap_cap;
         h->snap_n--;
     }
     {

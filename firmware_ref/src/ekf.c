@@ -12,8 +12,8 @@
  *   d(db)/dt  = -db / tau + w                      (seed 001 eqs. 87/88)
  * Phi = I + F dt + (F dt)^2 / 2 (book eq. 3.2), P = Phi P Phi^T + Q dt (book
  * eq. 3.19) with diagonal Q: VRW^2, ARW^2, 2 sigma_b^2 / tau.
- * Phi is never formed: Phi M = M + dt (F M) + dt^2/2 F (F M) with F applied by
- * its block sparsity (f_mul), so a predict costs ~4 sparse products.
+ * Phi is written block by block (3x3, zero / diagonal / dense) from the generated blocks of F (phi_blocks), so a
+ * predict is one block-sparse product A = Phi P (by rows, vectorised) and the upper triangle of A Phi^T.
  */
 #include "ins_internal.h"
 #include "generated/ins_jacobians.h"
@@ -209,63 +209,211 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->gate[INS_GRP_HOLD] = cfg->hold_gate;
 }
 
-/* F: the generated blocks (generated/ins_jacobians.h, from tools/derive_jacobians.py) and the bias rows */
+/* Phi = I + F dt (+ F^2 dt^2 / 2) by 3x3 blocks (the 5 or 7 state groups r, v, psi, bg, ba (, sg, sa)): the
+ * non-zero blocks of each block row (BLK_COL, BLK_NNZ: the pattern of the second-order Phi of the F of the generated
+ * blocks; those a first-order Phi lacks are zero), each diagonal (r and the bias / scale-factor states on the block
+ * diagonal: only its diagonal is read) or dense */
+enum { NB = INS_NX / 3, BR = 0, BV = 1, BA = 2, BG = 3, BB = 4, BS = 5, BT = 6 };
+static const unsigned char BLK_COL[2][NB][NB] = {
+    {{BR, BV, BA, BB}, {BR, BV, BA, BG, BB}, {BA, BG}, {BG}, {BB}},
+    {{BR, BV, BA, BB, BT}, {BR, BV, BA, BG, BB, BS, BT}, {BA, BG, BS}, {BG}, {BB}, {BS}, {BT}}};
+static const unsigned char BLK_NNZ[2][NB] = {{4, 5, 2, 1, 1}, {5, 7, 3, 1, 1, 1, 1}};
+#define BLK_DIAG(X, W) ((X) == (W) && (X) != BV && (X) != BA)
 typedef struct {
-    ins_real itg, ita, its;
-    ins_gen_fblocks_t b;
-    int nx;
-    ins_gen_fsf_t s; /* the scale-factor columns (generated: F[6:9][15:18], F[3:6][18:21]) */
-} fmat_t;
+    int nb;
+    const unsigned char *nnz, (*col)[NB];
+    ins_real b[NB][NB][3][3];
+} bmat_t;
 
-/* out = F in (F block-sparse: the structure derive_jacobians.py checks) */
-static void f_mul(const fmat_t *f, ins_real in[INS_NX][INS_NX], ins_real out[INS_NX][INS_NX]) {
-    const ins_gen_fblocks_t *b = &f->b;
-    const int n = f->nx;
-    int i, j, k;
-    for (j = 0; j < n; ++j) {
-        for (i = 0; i < 3; ++i) {
-            ins_real sv = K(0.0), sa = K(0.0);
-            for (k = 0; k < 3; ++k) {
-                sv += b->vv[i][k] * in[IV + k][j] + b->va[i][k] * in[IA + k][j] + b->vba[i][k] * in[IB + k][j];
-                sa += b->aa[i][k] * in[IA + k][j] + b->abg[i][k] * in[IG + k][j];
-            }
-            if (i == 2) sv += b->vr_dd * in[IR + 2][j];
-            out[IR + i][j] = in[IV + i][j];
-            out[IV + i][j] = sv;
-            out[IA + i][j] = sa;
-            out[IG + i][j] = -f->itg * in[IG + i][j];
-            out[IB + i][j] = -f->ita * in[IB + i][j];
+/* 3x3 kernels on a local block o (row-major 9) and blocks of P / A (row stride INS_NX) or of Phi (3x3) */
+static inline void k_zero(ins_real o[9]) {
+    int i;
+    for (i = 0; i < 9; ++i) o[i] = K(0.0);
+}
+/* o += a f^T */
+static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j)
+            o[3 * i + j] += a[i * INS_NX] * f[j][0] + a[i * INS_NX + 1] * f[j][1] + a[i * INS_NX + 2] * f[j][2];
+}
+/* o += a f^T for an f whose last column alone is non-zero */
+static inline void k_mact2(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + 2] * f[j][2];
+}
+/* o += a diag(f) */
+static inline void k_mactd(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + j] * f[j][j];
+}
+#define AB(X, Z) (&a[3 * (X)][3 * (Z)])
+#define PHI(X, W) ((const ins_real(*)[3])phi->b[X][W])
+
+#define CB(x) ((const ins_real(*)[3])(x))
+
+/* o = a b (3x3) */
+static void m3(const ins_real a[3][3], const ins_real b[3][3], ins_real o[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) o[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+}
+
+/* o = dt a + h2 (s - t c) (h2 = dt^2 / 2, or 0: first order; a NULL a, s or c: zero) */
+static void phi_blk(ins_real o[3][3], ins_real dt, ins_real h2, const ins_real a[3][3], const ins_real s[3][3],
+                    ins_real t, const ins_real c[3][3]) {
+    int i, j;
+    for (i = 0; i < 3; ++i)
+        for (j = 0; j < 3; ++j) {
+            ins_real q = K(0.0);
+            if (s != NULL) q += s[i][j];
+            if (c != NULL) q -= t * c[i][j];
+            o[i][j] = (a != NULL ? dt * a[i][j] : K(0.0)) + h2 * q;
         }
-        if (n == 21)
-            for (i = 0; i < 3; ++i) {
-                ins_real sv = K(0.0), sa = K(0.0);
-                for (k = 0; k < 3; ++k) {
-                    sv += f->s.vsa[i][k] * in[ISA + k][j];
-                    sa += f->s.asg[i][k] * in[ISG + k][j];
-                }
-                out[IV + i][j] += sv;
-                out[IA + i][j] += sa;
-                out[ISG + i][j] = -f->its * in[ISG + i][j];
-                out[ISA + i][j] = -f->its * in[ISA + i][j];
-            }
+}
+
+/* Phi = I + F dt (+ F^2 dt^2 / 2) block by block from the generated blocks of F (generated/ins_jacobians.h; the block
+ * structure derive_jacobians.py checks: F_rv = I, F_vr = diag(0, 0, 2 g / R), the v and psi blocks, -1/tau on the
+ * diagonal of the bias / scale-factor rows). The F^2 blocks written out: row r of F^2 is row v of F; row v:
+ * F_vr F_r + F_vv F_v + F_vpsi F_psi + F_vba F_ba (+ F_vsa F_sa); row psi: F_psipsi F_psi + F_psibg F_bg (+ F_psisg
+ * F_sg); the diagonal rows their squares. (Checked against the product of the full F by tests/test_firmware.py's
+ * parity with the Python filter, which forms F @ F.) */
+static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const ins_gen_fsf_t *sf, ins_real itg,
+                       ins_real ita, ins_real its, ins_real dt, int second) {
+    const ins_real h2 = second ? K(0.5) * dt * dt : K(0.0), d = g->vr_dd;
+    ins_real t[3][3], u[3][3];
+    ins_real(*o)[3];
+    int i;
+    phi->nb = nb;
+    phi->nnz = BLK_NNZ[nb == NB];
+    phi->col = BLK_COL[nb == NB];
+    o = phi->b[BR][BR]; /* I + h2 D, D = F_vr = diag(0, 0, d) */
+    o[0][0] = o[1][1] = K(1.0);
+    o[2][2] = K(1.0) + h2 * d;
+    phi_blk(phi->b[BR][BV], dt, h2, NULL, g->vv, K(0.0), NULL);
+    for (i = 0; i < 3; ++i) phi->b[BR][BV][i][i] += dt;
+    phi_blk(phi->b[BR][BA], dt, h2, NULL, g->va, K(0.0), NULL);
+    phi_blk(phi->b[BR][BB], dt, h2, NULL, g->vba, K(0.0), NULL);
+    o = phi->b[BV][BR]; /* dt D + h2 F_vv D: column d only */
+    for (i = 0; i < 3; ++i) {
+        o[i][0] = o[i][1] = K(0.0);
+        o[i][2] = h2 * (g->vv[i][2] * d);
+    }
+    o[2][2] += dt * d;
+    m3(g->vv, g->vv, t); /* vv: I + dt F_vv + h2 (D + F_vv F_vv) */
+    t[2][2] += d;
+    phi_blk(phi->b[BV][BV], dt, h2, g->vv, CB(t), K(0.0), NULL);
+    for (i = 0; i < 3; ++i) phi->b[BV][BV][i][i] += K(1.0);
+    m3(g->vv, g->va, t); /* v psi: dt F_vpsi + h2 (F_vv F_vpsi + F_vpsi F_psipsi) */
+    m3(g->va, g->aa, u);
+    for (i = 0; i < 9; ++i) t[i / 3][i % 3] += u[i / 3][i % 3];
+    phi_blk(phi->b[BV][BA], dt, h2, g->va, CB(t), K(0.0), NULL);
+    m3(g->va, g->abg, t); /* v bg: h2 F_vpsi F_psibg */
+    phi_blk(phi->b[BV][BG], dt, h2, NULL, CB(t), K(0.0), NULL);
+    m3(g->vv, g->vba, t); /* v ba: dt F_vba + h2 (F_vv F_vba - F_vba / tau_a) */
+    phi_blk(phi->b[BV][BB], dt, h2, g->vba, CB(t), ita, g->vba);
+    m3(g->aa, g->aa, t); /* psi psi: I + dt F_psipsi + h2 F_psipsi^2 */
+    phi_blk(phi->b[BA][BA], dt, h2, g->aa, CB(t), K(0.0), NULL);
+    for (i = 0; i < 3; ++i) phi->b[BA][BA][i][i] += K(1.0);
+    m3(g->aa, g->abg, t); /* psi bg: dt F_psibg + h2 (F_psipsi F_psibg - F_psibg / tau_g) */
+    phi_blk(phi->b[BA][BG], dt, h2, g->abg, CB(t), itg, g->abg);
+    for (i = 0; i < 3; ++i) {
+        phi->b[BG][BG][i][i] = K(1.0) - dt * itg + h2 * (itg * itg);
+        phi->b[BB][BB][i][i] = K(1.0) - dt * ita + h2 * (ita * ita);
+    }
+    if (nb == NB) {
+        phi_blk(phi->b[BR][BT], dt, h2, NULL, sf->vsa, K(0.0), NULL);
+        m3(g->va, sf->asg, t); /* v sg: h2 F_vpsi F_psisg */
+        phi_blk(phi->b[BV][BS], dt, h2, NULL, CB(t), K(0.0), NULL);
+        m3(g->vv, sf->vsa, t); /* v sa: dt F_vsa + h2 (F_vv F_vsa - F_vsa / tau_s) */
+        phi_blk(phi->b[BV][BT], dt, h2, sf->vsa, CB(t), its, sf->vsa);
+        m3(g->aa, sf->asg, t); /* psi sg: dt F_psisg + h2 (F_psipsi F_psisg - F_psisg / tau_s) */
+        phi_blk(phi->b[BA][BS], dt, h2, sf->asg, CB(t), its, sf->asg);
+        for (i = 0; i < 3; ++i)
+            phi->b[BS][BS][i][i] = phi->b[BT][BT][i][i] = K(1.0) - dt * its + h2 * (its * its);
     }
 }
 
-/* out = Phi in = in + dt F in (+ dt^2/2 F F in); tmp, tmp2 scratch */
-static void phi_mul(const fmat_t *f, ins_real dt, int second, ins_real in[INS_NX][INS_NX],
-                    ins_real out[INS_NX][INS_NX], ins_real tmp[INS_NX][INS_NX], ins_real tmp2[INS_NX][INS_NX]) {
-    const ins_real h2 = K(0.5) * dt * dt;
-    const int n = f->nx;
-    int i, j;
-    f_mul(f, in, tmp);
-    if (second) {
-        f_mul(f, tmp, tmp2);
-        for (i = 0; i < n; ++i)
-            for (j = 0; j < n; ++j) out[i][j] = in[i][j] + dt * tmp[i][j] + h2 * tmp2[i][j];
-    } else {
-        for (i = 0; i < n; ++i)
-            for (j = 0; j < n; ++j) out[i][j] = in[i][j] + dt * tmp[i][j];
+/* a = phi p, block row X from column j0 (0 for r, v; 3 X after: the upper triangle of the result reads no
+ * more of it) on: the three rows at once, each a combination of the rows of p the
+ * non-zero blocks of the block row pick, over contiguous columns (vectorised); n a constant in each inlined copy */
+static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins_real a[INS_NX][INS_NX], const int n) {
+    int X, k, j;
+    for (X = 0; X < phi->nb; ++X) {
+        const int j0 = X <= BV ? 0 : 3 * X;
+        ins_real *o0 = a[3 * X], *o1 = a[3 * X + 1], *o2 = a[3 * X + 2];
+        for (j = j0; j < n; ++j) o0[j] = o1[j] = o2[j] = K(0.0);
+        for (k = 0; k < phi->nnz[X]; ++k) {
+            const int W = phi->col[X][k];
+            const ins_real(*b)[3] = phi->b[X][W];
+            const ins_real *x0 = p[3 * W], *x1 = p[3 * W + 1], *x2 = p[3 * W + 2];
+            if (X == BV && W == BR) { /* dt D + h2 F_vv D: its last column alone is non-zero */
+                const ins_real d0 = b[0][2], d1 = b[1][2], d2 = b[2][2];
+                for (j = j0; j < n; ++j) {
+                    o0[j] += d0 * x2[j];
+                    o1[j] += d1 * x2[j];
+                    o2[j] += d2 * x2[j];
+                }
+            } else if (BLK_DIAG(X, W)) {
+                const ins_real d0 = b[0][0], d1 = b[1][1], d2 = b[2][2];
+                for (j = j0; j < n; ++j) {
+                    o0[j] += d0 * x0[j];
+                    o1[j] += d1 * x1[j];
+                    o2[j] += d2 * x2[j];
+                }
+            } else {
+                const ins_real b00 = b[0][0], b01 = b[0][1], b02 = b[0][2], b10 = b[1][0], b11 = b[1][1];
+                const ins_real b12 = b[1][2], b20 = b[2][0], b21 = b[2][1], b22 = b[2][2];
+                for (j = j0; j < n; ++j) {
+                    const ins_real v0 = x0[j], v1 = x1[j], v2 = x2[j];
+                    o0[j] += b00 * v0 + b01 * v1 + b02 * v2;
+                    o1[j] += b10 * v0 + b11 * v1 + b12 * v2;
+                    o2[j] += b20 * v0 + b21 * v1 + b22 * v2;
+                }
+            }
+        }
     }
+}
+
+/* P <- Phi P Phi^T on the 3x3 blocks of Phi: A = Phi P (phi_p_rows), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
+ * for X <= Y, mirrored into the lower triangle. */
+static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
+    ins_real a[INS_NX][INS_NX], o[9];
+    const int nb = phi->nb, sf = nb == NB;
+    int X, Y, i, j;
+    if (sf) phi_p_rows(phi, p, a, INS_NX);
+    else phi_p_rows(phi, p, a, 15);
+    for (Y = 0; Y < nb; ++Y)
+        for (X = 0; X <= Y; ++X) {
+            k_zero(o);
+            if (Y == BR) {
+                k_mactd(o, AB(X, BR), PHI(BR, BR));
+                k_mact(o, AB(X, BV), PHI(BR, BV));
+                k_mact(o, AB(X, BA), PHI(BR, BA));
+                k_mact(o, AB(X, BB), PHI(BR, BB));
+                if (sf) k_mact(o, AB(X, BT), PHI(BR, BT));
+            } else if (Y == BV) {
+                k_mact2(o, AB(X, BR), PHI(BV, BR));
+                k_mact(o, AB(X, BV), PHI(BV, BV));
+                k_mact(o, AB(X, BA), PHI(BV, BA));
+                k_mact(o, AB(X, BG), PHI(BV, BG));
+                k_mact(o, AB(X, BB), PHI(BV, BB));
+                if (sf) {
+                    k_mact(o, AB(X, BS), PHI(BV, BS));
+                    k_mact(o, AB(X, BT), PHI(BV, BT));
+                }
+            } else if (Y == BA) {
+                k_mact(o, AB(X, BA), PHI(BA, BA));
+                k_mact(o, AB(X, BG), PHI(BA, BG));
+                if (sf) k_mact(o, AB(X, BS), PHI(BA, BS));
+            } else {
+                k_mactd(o, AB(X, Y), PHI(Y, Y));
+            }
+            for (i = 0; i < 3; ++i)
+                for (j = X < Y ? 0 : i; j < 3; ++j) p[3 * X + i][3 * Y + j] = p[3 * Y + j][3 * X + i] = o[3 * i + j];
+        }
 }
 
 /* The vibration noise of one step (FilterConfig.gyro_vib_gain / accel_vib_gain, ErrorStateEKF._vibration_noise):
@@ -308,25 +456,17 @@ void ins_ekf_predict(ins_ekf_t *e, const ins_mech_t *m) { ins_ekf_predict_full(e
  * (NED) and, for the scale-factor columns, the body rate wb and specific force fb */
 static void propagate(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9], const ins_real fn[3], ins_real dt,
                       const ins_real qd[INS_NX], ins_real qv[2][3][3], const ins_real wb[3], const ins_real fb[3]) {
-    fmat_t f;
-    ins_real a[INS_NX][INS_NX], b[INS_NX][INS_NX], t1[INS_NX][INS_NX], t2[INS_NX][INS_NX];
+    ins_gen_fblocks_t g;
+    ins_gen_fsf_t sf;
+    bmat_t phi;
     const int n = e->nx;
     int i, j;
-    f.itg = e->inv_tau_g;
-    f.ita = e->inv_tau_a;
-    f.its = e->inv_tau_s;
-    f.nx = n;
-    if (n == 21) ins_gen_F_sf(c9, fb, wb, &f.s);
+    if (n == 21) ins_gen_F_sf(c9, fb, wb, &sf);
     /* d g / d(down) = +2 g / R (seed 001 eq. 96, corrected sign; DIGEST_001_004 section 1.9) */
-    ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &f.b);
-    phi_mul(&f, dt, e->second_order, e->P, a, t1, t2); /* A = Phi P */
-    for (i = 0; i < n; ++i)
-        for (j = 0; j < n; ++j) b[i][j] = a[j][i];
-    phi_mul(&f, dt, e->second_order, b, a, t1, t2); /* Phi (Phi P)^T = Phi P Phi^T */
-    for (i = 0; i < n; ++i) {
-        for (j = 0; j < i; ++j) e->P[i][j] = e->P[j][i] = K(0.5) * (a[i][j] + a[j][i]);
-        e->P[i][i] = a[i][i] + qd[i];
-    }
+    ins_gen_F_blocks(c9, fn, m->omega_ie, m->omega_en, K(2.0 * 9.80665 / 6371000.0), &g);
+    phi_blocks(&phi, n / 3, &g, &sf, e->inv_tau_g, e->inv_tau_a, e->inv_tau_s, dt, e->second_order);
+    phi_p_phit(&phi, e->P);
+    for (i = 0; i < n; ++i) e->P[i][i] += qd[i];
     if (qv != NULL)
         for (i = 0; i < 3; ++i)
             for (j = 0; j < 3; ++j) {
@@ -406,18 +546,26 @@ void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, i
     /* Joseph form (book eqs. 3.16-3.18) for one scalar, as in ErrorStateEKF.update:
      *   k = P h / (h^T P h + r); x += k (z - h^T x); P = (I - k h^T) P (I - k h^T)^T + r k k^T,
      * evaluated as two rank-1 products: A = P - k (h^T P), P = A - (A h) k^T + r k k^T. */
-    ins_real u[INS_NX], k[INS_NX], hp[INS_NX], ah[INS_NX];
+    ins_real u[INS_NX], k[INS_NX], hp[INS_NX], ah[INS_NX], hv[INS_NX];
     ins_real s = K(0.0), hx = K(0.0), innov;
     const int n = e->nx;
-    int i, j;
+    int i, j, t, m = 0;
+    unsigned char nz[INS_NX];
+    /* the products with h over its non-zero entries only (a measurement row touches a few states): the sums of
+     * the full products less their exact zero terms, so the same numbers */
+    for (j = 0; j < n; ++j)
+        if (h[j] != K(0.0)) {
+            nz[m] = (unsigned char)j;
+            hv[m++] = h[j];
+        }
     for (i = 0; i < n; ++i) {
         ins_real acc = K(0.0);
-        for (j = 0; j < n; ++j) acc += e->P[i][j] * h[j];
+        for (t = 0; t < m; ++t) acc += e->P[i][nz[t]] * hv[t];
         u[i] = acc; /* P h */
     }
-    for (i = 0; i < n; ++i) {
-        s += h[i] * u[i];
-        hx += h[i] * e->x[i];
+    for (t = 0; t < m; ++t) {
+        s += hv[t] * u[nz[t]];
+        hx += hv[t] * e->x[nz[t]];
     }
     s += r;
     innov = z - hx;
@@ -427,18 +575,16 @@ void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, i
     }
     for (j = 0; j < n; ++j) {
         ins_real acc = K(0.0);
-        for (i = 0; i < n; ++i) acc += h[i] * e->P[i][j];
+        for (t = 0; t < m; ++t) acc += hv[t] * e->P[nz[t]][j];
         hp[j] = acc; /* h^T P */
     }
-    for (i = 0; i < n; ++i)
-        for (j = 0; j < n; ++j) e->P[i][j] -= k[i] * hp[j];
-    for (i = 0; i < n; ++i) {
+    for (i = 0; i < n; ++i) { /* A = P - k hp, A h from the same rounded entries, then P = A - (A h) k^T + r k k^T */
         ins_real acc = K(0.0);
-        for (j = 0; j < n; ++j) acc += e->P[i][j] * h[j];
-        ah[i] = acc; /* A h */
+        for (t = 0; t < m; ++t) acc += (e->P[i][nz[t]] - k[i] * hp[nz[t]]) * hv[t];
+        ah[i] = acc;
     }
     for (i = 0; i < n; ++i)
-        for (j = 0; j < n; ++j) e->P[i][j] += -ah[i] * k[j] + r * k[i] * k[j];
+        for (j = 0; j < n; ++j) e->P[i][j] = (e->P[i][j] - k[i] * hp[j]) + (-ah[i] * k[j] + r * k[i] * k[j]);
 }
 
 void ins_ekf_symmetrize(ins_ekf_t *e) {

@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "ins_ref.h"
+#include "../src/generated/ins_jacobians.h"
 
 #ifdef INS_REF_FLOAT
 #define EPS 1e-5
@@ -382,15 +383,145 @@ static void test_delayed(void) {
     CHECK(hist.too_old == 1, "too old: fused now");
 }
 
+/* the ring of snapshots grows while wrapped: 0.5 s of history at 50 Hz (the first ring size holds it and wraps),
+ * then at 200 Hz (grown twice); baro altitudes 0.3 s late through it equal the same altitudes fused at their steps */
+static void test_delayed_growth(void) {
+    ins_ekf_cfg_t cfg;
+    ins_core_t a, b;
+    const ins_real q[4] = {1, 0, 0, 0}, v[3] = {(ins_real)2.0, 0, 0};
+    ins_real dth[3] = {(ins_real)1e-4, (ins_real)-2e-4, (ins_real)3e-4}, dv[3] = {(ins_real)0.01, 0, 0};
+    double t_m[40], t = 0.0;
+    int k, i, n = 0, late = 0, k_m[40];
+    uint32_t cap0;
+    ins_ekf_default_cfg(&cfg);
+    cfg.gyro_vib_gain = (ins_real)0.4;
+    ins_core_init(&a, q, v, 0.8, 0.5, 100.0, 0.0, (ins_real)0.02, &cfg, 1);
+    b = a;
+    ins_hist_init(&hist, 0.5);
+    cap0 = hist.snap_cap;
+    for (k = 0; k < 700; ++k) {
+        const ins_real dt = (ins_real)(k < 100 ? 0.02 : 0.005);
+        t += (double)dt;
+        dth[0] = (ins_real)(1e-4 * sin(0.1 * k));
+        dv[2] = -(ins_real)9.80665 * dt;
+        ins_hist_step(&hist, &a, dth, dv, t, dt);
+        ins_core_step_dt(&b, dth, dv, t, dt);
+        if (k >= 100 && k % 9 == 3 && k + 60 < 700 && n < 40) { /* fused at its step here, 60 steps late there */
+            k_m[n] = k;
+            t_m[n++] = t;
+            CHECK(ins_core_fuse_baro(&b, t, -3.0 + 0.1 * n) == 1, "baro at its step");
+        }
+        if (late < n && k == k_m[late] + 60) {
+            CHECK(ins_hist_fuse_baro(&hist, &a, t_m[late], -3.0 + 0.1 * (late + 1)) == 1, "late baro rolled back");
+            late++;
+        }
+        if (k == 99) CHECK(hist.snap_cap == cap0 && hist.snap_first > 0, "wrapped at the first size");
+    }
+    CHECK(hist.snap_cap == 4 * cap0, "the ring grew twice (%u -> %u)", cap0, hist.snap_cap);
+    CHECK(late == n && n > 10 && hist.rollbacks == (uint32_t)n && hist.too_old == 0, "roll-backs %u of %d",
+          hist.rollbacks, n);
+    CHECK(fabs(a.mech.h - b.mech.h) < 1e-9 && fabs(a.mech.lat - b.mech.lat) < 1e-15, "height %.12g vs %.12g",
+          a.mech.h, b.mech.h);
+    for (i = 0; i < 3; ++i) CHECK(fabs((double)(a.mech.v[i] - b.mech.v[i])) < 100 * EPS, "velocity %d", i);
+    for (i = 0; i < INS_NX; ++i)
+        CHECK(fabs((double)(a.ekf.P[i][i] - b.ekf.P[i][i])) <= 100 * EPS * (double)b.ekf.P[i][i], "P[%d]", i);
+    CHECK(a.ekf.accepted[INS_GRP_BARO] == (uint32_t)n, "counted once each");
+}
+
+/* the covariance predict (block-sparse in ekf.c) against the dense P = Phi P Phi^T + Q dt, Phi = I + F dt
+ * (+ (F dt)^2 / 2), F assembled from the generated blocks: 15 and 21 states, first and second order */
+static void test_predict_dense(void) {
+    static ins_real F[INS_NX][INS_NX], Phi[INS_NX][INS_NX], T[INS_NX][INS_NX], P0[INS_NX][INS_NX];
+    int sf, so, i, j, k;
+    for (sf = 0; sf < 2; ++sf)
+        for (so = 0; so < 2; ++so) {
+            ins_ekf_cfg_t cfg;
+            ins_core_t c;
+            ins_gen_fblocks_t g;
+            ins_gen_fsf_t s;
+            const ins_real q0[4] = {(ins_real)0.9, (ins_real)0.1, (ins_real)-0.2, (ins_real)0.3};
+            const ins_real v0[3] = {(ins_real)20.0, (ins_real)-5.0, (ins_real)1.0};
+            const ins_real dth[3] = {(ins_real)2e-3, (ins_real)-1e-3, (ins_real)5e-3};
+            const ins_real dv[3] = {(ins_real)0.02, (ins_real)0.01, (ins_real)-0.1};
+            const ins_real wb[3] = {(ins_real)0.2, (ins_real)-0.1, (ins_real)0.5};
+            const ins_real fb[3] = {(ins_real)2.0, (ins_real)1.0, (ins_real)-9.0};
+            ins_real c9[9], q[4], nq, worst = 0;
+            const ins_real dt = (ins_real)0.01;
+            int n;
+            ins_ekf_default_cfg(&cfg);
+            cfg.scale_factors = sf;
+            cfg.second_order = so;
+            nq = (ins_real)sqrt((double)(q0[0] * q0[0] + q0[1] * q0[1] + q0[2] * q0[2] + q0[3] * q0[3]));
+            for (i = 0; i < 4; ++i) q[i] = q0[i] / nq;
+            ins_core_init(&c, q, v0, 0.8, 0.5, 100.0, 0.0, dt, &cfg, 1);
+            ins_mech_step(&c.mech, dth, dv);
+            n = c.ekf.nx;
+            for (i = 0; i < n; ++i) /* a full symmetric positive P */
+                for (j = 0; j <= i; ++j) {
+                    ins_real acc = 0;
+                    for (k = 0; k <= j; ++k)
+                        acc += (ins_real)(0.3 + 0.7 * sin(1.0 + i * 7 + k * 3)) * (ins_real)(0.3 + 0.7 * sin(1.0 + j * 7 + k * 3));
+                    c.ekf.P[i][j] = c.ekf.P[j][i] = acc;
+                }
+            memcpy(P0, c.ekf.P, sizeof P0);
+            ins_dcm_from_quat(c.mech.q, c9);
+            ins_gen_F_blocks(c9, c.mech.f_ned, c.mech.omega_ie, c.mech.omega_en, (ins_real)(2.0 * 9.80665 / 6371000.0), &g);
+            ins_gen_F_sf(c9, fb, wb, &s);
+            memset(F, 0, sizeof F);
+            for (i = 0; i < 3; ++i) {
+                F[i][3 + i] = 1;
+                F[9 + i][9 + i] = -c.ekf.inv_tau_g;
+                F[12 + i][12 + i] = -c.ekf.inv_tau_a;
+                if (sf) F[15 + i][15 + i] = F[18 + i][18 + i] = -c.ekf.inv_tau_s;
+                for (j = 0; j < 3; ++j) {
+                    F[3 + i][3 + j] = g.vv[i][j];
+                    F[3 + i][6 + j] = g.va[i][j];
+                    F[3 + i][12 + j] = g.vba[i][j];
+                    F[6 + i][6 + j] = g.aa[i][j];
+                    F[6 + i][9 + j] = g.abg[i][j];
+                    if (sf) {
+                        F[6 + i][15 + j] = s.asg[i][j];
+                        F[3 + i][18 + j] = s.vsa[i][j];
+                    }
+                }
+            }
+            F[5][2] = g.vr_dd;
+            for (i = 0; i < n; ++i)
+                for (j = 0; j < n; ++j) {
+                    ins_real ff = 0;
+                    for (k = 0; k < n; ++k) ff += F[i][k] * F[k][j];
+                    Phi[i][j] = (i == j) + F[i][j] * dt + (so ? (ins_real)0.5 * dt * dt * ff : 0);
+                }
+            for (i = 0; i < n; ++i)
+                for (j = 0; j < n; ++j) {
+                    ins_real acc = 0;
+                    for (k = 0; k < n; ++k) acc += Phi[i][k] * P0[k][j];
+                    T[i][j] = acc;
+                }
+            ins_ekf_predict_full(&c.ekf, &c.mech, wb, fb);
+            for (i = 0; i < n; ++i)
+                for (j = 0; j < n; ++j) {
+                    ins_real acc = 0, d;
+                    for (k = 0; k < n; ++k) acc += T[i][k] * Phi[j][k];
+                    if (i == j) acc += c.ekf.qc[i] * dt;
+                    d = (ins_real)fabs((double)(c.ekf.P[i][j] - acc)) / (ins_real)(1.0 + fabs((double)acc));
+                    if (d > worst) worst = d;
+                }
+            CHECK(worst < 100 * EPS, "predict vs dense (nx %d, second order %d): %g", n, so, (double)worst);
+        }
+}
+
 int main(void) {
     test_quat();
     test_book_attitude();
     test_book_table_2_2();
     test_mech_static();
     test_ekf();
+    test_predict_dense();
     test_fdi();
     test_frame();
     test_delayed();
+    test_delayed_growth();
     printf("ins_ref tests (%d-bit scalar): %d checks, %d failed\n", INS_REF_SCALAR_BITS, checks, failures);
     return failures != 0;
 }

@@ -458,7 +458,7 @@ def gen_py(F: sp.Matrix, H: dict[str, sp.Matrix], FS: sp.Matrix, FR: sp.Matrix, 
 
 
 def check_structure(F: sp.Matrix) -> None:
-    """The block structure the C core's sparse products (ekf.c f_mul) rely on."""
+    """The block structure the C core's block-sparse predict (ekf.c phi_blocks, phi_p_phit) relies on."""
     allowed = set()
     for i in range(3):
         allowed.add((i, 3 + i))
@@ -475,7 +475,7 @@ def check_structure(F: sp.Matrix) -> None:
 
 def check_sensor_structure(FS: sp.Matrix) -> None:
     """The scale-factor / g-sensitivity columns: only the velocity / attitude rows and the Gauss-Markov diagonal
-    (the C core's f_mul fills the blocks of ins_gen_F_sf and the diagonal)."""
+    (the C core's phi_blocks reads the blocks of ins_gen_F_sf and the diagonal)."""
     allowed = set()
     for i in range(3):
         assert FS[NX + i, i] == -its and FS[NX + 3 + i, 3 + i] == -its
