@@ -27,7 +27,7 @@ CONFIGS = ROOT / "configs" / "datasets"
 def feed(p: Any, core: Any) -> None:
     """Replay a prepared log through ``core`` (NavCore or CNavCore) as ``run_dataset`` feeds it (no outages).
     On the C core, once it navigates, the IMU samples between two aids go in one call (``CNavCore.run``), and so
-    do those of the alignment's heading phase (``CNavCore.run_states``, as ``Pipeline.imu_run``)."""
+    do those of the alignment's levelling and heading phases (``CNavCore.run_states``, as ``Pipeline.imu_run``)."""
     from ins_hil.datasets.run import heading_only
 
     meas = sorted([(f.t, 0, f) for f in p.gnss] + [(m.t, 2, m) for m in p.aux], key=lambda x: (x[0], x[1]))
@@ -42,12 +42,12 @@ def feed(p: Any, core: Any) -> None:
     while k < n_imu:
         s = imu[k]
         if is_c and core.phase != "nav" and core.can_run():
-            # the alignment's heading phase on C (CNavCore.run_states), up to the next aid's time
+            # the alignment's levelling and heading phases on C (CNavCore.run_states), up to the next aid's time
+            # (a run stops before the sample at which the levelling is due)
             t_next = meas[j][0] if j < n else math.inf
             k_end = min(max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1), n_imu)
-            core.run_states(inc[k:k_end], t[k:k_end], dts[k:k_end])
-            s = imu[k_end - 1]
-            k = k_end
+            k += len(core.run_states(inc[k:k_end], t[k:k_end], dts[k:k_end]))
+            s = imu[k - 1]
         elif is_c and core.phase == "nav" and core.dt is not None:
             # every sample up to the next aid's time in one call
             t_next = meas[j][0] if j < n else math.inf
