@@ -481,6 +481,11 @@ class CNavCore:
         if self._delayed:
             self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
+        self._gate = self._ffi.new("double[8]")  # the gates of the last update (cref_gfuse_*)
+        self._e_cons = self._core.ekf.consecutive  # the C counters of rejections in a row (a view into _core)
+        g = self.cfg.gnss
+        self._vel_delay, self._reset_after, self._use_vel = float(g.vel_delay), int(g.reset_after), bool(g.use_vel)
+        self._have_mag = self.cfg.mag.ref_ned is not None
         self._pub: Any = None  # ins_out_t the C step writes its post-mechanization state to (step_begin)
         self._hmech: Any = None  # ins_mech_t of the alignment's heading phase on C (run_states before the hand-over)
         self._done: Any = None  # size_t * of the levelling runs on C (cref_level_run)
@@ -488,7 +493,6 @@ class CNavCore:
         # the last NavState built by state(), until the core changes (a step, an update, the hand-over): the
         # runtime asks for the same state several times per step (the guard, the observers)
         self._st: NavState | None = None
-        self._vel_nan = np.full(3, np.nan)
         #: the rows of the last run_states call that had lost IMU data before them (one DROPOUT event each)
         self.run_gap_rows: list[int] = []
         #: the state records of the last run_states call, (n, 32) (``ins_hil.runtime.pipeline.states_ok``)
@@ -658,12 +662,12 @@ class CNavCore:
         if self.dt is None or not self.filter:
             return None
         try:
-            if meas.kind == "gnss" and self.cfg.gnss.vel_delay > 0 and cast(GnssFix, meas).vel_ned is not None:
+            if meas.kind == "gnss" and self._vel_delay > 0.0 and cast(GnssFix, meas).vel_ned is not None:
                 meas = cast(GnssFix, meas)
                 # the position at the fix's time, the velocity at its own earlier time (as two measurements)
                 self._fuse_one(meas, vel=False)
                 self._st = None
-                self._fuse_one(meas, pos=False, t=meas.t - self.cfg.gnss.vel_delay)
+                self._fuse_one(meas, pos=False, t=meas.t - self._vel_delay)
             else:
                 self._fuse_one(meas)
         finally:
@@ -672,49 +676,51 @@ class CNavCore:
 
     def _fuse_one(self, meas: AidSample, *, pos: bool = True, vel: bool = True, t: float | None = None) -> None:
         """One measurement into the C core (through the roll-back history). A GNSS fix: its position unless
-        ``pos`` is False, its velocity unless ``vel`` is False, at ``t`` (default its own time)."""
-        e = self._core.ekf
-        unpack = self._ffi.unpack  # the C counters, one call per array
-        before = unpack(e.rejected, 3)
-        cons = unpack(e.consecutive, 3)
+        ``pos`` is False, its velocity unless ``vel`` is False, at ``t`` (default its own time). The C call
+        returns each fused group's gate (``cref_gfuse_*``: its test ratio, rejected or not, the rejections in a row
+        before and after it), from which the ratios and NavCore's gate events follow."""
         kind = meas.kind  # the C core's functions of the aids it supports (the others: its "not supported" list)
+        g = self._gate
+        tt = meas.t if t is None else t
         if kind == "gnss":
             meas = cast(GnssFix, meas)
-            v = meas.vel_ned if vel else None
-            if v is None:
-                v = self._vel_nan
-            elif not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.flags.c_contiguous):
-                v = np.ascontiguousarray(v, dtype=np.float64)
             if not (meas.std_ne >= 0.0 and meas.std_d >= 0.0 and meas.std_vel >= 0.0):
                 for name in ("std_ne", "std_d", "std_vel"):
                     sd = getattr(meas, name)
                     if not sd >= 0.0:
                         raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
-            pos = pos and math.isfinite(meas.lat)  # NaN: a velocity-only fix
+            v = meas.vel_ned
+            use_vel = vel and v is not None
+            if use_vel:
+                vn, ve, vd = (v if type(v) is np.ndarray else np.asarray(v, dtype=np.float64)).tolist()
+            else:
+                vn = ve = vd = math.nan
+            lat = meas.lat
+            pos = pos and math.isfinite(lat)  # NaN: a velocity-only fix
             # the fix as this update sees it (the position alone of a gnss.vel_delay split): made when needed
-            own = meas if vel or meas.vel_ned is None else None
-            if pos:
+            own = meas if vel or v is None else None
+            if pos and self._e_cons[0] >= self._reset_after:
                 self._hold_reset(meas, strip_vel=own is None)
-            self._lib_.cref_hfuse_gnss(
-                self._core,
-                self._hist,
-                meas.t if t is None else t,
-                meas.lat if pos else math.nan,
-                meas.lon,
-                meas.h,
-                self._ffi.from_buffer("double[]", v),
-                meas.std_ne,
-                meas.std_d,
-                meas.std_vel,
-            )
-            use_vel = vel and meas.vel_ned is not None and self.cfg.gnss.use_vel
-            groups = ((0,) if pos else ()) + ((1,) if use_vel else ())
+            self._lib_.cref_gfuse_gnss(self._core, self._hist, tt, lat if pos else math.nan, meas.lon, meas.h, vn, ve,
+                                       vd, meas.std_ne, meas.std_d, meas.std_vel, g)  # fmt: skip
+            r = self._ffi.unpack(g, 8)
+            ratios = self._ratios
             if pos:
-                if e.rejected[0] > before[0]:
+                ratios = dict(ratios)
+                ratios["gnss_pos"] = r[0]
+                if r[1]:
                     kept = own if own is not None else dataclasses.replace(meas, vel_ned=None)
-                    self._rejected.append((kept, float(e.last_ratio[0])))
+                    self._rejected.append((kept, r[0]))
                 elif self._rejected:
                     self._rejected.clear()
+                if (r[1] and not r[2]) or (r[2] and not r[3]):
+                    self._gate_event(tt, "gnss_pos", r)
+            if use_vel and self._use_vel:
+                ratios = dict(ratios) if ratios is self._ratios else ratios
+                ratios["gnss_vel"] = r[4]
+                if (r[5] and not r[6]) or (r[6] and not r[7]):
+                    self._gate_event(tt, "gnss_vel", r[4:])
+            self._ratios = ratios
         elif kind == "baro":
             meas = cast(BaroSample, meas)
             alt = meas.altitude
@@ -724,36 +730,32 @@ class CNavCore:
                 from ins_hil.nav.earth import altitude_from_pressure
 
                 alt = altitude_from_pressure(meas.pressure)
-            self._lib_.cref_hfuse_baro(self._core, self._hist, meas.t, alt)
-            groups = (2,)
-        elif kind == "mag" and self.cfg.mag.ref_ned is not None:
+            self._lib_.cref_gfuse_baro(self._core, self._hist, tt, alt, g)
+            r = self._ffi.unpack(g, 4)
+            ratios = dict(self._ratios)
+            ratios["baro"] = r[0]
+            self._ratios = ratios
+            if (r[1] and not r[2]) or (r[2] and not r[3]):
+                self._gate_event(tt, "baro", r)
+        elif kind == "mag" and self._have_mag:
             meas = cast(MagSample, meas)
-            fb = np.ascontiguousarray(meas.field_b, dtype=np.float64)
-            self._lib_.cref_hfuse_mag(self._core, self._hist, meas.t, self._ffi.from_buffer("double[]", fb))
-            groups = (5,)
-        else:
-            return None
-        ratios = dict(self._ratios)
-        last = unpack(e.last_ratio, len(_GROUPS))
-        rej, con = unpack(e.rejected, 3), unpack(e.consecutive, 3)
-        for g in groups:
-            kind = _GROUPS[g]
-            ratios[kind] = float(last[g])
-            if g > 2:  # events for the GNSS and baro gates only (as NavCore)
-                continue
-            sensor = "gnss" if kind.startswith("gnss") else "baro"
-            if rej[g] > before[g] and cons[g] == 0:
-                self._events.append(
-                    FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, float("nan"), True, False,
-                               f"{kind} innovation test ratio {ratios[kind]:.2f}")
-                )  # fmt: skip
-            elif con[g] == 0 and cons[g] > 0:
-                self._events.append(
-                    FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, 0.0, True, True,
-                               f"{kind} accepted again after {cons[g]} rejections")
-                )  # fmt: skip
-        self._ratios = ratios
+            fx, fy, fz = np.asarray(meas.field_b, dtype=np.float64).tolist()
+            self._lib_.cref_gfuse_mag(self._core, self._hist, tt, fx, fy, fz, g)
+            ratios = dict(self._ratios)
+            ratios["mag"] = g[0]  # no gate events for the magnetometer (as NavCore)
+            self._ratios = ratios
         return None
+
+    def _gate_event(self, t: float, kind: str, r: Sequence[float]) -> None:
+        """NavCore's event of a GNSS or baro gate (group ``kind``, its ``cref_gfuse_*`` gate ``r``: test ratio,
+        rejected, rejections in a row before and after): its first rejection, or accepted again after some."""
+        sensor = "gnss" if kind.startswith("gnss") else "baro"
+        if r[1] and r[2] == 0:
+            self._events.append(FaultEvent(t, sensor, FaultMode.JUMP, float("nan"), True, False,
+                                           f"{kind} innovation test ratio {r[0]:.2f}"))  # fmt: skip
+        elif r[3] == 0 and r[2] > 0:
+            self._events.append(FaultEvent(t, sensor, FaultMode.JUMP, 0.0, True, True,
+                                           f"{kind} accepted again after {int(r[2])} rejections"))  # fmt: skip
 
     def _hold_reset(self, meas: GnssFix, strip_vel: bool = False) -> None:
         """Before a fix reaches the C core: when its count of rejected positions would force this one in (a

@@ -246,3 +246,53 @@ void cref_level_bring_forward(const ins_level_t *l, ins_mech_t *m, const double 
         ins_align_heading_step(m, NULL, l->dth[k], l->dv[k], (ins_real)l->dt[k], l->t[k], b, z, w);
     }
 }
+/* the gate counters of group g after an update against those before it (rej, con): o[0] its test ratio, o[1] 1 if it
+ * was rejected, o[2] its rejections in a row before the update, o[3] after it (CNavCore's events and ratios) */
+static void gate_info(const ins_ekf_t *e, int g, const uint32_t rej[INS_NGRP], const uint32_t con[INS_NGRP],
+                      double o[4]) {
+    o[0] = (double)e->last_ratio[g];
+    o[1] = e->rejected[g] > rej[g] ? 1.0 : 0.0;
+    o[2] = (double)con[g];
+    o[3] = (double)e->consecutive[g];
+}
+static void gate_before(const ins_ekf_t *e, uint32_t rej[INS_NGRP], uint32_t con[INS_NGRP]) {
+    int g;
+    for (g = 0; g < INS_NGRP; ++g) {
+        rej[g] = e->rejected[g];
+        con[g] = e->consecutive[g];
+    }
+}
+/* cref_hfuse_gnss with the velocity as three values (NaN: none) and the gates of the position and the velocity in
+ * o[0..3] and o[4..7] (gate_info) */
+int cref_gfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, double vn, double ve,
+                    double vd, double std_ne, double std_d, double std_vel, double o[8]) {
+    uint32_t rej[INS_NGRP], con[INS_NGRP];
+    double v[3];
+    int r;
+    v[0] = vn; v[1] = ve; v[2] = vd;
+    gate_before(&c->ekf, rej, con);
+    r = cref_hfuse_gnss(c, hs, t, lat, lon, h, v, std_ne, std_d, std_vel);
+    gate_info(&c->ekf, INS_GRP_GNSS_POS, rej, con, o);
+    gate_info(&c->ekf, INS_GRP_GNSS_VEL, rej, con, o + 4);
+    return r;
+}
+/* cref_hfuse_baro with its gate in o[0..3] (gate_info) */
+int cref_gfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude, double o[4]) {
+    uint32_t rej[INS_NGRP], con[INS_NGRP];
+    int r;
+    gate_before(&c->ekf, rej, con);
+    r = cref_hfuse_baro(c, hs, t, altitude);
+    gate_info(&c->ekf, INS_GRP_BARO, rej, con, o);
+    return r;
+}
+/* cref_hfuse_mag with the field as three values and its gate in o[0..3] (gate_info) */
+int cref_gfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, double fx, double fy, double fz, double o[4]) {
+    uint32_t rej[INS_NGRP], con[INS_NGRP];
+    double f[3];
+    int r;
+    f[0] = fx; f[1] = fy; f[2] = fz;
+    gate_before(&c->ekf, rej, con);
+    r = cref_hfuse_mag(c, hs, t, f);
+    gate_info(&c->ekf, INS_GRP_MAG, rej, con, o);
+    return r;
+}

@@ -34,25 +34,24 @@ def feed(p: Any, core: Any) -> None:
     ref = p.nav.mag.ref_ned
     is_c = not hasattr(core, "ins")
     imu = p.imu
+    j, n, k, n_imu = 0, len(meas), 0, len(imu)
     if is_c:
         inc = np.ascontiguousarray(np.hstack([np.array([s.dtheta for s in imu]), np.array([s.dvel for s in imu])]))
         t = np.array([s.t for s in imu])
         dts = np.array([s.dt for s in imu])
-    j, n, k, n_imu = 0, len(meas), 0, len(imu)
+        # per aid, the end of the run of IMU samples up to its time (the sample that reaches it); then the rest
+        reach = [*(np.searchsorted(t, np.array([m[0] for m in meas]), side="left") + 1).tolist(), n_imu]
     while k < n_imu:
         s = imu[k]
         if is_c and core.phase != "nav" and core.can_run():
             # the alignment's levelling and heading phases on C (CNavCore.run_states), up to the next aid's time
             # (a run stops before the sample at which the levelling is due)
-            t_next = meas[j][0] if j < n else math.inf
-            k_end = min(max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1), n_imu)
+            k_end = min(max(k + 1, reach[j]), n_imu)
             k += len(core.run_states(inc[k:k_end], t[k:k_end], dts[k:k_end]))
             s = imu[k - 1]
         elif is_c and core.phase == "nav" and core.dt is not None:
             # every sample up to the next aid's time in one call
-            t_next = meas[j][0] if j < n else math.inf
-            k_end = max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1) if j < n else n_imu
-            k_end = min(k_end, n_imu)
+            k_end = min(max(k + 1, reach[j]), n_imu)
             core.run_increments(inc[k:k_end], t[k:k_end], dts[k:k_end])
             s = imu[k_end - 1]
             k = k_end
