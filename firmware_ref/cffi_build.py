@@ -112,6 +112,8 @@ int cref_hfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude);
 int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3]);
 int cref_gfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, double vn, double ve,
                     double vd, double std_ne, double std_d, double std_vel, double o[8]);
+int cref_gfuse_gnss_split(ins_core_t *c, ins_hist_t *hs, double t, double vel_delay, double lat, double lon, double h,
+                          double vn, double ve, double vd, double std_ne, double std_d, double std_vel, double o[8]);
 int cref_gfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude, double o[4]);
 int cref_gfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, double fx, double fy, double fz, double o[4]);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,

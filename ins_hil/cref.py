@@ -347,14 +347,15 @@ class _CAlignment(Alignment):
         #: the window is in C (False: in the Python fields, after the ring was full or before a fresh start)
         self.on_c = not (self.buf or self.pending)
         self._mech: Any = None
+        self._mag_ref = self.cfg.mag.ref_ned is not None
+        self._yaw_any = a.level_only or a.gyrocompass  # a yaw source that needs no magnetometer sample
 
     def put(self) -> None:
         """The flags the aiding samples set (a position, a GNSS speed, a yaw source) to the C window."""
-        lv, c = self.lv, self.cfg
+        lv = self.lv
         lv.have_pos = 1 if self.have_pos else 0
         lv.moving = 1 if self.moving else 0
-        lv.yaw_ready = 1 if ((c.mag.ref_ned is not None and self.last_mag is not None) or c.alignment.level_only
-                             or c.alignment.gyrocompass) else 0  # fmt: skip
+        lv.yaw_ready = 1 if self._yaw_any or (self._mag_ref and self.last_mag is not None) else 0
 
     def get(self) -> None:
         """The window's length and the motion flags from C."""
@@ -425,7 +426,9 @@ class CNavCore:
     ``ValueError``; ``initial`` may be None with an alignment). dt: the fixed step (s); None = take it
     from the first IMU sample. With ``alignment.mode`` other than "given" the alignment (levelling,
     gyrocompass, magnetometer/GNSS yaw, the GNSS-velocity yaw bank) runs in the Python ``NavCore``, a
-    one-off start-up; at its end the C core takes over its state, covariance and biases.
+    one-off start-up, with its per-sample work on C (the levelling window and start-up check: ``_CAlignment``,
+    ``_CSensorCheck``; the heading phase's steps; the yaw bank: ``CYawGsf``; a run of samples in one call:
+    :meth:`run_states`); at its end the C core takes over its state, covariance, noise densities and biases.
     precision: ``"double"`` or ``"float"`` (the C scalar type). filter: run the 15-state
     EKF predict on every step (needed for ``fuse``); False = mechanization only.
     dt_tolerance / on_dt_mismatch: see the module docstring. fixed_step=False: each sample is integrated over
@@ -486,6 +489,7 @@ class CNavCore:
         g = self.cfg.gnss
         self._vel_delay, self._reset_after, self._use_vel = float(g.vel_delay), int(g.reset_after), bool(g.use_vel)
         self._have_mag = self.cfg.mag.ref_ned is not None
+        self._aligned_std = float(self.cfg.alignment.aligned_yaw_std)
         self._pub: Any = None  # ins_out_t the C step writes its post-mechanization state to (step_begin)
         self._hmech: Any = None  # ins_mech_t of the alignment's heading phase on C (run_states before the hand-over)
         self._done: Any = None  # size_t * of the levelling runs on C (cref_level_run)
@@ -662,66 +666,69 @@ class CNavCore:
         if self.dt is None or not self.filter:
             return None
         try:
-            if meas.kind == "gnss" and self._vel_delay > 0.0 and cast(GnssFix, meas).vel_ned is not None:
-                meas = cast(GnssFix, meas)
-                # the position at the fix's time, the velocity at its own earlier time (as two measurements)
-                self._fuse_one(meas, vel=False)
-                self._st = None
-                self._fuse_one(meas, pos=False, t=meas.t - self._vel_delay)
+            if meas.kind == "gnss":
+                self._fuse_gnss(cast(GnssFix, meas))
             else:
                 self._fuse_one(meas)
         finally:
             self._st = None  # the state changed (a roll-back too)
         return None
 
-    def _fuse_one(self, meas: AidSample, *, pos: bool = True, vel: bool = True, t: float | None = None) -> None:
-        """One measurement into the C core (through the roll-back history). A GNSS fix: its position unless
-        ``pos`` is False, its velocity unless ``vel`` is False, at ``t`` (default its own time). The C call
-        returns each fused group's gate (``cref_gfuse_*``: its test ratio, rejected or not, the rejections in a row
-        before and after it), from which the ratios and NavCore's gate events follow."""
+    def _fuse_gnss(self, meas: GnssFix) -> None:
+        """A GNSS fix into the C core (through the roll-back history): its position and velocity at its time, or
+        with ``gnss.vel_delay`` its position at its time and its velocity at its own earlier time (two updates in
+        one C call). The C call returns each group's gate (``cref_gfuse_*``: its test ratio, rejected or not, the
+        rejections in a row before and after it), from which the ratios and NavCore's gate events follow."""
+        if not (meas.std_ne >= 0.0 and meas.std_d >= 0.0 and meas.std_vel >= 0.0):
+            for name in ("std_ne", "std_d", "std_vel"):
+                sd = getattr(meas, name)
+                if not sd >= 0.0:
+                    raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
+        g = self._gate
+        v = meas.vel_ned
+        split = v is not None and self._vel_delay > 0.0
+        if v is not None:
+            vn, ve, vd = (v if type(v) is np.ndarray else np.asarray(v, dtype=np.float64)).tolist()
+        else:
+            vn = ve = vd = math.nan
+        lat = meas.lat
+        pos = math.isfinite(lat)  # NaN: a velocity-only fix
+        if pos and self._e_cons[0] >= self._reset_after:
+            self._hold_reset(meas, strip_vel=split)
+        t = t_vel = meas.t
+        if split:
+            t_vel = t - self._vel_delay
+            self._lib_.cref_gfuse_gnss_split(self._core, self._hist, t, self._vel_delay, lat if pos else math.nan,
+                                             meas.lon, meas.h, vn, ve, vd, meas.std_ne, meas.std_d, meas.std_vel,
+                                             g)  # fmt: skip
+        else:
+            self._lib_.cref_gfuse_gnss(self._core, self._hist, t, lat if pos else math.nan, meas.lon, meas.h, vn, ve,
+                                       vd, meas.std_ne, meas.std_d, meas.std_vel, g)  # fmt: skip
+        r = self._ffi.unpack(g, 8)
+        ratios = self._ratios
+        if pos:
+            ratios = dict(ratios)
+            ratios["gnss_pos"] = r[0]
+            if r[1]:  # the fix as the position update saw it (the position alone of a split)
+                self._rejected.append((dataclasses.replace(meas, vel_ned=None) if split else meas, r[0]))
+            elif self._rejected:
+                self._rejected.clear()
+            if (r[1] and not r[2]) or (r[2] and not r[3]):
+                self._gate_event(t, "gnss_pos", r)
+        if v is not None and self._use_vel:
+            ratios = dict(ratios) if ratios is self._ratios else ratios
+            ratios["gnss_vel"] = r[4]
+            if (r[5] and not r[6]) or (r[6] and not r[7]):
+                self._gate_event(t_vel, "gnss_vel", r[4:])
+        self._ratios = ratios
+
+    def _fuse_one(self, meas: AidSample) -> None:
+        """A baro altitude or a magnetometer field into the C core (through the roll-back history), with its gate
+        (``cref_gfuse_*``) for the ratios and NavCore's gate events."""
         kind = meas.kind  # the C core's functions of the aids it supports (the others: its "not supported" list)
         g = self._gate
-        tt = meas.t if t is None else t
-        if kind == "gnss":
-            meas = cast(GnssFix, meas)
-            if not (meas.std_ne >= 0.0 and meas.std_d >= 0.0 and meas.std_vel >= 0.0):
-                for name in ("std_ne", "std_d", "std_vel"):
-                    sd = getattr(meas, name)
-                    if not sd >= 0.0:
-                        raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
-            v = meas.vel_ned
-            use_vel = vel and v is not None
-            if use_vel:
-                vn, ve, vd = (v if type(v) is np.ndarray else np.asarray(v, dtype=np.float64)).tolist()
-            else:
-                vn = ve = vd = math.nan
-            lat = meas.lat
-            pos = pos and math.isfinite(lat)  # NaN: a velocity-only fix
-            # the fix as this update sees it (the position alone of a gnss.vel_delay split): made when needed
-            own = meas if vel or v is None else None
-            if pos and self._e_cons[0] >= self._reset_after:
-                self._hold_reset(meas, strip_vel=own is None)
-            self._lib_.cref_gfuse_gnss(self._core, self._hist, tt, lat if pos else math.nan, meas.lon, meas.h, vn, ve,
-                                       vd, meas.std_ne, meas.std_d, meas.std_vel, g)  # fmt: skip
-            r = self._ffi.unpack(g, 8)
-            ratios = self._ratios
-            if pos:
-                ratios = dict(ratios)
-                ratios["gnss_pos"] = r[0]
-                if r[1]:
-                    kept = own if own is not None else dataclasses.replace(meas, vel_ned=None)
-                    self._rejected.append((kept, r[0]))
-                elif self._rejected:
-                    self._rejected.clear()
-                if (r[1] and not r[2]) or (r[2] and not r[3]):
-                    self._gate_event(tt, "gnss_pos", r)
-            if use_vel and self._use_vel:
-                ratios = dict(ratios) if ratios is self._ratios else ratios
-                ratios["gnss_vel"] = r[4]
-                if (r[5] and not r[6]) or (r[6] and not r[7]):
-                    self._gate_event(tt, "gnss_vel", r[4:])
-            self._ratios = ratios
-        elif kind == "baro":
+        tt = meas.t
+        if kind == "baro":
             meas = cast(BaroSample, meas)
             alt = meas.altitude
             if not math.isfinite(alt):
@@ -827,24 +834,12 @@ class CNavCore:
         return st
 
     def _nav_state(self, o: Vec) -> NavState:
-        """The NavState of a 32-value C state record (``cref_state``)."""
-        return NavState(
-            t=float(o[0]),
-            q_nb=o[1:5],
-            vel_ned=o[5:8],
-            lat=float(o[8]),
-            lon=float(o[9]),
-            h=float(o[10]),
-            gyro_bias=o[11:14],
-            accel_bias=o[14:17],
-            std_pos=o[17:20],
-            std_vel=o[20:23],
-            std_att=o[23:26],
-            omega_b=o[26:29],  # bias-compensated rate and specific force of the last interval
-            accel_b=o[29:32],
-            aligned=bool(o[25] < self.cfg.alignment.aligned_yaw_std),
-            test_ratios=self._ratios,
-        )
+        """The NavState of a 32-value C state record (``cref_state``): t, q_nb, vel_ned, lat, lon, h, gyro_bias,
+        accel_bias, std_pos, std_vel, std_att, omega_b and accel_b (the bias-compensated rate and specific force
+        of the last interval), the arrays views of ``o``."""
+        x = o.tolist()  # the scalars as Python floats in one call
+        return NavState(x[0], o[1:5], o[5:8], x[8], x[9], x[10], o[11:14], o[14:17], o[17:20], o[20:23], o[23:26],
+                        o[26:29], o[29:32], x[25] < self._aligned_std, self._ratios)  # fmt: skip
 
     def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1, dt: Vec | None = None) -> Vec:
         """Run n IMU intervals in ONE C call (the core must have its dt; through the roll-back history).
@@ -976,14 +971,15 @@ class CNavCore:
             done = self._done = ffi.new("size_t *")
         parts: list[Any] = []  # RunStates of the levelling samples, lists of the others
         rows: list[Vec] = []
-        k = 0
+        k, first = 0, True  # (run_states has checked _level_runs for the first pass)
         while k < n:
-            if not self._level_runs():  # levelled (at the run's first sample), or the window left C
+            if not first and not self._level_runs():  # levelled (at the run's first sample), or the window left C
                 st, ro, gaps = self._after_level(inc[k:], t_end[k:], dt[k:])
                 self.run_gap_rows = [k + g for g in gaps]
                 parts.append(st)
                 rows.append(ro)
                 break
+            first = False
             chk = a.sensor_check
             al.put()
             r = lib.cref_level_run(al.lv, chk.c if chk is not None else ffi.NULL,
@@ -1154,11 +1150,9 @@ class RunStates(Sequence[NavState]):
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(len(self.rows)))]
         o = self.rows[i]
-        st = NavState(
-            t=float(o[0]), q_nb=o[1:5], vel_ned=o[5:8], lat=float(o[8]), lon=float(o[9]), h=float(o[10]),
-            gyro_bias=o[11:14], accel_bias=o[14:17], std_pos=o[17:20], std_vel=o[20:23], std_att=o[23:26],
-            omega_b=o[26:29], accel_b=o[29:32], aligned=bool(o[25] < self._thr), test_ratios=self._ratios,
-        )  # fmt: skip
+        x = o.tolist()  # the scalars as Python floats in one call (CNavCore._nav_state)
+        st = NavState(x[0], o[1:5], o[5:8], x[8], x[9], x[10], o[11:14], o[14:17], o[17:20], o[20:23], o[23:26],
+                      o[26:29], o[29:32], x[25] < self._thr, self._ratios)  # fmt: skip
         st.resets = self.resets
         return st
 

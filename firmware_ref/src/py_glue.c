@@ -296,3 +296,15 @@ int cref_gfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, double fx, double fy
     gate_info(&c->ekf, INS_GRP_MAG, rej, con, o);
     return r;
 }
+/* a GNSS fix with gnss.vel_delay (> 0): its position at t (no velocity), then its velocity at t - vel_delay (no
+ * position), two cref_gfuse_gnss calls in one: o[0..3] the position's gate, o[4..7] the velocity's */
+int cref_gfuse_gnss_split(ins_core_t *c, ins_hist_t *hs, double t, double vel_delay, double lat, double lon, double h,
+                          double vn, double ve, double vd, double std_ne, double std_d, double std_vel, double o[8]) {
+    const double nan = (double)NAN;
+    double ov[8];
+    int r, i;
+    r = cref_gfuse_gnss(c, hs, t, lat, lon, h, nan, nan, nan, std_ne, std_d, std_vel, o);
+    r |= cref_gfuse_gnss(c, hs, t - vel_delay, nan, lon, h, vn, ve, vd, std_ne, std_d, std_vel, ov);
+    for (i = 4; i < 8; ++i) o[i] = ov[i];
+    return r;
+}
