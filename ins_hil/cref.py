@@ -921,10 +921,11 @@ class CNavCore:
             and ins.renorm_every == 1 and not a.replaying and (a.yaw_gsf is None or isinstance(a.yaw_gsf, CYawGsf))
         )  # fmt: skip
 
-    def _heading_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
+    def _heading_states(self, inc: Vec, t_end: Vec, dt: Vec) -> RunStates:
         """:meth:`run_states` in the alignment's heading phase: the n gyro-only steps (and the yaw bank) of the
         alignment's ``NavCore`` in one C call (``cref_heading_run``, the double build: the alignment's numbers),
-        its StrapdownNED set before and read back after; per step the state ``NavCore.step`` returns."""
+        its StrapdownNED set before and read back after; per step the state ``NavCore.step`` returns (as the rows
+        of the C state record: each ``NavState`` built when asked for)."""
         a = self._align
         ffi, lib = _lib("double")
         fb = ffi.from_buffer
@@ -941,17 +942,14 @@ class CNavCore:
         a.omega_b = out[-1, 8:11].copy()
         a._dt = float(dt[-1])
         st = a.state()  # the σ (P does not change before the hand-over), the biases, f_b and the gate ratios
-        sp, sv, sa, bg, ba, fbd, ratios = st.std_pos, st.std_vel, st.std_att, a.bg, a.ba, a.f_b, st.test_ratios
-        ro = np.zeros((n, 32))  # the C record layout for the core guard (states_ok)
+        ro = np.empty((n, 32))  # the C record layout (the core guard: states_ok; RunStates)
         ro[:, 0:5] = out[:, 0:5]
+        ro[:, 5:8] = 0.0  # the velocity held at zero
         ro[:, 8:11] = out[:, 5:8]
-        ro[:, 17:20], ro[:, 20:23], ro[:, 23:26] = sp, sv, sa
+        ro[:, 11:14], ro[:, 14:17], ro[:, 17:20], ro[:, 20:23] = a.bg, a.ba, st.std_pos, st.std_vel
+        ro[:, 23:26], ro[:, 26:29], ro[:, 29:32] = st.std_att, out[:, 8:11], a.f_b
         self.run_out = ro
-        tl = out[:, [0, 5, 6, 7]].tolist()
-        return [
-            NavState(r[0], o[1:5], np.zeros(3), r[1], r[2], r[3], bg, ba, sp, sv, sa, o[8:11], fbd, False, ratios)
-            for r, o in zip(tl, out, strict=True)
-        ]
+        return RunStates(ro, -math.inf, st.test_ratios)  # never "aligned" before navigation
 
     def _level_states(self, inc: Vec, t_end: Vec, dt: Vec) -> Sequence[NavState]:
         """:meth:`run_states` while the alignment levels: the samples through its start-up check, yaw bank and
