@@ -13,7 +13,7 @@ from pathlib import Path
 from cffi import FFI
 
 _HERE = Path(__file__).resolve().parent
-_SOURCES = ["quat.c", "mech.c", "ekf.c", "core.c", "fdi.c", "frame.c", "gsf.c"]
+_SOURCES = ["quat.c", "mech.c", "ekf.c", "core.c", "fdi.c", "frame.c", "gsf.c", "align.c"]
 
 
 def _rel(p: Path) -> str:
@@ -65,6 +65,17 @@ typedef struct {{
     int n; int tilt_aligned, started; ins_real W[8]; ins_real yaw, yaw_var; uint32_t updates; ...;
 }} ins_gsf_t;
 typedef struct {{ ins_mech_t mech; ins_ekf_t ekf; int filter; uint32_t steps; ins_out_t *pub; }} ins_core_t;
+#define INS_LEVEL_N 8192
+#define INS_LEVEL_DUE 1
+#define INS_LEVEL_FULL 2
+#define CREF_LEVEL_CHECKED 4
+#define CREF_LEVEL_BAD 8
+typedef struct {{
+    double t[8192], dt[8192]; ins_real dth[8192][3], dv[8192][3]; uint32_t first, n_win, n_pend;
+    ins_real f_sum[3], w_sum[3]; double t_win; double dev_w, dev_f; int moving, imu_moving; int have_pos, yaw_ready;
+    ...;
+}} ins_level_t;
+typedef struct {{ double window, t; uint32_t n; ins_real sf[3], sf2[3], sw[3], sw2[3]; }} ins_imu_check_t;
 typedef struct {{ uint32_t snap_n; uint32_t meas_n; double max_delay; uint32_t rollbacks, too_old; ...; }} ins_hist_t;
 typedef struct {{
     ins_real lam[4]; ins_real w1[3]; ins_real w2[3]; ins_real th_prev[3]; ins_real dt; uint32_t n;
@@ -99,6 +110,12 @@ int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double 
                     double std_ne, double std_d, double std_vel);
 int cref_hfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude);
 int cref_hfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, const double field[3]);
+int cref_gfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, double vn, double ve,
+                    double vd, double std_ne, double std_d, double std_vel, double o[8]);
+int cref_gfuse_gnss_split(ins_core_t *c, ins_hist_t *hs, double t, double vel_delay, double lat, double lon, double h,
+                          double vn, double ve, double vd, double std_ne, double std_d, double std_vel, double o[8]);
+int cref_gfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude, double o[4]);
+int cref_gfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, double fx, double fy, double fz, double o[4]);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);
 int cref_fuse_baro(ins_core_t *c, double t, double altitude);
@@ -109,6 +126,14 @@ void cref_mech_set(ins_mech_t *m, const double q[4], const double v[3], double l
                    const double dth_prev[3], const double dv_prev[3], int have_prev);
 void cref_heading_run(ins_mech_t *m, ins_gsf_t *g, const double *inc, const double *t_end, const double *dts, size_t n,
                       const double bg[3], const double ba[3], double *out);
+void ins_level_init(ins_level_t *l, double time, double still_delay, double frozen, double still_tau, double gyro2,
+                    double accel2);
+void ins_imu_check_init(ins_imu_check_t *c, double window);
+int cref_level_step(ins_level_t *l, const double dth[3], const double dv[3], double dt, double t);
+int cref_imu_check_add(ins_imu_check_t *c, const double dth[3], const double dv[3], double dt);
+int cref_level_run(ins_level_t *l, ins_imu_check_t *chk, ins_gsf_t *g, const double bg[3], const double *inc,
+                   const double *t_end, const double *dts, size_t n, size_t *done);
+void cref_level_bring_forward(const ins_level_t *l, ins_mech_t *m, const double bg[3]);
 int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
                           double std_d, double std_vel, size_t n);
 """

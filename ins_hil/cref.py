@@ -33,10 +33,12 @@ import numpy as np
 
 from ins_hil import aids
 from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, ins_off_track
+from ins_hil.core_parts.alignment import MAX_FROZEN_S, Alignment
+from ins_hil.core_parts.sensor_check import SensorCheck
 from ins_hil.core_parts.yaw_reset import YawReset
 from ins_hil.fusion.innovation import GateStats
 from ins_hil.fusion.yaw_gsf import GsfConfig
-from ins_hil.nav.mechanization import StrapdownState
+from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
 from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 Precision = Literal["double", "float"]
@@ -263,6 +265,160 @@ class CYawGsf:
         return self.started and self.yaw_var < self.cfg.converged_std**2
 
 
+def _f64(ffi: Any, x: Any) -> Any:
+    """A ``double[]`` view of ``x`` (copied first unless it is a C-contiguous float64 array)."""
+    return ffi.from_buffer("double[]", np.ascontiguousarray(x, dtype=np.float64))
+
+
+def _c_mech(ins: StrapdownNED) -> bool:
+    """``ins`` (NavCore's StrapdownNED) has the settings the C mechanization mirrors (its defaults)."""
+    return bool(ins._att is None and not ins._j2 and ins.coning and ins.sculling and ins.earth_rate
+                and ins.renorm_every == 1)  # fmt: skip
+
+
+def _mech_on_c(ins: StrapdownNED, ffi: Any, m: Any) -> None:
+    """Set the C mechanization ``m`` (``ins_mech_t``) from ``ins`` (NavCore's StrapdownNED)."""
+    s = ins.state
+    lib = _lib("double")[1]
+    lib.cref_mech_set(m, _f64(ffi, s.q_nb), _f64(ffi, s.vel_ned), s.lat, s.lon, s.h, s.t, _f64(ffi, ins._dth_prev),
+                      _f64(ffi, ins._dv_prev), 1 if ins._have_prev else 0)  # fmt: skip
+
+
+def _mech_back(ins: StrapdownNED, m: Any, n: int) -> None:
+    """``ins`` (NavCore's StrapdownNED) after ``n`` steps of the C mechanization ``m`` from it (velocity held at
+    zero: the alignment's steps); its time ``m.t``."""
+    s = ins.state
+    s.q_nb = np.array([float(m.q[i]) for i in range(4)])
+    s.lat, s.lon, s.h, s.t = float(m.lat), float(m.lon), float(m.h), float(m.t)
+    s.vel_ned = np.zeros(3)
+    ins._dth_prev = np.array([float(m.dth_prev[i]) for i in range(3)])
+    ins._dv_prev = np.array([float(m.dv_prev[i]) for i in range(3)])
+    ins._have_prev = bool(m.have_prev)
+    ins._n += n
+    ins.f_ned = np.array([float(m.f_ned[i]) for i in range(3)])
+    ins.omega_ie = np.array([float(m.omega_ie[i]) for i in range(3)])
+    ins.omega_en = np.array([float(m.omega_en[i]) for i in range(3)])
+
+
+class _CSensorCheck(SensorCheck):
+    """NavCore's start-up check (:class:`SensorCheck`) with its sums on C (``ins_imu_check_t``,
+    ``firmware_ref/src/align.c``, double build: the same sums in the same order), so that a run of samples goes
+    through it in one C call (``CNavCore.run_states``); the sums reach the Python fields when it judges."""
+
+    def __init__(self, cfg: NavConfig) -> None:
+        super().__init__(cfg)
+        self._ffi, self._clib = _lib("double")
+        self.c = self._ffi.new("ins_imu_check_t *")
+        self._clib.ins_imu_check_init(self.c, self.window)
+
+    def add(self, imu: ImuSample) -> bool:
+        """One sample (:meth:`SensorCheck.add`); True when the window is full and judged."""
+        ffi = self._ffi
+        if not self._clib.cref_imu_check_add(self.c, _f64(ffi, imu.dtheta), _f64(ffi, imu.dvel), float(imu.dt)):
+            return False
+        self.judge()
+        return True
+
+    def judge(self) -> None:
+        """The window is full (the C sums say so): the sums into the Python fields, then the judging."""
+        c, unpack = self.c, self._ffi.unpack
+        self.n, self.t = int(c.n), float(c.t)
+        self.sf, self.sf2 = np.array(unpack(c.sf, 3)), np.array(unpack(c.sf2, 3))
+        self.sw, self.sw2 = np.array(unpack(c.sw, 3)), np.array(unpack(c.sw2, 3))
+        self.dt = self.t / self.n
+        self._judge()
+
+
+class _CAlignment(Alignment):
+    """NavCore's :class:`Alignment` with its levelling window on C (``ins_level_t``, ``firmware_ref/src/align.c``,
+    double build): the same window, sums and IMU motion test in the same order, a sample at a time (:meth:`step`)
+    or a run of samples in one C call (``CNavCore.run_states``); the held-back samples after the levelling
+    through the C mechanization. The window's samples and sums stay in C (``t_win``, ``moving`` and
+    ``imu_moving`` are kept current); they reach the Python fields when the levelling is due (:meth:`_level`
+    reads them), or for good when the ring is full (``INS_LEVEL_N`` samples: the levelling goes on in Python)."""
+
+    def __init__(self, old: Alignment) -> None:
+        self.__dict__.update(old.__dict__)  # what NavCore set (a configured position)
+        self._ffi, self._clib = _lib("double")
+        a = self.cfg.alignment
+        self.lv = self._ffi.new("ins_level_t *")
+        self._clib.ins_level_init(self.lv, a.time, a.still_delay, MAX_FROZEN_S, a.still_tau, a.still_gyro**2,
+                                  a.still_accel**2)  # fmt: skip
+        #: the window is in C (False: in the Python fields, after the ring was full or before a fresh start)
+        self.on_c = not (self.buf or self.pending)
+        self._mech: Any = None
+        self._mag_ref = self.cfg.mag.ref_ned is not None
+        self._yaw_any = a.level_only or a.gyrocompass  # a yaw source that needs no magnetometer sample
+
+    def put(self) -> None:
+        """The flags the aiding samples set (a position, a GNSS speed, a yaw source) to the C window."""
+        lv = self.lv
+        lv.have_pos = 1 if self.have_pos else 0
+        lv.moving = 1 if self.moving else 0
+        lv.yaw_ready = 1 if self._yaw_any or (self._mag_ref and self.last_mag is not None) else 0
+
+    def get(self) -> None:
+        """The window's length and the motion flags from C."""
+        lv = self.lv
+        self.t_win = lv.t_win
+        self.moving = bool(lv.moving)
+        self.imu_moving = bool(lv.imu_moving)
+
+    def step(self, imu: ImuSample) -> None:
+        """One IMU sample before navigation (:meth:`Alignment.step`); the levelling window on C."""
+        if not self.on_c or self.core.phase != "level":
+            super().step(imu)
+            return
+        self.core.ins.state.t = imu.t
+        self.put()
+        ffi = self._ffi
+        r = self._clib.cref_level_step(self.lv, _f64(ffi, imu.dtheta), _f64(ffi, imu.dvel), float(imu.dt),
+                                       float(imu.t))  # fmt: skip
+        self.get()
+        if r == self._clib.INS_LEVEL_FULL:
+            self.to_python()
+            super().step(imu)
+        elif r == self._clib.INS_LEVEL_DUE:
+            self.due()
+
+    def due(self) -> None:
+        """The levelling is due (after the window's last sample): :meth:`_level` on the window's state."""
+        self.to_python(keep=True)
+        self._level()
+
+    def to_python(self, keep: bool = False) -> None:
+        """The C window into the Python fields (``buf``, ``pending``, the sums, the motion test); from now on the
+        window is in Python unless ``keep`` (the levelling is due: the held-back samples are read from C)."""
+        lv, ffi = self.lv, self._ffi
+        nw, n = int(lv.n_win), int(lv.n_win) + int(lv.n_pend)
+        idx = (int(lv.first) + np.arange(n)) % self._clib.INS_LEVEL_N
+        t = np.frombuffer(ffi.buffer(lv.t), dtype=np.float64)[idx].tolist()
+        dt = np.frombuffer(ffi.buffer(lv.dt), dtype=np.float64)[idx].tolist()
+        dth = list(np.frombuffer(ffi.buffer(lv.dth), dtype=np.float64).reshape(-1, 3)[idx])
+        dv = list(np.frombuffer(ffi.buffer(lv.dv), dtype=np.float64).reshape(-1, 3)[idx])
+        self.buf = deque(zip(dt[:nw], dv[:nw], dth[:nw], strict=True))
+        self.pending = deque(ImuSample(t=t[k], dt=dt[k], dtheta=dth[k], dvel=dv[k]) for k in range(nw, n))
+        self.f_sum, self.w_sum = np.array(ffi.unpack(lv.f_sum, 3)), np.array(ffi.unpack(lv.w_sum, 3))
+        self.t_win, self.dev_w, self.dev_f = float(lv.t_win), float(lv.dev_w), float(lv.dev_f)
+        self.moving, self.imu_moving = bool(lv.moving), bool(lv.imu_moving)
+        self.on_c = keep
+
+    def _bring_forward(self) -> None:
+        """:meth:`Alignment._bring_forward` through the C mechanization (the held-back samples of the C ring, the
+        same as ``pending``) when the window was in C and NavCore's mechanization is the one the C mirrors."""
+        ins = self.core.ins
+        if not self.on_c or not self.pending or not _c_mech(ins):
+            super()._bring_forward()
+            return
+        ffi = self._ffi
+        if self._mech is None:
+            self._mech = ffi.new("ins_mech_t *")
+        m = self._mech
+        _mech_on_c(ins, ffi, m)
+        self._clib.cref_level_bring_forward(self.lv, m, _f64(ffi, self.core.bg))
+        _mech_back(ins, m, len(self.pending))
+
+
 class CNavCore:
     """The C reference core with the ``NavCore`` interface.
 
@@ -270,7 +426,9 @@ class CNavCore:
     ``ValueError``; ``initial`` may be None with an alignment). dt: the fixed step (s); None = take it
     from the first IMU sample. With ``alignment.mode`` other than "given" the alignment (levelling,
     gyrocompass, magnetometer/GNSS yaw, the GNSS-velocity yaw bank) runs in the Python ``NavCore``, a
-    one-off start-up; at its end the C core takes over its state, covariance and biases.
+    one-off start-up, with its per-sample work on C (the levelling window and start-up check: ``_CAlignment``,
+    ``_CSensorCheck``; the heading phase's steps; the yaw bank: ``CYawGsf``; a run of samples in one call:
+    :meth:`run_states`); at its end the C core takes over its state, covariance, noise densities and biases.
     precision: ``"double"`` or ``"float"`` (the C scalar type). filter: run the 15-state
     EKF predict on every step (needed for ``fuse``); False = mechanization only.
     dt_tolerance / on_dt_mismatch: see the module docstring. fixed_step=False: each sample is integrated over
@@ -311,6 +469,10 @@ class CNavCore:
             if self._align.yaw_gsf is not None:
                 self._align.yaw_gsf = CYawGsf()
             self._align.yaw_reset = _NoYawReset(self.cfg)
+            # its levelling window and start-up check on C (a run of samples in one call: run_states)
+            self._align.align = _CAlignment(self._align.align)
+            if self._align.sensor_check is not None:
+                self._align.sensor_check = _CSensorCheck(self.cfg)
             initial = self._align.ins.state
         elif initial is None:
             raise ValueError("CNavCore: alignment.mode='given' needs an initial state")
@@ -322,13 +484,19 @@ class CNavCore:
         if self._delayed:
             self._lib_.cref_hist_init(self._hist, float(self.cfg.delay.max_delay))
         self._out = self._ffi.new("double[32]")
+        self._gate = self._ffi.new("double[8]")  # the gates of the last update (cref_gfuse_*)
+        self._e_cons = self._core.ekf.consecutive  # the C counters of rejections in a row (a view into _core)
+        g = self.cfg.gnss
+        self._vel_delay, self._reset_after, self._use_vel = float(g.vel_delay), int(g.reset_after), bool(g.use_vel)
+        self._have_mag = self.cfg.mag.ref_ned is not None
+        self._aligned_std = float(self.cfg.alignment.aligned_yaw_std)
         self._pub: Any = None  # ins_out_t the C step writes its post-mechanization state to (step_begin)
         self._hmech: Any = None  # ins_mech_t of the alignment's heading phase on C (run_states before the hand-over)
+        self._done: Any = None  # size_t * of the levelling runs on C (cref_level_run)
         self._out_np = np.frombuffer(self._ffi.buffer(self._out), dtype=np.float64)
         # the last NavState built by state(), until the core changes (a step, an update, the hand-over): the
         # runtime asks for the same state several times per step (the guard, the observers)
         self._st: NavState | None = None
-        self._vel_nan = np.full(3, np.nan)
         #: the rows of the last run_states call that had lost IMU data before them (one DROPOUT event each)
         self.run_gap_rows: list[int] = []
         #: the state records of the last run_states call, (n, 32) (``ins_hil.runtime.pipeline.states_ok``)
@@ -377,6 +545,9 @@ class CNavCore:
         for i in range(n):
             for j in range(n):
                 c.ekf.P[i][j] = float(P[i, j])
+        qc = np.asarray(a.kf.qc, dtype=np.float64)  # with the start-up check's inflation (NavCore._sensor_checked)
+        for i in range(n):
+            c.ekf.qc[i] = float(qc[i])
         c.ekf.g_local = float(a.g_local)
         b = a.baro
         if b.offset is not None:
@@ -495,64 +666,69 @@ class CNavCore:
         if self.dt is None or not self.filter:
             return None
         try:
-            if meas.kind == "gnss" and self.cfg.gnss.vel_delay > 0 and cast(GnssFix, meas).vel_ned is not None:
-                meas = cast(GnssFix, meas)
-                # the position at the fix's time, the velocity at its own earlier time (as two measurements)
-                self._fuse_one(meas, vel=False)
-                self._st = None
-                self._fuse_one(meas, pos=False, t=meas.t - self.cfg.gnss.vel_delay)
+            if meas.kind == "gnss":
+                self._fuse_gnss(cast(GnssFix, meas))
             else:
                 self._fuse_one(meas)
         finally:
             self._st = None  # the state changed (a roll-back too)
         return None
 
-    def _fuse_one(self, meas: AidSample, *, pos: bool = True, vel: bool = True, t: float | None = None) -> None:
-        """One measurement into the C core (through the roll-back history). A GNSS fix: its position unless
-        ``pos`` is False, its velocity unless ``vel`` is False, at ``t`` (default its own time)."""
-        e = self._core.ekf
-        unpack = self._ffi.unpack  # the C counters, one call per array
-        before = unpack(e.rejected, 3)
-        cons = unpack(e.consecutive, 3)
+    def _fuse_gnss(self, meas: GnssFix) -> None:
+        """A GNSS fix into the C core (through the roll-back history): its position and velocity at its time, or
+        with ``gnss.vel_delay`` its position at its time and its velocity at its own earlier time (two updates in
+        one C call). The C call returns each group's gate (``cref_gfuse_*``: its test ratio, rejected or not, the
+        rejections in a row before and after it), from which the ratios and NavCore's gate events follow."""
+        if not (meas.std_ne >= 0.0 and meas.std_d >= 0.0 and meas.std_vel >= 0.0):
+            for name in ("std_ne", "std_d", "std_vel"):
+                sd = getattr(meas, name)
+                if not sd >= 0.0:
+                    raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
+        g = self._gate
+        v = meas.vel_ned
+        split = v is not None and self._vel_delay > 0.0
+        if v is not None:
+            vn, ve, vd = (v if type(v) is np.ndarray else np.asarray(v, dtype=np.float64)).tolist()
+        else:
+            vn = ve = vd = math.nan
+        lat = meas.lat
+        pos = math.isfinite(lat)  # NaN: a velocity-only fix
+        if pos and self._e_cons[0] >= self._reset_after:
+            self._hold_reset(meas, strip_vel=split)
+        t = t_vel = meas.t
+        if split:
+            t_vel = t - self._vel_delay
+            self._lib_.cref_gfuse_gnss_split(self._core, self._hist, t, self._vel_delay, lat if pos else math.nan,
+                                             meas.lon, meas.h, vn, ve, vd, meas.std_ne, meas.std_d, meas.std_vel,
+                                             g)  # fmt: skip
+        else:
+            self._lib_.cref_gfuse_gnss(self._core, self._hist, t, lat if pos else math.nan, meas.lon, meas.h, vn, ve,
+                                       vd, meas.std_ne, meas.std_d, meas.std_vel, g)  # fmt: skip
+        r = self._ffi.unpack(g, 8)
+        ratios = self._ratios
+        if pos:
+            ratios = dict(ratios)
+            ratios["gnss_pos"] = r[0]
+            if r[1]:  # the fix as the position update saw it (the position alone of a split)
+                self._rejected.append((dataclasses.replace(meas, vel_ned=None) if split else meas, r[0]))
+            elif self._rejected:
+                self._rejected.clear()
+            if (r[1] and not r[2]) or (r[2] and not r[3]):
+                self._gate_event(t, "gnss_pos", r)
+        if v is not None and self._use_vel:
+            ratios = dict(ratios) if ratios is self._ratios else ratios
+            ratios["gnss_vel"] = r[4]
+            if (r[5] and not r[6]) or (r[6] and not r[7]):
+                self._gate_event(t_vel, "gnss_vel", r[4:])
+        self._ratios = ratios
+
+    def _fuse_one(self, meas: AidSample) -> None:
+        """A baro altitude or a magnetometer field into the C core (through the roll-back history), with its gate
+        (``cref_gfuse_*``) for the ratios and NavCore's gate events."""
         kind = meas.kind  # the C core's functions of the aids it supports (the others: its "not supported" list)
-        if kind == "gnss":
-            meas = cast(GnssFix, meas)
-            v = meas.vel_ned if vel else None
-            if v is None:
-                v = self._vel_nan
-            elif not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.flags.c_contiguous):
-                v = np.ascontiguousarray(v, dtype=np.float64)
-            if not (meas.std_ne >= 0.0 and meas.std_d >= 0.0 and meas.std_vel >= 0.0):
-                for name in ("std_ne", "std_d", "std_vel"):
-                    sd = getattr(meas, name)
-                    if not sd >= 0.0:
-                        raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
-            pos = pos and math.isfinite(meas.lat)  # NaN: a velocity-only fix
-            # the fix as this update sees it (the position alone of a gnss.vel_delay split): made when needed
-            own = meas if vel or meas.vel_ned is None else None
-            if pos:
-                self._hold_reset(meas, strip_vel=own is None)
-            self._lib_.cref_hfuse_gnss(
-                self._core,
-                self._hist,
-                meas.t if t is None else t,
-                meas.lat if pos else math.nan,
-                meas.lon,
-                meas.h,
-                self._ffi.from_buffer("double[]", v),
-                meas.std_ne,
-                meas.std_d,
-                meas.std_vel,
-            )
-            use_vel = vel and meas.vel_ned is not None and self.cfg.gnss.use_vel
-            groups = ((0,) if pos else ()) + ((1,) if use_vel else ())
-            if pos:
-                if e.rejected[0] > before[0]:
-                    kept = own if own is not None else dataclasses.replace(meas, vel_ned=None)
-                    self._rejected.append((kept, float(e.last_ratio[0])))
-                elif self._rejected:
-                    self._rejected.clear()
-        elif kind == "baro":
+        g = self._gate
+        tt = meas.t
+        if kind == "baro":
             meas = cast(BaroSample, meas)
             alt = meas.altitude
             if not math.isfinite(alt):
@@ -561,36 +737,32 @@ class CNavCore:
                 from ins_hil.nav.earth import altitude_from_pressure
 
                 alt = altitude_from_pressure(meas.pressure)
-            self._lib_.cref_hfuse_baro(self._core, self._hist, meas.t, alt)
-            groups = (2,)
-        elif kind == "mag" and self.cfg.mag.ref_ned is not None:
+            self._lib_.cref_gfuse_baro(self._core, self._hist, tt, alt, g)
+            r = self._ffi.unpack(g, 4)
+            ratios = dict(self._ratios)
+            ratios["baro"] = r[0]
+            self._ratios = ratios
+            if (r[1] and not r[2]) or (r[2] and not r[3]):
+                self._gate_event(tt, "baro", r)
+        elif kind == "mag" and self._have_mag:
             meas = cast(MagSample, meas)
-            fb = np.ascontiguousarray(meas.field_b, dtype=np.float64)
-            self._lib_.cref_hfuse_mag(self._core, self._hist, meas.t, self._ffi.from_buffer("double[]", fb))
-            groups = (5,)
-        else:
-            return None
-        ratios = dict(self._ratios)
-        last = unpack(e.last_ratio, len(_GROUPS))
-        rej, con = unpack(e.rejected, 3), unpack(e.consecutive, 3)
-        for g in groups:
-            kind = _GROUPS[g]
-            ratios[kind] = float(last[g])
-            if g > 2:  # events for the GNSS and baro gates only (as NavCore)
-                continue
-            sensor = "gnss" if kind.startswith("gnss") else "baro"
-            if rej[g] > before[g] and cons[g] == 0:
-                self._events.append(
-                    FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, float("nan"), True, False,
-                               f"{kind} innovation test ratio {ratios[kind]:.2f}")
-                )  # fmt: skip
-            elif con[g] == 0 and cons[g] > 0:
-                self._events.append(
-                    FaultEvent(meas.t if t is None else t, sensor, FaultMode.JUMP, 0.0, True, True,
-                               f"{kind} accepted again after {cons[g]} rejections")
-                )  # fmt: skip
-        self._ratios = ratios
+            fx, fy, fz = np.asarray(meas.field_b, dtype=np.float64).tolist()
+            self._lib_.cref_gfuse_mag(self._core, self._hist, tt, fx, fy, fz, g)
+            ratios = dict(self._ratios)
+            ratios["mag"] = g[0]  # no gate events for the magnetometer (as NavCore)
+            self._ratios = ratios
         return None
+
+    def _gate_event(self, t: float, kind: str, r: Sequence[float]) -> None:
+        """NavCore's event of a GNSS or baro gate (group ``kind``, its ``cref_gfuse_*`` gate ``r``: test ratio,
+        rejected, rejections in a row before and after): its first rejection, or accepted again after some."""
+        sensor = "gnss" if kind.startswith("gnss") else "baro"
+        if r[1] and r[2] == 0:
+            self._events.append(FaultEvent(t, sensor, FaultMode.JUMP, float("nan"), True, False,
+                                           f"{kind} innovation test ratio {r[0]:.2f}"))  # fmt: skip
+        elif r[3] == 0 and r[2] > 0:
+            self._events.append(FaultEvent(t, sensor, FaultMode.JUMP, 0.0, True, True,
+                                           f"{kind} accepted again after {int(r[2])} rejections"))  # fmt: skip
 
     def _hold_reset(self, meas: GnssFix, strip_vel: bool = False) -> None:
         """Before a fix reaches the C core: when its count of rejected positions would force this one in (a
@@ -662,24 +834,12 @@ class CNavCore:
         return st
 
     def _nav_state(self, o: Vec) -> NavState:
-        """The NavState of a 32-value C state record (``cref_state``)."""
-        return NavState(
-            t=float(o[0]),
-            q_nb=o[1:5],
-            vel_ned=o[5:8],
-            lat=float(o[8]),
-            lon=float(o[9]),
-            h=float(o[10]),
-            gyro_bias=o[11:14],
-            accel_bias=o[14:17],
-            std_pos=o[17:20],
-            std_vel=o[20:23],
-            std_att=o[23:26],
-            omega_b=o[26:29],  # bias-compensated rate and specific force of the last interval
-            accel_b=o[29:32],
-            aligned=bool(o[25] < self.cfg.alignment.aligned_yaw_std),
-            test_ratios=self._ratios,
-        )
+        """The NavState of a 32-value C state record (``cref_state``): t, q_nb, vel_ned, lat, lon, h, gyro_bias,
+        accel_bias, std_pos, std_vel, std_att, omega_b and accel_b (the bias-compensated rate and specific force
+        of the last interval), the arrays views of ``o``."""
+        x = o.tolist()  # the scalars as Python floats in one call
+        return NavState(x[0], o[1:5], o[5:8], x[8], x[9], x[10], o[11:14], o[14:17], o[17:20], o[20:23], o[23:26],
+                        o[26:29], o[29:32], x[25] < self._aligned_std, self._ratios)  # fmt: skip
 
     def run(self, dtheta: Vec, dvel: Vec, t_end: Vec | None = None, *, every: int = 1, dt: Vec | None = None) -> Vec:
         """Run n IMU intervals in ONE C call (the core must have its dt; through the roll-back history).
@@ -732,8 +892,21 @@ class CNavCore:
         handed over) and steps each sample over its own ``dt`` (``fixed_step=False``); or the alignment waits for
         its yaw with nothing but gyro-only steps to run (:meth:`_heading_runs`)."""
         if self._align is not None:
-            return not self.fixed_step and self._heading_runs()
+            return not self.fixed_step and (self._level_runs() or self._heading_runs())
         return self.dt is not None and not self.fixed_step and self.filter
+
+    def _level_runs(self) -> bool:
+        """The alignment is levelling with its window on C (:class:`_CAlignment`), its start-up check and yaw bank
+        (if any) on C: its IMU samples may run on C (``cref_level_run``)."""
+        a = self._align
+        if a is None or a.phase != "level":
+            return False
+        al = a.align
+        return bool(
+            isinstance(al, _CAlignment) and al.on_c and a.pending_end is None
+            and not a.replaying and (a.sensor_check is None or isinstance(a.sensor_check, _CSensorCheck))
+            and (a.yaw_gsf is None or isinstance(a.yaw_gsf, CYawGsf))
+        )  # fmt: skip
 
     def _heading_runs(self) -> bool:
         """The alignment is in its heading phase (levelled, waiting for the GNSS course or the yaw bank), its
@@ -748,61 +921,126 @@ class CNavCore:
             and ins.renorm_every == 1 and not a.replaying and (a.yaw_gsf is None or isinstance(a.yaw_gsf, CYawGsf))
         )  # fmt: skip
 
-    def _heading_states(self, inc: Vec, t_end: Vec, dt: Vec) -> list[NavState]:
+    def _heading_states(self, inc: Vec, t_end: Vec, dt: Vec) -> RunStates:
         """:meth:`run_states` in the alignment's heading phase: the n gyro-only steps (and the yaw bank) of the
         alignment's ``NavCore`` in one C call (``cref_heading_run``, the double build: the alignment's numbers),
-        its StrapdownNED set before and read back after; per step the state ``NavCore.step`` returns."""
+        its StrapdownNED set before and read back after; per step the state ``NavCore.step`` returns (as the rows
+        of the C state record: each ``NavState`` built when asked for)."""
         a = self._align
-        ins = a.ins
-        s = ins.state
         ffi, lib = _lib("double")
         fb = ffi.from_buffer
         if self._hmech is None:
             self._hmech = ffi.new("ins_mech_t *")
         m = self._hmech
-
-        def f64(x: Any) -> Any:
-            return fb("double[]", np.ascontiguousarray(x, dtype=np.float64))
-
-        lib.cref_mech_set(m, f64(s.q_nb), f64(s.vel_ned), s.lat, s.lon, s.h, s.t, f64(ins._dth_prev),
-                          f64(ins._dv_prev), 1 if ins._have_prev else 0)  # fmt: skip
+        _mech_on_c(a.ins, ffi, m)
         n = len(t_end)
         out = np.empty((n, 11))  # t, q[4], lat, lon, h, omega_b[3]
         gsf = a.yaw_gsf._g if a.yaw_gsf is not None else ffi.NULL
-        lib.cref_heading_run(m, gsf, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n, f64(a.bg),
-                             f64(a.ba), fb("double[]", out))  # fmt: skip
-        last = out[-1]
-        s.q_nb = last[1:5].copy()
-        s.lat, s.lon, s.h, s.t = float(last[5]), float(last[6]), float(last[7]), float(last[0])
-        s.vel_ned = np.zeros(3)
-        ins._dth_prev = np.array([float(m.dth_prev[i]) for i in range(3)])
-        ins._dv_prev = np.array([float(m.dv_prev[i]) for i in range(3)])
-        ins._have_prev = bool(m.have_prev)
-        ins._n += n
-        ins.f_ned = np.array([float(m.f_ned[i]) for i in range(3)])
-        ins.omega_ie = np.array([float(m.omega_ie[i]) for i in range(3)])
-        ins.omega_en = np.array([float(m.omega_en[i]) for i in range(3)])
-        a.omega_b = last[8:11].copy()
+        lib.cref_heading_run(m, gsf, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n, _f64(ffi, a.bg),
+                             _f64(ffi, a.ba), fb("double[]", out))  # fmt: skip
+        _mech_back(a.ins, m, n)
+        a.omega_b = out[-1, 8:11].copy()
         a._dt = float(dt[-1])
         st = a.state()  # the σ (P does not change before the hand-over), the biases, f_b and the gate ratios
-        sp, sv, sa, bg, ba, fbd, ratios = st.std_pos, st.std_vel, st.std_att, a.bg, a.ba, a.f_b, st.test_ratios
-        ro = np.zeros((n, 32))  # the C record layout for the core guard (states_ok)
+        ro = np.empty((n, 32))  # the C record layout (the core guard: states_ok; RunStates)
         ro[:, 0:5] = out[:, 0:5]
+        ro[:, 5:8] = 0.0  # the velocity held at zero
         ro[:, 8:11] = out[:, 5:8]
-        ro[:, 17:20], ro[:, 20:23], ro[:, 23:26] = sp, sv, sa
+        ro[:, 11:14], ro[:, 14:17], ro[:, 17:20], ro[:, 20:23] = a.bg, a.ba, st.std_pos, st.std_vel
+        ro[:, 23:26], ro[:, 26:29], ro[:, 29:32] = st.std_att, out[:, 8:11], a.f_b
         self.run_out = ro
-        tl = out[:, [0, 5, 6, 7]].tolist()
-        return [
-            NavState(r[0], o[1:5], np.zeros(3), r[1], r[2], r[3], bg, ba, sp, sv, sa, o[8:11], fbd, False, ratios)
-            for r, o in zip(tl, out, strict=True)
-        ]
+        return RunStates(ro, -math.inf, st.test_ratios)  # never "aligned" before navigation
+
+    def _level_states(self, inc: Vec, t_end: Vec, dt: Vec) -> Sequence[NavState]:
+        """:meth:`run_states` while the alignment levels: the samples through its start-up check, yaw bank and
+        levelling window in one C call (``cref_level_run``) up to the sample at which the check judges (its Python
+        then: ``SensorCheck._judge``) or the levelling is due; per step the state ``NavCore.step`` returns. The
+        run stops before the sample at which the levelling is due, unless it is the run's first: that one is
+        levelled with one :meth:`step` (``Alignment._level``, and the hand-over if it navigates), the rest of the
+        run in the phase it leads to (:meth:`_after_level`). So a run never holds states from before and after
+        the start of navigation."""
+        a = self._align
+        al = a.align
+        ffi, lib = al._ffi, al._clib
+        fb = ffi.from_buffer
+        n = len(t_end)
+        done = self._done
+        if done is None:
+            done = self._done = ffi.new("size_t *")
+        parts: list[Any] = []  # RunStates of the levelling samples, lists of the others
+        rows: list[Vec] = []
+        k, first = 0, True  # (run_states has checked _level_runs for the first pass)
+        while k < n:
+            if not first and not self._level_runs():  # levelled (at the run's first sample), or the window left C
+                st, ro, gaps = self._after_level(inc[k:], t_end[k:], dt[k:])
+                self.run_gap_rows = [k + g for g in gaps]
+                parts.append(st)
+                rows.append(ro)
+                break
+            first = False
+            chk = a.sensor_check
+            al.put()
+            r = lib.cref_level_run(al.lv, chk.c if chk is not None else ffi.NULL,
+                                   a.yaw_gsf._g if a.yaw_gsf is not None else ffi.NULL, fb("double[]", a.bg),
+                                   fb("double[]", inc[k:]), fb("double[]", t_end[k:]), fb("double[]", dt[k:]), n - k,
+                                   done)  # fmt: skip
+            m = int(done[0])
+            al.get()
+            if m:
+                a.ins.state.t = float(t_end[k + m - 1])
+                a._dt = float(dt[k + m - 1])
+                if r & lib.CREF_LEVEL_CHECKED:
+                    chk.judge()
+                    a._sensor_checked(chk)
+                ro = np.empty((m, 32))
+                ro[:] = _record(a.state())
+                ro[:, 0] = t_end[k : k + m]
+                rows.append(ro)
+                parts.append(RunStates(ro, -math.inf, a._ratios))  # never "aligned" before navigation
+                k += m
+            if r & lib.INS_LEVEL_DUE and k:  # levelled at the next call (its first sample)
+                break
+            if r & (lib.INS_LEVEL_DUE | lib.CREF_LEVEL_BAD):
+                # levelled one sample at a time (Alignment._level; the hand-over); a bad one: NavCore.step's
+                # check_imu refuses it (ValueError, one line)
+                st1 = self.step(ImuSample(t=float(t_end[k]), dt=float(dt[k]), dtheta=inc[k, :3], dvel=inc[k, 3:]))
+                parts.append([st1])
+                rows.append(_record(st1)[None, :])
+                k += 1
+            elif r & lib.INS_LEVEL_FULL:
+                al.to_python()
+        self.run_out = rows[0] if len(rows) == 1 else np.concatenate(rows)
+        if len(parts) == 1:
+            return cast(Sequence[NavState], parts[0])
+        return [st for p in parts for st in p]
+
+    def _after_level(self, inc: Vec, t_end: Vec, dt: Vec) -> tuple[Sequence[NavState], Vec, list[int]]:
+        """The samples of a :meth:`run_states` call after the levelling (or after its window left C): through
+        :meth:`run_states` when :meth:`can_run`, else one :meth:`step_begin` each. Their states, records and the
+        rows with lost IMU data before them (each a DROPOUT event)."""
+        if not len(t_end):
+            return [], np.zeros((0, 32)), []
+        if self.can_run():
+            st = self.run_states(inc, t_end, dt)
+            return st, self.run_out, self.run_gap_rows
+        out: list[NavState] = []
+        gaps = []
+        for k in range(len(t_end)):
+            ev = len(self._events)
+            out.append(self.step_begin(ImuSample(t=float(t_end[k]), dt=float(dt[k]), dtheta=inc[k, :3],
+                                                 dvel=inc[k, 3:])))  # fmt: skip
+            if len(self._events) > ev:
+                gaps.append(k)
+        return out, np.array([_record(st) for st in out]), gaps
 
     def run_states(self, inc: Vec, t_end: Vec, dt: Vec) -> Sequence[NavState]:
         """:meth:`step` on n samples in ONE C call (through the roll-back history): ``inc`` (n, 6) float64 dθ, dv
         (rad, m/s, body FRD), ``t_end``, ``dt`` (n,) s. Returns, per step, the state :meth:`step_begin` returns
         (the one published after the mechanization, the same C record), and records the IMU data lost before a
         sample as :meth:`step` does (``imu_lost``, a DROPOUT event); :meth:`state` is the state after the last
-        step (time update included). Only when :meth:`can_run`."""
+        step (time update included). Only when :meth:`can_run`. While the alignment levels, the states of the
+        first m ≤ n samples: a run stops before the sample at which the levelling is due (unless it is its first;
+        :meth:`_level_states`): the caller hands the rest over again."""
         n = len(t_end)
         self.run_gap_rows = []
         inc = np.ascontiguousarray(inc, dtype=np.float64)
@@ -812,7 +1050,11 @@ class CNavCore:
             raise ValueError("CNavCore.run_states: (n, 6) increments, (n,) times and steps, on a navigating core "
                              "with fixed_step=False")  # fmt: skip
         if self._align is not None:
-            return self._heading_states(inc, t_end, dt) if n else []
+            if not n:
+                return []
+            if self._align.phase == "level":
+                return self._level_states(inc, t_end, dt)
+            return self._heading_states(inc, t_end, dt)
         if n:  # the IMU data lost before each sample (step()'s record; none before the first step)
             t0 = float(self._core.mech.t)
             if n <= 16:  # a short run (a replay's samples between two aiding measurements): in Python floats
@@ -867,6 +1109,12 @@ class CNavCore:
         return np.array([[float(p[i][j]) for j in range(n)] for i in range(n)])
 
 
+def _record(st: NavState) -> Vec:
+    """The 32-value C state record (``cref_state``'s layout) of ``st``."""
+    return np.concatenate(((st.t,), st.q_nb, st.vel_ned, (st.lat, st.lon, st.h), st.gyro_bias, st.accel_bias,
+                           st.std_pos, st.std_vel, st.std_att, st.omega_b, st.accel_b))  # fmt: skip
+
+
 class RunStates(Sequence[NavState]):
     """The states of one :meth:`CNavCore.run_states` call as a sequence: each ``NavState`` built from its row of
     the C state record (``rows``, (n, 32): ``cref_state``'s layout) when asked for, as ``CNavCore._nav_state``
@@ -900,11 +1148,9 @@ class RunStates(Sequence[NavState]):
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(len(self.rows)))]
         o = self.rows[i]
-        st = NavState(
-            t=float(o[0]), q_nb=o[1:5], vel_ned=o[5:8], lat=float(o[8]), lon=float(o[9]), h=float(o[10]),
-            gyro_bias=o[11:14], accel_bias=o[14:17], std_pos=o[17:20], std_vel=o[20:23], std_att=o[23:26],
-            omega_b=o[26:29], accel_b=o[29:32], aligned=bool(o[25] < self._thr), test_ratios=self._ratios,
-        )  # fmt: skip
+        x = o.tolist()  # the scalars as Python floats in one call (CNavCore._nav_state)
+        st = NavState(x[0], o[1:5], o[5:8], x[8], x[9], x[10], o[11:14], o[14:17], o[17:20], o[20:23], o[23:26],
+                      o[26:29], o[29:32], x[25] < self._thr, self._ratios)  # fmt: skip
         st.resets = self.resets
         return st
 

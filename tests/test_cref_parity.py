@@ -305,3 +305,37 @@ def test_still_refused_settings_name_themselves(car: Stream) -> None:
     for name, cfg in bad.items():
         with pytest.raises(ValueError, match=rf"not supported by the C core: {name.replace('.', '[.]')}"):
             CNavCore(car.init, cfg)
+
+
+def test_gate_events_like_python(uav: Stream) -> None:
+    """The gates of each update (``cref_gfuse_*``) give NavCore's fault events: GNSS positions 50 m off for 3 fixes
+    (rejected, then accepted again), velocities 5 m/s off for 2, a baro 30 m off, with the velocity delay (the
+    position and the velocity as two updates); test ratios of the same groups."""
+    cfg = _cfg(gnss=GnssConfig(vel_delay=0.1))
+    meas = []
+    for m in uav.meas:
+        if isinstance(m, GnssFix) and 100.0 <= m.t < 100.7:
+            m = dataclasses.replace(m, lat=m.lat + 50.0 / earth.A_WGS84)
+        elif isinstance(m, GnssFix) and 150.0 <= m.t < 150.5 and m.vel_ned is not None:
+            m = dataclasses.replace(m, vel_ned=m.vel_ned + 5.0)
+        elif m.kind == "baro" and 120.0 <= m.t < 120.1:
+            m = dataclasses.replace(m, altitude=m.altitude + 30.0)
+        meas.append(m)
+    py, c = NavCore(uav.init, cfg), CNavCore(uav.init, cfg, dt=DT)
+    ev_py: list[tuple[Any, ...]] = []
+    ev_c: list[tuple[Any, ...]] = []
+    j = 0
+    for k in range(len(uav.imu.t)):
+        s = uav.sample(k)
+        py.step(s)
+        c.step(s)
+        while j < len(meas) and meas[j].t <= s.t + 1e-9:
+            py.fuse(meas[j])
+            c.fuse(meas[j])
+            j += 1
+            assert c.state().test_ratios.keys() == py.state().test_ratios.keys()
+        for ev, core in ((ev_py, py), (ev_c, c)):
+            ev += [(e.t, e.sensor, e.mode, e.detail, e.magnitude, e.isolated, e.cleared) for e in core.drain_events()]
+    # NavCore's event of a first rejection carries the largest innovation (the C core's: NaN)
+    assert [e[:4] + e[5:] for e in ev_py] == [e[:4] + e[5:] for e in ev_c]
+    assert {e[3].split(" ")[0] for e in ev_py} >= {"gnss_pos", "gnss_vel", "baro"} and len(ev_py) >= 6

@@ -393,6 +393,53 @@ void ins_gsf_predict(ins_gsf_t *g, const ins_real dtheta[3], const ins_real dvel
                      ins_real forward_speed);
 /* A GNSS horizontal velocity (m/s, NE) with its sigma (m/s). */
 void ins_gsf_fuse_vel(ins_gsf_t *g, const ins_real vel_ne[2], ins_real std);
+
+/* ------------------------------------------------------- static alignment (align.c) */
+
+/* The levelling window of the static alignment (ins_hil.core_parts.alignment.Alignment.step in phase "level"):
+ * the samples of the last `time` s at rest (the window: their sums) and those of the last `still_delay` s not yet
+ * in it (held back, so that a motion the GNSS speed shows late stays out of the window; `frozen` s once the IMU's
+ * motion test has fired), in one ring of INS_LEVEL_N samples; the IMU's motion test (the smoothed squared departure
+ * of the rate and the specific force from the window's mean, time constant still_tau). Fixed capacity: a sample the
+ * ring cannot take is refused (INS_LEVEL_FULL, nothing changed) and the caller levels on without the ring. */
+#ifndef INS_LEVEL_N
+#define INS_LEVEL_N 8192 /* samples (window + held back): 41 s at 200 Hz, 8.2 s at 1 kHz; 512 KB in double */
+#endif
+#define INS_LEVEL_DUE 1  /* the levelling is due after this sample (Alignment._level) */
+#define INS_LEVEL_FULL 2 /* the ring is full: the sample was not taken */
+typedef struct {
+    double time, still_delay, frozen, still_tau; /* s (AlignmentConfig; frozen: alignment.MAX_FROZEN_S) */
+    double gyro2, accel2;           /* the motion test's thresholds squared ((rad/s)^2, (m/s^2)^2) */
+    double t[INS_LEVEL_N], dt[INS_LEVEL_N];        /* each sample's end time and interval (s) */
+    ins_real dth[INS_LEVEL_N][3], dv[INS_LEVEL_N][3]; /* its increments (rad, m/s, body FRD) */
+    uint32_t first, n_win, n_pend;  /* ring: the oldest sample; the window's count, then the held-back ones */
+    ins_real f_sum[3], w_sum[3];    /* sums of dvel and dtheta over the window (m/s, rad, body) */
+    double t_win;                   /* the window's length (s) */
+    double dev_w, dev_f;            /* the smoothed squared departures ((rad/s)^2, (m/s^2)^2) */
+    int moving, imu_moving;         /* motion seen (a GNSS speed, set by the caller, or the IMU); the IMU's test fired */
+    int have_pos, yaw_ready;        /* set by the caller: a position is known; a yaw needs no motion (mag, level_only,
+                                       gyrocompass) */
+} ins_level_t;
+
+void ins_level_init(ins_level_t *l, double time, double still_delay, double frozen, double still_tau, double gyro2,
+                    double accel2);
+/* One IMU interval (dtheta rad, dvel m/s body FRD over dt s, ending at t s) into the window; returns
+ * INS_LEVEL_DUE when the levelling is due (a position, the window full or moving, a yaw source), INS_LEVEL_FULL
+ * (not taken), else 0. */
+int ins_level_step(ins_level_t *l, const ins_real dtheta[3], const ins_real dvel[3], double dt, double t);
+
+/* The start-up check's sums (ins_hil.core_parts.sensor_check.SensorCheck.add): the specific force and rate and
+ * their squares over the first `window` s; the judging is the caller's. */
+typedef struct {
+    double window, t;               /* s: the check's length, the time summed */
+    uint32_t n;                     /* samples summed */
+    ins_real sf[3], sf2[3], sw[3], sw2[3]; /* sums of f (m/s^2), f^2, w (rad/s), w^2 (body) */
+} ins_imu_check_t;
+
+void ins_imu_check_init(ins_imu_check_t *c, double window);
+/* One interval (dt <= 0: ignored); returns 1 when the window is full (judge now), else 0. */
+int ins_imu_check_add(ins_imu_check_t *c, const ins_real dtheta[3], const ins_real dvel[3], double dt);
+
 /* One IMU interval of the alignment's heading phase (levelled, waiting for the yaw; NavCore's Alignment.step):
  * the increments bias-compensated (bg rad/s, ba m/s^2), the yaw bank g (or NULL) fed with the compensated
  * dtheta and the raw dvel, then the strapdown step over dt with the velocity held at zero afterwards; the time

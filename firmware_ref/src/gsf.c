@@ -1,5 +1,5 @@
-/* The GNSS-velocity yaw bank (EKF-GSF), the operations of ins_hil/fusion/yaw_gsf.py in the same order; and the
- * alignment's heading-phase step (ins_hil/core_parts/alignment.py, Alignment.step in phase "heading"). */
+/* The GNSS-velocity yaw bank (EKF-GSF), the operations of ins_hil/fusion/yaw_gsf.py in the same order (the
+ * alignment's steps that feed it: align.c). */
 #include "ins_internal.h"
 
 #define G0 K(9.80665) /* m/s^2, the 1 g of the accelerometer-gain fade */
@@ -265,22 +265,4 @@ void ins_gsf_fuse_vel(ins_gsf_t *g, const ins_real vel_ne[2], ins_real std) {
         for (m = 0; m < n; ++m) g->W[m] = w[m] / total;
     g->updates++;
     composite(g);
-}
-
-void ins_align_heading_step(ins_mech_t *m, ins_gsf_t *g, const ins_real dtheta[3], const ins_real dvel[3], ins_real dt,
-                            double t_end, const ins_real bg[3], const ins_real ba[3], ins_real omega_b[3]) {
-    ins_real a[3], u[3];
-    int i;
-    for (i = 0; i < 3; ++i) {
-        a[i] = dtheta[i] - bg[i] * dt;
-        u[i] = dvel[i] - ba[i] * dt;
-    }
-    if (g != NULL) ins_gsf_predict(g, a, dvel, dt, K(0.0));
-    m->dt = dt;
-    ins_mech_step(m, a, u);
-    m->t = t_end;
-    for (i = 0; i < 3; ++i) {
-        m->v[i] = K(0.0);
-        omega_b[i] = a[i] / dt;
-    }
 }

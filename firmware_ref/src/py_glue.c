@@ -1,5 +1,7 @@
 /* Glue for the Python extension only (compiled by firmware_ref/cffi_build.py, not by the Makefile):
  * double-precision entry points for both scalar builds, and a flat state record. */
+#include <math.h>
+
 #include "ins_ref.h"
 int cref_scalar_bits(void) { return INS_REF_SCALAR_BITS; }
 void cref_init(ins_core_t *c, const double q[4], const double v[3], double lat, double lon, double h, double t,
@@ -150,4 +152,159 @@ void cref_heading_run(ins_mech_t *m, ins_gsf_t *g, const double *inc, const doub
         o[5] = m->lat; o[6] = m->lon; o[7] = m->h;
         for (i = 0; i < 3; ++i) o[8 + i] = (double)w[i];
     }
+}
+/* the static alignment's levelling window and start-up check (align.c), in double for both builds */
+int cref_level_step(ins_level_t *l, const double dth[3], const double dv[3], double dt, double t) {
+    ins_real a[3], u[3];
+    int i;
+    for (i = 0; i < 3; ++i) { a[i] = (ins_real)dth[i]; u[i] = (ins_real)dv[i]; }
+    return ins_level_step(l, a, u, dt, t);
+}
+int cref_imu_check_add(ins_imu_check_t *c, const double dth[3], const double dv[3], double dt) {
+    ins_real a[3], u[3];
+    int i;
+    for (i = 0; i < 3; ++i) { a[i] = (ins_real)dth[i]; u[i] = (ins_real)dv[i]; }
+    return ins_imu_check_add(c, a, u, dt);
+}
+#define CREF_LEVEL_CHECKED 4 /* the start-up check is full at this sample (judge it) */
+#define CREF_LEVEL_BAD 8     /* a sample with a non-finite value or dt <= 0: not taken (NavCore's check_imu refuses it) */
+/* the levelling window's state but its ring (a sample's step undone) */
+typedef struct {
+    uint32_t first, n_win, n_pend;
+    ins_real f_sum[3], w_sum[3];
+    double t_win, dev_w, dev_f;
+    int moving, imu_moving;
+} level_scalars_t;
+static void level_save(const ins_level_t *l, level_scalars_t *s) {
+    int i;
+    s->first = l->first; s->n_win = l->n_win; s->n_pend = l->n_pend;
+    for (i = 0; i < 3; ++i) { s->f_sum[i] = l->f_sum[i]; s->w_sum[i] = l->w_sum[i]; }
+    s->t_win = l->t_win; s->dev_w = l->dev_w; s->dev_f = l->dev_f;
+    s->moving = l->moving; s->imu_moving = l->imu_moving;
+}
+static void level_restore(ins_level_t *l, const level_scalars_t *s) {
+    int i;
+    l->first = s->first; l->n_win = s->n_win; l->n_pend = s->n_pend;
+    for (i = 0; i < 3; ++i) { l->f_sum[i] = s->f_sum[i]; l->w_sum[i] = s->w_sum[i]; }
+    l->t_win = s->t_win; l->dev_w = s->dev_w; l->dev_f = s->dev_f;
+    l->moving = s->moving; l->imu_moving = s->imu_moving;
+}
+/* n samples of the levelling phase as NavCore.step takes them: per sample the levelling window, the start-up check
+ * (chk; NULL once it has judged) and the yaw bank (g or NULL) with dtheta - bg dt and the raw dvel (independent of
+ * each other: NavCore's order is check, bank, window). Stops after the sample at which the check is full, and before
+ * a sample at which the levelling is due (INS_LEVEL_DUE: its window step undone, so the caller levels with it one
+ * sample at a time), that is bad, or that the ring cannot take. Returns those flags (0: all n taken) and the samples
+ * taken in *done. */
+int cref_level_run(ins_level_t *l, ins_imu_check_t *chk, ins_gsf_t *g, const double bg[3], const double *inc,
+                   const double *t_end, const double *dts, size_t n, size_t *done) {
+    const double inf = (double)INFINITY;
+    level_scalars_t was;
+    ins_real a[3], u[3], c[3];
+    size_t k;
+    int i, r;
+    for (k = 0; k < n; ++k) {
+        const double *x = inc + 6 * k, dt = dts[k], t = t_end[k];
+        if (!(0.0 < dt && dt < inf && fabs(t) < inf && fabs(x[0]) < inf && fabs(x[1]) < inf && fabs(x[2]) < inf &&
+              fabs(x[3]) < inf && fabs(x[4]) < inf && fabs(x[5]) < inf)) {
+            *done = k;
+            return CREF_LEVEL_BAD;
+        }
+        if (l->n_win + l->n_pend >= (uint32_t)INS_LEVEL_N) {
+            *done = k;
+            return INS_LEVEL_FULL;
+        }
+        for (i = 0; i < 3; ++i) { a[i] = (ins_real)x[i]; u[i] = (ins_real)x[3 + i]; }
+        level_save(l, &was);
+        if (ins_level_step(l, a, u, dt, t) == INS_LEVEL_DUE) {
+            level_restore(l, &was); /* the ring slot it wrote is beyond the restored count: unused */
+            *done = k;
+            return INS_LEVEL_DUE;
+        }
+        r = 0;
+        if (chk != NULL && ins_imu_check_add(chk, a, u, dt)) r |= CREF_LEVEL_CHECKED;
+        if (g != NULL) {
+            for (i = 0; i < 3; ++i) c[i] = (ins_real)(x[i] - bg[i] * dt);
+            ins_gsf_predict(g, c, u, (ins_real)dt, (ins_real)0.0);
+        }
+        if (r != 0) {
+            *done = k + 1;
+            return r;
+        }
+    }
+    *done = n;
+    return 0;
+}
+/* the held-back samples (the ring's after the window) through the heading step with the gyro bias bg (no yaw bank,
+ * no accelerometer bias): Alignment._bring_forward on m (set from NavCore's StrapdownNED by cref_mech_set) */
+void cref_level_bring_forward(const ins_level_t *l, ins_mech_t *m, const double bg[3]) {
+    ins_real b[3], z[3] = {(ins_real)0.0, (ins_real)0.0, (ins_real)0.0}, w[3];
+    uint32_t j, k;
+    int i;
+    for (i = 0; i < 3; ++i) b[i] = (ins_real)bg[i];
+    for (j = 0; j < l->n_pend; ++j) {
+        k = (l->first + l->n_win + j) % (uint32_t)INS_LEVEL_N;
+        ins_align_heading_step(m, NULL, l->dth[k], l->dv[k], (ins_real)l->dt[k], l->t[k], b, z, w);
+    }
+}
+/* the gate counters of group g after an update against those before it (rej, con): o[0] its test ratio, o[1] 1 if it
+ * was rejected, o[2] its rejections in a row before the update, o[3] after it (CNavCore's events and ratios) */
+static void gate_info(const ins_ekf_t *e, int g, const uint32_t rej[INS_NGRP], const uint32_t con[INS_NGRP],
+                      double o[4]) {
+    o[0] = (double)e->last_ratio[g];
+    o[1] = e->rejected[g] > rej[g] ? 1.0 : 0.0;
+    o[2] = (double)con[g];
+    o[3] = (double)e->consecutive[g];
+}
+static void gate_before(const ins_ekf_t *e, uint32_t rej[INS_NGRP], uint32_t con[INS_NGRP]) {
+    int g;
+    for (g = 0; g < INS_NGRP; ++g) {
+        rej[g] = e->rejected[g];
+        con[g] = e->consecutive[g];
+    }
+}
+/* cref_hfuse_gnss with the velocity as three values (NaN: none) and the gates of the position and the velocity in
+ * o[0..3] and o[4..7] (gate_info) */
+int cref_gfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, double vn, double ve,
+                    double vd, double std_ne, double std_d, double std_vel, double o[8]) {
+    uint32_t rej[INS_NGRP], con[INS_NGRP];
+    double v[3];
+    int r;
+    v[0] = vn; v[1] = ve; v[2] = vd;
+    gate_before(&c->ekf, rej, con);
+    r = cref_hfuse_gnss(c, hs, t, lat, lon, h, v, std_ne, std_d, std_vel);
+    gate_info(&c->ekf, INS_GRP_GNSS_POS, rej, con, o);
+    gate_info(&c->ekf, INS_GRP_GNSS_VEL, rej, con, o + 4);
+    return r;
+}
+/* cref_hfuse_baro with its gate in o[0..3] (gate_info) */
+int cref_gfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude, double o[4]) {
+    uint32_t rej[INS_NGRP], con[INS_NGRP];
+    int r;
+    gate_before(&c->ekf, rej, con);
+    r = cref_hfuse_baro(c, hs, t, altitude);
+    gate_info(&c->ekf, INS_GRP_BARO, rej, con, o);
+    return r;
+}
+/* cref_hfuse_mag with the field as three values and its gate in o[0..3] (gate_info) */
+int cref_gfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, double fx, double fy, double fz, double o[4]) {
+    uint32_t rej[INS_NGRP], con[INS_NGRP];
+    double f[3];
+    int r;
+    f[0] = fx; f[1] = fy; f[2] = fz;
+    gate_before(&c->ekf, rej, con);
+    r = cref_hfuse_mag(c, hs, t, f);
+    gate_info(&c->ekf, INS_GRP_MAG, rej, con, o);
+    return r;
+}
+/* a GNSS fix with gnss.vel_delay (> 0): its position at t (no velocity), then its velocity at t - vel_delay (no
+ * position), two cref_gfuse_gnss calls in one: o[0..3] the position's gate, o[4..7] the velocity's */
+int cref_gfuse_gnss_split(ins_core_t *c, ins_hist_t *hs, double t, double vel_delay, double lat, double lon, double h,
+                          double vn, double ve, double vd, double std_ne, double std_d, double std_vel, double o[8]) {
+    const double nan = (double)NAN;
+    double ov[8];
+    int r, i;
+    r = cref_gfuse_gnss(c, hs, t, lat, lon, h, nan, nan, nan, std_ne, std_d, std_vel, o);
+    r |= cref_gfuse_gnss(c, hs, t - vel_delay, nan, lon, h, vn, ve, vd, std_ne, std_d, std_vel, ov);
+    for (i = 4; i < 8; ++i) o[i] = ov[i];
+    return r;
 }

@@ -511,6 +511,52 @@ static void test_predict_dense(void) {
         }
 }
 
+static ins_level_t level; /* 512 KB in double: static, not on the stack */
+
+/* the static alignment's levelling window (align.c): at rest it is due once `time` s of samples are in it, each held
+ * back still_delay s; its mean specific force is the samples'; the IMU's motion test fires on a turn; a full ring
+ * refuses a sample and changes nothing; the start-up check is full after its window */
+static void test_level(void) {
+    const double lat = 50.0 * PI / 180.0, dt = 0.005;
+    ins_real dth[3], dv[3], turn[3];
+    ins_imu_check_t chk;
+    int k, r = 0, due = -1, full = -1, i;
+    uint32_t n_win, n_pend, first;
+    static_increments(lat, dt, dth, dv);
+    ins_level_init(&level, 2.0, 1.5, 30.0, 0.2, pow(3.0 * PI / 180.0, 2), 1.0);
+    level.have_pos = 1;
+    level.yaw_ready = 1;
+    for (k = 1; k <= 1000 && due < 0; ++k)
+        if (ins_level_step(&level, dth, dv, dt, k * dt) == INS_LEVEL_DUE) due = k;
+    CHECK(due >= 699 && due <= 701, "levelling due at sample %d (2 s window + 1.5 s held back at 200 Hz)", due);
+    CHECK(fabs(level.t_win - 2.0) < 0.6 * dt && level.n_win == 400 && level.n_win + level.n_pend == (uint32_t)due,
+          "window %g s, %u samples, %u held back", level.t_win, (unsigned)level.n_win, (unsigned)level.n_pend);
+    for (i = 0; i < 3; ++i)
+        CHECK(fabs((double)level.f_sum[i] / level.t_win - (double)dv[i] / dt) < 1e3 * EPS, "mean f[%d] %g vs %g",
+              i, (double)level.f_sum[i] / level.t_win, (double)dv[i] / dt);
+    CHECK(!level.moving && !level.imu_moving, "no motion at rest");
+    /* a turn at 1 rad/s: the motion test fires (the window then frozen) */
+    for (i = 0; i < 3; ++i) turn[i] = dth[i] + (ins_real)(i == 2 ? dt : 0.0);
+    for (i = 0; i < 100 && !level.imu_moving; ++i) ins_level_step(&level, turn, dv, dt, (k + i) * dt);
+    CHECK(level.imu_moving && level.moving, "the IMU's motion test fires on a turn");
+    /* no position, a 100-s window: the ring fills, then refuses without a change */
+    ins_level_init(&level, 100.0, 1.5, 30.0, 0.2, 1.0, 1.0);
+    for (k = 1; k <= INS_LEVEL_N + 10 && full < 0; ++k) {
+        n_win = level.n_win;
+        n_pend = level.n_pend;
+        first = level.first;
+        r = ins_level_step(&level, dth, dv, dt, k * dt);
+        if (r == INS_LEVEL_FULL) full = k;
+    }
+    CHECK(full == INS_LEVEL_N + 1, "the ring refuses sample %d (capacity %d)", full, INS_LEVEL_N);
+    CHECK(level.n_win == n_win && level.n_pend == n_pend && level.first == first, "a refused sample changes nothing");
+    ins_imu_check_init(&chk, 2.0);
+    for (k = 1, r = 0; k <= 500 && !r; ++k) r = ins_imu_check_add(&chk, dth, dv, dt);
+    CHECK(r && chk.n >= 400 && chk.n <= 401, "the start-up check is full after %u samples", (unsigned)chk.n);
+    CHECK(fabs((double)chk.sf[2] / chk.n - (double)dv[2] / dt) < 1e3 * EPS, "the check's mean f_z %g",
+          (double)chk.sf[2] / chk.n);
+}
+
 int main(void) {
     test_quat();
     test_book_attitude();
@@ -522,6 +568,7 @@ int main(void) {
     test_frame();
     test_delayed();
     test_delayed_growth();
+    test_level();
     printf("ins_ref tests (%d-bit scalar): %d checks, %d failed\n", INS_REF_SCALAR_BITS, checks, failures);
     return failures != 0;
 }

@@ -27,32 +27,31 @@ CONFIGS = ROOT / "configs" / "datasets"
 def feed(p: Any, core: Any) -> None:
     """Replay a prepared log through ``core`` (NavCore or CNavCore) as ``run_dataset`` feeds it (no outages).
     On the C core, once it navigates, the IMU samples between two aids go in one call (``CNavCore.run``), and so
-    do those of the alignment's heading phase (``CNavCore.run_states``, as ``Pipeline.imu_run``)."""
+    do those of the alignment's levelling and heading phases (``CNavCore.run_states``, as ``Pipeline.imu_run``)."""
     from ins_hil.datasets.run import heading_only
 
     meas = sorted([(f.t, 0, f) for f in p.gnss] + [(m.t, 2, m) for m in p.aux], key=lambda x: (x[0], x[1]))
     ref = p.nav.mag.ref_ned
     is_c = not hasattr(core, "ins")
     imu = p.imu
+    j, n, k, n_imu = 0, len(meas), 0, len(imu)
     if is_c:
         inc = np.ascontiguousarray(np.hstack([np.array([s.dtheta for s in imu]), np.array([s.dvel for s in imu])]))
         t = np.array([s.t for s in imu])
         dts = np.array([s.dt for s in imu])
-    j, n, k, n_imu = 0, len(meas), 0, len(imu)
+        # per aid, the end of the run of IMU samples up to its time (the sample that reaches it); then the rest
+        reach = [*(np.searchsorted(t, np.array([m[0] for m in meas]), side="left") + 1).tolist(), n_imu]
     while k < n_imu:
         s = imu[k]
         if is_c and core.phase != "nav" and core.can_run():
-            # the alignment's heading phase on C (CNavCore.run_states), up to the next aid's time
-            t_next = meas[j][0] if j < n else math.inf
-            k_end = min(max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1), n_imu)
-            core.run_states(inc[k:k_end], t[k:k_end], dts[k:k_end])
-            s = imu[k_end - 1]
-            k = k_end
+            # the alignment's levelling and heading phases on C (CNavCore.run_states), up to the next aid's time
+            # (a run stops before the sample at which the levelling is due)
+            k_end = min(max(k + 1, reach[j]), n_imu)
+            k += len(core.run_states(inc[k:k_end], t[k:k_end], dts[k:k_end]))
+            s = imu[k - 1]
         elif is_c and core.phase == "nav" and core.dt is not None:
             # every sample up to the next aid's time in one call
-            t_next = meas[j][0] if j < n else math.inf
-            k_end = max(k + 1, int(np.searchsorted(t, t_next, side="left")) + 1) if j < n else n_imu
-            k_end = min(k_end, n_imu)
+            k_end = min(max(k + 1, reach[j]), n_imu)
             core.run_increments(inc[k:k_end], t[k:k_end], dts[k:k_end])
             s = imu[k_end - 1]
             k = k_end
@@ -220,8 +219,8 @@ def cli_md(rows: list[dict[str, Any]]) -> str:
         "",
         "`ins-hil replay --dataset configs/datasets/<name>.toml --core python|c --no-plots` in a child process,"
         " the two one after the other (reading, preparing, the GNSS-present replay, the outage protocol's replay"
-        " where the config has one, the metrics; the C core aligned by the Python core's alignment, its heading"
-        " phase on C, and handed over), with the bytecode cache on (`PYTHONPYCACHEPREFIX`, warmed"
+        " where the config has one, the metrics; the C core aligned by the Python core's alignment, its levelling"
+        " window and heading phase on C, and handed over), with the bytecode cache on (`PYTHONPYCACHEPREFIX`, warmed"
         " by one unmeasured run of each core: an installed package's start-up; this machine's sessions set"
         " `PYTHONDONTWRITEBYTECODE`, which adds ~0.15 CPU s of compiling to every process). On ardupilot_copter,"
         " px4_hover and px4_quad every figure of `--core c` equals that of `--core python` within 1e-6 relative"
@@ -368,8 +367,8 @@ def batch_md(r: dict[str, Any]) -> str:
 
 def _c_parts(p: Any) -> dict[str, float]:
     """One more C run of ``feed`` with process-time probes round the core's calls: CPU s of the alignment steps
-    (``CNavCore.step`` until the hand-over: the levelling in the Python ``NavCore``; ``run_states``: its heading
-    phase on C), of the runs of IMU samples between two
+    (``run_states``: its levelling window and heading phase on C; ``CNavCore.step``: the sample at which the
+    levelling is due), of the runs of IMU samples between two
     measurements (``run_increments``: C), of the measurements (``fuse``: the C update and roll-back with the
     Python that calls it), and the rest (the loop; the probes' own cost included)."""
     _, cc, _ = _cores(p.nav)
@@ -434,10 +433,12 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
         "Each shipped dataset config, read and prepared once as `ins-hil replay` does, then replayed through"
         " `NavCore` and `CNavCore` (double, per-sample step, delayed fusion by roll-back) in the same process;"
         " CPU seconds of the process (`time.process_time`). The replay figures include the per-step Python"
-        " around the core (the loop, `NavState` per step, the magnetometer heading). The alignment's levelling"
-        " runs in the Python `NavCore` on both; on the C core its heading phase (once the start-up sensor check"
-        " has judged: the gyro-only steps and the GNSS-velocity yaw bank of px4_quad) runs on C, a run of samples"
-        " between two measurements in one call (`ins_align_heading_step`, `ins_gsf_t`: `firmware_ref/src/gsf.c`).",
+        " around the core (the loop, `NavState` per step, the magnetometer heading). On the C core the"
+        " alignment's per-sample work runs on C, a run of samples between two measurements in one call: the"
+        " levelling window with the IMU's motion test and the start-up check's sums (`ins_level_t`,"
+        " `ins_imu_check_t`: `firmware_ref/src/align.c`), the heading phase's gyro-only steps and the GNSS-velocity"
+        " yaw bank of px4_quad (`ins_align_heading_step`, `ins_gsf_t`); the levelling itself (the tilt, the gyro"
+        " bias, the yaw source) at its one sample in the Python `NavCore`.",
         "",
         "| config | log [s] | read + prepare [s] | Python [× real time] | C [× real time] | C / Python, replay |"
         " C / Python, whole process |",
@@ -455,8 +456,8 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
     for r in synth:
         out += [
             "",
-            f"Synthetic: {r['name']}, {r['span_s']:.0f} s (static alignment first: the levelling in the Python"
-            " `NavCore` on both):"
+            f"Synthetic: {r['name']}, {r['span_s']:.0f} s (static alignment first; on the C core its levelling"
+            " window and heading phase run on C):"
             f" Python {r['span_s'] / r['python_s']:.0f}× real time, C {r['span_s'] / r['c_s']:.0f}× real time"
             f" ({r['rollbacks']} roll-backs; the IMU samples between two fixes in one `CNavCore.run` call).",
         ]
@@ -465,8 +466,8 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
             out.append("")
             out.append(
                 f"Where the C run's CPU goes (one more run with process-time probes round the core's calls,"
-                f" {q['total']:.3f} s in all): the static alignment's steps (the levelling in the Python core,"
-                f" the heading phase on C) {q['align']:.3f} s,"
+                f" {q['total']:.3f} s in all): the static alignment's steps (its levelling window and heading"
+                f" phase on C) {q['align']:.3f} s,"
                 f" the C runs of IMU samples between two fixes {q['runs']:.3f} s, the fixes (the C update, the"
                 f" roll-back re-propagating the 0.1 s of delay at every fix, the Python calling it) {q['fuse']:.3f} s,"
                 f" the loop {q['rest']:.3f} s."
@@ -481,8 +482,7 @@ def report_md(rows: list[dict[str, Any]], synth: list[dict[str, Any]]) -> str:
             "",
             f"- replay of each shipped flight log on C ≥ 20× the Python's throughput, whole process: replay alone"
             f" ≥ {rep:.1f}×, whole process (reading included) ≥ {whole:.1f}× — {'met' if whole >= 20 else 'NOT met'}"
-            " (the alignment's levelling runs in the Python `NavCore` on both; the reading, the imports and the"
-            " scoring are shared: see the whole-process section).",
+            " (the reading, the imports and the scoring are shared: see the whole-process section).",
         ]
         for r in synth:
             rt = r["span_s"] / r["c_s"]
@@ -543,12 +543,16 @@ def scope_md() -> str:
         " snapshot per step in a fixed ring of `INS_HIST_N` = 384 steps: 1.9 s at 200 Hz, 0.38 s at 1 kHz),"
         " per-sample step lengths and coasting across lost IMU data (`fixed_step=False`, for logs). The"
         " alignment (`alignment.mode = \"static\"`: levelling, gyrocompass, magnetometer / GNSS-course / yaw-bank"
-        " yaw) runs in the Python `NavCore`, a one-off start-up, with its GNSS-velocity yaw bank (PX4's EKF-GSF:"
-        " 5 hypotheses, each an attitude reference and a 3-state EKF) on C (`ins_gsf_t`, `firmware_ref/src/gsf.c`,"
-        " held against `fusion/yaw_gsf.py` to ≤ 1e-9 by `tests/test_cref_gsf.py`); at its end the C core takes"
-        " over its state, covariance, biases and baro datum. C99, no malloc, one caller-owned context"
-        " (`ins_core_t`, plus `ins_hist_t` for the roll-back, `ins_gsf_t` for the yaw bank), `double` and `float`"
-        " builds.",
+        " yaw) runs in the Python `NavCore`, a one-off start-up, with its per-sample work on C: the levelling"
+        " window, the IMU's motion test and the start-up check's sums (`ins_level_t`, `ins_imu_check_t`,"
+        " `firmware_ref/src/align.c`; a ring of `INS_LEVEL_N` = 8192 samples, beyond which the window goes on in"
+        " Python; held against NavCore's levelling to ≤ 1e-9 by `tests/test_cref_level.py`), the heading phase's"
+        " steps and its GNSS-velocity yaw bank (PX4's EKF-GSF: 5 hypotheses, each an attitude reference and a"
+        " 3-state EKF; `ins_gsf_t`, `firmware_ref/src/gsf.c`, held against `fusion/yaw_gsf.py` to ≤ 1e-9 by"
+        " `tests/test_cref_gsf.py`); at its end the C core takes over its state, covariance, noise densities (the"
+        " start-up check's inflation), biases and baro datum. C99, no malloc, one caller-owned context"
+        " (`ins_core_t`, plus `ins_hist_t` for the roll-back, `ins_gsf_t` for the yaw bank, `ins_level_t` for the"
+        " levelling), `double` and `float` builds.",
         "",
         "Refused in one line naming the setting (Python only):",
         "",

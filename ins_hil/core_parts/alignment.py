@@ -177,11 +177,9 @@ class Alignment:
         self.t_end = self.pending[0].t - self.pending[0].dt if self.pending else s.t
         # bring the attitude from the end of the window to now with the delayed samples
         t_now = s.t
-        for old in self.pending:
-            core.ins.step(old.dtheta - core.bg * old.dt, old.dvel, old.dt)
-            s = core.ins.state
-            s.vel_ned = np.zeros(3)
+        self._bring_forward()
         self.pending.clear()
+        s = core.ins.state
         s.t = t_now
         if core.idx.bg is not None:
             core.kf.set_state_sigma("bg", c.alignment.gyro_bias_std)
@@ -189,6 +187,14 @@ class Alignment:
             self.enter_nav(yaw_std=yaw_std)
         else:
             core.phase = "heading"
+
+    def _bring_forward(self) -> None:
+        """The levelled attitude through the held-back samples (:attr:`pending`), from the end of the window to
+        now: the gyros with the levelled bias removed, the velocity held at zero."""
+        core = self.core
+        for old in self.pending:
+            core.ins.step(old.dtheta - core.bg * old.dt, old.dvel, old.dt)
+            core.ins.state.vel_ned = np.zeros(3)
 
     def meas(self, meas: GnssFix | BaroSample | MagSample) -> None:
         """An aiding sample before navigation: the position, the motion test, the GNSS course yaw; the baro datum

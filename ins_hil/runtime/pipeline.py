@@ -488,7 +488,8 @@ class Pipeline:
         """:meth:`imu` on each of ``samples`` in order, with nothing handed over in between (an offline replay's
         IMU samples up to the next aiding measurement). The same states, counts, events and observer calls; on
         the C core, once it navigates, the samples that pass the validation boundary go into the core in one
-        call (``CNavCore.run_states``) instead of one call each."""
+        call (``CNavCore.run_states``; before it navigates, the alignment's levelling and heading phases too)
+        instead of one call each."""
         k, n = 0, len(samples)
         while k < n:
             if not self._can_run():
@@ -508,7 +509,12 @@ class Pipeline:
                 k += 1
                 continue
             try:
-                self._epochs_c(samples[k:j])
+                run = samples[k:j]
+                while run:  # validated (the validator has seen them): the core may take them in parts
+                    run = run[self._epochs_c(run) :]
+                    if run and not self._can_run():
+                        self._epochs_validated(run)
+                        break
             except Exception as e:  # counted; the gateway keeps running (as imu())
                 self._count("pipeline_error")
                 self._core_fault(samples[j - 1].t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}",
@@ -524,10 +530,12 @@ class Pipeline:
                 and not self._fault_open and not self._step_pending and hasattr(core, "run_states")
                 and cast(Any, core).can_run())  # fmt: skip
 
-    def _epochs_c(self, run: list[ImuSample]) -> None:
+    def _epochs_c(self, run: list[ImuSample]) -> int:
         """The epochs of ``run`` (validated, in time order) through the C core in one call: each state checked
         by the core guard, published to the observers; at the first bad state the core fault as in
-        :meth:`_epoch` and the rest of the run sample by sample."""
+        :meth:`_epoch` and the rest of the run sample by sample. Returns the samples taken: all, or those up to
+        the one at which the core's alignment started navigating (``CNavCore.run_states``: the states before it
+        are published while the core aligns, as one sample at a time)."""
         core = cast(Any, self.core)
         n = len(run)
         inc = np.empty((n, 6))
@@ -541,6 +549,10 @@ class Pipeline:
         self.imu_t = run[-1].t
         pre = core.drain_events()  # what the core raised since the last epoch (an update's gate events)
         states = core.run_states(inc, t, dt)
+        if len(states) < n:
+            n = len(states)
+            run = run[:n]
+            self.imu_t = run[-1].t
         ev = core.drain_events()  # the lost-data events of the run, one per row of core.run_gap_rows
         by_row: dict[int, list[FaultEvent]] = {}
         for r, e in zip(core.run_gap_rows, ev, strict=True):
@@ -550,15 +562,15 @@ class Pipeline:
         good = guard_rows(core.run_out)  # the core guard of every state
         if hasattr(states, "rows") and all(type(o).epochs is not Observer.epochs for o in obs):
             self._epochs_rows(run, states, good, pre, by_row, resets)
-            return
+            return n
         for i, st in enumerate(states):
             s = run[i]
             self._t_imu = s.t
             self._last_arrival = s.t_arrival_ns
             if not good[i]:  # as _epoch: the core restarts (its events since the last good state dropped)
                 self._core_fault(s.t, "core step: non-finite or implausible state", "state")
-                self._epochs_after_fault(run[i + 1 :])
-                return
+                self._epochs_validated(run[i + 1 :])
+                return n
             st.resets = resets
             self._good = st
             self._gap_free = True
@@ -573,6 +585,7 @@ class Pipeline:
             except Exception as e:  # counted, as imu() does for an epoch
                 self._count("pipeline_error")
                 self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+        return n
 
     def _epochs_rows(self, run: list[ImuSample], states: Any, good: list[bool], pre: list[FaultEvent],
                      by_row: dict[int, list[FaultEvent]], resets: int) -> None:  # fmt: skip
@@ -606,11 +619,12 @@ class Pipeline:
         self._last_arrival = s.t_arrival_ns
         if bad < n:  # as _epoch: the core restarts (its events since the last good state dropped)
             self._core_fault(s.t, "core step: non-finite or implausible state", "state")
-            self._epochs_after_fault(run[bad + 1 :])
+            self._epochs_validated(run[bad + 1 :])
 
-    def _epochs_after_fault(self, rest: list[ImuSample]) -> None:
-        """The rest of a C run after a state the core guard failed (the core restarts, its events since the last
-        good state dropped): each sample, validated already, straight to the epoch as :meth:`imu` would."""
+    def _epochs_validated(self, rest: list[ImuSample]) -> None:
+        """Samples of a C run, validated already, each straight to the epoch as :meth:`imu` would: the rest of the
+        run after a state the core guard failed (the core restarts, its events since the last good state dropped),
+        or the samples the core did not take in one call that may no longer run on C (:meth:`imu_run`)."""
         for r in rest:
             self.imu_t = r.t
             try:
