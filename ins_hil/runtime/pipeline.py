@@ -799,6 +799,11 @@ class Pipeline:
         self._segment()
         return True
 
+    def has_work(self) -> bool:
+        """Whether :meth:`work` has something to do now: the rest of the last IMU step, or an aiding segment
+        in this gap."""
+        return self._step_pending or (self._gap_free and bool(self._jobs))
+
     def pending_work(self) -> int:
         """Aiding measurements handed over but not completely fused yet."""
         return len(self._jobs) + len(self._new_jobs)
