@@ -8,9 +8,10 @@ loop between the bytes read and the state) drains the FIFO and
 calls the synchronous :class:`~ins_hil.runtime.pipeline.Pipeline` on every
 sample (nothing on this path awaits I/O), hands the state to every publisher
 (the MAVLink messages that are due go out right there; each publisher measures
-state ready → sent), records the sample (recorder: in-memory buffer, flushed by
-a 50 ms task) and measures arrival → state ready. The rest of the step and the
-aiding fusion's segments run in the slack, a callback after the samples at hand.
+state ready → sent) and measures arrival → state ready. In the slack, a callback
+after the samples at hand: the samples go to the recorder (in-memory buffer,
+flushed by a 50 ms task) in the order the pipeline got them, the rest of the step
+and the aiding fusion's segments run.
 
 A sample is *late* when its arrival → state latency exceeds
 ``gateway.late_threshold_ms``; the loop warns (at most once a second) with
@@ -96,6 +97,7 @@ class Gateway:
         self.queue_size = cfg.gateway.queue_size
         self._scheduled = False  # _run_queue is running (a sink called meanwhile only appends to the FIFO)
         self._slack_scheduled = False  # _slack (the aiding segment of the gap) is scheduled on the event loop
+        self._unrecorded: list[Sample] = []  # processed samples not handed to the recorder yet (_record, in the slack)
         self._stop = asyncio.Event()
         self.drivers: list[Any] = []
         self._opened: list[MavlinkEndpoint] = outputs.take(cfg.outputs) if outputs is not None else []
@@ -156,7 +158,7 @@ class Gateway:
                         break
         finally:
             self._scheduled = False
-        if not self._slack_scheduled and self.pipeline.has_work():
+        if not self._slack_scheduled and (self._unrecorded or self.pipeline.has_work()):
             try:
                 call_soon = asyncio.get_running_loop().call_soon
             except RuntimeError:  # no event loop (a tool driving the gateway's core directly): in the slack now
@@ -172,12 +174,24 @@ class Gateway:
             self._err_warned = now
             self.metrics.warn(f"pipeline error on a {self._current} sample: {type(e).__name__}: {e}")
 
+    def _record(self) -> None:
+        """Hand the samples processed since the last call to the recorder (its in-memory buffer), in order."""
+        unrec = self._unrecorded
+        if unrec and self.recorder is not None:
+            w = self.recorder.write
+            for s in unrec:
+                w(s)
+        unrec.clear()
+
     def _slack(self) -> None:
         """One aiding segment in the slack after the samples at hand (:meth:`Pipeline.work`: at most one per gap
         between IMU epochs), after the driver callbacks of this turn of the event loop, so that the other unit's
         sample of an epoch delivered in the same read is not kept waiting behind it."""
         self._slack_scheduled = False
-        if self.error is not None or self._scheduled:
+        if self._scheduled:
+            return
+        self._record()
+        if self.error is not None:
             return
         pipe = self.pipeline
         try:
@@ -200,6 +214,7 @@ class Gateway:
         q = self.queue
         pipe = self.pipeline
         rec = self.recorder
+        unrec = self._unrecorded
         m = self.metrics
         pubs = self.publishers
         mono = time.monotonic_ns
@@ -220,7 +235,7 @@ class Gateway:
                 if pipe.imu_t is not None:  # only a sample past the validation boundary, at its (re-anchored) time
                     clock.update(pipe.imu_t, s.t_arrival_ns)
                 if rec is not None:
-                    rec.write(s)  # still before the next input reaches the pipeline: replay order kept
+                    unrec.append(s)  # recorded in the slack, in the order handed to the pipeline: replay order kept
                 if st is None:
                     continue
                 m.record_state(s.t_arrival_ns, ready, ready - t0)
@@ -244,7 +259,7 @@ class Gateway:
                     for e in self.mav_outputs:
                         e.offer_gnss(s)
                 if rec is not None:
-                    rec.write(s)
+                    unrec.append(s)
                 pipe.aid(s)  # fused / excluded counts: the pipeline's, copied by the housekeeping task
             if pipe.events:
                 for ev in pipe.drain_events():
@@ -277,6 +292,7 @@ class Gateway:
         while True:
             await asyncio.sleep(period)
             if rec is not None:
+                self._record()
                 rec.flush()
             now = time.monotonic()
             m.tick()
@@ -505,6 +521,7 @@ class Gateway:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(p.close(), 10.0)
         if self.recorder is not None:
+            self._record()
             self.recorder.close()
         gc.unfreeze()  # a process that runs several gateways (tests) gets its objects collectable again
 
