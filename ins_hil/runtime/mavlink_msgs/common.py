@@ -49,6 +49,7 @@ GCS_RATES = {
 }
 FC_RATES = {"HEARTBEAT": 1.0, "ODOMETRY": 30.0, "GPS_INPUT": 5.0, "HIL_STATE_QUATERNION": 0.0}
 ALL_MESSAGES = sorted(set(GCS_RATES) | set(FC_RATES))
+_HEADER = struct.Struct("<BBBBBB")  # len, incompat_flags, compat_flags, seq, sysid, compid
 
 
 class _Frame:
@@ -56,35 +57,28 @@ class _Frame:
 
     :meth:`frame` takes the field values in wire order (pymavlink's ``ordered_fieldnames``,
     arrays flattened) and returns the same bytes as pymavlink's ``MAVLink.send`` of that
-    message: header 0xFD·len·0·0·seq·sysid·compid·msgid(24 bit) and payload packed in one
-    ``struct`` call (the message's own format behind the header), trailing zero bytes of the
-    payload trimmed (MAVLink 2, at least one byte kept; a payload that ends in a non-zero byte,
-    e.g. ODOMETRY's quality, goes out as packed), CRC-16/MCRF4XX over header (without 0xFD) +
-    payload + ``crc_extra``. Signed links must use pymavlink (the signature is not produced here).
+    message: payload packed with the message's own ``struct`` format, trailing zero bytes
+    trimmed (MAVLink 2, at least one byte kept), header 0xFD·len·0·0·seq·sysid·compid·msgid(24 bit),
+    CRC-16/MCRF4XX over header (without 0xFD) + payload + ``crc_extra``. Signed links must use
+    pymavlink (the signature is not produced here).
     """
 
-    __slots__ = ("_crc", "_extra", "_full", "_mc", "_msgid", "_size")
+    __slots__ = ("_crc", "_extra", "_msgid", "_pack")
 
     def __init__(self, cls: Any) -> None:
         mavlink = mavlink_module()
+        self._pack = cls.unpacker.pack
         mid = int(cls.id)
         self._msgid = bytes((mid & 0xFF, (mid >> 8) & 0xFF, mid >> 16))
         self._extra = bytes((int(cls.crc_extra),))
-        self._size = int(cls.unpacker.size)
-        # 0xFD, len, incompat_flags, compat_flags, seq, sysid, compid, msgid (3 bytes), then the payload
-        self._full = struct.Struct("<BBBBBBB3s" + cls.unpacker.format.lstrip("<"))
         mc = getattr(mavlink, "mcrf4xx", None)  # fastcrc's CRC-16/MCRF4XX, as pymavlink's x25crc uses
-        self._mc = mc
         self._crc = (lambda b: mc(b, 0xFFFF)) if mc is not None else (lambda b: mavlink.x25crc(b).crc)
 
     def frame(self, mav: Any, *values: Any) -> bytes:
-        buf = self._full.pack(0xFD, self._size, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent, self._msgid, *values)
-        mc = self._mc
-        if buf[-1] and mc is not None:  # nothing to trim: the CRC over the packed bytes (chained, no copy of them)
-            return buf + mc(self._extra, mc(buf[1:], 0xFFFF)).to_bytes(2, "little")
-        payload = buf[10:].rstrip(b"\x00") or b"\x00"
-        body = bytes((len(payload),)) + buf[2:10] + payload
-        return b"\xfd" + body + self._crc(body + self._extra).to_bytes(2, "little")
+        payload = self._pack(*values).rstrip(b"\x00") or b"\x00"
+        body = _HEADER.pack(len(payload), 0, 0, mav.seq, mav.srcSystem, mav.srcComponent) + self._msgid + payload
+        crc = self._crc(body + self._extra)
+        return b"\xfd" + body + crc.to_bytes(2, "little")
 
 
 _FRAMES: dict[str, _Frame] = {}
