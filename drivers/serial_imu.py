@@ -1,7 +1,9 @@
 """Async serial IMU driver: ins_hil serial frames (SERIAL_FRAME.md) from a UART or pty.
 
-Bytes arrive through pyserial-asyncio-fast (``loop.add_reader`` on the port's
-file descriptor: nothing blocks the event loop), are fed to the streaming
+The port is opened with pyserial (baud rate, raw mode); a device with a file descriptor (a UART, a pty)
+is read with one non-blocking ``os.read`` each time the event loop reports it readable
+(``loop.add_reader``: nothing blocks the event loop; pyserial's own ``read`` would add a ``select``
+before and after each read), any other pyserial URL through pyserial-asyncio-fast. Bytes are fed to the streaming
 :class:`~ins_hil.drivers.serial_frame.FrameParser` and every accepted
 :class:`~ins_hil.types.ImuSample` goes to ``sink``. Up to 921600 baud /
 2 kHz frames. The port vanishing (USB unplugged, pty closed) or going silent
@@ -11,6 +13,8 @@ for ``stale_s`` closes it; it is re-opened with exponential backoff.
 from __future__ import annotations
 
 import asyncio
+import errno
+import os
 import time
 from typing import Any
 
@@ -33,6 +37,44 @@ class _Proto(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.lost.done():
             self.lost.set_result(exc)
+
+
+class _FdReader:
+    """A pyserial port with a file descriptor on the event loop: each readiness, one ``os.read`` (the fd is
+    non-blocking, pyserial opens it so) and the bytes to the driver with their arrival time. ``lost``
+    resolves when the port goes (EOF, EIO of a closed pty, a vanished USB device) or is closed."""
+
+    def __init__(self, drv: SerialImuDriver, sink: Sink, ser: Any, loop: asyncio.AbstractEventLoop) -> None:
+        self.drv, self.sink, self.ser, self.loop = drv, sink, ser, loop
+        self.fd = ser.fileno()
+        os.set_blocking(self.fd, False)
+        self.lost: asyncio.Future[Exception | None] = loop.create_future()
+        self.last_rx_ns = time.monotonic_ns()
+        loop.add_reader(self.fd, self._ready)
+
+    def _ready(self) -> None:
+        try:
+            data = os.read(self.fd, 4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as e:
+            self._lose(e)
+            return
+        if not data:
+            self._lose(OSError(errno.EIO, "end of file"))
+            return
+        now = time.monotonic_ns()
+        self.last_rx_ns = now
+        self.drv.feed(data, self.sink, now)
+
+    def _lose(self, exc: Exception | None) -> None:
+        self.loop.remove_reader(self.fd)
+        if not self.lost.done():
+            self.lost.set_result(exc)
+
+    def close(self) -> None:
+        self._lose(None)
+        self.ser.close()
 
 
 class SerialImuDriver:
@@ -91,6 +133,24 @@ class SerialImuDriver:
             if k != "frames" and errs.get(k) != v:
                 errs[k] = v
 
+    async def _open(self, loop: asyncio.AbstractEventLoop, sink: Sink) -> tuple[Any, _FdReader | _Proto]:
+        """Open the port: (what to close, the reader with ``lost`` and ``last_rx_ns``)."""
+        import serial
+
+        ser = serial.serial_for_url(self.port, baudrate=self.baudrate, do_not_open=True)
+        ser.timeout = 0
+        ser.open()
+        try:
+            ser.fileno()
+        except Exception:  # a pyserial URL without a file descriptor: pyserial-asyncio-fast's transport
+            ser.close()
+            transport, proto = await serial_asyncio_fast.create_serial_connection(
+                loop, lambda: _Proto(self, sink), self.port, baudrate=self.baudrate
+            )
+            return transport, proto  # type: ignore[return-value]
+        r = _FdReader(self, sink, ser, loop)
+        return r, r
+
     async def run(self, sink: Sink) -> None:
         """Open, read, and re-open with backoff until cancelled."""
         loop = asyncio.get_running_loop()
@@ -100,15 +160,12 @@ class SerialImuDriver:
             # time base (its clock model re-anchors on the new clock), so the output time continues
             self.parser.reopen()
             try:
-                transport, proto_ = await serial_asyncio_fast.create_serial_connection(
-                    loop, lambda: _Proto(self, sink), self.port, baudrate=self.baudrate
-                )
+                transport, proto = await self._open(loop, sink)
             except Exception as e:  # port missing, permission, busy
                 self.health.count("open_failed")
                 self.health.last_error = f"open {self.port}: {e}"
                 await self._backoff.wait()
                 continue
-            proto: _Proto = proto_  # type: ignore[assignment]
             if not first:
                 self.health.reconnects += 1
             first = False

@@ -594,6 +594,11 @@ class CNavCore:
                 return st
             self._handover(imu.dt)
             return self.state()
+        self._advance(imu)
+        return self.state()
+
+    def _advance(self, imu: ImuSample) -> None:
+        """One IMU interval through the C core once it navigates (:meth:`step` without building the state)."""
         if self.dt is None:
             self._init(imu.dt)
         elif not self.fixed_step:
@@ -622,7 +627,6 @@ class CNavCore:
             a, b = fb("double[]", dth), fb("double[]", dv)
         self._st = None
         self._lib_.cref_hstep(self._core, self._hist, a, b, imu.t, 0.0 if self.fixed_step else float(imu.dt))
-        return self.state()
 
     def step_begin(self, imu: ImuSample) -> NavState:
         """:meth:`step`, returning the state after the mechanization, as ``NavCore.step_begin`` does: before the
@@ -631,7 +635,7 @@ class CNavCore:
         if self._align is not None or self.dt is None:
             return self.step(imu)
         self._publish()
-        self.step(imu)
+        self._advance(imu)  # (no NavState of the state after the whole step: nobody asks for it here)
         self._lib_.cref_pub_state(self._core, self._out)
         return self._nav_state(self._out_np.copy())
 

@@ -171,6 +171,30 @@ def test_pty_1khz_with_corruption() -> None:
     assert drv.health.samples == len(got)
 
 
+def test_a_pty_is_read_with_one_os_read_per_readiness(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A port with a file descriptor is read directly (os.read on the non-blocking fd), not through pyserial's
+    read, which adds a select before and after every read (three system calls per chunk on the IMU path)."""
+    import serial
+
+    def no(*_a: object, **_k: object) -> bytes:
+        raise AssertionError("pyserial's read on the IMU path")
+
+    monkeypatch.setattr(serial.Serial, "read", no)
+
+    async def main() -> list[ImuSample]:
+        master, name = open_raw_pty()
+        drv = SerialImuDriver(name, 921600)
+        got, task = await start_driver(drv)
+        await _imu_writer(master, 200, 1000.0)
+        await wait_for_count(got, 200)
+        task.cancel()
+        os.close(master)
+        return got
+
+    got = asyncio.run(main())
+    assert [s.seq for s in got] == list(range(200))
+
+
 def test_pty_vanishes_and_comes_back(tmp_path: Path) -> None:
     """The device path disappears (pty closed) and a new device appears under the same name."""
 

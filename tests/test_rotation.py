@@ -135,3 +135,11 @@ def test_slerp_is_small_angle_safe() -> None:
         assert np.all(np.isfinite(q))
         np.testing.assert_allclose(q, R.quat_mul(q0, R.quat_from_rotvec(t * phi)), atol=1e-15)
     assert np.array_equal(R.quat_slerp(q0, q0, 0.5), R.quat_normalize(q0))
+
+
+def test_dcm_rows_are_dcm_from_quat_as_floats() -> None:
+    """The per-message MAVLink path's C_b^n (Python floats) is dcm_from_quat's, number for number."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        q = R.quat_normalize(rng.normal(size=4))
+        assert R.dcm_rows(*q.tolist()) == R.dcm_from_quat(q).tolist()

@@ -118,13 +118,59 @@ def test_queue_overflow_is_counted_not_silent() -> None:
     async def go() -> tuple[Gateway, int]:
         gw = sim_gateway(cfg)
         sink = gw._sink_for("imu0")
-        for k in range(10):  # faster than the core runs (it is scheduled, not run, by the sink)
+        gw._scheduled = True  # the core is running: samples delivered meanwhile wait in the FIFO (bounded)
+        for k in range(10):
             sink(ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=np.zeros(3)))
         return gw, len(gw.queue)
 
     gw, depth = asyncio.run(go())
     st = gw.metrics.snapshot()["sources"]["imu0"]
     assert st["received"] == 10 and st["dropped"] == {"queue_full": 7} and depth == 3
+
+
+def test_sink_runs_the_core_at_once_and_the_rest_of_the_step_in_the_slack() -> None:
+    """A sample reaches the pipeline and its state the publishers inside the driver's call of the sink (no turn
+    of the event loop in between); the rest of the step (the Python core's time update) runs in the slack, a
+    callback after the samples at hand."""
+    cfg = sim_config(core={"init": "config", "init_lat_deg": 45.0, "init_lon_deg": 7.0, "init_h": 300.0})
+
+    async def go() -> tuple[int, bool, bool]:
+        gw = sim_gateway(cfg)
+        states: list[NavState] = []
+        gw.on_state.append(states.append)
+        sink = gw._sink_for("imu0")
+        g = np.array([0.0, 0.0, -9.80665e-3])
+        sink(ImuSample(t=1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=g))
+        n, pending = len(states), gw.pipeline._step_pending
+        await asyncio.sleep(0)  # one turn of the event loop: the slack
+        return n, pending, gw.pipeline._step_pending
+
+    n, pending, after = asyncio.run(go())
+    assert n == 1 and pending and not after
+
+
+def test_samples_are_recorded_in_the_slack_in_pipeline_order(tmp_path: Path) -> None:
+    """The recorder's encoding is off the IMU path: a sample is handed to it in the slack after the samples at
+    hand, every sample in the order the pipeline got it."""
+    from ins_hil.runtime.recorder import Recorder
+
+    cfg = sim_config(core={"init": "config", "init_lat_deg": 45.0, "init_lon_deg": 7.0, "init_h": 300.0})
+
+    async def go() -> tuple[int, int]:
+        gw = sim_gateway(cfg)
+        gw.recorder = Recorder(tmp_path / "r.ihlog", header={})
+        sink = gw._sink_for("imu0")
+        g = np.array([0.0, 0.0, -9.80665e-3])
+        for k in range(1, 4):
+            sink(ImuSample(t=k * 1e-3, dt=1e-3, dtheta=np.zeros(3), dvel=g, seq=k))
+        before = gw.recorder.records
+        await asyncio.sleep(0)  # the slack
+        gw.recorder.close()
+        return before, gw.recorder.records
+
+    before, after = asyncio.run(go())
+    assert before == 0 and after == 3
+    assert [s.seq for s in read_records(tmp_path / "r.ihlog")] == [1, 2, 3]
 
 
 def test_pipeline_holds_aiding_until_its_time_of_validity() -> None:

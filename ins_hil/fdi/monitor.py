@@ -530,6 +530,7 @@ class FdiMonitor:
             _warmed = self.gyro.m >= 2  # every kernel of the exclusion path has run
         self._yg = np.empty(g.n)
         self._ya = np.empty(g.n)
+        self._unit_size, self._units = g.unit_size, g.units  # (properties of the geometry: read once)
         self._seq = 0
         self.events: list[FaultEvent] = []  # every event so far
 
@@ -546,8 +547,8 @@ class FdiMonitor:
         if not samples:
             raise ValueError("FdiMonitor.process: empty epoch")
         yg, ya = self._yg, self._ya
-        us = self.geo.unit_size
-        nu = self.geo.units
+        us = self._unit_size
+        nu = self._units
         if len(samples) != nu or len({s.imu_id for s in samples}) != nu:
             yg.fill(math.nan)  # a missing unit is a dropout (NaN); all present: every row is overwritten
             ya.fill(math.nan)

@@ -112,15 +112,18 @@ def quat_rotate(q: Vec, v: Vec) -> Vec:
 
 def dcm_from_quat(q: Vec) -> Vec:
     """C_b^n of a unit quaternion q_nb (the transpose of the book's A, eq. 2.5)."""
-    q0, q1, q2, q3 = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    return np.array(dcm_rows(float(q[0]), float(q[1]), float(q[2]), float(q[3])))
+
+
+def dcm_rows(q0: float, q1: float, q2: float, q3: float) -> list[list[float]]:
+    """:func:`dcm_from_quat` of q_nb = (q0, q1, q2, q3) as rows of Python floats (no array: the per-message
+    MAVLink path); the same numbers."""
     q00, q11, q22, q33 = q0 * q0, q1 * q1, q2 * q2, q3 * q3
-    return np.array(
-        [
-            [q00 + q11 - q22 - q33, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2)],
-            [2.0 * (q1 * q2 + q0 * q3), q00 - q11 + q22 - q33, 2.0 * (q2 * q3 - q0 * q1)],
-            [2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q00 - q11 - q22 + q33],
-        ]
-    )
+    return [
+        [q00 + q11 - q22 - q33, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2)],
+        [2.0 * (q1 * q2 + q0 * q3), q00 - q11 + q22 - q33, 2.0 * (q2 * q3 - q0 * q1)],
+        [2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q00 - q11 - q22 + q33],
+    ]
 
 
 def book_A(q: Vec) -> Vec:

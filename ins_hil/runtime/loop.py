@@ -2,13 +2,16 @@
 
 Drivers call a per-source ``sink`` (non-blocking): the sample goes into one
 bounded FIFO (arrival order); when it is full the sample is dropped and
-counted (``queue_full``) — never silently. The core (a callback the sink
-schedules when the FIFO was empty) drains the FIFO and
+counted (``queue_full``) — never silently. The core (run by the sink that put a
+sample into the empty FIFO, in the driver's callback: no extra turn of the event
+loop between the bytes read and the state) drains the FIFO and
 calls the synchronous :class:`~ins_hil.runtime.pipeline.Pipeline` on every
-sample (nothing on this path awaits I/O), records the sample (recorder:
-in-memory buffer, flushed by a 50 ms task), measures arrival → state ready,
-and hands the state to every publisher's mailbox (coalesced, each publisher
-is its own task and measures state ready → sent).
+sample (nothing on this path awaits I/O), hands the state to every publisher
+(the MAVLink messages that are due go out right there; each publisher measures
+state ready → sent) and measures arrival → state ready. In the slack, a callback
+after the samples at hand: the samples go to the recorder (in-memory buffer,
+flushed by a 50 ms task) in the order the pipeline got them, the rest of the step
+and the aiding fusion's segments run.
 
 A sample is *late* when its arrival → state latency exceeds
 ``gateway.late_threshold_ms``; the loop warns (at most once a second) with
@@ -92,7 +95,9 @@ class Gateway:
         self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.queue: deque[tuple[Sample, str]] = deque()
         self.queue_size = cfg.gateway.queue_size
-        self._scheduled = False  # _run_queue is scheduled on the event loop
+        self._scheduled = False  # _run_queue is running (a sink called meanwhile only appends to the FIFO)
+        self._slack_scheduled = False  # _slack (the aiding segment of the gap) is scheduled on the event loop
+        self._unrecorded: list[Sample] = []  # processed samples not handed to the recorder yet (_record, in the slack)
         self._stop = asyncio.Event()
         self.drivers: list[Any] = []
         self._opened: list[MavlinkEndpoint] = outputs.take(cfg.outputs) if outputs is not None else []
@@ -118,7 +123,6 @@ class Gateway:
         stats = self.metrics.source(name)
         q = self.queue
         cap = self.queue_size
-        call_soon = asyncio.get_running_loop().call_soon
         run = self._run_queue
 
         def sink(s: Sample) -> None:
@@ -127,33 +131,75 @@ class Gateway:
                 stats.drop("queue_full")
                 return
             q.append((s, name))
-            if not self._scheduled:
-                self._scheduled = True
-                call_soon(run)
+            if not self._scheduled:  # not inside the core already (it drains the FIFO): run it now
+                run()
 
         return sink
 
     # -- the core callback ---------------------------------------------------------
     def _run_queue(self) -> None:
-        """The core, scheduled by the first sample put into an empty FIFO (a plain callback, not a
-        task: no future or task step per sample). An exception (the pipeline catches the core's own)
-        does not stop the gateway: the sample is counted as ``pipeline_error`` under its source, a
-        warning is given at most once a second, and the rest of the FIFO is processed."""
-        self._scheduled = False
+        """The core, run by the sink of the sample put into an empty FIFO, in the driver's callback (on the
+        event loop's thread: every driver delivers there), so a sample reaches the pipeline and its state the
+        publishers without waiting for another turn of the event loop. An exception (the pipeline catches the
+        core's own) does not stop the gateway: the sample is counted as ``pipeline_error`` under its source, a
+        warning is given at most once a second, and the rest of the FIFO is processed. The aiding segment of
+        the gap (:meth:`Pipeline.work`) runs in the slack, a callback scheduled once the FIFO is empty."""
         if self.error is not None:
             return
-        while True:
+        self._scheduled = True
+        try:
+            while True:
+                try:
+                    self._process_queue()
+                    break
+                except Exception as e:
+                    self._pipeline_error(e)
+                    if not self.queue:
+                        break
+        finally:
+            self._scheduled = False
+        if not self._slack_scheduled and (self._unrecorded or self.pipeline.has_work()):
             try:
-                self._process_queue()
+                call_soon = asyncio.get_running_loop().call_soon
+            except RuntimeError:  # no event loop (a tool driving the gateway's core directly): in the slack now
+                self._slack()
                 return
-            except Exception as e:
-                self.metrics.source(self._current).drop("pipeline_error")
-                now = time.monotonic()
-                if now - self._err_warned >= 1.0:
-                    self._err_warned = now
-                    self.metrics.warn(f"pipeline error on a {self._current} sample: {type(e).__name__}: {e}")
-                if not self.queue:
-                    return
+            self._slack_scheduled = True
+            call_soon(self._slack)
+
+    def _pipeline_error(self, e: Exception) -> None:
+        self.metrics.source(self._current).drop("pipeline_error")
+        now = time.monotonic()
+        if now - self._err_warned >= 1.0:
+            self._err_warned = now
+            self.metrics.warn(f"pipeline error on a {self._current} sample: {type(e).__name__}: {e}")
+
+    def _record(self) -> None:
+        """Hand the samples processed since the last call to the recorder (its in-memory buffer), in order."""
+        unrec = self._unrecorded
+        if unrec and self.recorder is not None:
+            w = self.recorder.write
+            for s in unrec:
+                w(s)
+        unrec.clear()
+
+    def _slack(self) -> None:
+        """One aiding segment in the slack after the samples at hand (:meth:`Pipeline.work`: at most one per gap
+        between IMU epochs), after the driver callbacks of this turn of the event loop, so that the other unit's
+        sample of an epoch delivered in the same read is not kept waiting behind it."""
+        self._slack_scheduled = False
+        if self._scheduled:
+            return
+        self._record()
+        if self.error is not None:
+            return
+        pipe = self.pipeline
+        try:
+            if pipe.work() and pipe.events:
+                for ev in pipe.drain_events():
+                    self._fault(ev)
+        except Exception as e:
+            self._pipeline_error(e)
 
     def _process_queue(self) -> None:
         """Run the pipeline on everything in the FIFO (synchronous: never awaits).
@@ -161,13 +207,14 @@ class Gateway:
         Aiding measurements (GNSS, baro, magnetometer) are handed to the pipeline (and recorded)
         when dequeued; the pipeline splits their fusion into segments, one per gap between IMU
         epochs (:meth:`Pipeline.work`; a GNSS update costs about a millisecond in the Python
-        core). The segment of a gap runs here once the FIFO is empty after an IMU state has been
-        published, so its cost falls in the slack before the next IMU sample instead of delaying
+        core). The segment of a gap runs in the slack (:meth:`_slack`) once the FIFO is empty after
+        an IMU state has been published, so its cost falls before the next IMU sample instead of delaying
         it. The recorder writes every input in the order it is handed to the pipeline, so replay
         reproduces the same states."""
         q = self.queue
         pipe = self.pipeline
         rec = self.recorder
+        unrec = self._unrecorded
         m = self.metrics
         pubs = self.publishers
         mono = time.monotonic_ns
@@ -182,13 +229,13 @@ class Gateway:
                 t0 = mono()
                 st = pipe.imu(s)
                 ready = mono()
-                if pipe.imu_t is not None:  # only a sample past the validation boundary, at its (re-anchored) time
-                    clock.update(pipe.imu_t, s.t_arrival_ns)
                 if st is not None:
                     for p in pubs:  # first: the bookkeeping below is not on the latency path
                         p.offer(st, s.t_arrival_ns, ready)
+                if pipe.imu_t is not None:  # only a sample past the validation boundary, at its (re-anchored) time
+                    clock.update(pipe.imu_t, s.t_arrival_ns)
                 if rec is not None:
-                    rec.write(s)  # still before the next input reaches the pipeline: replay order kept
+                    unrec.append(s)  # recorded in the slack, in the order handed to the pipeline: replay order kept
                 if st is None:
                     continue
                 m.record_state(s.t_arrival_ns, ready, ready - t0)
@@ -212,14 +259,11 @@ class Gateway:
                     for e in self.mav_outputs:
                         e.offer_gnss(s)
                 if rec is not None:
-                    rec.write(s)
+                    unrec.append(s)
                 pipe.aid(s)  # fused / excluded counts: the pipeline's, copied by the housekeeping task
             if pipe.events:
                 for ev in pipe.drain_events():
                     self._fault(ev)
-        if pipe.work() and pipe.events:  # this gap's aiding segment, in the slack after the last state
-            for ev in pipe.drain_events():
-                self._fault(ev)
 
     def _text(self, severity: int, text: str) -> None:
         for e in self.mav_outputs:
@@ -248,6 +292,7 @@ class Gateway:
         while True:
             await asyncio.sleep(period)
             if rec is not None:
+                self._record()
                 rec.flush()
             now = time.monotonic()
             m.tick()
@@ -476,6 +521,7 @@ class Gateway:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(p.close(), 10.0)
         if self.recorder is not None:
+            self._record()
             self.recorder.close()
         gc.unfreeze()  # a process that runs several gateways (tests) gets its objects collectable again
 

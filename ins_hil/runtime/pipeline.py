@@ -690,6 +690,7 @@ class Pipeline:
             return None
         pending = self._pending
         entry = pending.get(key)
+        opened = entry is None
         if entry is None:
             entry = pending[key] = (s.t_arrival_ns, {})
         pend = entry[1]
@@ -702,9 +703,20 @@ class Pipeline:
             uk[s.imu_id] = key
         out: NavState | None = None
         wait = self.cfg.epoch_wait_periods * s.dt
+        miss, ids = self._miss, self._ids
+        if len(pending) == 1:  # the common case, the one epoch waiting: what the general rule below does, directly
+            if len(pend) == self._n_ids:  # complete
+                return self._run_pending(key)
+            now = s.t_arrival_ns
+            if (
+                opened
+                and now
+                and round(wait * 1e9) > 0
+                and not all(i in pend or uk.get(i, key) > key or miss.get(i, 0) >= GONE_EPOCHS for i in ids)
+            ):  # just opened by this sample: it waits for the others (none has passed it or is gone)
+                return None
         # run, oldest first, every epoch that can no longer gain a sample: each unit has delivered
         # it, or a later one (links deliver in order: its sample is lost), or is gone
-        miss, ids = self._miss, self._ids
         for k in sorted(pending):
             have = pending[k][1]
             if len(have) == self._n_ids or all(
@@ -812,6 +824,11 @@ class Pipeline:
             return False
         self._segment()
         return True
+
+    def has_work(self) -> bool:
+        """Whether :meth:`work` has something to do now: the rest of the last IMU step, or an aiding segment
+        in this gap."""
+        return self._step_pending or (self._gap_free and bool(self._jobs))
 
     def pending_work(self) -> int:
         """Aiding measurements handed over but not completely fused yet."""

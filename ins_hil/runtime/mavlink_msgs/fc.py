@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 from ins_hil.nav import earth
-from ins_hil.nav.rotation import dcm_from_quat
+from ins_hil.nav.rotation import dcm_rows
 from ins_hil.runtime.mavlink_msgs.common import MessageBase, _floats, _frame_of, _gps_week, _i16
 from ins_hil.types import NavState
 
@@ -16,6 +16,11 @@ JUMP_M = 1.0
 #: GPS_INPUT's DOP is the filter's σ over this range error (m): hdop = hypot(σN, σE) / DOP_RANGE_M
 DOP_RANGE_M = 1.0
 DOP_MAX = 99.99  # ArduPilot stores hdop × 100 in a uint16 and calls 9999 unknown (GPS_UNKNOWN_DOP)
+
+
+_ZEROS9 = (0.0,) * 9
+#: ODOMETRY's covariance while unknown (σ not yet positive and finite): NaN first element
+_UNKNOWN_COV = (math.nan,) + (0.0,) * 20
 
 
 def _body_cov(c: list[list[float]], s: list[float]) -> tuple[float, float, float, float, float, float]:
@@ -36,23 +41,29 @@ def _euler_cov(c: list[list[float]], s: list[float]) -> tuple[float, float, floa
     """(rr, rp, ry, pp, py, yy): the covariance of (roll, pitch, yaw) from attitude errors ψ about the NED axes
     with σ ``s`` (rad). δe = W⁻¹ Cᵀ ψ: Cᵀψ is the error in body axes, W⁻¹ maps body rates to the ZYX Euler
     rates (roll' = p + (q sinφ + r cosφ) tanθ, pitch' = q cosφ − r sinφ, yaw' = (q sinφ + r cosφ)/cosθ);
-    cosθ is held ≥ 1e-3 at the pitch singularity."""
-    sth = max(-1.0, min(1.0, -c[2][0]))
+    cosθ is held ≥ 1e-3 at the pitch singularity. Straight-line floats (the per-message path)."""
+    r0, r1, r2 = c
+    sth = max(-1.0, min(1.0, -r2[0]))
     cth = max(math.sqrt(1.0 - sth * sth), 1e-3)
-    n = math.hypot(c[2][1], c[2][2]) or 1.0
-    sph, cph = c[2][1] / n, c[2][2] / n
+    n = math.hypot(r2[1], r2[2]) or 1.0
+    sph, cph = r2[1] / n, r2[2] / n
     tth = sth / cth
-    rows = []
-    for k in range(3):  # ψ along NED axis k: body error (c[k][0], c[k][1], c[k][2]), then Euler error
-        p, q, r = c[k][0], c[k][1], c[k][2]
-        u = q * sph + r * cph
-        rows.append((p + u * tth, q * cph - r * sph, u / cth))
-    v = (s[0] * s[0], s[1] * s[1], s[2] * s[2])
-
-    def cov(i: int, j: int) -> float:
-        return v[0] * rows[0][i] * rows[0][j] + v[1] * rows[1][i] * rows[1][j] + v[2] * rows[2][i] * rows[2][j]
-
-    return cov(0, 0), cov(0, 1), cov(0, 2), cov(1, 1), cov(1, 2), cov(2, 2)
+    # ψ along NED axis k: body error (p, q, r) = row k of C, then its Euler error (a_k, b_k, g_k)
+    u = r0[1] * sph + r0[2] * cph
+    a0, b0, g0 = r0[0] + u * tth, r0[1] * cph - r0[2] * sph, u / cth
+    u = r1[1] * sph + r1[2] * cph
+    a1, b1, g1 = r1[0] + u * tth, r1[1] * cph - r1[2] * sph, u / cth
+    u = r2[1] * sph + r2[2] * cph
+    a2, b2, g2 = r2[0] + u * tth, r2[1] * cph - r2[2] * sph, u / cth
+    v0, v1, v2 = s[0] * s[0], s[1] * s[1], s[2] * s[2]
+    return (
+        v0 * a0 * a0 + v1 * a1 * a1 + v2 * a2 * a2,
+        v0 * a0 * b0 + v1 * a1 * b1 + v2 * a2 * b2,
+        v0 * a0 * g0 + v1 * a1 * g1 + v2 * a2 * g2,
+        v0 * b0 * b0 + v1 * b1 * b1 + v2 * b2 * b2,
+        v0 * b0 * g0 + v1 * b1 * g1 + v2 * b2 * g2,
+        v0 * g0 * g0 + v1 * g1 * g1 + v2 * g2 * g2,
+    )
 
 
 class FcMessages(MessageBase):
@@ -83,22 +94,23 @@ class FcMessages(MessageBase):
         self._fc_prev = (t, d[0], d[1], d[2], vn, ve, vd)
         q = _floats(st.q_nb)
         wx, wy, wz = _floats(st.omega_b)
-        # child frame body FRD (MAVLink ODOMETRY convention): v_b = (C_b^n)ᵀ v_n, C_b^n from rotation.dcm_from_quat
-        c = dcm_from_quat(st.q_nb).tolist()
-        vbx = c[0][0] * vn + c[1][0] * ve + c[2][0] * vd
-        vby = c[0][1] * vn + c[1][1] * ve + c[2][1] * vd
-        vbz = c[0][2] * vn + c[1][2] * ve + c[2][2] * vd
+        # child frame body FRD (MAVLink ODOMETRY convention): v_b = (C_b^n)ᵀ v_n, C_b^n = rotation.dcm_rows (floats)
+        c = dcm_rows(q[0], q[1], q[2], q[3])
+        r0, r1, r2 = c
+        vbx = r0[0] * vn + r1[0] * ve + r2[0] * vd
+        vby = r0[1] * vn + r1[1] * ve + r2[1] * vd
+        vbz = r0[2] * vn + r1[2] * ve + r2[2] * vd
         sp0, sp1, sp2 = _floats(st.std_pos)
+        pc: tuple[float, ...]
+        vc: tuple[float, ...]
         if (sp0 > 0.0 or sp1 > 0.0 or sp2 > 0.0) and not (math.isnan(sp0) or math.isnan(sp1) or math.isnan(sp2)):
             # (that is max(std_pos) > 0) upper-right triangle of the 6×6, row-major: (r, c) at 6r − r(r−1)/2 + c − r
-            pc = [0.0] * 21
-            pc[0], pc[6], pc[11] = sp0**2, sp1**2, sp2**2
-            pc[15], pc[16], pc[17], pc[18], pc[19], pc[20] = _euler_cov(c, _floats(st.std_att))
-            vc = [0.0] * 21
-            vc[0], vc[1], vc[2], vc[6], vc[7], vc[11] = _body_cov(c, _floats(st.std_vel))
+            pc = (sp0**2, 0.0, 0.0, 0.0, 0.0, 0.0, sp1**2, 0.0, 0.0, 0.0, 0.0, sp2**2, 0.0, 0.0, 0.0,
+                  *_euler_cov(c, _floats(st.std_att)))  # fmt: skip
+            xx, xy, xz, yy, yz, zz = _body_cov(c, _floats(st.std_vel))
+            vc = (xx, xy, xz, 0.0, 0.0, 0.0, yy, yz, 0.0, 0.0, 0.0, zz, *_ZEROS9)
         else:  # unknown: NaN first element
-            pc = [math.nan] + [0.0] * 20
-            vc = list(pc)
+            pc = vc = _UNKNOWN_COV
         t_us = round(st.t * 1e6)
         rc = self.reset_counter
         # estimator_type VIO: PX4 reads the covariances only when it is not NAIVE (an inertial + aided estimate)
@@ -109,7 +121,7 @@ class FcMessages(MessageBase):
             )  # fmt: skip
         else:
             self.mav.odometry_send(
-                t_us, self._odom_frame, m.MAV_FRAME_BODY_FRD, *d, q, vbx, vby, vbz, wx, wy, wz, pc, vc,
+                t_us, self._odom_frame, m.MAV_FRAME_BODY_FRD, *d, q, vbx, vby, vbz, wx, wy, wz, list(pc), list(vc),
                 rc, m.MAV_ESTIMATOR_TYPE_VIO, quality,
             )  # fmt: skip
         if reset and fc:
