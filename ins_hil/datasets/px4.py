@@ -472,19 +472,33 @@ class _Stuck(RuntimeError):
 
 class _Bounded(io.BufferedReader):
     """The file handle given to pyulog: at most ``READS_PER_BYTE`` reads per byte of the file (its resync over a
-    damaged stretch reads one or two a byte), then :class:`_Stuck`, which pyulog does not catch."""
+    damaged stretch reads one or two a byte), then :class:`_Stuck`, which pyulog does not catch.
+
+    pyulog only reads forward (so it ends at the end of the file) until it seeks: at the end of the definitions, to
+    an appended-data offset, and in its resync over a damaged stretch, which can seek back for ever. Its reads are
+    the plain (C) ones until ``FREE_SEEKS`` seeks, counted from then on (a Python ``read`` per call costs ~40 ms on a
+    90-s log)."""
 
     def __init__(self, path: Path) -> None:
         super().__init__(io.FileIO(str(path), "rb"))
         self.budget = READS_PER_BYTE * path.stat().st_size + 10_000
+        self.seeks = 0
 
-    def read(self, n: int | None = -1, /) -> bytes:
+    def seek(self, offset: int, whence: int = 0, /) -> int:
+        self.seeks += 1
+        if self.seeks == FREE_SEEKS + 1:
+            self.read = self._counted  # type: ignore[method-assign]
+        return super().seek(offset, whence)
+
+    def _counted(self, n: int | None = -1, /) -> bytes:
         self.budget -= 1
         if self.budget < 0:
             raise _Stuck("the parser does not advance in a damaged part")
         return super().read(n)
 
 
+#: seeks of pyulog before its reads are counted (the definitions' end, appended-data offsets: 1 + up to 3)
+FREE_SEEKS = 8
 #: reads per byte of a ULog file before pyulog's parse is given up as stuck
 READS_PER_BYTE = 3
 
