@@ -21,6 +21,7 @@ because numpy's per-call overhead dominates for 3- and 4-vectors.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -112,14 +113,24 @@ def quat_rotate(q: Vec, v: Vec) -> Vec:
 
 def dcm_from_quat(q: Vec) -> Vec:
     """C_b^n of a unit quaternion q_nb (the transpose of the book's A, eq. 2.5)."""
-    q0, q1, q2, q3 = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    return np.array(_dcm_rows(float(q[0]), float(q[1]), float(q[2]), float(q[3])))
+
+
+def dcm_from_quat_many(q: Vec) -> Vec:
+    """:func:`dcm_from_quat` of many quaternions at once: ``q`` (N, 4) → (N, 3, 3), element for element the same
+    numbers (the same operations on the columns)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    rows = _dcm_rows(q[:, 0], q[:, 1], q[:, 2], q[:, 3])
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def _dcm_rows(q0: Any, q1: Any, q2: Any, q3: Any) -> Any:
+    """The rows of C_b^n of q_nb = (q0, q1, q2, q3): floats, or arrays element-wise."""
     q00, q11, q22, q33 = q0 * q0, q1 * q1, q2 * q2, q3 * q3
-    return np.array(
-        [
-            [q00 + q11 - q22 - q33, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2)],
-            [2.0 * (q1 * q2 + q0 * q3), q00 - q11 + q22 - q33, 2.0 * (q2 * q3 - q0 * q1)],
-            [2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q00 - q11 - q22 + q33],
-        ]
+    return (
+        (q00 + q11 - q22 - q33, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2)),
+        (2.0 * (q1 * q2 + q0 * q3), q00 - q11 + q22 - q33, 2.0 * (q2 * q3 - q0 * q1)),
+        (2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q00 - q11 - q22 + q33),
     )
 
 
