@@ -132,6 +132,7 @@ def imu_from_sensor_combined(t: Topic, gaps: list[float] | None = None) -> list[
     with np.errstate(all="ignore"):
         dth, dv = g * dtg[:, None], a * dta[:, None]  # the same products as row by row
     fl_l, tt_l, dtg_l = flags.tolist(), tt.tolist(), dtg.tolist()
+    dth_r, dv_r = list(dth), list(dv)  # the rows as views, taken at C speed (an index of the array costs ~0.2 µs)
     for k in np.flatnonzero(keep).tolist():
         t_k, dt_k = tt_l[k], dtg_l[k]
         gap = t_k - last
@@ -143,7 +144,7 @@ def imu_from_sensor_combined(t: Topic, gaps: list[float] | None = None) -> list[
             # gap is lost data: the sample keeps its own interval and the core's time jumps (reported)
             out.append(ImuSample(t_k, gap, g[k] * gap, a[k] * gap, seq=k, flags=fl_l[k]))
         else:
-            out.append(ImuSample(t_k, dt_k, dth[k], dv[k], seq=k, flags=fl_l[k]))
+            out.append(ImuSample(t_k, dt_k, dth_r[k], dv_r[k], seq=k, flags=fl_l[k]))
         last = t_k
     return out
 
