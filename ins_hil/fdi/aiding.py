@@ -169,11 +169,6 @@ def _dead_zone1(x: float, dz: float) -> float:
     return (1.0 if x > 0.0 else -1.0 if x < 0.0 else 0.0 if x == 0.0 else x) * (0.0 if m <= 0.0 else m)
 
 
-def _min1(a: float, b: float) -> float:
-    """np.minimum of two floats (``a`` when equal; NaN in ``a`` propagates, as for a float ``b`` in numpy)."""
-    return a if (a <= b or a != a) else b
-
-
 def _max1(a: float, b: float) -> float:
     """np.maximum of two floats (``a`` when equal; NaN in ``a`` propagates, as for a float ``b`` in numpy)."""
     return a if (a >= b or a != a) else b
@@ -408,7 +403,7 @@ class AidingMonitor:
         back = 0.0 if c.late_fix_as_current else lag
         bb = back * back
         a0, a1, a2 = a_n
-        n0, n1, n2 = earth.ned_delta_small(g.lat - st.lat, g.lon - st.lon, g.h - st.h, st.lat, st.h).tolist()
+        n0, n1, n2 = earth.ned_delta_small_xyz(g.lat - st.lat, g.lon - st.lon, g.h - st.h, st.lat, st.h)
         n0 = n0 + (v0 * back - 0.5 * a0 * bb - d0)
         n1 = n1 + (v1 * back - 0.5 * a1 * bb - d1)
         n2 = n2 + (v2 * back - 0.5 * a2 * bb - d2)
@@ -455,7 +450,7 @@ class AidingMonitor:
             # the trapezoid rule's error on the real motion: up to about ½·|v − v_prev|·Δt per axis (a walk's
             # gait at 1 Hz: ~0.1 m, beyond the jump gate of RTK); a dead zone of the outlier test
             dz = (0.5 * abs(gv0 - pv0) * dt, 0.5 * abs(gv1 - pv1) * dt, 0.5 * abs(gv2 - pv2) * dt)
-            p0, p1, p2 = earth.ned_delta_small(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h).tolist()
+            p0, p1, p2 = earth.ned_delta_small_xyz(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h)
             # velocities valid ``gnss_vel_delay`` before their positions integrate to the positions at those times:
             # p(t − d) ≈ p − v·d (else an acceleration a reads as a pull of a·d: 0.2 m/s at 2 m/s², d = 0.1 s)
             vd = self._vel_delay
@@ -470,9 +465,7 @@ class AidingMonitor:
                 anc[2] = (i2[0] + trap[0], i2[1] + trap[1], i2[2] + trap[2])
                 anc[3] = (z2[0] + dz[0], z2[1] + dz[1], z2[2] + dz[2])
             for a_fix, a_e, a_int, a_dz in reversed(self._anchors):
-                b0, b1, b2 = earth.ned_delta_small(
-                    g.lat - a_fix.lat, g.lon - a_fix.lon, g.h - a_fix.h, g.lat, g.h
-                ).tolist()  # fmt: skip
+                b0, b1, b2 = earth.ned_delta_small_xyz(g.lat - a_fix.lat, g.lon - a_fix.lon, g.h - a_fix.h, g.lat, g.h)
                 b0, b1, b2 = b0 - a_int[0], b1 - a_int[1], b2 - a_int[2]
                 if vd > 0.0:
                     av0, av1, av2 = _xyz(a_fix.vel_ned)
@@ -507,7 +500,8 @@ class AidingMonitor:
         if not c.vertical_cusum:  # the filter height follows the baro: vertical GNSS checked by the slope tests
             zl[2] = zl[5] = 0.0
         jg = c.jump_gate
-        zl = [_min1(_max1(x, -jg), jg) for x in zl]  # np.clip's numbers: an outlier adds ≤ jump_gate − k
+        # np.minimum(np.maximum(z, −g), g) (np.clip's numbers; NaN stays NaN): an outlier adds ≤ jump_gate − k
+        zl = [-jg if x < -jg else jg if x > jg else x for x in zl]
         if bridged and self._prev_outlier and sp0 is not None and 0.0 < st.t - sp0.t <= c.max_gap:
             # The previous fix was a position outlier (it agreed with none of the last accepted fixes, this one
             # agrees with one before it) and the horizontal state stepped after it: p − p₀ − ½(v₀ + v)Δt, the
@@ -527,8 +521,9 @@ class AidingMonitor:
             zl = [0.0] * 6  # the INS lost samples: its innovations are no evidence (ins_disturbed)
         if not (self.gnss.faulted and c.exclude):
             k = c.cusum_k
-            cp = [_max1(0.0, x + y - k) for x, y in zip(self._cp.tolist(), zl)]
-            cn = [_max1(0.0, x - y - k) for x, y in zip(self._cn.tolist(), zl)]
+            # np.maximum(0, S ± z − k): 0 where ≤ 0, NaN stays NaN
+            cp = [0.0 if v <= 0.0 else v for v in [x + y - k for x, y in zip(self._cp.tolist(), zl)]]
+            cn = [0.0 if v <= 0.0 else v for v in [x - y - k for x, y in zip(self._cn.tolist(), zl)]]
             self._cp_len = np.array([n + 1 if x > 0 else 0.0 for x, n in zip(cp, self._cp_len.tolist())])
             self._cn_len = np.array([n + 1 if x > 0 else 0.0 for x, n in zip(cn, self._cn_len.tolist())])
             self._cp, self._cn = np.array(cp), np.array(cn)
