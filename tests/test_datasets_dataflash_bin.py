@@ -92,3 +92,30 @@ def test_a_fmt_with_more_columns_than_values_is_refused_naming_the_file(tmp_path
     p.write_bytes(bytes(b))
     with pytest.raises(dataflash.DatasetError, match=rf"^{p}: IMU message at byte 89: 8 columns for 7 values"):
         read_dataset(p)
+
+
+def test_the_readers_format_definitions_are_pymavlinks(shared_dir: Path):
+    """``dataflash.DFFormat`` (the parsers' own, no pymavlink import) defines each FMT of the shipped log and every
+    format character as pymavlink's ``DFReader.DFFormat``; an unknown character is refused by both."""
+    from pymavlink import DFReader
+
+    data = (shared_dir / "data/uav/ardupilot_copter_150s/flight.bin").read_bytes()
+    defs: list[tuple[int, object, int, str, str]] = []
+    off = data.find(b"\xa3\x95\x80")
+    while off >= 0:  # every FMT message (id 128, body BBnNZ) of the log
+        ty, ln, name, fm, cols = struct.unpack_from("<BB4s16s64s", data, off + 3)
+        defs.append((ty, name, ln, DFReader.null_term(fm), DFReader.null_term(cols)))
+        off = data.find(b"\xa3\x95\x80", off + 89)
+    defs += [(200, b"ALL\0xx", 3, "".join(DFReader.FORMAT_TO_STRUCT), ",".join(DFReader.FORMAT_TO_STRUCT)),
+             (201, "EMPTY", 3, "", "")]  # fmt: skip
+    assert len(defs) > 50
+    for d in defs:
+        ours, theirs = dataflash.DFFormat(*d), DFReader.DFFormat(*d)
+        for k in ("type", "name", "len", "format", "columns", "colhash", "msg_struct", "msg_fmts", "msg_types",
+                  "msg_mults"):  # fmt: skip
+            assert getattr(ours, k) == getattr(theirs, k), (d, k)
+    with pytest.raises(ValueError):
+        dataflash.DFFormat(202, "BAD", 4, "x", "A")
+    with pytest.raises(Exception):  # noqa: B017 - pymavlink raises a plain Exception
+        DFReader.DFFormat(202, "BAD", 4, "x", "A")
+    assert dataflash.null_term(b"ab\xffc\0junk") == DFReader.null_term(b"ab\xffc\0junk")

@@ -456,3 +456,29 @@ def test_end_of_valid_data_names_a_corrupted_rate_without_printing_inf():
         t_end, why = end_of_valid_data(t, gyro, acc, 3.5)
         assert t_end == 1.5 and "loss of control from 2.00 s (|f| 10 m/s², " in why and shown in why, why
         assert replay_oracle(0, f"end of valid data: {why}", "", Path("x")) == []
+
+
+def test_rtklib_imu_csv_fields_converted_at_once_as_line_by_line(tmp_path: Path):
+    """The IMU csv's fields are converted at once; the result (values, bad-line count, the kept lines' end offsets)
+    is that of reading each line alone (``_csv_rows``), with damaged lines of every kind, CRLF ends and no newline at
+    the end; a field that does not convert (an underscore in a number that Python's float takes: ``1_0``; a letter)
+    sends the whole file line by line, with the same result."""
+    from ins_hil.datasets import rtklib
+
+    good = "0.119,0.027,1.013,-0.671,3.082,0.198,261906"
+    lines = [good[:20], good, good + "\r", "1,2,3,4,5,6", "nan,0,0,0,0,0,1", "1e999,0,0,0,0,0,2", "", "a,b,c,d,e,f,g",
+             " 1.5 ,2,3,4,5,6,7 ", "1,2,3,4,5,6,7,8", "-0.0,+1,.5,5.,1e-3,2E2,3", good]  # fmt: skip
+    for tail, extra in (("", []), ("\n", []), ("\n", ["1_0,2,3,4,5,6,7"]), ("", ["x1,2,3,4,5,6,7"])):
+        p = tmp_path / "imu.csv"
+        p.write_bytes(("\n".join(lines + extra) + tail).encode())
+        ends: list[int] = []
+        acc, gyro, tick, bad = rtklib.read_imu_csv(p, ends)
+        raw = p.read_bytes().split(b"\n")
+        if raw[-1] == b"":
+            raw.pop()
+        kept, rows = rtklib._csv_rows(raw, 7)
+        assert np.array_equal(np.column_stack([acc, gyro, tick]), rows)
+        assert bad == len(raw) - len(kept)
+        starts = np.cumsum([0] + [len(r) + 1 for r in raw])
+        assert ends == [v for i in kept for v in (int(starts[i]) + len(raw[i].rstrip(b"\r")), i)]
+        assert len(kept) == 5 + (1 if extra and extra[0].startswith("1_0") else 0)

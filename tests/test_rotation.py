@@ -142,4 +142,18 @@ def test_dcm_rows_are_dcm_from_quat_as_floats() -> None:
     rng = np.random.default_rng(5)
     for _ in range(200):
         q = R.quat_normalize(rng.normal(size=4))
-        assert R.dcm_rows(*q.tolist()) == R.dcm_from_quat(q).tolist()
+        rows = R.dcm_rows(*q.tolist())
+        assert all(type(x) is float for r in rows for x in r)
+        assert [list(r) for r in rows] == R.dcm_from_quat(q).tolist()
+
+
+def test_dcm_from_quat_many_is_dcm_from_quat_per_row() -> None:
+    """The stacked DCMs are each quaternion's :func:`dcm_from_quat`, bit for bit (the replay's scoring relies on it)."""
+    rng = np.random.default_rng(7)
+    q = rng.normal(size=(500, 4))
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    C = R.dcm_from_quat_many(q)
+    assert C.shape == (500, 3, 3)
+    for i in range(len(q)):
+        assert np.array_equal(C[i], R.dcm_from_quat(q[i]))
+    assert R.dcm_from_quat_many(np.zeros((0, 4))).shape == (0, 3, 3)

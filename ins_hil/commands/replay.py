@@ -31,13 +31,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ins_hil.datasets import simulated, study
-from ins_hil.datasets.accuracy_md import fmt_value, render_markdown
 from ins_hil.datasets.config import DatasetConfigError
 from ins_hil.datasets.config import load as load_dataset_config
 from ins_hil.datasets.dataset import DatasetError
-from ins_hil.datasets.plots import plot_series
-from ins_hil.sim import scenarios
+
+# The simulator, the scenarios, the drive study, the accuracy report and the plots are imported where they run:
+# a flight log / dataset replay (``--dataset``) does not load them.
 
 NAME = "replay"
 HELP = "run the core offline on a scenario, the real drive, a flight log or a gateway log; write metrics and plots"
@@ -183,24 +182,42 @@ class _Progress:
             sys.stderr.flush()
 
 
-def _progress(quiet: bool) -> simulated.ProgressFactory:
+def _progress(quiet: bool) -> Any:
+    """A ``ins_hil.datasets.simulated.ProgressFactory`` of :class:`_Progress` lines."""
     return lambda label: _Progress(label, quiet)
+
+
+def _is_scenario(src: str) -> bool:
+    """``src`` names a simulated scenario (``ins_hil.sim.scenarios.NAMES``; imported only for a bare name)."""
+    if src == "drive" or "/" in src or "." in src:
+        return False
+    from ins_hil.sim import scenarios
+
+    return src in scenarios.NAMES
 
 
 def run_scenario(name: str, seed: int, duration: float | None, quiet: bool) -> tuple[dict[str, Any], Any, Any]:
     """A simulated scenario against its truth (:func:`ins_hil.datasets.simulated.run_scenario`)."""
+    from ins_hil.datasets import simulated
+    from ins_hil.sim import scenarios
+
     sc = scenarios.build(name, seed=seed, duration=duration)
     return simulated.run_scenario(sc, name, seed, _Progress(f"{name} seed {seed}", quiet))
 
 
 def monte_carlo(name: str, runs: int, duration: float | None, quiet: bool) -> dict[str, Any]:
     """:func:`ins_hil.datasets.simulated.monte_carlo` over ``runs`` seeds of the scenario ``name``."""
+    from ins_hil.datasets import simulated
+    from ins_hil.sim import scenarios
+
     return simulated.monte_carlo(lambda seed: scenarios.build(name, seed=seed, duration=duration), name, runs,
                                  _progress(quiet))  # fmt: skip
 
 
 def replay_drive(aids_variants: tuple[bool, ...], quiet: bool, full: bool = False) -> tuple[dict[str, Any], Any]:
     """The drive's protocol study through :data:`DRIVE_CONFIG` (:func:`ins_hil.datasets.study.study`)."""
+    from ins_hil.datasets import study
+
     cfg = load_dataset_config(DRIVE_CONFIG)
     res, series = study.study(cfg, None, aids_variants, _progress(quiet), full)
     res["config"] = str(DRIVE_CONFIG.relative_to(REPO))
@@ -367,7 +384,7 @@ def run(args: argparse.Namespace) -> int:
     if args.batch:
         return _batch(args)
     core = getattr(args, "core", "python")
-    if core != "python" and ((src == "drive" and args.dataset is None) or src == "sim" or src in scenarios.NAMES
+    if core != "python" and ((src == "drive" and args.dataset is None) or src == "sim" or _is_scenario(src)
                              or args.estimate_offset or args.estimate_mounting
                              or (src.endswith(".ihlog") and args.dataset is None)):  # fmt: skip
         print(f"ins-hil replay: --core {core}: only a flight log / dataset replay (--dataset) or --batch runs "
@@ -400,6 +417,11 @@ def run(args: argparse.Namespace) -> int:
     if _is_dataset(src, args):
         return _replay_dataset(src, args)
     args.out.mkdir(parents=True, exist_ok=True)
+    from ins_hil.datasets import study
+    from ins_hil.datasets.accuracy_md import fmt_value
+    from ins_hil.datasets.plots import plot_series
+    from ins_hil.sim import scenarios
+
     if src in scenarios.NAMES:
         m, ser, _ = run_scenario(src, args.seed, args.duration, args.quiet)
         out: dict[str, Any] = {"scenario": m}
@@ -445,7 +467,7 @@ def _is_dataset(src: str, args: argparse.Namespace) -> bool:
     dataset path says what is expected), or a path that does not exist (the dataset path says so)."""
     if getattr(args, "dataset", None) is not None:
         return True
-    if src in scenarios.NAMES or src == "drive":
+    if src == "drive" or _is_scenario(src):
         return False
     return Path(src).exists() or "/" in src or Path(src).suffix != ""
 
@@ -535,6 +557,7 @@ def flight_logs(quiet: bool) -> dict[str, dict[str, Any]]:
 def odometer_study(quiet: bool) -> dict[str, Any]:
     """The simulated car with and without its wheel odometer in 30-s GNSS outages (docs/accuracy.md):
     :func:`ins_hil.datasets.simulated.odometer_outages` of :func:`ins_hil.sim.scenarios.odometer_car`, seeds 1–5."""
+    from ins_hil.datasets import simulated
     from ins_hil.sim.scenarios import odometer_car
 
     if not quiet:
@@ -544,6 +567,10 @@ def odometer_study(quiet: bool) -> dict[str, Any]:
 
 def full_report(args: argparse.Namespace) -> int:
     """Regenerate docs/accuracy.md and docs/accuracy/*.png."""
+    from ins_hil.datasets import simulated, study
+    from ins_hil.datasets.accuracy_md import render_markdown
+    from ins_hil.datasets.plots import plot_series
+
     docs = REPO / "docs"
     figdir = docs / "accuracy"
     figdir.mkdir(parents=True, exist_ok=True)

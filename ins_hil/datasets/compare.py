@@ -23,7 +23,7 @@ from ins_hil.datasets.dataset import Trajectory
 from ins_hil.datasets.run import RunResult, euler_series
 from ins_hil.geoid import ellipsoidal_height
 from ins_hil.nav import earth
-from ins_hil.nav.rotation import dcm_from_quat
+from ins_hil.nav.rotation import dcm_from_quat_many
 from ins_hil.types import ImuSample, MagSample, Vec
 
 #: 1/s: the smallest rotor-drag coefficient a multirotor is taken to have (the shipped quadrotors: 0.10–0.22 from
@@ -118,7 +118,7 @@ def compare(r: RunResult, tr: Trajectory, t_from: float, t_to: float) -> dict[st
             ours = r.ned[i]
             lever = np.asarray(tr.lever_b, dtype=np.float64)
             if np.any(lever != 0.0):  # the point the positions refer to: our IMU + C_nb lever
-                ours = ours + np.array([dcm_from_quat(q) @ lever for q in r.q_nb[i]]).reshape(-1, 3)
+                ours = ours + np.matmul(dcm_from_quat_many(r.q_nb[i]), lever[:, None])[:, :, 0]
             origin = datum_origin(tr)
             if origin is not None:
                 ours = ours + earth.ned_from_geodetic(*r.origin, *origin)
@@ -181,11 +181,13 @@ def rotor_drag(imu: list[ImuSample], t_v: Vec, v_ned: Vec, t_q: Vec, q_nb: Vec, 
         return None
     tv, vn = t_v[ok], v_ned[ok]
     iq = np.clip(np.searchsorted(t_q, tv, "right") - 1, 0, len(t_q) - 1)
-    vb = np.array([dcm_from_quat(q_nb[i]).T @ x for i, x in zip(iq, vn, strict=True)])
+    # Cᵀ v per sample: the stacked product (numpy's matmul of each 3×3 with its vector, the per-sample numbers)
+    vb = np.matmul(dcm_from_quat_many(q_nb[iq]).transpose(0, 2, 1), vn[:, :, None])[:, :, 0]
     ti = np.array([s.t for s in imu])
     m = (ti >= t_from) & (ti < t_to)
-    dv = np.array([s.dvel for s, k in zip(imu, m, strict=True) if k]).reshape(-1, 3)
-    dt = np.array([s.dt for s, k in zip(imu, m, strict=True) if k])
+    inside = [s for s, k in zip(imu, m.tolist(), strict=True) if k]
+    dv = np.array([s.dvel for s in inside]).reshape(-1, 3)
+    dt = np.array([s.dt for s in inside])
     n_bins = int((t_to - t_from) // avg_s)
     bi = ((ti[m] - t_from) // avg_s).astype(int)
     bv = ((tv - t_from) // avg_s).astype(int)
@@ -242,10 +244,9 @@ def mag_heading(
         return None
     iq = np.searchsorted(t_q, t[ok], "right") - 1
     ref = math.atan2(float(ref_ned[1]), float(ref_ned[0]))
-    d = []
-    for m, i in zip((m for m, k in zip(mag, ok, strict=True) if k), iq, strict=True):
-        mn = dcm_from_quat(q_nb[i]) @ m.field_b
-        d.append(math.degrees(math.atan2(float(mn[1]), float(mn[0])) - ref))
+    fb = np.array([m.field_b for m, k in zip(mag, ok.tolist(), strict=True) if k], dtype=np.float64).reshape(-1, 3)
+    mn = np.matmul(dcm_from_quat_many(q_nb[iq]), fb[:, :, None])[:, :, 0]  # C m_b per reading (matmul's numbers)
+    d = [math.degrees(math.atan2(e, n) - ref) for n, e in zip(mn[:, 0].tolist(), mn[:, 1].tolist(), strict=True)]
     x = _wrap_deg(np.array(d))
     rms, mx = float(np.sqrt(np.mean(x**2))), float(np.max(np.abs(x)))
     yaw = np.degrees(euler_series(q_nb[iq])[:, 2])

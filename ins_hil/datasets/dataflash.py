@@ -20,6 +20,7 @@ The end of valid data (:func:`end_of_valid_data`): a log that ends in a crash ha
 
 from __future__ import annotations
 
+import array
 import math
 import struct
 from pathlib import Path
@@ -53,6 +54,51 @@ CRASH_RATE = 3.0
 #: the firmware banner of each vehicle (its first MSG): APM:Copter V3.4.4, ArduCopter V4.5.1, ArduPlane V4.5.1, …
 FIRMWARES = ("APM:Copter", "ArduCopter", "APM:Plane", "ArduPlane", "APM:Rover", "ArduRover", "ArduSub", "APM:Sub",
              "Blimp", "AntennaTracker")  # fmt: skip
+
+
+#: DataFlash format character → (struct code, multiplier, type): pymavlink's ``DFReader.FORMAT_TO_STRUCT``
+FORMAT_TO_STRUCT: dict[str, tuple[str, float | None, Any]] = {
+    "a": ("64s", None, array.array), "b": ("b", None, int), "B": ("B", None, int), "g": ("e", None, float),
+    "h": ("h", None, int), "H": ("H", None, int), "i": ("i", None, int), "I": ("I", None, int), "f": ("f", None, float),
+    "n": ("4s", None, str), "N": ("16s", None, str), "Z": ("64s", None, str), "c": ("h", 0.01, float),
+    "C": ("H", 0.01, float), "e": ("i", 0.01, float), "E": ("I", 0.01, float), "L": ("i", 1.0e-7, float),
+    "d": ("d", None, float), "M": ("b", None, int), "q": ("q", None, int), "Q": ("Q", None, int),
+}  # fmt: skip
+
+
+class DFFormat:
+    """One message format (an ``FMT``) as pymavlink's ``DFReader.DFFormat`` defines it, the part the parsers use:
+    ``name``, ``len`` (bytes, header included), ``format``, ``columns``, ``colhash`` (column → its last index),
+    ``msg_struct``, ``msg_fmts``, ``msg_types``, ``msg_mults``. Kept here so that reading a log does not import
+    pymavlink (its ``DFReader`` loads ``mavutil`` and a MAVLink dialect: ~40 ms of every ArduPilot replay);
+    ``tests/test_datasets_dataflash_bin.py`` holds it to pymavlink's. ValueError on an unknown format character."""
+
+    def __init__(self, type: int, name: str | bytes, flen: int, format: str, columns: str) -> None:
+        self.type = type
+        self.name = null_term(name)
+        self.len = flen
+        self.format = format
+        self.columns = [] if columns == "" else columns.split(",")
+        st, self.msg_fmts, self.msg_types, self.msg_mults = "<", [], [], []
+        for c in format:
+            try:
+                code, mult, cast = FORMAT_TO_STRUCT[c]
+            except KeyError:
+                raise ValueError(f"Unsupported format char: {c!r} in message {self.name}") from None
+            st += code
+            self.msg_fmts.append(c)
+            self.msg_mults.append(mult)
+            self.msg_types.append(cast)
+        self.msg_struct = st
+        self.colhash = {c: i for i, c in enumerate(self.columns)}
+
+
+def null_term(s: str | bytes) -> str:
+    """A DataFlash string field up to its first NUL (bytes decoded as UTF-8, undecodable bytes backslash-escaped):
+    pymavlink's ``DFReader.null_term``."""
+    if isinstance(s, bytes):
+        s = s.decode(errors="backslashreplace")
+    return s.split("\0", 1)[0]
 
 
 def _is_dataflash(path: Path) -> bool:
@@ -131,8 +177,6 @@ def text_rows(path: Path, data: bytes, want: set[str]) -> dict[str, list[dict[st
     ``str`` cut at a NUL; ``M`` and ``a`` kept as text; no multiplier: a text log's values are in their units).
     Without pymavlink's whole-log passes (its index and time base) and its Python object per message. A line that
     is not UTF-8, a damaged FMT line, or a value that does not convert is a DatasetError naming the line."""
-    from pymavlink.DFReader import DFFormat
-
     delim = ", "
     start = data.find(b"FMT, ")
     if start < 0:
@@ -234,8 +278,6 @@ def binary_rows(data: bytes, want: set[str], source: str = "<bytes>") -> dict[st
     message are skipped one by one; a message whose body does not unpack is skipped after its header; the log
     ends at the first message cut short. Only the messages in ``want`` are unpacked. ``source``: the file, for the
     errors."""
-    from pymavlink.DFReader import DFFormat, null_term
-
     formats: dict[int, Any] = {FMT_ID: DFFormat(FMT_ID, "FMT", FMT_LEN, "BBnNZ", "Type,Length,Name,Format,Columns")}
     unpack: dict[int, Any] = {}
     # per message id not wanted (nor FMT): its body length (the log ends where one is cut short) and how far to

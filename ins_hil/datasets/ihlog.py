@@ -14,15 +14,19 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from ins_hil.datasets.dataset import Dataset, DatasetError, Reader, Trajectory
 from ins_hil.nav import earth
-from ins_hil.runtime import recorder
-from ins_hil.runtime.replay import SimTruth, sim_config_from_header
 from ins_hil.types import ImuSample, SimConfig
+
+if TYPE_CHECKING:
+    from ins_hil.runtime.replay import SimTruth
+
+# ``ins_hil.runtime.recorder`` / ``ins_hil.runtime.replay`` are imported where a gateway log is read: a replay that
+# only installs the truth source (every ``ins-hil replay --dataset``) does not load them
 
 #: reference rate (Hz) of a simulated run's regenerated truth
 REFERENCE_HZ = 10.0
@@ -30,7 +34,7 @@ REFERENCE_HZ = 10.0
 #: regenerates a simulated run's truth, (SimConfig, duration s) -> SimTruth; installed by the evaluation layer
 #: (:func:`set_truth_source` with ``ins_hil.evaluation.sim_flight.sim_truth``): ``datasets`` may not import
 #: the simulator. None: a simulated log is replayed without a reference (its notes say so).
-TruthSource = Callable[[SimConfig, float], SimTruth]
+TruthSource = Callable[[SimConfig, float], "SimTruth"]
 _truth_source: TruthSource | None = None
 
 
@@ -43,6 +47,8 @@ def set_truth_source(fn: TruthSource | None) -> None:
 def _is_ihlog(path: Path) -> bool:
     if not path.is_file():
         return False
+    from ins_hil.runtime import recorder
+
     with path.open("rb") as f:
         head = f.read(len(recorder.MAGIC))
     return head in (recorder.MAGIC, recorder.MAGIC_V1)
@@ -50,12 +56,16 @@ def _is_ihlog(path: Path) -> bool:
 
 def is_simulated(header: dict[str, Any]) -> bool:
     """Whether the recording's header says the run was simulated (``[sim]`` enabled)."""
+    from ins_hil.runtime.replay import sim_config_from_header
+
     return sim_config_from_header(header) is not None
 
 
 def sim_reference(header: dict[str, Any], duration: float) -> Trajectory | None:
     """The simulator's truth of a simulated run (header ``[sim]``) as a reference trajectory; None for a real
     run or when no truth source is installed."""
+    from ins_hil.runtime.replay import sim_config_from_header
+
     sim = sim_config_from_header(header)
     if sim is None or _truth_source is None:
         return None
@@ -70,6 +80,8 @@ def sim_reference(header: dict[str, Any], duration: float) -> Trajectory | None:
 
 def read_ihlog(path: Path) -> Dataset:
     """Read a gateway recording (all its parts); DatasetError (one line) for a damaged or foreign file."""
+    from ins_hil.runtime import recorder
+
     try:
         header = recorder.read_header(path)
         records = list(recorder.read_records(path))

@@ -84,40 +84,59 @@ def read_imu_csv(
     """Parse the IMU csv robustly: lines that do not have ``len(columns)`` numeric fields (partial first/last
     lines, garbage) are skipped and counted. Returns (acc, gyro, tick, bad_lines) in the file's units.
     ``offsets`` (optional list) receives the byte offset of the END of every kept line and the number of
-    lines before it, as ``(end_byte, line_index)`` pairs flattened (for the time tags)."""
-    rows = []
-    bad = 0
-    pos = 0
+    lines before it, as ``(end_byte, line_index)`` pairs flattened (for the time tags).
+
+    Every line is checked: the lines with ``len(columns)`` fields are converted at once (numpy's conversion of
+    each field's bytes, Python's ``float`` of them), the rows with a non-finite value dropped; when a field does
+    not convert, every line is read one by one (:func:`_csv_rows`), with the same result."""
+    data = Path(path).read_bytes()
+    lines = data.split(b"\n")
+    if lines[-1] == b"":  # the newline that ends the last line (or an empty file)
+        lines.pop()
     width = len(columns)
-    with open(path, "rb") as fb:
-        for index, raw in enumerate(fb):
-            start = pos
-            pos += len(raw)
-            line = raw.decode("ascii", errors="replace")
-            parts = line.strip().split(",")
-            if len(parts) != width:
-                bad += 1
-                continue
-            try:
-                vals = [float(p) for p in parts]
-            except ValueError:
-                bad += 1
-                continue
-            if not all(math.isfinite(v) for v in vals):
-                bad += 1
-                continue
-            rows.append(vals)
-            if offsets is not None:
-                offsets.extend((start + len(raw.rstrip(b"\r\n")), index))
-    if not rows:
+    cand = [i for i, ln in enumerate(lines) if ln.count(b",") == width - 1]
+    try:
+        vals = np.array(b",".join([lines[i] for i in cand]).split(b",") if cand else [], dtype=np.float64)
+    except ValueError:  # a field that is not a number: line by line
+        kept, a = _csv_rows(lines, width)
+    else:
+        vals = vals.reshape(len(cand), width)
+        ok = np.isfinite(vals).all(axis=1)
+        a = vals[ok]
+        kept = np.asarray(cand, dtype=np.int64)[ok].tolist()
+    bad = len(lines) - len(kept)
+    if not kept:
         raise ValueError(f"{path}: no valid IMU line (expected '{','.join(columns)}')")
-    a = np.array(rows)
+    if offsets is not None:  # each kept line's start + its length without the line end
+        size = np.array([len(ln) + 1 for ln in lines], dtype=np.int64)
+        k = np.asarray(kept, dtype=np.int64)
+        end = (np.cumsum(size) - size)[k] + np.array([len(lines[i].rstrip(b"\r")) for i in kept], dtype=np.int64)
+        offsets.extend(np.column_stack((end, k)).ravel().tolist())
     ix = {c: i for i, c in enumerate(columns)}
     if tuple(columns) == IMU_COLUMNS:
         return a[:, 0:3], a[:, 3:6], a[:, 6], bad
     acc = a[:, [ix["ax"], ix["ay"], ix["az"]]]
     gyro = a[:, [ix["gx"], ix["gy"], ix["gz"]]]
     return acc, gyro, a[:, ix["tick"]], bad
+
+
+def _csv_rows(lines: list[bytes], width: int) -> tuple[list[int], Vec]:
+    """The csv lines one by one: (the indices of the lines of ``width`` finite numbers, their values (N, width))."""
+    kept: list[int] = []
+    rows = []
+    for index, raw in enumerate(lines):
+        parts = raw.decode("ascii", errors="replace").strip().split(",")
+        if len(parts) != width:
+            continue
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            continue
+        if not all(math.isfinite(v) for v in vals):
+            continue
+        rows.append(vals)
+        kept.append(index)
+    return kept, np.array(rows).reshape(-1, width)
 
 
 @dataclass
@@ -321,7 +340,6 @@ def load(directory: Path, cfg: DatasetConfig | None = None) -> Recording:
         acc = np.column_stack([np.interp(t + lag, t, acc[:, i]) for i in range(3)])
     log = ImuLog(acc, gyro, tick, t, bad)
     trapezoid = o.get("increments", "trapezoid") == "trapezoid"
-    samples = []
     dts = np.diff(t)
     if trapezoid:  # trapezoid of the two rate samples over the interval
         w, a = 0.5 * (gyro[1:] + gyro[:-1]), 0.5 * (acc[1:] + acc[:-1])
@@ -329,25 +347,23 @@ def load(directory: Path, cfg: DatasetConfig | None = None) -> Recording:
         w, a = gyro[1:], acc[1:]
     with np.errstate(all="ignore"):
         dth, dv = w * dts[:, None], a * dts[:, None]  # the products sample by sample, all at once
-    t_l, dt_l = t.tolist(), dts.tolist()
-    for k in range(1, len(t_l)):
-        dt = dt_l[k - 1]
-        if not 0.0 < dt < 0.1:
-            continue
-        samples.append(ImuSample(t=t_l[k], dt=dt, dtheta=dth[k - 1], dvel=dv[k - 1], seq=k & 0xFFFF))
+    # one sample per interval of 0 < dt < 0.1 s (its increments: rows of dth, dv, as views)
+    samples = [ImuSample(t=tk, dt=dt, dtheta=th, dvel=v, seq=k & 0xFFFF)
+               for k, tk, dt, th, v in zip(range(1, len(t)), t[1:].tolist(), dts.tolist(), dth, dv)
+               if 0.0 < dt < 0.1]  # fmt: skip
     pos = read_pos(pos_path, bool(o.get("velocity_up", True)))
     max_q = int(o.get("max_q", 2))
-    fixes = []
-    for k in range(len(pos.t)):
-        if not 1 <= pos.q[k] <= max_q:  # RTKLIB's Q is 1 (fix) … 6 (PPP); NaN too
-            continue
-        fixes.append(
-            GnssFix(t=float(pos.t[k]), lat=float(pos.lat[k]), lon=float(pos.lon[k]), h=float(pos.h[k]),
-                    vel_ned=pos.vel_ned[k].copy(), std_ne=float(max(pos.sd[k, 0], pos.sd[k, 1])),
-                    std_d=float(pos.sd[k, 2]), std_vel=float(np.max(pos.sdv[k])),
-                    fix_type=Q_FIX.get(int(pos.q[k]), FixType.FIX_3D),
-                    num_sats=int(pos.ns[k]) if 0 <= pos.ns[k] <= 255 else 0)
-        )  # fmt: skip
+    # the epochs with 1 ≤ Q ≤ max_q (RTKLIB's Q is 1 (fix) … 6 (PPP); NaN fails), their columns as Python floats
+    use = np.flatnonzero((pos.q >= 1) & (pos.q <= max_q))
+    vel = pos.vel_ned[use]
+    fixes = [
+        GnssFix(t=tk, lat=la, lon=lo, h=hk, vel_ned=vel[i], std_ne=max(sn, se), std_d=sd, std_vel=sv,
+                fix_type=Q_FIX.get(int(q), FixType.FIX_3D), num_sats=int(ns) if 0 <= ns <= 255 else 0)
+        for i, (tk, la, lo, hk, sn, se, sd, sv, q, ns) in enumerate(zip(
+            pos.t[use].tolist(), pos.lat[use].tolist(), pos.lon[use].tolist(), pos.h[use].tolist(),
+            pos.sd[use, 0].tolist(), pos.sd[use, 1].tolist(), pos.sd[use, 2].tolist(),
+            np.max(pos.sdv[use], axis=1).tolist(), pos.q[use].tolist(), pos.ns[use].tolist()))
+    ]  # fmt: skip
     notes = [] if cfg is not None else ["no dataset config: identity mounting, no IMU time offset, no lever arm"]
     mounted = {"imu_time_offset_s": c.imu_time_offset, "imu_to_body": c.imu_to_body.copy()}
     meta = {"source": str(d), "format": "rtklib", "vehicle": "", "notes": notes, "mounted": mounted,

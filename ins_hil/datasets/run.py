@@ -617,9 +617,20 @@ class GnssScore(Observer):
         self._f_raw: dict[int, Vec] = {}
         self._span: dict[int, tuple[int, Vec]] = {}  # per open fix: the epoch count and f at its last segment end
         self._epochs = 0
+        # the origin's ECEF point and C_e^n, once (``earth.ned_from_geodetic``'s numbers without recomputing them)
+        self._o_ecef = earth.geodetic_to_ecef(*origin)
+        self._c_en = earth.dcm_ecef_to_ned(origin[0], origin[1])
+
+    def _ned(self, lat: float, lon: float, h: float) -> Vec:
+        """``earth.ned_from_geodetic(lat, lon, h, *origin)``."""
+        return cast(Vec, self._c_en @ (earth.geodetic_to_ecef(lat, lon, h) - self._o_ecef))
 
     def _ref(self, f: GnssFix) -> Vec:
-        return earth.ned_from_geodetic(f.lat, f.lon, f.h, *self.origin)
+        return self._ned(f.lat, f.lon, f.h)
+
+    def _antenna(self, st: Any, t: float) -> Vec:
+        """:func:`antenna_ned` of ``st`` at ``t`` (this observer's lever arm and origin)."""
+        return self._ned(st.lat, st.lon, st.h) + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t - st.t)
 
     def epoch(self, pipe: Pipeline, st: NavState) -> None:
         self._epochs += 1
@@ -629,7 +640,7 @@ class GnssScore(Observer):
             self._w += 1
             if navigating(pipe):
                 ref = self._ref(f)
-                self.rows.append(FixScore(f, True, antenna_ned(st, self.lever, f.t, self.origin) - ref,
+                self.rows.append(FixScore(f, True, self._antenna(st, f.t) - ref,
                                           np.full(3, math.nan), ref, st))  # fmt: skip
 
     def epochs(self, pipe: Pipeline, states: Sequence[NavState]) -> None:
@@ -652,7 +663,7 @@ class GnssScore(Observer):
             if nav:
                 st = states[i]
                 ref = self._ref(f)
-                self.rows.append(FixScore(f, True, antenna_ned(st, self.lever, f.t, self.origin) - ref,
+                self.rows.append(FixScore(f, True, self._antenna(st, f.t) - ref,
                                           np.full(3, math.nan), ref, st))  # fmt: skip
 
     def before_fuse(self, pipe: Pipeline, m: Any) -> None:
@@ -661,7 +672,7 @@ class GnssScore(Observer):
         assert pipe.core is not None
         st = pipe.core.state()
         ref = self._ref(m)
-        row = FixScore(m, False, antenna_ned(st, self.lever, m.t, self.origin) - ref, np.full(3, math.nan), ref, st)
+        row = FixScore(m, False, self._antenna(st, m.t) - ref, np.full(3, math.nan), ref, st)
         self.rows.append(row)
         self._open[id(m)] = row
 
@@ -701,7 +712,7 @@ class GnssScore(Observer):
             return
         row.fused = fused
         if fused:
-            row.post = antenna_ned(pipe.core.state(), self.lever, m.t, self.origin) - row.ref
+            row.post = self._antenna(pipe.core.state(), m.t) - row.ref
             row.corr = row.corr or (0.0, 0.0)
 
     def sorted_rows(self) -> list[FixScore]:

@@ -10,9 +10,29 @@
 * :mod:`ins_hil.fdi.aiding`: GNSS/baro drift and slow-pull detection (:class:`~ins_hil.fdi.aiding.AidingMonitor`).
 """
 
-from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
-from ins_hil.fdi.geometry import SensorGeometry, book_cone5, by_name, dual_imu, skewed6, triple_imu
-from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ins_hil.fdi.aiding import AidingConfig, AidingMonitor
+    from ins_hil.fdi.geometry import SensorGeometry, book_cone5, by_name, dual_imu, skewed6, triple_imu
+    from ins_hil.fdi.monitor import FdiConfig, FdiMonitor
+
+#: the package's names and their modules, imported on first use (PEP 562): importing ``ins_hil.fdi.aiding`` (the
+#: replay's drift monitor) does not load the IMU monitor, the geometries and the parity space
+_LAZY = {"AidingConfig": "aiding", "AidingMonitor": "aiding", "FdiConfig": "monitor", "FdiMonitor": "monitor",
+         "SensorGeometry": "geometry", "book_cone5": "geometry", "by_name": "geometry", "dual_imu": "geometry",
+         "skewed6": "geometry", "triple_imu": "geometry"}  # fmt: skip
+
+
+def __getattr__(name: str) -> Any:
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'ins_hil.fdi' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"ins_hil.fdi.{mod}"), name)
+
 
 __all__ = [
     "AidingConfig",

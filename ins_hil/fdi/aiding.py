@@ -163,6 +163,27 @@ def _dead_zone(x: np.ndarray, dz: np.ndarray) -> np.ndarray:
     return np.sign(x) * np.maximum(0.0, np.abs(x) - dz)
 
 
+def _dead_zone1(x: float, dz: float) -> float:
+    """:func:`_dead_zone` of one float (the same number: np.sign's 0 for ±0 and NaN for NaN, np.maximum's NaN)."""
+    m = abs(x) - dz
+    return (1.0 if x > 0.0 else -1.0 if x < 0.0 else 0.0 if x == 0.0 else x) * (0.0 if m <= 0.0 else m)
+
+
+def _max1(a: float, b: float) -> float:
+    """np.maximum of two floats (``a`` when equal; NaN in ``a`` propagates, as for a float ``b`` in numpy)."""
+    return a if (a >= b or a != a) else b
+
+
+Xyz = tuple[float, float, float]
+_Z3: Xyz = (0.0, 0.0, 0.0)
+
+
+def _xyz(v: Any) -> Xyz:
+    """A 3-vector as three Python floats (float64 values: the numbers numpy computes with)."""
+    x, y, z = np.asarray(v, dtype=np.float64).tolist()
+    return x, y, z
+
+
 #: s a CUSUM-excluded, self-consistent GNSS must be ``diverged_speed`` off the INS before it is re-admitted
 DIVERGED_PERSIST_S = 2.0
 
@@ -289,7 +310,7 @@ class AidingMonitor:
         self._cp = np.zeros(6)  # CUSUM S⁺ (pos N,E,D, vel N,E,D)
         self._cn = np.zeros(6)  # CUSUM S⁻
         self._prev: GnssFix | None = None
-        self._e = np.zeros(3)  # accumulated position − integrated velocity (m, NED)
+        self._e: Xyz = _Z3  # accumulated position − integrated velocity (m, NED)
         #: the last ``_N_ANCHORS`` accepted fixes: [fix, its e, velocity integrated since, its dead zone (m, NED)]
         self._anchors: deque[list[Any]] = deque(maxlen=_N_ANCHORS)
         self._win = _RowWindow(6)  # rows t, e(3), σ_p², σ_v²Δt
@@ -298,7 +319,7 @@ class AidingMonitor:
         self._sv = np.ones(3)  # σ of the velocity innovation (m/s)
         self._baro_last: BaroSample | None = None
         self._bwin = _RowWindow(3)  # rows t, h_baro − h_gnss, var
-        self._v_ema = np.zeros(3)  # slow average of the state velocity (m/s, NED; time constant lag_tau)
+        self._v_ema: Xyz = _Z3  # slow average of the state velocity (m/s, NED; time constant lag_tau)
         self._v_t = math.nan
         self._ins_hold = -math.inf  # INS-innovation CUSUMs held until this time (see ins_disturbed)
         self._gnss_by_cusum = False
@@ -352,6 +373,8 @@ class AidingMonitor:
 
     # ---------------------------------------------------------------- GNSS
     def _gnss(self, g: GnssFix, st: NavState) -> None:
+        # The 3-vectors of one fix are Python floats (numpy's elementwise numbers, op for op; ~1 µs less per
+        # operation than a numpy call on 3 elements); the matrix products and the windows stay numpy.
         c = self.cfg
         # the fix's σ as the core weighs it (floors ``gnss.min_std``, ``gnss.std_scale``): normalised by the
         # reported RTK σ alone (1 cm/s velocity where the core assumes 6 cm/s), the filter's own innovations
@@ -359,29 +382,35 @@ class AidingMonitor:
         mn, sc = self._core_min_std, self._core_std_scale
         sp_ne = max(max(g.std_ne, mn[0]) * sc, c.min_std)
         sp_d = max(max(g.std_d, mn[1]) * sc, c.min_std)
-        var_p = np.array((sp_ne * sp_ne, sp_ne * sp_ne, sp_d * sp_d))
+        vp_ne, vp_d = sp_ne * sp_ne, sp_d * sp_d
         sp0, self._st_prev = self._st_prev, st
         # --- innovations against the INS at the fix's time of validity
         lag, a_n, dz_p, dz_v = self._lag(g, st)
-        v_f = np.asarray(st.vel_ned, dtype=np.float64)
-        d_ant = np.zeros(3)
+        v0, v1, v2 = _xyz(st.vel_ned)
+        d0 = d1 = d2 = 0.0
         if self._has_lever:
             # the INS at the antenna: p + C_b^n l, v + C_b^n (ω_ib × l) (book eq. 3.3 with lever arm, as
             # fusion.measurements); the lever arm turns with the heading, by up to 2|l| on a turn of 180°
             C = dcm_from_quat(st.q_nb)
-            d_ant = C @ self._lever
+            d0, d1, d2 = (C @ self._lever).tolist()
             # ω × l in Python floats (numpy's cross of two 3-vectors: the same products and differences)
-            w0, w1, w2 = np.asarray(st.omega_b, dtype=np.float64).tolist()
+            w0, w1, w2 = _xyz(st.omega_b)
             l0, l1, l2 = self._lever.tolist()
-            v_f = v_f + C @ np.array((w1 * l2 - w2 * l1, w2 * l0 - w0 * l2, w0 * l1 - w1 * l0))
+            e0, e1, e2 = (C @ np.array((w1 * l2 - w2 * l1, w2 * l0 - w0 * l2, w0 * l1 - w1 * l0))).tolist()
+            v0, v1, v2 = v0 + e0, v1 + e1, v2 + e2
         # p(t_g) = p(t) − v·lag + ½·a·lag², v(t_g) = v(t) − a·lag: the state moved back to the fix time
         # with its own velocity/acceleration, unless the core fuses late fixes as current (see _lag)
         back = 0.0 if c.late_fix_as_current else lag
-        nu_p = earth.ned_delta_small(g.lat - st.lat, g.lon - st.lon, g.h - st.h, st.lat, st.h) + (
-            v_f * back - 0.5 * a_n * (back * back) - d_ant
-        )
-        s_ins = np.asarray(st.std_pos) ** 2
-        z_p = _dead_zone(nu_p, dz_p) / np.sqrt(s_ins + var_p)
+        bb = back * back
+        a0, a1, a2 = a_n
+        n0, n1, n2 = earth.ned_delta_small_xyz(g.lat - st.lat, g.lon - st.lon, g.h - st.h, st.lat, st.h)
+        n0 = n0 + (v0 * back - 0.5 * a0 * bb - d0)
+        n1 = n1 + (v1 * back - 0.5 * a1 * bb - d1)
+        n2 = n2 + (v2 * back - 0.5 * a2 * bb - d2)
+        s0, s1, s2 = _xyz(st.std_pos)
+        z_p = (_dead_zone1(n0, dz_p[0]) / math.sqrt(s0 * s0 + vp_ne),
+               _dead_zone1(n1, dz_p[1]) / math.sqrt(s1 * s1 + vp_ne),
+               _dead_zone1(n2, dz_p[2]) / math.sqrt(s2 * s2 + vp_d))  # fmt: skip
         if g.vel_ned is not None:
             sv = max(max(g.std_vel, mn[2]) * sc, c.min_std)
             back_v = back
@@ -389,21 +418,23 @@ class AidingMonitor:
                 # the fix's velocity is valid ``gnss_vel_delay`` before its position (the core fuses it there):
                 # the state's velocity moved back by that much more (v − a·(lag + delay))
                 if lag <= 0.0:
-                    a_n = dcm_from_quat(st.q_nb) @ np.asarray(st.accel_b, dtype=np.float64) + earth.gravity_ned(
-                        st.lat, st.h
-                    )
+                    a0, a1, a2 = self._accel_ned(st)
                 back_v = back + self._vel_delay
                 if st.t - self._t_nav < c.clear_time:
                     # the core's first velocities are older than its delayed-fusion history and fused as current
                     # (NavCore and the C core alike): its velocity is off by up to a·vel_delay while it settles
-                    dz_v = dz_v + self._vel_delay * np.abs(a_n)
-            nu_v = np.asarray(g.vel_ned, dtype=np.float64) - (v_f - back_v * a_n)
-            sd_ins = np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv)
-            z_v = _dead_zone(nu_v, dz_v) / np.sqrt(sd_ins**2 + sv * sv)
+                    vd = self._vel_delay
+                    dz_v = (dz_v[0] + vd * abs(a0), dz_v[1] + vd * abs(a1), dz_v[2] + vd * abs(a2))
+            gv0, gv1, gv2 = _xyz(g.vel_ned)
+            nu_v = (gv0 - (v0 - back_v * a0), gv1 - (v1 - back_v * a1), gv2 - (v2 - back_v * a2))
+            floor = c.ins_vel_floor * sv
+            q0, q1, q2 = (_max1(x, floor) for x in _xyz(st.std_vel))
+            sd_v = (math.sqrt(q0 * q0 + sv * sv), math.sqrt(q1 * q1 + sv * sv), math.sqrt(q2 * q2 + sv * sv))
+            z_v = tuple(_dead_zone1(nu_v[i], dz_v[i]) / sd_v[i] for i in range(3))
         else:
             sv = math.nan
-            z_v = np.zeros(3)
-            nu_v = np.zeros(3)
+            z_v = _Z3
+            nu_v = _Z3
         # --- position vs velocity consistency window
         prev = self._prev
         if prev is not None and (g.t - prev.t > c.max_gap or g.t <= prev.t):
@@ -414,56 +445,63 @@ class AidingMonitor:
         if prev is not None and prev.vel_ned is not None and g.vel_ned is not None:
             fix_ok = False
             dt = g.t - prev.t
-            trap = 0.5 * (np.asarray(prev.vel_ned) + np.asarray(g.vel_ned)) * dt
+            pv0, pv1, pv2 = _xyz(prev.vel_ned)
+            trap = (0.5 * (pv0 + gv0) * dt, 0.5 * (pv1 + gv1) * dt, 0.5 * (pv2 + gv2) * dt)
             # the trapezoid rule's error on the real motion: up to about ½·|v − v_prev|·Δt per axis (a walk's
             # gait at 1 Hz: ~0.1 m, beyond the jump gate of RTK); a dead zone of the outlier test
-            dz = 0.5 * np.abs(np.asarray(g.vel_ned) - np.asarray(prev.vel_ned)) * dt
-            dp = earth.ned_delta_small(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h)
+            dz = (0.5 * abs(gv0 - pv0) * dt, 0.5 * abs(gv1 - pv1) * dt, 0.5 * abs(gv2 - pv2) * dt)
+            p0, p1, p2 = earth.ned_delta_small_xyz(g.lat - prev.lat, g.lon - prev.lon, g.h - prev.h, g.lat, g.h)
             # velocities valid ``gnss_vel_delay`` before their positions integrate to the positions at those times:
             # p(t − d) ≈ p − v·d (else an acceleration a reads as a pull of a·d: 0.2 m/s at 2 m/s², d = 0.1 s)
             vd = self._vel_delay
-            de = dp - trap - (np.asarray(g.vel_ned) - np.asarray(prev.vel_ned)) * vd
+            de = (p0 - trap[0] - (gv0 - pv0) * vd, p1 - trap[1] - (gv1 - pv1) * vd, p2 - trap[2] - (gv2 - pv2) * vd)
             # Outliers: the fix is bridged from the newest of the last accepted fixes (anchors) its
             # position agrees with (p_k − p_a − ∫v within the jump gate), so that e_k = n_k − n_0 − ∫w
             # stays a telescoping sum of the position noise over an outlier. Dropping the outlier's
             # steps instead (or one of them, when the other is within the gate) leaves a step
             # ~ N(0, 2σ_p²) in e that the slope test reads as a pull for a whole window.
             for anc in self._anchors:
-                anc[2] += trap
-                anc[3] += dz
+                i2, z2 = anc[2], anc[3]
+                anc[2] = (i2[0] + trap[0], i2[1] + trap[1], i2[2] + trap[2])
+                anc[3] = (z2[0] + dz[0], z2[1] + dz[1], z2[2] + dz[2])
             for a_fix, a_e, a_int, a_dz in reversed(self._anchors):
-                db = earth.ned_delta_small(g.lat - a_fix.lat, g.lon - a_fix.lon, g.h - a_fix.h, g.lat, g.h) - a_int
+                b0, b1, b2 = earth.ned_delta_small_xyz(g.lat - a_fix.lat, g.lon - a_fix.lon, g.h - a_fix.h, g.lat, g.h)
+                b0, b1, b2 = b0 - a_int[0], b1 - a_int[1], b2 - a_int[2]
                 if vd > 0.0:
-                    db = db - (np.asarray(g.vel_ned) - np.asarray(a_fix.vel_ned)) * vd
-                if self._step_ok(db, sp_ne, sp_d, a_dz):
-                    self._e = a_e + db
+                    av0, av1, av2 = _xyz(a_fix.vel_ned)
+                    b0, b1, b2 = b0 - (gv0 - av0) * vd, b1 - (gv1 - av1) * vd, b2 - (gv2 - av2) * vd
+                if self._step_ok((b0, b1, b2), sp_ne, sp_d, a_dz):
+                    self._e = (a_e[0] + b0, a_e[1] + b1, a_e[2] + b2)
                     bridged = a_fix is not prev
                     self._push_anchor(g)
                     fix_ok = True
                     break
             else:
                 if self._step_ok(de, sp_ne, sp_d, dz):  # a persisting jump: its level is accepted (the filter gates it)
-                    self._e = self._e + de
+                    e = self._e
+                    self._e = (e[0] + de[0], e[1] + de[1], e[2] + de[2])
                     self._anchors.clear()
                     self._push_anchor(g)
                     fix_ok = True
                 # else a single-epoch jump is left to the filter's gate (JUMP)
-            self._win.append((g.t, *self._e, sp_ne * sp_ne, sv * sv * dt))
+            self._win.append((g.t, *self._e, vp_ne, sv * sv * dt))
         elif g.vel_ned is not None:
-            self._e = np.zeros(3)
+            self._e = _Z3
             self._anchors.clear()
             self._push_anchor(g)
-            self._win.append((g.t, 0.0, 0.0, 0.0, sp_ne * sp_ne, 0.0))
+            self._win.append((g.t, 0.0, 0.0, 0.0, vp_ne, 0.0))
         self._prev = g
         while self._win and self._win.first_t() < g.t - c.window:
             self._win.popleft()
         cons, rate_c = self._consistency(sp_d / sp_ne)
         self.stats["gnss_consistency"] = cons
         # --- CUSUM on the normalised innovations (frozen while the GNSS is excluded)
-        z = np.concatenate((z_p, z_v))
+        zl = [*z_p, *z_v]
         if not c.vertical_cusum:  # the filter height follows the baro: vertical GNSS checked by the slope tests
-            z[2] = z[5] = 0.0
-        z = np.minimum(np.maximum(z, -c.jump_gate), c.jump_gate)  # np.clip's numbers: an outlier adds ≤ jump_gate − k
+            zl[2] = zl[5] = 0.0
+        jg = c.jump_gate
+        # np.minimum(np.maximum(z, −g), g) (np.clip's numbers; NaN stays NaN): an outlier adds ≤ jump_gate − k
+        zl = [-jg if x < -jg else jg if x > jg else x for x in zl]
         if bridged and self._prev_outlier and sp0 is not None and 0.0 < st.t - sp0.t <= c.max_gap:
             # The previous fix was a position outlier (it agreed with none of the last accepted fixes, this one
             # agrees with one before it) and the horizontal state stepped after it: p − p₀ − ½(v₀ + v)Δt, the
@@ -480,14 +518,17 @@ class AidingMonitor:
                 self.ins_disturbed(g.t)
         self._prev_outlier = not fix_ok
         if g.t < self._ins_hold:
-            z = np.zeros(6)  # the INS lost samples: its innovations are no evidence (ins_disturbed)
+            zl = [0.0] * 6  # the INS lost samples: its innovations are no evidence (ins_disturbed)
         if not (self.gnss.faulted and c.exclude):
-            self._cp = np.maximum(0.0, self._cp + z - c.cusum_k)
-            self._cn = np.maximum(0.0, self._cn - z - c.cusum_k)
-            self._cp_len = np.where(self._cp > 0, self._cp_len + 1, 0.0)
-            self._cn_len = np.where(self._cn > 0, self._cn_len + 1, 0.0)
+            k = c.cusum_k
+            # np.maximum(0, S ± z − k): 0 where ≤ 0, NaN stays NaN
+            cp = [0.0 if v <= 0.0 else v for v in [x + y - k for x, y in zip(self._cp.tolist(), zl)]]
+            cn = [0.0 if v <= 0.0 else v for v in [x - y - k for x, y in zip(self._cn.tolist(), zl)]]
+            self._cp_len = np.array([n + 1 if x > 0 else 0.0 for x, n in zip(cp, self._cp_len.tolist())])
+            self._cn_len = np.array([n + 1 if x > 0 else 0.0 for x, n in zip(cn, self._cn_len.tolist())])
+            self._cp, self._cn = np.array(cp), np.array(cn)
             if g.vel_ned is not None:
-                self._sv = np.sqrt(np.maximum(np.asarray(st.std_vel), c.ins_vel_floor * sv) ** 2 + sv * sv)
+                self._sv = np.array(sd_v)
             else:
                 self._sv = np.asarray(st.std_vel, dtype=np.float64).copy()
         cus = float(max(_max(self._cp), _max(self._cn)))
@@ -518,7 +559,7 @@ class AidingMonitor:
             # consistent with itself while the INS velocity is more than ``diverged_speed`` off it (a pull the CUSUM
             # guards against is slower) for DIVERGED_PERSIST_S is re-admitted, so that the core sees its rejections
             # and resets (a tactical preset on the ArduCopter flight: excluded for good at 25 s, 1 km off)
-            off = math.hypot(float(nu_v[0]), float(nu_v[1])) if g.vel_ned is not None else 0.0
+            off = math.hypot(nu_v[0], nu_v[1]) if g.vel_ned is not None else 0.0
             if self._gnss_by_cusum and cons < c.clear_fraction * self.thr_gnss and off > c.diverged_speed:
                 if math.isnan(self._t_div):
                     self._t_div = g.t
@@ -528,7 +569,7 @@ class AidingMonitor:
                     return
             else:
                 self._t_div = math.nan
-            healthy = cons < c.clear_fraction * self.thr_gnss and float(np.max(np.abs(z))) < c.clear_gate
+            healthy = cons < c.clear_fraction * self.thr_gnss and float(_max(np.abs(np.array(zl)))) < c.clear_gate
             if not healthy:
                 self.gnss.t_ok = math.nan
             elif math.isnan(self.gnss.t_ok):
@@ -541,7 +582,7 @@ class AidingMonitor:
         if fix_ok:
             self._baro_vs_gnss(g, sp_d)
 
-    def _lag(self, g: GnssFix, st: NavState) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    def _lag(self, g: GnssFix, st: NavState) -> tuple[float, Xyz, Xyz, Xyz]:
         """Lag of the fix behind the state (s, ≥ 0), the state's NED acceleration (m/s²) and the
         dead zones (m, m/s per NED axis) of the position and velocity innovations that the lag
         alone can cause.
@@ -559,22 +600,31 @@ class AidingMonitor:
         (position; v̄ = EMA of v over ``lag_tau`` s, the velocity change the filter is still
         catching up with). With a timely fix (lag ≈ 0) both vanish."""
         c = self.cfg
-        v = np.asarray(st.vel_ned, dtype=np.float64)
+        v0, v1, v2 = _xyz(st.vel_ned)
         if math.isnan(self._v_t):
-            self._v_ema, self._v_t = v.copy(), st.t
+            self._v_ema, self._v_t = (v0, v1, v2), st.t
         else:
             w = 1.0 - math.exp(-max(0.0, st.t - self._v_t) / c.lag_tau)
-            self._v_ema = self._v_ema + w * (v - self._v_ema)
+            e0, e1, e2 = self._v_ema
+            self._v_ema = (e0 + w * (v0 - e0), e1 + w * (v1 - e1), e2 + w * (v2 - e2))
             self._v_t = st.t
         lag = st.t - g.t
         if lag <= 0.0 or lag > c.max_lag:
-            z = np.zeros(3)
-            return 0.0, z, z, z
-        # NED acceleration of the state: C_b^n·f_b + g (Coriolis/transport terms < 0.01 m/s² here)
-        a_n = dcm_from_quat(st.q_nb) @ np.asarray(st.accel_b, dtype=np.float64) + earth.gravity_ned(st.lat, st.h)
-        dz_v = c.lag_margin * 0.5 * lag * np.abs(a_n)
-        dz_p = c.lag_margin * lag * np.abs(v - self._v_ema)
+            return 0.0, _Z3, _Z3, _Z3
+        a0, a1, a2 = a_n = self._accel_ned(st)
+        k = c.lag_margin * 0.5 * lag
+        dz_v = (k * abs(a0), k * abs(a1), k * abs(a2))
+        k = c.lag_margin * lag
+        e0, e1, e2 = self._v_ema
+        dz_p = (k * abs(v0 - e0), k * abs(v1 - e1), k * abs(v2 - e2))
         return lag, a_n, dz_p, dz_v
+
+    @staticmethod
+    def _accel_ned(st: NavState) -> Xyz:
+        """The state's NED acceleration C_b^n·f_b + g (m/s²; Coriolis/transport terms < 0.01 m/s² here), the numbers
+        of ``dcm_from_quat(q) @ f_b + gravity_ned(lat, h)``."""
+        x0, x1, x2 = (dcm_from_quat(st.q_nb) @ np.asarray(st.accel_b, dtype=np.float64)).tolist()
+        return x0 + 0.0, x1 + 0.0, x2 + earth.normal_gravity(st.lat, st.h)
 
     def _consistency(self, ratio_d: float) -> tuple[float, float]:
         """χ²₃ statistic of the position-vs-velocity slope and its norm (m/s)."""
@@ -597,19 +647,19 @@ class AidingMonitor:
         return stat, math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
 
     def _push_anchor(self, g: GnssFix) -> None:
-        self._anchors.append([g, self._e.copy(), np.zeros(3), np.zeros(3)])
+        self._anchors.append([g, self._e, _Z3, _Z3])
 
-    def _step_ok(self, de: np.ndarray, sp_ne: float, sp_d: float, dz: np.ndarray) -> bool:
+    def _step_ok(self, de: Xyz, sp_ne: float, sp_d: float, dz: Xyz) -> bool:
         """A position-minus-integrated-velocity step (m, NED) within the jump gate (√2 σ_p per axis) beyond
         the dead zone ``dz`` (m, NED: the trapezoid rule's error on the motion)."""
         g = self.cfg.jump_gate * 1.4142
-        x0, x1, x2 = _dead_zone(de, dz).tolist()
+        x0, x1, x2 = _dead_zone1(de[0], dz[0]), _dead_zone1(de[1], dz[1]), _dead_zone1(de[2], dz[2])
         lim = g * sp_ne  # max(|x0|, |x1|) < lim, NaN failing as in np.max
         return abs(x0) < lim and abs(x1) < lim and abs(x2) < g * sp_d
 
     def _reset_windows(self) -> None:
         self._win.clear()
-        self._e = np.zeros(3)
+        self._e = _Z3
         self._anchors.clear()
 
     # ---------------------------------------------------------------- baro

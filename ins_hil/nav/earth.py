@@ -210,8 +210,13 @@ def geodetic_from_ned(ned: Vec, lat0: float, lon0: float, h0: float) -> tuple[fl
 
 def ned_delta_small(dlat: float, dlon: float, dh: float, lat: float, h: float) -> Vec:
     """Linearised NED displacement for small geodetic differences (seed 001 eqs. 6, 7)."""
+    return np.array(ned_delta_small_xyz(dlat, dlon, dh, lat, h))
+
+
+def ned_delta_small_xyz(dlat: float, dlon: float, dh: float, lat: float, h: float) -> tuple[float, float, float]:
+    """:func:`ned_delta_small` as three Python floats (no array: the drift monitor's per-fix path)."""
     m, n = radii(lat)
-    return np.array([(m + h) * dlat, (n + h) * math.cos(lat) * dlon, -dh])
+    return (m + h) * dlat, (n + h) * math.cos(lat) * dlon, -dh
 
 
 def pressure_from_altitude(h: float) -> float:

@@ -21,6 +21,7 @@ because numpy's per-call overhead dominates for 3- and 4-vectors.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -115,15 +116,23 @@ def dcm_from_quat(q: Vec) -> Vec:
     return np.array(dcm_rows(float(q[0]), float(q[1]), float(q[2]), float(q[3])))
 
 
-def dcm_rows(q0: float, q1: float, q2: float, q3: float) -> list[list[float]]:
-    """:func:`dcm_from_quat` of q_nb = (q0, q1, q2, q3) as rows of Python floats (no array: the per-message
-    MAVLink path); the same numbers."""
+def dcm_from_quat_many(q: Vec) -> Vec:
+    """:func:`dcm_from_quat` of many quaternions at once: ``q`` (N, 4) → (N, 3, 3), element for element the same
+    numbers (the same operations on the columns)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    rows = dcm_rows(q[:, 0], q[:, 1], q[:, 2], q[:, 3])
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def dcm_rows(q0: Any, q1: Any, q2: Any, q3: Any) -> Any:
+    """The rows of C_b^n of q_nb = (q0, q1, q2, q3) as tuples: of Python floats for floats (no array: the
+    per-message MAVLink path), of arrays element-wise for arrays; :func:`dcm_from_quat`'s numbers."""
     q00, q11, q22, q33 = q0 * q0, q1 * q1, q2 * q2, q3 * q3
-    return [
-        [q00 + q11 - q22 - q33, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2)],
-        [2.0 * (q1 * q2 + q0 * q3), q00 - q11 + q22 - q33, 2.0 * (q2 * q3 - q0 * q1)],
-        [2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q00 - q11 - q22 + q33],
-    ]
+    return (
+        (q00 + q11 - q22 - q33, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2)),
+        (2.0 * (q1 * q2 + q0 * q3), q00 - q11 + q22 - q33, 2.0 * (q2 * q3 - q0 * q1)),
+        (2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q00 - q11 - q22 + q33),
+    )
 
 
 def book_A(q: Vec) -> Vec:
