@@ -499,10 +499,15 @@ def _run_jobs(
                     _save_state(args.state, results, chunks)
                 if done(name) + flight[name] >= want[name] - (0 if by_count else 0.5) and not flight[name]:
                     print(_line(acc), flush=True)
+        # the clean end: the workers take their end-of-work sentinels and exit. Not terminate() here: it takes the
+        # task queue's read lock for good and drains the queue, then joins the workers; once (a full test run)
+        # a worker stayed blocked on that lock, alive, and the join never returned.
         pool.close()
-    finally:
-        pool.terminate()
         pool.join()
+    except BaseException:
+        pool.terminate()  # an error or Ctrl-C: the workers are stopped (SIGTERM)
+        pool.join()
+        raise
     return faults
 
 
