@@ -344,24 +344,32 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
     for (X = 0; X < phi->nb; ++X) {
         const int j0 = X <= BV ? 0 : 3 * X;
         ins_real *o0 = a[3 * X], *o1 = a[3 * X + 1], *o2 = a[3 * X + 2];
-        for (j = j0; j < n; ++j) o0[j] = o1[j] = o2[j] = K(0.0);
         for (k = 0; k < phi->nnz[X]; ++k) {
             const int W = phi->col[X][k];
             const ins_real(*b)[3] = phi->b[X][W];
             const ins_real *x0 = p[3 * W], *x1 = p[3 * W + 1], *x2 = p[3 * W + 2];
-            if (X == BV && W == BR) { /* dt D + h2 F_vv D: its last column alone is non-zero */
+            if (X == BV && W == BR) { /* dt D + h2 F_vv D: its last column alone is non-zero; first in its row */
                 const ins_real d0 = b[0][2], d1 = b[1][2], d2 = b[2][2];
                 for (j = j0; j < n; ++j) {
-                    o0[j] += d0 * x2[j];
-                    o1[j] += d1 * x2[j];
-                    o2[j] += d2 * x2[j];
+                    o0[j] = K(0.0) + d0 * x2[j];
+                    o1[j] = K(0.0) + d1 * x2[j];
+                    o2[j] = K(0.0) + d2 * x2[j];
                 }
-            } else if (BLK_DIAG(X, W)) {
+            } else if (BLK_DIAG(X, W)) { /* a diagonal block: the first of its row (BLK_COL) */
                 const ins_real d0 = b[0][0], d1 = b[1][1], d2 = b[2][2];
                 for (j = j0; j < n; ++j) {
-                    o0[j] += d0 * x0[j];
-                    o1[j] += d1 * x1[j];
-                    o2[j] += d2 * x2[j];
+                    o0[j] = K(0.0) + d0 * x0[j];
+                    o1[j] = K(0.0) + d1 * x1[j];
+                    o2[j] = K(0.0) + d2 * x2[j];
+                }
+            } else if (k == 0) { /* psi row: the sums start at 0 + the first block's (as before: o = 0, o += ...) */
+                const ins_real b00 = b[0][0], b01 = b[0][1], b02 = b[0][2], b10 = b[1][0], b11 = b[1][1];
+                const ins_real b12 = b[1][2], b20 = b[2][0], b21 = b[2][1], b22 = b[2][2];
+                for (j = j0; j < n; ++j) {
+                    const ins_real v0 = x0[j], v1 = x1[j], v2 = x2[j];
+                    o0[j] = K(0.0) + (b00 * v0 + b01 * v1 + b02 * v2);
+                    o1[j] = K(0.0) + (b10 * v0 + b11 * v1 + b12 * v2);
+                    o2[j] = K(0.0) + (b20 * v0 + b21 * v1 + b22 * v2);
                 }
             } else {
                 const ins_real b00 = b[0][0], b01 = b[0][1], b02 = b[0][2], b10 = b[1][0], b11 = b[1][1];
