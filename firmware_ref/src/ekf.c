@@ -550,6 +550,16 @@ void ins_ekf_predict_gap(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9]
     propagate(e, m, c9, m->f_ned, gap, qd, NULL, wb, fb);
 }
 
+/* P = (P - k hp^T) + (-(A h) k^T + r k k^T) on the n x n block (n a constant in each inlined copy) */
+static inline void rank2(ins_real p[INS_NX][INS_NX], const ins_real k[INS_NX], const ins_real hp[INS_NX],
+                         const ins_real ah[INS_NX], ins_real r, const int n) {
+    int i, j;
+    for (i = 0; i < n; ++i) {
+        const ins_real ki = k[i], ai = ah[i];
+        for (j = 0; j < n; ++j) p[i][j] = (p[i][j] - ki * hp[j]) + (-ai * k[j] + r * ki * k[j]);
+    }
+}
+
 void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {
     /* Joseph form (book eqs. 3.16-3.18) for one scalar, as in ErrorStateEKF.update:
      *   k = P h / (h^T P h + r); x += k (z - h^T x); P = (I - k h^T) P (I - k h^T)^T + r k k^T,
@@ -591,8 +601,8 @@ void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, i
         for (t = 0; t < m; ++t) acc += (e->P[i][nz[t]] - k[i] * hp[nz[t]]) * hv[t];
         ah[i] = acc;
     }
-    for (i = 0; i < n; ++i)
-        for (j = 0; j < n; ++j) e->P[i][j] = (e->P[i][j] - k[i] * hp[j]) + (-ah[i] * k[j] + r * k[i] * k[j]);
+    if (n == 15) rank2(e->P, k, hp, ah, r, 15);
+    else rank2(e->P, k, hp, ah, r, INS_NX);
 }
 
 void ins_ekf_symmetrize(ins_ekf_t *e) {
