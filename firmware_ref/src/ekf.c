@@ -342,7 +342,7 @@ static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const in
 static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins_real a[INS_NX][INS_NX], const int n) {
     int X, k, j;
     for (X = 0; X < phi->nb; ++X) {
-        const int j0 = X <= BV ? 0 : 3 * X;
+        const int j0 = X <= BV ? 0 : (3 * X) & ~1; /* even: whole pairs of columns (vectorised) */
         ins_real *o0 = a[3 * X], *o1 = a[3 * X + 1], *o2 = a[3 * X + 2];
         for (k = 0; k < phi->nnz[X]; ++k) {
             const int W = phi->col[X][k];
@@ -392,7 +392,7 @@ static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
     const int nb = phi->nb, sf = nb == NB;
     int X, Y, i, j;
     if (sf) phi_p_rows(phi, p, a, INS_NX);
-    else phi_p_rows(phi, p, a, 15);
+    else phi_p_rows(phi, p, a, 16); /* + column 15 of the 15-state P (whole pairs of columns; A[.][15] is not read) */
     for (Y = 0; Y < nb; ++Y)
         for (X = 0; X <= Y; ++X) {
             k_zero(o);
