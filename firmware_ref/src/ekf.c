@@ -230,12 +230,14 @@ static inline void k_zero(ins_real o[9]) {
     int i;
     for (i = 0; i < 9; ++i) o[i] = K(0.0);
 }
-/* o += a f^T */
-static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+/* o += a f^T, given ft = f^T (the three columns j of a row at once: a0 ft[0][j] + a1 ft[1][j] + a2 ft[2][j], the
+ * sum a0 f[j][0] + a1 f[j][1] + a2 f[j][2]) */
+static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real ft[3][3]) {
     int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j)
-            o[3 * i + j] += a[i * INS_NX] * f[j][0] + a[i * INS_NX + 1] * f[j][1] + a[i * INS_NX + 2] * f[j][2];
+    for (i = 0; i < 3; ++i) {
+        const ins_real a0 = a[i * INS_NX], a1 = a[i * INS_NX + 1], a2 = a[i * INS_NX + 2];
+        for (j = 0; j < 3; ++j) o[3 * i + j] += a0 * ft[0][j] + a1 * ft[1][j] + a2 * ft[2][j];
+    }
 }
 /* o += a f^T for an f whose last column alone is non-zero */
 static inline void k_mact2(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
@@ -388,9 +390,13 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
 /* P <- Phi P Phi^T on the 3x3 blocks of Phi: A = Phi P (phi_p_rows), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
  * for X <= Y, mirrored into the lower triangle. */
 static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
-    ins_real a[INS_NX][INS_NX], o[9];
+    ins_real a[INS_NX][INS_NX], o[9], ft[NB][NB][3][3];
     const int nb = phi->nb, sf = nb == NB;
     int X, Y, i, j;
+    for (Y = 0; Y <= BA; ++Y) /* the transposed dense blocks of Phi (k_mact) */
+        for (X = Y == BA ? BA : BV; X < nb; ++X)
+            for (i = 0; i < 3; ++i)
+                for (j = 0; j < 3; ++j) ft[Y][X][i][j] = phi->b[Y][X][j][i];
     if (sf) phi_p_rows(phi, p, a, INS_NX);
     else phi_p_rows(phi, p, a, 16); /* + column 15 of the 15-state P (whole pairs of columns; A[.][15] is not read) */
     for (Y = 0; Y < nb; ++Y)
@@ -398,24 +404,24 @@ static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
             k_zero(o);
             if (Y == BR) {
                 k_mactd(o, AB(X, BR), PHI(BR, BR));
-                k_mact(o, AB(X, BV), PHI(BR, BV));
-                k_mact(o, AB(X, BA), PHI(BR, BA));
-                k_mact(o, AB(X, BB), PHI(BR, BB));
-                if (sf) k_mact(o, AB(X, BT), PHI(BR, BT));
+                k_mact(o, AB(X, BV), CB(ft[BR][BV]));
+                k_mact(o, AB(X, BA), CB(ft[BR][BA]));
+                k_mact(o, AB(X, BB), CB(ft[BR][BB]));
+                if (sf) k_mact(o, AB(X, BT), CB(ft[BR][BT]));
             } else if (Y == BV) {
                 k_mact2(o, AB(X, BR), PHI(BV, BR));
-                k_mact(o, AB(X, BV), PHI(BV, BV));
-                k_mact(o, AB(X, BA), PHI(BV, BA));
-                k_mact(o, AB(X, BG), PHI(BV, BG));
-                k_mact(o, AB(X, BB), PHI(BV, BB));
+                k_mact(o, AB(X, BV), CB(ft[BV][BV]));
+                k_mact(o, AB(X, BA), CB(ft[BV][BA]));
+                k_mact(o, AB(X, BG), CB(ft[BV][BG]));
+                k_mact(o, AB(X, BB), CB(ft[BV][BB]));
                 if (sf) {
-                    k_mact(o, AB(X, BS), PHI(BV, BS));
-                    k_mact(o, AB(X, BT), PHI(BV, BT));
+                    k_mact(o, AB(X, BS), CB(ft[BV][BS]));
+                    k_mact(o, AB(X, BT), CB(ft[BV][BT]));
                 }
             } else if (Y == BA) {
-                k_mact(o, AB(X, BA), PHI(BA, BA));
-                k_mact(o, AB(X, BG), PHI(BA, BG));
-                if (sf) k_mact(o, AB(X, BS), PHI(BA, BS));
+                k_mact(o, AB(X, BA), CB(ft[BA][BA]));
+                k_mact(o, AB(X, BG), CB(ft[BA][BG]));
+                if (sf) k_mact(o, AB(X, BS), CB(ft[BA][BS]));
             } else {
                 k_mactd(o, AB(X, Y), PHI(Y, Y));
             }
