@@ -1,6 +1,7 @@
 /* The core: mechanization + EKF predict per IMU step, GNSS/baro updates. */
 #include "ins_internal.h"
 #include "generated/ins_jacobians.h"
+#include <string.h>
 
 void ins_core_init(ins_core_t *c, const ins_real q[4], const ins_real v[3], ins_pos lat, ins_pos lon, ins_pos h,
                    double t, ins_real dt, const ins_ekf_cfg_t *cfg, int filter) {
@@ -408,6 +409,16 @@ void ins_hist_init(ins_hist_t *h, double max_delay) {
     h->rollbacks = h->too_old = 0;
 }
 
+/* *dst = *src but for the rows of P past the active states (zero in the core, never read; their bytes in a
+ * snapshot slot undefined): the mechanization and P's first nx rows, then the rest of the filter and the core */
+static void core_copy(ins_core_t *dst, const ins_core_t *src) {
+    const char *s = (const char *)src;
+    char *d = (char *)dst;
+    const size_t n1 = (size_t)((const char *)&src->ekf.P[src->ekf.nx] - s), n2 = (size_t)((const char *)&src->ekf.x - s);
+    memcpy(d, s, n1);
+    memcpy(d + n2, s + n2, sizeof(ins_core_t) - n2);
+}
+
 static uint32_t snap_idx(const ins_hist_t *h, uint32_t i) { return (h->snap_first + i) % h->snap_cap; }
 
 /* the ring full below INS_HIST_N: twice the slots, the wrapped snapshots moved past the old end (the same ring) */
@@ -417,7 +428,7 @@ static void grow_snaps(ins_hist_t *h) {
     for (i = 0; i < h->snap_n; ++i) {
         const uint32_t from = h->snap_first + i;
         if (from >= cap) {
-            h->snap[from] = h->snap[from - cap];
+            core_copy(&h->snap[from], &h->snap[from - cap]);
             h->snap_step[from] = h->snap_step[from - cap];
             h->snap_t[from] = h->snap_t[from - cap];
         }
@@ -433,7 +444,7 @@ static void push_snap(ins_hist_t *h, const ins_core_t *c) {
         h->snap_n--;
     }
     k = snap_idx(h, h->snap_n);
-    h->snap[k] = *c;
+    core_copy(&h->snap[k], c);
     h->snap[k].ekf.replaying = 0;
     h->snap_step[k] = c->steps;
     h->snap_t[k] = c->mech.t;
@@ -512,7 +523,7 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
                 lr[k] = c->ekf.last_ratio[k];
             }
             ts = h->snap_step[snap_idx(h, ti)];
-            *c = h->snap[snap_idx(h, ti)];
+            core_copy(c, &h->snap[snap_idx(h, ti)]);
             for (k = 0; k < INS_NGRP; ++k) {
                 c->ekf.accepted[k] = acc[k];
                 c->ekf.rejected[k] = rej[k];
@@ -527,7 +538,7 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
             r = fuse_now(c, m, 0); /* counted and gated like any measurement */
             c->ekf.replaying = 1;
             h->snap_n = ti + 1; /* the snapshots after the target are replayed; the target's is this state */
-            h->snap[snap_idx(h, ti)] = *c;
+            core_copy(&h->snap[snap_idx(h, ti)], c);
             h->snap[snap_idx(h, ti)].ekf.replaying = 0;
             /* replay in the order things happened: the measurements fused at state k (in their order),
              * then the IMU sample that takes state k to k + 1 */

@@ -230,12 +230,14 @@ static inline void k_zero(ins_real o[9]) {
     int i;
     for (i = 0; i < 9; ++i) o[i] = K(0.0);
 }
-/* o += a f^T */
-static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+/* o += a f^T, given ft = f^T (the three columns j of a row at once: a0 ft[0][j] + a1 ft[1][j] + a2 ft[2][j], the
+ * sum a0 f[j][0] + a1 f[j][1] + a2 f[j][2]) */
+static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real ft[3][3]) {
     int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j)
-            o[3 * i + j] += a[i * INS_NX] * f[j][0] + a[i * INS_NX + 1] * f[j][1] + a[i * INS_NX + 2] * f[j][2];
+    for (i = 0; i < 3; ++i) {
+        const ins_real a0 = a[i * INS_NX], a1 = a[i * INS_NX + 1], a2 = a[i * INS_NX + 2];
+        for (j = 0; j < 3; ++j) o[3 * i + j] += a0 * ft[0][j] + a1 * ft[1][j] + a2 * ft[2][j];
+    }
 }
 /* o += a f^T for an f whose last column alone is non-zero */
 static inline void k_mact2(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
@@ -342,26 +344,34 @@ static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const in
 static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins_real a[INS_NX][INS_NX], const int n) {
     int X, k, j;
     for (X = 0; X < phi->nb; ++X) {
-        const int j0 = X <= BV ? 0 : 3 * X;
+        const int j0 = X <= BV ? 0 : (3 * X) & ~1; /* even: whole pairs of columns (vectorised) */
         ins_real *o0 = a[3 * X], *o1 = a[3 * X + 1], *o2 = a[3 * X + 2];
-        for (j = j0; j < n; ++j) o0[j] = o1[j] = o2[j] = K(0.0);
         for (k = 0; k < phi->nnz[X]; ++k) {
             const int W = phi->col[X][k];
             const ins_real(*b)[3] = phi->b[X][W];
             const ins_real *x0 = p[3 * W], *x1 = p[3 * W + 1], *x2 = p[3 * W + 2];
-            if (X == BV && W == BR) { /* dt D + h2 F_vv D: its last column alone is non-zero */
+            if (X == BV && W == BR) { /* dt D + h2 F_vv D: its last column alone is non-zero; first in its row */
                 const ins_real d0 = b[0][2], d1 = b[1][2], d2 = b[2][2];
                 for (j = j0; j < n; ++j) {
-                    o0[j] += d0 * x2[j];
-                    o1[j] += d1 * x2[j];
-                    o2[j] += d2 * x2[j];
+                    o0[j] = K(0.0) + d0 * x2[j];
+                    o1[j] = K(0.0) + d1 * x2[j];
+                    o2[j] = K(0.0) + d2 * x2[j];
                 }
-            } else if (BLK_DIAG(X, W)) {
+            } else if (BLK_DIAG(X, W)) { /* a diagonal block: the first of its row (BLK_COL) */
                 const ins_real d0 = b[0][0], d1 = b[1][1], d2 = b[2][2];
                 for (j = j0; j < n; ++j) {
-                    o0[j] += d0 * x0[j];
-                    o1[j] += d1 * x1[j];
-                    o2[j] += d2 * x2[j];
+                    o0[j] = K(0.0) + d0 * x0[j];
+                    o1[j] = K(0.0) + d1 * x1[j];
+                    o2[j] = K(0.0) + d2 * x2[j];
+                }
+            } else if (k == 0) { /* psi row: the sums start at 0 + the first block's (as before: o = 0, o += ...) */
+                const ins_real b00 = b[0][0], b01 = b[0][1], b02 = b[0][2], b10 = b[1][0], b11 = b[1][1];
+                const ins_real b12 = b[1][2], b20 = b[2][0], b21 = b[2][1], b22 = b[2][2];
+                for (j = j0; j < n; ++j) {
+                    const ins_real v0 = x0[j], v1 = x1[j], v2 = x2[j];
+                    o0[j] = K(0.0) + (b00 * v0 + b01 * v1 + b02 * v2);
+                    o1[j] = K(0.0) + (b10 * v0 + b11 * v1 + b12 * v2);
+                    o2[j] = K(0.0) + (b20 * v0 + b21 * v1 + b22 * v2);
                 }
             } else {
                 const ins_real b00 = b[0][0], b01 = b[0][1], b02 = b[0][2], b10 = b[1][0], b11 = b[1][1];
@@ -380,34 +390,38 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
 /* P <- Phi P Phi^T on the 3x3 blocks of Phi: A = Phi P (phi_p_rows), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
  * for X <= Y, mirrored into the lower triangle. */
 static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
-    ins_real a[INS_NX][INS_NX], o[9];
+    ins_real a[INS_NX][INS_NX], o[9], ft[NB][NB][3][3];
     const int nb = phi->nb, sf = nb == NB;
     int X, Y, i, j;
+    for (Y = 0; Y <= BA; ++Y) /* the transposed dense blocks of Phi (k_mact) */
+        for (X = Y == BA ? BA : BV; X < nb; ++X)
+            for (i = 0; i < 3; ++i)
+                for (j = 0; j < 3; ++j) ft[Y][X][i][j] = phi->b[Y][X][j][i];
     if (sf) phi_p_rows(phi, p, a, INS_NX);
-    else phi_p_rows(phi, p, a, 15);
+    else phi_p_rows(phi, p, a, 16); /* + column 15 of the 15-state P (whole pairs of columns; A[.][15] is not read) */
     for (Y = 0; Y < nb; ++Y)
         for (X = 0; X <= Y; ++X) {
             k_zero(o);
             if (Y == BR) {
                 k_mactd(o, AB(X, BR), PHI(BR, BR));
-                k_mact(o, AB(X, BV), PHI(BR, BV));
-                k_mact(o, AB(X, BA), PHI(BR, BA));
-                k_mact(o, AB(X, BB), PHI(BR, BB));
-                if (sf) k_mact(o, AB(X, BT), PHI(BR, BT));
+                k_mact(o, AB(X, BV), CB(ft[BR][BV]));
+                k_mact(o, AB(X, BA), CB(ft[BR][BA]));
+                k_mact(o, AB(X, BB), CB(ft[BR][BB]));
+                if (sf) k_mact(o, AB(X, BT), CB(ft[BR][BT]));
             } else if (Y == BV) {
                 k_mact2(o, AB(X, BR), PHI(BV, BR));
-                k_mact(o, AB(X, BV), PHI(BV, BV));
-                k_mact(o, AB(X, BA), PHI(BV, BA));
-                k_mact(o, AB(X, BG), PHI(BV, BG));
-                k_mact(o, AB(X, BB), PHI(BV, BB));
+                k_mact(o, AB(X, BV), CB(ft[BV][BV]));
+                k_mact(o, AB(X, BA), CB(ft[BV][BA]));
+                k_mact(o, AB(X, BG), CB(ft[BV][BG]));
+                k_mact(o, AB(X, BB), CB(ft[BV][BB]));
                 if (sf) {
-                    k_mact(o, AB(X, BS), PHI(BV, BS));
-                    k_mact(o, AB(X, BT), PHI(BV, BT));
+                    k_mact(o, AB(X, BS), CB(ft[BV][BS]));
+                    k_mact(o, AB(X, BT), CB(ft[BV][BT]));
                 }
             } else if (Y == BA) {
-                k_mact(o, AB(X, BA), PHI(BA, BA));
-                k_mact(o, AB(X, BG), PHI(BA, BG));
-                if (sf) k_mact(o, AB(X, BS), PHI(BA, BS));
+                k_mact(o, AB(X, BA), CB(ft[BA][BA]));
+                k_mact(o, AB(X, BG), CB(ft[BA][BG]));
+                if (sf) k_mact(o, AB(X, BS), CB(ft[BA][BS]));
             } else {
                 k_mactd(o, AB(X, Y), PHI(Y, Y));
             }
@@ -542,6 +556,16 @@ void ins_ekf_predict_gap(ins_ekf_t *e, const ins_mech_t *m, const ins_real c9[9]
     propagate(e, m, c9, m->f_ned, gap, qd, NULL, wb, fb);
 }
 
+/* P = (P - k hp^T) + (-(A h) k^T + r k k^T) on the n x n block (n a constant in each inlined copy) */
+static inline void rank2(ins_real p[INS_NX][INS_NX], const ins_real k[INS_NX], const ins_real hp[INS_NX],
+                         const ins_real ah[INS_NX], ins_real r, const int n) {
+    int i, j;
+    for (i = 0; i < n; ++i) {
+        const ins_real ki = k[i], ai = ah[i];
+        for (j = 0; j < n; ++j) p[i][j] = (p[i][j] - ki * hp[j]) + (-ai * k[j] + r * ki * k[j]);
+    }
+}
+
 void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {
     /* Joseph form (book eqs. 3.16-3.18) for one scalar, as in ErrorStateEKF.update:
      *   k = P h / (h^T P h + r); x += k (z - h^T x); P = (I - k h^T) P (I - k h^T)^T + r k k^T,
@@ -583,8 +607,8 @@ void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, i
         for (t = 0; t < m; ++t) acc += (e->P[i][nz[t]] - k[i] * hp[nz[t]]) * hv[t];
         ah[i] = acc;
     }
-    for (i = 0; i < n; ++i)
-        for (j = 0; j < n; ++j) e->P[i][j] = (e->P[i][j] - k[i] * hp[j]) + (-ah[i] * k[j] + r * k[i] * k[j]);
+    if (n == 15) rank2(e->P, k, hp, ah, r, 15);
+    else rank2(e->P, k, hp, ah, r, INS_NX);
 }
 
 void ins_ekf_symmetrize(ins_ekf_t *e) {

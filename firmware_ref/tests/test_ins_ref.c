@@ -384,8 +384,9 @@ static void test_delayed(void) {
 }
 
 /* the ring of snapshots grows while wrapped: 0.5 s of history at 50 Hz (the first ring size holds it and wraps),
- * then at 200 Hz (grown twice); baro altitudes 0.3 s late through it equal the same altitudes fused at their steps */
-static void test_delayed_growth(void) {
+ * then at 200 Hz (grown twice); baro altitudes 0.3 s late through it equal the same altitudes fused at their steps;
+ * 15 states, and 21 (sf: the scale factors; the snapshots copy P's active rows, ins_hist_t) */
+static void test_delayed_growth(int sf) {
     ins_ekf_cfg_t cfg;
     ins_core_t a, b;
     const ins_real q[4] = {1, 0, 0, 0}, v[3] = {(ins_real)2.0, 0, 0};
@@ -395,7 +396,9 @@ static void test_delayed_growth(void) {
     uint32_t cap0;
     ins_ekf_default_cfg(&cfg);
     cfg.gyro_vib_gain = (ins_real)0.4;
+    cfg.scale_factors = sf;
     ins_core_init(&a, q, v, 0.8, 0.5, 100.0, 0.0, (ins_real)0.02, &cfg, 1);
+    CHECK(a.ekf.nx == (sf ? 21 : 15), "layout");
     b = a;
     ins_hist_init(&hist, 0.5);
     cap0 = hist.snap_cap;
@@ -425,6 +428,11 @@ static void test_delayed_growth(void) {
     for (i = 0; i < 3; ++i) CHECK(fabs((double)(a.mech.v[i] - b.mech.v[i])) < 100 * EPS, "velocity %d", i);
     for (i = 0; i < INS_NX; ++i)
         CHECK(fabs((double)(a.ekf.P[i][i] - b.ekf.P[i][i])) <= 100 * EPS * (double)b.ekf.P[i][i], "P[%d]", i);
+    if (sf)
+        for (i = 0; i < 3; ++i)
+            CHECK(a.ekf.P[15 + i][15 + i] > (ins_real)0.0 && a.ekf.P[18 + i][18 + i] > (ins_real)0.0 &&
+                      fabs((double)(a.ekf.sa[i] - b.ekf.sa[i])) <= 100 * EPS * (1e-6 + fabs((double)b.ekf.sa[i])),
+                  "scale-factor states %d", i);
     CHECK(a.ekf.accepted[INS_GRP_BARO] == (uint32_t)n, "counted once each");
 }
 
@@ -567,7 +575,8 @@ int main(void) {
     test_fdi();
     test_frame();
     test_delayed();
-    test_delayed_growth();
+    test_delayed_growth(0);
+    test_delayed_growth(1);
     test_level();
     printf("ins_ref tests (%d-bit scalar): %d checks, %d failed\n", INS_REF_SCALAR_BITS, checks, failures);
     return failures != 0;
