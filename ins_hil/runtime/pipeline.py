@@ -327,37 +327,6 @@ def _plausible(q0: float, q1: float, q2: float, q3: float, v0: float, v1: float,
     )  # fmt: skip
 
 
-def states_ok(rows: np.ndarray) -> np.ndarray:
-    """:func:`state_ok` of many states at once: ``rows`` (n, ≥ 26) in the C core's state record (t, q[4], v[3],
-    lat, lon, h, bg[3], ba[3], σ pos[3], σ vel[3], σ att[3]: ``ins_hil.cref``) → (n,) bool, the same comparisons
-    in the same order (NaN fails each)."""
-    q, v = rows[:, 1:5], rows[:, 5:8]
-    qn = q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3]
-    sd = rows[:, 17:26]
-    with np.errstate(invalid="ignore"):
-        return (
-            (np.abs(qn - 1.0) < QNORM_TOL)
-            & (v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2] < STATE_SPEED_MAX * STATE_SPEED_MAX)
-            & (-1.5707963267948966 <= rows[:, 8]) & (rows[:, 8] <= 1.5707963267948966)
-            & (-1e3 < rows[:, 9]) & (rows[:, 9] < 1e3)
-            & (STATE_H_MIN < rows[:, 10]) & (rows[:, 10] < STATE_H_MAX)
-            & np.all((0.0 <= sd) & (sd < _INF), axis=1)
-        )  # fmt: skip
-
-
-#: runs of at most this many states are guarded row by row in Python floats (numpy's per-call cost is larger)
-GUARD_ROWS_SCALAR = 16
-
-
-def guard_rows(rows: np.ndarray) -> list[bool]:
-    """:func:`states_ok` of ``rows`` as a list: a short run (≤ :data:`GUARD_ROWS_SCALAR` rows, a replay's few
-    samples between two aiding measurements) row by row with :func:`state_ok`'s comparisons in Python floats,
-    a longer one in numpy; the same result."""
-    if len(rows) > GUARD_ROWS_SCALAR:
-        return cast(list[bool], states_ok(rows).tolist())
-    return [_plausible(*r[1:11], *r[17:26]) for r in rows[:, :26].tolist()]
-
-
 class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
@@ -484,13 +453,19 @@ class Pipeline:
             self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
             return None
 
-    def imu_run(self, samples: list[ImuSample]) -> None:
+    def imu_run(self, samples: list[ImuSample], screened: bool = False) -> None:
         """:meth:`imu` on each of ``samples`` in order, with nothing handed over in between (an offline replay's
         IMU samples up to the next aiding measurement). The same states, counts, events and observer calls; on
         the C core, once it navigates, the samples that pass the validation boundary go into the core in one
         call (``CNavCore.run_states``; before it navigates, the alignment's levelling and heading phases too)
-        instead of one call each."""
+        instead of one call each.
+
+        ``screened``: the samples passed a validator with this pipeline's limits already (an offline replay's
+        screen, ``ins_hil.datasets.run.screen``): once this pipeline's validator knows the IMU's period, a run of
+        them in time order is taken without a second check (``SampleValidator.imu_screened``: each sample is
+        checked once); every other sample is checked here as without it."""
         k, n = 0, len(samples)
+        vd = self.validator
         while k < n:
             if not self._can_run():
                 self.imu(samples[k])
@@ -498,12 +473,21 @@ class Pipeline:
                 continue
             j = k
             val, t_prev = self._val_imu, self._t_imu
-            while j < n:  # the run that passes the validation boundary as it is (no clock re-anchoring)
-                s = samples[j]
-                if s.t <= t_prev or val(s) is not None:
-                    break
-                t_prev = s.t
-                j += 1
+            if screened:  # checked by the screen: only their time order here (the run a clock restart would end)
+                iid = samples[k].imu_id
+                tp = max(t_prev, vd.imu_time(iid))
+                while j < n and samples[j].t > tp and samples[j].imu_id == iid:
+                    tp = samples[j].t
+                    j += 1
+                if j > k and not vd.imu_screened(iid, tp):
+                    j = k  # the validator still learns the period: checked below
+            if j == k:
+                while j < n:  # the run that passes the validation boundary as it is (no clock re-anchoring)
+                    s = samples[j]
+                    if s.t <= t_prev or val(s) is not None:
+                        break
+                    t_prev = s.t
+                    j += 1
             if j == k:  # refused (or re-anchored): the per-sample path says why
                 self.imu(samples[k])
                 k += 1
@@ -559,15 +543,16 @@ class Pipeline:
             by_row.setdefault(r, []).append(e)
         resets = self._resets + getattr(core, "gnss_resets", 0)
         obs = self.observers
-        good = guard_rows(core.run_out)  # the core guard of every state
+        # the core guard of every state: the first that fails it (n: none)
+        bad = core.first_bad(core.run_out, QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX)
         if hasattr(states, "rows") and all(type(o).epochs is not Observer.epochs for o in obs):
-            self._epochs_rows(run, states, good, pre, by_row, resets)
+            self._epochs_rows(run, states, bad, pre, by_row, resets)
             return n
         for i, st in enumerate(states):
             s = run[i]
             self._t_imu = s.t
             self._last_arrival = s.t_arrival_ns
-            if not good[i]:  # as _epoch: the core restarts (its events since the last good state dropped)
+            if i == bad:  # as _epoch: the core restarts (its events since the last good state dropped)
                 self._core_fault(s.t, "core step: non-finite or implausible state", "state")
                 self._epochs_validated(run[i + 1 :])
                 return n
@@ -587,14 +572,14 @@ class Pipeline:
                 self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
         return n
 
-    def _epochs_rows(self, run: list[ImuSample], states: Any, good: list[bool], pre: list[FaultEvent],
+    def _epochs_rows(self, run: list[ImuSample], states: Any, bad: int, pre: list[FaultEvent],
                      by_row: dict[int, list[FaultEvent]], resets: int) -> None:  # fmt: skip
         """:meth:`_epochs_c`'s publication when every observer takes a run at once (:meth:`Observer.epochs`) and
         the core gives its states as rows (``ins_hil.cref.RunStates``): the same counts, events, states and
         observer calls (each observer's in the order of the states), a ``NavState`` built only for the last
-        state (``last_state``) and for what an observer asks for."""
+        state (``last_state``) and for what an observer asks for. ``bad``: the first state the core guard
+        failed (``len(run)``: none)."""
         n = len(run)
-        bad = good.index(False) if False in good else n
         states.resets = resets
         if bad:
             if pre:
