@@ -293,6 +293,8 @@ STATE_SPEED_MAX = 1.0e4
 STATE_H_MIN, STATE_H_MAX = -1.0e5, 1.0e6
 QNORM_TOL = 1e-3
 _INF = math.inf
+#: ``Pipeline.last_state`` / ``_good`` stand for the last state of the last C run (built when read)
+_RUN_LAST = object()
 
 
 def state_ok(st: NavState) -> bool:
@@ -361,7 +363,6 @@ class Pipeline:
         self.imu_t: float | None = None
         self._imu_rejects = 0  # IMU samples rejected by the validator
         self._core_faults = 0  # core exceptions / bad states recovered from
-        self._good: NavState | None = None  # the last state that passed the core guard
         self._fault_open = False  # a core fault is reported and not cleared yet
         self._fault_clear_t = _INF  # sensor time (s) at which it clears
         self.core: RealTimeCore | None = None
@@ -392,7 +393,12 @@ class Pipeline:
         self._seg_ok: NavState | None = None  # the last state a segment's core guard passed
         self._gap_free = False  # no aiding segment has run since the last IMU step
         self._step_pending = False  # core.step_end of the last step has not run yet
-        self.last_state: NavState | None = None
+        # the last state published and the last one the core guard passed (``last_state``, ``_good``): a NavState,
+        # or _RUN_LAST, the last state of the C run ``_run_last`` (states, index), built when first read
+        self._last: Any = None
+        self._good_st: Any = None
+        self._run_last: tuple[Any, int] | None = None
+        self._run_last_st: NavState | None = None
         if cfg.init == "core":
             self._start(initial)
         elif cfg.init == "config":
@@ -408,6 +414,36 @@ class Pipeline:
                     0.0,
                 )
             )
+
+    @property
+    def last_state(self) -> NavState | None:
+        """The state of the last IMU epoch published (None before the first)."""
+        st = self._last
+        return self._run_state() if st is _RUN_LAST else cast("NavState | None", st)
+
+    @last_state.setter
+    def last_state(self, st: NavState | None) -> None:
+        self._last = st
+
+    @property
+    def _good(self) -> NavState | None:
+        """The last state that passed the core guard (None: none since the last restart)."""
+        st = self._good_st
+        return self._run_state() if st is _RUN_LAST else cast("NavState | None", st)
+
+    @_good.setter
+    def _good(self, st: NavState | None) -> None:
+        self._good_st = st
+
+    def _run_state(self) -> NavState:
+        """The NavState of the last C run's state that ``last_state`` / ``_good`` stand for, built once."""
+        r = self._run_last
+        if r is not None:
+            self._run_last = None
+            self._run_last_st = r[0][r[1]]
+        st = self._run_last_st
+        assert st is not None
+        return st
 
     def _count(self, key: str) -> None:
         self.counts[key] = self.counts.get(key, 0) + 1
@@ -587,10 +623,10 @@ class Pipeline:
             for row in sorted(by_row):
                 if row < bad:
                     self.events.extend(by_row[row])
-            last = states[bad - 1]
-            self._good = last
+            # the run's last good state: built only when read (``last_state``, ``_good``)
+            self._run_last = (states, bad - 1)
+            self._good_st = self._last = _RUN_LAST
             self._gap_free = True
-            self.last_state = last
             part = states if bad == n else states.head(bad)
             for o in self.observers:
                 try:
