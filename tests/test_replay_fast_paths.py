@@ -398,26 +398,36 @@ def test_a_screened_replay_checks_each_imu_sample_once() -> None:
     fixes = _fixes(sc.imu)
     init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
 
+    aid_calls = [0]
+
     def run(imu: list[ImuSample], screened: bool) -> tuple[Pipeline, Track, int]:
         calls = [0]
         track = Track(ORIGIN)
+        aid_calls[0] = 0
 
         def setup(pipe: Pipeline) -> None:
             pipe.core = CNavCore(init.copy(), _nav(), fixed_step=False)
-            val = pipe._val_imu
+            val, check = pipe._val_imu, pipe.validator.check
 
             def counted(s: ImuSample) -> str | None:
                 calls[0] += 1
                 return val(s)
 
+            def counted_aid(s: Any) -> str | None:
+                aid_calls[0] += 1
+                return check(s)
+
             pipe._val_imu = counted  # type: ignore[method-assign]
+            pipe.validator.check = counted_aid  # type: ignore[method-assign]
 
         pipe, _ = replay(imu, fixes, _nav(), [track], initial=init, pipeline=offline_config(False, "c"), setup=setup,
                          screened=screened)  # fmt: skip
         return pipe, track, calls[0]
 
     once, t1, n1 = run(sc.imu, True)
+    assert aid_calls[0] == 0  # the screened fixes: not checked again
     twice, t2, n2 = run(sc.imu, False)
+    assert aid_calls[0] == len(fixes)
     assert n2 == len(sc.imu) and n1 <= LEARN_SAMPLES + 25, (n1, n2)  # the period learnt, then none
     assert once.counts == twice.counts and once.counts.get("fused_GnssFix", 0) > 10
     assert len(t1.states) == len(t2.states) == len(sc.imu)

@@ -430,8 +430,8 @@ def replay(
     core's delayed fusion; slower: on px4_quad the GNSS-present prior error is 0.148 m either way, the outages'
     RMS / max 2.05 / 7.81 m offline and 2.06 / 7.65 m on the live schedule).
 
-    ``screened``: ``imu`` passed :func:`screen` with the pipeline's limits (a :class:`Prepared`'s): on the C core
-    the pipeline does not check those samples a second time (``Pipeline.imu_run``).
+    ``screened``: ``imu`` and ``aids`` passed :func:`screen` with the pipeline's limits (a :class:`Prepared`'s):
+    the pipeline does not check those samples a second time (``Pipeline.aid``; on the C core ``Pipeline.imu_run``).
 
     ``setup`` is called with the pipeline before the first sample. Returns the pipeline (after its ``flush``)
     and every fault event it raised. ReplayError (one line: the recording and the time) when the core fails
@@ -457,7 +457,8 @@ def replay(
                 while j < na and when[j] <= t:
                     m = aids[j]
                     j += 1
-                    pipe.aid(m if on_aid is None else on_aid(pipe, m))
+                    a = m if on_aid is None else on_aid(pipe, m)
+                    pipe.aid(a, screened and a is m)  # (a sample on_aid made is checked)
                 pipe.flush()
             if pipe.events:
                 _take_events(pipe, events, source, t)
@@ -475,7 +476,8 @@ def replay(
             while j < na and when[j] <= t:
                 m = aids[j]
                 j += 1
-                pipe.aid(m if on_aid is None else on_aid(pipe, m))
+                a = m if on_aid is None else on_aid(pipe, m)
+                pipe.aid(a, screened and a is m)  # (a sample on_aid made is checked)
             if not live_schedule:
                 pipe.flush()
         if pipe.events:
@@ -760,8 +762,10 @@ def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str
     ref_ned = p.nav.mag.ref_ned
 
     def heading(pipe: Pipeline, m: Any) -> Any:
+        if m.kind != "mag":  # (the last state is built only for a magnetometer sample)
+            return m
         st = pipe.last_state
-        if m.kind == "mag" and st is not None and navigating(pipe):
+        if st is not None and navigating(pipe):
             return heading_only(m, st.q_nb, ref_ned)
         return m
 

@@ -914,12 +914,14 @@ class Pipeline:
         self._lvl_dt += s.dt
 
     # -- aiding -------------------------------------------------------------------
-    def aid(self, m: Aid) -> None:
+    def aid(self, m: Aid, screened: bool = False) -> None:
         """Consume one aiding measurement: fused now if its time of validity has passed, else held.
 
-        It passes the validation boundary first (``reject_<reason>``); never raises."""
+        It passes the validation boundary first (``reject_<reason>``); never raises. ``screened``: ``m`` passed
+        a validator with this pipeline's limits already (an offline replay's screen,
+        ``ins_hil.datasets.run.screen``) and is not checked a second time."""
         try:
-            why = self.validator.check(m)
+            why = None if screened else self.validator.check(m)
         except Exception:  # not a sample at all
             why = "aid_malformed"
         if why is not None:
