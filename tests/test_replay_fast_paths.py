@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+import ins_hil.runtime.pipeline as pipeline_mod
 from ins_hil.cref import CNavCore
 from ins_hil.datasets import config, dataflash
 from ins_hil.datasets.run import GnssScore, Track, offline_config
@@ -435,3 +436,41 @@ def test_a_screened_replay_checks_each_imu_sample_once() -> None:
         _same_state(a, b)
     raw_pipe, _, n3 = run(raw, False)
     assert n3 >= len(raw) and raw_pipe.counts.get("reject_imu_time") == 1 and raw_pipe.counts.get("reject_imu_dt") == 1
+
+
+def test_the_c_state_guard_is_state_ok_of_the_state_and_builds_no_state() -> None:
+    """``CNavCore.state_guard`` (the pipeline's check after an aiding segment and at a flush) is ``state_ok`` of
+    ``state()`` on good and bad states; a batched replay's segments and flushes build no ``NavState`` for it."""
+    from ins_hil.runtime.pipeline import QNORM_TOL, STATE_H_MAX, STATE_H_MIN, STATE_SPEED_MAX, state_ok
+
+    lims = (QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX)
+    init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
+    for field, i, x in (("", 0, 0.0), ("P", 0, math.nan), ("P", 4, -1.0), ("v", 1, 2e4), ("q", 0, 1.1),
+                        ("h", 0, -2e5), ("lat", 0, math.nan)):  # fmt: skip
+        core = CNavCore(init.copy(), _nav(), fixed_step=False)
+        for s in _imu()[:20]:
+            core.step(s)
+        c = core._core
+        if field == "P":
+            c.ekf.P[i][i] = x
+        elif field in ("v", "q"):
+            getattr(c.mech, field)[i] = x
+        elif field:
+            setattr(c.mech, field, x)
+        core._st = None  # (written behind the core's back)
+        assert core.state_guard(*lims) is state_ok(core.state()) is (field == ""), field
+    # a batched replay on C: no state_ok of a built state after its segments and at its flushes
+    calls = [0]
+
+    def counting(st: NavState) -> bool:
+        calls[0] += sys._getframe(1).f_code.co_name in ("_segment", "flush")
+        return state_ok(st)
+
+    old = pipeline_mod.state_ok
+    pipeline_mod.state_ok = counting
+    try:
+        pipe, _, score = _replay(batched=True)
+    finally:
+        pipeline_mod.state_ok = old
+    assert sum(r.fused for r in score.rows) > 10 and pipe.counts.get("core_bad_state", 0) == 0
+    assert calls[0] == 0, calls

@@ -329,6 +329,14 @@ def _plausible(q0: float, q1: float, q2: float, q3: float, v0: float, v1: float,
     )  # fmt: skip
 
 
+def _guard_now(core: Any) -> bool | None:
+    """:func:`state_ok` of ``core.state()`` from a core that checks its own state record (the C core's
+    ``state_guard``: the same comparisons, no ``NavState`` built); None when it cannot (the caller checks
+    ``core.state()``)."""
+    g = getattr(core, "state_guard", None)
+    return None if g is None else cast("bool | None", g(QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX))
+
+
 class Pipeline:
     """calibration → FDI → core on every IMU epoch; aiding at its time of validity."""
 
@@ -865,9 +873,13 @@ class Pipeline:
             self._segment()
         core = self.core
         # the last time update, unchecked until now (unless the state is the one the last segment checked: a core
-        # that hands out the same NavState while it does not change, the C core)
-        if core is not None and (st := core.state()) is not self._seg_ok and not state_ok(st):
-            self._core_fault(self._t_imu, "core time update: non-finite or implausible state", "state")
+        # that hands out the same NavState while it does not change; the C core's guard in one C call)
+        if core is not None:
+            ok = _guard_now(core)
+            if ok is None:
+                ok = (st := core.state()) is self._seg_ok or state_ok(st)
+            if not ok:
+                self._core_fault(self._t_imu, "core time update: non-finite or implausible state", "state")
 
     def _finish_step(self) -> None:
         """The rest of the last IMU step (the filter time update, ``core.step_end``): runs before
@@ -898,10 +910,13 @@ class Pipeline:
             self._jobs.popleft()
         core = self.core
         if core is not None:
-            st = core.state()
-            if state_ok(st):
-                self._seg_ok = st
-            else:
+            ok = _guard_now(core)  # the C core: no NavState built
+            if ok is None:
+                st = core.state()
+                ok = state_ok(st)
+                if ok:
+                    self._seg_ok = st
+            if not ok:
                 self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
 
     def _level_add(self, s: ImuSample) -> None:
