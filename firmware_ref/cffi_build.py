@@ -104,6 +104,7 @@ void cref_state(const ins_core_t *c, double out[32]);
 void cref_pub_state(const ins_core_t *c, double out[32]);
 void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_end, const double *dts, size_t n,
               double *out, size_t out_stride, int pub);
+size_t cref_guard(const double *rows, size_t n, size_t stride, double qtol, double vmax2, double hmin, double hmax);
 void cref_hist_init(ins_hist_t *h, double max_delay);
 void cref_hstep(ins_core_t *c, ins_hist_t *h, const double dth[3], const double dv[3], double t_end, double dt);
 int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],

@@ -1092,6 +1092,28 @@ class CNavCore:
         self.run_out = out
         return RunStates(out, self.cfg.alignment.aligned_yaw_std, self._ratios)
 
+    def first_bad(self, rows: Vec, qnorm_tol: float, speed_max: float, h_min: float, h_max: float) -> int:
+        """The index of the first of ``rows`` ((n, ≥ 26) C state records, e.g. :attr:`run_out`) that fails the core
+        guard whose bounds are given (``ins_hil.runtime.pipeline.state_ok``'s: | |q|² − 1 | < ``qnorm_tol``,
+        |v| < ``speed_max`` m/s, ``h_min`` < h < ``h_max`` m, latitude, longitude and every σ), in one C call
+        (``cref_guard``: the same comparisons, NaN fails each); n when every row passes."""
+        rows = np.ascontiguousarray(rows, dtype=np.float64)
+        n = len(rows)
+        if not n:
+            return 0
+        return int(self._lib_.cref_guard(self._ffi.from_buffer("double[]", rows), n, rows.shape[1], qnorm_tol,
+                                         speed_max * speed_max, h_min, h_max))  # fmt: skip
+
+    def state_guard(self, qnorm_tol: float, speed_max: float, h_min: float, h_max: float) -> bool | None:
+        """Whether :meth:`state` passes the core guard whose bounds are given (:meth:`first_bad`'s), from the C
+        state record in one call, no ``NavState`` built; None while the Python alignment runs (or before the
+        fixed step is known): the caller checks :meth:`state` itself."""
+        if self._align is not None or self.dt is None:
+            return None
+        lib = self._lib_
+        lib.cref_state(self._core, self._out)  # (cref_guard: the index of the first that fails, 1 = none)
+        return bool(lib.cref_guard(self._out, 1, 32, qnorm_tol, speed_max * speed_max, h_min, h_max) == 1)
+
     def run_increments(self, inc: Vec, t_end: Vec, dt: Vec) -> None:
         """:meth:`run` without output for a caller that has its increments stacked already: ``inc`` (n, 6)
         C-contiguous float64 (dθ rad, dv m/s, body FRD), ``t_end`` and ``dt`` (n,) float64 (s); slices of the

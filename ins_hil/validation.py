@@ -166,6 +166,17 @@ class SampleValidator:
         st = self._imus.get(imu_id)
         return st.t if st is not None else -math.inf
 
+    def imu_screened(self, imu_id: int, t: float) -> bool:
+        """IMU samples of ``imu_id`` up to time ``t`` (s) passed this check already in another validator with the
+        same limits (an offline replay's screen, ``ins_hil.datasets.run.screen``): once this validator has learnt
+        the nominal period (or was given it), ``t`` becomes its last time and True is returned (each sample
+        checked once); before, False and nothing changes: the caller checks the samples here."""
+        st = self._imus.get(imu_id)
+        if st is None or st.learn is not None or not st.t < t:
+            return False
+        st.t = t
+        return True
+
     def last_time(self, kind: str, source: int) -> float:
         """The time (s) of the last accepted sample of aid source ``kind`` (e.g. ``"gnss"``) from ``source``
         (−inf before the first): an aid's check that wants strictly increasing times per source reads it."""

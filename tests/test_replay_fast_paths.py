@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+import ins_hil.runtime.pipeline as pipeline_mod
 from ins_hil.cref import CNavCore
 from ins_hil.datasets import config, dataflash
 from ins_hil.datasets.run import GnssScore, Track, offline_config
@@ -277,8 +278,8 @@ def test_bench_core_reads_the_batch_ratio_off_the_replay_command(monkeypatch: py
     assert "| 62.8 | 91.0 | 0.69× |" in md and "NOT met" in md
 
 
-def test_states_ok_is_state_ok_row_by_row() -> None:
-    from ins_hil.runtime.pipeline import GUARD_ROWS_SCALAR, guard_rows, state_ok, states_ok
+def test_the_c_guard_of_a_run_is_state_ok_row_by_row() -> None:
+    from ins_hil.runtime.pipeline import QNORM_TOL, STATE_H_MAX, STATE_H_MIN, STATE_SPEED_MAX, state_ok
 
     rng = np.random.default_rng(5)
     rows = np.zeros((64, 32))
@@ -288,16 +289,20 @@ def test_states_ok_is_state_ok_row_by_row() -> None:
     rows[:, 8], rows[:, 9], rows[:, 10] = 0.8, 0.5, 100.0
     rows[:, 17:26] = np.abs(rng.standard_normal((64, 9)))
     bad = [(1, 1, 1.1), (2, 5, 2e4), (3, 8, 1.6), (4, 9, 2e3), (5, 10, -2e5), (6, 10, 2e6), (7, 17, -0.1),
-           (8, 22, math.inf), (9, 25, math.nan), (10, 6, math.nan), (11, 2, math.inf), (12, 8, math.nan)]  # fmt: skip
+           (8, 22, math.inf), (9, 25, math.nan), (10, 6, math.nan), (11, 2, math.inf), (12, 8, math.nan),
+           (20, 9, -2e3), (30, 7, -2e4), (40, 10, math.nan), (50, 19, math.inf), (60, 23, -0.0)]  # fmt: skip
     for r, c, x in bad:
         rows[r, c] = x
     want = [state_ok(NavState(t=o[0], q_nb=o[1:5], vel_ned=o[5:8], lat=o[8], lon=o[9], h=o[10], std_pos=o[17:20],
                               std_vel=o[20:23], std_att=o[23:26])) for o in rows]  # fmt: skip
-    assert states_ok(rows).tolist() == want and want.count(False) == len(bad)
-    # the guard of a batched run: row by row in Python floats up to GUARD_ROWS_SCALAR rows, numpy beyond
-    assert guard_rows(rows) == want
-    short = [ok for k in range(0, 64, GUARD_ROWS_SCALAR) for ok in guard_rows(rows[k : k + GUARD_ROWS_SCALAR])]
-    assert short == want
+    assert want.count(False) == len(bad) - 1  # σ = -0.0 passes (0.0 <= -0.0)
+    core = CNavCore(StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0), _nav(), dt=0.01)
+    lims = (QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX)
+    for k in range(65):  # the first state that fails, from each row on (len: none), and of the 26 columns only
+        first = next((i for i, ok in enumerate(want[k:]) if not ok), 64 - k)
+        assert core.first_bad(rows[k:], *lims) == first, k
+        assert core.first_bad(rows[k:, :26], *lims) == first, k
+    assert core.first_bad(rows[13:20], *lims) == 7 and core.first_bad(rows[12:13], *lims) == 0
 
 
 def test_a_bad_state_inside_a_batched_run_is_the_per_sample_core_fault() -> None:
@@ -341,13 +346,17 @@ def test_the_batched_c_runs_reach_the_track_as_rows_with_the_same_arrays() -> No
 
     RunStates.__getitem__ = counting  # type: ignore[method-assign,assignment]
     try:
-        _, t1, s1 = _replay(batched=False)
-        _, t2, s2 = _replay(batched=True)
+        p1, t1, s1 = _replay(batched=False)
+        p2, t2, s2 = _replay(batched=True)
+        runs = [c for c in t2._chunks if isinstance(c, RunStates)]
+        assert runs and sum(len(c) for c in runs) > 250
+        # the 2 withheld fixes (and a slack of 2): the pipeline's last state of a run is built only when read
+        assert built[0] <= 2 + 2, built
+        assert p1.last_state is not None and p2.last_state is not None
+        _same_state(p1.last_state, p2.last_state)
+        assert p2.last_state is p2.last_state and p2._good is p2.last_state and built[0] <= 2 + 2 + 1
     finally:
         RunStates.__getitem__ = getitem  # type: ignore[method-assign]
-    runs = [c for c in t2._chunks if isinstance(c, RunStates)]
-    assert runs and sum(len(c) for c in runs) > 250
-    assert built[0] <= len(runs) + 2 + 2  # the last state of each run, the 2 withheld fixes (and the slack of 2)
     a1, a2 = t1.arrays(), t2.arrays()
     assert a1.keys() == a2.keys()
     for k in a1:
@@ -374,3 +383,94 @@ def test_the_reference_score_takes_a_batched_run_as_it_takes_each_epoch() -> Non
     assert len(one.rows) > 40
     rows = [[(t, e.tolist(), s.tolist()) for t, e, s in sc.rows] for sc in (one, two)]
     assert rows[0] == rows[1]
+
+
+def test_a_screened_replay_checks_each_imu_sample_once() -> None:
+    """``replay(screened=True)`` (a ``Prepared``'s samples, which passed ``screen``): the pipeline's validator does
+    not check them a second time once it knows the period (only its learning samples), and the states, counts
+    and events are those of the checked replay; an unscreened stream is still checked sample by sample (the
+    pipeline refuses its two bad samples)."""
+    from ins_hil.datasets.run import replay, screen
+    from ins_hil.validation import LEARN_SAMPLES
+
+    raw = _imu()
+    sc = screen(raw, [], [], "t")
+    assert len(sc.imu) == len(raw) - 2 and "2 of 400 IMU samples dropped" in sc.notes[0]  # the one boundary
+    fixes = _fixes(sc.imu)
+    init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
+
+    aid_calls = [0]
+
+    def run(imu: list[ImuSample], screened: bool) -> tuple[Pipeline, Track, int]:
+        calls = [0]
+        track = Track(ORIGIN)
+        aid_calls[0] = 0
+
+        def setup(pipe: Pipeline) -> None:
+            pipe.core = CNavCore(init.copy(), _nav(), fixed_step=False)
+            val, check = pipe._val_imu, pipe.validator.check
+
+            def counted(s: ImuSample) -> str | None:
+                calls[0] += 1
+                return val(s)
+
+            def counted_aid(s: Any) -> str | None:
+                aid_calls[0] += 1
+                return check(s)
+
+            pipe._val_imu = counted  # type: ignore[method-assign]
+            pipe.validator.check = counted_aid  # type: ignore[method-assign]
+
+        pipe, _ = replay(imu, fixes, _nav(), [track], initial=init, pipeline=offline_config(False, "c"), setup=setup,
+                         screened=screened)  # fmt: skip
+        return pipe, track, calls[0]
+
+    once, t1, n1 = run(sc.imu, True)
+    assert aid_calls[0] == 0  # the screened fixes: not checked again
+    twice, t2, n2 = run(sc.imu, False)
+    assert aid_calls[0] == len(fixes)
+    assert n2 == len(sc.imu) and n1 <= LEARN_SAMPLES + 25, (n1, n2)  # the period learnt, then none
+    assert once.counts == twice.counts and once.counts.get("fused_GnssFix", 0) > 10
+    assert len(t1.states) == len(t2.states) == len(sc.imu)
+    for a, b in zip(t1.states, t2.states, strict=True):
+        _same_state(a, b)
+    raw_pipe, _, n3 = run(raw, False)
+    assert n3 >= len(raw) and raw_pipe.counts.get("reject_imu_time") == 1 and raw_pipe.counts.get("reject_imu_dt") == 1
+
+
+def test_the_c_state_guard_is_state_ok_of_the_state_and_builds_no_state() -> None:
+    """``CNavCore.state_guard`` (the pipeline's check after an aiding segment and at a flush) is ``state_ok`` of
+    ``state()`` on good and bad states; a batched replay's segments and flushes build no ``NavState`` for it."""
+    from ins_hil.runtime.pipeline import QNORM_TOL, STATE_H_MAX, STATE_H_MIN, STATE_SPEED_MAX, state_ok
+
+    lims = (QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX)
+    init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *ORIGIN, 0.0)
+    for field, i, x in (("", 0, 0.0), ("P", 0, math.nan), ("P", 4, -1.0), ("v", 1, 2e4), ("q", 0, 1.1),
+                        ("h", 0, -2e5), ("lat", 0, math.nan)):  # fmt: skip
+        core = CNavCore(init.copy(), _nav(), fixed_step=False)
+        for s in _imu()[:20]:
+            core.step(s)
+        c = core._core
+        if field == "P":
+            c.ekf.P[i][i] = x
+        elif field in ("v", "q"):
+            getattr(c.mech, field)[i] = x
+        elif field:
+            setattr(c.mech, field, x)
+        core._st = None  # (written behind the core's back)
+        assert core.state_guard(*lims) is state_ok(core.state()) is (field == ""), field
+    # a batched replay on C: no state_ok of a built state after its segments and at its flushes
+    calls = [0]
+
+    def counting(st: NavState) -> bool:
+        calls[0] += sys._getframe(1).f_code.co_name in ("_segment", "flush")
+        return state_ok(st)
+
+    old = pipeline_mod.state_ok
+    pipeline_mod.state_ok = counting
+    try:
+        pipe, _, score = _replay(batched=True)
+    finally:
+        pipeline_mod.state_ok = old
+    assert sum(r.fused for r in score.rows) > 10 and pipe.counts.get("core_bad_state", 0) == 0
+    assert calls[0] == 0, calls

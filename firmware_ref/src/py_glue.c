@@ -72,6 +72,25 @@ void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_e
         else put(c, out + out_stride * k, out_stride);
     }
 }
+/* the pipeline's core guard (ins_hil.runtime.pipeline.state_ok) on n state records of stride values (cref_state's
+ * layout: t, q[4], v[3], lat, lon, h, b_g[3], b_a[3], sigma pos[3], vel[3], att[3]): the index of the first that fails
+ * (n: none). The same comparisons in the same order (NaN fails each): |q|^2 - 1 within qtol, |v|^2 < vmax2,
+ * |lat| <= pi/2, |lon| < 1e3, hmin < h < hmax, every sigma in [0, inf) */
+size_t cref_guard(const double *rows, size_t n, size_t stride, double qtol, double vmax2, double hmin, double hmax) {
+    size_t k;
+    int i;
+    for (k = 0; k < n; ++k) {
+        const double *r = rows + stride * k;
+        int ok = fabs(r[1] * r[1] + r[2] * r[2] + r[3] * r[3] + r[4] * r[4] - 1.0) < qtol
+                 && r[5] * r[5] + r[6] * r[6] + r[7] * r[7] < vmax2
+                 && -1.5707963267948966 <= r[8] && r[8] <= 1.5707963267948966
+                 && -1e3 < r[9] && r[9] < 1e3
+                 && hmin < r[10] && r[10] < hmax;
+        for (i = 17; ok && i < 26; ++i) ok = 0.0 <= r[i] && r[i] < HUGE_VAL;
+        if (!ok) return k;
+    }
+    return n;
+}
 int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
                     double std_ne, double std_d, double std_vel) {
     ins_gnss_t g;

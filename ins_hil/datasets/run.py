@@ -416,6 +416,7 @@ def replay(
     source: str = "replay",
     setup: Callable[[Pipeline], None] | None = None,
     live_schedule: bool = False,
+    screened: bool = False,
 ) -> tuple[Pipeline, list[FaultEvent]]:
     """The one offline loop: ``imu`` and ``aids`` (sorted by their hand-over time) through the gateway's
     :class:`~ins_hil.runtime.pipeline.Pipeline` (validation, drift monitor, delayed fusion in segments) with
@@ -428,6 +429,9 @@ def replay(
     gap between IMU epochs as the live loop under load does (the same updates, a step or two later, through the
     core's delayed fusion; slower: on px4_quad the GNSS-present prior error is 0.148 m either way, the outages'
     RMS / max 2.05 / 7.81 m offline and 2.06 / 7.65 m on the live schedule).
+
+    ``screened``: ``imu`` and ``aids`` passed :func:`screen` with the pipeline's limits (a :class:`Prepared`'s):
+    the pipeline does not check those samples a second time (``Pipeline.aid``; on the C core ``Pipeline.imu_run``).
 
     ``setup`` is called with the pipeline before the first sample. Returns the pipeline (after its ``flush``)
     and every fault event it raised. ReplayError (one line: the recording and the time) when the core fails
@@ -447,13 +451,14 @@ def replay(
         k = 0
         while k < n:
             k_end = n if j >= na else min(n, max(k + 1, bisect.bisect_left(ts, when[j], k) + 1))
-            pipe.imu_run(list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end])
+            pipe.imu_run(list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end], screened)
             t = ts[k_end - 1]
             if j < na and when[j] <= t:
                 while j < na and when[j] <= t:
                     m = aids[j]
                     j += 1
-                    pipe.aid(m if on_aid is None else on_aid(pipe, m))
+                    a = m if on_aid is None else on_aid(pipe, m)
+                    pipe.aid(a, screened and a is m)  # (a sample on_aid made is checked)
                 pipe.flush()
             if pipe.events:
                 _take_events(pipe, events, source, t)
@@ -471,7 +476,8 @@ def replay(
             while j < na and when[j] <= t:
                 m = aids[j]
                 j += 1
-                pipe.aid(m if on_aid is None else on_aid(pipe, m))
+                a = m if on_aid is None else on_aid(pipe, m)
+                pipe.aid(a, screened and a is m)  # (a sample on_aid made is checked)
             if not live_schedule:
                 pipe.flush()
         if pipe.events:
@@ -756,8 +762,10 @@ def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str
     ref_ned = p.nav.mag.ref_ned
 
     def heading(pipe: Pipeline, m: Any) -> Any:
+        if m.kind != "mag":  # (the last state is built only for a magnetometer sample)
+            return m
         st = pipe.last_state
-        if m.kind == "mag" and st is not None and navigating(pipe):
+        if st is not None and navigating(pipe):
             return heading_only(m, st.q_nb, ref_ned)
         return m
 
@@ -768,7 +776,7 @@ def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str
     t_start = time.perf_counter()
     pipe, events = replay(p.imu, aids, p.nav, [track, score, *observers], on_aid=heading if p.mag_heading_only
                           else None, pipeline=offline_config(aiding_fdi, core_kind), progress=progress,
-                          source=p.source or label or "replay", setup=setup)  # fmt: skip
+                          source=p.source or label or "replay", setup=setup, screened=True)  # fmt: skip
     core: Any = pipe.core
     tr = track.arrays()
     rows = score.sorted_rows()

@@ -293,6 +293,8 @@ STATE_SPEED_MAX = 1.0e4
 STATE_H_MIN, STATE_H_MAX = -1.0e5, 1.0e6
 QNORM_TOL = 1e-3
 _INF = math.inf
+#: ``Pipeline.last_state`` / ``_good`` stand for the last state of the last C run (built when read)
+_RUN_LAST = object()
 
 
 def state_ok(st: NavState) -> bool:
@@ -327,35 +329,12 @@ def _plausible(q0: float, q1: float, q2: float, q3: float, v0: float, v1: float,
     )  # fmt: skip
 
 
-def states_ok(rows: np.ndarray) -> np.ndarray:
-    """:func:`state_ok` of many states at once: ``rows`` (n, ≥ 26) in the C core's state record (t, q[4], v[3],
-    lat, lon, h, bg[3], ba[3], σ pos[3], σ vel[3], σ att[3]: ``ins_hil.cref``) → (n,) bool, the same comparisons
-    in the same order (NaN fails each)."""
-    q, v = rows[:, 1:5], rows[:, 5:8]
-    qn = q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3]
-    sd = rows[:, 17:26]
-    with np.errstate(invalid="ignore"):
-        return (
-            (np.abs(qn - 1.0) < QNORM_TOL)
-            & (v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2] < STATE_SPEED_MAX * STATE_SPEED_MAX)
-            & (-1.5707963267948966 <= rows[:, 8]) & (rows[:, 8] <= 1.5707963267948966)
-            & (-1e3 < rows[:, 9]) & (rows[:, 9] < 1e3)
-            & (STATE_H_MIN < rows[:, 10]) & (rows[:, 10] < STATE_H_MAX)
-            & np.all((0.0 <= sd) & (sd < _INF), axis=1)
-        )  # fmt: skip
-
-
-#: runs of at most this many states are guarded row by row in Python floats (numpy's per-call cost is larger)
-GUARD_ROWS_SCALAR = 16
-
-
-def guard_rows(rows: np.ndarray) -> list[bool]:
-    """:func:`states_ok` of ``rows`` as a list: a short run (≤ :data:`GUARD_ROWS_SCALAR` rows, a replay's few
-    samples between two aiding measurements) row by row with :func:`state_ok`'s comparisons in Python floats,
-    a longer one in numpy; the same result."""
-    if len(rows) > GUARD_ROWS_SCALAR:
-        return cast(list[bool], states_ok(rows).tolist())
-    return [_plausible(*r[1:11], *r[17:26]) for r in rows[:, :26].tolist()]
+def _guard_now(core: Any) -> bool | None:
+    """:func:`state_ok` of ``core.state()`` from a core that checks its own state record (the C core's
+    ``state_guard``: the same comparisons, no ``NavState`` built); None when it cannot (the caller checks
+    ``core.state()``)."""
+    g = getattr(core, "state_guard", None)
+    return None if g is None else cast("bool | None", g(QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX))
 
 
 class Pipeline:
@@ -392,7 +371,6 @@ class Pipeline:
         self.imu_t: float | None = None
         self._imu_rejects = 0  # IMU samples rejected by the validator
         self._core_faults = 0  # core exceptions / bad states recovered from
-        self._good: NavState | None = None  # the last state that passed the core guard
         self._fault_open = False  # a core fault is reported and not cleared yet
         self._fault_clear_t = _INF  # sensor time (s) at which it clears
         self.core: RealTimeCore | None = None
@@ -423,7 +401,12 @@ class Pipeline:
         self._seg_ok: NavState | None = None  # the last state a segment's core guard passed
         self._gap_free = False  # no aiding segment has run since the last IMU step
         self._step_pending = False  # core.step_end of the last step has not run yet
-        self.last_state: NavState | None = None
+        # the last state published and the last one the core guard passed (``last_state``, ``_good``): a NavState,
+        # or _RUN_LAST, the last state of the C run ``_run_last`` (states, index), built when first read
+        self._last: Any = None
+        self._good_st: Any = None
+        self._run_last: tuple[Any, int] | None = None
+        self._run_last_st: NavState | None = None
         if cfg.init == "core":
             self._start(initial)
         elif cfg.init == "config":
@@ -439,6 +422,36 @@ class Pipeline:
                     0.0,
                 )
             )
+
+    @property
+    def last_state(self) -> NavState | None:
+        """The state of the last IMU epoch published (None before the first)."""
+        st = self._last
+        return self._run_state() if st is _RUN_LAST else cast("NavState | None", st)
+
+    @last_state.setter
+    def last_state(self, st: NavState | None) -> None:
+        self._last = st
+
+    @property
+    def _good(self) -> NavState | None:
+        """The last state that passed the core guard (None: none since the last restart)."""
+        st = self._good_st
+        return self._run_state() if st is _RUN_LAST else cast("NavState | None", st)
+
+    @_good.setter
+    def _good(self, st: NavState | None) -> None:
+        self._good_st = st
+
+    def _run_state(self) -> NavState:
+        """The NavState of the last C run's state that ``last_state`` / ``_good`` stand for, built once."""
+        r = self._run_last
+        if r is not None:
+            self._run_last = None
+            self._run_last_st = r[0][r[1]]
+        st = self._run_last_st
+        assert st is not None
+        return st
 
     def _count(self, key: str) -> None:
         self.counts[key] = self.counts.get(key, 0) + 1
@@ -484,13 +497,19 @@ class Pipeline:
             self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
             return None
 
-    def imu_run(self, samples: list[ImuSample]) -> None:
+    def imu_run(self, samples: list[ImuSample], screened: bool = False) -> None:
         """:meth:`imu` on each of ``samples`` in order, with nothing handed over in between (an offline replay's
         IMU samples up to the next aiding measurement). The same states, counts, events and observer calls; on
         the C core, once it navigates, the samples that pass the validation boundary go into the core in one
         call (``CNavCore.run_states``; before it navigates, the alignment's levelling and heading phases too)
-        instead of one call each."""
+        instead of one call each.
+
+        ``screened``: the samples passed a validator with this pipeline's limits already (an offline replay's
+        screen, ``ins_hil.datasets.run.screen``): once this pipeline's validator knows the IMU's period, a run of
+        them in time order is taken without a second check (``SampleValidator.imu_screened``: each sample is
+        checked once); every other sample is checked here as without it."""
         k, n = 0, len(samples)
+        vd = self.validator
         while k < n:
             if not self._can_run():
                 self.imu(samples[k])
@@ -498,12 +517,21 @@ class Pipeline:
                 continue
             j = k
             val, t_prev = self._val_imu, self._t_imu
-            while j < n:  # the run that passes the validation boundary as it is (no clock re-anchoring)
-                s = samples[j]
-                if s.t <= t_prev or val(s) is not None:
-                    break
-                t_prev = s.t
-                j += 1
+            if screened:  # checked by the screen: only their time order here (the run a clock restart would end)
+                iid = samples[k].imu_id
+                tp = max(t_prev, vd.imu_time(iid))
+                while j < n and samples[j].t > tp and samples[j].imu_id == iid:
+                    tp = samples[j].t
+                    j += 1
+                if j > k and not vd.imu_screened(iid, tp):
+                    j = k  # the validator still learns the period: checked below
+            if j == k:
+                while j < n:  # the run that passes the validation boundary as it is (no clock re-anchoring)
+                    s = samples[j]
+                    if s.t <= t_prev or val(s) is not None:
+                        break
+                    t_prev = s.t
+                    j += 1
             if j == k:  # refused (or re-anchored): the per-sample path says why
                 self.imu(samples[k])
                 k += 1
@@ -559,15 +587,16 @@ class Pipeline:
             by_row.setdefault(r, []).append(e)
         resets = self._resets + getattr(core, "gnss_resets", 0)
         obs = self.observers
-        good = guard_rows(core.run_out)  # the core guard of every state
+        # the core guard of every state: the first that fails it (n: none)
+        bad = core.first_bad(core.run_out, QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX)
         if hasattr(states, "rows") and all(type(o).epochs is not Observer.epochs for o in obs):
-            self._epochs_rows(run, states, good, pre, by_row, resets)
+            self._epochs_rows(run, states, bad, pre, by_row, resets)
             return n
         for i, st in enumerate(states):
             s = run[i]
             self._t_imu = s.t
             self._last_arrival = s.t_arrival_ns
-            if not good[i]:  # as _epoch: the core restarts (its events since the last good state dropped)
+            if i == bad:  # as _epoch: the core restarts (its events since the last good state dropped)
                 self._core_fault(s.t, "core step: non-finite or implausible state", "state")
                 self._epochs_validated(run[i + 1 :])
                 return n
@@ -587,14 +616,14 @@ class Pipeline:
                 self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
         return n
 
-    def _epochs_rows(self, run: list[ImuSample], states: Any, good: list[bool], pre: list[FaultEvent],
+    def _epochs_rows(self, run: list[ImuSample], states: Any, bad: int, pre: list[FaultEvent],
                      by_row: dict[int, list[FaultEvent]], resets: int) -> None:  # fmt: skip
         """:meth:`_epochs_c`'s publication when every observer takes a run at once (:meth:`Observer.epochs`) and
         the core gives its states as rows (``ins_hil.cref.RunStates``): the same counts, events, states and
         observer calls (each observer's in the order of the states), a ``NavState`` built only for the last
-        state (``last_state``) and for what an observer asks for."""
+        state (``last_state``) and for what an observer asks for. ``bad``: the first state the core guard
+        failed (``len(run)``: none)."""
         n = len(run)
-        bad = good.index(False) if False in good else n
         states.resets = resets
         if bad:
             if pre:
@@ -602,10 +631,10 @@ class Pipeline:
             for row in sorted(by_row):
                 if row < bad:
                     self.events.extend(by_row[row])
-            last = states[bad - 1]
-            self._good = last
+            # the run's last good state: built only when read (``last_state``, ``_good``)
+            self._run_last = (states, bad - 1)
+            self._good_st = self._last = _RUN_LAST
             self._gap_free = True
-            self.last_state = last
             part = states if bad == n else states.head(bad)
             for o in self.observers:
                 try:
@@ -844,9 +873,13 @@ class Pipeline:
             self._segment()
         core = self.core
         # the last time update, unchecked until now (unless the state is the one the last segment checked: a core
-        # that hands out the same NavState while it does not change, the C core)
-        if core is not None and (st := core.state()) is not self._seg_ok and not state_ok(st):
-            self._core_fault(self._t_imu, "core time update: non-finite or implausible state", "state")
+        # that hands out the same NavState while it does not change; the C core's guard in one C call)
+        if core is not None:
+            ok = _guard_now(core)
+            if ok is None:
+                ok = (st := core.state()) is self._seg_ok or state_ok(st)
+            if not ok:
+                self._core_fault(self._t_imu, "core time update: non-finite or implausible state", "state")
 
     def _finish_step(self) -> None:
         """The rest of the last IMU step (the filter time update, ``core.step_end``): runs before
@@ -877,10 +910,13 @@ class Pipeline:
             self._jobs.popleft()
         core = self.core
         if core is not None:
-            st = core.state()
-            if state_ok(st):
-                self._seg_ok = st
-            else:
+            ok = _guard_now(core)  # the C core: no NavState built
+            if ok is None:
+                st = core.state()
+                ok = state_ok(st)
+                if ok:
+                    self._seg_ok = st
+            if not ok:
                 self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
 
     def _level_add(self, s: ImuSample) -> None:
@@ -893,12 +929,14 @@ class Pipeline:
         self._lvl_dt += s.dt
 
     # -- aiding -------------------------------------------------------------------
-    def aid(self, m: Aid) -> None:
+    def aid(self, m: Aid, screened: bool = False) -> None:
         """Consume one aiding measurement: fused now if its time of validity has passed, else held.
 
-        It passes the validation boundary first (``reject_<reason>``); never raises."""
+        It passes the validation boundary first (``reject_<reason>``); never raises. ``screened``: ``m`` passed
+        a validator with this pipeline's limits already (an offline replay's screen,
+        ``ins_hil.datasets.run.screen``) and is not checked a second time."""
         try:
-            why = self.validator.check(m)
+            why = None if screened else self.validator.check(m)
         except Exception:  # not a sample at all
             why = "aid_malformed"
         if why is not None:
