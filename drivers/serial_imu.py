@@ -148,7 +148,11 @@ class SerialImuDriver:
                 loop, lambda: _Proto(self, sink), self.port, baudrate=self.baudrate
             )
             return transport, proto  # type: ignore[return-value]
-        r = _FdReader(self, sink, ser, loop)
+        try:
+            r = _FdReader(self, sink, ser, loop)
+        except BaseException:  # e.g. epoll refuses the descriptor: the port is not left open (run() retries)
+            ser.close()
+            raise
         return r, r
 
     async def run(self, sink: Sink) -> None:

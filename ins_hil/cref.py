@@ -499,7 +499,7 @@ class CNavCore:
         self._st: NavState | None = None
         #: the rows of the last run_states call that had lost IMU data before them (one DROPOUT event each)
         self.run_gap_rows: list[int] = []
-        #: the state records of the last run_states call, (n, 32) (``ins_hil.runtime.pipeline.states_ok``)
+        #: the state records of the last run_states call, (n, 32) (the core guard: :meth:`first_bad`, ``cref_guard``)
         self.run_out: Vec = np.zeros((0, 32))
         self._ratios: dict[str, float] = {}
         self._events: list[FaultEvent] = []
@@ -946,7 +946,7 @@ class CNavCore:
         a.omega_b = out[-1, 8:11].copy()
         a._dt = float(dt[-1])
         st = a.state()  # the σ (P does not change before the hand-over), the biases, f_b and the gate ratios
-        ro = np.empty((n, 32))  # the C record layout (the core guard: states_ok; RunStates)
+        ro = np.empty((n, 32))  # the C record layout (the core guard: first_bad; RunStates)
         ro[:, 0:5] = out[:, 0:5]
         ro[:, 5:8] = 0.0  # the velocity held at zero
         ro[:, 8:11] = out[:, 5:8]
@@ -1098,6 +1098,8 @@ class CNavCore:
         |v| < ``speed_max`` m/s, ``h_min`` < h < ``h_max`` m, latitude, longitude and every σ), in one C call
         (``cref_guard``: the same comparisons, NaN fails each); n when every row passes."""
         rows = np.ascontiguousarray(rows, dtype=np.float64)
+        if rows.ndim != 2 or rows.shape[1] < 26:
+            raise ValueError(f"CNavCore.first_bad: expected (n, >= 26) C state records, got shape {rows.shape}")
         n = len(rows)
         if not n:
             return 0

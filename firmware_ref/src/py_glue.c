@@ -79,6 +79,7 @@ void cref_run(ins_core_t *c, ins_hist_t *h, const double *inc, const double *t_e
 size_t cref_guard(const double *rows, size_t n, size_t stride, double qtol, double vmax2, double hmin, double hmax) {
     size_t k;
     int i;
+    if (stride < 26) return 0; /* not state records: the first fails */
     for (k = 0; k < n; ++k) {
         const double *r = rows + stride * k;
         int ok = fabs(r[1] * r[1] + r[2] * r[2] + r[3] * r[3] + r[4] * r[4] - 1.0) < qtol

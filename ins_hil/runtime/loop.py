@@ -204,12 +204,13 @@ class Gateway:
     def _process_queue(self) -> None:
         """Run the pipeline on everything in the FIFO (synchronous: never awaits).
 
-        Aiding measurements (GNSS, baro, magnetometer) are handed to the pipeline (and recorded)
-        when dequeued; the pipeline splits their fusion into segments, one per gap between IMU
-        epochs (:meth:`Pipeline.work`; a GNSS update costs about a millisecond in the Python
-        core). The segment of a gap runs in the slack (:meth:`_slack`) once the FIFO is empty after
-        an IMU state has been published, so its cost falls before the next IMU sample instead of delaying
-        it. The recorder writes every input in the order it is handed to the pipeline, so replay
+        Aiding measurements (GNSS, baro, magnetometer) are handed to the pipeline when dequeued (and
+        queued for the recorder, which writes them in the slack in that order); the pipeline splits
+        their fusion into segments, one per gap between IMU epochs (:meth:`Pipeline.work`; a GNSS
+        update costs about a millisecond in the Python core). The segment of a gap runs in the slack
+        (:meth:`_slack`) once the FIFO is empty after an IMU state has been published, so its cost
+        falls before the next IMU sample instead of delaying it. The recorder writes every input in
+        the order it is handed to the pipeline, so replay
         reproduces the same states."""
         q = self.queue
         pipe = self.pipeline
