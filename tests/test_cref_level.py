@@ -147,6 +147,8 @@ def test_the_c_levelling_is_navcores(case: str, rate: float, seconds: float, gns
         lv_py, lv_c = _levelled(py), _levelled(nav)
         for key, v in lv_py.items():
             assert np.allclose(lv_c[key], v, rtol=1e-9, atol=1e-15), (case, runs, key, lv_c[key], v)
+        if nav.align.on_c:  # the motion test's statistics: plain products on both sides, the same bits on any host
+            assert (lv_c["dev_w"], lv_c["dev_f"]) == (lv_py["dev_w"], lv_py["dev_f"]), (case, runs)
         assert nav.sensor_warnings == py.sensor_warnings and np.array_equal(nav.kf.qc, py.kf.qc)
         if runs:
             assert n_runs > (10 if case != "ring full" else 3)

@@ -20,8 +20,9 @@ void ins_level_init(ins_level_t *l, double time, double still_delay, double froz
     l->have_pos = l->yaw_ready = 0;
 }
 
-/* d . d as numpy's `d @ d` on the reference host (OpenBLAS ddot, x86-64 with FMA): fma(z, z, fma(y, y, x x)) */
-static double dot3(const double d[3]) { return fma(d[2], d[2], fma(d[1], d[1], d[0] * d[0])); }
+/* d . d as plain products in NavCore's order (core_parts/alignment.py: x x + y y + z z; no fused multiply-add under
+ * -ffp-contract=off), the same bits on any host */
+static double dot3(const double d[3]) { return d[0] * d[0] + d[1] * d[1] + d[2] * d[2]; }
 
 int ins_level_step(ins_level_t *l, const ins_real dtheta[3], const ins_real dvel[3], double dt, double t) {
     uint32_t k;

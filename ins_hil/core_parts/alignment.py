@@ -100,8 +100,12 @@ class Alignment:
                 a = imu.dt / (c.alignment.still_tau + imu.dt)
                 dw = imu.dtheta / imu.dt - self.w_sum / self.t_win
                 df = imu.dvel / imu.dt - self.f_sum / self.t_win
-                self.dev_w += a * (float(dw @ dw) - self.dev_w)
-                self.dev_f += a * (float(df @ df) - self.dev_f)
+                # |dw|², |df|² as plain products in a fixed order (not ``dw @ dw``: BLAS's rounding is the host's
+                # kernel's, e.g. with or without FMA), so the C core's levelling (align.c) gives the same bits anywhere
+                wx, wy, wz = dw.tolist()
+                fx, fy, fz = df.tolist()
+                self.dev_w += a * ((wx * wx + wy * wy + wz * wz) - self.dev_w)
+                self.dev_f += a * ((fx * fx + fy * fy + fz * fz) - self.dev_f)
                 if self.dev_w > c.alignment.still_gyro**2 or self.dev_f > c.alignment.still_accel**2:
                     self.imu_moving = self.moving = True
             # samples enter the levelling window only ``still_delay`` s later, so the window cannot hold
