@@ -717,13 +717,11 @@ class CNavCore:
                 self._rejected.append((dataclasses.replace(meas, vel_ned=None) if split else meas, r[0]))
             elif self._rejected:
                 self._rejected.clear()
-            if (r[1] and not r[2]) or (r[2] and not r[3]):
-                self._gate_event(t, "gnss_pos", r)
+            self._gate_event(t, "gnss_pos", r)
         if v is not None and self._use_vel:
             ratios = dict(ratios) if ratios is self._ratios else ratios
             ratios["gnss_vel"] = r[4]
-            if (r[5] and not r[6]) or (r[6] and not r[7]):
-                self._gate_event(t_vel, "gnss_vel", r[4:])
+            self._gate_event(t_vel, "gnss_vel", r[4:])
         self._ratios = ratios
 
     def _fuse_one(self, meas: AidSample) -> None:
@@ -746,8 +744,7 @@ class CNavCore:
             ratios = dict(self._ratios)
             ratios["baro"] = r[0]
             self._ratios = ratios
-            if (r[1] and not r[2]) or (r[2] and not r[3]):
-                self._gate_event(tt, "baro", r)
+            self._gate_event(tt, "baro", r)
         elif kind == "mag" and self._have_mag:
             meas = cast(MagSample, meas)
             fx, fy, fz = np.asarray(meas.field_b, dtype=np.float64).tolist()
@@ -759,7 +756,8 @@ class CNavCore:
 
     def _gate_event(self, t: float, kind: str, r: Sequence[float]) -> None:
         """NavCore's event of a GNSS or baro gate (group ``kind``, its ``cref_gfuse_*`` gate ``r``: test ratio,
-        rejected, rejections in a row before and after): its first rejection, or accepted again after some."""
+        rejected, rejections in a row before and after): its first rejection, or accepted again after some; else
+        nothing."""
         sensor = "gnss" if kind.startswith("gnss") else "baro"
         if r[1] and r[2] == 0:
             self._events.append(FaultEvent(t, sensor, FaultMode.JUMP, float("nan"), True, False,

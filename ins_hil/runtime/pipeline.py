@@ -426,8 +426,7 @@ class Pipeline:
     @property
     def last_state(self) -> NavState | None:
         """The state of the last IMU epoch published (None before the first)."""
-        st = self._last
-        return self._run_state() if st is _RUN_LAST else cast("NavState | None", st)
+        return self._resolved(self._last)
 
     @last_state.setter
     def last_state(self, st: NavState | None) -> None:
@@ -436,15 +435,16 @@ class Pipeline:
     @property
     def _good(self) -> NavState | None:
         """The last state that passed the core guard (None: none since the last restart)."""
-        st = self._good_st
-        return self._run_state() if st is _RUN_LAST else cast("NavState | None", st)
+        return self._resolved(self._good_st)
 
     @_good.setter
     def _good(self, st: NavState | None) -> None:
         self._good_st = st
 
-    def _run_state(self) -> NavState:
-        """The NavState of the last C run's state that ``last_state`` / ``_good`` stand for, built once."""
+    def _resolved(self, st: object) -> NavState | None:
+        """``st`` itself, or for ``_RUN_LAST`` the NavState of the last C run's state, built once."""
+        if st is not _RUN_LAST:
+            return cast("NavState | None", st)
         r = self._run_last
         if r is not None:
             self._run_last = None
