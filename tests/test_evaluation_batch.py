@@ -161,7 +161,7 @@ def test_serial_rows_carry_timings_and_a_failing_log_is_still_reported(tmp_path:
     assert "bad.csv:2: imu" in rows[0]["error"] and "bad.csv:2: imu" in rows[1]["error"]
     assert [r.get("cached") for r in rows[2:]] == [False, True]
     for r in rows[2:]:
-        assert r["load_s"] > 0 and r["replay_s"] > 0 and r["plot_s"] >= 0
+        assert r["load_s"] > 0 and r["replay_s"] > 0 and r["plot_s"] >= 0 and r["cpu_s"] > 0
         assert r["load_s"] + r["replay_s"] + r["plot_s"] <= r["elapsed_s"] + 1e-6
     job_out = Path(batch.jobs(pairs, 2, tmp_path / "s")[2].out)
     assert json.loads((job_out / "metrics.json").read_text())["plots"] == [] and not list(job_out.glob("*.png"))
@@ -213,6 +213,17 @@ def test_compare_serial_prints_both_wall_times_and_their_ratio(tmp_path: Path, c
 
 
 @pytest.mark.slow  # a LocalCluster of 1 worker process (~3 s)
+def test_a_workers_warm_up_leaves_the_simulator_to_the_job_that_needs_it() -> None:
+    """The warm-up imports the readers, the core and the plots' module, not the simulator (0.12 CPU s per
+    worker, before its first job): a flight log's job never loads it."""
+    import subprocess
+
+    mods = "'ins_hil.datasets.report' in sys.modules, 'ins_hil.evaluation.sim_flight' in sys.modules"
+    code = f"import sys; from ins_hil.evaluation import batch; batch.warm_up(); print({mods})"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["True", "False"]
+
+
 def test_our_local_cluster_runs_its_workers_without_the_profiler_and_with_a_slow_event_loop_tick() -> None:
     import dask
     from dask.distributed import Client
