@@ -662,6 +662,75 @@ class Pipeline:
                 self._count("pipeline_error")
                 self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
 
+    def baro_runs(self, imu: list[ImuSample], arrays: tuple[np.ndarray, np.ndarray, np.ndarray], k0: int,
+                  end: np.ndarray, ab: np.ndarray, baro: Sequence[Any], bt: np.ndarray,
+                  alt: np.ndarray) -> tuple[int, int]:  # fmt: skip
+        """An offline replay's :meth:`imu_run` (``screened``) and :meth:`aid` + :meth:`flush` of baro samples
+        alternately on the C core in one C call (``CNavCore.run_baro``): group g is the IMU samples
+        ``imu[end[g - 1]:end[g]]`` (``end[-1]`` = ``k0``; ``arrays``: the whole log's (n, 6) increments, times and
+        steps, as ``CNavCore.run_states`` takes them), then the baro samples ``baro[ab[g]:ab[g + 1]]`` (times ``bt``,
+        finite altitudes ``alt``), none with IMU data lost before its samples. The same states, counts, events,
+        drift-monitor records and observer calls as those calls one by one, under the conditions this checks (one
+        IMU, screened samples, a navigating C core, nothing queued, observers whose fusion hooks ignore baro
+        samples, a drift monitor that does not exclude the baro). Returns the index of the next IMU sample and that of
+        the next baro sample to hand over (``k0``, ``ab[0]``: nothing ran, the caller goes on one call at a time).
+        When a state fails the core guard or an update's gate is not a plain acceptance, the call stops there: the
+        baro samples of that group not taken yet are the caller's (their IMU samples have run; after a core fault
+        in an update they are dropped with it, as :meth:`flush` drops them)."""
+        core = cast(Any, self.core)
+        mon = self._aid_mon
+        j0 = int(ab[0]) if len(ab) else 0
+        if not (len(end) and self._can_run() and hasattr(core, "run_baro") and not core.has_events()):
+            return k0, j0
+        if mon is not None:
+            c = self.counts
+            lost = c.get("imu_nonfinite", 0) + c.get("imu_epoch_incomplete", 0) + c.get("imu_time_backwards", 0)
+            if lost + self._imu_rejects + self._core_faults != self._aid_lost or (mon.cfg.exclude and mon.baro.faulted):
+                return k0, j0
+        for o in self.observers:  # each takes runs of states; its fusion hooks are none or pass baro samples by
+            oc = type(o)
+            none = oc.before_fuse is Observer.before_fuse and oc.segment is Observer.segment and (
+                oc.after_fuse is Observer.after_fuse)  # fmt: skip
+            if oc.epochs is Observer.epochs or not (none or "baro" not in getattr(o, "fuse_kinds", ("baro",))):
+                return k0, j0
+        iid = imu[k0].imu_id
+        if core.lost_before(imu[k0].t, imu[k0].dt) or not (
+            self._t_imu < imu[k0].t and self.validator.imu_screened(iid, imu[k0].t)
+        ):
+            return k0, j0
+        inc, t, dt = arrays
+        r = core.run_baro(inc, t, dt, k0, end, ab, bt, alt, (QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX))
+        states, g, u = r.states, r.groups, r.updates
+        k1 = int(end[g - 1])
+        # the runs whose states passed the guard end at kg (imu_run's _epochs_rows, in one piece)
+        kg = (int(end[g - 2]) if g > 1 else k0) if r.why == 1 else k1
+        resets = self._resets + getattr(core, "gnss_resets", 0)
+        if kg > k0:
+            self._epochs_rows(imu[k0:kg], states if kg == k1 else states.head(kg - k0), kg - k0, [], {}, resets)
+        if r.why == 1:  # the last group's run: a state failed the guard (its baro samples left to the caller)
+            run = imu[kg:k1]
+            self.imu_t = run[-1].t
+            part = states.tail(kg - k0)
+            bad = core.first_bad(part.rows, QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX)
+            self._epochs_rows(run, part, bad, [], {}, resets)
+        self.validator.imu_screened(iid, imu[k1 - 1].t)
+        self.imu_t = imu[k1 - 1].t
+        if u:
+            a0 = j0
+            if mon is not None:
+                for i in range(u):
+                    mon.check_baro(baro[a0 + i], r.t_pre[i], r.aligned[i])
+            self._gap_free = False
+            key = "fused_" + type(baro[a0]).__name__
+            self.counts[key] = self.counts.get(key, 0) + u
+            if r.why == 3:  # as _segment: the core fault, the group's later samples dropped with it (as flush)
+                rest = baro[a0 + u : int(ab[g])]
+                self._jobs.extend(self._fuse(m) for m in rest)
+                self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
+                self.flush()
+                return k1, int(ab[g])
+        return k1, j0 + u
+
     def _clock_restart(self, s: ImuSample) -> ImuSample | None:
         """A sample refused because its time did not increase: the IMU's clock may have restarted (a driver
         passed the restarted times through). The rule of :class:`ins_hil.drivers.clock.SourceClock`: the
