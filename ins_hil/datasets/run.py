@@ -462,10 +462,12 @@ def replay(
         # the C core: the IMU samples up to the next hand-over in one call of the pipeline (Pipeline.imu_run:
         # the same epochs, one C call for the run once the core navigates)
         ts = [s.t for s in imu]
+        arrays = imu_arrays if imu_arrays is not None and len(imu_arrays[1]) == n else None
         plan = None
         if screened and isinstance(imu, list) and (on_aid is None or (on_aid_kinds is not None
                                                                         and "baro" not in on_aid_kinds)):  # fmt: skip
-            plan = _BaroPlan(imu, aids, when, imu_arrays)
+            plan = _BaroPlan(imu, aids, when, arrays)
+            arrays = plan.arrays
         k = 0
         while k < n:
             if plan is not None and j < plan.na and plan.ok[j]:
@@ -489,7 +491,11 @@ def replay(
                         _take_events(pipe, events, source, t)
                     continue
             k_end = n if j >= na else min(n, max(k + 1, bisect.bisect_left(ts, when[j], k) + 1))
-            pipe.imu_run(list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end], screened)
+            pipe.imu_run(
+                list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end],
+                screened,
+                None if arrays is None else (arrays[0][k:k_end], arrays[1][k:k_end], arrays[2][k:k_end]),
+            )
             t = ts[k_end - 1]
             if j < na and when[j] <= t:
                 while j < na and when[j] <= t:

@@ -497,7 +497,8 @@ class Pipeline:
             self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
             return None
 
-    def imu_run(self, samples: list[ImuSample], screened: bool = False) -> None:
+    def imu_run(self, samples: list[ImuSample], screened: bool = False,
+                arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:  # fmt: skip
         """:meth:`imu` on each of ``samples`` in order, with nothing handed over in between (an offline replay's
         IMU samples up to the next aiding measurement). The same states, counts, events and observer calls; on
         the C core, once it navigates, the samples that pass the validation boundary go into the core in one
@@ -507,7 +508,9 @@ class Pipeline:
         ``screened``: the samples passed a validator with this pipeline's limits already (an offline replay's
         screen, ``ins_hil.datasets.run.screen``): once this pipeline's validator knows the IMU's period, a run of
         them in time order is taken without a second check (``SampleValidator.imu_screened``: each sample is
-        checked once); every other sample is checked here as without it."""
+        checked once); every other sample is checked here as without it. ``arrays``: the (n, 6) increments, times
+        and steps of ``samples`` as ``CNavCore.run_states`` takes them, when the caller has them (an offline replay:
+        slices of the whole log's, not built again here)."""
         k, n = 0, len(samples)
         vd = self.validator
         while k < n:
@@ -538,8 +541,11 @@ class Pipeline:
                 continue
             try:
                 run = samples[k:j]
+                off = k
                 while run:  # validated (the validator has seen them): the core may take them in parts
-                    run = run[self._epochs_c(run) :]
+                    m = self._epochs_c(run, None if arrays is None else tuple(a[off : off + len(run)] for a in arrays))
+                    run = run[m:]
+                    off += m
                     if run and not self._can_run():
                         self._epochs_validated(run)
                         break
@@ -558,7 +564,7 @@ class Pipeline:
                 and not self._fault_open and not self._step_pending and hasattr(core, "run_states")
                 and cast(Any, core).can_run())  # fmt: skip
 
-    def _epochs_c(self, run: list[ImuSample]) -> int:
+    def _epochs_c(self, run: list[ImuSample], arrays: tuple[np.ndarray, ...] | None = None) -> int:
         """The epochs of ``run`` (validated, in time order) through the C core in one call: each state checked
         by the core guard, published to the observers; at the first bad state the core fault as in
         :meth:`_epoch` and the rest of the run sample by sample. Returns the samples taken: all, or those up to
@@ -566,14 +572,17 @@ class Pipeline:
         are published while the core aligns, as one sample at a time)."""
         core = cast(Any, self.core)
         n = len(run)
-        inc = np.empty((n, 6))
-        t = np.empty(n)
-        dt = np.empty(n)
-        for i, s in enumerate(run):
-            inc[i, :3] = s.dtheta
-            inc[i, 3:] = s.dvel
-            t[i] = s.t
-            dt[i] = s.dt
+        if arrays is not None:  # (``run``'s, from the caller)
+            inc, t, dt = arrays
+        else:
+            inc = np.empty((n, 6))
+            t = np.empty(n)
+            dt = np.empty(n)
+            for i, s in enumerate(run):
+                inc[i, :3] = s.dtheta
+                inc[i, 3:] = s.dvel
+                t[i] = s.t
+                dt[i] = s.dt
         self.imu_t = run[-1].t
         pre = core.drain_events()  # what the core raised since the last epoch (an update's gate events)
         states = core.run_states(inc, t, dt)
