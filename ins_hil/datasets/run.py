@@ -568,7 +568,9 @@ class _BaroPlan:
         self.bt = np.array([m.t for m in aids], dtype=np.float64)
         self.alt = np.array([m.altitude if type(m) is BaroSample else math.nan for m in aids], dtype=np.float64)
         fin = np.isfinite(self.alt).tolist()
-        self.ok = [one_id and f and h < n for f, h in zip(fin, self.h, strict=True)]
+        # (valid by the end of the IMU sample it is handed over after: fused at once, never held)
+        tl, btl = t.tolist(), self.bt.tolist()
+        self.ok = [one_id and f and h < n and b <= tl[h] for f, h, b in zip(fin, self.h, btl, strict=True)]
 
     def stretch(self, k: int, j: int) -> tuple[Vec, Vec]:
         """From IMU sample ``k`` and aid ``j``: the groups of baro samples handed over after the same IMU sample,
