@@ -66,8 +66,9 @@ def test_baro_stretches_in_one_call_give_the_per_sample_run(prepared: run.Prepar
     _same(r1, r0)
 
 
-def test_rejected_baro_samples_stop_a_stretch_with_the_same_events(prepared: run.Prepared,
-                                                                   monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+def test_rejected_baro_samples_stop_a_stretch_with_the_same_events(
+    prepared: run.Prepared, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Baro outliers (+40 m on 3 samples in a row, 30 times): the gate's rejections and its JUMP events (first
     rejection, accepted again) as one sample at a time gives them."""
     aux = list(prepared.aux)
