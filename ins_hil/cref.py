@@ -814,6 +814,10 @@ class CNavCore:
         """The alignment phase ("level", "heading") or "nav" (NavCore's)."""
         return "nav" if self._align is None else str(self._align.phase)
 
+    def has_events(self) -> bool:
+        """Whether :meth:`drain_events` may have events to give (True while the Python alignment runs)."""
+        return self._align is not None or bool(self._events)
+
     def drain_events(self) -> list[FaultEvent]:
         """GNSS/baro fault events raised by the innovation gates since the last call."""
         if self._align is not None:
@@ -1127,6 +1131,56 @@ class CNavCore:
         self._lib_.cref_run(self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), n,
                             self._ffi.NULL, 0, 0)  # fmt: skip
 
+    def lost_before(self, t_end: float, dt: float) -> bool:
+        """Whether :meth:`run_states` would record IMU data lost before a next sample ending at ``t_end`` s, ``dt``
+        s long (its DROPOUT record)."""
+        return int(self._core.steps) > 0 and t_end - dt - float(self._core.mech.t) > 0.5 * dt
+
+    def run_baro(self, inc: Vec, t_end: Vec, dt: Vec, k0: int, end: Vec, ab: Vec, bt: Vec, alt: Vec,
+                 bounds: tuple[float, float, float, float]) -> BaroRun:  # fmt: skip
+        """:meth:`run_states` and :meth:`fuse` of baro altitudes alternately in ONE C call (``cref_run_baro``; an
+        offline replay's stretch of baro samples between two other measurements): group g is the IMU samples
+        ``[end[g - 1], end[g])`` of the whole log's ``inc`` (n, 6), ``t_end``, ``dt`` (n,) (C-contiguous float64;
+        ``end[-1]`` = ``k0``), then the baro updates ``[ab[g], ab[g + 1])`` at times ``bt`` (s) with altitudes
+        ``alt`` (m, finite) (``end``, ``ab`` int64). The samples must have no IMU data lost before them (the
+        caller's check: no DROPOUT record). ``bounds``: the core guard's (:meth:`first_bad`'s qnorm_tol, speed_max,
+        h_min, h_max). The call stops after a group whose states fail the guard (its updates not run), or after an
+        update whose gate is not a plain acceptance (its gate event raised here, as :meth:`fuse`) or whose state then
+        fails the guard (:class:`BaroRun` says which). The ratios and the gate counters as :meth:`fuse` leaves
+        them."""
+        ng = len(end)
+        if not (self.can_run() and self._align is None) or len(ab) != ng + 1 or inc.shape != (len(t_end), 6):
+            raise ValueError("CNavCore.run_baro: a navigating core with fixed_step=False, (n, 6) increments, "
+                             "len(ab) = len(end) + 1")  # fmt: skip
+        n_imu = int(end[-1]) - k0 if ng else 0
+        n_upd = int(ab[-1] - ab[0]) if ng else 0
+        out = np.empty((n_imu, 32))
+        pre = np.empty((n_upd, 2))
+        gate = np.empty((n_upd, 4))
+        ffi = self._ffi
+        fb = ffi.from_buffer
+        groups = ffi.new("size_t *")
+        why = ffi.new("int *")
+        q, v, h0, h1 = bounds
+        self._st = None
+        self._publish()
+        u = int(self._lib_.cref_run_baro(
+            self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), k0,
+            fb("int64_t[]", end), fb("int64_t[]", ab), ng, fb("double[]", bt), fb("double[]", alt), fb("double[]", out),
+            fb("double[]", pre), fb("double[]", gate), q, v * v, h0, h1, groups, why,
+        ))  # fmt: skip
+        g = int(groups[0])
+        rows = out[: (int(end[g - 1]) - k0) if g else 0]
+        self.run_out = rows
+        self.run_gap_rows = []
+        if u:
+            self._ratios = {**self._ratios, "baro": float(gate[u - 1, 0])}
+            if why[0] >= 2:  # the last update's gate (_gate_event decides whether it raises an event)
+                self._gate_event(float(bt[int(ab[0]) + u - 1]), "baro", gate[u - 1].tolist())
+        aligned = (pre[:u, 1] < self._aligned_std).tolist()
+        return BaroRun(RunStates(rows, self.cfg.alignment.aligned_yaw_std, self._ratios), g, u, int(why[0]),
+                       pre[:u, 0].tolist(), aligned)  # fmt: skip
+
     def covariance(self) -> Vec:
         """The EKF covariance P (15 × 15, order δr NED, δv NED, ψ NED, δb_g, δb_a; 21 × 21 with the scale factors
         δs_g, δs_a after them, as ``NavCore.kf.P``)."""
@@ -1139,6 +1193,22 @@ def _record(st: NavState) -> Vec:
     """The 32-value C state record (``cref_state``'s layout) of ``st``."""
     return np.concatenate(((st.t,), st.q_nb, st.vel_ned, (st.lat, st.lon, st.h), st.gyro_bias, st.accel_bias,
                            st.std_pos, st.std_vel, st.std_att, st.omega_b, st.accel_b))  # fmt: skip
+
+
+@dataclasses.dataclass
+class BaroRun:
+    """What :meth:`CNavCore.run_baro` ran: the IMU states of its groups (``states``: those of the first ``groups``
+    groups), the baro updates run (``updates``, from the first), why it stopped (``why``: 0 all ran, 1 a state of
+    the last group's run failed the core guard, its updates not run, 2 the last update's gate was not a plain
+    acceptance, 3 the state after the last update failed the core guard) and per update the time (s) of the state
+    it was fused into (``t_pre``) and whether that state was aligned (``aligned``: ``NavState.aligned``)."""
+
+    states: RunStates
+    groups: int
+    updates: int
+    why: int
+    t_pre: list[float]
+    aligned: list[bool]
 
 
 class RunStates(Sequence[NavState]):
@@ -1163,6 +1233,10 @@ class RunStates(Sequence[NavState]):
     def head(self, n: int) -> RunStates:
         """The first ``n`` states."""
         return RunStates(self.rows[:n], self._thr, self._ratios, self.resets)
+
+    def tail(self, k: int) -> RunStates:
+        """The states from the ``k``-th on."""
+        return RunStates(self.rows[k:], self._thr, self._ratios, self.resets)
 
     @overload
     def __getitem__(self, i: int) -> NavState: ...

@@ -328,3 +328,46 @@ int cref_gfuse_gnss_split(ins_core_t *c, ins_hist_t *hs, double t, double vel_de
     for (i = 4; i < 8; ++i) o[i] = ov[i];
     return r;
 }
+/* An offline replay's IMU runs and baro updates alternately, in one call (CNavCore.run_baro). Group g < ng: the IMU
+ * samples [end[g - 1], end[g]) (end[-1] = k0; inc, t_end, dts indexed as cref_run's from 0) stepped as cref_run with
+ * pub != 0 (c->pub must be set), their records written to out (32 values each, from out[0] for sample k0), then the
+ * baro updates [ab[g], ab[g + 1]) (times bt, altitudes alt) through the roll-back history hs as cref_gfuse_baro, each
+ * gate into gate (4 per update) and, before it, the time and the yaw sigma of the state it is fused into into pre
+ * (2 per update: cref_state's values 0 and 25). The guard is cref_guard's with the bounds given. The call stops after
+ * the first group whose run gives a record that fails the guard (its updates not run: *why = 1), or after the first
+ * update whose gate is not a plain acceptance (rejected, or accepted after rejections: *why = 2) or whose state then
+ * fails the guard (*why = 3); else *why = 0. Returns the updates run; *groups: the groups whose run ran. */
+size_t cref_run_baro(ins_core_t *c, ins_hist_t *hs, const double *inc, const double *t_end, const double *dts,
+                     size_t k0, const int64_t *end, const int64_t *ab, size_t ng, const double *bt, const double *alt,
+                     double *out, double *pre, double *gate, double qtol, double vmax2, double hmin, double hmax,
+                     size_t *groups, int *why) {
+    size_t g, k = k0, u = 0, a0;
+    double rec[32];
+    *why = 0;
+    for (g = 0; g < ng; ++g) {
+        size_t k1 = (size_t)end[g], a1 = (size_t)ab[g + 1];
+        cref_run(c, hs, inc + 6 * k, t_end + k, dts + k, k1 - k, out + 32 * (k - k0), 32, 1);
+        if (cref_guard(out + 32 * (k - k0), k1 - k, 32, qtol, vmax2, hmin, hmax) != k1 - k) {
+            *groups = g + 1;
+            *why = 1;
+            return u;
+        }
+        k = k1;
+        for (a0 = (size_t)ab[g]; a0 < a1; ++a0, ++u) {
+            double *o = gate + 4 * u;
+            put(c, rec, 32);
+            pre[2 * u] = rec[0];
+            pre[2 * u + 1] = rec[25];
+            cref_gfuse_baro(c, hs, bt[a0], alt[a0], o);
+            if (o[1] != 0.0 || o[2] != 0.0) *why = 2;
+            put(c, rec, 32);
+            if (cref_guard(rec, 1, 32, qtol, vmax2, hmin, hmax) != 1) *why = 3;
+            if (*why) {
+                *groups = g + 1;
+                return u + 1;
+            }
+        }
+    }
+    *groups = ng;
+    return u;
+}

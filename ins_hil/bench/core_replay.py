@@ -266,15 +266,17 @@ def cli_md(rows: list[dict[str, Any]]) -> str:
                 if walled
                 else ""
             )
-            + " Where the `--core c` process spends its CPU (process-time probes round the phases, 2026-12-07 09:40 "
-            "UTC, load average ~3.6 on 2 CPUs, before the last trims): drive0708 2.07 s = start-up 0.02, imports 0.13,"
-            " reading 0.22, preparing 0.05, the GNSS-present and the outage protocol's replays 1.62, the rest 0.03;"
-            " px4_quad 1.92 s = 0.02, 0.16, 0.17, 0.05, 1.48, 0.04. After the last trims (a screened replay's samples"
-            " checked once, the core guard in C) the two replays take 0.86 s (drive0708) and 0.88 s (px4_quad),"
-            " in-process, load ~1.7. What is left in them is per-measurement Python: the drift monitor's check (~47 µs"
-            " a fix), the observers' scoring of each fix, and on px4_quad one C call with its bookkeeping per baro"
-            " sample (10,400 of them, ~2.6 IMU samples between two measurements). ≥ 20× on these logs needs that"
-            " protocol batched into the C call, not trimmed.",
+            + " Where the `--core c` process spends its CPU (process-time probes round the phases, in-process, after"
+            " the interpreter's start-up, 2026-12-07 11:56 UTC, load average ~1.3 on 2 CPUs; the probes add ~0.1 s):"
+            " drive0708 1.50 s = imports 0.10, reading 0.22, preparing 0.05, the two replays 0.98 (the C calls 0.30,"
+            " the drift monitor's check of 3,734 fixes 0.21, the GNSS fixes' scoring 0.20, the rest the pipeline's"
+            " protocol per fix), the results 0.05; px4_quad 0.96 s = 0.10, 0.16, 0.06, 0.53 (the C calls 0.11,"
+            " the fixes' scoring 0.08), 0.05. On the C core a stretch of baro samples and the IMU samples between"
+            " them runs in one C call (`Pipeline.baro_runs`, `cref_run_baro`: px4_quad's 9,090 baro samples in"
+            " ~1,150 calls). What is left is the GNSS fixes' protocol: the drift monitor needs the state before each"
+            " fix and decides whether it is fused. Without any Python per fix the process would still spend about"
+            " 0.7 s (drive0708: ~24× at most) and 0.5 s (px4_quad: ~18× at most, under 20× until the reading and"
+            " preparing get faster too).",
         ]
     out.append("")
     return "\n".join(out)

@@ -160,6 +160,13 @@ class Prepared:
     # what every replay of these streams computes alike (the outage protocol's run after the GNSS-present one)
     _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
+    def imu_arrays(self) -> tuple[Vec, Vec, Vec]:
+        """:func:`imu_arrays` of ``imu``, built once (read only)."""
+        a = self._cache.get("imu_arrays")
+        if a is None:
+            a = self._cache["imu_arrays"] = imu_arrays(self.imu)
+        return cast(tuple[Vec, Vec, Vec], a)
+
     def rate_bins(self) -> Vec:
         """:func:`rate_bins` of ``imu``, computed once."""
         rb = self._cache.get("rate_bins")
@@ -417,6 +424,8 @@ def replay(
     setup: Callable[[Pipeline], None] | None = None,
     live_schedule: bool = False,
     screened: bool = False,
+    on_aid_kinds: frozenset[str] | None = None,
+    imu_arrays: tuple[Vec, Vec, Vec] | None = None,
 ) -> tuple[Pipeline, list[FaultEvent]]:
     """The one offline loop: ``imu`` and ``aids`` (sorted by their hand-over time) through the gateway's
     :class:`~ins_hil.runtime.pipeline.Pipeline` (validation, drift monitor, delayed fusion in segments) with
@@ -433,6 +442,11 @@ def replay(
     ``screened``: ``imu`` and ``aids`` passed :func:`screen` with the pipeline's limits (a :class:`Prepared`'s):
     the pipeline does not check those samples a second time (``Pipeline.aid``; on the C core ``Pipeline.imu_run``).
 
+    On the C core, a stretch of baro samples with nothing else between them runs in one C call with the IMU
+    samples between them (``Pipeline.baro_runs``: the same figures) when ``imu`` and ``aids`` are screened and
+    ``on_aid`` leaves baro samples alone (``on_aid_kinds``: the kinds it changes; None: any); ``imu_arrays``: the
+    (n, 6) increments, times and steps of ``imu`` (:func:`imu_arrays`) when the caller has them.
+
     ``setup`` is called with the pipeline before the first sample. Returns the pipeline (after its ``flush``)
     and every fault event it raised. ReplayError (one line: the recording and the time) when the core fails
     (an exception inside it, or a non-finite or implausible state): a replay gives no figures from a core
@@ -448,10 +462,40 @@ def replay(
         # the C core: the IMU samples up to the next hand-over in one call of the pipeline (Pipeline.imu_run:
         # the same epochs, one C call for the run once the core navigates)
         ts = [s.t for s in imu]
+        arrays = imu_arrays if imu_arrays is not None and len(imu_arrays[1]) == n else None
+        plan = None
+        if screened and isinstance(imu, list) and (on_aid is None or (on_aid_kinds is not None
+                                                                        and "baro" not in on_aid_kinds)):  # fmt: skip
+            plan = _BaroPlan(imu, aids, when, arrays)
+            arrays = plan.arrays
         k = 0
         while k < n:
+            if plan is not None and j < plan.na and plan.ok[j]:
+                # a stretch of baro samples (and the IMU samples up to each) in one C call
+                end, ab = plan.stretch(k, j)
+                k_end, j_end = pipe.baro_runs(cast(list[ImuSample], imu), plan.arrays, k, end, ab, aids, plan.bt,
+                                              plan.alt)  # fmt: skip
+                if k_end > k:
+                    if progress is not None and (k_end - 1) // 2000 > (k - 1) // 2000:
+                        progress(k_end, n)
+                    k, j = k_end, j_end
+                    t = ts[k - 1]
+                    if j < na and when[j] <= t:  # the rest of the last group, as below
+                        while j < na and when[j] <= t:
+                            m = aids[j]
+                            j += 1
+                            a = m if on_aid is None else on_aid(pipe, m)
+                            pipe.aid(a, a is m)
+                        pipe.flush()
+                    if pipe.events:
+                        _take_events(pipe, events, source, t)
+                    continue
             k_end = n if j >= na else min(n, max(k + 1, bisect.bisect_left(ts, when[j], k) + 1))
-            pipe.imu_run(list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end], screened)
+            pipe.imu_run(
+                list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end],
+                screened,
+                None if arrays is None else (arrays[0][k:k_end], arrays[1][k:k_end], arrays[2][k:k_end]),
+            )
             t = ts[k_end - 1]
             if j < na and when[j] <= t:
                 while j < na and when[j] <= t:
@@ -488,6 +532,67 @@ def replay(
     if pipe.events:
         _take_events(pipe, events, source, t)
     return pipe, events
+
+
+def imu_arrays(imu: Sequence[ImuSample]) -> tuple[Vec, Vec, Vec]:
+    """The (n, 6) increments (dθ rad, dv m/s), the (n,) times and the (n,) steps (s) of ``imu``, C-contiguous
+    float64: the C core's run arrays (``CNavCore.run_states``)."""
+    n = len(imu)
+    if not n:
+        return np.zeros((0, 6)), np.zeros(0), np.zeros(0)
+    inc = np.empty((n, 6))
+    inc[:, :3] = np.array([s.dtheta for s in imu], dtype=np.float64)
+    inc[:, 3:] = np.array([s.dvel for s in imu], dtype=np.float64)
+    t = np.fromiter((s.t for s in imu), np.float64, n)
+    dt = np.fromiter((s.dt for s in imu), np.float64, n)
+    return inc, t, dt
+
+
+class _BaroPlan:
+    """Where :func:`replay` may hand a stretch of baro samples and the IMU samples up to each to the C core in one
+    call (``Pipeline.baro_runs``): per aid whether it is a baro sample with a finite altitude handed over after an
+    IMU sample of the log (``ok``) and that sample's index (``h``); the IMU samples with data lost before them
+    (``CNavCore.run_states``' record: a stretch does not hold one)."""
+
+    def __init__(self, imu: list[ImuSample], aids: Sequence[Any], when: Sequence[float],
+                 arrays: tuple[Vec, Vec, Vec] | None) -> None:  # fmt: skip
+        self.arrays = arrays if arrays is not None else imu_arrays(imu)
+        _, t, dt = self.arrays
+        n = self.n = len(t)
+        self.na = len(aids)
+        lost = np.zeros(n + 1, dtype=np.int64)
+        lost[2:] = np.cumsum((t[1:] - dt[1:] - t[:-1]) > 0.5 * dt[1:])
+        self.lost = lost.tolist()  # lost[k]: samples before index k with data lost before them
+        self.h = np.searchsorted(t, np.asarray(when, dtype=np.float64), "left").tolist()
+        one_id = len({s.imu_id for s in imu}) == 1
+        self.bt = np.array([m.t for m in aids], dtype=np.float64)
+        self.alt = np.array([m.altitude if type(m) is BaroSample else math.nan for m in aids], dtype=np.float64)
+        fin = np.isfinite(self.alt).tolist()
+        # (valid by the end of the IMU sample it is handed over after: fused at once, never held)
+        tl, btl = t.tolist(), self.bt.tolist()
+        self.ok = [one_id and f and h < n and b <= tl[h] for f, h, b in zip(fin, self.h, btl, strict=True)]
+
+    def stretch(self, k: int, j: int) -> tuple[Vec, Vec]:
+        """From IMU sample ``k`` and aid ``j``: the groups of baro samples handed over after the same IMU sample,
+        as ``Pipeline.baro_runs`` takes them (each group's IMU end, exclusive; the aid bounds), up to the first
+        aid that is not one or the first group whose IMU samples hold a loss of data."""
+        ok, h, lost, na = self.ok, self.h, self.lost, self.na
+        ends: list[int] = []
+        ab = [j]
+        prev = k
+        while j < na and ok[j]:
+            hj = h[j]
+            if hj < prev or lost[hj + 1] != lost[prev]:
+                break
+            j += 1
+            while j < na and ok[j] and h[j] == hj:
+                j += 1
+            ends.append(hj + 1)
+            ab.append(j)
+            prev = hj + 1
+            if j < na and h[j] == hj:  # the group goes on with another kind: the caller hands it over
+                break
+        return np.array(ends, dtype=np.int64), np.array(ab, dtype=np.int64)
 
 
 def _take_events(pipe: Pipeline, into: list[FaultEvent], source: str, t: float) -> None:
@@ -612,6 +717,9 @@ class GnssScore(Observer):
     state before its update to the state after it, summed over the spans its update ran in without an IMU epoch
     between (so the figure does not depend on how a core cuts an update into segments: the Python core's position
     and velocity parts, its roll-back's pauses, the C core's one piece)."""
+
+    #: the aiding kinds its fusion hooks look at (``Pipeline.baro_runs``: the others pass it by)
+    fuse_kinds = frozenset({"gnss"})
 
     def __init__(self, lever: Vec, origin: tuple[float, float, float], withheld: Sequence[GnssFix] = ()) -> None:
         self.lever = np.asarray(lever, dtype=np.float64)
@@ -776,7 +884,9 @@ def _run_dataset(p: Prepared, outages: Sequence[tuple[float, float]], label: str
     t_start = time.perf_counter()
     pipe, events = replay(p.imu, aids, p.nav, [track, score, *observers], on_aid=heading if p.mag_heading_only
                           else None, pipeline=offline_config(aiding_fdi, core_kind), progress=progress,
-                          source=p.source or label or "replay", setup=setup, screened=True)  # fmt: skip
+                          source=p.source or label or "replay", setup=setup, screened=True,
+                          on_aid_kinds=frozenset({"mag"}),
+                          imu_arrays=p.imu_arrays() if core_kind == "c" else None)  # fmt: skip
     core: Any = pipe.core
     tr = track.arrays()
     rows = score.sorted_rows()

@@ -344,10 +344,22 @@ class AidingMonitor:
             self._gnss(meas, state)
             return self.cfg.exclude and self.gnss.faulted
         if meas.kind == "baro":
-            if math.isfinite(meas.altitude):
-                self._baro_last = meas
-            return self.cfg.exclude and self.baro.faulted
+            return self._baro_seen(meas)
         return False
+
+    def check_baro(self, meas: BaroSample, t: float, aligned: bool, resets: int = 0) -> bool:
+        """:meth:`check` of a baro sample against a state given by its time ``t`` (s), ``aligned`` and ``resets``
+        (``NavState``'s) instead of the state itself (a baro sample is only kept for the next GNSS fix's test)."""
+        if not aligned:
+            return False
+        if math.isnan(self._t_nav) or resets != self._resets:
+            self._t_nav, self._resets = t, resets
+        return self._baro_seen(meas)
+
+    def _baro_seen(self, meas: BaroSample) -> bool:
+        if math.isfinite(meas.altitude):
+            self._baro_last = meas
+        return self.cfg.exclude and self.baro.faulted
 
     def ins_disturbed(self, t: float, why: str = "re-admitted: the INS lost IMU samples") -> None:
         """The INS missed IMU samples at about ``t`` (s) (e.g. lost frames, no FDI output): for

@@ -497,7 +497,8 @@ class Pipeline:
             self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
             return None
 
-    def imu_run(self, samples: list[ImuSample], screened: bool = False) -> None:
+    def imu_run(self, samples: list[ImuSample], screened: bool = False,
+                arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:  # fmt: skip
         """:meth:`imu` on each of ``samples`` in order, with nothing handed over in between (an offline replay's
         IMU samples up to the next aiding measurement). The same states, counts, events and observer calls; on
         the C core, once it navigates, the samples that pass the validation boundary go into the core in one
@@ -507,7 +508,9 @@ class Pipeline:
         ``screened``: the samples passed a validator with this pipeline's limits already (an offline replay's
         screen, ``ins_hil.datasets.run.screen``): once this pipeline's validator knows the IMU's period, a run of
         them in time order is taken without a second check (``SampleValidator.imu_screened``: each sample is
-        checked once); every other sample is checked here as without it."""
+        checked once); every other sample is checked here as without it. ``arrays``: the (n, 6) increments, times
+        and steps of ``samples`` as ``CNavCore.run_states`` takes them, when the caller has them (an offline replay:
+        slices of the whole log's, not built again here)."""
         k, n = 0, len(samples)
         vd = self.validator
         while k < n:
@@ -538,8 +541,11 @@ class Pipeline:
                 continue
             try:
                 run = samples[k:j]
+                off = k
                 while run:  # validated (the validator has seen them): the core may take them in parts
-                    run = run[self._epochs_c(run) :]
+                    m = self._epochs_c(run, None if arrays is None else tuple(a[off : off + len(run)] for a in arrays))
+                    run = run[m:]
+                    off += m
                     if run and not self._can_run():
                         self._epochs_validated(run)
                         break
@@ -558,7 +564,7 @@ class Pipeline:
                 and not self._fault_open and not self._step_pending and hasattr(core, "run_states")
                 and cast(Any, core).can_run())  # fmt: skip
 
-    def _epochs_c(self, run: list[ImuSample]) -> int:
+    def _epochs_c(self, run: list[ImuSample], arrays: tuple[np.ndarray, ...] | None = None) -> int:
         """The epochs of ``run`` (validated, in time order) through the C core in one call: each state checked
         by the core guard, published to the observers; at the first bad state the core fault as in
         :meth:`_epoch` and the rest of the run sample by sample. Returns the samples taken: all, or those up to
@@ -566,14 +572,17 @@ class Pipeline:
         are published while the core aligns, as one sample at a time)."""
         core = cast(Any, self.core)
         n = len(run)
-        inc = np.empty((n, 6))
-        t = np.empty(n)
-        dt = np.empty(n)
-        for i, s in enumerate(run):
-            inc[i, :3] = s.dtheta
-            inc[i, 3:] = s.dvel
-            t[i] = s.t
-            dt[i] = s.dt
+        if arrays is not None:  # (``run``'s, from the caller)
+            inc, t, dt = arrays
+        else:
+            inc = np.empty((n, 6))
+            t = np.empty(n)
+            dt = np.empty(n)
+            for i, s in enumerate(run):
+                inc[i, :3] = s.dtheta
+                inc[i, 3:] = s.dvel
+                t[i] = s.t
+                dt[i] = s.dt
         self.imu_t = run[-1].t
         pre = core.drain_events()  # what the core raised since the last epoch (an update's gate events)
         states = core.run_states(inc, t, dt)
@@ -661,6 +670,75 @@ class Pipeline:
             except Exception as e:
                 self._count("pipeline_error")
                 self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+
+    def baro_runs(self, imu: list[ImuSample], arrays: tuple[np.ndarray, np.ndarray, np.ndarray], k0: int,
+                  end: np.ndarray, ab: np.ndarray, baro: Sequence[Any], bt: np.ndarray,
+                  alt: np.ndarray) -> tuple[int, int]:  # fmt: skip
+        """An offline replay's :meth:`imu_run` (``screened``) and :meth:`aid` + :meth:`flush` of baro samples
+        alternately on the C core in one C call (``CNavCore.run_baro``): group g is the IMU samples
+        ``imu[end[g - 1]:end[g]]`` (``end[-1]`` = ``k0``; ``arrays``: the whole log's (n, 6) increments, times and
+        steps, as ``CNavCore.run_states`` takes them), then the baro samples ``baro[ab[g]:ab[g + 1]]`` (times ``bt``,
+        finite altitudes ``alt``), none with IMU data lost before its samples. The same states, counts, events,
+        drift-monitor records and observer calls as those calls one by one, under the conditions this checks (one
+        IMU, screened samples, a navigating C core, nothing queued, observers whose fusion hooks ignore baro
+        samples, a drift monitor that does not exclude the baro). Returns the index of the next IMU sample and that of
+        the next baro sample to hand over (``k0``, ``ab[0]``: nothing ran, the caller goes on one call at a time).
+        When a state fails the core guard or an update's gate is not a plain acceptance, the call stops there: the
+        baro samples of that group not taken yet are the caller's (their IMU samples have run; after a core fault
+        in an update they are dropped with it, as :meth:`flush` drops them)."""
+        core = cast(Any, self.core)
+        mon = self._aid_mon
+        j0 = int(ab[0]) if len(ab) else 0
+        if not (len(end) and self._can_run() and hasattr(core, "run_baro") and not core.has_events()):
+            return k0, j0
+        if mon is not None:
+            c = self.counts
+            lost = c.get("imu_nonfinite", 0) + c.get("imu_epoch_incomplete", 0) + c.get("imu_time_backwards", 0)
+            if lost + self._imu_rejects + self._core_faults != self._aid_lost or (mon.cfg.exclude and mon.baro.faulted):
+                return k0, j0
+        for o in self.observers:  # each takes runs of states; its fusion hooks are none or pass baro samples by
+            oc = type(o)
+            none = oc.before_fuse is Observer.before_fuse and oc.segment is Observer.segment and (
+                oc.after_fuse is Observer.after_fuse)  # fmt: skip
+            if oc.epochs is Observer.epochs or not (none or "baro" not in getattr(o, "fuse_kinds", ("baro",))):
+                return k0, j0
+        iid = imu[k0].imu_id
+        if core.lost_before(imu[k0].t, imu[k0].dt) or not (
+            self._t_imu < imu[k0].t and self.validator.imu_screened(iid, imu[k0].t)
+        ):
+            return k0, j0
+        inc, t, dt = arrays
+        r = core.run_baro(inc, t, dt, k0, end, ab, bt, alt, (QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX))
+        states, g, u = r.states, r.groups, r.updates
+        k1 = int(end[g - 1])
+        # the runs whose states passed the guard end at kg (imu_run's _epochs_rows, in one piece)
+        kg = (int(end[g - 2]) if g > 1 else k0) if r.why == 1 else k1
+        resets = self._resets + getattr(core, "gnss_resets", 0)
+        if kg > k0:
+            self._epochs_rows(imu[k0:kg], states if kg == k1 else states.head(kg - k0), kg - k0, [], {}, resets)
+        if r.why == 1:  # the last group's run: a state failed the guard (its baro samples left to the caller)
+            run = imu[kg:k1]
+            self.imu_t = run[-1].t
+            part = states.tail(kg - k0)
+            bad = core.first_bad(part.rows, QNORM_TOL, STATE_SPEED_MAX, STATE_H_MIN, STATE_H_MAX)
+            self._epochs_rows(run, part, bad, [], {}, resets)
+        self.validator.imu_screened(iid, imu[k1 - 1].t)
+        self.imu_t = imu[k1 - 1].t
+        if u:
+            a0 = j0
+            if mon is not None:
+                for i in range(u):
+                    mon.check_baro(baro[a0 + i], r.t_pre[i], r.aligned[i])
+            self._gap_free = False
+            key = "fused_" + type(baro[a0]).__name__
+            self.counts[key] = self.counts.get(key, 0) + u
+            if r.why == 3:  # as _segment: the core fault, the group's later samples dropped with it (as flush)
+                rest = baro[a0 + u : int(ab[g])]
+                self._jobs.extend(self._fuse(m) for m in rest)
+                self._core_fault(self._t_imu, "aiding update: non-finite or implausible state", "state")
+                self.flush()
+                return k1, int(ab[g])
+        return k1, j0 + u
 
     def _clock_restart(self, s: ImuSample) -> ImuSample | None:
         """A sample refused because its time did not increase: the IMU's clock may have restarted (a driver
