@@ -185,6 +185,7 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->ema_f[0] = e->ema_f[1] = K(0.0);
     e->ema_f[2] = K(-9.80665);
     e->replaying = 0;
+    e->gate_only = 0;
     e->have_mag = cfg->have_mag;
     e->mag_std = cfg->mag_std;
     e->gate[INS_GRP_MAG] = cfg->mag_gate;
