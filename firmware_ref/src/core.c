@@ -518,7 +518,7 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
     uint32_t ti = 0;
     int r, late;
     if (hist_target(h, c, tm, &ti, &late)) {
-        uint32_t cur = c->steps, ts, k, j;
+        uint32_t cur = c->steps, ts, k, j, n, ord[INS_HIST_MEAS];
         /* counters and the last test ratios are the live ones (not part of NavCore's snapshot) */
         uint32_t acc[INS_NGRP], rej[INS_NGRP], con[INS_NGRP];
         ins_real lr[INS_NGRP];
@@ -551,11 +551,17 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
         h->snap[snap_idx(h, ti)].ekf.replaying = 0;
         /* replay in the order things happened: the measurements fused at state k (in their order),
          * then the IMU sample that takes state k to k + 1 */
-        for (k = ts; k <= cur; ++k) {
-            for (j = 0; j < h->meas_n; ++j) {
-                const ins_hmeas_t *e = &h->meas[(h->meas_first + j) % INS_HIST_MEAS];
-                if (e->step == k) fuse_now(c, e, 0);
+        for (j = 0, n = 0; j < h->meas_n; ++j) { /* the logged measurements from step ts on, by step, in their order */
+            uint32_t q = (h->meas_first + j) % INS_HIST_MEAS, i = n++;
+            if (h->meas[q].step < ts) {
+                n--;
+                continue;
             }
+            for (; i > 0 && h->meas[ord[i - 1]].step > h->meas[q].step; --i) ord[i] = ord[i - 1];
+            ord[i] = q;
+        }
+        for (k = ts, j = 0; k <= cur; ++k) {
+            for (; j < n && h->meas[ord[j]].step == k; ++j) fuse_now(c, &h->meas[ord[j]], 0);
             if (k < cur) {
                 const uint32_t q = k % INS_HIST_N;
                 if (h->imu[q][6] > K(0.0)) ins_core_step_dt(c, h->imu[q], h->imu[q] + 3, h->imu_t[q], h->imu[q][6]);
