@@ -108,14 +108,16 @@ static int apply_rows(ins_core_t *c, int grp, int n, ins_real h[][INS_NX], const
     ins_ekf_t *e = &c->ekf;
     ins_real ratio = K(0.0);
     const ins_real g2 = e->gate[grp] * e->gate[grp];
-    int i, j, k, force;
+    int i, j, k, m, force;
+    unsigned char nz[INS_NX];
     for (i = 0; i < n; ++i) {
         ins_real s = K(0.0), q;
-        for (j = 0; j < INS_NX; ++j) {
+        for (k = 0, m = 0; k < INS_NX; ++k) /* the row's non-zero entries (the zero terms add an exact +-0) */
+            if (h[i][k] != K(0.0)) nz[m++] = (unsigned char)k;
+        for (j = 0; j < m; ++j) {
             ins_real acc = K(0.0);
-            if (h[i][j] == K(0.0)) continue;
-            for (k = 0; k < INS_NX; ++k) acc += e->P[j][k] * h[i][k];
-            s += h[i][j] * acc;
+            for (k = 0; k < m; ++k) acc += e->P[nz[j]][nz[k]] * h[i][nz[k]];
+            s += h[i][nz[j]] * acc;
         }
         s += r[i];
         q = z[i] * z[i] / (g2 * s);
