@@ -108,14 +108,16 @@ static int apply_rows(ins_core_t *c, int grp, int n, ins_real h[][INS_NX], const
     ins_ekf_t *e = &c->ekf;
     ins_real ratio = K(0.0);
     const ins_real g2 = e->gate[grp] * e->gate[grp];
-    int i, j, k, force;
+    int i, j, k, m, force;
+    unsigned char nz[INS_NX];
     for (i = 0; i < n; ++i) {
         ins_real s = K(0.0), q;
-        for (j = 0; j < INS_NX; ++j) {
+        for (k = 0, m = 0; k < INS_NX; ++k) /* the row's non-zero entries (the zero terms add an exact +-0) */
+            if (h[i][k] != K(0.0)) nz[m++] = (unsigned char)k;
+        for (j = 0; j < m; ++j) {
             ins_real acc = K(0.0);
-            if (h[i][j] == K(0.0)) continue;
-            for (k = 0; k < INS_NX; ++k) acc += e->P[j][k] * h[i][k];
-            s += h[i][j] * acc;
+            for (k = 0; k < m; ++k) acc += e->P[nz[j]][nz[k]] * h[i][nz[k]];
+            s += h[i][nz[j]] * acc;
         }
         s += r[i];
         q = z[i] * z[i] / (g2 * s);
@@ -134,6 +136,7 @@ static int apply_rows(ins_core_t *c, int grp, int n, ins_real h[][INS_NX], const
         e->accepted[grp]++;
         e->consecutive[grp] = 0;
     }
+    if (e->gate_only) return 1; /* the update is a roll-back replay's (ins_hist_fuse_gnss_before) */
     for (i = 0; i < n; ++i) ins_ekf_update_scalar(e, h[i], z[i], r[i]);
     ins_ekf_symmetrize(e);
     ins_ekf_feedback(e, &c->mech);
@@ -494,74 +497,87 @@ static int fuse_now(ins_core_t *c, const ins_hmeas_t *m, int assume_now) {
     return ins_core_fuse_baro(c, m->t, m->alt);
 }
 
+/* A measurement valid at tm rolls the history back (1; *ti: the snapshot it is fused at), or is fused now (0; *late:
+ * it is older than the history, NavCore fuses it now) */
+static int hist_target(const ins_hist_t *h, const ins_core_t *c, double tm, uint32_t *ti, int *late) {
+    const double dt = (double)c->mech.dt;
+    uint32_t i;
+    *late = 0;
+    if (!(tm < c->mech.t - 0.5 * dt && h->max_delay > 0.0)) return 0;
+    *late = 1;
+    for (i = h->snap_n; i-- > 0;)
+        if (h->snap_t[snap_idx(h, i)] <= tm + 0.5 * dt) {
+            *ti = i;
+            return c->steps - h->snap_step[snap_idx(h, i)] < INS_HIST_N;
+        }
+    return 0;
+}
+
 /* NavCore._fuse_one + DelayedHistory.fuse_delayed_steps (in one piece) */
 static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
     const double dt = (double)c->mech.dt, t_now = c->mech.t;
     const double tm = m->t;
-    int r;
-    if (tm < t_now - 0.5 * dt && h->max_delay > 0.0) {
-        uint32_t i, found = 0, ti = 0, cur = c->steps, ts, k, j;
-        for (i = h->snap_n; i-- > 0;) {
-            const uint32_t q = snap_idx(h, i);
-            if (h->snap_t[q] <= tm + 0.5 * dt) {
-                found = 1;
-                ti = i;
-                break;
+    uint32_t ti = 0;
+    int r, late;
+    if (hist_target(h, c, tm, &ti, &late)) {
+        uint32_t cur = c->steps, ts, k, j, n, ord[INS_HIST_MEAS];
+        /* counters and the last test ratios are the live ones (not part of NavCore's snapshot) */
+        uint32_t acc[INS_NGRP], rej[INS_NGRP], con[INS_NGRP];
+        ins_real lr[INS_NGRP];
+        double hp[3], tg = c->ekf.t_hold_gnss, th = c->ekf.t_hold;
+        const int hh = c->ekf.have_hold_pos;
+        for (k = 0; k < 3; ++k) hp[k] = c->ekf.hold_pos[k];
+        for (k = 0; k < INS_NGRP; ++k) {
+            acc[k] = c->ekf.accepted[k];
+            rej[k] = c->ekf.rejected[k];
+            con[k] = c->ekf.consecutive[k];
+            lr[k] = c->ekf.last_ratio[k];
+        }
+        ts = h->snap_step[snap_idx(h, ti)];
+        core_copy(c, &h->snap[snap_idx(h, ti)]);
+        for (k = 0; k < INS_NGRP; ++k) {
+            c->ekf.accepted[k] = acc[k];
+            c->ekf.rejected[k] = rej[k];
+            c->ekf.consecutive[k] = con[k];
+            c->ekf.last_ratio[k] = lr[k];
+        }
+        for (k = 0; k < 3; ++k) c->ekf.hold_pos[k] = hp[k]; /* the hold's state is live (NoAidHold) */
+        c->ekf.t_hold_gnss = tg;
+        c->ekf.t_hold = th;
+        c->ekf.have_hold_pos = hh;
+        c->ekf.replaying = 0;
+        r = fuse_now(c, m, 0); /* counted and gated like any measurement */
+        c->ekf.replaying = 1;
+        h->snap_n = ti + 1; /* the snapshots after the target are replayed; the target's is this state */
+        core_copy(&h->snap[snap_idx(h, ti)], c);
+        h->snap[snap_idx(h, ti)].ekf.replaying = 0;
+        /* replay in the order things happened: the measurements fused at state k (in their order),
+         * then the IMU sample that takes state k to k + 1 */
+        for (j = 0, n = 0; j < h->meas_n; ++j) { /* the logged measurements from step ts on, by step, in their order */
+            uint32_t q = (h->meas_first + j) % INS_HIST_MEAS, i = n++;
+            if (h->meas[q].step < ts) {
+                n--;
+                continue;
+            }
+            for (; i > 0 && h->meas[ord[i - 1]].step > h->meas[q].step; --i) ord[i] = ord[i - 1];
+            ord[i] = q;
+        }
+        for (k = ts, j = 0; k <= cur; ++k) {
+            for (; j < n && h->meas[ord[j]].step == k; ++j) fuse_now(c, &h->meas[ord[j]], 0);
+            if (k < cur) {
+                const uint32_t q = k % INS_HIST_N;
+                if (h->imu[q][6] > K(0.0)) ins_core_step_dt(c, h->imu[q], h->imu[q] + 3, h->imu_t[q], h->imu[q][6]);
+                else ins_core_step(c, h->imu[q], h->imu[q] + 3, h->imu_t[q]);
+                push_snap(h, c);
             }
         }
-        if (found && cur - h->snap_step[snap_idx(h, ti)] < INS_HIST_N) {
-            /* counters and the last test ratios are the live ones (not part of NavCore's snapshot) */
-            uint32_t acc[INS_NGRP], rej[INS_NGRP], con[INS_NGRP];
-            ins_real lr[INS_NGRP];
-            double hp[3], tg = c->ekf.t_hold_gnss, th = c->ekf.t_hold;
-            const int hh = c->ekf.have_hold_pos;
-            for (k = 0; k < 3; ++k) hp[k] = c->ekf.hold_pos[k];
-            for (k = 0; k < INS_NGRP; ++k) {
-                acc[k] = c->ekf.accepted[k];
-                rej[k] = c->ekf.rejected[k];
-                con[k] = c->ekf.consecutive[k];
-                lr[k] = c->ekf.last_ratio[k];
-            }
-            ts = h->snap_step[snap_idx(h, ti)];
-            core_copy(c, &h->snap[snap_idx(h, ti)]);
-            for (k = 0; k < INS_NGRP; ++k) {
-                c->ekf.accepted[k] = acc[k];
-                c->ekf.rejected[k] = rej[k];
-                c->ekf.consecutive[k] = con[k];
-                c->ekf.last_ratio[k] = lr[k];
-            }
-            for (k = 0; k < 3; ++k) c->ekf.hold_pos[k] = hp[k]; /* the hold's state is live (NoAidHold) */
-            c->ekf.t_hold_gnss = tg;
-            c->ekf.t_hold = th;
-            c->ekf.have_hold_pos = hh;
-            c->ekf.replaying = 0;
-            r = fuse_now(c, m, 0); /* counted and gated like any measurement */
-            c->ekf.replaying = 1;
-            h->snap_n = ti + 1; /* the snapshots after the target are replayed; the target's is this state */
-            core_copy(&h->snap[snap_idx(h, ti)], c);
-            h->snap[snap_idx(h, ti)].ekf.replaying = 0;
-            /* replay in the order things happened: the measurements fused at state k (in their order),
-             * then the IMU sample that takes state k to k + 1 */
-            for (k = ts; k <= cur; ++k) {
-                for (j = 0; j < h->meas_n; ++j) {
-                    const ins_hmeas_t *e = &h->meas[(h->meas_first + j) % INS_HIST_MEAS];
-                    if (e->step == k) fuse_now(c, e, 0);
-                }
-                if (k < cur) {
-                    const uint32_t q = k % INS_HIST_N;
-                    if (h->imu[q][6] > K(0.0)) ins_core_step_dt(c, h->imu[q], h->imu[q] + 3, h->imu_t[q], h->imu[q][6]);
-                    else ins_core_step(c, h->imu[q], h->imu[q] + 3, h->imu_t[q]);
-                    push_snap(h, c);
-                }
-            }
-            c->ekf.replaying = 0;
-            m->step = ts;
-            log_meas(h, m);
-            h->rollbacks++;
-            return r;
-        }
-        h->too_old++;
+        c->ekf.replaying = 0;
+        m->step = ts;
+        log_meas(h, m);
+        h->rollbacks++;
+        return r;
     }
+    if (late) h->too_old++;
     m->step = c->steps;
     r = fuse_now(c, m, tm < t_now - 1.5 * dt);
     if (h->max_delay > 0.0) log_meas(h, m);
@@ -576,6 +592,19 @@ int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g) {
     m.alt = 0.0;
     m.field[0] = m.field[1] = m.field[2] = K(0.0);
     return hist_fuse(h, c, &m);
+}
+
+int ins_hist_fuse_gnss_before(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g, double t_vel) {
+    uint32_t ti;
+    int late, r;
+    if (hist_target(h, c, g->t, &ti, &late) || late || !hist_target(h, c, t_vel, &ti, &late))
+        return ins_hist_fuse_gnss(h, c, g);
+    /* the roll-back of the velocity restores a snapshot of this step or before and replays this position: only what
+     * outlives it now (the gate, its counters and ratio, the hold's position; the log entry) */
+    c->ekf.gate_only = 1;
+    r = ins_hist_fuse_gnss(h, c, g);
+    c->ekf.gate_only = 0;
+    return r;
 }
 
 int ins_hist_fuse_mag(ins_hist_t *h, ins_core_t *c, double t, const ins_real field_b[3]) {

@@ -185,6 +185,7 @@ void ins_ekf_init(ins_ekf_t *e, const ins_ekf_cfg_t *cfg) {
     e->ema_f[0] = e->ema_f[1] = K(0.0);
     e->ema_f[2] = K(-9.80665);
     e->replaying = 0;
+    e->gate_only = 0;
     e->have_mag = cfg->have_mag;
     e->mag_std = cfg->mag_std;
     e->gate[INS_GRP_MAG] = cfg->mag_gate;
@@ -256,11 +257,15 @@ static inline void k_mactd(ins_real o[9], const ins_real *a, const ins_real f[3]
 
 #define CB(x) ((const ins_real(*)[3])(x))
 
-/* o = a b (3x3) */
+/* o = a b (3x3) for a skew-symmetric a (F_vv, F_vpsi, F_psipsi: zero diagonal, checked by derive_jacobians.py): the
+ * sums a[i][0] b[0][j] + a[i][1] b[1][j] + a[i][2] b[2][j] without their exact zero term a[i][i] b[i][j] */
 static void m3(const ins_real a[3][3], const ins_real b[3][3], ins_real o[3][3]) {
-    int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) o[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+    int j;
+    for (j = 0; j < 3; ++j) {
+        o[0][j] = a[0][1] * b[1][j] + a[0][2] * b[2][j];
+        o[1][j] = a[1][0] * b[0][j] + a[1][2] * b[2][j];
+        o[2][j] = a[2][0] * b[0][j] + a[2][1] * b[1][j];
+    }
 }
 
 /* o = dt a + h2 (s - t c) (h2 = dt^2 / 2, or 0: first order; a NULL a, s or c: zero) */

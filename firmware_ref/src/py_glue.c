@@ -323,7 +323,18 @@ int cref_gfuse_gnss_split(ins_core_t *c, ins_hist_t *hs, double t, double vel_de
     const double nan = (double)NAN;
     double ov[8];
     int r, i;
-    r = cref_gfuse_gnss(c, hs, t, lat, lon, h, nan, nan, nan, std_ne, std_d, std_vel, o);
+    if (hs != NULL) { /* the position gated now, its update left to the velocity's roll-back (the same numbers) */
+        uint32_t rej[INS_NGRP], con[INS_NGRP];
+        ins_gnss_t g;
+        g.t = t; g.lat = lat; g.lon = lon; g.h = h;
+        g.vel[0] = g.vel[1] = g.vel[2] = (ins_real)nan;
+        g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
+        gate_before(&c->ekf, rej, con);
+        r = ins_hist_fuse_gnss_before(hs, c, &g, t - vel_delay);
+        gate_info(&c->ekf, INS_GRP_GNSS_POS, rej, con, o);
+        gate_info(&c->ekf, INS_GRP_GNSS_VEL, rej, con, o + 4);
+    } else
+        r = cref_gfuse_gnss(c, hs, t, lat, lon, h, nan, nan, nan, std_ne, std_d, std_vel, o);
     r |= cref_gfuse_gnss(c, hs, t - vel_delay, nan, lon, h, vn, ve, vd, std_ne, std_d, std_vel, ov);
     for (i = 4; i < 8; ++i) o[i] = ov[i];
     return r;

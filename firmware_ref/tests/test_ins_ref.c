@@ -436,6 +436,78 @@ static void test_delayed_growth(int sf) {
     CHECK(a.ekf.accepted[INS_GRP_BARO] == (uint32_t)n, "counted once each");
 }
 
+/* a GNSS fix with a velocity delay: its position through ins_hist_fuse_gnss_before (gated and counted now, updated
+ * by the velocity's roll-back) gives bit for bit the counters, test ratios and hold position after it, and the
+ * state and covariance after the velocity, of the two ins_hist_fuse_gnss calls; the positions jump for a while (rejections, then the forced acceptance after
+ * gnss_reset_after); 21 states with the hold; the velocity on time (no roll-back) and without history: as before */
+static ins_hist_t hist2;
+/* the live gate state: counters, test ratios, the hold's position */
+static int same_gate(const ins_core_t *a, const ins_core_t *b) {
+    int ok = memcmp(a->ekf.accepted, b->ekf.accepted, sizeof a->ekf.accepted) == 0;
+    ok = ok && memcmp(a->ekf.rejected, b->ekf.rejected, sizeof a->ekf.rejected) == 0;
+    ok = ok && memcmp(a->ekf.consecutive, b->ekf.consecutive, sizeof a->ekf.consecutive) == 0;
+    ok = ok && memcmp(a->ekf.last_ratio, b->ekf.last_ratio, sizeof a->ekf.last_ratio) == 0;
+    ok = ok && memcmp(a->ekf.hold_pos, b->ekf.hold_pos, sizeof a->ekf.hold_pos) == 0;
+    return ok && a->ekf.t_hold_gnss == b->ekf.t_hold_gnss && a->ekf.have_hold_pos == b->ekf.have_hold_pos;
+}
+#define SAME(f) (memcmp(&a->f, &b->f, sizeof a->f) == 0) /* field by field: the structs' padding is undefined */
+static int same_core(const ins_core_t *a, const ins_core_t *b) {
+    int i, ok = SAME(mech.q) && SAME(mech.v) && SAME(mech.lat) && SAME(mech.lon) && SAME(mech.h) && SAME(mech.t) &&
+                SAME(mech.dth_prev) && SAME(mech.dv_prev) && SAME(mech.f_ned) && same_gate(a, b);
+    for (i = 0; i < a->ekf.nx; ++i) ok = ok && memcmp(a->ekf.P[i], b->ekf.P[i], sizeof(ins_real) * (size_t)a->ekf.nx) == 0;
+    ok = ok && memcmp(a->ekf.bg, b->ekf.bg, sizeof a->ekf.bg) == 0 && memcmp(a->ekf.ba, b->ekf.ba, sizeof a->ekf.ba) == 0;
+    return ok && memcmp(a->ekf.sg, b->ekf.sg, sizeof a->ekf.sg) == 0 && memcmp(a->ekf.sa, b->ekf.sa, sizeof a->ekf.sa) == 0;
+}
+#undef SAME
+static void test_delayed_before(int delay, double max_delay) {
+    ins_ekf_cfg_t cfg;
+    ins_core_t a, b;
+    ins_gnss_t g;
+    const ins_real q[4] = {1, 0, 0, 0}, v[3] = {(ins_real)1.0, 0, 0}, dt = (ins_real)0.005;
+    ins_real dth[3] = {0, 0, (ins_real)2e-4}, dv[3] = {(ins_real)0.002, 0, 0};
+    int k, ok = 1, skipped = 0, ra, rb, rej = 0;
+    ins_ekf_default_cfg(&cfg);
+    cfg.lever_arm[0] = (ins_real)0.3;
+    cfg.gyro_vib_gain = (ins_real)0.4;
+    cfg.scale_factors = 1;
+    cfg.hold = 1;
+    cfg.gnss_reset_after = 3;
+    dv[2] = -(ins_real)9.80665 * dt;
+    ins_core_init(&a, q, v, 0.8, 0.5, 100.0, 0.0, dt, &cfg, 1);
+    b = a;
+    ins_hist_init(&hist, max_delay);
+    ins_hist_init(&hist2, max_delay);
+    for (k = 0; k < 600; ++k) {
+        const double t = 0.005 * (k + 1);
+        dth[0] = (ins_real)(1e-4 * sin(0.05 * k));
+        ins_hist_step(&hist, &a, dth, dv, t, K0);
+        ins_hist_step(&hist2, &b, dth, dv, t, K0);
+        if ((k + 1) % 10 != 0) continue;
+        g.t = t;
+        g.lat = a.mech.lat + (k > 200 && k < 300 ? 2e-5 : 1e-8);
+        g.lon = a.mech.lon;
+        g.h = a.mech.h + 0.05;
+        g.vel[0] = g.vel[1] = g.vel[2] = (ins_real)NAN;
+        g.std_ne = g.std_vel = (ins_real)0.05;
+        g.std_d = (ins_real)0.1;
+        ra = ins_hist_fuse_gnss(&hist, &a, &g);
+        rb = ins_hist_fuse_gnss_before(&hist2, &b, &g, t - 0.005 * delay);
+        ok = ok && ra == rb && same_gate(&a, &b); /* what the caller reads now (the glue's gate report) */
+        rej += ra == 0;
+        skipped += ra == 1 && a.mech.lat != b.mech.lat; /* the update left to the roll-back */
+        g.t = t - 0.005 * delay;
+        g.lat = (double)NAN;
+        g.vel[0] = (ins_real)1.01;
+        g.vel[1] = g.vel[2] = (ins_real)0.0;
+        ok = ok && ins_hist_fuse_gnss(&hist, &a, &g) == ins_hist_fuse_gnss(&hist2, &b, &g) && same_core(&a, &b);
+    }
+    CHECK(ok && hist.rollbacks == hist2.rollbacks && hist.too_old == hist2.too_old,
+          "position before a late velocity: the same bits (delay %d, max_delay %g)", delay, max_delay);
+    CHECK(rej > 0 && a.ekf.accepted[INS_GRP_GNSS_POS] > 20, "rejected %d, accepted %u", rej,
+          (unsigned)a.ekf.accepted[INS_GRP_GNSS_POS]);
+    CHECK((delay > 0 && max_delay > 0.0) == (skipped > 20), "the position's update skipped %d times", skipped);
+}
+
 /* the covariance predict (block-sparse in ekf.c) against the dense P = Phi P Phi^T + Q dt, Phi = I + F dt
  * (+ (F dt)^2 / 2), F assembled from the generated blocks: 15 and 21 states, first and second order */
 static void test_predict_dense(void) {
@@ -577,6 +649,9 @@ int main(void) {
     test_delayed();
     test_delayed_growth(0);
     test_delayed_growth(1);
+    test_delayed_before(20, 0.3);
+    test_delayed_before(0, 0.3);
+    test_delayed_before(20, 0.0);
     test_level();
     printf("ins_ref tests (%d-bit scalar): %d checks, %d failed\n", INS_REF_SCALAR_BITS, checks, failures);
     return failures != 0;

@@ -468,6 +468,9 @@ def check_structure(F: sp.Matrix) -> None:
     for r0, c0 in ((3, 3), (3, 6), (3, 12), (6, 6), (6, 9)):
         allowed |= {(r0 + i, c0 + j) for i in range(3) for j in range(3)}
     allowed.add((5, 2))
+    for r0, c0 in ((3, 3), (3, 6), (6, 6)):  # F_vv, F_vpsi, F_psipsi skew: ekf.c's m3 skips their zero diagonal
+        for i in range(3):
+            assert F[r0 + i, c0 + i] == 0 and F[r0 + i, c0 + (i + 1) % 3] == -F[r0 + (i + 1) % 3, c0 + i]
     extra = [(i, j) for i, j, _ in _entries(F) if (i, j) not in allowed]
     if extra:
         raise SystemExit(f"derive_jacobians: F has entries outside the C core's block structure: {extra}")

@@ -55,7 +55,7 @@ static int hist_workload(long n, long every, long delay) {
         g.std_ne = (ins_real)0.02;
         g.std_d = (ins_real)0.04;
         g.std_vel = (ins_real)0.02;
-        acc += ins_hist_fuse_gnss(&hist, &core, &g) == 1;
+        acc += ins_hist_fuse_gnss_before(&hist, &core, &g, core.mech.t - (double)delay * dt) == 1;
         g.t = core.mech.t - (double)delay * dt;
         g.lat = (double)NAN; /* the velocity alone, DELAY steps earlier */
         g.vel[0] = g.vel[1] = g.vel[2] = (ins_real)0.0;
