@@ -212,7 +212,6 @@ def test_compare_serial_prints_both_wall_times_and_their_ratio(tmp_path: Path, c
     assert [r["job"] for r in s["serial_rows"]] == ["a.csv#0", "a.csv#1"]
 
 
-@pytest.mark.slow  # a LocalCluster of 1 worker process (~3 s)
 def test_a_workers_warm_up_leaves_the_simulator_to_the_job_that_needs_it() -> None:
     """The warm-up imports the readers, the core and the plots' module, not the simulator (0.12 CPU s per
     worker, before its first job): a flight log's job never loads it."""
@@ -224,6 +223,7 @@ def test_a_workers_warm_up_leaves_the_simulator_to_the_job_that_needs_it() -> No
     assert out == ["True", "False"]
 
 
+@pytest.mark.slow  # a LocalCluster of 1 worker process (~3 s)
 def test_our_local_cluster_runs_its_workers_without_the_profiler_and_with_a_slow_event_loop_tick() -> None:
     import dask
     from dask.distributed import Client
