@@ -22,6 +22,7 @@ running), or rejected with ``ValueError`` (``on_dt_mismatch="raise"``).
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import importlib
 import math
@@ -1149,9 +1150,17 @@ class CNavCore:
         fails the guard (:class:`BaroRun` says which). The ratios and the gate counters as :meth:`fuse` leaves
         them."""
         ng = len(end)
-        if not (self.can_run() and self._align is None) or len(ab) != ng + 1 or inc.shape != (len(t_end), 6):
-            raise ValueError("CNavCore.run_baro: a navigating core with fixed_step=False, (n, 6) increments, "
-                             "len(ab) = len(end) + 1")  # fmt: skip
+        arrays = (inc, t_end, dt, bt, alt)
+        if not (self.can_run() and self._align is None) or len(ab) != ng + 1 or inc.shape != (len(t_end), 6) or (
+            len(dt) != len(t_end) or len(alt) != len(bt)
+            or any(a.dtype != np.float64 or not a.flags.c_contiguous for a in arrays)
+            or end.dtype != np.int64 or ab.dtype != np.int64
+            or (ng and not (end[0] > k0 >= 0 and end[-1] <= len(t_end) and ab[0] >= 0 and ab[-1] <= len(bt)
+                            and bool(np.all(np.diff(end) > 0)) and bool(np.all(np.diff(ab) >= 0))))
+        ):  # fmt: skip
+            raise ValueError("CNavCore.run_baro: a navigating core with fixed_step=False, C-contiguous float64 "
+                             "(n, 6) increments, times and steps, baro times and altitudes; int64 end rising from "
+                             "k0 to at most n, ab = len(end) + 1 bounds rising within the baro samples")  # fmt: skip
         n_imu = int(end[-1]) - k0 if ng else 0
         n_upd = int(ab[-1] - ab[0]) if ng else 0
         out = np.empty((n_imu, 32))
@@ -1173,13 +1182,21 @@ class CNavCore:
         rows = out[: (int(end[g - 1]) - k0) if g else 0]
         self.run_out = rows
         self.run_gap_rows = []
+        # each group's states carry the ratios in force when it ran (one fuse per sample: each run its own):
+        # group gi's are those after the baro update before it, ab[gi] - ab[0] - 1
+        at, r = [(0, self._ratios)], self._ratios
+        for gi in range(1, g):
+            done = int(ab[gi] - ab[0])
+            if 0 < done <= u:
+                r = {**r, "baro": float(gate[done - 1, 0])}
+                at.append((int(end[gi - 1]) - k0, r))
         if u:
             self._ratios = {**self._ratios, "baro": float(gate[u - 1, 0])}
             if why[0] >= 2:  # the last update's gate (_gate_event decides whether it raises an event)
                 self._gate_event(float(bt[int(ab[0]) + u - 1]), "baro", gate[u - 1].tolist())
         aligned = (pre[:u, 1] < self._aligned_std).tolist()
-        return BaroRun(RunStates(rows, self.cfg.alignment.aligned_yaw_std, self._ratios), g, u, int(why[0]),
-                       pre[:u, 0].tolist(), aligned)  # fmt: skip
+        states = RunStates(rows, self.cfg.alignment.aligned_yaw_std, at[-1][1], ratios_from=at)
+        return BaroRun(states, g, u, int(why[0]), pre[:u, 0].tolist(), aligned)
 
     def covariance(self) -> Vec:
         """The EKF covariance P (15 × 15, order δr NED, δv NED, ψ NED, δb_g, δb_a; 21 × 21 with the scale factors
@@ -1217,11 +1234,21 @@ class RunStates(Sequence[NavState]):
     builds it (the arrays views of the row), with ``resets`` set; an observer that only keeps the arrays reads
     ``rows`` (and ``times``) and builds none."""
 
-    def __init__(self, rows: Vec, aligned_yaw_std: float, ratios: dict[str, float], resets: int = 0) -> None:
+    def __init__(self, rows: Vec, aligned_yaw_std: float, ratios: dict[str, float], resets: int = 0,
+                 ratios_from: list[tuple[int, dict[str, float]]] | None = None) -> None:  # fmt: skip
+        """``ratios``: every state's test ratios; or ``ratios_from`` [(first row, ratios), …] ascending from row 0:
+        each row those of the last entry at or before it (the groups of :meth:`CNavCore.run_baro`)."""
         self.rows = rows
         self.resets = resets
         self._thr = aligned_yaw_std
         self._ratios = ratios
+        self._from = ratios_from if ratios_from is not None and len(ratios_from) > 1 else None
+
+    def _ratios_at(self, i: int) -> dict[str, float]:
+        if self._from is None:
+            return self._ratios
+        i = i + len(self.rows) if i < 0 else i
+        return self._from[bisect.bisect_right(self._from, i, key=lambda e: e[0]) - 1][1]
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -1232,11 +1259,13 @@ class RunStates(Sequence[NavState]):
 
     def head(self, n: int) -> RunStates:
         """The first ``n`` states."""
-        return RunStates(self.rows[:n], self._thr, self._ratios, self.resets)
+        return RunStates(self.rows[:n], self._thr, self._ratios, self.resets, self._from)
 
     def tail(self, k: int) -> RunStates:
         """The states from the ``k``-th on."""
-        return RunStates(self.rows[k:], self._thr, self._ratios, self.resets)
+        k = len(self.rows) if k > len(self.rows) else (max(0, k + len(self.rows)) if k < 0 else k)
+        at = None if self._from is None else [(0, self._ratios_at(k))] + [(s - k, r) for s, r in self._from if s > k]
+        return RunStates(self.rows[k:], self._thr, self._ratios, self.resets, at)
 
     @overload
     def __getitem__(self, i: int) -> NavState: ...
@@ -1250,7 +1279,7 @@ class RunStates(Sequence[NavState]):
         o = self.rows[i]
         x = o.tolist()  # the scalars as Python floats in one call (CNavCore._nav_state)
         st = NavState(x[0], o[1:5], o[5:8], x[8], x[9], x[10], o[11:14], o[14:17], o[17:20], o[20:23], o[23:26],
-                      o[26:29], o[29:32], x[25] < self._thr, self._ratios)  # fmt: skip
+                      o[26:29], o[29:32], x[25] < self._thr, self._ratios_at(i))  # fmt: skip
         st.resets = self.resets
         return st
 

@@ -6,6 +6,8 @@ event for event, also when the gate rejects baro samples and when states fail th
 from __future__ import annotations
 
 import dataclasses
+import math
+import types
 from pathlib import Path
 from typing import Any
 
@@ -109,3 +111,66 @@ def test_states_failing_the_core_guard_mid_stretch(prepared: run.Prepared, monke
     assert len(a["t"]) > 1000
     for k in a:
         assert np.array_equal(a[k], b[k]), k
+
+
+def test_each_state_of_a_stretch_carries_the_baro_ratio_in_force_when_it_ran(
+    prepared: run.Prepared, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The states an observer is handed: each with the baro test ratio of the update before it (as one run per
+    sample gives them), not the stretch's last."""
+    p = prepared
+    aids = sorted([*p.gnss, *p.aux], key=lambda m: (m.t, 0 if m.kind == "gnss" else 2))
+    out = []
+    for batched in (True, False):
+        track = run.Track(p.origin)
+        with monkeypatch.context() as m:
+            if not batched:
+                m.setattr(pipeline.Pipeline, "baro_runs", lambda self, imu, arrays, k0, end, ab, *a: (k0, int(ab[0])))
+            run.replay(p.imu, aids, p.nav, [track], pipeline=run.offline_config(p.aiding_fdi, "c"), screened=True,
+                       on_aid_kinds=frozenset({"mag"}), imu_arrays=p.imu_arrays())  # fmt: skip
+        st = track.states
+        out.append(([s.test_ratios.get("baro") for s in st], [s.t for s in st]))
+    (r1, t1), (r0, t0) = out
+    assert t1 == t0 and len(t1) > 10_000
+    assert len(set(r1)) > 1000  # the ratios change along the flight
+    assert r1 == r0
+
+
+def test_a_stretch_leaves_a_group_that_shares_its_hand_over_with_another_kind_to_the_caller() -> None:
+    """Baro groups handed over after IMU samples 2 and 5; a GNSS fix after sample 5 too: the stretch is the first
+    group alone (the second goes one sample at a time with the fix, so a core fault in its update drops the fix
+    as well, as ``Pipeline.flush`` does); with the fix after sample 6 instead, both groups."""
+    from ins_hil.types import ImuSample
+
+    imu = [ImuSample(0.01 * (i + 1), 0.01, np.zeros(3), np.zeros(3)) for i in range(10)]
+    baro = [BaroSample(t, math.nan, 10.0) for t in (0.025, 0.03, 0.055)]
+    for t_fix, ends, ab in ((0.06, [3], [0, 2]), (0.07, [3, 6], [0, 2, 3])):
+        aids = [*baro, types.SimpleNamespace(t=t_fix, kind="gnss")]
+        plan = run._BaroPlan(imu, aids, [m.t for m in aids], None)
+        e, a = plan.stretch(0, 0)
+        assert e.tolist() == ends and a.tolist() == ab
+
+
+def test_run_baro_refuses_indices_and_arrays_the_c_call_would_misread(
+    prepared: run.Prepared, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """On a navigating core, in the replay's first stretch of two groups or more: ``end`` not rising, past the
+    log, not after ``k0``; ``ab`` beyond the baro samples; float32 altitudes: each a ValueError before C runs."""
+    orig = CNavCore.run_baro
+    refused: list[str] = []
+
+    def probing(self: CNavCore, inc: Any, t: Any, dt: Any, k0: int, end: Any, ab: Any, bt: Any, alt: Any,
+                b: Any) -> Any:  # fmt: skip
+        if not refused and len(end) > 1:
+            bad = {"end falling": (end[::-1].copy(), ab, alt), "end past n": (end + len(t), ab, alt),
+                   "end at k0": (np.r_[k0, end[1:]].astype(np.int64), ab, alt),
+                   "ab past": (end, ab + len(bt), alt), "float32": (end, ab, alt.astype(np.float32))}  # fmt: skip
+            for what, (e, a, al) in bad.items():
+                with pytest.raises(ValueError, match="run_baro"):
+                    orig(self, inc, t, dt, k0, e, a, bt, al, b)
+                refused.append(what)
+        return orig(self, inc, t, dt, k0, end, ab, bt, alt, b)
+
+    monkeypatch.setattr(CNavCore, "run_baro", probing)
+    run.run_dataset(dataclasses.replace(prepared, imu=prepared.imu[: len(prepared.imu) // 3]), core="c")
+    assert len(refused) == 5

@@ -160,19 +160,25 @@ class Prepared:
     # what every replay of these streams computes alike (the outage protocol's run after the GNSS-present one)
     _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
+    def _of_imu(self, name: str, fn: Any) -> Any:
+        """``fn(imu)``, computed once for this ``imu`` list (``dataclasses.replace`` shares the cache: a copy
+        with another list computes its own)."""
+        key = (name, id(self.imu), len(self.imu))
+        v = self._cache.get(name)
+        if v is None or v[0] != key:
+            v = self._cache[name] = (key, fn(self.imu))
+        return v[1]
+
     def imu_arrays(self) -> tuple[Vec, Vec, Vec]:
         """:func:`imu_arrays` of ``imu``, built once (read only)."""
-        a = self._cache.get("imu_arrays")
-        if a is None:
-            a = self._cache["imu_arrays"] = imu_arrays(self.imu)
+        a = self._of_imu("imu_arrays", imu_arrays)
+        for x in a:
+            x.flags.writeable = False
         return cast(tuple[Vec, Vec, Vec], a)
 
     def rate_bins(self) -> Vec:
         """:func:`rate_bins` of ``imu``, computed once."""
-        rb = self._cache.get("rate_bins")
-        if rb is None:
-            rb = self._cache["rate_bins"] = rate_bins(self.imu)
-        return cast(Vec, rb.copy())
+        return cast(Vec, self._of_imu("rate_bins", rate_bins).copy())
 
 
 def _decimal_year(unix_s: float) -> float:
@@ -476,7 +482,7 @@ def replay(
                 k_end, j_end = pipe.baro_runs(cast(list[ImuSample], imu), plan.arrays, k, end, ab, aids, plan.bt,
                                               plan.alt)  # fmt: skip
                 if k_end > k:
-                    if progress is not None and (k_end - 1) // 2000 > (k - 1) // 2000:
+                    if progress is not None and ((k_end - 1) // 2000 > (k - 1) // 2000 or k_end == n):
                         progress(k_end, n)
                     k, j = k_end, j_end
                     t = ts[k - 1]
@@ -548,6 +554,11 @@ def imu_arrays(imu: Sequence[ImuSample]) -> tuple[Vec, Vec, Vec]:
     return inc, t, dt
 
 
+#: baro groups in one ``Pipeline.baro_runs`` call at most (bounds the work of a stretch the pipeline declines,
+#: e.g. during the alignment, whose samples are then handed over one by one and the stretch planned again)
+STRETCH_GROUPS = 256
+
+
 class _BaroPlan:
     """Where :func:`replay` may hand a stretch of baro samples and the IMU samples up to each to the C core in one
     call (``Pipeline.baro_runs``): per aid whether it is a baro sample with a finite altitude handed over after an
@@ -580,7 +591,7 @@ class _BaroPlan:
         ends: list[int] = []
         ab = [j]
         prev = k
-        while j < na and ok[j]:
+        while j < na and ok[j] and len(ends) < STRETCH_GROUPS:
             hj = h[j]
             if hj < prev or lost[hj + 1] != lost[prev]:
                 break
@@ -590,7 +601,9 @@ class _BaroPlan:
             ends.append(hj + 1)
             ab.append(j)
             prev = hj + 1
-            if j < na and h[j] == hj:  # the group goes on with another kind: the caller hands it over
+            if j < na and h[j] == hj:  # the group goes on with another kind: the whole group is the caller's
+                ends.pop()  # (a core fault in one of its updates drops the other kind's samples with it, as
+                ab.pop()  # Pipeline.flush does)
                 break
         return np.array(ends, dtype=np.int64), np.array(ab, dtype=np.int64)
 

@@ -336,10 +336,8 @@ class AidingMonitor:
         """Test one measurement against ``state`` (the navigation state at about ``meas.t``,
         before the measurement is fused). Returns True if the caller should NOT fuse it.
         Nothing is tested (False) until ``state.aligned``: the INS is not trustworthy before."""
-        if not state.aligned:
+        if not self._state_seen(state.t, state.aligned, state.resets):
             return False
-        if math.isnan(self._t_nav) or state.resets != self._resets:
-            self._t_nav, self._resets = state.t, state.resets
         if meas.kind == "gnss":
             self._gnss(meas, state)
             return self.cfg.exclude and self.gnss.faulted
@@ -350,11 +348,16 @@ class AidingMonitor:
     def check_baro(self, meas: BaroSample, t: float, aligned: bool, resets: int = 0) -> bool:
         """:meth:`check` of a baro sample against a state given by its time ``t`` (s), ``aligned`` and ``resets``
         (``NavState``'s) instead of the state itself (a baro sample is only kept for the next GNSS fix's test)."""
+        return self._state_seen(t, aligned, resets) and self._baro_seen(meas)
+
+    def _state_seen(self, t: float, aligned: bool, resets: int) -> bool:
+        """Whether a measurement is tested against the state at ``t`` (s): only once it is ``aligned``; the first
+        aligned time is kept (again after a reset of the solution: ``resets`` changed)."""
         if not aligned:
             return False
         if math.isnan(self._t_nav) or resets != self._resets:
             self._t_nav, self._resets = t, resets
-        return self._baro_seen(meas)
+        return True
 
     def _baro_seen(self, meas: BaroSample) -> bool:
         if math.isfinite(meas.altitude):
