@@ -1,0 +1,92 @@
+"""The replay's validation boundary (``ins_hil.datasets.run.screen``) checks a log of one IMU in one numpy pass once
+the validator knows the IMU's period (``SampleValidator.imu_in_range``): the samples kept, the reasons counted, the
+split at long gaps and the validator's state are those of the sample-by-sample check, also with bad samples
+injected anywhere (non-finite, out of range, a wrong step, times out of order, a gap that splits the log)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ins_hil.datasets import run
+from ins_hil.types import ImuSample
+from ins_hil.validation import SampleValidator
+
+
+def _log(n: int, seed: int = 1) -> list[ImuSample]:
+    rng = np.random.default_rng(seed)
+    dt = 0.005
+    return [ImuSample(t=(k + 1) * dt, dt=dt, dtheta=rng.normal(0.0, 1e-3, 3),
+                      dvel=np.array([0.0, 0.0, -9.81 * dt]) + rng.normal(0.0, 1e-3, 3)) for k in range(n)]  # fmt: skip
+
+
+def _bad(imu: list[ImuSample]) -> list[ImuSample]:
+    """Bad samples at the start, inside the learning of the period and later, and a gap that splits the log."""
+    s = [ImuSample(x.t, x.dt, x.dtheta.copy(), x.dvel.copy()) for x in imu]
+    s[0].dtheta[1] = math.nan  # before the period is known
+    s[3].dt = 0.5  # a wrong step while it is learnt
+    s[40].dvel[2] = 1e3  # out of the accelerometer range
+    s[41].dtheta[0] = -50.0  # out of the gyro range
+    s[42].dt = math.nan
+    s[60].dt = 0.2  # 40 periods: outside the learnt band (20)
+    s[70].t = s[69].t  # a repeated time
+    s[90].t = 1e6  # one stamp far ahead (dropped as out of order)
+    s[120].dvel[0] = math.inf
+    s[121].dt = 0.02  # inside the band (20 periods max): passes
+    for x in s[300:]:
+        x.t += 20.0  # a gap the core does not coast across: the log is split
+    s[-1].dtheta[2] = math.nan  # the last one
+    return s
+
+
+def _screen(imu: list[ImuSample], fast: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[Any, SampleValidator]:
+    made: list[SampleValidator] = []
+    orig = run.SampleValidator
+
+    def keep(*a: Any) -> SampleValidator:
+        made.append(orig(*a))
+        return made[-1]
+
+    with monkeypatch.context() as m:
+        m.setattr(run, "SampleValidator", keep)
+        if not fast:
+            m.setattr(run, "_imu_arrays_or_none", lambda imu: None)
+        sc = run.screen(imu, [], [], "test")
+    return sc, made[0]
+
+
+@pytest.mark.parametrize("bad", [False, True])
+def test_fast_screen_is_the_per_sample_one(bad: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    imu = _log(700)
+    if bad:
+        imu = _bad(imu)
+    fast, v_fast = _screen(imu, True, monkeypatch)
+    slow, v_slow = _screen(imu, False, monkeypatch)
+    assert fast.imu_arrays is not None and slow.imu_arrays is None  # the numpy pass ran (and the reference did not)
+    assert [id(s) for s in fast.imu] == [id(s) for s in slow.imu]
+    assert fast.notes == slow.notes
+    if bad:
+        for why in ("imu_rate 1", "imu_accel 1", "imu_dt 1", "imu_time 2", "imu_nonfinite 4"):
+            assert why in fast.notes[0]
+        assert "split the log" in fast.notes[1]
+    assert v_fast.imu_time(0) == v_slow.imu_time(0)
+    ref = run.imu_arrays(fast.imu)
+    for a, b in zip(fast.imu_arrays, ref, strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_prepared_arrays_follow_its_samples() -> None:
+    """Screen's arrays are the prepared replay's (``Prepared.imu_arrays``, its rate bins) only for its samples."""
+    imu = _log(500)
+    sc = run.screen(imu, [], [], "test")
+    assert sc.imu_arrays is not None
+    p = run.Prepared(sc.imu, [], [], run.NavConfig(), imu[0].t, imu[-1].t, (0.0, 0.0, 0.0))
+    p._cache["imu_arrays"] = sc.imu_arrays
+    assert p.imu_arrays() is sc.imu_arrays
+    assert np.array_equal(p.rate_bins(), run.rate_bins(sc.imu))
+    p2 = run.Prepared(sc.imu[:100], [], [], run.NavConfig(), imu[0].t, imu[99].t, (0.0, 0.0, 0.0))
+    p2._cache["imu_arrays"] = sc.imu_arrays  # another sample list: rebuilt
+    assert len(p2.imu_arrays()[1]) == 100
