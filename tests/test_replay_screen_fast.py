@@ -90,3 +90,47 @@ def test_prepared_arrays_follow_its_samples() -> None:
     p2 = run.Prepared(sc.imu[:100], [], [], run.NavConfig(), imu[0].t, imu[99].t, (0.0, 0.0, 0.0))
     p2._cache["imu_arrays"] = sc.imu_arrays  # another sample list: rebuilt
     assert len(p2.imu_arrays()[1]) == 100
+
+
+def test_an_ordered_run_is_the_one_checked_sample_by_sample(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A screened replay of one IMU hands its runs to ``Pipeline.imu_run`` as ``ordered`` (only the first sample's
+    time compared): the states, counts and events of the runs whose every sample's time is compared."""
+    from ins_hil.cref import CNavCore
+    from ins_hil.datasets.config import from_dict
+    from ins_hil.nav.mechanization import StrapdownState
+    from ins_hil.runtime.pipeline import Pipeline
+    from ins_hil.types import GnssFix
+
+    origin = (0.8, 0.5, 100.0)
+    nav = from_dict({"dataset": {"name": "t"}, "nav": {"alignment": {"mode": "given"}}}).nav_config()
+    sc = run.screen(_log(800), [], [], "t")
+    fixes = [GnssFix(s.t, *origin, np.zeros(3), 1.0, 2.0, 0.3) for s in sc.imu[10::20]]
+    init = StrapdownState(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), *origin, 0.0)
+    orig = Pipeline.imu_run
+
+    def replay(ordered: bool) -> tuple[Any, run.Track, list[bool]]:
+        seen: list[bool] = []
+
+        def imu_run(self: Pipeline, samples: Any, screened: bool = False, arrays: Any = None,
+                    ordered_: bool = False) -> None:  # fmt: skip
+            seen.append(ordered_)
+            orig(self, samples, screened, arrays, ordered_ and ordered)
+
+        def setup(pipe: Pipeline) -> None:
+            pipe.core = CNavCore(init.copy(), nav, fixed_step=False)
+
+        track = run.Track(origin)
+        with monkeypatch.context() as m:
+            m.setattr(Pipeline, "imu_run", imu_run)
+            pipe, ev = run.replay(sc.imu, fixes, nav, [track], initial=init, pipeline=run.offline_config(True, "c"),
+                                  setup=setup, screened=True, imu_arrays=sc.imu_arrays)  # fmt: skip
+        return (pipe.counts, [(e.t, e.detail) for e in ev]), track, seen
+
+    a, ta, seen = replay(True)
+    b, tb, _ = replay(False)
+    assert seen and all(seen)  # every run handed over as ordered
+    assert a == b and a[0].get("fused_GnssFix", 0) > 30
+    ra, rb = ta.arrays(), tb.arrays()
+    assert len(ra["t"]) == len(sc.imu)
+    for k in ra:
+        assert np.array_equal(ra[k], rb[k]), k

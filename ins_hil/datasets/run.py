@@ -289,6 +289,23 @@ def _shifted(imu: list[ImuSample], t1: float, off: float, R: Vec | None) -> list
     return out
 
 
+_GNSS_FIELDS = operator.attrgetter(*(f.name for f in dataclasses.fields(GnssFix)))
+
+
+def _gnss_shifted(gnss: list[GnssFix], off: float) -> list[GnssFix]:
+    """Copies of the fixes with their time moved by ``off`` s (``dataclasses.replace`` of each, without its
+    per-call cost: copied field by field)."""
+    out = []
+    for f in gnss:
+        if type(f) is GnssFix:
+            n = GnssFix(*_GNSS_FIELDS(f))
+            n.t = f.t + off
+        else:
+            n = dataclasses.replace(f, t=f.t + off)
+        out.append(n)
+    return out
+
+
 def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     """Apply the dataset config to ``ds`` (causal streams for the core; nothing from the onboard estimate)."""
     notes: list[str] = list(ds.meta.get("notes", []))
@@ -312,7 +329,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
         imu = [s for s in ds.imu if s.t <= t1]
     else:
         imu = _shifted(ds.imu, t1, off, R if rot else None)
-    gnss = [dataclasses.replace(f, t=f.t + cfg.gnss_time_offset) for f in ds.gnss] if cfg.use_gnss else []
+    gnss = _gnss_shifted(ds.gnss, cfg.gnss_time_offset) if cfg.use_gnss else []
     mag = [dataclasses.replace(m, field_b=R @ m.field_b) if rot else m for m in ds.mag] if cfg.use_mag else []
     baro = list(ds.baro) if cfg.use_baro else []
     # the validation boundary (the gateway's): what the core is given is finite, in range and in time order
@@ -528,6 +545,7 @@ def replay(
                                                                         and "baro" not in on_aid_kinds)):  # fmt: skip
             plan = _BaroPlan(imu, aids, when, arrays)
             arrays = plan.arrays
+        ordered = plan is not None and plan.one_id  # screened, one IMU: its times increase (Pipeline.imu_run)
         k = 0
         while k < n:
             if plan is not None and j < plan.na and plan.ok[j]:
@@ -555,6 +573,7 @@ def replay(
                 list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end],
                 screened,
                 None if arrays is None else (arrays[0][k:k_end], arrays[1][k:k_end], arrays[2][k:k_end]),
+                ordered,
             )
             t = ts[k_end - 1]
             if j < na and when[j] <= t:
@@ -624,7 +643,7 @@ class _BaroPlan:
         lost[2:] = np.cumsum((t[1:] - dt[1:] - t[:-1]) > 0.5 * dt[1:])
         self.lost = lost.tolist()  # lost[k]: samples before index k with data lost before them
         self.h = np.searchsorted(t, np.asarray(when, dtype=np.float64), "left").tolist()
-        one_id = len({s.imu_id for s in imu}) == 1
+        one_id = self.one_id = len({s.imu_id for s in imu}) == 1
         self.bt = np.array([m.t for m in aids], dtype=np.float64)
         self.alt = np.array([m.altitude if type(m) is BaroSample else math.nan for m in aids], dtype=np.float64)
         fin = np.isfinite(self.alt).tolist()
