@@ -134,3 +134,33 @@ def test_an_ordered_run_is_the_one_checked_sample_by_sample(monkeypatch: pytest.
     assert len(ra["t"]) == len(sc.imu)
     for k in ra:
         assert np.array_equal(ra[k], rb[k]), k
+
+
+def test_median_is_numpys_and_the_scores_do_not_import_numpy_ma() -> None:
+    """``run.median`` is ``np.median``'s number (signed zeros, NaN, even and odd lengths); the replay's scores that
+    take a median (``typical_corrections``, ``autocorrelation``) do not import ``numpy.ma`` (np.median's NaN
+    check does: ~38 ms of a C replay's start-up)."""
+    import subprocess
+    import sys
+
+    rng = np.random.default_rng(2)
+    for n in range(1, 40):
+        for _ in range(20):
+            x = np.round(rng.normal(size=n), int(rng.integers(0, 3)))
+            if rng.random() < 0.3:
+                x[rng.integers(0, n, size=max(1, n // 2))] = rng.choice([0.0, -0.0])
+            a, b = float(np.median(x)), run.median(x)
+            assert a == b and math.copysign(1.0, a) == math.copysign(1.0, b), (x, a, b)
+            assert run.median(x.tolist()) == a
+    assert math.isnan(run.median([1.0, math.nan, 2.0])) and math.isnan(run.median([]))
+    code = (
+        "import sys, types\n"
+        "import numpy as np\n"
+        "from ins_hil.datasets import run\n"
+        "t = np.arange(0.0, 60.0, 0.25)\n"
+        "r = types.SimpleNamespace(sf_corr=np.column_stack([t, np.sin(t), np.cos(t)]))\n"
+        "print(run.typical_corrections(r), run.autocorrelation(t, np.sin(3 * t)))\n"
+        "print('numpy.ma' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines()[-1] == "False", out.stdout + out.stderr

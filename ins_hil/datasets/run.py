@@ -1069,7 +1069,20 @@ def typical_corrections(r: RunResult) -> float:
     t = r.sf_corr[:, 0]
     edges = np.arange(t[0], t[-1], CORR_S)
     sums = [corrections(r, e, e + CORR_S) for e in edges if np.any((t >= e) & (t < e + CORR_S))]
-    return float(np.median(sums)) if sums else math.nan
+    return median(sums) if sums else math.nan
+
+
+def median(x: Sequence[float] | Vec) -> float:
+    """``float(np.median(x))`` of a 1-D sequence, the same number (the mean of the middle value or of the two
+    middle ones as numpy takes it, its sum from 0.0; NaN if any value is NaN), without numpy's median: its NaN
+    check imports ``numpy.ma`` (~38 ms of CPU, a third of a C replay's imports)."""
+    v = x.tolist() if isinstance(x, np.ndarray) else [float(a) for a in x]
+    n = len(v)
+    if not n or any(a != a for a in v):
+        return math.nan
+    v.sort()
+    m = n // 2
+    return 0.0 + v[m] if n % 2 else (0.0 + v[m - 1] + v[m]) / 2.0
 
 
 def hrms(e: Vec) -> float:
@@ -1104,7 +1117,7 @@ def autocorrelation(t: Vec, x: Vec, lags: int = 3, gap: float = 1.5) -> list[flo
         return [math.nan] * lags
     d = x - np.mean(x)
     var = float(np.mean(d * d))
-    dt = float(np.median(np.diff(t)))
+    dt = median(np.diff(t))
     for lag in range(1, lags + 1):
         ok = (t[lag:] - t[:-lag]) <= (lag + gap - 1.0) * dt
         n = int(ok.sum())
