@@ -42,6 +42,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from ins_hil import aids
 from ins_hil.settings import dataclass_keys, setting
 from ins_hil.types import BaroSample, GnssFix, ImuSample, MagSample, Sample
@@ -176,6 +178,23 @@ class SampleValidator:
             return False
         st.t = t
         return True
+
+    def imu_in_range(self, imu_id: int, dt: np.ndarray, inc: np.ndarray) -> np.ndarray | None:
+        """Per IMU sample of ``imu_id`` (steps ``dt`` (n,) s, increments ``inc`` (n, 6): dθ rad, dv m/s) whether
+        :meth:`imu`'s step and range comparisons pass it (the same comparisons, in one numpy pass; NaN fails),
+        or None while this validator still learns that IMU's period. Its time order is the caller's and nothing
+        changes here (an offline replay's screen, ``ins_hil.datasets.run.screen``: each sample that fails is
+        then checked by :meth:`imu` for the reason)."""
+        st = self._imus.get(imu_id)
+        if st is None or st.learn is not None:
+            return None
+        w = self._w * dt
+        f = self._f * dt
+        ok = (st.lo <= dt) & (dt <= st.hi)
+        for i in range(3):
+            a, v = inc[:, i], inc[:, 3 + i]
+            ok &= (-w <= a) & (a <= w) & (-f <= v) & (v <= f)
+        return ok
 
     def last_time(self, kind: str, source: int) -> float:
         """The time (s) of the last accepted sample of aid source ``kind`` (e.g. ``"gnss"``) from ``source``

@@ -219,7 +219,12 @@ def test_the_pipeline_entries_validate_first_and_only_they_reach_the_core() -> N
         reach[root] = seen
     public = {n for n in methods if not n.startswith("_")}
     entries = {n for n in public if reach[n] & touching or n in touching}
-    assert entries <= {"imu", "aid", "imu_run", "work", "flush"}, entries
+    assert entries <= {"imu", "aid", "imu_run", "baro_runs", "work", "flush"}, entries
+    # baro_runs (an offline replay's screened stretch of baro samples on C): the screen was the boundary; the
+    # pipeline's validator confirms the first IMU sample is after its last checked time before the C call
+    br = ast.unparse(_method(P, "baro_runs"))
+    assert "self.validator.imu_screened(iid, imu[k0].t)" in br
+    assert br.index("self.validator.imu_screened(iid, imu[k0].t)") < br.index("core.run_baro(")
     # imu_run (an offline replay's IMU samples up to the next aid): each sample through the validator before the
     # batched C path takes it; every other sample through imu()
     run = ast.unparse(_method(P, "imu_run"))

@@ -65,6 +65,7 @@ class Screened:
     gnss: list[GnssFix]
     aux: list[BaroSample | MagSample]
     notes: list[str]
+    imu_arrays: tuple[Vec, Vec, Vec] | None = None  # :func:`imu_arrays` of ``imu`` (when screen built them)
 
 
 def _counted(reasons: dict[str, int]) -> str:
@@ -87,27 +88,70 @@ def screen(
     def drop(reason: str) -> None:
         why[reason] = why.get(reason, 0) + 1
 
-    order = increasing([s.t for s in imu])
-    ok_imu: list[ImuSample] = []
-    for s, keep in zip(imu, order, strict=True):
-        r = v.imu(s) if keep else "imu_time"
+    arrays = _imu_arrays_or_none(imu)
+    order = increasing([s.t for s in imu] if arrays is None else arrays[1])
+    acc = np.zeros(len(imu), dtype=bool)  # passed
+    start = 0
+    if arrays is not None:
+        # the samples checked one by one until the validator knows the IMU's period, the rest in one numpy pass
+        # (SampleValidator.imu_in_range: the same comparisons); those that fail it one by one, for the reason
+        inc, t, dt = arrays
+        iid = imu[0].imu_id if imu else 0
+        ok: Any = None
+        while start < len(imu) and ok is None:
+            s = imu[start]
+            r = v.imu(s) if order[start] else "imu_time"
+            if r is None:
+                acc[start] = True
+            else:
+                drop(r)
+            start += 1
+            ok = v.imu_in_range(iid, dt[start:], inc[start:])
+        if ok is not None:
+            t_last = v.imu_time(iid)
+            ok &= order[start:] & (t[start:] < math.inf)
+            if start < len(imu):  # the times of the kept samples increase: only the first is compared here
+                ok[0] &= bool(t[start] > t_last)
+            for k in np.nonzero(~ok)[0].tolist():  # (the validator's last time is older: its time check passes)
+                i = start + k
+                r = v.imu(imu[i]) if order[i] else "imu_time"
+                if r is None:
+                    ok[k] = True
+                else:
+                    drop(r)
+            acc[start:] = ok
+            if start < len(imu) and ok.any():
+                v.imu_screened(iid, float(t[start + int(np.nonzero(ok)[0][-1])]))
+            start = len(imu)
+    for i in range(start, len(imu)):  # (per sample: more than one IMU, or increments that are not 3-vectors)
+        r = v.imu(imu[i]) if order[i] else "imu_time"
         if r is None:
-            ok_imu.append(s)
+            acc[i] = True
         else:
             drop(r)
+    idx = np.nonzero(acc)[0]
+    ok_imu: list[ImuSample] = [imu[i] for i in idx.tolist()]
+    ok_arrays = None if arrays is None else (arrays[0][idx], arrays[1][idx], arrays[2][idx])
     if why:
         notes.append(f"validation: {sum(why.values())} of {len(imu)} IMU samples dropped ({_counted(why)})")
     if not ok_imu:
         raise ReplayError(f"{source}: no IMU sample passes the validation boundary"
                           + (f" ({_counted(why)})" if why else ""))  # fmt: skip
     # split at the gaps the core would not coast across: the longest part (by samples) is replayed
-    cuts = [0] + [k for k in range(1, len(ok_imu)) if ok_imu[k].t - ok_imu[k].dt - ok_imu[k - 1].t > SPLIT_GAP_S]
+    if ok_arrays is not None:
+        _, ta, da = ok_arrays
+        cuts = [0, *(np.nonzero(ta[1:] - da[1:] - ta[:-1] > SPLIT_GAP_S)[0] + 1).tolist()]
+    else:
+        cuts = [0] + [k for k in range(1, len(ok_imu))
+                      if ok_imu[k].t - ok_imu[k].dt - ok_imu[k - 1].t > SPLIT_GAP_S]  # fmt: skip
     if len(cuts) > 1:
         ends = [*cuts[1:], len(ok_imu)]
         a, b = max(zip(cuts, ends, strict=True), key=lambda ab: ab[1] - ab[0])
         notes.append(f"IMU time gaps over {SPLIT_GAP_S:g} s split the log in {len(cuts)} parts: the longest, "
                      f"{ok_imu[a].t:.2f}–{ok_imu[b - 1].t:.2f} s ({b - a} samples), is replayed")  # fmt: skip
         ok_imu = ok_imu[a:b]
+        if ok_arrays is not None:
+            ok_arrays = (ok_arrays[0][a:b], ok_arrays[1][a:b], ok_arrays[2][a:b])
         lo, hi = ok_imu[0].t - ok_imu[0].dt - SPLIT_GAP_S, ok_imu[-1].t
         gnss = [f for f in gnss if lo <= f.t <= hi]
         aux = [m for m in aux if lo <= m.t <= hi]
@@ -137,7 +181,19 @@ def screen(
     if aw:
         notes.append(f"validation: {sum(aw.values())} of {len(aux)} baro / magnetometer / other aiding samples dropped "
                      f"({_counted(aw)})")  # fmt: skip
-    return Screened(ok_imu, ok_gnss, ok_aux, notes)
+    return Screened(ok_imu, ok_gnss, ok_aux, notes, ok_arrays)
+
+
+def _imu_arrays_or_none(imu: list[ImuSample]) -> tuple[Vec, Vec, Vec] | None:
+    """:func:`imu_arrays` of ``imu`` when the samples are of one IMU with 3-vector increments (None otherwise:
+    :func:`screen` checks them one by one)."""
+    if not imu or any(s.imu_id != imu[0].imu_id for s in imu):
+        return None
+    try:
+        a = imu_arrays(imu)
+    except (TypeError, ValueError):
+        return None
+    return a if a[0].shape == (len(imu), 6) else None
 
 
 @dataclass
@@ -169,6 +225,12 @@ class Prepared:
             v = self._cache[name] = (key, fn(self.imu))
         return v[1]
 
+    def use_imu_arrays(self, a: tuple[Vec, Vec, Vec]) -> None:
+        """Take ``a`` (the screen's :func:`imu_arrays` of these samples) as :meth:`imu_arrays`' (not when its
+        length is not that of ``imu``)."""
+        if len(a[1]) == len(self.imu):
+            self._cache["imu_arrays"] = (("imu_arrays", id(self.imu), len(self.imu)), a)
+
     def imu_arrays(self) -> tuple[Vec, Vec, Vec]:
         """:func:`imu_arrays` of ``imu``, built once (read only)."""
         a = self._of_imu("imu_arrays", imu_arrays)
@@ -178,7 +240,8 @@ class Prepared:
 
     def rate_bins(self) -> Vec:
         """:func:`rate_bins` of ``imu``, computed once."""
-        return cast(Vec, self._of_imu("rate_bins", rate_bins).copy())
+        a = self.imu_arrays()  # (the screen's when it built them)
+        return cast(Vec, self._of_imu("rate_bins", lambda _: _rate_bins(a[1], a[0][:, :3], a[2])).copy())
 
 
 def _decimal_year(unix_s: float) -> float:
@@ -237,6 +300,23 @@ def _shifted(imu: list[ImuSample], t1: float, off: float, R: Vec | None) -> list
     return out
 
 
+_GNSS_FIELDS = operator.attrgetter(*(f.name for f in dataclasses.fields(GnssFix)))
+
+
+def _gnss_shifted(gnss: list[GnssFix], off: float) -> list[GnssFix]:
+    """Copies of the fixes with their time moved by ``off`` s (``dataclasses.replace`` of each, without its
+    per-call cost: copied field by field)."""
+    out = []
+    for f in gnss:
+        if type(f) is GnssFix:
+            n = GnssFix(*_GNSS_FIELDS(f))
+            n.t = f.t + off
+        else:
+            n = dataclasses.replace(f, t=f.t + off)
+        out.append(n)
+    return out
+
+
 def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     """Apply the dataset config to ``ds`` (causal streams for the core; nothing from the onboard estimate)."""
     notes: list[str] = list(ds.meta.get("notes", []))
@@ -260,7 +340,7 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
         imu = [s for s in ds.imu if s.t <= t1]
     else:
         imu = _shifted(ds.imu, t1, off, R if rot else None)
-    gnss = [dataclasses.replace(f, t=f.t + cfg.gnss_time_offset) for f in ds.gnss] if cfg.use_gnss else []
+    gnss = _gnss_shifted(ds.gnss, cfg.gnss_time_offset) if cfg.use_gnss else []
     mag = [dataclasses.replace(m, field_b=R @ m.field_b) if rot else m for m in ds.mag] if cfg.use_mag else []
     baro = list(ds.baro) if cfg.use_baro else []
     # the validation boundary (the gateway's): what the core is given is finite, in range and in time order
@@ -278,6 +358,8 @@ def prepare(ds: Dataset, cfg: DatasetConfig) -> Prepared:
     else:
         origin = (0.0, 0.0, 0.0)
     p = Prepared(imu, gnss, [], nav, imu[0].t, imu[-1].t, origin, notes, source=source)
+    if sc.imu_arrays is not None:
+        p.use_imu_arrays(sc.imu_arrays)
     if mag and "ref_ned" not in cfg.nav.get("mag", {}):
         ref: Vec | None = None
         if isinstance(cfg.mag_reference, np.ndarray):
@@ -474,6 +556,7 @@ def replay(
                                                                         and "baro" not in on_aid_kinds)):  # fmt: skip
             plan = _BaroPlan(imu, aids, when, arrays)
             arrays = plan.arrays
+        ordered = plan is not None and plan.one_id  # screened, one IMU: its times increase (Pipeline.imu_run)
         k = 0
         while k < n:
             if plan is not None and j < plan.na and plan.ok[j]:
@@ -501,6 +584,7 @@ def replay(
                 list(imu[k:k_end]) if not isinstance(imu, list) else imu[k:k_end],
                 screened,
                 None if arrays is None else (arrays[0][k:k_end], arrays[1][k:k_end], arrays[2][k:k_end]),
+                ordered,
             )
             t = ts[k_end - 1]
             if j < na and when[j] <= t:
@@ -575,7 +659,7 @@ class _BaroPlan:
         lost[2:] = np.cumsum((t[1:] - dt[1:] - t[:-1]) > 0.5 * dt[1:])
         self.lost = lost.tolist()  # lost[k]: samples before index k with data lost before them
         self.h = np.searchsorted(t, np.asarray(when, dtype=np.float64), "left").tolist()
-        one_id = len({s.imu_id for s in imu}) == 1
+        one_id = self.one_id = len({s.imu_id for s in imu}) == 1
         self.bt = np.array([m.t for m in aids], dtype=np.float64)
         self.alt = np.array([m.altitude if type(m) is BaroSample else math.nan for m in aids], dtype=np.float64)
         fin = np.isfinite(self.alt).tolist()
@@ -747,6 +831,7 @@ class GnssScore(Observer):
         # the origin's ECEF point and C_e^n, once (``earth.ned_from_geodetic``'s numbers without recomputing them)
         self._o_ecef = earth.geodetic_to_ecef(*origin)
         self._c_en = earth.dcm_ecef_to_ned(origin[0], origin[1])
+        self._dcm_of: tuple[Any, Any, Vec] | None = None  # (state, its q_nb, C_b^n): :meth:`_dcm`'s last
 
     def _ned(self, lat: float, lon: float, h: float) -> Vec:
         """``earth.ned_from_geodetic(lat, lon, h, *origin)``."""
@@ -755,9 +840,21 @@ class GnssScore(Observer):
     def _ref(self, f: GnssFix) -> Vec:
         return self._ned(f.lat, f.lon, f.h)
 
+    def _dcm(self, st: Any) -> Vec:
+        """``dcm_from_quat(st.q_nb)``, computed once per state: a core hands out the same ``NavState`` while it
+        does not change (the C core), so a fix's prior is turned once for :meth:`before_fuse` and its segment's
+        start, its posterior once for the segment's end and :meth:`after_fuse` (states are never mutated)."""
+        c = self._dcm_of
+        q = st.q_nb
+        if c is not None and c[0] is st and c[1] is q:
+            return c[2]
+        C = dcm_from_quat(q)
+        self._dcm_of = (st, q, C)
+        return C
+
     def _antenna(self, st: Any, t: float) -> Vec:
         """:func:`antenna_ned` of ``st`` at ``t`` (this observer's lever arm and origin)."""
-        return self._ned(st.lat, st.lon, st.h) + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t - st.t)
+        return self._ned(st.lat, st.lon, st.h) + self._dcm(st) @ self.lever + st.vel_ned * (t - st.t)
 
     def epoch(self, pipe: Pipeline, st: NavState) -> None:
         self._epochs += 1
@@ -816,11 +913,11 @@ class GnssScore(Observer):
             self._close(k, row)
             # the accelerometer reading of an unaccelerated vehicle at the attitude and bias before this span
             g_n = np.array((0.0, 0.0, -earth.normal_gravity(st.lat, st.h)))
-            self._f_raw[k] = dcm_from_quat(st.q_nb).T @ g_n + st.accel_bias
+            self._f_raw[k] = self._dcm(st).T @ g_n + st.accel_bias
             return
         f_raw = self._f_raw.get(k)
         if f_raw is not None:  # seen through the updated attitude and bias: the horizontal f the update moved
-            self._span[k] = (self._epochs, dcm_from_quat(st.q_nb) @ (f_raw - st.accel_bias))
+            self._span[k] = (self._epochs, self._dcm(st) @ (f_raw - st.accel_bias))
 
     def _close(self, k: int, row: FixScore) -> None:
         """Add the horizontal f of the span that ended at the last segment end to the fix's correction."""
@@ -943,6 +1040,13 @@ def rate_bins(imu: list[ImuSample]) -> Vec:
     t = np.fromiter((s.t for s in imu), np.float64, len(imu))
     d = np.array([s.dtheta for s in imu])
     dt = np.fromiter((s.dt for s in imu), np.float64, len(imu))
+    return _rate_bins(t, d, dt)
+
+
+def _rate_bins(t: Vec, d: Vec, dt: Vec) -> Vec:
+    """:func:`rate_bins` of the samples' times ``t`` (n,) s, angle increments ``d`` (n, 3) rad and steps ``dt``."""
+    if not len(t):
+        return np.zeros((0, 2))
     # the bins that hold samples only: the arrays are sized by the samples, never by the time span
     bins, k = np.unique((t - t[0]) // RATE_BIN_S, return_inverse=True)
     ang = np.zeros((len(bins), 3))
@@ -983,7 +1087,20 @@ def typical_corrections(r: RunResult) -> float:
     t = r.sf_corr[:, 0]
     edges = np.arange(t[0], t[-1], CORR_S)
     sums = [corrections(r, e, e + CORR_S) for e in edges if np.any((t >= e) & (t < e + CORR_S))]
-    return float(np.median(sums)) if sums else math.nan
+    return median(sums) if sums else math.nan
+
+
+def median(x: Sequence[float] | Vec) -> float:
+    """``float(np.median(x))`` of a 1-D sequence, the same number (the mean of the middle value or of the two
+    middle ones as numpy takes it, its sum from 0.0; NaN if any value is NaN), without numpy's median: its NaN
+    check imports ``numpy.ma`` (~38 ms of CPU, a third of a C replay's imports)."""
+    v = x.tolist() if isinstance(x, np.ndarray) else [float(a) for a in x]
+    n = len(v)
+    if not n or any(a != a for a in v):
+        return math.nan
+    v.sort()
+    m = n // 2
+    return 0.0 + v[m] if n % 2 else (0.0 + v[m - 1] + v[m]) / 2.0
 
 
 def hrms(e: Vec) -> float:
@@ -1018,7 +1135,7 @@ def autocorrelation(t: Vec, x: Vec, lags: int = 3, gap: float = 1.5) -> list[flo
         return [math.nan] * lags
     d = x - np.mean(x)
     var = float(np.mean(d * d))
-    dt = float(np.median(np.diff(t)))
+    dt = median(np.diff(t))
     for lag in range(1, lags + 1):
         ok = (t[lag:] - t[:-lag]) <= (lag + gap - 1.0) * dt
         n = int(ok.sum())

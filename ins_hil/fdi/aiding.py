@@ -400,13 +400,13 @@ class AidingMonitor:
         vp_ne, vp_d = sp_ne * sp_ne, sp_d * sp_d
         sp0, self._st_prev = self._st_prev, st
         # --- innovations against the INS at the fix's time of validity
-        lag, a_n, dz_p, dz_v = self._lag(g, st)
+        C = dcm_from_quat(st.q_nb) if self._has_lever else None  # (once: the lever arm's and _lag's)
+        lag, a_n, dz_p, dz_v = self._lag(g, st, C)
         v0, v1, v2 = _xyz(st.vel_ned)
         d0 = d1 = d2 = 0.0
-        if self._has_lever:
+        if C is not None:
             # the INS at the antenna: p + C_b^n l, v + C_b^n (ω_ib × l) (book eq. 3.3 with lever arm, as
             # fusion.measurements); the lever arm turns with the heading, by up to 2|l| on a turn of 180°
-            C = dcm_from_quat(st.q_nb)
             d0, d1, d2 = (C @ self._lever).tolist()
             # ω × l in Python floats (numpy's cross of two 3-vectors: the same products and differences)
             w0, w1, w2 = _xyz(st.omega_b)
@@ -433,7 +433,7 @@ class AidingMonitor:
                 # the fix's velocity is valid ``gnss_vel_delay`` before its position (the core fuses it there):
                 # the state's velocity moved back by that much more (v − a·(lag + delay))
                 if lag <= 0.0:
-                    a0, a1, a2 = self._accel_ned(st)
+                    a0, a1, a2 = self._accel_ned(st, C)
                 back_v = back + self._vel_delay
                 if st.t - self._t_nav < c.clear_time:
                     # the core's first velocities are older than its delayed-fusion history and fused as current
@@ -597,7 +597,7 @@ class AidingMonitor:
         if fix_ok:
             self._baro_vs_gnss(g, sp_d)
 
-    def _lag(self, g: GnssFix, st: NavState) -> tuple[float, Xyz, Xyz, Xyz]:
+    def _lag(self, g: GnssFix, st: NavState, C: np.ndarray | None = None) -> tuple[float, Xyz, Xyz, Xyz]:
         """Lag of the fix behind the state (s, ≥ 0), the state's NED acceleration (m/s²) and the
         dead zones (m, m/s per NED axis) of the position and velocity innovations that the lag
         alone can cause.
@@ -613,7 +613,8 @@ class AidingMonitor:
         velocity changes (the filter adapts with its own time constant): the innovations get
         dead zones ``lag_margin``·½·lag·|a| (velocity) and ``lag_margin``·lag·|v − v̄|
         (position; v̄ = EMA of v over ``lag_tau`` s, the velocity change the filter is still
-        catching up with). With a timely fix (lag ≈ 0) both vanish."""
+        catching up with). With a timely fix (lag ≈ 0) both vanish. ``C``: ``dcm_from_quat(st.q_nb)`` if the
+        caller has it."""
         c = self.cfg
         v0, v1, v2 = _xyz(st.vel_ned)
         if math.isnan(self._v_t):
@@ -626,7 +627,7 @@ class AidingMonitor:
         lag = st.t - g.t
         if lag <= 0.0 or lag > c.max_lag:
             return 0.0, _Z3, _Z3, _Z3
-        a0, a1, a2 = a_n = self._accel_ned(st)
+        a0, a1, a2 = a_n = self._accel_ned(st, C)
         k = c.lag_margin * 0.5 * lag
         dz_v = (k * abs(a0), k * abs(a1), k * abs(a2))
         k = c.lag_margin * lag
@@ -635,10 +636,12 @@ class AidingMonitor:
         return lag, a_n, dz_p, dz_v
 
     @staticmethod
-    def _accel_ned(st: NavState) -> Xyz:
+    def _accel_ned(st: NavState, C: np.ndarray | None = None) -> Xyz:
         """The state's NED acceleration C_b^n·f_b + g (m/s²; Coriolis/transport terms < 0.01 m/s² here), the numbers
-        of ``dcm_from_quat(q) @ f_b + gravity_ned(lat, h)``."""
-        x0, x1, x2 = (dcm_from_quat(st.q_nb) @ np.asarray(st.accel_b, dtype=np.float64)).tolist()
+        of ``dcm_from_quat(q) @ f_b + gravity_ned(lat, h)`` (``C``: that DCM if the caller has it)."""
+        if C is None:
+            C = dcm_from_quat(st.q_nb)
+        x0, x1, x2 = (C @ np.asarray(st.accel_b, dtype=np.float64)).tolist()
         return x0 + 0.0, x1 + 0.0, x2 + earth.normal_gravity(st.lat, st.h)
 
     def _consistency(self, ratio_d: float) -> tuple[float, float]:

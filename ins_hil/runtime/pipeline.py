@@ -498,7 +498,8 @@ class Pipeline:
             return None
 
     def imu_run(self, samples: list[ImuSample], screened: bool = False,
-                arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:  # fmt: skip
+                arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                ordered: bool = False) -> None:  # fmt: skip
         """:meth:`imu` on each of ``samples`` in order, with nothing handed over in between (an offline replay's
         IMU samples up to the next aiding measurement). The same states, counts, events and observer calls; on
         the C core, once it navigates, the samples that pass the validation boundary go into the core in one
@@ -510,7 +511,8 @@ class Pipeline:
         them in time order is taken without a second check (``SampleValidator.imu_screened``: each sample is
         checked once); every other sample is checked here as without it. ``arrays``: the (n, 6) increments, times
         and steps of ``samples`` as ``CNavCore.run_states`` takes them, when the caller has them (an offline replay:
-        slices of the whole log's, not built again here)."""
+        slices of the whole log's, not built again here). ``ordered`` (with ``screened``): the samples are of one
+        IMU and their times increase (a screened log of one IMU): only the first one's time is compared here."""
         k, n = 0, len(samples)
         vd = self.validator
         while k < n:
@@ -523,9 +525,13 @@ class Pipeline:
             if screened:  # checked by the screen: only their time order here (the run a clock restart would end)
                 iid = samples[k].imu_id
                 tp = max(t_prev, vd.imu_time(iid))
-                while j < n and samples[j].t > tp and samples[j].imu_id == iid:
-                    tp = samples[j].t
-                    j += 1
+                if ordered:
+                    if samples[k].t > tp:
+                        j, tp = n, samples[n - 1].t
+                else:
+                    while j < n and samples[j].t > tp and samples[j].imu_id == iid:
+                        tp = samples[j].t
+                        j += 1
                 if j > k and not vd.imu_screened(iid, tp):
                     j = k  # the validator still learns the period: checked below
             if j == k:
