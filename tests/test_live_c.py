@@ -170,3 +170,32 @@ def test_c_core_keeps_publishing_across_a_roll_back_to_its_first_step() -> None:
             # valid before the second step: back to the first step's snapshot
             core.fuse(BaroSample(t=0.5e-3, pressure=math.nan, altitude=100.2))
     assert all(math.isfinite(st.lat) and abs(st.t - (k + 1) * 1e-3) < 1e-12 for k, st in enumerate(states))
+
+
+def test_one_read_of_two_imus_runs_the_core_once_with_the_same_result() -> None:
+    """The serial driver hands the samples of one read to the gateway in one call (its sink's ``many``): the
+    soak's gateway (2 IMUs on one link, FDI, C core) sends the same bytes, makes the same states and counts as
+    with one sink call per sample, also with a FIFO of one sample (nothing dropped: it is drained first)."""
+    from ins_hil.soak import live_path
+
+    ns = live_path._namespace("c", 1000.0, 2, 3.0, 7)
+    ns.warmup, ns.chunk_s = 0.0, 3.0
+    one = live_path.drive(ns, batch=False)
+    many = live_path.drive(ns)
+    assert one["digest"] == many["digest"] and one["counts"] == many["counts"]
+    assert many["received"] == one["received"] == 2 * 3000 and many["dropped"] == one["dropped"] == 0
+    assert many["sent"]["ODOMETRY"] > 100
+
+    from ins_hil.drivers.serial_frame import encode
+    from ins_hil.drivers.serial_imu import SerialImuDriver
+
+    from ins_hil.types import ImuSample
+
+    gw, _, _ = live_path.build(ns, [0])
+    gw.queue_size = 1
+    sink = gw._sink_for("imu0")
+    assert hasattr(sink, "many")
+    data = b"".join(encode(ImuSample(0.001, 0.001, np.zeros(3), np.zeros(3), imu_id=u)) for u in range(2))
+    SerialImuDriver("/dev/null", name="imu0").feed(data, sink, 1_000_000)
+    src = gw.metrics.source("imu0")
+    assert src.received == 2 and gw.metrics.dropped_total() == 0 and not gw.queue

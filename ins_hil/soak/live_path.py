@@ -162,11 +162,15 @@ def build(a: argparse.Namespace, clock: list[int]) -> tuple[Any, Any, _Wire]:
     return gw, drv, wire
 
 
-def drive(a: argparse.Namespace, probe: Callable[[int], None] | None = None) -> dict[str, Any]:
-    """One run; returns epochs counted, process time (s) over them, and the digest parts."""
+def drive(a: argparse.Namespace, probe: Callable[[int], None] | None = None, batch: bool = True) -> dict[str, Any]:
+    """One run; returns epochs counted, process time (s) over them, and the digest parts. ``batch`` False: the
+    driver hands the samples of a read to the gateway one call each (a sink without ``many``)."""
     clock = [0]
     gw, drv, wire = build(a, clock)
     sink_imu = gw._sink_for("imu0")
+    if not batch:
+        one = sink_imu
+        sink_imu = lambda s: one(s)
     sink_aid = gw._sink_for("gnss")
     warm_ns = round(a.warmup * 1e9)
     n = 0
@@ -203,6 +207,7 @@ def drive(a: argparse.Namespace, probe: Callable[[int], None] | None = None) -> 
             repr((st.t, st.lat, st.lon, st.h, st.q_nb.tolist(), st.vel_ned.tolist(), st.std_pos.tolist())).encode()
         )
     return {"epochs": n, "cpu_s": cpu, "digest": h.hexdigest(), "messages": wire.n, "counts": dict(pipe.counts),
+            "received": gw.metrics.source("imu0").received, "dropped": gw.metrics.dropped_total(),
             "sent": {k: v for ep in gw.mav_outputs for k, v in ep.sent.items()}, "fdi_events": len(ev)}  # fmt: skip
 
 
