@@ -191,7 +191,7 @@ def test_one_read_of_two_imus_runs_the_core_once_with_the_same_result() -> None:
 
     from ins_hil.types import ImuSample
 
-    gw, _, _ = live_path.build(ns, [0])
+    gw, _, _ = live_path.build(ns)
     gw.queue_size = 1
     sink = gw._sink_for("imu0")
     assert hasattr(sink, "many")

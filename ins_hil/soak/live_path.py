@@ -133,22 +133,32 @@ def events(a: argparse.Namespace) -> Iterator[tuple[int, str, Any]]:
             yield arr, "imu0", data
 
 
-def build(a: argparse.Namespace, clock: list[int]) -> tuple[Any, Any, _Wire]:
-    """The soak's gateway for ``a`` (not started), its serial driver and the output's stand-in transport."""
-    import dataclasses
+@contextlib.contextmanager
+def simulated_clock(clock: list[int]) -> Iterator[None]:
+    """The runtime modules' ``time.monotonic_ns`` / ``time.monotonic`` read ``clock[0]`` (ns) inside the block."""
+    from ins_hil.runtime import loop, mavlink_out, metrics
+    from ins_hil.runtime.mavlink_msgs import common, gcs, requests
 
+    fake = types.SimpleNamespace(**{k: getattr(time, k) for k in dir(time) if not k.startswith("_")})
+    fake.monotonic_ns = lambda: clock[0]
+    fake.monotonic = lambda: clock[0] * 1e-9
+    mods = (mavlink_out, common, gcs, requests, loop, metrics)
+    for mod in mods:
+        mod.time = fake  # type: ignore[attr-defined]
+    try:
+        yield
+    finally:
+        for mod in mods:
+            mod.time = time  # type: ignore[attr-defined]
+
+
+def build(a: argparse.Namespace) -> tuple[Any, Any, _Wire]:
+    """The soak's gateway for ``a`` (not started), its serial driver and the output's stand-in transport."""
     from ins_hil.config import from_dict
     from ins_hil.drivers.serial_imu import SerialImuDriver
-    from ins_hil.runtime import loop, mavlink_out, metrics
     from ins_hil.runtime.loop import Gateway
-    from ins_hil.runtime.mavlink_msgs import common, gcs, requests
     from ins_hil.soak.gateway import gateway_config
 
-    fake_time = types.SimpleNamespace(**{k: getattr(time, k) for k in dir(time) if not k.startswith("_")})
-    fake_time.monotonic_ns = lambda: clock[0]
-    fake_time.monotonic = lambda: clock[0] * 1e-9
-    for mod in (mavlink_out, common, gcs, requests, loop, metrics):
-        mod.time = fake_time  # type: ignore[attr-defined]
     cfg = from_dict(gateway_config(a), source="bench")
     gw = Gateway(cfg)
     wire = _Wire()
@@ -157,16 +167,19 @@ def build(a: argparse.Namespace, clock: list[int]) -> tuple[Any, Any, _Wire]:
         ep.reset_counter = 0  # (random at start: the digest wants it fixed)
         ep._t0_ns = 0
     gw.metrics.expect_inputs([("imu0", "serial_imu"), ("gnss", "mavlink")])
-    drv = SerialImuDriver("/dev/null", name="imu0")
-    _ = dataclasses
-    return gw, drv, wire
+    return gw, SerialImuDriver("/dev/null", name="imu0"), wire
 
 
 def drive(a: argparse.Namespace, probe: Callable[[int], None] | None = None, batch: bool = True) -> dict[str, Any]:
     """One run; returns epochs counted, process time (s) over them, and the digest parts. ``batch`` False: the
     driver hands the samples of a read to the gateway one call each (a sink without ``many``)."""
     clock = [0]
-    gw, drv, wire = build(a, clock)
+    with simulated_clock(clock):
+        return _drive(a, clock, probe, batch)
+
+
+def _drive(a: argparse.Namespace, clock: list[int], probe: Callable[[int], None] | None, batch: bool) -> dict[str, Any]:
+    gw, drv, wire = build(a)
     sink_imu = gw._sink_for("imu0")
     if not batch:
         one = sink_imu

@@ -388,6 +388,9 @@ class MessageBase:
         self._fc_prev: tuple[float, ...] | None = None  # that state's t (s), NED offset (m), NED velocity (m/s)
         # unsigned link with the extension: ODOMETRY built and framed in C (its own copy of the home and _fc_prev)
         self._live = _LiveOdometry() if self._fast and _live_lib is not None else None
+        if self._live is not None:  # the ids that never change (the rest: per message, _odometry_c)
+            self._live.ids[1] = self._m.MAV_FRAME_BODY_FRD
+            self._live.ids[3] = self._m.MAV_ESTIMATOR_TYPE_VIO
 
     def _emit(self, frame: _Frame, *values: Any) -> None:
         """Send one message framed by ``frame`` (values in wire order), with pymavlink's bookkeeping."""

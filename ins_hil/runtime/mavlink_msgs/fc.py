@@ -140,12 +140,20 @@ class FcMessages(MessageBase):
         assert lv is not None and _live_lib is not None
         if self._home is None:
             self._set_home(st)
-        lv.st[0:23] = [st.t, st.lat, st.lon, st.h, *_floats(st.q_nb), *_floats(st.vel_ned), *_floats(st.omega_b),
-                       *_floats(st.std_pos), *_floats(st.std_vel), *_floats(st.std_att)]  # fmt: skip
-        mav, m = self.mav, self._m
-        lv.ids[0:8] = [self._odom_frame, m.MAV_FRAME_BODY_FRD, self.reset_counter, m.MAV_ESTIMATOR_TYPE_VIO, quality,
-                       mav.seq, mav.srcSystem, mav.srcComponent]  # fmt: skip
-        r = _live_lib.live_odometry(lv.out, lv.st, lv.home, lv.prev, 1 if reset else 0, lv.ids)
+        try:  # (ndarray.tolist: the floats of _floats, without its call)
+            lv.st[0:23] = [st.t, st.lat, st.lon, st.h, *st.q_nb.tolist(), *st.vel_ned.tolist(), *st.omega_b.tolist(),
+                           *st.std_pos.tolist(), *st.std_vel.tolist(), *st.std_att.tolist()]  # fmt: skip
+        except AttributeError:  # not arrays
+            lv.st[0:23] = [st.t, st.lat, st.lon, st.h, *_floats(st.q_nb), *_floats(st.vel_ned), *_floats(st.omega_b),
+                           *_floats(st.std_pos), *_floats(st.std_vel), *_floats(st.std_att)]  # fmt: skip
+        mav, ids = self.mav, lv.ids
+        ids[0] = self._odom_frame
+        ids[2] = self.reset_counter
+        ids[4] = quality
+        ids[5] = mav.seq
+        ids[6] = mav.srcSystem
+        ids[7] = mav.srcComponent
+        r = _live_lib.live_odometry(lv.out, lv.st, lv.home, lv.prev, 1 if reset else 0, ids)
         if r >= 0x10000 or r == -2:  # the position stepped beyond what the velocity explains
             self.reset_counter = (self.reset_counter + 1) & 0xFF
         if r < 0:  # as struct.pack: a value the message cannot carry
