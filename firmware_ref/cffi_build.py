@@ -176,7 +176,8 @@ if __name__ == "__main__":
 # on the live per-sample path) in both modules; the sources and cdefs appended, the two builders made again ====
 _LIVE_CDEF = """
 typedef struct {{
-    int n, m, L, pos, persistence;
+    int n, nh, m, L, pos, persistence;
+    int *hidx;
     long long run, srun;
     double alpha, oma, thr_fast, thr_slow, onset;
     double *M, *Un, *prev, *buf, *tbuf, *ema, *score;

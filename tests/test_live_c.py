@@ -131,10 +131,10 @@ def test_fdi_group_step_in_c_makes_the_python_decisions(monkeypatch: pytest.Monk
         return step(self, *a)
 
     monkeypatch.setattr(fdi_monitor._Group, "step", counted)
-    before_fault = 0
+    mark: dict[int, int] = {}
     for k in range(len(s.t)):
-        if k == 600:
-            before_fault = calls["c"]
+        if k in (600, 1000, 1500):
+            mark[k] = calls["c"]
         a = with_c.process(s.epoch(k))[0]
         b = py.process(s.epoch(k))[0]
         for x, y in ((a.dtheta, b.dtheta), (a.dvel, b.dvel)):  # to rounding of the vector's size
@@ -142,7 +142,10 @@ def test_fdi_group_step_in_c_makes_the_python_decisions(monkeypatch: pytest.Monk
     key = [(e.t, e.sensor, e.mode, e.isolated, e.cleared) for e in py.events]
     assert len(key) >= 3 and [(e.t, e.sensor, e.mode, e.isolated, e.cleared) for e in with_c.events] == key
     assert with_c.excluded == py.excluded
-    assert before_fault == 0  # the healthy epochs in C; Python around the faults and while a row is excluded
+    assert with_c.events[0].t < 1000 * s.dt  # the gyro step isolated (its row excluded) before epoch 1000
+    # in C: the healthy epochs, and those with the faulty gyro row excluded (its residual watched in Python);
+    # the Python step around the faults only
+    assert mark[600] == 0 and mark[1500] == mark[1000]
 
 
 def test_c_core_keeps_publishing_across_a_roll_back_to_its_first_step() -> None:

@@ -1,8 +1,8 @@
 /* The live gateway's per-sample path in C (ins_hil.fdi.monitor, ins_hil.runtime.mavlink_msgs): compiled into the
  * Python extension only (firmware_ref/cffi_build.py, the live block), not part of the embedded core.
  *
- * - live_fdi_step: one epoch of one FDI parity group (ins_hil.fdi.monitor._Group.step) in its common case: every
- *   row healthy, none missing or repeating its last output, no fault run about to trip. It declines (returns 1,
+ * - live_fdi_step: one epoch of one FDI parity group (ins_hil.fdi.monitor._Group.step) in its common case: at
+ *   least 4 healthy rows, none missing or repeating its last output, no fault run about to trip. It declines (returns 1,
  *   nothing changed) whenever the Python step has more to do, which then runs as before.
  * - live_odometry: MAVLink 2 ODOMETRY of a navigation state, framed (MessageBase._emit / _Frame.frame with
  *   FcMessages._send_odometry's numbers): the same operations in the same order as the Python floats, the same
@@ -18,17 +18,18 @@
 /* ------------------------------------------------------------------------------------------ FDI parity group */
 
 int live_fdi_step(live_fdi_group_t *g, double t, const double *y, double *est) {
-    const int n = g->n, m = g->m, r = m + 3;
-    double out[LIVE_FDI_MAX_ROWS + 3], ema[LIVE_FDI_MAX_ROWS], s = 0.0, se = 0.0;
+    const int n = g->n, nh = g->nh, m = g->m, r = m + 3;
+    double out[LIVE_FDI_MAX_ROWS + 3], ema[LIVE_FDI_MAX_ROWS], yh[LIVE_FDI_MAX_ROWS], s = 0.0, se = 0.0;
     int i, j;
     long long run = g->run, srun;
-    if (n > LIVE_FDI_MAX_ROWS || m < 1 || m > LIVE_FDI_MAX_ROWS) return 1;
+    if (n > LIVE_FDI_MAX_ROWS || nh > n || m < 1 || m != nh - 3) return 1;
     for (i = 0; i < n; ++i) /* a missing row (NaN), an infinite one or a repeated output: the Python step */
         if (!isfinite(y[i]) || y[i] == g->prev[i]) return 1;
-    for (i = 0; i < r; ++i) { /* [parity p (whitened); LS estimate] = M y */
-        const double *row = g->M + (size_t)i * (size_t)n;
+    for (i = 0; i < nh; ++i) yh[i] = y[g->hidx[i]]; /* the healthy rows */
+    for (i = 0; i < r; ++i) { /* [parity p (whitened); LS estimate] = M y_h */
+        const double *row = g->M + (size_t)i * (size_t)nh;
         double acc = 0.0;
-        for (j = 0; j < n; ++j) acc = acc + row[j] * y[j];
+        for (j = 0; j < nh; ++j) acc = acc + row[j] * yh[j];
         out[i] = acc;
     }
     for (i = 0; i < m; ++i) {
@@ -49,14 +50,14 @@ int live_fdi_step(live_fdi_group_t *g, double t, const double *y, double *est) {
     memcpy(g->ema, ema, (size_t)m * sizeof(double));
     if (run) {
         if (g->run == 0) g->onset = t;
-        for (i = 0; i < n; ++i) { /* score += (Un p)^2 over the healthy rows (all here) */
+        for (i = 0; i < nh; ++i) { /* score += (Un p)^2 over the healthy rows */
             const double *row = g->Un + (size_t)i * (size_t)m;
             double acc = 0.0;
             for (j = 0; j < m; ++j) acc = acc + row[j] * out[j];
             g->score[i] = g->score[i] + acc * acc;
         }
     } else if (g->run) {
-        for (i = 0; i < n; ++i) g->score[i] = 0.0;
+        for (i = 0; i < nh; ++i) g->score[i] = 0.0;
     }
     g->run = run;
     g->srun = srun;

@@ -7,9 +7,11 @@
 #define LIVE_FDI_MAX_ROWS 16
 
 /* One FDI parity group's state (ins_hil.fdi.monitor._Group), the arrays those of the Python object (shared):
- * n rows, m parity dimensions; M (m + 3) x n = [V; Z], Un n x m, the history ring buf L x n and tbuf L at pos. */
+ * n rows, nh healthy ones (their indices hidx), m = nh - 3 parity dimensions; M (m + 3) x nh = [V; Z], Un nh x m,
+ * score nh, the history ring buf L x n and tbuf L at pos. */
 typedef struct {
-    int n, m, L, pos, persistence;
+    int n, nh, m, L, pos, persistence;
+    int *hidx;
     long long run, srun;
     double alpha, oma, thr_fast, thr_slow, onset;
     double *M, *Un, *prev, *buf, *tbuf, *ema, *score;

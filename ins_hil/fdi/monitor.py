@@ -171,7 +171,7 @@ def _shared(name: str) -> property:
 class _Group:
     """Parity monitor of one sensor group (gyros or accelerometers).
 
-    Its common epoch (every row healthy, none missing or repeating, no test about to trip) runs in C
+    Its common epoch (at least 4 healthy rows, none missing or repeating, no test about to trip) runs in C
     (``live_fdi_step``, firmware_ref/src/live.c) on the same arrays when the extension is there: the products
     ``[V; Z] y``, ``p·p`` and ``p̄·p̄`` are summed in row order (numpy's BLAS sums in its kernel's order: the
     estimate may differ from the all-Python step's in the last bits, the decisions are the same); every other
@@ -260,11 +260,15 @@ class _Group:
         thr1 = fast_threshold(self.cfg.p_false_alarm, self.cfg.dt, self.cfg.persistence, 1)
         self.thr_fast1 = thr1
         self.thr_slow1 = slow_threshold(self.cfg.p_false_alarm, self.cfg.slow_tau, 1) * self.var_slow
-        self._c_ok = not isinstance(self._st, _Scalars) and self._all_healthy and self.m >= 1
+        self._c_ok = not isinstance(self._st, _Scalars) and self.m >= 1
+        self._watch = len(self.hidx) < self.n  # excluded rows: watched after each epoch (_watch_excluded)
         if self._c_ok:  # the C step reads the healthy subset's matrices and the test's state from the struct
             st = self._st
             self._keep = self._keep[:3]  # prev, buf, tbuf (set once); the rest is rebuilt here
-            st.m, st.thr_fast, st.thr_slow = self.m, self.thr_fast, self.thr_slow
+            self._hidx_c = np.ascontiguousarray(self.hidx, dtype=np.intc)
+            st.nh, st.m, st.thr_fast, st.thr_slow = len(self.hidx), self.m, self.thr_fast, self.thr_slow
+            st.hidx = _ffi.from_buffer("int[]", self._hidx_c)
+            self._keep.append(st.hidx)
             st.M, st.Un, st.ema, st.score = self._ptr("M"), self._ptr("Un"), self._ptr("ema"), self._ptr("score")
 
     # -- one epoch --------------------------------------------------------------------------------
@@ -655,10 +659,14 @@ class FdiMonitor:
             dth = gy.step(t, self._yg, events)
         else:
             dth = gy.est = out[:3]
+            if gy._watch:  # as the Python step: the excluded rows against this estimate (classification, re-admission)
+                gy._watch_excluded(t, self._yg, dth, events)
         if ac._same_nz or ac._miss_nz or ac.leak_on or step(ac._st, t, self._pya, po + 3):
             dv = ac.step(t, self._ya, events)
         else:
             dv = ac.est = out[3:]
+            if ac._watch:
+                ac._watch_excluded(t, self._ya, dv, events)
         return dth, dv
 
     def process_arrays(self, t: float, dt: float, yg: Vec, ya: Vec) -> tuple[Vec, Vec, list[FaultEvent]]:

@@ -292,10 +292,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--warmup", type=float, default=10.0, help="sensor time not counted (s)")
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--faults", default="none", help="the soak's fault schedule (ins_hil.soak.faults), e.g. auto")
     ap.add_argument("--profile", metavar="FILE", help="also write a cProfile of a run (call counts)")
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     a = ap.parse_args(argv)
     ns = _namespace(a.core, a.rate, 2, a.seconds, a.seed)
+    ns.faults = a.faults
     ns.warmup = a.warmup
     import gc
 
@@ -316,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, *_ in _PROBES:
         v = times.get(name, [])
         rows.append((name, _trimmed_sum(v) / n / 1e3 if n else 0.0, len(v) / n if n else 0.0))
-    print(f"live path, core {a.core}, 1 kHz x 2 IMUs, {n} epochs counted; load {_load()}")
+    print(f"live path, core {a.core}, 1 kHz x 2 IMUs, faults {a.faults}, {n} epochs counted; load {_load()}")
     print(f"digest {plain['digest']} (probed run {'same' if probed['digest'] == plain['digest'] else 'DIFFERS'})")
     print(f"messages sent: {plain['sent']}; FDI events {plain['fdi_events']}")
     print(f"total (process time, no probes): {plain['cpu_s'] / n * 1e6:.1f} us per epoch")
