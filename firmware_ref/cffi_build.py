@@ -175,3 +175,30 @@ ffi_float = _builder("ins_hil._cref_f32", "float", [("INS_REF_FLOAT", None)])
 if __name__ == "__main__":
     ffi_double.compile(verbose=True)
     ffi_float.compile(verbose=True)
+
+# ==== BEGIN live gateway block (#42, clive): firmware_ref/src/live.c (the FDI parity group, ODOMETRY, MAVLink framing
+# on the live per-sample path) in both modules; the sources and cdefs appended, the two builders made again ====
+_LIVE_CDEF = """
+typedef struct {{
+    int n, nh, m, L, pos, persistence;
+    int *hidx;
+    long long run, srun;
+    double alpha, oma, thr_fast, thr_slow, onset;
+    double *M, *Un, *prev, *buf, *tbuf, *ema, *score;
+}} live_fdi_group_t;
+int live_fdi_step(live_fdi_group_t *g, double t, const double *y, double *est);
+uint16_t live_crc(const uint8_t *p, size_t n, uint16_t crc);
+size_t live_frame(uint8_t *out, const uint8_t *payload, size_t len, uint32_t msgid, uint8_t crc_extra, uint8_t seq,
+                  uint8_t sysid, uint8_t compid);
+int live_odometry(uint8_t *out, const double *s, const double *home, double *prev, int reset, const int *ids);
+double live_hypot(double a, double b);
+"""
+_SOURCES.append("live.c")
+_CDEF += _LIVE_CDEF
+_GLUE += '#include "live.h"\n'
+ffi_double = _builder("ins_hil._cref", "double", [])
+ffi_float = _builder("ins_hil._cref_f32", "float", [("INS_REF_FLOAT", None)])
+if __name__ == "__main__":
+    ffi_double.compile(verbose=True)
+    ffi_float.compile(verbose=True)
+# ==== END live gateway block ====

@@ -633,9 +633,11 @@ class CNavCore:
         """:meth:`step`, returning the state after the mechanization, as ``NavCore.step_begin`` does: before the
         filter time update, the ground aids and the hold of this step (σ of the previous step). The C step is one
         piece (it writes that state to ``ins_core_t.pub`` on its way); :meth:`state` is the state after it all."""
-        if self._align is not None or self.dt is None:
+        if self._align is not None:
             return self.step(imu)
-        self._publish()
+        self._publish()  # before the first step too: every snapshot of the roll-back history carries ``pub``
+        if self.dt is None:  # (a roll-back restores the core from one, ``pub`` included)
+            return self.step(imu)
         self._advance(imu)  # (no NavState of the state after the whole step: nobody asks for it here)
         self._lib_.cref_pub_state(self._core, self._out)
         return self._nav_state(self._out_np.copy())

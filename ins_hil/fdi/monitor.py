@@ -35,14 +35,17 @@ Per group (gyros, accelerometers), with outputs whitened by their noise:
 
 With m = n_healthy − 3 = 1 a fault is detected (event with ``isolated=False``)
 but cannot be isolated; with m = 0 nothing is monitored. Pure and deterministic
-(no clock, no I/O); cost a few tens of µs per call (``ins-hil bench-fdi``).
+(no clock, no I/O); cost per 2-IMU epoch about 4 µs with the common epoch in C (:class:`_Group`), about
+20 µs all in Python (``python -m ins_hil.soak.live_path``; ``ins-hil bench-fdi``).
 """
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -51,6 +54,14 @@ from ins_hil.fdi.parity import parity_basis
 from ins_hil.fdi.thresholds import fast_threshold, increment_sigma, slow_threshold, slow_variance
 from ins_hil.settings import check_fields, setting
 from ins_hil.types import FaultEvent, FaultMode, ImuSample, Vec
+
+try:  # the common case of a group's epoch in C (firmware_ref/src/live.c, live_fdi_step); None without the extension
+    _live: Any = importlib.import_module("ins_hil._cref")  # (by name: the extension is no module of the layers)
+    _ffi, _lib = _live.ffi, _live.lib
+except ImportError:  # pragma: no cover - the extension is built at every install
+    _ffi = _lib = None
+#: rows a group may have for the C step (LIVE_FDI_MAX_ROWS of firmware_ref/src/live.h)
+_C_MAX_ROWS = 16
 
 # ufuncs/reductions called directly on the hot path (the ndarray methods add Python-level wrappers)
 _equal = np.equal
@@ -135,10 +146,48 @@ class _Pending:
     yhat: list[float]
 
 
+class _Scalars:
+    """The group's counters without the C extension (with it: the ``live_fdi_group_t`` the C step shares)."""
+
+    __slots__ = ("onset", "pos", "run", "srun")
+
+    def __init__(self) -> None:
+        self.pos = self.run = self.srun = 0
+        self.onset = math.nan
+
+
+def _shared(name: str) -> property:
+    """An attribute of the group kept in its ``_st`` (the C step's struct, or :class:`_Scalars`)."""
+
+    def get(self: _Group) -> Any:
+        return getattr(self._st, name)
+
+    def put(self: _Group, v: Any) -> None:
+        setattr(self._st, name, v)
+
+    return property(get, put)
+
+
 class _Group:
-    """Parity monitor of one sensor group (gyros or accelerometers)."""
+    """Parity monitor of one sensor group (gyros or accelerometers).
+
+    Its common epoch (at least 4 healthy rows, none missing or repeating, no test about to trip) runs in C
+    (``live_fdi_step``, firmware_ref/src/live.c) on the same arrays when the extension is there: the products
+    ``[V; Z] y``, ``p·p`` and ``p̄·p̄`` are summed in row order (numpy's BLAS sums in its kernel's order: the
+    estimate may differ from the all-Python step's in the last bits, the decisions are the same); every other
+    epoch runs :meth:`step` in Python as before."""
+
+    # the counters the C step updates (in the shared struct)
+    pos = _shared("pos")
+    run = _shared("run")
+    srun = _shared("srun")
+    onset = _shared("onset")
 
     def __init__(self, cfg: FdiConfig, name: str, A: Vec, noise: float, bias: float) -> None:
+        n_rows = int(np.asarray(A).shape[0])
+        self._st: Any = _ffi.new("live_fdi_group_t *") if _lib is not None and n_rows <= _C_MAX_ROWS else _Scalars()
+        self._keep: list[Any] = []  # the buffers the struct points into
+        self._c_ok = False  # the C step may run (set by _rebuild)
         self.cfg = cfg
         self.name = name
         self.geo = cfg.geometry
@@ -169,7 +218,20 @@ class _Group:
         self.est: Vec = np.zeros(3)
         self.leak: Vec = np.zeros(3)
         self.leak_on = False
+        if not isinstance(self._st, _Scalars):  # what the C step reads that never changes (arrays: filled in place)
+            st = self._st
+            st.n, st.L, st.persistence = self.n, L, cfg.persistence
+            st.alpha, st.oma = self.alpha, self._one_minus_alpha
+            st.prev, st.buf, st.tbuf = self._ptr("prev"), self._ptr("buf"), self._ptr("tbuf")
         self._rebuild()
+
+    def _ptr(self, name: str) -> Any:
+        """A C pointer to the float64 array attribute ``name`` (kept alive with the struct)."""
+        a = getattr(self, name)
+        assert a.dtype == np.float64 and a.flags.c_contiguous
+        p = _ffi.from_buffer("double[]", a)
+        self._keep.append(p)
+        return p
 
     # -- configuration of the healthy subset --------------------------------------------------
     def _rebuild(self) -> None:
@@ -198,6 +260,16 @@ class _Group:
         thr1 = fast_threshold(self.cfg.p_false_alarm, self.cfg.dt, self.cfg.persistence, 1)
         self.thr_fast1 = thr1
         self.thr_slow1 = slow_threshold(self.cfg.p_false_alarm, self.cfg.slow_tau, 1) * self.var_slow
+        self._c_ok = not isinstance(self._st, _Scalars) and self.m >= 1
+        self._watch = len(self.hidx) < self.n  # excluded rows: watched after each epoch (_watch_excluded)
+        if self._c_ok:  # the C step reads the healthy subset's matrices and the test's state from the struct
+            st = self._st
+            self._keep = self._keep[:3]  # prev, buf, tbuf (set once); the rest is rebuilt here
+            self._hidx_c = np.ascontiguousarray(self.hidx, dtype=np.intc)
+            st.nh, st.m, st.thr_fast, st.thr_slow = len(self.hidx), self.m, self.thr_fast, self.thr_slow
+            st.hidx = _ffi.from_buffer("int[]", self._hidx_c)
+            self._keep.append(st.hidx)
+            st.M, st.Un, st.ema, st.score = self._ptr("M"), self._ptr("Un"), self._ptr("ema"), self._ptr("score")
 
     # -- one epoch --------------------------------------------------------------------------------
     def step(self, t: float, y: Vec, events: list[FaultEvent]) -> Vec:
@@ -530,6 +602,8 @@ class FdiMonitor:
             _warmed = self.gyro.m >= 2  # every kernel of the exclusion path has run
         self._yg = np.empty(g.n)
         self._ya = np.empty(g.n)
+        if _ffi is not None:  # (their C pointers for live_fdi_step)
+            self._pyg, self._pya = _ffi.from_buffer("double[]", self._yg), _ffi.from_buffer("double[]", self._ya)
         self._unit_size, self._units = g.unit_size, g.units  # (properties of the geometry: read once)
         self._seq = 0
         self.events: list[FaultEvent] = []  # every event so far
@@ -566,18 +640,41 @@ class FdiMonitor:
             if s.t > t:
                 t = s.t
         events: list[FaultEvent] = []
-        dth = self.gyro.step(t, yg, events)
-        dv = self.accel.step(t, ya, events)
+        dth, dv = self._steps(t, events)
         if events:
             self.events.extend(events)
         self._seq = (self._seq + 1) & 0xFFFF
         return ImuSample(t=t, dt=samples[0].dt, dtheta=dth, dvel=dv, seq=self._seq), events
 
+    def _steps(self, t: float, events: list[FaultEvent]) -> tuple[Vec, Vec]:
+        """Both groups' epoch on the stacked outputs in ``_yg``/``_ya``: Δθ, Δv. A group's common epoch runs in C
+        (``live_fdi_step``), any other in its Python step."""
+        gy, ac = self.gyro, self.accel
+        if not (gy._c_ok and ac._c_ok):
+            return gy.step(t, self._yg, events), ac.step(t, self._ya, events)
+        out = np.empty(6)
+        po = _ffi.from_buffer("double[]", out)
+        step = _lib.live_fdi_step
+        if gy._same_nz or gy._miss_nz or gy.leak_on or step(gy._st, t, self._pyg, po):
+            dth = gy.step(t, self._yg, events)
+        else:
+            dth = gy.est = out[:3]
+            if gy._watch:  # as the Python step: the excluded rows against this estimate (classification, re-admission)
+                gy._watch_excluded(t, self._yg, dth, events)
+        if ac._same_nz or ac._miss_nz or ac.leak_on or step(ac._st, t, self._pya, po + 3):
+            dv = ac.step(t, self._ya, events)
+        else:
+            dv = ac.est = out[3:]
+            if ac._watch:
+                ac._watch_excluded(t, self._ya, dv, events)
+        return dth, dv
+
     def process_arrays(self, t: float, dt: float, yg: Vec, ya: Vec) -> tuple[Vec, Vec, list[FaultEvent]]:
         """Same as :meth:`process` on stacked outputs (n,) (benchmarks, replay); returns Δθ, Δv, events."""
         events: list[FaultEvent] = []
-        dth = self.gyro.step(t, np.array(yg, dtype=np.float64), events)
-        dv = self.accel.step(t, np.array(ya, dtype=np.float64), events)
+        self._yg[:] = yg
+        self._ya[:] = ya
+        dth, dv = self._steps(float(t), events)
         if events:
             self.events.extend(events)
         return dth, dv, events

@@ -134,6 +134,21 @@ class Gateway:
             if not self._scheduled:  # not inside the core already (it drains the FIFO): run it now
                 run()
 
+        def many(samples: list[Sample]) -> None:
+            """Several samples of one read (e.g. redundant IMUs' frames on one link), in order: the core runs
+            once for all of them (the pipeline gets them in the same order as one sink call each)."""
+            for s in samples:
+                stats.received += 1
+                if len(q) >= cap and not self._scheduled:
+                    run()  # the FIFO full with this read's samples: drained first, as one sink call each would
+                if len(q) >= cap:
+                    stats.drop("queue_full")
+                    continue
+                q.append((s, name))
+            if q and not self._scheduled:
+                run()
+
+        sink.many = many  # type: ignore[attr-defined]
         return sink
 
     # -- the core callback ---------------------------------------------------------

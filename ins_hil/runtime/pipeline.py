@@ -821,14 +821,11 @@ class Pipeline:
         if len(pending) == 1:  # the common case, the one epoch waiting: what the general rule below does, directly
             if len(pend) == self._n_ids:  # complete
                 return self._run_pending(key)
-            now = s.t_arrival_ns
-            if (
-                opened
-                and now
-                and round(wait * 1e9) > 0
-                and not all(i in pend or uk.get(i, key) > key or miss.get(i, 0) >= GONE_EPOCHS for i in ids)
-            ):  # just opened by this sample: it waits for the others (none has passed it or is gone)
-                return None
+            if opened and s.t_arrival_ns and round(wait * 1e9) > 0:
+                # just opened by this sample: it waits for the others unless each has passed it or is gone
+                for i in ids:
+                    if not (i in pend or uk.get(i, key) > key or miss.get(i, 0) >= GONE_EPOCHS):
+                        return None
         # run, oldest first, every epoch that can no longer gain a sample: each unit has delivered
         # it, or a later one (links deliver in order: its sample is lost), or is gone
         for k in sorted(pending):

@@ -7,6 +7,7 @@ in MSL fields are EGM96 (:mod:`ins_hil.geoid`)."""
 
 from __future__ import annotations
 
+import importlib
 import math
 import secrets
 import struct
@@ -82,6 +83,13 @@ class _Frame:
 
 
 _FRAMES: dict[str, _Frame] = {}
+
+
+try:  # the live path in C (firmware_ref/src/live.c): ODOMETRY's numbers and framing; None without the extension
+    _live_mod: Any = importlib.import_module("ins_hil._cref")  # (by name: the extension is no module of the layers)
+    _live_ffi, _live_lib = _live_mod.ffi, _live_mod.lib
+except ImportError:  # pragma: no cover - the extension is built at every install
+    _live_ffi = _live_lib = None
 
 
 def _frame_of(typ: str) -> _Frame:
@@ -296,6 +304,24 @@ class EndpointConfig:
         return {k: v for k, v in base.items() if v > 0}
 
 
+class _LiveOdometry:
+    """The C buffers of :func:`live_odometry` (firmware_ref/src/live.c) for one endpoint: the state's numbers in, the
+    home (ECEF point, C_e^n, the ellipsoid), the last ODOMETRY's time, NED offset and velocity (``_fc_prev``), the ids,
+    the frame out."""
+
+    __slots__ = ("buf", "home", "ids", "out", "prev", "st")
+
+    def __init__(self) -> None:
+        ffi = _live_ffi
+        assert ffi is not None
+        self.st = ffi.new("double[23]")
+        self.home = ffi.new("double[14]")
+        self.prev = ffi.new("double[8]")
+        self.ids = ffi.new("int[8]")
+        self.out = ffi.new("uint8_t[280]")
+        self.buf = ffi.buffer(self.out)
+
+
 class MessageBase:
     """The endpoint's state as the message builders see it, and the builders both roles send
     (HEARTBEAT, SYSTEM_TIME) with their helpers: boot time, Euler angles, home and NED offset, MSL height,
@@ -360,11 +386,19 @@ class MessageBase:
         self._fc_resets = -1  # NavState.resets of that state
         self._fc_seen_ns = 0  # when ODOMETRY last looked at a state (monotonic ns)
         self._fc_prev: tuple[float, ...] | None = None  # that state's t (s), NED offset (m), NED velocity (m/s)
+        # unsigned link with the extension: ODOMETRY built and framed in C (its own copy of the home and _fc_prev)
+        self._live = _LiveOdometry() if self._fast and _live_lib is not None else None
+        if self._live is not None:  # the ids that never change (the rest: per message, _odometry_c)
+            self._live.ids[1] = self._m.MAV_FRAME_BODY_FRD
+            self._live.ids[3] = self._m.MAV_ESTIMATOR_TYPE_VIO
 
     def _emit(self, frame: _Frame, *values: Any) -> None:
         """Send one message framed by ``frame`` (values in wire order), with pymavlink's bookkeeping."""
+        self._emit_bytes(frame.frame(self.mav, *values))
+
+    def _emit_bytes(self, buf: bytes) -> None:
+        """Send one framed message (with the link's sequence number), with pymavlink's bookkeeping."""
         mav = self.mav
-        buf = frame.frame(mav, *values)
         self.write(buf)
         mav.seq = (mav.seq + 1) % 256
         mav.total_packets_sent += 1
@@ -392,6 +426,8 @@ class MessageBase:
         self._home = (st.lat, st.lon, st.h)
         self._home_ecef = earth.ecef_xyz(st.lat, st.lon, st.h)
         self._home_cen = tuple(earth.dcm_ecef_to_ned(st.lat, st.lon).ravel().tolist())
+        if self._live is not None:  # the same numbers for the C ODOMETRY (live_odometry's ``home``)
+            self._live.home[0:14] = [*self._home_ecef, *self._home_cen, earth.A_WGS84, earth.E2_WGS84]
         if self.cfg.role == "gcs":
             self._reply_pending.append("HOME_POSITION")  # sent by the endpoint's task, off the IMU path
             self._wake.set()

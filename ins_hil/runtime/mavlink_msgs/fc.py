@@ -8,7 +8,7 @@ import math
 
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_rows
-from ins_hil.runtime.mavlink_msgs.common import MessageBase, _floats, _frame_of, _gps_week, _i16
+from ins_hil.runtime.mavlink_msgs.common import MessageBase, _floats, _frame_of, _gps_week, _i16, _live_lib
 from ins_hil.types import NavState
 
 #: a step of the ODOMETRY position (m) beyond what the velocity explains between two messages: reset_counter + 1
@@ -81,6 +81,11 @@ class FcMessages(MessageBase):
             return False
         quality = 100 if usable else -1
         m = self._m
+        if self._fast and self._live is not None:
+            self._odometry_c(st, reset, quality)
+            if reset and fc:
+                self._send_origin()
+            return True
         d = self._home_ned(st)
         vn, ve, vd = _floats(st.vel_ned)
         prev, t = self._fc_prev, st.t
@@ -127,6 +132,33 @@ class FcMessages(MessageBase):
         if reset and fc:
             self._send_origin()  # the local origin, at once after the first ODOMETRY of a (re)start
         return True
+
+    def _odometry_c(self, st: NavState, reset: bool, quality: int) -> None:
+        """The ODOMETRY of the Python path below, its numbers and framing in C (``live_odometry``,
+        firmware_ref/src/live.c: the same operations in the same order, the same bytes)."""
+        lv = self._live
+        assert lv is not None and _live_lib is not None
+        if self._home is None:
+            self._set_home(st)
+        try:  # (ndarray.tolist: the floats of _floats, without its call)
+            lv.st[0:23] = [st.t, st.lat, st.lon, st.h, *st.q_nb.tolist(), *st.vel_ned.tolist(), *st.omega_b.tolist(),
+                           *st.std_pos.tolist(), *st.std_vel.tolist(), *st.std_att.tolist()]  # fmt: skip
+        except AttributeError:  # not arrays
+            lv.st[0:23] = [st.t, st.lat, st.lon, st.h, *_floats(st.q_nb), *_floats(st.vel_ned), *_floats(st.omega_b),
+                           *_floats(st.std_pos), *_floats(st.std_vel), *_floats(st.std_att)]  # fmt: skip
+        mav, ids = self.mav, lv.ids
+        ids[0] = self._odom_frame
+        ids[2] = self.reset_counter
+        ids[4] = quality
+        ids[5] = mav.seq
+        ids[6] = mav.srcSystem
+        ids[7] = mav.srcComponent
+        r = _live_lib.live_odometry(lv.out, lv.st, lv.home, lv.prev, 1 if reset else 0, ids)
+        if r >= 0x10000 or r == -2:  # the position stepped beyond what the velocity explains
+            self.reset_counter = (self.reset_counter + 1) & 0xFF
+        if r < 0:  # as struct.pack: a value the message cannot carry
+            raise OverflowError("ODOMETRY: a value beyond the message's range")
+        self._emit_bytes(lv.buf[: r & 0xFFFF])
 
     def _send_gps_input(self, st: NavState) -> None:
         """The fused state as a MAVLink GPS (ArduPilot GPS1_TYPE = 14). fix_type 3 while the state is usable
