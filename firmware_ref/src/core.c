@@ -526,6 +526,7 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
         ins_real lr[INS_NGRP];
         double hp[3], tg = c->ekf.t_hold_gnss, th = c->ekf.t_hold;
         const int hh = c->ekf.have_hold_pos;
+        struct ins_out_s *const pub = c->pub; /* the caller's publication target: not filter state */
         for (k = 0; k < 3; ++k) hp[k] = c->ekf.hold_pos[k];
         for (k = 0; k < INS_NGRP; ++k) {
             acc[k] = c->ekf.accepted[k];
@@ -535,6 +536,7 @@ static int hist_fuse(ins_hist_t *h, ins_core_t *c, ins_hmeas_t *m) {
         }
         ts = h->snap_step[snap_idx(h, ti)];
         core_copy(c, &h->snap[snap_idx(h, ti)]);
+        c->pub = pub; /* (a snapshot taken before the caller set it holds NULL) */
         for (k = 0; k < INS_NGRP; ++k) {
             c->ekf.accepted[k] = acc[k];
             c->ekf.rejected[k] = rej[k];

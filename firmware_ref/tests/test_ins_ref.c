@@ -508,6 +508,34 @@ static void test_delayed_before(int delay, double max_delay) {
     CHECK((delay > 0 && max_delay > 0.0) == (skipped > 20), "the position's update skipped %d times", skipped);
 }
 
+/* a roll-back to a snapshot taken before the caller set its publication target (ins_core_t.pub) keeps the target:
+ * the next steps publish into it (a NULL restored from the snapshot stopped them) */
+static void test_rollback_keeps_pub(void) {
+    ins_ekf_cfg_t cfg;
+    ins_core_t c;
+    ins_out_t out;
+    ins_gnss_t g;
+    const ins_real q[4] = {1, 0, 0, 0}, v[3] = {0, 0, 0}, dt = (ins_real)0.005;
+    ins_real dth[3] = {0, 0, 0}, dv[3] = {0, 0, 0};
+    int k;
+    dv[2] = -(ins_real)9.80665 * dt;
+    ins_ekf_default_cfg(&cfg);
+    ins_core_init(&c, q, v, 0.8, 0.5, 100.0, 0.0, dt, &cfg, 1);
+    ins_hist_init(&hist, 0.3);
+    for (k = 0; k < 4; ++k) ins_hist_step(&hist, &c, dth, dv, 0.005 * (k + 1), K0); /* snapshots with pub NULL */
+    c.pub = &out;
+    memset(&out, 0, sizeof out);
+    g.t = 0.005;
+    g.lat = (double)NAN;
+    g.lon = g.h = 0.0;
+    g.vel[0] = g.vel[1] = g.vel[2] = (ins_real)0.01;
+    g.std_ne = g.std_d = g.std_vel = (ins_real)0.1;
+    ins_hist_fuse_gnss(&hist, &c, &g); /* its velocity 3 steps late: a roll-back to the first snapshots */
+    CHECK(hist.rollbacks == 1 && c.pub == &out, "roll-back %u: the publication target kept", (unsigned)hist.rollbacks);
+    ins_hist_step(&hist, &c, dth, dv, 0.025, K0);
+    CHECK(out.t == 0.025, "published after the roll-back: t %g", out.t);
+}
+
 /* the covariance predict (block-sparse in ekf.c) against the dense P = Phi P Phi^T + Q dt, Phi = I + F dt
  * (+ (F dt)^2 / 2), F assembled from the generated blocks: 15 and 21 states, first and second order */
 static void test_predict_dense(void) {
@@ -652,6 +680,7 @@ int main(void) {
     test_delayed_before(20, 0.3);
     test_delayed_before(0, 0.3);
     test_delayed_before(20, 0.0);
+    test_rollback_keeps_pub();
     test_level();
     printf("ins_ref tests (%d-bit scalar): %d checks, %d failed\n", INS_REF_SCALAR_BITS, checks, failures);
     return failures != 0;
