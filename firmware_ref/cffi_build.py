@@ -13,7 +13,7 @@ from pathlib import Path
 from cffi import FFI
 
 _HERE = Path(__file__).resolve().parent
-_SOURCES = ["quat.c", "mech.c", "ekf.c", "core.c", "fdi.c", "frame.c", "gsf.c", "align.c"]
+_SOURCES = ["quat.c", "mech.c", "ekf.c", "core.c", "fdi.c", "frame.c", "gsf.c", "align.c", "live.c"]
 
 
 def _rel(p: Path) -> str:
@@ -141,9 +141,24 @@ int cref_level_run(ins_level_t *l, ins_imu_check_t *chk, ins_gsf_t *g, const dou
 void cref_level_bring_forward(const ins_level_t *l, ins_mech_t *m, const double bg[3]);
 int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
                           double std_d, double std_vel, size_t n);
+/* live.c: the live gateway's per-sample path (the FDI parity group, ODOMETRY, MAVLink framing) */
+typedef struct {{
+    int n, nh, m, L, pos, persistence;
+    int *hidx;
+    long long run, srun;
+    double alpha, oma, thr_fast, thr_slow, onset;
+    double *M, *Un, *prev, *buf, *tbuf, *ema, *score;
+}} live_fdi_group_t;
+int live_fdi_step(live_fdi_group_t *g, double t, const double *y, double *est);
+uint16_t live_crc(const uint8_t *p, size_t n, uint16_t crc);
+size_t live_frame(uint8_t *out, const uint8_t *payload, size_t len, uint32_t msgid, uint8_t crc_extra, uint8_t seq,
+                  uint8_t sysid, uint8_t compid);
+int live_odometry(uint8_t *out, const double *s, const double *home, double *prev, int reset, const int *ids);
+double live_hypot(double a, double b);
 """
 
-_GLUE = '#include "py_glue.c"\n'  # firmware_ref/src/py_glue.c (a source file, so ensure_venv rebuilds)
+# firmware_ref/src/py_glue.c (a source file, so ensure_venv rebuilds) and live.c's declarations
+_GLUE = '#include "py_glue.c"\n#include "live.h"\n'
 
 
 def _builder(module: str, real: str, defines: list[tuple[str, str | None]]) -> FFI:
@@ -175,30 +190,3 @@ ffi_float = _builder("ins_hil._cref_f32", "float", [("INS_REF_FLOAT", None)])
 if __name__ == "__main__":
     ffi_double.compile(verbose=True)
     ffi_float.compile(verbose=True)
-
-# ==== BEGIN live gateway block (#42, clive): firmware_ref/src/live.c (the FDI parity group, ODOMETRY, MAVLink framing
-# on the live per-sample path) in both modules; the sources and cdefs appended, the two builders made again ====
-_LIVE_CDEF = """
-typedef struct {{
-    int n, nh, m, L, pos, persistence;
-    int *hidx;
-    long long run, srun;
-    double alpha, oma, thr_fast, thr_slow, onset;
-    double *M, *Un, *prev, *buf, *tbuf, *ema, *score;
-}} live_fdi_group_t;
-int live_fdi_step(live_fdi_group_t *g, double t, const double *y, double *est);
-uint16_t live_crc(const uint8_t *p, size_t n, uint16_t crc);
-size_t live_frame(uint8_t *out, const uint8_t *payload, size_t len, uint32_t msgid, uint8_t crc_extra, uint8_t seq,
-                  uint8_t sysid, uint8_t compid);
-int live_odometry(uint8_t *out, const double *s, const double *home, double *prev, int reset, const int *ids);
-double live_hypot(double a, double b);
-"""
-_SOURCES.append("live.c")
-_CDEF += _LIVE_CDEF
-_GLUE += '#include "live.h"\n'
-ffi_double = _builder("ins_hil._cref", "double", [])
-ffi_float = _builder("ins_hil._cref_f32", "float", [("INS_REF_FLOAT", None)])
-if __name__ == "__main__":
-    ffi_double.compile(verbose=True)
-    ffi_float.compile(verbose=True)
-# ==== END live gateway block ====

@@ -635,8 +635,8 @@ class CNavCore:
         piece (it writes that state to ``ins_core_t.pub`` on its way); :meth:`state` is the state after it all."""
         if self._align is not None:
             return self.step(imu)
-        self._publish()  # before the first step too: every snapshot of the roll-back history carries ``pub``
-        if self.dt is None:  # (a roll-back restores the core from one, ``pub`` included)
+        self._publish()  # from the first step on (a roll-back keeps the target: core.c, hist_fuse)
+        if self.dt is None:
             return self.step(imu)
         self._advance(imu)  # (no NavState of the state after the whole step: nobody asks for it here)
         self._lib_.cref_pub_state(self._core, self._out)

@@ -63,6 +63,13 @@ def test_odometry_in_c_sends_the_bytes_of_the_python_floats(role: str) -> None:
         st = _state(rng, round(t * 1e6) * 1e-6 + (5e-7 if k % 17 == 0 else 0.0), k)  # half-µs: rounding to even
         if k % 97 == 50:
             st.std_att = np.array([1e30, 0.0, 0.0])  # a covariance beyond the float range: refused by both
+        if k % 89 == 40:
+            st.std_pos = np.array([1e160, 1.0, 1.0])  # σ² beyond the double range: ** raises, C refuses
+        if k % 83 == 30:  # NaNs of both signs meeting in sums and products: the Python path for both
+            st.std_att = np.array([-math.nan, math.nan, 1.0])
+        if k % 79 == 20:
+            st.q_nb = np.array([-math.nan, math.nan, 0.0, 0.0])
+            st.std_vel = np.array([-math.nan, 1.0, 2.0])
         outcome = []
         for ep in (fast, slow):
             try:

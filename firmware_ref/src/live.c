@@ -180,11 +180,14 @@ static int put_f32(uint8_t *p, double v) {
 
 int live_odometry(uint8_t *out, const double *s, const double *home, double *prev, int reset, const int *ids) {
     /* s: t, lat, lon, h, q[4], v_ned[3], omega_b[3], std_pos[3], std_vel[3], std_att[3] (23)
-     * home: ECEF x, y, z of the home, C_e^n at the home (9, row-major), the ellipsoid's a and e^2 (14)
+     * home: ECEF x, y, z of the home, C_e^n at the home (9, row-major), the ellipsoid's a and e^2, the position
+     *   jump's threshold squared (m^2, fc.JUMP_M^2) (15)
      * prev: [have, t, d[3], v[3]] of the last ODOMETRY (updated here)
      * ids: frame_id, child_frame_id, reset_counter, estimator_type, quality, seq, sysid, compid
      * Returns the frame's length, + 65536 when the position jumped (reset_counter + 1 in the message); a value the
-     * message cannot carry (time, a float beyond the float range): -1, -2 when it jumped (as struct.pack raises) */
+     * message cannot carry (time, a float beyond the float range, a finite sigma whose square is not): -1, -2 when it
+     * jumped (as struct.pack or ** raises); a NaN among s: -3, nothing written (prev unchanged: the caller's Python
+     * builder sends it and hands its prev back) */
     const double t = s[0], lat = s[1], lon = s[2], hh = s[3], a_e = home[12], e2 = home[13];
     const double q0 = s[4], q1 = s[5], q2 = s[6], q3 = s[7], vn = s[8], ve = s[9], vd = s[10];
     double sl, nn, ncl, x, y, z, dx, dy, dz, d[3], c[3][3], vb[3], pc[21], vc[21], t_us;
@@ -192,6 +195,8 @@ int live_odometry(uint8_t *out, const double *s, const double *home, double *pre
     uint8_t pay[233];
     int i, k, rc = ids[2], jump = 0;
     const double *cen = home + 3;
+    for (i = 0; i < 23; ++i) /* a NaN's sign through + and * follows the compiler's operand order, not CPython's: */
+        if (isnan(s[i])) return -3; /* such a state goes the Python way (nothing written here) */
     /* MessageBase._home_ned: earth.ecef_xyz, then C_e^n (r_e - r_e,home) */
     sl = sin(lat);
     nn = a_e / sqrt(1.0 - e2 * sl * sl);
@@ -203,12 +208,12 @@ int live_odometry(uint8_t *out, const double *s, const double *home, double *pre
     dy = y - home[1];
     dz = z - home[2];
     for (i = 0; i < 3; ++i) d[i] = cen[3 * i] * dx + cen[3 * i + 1] * dy + cen[3 * i + 2] * dz;
-    if (prev[0] != 0.0 && !reset) { /* a step of the position beyond what the velocity explains (fc.JUMP_M = 1 m) */
+    if (prev[0] != 0.0 && !reset) { /* a step of the position beyond what the velocity explains (home[14]: fc.JUMP_M²) */
         const double h2 = 0.5 * (t - prev[1]);
         const double dn = d[0] - prev[2] - h2 * (vn + prev[5]);
         const double de = d[1] - prev[3] - h2 * (ve + prev[6]);
         const double dd = d[2] - prev[4] - h2 * (vd + prev[7]);
-        if (dn * dn + de * de + dd * dd > 1.0) {
+        if (dn * dn + de * de + dd * dd > home[14]) {
             rc = (rc + 1) & 0xFF;
             jump = 1;
         }
@@ -245,6 +250,8 @@ int live_odometry(uint8_t *out, const double *s, const double *home, double *pre
             pc[0] = pow_fn(sp0, 2.0);
             pc[6] = pow_fn(sp1, 2.0);
             pc[11] = pow_fn(sp2, 2.0);
+            if ((isinf(pc[0]) && !isinf(sp0)) || (isinf(pc[6]) && !isinf(sp1)) || (isinf(pc[11]) && !isinf(sp2)))
+                return -1 - jump; /* CPython's float ** raises OverflowError on a finite result beyond the range */
             /* fc._euler_cov (min/max as Python's: NaN keeps the first argument) */
             m1 = -c[2][0] < 1.0 ? -c[2][0] : 1.0;
             sth = m1 > -1.0 ? m1 : -1.0;

@@ -198,7 +198,9 @@ def _imu_arrays_or_none(imu: list[ImuSample]) -> tuple[Vec, Vec, Vec] | None:
 
 @dataclass
 class Prepared:
-    """The dataset after the config: streams to fuse, the NavConfig and notes."""
+    """The dataset after the config: streams to fuse, the NavConfig and notes. ``imu`` is not edited in place
+    after :func:`prepare` (its arrays for the C core are kept per list: :meth:`imu_arrays`); a changed copy is a
+    new list (``dataclasses.replace``)."""
 
     imu: list[ImuSample]
     gnss: list[GnssFix]

@@ -174,8 +174,9 @@ class _Group:
     Its common epoch (at least 4 healthy rows, none missing or repeating, no test about to trip) runs in C
     (``live_fdi_step``, firmware_ref/src/live.c) on the same arrays when the extension is there: the products
     ``[V; Z] y``, ``p·p`` and ``p̄·p̄`` are summed in row order (numpy's BLAS sums in its kernel's order: the
-    estimate may differ from the all-Python step's in the last bits, the decisions are the same); every other
-    epoch runs :meth:`step` in Python as before."""
+    estimate may differ from the all-Python step's in the last bits (≤ 1e-13 relative in tests/test_live_c.py), so
+    a test statistic within a few ulps of a threshold may decide otherwise; no event of the tests moved); every
+    other epoch runs :meth:`step` in Python as before, and so does a group of more than 16 rows."""
 
     # the counters the C step updates (in the shared struct)
     pos = _shared("pos")

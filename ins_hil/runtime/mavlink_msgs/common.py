@@ -304,6 +304,18 @@ class EndpointConfig:
         return {k: v for k, v in base.items() if v > 0}
 
 
+#: a step of the ODOMETRY position (m) beyond what the velocity explains between two messages: reset_counter + 1
+#: (the Python builder, ``fc.FcMessages._send_odometry``, and live_odometry's threshold, given as its square)
+JUMP_M = 1.0
+
+
+def _live_fits() -> bool:
+    """Whether live_odometry's framing (ODOMETRY: msgid 331, CRC extra 91, 233-byte payload, hard-coded in
+    firmware_ref/src/live.c) is this dialect's: else the Python builder sends ODOMETRY."""
+    f = _frame_of("ODOMETRY")
+    return f._msgid == bytes((331 & 0xFF, 331 >> 8, 0)) and f._extra == bytes((91,)) and f._pack.__self__.size == 233
+
+
 class _LiveOdometry:
     """The C buffers of :func:`live_odometry` (firmware_ref/src/live.c) for one endpoint: the state's numbers in, the
     home (ECEF point, C_e^n, the ellipsoid), the last ODOMETRY's time, NED offset and velocity (``_fc_prev``), the ids,
@@ -315,7 +327,7 @@ class _LiveOdometry:
         ffi = _live_ffi
         assert ffi is not None
         self.st = ffi.new("double[23]")
-        self.home = ffi.new("double[14]")
+        self.home = ffi.new("double[15]")
         self.prev = ffi.new("double[8]")
         self.ids = ffi.new("int[8]")
         self.out = ffi.new("uint8_t[280]")
@@ -387,7 +399,7 @@ class MessageBase:
         self._fc_seen_ns = 0  # when ODOMETRY last looked at a state (monotonic ns)
         self._fc_prev: tuple[float, ...] | None = None  # that state's t (s), NED offset (m), NED velocity (m/s)
         # unsigned link with the extension: ODOMETRY built and framed in C (its own copy of the home and _fc_prev)
-        self._live = _LiveOdometry() if self._fast and _live_lib is not None else None
+        self._live = _LiveOdometry() if self._fast and _live_lib is not None and _live_fits() else None
         if self._live is not None:  # the ids that never change (the rest: per message, _odometry_c)
             self._live.ids[1] = self._m.MAV_FRAME_BODY_FRD
             self._live.ids[3] = self._m.MAV_ESTIMATOR_TYPE_VIO
@@ -427,7 +439,7 @@ class MessageBase:
         self._home_ecef = earth.ecef_xyz(st.lat, st.lon, st.h)
         self._home_cen = tuple(earth.dcm_ecef_to_ned(st.lat, st.lon).ravel().tolist())
         if self._live is not None:  # the same numbers for the C ODOMETRY (live_odometry's ``home``)
-            self._live.home[0:14] = [*self._home_ecef, *self._home_cen, earth.A_WGS84, earth.E2_WGS84]
+            self._live.home[0:15] = [*self._home_ecef, *self._home_cen, earth.A_WGS84, earth.E2_WGS84, JUMP_M * JUMP_M]
         if self.cfg.role == "gcs":
             self._reply_pending.append("HOME_POSITION")  # sent by the endpoint's task, off the IMU path
             self._wake.set()

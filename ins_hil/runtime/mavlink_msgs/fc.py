@@ -8,11 +8,17 @@ import math
 
 from ins_hil.nav import earth
 from ins_hil.nav.rotation import dcm_rows
-from ins_hil.runtime.mavlink_msgs.common import MessageBase, _floats, _frame_of, _gps_week, _i16, _live_lib
+from ins_hil.runtime.mavlink_msgs.common import (
+    JUMP_M,
+    MessageBase,
+    _floats,
+    _frame_of,
+    _gps_week,
+    _i16,
+    _live_lib,
+)
 from ins_hil.types import NavState
 
-#: a step of the ODOMETRY position (m) beyond what the velocity explains between two messages: reset_counter + 1
-JUMP_M = 1.0
 #: GPS_INPUT's DOP is the filter's σ over this range error (m): hdop = hypot(σN, σE) / DOP_RANGE_M
 DOP_RANGE_M = 1.0
 DOP_MAX = 99.99  # ArduPilot stores hdop × 100 in a uint16 and calls 9999 unknown (GPS_UNKNOWN_DOP)
@@ -81,11 +87,14 @@ class FcMessages(MessageBase):
             return False
         quality = 100 if usable else -1
         m = self._m
-        if self._fast and self._live is not None:
-            self._odometry_c(st, reset, quality)
-            if reset and fc:
-                self._send_origin()
-            return True
+        lv = self._live
+        if self._fast and lv is not None:
+            if self._odometry_c(st, reset, quality):
+                if reset and fc:
+                    self._send_origin()
+                return True
+            # a NaN in the state: the Python builder below, from the C path's last message (and back to it)
+            self._fc_prev = tuple(lv.prev[1:8]) if lv.prev[0] else None
         d = self._home_ned(st)
         vn, ve, vd = _floats(st.vel_ned)
         prev, t = self._fc_prev, st.t
@@ -97,6 +106,8 @@ class FcMessages(MessageBase):
             if dn * dn + de * de + dd * dd > JUMP_M * JUMP_M:
                 self.reset_counter = (self.reset_counter + 1) & 0xFF
         self._fc_prev = (t, d[0], d[1], d[2], vn, ve, vd)
+        if lv is not None:
+            lv.prev[0:8] = [1.0, *self._fc_prev]
         q = _floats(st.q_nb)
         wx, wy, wz = _floats(st.omega_b)
         # child frame body FRD (MAVLink ODOMETRY convention): v_b = (C_b^n)ᵀ v_n, C_b^n = rotation.dcm_rows (floats)
@@ -133,9 +144,10 @@ class FcMessages(MessageBase):
             self._send_origin()  # the local origin, at once after the first ODOMETRY of a (re)start
         return True
 
-    def _odometry_c(self, st: NavState, reset: bool, quality: int) -> None:
+    def _odometry_c(self, st: NavState, reset: bool, quality: int) -> bool:
         """The ODOMETRY of the Python path below, its numbers and framing in C (``live_odometry``,
-        firmware_ref/src/live.c: the same operations in the same order, the same bytes)."""
+        firmware_ref/src/live.c: the same operations in the same order, the same bytes). False: nothing sent, a
+        NaN in the state (its sign through the arithmetic is not CPython's): the caller's Python path sends it."""
         lv = self._live
         assert lv is not None and _live_lib is not None
         if self._home is None:
@@ -154,11 +166,14 @@ class FcMessages(MessageBase):
         ids[6] = mav.srcSystem
         ids[7] = mav.srcComponent
         r = _live_lib.live_odometry(lv.out, lv.st, lv.home, lv.prev, 1 if reset else 0, ids)
+        if r == -3:
+            return False
         if r >= 0x10000 or r == -2:  # the position stepped beyond what the velocity explains
             self.reset_counter = (self.reset_counter + 1) & 0xFF
         if r < 0:  # as struct.pack: a value the message cannot carry
             raise OverflowError("ODOMETRY: a value beyond the message's range")
         self._emit_bytes(lv.buf[: r & 0xFFFF])
+        return True
 
     def _send_gps_input(self, st: NavState) -> None:
         """The fused state as a MAVLink GPS (ArduPilot GPS1_TYPE = 14). fix_type 3 while the state is usable
