@@ -109,6 +109,16 @@ def test_order_is_longest_first_with_the_seeds_of_a_log_together(tmp_path: Path)
     assert sorted(seq) == list(range(len(js)))
     assert [pairs.index((js[i].source, js[i].config)) for i in seq] == [2, 2, 3, 3, 0, 0, 1, 1]  # unreadable: last
     assert [js[i].seed for i in seq] == [0, 1] * 4
+    # an earlier run's replay times (batch.json's rows): short.csv with the protocol measured longest of all
+    rows = [{"source": js[k].source, "config": js[k].config, "replay_s": s, "plot_s": 0.5}
+            for k, s in ((0, 1.0), (1, 2.0), (2, 9.0), (4, 3.0), (6, 6.0), (7, 6.0))]  # fmt: skip
+    rows.append({"source": js[3].source, "config": js[3].config, "error": "gone"})
+    known = batch.measured(rows)
+    assert known[(js[0].source, js[0].config)] == 2.0 and known[(js[6].source, js[6].config)] == 6.5
+    seq = batch.order(js, known)
+    assert [pairs.index((js[i].source, js[i].config)) for i in seq] == [1, 1, 3, 3, 2, 2, 0, 0]
+    del known[(js[2].source, js[2].config)]  # a log it did not measure: sizes for all (seconds and bytes differ)
+    assert batch.order(js, known) == batch.order(js)
 
 
 def test_a_freed_worker_takes_a_log_it_parsed_else_one_nobody_started_else_the_longest() -> None:
@@ -404,3 +414,18 @@ def test_shipped_variants_fit_every_shipped_dataset_config(tmp_path: Path) -> No
             plain = [batch._config(dataclasses.replace(j, variant=None, overrides=None)) for j in mine]
             assert any(repr(batch._config(j).nav_config()) != repr(c.nav_config())
                        for j, c in zip(mine, plain, strict=True)), (f.name, name)  # fmt: skip
+
+
+def test_the_last_run_in_the_folder_gives_the_order_its_replay_times(tmp_path: Path) -> None:
+    """``ins-hil replay --batch … --out DIR`` orders its jobs by DIR/batch.json's measured times when it has them
+    (an unreadable or missing summary: by the logs' sizes)."""
+    from ins_hil.commands.replay import _last_costs
+
+    path = tmp_path / "batch.json"
+    assert _last_costs(path) is None
+    path.write_text("{not json")
+    assert _last_costs(path) is None
+    path.write_text(json.dumps({"rows": [{"source": "a.csv", "config": None, "replay_s": 2.0, "plot_s": 1.0}]}))
+    assert _last_costs(path) == {("a.csv", None): 3.0}
+    path.write_text(json.dumps([1, 2]))
+    assert _last_costs(path) is None

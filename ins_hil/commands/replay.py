@@ -238,6 +238,18 @@ def _runtime_replay() -> Any:
     return importlib.import_module("ins_hil.evaluation.sim_flight")
 
 
+def _last_costs(path: Path) -> dict[tuple[str | None, str | None], float] | None:
+    """The logs' measured replay times of the batch summary at ``path`` (``batch.measured`` of its rows), or None
+    (no summary, or one this cannot read: the jobs are then ordered by the logs' sizes)."""
+    from ins_hil.evaluation import batch
+
+    try:
+        rows = json.loads(path.read_text()).get("rows")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return batch.measured(rows) if isinstance(rows, list) and all(isinstance(r, dict) for r in rows) else None
+
+
 def _batch(args: argparse.Namespace) -> int:
     """``--batch``: every entry × ``--seeds`` on Dask; a summary table and each job's report
     (``--compare-serial``: the same jobs serially first, and the speed-up)."""
@@ -282,18 +294,22 @@ def _batch(args: argparse.Namespace) -> int:
         ref_jobs = batch.jobs(
             pairs, seeds, args.out / sub, not args.no_plots, variants, args.shifts, getattr(args, "core", "python")
         )
-        ref_rows, ref_wall = batch.run_batch(ref_jobs, workers, None, done, worker_config=worker_config)
+        ref_rows, ref_wall = batch.run_batch(ref_jobs, workers, None, done, worker_config=worker_config,
+                                             known=known)  # fmt: skip
         return {"rows": ref_rows, "wall_s": ref_wall, "breakdown": batch.breakdown(ref_rows, ref_wall, max(workers, 1))}
 
+    # the logs' replay times of the last run into this folder (its batch.json): the order of the jobs
+    known = _last_costs(args.out / "batch.json")
     serial: dict[str, Any] | None = None
     if args.compare_serial:
         serial = reference_run("serially first (--compare-serial)", "serial", 0, None)
         batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
+        known = batch.measured(serial["rows"])  # the same jobs' times, just measured
     defaults: dict[str, Any] | None = None
     if args.compare_dask_defaults:
         defaults = reference_run("on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)",
                                  "dask_defaults", args.workers, {})  # fmt: skip
-    rows, wall = batch.run_batch(js, args.workers, args.scheduler, done)
+    rows, wall = batch.run_batch(js, args.workers, args.scheduler, done, known=known)
     args.out.mkdir(parents=True, exist_ok=True)
     text = batch.table(rows)
     failed = sum("error" in r for r in rows)

@@ -16,7 +16,8 @@ Every log then runs as configured and with each variant, at each shift; :func:`v
 outage errors side by side.
 
 Scheduling: the job sizes are very unequal (a log with an outage protocol replays twice), so the jobs are
-handed out longest-first (:func:`order`, by :func:`cost`; the seeds of one log together) with at most one
+handed out longest-first (:func:`order`, by :func:`cost`, or by the replay times an earlier run of the same logs
+measured, :func:`measured`: ``batch.json`` in the output folder; the seeds of one log together) with at most one
 job in flight per worker thread: the long jobs do not come last, leaving one worker busy while the other
 idles. Each process keeps its last :data:`CACHE_SIZE` parsed logs (:func:`load_cached`), and a freed worker
 is handed (:func:`pick`) the next job of a log it has parsed, else of a log no worker has started, else the
@@ -219,10 +220,26 @@ def cost(job: Job) -> float:
     return float(size) * (2.0 if cfg.outages is not None else 1.0)
 
 
-def order(js: list[Job]) -> list[int]:
+def measured(rows: list[dict[str, Any]]) -> dict[tuple[str | None, str | None], float]:
+    """Each log's (source, config) mean replay + plot time (s) over the ``rows`` of an earlier run of it that did
+    not fail: a better cost for :func:`order` than the log's size (a log's bytes per replay second differ by
+    format and by config: a GNSS velocity delay rolls back at every fix)."""
+    acc: dict[tuple[str | None, str | None], list[float]] = {}
+    for r in rows:
+        if "error" not in r and isinstance(r.get("replay_s"), (int, float)):
+            acc.setdefault((r.get("source"), r.get("config")), []).append(r["replay_s"] + r.get("plot_s", 0.0))
+    return {k: sum(v) / len(v) for k, v in acc.items()}
+
+
+def order(js: list[Job], known: dict[tuple[str | None, str | None], float] | None = None) -> list[int]:
     """The indices of ``js`` longest-first by :func:`cost` (longest-processing-time list scheduling): the
-    seeds of one log stay together, in seed order; equal costs keep the batch's order."""
-    costs = {(j.source, j.config): cost(j) for j in js}
+    seeds of one log stay together, in seed order; equal costs keep the batch's order. ``known``: each log's
+    measured cost (:func:`measured`), used when it covers every log of ``js`` (seconds and bytes do not mix)."""
+    keys = {(j.source, j.config) for j in js}
+    if known is not None and keys <= known.keys():
+        costs = {k: known[k] for k in keys}
+    else:
+        costs = {(j.source, j.config): cost(j) for j in js}
     first: dict[tuple[str | None, str | None], int] = {}
     for i, j in enumerate(js):
         first.setdefault((j.source, j.config), i)
@@ -385,16 +402,17 @@ def run_batch(
     scheduler: str | None = None,
     on_done: Callable[[dict[str, Any], int, int], None] | None = None,
     worker_config: dict[str, Any] | None = None,
+    known: dict[tuple[str | None, str | None], float] | None = None,
 ) -> tuple[list[dict[str, Any]], float]:
     """Run ``js``; (rows in job order, wall time s). ``scheduler``: a Dask scheduler address (e.g.
     ``tcp://host:8786``); else a LocalCluster of ``workers`` processes (one thread each, no memory limit,
     ``worker_config`` as :func:`local_cluster`);
     ``workers = 0``: serial here. Either way the jobs start in :func:`order`; on Dask at most one job per
     worker thread is in flight, and a freed worker takes the next by :func:`pick`. ``on_done(row, k, n)`` after
-    each job (k done of n)."""
+    each job (k done of n). ``known``: the logs' measured costs for the order (:func:`order`)."""
     t0 = time.perf_counter()
     rows: dict[int, dict[str, Any]] = {}
-    seq = order(js)
+    seq = order(js, known)
     if scheduler is None and workers == 0:
         for i in seq:
             rows[i] = run_job(js[i])
