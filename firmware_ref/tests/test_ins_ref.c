@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "../src/live.h"
 #include "ins_ref.h"
 #include "../src/generated/ins_jacobians.h"
 
@@ -536,6 +537,23 @@ static void test_rollback_keeps_pub(void) {
     CHECK(out.t == 0.025, "published after the roll-back: t %g", out.t);
 }
 
+/* live.c's MAVLink 2 framing (the extension's ODOMETRY): CRC-16/MCRF4XX's check value, and a HEARTBEAT (type 6,
+ * autopilot 8, base mode 0, custom mode 0, state 4, version 3; seq 7, system 1, component 1) framed as pymavlink 2.4
+ * frames it, trailing zeros of the payload trimmed (one byte kept) */
+static void test_live_frame(void) {
+    static const uint8_t check[9] = {'1', '2', '3', '4', '5', '6', '7', '8', '9'};
+    static const uint8_t hb[12] = {0, 0, 0, 0, 6, 8, 0, 4, 3, 0, 0, 0}, zeros[4] = {0, 0, 0, 0};
+    static const uint8_t want[21] = {0xfd, 0x09, 0x00, 0x00, 0x07, 0x01, 0x01, 0x00, 0x00, 0x00, 0x00,
+                                     0x00, 0x00, 0x00, 0x06, 0x08, 0x00, 0x04, 0x03, 0x49, 0x32};
+    uint8_t out[40];
+    size_t n;
+    CHECK(live_crc(check, 9, 0xFFFF) == 0x6F91, "CRC-16/MCRF4XX of 123456789: 0x%04x", (unsigned)live_crc(check, 9, 0xFFFF));
+    n = live_frame(out, hb, 12, 0u, 50u, 7u, 1u, 1u);
+    CHECK(n == 21 && memcmp(out, want, 21) == 0, "HEARTBEAT frame as pymavlink's (%u bytes)", (unsigned)n);
+    n = live_frame(out, zeros, 4, 0u, 50u, 7u, 1u, 1u);
+    CHECK(n == 13 && out[1] == 1, "an all-zero payload keeps one byte (%u bytes)", (unsigned)n);
+}
+
 /* the covariance predict (block-sparse in ekf.c) against the dense P = Phi P Phi^T + Q dt, Phi = I + F dt
  * (+ (F dt)^2 / 2), F assembled from the generated blocks: 15 and 21 states, first and second order */
 static void test_predict_dense(void) {
@@ -681,6 +699,7 @@ int main(void) {
     test_delayed_before(0, 0.3);
     test_delayed_before(20, 0.0);
     test_rollback_keeps_pub();
+    test_live_frame();
     test_level();
     printf("ins_ref tests (%d-bit scalar): %d checks, %d failed\n", INS_REF_SCALAR_BITS, checks, failures);
     return failures != 0;
