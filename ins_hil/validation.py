@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -251,8 +251,19 @@ class SampleValidator:
             st.lo, st.hi = max(DT_FLOOR, lim.imu_dt_min_periods * p), min(DT_CEIL, lim.imu_dt_max_periods * p)
             st.learn = None
 
-    def _imu_slow(self, s: ImuSample, st: _Imu) -> str | None:
-        """The same test as :meth:`imu` for any sequence type; names the first failed check."""
+    def imu_unordered(self, s: ImuSample) -> str:
+        """The reason :meth:`imu` gives an IMU sample whose time does not go forward (an offline replay's sample
+        out of the log's time order, ``ins_hil.datasets.run.screen``): ``imu_nonfinite`` or ``imu_dt``, the checks
+        before the time's, else ``imu_time``. Nothing changes here."""
+        st = self._imus.get(s.imu_id)
+        if st is None:
+            lim = self.limits
+            st = _Imu(lim.imu_period_s, lim.imu_dt_min_periods, lim.imu_dt_max_periods)
+        return cast(str, self._imu_slow(s, st, late=True))
+
+    def _imu_slow(self, s: ImuSample, st: _Imu, late: bool = False) -> str | None:
+        """The same test as :meth:`imu` for any sequence type; names the first failed check (``late``: the time
+        fails its check)."""
         fin = math.isfinite
         try:
             a = [float(x) for x in s.dtheta]
@@ -263,7 +274,7 @@ class SampleValidator:
             return "imu_nonfinite"
         if not st.lo <= s.dt <= st.hi:
             return "imu_dt"
-        if not s.t > st.t:
+        if late or not s.t > st.t:
             return "imu_time"
         w, f = self._w * s.dt, self._f * s.dt
         if any(abs(x) > w for x in a):

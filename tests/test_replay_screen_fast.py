@@ -78,6 +78,22 @@ def test_fast_screen_is_the_per_sample_one(bad: bool, monkeypatch: pytest.Monkey
         assert np.array_equal(a, b)
 
 
+@pytest.mark.parametrize("fast", [True, False])
+def test_a_sample_out_of_order_gets_the_live_validators_reason(fast: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Out of the log's time order and also non-finite (or with a step outside the band): the reason the live
+    validator gives it (its finiteness and step checks come before the time's), not ``imu_time``."""
+    imu = _log(700)
+    imu[200] = ImuSample(imu[150].t, imu[200].dt, imu[200].dtheta, np.array([math.nan, 0.0, 0.0]))
+    imu[250] = ImuSample(imu[240].t, 0.2, imu[250].dtheta, imu[250].dvel)
+    imu[260] = ImuSample(math.nan, imu[260].dt, imu[260].dtheta, imu[260].dvel)
+    imu[270] = ImuSample(imu[265].t, imu[270].dt, imu[270].dtheta, imu[270].dvel)  # only its time: imu_time
+    sc, _ = _screen(imu, fast, monkeypatch)
+    live = SampleValidator(run.REPLAY_LIMITS)
+    said = [live.imu(x) for x in imu]
+    assert [said[k] for k in (200, 250, 260, 270)] == ["imu_nonfinite", "imu_dt", "imu_nonfinite", "imu_time"]
+    assert "imu_dt 1, imu_nonfinite 2, imu_time 1" in sc.notes[0]
+
+
 def test_prepared_arrays_follow_its_samples() -> None:
     """Screen's arrays are the prepared replay's (``Prepared.imu_arrays``, its rate bins) only for its samples."""
     imu = _log(500)

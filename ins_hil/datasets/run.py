@@ -100,7 +100,7 @@ def screen(
         ok: Any = None
         while start < len(imu) and ok is None:
             s = imu[start]
-            r = v.imu(s) if order[start] else "imu_time"
+            r = v.imu(s) if order[start] else v.imu_unordered(s)
             if r is None:
                 acc[start] = True
             else:
@@ -114,7 +114,7 @@ def screen(
                 ok[0] &= bool(t[start] > t_last)
             for k in np.nonzero(~ok)[0].tolist():  # (the validator's last time is older: its time check passes)
                 i = start + k
-                r = v.imu(imu[i]) if order[i] else "imu_time"
+                r = v.imu(imu[i]) if order[i] else v.imu_unordered(imu[i])
                 if r is None:
                     ok[k] = True
                 else:
@@ -124,7 +124,7 @@ def screen(
                 v.imu_screened(iid, float(t[start + int(np.nonzero(ok)[0][-1])]))
             start = len(imu)
     for i in range(start, len(imu)):  # (per sample: more than one IMU, or increments that are not 3-vectors)
-        r = v.imu(imu[i]) if order[i] else "imu_time"
+        r = v.imu(imu[i]) if order[i] else v.imu_unordered(imu[i])
         if r is None:
             acc[i] = True
         else:
