@@ -92,13 +92,19 @@ size_t cref_guard(const double *rows, size_t n, size_t stride, double qtol, doub
     }
     return n;
 }
-int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
-                    double std_ne, double std_d, double std_vel) {
+/* the GNSS fix of the glue's arguments */
+static ins_gnss_t gnss_of(double t, double lat, double lon, double h, const double vel[3], double std_ne, double std_d,
+                          double std_vel) {
     ins_gnss_t g;
     int i;
     g.t = t; g.lat = lat; g.lon = lon; g.h = h;
     for (i = 0; i < 3; ++i) g.vel[i] = (ins_real)vel[i];
     g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
+    return g;
+}
+int cref_hfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, const double vel[3],
+                    double std_ne, double std_d, double std_vel) {
+    const ins_gnss_t g = gnss_of(t, lat, lon, h, vel, std_ne, std_d, std_vel);
     return hs != NULL ? ins_hist_fuse_gnss(hs, c, &g) : ins_core_fuse_gnss(c, &g);
 }
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
@@ -284,17 +290,27 @@ static void gate_before(const ins_ekf_t *e, uint32_t rej[INS_NGRP], uint32_t con
 }
 /* cref_hfuse_gnss with the velocity as three values (NaN: none) and the gates of the position and the velocity in
  * o[0..3] and o[4..7] (gate_info) */
-int cref_gfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, double vn, double ve,
-                    double vd, double std_ne, double std_d, double std_vel, double o[8]) {
+/* g through the history (t_vel != NULL: ins_hist_fuse_gnss_before, its velocity valid at *t_vel fused next) or the
+ * core, its gates in o[0..3] (position) and o[4..7] (velocity) (gate_info) */
+static int gfuse_gnss(ins_core_t *c, ins_hist_t *hs, const ins_gnss_t *g, const double *t_vel, double o[8]) {
     uint32_t rej[INS_NGRP], con[INS_NGRP];
-    double v[3];
     int r;
-    v[0] = vn; v[1] = ve; v[2] = vd;
     gate_before(&c->ekf, rej, con);
-    r = cref_hfuse_gnss(c, hs, t, lat, lon, h, v, std_ne, std_d, std_vel);
+    if (t_vel != NULL)
+        r = ins_hist_fuse_gnss_before(hs, c, g, *t_vel);
+    else
+        r = hs != NULL ? ins_hist_fuse_gnss(hs, c, g) : ins_core_fuse_gnss(c, g);
     gate_info(&c->ekf, INS_GRP_GNSS_POS, rej, con, o);
     gate_info(&c->ekf, INS_GRP_GNSS_VEL, rej, con, o + 4);
     return r;
+}
+int cref_gfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, double vn, double ve,
+                    double vd, double std_ne, double std_d, double std_vel, double o[8]) {
+    double v[3];
+    ins_gnss_t g;
+    v[0] = vn; v[1] = ve; v[2] = vd;
+    g = gnss_of(t, lat, lon, h, v, std_ne, std_d, std_vel);
+    return gfuse_gnss(c, hs, &g, NULL, o);
 }
 /* cref_hfuse_baro with its gate in o[0..3] (gate_info) */
 int cref_gfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude, double o[4]) {
@@ -321,18 +337,13 @@ int cref_gfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, double fx, double fy
 int cref_gfuse_gnss_split(ins_core_t *c, ins_hist_t *hs, double t, double vel_delay, double lat, double lon, double h,
                           double vn, double ve, double vd, double std_ne, double std_d, double std_vel, double o[8]) {
     const double nan = (double)NAN;
-    double ov[8];
+    double ov[8], nv[3];
     int r, i;
+    nv[0] = nv[1] = nv[2] = nan;
     if (hs != NULL) { /* the position gated now, its update left to the velocity's roll-back (the same numbers) */
-        uint32_t rej[INS_NGRP], con[INS_NGRP];
-        ins_gnss_t g;
-        g.t = t; g.lat = lat; g.lon = lon; g.h = h;
-        g.vel[0] = g.vel[1] = g.vel[2] = (ins_real)nan;
-        g.std_ne = (ins_real)std_ne; g.std_d = (ins_real)std_d; g.std_vel = (ins_real)std_vel;
-        gate_before(&c->ekf, rej, con);
-        r = ins_hist_fuse_gnss_before(hs, c, &g, t - vel_delay);
-        gate_info(&c->ekf, INS_GRP_GNSS_POS, rej, con, o);
-        gate_info(&c->ekf, INS_GRP_GNSS_VEL, rej, con, o + 4);
+        const ins_gnss_t g = gnss_of(t, lat, lon, h, nv, std_ne, std_d, std_vel);
+        const double t_vel = t - vel_delay;
+        r = gfuse_gnss(c, hs, &g, &t_vel, o);
     } else
         r = cref_gfuse_gnss(c, hs, t, lat, lon, h, nan, nan, nan, std_ne, std_d, std_vel, o);
     r |= cref_gfuse_gnss(c, hs, t - vel_delay, nan, lon, h, vn, ve, vd, std_ne, std_d, std_vel, ov);
