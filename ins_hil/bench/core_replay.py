@@ -571,7 +571,10 @@ def scope_md() -> str:
         " `tests/test_cref_gsf.py`); at its end the C core takes over its state, covariance, noise densities (the"
         " start-up check's inflation), biases and baro datum. C99, no malloc, one caller-owned context"
         " (`ins_core_t`, plus `ins_hist_t` for the roll-back, `ins_gsf_t` for the yaw bank, `ins_level_t` for the"
-        " levelling), `double` and `float` builds.",
+        " levelling), `double` and `float` builds. The live gateway's per-sample path has its own C part"
+        " (`firmware_ref/src/live.c`, in the extension and the firmware library): the FDI parity group's common"
+        " epoch and ODOMETRY's numbers, MAVLink 2 framing and CRC, held to the Python's bytes and decisions by"
+        " `tests/test_live_c.py` (docs/design/live_path.md).",
         "",
         "Refused in one line naming the setting (Python only):",
         "",
