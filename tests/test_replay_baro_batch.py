@@ -47,6 +47,22 @@ def _replay(p: run.Prepared, monkeypatch: pytest.MonkeyPatch, batched: bool) -> 
         return run.run_dataset(p, core="c"), taken
 
 
+def _tracked(p: run.Prepared, monkeypatch: pytest.MonkeyPatch, batched: bool) -> tuple[run.Track, str | None]:
+    """``run.replay`` of ``p`` on the C core with a Track (``batched`` False: one call per baro sample): the track
+    and the ReplayError's text, if it stopped (the track keeps the states published before it)."""
+    aids = sorted([*p.gnss, *p.aux], key=lambda m: (m.t, 0 if m.kind == "gnss" else 2))
+    track = run.Track(p.origin)
+    with monkeypatch.context() as m:
+        if not batched:
+            m.setattr(pipeline.Pipeline, "baro_runs", lambda self, imu, arrays, k0, end, ab, *a: (k0, int(ab[0])))
+        try:
+            run.replay(p.imu, aids, p.nav, [track], pipeline=run.offline_config(p.aiding_fdi, "c"), screened=True,
+                       on_aid_kinds=frozenset({"mag"}), imu_arrays=p.imu_arrays())  # fmt: skip
+        except run.ReplayError as e:
+            return track, str(e)
+    return track, None
+
+
 def _same(a: run.RunResult, b: run.RunResult) -> None:
     for f in ("t", "q_nb", "vel_ned", "ned", "std_pos", "std_att", "std_vel", "gnss_t", "gnss_err", "gnss_post",
               "gnss_std", "imu_gaps", "sf_corr"):  # fmt: skip
@@ -94,18 +110,11 @@ def test_states_failing_the_core_guard_mid_stretch(prepared: run.Prepared, monke
     r, _ = _replay(prepared, monkeypatch, batched=False)
     h = np.asarray(r.llh)[:, 2]
     monkeypatch.setattr(pipeline, "STATE_H_MAX", float(np.quantile(h, 0.6)))
-    p = prepared
-    aids = sorted([*p.gnss, *p.aux], key=lambda m: (m.t, 0 if m.kind == "gnss" else 2))
     out = []
     for batched in (True, False):
-        track = run.Track(p.origin)
-        with monkeypatch.context() as m:
-            if not batched:
-                m.setattr(pipeline.Pipeline, "baro_runs", lambda self, imu, arrays, k0, end, ab, *a: (k0, int(ab[0])))
-            with pytest.raises(run.ReplayError, match="non-finite navigation states") as e:
-                run.replay(p.imu, aids, p.nav, [track], pipeline=run.offline_config(p.aiding_fdi, "c"), screened=True,
-                           on_aid_kinds=frozenset({"mag"}), imu_arrays=p.imu_arrays())  # fmt: skip
-        out.append((str(e.value), track.arrays()))
+        track, err = _tracked(prepared, monkeypatch, batched)
+        assert err is not None and "non-finite navigation states" in err
+        out.append((err, track.arrays()))
     assert out[0][0] == out[1][0]
     a, b = out[0][1], out[1][1]
     assert len(a["t"]) > 1000
@@ -118,16 +127,10 @@ def test_each_state_of_a_stretch_carries_the_baro_ratio_in_force_when_it_ran(
 ) -> None:
     """The states an observer is handed: each with the baro test ratio of the update before it (as one run per
     sample gives them), not the stretch's last."""
-    p = prepared
-    aids = sorted([*p.gnss, *p.aux], key=lambda m: (m.t, 0 if m.kind == "gnss" else 2))
     out = []
     for batched in (True, False):
-        track = run.Track(p.origin)
-        with monkeypatch.context() as m:
-            if not batched:
-                m.setattr(pipeline.Pipeline, "baro_runs", lambda self, imu, arrays, k0, end, ab, *a: (k0, int(ab[0])))
-            run.replay(p.imu, aids, p.nav, [track], pipeline=run.offline_config(p.aiding_fdi, "c"), screened=True,
-                       on_aid_kinds=frozenset({"mag"}), imu_arrays=p.imu_arrays())  # fmt: skip
+        track, err = _tracked(prepared, monkeypatch, batched)
+        assert err is None
         st = track.states
         out.append(([s.test_ratios.get("baro") for s in st], [s.t for s in st]))
     (r1, t1), (r0, t0) = out
