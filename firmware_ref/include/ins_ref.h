@@ -210,7 +210,7 @@ typedef struct {
     double nhc_next, still_time;
     ins_real ema_w[3], ema_f[3];
     int replaying;         /* a delayed-fusion replay: gates apply, counters do not move */
-    int gate_only;         /* an accepted group is counted, not applied (ins_hist_fuse_gnss_before; 0 otherwise) */
+    int gate_only;         /* an accepted group is counted, not applied (ins_hist_fuse_gnss_split; 0 otherwise) */
     int have_mag;
     ins_real mag_ref[3], mag_std;   /* unit reference field (NED) */
     int hold, have_hold_pos;
@@ -342,13 +342,13 @@ void ins_hist_step(ins_hist_t *h, ins_core_t *c, const ins_real dth[3], const in
 /* A GNSS fix / baro altitude valid at its time: rolled back if older than half a step. */
 int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g);
 int ins_hist_fuse_baro(ins_hist_t *h, ins_core_t *c, double t, ins_pos altitude);
-/* The position of a GNSS fix whose velocity (gnss.vel_delay) is valid at t_vel and fused next, with
- * ins_hist_fuse_gnss and no IMU step between: as ins_hist_fuse_gnss, but when the position is fused now and the
- * velocity rolls the history back, the position is only gated and counted (the return value, the counters and test
- * ratio, the hold's position as ins_hist_fuse_gnss gives them): the velocity's roll-back discards the updated state
- * and its replay fuses the position at this step again. The same numbers with one update less; a caller that does
- * not fuse that velocity next loses the position's update. */
-int ins_hist_fuse_gnss_before(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g, double t_vel);
+/* A GNSS fix whose velocity (gnss.vel_delay) is valid at vel->t, before its position's pos->t (pos: the position
+ * alone, vel: the velocity alone): ins_hist_fuse_gnss(pos), then ins_hist_fuse_gnss(vel), no IMU step between; the
+ * same numbers, with one position update less when the velocity rolls the history back (the position is then only
+ * gated and counted: the roll-back's replay fuses it at its step). after_pos (may be NULL) is called with ctx between
+ * the two (a caller reading the position's gate). *r_pos: the position's result; returns the velocity's. */
+int ins_hist_fuse_gnss_split(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *pos, const ins_gnss_t *vel, int *r_pos,
+                             void (*after_pos)(void *ctx, const ins_core_t *c), void *ctx);
 int ins_hist_fuse_mag(ins_hist_t *h, ins_core_t *c, double t, const ins_real field_b[3]);
 
 /* ---------------------------------------------------------------------- FDI */

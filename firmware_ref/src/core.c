@@ -136,7 +136,7 @@ static int apply_rows(ins_core_t *c, int grp, int n, ins_real h[][INS_NX], const
         e->accepted[grp]++;
         e->consecutive[grp] = 0;
     }
-    if (e->gate_only) return 1; /* the update is a roll-back replay's (ins_hist_fuse_gnss_before) */
+    if (e->gate_only) return 1; /* the update is a roll-back replay's (ins_hist_fuse_gnss_split) */
     for (i = 0; i < n; ++i) ins_ekf_update_scalar(e, h[i], z[i], r[i]);
     ins_ekf_symmetrize(e);
     ins_ekf_feedback(e, &c->mech);
@@ -596,7 +596,8 @@ int ins_hist_fuse_gnss(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g) {
     return hist_fuse(h, c, &m);
 }
 
-int ins_hist_fuse_gnss_before(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g, double t_vel) {
+/* the position g of a fix whose velocity, valid at t_vel, is fused next (ins_hist_fuse_gnss_split) */
+static int hist_fuse_gnss_before(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g, double t_vel) {
     uint32_t ti;
     int late, r;
     if (hist_target(h, c, g->t, &ti, &late) || late || !hist_target(h, c, t_vel, &ti, &late))
@@ -607,6 +608,13 @@ int ins_hist_fuse_gnss_before(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *g,
     r = ins_hist_fuse_gnss(h, c, g);
     c->ekf.gate_only = 0;
     return r;
+}
+
+int ins_hist_fuse_gnss_split(ins_hist_t *h, ins_core_t *c, const ins_gnss_t *pos, const ins_gnss_t *vel, int *r_pos,
+                             void (*after_pos)(void *ctx, const ins_core_t *c), void *ctx) {
+    *r_pos = hist_fuse_gnss_before(h, c, pos, vel->t);
+    if (after_pos != NULL) after_pos(ctx, c);
+    return ins_hist_fuse_gnss(h, c, vel);
 }
 
 int ins_hist_fuse_mag(ins_hist_t *h, ins_core_t *c, double t, const ins_real field_b[3]) {

@@ -288,29 +288,25 @@ static void gate_before(const ins_ekf_t *e, uint32_t rej[INS_NGRP], uint32_t con
         con[g] = e->consecutive[g];
     }
 }
-/* cref_hfuse_gnss with the velocity as three values (NaN: none) and the gates of the position and the velocity in
- * o[0..3] and o[4..7] (gate_info) */
-/* g through the history (t_vel != NULL: ins_hist_fuse_gnss_before, its velocity valid at *t_vel fused next) or the
- * core, its gates in o[0..3] (position) and o[4..7] (velocity) (gate_info) */
-static int gfuse_gnss(ins_core_t *c, ins_hist_t *hs, const ins_gnss_t *g, const double *t_vel, double o[8]) {
+/* g through the history or the core, its gates in o[0..3] (position) and o[4..7] (velocity) (gate_info) */
+static int gfuse_gnss(ins_core_t *c, ins_hist_t *hs, const ins_gnss_t *g, double o[8]) {
     uint32_t rej[INS_NGRP], con[INS_NGRP];
     int r;
     gate_before(&c->ekf, rej, con);
-    if (t_vel != NULL)
-        r = ins_hist_fuse_gnss_before(hs, c, g, *t_vel);
-    else
-        r = hs != NULL ? ins_hist_fuse_gnss(hs, c, g) : ins_core_fuse_gnss(c, g);
+    r = hs != NULL ? ins_hist_fuse_gnss(hs, c, g) : ins_core_fuse_gnss(c, g);
     gate_info(&c->ekf, INS_GRP_GNSS_POS, rej, con, o);
     gate_info(&c->ekf, INS_GRP_GNSS_VEL, rej, con, o + 4);
     return r;
 }
+/* cref_hfuse_gnss with the velocity as three values (NaN: none) and the gates of the position and the velocity in
+ * o[0..3] and o[4..7] (gate_info) */
 int cref_gfuse_gnss(ins_core_t *c, ins_hist_t *hs, double t, double lat, double lon, double h, double vn, double ve,
                     double vd, double std_ne, double std_d, double std_vel, double o[8]) {
     double v[3];
     ins_gnss_t g;
     v[0] = vn; v[1] = ve; v[2] = vd;
     g = gnss_of(t, lat, lon, h, v, std_ne, std_d, std_vel);
-    return gfuse_gnss(c, hs, &g, NULL, o);
+    return gfuse_gnss(c, hs, &g, o);
 }
 /* cref_hfuse_baro with its gate in o[0..3] (gate_info) */
 int cref_gfuse_baro(ins_core_t *c, ins_hist_t *hs, double t, double altitude, double o[4]) {
@@ -332,20 +328,41 @@ int cref_gfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, double fx, double fy
     gate_info(&c->ekf, INS_GRP_MAG, rej, con, o);
     return r;
 }
+/* the gates of a split fix's position (ins_hist_fuse_gnss_split's after_pos): o[0..3] (and o[4..7], unused), then
+ * the counters before the velocity */
+typedef struct {
+    double *o;
+    uint32_t rej[INS_NGRP], con[INS_NGRP];
+} split_gates_t;
+static void split_after_pos(void *ctx, const ins_core_t *c) {
+    split_gates_t *x = (split_gates_t *)ctx;
+    gate_info(&c->ekf, INS_GRP_GNSS_POS, x->rej, x->con, x->o);
+    gate_info(&c->ekf, INS_GRP_GNSS_VEL, x->rej, x->con, x->o + 4);
+    gate_before(&c->ekf, x->rej, x->con);
+}
 /* a GNSS fix with gnss.vel_delay (> 0): its position at t (no velocity), then its velocity at t - vel_delay (no
- * position), two cref_gfuse_gnss calls in one: o[0..3] the position's gate, o[4..7] the velocity's */
+ * position), as two cref_gfuse_gnss calls: o[0..3] the position's gate, o[4..7] the velocity's; through the history,
+ * one ins_hist_fuse_gnss_split (the position's update left to the velocity's roll-back: the same numbers) */
 int cref_gfuse_gnss_split(ins_core_t *c, ins_hist_t *hs, double t, double vel_delay, double lat, double lon, double h,
                           double vn, double ve, double vd, double std_ne, double std_d, double std_vel, double o[8]) {
     const double nan = (double)NAN;
-    double ov[8], nv[3];
+    double ov[8], nv[3], v[3];
     int r, i;
     nv[0] = nv[1] = nv[2] = nan;
-    if (hs != NULL) { /* the position gated now, its update left to the velocity's roll-back (the same numbers) */
-        const ins_gnss_t g = gnss_of(t, lat, lon, h, nv, std_ne, std_d, std_vel);
-        const double t_vel = t - vel_delay;
-        r = gfuse_gnss(c, hs, &g, &t_vel, o);
-    } else
-        r = cref_gfuse_gnss(c, hs, t, lat, lon, h, nan, nan, nan, std_ne, std_d, std_vel, o);
+    if (hs != NULL) {
+        split_gates_t x;
+        int rp;
+        const ins_gnss_t gp = gnss_of(t, lat, lon, h, nv, std_ne, std_d, std_vel);
+        ins_gnss_t gv;
+        v[0] = vn; v[1] = ve; v[2] = vd;
+        gv = gnss_of(t - vel_delay, nan, lon, h, v, std_ne, std_d, std_vel);
+        x.o = o;
+        gate_before(&c->ekf, x.rej, x.con);
+        r = ins_hist_fuse_gnss_split(hs, c, &gp, &gv, &rp, split_after_pos, &x);
+        gate_info(&c->ekf, INS_GRP_GNSS_VEL, x.rej, x.con, o + 4);
+        return rp | r;
+    }
+    r = cref_gfuse_gnss(c, hs, t, lat, lon, h, nan, nan, nan, std_ne, std_d, std_vel, o);
     r |= cref_gfuse_gnss(c, hs, t - vel_delay, nan, lon, h, vn, ve, vd, std_ne, std_d, std_vel, ov);
     for (i = 4; i < 8; ++i) o[i] = ov[i];
     return r;

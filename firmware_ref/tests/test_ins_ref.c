@@ -437,9 +437,9 @@ static void test_delayed_growth(int sf) {
     CHECK(a.ekf.accepted[INS_GRP_BARO] == (uint32_t)n, "counted once each");
 }
 
-/* a GNSS fix with a velocity delay: its position through ins_hist_fuse_gnss_before (gated and counted now, updated
- * by the velocity's roll-back) gives bit for bit the counters, test ratios and hold position after it, and the
- * state and covariance after the velocity, of the two ins_hist_fuse_gnss calls; the positions jump for a while (rejections, then the forced acceptance after
+/* a GNSS fix with a velocity delay through ins_hist_fuse_gnss_split (its position gated and counted, updated by
+ * the velocity's roll-back) gives bit for bit the counters, test ratios and hold position after the position (its
+ * after_pos), and the state and covariance after the velocity, of the two ins_hist_fuse_gnss calls; the positions jump for a while (rejections, then the forced acceptance after
  * gnss_reset_after); 21 states with the hold; the velocity on time (no roll-back) and without history: as before */
 static ins_hist_t hist2;
 /* the live gate state: counters, test ratios, the hold's position */
@@ -460,13 +460,23 @@ static int same_core(const ins_core_t *a, const ins_core_t *b) {
     return ok && memcmp(a->ekf.sg, b->ekf.sg, sizeof a->ekf.sg) == 0 && memcmp(a->ekf.sa, b->ekf.sa, sizeof a->ekf.sa) == 0;
 }
 #undef SAME
+typedef struct {
+    const ins_core_t *a; /* the two-call core, its position fused */
+    int ok, skipped;
+} split_check_t;
+static void split_check(void *ctx, const ins_core_t *b) {
+    split_check_t *x = (split_check_t *)ctx;
+    x->ok = same_gate(x->a, b); /* what the caller reads between the two (the glue's gate report) */
+    x->skipped = x->a->mech.lat != b->mech.lat; /* the update left to the roll-back */
+}
 static void test_delayed_before(int delay, double max_delay) {
     ins_ekf_cfg_t cfg;
     ins_core_t a, b;
-    ins_gnss_t g;
+    ins_gnss_t g, gv;
     const ins_real q[4] = {1, 0, 0, 0}, v[3] = {(ins_real)1.0, 0, 0}, dt = (ins_real)0.005;
     ins_real dth[3] = {0, 0, (ins_real)2e-4}, dv[3] = {(ins_real)0.002, 0, 0};
-    int k, ok = 1, skipped = 0, ra, rb, rej = 0;
+    int k, ok = 1, skipped = 0, ra, rb, rvb, rej = 0;
+    split_check_t x;
     ins_ekf_default_cfg(&cfg);
     cfg.lever_arm[0] = (ins_real)0.3;
     cfg.gyro_vib_gain = (ins_real)0.4;
@@ -491,16 +501,19 @@ static void test_delayed_before(int delay, double max_delay) {
         g.vel[0] = g.vel[1] = g.vel[2] = (ins_real)NAN;
         g.std_ne = g.std_vel = (ins_real)0.05;
         g.std_d = (ins_real)0.1;
+        gv = g;
+        gv.t = t - 0.005 * delay;
+        gv.lat = (double)NAN;
+        gv.vel[0] = (ins_real)1.01;
+        gv.vel[1] = gv.vel[2] = (ins_real)0.0;
         ra = ins_hist_fuse_gnss(&hist, &a, &g);
-        rb = ins_hist_fuse_gnss_before(&hist2, &b, &g, t - 0.005 * delay);
-        ok = ok && ra == rb && same_gate(&a, &b); /* what the caller reads now (the glue's gate report) */
+        x.a = &a;
+        x.ok = 0;
+        rvb = ins_hist_fuse_gnss_split(&hist2, &b, &g, &gv, &rb, split_check, &x);
+        ok = ok && ra == rb && x.ok;
         rej += ra == 0;
-        skipped += ra == 1 && a.mech.lat != b.mech.lat; /* the update left to the roll-back */
-        g.t = t - 0.005 * delay;
-        g.lat = (double)NAN;
-        g.vel[0] = (ins_real)1.01;
-        g.vel[1] = g.vel[2] = (ins_real)0.0;
-        ok = ok && ins_hist_fuse_gnss(&hist, &a, &g) == ins_hist_fuse_gnss(&hist2, &b, &g) && same_core(&a, &b);
+        skipped += ra == 1 && x.skipped;
+        ok = ok && ins_hist_fuse_gnss(&hist, &a, &gv) == rvb && same_core(&a, &b);
     }
     CHECK(ok && hist.rollbacks == hist2.rollbacks && hist.too_old == hist2.too_old,
           "position before a late velocity: the same bits (delay %d, max_delay %g)", delay, max_delay);

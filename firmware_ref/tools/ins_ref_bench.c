@@ -33,9 +33,9 @@ static int hist_workload(long n, long every, long delay) {
     ins_real dth[3], dv[3];
     ins_ekf_cfg_t cfg;
     ins_core_t core;
-    ins_gnss_t g;
+    ins_gnss_t g, gv;
     long k;
-    int acc = 0;
+    int acc = 0, rp;
     ins_ekf_default_cfg(&cfg);
     cfg.gyro_vib_gain = (ins_real)0.4;
     cfg.accel_vib_gain = (ins_real)0.6;
@@ -55,11 +55,12 @@ static int hist_workload(long n, long every, long delay) {
         g.std_ne = (ins_real)0.02;
         g.std_d = (ins_real)0.04;
         g.std_vel = (ins_real)0.02;
-        acc += ins_hist_fuse_gnss_before(&hist, &core, &g, core.mech.t - (double)delay * dt) == 1;
-        g.t = core.mech.t - (double)delay * dt;
-        g.lat = (double)NAN; /* the velocity alone, DELAY steps earlier */
-        g.vel[0] = g.vel[1] = g.vel[2] = (ins_real)0.0;
-        acc += ins_hist_fuse_gnss(&hist, &core, &g) == 2;
+        gv = g;
+        gv.t = core.mech.t - (double)delay * dt;
+        gv.lat = (double)NAN; /* the velocity alone, DELAY steps earlier */
+        gv.vel[0] = gv.vel[1] = gv.vel[2] = (ins_real)0.0;
+        acc += ins_hist_fuse_gnss_split(&hist, &core, &g, &gv, &rp, NULL, NULL) == 2;
+        acc += rp == 1;
     }
     printf("%.12f %.12f %.6f %d rollbacks %u pos %u/%u vel %u/%u\n", core.mech.lat, core.mech.lon, core.mech.h, acc,
            (unsigned)hist.rollbacks, (unsigned)core.ekf.accepted[0], (unsigned)core.ekf.rejected[0],
