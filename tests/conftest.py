@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import os
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import blas_pin  # noqa: F401  (before numpy: one OpenBLAS kernel for the golden replays)
 import pytest
@@ -17,6 +23,38 @@ def shared_dir() -> Path:
     if not SHARED.is_dir():
         raise RuntimeError(f"{SHARED} is missing: the tests read the seeds and data from ../shared")
     return SHARED
+
+
+#: the lock a test run's workers share (pytest-xdist: one per core): every test holds it shared from its setup to its
+#: teardown (its module's fixtures included), a real-time run that needs the machine (the null relay's 1 kHz soak:
+#: its frame count and loss are real-time properties) holds it alone (:func:`machine_alone`)
+_MACHINE_LOCK = Path(tempfile.gettempdir()) / f"ins-hil-tests-{os.getuid()}.lock"
+_held: list[Any] = []  # this worker's lock file while a test runs
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    with open(_MACHINE_LOCK, "a+") as f:
+        fcntl.flock(f, fcntl.LOCK_SH)
+        _held.append(f)
+        try:
+            yield
+        finally:
+            _held.pop()
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+@contextlib.contextmanager
+def machine_alone() -> Iterator[None]:
+    """No other test of this run (on another xdist worker) runs meanwhile: they wait for their turn, and this
+    waits for theirs to end. For a real-time run whose figures a second real-time test or a CPU-bound fixture beside
+    it would break on a 2-core machine. The test's shared hold becomes exclusive (flock converts it) and back."""
+    f = _held[-1]
+    fcntl.flock(f, fcntl.LOCK_EX)
+    try:
+        yield
+    finally:
+        fcntl.flock(f, fcntl.LOCK_SH)
 
 
 #: modules that run the live gateway, subprocesses, brokers, ground stations or soak runs: the
