@@ -121,17 +121,25 @@ class SerialImuDriver:
     def feed(self, data: bytes, sink: Sink, now_ns: int) -> None:
         """Parse bytes and deliver the good samples (also used by tests/benchmarks). Several samples of one read
         (redundant IMUs' frames on one link) go in one call when the sink takes them (its ``many`` attribute: the
-        gateway's, which then runs the core once for them), in order; else one call each."""
+        gateway's, which then runs the core once for them), in order; else one call each. ``many`` gets an
+        iterator of the read's samples and takes them one at a time, in order: if it raises, the sample it was
+        taking is lost (one ``sink_error``) and the ones it had not taken yet go to ``sink`` one call each."""
         h = self.health
         out = self.parser.feed(data, now_ns)
         many = getattr(sink, "many", None) if len(out) > 1 else None
         if many is not None:
             h.samples += len(out) - 1
             h.seen(now_ns)
+            rest = iter(out)
             try:
-                many(out)
-            except Exception:  # a faulty sink must not kill the driver
+                many(rest)
+            except Exception:  # a faulty sink must not kill the driver, nor lose the read's other samples
                 h.count("sink_error")
+                for s in rest:
+                    try:
+                        sink(s)
+                    except Exception:
+                        h.count("sink_error")
         else:
             for s in out:
                 h.seen(now_ns)

@@ -141,29 +141,31 @@ int cref_level_run(ins_level_t *l, ins_imu_check_t *chk, ins_gsf_t *g, const dou
 void cref_level_bring_forward(const ins_level_t *l, ins_mech_t *m, const double bg[3]);
 int cref_fuse_gnss_repeat(ins_core_t *c, double lat, double lon, double h, const double vel[3], double std_ne,
                           double std_d, double std_vel, size_t n);
-/* live.c: the live gateway's per-sample path (the FDI parity group, ODOMETRY, MAVLink framing) */
-typedef struct {{
-    int n, nh, m, L, pos, persistence;
-    int *hidx;
-    long long run, srun;
-    double alpha, oma, thr_fast, thr_slow, onset;
-    double *M, *Un, *prev, *buf, *tbuf, *ema, *score;
-}} live_fdi_group_t;
-int live_fdi_step(live_fdi_group_t *g, double t, const double *y, double *est);
-uint16_t live_crc(const uint8_t *p, size_t n, uint16_t crc);
-size_t live_frame(uint8_t *out, const uint8_t *payload, size_t len, uint32_t msgid, uint8_t crc_extra, uint8_t seq,
-                  uint8_t sysid, uint8_t compid);
-int live_odometry(uint8_t *out, const double *s, const double *home, double *prev, int reset, const int *ids);
-double live_hypot(double a, double b);
 """
 
-# firmware_ref/src/py_glue.c (a source file, so ensure_venv rebuilds) and live.c's declarations
-_GLUE = '#include "py_glue.c"\n#include "live.h"\n'
+#: headers whose declarations the cdef takes as they are (the header the one source of them)
+_HEADERS = ["live.h"]  # live.c: the live gateway's per-sample path (the FDI parity group, ODOMETRY, MAVLink framing)
+
+# firmware_ref/src/py_glue.c (a source file, so ensure_venv rebuilds) and the headers' declarations
+_GLUE = '#include "py_glue.c"\n' + "".join(f'#include "{h}"\n' for h in _HEADERS)
+
+
+def _declarations(header: str) -> str:
+    """The C declarations of ``src/<header>`` for the cdef: the header without its preprocessor lines (include
+    guard, includes, macros; cffi's cdef takes none of them but integer ``#define``s)."""
+    out: list[str] = []
+    directive = False
+    for line in (_HERE / "src" / header).read_text().splitlines(keepends=True):
+        directive = directive or line.lstrip().startswith("#")
+        if not directive:
+            out.append(line)
+        directive = directive and line.rstrip().endswith("\\")  # a directive continued on the next line
+    return "".join(out)
 
 
 def _builder(module: str, real: str, defines: list[tuple[str, str | None]]) -> FFI:
     ffi = FFI()
-    ffi.cdef(_CDEF.format(real=real))
+    ffi.cdef(_CDEF.format(real=real) + "".join(_declarations(h) for h in _HEADERS))
     ffi.set_source(
         module,
         _GLUE,

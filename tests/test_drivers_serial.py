@@ -6,6 +6,7 @@ import asyncio
 import os
 import random
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -293,3 +294,31 @@ def test_config_errors_name_the_key() -> None:
         SerialImuDriver.from_config({"port": "/dev/null", "bauds": 9600})
     d = SerialImuDriver.from_config({"type": "serial_imu", "port": "/dev/ttyUSB0", "baudrate": 460800})
     assert (d.port, d.baudrate, d.name) == ("/dev/ttyUSB0", 460800, "serial_imu")
+
+
+def test_a_sink_failing_on_one_frame_of_a_read_loses_only_that_frame() -> None:
+    """The frames of one read go to the sink's ``many`` in one call; if it raises on one of them, that frame is
+    counted as a ``sink_error`` and every other frame of the read still reaches the sink, in order."""
+    got: list[int] = []
+    bad = {2, 5}  # the sink raises on these frames' seq
+
+    def take(s: ImuSample) -> None:
+        if s.seq in bad:
+            raise RuntimeError(f"sink fault on {s.seq}")
+        got.append(s.seq)
+
+    calls = []
+
+    def many(samples: Iterable[ImuSample]) -> None:
+        calls.append(1)
+        for s in samples:
+            take(s)
+
+    take.many = many  # type: ignore[attr-defined]
+    drv = SerialImuDriver("/dev/null")
+    drv.feed(b"".join(sf.encode(_sample(i, 1.0 + i * 1e-3)) for i in range(8)), take, 1_000_000)
+    assert got == [0, 1, 3, 4, 6, 7]
+    assert drv.health.errors["sink_error"] == 2
+    assert drv.health.samples == 8 and calls == [1]
+    drv.feed(b"".join(sf.encode(_sample(i, 1.0 + i * 1e-3)) for i in range(8, 11)), take, 2_000_000)
+    assert got[6:] == [8, 9, 10] and drv.health.errors["sink_error"] == 2 and calls == [1, 1]  # one call a read

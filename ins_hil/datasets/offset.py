@@ -28,7 +28,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
@@ -122,19 +122,23 @@ def _vertex(grid: Vec, cost: Vec, edge: bool = False) -> float:
     return float(np.clip(-b / (2.0 * a), grid[lo], grid[hi - 1]))
 
 
+class SearchOptions(TypedDict, total=False):
+    """The keyword options of a search (:func:`estimate_imu_offset`, :func:`estimate_mounting_yaw`), their
+    defaults :func:`_search`'s: ``window`` (s, absolute), ``settle_s``, ``on_s``, ``off_s`` (s), ``bootstrap``
+    (resamples), ``seed``, ``progress``, ``exhaustive``."""
+
+    window: tuple[float, float] | None
+    settle_s: float
+    on_s: float
+    off_s: float
+    bootstrap: int
+    seed: int
+    progress: Progress | None
+    exhaustive: bool
+
+
 def estimate_imu_offset(
-    ds: Dataset,
-    cfg: DatasetConfig,
-    span_s: float = 0.2,
-    step_s: float = 0.02,
-    window: tuple[float, float] | None = None,
-    settle_s: float = 30.0,
-    on_s: float = 5.0,
-    off_s: float = 7.0,
-    bootstrap: int = 200,
-    seed: int = 0,
-    progress: Progress | None = None,
-    exhaustive: bool = False,
+    ds: Dataset, cfg: DatasetConfig, span_s: float = 0.2, step_s: float = 0.02, **search: Unpack[SearchOptions]
 ) -> GridEstimate:
     """Estimate the IMU time offset (s, added to the IMU times as ``imu_time_offset_s``) of ``ds``.
 
@@ -142,10 +146,9 @@ def estimate_imu_offset(
     selection window replayed (default the whole log; outages start ``settle_s`` after its start, or
     after take-off where the log has one). Needs GNSS in the window. The search is coarse to fine (every other
     candidate on a decimated replay, then full replays around its minimum: :func:`_search`); ``exhaustive``
-    replays every candidate in full."""
+    replays every candidate in full (the defaults: :func:`_search`'s)."""
     return _search(ds, cfg, ("IMU time offset", "ms", 1e3), cfg.imu_time_offset, span_s, step_s,
-                   lambda c, d: dataclasses.replace(c, imu_time_offset=d), window, settle_s, on_s, off_s,
-                   bootstrap, seed, progress, exhaustive)  # fmt: skip
+                   lambda c, d: dataclasses.replace(c, imu_time_offset=d), **search)  # fmt: skip
 
 
 def estimate_mounting_yaw(
@@ -153,14 +156,7 @@ def estimate_mounting_yaw(
     cfg: DatasetConfig,
     span: float = math.radians(5.0),
     step: float = math.radians(0.5),
-    window: tuple[float, float] | None = None,
-    settle_s: float = 30.0,
-    on_s: float = 5.0,
-    off_s: float = 7.0,
-    bootstrap: int = 200,
-    seed: int = 0,
-    progress: Progress | None = None,
-    exhaustive: bool = False,
+    **search: Unpack[SearchOptions],
 ) -> GridEstimate:
     """Estimate the mounting yaw of ``ds`` (rad): a rotation about the body z axis added to the yaw of the
     config's last ``imu_to_body`` rotation (the one applied last, in body axes), over its value ± ``span``
@@ -172,7 +168,7 @@ def estimate_mounting_yaw(
         return dataclasses.replace(c, imu_to_body=rot)
 
     return _search(ds, cfg, ("mounting yaw", "°", 180.0 / math.pi), float(cfg.imu_to_body[-1, 2]), span, step,
-                   with_yaw, window, settle_s, on_s, off_s, bootstrap, seed, progress, exhaustive)  # fmt: skip
+                   with_yaw, **search)  # fmt: skip
 
 
 def _search(
@@ -183,13 +179,13 @@ def _search(
     span: float,
     step: float,
     apply: Callable[[DatasetConfig, float], DatasetConfig],
-    window: tuple[float, float] | None,
-    settle_s: float,
-    on_s: float,
-    off_s: float,
-    bootstrap: int,
-    seed: int,
-    progress: Progress | None,
+    window: tuple[float, float] | None = None,
+    settle_s: float = 30.0,
+    on_s: float = 5.0,
+    off_s: float = 7.0,
+    bootstrap: int = 200,
+    seed: int = 0,
+    progress: Progress | None = None,
     exhaustive: bool = False,
 ) -> GridEstimate:
     """Replay ``ds`` with ``apply(cfg, value)`` for values of ``base`` ± ``span`` in steps of ``step``,

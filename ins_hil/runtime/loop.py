@@ -32,7 +32,7 @@ import signal
 import socket
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
@@ -134,9 +134,10 @@ class Gateway:
             if not self._scheduled:  # not inside the core already (it drains the FIFO): run it now
                 run()
 
-        def many(samples: list[Sample]) -> None:
-            """Several samples of one read (e.g. redundant IMUs' frames on one link), in order: the core runs
-            once for all of them (the pipeline gets them in the same order as one sink call each)."""
+        def many(samples: Iterable[Sample]) -> None:
+            """Several samples of one read (e.g. redundant IMUs' frames on one link), in order, taken one at a
+            time (a driver's iterator: what is not taken yet when this raises is still the driver's): the core
+            runs once for all of them (the pipeline gets them in the same order as one sink call each)."""
             for s in samples:
                 stats.received += 1
                 if len(q) >= cap and not self._scheduled:
