@@ -27,7 +27,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from ins_hil.core import GAP_MAX_S, NavConfig
+from ins_hil.core import GAP_MAX_S, NavConfig, imu_lost_v
 from ins_hil.datasets.config import DatasetConfig
 from ins_hil.datasets.dataset import Dataset, DatasetError, increasing
 from ins_hil.nav import alignment, earth
@@ -658,7 +658,7 @@ class _BaroPlan:
         n = self.n = len(t)
         self.na = len(aids)
         lost = np.zeros(n + 1, dtype=np.int64)
-        lost[2:] = np.cumsum((t[1:] - dt[1:] - t[:-1]) > 0.5 * dt[1:])
+        lost[2:] = np.cumsum(imu_lost_v(t[1:], dt[1:], t[:-1])[1])
         self.lost = lost.tolist()  # lost[k]: samples before index k with data lost before them
         self.h = np.searchsorted(t, np.asarray(when, dtype=np.float64), "left").tolist()
         one_id = self.one_id = len({s.imu_id for s in imu}) == 1
