@@ -20,9 +20,8 @@ from typing import Any, cast
 import numpy as np
 
 from ins_hil.datasets.dataset import Trajectory
-from ins_hil.datasets.run import navigating
+from ins_hil.datasets.run import antenna_ned, navigating
 from ins_hil.nav import earth
-from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.runtime.pipeline import Observer, Pipeline
 from ins_hil.types import NavState, Vec
 
@@ -34,6 +33,7 @@ class ReferenceScore(Observer):
                  windows: Sequence[tuple[float, float]]) -> None:  # fmt: skip
         self.lever = np.asarray(lever_b, dtype=np.float64)
         self.origin = origin
+        self._o = earth.ned_ref(*origin)  # the origin's ECEF point and C_e^n, once
         self.windows = list(windows)
         t, p = tr.t_pos, tr.pos_ned
         if t is None or p is None or tr.origin is None or not len(t):
@@ -79,8 +79,7 @@ class ReferenceScore(Observer):
         """Reference point ``k`` scored against ``st`` (the first state at or after its time), the lever arm turned
         with our attitude and our position carried to the point's time with our velocity."""
         t = float(self.t[k])
-        p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *self.origin)
-        ours = p + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t - st.t)
+        ours = antenna_ned(st, self.lever, t, self.origin, self._o)
         self.rows.append((t, ours - self.ref[k], np.asarray(st.std_pos)))
 
 

@@ -474,12 +474,14 @@ class RunResult:
     yaw_resets: list[tuple[float, str]] = field(default_factory=list)  # the core's emergency yaw resets: t s, why
 
 
-def antenna_ned(st: Any, lever: Vec, t: float, origin: tuple[float, float, float]) -> Vec:
+def antenna_ned(st: Any, lever: Vec, t: float, origin: tuple[float, float, float],
+                ref: tuple[Vec, Vec] | None = None, c_bn: Vec | None = None) -> Vec:  # fmt: skip
     """The GNSS antenna position (NED m from ``origin`` = (lat rad, lon rad, h m)) of a navigation state ``st``
     (``NavState``: t, lat, lon, h, q_nb, vel_ned) at time ``t`` s: its position plus the body lever arm ``lever``
-    (m), moved on with its velocity to ``t``."""
-    p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *origin)
-    return p + dcm_from_quat(st.q_nb) @ lever + st.vel_ned * (t - st.t)
+    (m), moved on with its velocity to ``t``. ``ref`` (``earth.ned_ref(*origin)``) and ``c_bn``
+    (``dcm_from_quat(st.q_nb)``), when the caller holds them: the same numbers."""
+    p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *origin, ref=ref)
+    return p + (dcm_from_quat(st.q_nb) if c_bn is None else c_bn) @ lever + st.vel_ned * (t - st.t)
 
 
 #: the pipeline settings of an offline replay: the Python core aligning itself from the first IMU sample, the
@@ -830,17 +832,11 @@ class GnssScore(Observer):
         self._f_raw: dict[int, Vec] = {}
         self._span: dict[int, tuple[int, Vec]] = {}  # per open fix: the epoch count and f at its last segment end
         self._epochs = 0
-        # the origin's ECEF point and C_e^n, once (``earth.ned_from_geodetic``'s numbers without recomputing them)
-        self._o_ecef = earth.geodetic_to_ecef(*origin)
-        self._c_en = earth.dcm_ecef_to_ned(origin[0], origin[1])
+        self._o = earth.ned_ref(*origin)  # the origin's ECEF point and C_e^n, once
         self._dcm_of: tuple[Any, Any, Vec] | None = None  # (state, its q_nb, C_b^n): :meth:`_dcm`'s last
 
-    def _ned(self, lat: float, lon: float, h: float) -> Vec:
-        """``earth.ned_from_geodetic(lat, lon, h, *origin)``."""
-        return cast(Vec, self._c_en @ (earth.geodetic_to_ecef(lat, lon, h) - self._o_ecef))
-
     def _ref(self, f: GnssFix) -> Vec:
-        return self._ned(f.lat, f.lon, f.h)
+        return earth.ned_from_geodetic(f.lat, f.lon, f.h, *self.origin, ref=self._o)
 
     def _dcm(self, st: Any) -> Vec:
         """``dcm_from_quat(st.q_nb)``, computed once per state: a core hands out the same ``NavState`` while it
@@ -856,7 +852,7 @@ class GnssScore(Observer):
 
     def _antenna(self, st: Any, t: float) -> Vec:
         """:func:`antenna_ned` of ``st`` at ``t`` (this observer's lever arm and origin)."""
-        return self._ned(st.lat, st.lon, st.h) + self._dcm(st) @ self.lever + st.vel_ned * (t - st.t)
+        return antenna_ned(st, self.lever, t, self.origin, self._o, self._dcm(st))
 
     def epoch(self, pipe: Pipeline, st: NavState) -> None:
         self._epochs += 1
