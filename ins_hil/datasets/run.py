@@ -498,6 +498,24 @@ def navigating(pipe: Pipeline) -> bool:
     return core is not None and core.align_status() == ""
 
 
+def states_at(points: Sequence[float], k: int, states: Sequence[NavState]) -> tuple[list[int], int]:
+    """An observer's :meth:`~ins_hil.runtime.pipeline.Observer.epochs` matching of points in time to the states of
+    one call: for each of ``points`` (times s, ascending) from index ``k`` up to the last state's time, the index
+    of the first of ``states`` (ascending times) at or after it; and the index of the first point not reached (the
+    next call's ``k``)."""
+    if k >= len(points) or not len(states):
+        return [], k
+    ts = cast(Any, states).times() if hasattr(states, "times") else [s.t for s in states]
+    end = ts[-1]
+    at: list[int] = []
+    i = 0
+    while k < len(points) and points[k] <= end:
+        i = bisect.bisect_left(ts, points[k], i)
+        at.append(i)
+        k += 1
+    return at, k
+
+
 AidHook = Callable[[Pipeline, Any], Any]
 
 
@@ -826,6 +844,7 @@ class GnssScore(Observer):
         self.lever = np.asarray(lever, dtype=np.float64)
         self.origin = origin
         self.withheld = sorted(withheld, key=lambda f: f.t)
+        self._wt = [f.t for f in self.withheld]
         self._w = 0
         self.rows: list[FixScore] = []
         self._open: dict[int, FixScore] = {}
@@ -870,19 +889,10 @@ class GnssScore(Observer):
         if not n:
             return
         self._epochs += n
-        w = self.withheld
-        if self._w >= len(w):
-            return
-        ts = cast(Any, states).times() if hasattr(states, "times") else [s.t for s in states]
-        if w[self._w].t > ts[-1]:
-            return
-        nav = navigating(pipe)
-        i = 0
-        while self._w < len(w) and w[self._w].t <= ts[-1]:  # each at the first state at or after its time
-            f = w[self._w]
-            self._w += 1
-            i = bisect.bisect_left(ts, f.t, i)
-            if nav:
+        j = self._w
+        at, self._w = states_at(self._wt, j, states)  # each at the first state at or after its time
+        if at and navigating(pipe):
+            for f, i in zip(self.withheld[j : self._w], at, strict=True):
                 st = states[i]
                 ref = self._ref(f)
                 self.rows.append(FixScore(f, True, self._antenna(st, f.t) - ref,
