@@ -592,11 +592,7 @@ def replay(
                     k, j = k_end, j_end
                     t = ts[k - 1]
                     if j < na and when[j] <= t:  # the rest of the last group, as below
-                        while j < na and when[j] <= t:
-                            m = aids[j]
-                            j += 1
-                            a = m if on_aid is None else on_aid(pipe, m)
-                            pipe.aid(a, a is m)
+                        j = _hand_over(pipe, aids, when, j, t, on_aid, screened)
                         pipe.flush()
                     if pipe.events:
                         _take_events(pipe, events, source, t)
@@ -610,11 +606,7 @@ def replay(
             )
             t = ts[k_end - 1]
             if j < na and when[j] <= t:
-                while j < na and when[j] <= t:
-                    m = aids[j]
-                    j += 1
-                    a = m if on_aid is None else on_aid(pipe, m)
-                    pipe.aid(a, screened and a is m)  # (a sample on_aid made is checked)
+                j = _hand_over(pipe, aids, when, j, t, on_aid, screened)
                 pipe.flush()
             if pipe.events:
                 _take_events(pipe, events, source, t)
@@ -629,11 +621,7 @@ def replay(
         t = s.t
         pipe.imu(s)
         if j < na and when[j] <= t:
-            while j < na and when[j] <= t:
-                m = aids[j]
-                j += 1
-                a = m if on_aid is None else on_aid(pipe, m)
-                pipe.aid(a, screened and a is m)  # (a sample on_aid made is checked)
+            j = _hand_over(pipe, aids, when, j, t, on_aid, screened)
             if not live_schedule:
                 pipe.flush()
         if pipe.events:
@@ -644,6 +632,20 @@ def replay(
     if pipe.events:
         _take_events(pipe, events, source, t)
     return pipe, events
+
+
+def _hand_over(pipe: Pipeline, aids: Sequence[Any], when: Sequence[float], j: int, t: float, on_aid: AidHook | None,
+               screened: bool) -> int:  # fmt: skip
+    """:func:`replay`'s hand-over: ``aids`` from index ``j`` whose hand-over time ``when`` is at or before ``t`` s
+    to the pipeline (each through ``on_aid`` first when given; ``screened``: not checked again, unless ``on_aid``
+    made a new sample). Returns the index of the first aid not handed over."""
+    na = len(aids)
+    while j < na and when[j] <= t:
+        m = aids[j]
+        j += 1
+        a = m if on_aid is None else on_aid(pipe, m)
+        pipe.aid(a, screened and a is m)
+    return j
 
 
 def imu_arrays(imu: Sequence[ImuSample]) -> tuple[Vec, Vec, Vec]:
