@@ -27,8 +27,8 @@ import dataclasses
 import importlib
 import math
 from collections import deque
-from collections.abc import Iterator, Sequence
-from typing import Any, Literal, cast, overload
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, Generic, Literal, TypeVar, cast, overload
 
 import numpy as np
 
@@ -43,6 +43,7 @@ from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
 from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 Precision = Literal["double", "float"]
+_T = TypeVar("_T")
 
 
 def _lib(precision: Precision) -> tuple[Any, Any]:
@@ -206,6 +207,28 @@ class _NoYawReset(YawReset):
         """Not fed."""
 
 
+class _CField(Generic[_T]):
+    """A read-only attribute of an object over a C struct (its ``_g``): the struct's field of the same name, as
+    ``conv`` (``bool``, ``int``, ``float``) gives it; ``doc`` its docstring (a ``@property`` per field, in one
+    line)."""
+
+    def __init__(self, conv: Callable[[Any], _T], doc: str) -> None:
+        self.conv, self.__doc__, self.name = conv, doc, ""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> _CField[_T]: ...
+    @overload
+    def __get__(self, obj: object, owner: type | None = None) -> _T: ...
+    def __get__(self, obj: object | None, owner: type | None = None) -> _T | _CField[_T]:
+        return self if obj is None else self.conv(getattr(cast(Any, obj)._g, self.name))
+
+    def __set__(self, obj: object, value: object) -> None:
+        raise AttributeError(f"{self.name} is read from the C struct: it cannot be set")
+
+
 class CYawGsf:
     """The GNSS-velocity yaw bank (:class:`ins_hil.fusion.yaw_gsf.YawGsf`, PX4's EKF-GSF) on the C core
     (``ins_gsf_t``, ``firmware_ref/src/gsf.c``, double build): the same interface and numbers to round-off; the
@@ -219,30 +242,11 @@ class CYawGsf:
         self._g = self._ffi.new("ins_gsf_t *")
         self._lib_.ins_gsf_init(self._g, self.cfg.n_models)
 
-    @property
-    def started(self) -> bool:
-        """Velocity fusion started (the yaw states are live)."""
-        return bool(self._g.started)
-
-    @property
-    def tilt_aligned(self) -> bool:
-        """The models' tilt set from a 1-g specific force."""
-        return bool(self._g.tilt_aligned)
-
-    @property
-    def yaw(self) -> float:
-        """The composite yaw (rad)."""
-        return float(self._g.yaw)
-
-    @property
-    def yaw_var(self) -> float:
-        """The composite yaw variance (rad², inf before the first velocity)."""
-        return float(self._g.yaw_var)
-
-    @property
-    def updates(self) -> int:
-        """GNSS velocities fused."""
-        return int(self._g.updates)
+    started = _CField(bool, "Velocity fusion started (the yaw states are live).")
+    tilt_aligned = _CField(bool, "The models' tilt set from a 1-g specific force.")
+    yaw = _CField(float, "The composite yaw (rad).")
+    yaw_var = _CField(float, "The composite yaw variance (rad², inf before the first velocity).")
+    updates = _CField(int, "GNSS velocities fused.")
 
     @property
     def W(self) -> Vec:
