@@ -76,6 +76,23 @@ DEG = math.pi / 180.0
 GAP_MAX_S = 10.0
 
 
+def imu_lost(t_end: float, dt: float, prev_end: float) -> float | None:
+    """The IMU data lost (s) before a sample ending at ``t_end`` s, ``dt`` s long, whose previous sample (or the
+    core's state) ended at ``prev_end`` s: the time from ``prev_end`` to the sample's start (``t_end - dt``) when
+    that exceeds half the sample's step, ``0.5 * dt`` (exactly half is jitter, not a loss), else None. The rule
+    of both cores (``NavCore._mechanize``, ``core.c``) and of every caller that predicts their record;
+    :func:`imu_lost_v` is the same on arrays."""
+    lost = t_end - dt - prev_end
+    return lost if lost > 0.5 * dt else None
+
+
+def imu_lost_v(t_end: Vec, dt: Vec, prev_end: Vec) -> tuple[Vec, Vec]:
+    """:func:`imu_lost` element-wise on (n,) arrays (s): the time from each ``prev_end`` to the sample's start
+    (``t_end - dt``, whether lost or not) and where it exceeds half the sample's step (bool, the lost data)."""
+    lost = t_end - dt - prev_end
+    return lost, lost > 0.5 * dt
+
+
 def initial_state(f_b: Vec, fix: GnssFix, t: float, yaw: float, cfg: NavConfig) -> StrapdownState:
     """The state a core starts from at a GNSS fix (the runtime's ``init = "gnss"``): roll and pitch levelled from
     the mean specific force ``f_b`` (m/s², body FRD; :func:`ins_hil.nav.alignment.coarse_level`, the core's own
@@ -253,8 +270,8 @@ class NavCore:
         """Compensate the increments (bias, g-sensitivity, scale factor) and run the strapdown step, in
         scalar floats on the hot path (the same element-wise numbers as the array expressions)."""
         dt = imu.dt
-        lost = imu.t - dt - self.ins.state.t
-        if lost > 0.5 * dt and self.step_n > 0:
+        lost = imu_lost(imu.t, dt, self.ins.state.t)
+        if lost is not None and self.step_n > 0:
             self._coast(lost)
         a, v, bg, ba = imu.dtheta, imu.dvel, self.bg, self.ba
         x0, x1, x2 = (

@@ -27,13 +27,13 @@ import dataclasses
 import importlib
 import math
 from collections import deque
-from collections.abc import Iterator, Sequence
-from typing import Any, Literal, cast, overload
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, Generic, Literal, TypeVar, cast, overload
 
 import numpy as np
 
 from ins_hil import aids
-from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, ins_off_track
+from ins_hil.core import RESET_GATE_FACTOR, NavConfig, gnss_fixes_agree, imu_lost, imu_lost_v, ins_off_track
 from ins_hil.core_parts.alignment import MAX_FROZEN_S, Alignment
 from ins_hil.core_parts.sensor_check import SensorCheck
 from ins_hil.core_parts.yaw_reset import YawReset
@@ -43,6 +43,7 @@ from ins_hil.nav.mechanization import StrapdownNED, StrapdownState
 from ins_hil.types import AidSample, BaroSample, FaultEvent, FaultMode, GnssFix, ImuSample, MagSample, NavState, Vec
 
 Precision = Literal["double", "float"]
+_T = TypeVar("_T")
 
 
 def _lib(precision: Precision) -> tuple[Any, Any]:
@@ -206,6 +207,28 @@ class _NoYawReset(YawReset):
         """Not fed."""
 
 
+class _CField(Generic[_T]):
+    """A read-only attribute of an object over a C struct (its ``_g``): the struct's field of the same name, as
+    ``conv`` (``bool``, ``int``, ``float``) gives it; ``doc`` its docstring (a ``@property`` per field, in one
+    line)."""
+
+    def __init__(self, conv: Callable[[Any], _T], doc: str) -> None:
+        self.conv, self.__doc__, self.name = conv, doc, ""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> _CField[_T]: ...
+    @overload
+    def __get__(self, obj: object, owner: type | None = None) -> _T: ...
+    def __get__(self, obj: object | None, owner: type | None = None) -> _T | _CField[_T]:
+        return self if obj is None else self.conv(getattr(cast(Any, obj)._g, self.name))
+
+    def __set__(self, obj: object, value: object) -> None:
+        raise AttributeError(f"{self.name} is read from the C struct: it cannot be set")
+
+
 class CYawGsf:
     """The GNSS-velocity yaw bank (:class:`ins_hil.fusion.yaw_gsf.YawGsf`, PX4's EKF-GSF) on the C core
     (``ins_gsf_t``, ``firmware_ref/src/gsf.c``, double build): the same interface and numbers to round-off; the
@@ -219,30 +242,11 @@ class CYawGsf:
         self._g = self._ffi.new("ins_gsf_t *")
         self._lib_.ins_gsf_init(self._g, self.cfg.n_models)
 
-    @property
-    def started(self) -> bool:
-        """Velocity fusion started (the yaw states are live)."""
-        return bool(self._g.started)
-
-    @property
-    def tilt_aligned(self) -> bool:
-        """The models' tilt set from a 1-g specific force."""
-        return bool(self._g.tilt_aligned)
-
-    @property
-    def yaw(self) -> float:
-        """The composite yaw (rad)."""
-        return float(self._g.yaw)
-
-    @property
-    def yaw_var(self) -> float:
-        """The composite yaw variance (rad², inf before the first velocity)."""
-        return float(self._g.yaw_var)
-
-    @property
-    def updates(self) -> int:
-        """GNSS velocities fused."""
-        return int(self._g.updates)
+    started = _CField(bool, "Velocity fusion started (the yaw states are live).")
+    tilt_aligned = _CField(bool, "The models' tilt set from a 1-g specific force.")
+    yaw = _CField(float, "The composite yaw (rad).")
+    yaw_var = _CField(float, "The composite yaw variance (rad², inf before the first velocity).")
+    updates = _CField(int, "GNSS velocities fused.")
 
     @property
     def W(self) -> Vec:
@@ -609,8 +613,8 @@ class CNavCore:
                 raise ValueError(f"CNavCore: sample dt {imu.dt!r} s differs from the fixed step {self.dt} s")
             self.n_off_step += 1
         if not self.fixed_step:  # the C core coasts across lost IMU data (core.c): NavCore's record of it
-            lost = imu.t - imu.dt - float(self._core.mech.t)
-            if lost > 0.5 * imu.dt and int(self._core.steps) > 0:
+            lost = imu_lost(imu.t, imu.dt, float(self._core.mech.t))
+            if lost is not None and int(self._core.steps) > 0:
                 self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lost)
                 self._events.append(
                     FaultEvent(imu.t - imu.dt, "imu", FaultMode.DROPOUT, lost, True, True,
@@ -1067,21 +1071,21 @@ class CNavCore:
         if n:  # the IMU data lost before each sample (step()'s record; none before the first step)
             t0 = float(self._core.mech.t)
             if n <= 16:  # a short run (a replay's samples between two aiding measurements): in Python floats
-                tl, dl = t_end.tolist(), dt.tolist()
-                lost_l = [tl[0] - dl[0] - t0] + [tl[k] - dl[k] - tl[k - 1] for k in range(1, n)]
-                rows = [k for k in range(n) if lost_l[k] > 0.5 * dl[k]]
+                tl = t_end.tolist()
+                lost_l: list[Any] = list(map(imu_lost, tl, dt.tolist(), [t0, *tl[:-1]]))  # (None: no data lost)
+                rows = [k for k, x in enumerate(lost_l) if x is not None]
             else:  # in one numpy pass
                 prev = np.empty(n)
                 prev[0] = t0
                 prev[1:] = t_end[:-1]
-                lost = t_end - dt - prev
-                rows = np.nonzero(lost > 0.5 * dt)[0].tolist()
+                lost, gap = imu_lost_v(t_end, dt, prev)
+                rows = np.nonzero(gap)[0].tolist()
                 lost_l = lost.tolist()
             if rows and rows[0] == 0 and int(self._core.steps) == 0:
                 rows = rows[1:]
             self.run_gap_rows = rows
             for k in rows:
-                lk = float(lost_l[k])
+                lk = cast(float, lost_l[k])
                 tk = float(t_end[k] - dt[k])
                 self.imu_lost = (self.imu_lost[0] + 1, self.imu_lost[1] + lk)
                 self._events.append(
@@ -1137,7 +1141,7 @@ class CNavCore:
     def lost_before(self, t_end: float, dt: float) -> bool:
         """Whether :meth:`run_states` would record IMU data lost before a next sample ending at ``t_end`` s, ``dt``
         s long (its DROPOUT record)."""
-        return int(self._core.steps) > 0 and t_end - dt - float(self._core.mech.t) > 0.5 * dt
+        return int(self._core.steps) > 0 and imu_lost(t_end, dt, float(self._core.mech.t)) is not None
 
     def run_baro(self, inc: Vec, t_end: Vec, dt: Vec, k0: int, end: Vec, ab: Vec, bt: Vec, alt: Vec,
                  bounds: tuple[float, float, float, float]) -> BaroRun:  # fmt: skip

@@ -60,6 +60,17 @@ def test_c_yaw_bank_matches_python() -> None:
     assert np.all(worst <= 1e-9), worst
 
 
+def test_c_yaw_bank_reads_its_state_off_the_c_struct() -> None:
+    """The bank's scalars are the C struct's, with the Python bank's types, and cannot be set from Python."""
+    py, c = YawGsf(), CYawGsf()
+    for name in ("started", "tilt_aligned", "yaw", "yaw_var", "updates"):
+        assert type(getattr(c, name)) is type(getattr(py, name)), name
+        with pytest.raises(AttributeError):
+            setattr(c, name, getattr(py, name))
+    c._g.updates, c._g.yaw = 3, 0.25
+    assert (c.updates, c.yaw) == (3, 0.25)
+
+
 def test_c_yaw_bank_refuses_other_settings() -> None:
     with pytest.raises(ValueError, match="PX4's settings"):
         CYawGsf(GsfConfig(tilt_gain=0.3))

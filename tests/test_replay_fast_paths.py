@@ -247,6 +247,44 @@ def test_ned_from_geodetic_many_is_the_one_point_routine() -> None:
     assert math.isfinite(float(one[0, 0]))
 
 
+def test_ned_from_geodetic_with_its_reference_held_is_the_same_routine() -> None:
+    """A caller holding the origin's ``ned_ref`` (the replay's scores: many points, one origin) gets the numbers
+    of the plain call, bit for bit (the same operations), and so does ``antenna_ned`` given it and C_b^n."""
+    from ins_hil.datasets.run import antenna_ned
+    from ins_hil.nav.rotation import dcm_from_quat
+
+    rng = np.random.default_rng(2)
+    ref = earth.ned_ref(0.6, 0.1, 90.0)
+    for lat, lon, h in zip(0.6 + 1e-3 * rng.standard_normal(50), 0.1 + 1e-3 * rng.standard_normal(50),
+                           100.0 + 10.0 * rng.standard_normal(50), strict=True):  # fmt: skip
+        assert np.array_equal(earth.ned_from_geodetic(lat, lon, h, 0.6, 0.1, 90.0, ref=ref),
+                              earth.ned_from_geodetic(lat, lon, h, 0.6, 0.1, 90.0))  # fmt: skip
+        q = rng.standard_normal(4)
+        st = NavState(t=1.0, q_nb=q / np.linalg.norm(q), vel_ned=rng.standard_normal(3), lat=lat, lon=lon, h=h)
+        lever = rng.standard_normal(3)
+        plain = antenna_ned(st, lever, 1.004, (0.6, 0.1, 90.0))
+        assert np.array_equal(antenna_ned(st, lever, 1.004, (0.6, 0.1, 90.0), ref, dcm_from_quat(st.q_nb)), plain)
+        assert np.linalg.norm(plain - earth.ned_from_geodetic(lat, lon, h, 0.6, 0.1, 90.0)) > 0.0
+
+
+def test_states_at_takes_each_point_to_the_first_state_at_or_after_it() -> None:
+    """The observers' matching of points to one call's states (``GnssScore`` and ``ReferenceScore.epochs``):
+    a point at a state's time is that state's, one between two states the later's; points after the last
+    state wait for the next call."""
+    from ins_hil.datasets.run import states_at
+
+    def at(t: float) -> NavState:
+        return NavState(t, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.6, 0.1, 90.0)
+
+    states = [at(t) for t in (1.0, 2.0, 3.0)]
+    points = [0.5, 1.0, 1.5, 2.0, 3.0, 3.5]
+    assert states_at(points, 0, states) == ([0, 0, 1, 1, 2], 5)
+    assert states_at(points, 2, states) == ([1, 1, 2], 5)
+    assert states_at(points, 5, states) == ([], 5)  # 3.5 s: after the last state
+    assert states_at(points, 5, [at(3.5)]) == ([0], 6)
+    assert states_at(points, 6, states) == ([], 6) and states_at(points, 0, []) == ([], 0)
+
+
 def test_bench_core_reads_the_batch_ratio_off_the_replay_command(monkeypatch: pytest.MonkeyPatch) -> None:
     """bench-core's Dask section takes serial / parallel wall times and the ratio from the line `ins-hil replay
     --batch … --compare-serial` prints (ins_hil/commands/replay.py), and leaves out what the C core refuses."""

@@ -12,17 +12,15 @@ scored absolutely (None).
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections.abc import Sequence
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from ins_hil.datasets.dataset import Trajectory
-from ins_hil.datasets.run import navigating
+from ins_hil.datasets.run import antenna_ned, navigating, states_at
 from ins_hil.nav import earth
-from ins_hil.nav.rotation import dcm_from_quat
 from ins_hil.runtime.pipeline import Observer, Pipeline
 from ins_hil.types import NavState, Vec
 
@@ -34,6 +32,7 @@ class ReferenceScore(Observer):
                  windows: Sequence[tuple[float, float]]) -> None:  # fmt: skip
         self.lever = np.asarray(lever_b, dtype=np.float64)
         self.origin = origin
+        self._o = earth.ned_ref(*origin)  # the origin's ECEF point and C_e^n, once
         self.windows = list(windows)
         t, p = tr.t_pos, tr.pos_ned
         if t is None or p is None or tr.origin is None or not len(t):
@@ -43,6 +42,7 @@ class ReferenceScore(Observer):
             inside = np.array([any(a <= x < b for a, b in self.windows) for x in t], dtype=bool)
             ok = inside & np.all(np.isfinite(p), axis=1)
             self.t, self.ref = np.asarray(t)[ok], np.asarray(p)[ok] + shift
+        self._t: list[float] = self.t.tolist()
         self._k = 0
         self.rows: list[tuple[float, Vec, Vec]] = []  # (t s, error NED m, our σ NED m)
 
@@ -59,28 +59,17 @@ class ReferenceScore(Observer):
         self._k = k
 
     def epochs(self, pipe: Pipeline, states: Sequence[NavState]) -> None:
-        t = self.t
         k = self._k
-        if not len(states) or k >= len(t):
-            return
-        ts = cast(Any, states).times() if hasattr(states, "times") else [s.t for s in states]
-        if t[k] > ts[-1]:
-            return
-        nav = navigating(pipe)
-        i = 0
-        while k < len(t) and t[k] <= ts[-1]:  # each reference point at the first state at or after its time
-            i = bisect.bisect_left(ts, t[k], i)
-            if nav:
-                self._row(k, states[i])
-            k += 1
-        self._k = k
+        at, self._k = states_at(self._t, k, states)  # each reference point at the first state at or after its time
+        if at and navigating(pipe):
+            for j, i in enumerate(at, k):
+                self._row(j, states[i])
 
     def _row(self, k: int, st: NavState) -> None:
         """Reference point ``k`` scored against ``st`` (the first state at or after its time), the lever arm turned
         with our attitude and our position carried to the point's time with our velocity."""
         t = float(self.t[k])
-        p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *self.origin)
-        ours = p + dcm_from_quat(st.q_nb) @ self.lever + st.vel_ned * (t - st.t)
+        ours = antenna_ned(st, self.lever, t, self.origin, self._o)
         self.rows.append((t, ours - self.ref[k], np.asarray(st.std_pos)))
 
 

@@ -27,7 +27,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from ins_hil.core import GAP_MAX_S, NavConfig
+from ins_hil.core import GAP_MAX_S, NavConfig, imu_lost_v
 from ins_hil.datasets.config import DatasetConfig
 from ins_hil.datasets.dataset import Dataset, DatasetError, increasing
 from ins_hil.nav import alignment, earth
@@ -474,12 +474,14 @@ class RunResult:
     yaw_resets: list[tuple[float, str]] = field(default_factory=list)  # the core's emergency yaw resets: t s, why
 
 
-def antenna_ned(st: Any, lever: Vec, t: float, origin: tuple[float, float, float]) -> Vec:
+def antenna_ned(st: Any, lever: Vec, t: float, origin: tuple[float, float, float],
+                ref: tuple[Vec, Vec] | None = None, c_bn: Vec | None = None) -> Vec:  # fmt: skip
     """The GNSS antenna position (NED m from ``origin`` = (lat rad, lon rad, h m)) of a navigation state ``st``
     (``NavState``: t, lat, lon, h, q_nb, vel_ned) at time ``t`` s: its position plus the body lever arm ``lever``
-    (m), moved on with its velocity to ``t``."""
-    p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *origin)
-    return p + dcm_from_quat(st.q_nb) @ lever + st.vel_ned * (t - st.t)
+    (m), moved on with its velocity to ``t``. ``ref`` (``earth.ned_ref(*origin)``) and ``c_bn``
+    (``dcm_from_quat(st.q_nb)``), when the caller holds them: the same numbers."""
+    p = earth.ned_from_geodetic(st.lat, st.lon, st.h, *origin, ref=ref)
+    return p + (dcm_from_quat(st.q_nb) if c_bn is None else c_bn) @ lever + st.vel_ned * (t - st.t)
 
 
 #: the pipeline settings of an offline replay: the Python core aligning itself from the first IMU sample, the
@@ -494,6 +496,24 @@ def navigating(pipe: Pipeline) -> bool:
     """The pipeline's core has finished its alignment and navigates (its ``align_status`` is "")."""
     core = pipe.core
     return core is not None and core.align_status() == ""
+
+
+def states_at(points: Sequence[float], k: int, states: Sequence[NavState]) -> tuple[list[int], int]:
+    """An observer's :meth:`~ins_hil.runtime.pipeline.Observer.epochs` matching of points in time to the states of
+    one call: for each of ``points`` (times s, ascending) from index ``k`` up to the last state's time, the index
+    of the first of ``states`` (ascending times) at or after it; and the index of the first point not reached (the
+    next call's ``k``)."""
+    if k >= len(points) or not len(states):
+        return [], k
+    ts = cast(Any, states).times() if hasattr(states, "times") else [s.t for s in states]
+    end = ts[-1]
+    at: list[int] = []
+    i = 0
+    while k < len(points) and points[k] <= end:
+        i = bisect.bisect_left(ts, points[k], i)
+        at.append(i)
+        k += 1
+    return at, k
 
 
 AidHook = Callable[[Pipeline, Any], Any]
@@ -572,11 +592,7 @@ def replay(
                     k, j = k_end, j_end
                     t = ts[k - 1]
                     if j < na and when[j] <= t:  # the rest of the last group, as below
-                        while j < na and when[j] <= t:
-                            m = aids[j]
-                            j += 1
-                            a = m if on_aid is None else on_aid(pipe, m)
-                            pipe.aid(a, a is m)
+                        j = _hand_over(pipe, aids, when, j, t, on_aid, screened)
                         pipe.flush()
                     if pipe.events:
                         _take_events(pipe, events, source, t)
@@ -590,11 +606,7 @@ def replay(
             )
             t = ts[k_end - 1]
             if j < na and when[j] <= t:
-                while j < na and when[j] <= t:
-                    m = aids[j]
-                    j += 1
-                    a = m if on_aid is None else on_aid(pipe, m)
-                    pipe.aid(a, screened and a is m)  # (a sample on_aid made is checked)
+                j = _hand_over(pipe, aids, when, j, t, on_aid, screened)
                 pipe.flush()
             if pipe.events:
                 _take_events(pipe, events, source, t)
@@ -609,11 +621,7 @@ def replay(
         t = s.t
         pipe.imu(s)
         if j < na and when[j] <= t:
-            while j < na and when[j] <= t:
-                m = aids[j]
-                j += 1
-                a = m if on_aid is None else on_aid(pipe, m)
-                pipe.aid(a, screened and a is m)  # (a sample on_aid made is checked)
+            j = _hand_over(pipe, aids, when, j, t, on_aid, screened)
             if not live_schedule:
                 pipe.flush()
         if pipe.events:
@@ -624,6 +632,20 @@ def replay(
     if pipe.events:
         _take_events(pipe, events, source, t)
     return pipe, events
+
+
+def _hand_over(pipe: Pipeline, aids: Sequence[Any], when: Sequence[float], j: int, t: float, on_aid: AidHook | None,
+               screened: bool) -> int:  # fmt: skip
+    """:func:`replay`'s hand-over: ``aids`` from index ``j`` whose hand-over time ``when`` is at or before ``t`` s
+    to the pipeline (each through ``on_aid`` first when given; ``screened``: not checked again, unless ``on_aid``
+    made a new sample). Returns the index of the first aid not handed over."""
+    na = len(aids)
+    while j < na and when[j] <= t:
+        m = aids[j]
+        j += 1
+        a = m if on_aid is None else on_aid(pipe, m)
+        pipe.aid(a, screened and a is m)
+    return j
 
 
 def imu_arrays(imu: Sequence[ImuSample]) -> tuple[Vec, Vec, Vec]:
@@ -658,7 +680,7 @@ class _BaroPlan:
         n = self.n = len(t)
         self.na = len(aids)
         lost = np.zeros(n + 1, dtype=np.int64)
-        lost[2:] = np.cumsum((t[1:] - dt[1:] - t[:-1]) > 0.5 * dt[1:])
+        lost[2:] = np.cumsum(imu_lost_v(t[1:], dt[1:], t[:-1])[1])
         self.lost = lost.tolist()  # lost[k]: samples before index k with data lost before them
         self.h = np.searchsorted(t, np.asarray(when, dtype=np.float64), "left").tolist()
         one_id = self.one_id = len({s.imu_id for s in imu}) == 1
@@ -824,23 +846,18 @@ class GnssScore(Observer):
         self.lever = np.asarray(lever, dtype=np.float64)
         self.origin = origin
         self.withheld = sorted(withheld, key=lambda f: f.t)
+        self._wt = [f.t for f in self.withheld]
         self._w = 0
         self.rows: list[FixScore] = []
         self._open: dict[int, FixScore] = {}
         self._f_raw: dict[int, Vec] = {}
         self._span: dict[int, tuple[int, Vec]] = {}  # per open fix: the epoch count and f at its last segment end
         self._epochs = 0
-        # the origin's ECEF point and C_e^n, once (``earth.ned_from_geodetic``'s numbers without recomputing them)
-        self._o_ecef = earth.geodetic_to_ecef(*origin)
-        self._c_en = earth.dcm_ecef_to_ned(origin[0], origin[1])
+        self._o = earth.ned_ref(*origin)  # the origin's ECEF point and C_e^n, once
         self._dcm_of: tuple[Any, Any, Vec] | None = None  # (state, its q_nb, C_b^n): :meth:`_dcm`'s last
 
-    def _ned(self, lat: float, lon: float, h: float) -> Vec:
-        """``earth.ned_from_geodetic(lat, lon, h, *origin)``."""
-        return cast(Vec, self._c_en @ (earth.geodetic_to_ecef(lat, lon, h) - self._o_ecef))
-
     def _ref(self, f: GnssFix) -> Vec:
-        return self._ned(f.lat, f.lon, f.h)
+        return earth.ned_from_geodetic(f.lat, f.lon, f.h, *self.origin, ref=self._o)
 
     def _dcm(self, st: Any) -> Vec:
         """``dcm_from_quat(st.q_nb)``, computed once per state: a core hands out the same ``NavState`` while it
@@ -856,7 +873,7 @@ class GnssScore(Observer):
 
     def _antenna(self, st: Any, t: float) -> Vec:
         """:func:`antenna_ned` of ``st`` at ``t`` (this observer's lever arm and origin)."""
-        return self._ned(st.lat, st.lon, st.h) + self._dcm(st) @ self.lever + st.vel_ned * (t - st.t)
+        return antenna_ned(st, self.lever, t, self.origin, self._o, self._dcm(st))
 
     def epoch(self, pipe: Pipeline, st: NavState) -> None:
         self._epochs += 1
@@ -874,19 +891,10 @@ class GnssScore(Observer):
         if not n:
             return
         self._epochs += n
-        w = self.withheld
-        if self._w >= len(w):
-            return
-        ts = cast(Any, states).times() if hasattr(states, "times") else [s.t for s in states]
-        if w[self._w].t > ts[-1]:
-            return
-        nav = navigating(pipe)
-        i = 0
-        while self._w < len(w) and w[self._w].t <= ts[-1]:  # each at the first state at or after its time
-            f = w[self._w]
-            self._w += 1
-            i = bisect.bisect_left(ts, f.t, i)
-            if nav:
+        j = self._w
+        at, self._w = states_at(self._wt, j, states)  # each at the first state at or after its time
+        if at and navigating(pipe):
+            for f, i in zip(self.withheld[j : self._w], at, strict=True):
                 st = states[i]
                 ref = self._ref(f)
                 self.rows.append(FixScore(f, True, self._antenna(st, f.t) - ref,

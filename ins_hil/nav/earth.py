@@ -182,10 +182,18 @@ def dcm_ecef_to_ned(lat: float, lon: float) -> Vec:
     return np.array([[-sl * co, -sl * so, cl], [-so, co, 0.0], [-cl * co, -cl * so, -sl]])
 
 
-def ned_from_geodetic(lat: float, lon: float, h: float, lat0: float, lon0: float, h0: float) -> Vec:
-    """Exact NED offset (m) of point (lat, lon, h) from reference (lat0, lon0, h0)."""
-    d = geodetic_to_ecef(lat, lon, h) - geodetic_to_ecef(lat0, lon0, h0)
-    return dcm_ecef_to_ned(lat0, lon0) @ d
+def ned_ref(lat0: float, lon0: float, h0: float) -> tuple[Vec, Vec]:
+    """The reference (lat0, lon0 rad, h0 m) of :func:`ned_from_geodetic` computed once for many points: its ECEF
+    position (m) and C_e^n."""
+    return geodetic_to_ecef(lat0, lon0, h0), dcm_ecef_to_ned(lat0, lon0)
+
+
+def ned_from_geodetic(lat: float, lon: float, h: float, lat0: float, lon0: float, h0: float,
+                      ref: tuple[Vec, Vec] | None = None) -> Vec:  # fmt: skip
+    """Exact NED offset (m) of point (lat, lon, h) from reference (lat0, lon0, h0); ``ref``: that reference's
+    :func:`ned_ref`, when the caller holds it (many points from one origin: the same numbers)."""
+    r0, c_en = ned_ref(lat0, lon0, h0) if ref is None else ref
+    return c_en @ (geodetic_to_ecef(lat, lon, h) - r0)
 
 
 def ned_from_geodetic_many(llh: Vec, lat0: float, lon0: float, h0: float) -> Vec:
