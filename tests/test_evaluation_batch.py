@@ -356,6 +356,7 @@ def test_variant_table_shows_each_outage_for_one_protocol() -> None:
     """One protocol (one shift, one seed each): a column with each outage's h RMS and one line with the trivial
     predictors' (the same for every variant: they use the GNSS only); seeds or shifts move the outages, so
     then there is no such column."""
+
     def row(v: str, seed: int, each: list[float]) -> dict:
         return {"job": f"x[{v}]#{seed}", "log": "x.csv", "variant": v, "shift_s": 0.0, "outage_h_rms_m": 1.0,
                 "outage_h_max_m": 2.0, "beats_both_in_every_outage": False, "each_h_rms_m": each,

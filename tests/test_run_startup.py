@@ -27,8 +27,15 @@ from ins_hil import config as config_mod
 #: loaded by the core, the full config validation or the simulator: none of it before the first HEARTBEAT (the
 #: typed [core.nav] of the config reads FilterConfig's field metadata from ins_hil.fusion.ekf, an 8-ms import
 #: of plain dataclasses: the filter's numerics, the aid models, the FDI and scipy stay out)
-HEAVY = ("scipy", "ins_hil.core", "ins_hil.fdi", "ins_hil.fusion.measurements", "ins_hil.fusion.sqrt",
-         "ins_hil.fusion.yaw_gsf", "ins_hil.sim")
+HEAVY = (
+    "scipy",
+    "ins_hil.core",
+    "ins_hil.fdi",
+    "ins_hil.fusion.measurements",
+    "ins_hil.fusion.sqrt",
+    "ins_hil.fusion.yaw_gsf",
+    "ins_hil.sim",
+)
 
 # Runs `python -m ins_hil ARGV` with socket.send/sendto wrapped: at the first MAVLink 2 HEARTBEAT the
 # process sends, it prints the seconds since it started (/proc), the CPU seconds it used (what that

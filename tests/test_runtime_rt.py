@@ -59,8 +59,11 @@ def test_the_drift_monitor_follows_the_delay_compensation_of_either_core() -> No
     for core in ("c", "python"):
         assert not PipelineConfig(core=core).aiding_config().late_fix_as_current
         assert PipelineConfig(core=core, nav=off).aiding_config().late_fix_as_current
-        assert not PipelineConfig(core=core, nav=off, aiding_options={"late_fix_as_current": False}).aiding_config(
-        ).late_fix_as_current
+        assert (
+            not PipelineConfig(core=core, nav=off, aiding_options={"late_fix_as_current": False})
+            .aiding_config()
+            .late_fix_as_current
+        )
     assert aiding_monitor(aiding_config({}, off), off).cfg.late_fix_as_current
 
 

@@ -238,9 +238,7 @@ def test_the_gateway_hands_every_sample_to_a_pipeline_entry_and_nothing_else_fee
     src = inspect.getsource(Gateway._process_queue)
     assert "pipe.imu(s)" in src and "pipe.aid(s)" in src
     tree = ast.parse(textwrap.dedent(src))
-    branch = next(
-        n for n in ast.walk(tree) if isinstance(n, ast.If) and ast.unparse(n.test) == "s.kind == 'imu'"
-    )
+    branch = next(n for n in ast.walk(tree) if isinstance(n, ast.If) and ast.unparse(n.test) == "s.kind == 'imu'")
     assert "pipe.imu(s)" in ast.unparse(ast.Module(branch.body, []))  # an IMU sample: the pipeline's IMU entry
     assert "pipe.aid(s)" in ast.unparse(ast.Module(branch.orelse, []))  # anything else: its aiding entry
     # no runtime module but the pipeline steps or fuses a core, or reaches into the pipeline's core

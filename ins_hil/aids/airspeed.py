@@ -202,7 +202,6 @@ class AirspeedAid(Aid):
         core._apply(Measurement("airspeed", z - bias, H, np.array((sd * sd + var,)), c.gate), meas.t)
         yield from ()
 
-
     def _second_order(self, v: Vec, u_norm: float) -> tuple[float, float]:
         """The second-order terms of TAS = |u|, u = v − w, in the uncertainty of u across its direction (σ_c²: the
         horizontal velocity's and the wind's covariance, across û): the expected |u| is larger by σ_c²/(2|u|) and

@@ -549,8 +549,11 @@ def variant_table(rows: list[dict[str, Any]]) -> str:
         lag1 = any(r.get("vel_innov_lag1") for r in mine)
         onboard = any(r.get("onboard_att_rms_deg") for r in mine)
         # one protocol (one shift, one seed: a seed moves the outages too): each outage's error as well
-        each = len(shifts) == 1 and any(r.get("each_h_rms_m") for r in mine) and all(
-            sum(1 for r in mine if r.get("variant", BASELINE) == n) == 1 for n in names)
+        each = (
+            len(shifts) == 1
+            and any(r.get("each_h_rms_m") for r in mine)
+            and all(sum(1 for r in mine if r.get("variant", BASELINE) == n) == 1 for n in names)
+        )
         head = ["variant"]
         if outages:
             head += [f"outage shift {s:+g} s" for s in shifts] if len(shifts) > 1 or shifts[0] else ["outage"]

@@ -700,8 +700,11 @@ class Pipeline:
         if mon is not None:
             c = self.counts
             lost = c.get("imu_nonfinite", 0) + c.get("imu_epoch_incomplete", 0) + c.get("imu_time_backwards", 0)
-            if lost + self._imu_rejects + self._core_faults != self._aid_lost or (
-                mon.cfg.exclude and mon.baro.faulted) or mon.events:  # (a baro sample's flush drains its events)
+            if (
+                lost + self._imu_rejects + self._core_faults != self._aid_lost
+                or (mon.cfg.exclude and mon.baro.faulted)
+                or mon.events
+            ):  # (a baro sample's flush drains its events)
                 return k0, j0
         for o in self.observers:  # each takes runs of states; its fusion hooks are none or pass baro samples by
             oc = type(o)
