@@ -616,15 +616,21 @@ def test_imu_pauses_give_one_lost_and_one_back_text_each() -> None:
                 await asyncio.sleep(0.02)
 
         async def pauses() -> None:
-            await asyncio.sleep(3.0)
+            end = time.monotonic() + 120.0  # until aligned (about 1 s idle; a busy host starts slowly): a hang guard
+            while time.monotonic() < end and not any(
+                m.get_type() == "STATUSTEXT" and m.text == "INS aligned" for _, m in got
+            ):
+                await asyncio.sleep(0.05)
+            await asyncio.sleep(1.0)
             for _ in range(5):
                 os.kill(gw.sim.proc.pid, signal.SIGSTOP)
                 await asyncio.sleep(0.6)
                 os.kill(gw.sim.proc.pid, signal.SIGCONT)
                 await asyncio.sleep(2.0)
+            gw.request_stop("test")
 
         tasks = [asyncio.create_task(pump()), asyncio.create_task(pauses())]
-        await gw.run(duration=16.5, signals=False)
+        await gw.run(duration=300.0, signals=False)
         await asyncio.sleep(0.1)
         _drain(rx, mav, got)
         for t in tasks:
