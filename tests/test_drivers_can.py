@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import math
 import os
+import time
 
 import can
 import dronecan
@@ -277,13 +278,18 @@ def test_driver_on_virtual_bus() -> None:
             for m in list(node.frames(20)) + list(foreign.frames(2)):
                 tx.send(m)
             await asyncio.sleep(0.05)
-        for _ in range(50):
-            if sum(isinstance(s, ImuSample) for s in got) >= 100:
-                break
+        # until the 100 IMU samples, the aux messages and our NodeStatus (1 Hz) came: about 1 s idle; the
+        # deadline only guards against a hang (a busy machine may take seconds)
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and not (
+            sum(isinstance(s, ImuSample) for s in got) >= 100
+            and any(isinstance(s, GnssFix) for s in got)
+            and any(isinstance(s, MagSample) for s in got)
+            and any((m.arbitration_id >> 8) & 0xFFFF == 341 for m in seen)
+        ):
             await asyncio.sleep(0.02)
-        await asyncio.sleep(1.1)  # one NodeStatus period
-        while (m := tx.recv(0)) is not None:
-            seen.append(m)
+            while (m := tx.recv(0)) is not None:
+                seen.append(m)
         task.cancel()
         tx.shutdown()
         return got, drv, seen

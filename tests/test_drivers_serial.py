@@ -6,7 +6,7 @@ import asyncio
 import os
 import random
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -196,6 +196,13 @@ def test_a_pty_is_read_with_one_os_read_per_readiness(monkeypatch: pytest.Monkey
     assert [s.seq for s in got] == list(range(200))
 
 
+async def _until(cond: Callable[[], bool], timeout: float = 30.0) -> None:
+    """Poll every 20 ms until ``cond()`` or ``timeout`` s (a hang guard: a busy machine may take seconds)."""
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        await asyncio.sleep(0.02)
+
+
 def test_pty_vanishes_and_comes_back(tmp_path: Path) -> None:
     """The device path disappears (pty closed) and a new device appears under the same name."""
 
@@ -204,27 +211,22 @@ def test_pty_vanishes_and_comes_back(tmp_path: Path) -> None:
         drv = SerialImuDriver(str(link), 115200, stale_s=1.0)
         got: list[ImuSample] = []
         task = asyncio.create_task(drv.run(got.append))  # type: ignore[arg-type]
-        await asyncio.sleep(0.3)  # nothing there yet: open fails, backoff
+        await _until(lambda: drv.health.errors.get("open_failed", 0) >= 1)  # nothing there yet: open fails, backoff
         m1, n1 = open_raw_pty()
         link.symlink_to(n1)
         while not drv.health.connected:
             await asyncio.sleep(0.01)
         await _imu_writer(m1, 50, 500.0)
-        await asyncio.sleep(0.1)
+        await wait_for_count(got, 50)  # read before the unplug (the waits: hang guards, 30 s)
         os.close(m1)  # unplugged
         link.unlink()
-        for _ in range(100):
-            if not drv.health.connected:
-                break
-            await asyncio.sleep(0.02)
+        await _until(lambda: not drv.health.connected)
         m2, n2 = open_raw_pty()
         link.symlink_to(n2)
-        for _ in range(300):
-            if drv.health.connected:
-                break
-            await asyncio.sleep(0.02)
+        await _until(lambda: drv.health.connected)
         await _imu_writer(m2, 50, 500.0)
-        await asyncio.sleep(0.2)
+        await wait_for_count(got, 100)
+        await asyncio.sleep(0.2)  # nothing more comes (a duplicate would show in the count)
         task.cancel()
         os.close(m2)
         return got, drv

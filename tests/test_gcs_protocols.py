@@ -110,6 +110,17 @@ class Vehicle:
                 out.append(m)
         return out
 
+    def collect_at_least(self, typ: str, n: int, seconds: float, deadline: float = 30.0) -> tuple[list[Any], float]:
+        """``typ`` messages for ``seconds`` s and until ``n`` came (``deadline`` s at most: a hang guard; a busy
+        machine sends late, never early): (the messages, the seconds it took)."""
+        out = []
+        t0 = time.monotonic()
+        while (time.monotonic() - t0 < seconds or len(out) < n) and time.monotonic() - t0 < deadline:
+            m = self.gcs.recv_match(type=typ, blocking=True, timeout=0.1)
+            if m is not None and m.get_srcSystem() == SYSID:
+                out.append(m)
+        return out, time.monotonic() - t0
+
     def command(self, cmd: int, *p: float, target: int = SYSID) -> Any:
         params = [*p, *([0.0] * (7 - len(p)))]
         self.gcs.mav.command_long_send(target, 1, cmd, 0, *params)
@@ -241,16 +252,17 @@ def test_commands_are_acknowledged(tmp_path: Path) -> None:
 
 def test_set_message_interval_changes_the_measured_rate(tmp_path: Path) -> None:
     with Vehicle(tmp_path) as v:
-        before = v.collect("ATTITUDE", 1.0)
+        before, _ = v.collect_at_least("ATTITUDE", 10, 1.0)
         a = v.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, 200000)  # 5 Hz
         assert a is not None and a.result == M.MAV_RESULT_ACCEPTED
         v.collect("ATTITUDE", 0.3)
-        after = v.collect("ATTITUDE", 1.0)
-        # the state times (time_boot_ms) of consecutive messages: 20 ms at 50 Hz, 200 ms at 5 Hz
+        after, took = v.collect_at_least("ATTITUDE", 4, 1.0)
+        # the state times (time_boot_ms) of consecutive messages: 20 ms at 50 Hz, 200 ms at 5 Hz (a busy host only
+        # lengthens them: the 50-Hz bound is loose, 100 ms; the 5-Hz one bounds the rate from above)
         gaps_before = np.diff([m.time_boot_ms for m in before])
         gaps_after = np.diff([m.time_boot_ms for m in after])
-        assert np.median(gaps_before) <= 30 and np.median(gaps_after) >= 150
-        assert len(after) < len(before) / 3
+        assert np.median(gaps_before) <= 100 and np.median(gaps_after) >= 150, (gaps_before, gaps_after)
+        assert len(after) <= 5.0 * took + 2, (len(after), took)  # at most 5 Hz over the time it took
         # the rate parameter follows
         v.gcs.mav.param_request_read_send(SYSID, 1, b"SR_ATTITUDE", -1)
         r = v.wait("PARAM_VALUE", cond=lambda m: m.param_id == "SR_ATTITUDE")
@@ -449,8 +461,11 @@ def test_home_state_and_battery_answered_before_and_after_the_home(tmp_path: Pat
         v.states = True  # positions arrive: the home is taken (σ_d 1.2 m, aligned) and sent unasked
         hp = v.wait("HOME_POSITION")
         assert hp is not None and hp.latitude == 504500000
-        homes = v.collect("HOME_POSITION", 2.5)  # streamed at the 1 Hz set above; the same home (it moves)
-        assert 2 <= len(homes) <= 4 and {(m.latitude, m.altitude) for m in homes} == {(hp.latitude, hp.altitude)}
+        # streamed at the 1 Hz set above (at most 1 Hz over the time it took, a busy host only sends fewer); the
+        # same home (it moves)
+        homes, took = v.collect_at_least("HOME_POSITION", 2, 2.5)
+        assert 2 <= len(homes) <= took + 2, (len(homes), took)
+        assert {(m.latitude, m.altitude) for m in homes} == {(hp.latitude, hp.altitude)}
 
 
 def _gcs_endpoint(**rates: float) -> tuple[MavlinkEndpoint, list[bytes]]:
@@ -601,15 +616,21 @@ def test_imu_pauses_give_one_lost_and_one_back_text_each() -> None:
                 await asyncio.sleep(0.02)
 
         async def pauses() -> None:
-            await asyncio.sleep(3.0)
+            end = time.monotonic() + 120.0  # until aligned (about 1 s idle; a busy host starts slowly): a hang guard
+            while time.monotonic() < end and not any(
+                m.get_type() == "STATUSTEXT" and m.text == "INS aligned" for _, m in got
+            ):
+                await asyncio.sleep(0.05)
+            await asyncio.sleep(1.0)
             for _ in range(5):
                 os.kill(gw.sim.proc.pid, signal.SIGSTOP)
                 await asyncio.sleep(0.6)
                 os.kill(gw.sim.proc.pid, signal.SIGCONT)
                 await asyncio.sleep(2.0)
+            gw.request_stop("test")
 
         tasks = [asyncio.create_task(pump()), asyncio.create_task(pauses())]
-        await gw.run(duration=16.5, signals=False)
+        await gw.run(duration=300.0, signals=False)
         await asyncio.sleep(0.1)
         _drain(rx, mav, got)
         for t in tasks:

@@ -19,7 +19,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable, Coroutine
 from pathlib import Path
+from typing import Any
 
 import paho.mqtt.client as mqtt
 import pytest
@@ -141,11 +143,18 @@ def _broker_restart(broker: Broker) -> None:
         while sum(ts > t0 for ts, _ in sub.topic("state")) < n and time.monotonic() < end:
             await asyncio.sleep(0.05)
 
+    async def faults_in(n: int) -> None:
+        """Until the subscriber has ``n`` of the injected faults (120 s guard against a hang)."""
+        end = time.monotonic() + 120.0
+        while sum(f["detail"] == "test" for _, f in sub.topic("fault")) < n and time.monotonic() < end:
+            await asyncio.sleep(0.05)
+
     async def scenario() -> None:
         task = asyncio.create_task(gw.run(duration=None, signals=False))
         await states_after(0.0, 21)
+        marks["first"] = time.monotonic()
         gw._fault(fault(1.0, "gyro[0]"))
-        await asyncio.sleep(0.5)
+        await faults_in(1)  # published before the broker goes
         marks["stop"] = time.monotonic()
         await asyncio.to_thread(broker.stop)
         await asyncio.sleep(0.5)
@@ -155,7 +164,7 @@ def _broker_restart(broker: Broker) -> None:
         await asyncio.to_thread(broker.start)
         await states_after(marks["restart"], 21)
         gw._fault(fault(3.0, "gyro[2]"))
-        await asyncio.sleep(1.0)
+        await faults_in(3)
         gw.request_stop()
         await asyncio.wait_for(task, 30.0)
 
@@ -182,11 +191,14 @@ def _broker_restart(broker: Broker) -> None:
     assert "latency" in last_health and last_health["sources"]["imu0"]["received"] > 0
     assert gw.mqtt is not None and gw.mqtt.connects >= 2
 
-    # the loop kept its pace through the outage: every IMU sample processed, none queued up or dropped
+    # the loop kept its pace through the outage: every IMU sample processed, none queued up or dropped; the pace
+    # is the run's own before the outage (a busy host slows both; a loop blocked by the lost broker stops)
     snap = gw.metrics.snapshot()
     assert "queue_full" not in snap["sources"]["imu0"]["dropped"]
     n_out = sum(marks["stop"] <= t <= marks["restart"] for t in t_states)
-    assert n_out > 0.8 * cfg.sim.imu_rate * (marks["restart"] - marks["stop"])
+    n_in = sum(marks["first"] <= t <= marks["stop"] for t in t_states)
+    pace_in = n_in / (marks["stop"] - marks["first"])
+    assert n_out > 0.5 * pace_in * (marks["restart"] - marks["stop"]), (n_out, pace_in, marks)
     assert snap["queue_depth_max"] < 200
 
 
@@ -196,7 +208,11 @@ def test_unreachable_broker_does_not_stall_the_loop() -> None:
     gw = sim_gateway(cfg)
     states: list[NavState] = []
     gw.on_state.append(states.append)
-    asyncio.run(gw.run(duration=3.0, signals=False))
+
+    def enough() -> bool:  # 1000 states and 10 dropped while offline (about 3 s idle), not a fixed run
+        return len(states) > 1000 and gw.metrics.snapshot()["outputs"]["mqtt"].get("state_dropped_offline", 0) > 10
+
+    asyncio.run(_run_until(gw, enough))
     snap = gw.metrics.snapshot()
     assert gw.mqtt is not None and not gw.mqtt.connected and gw.mqtt.connects == 0
     assert snap["outputs"]["mqtt"]["state_dropped_offline"] > 10
@@ -216,7 +232,17 @@ def test_username_password(tmp_path: Path) -> None:
                 recorder={"enabled": False},
             )
             gw = sim_gateway(cfg)
-            asyncio.run(gw.run(duration=3.0, signals=False))
+
+            def enough(gw: Any = gw, right: bool = pw == "s3cret") -> bool:  # about 1 s idle
+                """Connected and 5 states sent, or refused (the reason kept) and 5 states dropped."""
+                m, out = gw.mqtt, gw.metrics.outputs.get("mqtt", {})
+                if m is None:
+                    return False
+                if right:
+                    return bool(m.connects == 1 and out.get("states", 0) > 5)
+                return bool(m.last_error) and out.get("state_dropped_offline", 0) > 5
+
+            asyncio.run(_run_until(gw, enough))
             assert gw.mqtt is not None
             got[name] = (gw.mqtt.connects, gw.metrics.snapshot()["outputs"]["mqtt"], gw.mqtt.last_error)
     finally:
@@ -226,11 +252,32 @@ def test_username_password(tmp_path: Path) -> None:
     assert got["wrong"][2]  # the reason is kept for the status view
 
 
-def _retained(port: int, wait: float = 2.0) -> dict[str, tuple[bytes, bool]]:
-    """What a newly connecting subscriber gets under PREFIX/#: the broker's retained messages."""
+def _run_until(gw: Any, cond: Callable[[], bool], deadline: float = 120.0) -> Coroutine[Any, Any, None]:
+    """``gw.run()`` until ``cond()`` holds (polled every 50 ms); ``deadline`` (s) only guards against a hang: a busy
+    machine starts the gateway and the simulator slowly. The caller checks what is missing."""
+
+    async def go() -> None:
+        task = asyncio.create_task(gw.run(duration=None, signals=False))
+        end = time.monotonic() + deadline
+        while not task.done() and not cond() and time.monotonic() < end:
+            await asyncio.sleep(0.05)
+        gw.request_stop("test")
+        await asyncio.wait_for(task, 60.0)
+
+    return go()
+
+
+def _retained(port: int, topics: tuple[str, ...] = ("online", "health")) -> dict[str, tuple[bytes, bool]]:
+    """What a newly connecting subscriber gets under PREFIX/#: the broker's retained messages, once those on
+    ``topics`` came (60 s guard against a hang)."""
     sub = Subscriber(port)
     try:
-        time.sleep(wait)
+        end = time.monotonic() + 60.0
+        while time.monotonic() < end:
+            with sub.lock:
+                if {f"{PREFIX}/{t}" for t in topics} <= {top for _, top, _, _ in sub.msgs}:
+                    break
+            time.sleep(0.05)
         with sub.lock:
             return {top: (p, r) for _, top, p, r in sub.msgs}
     finally:

@@ -113,7 +113,12 @@ def test_signed_links(tmp_path: Path) -> None:
                 buf.data = b""
                 mav.heartbeat_send(6, 8, 0, 0, 0)  # GCS heartbeat
                 peer.sendto(buf.data, our_addr)
-        await asyncio.sleep(0.5)
+        for _ in range(600):  # until the 9 heartbeats are counted (at once idle; 30 s guards a hang)
+            out = gw.metrics.outputs.get("gcs", {})
+            if out.get("rx_messages", 0) + out.get("rx_unsigned", 0) + out.get("rx_bad_signature", 0) >= 9:
+                break
+            await asyncio.sleep(0.05)
+        await asyncio.sleep(0.1)  # and nothing more (a heartbeat counted twice would show)
         gw.request_stop()
         await task
 

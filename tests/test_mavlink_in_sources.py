@@ -336,7 +336,7 @@ def test_gateway_refuses_its_own_gps_input_and_the_echo_and_says_so_once() -> No
     gw = Gateway(cfg)
 
     async def go() -> None:
-        run = asyncio.create_task(gw.run(duration=3.0, signals=False))
+        run = asyncio.create_task(gw.run(duration=None, signals=False))
         drv = None
         while drv is None or drv.local_address is None:
             await asyncio.sleep(0.02)
@@ -354,6 +354,14 @@ def test_gateway_refuses_its_own_gps_input_and_the_echo_and_says_so_once() -> No
             fc.seq += 1
             await asyncio.sleep(0.05)
         tx.close()
+        drops = gw.metrics.source("fc").dropped
+        end = time.monotonic() + 30.0  # until the 6 refusals are counted and said (a hang guard, not a window)
+        while time.monotonic() < end and not (
+            drops.get("driver_own_message") == 3 and drops.get("driver_gnss_refused") == 3
+            and sum(w.startswith("inputs[1] (fc): refused") for w in gw.metrics.warnings) >= 2
+        ):  # fmt: skip
+            await asyncio.sleep(0.02)
+        gw.request_stop("test")
         await run
 
     asyncio.run(go())

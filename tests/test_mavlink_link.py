@@ -295,7 +295,7 @@ def test_input_driver_on_tcpin_and_udpout() -> None:
         r, w = await asyncio.open_connection("127.0.0.1", drv.local_address[1])
         w.write(_stream(mavlink2.MAVLink(None, srcSystem=1, srcComponent=1), 10))
         await w.drain()
-        hb = await asyncio.wait_for(r.read(4096), 3.0)  # our HEARTBEAT/TIMESYNC reach the FC
+        hb = await asyncio.wait_for(r.read(4096), 30.0)  # our HEARTBEAT/TIMESYNC reach the FC (30 s: a hang guard)
         await _until(lambda: len(got) == 10)
         w.close()
         task.cancel()
@@ -309,7 +309,7 @@ def test_input_driver_on_tcpin_and_udpout() -> None:
         got2: list = []
         task2 = asyncio.create_task(drv2.run(got2.append))
         loop = asyncio.get_running_loop()
-        _, addr = await asyncio.wait_for(loop.sock_recvfrom(fc_sock, 4096), 3.0)
+        _, addr = await asyncio.wait_for(loop.sock_recvfrom(fc_sock, 4096), 30.0)  # our HEARTBEAT opens the link
         await loop.sock_sendto(fc_sock, _stream(mavlink2.MAVLink(None, srcSystem=1, srcComponent=1), 5), addr)
         await _until(lambda: len(got2) == 5)
         task2.cancel()

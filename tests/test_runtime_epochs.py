@@ -172,11 +172,10 @@ def test_two_real_ptys_with_jittered_writers_give_complete_epochs() -> None:
         for th in ths:
             th.start()
         try:
-            for _ in range(1000):
-                if len(states) >= len(eps) - 1:
-                    break
+            end = time.monotonic() + 60.0  # until every epoch gave its state (3 s idle; a hang guard)
+            while len(states) < len(eps) and time.monotonic() < end:
                 await asyncio.sleep(0.01)
-            await asyncio.sleep(0.3)
+            await asyncio.sleep(0.1)  # and no more (a state twice would show)
         finally:
             stop.set()
             for th in ths:
