@@ -8,10 +8,12 @@ the track's NED in one call."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import struct
 import subprocess
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -314,6 +316,32 @@ def test_bench_core_reads_the_batch_ratio_off_the_replay_command(monkeypatch: py
     assert cmd[cmd.index("--core") + 1] == "c" and "--compare-serial" in cmd and cmd[cmd.index("--seeds") + 1] == "4"
     md = core_replay.batch_md(row)
     assert "| 62.8 | 91.0 | 0.69× |" in md and "NOT met" in md
+
+
+def test_bench_core_splits_the_batch_cpu_into_parsing_and_running_two_at_once(tmp_path: Path) -> None:
+    """batch_cpu sums the jobs' CPU of both runs and compares the replay times of the jobs whose log came from the
+    cache in both (the same work): their ratio is the cost of two jobs at once, and 2 over it the ceiling of 2
+    workers that batch_md prints beside the batch's own ratio."""
+    from ins_hil.bench import core_replay
+
+    def job(name: str, cached: bool, cpu: float, replay: float) -> dict[str, Any]:
+        return {"job": name, "cached": cached, "cpu_s": cpu, "replay_s": replay}
+
+    ser = [job("a#0", False, 1.2, 1.0), job("a#1", True, 1.0, 1.0), job("b#0", False, 0.5, 0.4),
+           job("b#1", True, 0.4, 0.4)]  # fmt: skip
+    par = [job("a#0", False, 1.5, 1.2), job("a#1", True, 1.25, 1.25), job("b#0", False, 0.6, 0.5),
+           job("b#1", False, 0.6, 0.5)]  # fmt: skip  # b#1 parsed again on the other worker: not compared
+    (tmp_path / "batch.json").write_text(json.dumps({"rows": par, "compare_serial": {"serial_rows": ser}}))
+    got = core_replay.batch_cpu(tmp_path / "batch.json")
+    assert got["cpu_serial_s"] == pytest.approx(3.1) and got["cpu_parallel_s"] == pytest.approx(3.95)
+    assert (got["replay_serial_s"], got["replay_parallel_s"], got["replay_jobs"]) == (1.0, 1.25, 1.0)
+    assert core_replay.batch_cpu(tmp_path / "missing.json") == {}
+    row = {"configs": ["a", "b"], "refused": [], "seeds": 2, "workers": 2, "serial_s": 3.2, "parallel_s": 2.0,
+           "ratio": 1.6, "same": "every job the same results", "load_before": (0.3,), "load_after": (0.9,),
+           **got}  # fmt: skip
+    md = core_replay.batch_md(row)
+    assert "×1.25 per job when both workers run" in md and "2 / 1.25 = 1.60×" in md and "(100% of that)" in md
+    assert "NOT met" in md
 
 
 def test_the_c_guard_of_a_run_is_state_ok_row_by_row() -> None:
