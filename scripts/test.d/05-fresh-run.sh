@@ -5,7 +5,8 @@
 # from the gateway on the ground-station port (UDP 127.0.0.1:14550, the default config's udpout), and a
 # recording recordings/*.ihlog in the clone. Every failure says in one line what failed and the log to read;
 # the temporary folder is kept on failure, removed on success.
-# It mostly waits (an install, a 20-s run): scripts/test runs it beside the other stages and pytest.
+# It mostly waits (an install, a 20-s run): scripts/test runs it beside the other stages and pytest; the install
+# and the run hold the tests' machine lock shared, so the real-time tests that need the machine alone wait for them.
 # scripts/test: background
 set -uo pipefail
 source "$(dirname "$0")/../lib.sh"
@@ -108,8 +109,12 @@ path=""
 IFS=: read -ra parts <<< "$PATH"
 for p in "${parts[@]}"; do [ "$p" = "$VENV/bin" ] || path="${path:+$path:}$p"; done
 log "05-fresh-run: scripts/run --duration 20 --no-status (new virtualenv $tmp/main/.venv; log: $tmp/run.log)"
+# the install and the run hold the test run's machine lock shared (tests/conftest.py): a real-time test that needs
+# the machine alone (machine_alone) waits for them as it waits for the other pytest worker's tests
+lock=$("$PY" -c 'import os, tempfile; print(f"{tempfile.gettempdir()}/ins-hil-tests-{os.getuid()}.lock")')
+hold=(); command -v flock >/dev/null && hold=(flock -s "$lock")
 t1=$SECONDS
-( cd "$tmp/main" && exec env -u INS_HIL_VENV -u VIRTUAL_ENV -u PYTHONPATH -u PYTHONHOME PATH="$path" \
+( cd "$tmp/main" && exec "${hold[@]}" env -u INS_HIL_VENV -u VIRTUAL_ENV -u PYTHONPATH -u PYTHONHOME PATH="$path" \
     timeout 1200 scripts/run --duration 20 --no-status ) >"$tmp/run.log" 2>&1 &
 run=$!
 echo "$run" > "$tmp/run.pid"
