@@ -276,7 +276,8 @@ def markdown() -> str:
         "dotted key, the value and what is allowed, e.g.",
         "",
         "```",
-        "ins-hil run: configs/my.toml: core.init_lat_deg = 900.0: expected a finite number in [-89, 89] °",
+        "ins-hil run: config error: configs/my.toml: core.init_lat_deg = 900.0: "
+        "expected a finite number in [-89, 89] °",
         "```",
         "",
         "and the command exits with status 2. A number key takes an integer or a float; an integer key takes",

@@ -283,6 +283,13 @@ def test_generic_csv_round_trip(tmp_path: Path):
     assert back.baro[0].altitude == pytest.approx(12.5)
 
 
+def test_generic_csv_written_to_a_str_path(tmp_path: Path):
+    """docs/datasets.md's `write_generic_csv(path, dataset)` with a plain string path (was AttributeError)."""
+    p = tmp_path / "mine.csv"
+    generic_csv.write_generic_csv(str(p), _synthetic())
+    assert len(read_dataset(p).imu) == 100
+
+
 def test_generic_csv_reference_and_onboard(tmp_path: Path):
     p = tmp_path / "ref.csv"
     p.write_text(generic_csv.MAGIC + "\nimu,0.01,0.01,0,0,0,0,0,-9.8\nref,0.0,45,7,300,1,0,0,0,0,90\n"

@@ -71,3 +71,20 @@ def test_onboard_comparison_is_on_one_datum_and_trimmed_to_its_valid_part():
     _, b2, why2 = cmp.valid_span(dataclasses.replace(ob, t_valid_end=float(t[30])), r.t_nav, r.t[-1])
     assert b2 == float(t[30]) and "status says invalid" in why2
     assert math.isfinite(m["t_nav_s"])
+
+
+def test_an_empty_compared_span_is_not_printed():
+    """A core that never navigated before landing has nothing to compare: no 'compared 92.5–90.7 s' row (the span
+    backwards), as `ins-hil replay hover.ulg` without a config printed it."""
+    c = {"against": "EKF2", "from_s": 1092.5, "to_s": 1090.7, "trimmed": "to landing"}
+    m = {
+        "format": "px4-ulog",
+        "duration_s": 92.5,
+        "t_nav_s": None,
+        "t0_s": 1000.0,
+        "onboard": c,
+        "realtime_factor": 150.0,
+    }
+    assert not any("compared" in row[0] for row in report.summary(m))
+    ok = dict(m, t_nav_s=3.5, onboard=dict(c, from_s=1003.5))
+    assert ("vs EKF2: compared", "3.5–90.7 s", "to landing") in report.summary(ok)

@@ -159,9 +159,10 @@ def read_generic_csv(path: Path) -> Dataset:
     return ds
 
 
-def write_generic_csv(path: Path, ds: Dataset) -> None:
+def write_generic_csv(path: str | Path, ds: Dataset) -> None:
     """Write ``ds`` (IMU, GNSS, baro, magnetometer, the aid samples with a CSV record, take-off and landing events)
-    in the generic layout (the reader's inverse)."""
+    in the generic layout (the reader's inverse) to ``path`` (a str or a Path)."""
+    path = Path(path)
     lines = [MAGIC]
     for s in ds.imu:
         w, f = s.dtheta / s.dt, s.dvel / s.dt

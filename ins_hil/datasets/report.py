@@ -275,7 +275,7 @@ def summary(m: dict[str, Any]) -> list[tuple[str, str, str]]:
     for key in ("onboard", "reference"):
         c = m.get(key)
         if isinstance(c, dict):
-            if c.get("trimmed"):
+            if c.get("trimmed") and c["to_s"] > c["from_s"]:  # an empty span (never navigated in the air): no row
                 span = f"{c['from_s'] - m['t0_s']:.1f}–{c['to_s'] - m['t0_s']:.1f} s"
                 rows.append((f"vs {c['against']}: compared", span, c["trimmed"]))
             rows += [(f"vs {c['against']}: {a}", b, x) for a, b, x in cmp.summary_rows(c)]
