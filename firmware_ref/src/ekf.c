@@ -394,6 +394,7 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
 
 /* P <- Phi P Phi^T on the 3x3 blocks of Phi: A = Phi P (phi_p_rows), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
  * for X <= Y, mirrored into the lower triangle. */
+INS_HOT
 static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
     ins_real a[INS_NX][INS_NX], o[9], ft[NB][NB][3][3];
     const int nb = phi->nb, sf = nb == NB;
@@ -571,7 +572,7 @@ static inline void rank2(ins_real p[INS_NX][INS_NX], const ins_real k[INS_NX], c
     }
 }
 
-void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {
+INS_HOT void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {
     /* Joseph form (book eqs. 3.16-3.18) for one scalar, as in ErrorStateEKF.update:
      *   k = P h / (h^T P h + r); x += k (z - h^T x); P = (I - k h^T) P (I - k h^T)^T + r k k^T,
      * evaluated as two rank-1 products: A = P - k (h^T P), P = A - (A h) k^T + r k k^T. */
