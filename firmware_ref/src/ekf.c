@@ -226,34 +226,34 @@ typedef struct {
     ins_real b[NB][NB][3][3];
 } bmat_t;
 
-/* 3x3 kernels on a local block o (row-major 9) and blocks of P / A (row stride INS_NX) or of Phi (3x3) */
-static inline void k_zero(ins_real o[9]) {
+/* 3x3 kernels on a local block o (3 rows of 4: the fourth column a lane of the vector operations, not used) and blocks
+ * of A (row stride INS_NX) or of Phi (rows of 4, the fourth 0) */
+static inline void k_zero(ins_real o[12]) {
     int i;
-    for (i = 0; i < 9; ++i) o[i] = K(0.0);
+    for (i = 0; i < 12; ++i) o[i] = K(0.0);
 }
 /* o += a f^T, given ft = f^T (the three columns j of a row at once: a0 ft[0][j] + a1 ft[1][j] + a2 ft[2][j], the
  * sum a0 f[j][0] + a1 f[j][1] + a2 f[j][2]) */
-static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real ft[3][3]) {
+static inline void k_mact(ins_real o[12], const ins_real *a, ins_real ft[3][4]) {
     int i, j;
     for (i = 0; i < 3; ++i) {
         const ins_real a0 = a[i * INS_NX], a1 = a[i * INS_NX + 1], a2 = a[i * INS_NX + 2];
-        for (j = 0; j < 3; ++j) o[3 * i + j] += a0 * ft[0][j] + a1 * ft[1][j] + a2 * ft[2][j];
+        for (j = 0; j < 4; ++j) o[4 * i + j] += a0 * ft[0][j] + a1 * ft[1][j] + a2 * ft[2][j];
     }
 }
-/* o += a f^T for an f whose last column alone is non-zero */
-static inline void k_mact2(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+/* o += a f^T for an f whose last column f2 alone is non-zero */
+static inline void k_mact2(ins_real o[12], const ins_real *a, const ins_real f2[4]) {
     int i, j;
     for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + 2] * f[j][2];
+        for (j = 0; j < 4; ++j) o[4 * i + j] += a[i * INS_NX + 2] * f2[j];
 }
-/* o += a diag(f) */
-static inline void k_mactd(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+/* o += a diag(fd) (the fourth lane reads the next column of a, the next row's first past the last column) */
+static inline void k_mactd(ins_real o[12], const ins_real *a, const ins_real fd[4]) {
     int i, j;
     for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + j] * f[j][j];
+        for (j = 0; j < 4; ++j) o[4 * i + j] += a[i * INS_NX + j] * fd[j];
 }
 #define AB(X, Z) (&a[3 * (X)][3 * (Z)])
-#define PHI(X, W) ((const ins_real(*)[3])phi->b[X][W])
 
 #define CB(x) ((const ins_real(*)[3])(x))
 
@@ -396,43 +396,51 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
  * for X <= Y, mirrored into the lower triangle. */
 INS_HOT
 static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
-    ins_real a[INS_NX][INS_NX], o[9], ft[NB][NB][3][3];
+    ins_real a[INS_NX + 1][INS_NX], o[12], ft[NB][NB][3][4], fd[NB][4], f2[4];
     const int nb = phi->nb, sf = nb == NB;
     int X, Y, i, j;
     for (Y = 0; Y <= BA; ++Y) /* the transposed dense blocks of Phi (k_mact) */
         for (X = Y == BA ? BA : BV; X < nb; ++X)
-            for (i = 0; i < 3; ++i)
+            for (i = 0; i < 3; ++i) {
                 for (j = 0; j < 3; ++j) ft[Y][X][i][j] = phi->b[Y][X][j][i];
+                ft[Y][X][i][3] = K(0.0);
+            }
+    for (Y = 0; Y < nb; ++Y) /* the diagonals of the diagonal blocks */
+        for (j = 0; j < 4; ++j) fd[Y][j] = j < 3 && Y != BV && Y != BA ? phi->b[Y][Y][j][j] : K(0.0);
+    for (j = 0; j < 3; ++j) f2[j] = phi->b[BV][BR][j][2];
+    f2[3] = K(0.0);
+    for (j = 0; j < INS_NX; ++j) a[INS_NX][j] = K(0.0); /* the last rows' fourth lane (k_mactd, 21 states) */
+    for (i = 6; i < INS_NX; ++i) a[i][0] = K(0.0);        /* the rows before (their column 0: not formed) */
     if (sf) phi_p_rows(phi, p, a, INS_NX);
     else phi_p_rows(phi, p, a, 16); /* + column 15 of the 15-state P (whole pairs of columns; A[.][15] is not read) */
     for (Y = 0; Y < nb; ++Y)
         for (X = 0; X <= Y; ++X) {
             k_zero(o);
             if (Y == BR) {
-                k_mactd(o, AB(X, BR), PHI(BR, BR));
-                k_mact(o, AB(X, BV), CB(ft[BR][BV]));
-                k_mact(o, AB(X, BA), CB(ft[BR][BA]));
-                k_mact(o, AB(X, BB), CB(ft[BR][BB]));
-                if (sf) k_mact(o, AB(X, BT), CB(ft[BR][BT]));
+                k_mactd(o, AB(X, BR), fd[BR]);
+                k_mact(o, AB(X, BV), ft[BR][BV]);
+                k_mact(o, AB(X, BA), ft[BR][BA]);
+                k_mact(o, AB(X, BB), ft[BR][BB]);
+                if (sf) k_mact(o, AB(X, BT), ft[BR][BT]);
             } else if (Y == BV) {
-                k_mact2(o, AB(X, BR), PHI(BV, BR));
-                k_mact(o, AB(X, BV), CB(ft[BV][BV]));
-                k_mact(o, AB(X, BA), CB(ft[BV][BA]));
-                k_mact(o, AB(X, BG), CB(ft[BV][BG]));
-                k_mact(o, AB(X, BB), CB(ft[BV][BB]));
+                k_mact2(o, AB(X, BR), f2);
+                k_mact(o, AB(X, BV), ft[BV][BV]);
+                k_mact(o, AB(X, BA), ft[BV][BA]);
+                k_mact(o, AB(X, BG), ft[BV][BG]);
+                k_mact(o, AB(X, BB), ft[BV][BB]);
                 if (sf) {
-                    k_mact(o, AB(X, BS), CB(ft[BV][BS]));
-                    k_mact(o, AB(X, BT), CB(ft[BV][BT]));
+                    k_mact(o, AB(X, BS), ft[BV][BS]);
+                    k_mact(o, AB(X, BT), ft[BV][BT]);
                 }
             } else if (Y == BA) {
-                k_mact(o, AB(X, BA), CB(ft[BA][BA]));
-                k_mact(o, AB(X, BG), CB(ft[BA][BG]));
-                if (sf) k_mact(o, AB(X, BS), CB(ft[BA][BS]));
+                k_mact(o, AB(X, BA), ft[BA][BA]);
+                k_mact(o, AB(X, BG), ft[BA][BG]);
+                if (sf) k_mact(o, AB(X, BS), ft[BA][BS]);
             } else {
-                k_mactd(o, AB(X, Y), PHI(Y, Y));
+                k_mactd(o, AB(X, Y), fd[Y]);
             }
             for (i = 0; i < 3; ++i)
-                for (j = X < Y ? 0 : i; j < 3; ++j) p[3 * X + i][3 * Y + j] = p[3 * Y + j][3 * X + i] = o[3 * i + j];
+                for (j = X < Y ? 0 : i; j < 3; ++j) p[3 * X + i][3 * Y + j] = p[3 * Y + j][3 * X + i] = o[4 * i + j];
         }
 }
 
