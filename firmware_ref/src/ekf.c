@@ -257,29 +257,28 @@ static inline void k_mactd(ins_real o[12], const ins_real *a, const ins_real fd[
 
 #define CB(x) ((const ins_real(*)[3])(x))
 
-/* o = a b (3x3) for a skew-symmetric a (F_vv, F_vpsi, F_psipsi: zero diagonal, checked by derive_jacobians.py): the
- * sums a[i][0] b[0][j] + a[i][1] b[1][j] + a[i][2] b[2][j] without their exact zero term a[i][i] b[i][j] */
-static void m3(const ins_real a[3][3], const ins_real b[3][3], ins_real o[3][3]) {
-    int j;
-    for (j = 0; j < 3; ++j) {
-        o[0][j] = a[0][1] * b[1][j] + a[0][2] * b[2][j];
-        o[1][j] = a[1][0] * b[0][j] + a[1][2] * b[2][j];
-        o[2][j] = a[2][0] * b[0][j] + a[2][1] * b[1][j];
-    }
+/* (a b)[i][j] (3x3) for a skew-symmetric a (F_vv, F_vpsi, F_psipsi: zero diagonal, checked by derive_jacobians.py):
+ * the sum a[i][0] b[0][j] + a[i][1] b[1][j] + a[i][2] b[2][j] without its exact zero term a[i][i] b[i][j] */
+static inline ins_real m3e(const ins_real a[3][3], const ins_real b[3][3], const int i, const int j) {
+    return i == 0 ? a[0][1] * b[1][j] + a[0][2] * b[2][j]
+                  : i == 1 ? a[1][0] * b[0][j] + a[1][2] * b[2][j] : a[2][0] * b[0][j] + a[2][1] * b[1][j];
 }
 
-/* o = dt a + h2 (s - t c) (h2 = dt^2 / 2, or 0: first order; a NULL a, s or c: zero) */
-static void phi_blk(ins_real o[3][3], ins_real dt, ins_real h2, const ins_real a[3][3], const ins_real s[3][3],
-                    ins_real t, const ins_real c[3][3]) {
-    int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) {
-            ins_real q = K(0.0);
-            if (s != NULL) q += s[i][j];
-            if (c != NULL) q -= t * c[i][j];
-            o[i][j] = (a != NULL ? dt * a[i][j] : K(0.0)) + h2 * q;
-        }
-}
+/* The entries of one block O of Phi: o = A + h2 (0 + S - C) (A: dt a or 0; S: h2's sum of products; C: t c or 0),
+ * then + E on the diagonal if HAS_E (the identity, or dt), each entry one expression of the F blocks: no 3x3 products
+ * stored entry by entry and read back in pairs (a store-forwarding stall) */
+#define PHI_BLK(O, A, S, C, HAS_E, E)                                                                                  \
+    do {                                                                                                               \
+        int i, j;                                                                                                      \
+        for (i = 0; i < 3; ++i)                                                                                        \
+            for (j = 0; j < 3; ++j) {                                                                                  \
+                ins_real q_ = K(0.0), o_;                                                                              \
+                q_ += (S);                                                                                             \
+                q_ -= (C);                                                                                             \
+                o_ = (A) + h2 * q_;                                                                                    \
+                (O)[i][j] = HAS_E && i == j ? o_ + (E) : o_;                                                           \
+            }                                                                                                          \
+    } while (0)
 
 /* Phi = I + F dt (+ F^2 dt^2 / 2) block by block from the generated blocks of F (generated/ins_jacobians.h; the block
  * structure derive_jacobians.py checks: F_rv = I, F_vr = diag(0, 0, 2 g / R), the v and psi blocks, -1/tau on the
@@ -290,56 +289,50 @@ static void phi_blk(ins_real o[3][3], ins_real dt, ins_real h2, const ins_real a
 static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const ins_gen_fsf_t *sf, ins_real itg,
                        ins_real ita, ins_real its, ins_real dt, int second) {
     const ins_real h2 = second ? K(0.5) * dt * dt : K(0.0), d = g->vr_dd;
-    ins_real t[3][3], u[3][3];
     ins_real(*o)[3];
-    int i;
+    int k;
     phi->nb = nb;
     phi->nnz = BLK_NNZ[nb == NB];
     phi->col = BLK_COL[nb == NB];
     o = phi->b[BR][BR]; /* I + h2 D, D = F_vr = diag(0, 0, d) */
     o[0][0] = o[1][1] = K(1.0);
     o[2][2] = K(1.0) + h2 * d;
-    phi_blk(phi->b[BR][BV], dt, h2, NULL, g->vv, K(0.0), NULL);
-    for (i = 0; i < 3; ++i) phi->b[BR][BV][i][i] += dt;
-    phi_blk(phi->b[BR][BA], dt, h2, NULL, g->va, K(0.0), NULL);
-    phi_blk(phi->b[BR][BB], dt, h2, NULL, g->vba, K(0.0), NULL);
+    PHI_BLK(phi->b[BR][BV], K(0.0), g->vv[i][j], K(0.0), 1, dt); /* r v: I dt + h2 F_vv */
+    PHI_BLK(phi->b[BR][BA], K(0.0), g->va[i][j], K(0.0), 0, K(0.0)); /* r psi: h2 F_vpsi */
+    PHI_BLK(phi->b[BR][BB], K(0.0), g->vba[i][j], K(0.0), 0, K(0.0)); /* r ba: h2 F_vba */
     o = phi->b[BV][BR]; /* dt D + h2 F_vv D: column d only */
-    for (i = 0; i < 3; ++i) {
-        o[i][0] = o[i][1] = K(0.0);
-        o[i][2] = h2 * (g->vv[i][2] * d);
+    for (k = 0; k < 3; ++k) {
+        o[k][0] = o[k][1] = K(0.0);
+        o[k][2] = h2 * (g->vv[k][2] * d);
     }
     o[2][2] += dt * d;
-    m3(g->vv, g->vv, t); /* vv: I + dt F_vv + h2 (D + F_vv F_vv) */
-    t[2][2] += d;
-    phi_blk(phi->b[BV][BV], dt, h2, g->vv, CB(t), K(0.0), NULL);
-    for (i = 0; i < 3; ++i) phi->b[BV][BV][i][i] += K(1.0);
-    m3(g->vv, g->va, t); /* v psi: dt F_vpsi + h2 (F_vv F_vpsi + F_vpsi F_psipsi) */
-    m3(g->va, g->aa, u);
-    for (i = 0; i < 9; ++i) t[i / 3][i % 3] += u[i / 3][i % 3];
-    phi_blk(phi->b[BV][BA], dt, h2, g->va, CB(t), K(0.0), NULL);
-    m3(g->va, g->abg, t); /* v bg: h2 F_vpsi F_psibg */
-    phi_blk(phi->b[BV][BG], dt, h2, NULL, CB(t), K(0.0), NULL);
-    m3(g->vv, g->vba, t); /* v ba: dt F_vba + h2 (F_vv F_vba - F_vba / tau_a) */
-    phi_blk(phi->b[BV][BB], dt, h2, g->vba, CB(t), ita, g->vba);
-    m3(g->aa, g->aa, t); /* psi psi: I + dt F_psipsi + h2 F_psipsi^2 */
-    phi_blk(phi->b[BA][BA], dt, h2, g->aa, CB(t), K(0.0), NULL);
-    for (i = 0; i < 3; ++i) phi->b[BA][BA][i][i] += K(1.0);
-    m3(g->aa, g->abg, t); /* psi bg: dt F_psibg + h2 (F_psipsi F_psibg - F_psibg / tau_g) */
-    phi_blk(phi->b[BA][BG], dt, h2, g->abg, CB(t), itg, g->abg);
-    for (i = 0; i < 3; ++i) {
-        phi->b[BG][BG][i][i] = K(1.0) - dt * itg + h2 * (itg * itg);
-        phi->b[BB][BB][i][i] = K(1.0) - dt * ita + h2 * (ita * ita);
+    /* vv: I + dt F_vv + h2 (D + F_vv F_vv) */
+    PHI_BLK(phi->b[BV][BV], dt * g->vv[i][j], i == 2 && j == 2 ? m3e(g->vv, g->vv, 2, 2) + d : m3e(g->vv, g->vv, i, j),
+            K(0.0), 1, K(1.0));
+    /* v psi: dt F_vpsi + h2 (F_vv F_vpsi + F_vpsi F_psipsi) */
+    PHI_BLK(phi->b[BV][BA], dt * g->va[i][j], m3e(g->vv, g->va, i, j) + m3e(g->va, g->aa, i, j), K(0.0), 0, K(0.0));
+    /* v bg: h2 F_vpsi F_psibg */
+    PHI_BLK(phi->b[BV][BG], K(0.0), m3e(g->va, g->abg, i, j), K(0.0), 0, K(0.0));
+    /* v ba: dt F_vba + h2 (F_vv F_vba - F_vba / tau_a) */
+    PHI_BLK(phi->b[BV][BB], dt * g->vba[i][j], m3e(g->vv, g->vba, i, j), ita * g->vba[i][j], 0, K(0.0));
+    /* psi psi: I + dt F_psipsi + h2 F_psipsi^2 */
+    PHI_BLK(phi->b[BA][BA], dt * g->aa[i][j], m3e(g->aa, g->aa, i, j), K(0.0), 1, K(1.0));
+    /* psi bg: dt F_psibg + h2 (F_psipsi F_psibg - F_psibg / tau_g) */
+    PHI_BLK(phi->b[BA][BG], dt * g->abg[i][j], m3e(g->aa, g->abg, i, j), itg * g->abg[i][j], 0, K(0.0));
+    for (k = 0; k < 3; ++k) {
+        phi->b[BG][BG][k][k] = K(1.0) - dt * itg + h2 * (itg * itg);
+        phi->b[BB][BB][k][k] = K(1.0) - dt * ita + h2 * (ita * ita);
     }
     if (nb == NB) {
-        phi_blk(phi->b[BR][BT], dt, h2, NULL, sf->vsa, K(0.0), NULL);
-        m3(g->va, sf->asg, t); /* v sg: h2 F_vpsi F_psisg */
-        phi_blk(phi->b[BV][BS], dt, h2, NULL, CB(t), K(0.0), NULL);
-        m3(g->vv, sf->vsa, t); /* v sa: dt F_vsa + h2 (F_vv F_vsa - F_vsa / tau_s) */
-        phi_blk(phi->b[BV][BT], dt, h2, sf->vsa, CB(t), its, sf->vsa);
-        m3(g->aa, sf->asg, t); /* psi sg: dt F_psisg + h2 (F_psipsi F_psisg - F_psisg / tau_s) */
-        phi_blk(phi->b[BA][BS], dt, h2, sf->asg, CB(t), its, sf->asg);
-        for (i = 0; i < 3; ++i)
-            phi->b[BS][BS][i][i] = phi->b[BT][BT][i][i] = K(1.0) - dt * its + h2 * (its * its);
+        PHI_BLK(phi->b[BR][BT], K(0.0), sf->vsa[i][j], K(0.0), 0, K(0.0));
+        /* v sg: h2 F_vpsi F_psisg */
+        PHI_BLK(phi->b[BV][BS], K(0.0), m3e(g->va, sf->asg, i, j), K(0.0), 0, K(0.0));
+        /* v sa: dt F_vsa + h2 (F_vv F_vsa - F_vsa / tau_s) */
+        PHI_BLK(phi->b[BV][BT], dt * sf->vsa[i][j], m3e(g->vv, sf->vsa, i, j), its * sf->vsa[i][j], 0, K(0.0));
+        /* psi sg: dt F_psisg + h2 (F_psipsi F_psisg - F_psisg / tau_s) */
+        PHI_BLK(phi->b[BA][BS], dt * sf->asg[i][j], m3e(g->aa, sf->asg, i, j), its * sf->asg[i][j], 0, K(0.0));
+        for (k = 0; k < 3; ++k)
+            phi->b[BS][BS][k][k] = phi->b[BT][BT][k][k] = K(1.0) - dt * its + h2 * (its * its);
     }
 }
 

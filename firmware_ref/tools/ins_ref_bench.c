@@ -179,7 +179,8 @@ int main(int argc, char **argv) {
         return hist_workload(n, every, delay);
     }
     if (argc != 3 || (n = strtol(argv[1], NULL, 10)) < 1 || (m = strtol(argv[2], NULL, 10)) < 0) {
-        fprintf(stderr, "usage: ins_ref_bench N_STEPS N_GNSS | ins_ref_bench --hist N_STEPS EVERY DELAY | ins_ref_bench --digest\n");
+        fprintf(stderr, "usage: ins_ref_bench N_STEPS N_GNSS | ins_ref_bench --hist N_STEPS EVERY DELAY | "
+                        "ins_ref_bench --digest\n");
         return 2;
     }
     ins_core_init(&core, q0, v0, lat0, lon0, 100.0, 0.0, (ins_real)dt, NULL, 1);
