@@ -226,60 +226,59 @@ typedef struct {
     ins_real b[NB][NB][3][3];
 } bmat_t;
 
-/* 3x3 kernels on a local block o (row-major 9) and blocks of P / A (row stride INS_NX) or of Phi (3x3) */
-static inline void k_zero(ins_real o[9]) {
+/* 3x3 kernels on a local block o (3 rows of 4: the fourth column a lane of the vector operations, not used) and blocks
+ * of A (row stride INS_NX) or of Phi (rows of 4, the fourth 0) */
+static inline void k_zero(ins_real o[12]) {
     int i;
-    for (i = 0; i < 9; ++i) o[i] = K(0.0);
+    for (i = 0; i < 12; ++i) o[i] = K(0.0);
 }
 /* o += a f^T, given ft = f^T (the three columns j of a row at once: a0 ft[0][j] + a1 ft[1][j] + a2 ft[2][j], the
  * sum a0 f[j][0] + a1 f[j][1] + a2 f[j][2]) */
-static inline void k_mact(ins_real o[9], const ins_real *a, const ins_real ft[3][3]) {
+static inline void k_mact(ins_real o[12], const ins_real *a, ins_real ft[3][4]) {
     int i, j;
     for (i = 0; i < 3; ++i) {
         const ins_real a0 = a[i * INS_NX], a1 = a[i * INS_NX + 1], a2 = a[i * INS_NX + 2];
-        for (j = 0; j < 3; ++j) o[3 * i + j] += a0 * ft[0][j] + a1 * ft[1][j] + a2 * ft[2][j];
+        for (j = 0; j < 4; ++j) o[4 * i + j] += a0 * ft[0][j] + a1 * ft[1][j] + a2 * ft[2][j];
     }
 }
-/* o += a f^T for an f whose last column alone is non-zero */
-static inline void k_mact2(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+/* o += a f^T for an f whose last column f2 alone is non-zero */
+static inline void k_mact2(ins_real o[12], const ins_real *a, const ins_real f2[4]) {
     int i, j;
     for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + 2] * f[j][2];
+        for (j = 0; j < 4; ++j) o[4 * i + j] += a[i * INS_NX + 2] * f2[j];
 }
-/* o += a diag(f) */
-static inline void k_mactd(ins_real o[9], const ins_real *a, const ins_real f[3][3]) {
+/* o += a diag(fd) (the fourth lane reads the next column of a, the next row's first past the last column) */
+static inline void k_mactd(ins_real o[12], const ins_real *a, const ins_real fd[4]) {
     int i, j;
     for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) o[3 * i + j] += a[i * INS_NX + j] * f[j][j];
+        for (j = 0; j < 4; ++j) o[4 * i + j] += a[i * INS_NX + j] * fd[j];
 }
 #define AB(X, Z) (&a[3 * (X)][3 * (Z)])
-#define PHI(X, W) ((const ins_real(*)[3])phi->b[X][W])
 
 #define CB(x) ((const ins_real(*)[3])(x))
 
-/* o = a b (3x3) for a skew-symmetric a (F_vv, F_vpsi, F_psipsi: zero diagonal, checked by derive_jacobians.py): the
- * sums a[i][0] b[0][j] + a[i][1] b[1][j] + a[i][2] b[2][j] without their exact zero term a[i][i] b[i][j] */
-static void m3(const ins_real a[3][3], const ins_real b[3][3], ins_real o[3][3]) {
-    int j;
-    for (j = 0; j < 3; ++j) {
-        o[0][j] = a[0][1] * b[1][j] + a[0][2] * b[2][j];
-        o[1][j] = a[1][0] * b[0][j] + a[1][2] * b[2][j];
-        o[2][j] = a[2][0] * b[0][j] + a[2][1] * b[1][j];
-    }
+/* (a b)[i][j] (3x3) for a skew-symmetric a (F_vv, F_vpsi, F_psipsi: zero diagonal, checked by derive_jacobians.py):
+ * the sum a[i][0] b[0][j] + a[i][1] b[1][j] + a[i][2] b[2][j] without its exact zero term a[i][i] b[i][j] */
+static inline ins_real m3e(const ins_real a[3][3], const ins_real b[3][3], const int i, const int j) {
+    return i == 0 ? a[0][1] * b[1][j] + a[0][2] * b[2][j]
+                  : i == 1 ? a[1][0] * b[0][j] + a[1][2] * b[2][j] : a[2][0] * b[0][j] + a[2][1] * b[1][j];
 }
 
-/* o = dt a + h2 (s - t c) (h2 = dt^2 / 2, or 0: first order; a NULL a, s or c: zero) */
-static void phi_blk(ins_real o[3][3], ins_real dt, ins_real h2, const ins_real a[3][3], const ins_real s[3][3],
-                    ins_real t, const ins_real c[3][3]) {
-    int i, j;
-    for (i = 0; i < 3; ++i)
-        for (j = 0; j < 3; ++j) {
-            ins_real q = K(0.0);
-            if (s != NULL) q += s[i][j];
-            if (c != NULL) q -= t * c[i][j];
-            o[i][j] = (a != NULL ? dt * a[i][j] : K(0.0)) + h2 * q;
-        }
-}
+/* The entries of one block O of Phi: o = A + h2 (0 + S - C) (A: dt a or 0; S: h2's sum of products; C: t c or 0),
+ * then + E on the diagonal if HAS_E (the identity, or dt), each entry one expression of the F blocks: no 3x3 products
+ * stored entry by entry and read back in pairs (a store-forwarding stall) */
+#define PHI_BLK(O, A, S, C, HAS_E, E)                                                                                  \
+    do {                                                                                                               \
+        int i, j;                                                                                                      \
+        for (i = 0; i < 3; ++i)                                                                                        \
+            for (j = 0; j < 3; ++j) {                                                                                  \
+                ins_real q_ = K(0.0), o_;                                                                              \
+                q_ += (S);                                                                                             \
+                q_ -= (C);                                                                                             \
+                o_ = (A) + h2 * q_;                                                                                    \
+                (O)[i][j] = HAS_E && i == j ? o_ + (E) : o_;                                                           \
+            }                                                                                                          \
+    } while (0)
 
 /* Phi = I + F dt (+ F^2 dt^2 / 2) block by block from the generated blocks of F (generated/ins_jacobians.h; the block
  * structure derive_jacobians.py checks: F_rv = I, F_vr = diag(0, 0, 2 g / R), the v and psi blocks, -1/tau on the
@@ -290,56 +289,50 @@ static void phi_blk(ins_real o[3][3], ins_real dt, ins_real h2, const ins_real a
 static void phi_blocks(bmat_t *phi, int nb, const ins_gen_fblocks_t *g, const ins_gen_fsf_t *sf, ins_real itg,
                        ins_real ita, ins_real its, ins_real dt, int second) {
     const ins_real h2 = second ? K(0.5) * dt * dt : K(0.0), d = g->vr_dd;
-    ins_real t[3][3], u[3][3];
     ins_real(*o)[3];
-    int i;
+    int k;
     phi->nb = nb;
     phi->nnz = BLK_NNZ[nb == NB];
     phi->col = BLK_COL[nb == NB];
     o = phi->b[BR][BR]; /* I + h2 D, D = F_vr = diag(0, 0, d) */
     o[0][0] = o[1][1] = K(1.0);
     o[2][2] = K(1.0) + h2 * d;
-    phi_blk(phi->b[BR][BV], dt, h2, NULL, g->vv, K(0.0), NULL);
-    for (i = 0; i < 3; ++i) phi->b[BR][BV][i][i] += dt;
-    phi_blk(phi->b[BR][BA], dt, h2, NULL, g->va, K(0.0), NULL);
-    phi_blk(phi->b[BR][BB], dt, h2, NULL, g->vba, K(0.0), NULL);
+    PHI_BLK(phi->b[BR][BV], K(0.0), g->vv[i][j], K(0.0), 1, dt); /* r v: I dt + h2 F_vv */
+    PHI_BLK(phi->b[BR][BA], K(0.0), g->va[i][j], K(0.0), 0, K(0.0)); /* r psi: h2 F_vpsi */
+    PHI_BLK(phi->b[BR][BB], K(0.0), g->vba[i][j], K(0.0), 0, K(0.0)); /* r ba: h2 F_vba */
     o = phi->b[BV][BR]; /* dt D + h2 F_vv D: column d only */
-    for (i = 0; i < 3; ++i) {
-        o[i][0] = o[i][1] = K(0.0);
-        o[i][2] = h2 * (g->vv[i][2] * d);
+    for (k = 0; k < 3; ++k) {
+        o[k][0] = o[k][1] = K(0.0);
+        o[k][2] = h2 * (g->vv[k][2] * d);
     }
     o[2][2] += dt * d;
-    m3(g->vv, g->vv, t); /* vv: I + dt F_vv + h2 (D + F_vv F_vv) */
-    t[2][2] += d;
-    phi_blk(phi->b[BV][BV], dt, h2, g->vv, CB(t), K(0.0), NULL);
-    for (i = 0; i < 3; ++i) phi->b[BV][BV][i][i] += K(1.0);
-    m3(g->vv, g->va, t); /* v psi: dt F_vpsi + h2 (F_vv F_vpsi + F_vpsi F_psipsi) */
-    m3(g->va, g->aa, u);
-    for (i = 0; i < 9; ++i) t[i / 3][i % 3] += u[i / 3][i % 3];
-    phi_blk(phi->b[BV][BA], dt, h2, g->va, CB(t), K(0.0), NULL);
-    m3(g->va, g->abg, t); /* v bg: h2 F_vpsi F_psibg */
-    phi_blk(phi->b[BV][BG], dt, h2, NULL, CB(t), K(0.0), NULL);
-    m3(g->vv, g->vba, t); /* v ba: dt F_vba + h2 (F_vv F_vba - F_vba / tau_a) */
-    phi_blk(phi->b[BV][BB], dt, h2, g->vba, CB(t), ita, g->vba);
-    m3(g->aa, g->aa, t); /* psi psi: I + dt F_psipsi + h2 F_psipsi^2 */
-    phi_blk(phi->b[BA][BA], dt, h2, g->aa, CB(t), K(0.0), NULL);
-    for (i = 0; i < 3; ++i) phi->b[BA][BA][i][i] += K(1.0);
-    m3(g->aa, g->abg, t); /* psi bg: dt F_psibg + h2 (F_psipsi F_psibg - F_psibg / tau_g) */
-    phi_blk(phi->b[BA][BG], dt, h2, g->abg, CB(t), itg, g->abg);
-    for (i = 0; i < 3; ++i) {
-        phi->b[BG][BG][i][i] = K(1.0) - dt * itg + h2 * (itg * itg);
-        phi->b[BB][BB][i][i] = K(1.0) - dt * ita + h2 * (ita * ita);
+    /* vv: I + dt F_vv + h2 (D + F_vv F_vv) */
+    PHI_BLK(phi->b[BV][BV], dt * g->vv[i][j], i == 2 && j == 2 ? m3e(g->vv, g->vv, 2, 2) + d : m3e(g->vv, g->vv, i, j),
+            K(0.0), 1, K(1.0));
+    /* v psi: dt F_vpsi + h2 (F_vv F_vpsi + F_vpsi F_psipsi) */
+    PHI_BLK(phi->b[BV][BA], dt * g->va[i][j], m3e(g->vv, g->va, i, j) + m3e(g->va, g->aa, i, j), K(0.0), 0, K(0.0));
+    /* v bg: h2 F_vpsi F_psibg */
+    PHI_BLK(phi->b[BV][BG], K(0.0), m3e(g->va, g->abg, i, j), K(0.0), 0, K(0.0));
+    /* v ba: dt F_vba + h2 (F_vv F_vba - F_vba / tau_a) */
+    PHI_BLK(phi->b[BV][BB], dt * g->vba[i][j], m3e(g->vv, g->vba, i, j), ita * g->vba[i][j], 0, K(0.0));
+    /* psi psi: I + dt F_psipsi + h2 F_psipsi^2 */
+    PHI_BLK(phi->b[BA][BA], dt * g->aa[i][j], m3e(g->aa, g->aa, i, j), K(0.0), 1, K(1.0));
+    /* psi bg: dt F_psibg + h2 (F_psipsi F_psibg - F_psibg / tau_g) */
+    PHI_BLK(phi->b[BA][BG], dt * g->abg[i][j], m3e(g->aa, g->abg, i, j), itg * g->abg[i][j], 0, K(0.0));
+    for (k = 0; k < 3; ++k) {
+        phi->b[BG][BG][k][k] = K(1.0) - dt * itg + h2 * (itg * itg);
+        phi->b[BB][BB][k][k] = K(1.0) - dt * ita + h2 * (ita * ita);
     }
     if (nb == NB) {
-        phi_blk(phi->b[BR][BT], dt, h2, NULL, sf->vsa, K(0.0), NULL);
-        m3(g->va, sf->asg, t); /* v sg: h2 F_vpsi F_psisg */
-        phi_blk(phi->b[BV][BS], dt, h2, NULL, CB(t), K(0.0), NULL);
-        m3(g->vv, sf->vsa, t); /* v sa: dt F_vsa + h2 (F_vv F_vsa - F_vsa / tau_s) */
-        phi_blk(phi->b[BV][BT], dt, h2, sf->vsa, CB(t), its, sf->vsa);
-        m3(g->aa, sf->asg, t); /* psi sg: dt F_psisg + h2 (F_psipsi F_psisg - F_psisg / tau_s) */
-        phi_blk(phi->b[BA][BS], dt, h2, sf->asg, CB(t), its, sf->asg);
-        for (i = 0; i < 3; ++i)
-            phi->b[BS][BS][i][i] = phi->b[BT][BT][i][i] = K(1.0) - dt * its + h2 * (its * its);
+        PHI_BLK(phi->b[BR][BT], K(0.0), sf->vsa[i][j], K(0.0), 0, K(0.0));
+        /* v sg: h2 F_vpsi F_psisg */
+        PHI_BLK(phi->b[BV][BS], K(0.0), m3e(g->va, sf->asg, i, j), K(0.0), 0, K(0.0));
+        /* v sa: dt F_vsa + h2 (F_vv F_vsa - F_vsa / tau_s) */
+        PHI_BLK(phi->b[BV][BT], dt * sf->vsa[i][j], m3e(g->vv, sf->vsa, i, j), its * sf->vsa[i][j], 0, K(0.0));
+        /* psi sg: dt F_psisg + h2 (F_psipsi F_psisg - F_psisg / tau_s) */
+        PHI_BLK(phi->b[BA][BS], dt * sf->asg[i][j], m3e(g->aa, sf->asg, i, j), its * sf->asg[i][j], 0, K(0.0));
+        for (k = 0; k < 3; ++k)
+            phi->b[BS][BS][k][k] = phi->b[BT][BT][k][k] = K(1.0) - dt * its + h2 * (its * its);
     }
 }
 
@@ -394,44 +387,53 @@ static inline void phi_p_rows(const bmat_t *phi, ins_real p[INS_NX][INS_NX], ins
 
 /* P <- Phi P Phi^T on the 3x3 blocks of Phi: A = Phi P (phi_p_rows), then P[X][Y] = sum_Z A[X][Z] Phi[Y][Z]^T
  * for X <= Y, mirrored into the lower triangle. */
+INS_HOT
 static void phi_p_phit(const bmat_t *phi, ins_real p[INS_NX][INS_NX]) {
-    ins_real a[INS_NX][INS_NX], o[9], ft[NB][NB][3][3];
+    ins_real a[INS_NX + 1][INS_NX], o[12], ft[NB][NB][3][4], fd[NB][4], f2[4];
     const int nb = phi->nb, sf = nb == NB;
     int X, Y, i, j;
     for (Y = 0; Y <= BA; ++Y) /* the transposed dense blocks of Phi (k_mact) */
         for (X = Y == BA ? BA : BV; X < nb; ++X)
-            for (i = 0; i < 3; ++i)
+            for (i = 0; i < 3; ++i) {
                 for (j = 0; j < 3; ++j) ft[Y][X][i][j] = phi->b[Y][X][j][i];
+                ft[Y][X][i][3] = K(0.0);
+            }
+    for (Y = 0; Y < nb; ++Y) /* the diagonals of the diagonal blocks */
+        for (j = 0; j < 4; ++j) fd[Y][j] = j < 3 && Y != BV && Y != BA ? phi->b[Y][Y][j][j] : K(0.0);
+    for (j = 0; j < 3; ++j) f2[j] = phi->b[BV][BR][j][2];
+    f2[3] = K(0.0);
+    for (j = 0; j < INS_NX; ++j) a[INS_NX][j] = K(0.0); /* the last rows' fourth lane (k_mactd, 21 states) */
+    for (i = 6; i < INS_NX; ++i) a[i][0] = K(0.0);        /* the rows before (their column 0: not formed) */
     if (sf) phi_p_rows(phi, p, a, INS_NX);
     else phi_p_rows(phi, p, a, 16); /* + column 15 of the 15-state P (whole pairs of columns; A[.][15] is not read) */
     for (Y = 0; Y < nb; ++Y)
         for (X = 0; X <= Y; ++X) {
             k_zero(o);
             if (Y == BR) {
-                k_mactd(o, AB(X, BR), PHI(BR, BR));
-                k_mact(o, AB(X, BV), CB(ft[BR][BV]));
-                k_mact(o, AB(X, BA), CB(ft[BR][BA]));
-                k_mact(o, AB(X, BB), CB(ft[BR][BB]));
-                if (sf) k_mact(o, AB(X, BT), CB(ft[BR][BT]));
+                k_mactd(o, AB(X, BR), fd[BR]);
+                k_mact(o, AB(X, BV), ft[BR][BV]);
+                k_mact(o, AB(X, BA), ft[BR][BA]);
+                k_mact(o, AB(X, BB), ft[BR][BB]);
+                if (sf) k_mact(o, AB(X, BT), ft[BR][BT]);
             } else if (Y == BV) {
-                k_mact2(o, AB(X, BR), PHI(BV, BR));
-                k_mact(o, AB(X, BV), CB(ft[BV][BV]));
-                k_mact(o, AB(X, BA), CB(ft[BV][BA]));
-                k_mact(o, AB(X, BG), CB(ft[BV][BG]));
-                k_mact(o, AB(X, BB), CB(ft[BV][BB]));
+                k_mact2(o, AB(X, BR), f2);
+                k_mact(o, AB(X, BV), ft[BV][BV]);
+                k_mact(o, AB(X, BA), ft[BV][BA]);
+                k_mact(o, AB(X, BG), ft[BV][BG]);
+                k_mact(o, AB(X, BB), ft[BV][BB]);
                 if (sf) {
-                    k_mact(o, AB(X, BS), CB(ft[BV][BS]));
-                    k_mact(o, AB(X, BT), CB(ft[BV][BT]));
+                    k_mact(o, AB(X, BS), ft[BV][BS]);
+                    k_mact(o, AB(X, BT), ft[BV][BT]);
                 }
             } else if (Y == BA) {
-                k_mact(o, AB(X, BA), CB(ft[BA][BA]));
-                k_mact(o, AB(X, BG), CB(ft[BA][BG]));
-                if (sf) k_mact(o, AB(X, BS), CB(ft[BA][BS]));
+                k_mact(o, AB(X, BA), ft[BA][BA]);
+                k_mact(o, AB(X, BG), ft[BA][BG]);
+                if (sf) k_mact(o, AB(X, BS), ft[BA][BS]);
             } else {
-                k_mactd(o, AB(X, Y), PHI(Y, Y));
+                k_mactd(o, AB(X, Y), fd[Y]);
             }
             for (i = 0; i < 3; ++i)
-                for (j = X < Y ? 0 : i; j < 3; ++j) p[3 * X + i][3 * Y + j] = p[3 * Y + j][3 * X + i] = o[3 * i + j];
+                for (j = X < Y ? 0 : i; j < 3; ++j) p[3 * X + i][3 * Y + j] = p[3 * Y + j][3 * X + i] = o[4 * i + j];
         }
 }
 
@@ -571,7 +573,7 @@ static inline void rank2(ins_real p[INS_NX][INS_NX], const ins_real k[INS_NX], c
     }
 }
 
-void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {
+INS_HOT void ins_ekf_update_scalar(ins_ekf_t *e, const ins_real h[INS_NX], ins_real z, ins_real r) {
     /* Joseph form (book eqs. 3.16-3.18) for one scalar, as in ErrorStateEKF.update:
      *   k = P h / (h^T P h + r); x += k (z - h^T x); P = (I - k h^T) P (I - k h^T)^T + r k k^T,
      * evaluated as two rank-1 products: A = P - k (h^T P), P = A - (A h) k^T + r k k^T. */

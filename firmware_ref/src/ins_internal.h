@@ -21,6 +21,18 @@
 #define RASIN(x) asin(x)
 #define RFABS(x) fabs(x)
 #endif
+/* The hot kernels (the covariance propagation, the scalar update): an AVX2 copy besides the baseline one, chosen when
+ * the library is loaded (GCC's target_clones: an ifunc, glibc), on x86-64 with GCC >= 6 and glibc; elsewhere, or
+ * with -DINS_NO_CLONES, the baseline function alone. The copies are the same C99 operations in the same order, and
+ * without -ffast-math no compiler reorders them (the AVX2 target has no FMA to contract into): their results are
+ * equal bit for bit (firmware_ref/tests/test_ins_ref.c checks it where both run). */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 6 && defined(__GLIBC__) && \
+    !defined(INS_NO_CLONES)
+#define INS_HOT __attribute__((target_clones("avx2", "default")))
+#else
+#define INS_HOT
+#endif
+
 /* a literal in the scalar type (the constant is rounded at compile time) */
 #define K(x) ((ins_real)(x))
 
