@@ -120,6 +120,10 @@ size_t cref_run_baro(ins_core_t *c, ins_hist_t *hs, const double *inc, const dou
                      size_t k0, const int64_t *end, const int64_t *ab, size_t ng, const double *bt, const double *alt,
                      double *out, double *pre, double *gate, double qtol, double vmax2, double hmin, double hmax,
                      size_t *groups, int *why);
+size_t cref_run_gnss(ins_core_t *c, ins_hist_t *hs, const double *inc, const double *t_end, const double *dts,
+                     size_t k0, const int64_t *end, const int64_t *ab, size_t ng, const double *fix, double vel_delay,
+                     int check_vel, double *out, double *pre, double *gate, double qtol, double vmax2, double hmin,
+                     double hmax, size_t *groups, int *why);
 int cref_gfuse_mag(ins_core_t *c, ins_hist_t *hs, double t, double fx, double fy, double fz, double o[4]);
 int cref_fuse_gnss(ins_core_t *c, double t, double lat, double lon, double h, const double vel[3], double std_ne,
                    double std_d, double std_vel);

@@ -715,7 +715,11 @@ class CNavCore:
         else:
             self._lib_.cref_gfuse_gnss(self._core, self._hist, t, lat if pos else math.nan, meas.lon, meas.h, vn, ve,
                                        vd, meas.std_ne, meas.std_d, meas.std_vel, g)  # fmt: skip
-        r = self._ffi.unpack(g, 8)
+        self._gnss_gates(meas, self._ffi.unpack(g, 8), pos, split, t_vel)
+
+    def _gnss_gates(self, meas: GnssFix, r: Sequence[float], pos: bool, split: bool, t_vel: float) -> None:
+        """After a fix's C update (:meth:`_fuse_gnss`, :meth:`run_gnss`), from its gates ``r`` (``cref_gfuse_gnss``'s
+        8 values): the ratios, the rejected positions kept for a reset, NavCore's gate events."""
         ratios = self._ratios
         if pos:
             ratios = dict(ratios)
@@ -724,8 +728,8 @@ class CNavCore:
                 self._rejected.append((dataclasses.replace(meas, vel_ned=None) if split else meas, r[0]))
             elif self._rejected:
                 self._rejected.clear()
-            self._gate_event(t, "gnss_pos", r)
-        if v is not None and self._use_vel:
+            self._gate_event(meas.t, "gnss_pos", r)
+        if meas.vel_ned is not None and self._use_vel:
             ratios = dict(ratios) if ratios is self._ratios else ratios
             ratios["gnss_vel"] = r[4]
             self._gate_event(t_vel, "gnss_vel", r[4:])
@@ -1144,7 +1148,7 @@ class CNavCore:
         return int(self._core.steps) > 0 and imu_lost(t_end, dt, float(self._core.mech.t)) is not None
 
     def run_baro(self, inc: Vec, t_end: Vec, dt: Vec, k0: int, end: Vec, ab: Vec, bt: Vec, alt: Vec,
-                 bounds: tuple[float, float, float, float]) -> BaroRun:  # fmt: skip
+                 bounds: tuple[float, float, float, float]) -> AidRun:  # fmt: skip
         """:meth:`run_states` and :meth:`fuse` of baro altitudes alternately in ONE C call (``cref_run_baro``; an
         offline replay's stretch of baro samples between two other measurements): group g is the IMU samples
         ``[end[g - 1], end[g])`` of the whole log's ``inc`` (n, 6), ``t_end``, ``dt`` (n,) (C-contiguous float64;
@@ -1153,7 +1157,7 @@ class CNavCore:
         caller's check: no DROPOUT record). ``bounds``: the core guard's (:meth:`first_bad`'s qnorm_tol, speed_max,
         h_min, h_max). The call stops after a group whose states fail the guard (its updates not run), or after an
         update whose gate is not a plain acceptance (its gate event raised here, as :meth:`fuse`) or whose state then
-        fails the guard (:class:`BaroRun` says which). The ratios and the gate counters as :meth:`fuse` leaves
+        fails the guard (:class:`AidRun` says which). The ratios and the gate counters as :meth:`fuse` leaves
         them."""
         ng = len(end)
         arrays = (inc, t_end, dt, bt, alt)
@@ -1202,7 +1206,103 @@ class CNavCore:
                 self._gate_event(float(bt[int(ab[0]) + u - 1]), "baro", gate[u - 1].tolist())
         aligned = (pre[:u, 1] < self._aligned_std).tolist()
         states = RunStates(rows, self.cfg.alignment.aligned_yaw_std, at[-1][1], ratios_from=at)
-        return BaroRun(states, g, u, int(why[0]), pre[:u, 0].tolist(), aligned)
+        return AidRun(states, g, u, int(why[0]), pre[:u, 0].tolist(), aligned)
+
+    def run_gnss(self, inc: Vec, t_end: Vec, dt: Vec, k0: int, end: Vec, ab: Vec, fixes: Sequence[GnssFix],
+                 bounds: tuple[float, float, float, float], records: bool = True) -> AidRun:  # fmt: skip
+        """:meth:`run_baro` with GNSS fixes: :meth:`run_states` and :meth:`fuse` of ``fixes`` alternately in ONE C
+        call (``cref_run_gnss``; an offline replay's stretch of fixes between two other measurements): group g is
+        the IMU samples ``[end[g - 1], end[g])`` of ``inc`` (n, 6), ``t_end``, ``dt`` (n,), then the fixes
+        ``[ab[g], ab[g + 1])``, each as :meth:`fuse` takes it (with ``gnss.vel_delay`` its velocity at its own earlier
+        time). Each fix's velocity is None or finite; no rejected fix is held for a reset (:meth:`fuse` does the
+        rest). Stops as :meth:`run_baro` (a fix whose position or velocity gate is not a plain acceptance: its events
+        raised here, as :meth:`fuse`); the ratios, the rejected fixes and the gate counters as :meth:`fuse` leaves
+        them. ``records=False``: no states (an empty ``states``, ``t_pre``, ``aligned``) and no guard: the runs as
+        :meth:`run_increments`."""
+        ng = len(end)
+        arrays = (inc, t_end, dt)
+        if not (self.can_run() and self._align is None) or self._rejected or len(ab) != ng + 1 or (
+            inc.shape != (len(t_end), 6) or len(dt) != len(t_end)
+            or any(a.dtype != np.float64 or not a.flags.c_contiguous for a in arrays)
+            or end.dtype != np.int64 or ab.dtype != np.int64
+            or (ng and not (end[0] > k0 >= 0 and end[-1] <= len(t_end) and ab[0] >= 0 and ab[-1] <= len(fixes)
+                            and bool(np.all(np.diff(end) > 0)) and bool(np.all(np.diff(ab) >= 0))))
+        ):  # fmt: skip
+            raise ValueError("CNavCore.run_gnss: a navigating core with fixed_step=False and no rejected fix held, "
+                             "C-contiguous float64 (n, 6) increments, times and steps; int64 end rising from k0 to "
+                             "at most n, ab = len(end) + 1 bounds rising within the fixes")  # fmt: skip
+        nan3 = (math.nan, math.nan, math.nan)
+        fix = np.array([(f.t, f.lat, f.lon, f.h, *(nan3 if f.vel_ned is None else f.vel_ned), f.std_ne, f.std_d,
+                         f.std_vel) for f in fixes], dtype=np.float64).reshape(len(fixes), 10)  # fmt: skip
+        has_vel = np.array([f.vel_ned is not None for f in fixes], dtype=bool)
+        if not bool(np.all(np.isfinite(fix[has_vel, 4:7]))):
+            raise ValueError("CNavCore.run_gnss: a fix's velocity must be None or finite (fuse takes the others)")
+        if not bool(np.all(fix[:, 7:] >= 0.0)):
+            for f in fixes:  # the first that fails, named as fuse names it
+                for name in ("std_ne", "std_d", "std_vel"):
+                    if not getattr(f, name) >= 0.0:
+                        raise ValueError(f"GnssFix.{name} must be >= 0, got {getattr(f, name)!r}")
+        pos = np.isfinite(fix[:, 1])
+        fix[~pos, 1] = math.nan  # as fuse: a latitude that is not finite is no position
+        if ng and self._e_cons[0] >= self._reset_after and bool(pos[int(ab[0]) : int(ab[-1])].any()):
+            raise ValueError("CNavCore.run_gnss: a GNSS reset is due (fuse the next fix on its own)")
+        n_upd = int(ab[-1] - ab[0]) if ng else 0
+        gate = np.empty((n_upd, 8))
+        ffi = self._ffi
+        fb = ffi.from_buffer
+        groups = ffi.new("size_t *")
+        why = ffi.new("int *")
+        q, vmax, h0, h1 = bounds
+        self._st = None
+        if records:
+            out = np.empty(((int(end[-1]) - k0) if ng else 0, 32))
+            pre = np.empty((n_upd, 2))
+            self._publish()
+            out_p, pre_p = fb("double[]", out), fb("double[]", pre)
+        else:
+            out, pre = np.empty((0, 32)), np.empty((0, 2))
+            out_p = pre_p = ffi.NULL
+        u = int(self._lib_.cref_run_gnss(
+            self._core, self._hist, fb("double[]", inc), fb("double[]", t_end), fb("double[]", dt), k0,
+            fb("int64_t[]", end), fb("int64_t[]", ab), ng, fb("double[]", fix), self._vel_delay, int(self._use_vel),
+            out_p, pre_p, fb("double[]", gate), q, vmax * vmax, h0, h1, groups, why,
+        ))  # fmt: skip
+        g = int(groups[0])
+        a0 = int(ab[0]) if ng else 0
+        # the fixes before the last were plain acceptances: they set the ratios only (the last fix as fuse leaves it)
+        use_vel = has_vel & self._use_vel
+        at: list[tuple[int, dict[str, float]]] = [(0, self._ratios)]
+
+        def ratios_after(j: int, base: dict[str, float]) -> dict[str, float]:
+            """The ratios after fix a0 + j of a run of plain acceptances from ``base`` (the ratios before it)."""
+            r = dict(base)
+            ip = np.flatnonzero(pos[a0 : a0 + j + 1])
+            iv = np.flatnonzero(use_vel[a0 : a0 + j + 1])
+            if len(ip):
+                r["gnss_pos"] = float(gate[ip[-1], 0])
+            if len(iv):
+                r["gnss_vel"] = float(gate[iv[-1], 4])
+            return r
+
+        if records:  # each group's states carry the ratios in force when it ran: those after the fix before it
+            base = self._ratios
+            for gi in range(1, g):
+                done = int(ab[gi]) - a0
+                if 0 < done <= u:
+                    at.append((int(end[gi - 1]) - k0, ratios_after(done - 1, base)))
+        if u:
+            if u > 1:
+                self._ratios = ratios_after(u - 2, self._ratios)
+            i = a0 + u - 1
+            split = bool(has_vel[i]) and self._vel_delay > 0.0
+            t_vel = fixes[i].t - self._vel_delay if split else fixes[i].t
+            self._gnss_gates(fixes[i], gate[u - 1].tolist(), bool(pos[i]), split, t_vel)
+        rows = out[: (int(end[g - 1]) - k0) if g else 0] if records else out
+        self.run_out = rows
+        self.run_gap_rows = []
+        aligned = (pre[:u, 1] < self._aligned_std).tolist()
+        states = RunStates(rows, self.cfg.alignment.aligned_yaw_std, at[-1][1], ratios_from=at)
+        return AidRun(states, g, u, int(why[0]), pre[:u, 0].tolist(), aligned)
 
     def covariance(self) -> Vec:
         """The EKF covariance P (15 × 15, order δr NED, δv NED, ψ NED, δb_g, δb_a; 21 × 21 with the scale factors
@@ -1219,12 +1319,13 @@ def _record(st: NavState) -> Vec:
 
 
 @dataclasses.dataclass
-class BaroRun:
-    """What :meth:`CNavCore.run_baro` ran: the IMU states of its groups (``states``: those of the first ``groups``
-    groups), the baro updates run (``updates``, from the first), why it stopped (``why``: 0 all ran, 1 a state of
-    the last group's run failed the core guard, its updates not run, 2 the last update's gate was not a plain
-    acceptance, 3 the state after the last update failed the core guard) and per update the time (s) of the state
-    it was fused into (``t_pre``) and whether that state was aligned (``aligned``: ``NavState.aligned``)."""
+class AidRun:
+    """What :meth:`CNavCore.run_baro` or :meth:`CNavCore.run_gnss` ran: the IMU states of its groups (``states``:
+    those of the first ``groups`` groups), the updates run (``updates``, from the first), why it stopped (``why``: 0
+    all ran, 1 a state of the last group's run failed the core guard, its updates not run, 2 the last update's gate
+    was not a plain acceptance, 3 the state after the last update failed the core guard) and per update the time (s)
+    of the state it was fused into (``t_pre``) and whether that state was aligned (``aligned``:
+    ``NavState.aligned``)."""
 
     states: RunStates
     groups: int

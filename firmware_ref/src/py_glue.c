@@ -410,3 +410,63 @@ size_t cref_run_baro(ins_core_t *c, ins_hist_t *hs, const double *inc, const dou
     *groups = ng;
     return u;
 }
+/* An offline replay's IMU runs and GNSS fixes alternately, in one call (CNavCore.run_gnss; as cref_run_baro). Group
+ * g < ng: the IMU samples [end[g - 1], end[g]) (end[-1] = k0) stepped as cref_run with pub != 0 (c->pub must be set),
+ * their records written to out (32 values each, from out[0] for sample k0), then the fixes [ab[g], ab[g + 1]) of fix
+ * (10 values each: t, lat (NaN: no position), lon, h, vn, ve, vd (NaN: no velocity), std_ne, std_d, std_vel) through
+ * the roll-back history hs as CNavCore.fuse does: with vel_delay > 0 and a velocity, cref_gfuse_gnss_split, else
+ * cref_gfuse_gnss; each fix's gates into gate (8 per fix: o[0..3] the position's, o[4..7] the velocity's) and, before
+ * it, the time and the yaw sigma of the state it is fused into into pre (2 per fix). The call stops after the first
+ * group whose run gives a record that fails the guard (its fixes not run: *why = 1), or after the first fix whose
+ * position gate (a position given) or velocity gate (a velocity given and check_vel) is not a plain acceptance
+ * (rejected, or accepted after rejections: *why = 2) or whose state then fails the guard (*why = 3); else *why = 0.
+ * out == NULL: no records, no pre and no guard (the runs as cref_run without output; *why 0 or 2). Returns the fixes
+ * run; *groups: the groups whose run ran. */
+size_t cref_run_gnss(ins_core_t *c, ins_hist_t *hs, const double *inc, const double *t_end, const double *dts,
+                     size_t k0, const int64_t *end, const int64_t *ab, size_t ng, const double *fix, double vel_delay,
+                     int check_vel, double *out, double *pre, double *gate, double qtol, double vmax2, double hmin,
+                     double hmax, size_t *groups, int *why) {
+    size_t g, k = k0, u = 0, a0;
+    double rec[32];
+    *why = 0;
+    for (g = 0; g < ng; ++g) {
+        size_t k1 = (size_t)end[g], a1 = (size_t)ab[g + 1];
+        if (out == NULL) {
+            cref_run(c, hs, inc + 6 * k, t_end + k, dts + k, k1 - k, NULL, 0, 0);
+        } else {
+            cref_run(c, hs, inc + 6 * k, t_end + k, dts + k, k1 - k, out + 32 * (k - k0), 32, 1);
+            if (cref_guard(out + 32 * (k - k0), k1 - k, 32, qtol, vmax2, hmin, hmax) != k1 - k) {
+                *groups = g + 1;
+                *why = 1;
+                return u;
+            }
+        }
+        k = k1;
+        for (a0 = (size_t)ab[g]; a0 < a1; ++a0, ++u) {
+            const double *f = fix + 10 * a0;
+            double *o = gate + 8 * u;
+            const int has_pos = f[1] == f[1], has_vel = f[4] == f[4];
+            if (out != NULL) {
+                put(c, rec, 32);
+                pre[2 * u] = rec[0];
+                pre[2 * u + 1] = rec[25];
+            }
+            if (has_vel && vel_delay > 0.0)
+                cref_gfuse_gnss_split(c, hs, f[0], vel_delay, f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], o);
+            else
+                cref_gfuse_gnss(c, hs, f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], o);
+            if ((has_pos && (o[1] != 0.0 || o[2] != 0.0)) || (has_vel && check_vel && (o[5] != 0.0 || o[6] != 0.0)))
+                *why = 2;
+            if (out != NULL) {
+                put(c, rec, 32);
+                if (cref_guard(rec, 1, 32, qtol, vmax2, hmin, hmax) != 1) *why = 3;
+            }
+            if (*why) {
+                *groups = g + 1;
+                return u + 1;
+            }
+        }
+    }
+    *groups = ng;
+    return u;
+}
