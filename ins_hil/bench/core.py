@@ -365,7 +365,9 @@ def report(
     if isinstance(cg, dict):
         lines += [
             "Instructions per call (valgrind --tool=callgrind, `firmware_ref/build/double/ins_ref_bench 2000 200`,"
-            " -O3, double):",
+            " -O3, double; on an x86-64 host with AVX2 the covariance products and the scalar update run their AVX2"
+            " copies, chosen at load time (`INS_HOT`, firmware_ref/src/ins_internal.h): the counts depend on the"
+            " host's CPU, the numbers do not):",
             "",
             "| function | instructions per call |",
             "|---|---:|",
