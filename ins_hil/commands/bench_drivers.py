@@ -9,6 +9,7 @@ import os
 from pathlib import Path
 
 from ins_hil.bench import drivers as bench
+from ins_hil.commands._outputs import out_file
 from ins_hil.machine import summary
 
 NAME = "bench-drivers"
@@ -35,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.samples < 100:
         raise SystemExit("ins-hil bench-drivers: --samples must be ≥ 100")
+    out_file(args.out, "--out")
     machine = summary() + "."
     _say("decode cost ...")
     costs = bench.decode_costs(args.samples)

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from ins_hil.bench import fdi
+from ins_hil.commands._outputs import out_file
 from ins_hil.fdi.geometry import CONFIGS
 
 NAME = "bench-fdi"
@@ -60,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("ins-hil bench-fdi: --aiding-trials must be ≥ 1")
     if args.aiding_live_trials < 0:
         raise SystemExit("ins-hil bench-fdi: --aiding-live-trials must be ≥ 0")
+    out_file(args.out, "--out")
     cfg = fdi.FdiBench(
         rate=args.rate,
         trials=args.trials,

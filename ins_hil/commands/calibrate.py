@@ -23,6 +23,7 @@ from ins_hil.calibration.bench import bench, simulate_log
 from ins_hil.calibration.files import load_calibration, save_calibration
 from ins_hil.calibration.fit import allan_log, fit_mag_log, fit_triad_log
 from ins_hil.calibration.logs import read_log, read_plan
+from ins_hil.commands._outputs import out_dir, out_file
 from ins_hil.nav import calibration as cal
 from ins_hil.types import Vec
 
@@ -138,11 +139,17 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     if args.kind == "bench":
+        out_file(args.docs, "--docs")
         return bench(args.docs, args.seed)
     if args.log is None:
         raise cal.CalibrationError(f"calibrate {args.kind}: the log file argument is missing")
     if args.output.suffix not in (".toml", ".json"):
         raise cal.CalibrationError(f"--output {args.output}: must end in .toml or .json")
+    out_file(args.output, "--output")  # every file this writes: refused before the work
+    rep = args.report if args.report is not None else args.output.with_name(args.output.stem + "_report")
+    out_dir(rep, "--report")
+    if args.simulate:
+        out_file(args.log, "LOG (--simulate)")
     if args.simulate:
         print(f"writing a simulated {args.kind} log to {args.log} ...", flush=True)
         print("  " + simulate_log(args.kind, args.log, args.seed))
@@ -155,7 +162,6 @@ def _run(args: argparse.Namespace) -> int:
     log = read_log(args.log, args.imu_id)
     if args.output.exists():
         load_calibration(args.output)  # refuse early (before the work) if the file to update is broken
-    rep = args.report if args.report is not None else args.output.with_name(args.output.stem + "_report")
     rep.mkdir(parents=True, exist_ok=True)
     lines: list[str] = [
         f"# ins-hil calibrate {args.kind}",

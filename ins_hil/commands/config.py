@@ -29,6 +29,10 @@ def run(args: argparse.Namespace) -> int:
     if args.check is None and args.docs is None:
         print("ins-hil config: give --check FILE or --docs", file=sys.stderr)
         return 2
+    if args.docs:
+        from ins_hil.commands._outputs import out_file
+
+        out_file(args.docs, "--docs")
     status = 0
     for path in args.check or ():
         try:

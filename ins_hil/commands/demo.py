@@ -44,9 +44,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_platform_ins(args: argparse.Namespace) -> int:
     """Seed 004 end to end (DIGEST_001_004 §4): test bed, corrections, plots, printed summary."""
+    from ins_hil.commands._outputs import out_dir
     from ins_hil.platform_ins import testbed as tb
     from ins_hil.reproduce.plots import platform_ins_figures
 
+    out_dir(args.out, "--out")
     cfg = tb.TestbedConfig(seed=args.seed, manoeuvres=not args.constant_velocity)
     if args.duration is not None:
         if args.duration < 4 * cfg.T + cfg.settle:

@@ -297,6 +297,12 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and args.state is None:
         print("ins-hil fuzz: --resume needs --state FILE", file=sys.stderr)
         return 2
+    from ins_hil.commands._outputs import out_file
+
+    if args.state is not None:  # written after every chunk and at the end: refused before the campaign
+        out_file(args.state, "--state")
+    if not args.no_doc:
+        out_file(args.doc, "--doc")
     results: dict[str, TargetResult] = {}
     chunks: dict[str, int] = {}
     if args.resume and args.state.exists():

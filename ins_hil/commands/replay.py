@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ins_hil.commands._outputs import out_dir, out_file
 from ins_hil.datasets.config import DatasetConfigError
 from ins_hil.datasets.config import load as load_dataset_config
 from ins_hil.datasets.dataset import DatasetError
@@ -265,6 +266,11 @@ def _batch(args: argparse.Namespace) -> int:
     except (DatasetError, DatasetConfigError) as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
+    subs = ["serial"] * args.compare_serial + ["dask_defaults"] * args.compare_dask_defaults
+    for folder in [j.out for j in js] + [str(args.out / s) for s in subs]:  # each job's folder: before any job runs
+        out_dir(folder, "--out")
+    for name in ("batch.md", "batch.json"):
+        out_file(args.out / name, "--out")
     parallel = args.scheduler is not None or args.workers > 0
     if args.compare_serial and not parallel:
         print("ins-hil replay: --compare-serial needs --workers > 0 or --scheduler", file=sys.stderr)
@@ -397,6 +403,7 @@ def run(args: argparse.Namespace) -> int:
         args.batch = [str(args.dataset) if args.dataset is not None and src == "drive" else src]
         if args.dataset is not None and src == "drive":
             args.dataset = None
+    _check_outputs(src, args)
     if args.batch:
         return _batch(args)
     core = getattr(args, "core", "python")
@@ -476,6 +483,17 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "metrics.json").write_text(json.dumps(out, indent=2, default=float))
     print(f"metrics: {args.out / 'metrics.json'}")
     return 0
+
+
+def _check_outputs(src: str, args: argparse.Namespace) -> None:
+    """Refuse, before any work, an ``--out`` folder or ``--export`` file this run would write and cannot
+    (:mod:`ins_hil.commands._outputs`, one line). A gateway-log replay (``*.ihlog`` without ``--dataset``), an
+    estimate and ``--docs`` write no ``--out``."""
+    if args.export is not None:
+        out_file(args.export, "--export")
+    if args.batch or not (args.docs or args.estimate_offset or args.estimate_mounting
+                          or (src.endswith(".ihlog") and args.dataset is None)):  # fmt: skip
+        out_dir(args.out, "--out")
 
 
 def _is_dataset(src: str, args: argparse.Namespace) -> bool:

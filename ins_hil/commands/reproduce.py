@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import time
 from pathlib import Path
 
+from ins_hil.commands._outputs import out_file
 from ins_hil.machine import summary
 from ins_hil.reproduce import Row, groups, notes
 
@@ -102,19 +102,6 @@ def _result(r: Row) -> str:
     return "pass" if r.passed else "**FAIL**"
 
 
-def _writable(out: Path) -> str | None:
-    """Why ``out`` cannot be written (its folder is created), or None: checked before the work, not after it."""
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        return str(e)
-    if out.is_dir():
-        return "it is a directory"
-    if not os.access(out.parent, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
-        return "permission denied"
-    return None
-
-
 def _run_mutations(quiet: bool) -> int:
     from ins_hil.reproduce import mutations
 
@@ -131,10 +118,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "mutations", False):
         return _run_mutations(args.quiet)
     t0 = time.perf_counter()
-    why = _writable(args.output)
-    if why is not None:
-        print(f"ins-hil reproduce: cannot write {args.output}: {why}", file=sys.stderr)
-        return 2
+    out_file(args.output, "--output")  # before the work, not after it (one line, exit status 2)
     sections: list[tuple[str, list[Row]]] = []
     for title, fn in groups():
         t1 = time.perf_counter()

@@ -258,6 +258,12 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         print("ins-hil run: --duration must be positive", file=sys.stderr)
         return 2
+    from ins_hil.commands._outputs import out_file
+
+    if args.record:  # the files written during or after the run: refused before it starts
+        out_file(args.record, "--record")
+    if args.json:
+        out_file(args.json, "--json")
     try:
         outputs = config_mod.load_outputs(path)  # only the [[outputs]]: they open first (see _start)
     except config_mod.ConfigError as e:

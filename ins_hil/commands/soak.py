@@ -154,6 +154,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"ins-hil soak: {msg}", file=sys.stderr)
         return 2
 
+    from ins_hil.commands._outputs import out_dir, out_file
+
+    if args.docs:
+        out_file(args.docs, "--docs")
     if args.rerender:
         from ins_hil.soak.suite import rerender
 
@@ -185,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
     if args.imus == 1 and args.faults.strip().lower() not in ("auto", "none"):
         return bad(f"--faults {args.faults!r}: fault detection needs --imus 2 or 3")
     faults = args.faults if args.imus > 1 else "none"
+    out_dir(args.out, "--out")
     try:
         parse_faults(faults, args.duration, args.imus)
         rates = _floats(args.sweep, "--sweep") if args.sweep else []
