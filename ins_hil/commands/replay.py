@@ -256,7 +256,7 @@ def _batch(args: argparse.Namespace) -> int:
     (``--compare-serial``: the same jobs serially first, and the speed-up)."""
     from ins_hil.evaluation import batch
 
-    seeds = max(1, args.seeds)
+    seeds = args.seeds
     try:
         pairs = batch.expand(list(args.batch), str(args.dataset) if args.dataset else None)
         variants = batch.load_variants(args.variants) if args.variants is not None else None
@@ -397,8 +397,63 @@ def _estimate(src: str, args: argparse.Namespace) -> int:
     return 0
 
 
+#: the longest simulated scenario (s): its truth is held in memory, ~0.25 MB per simulated s at 100 Hz (static,
+#: 60 s vs 200 s: 56 vs 90 MB peak RSS), ~0.5 MB/s for coning at 200 Hz; 1 h is ~1-2 GB and ~2 min of CPU
+MAX_SIM_DURATION_S = 3600.0
+
+
+def _argument_error(src: str, args: argparse.Namespace) -> str | None:
+    """Why these arguments cannot run as given (one line naming the flag), or None: values out of range and
+    options the chosen mode would ignore silently, refused before anything is loaded."""
+    batch = bool(args.batch) or args.variants is not None or bool(args.shifts)
+    estimate = args.estimate_offset or args.estimate_mounting
+    simulated = not batch and not estimate and not args.docs and (src == "sim" or _is_scenario(src))
+    if args.batch and src != "drive":
+        return f"a SOURCE ({src}) and --batch: give every log to --batch"
+    if args.seeds < 1:
+        return f"--seeds {args.seeds}: must be ≥ 1"
+    if args.workers < 0:
+        return f"--workers {args.workers}: must be ≥ 0 (0 = one after the other, in this process)"
+    if not batch:
+        given = [f for f, on in (("--seeds", args.seeds != 1), ("--workers", args.workers != 2),
+                                 ("--scheduler", args.scheduler is not None), ("--compare-serial", args.compare_serial),
+                                 ("--compare-dask-defaults", args.compare_dask_defaults)) if on]  # fmt: skip
+        if given:
+            return f"{given[0]}: only with --batch (or --variants / --shifts)"
+    elif args.export is not None:
+        return "--export: one log's trajectory, not with --batch / --variants / --shifts"
+    if args.shifts and not all(math.isfinite(x) for x in args.shifts):
+        return f"--shifts {' '.join(f'{x:g}' for x in args.shifts)}: must be finite"
+    if args.duration is not None:
+        if not simulated:
+            return "--duration: only for a simulated scenario or 'sim' (a log replays whole)"
+        if not 0.0 < args.duration <= MAX_SIM_DURATION_S:
+            return (f"--duration {args.duration:g}: must be > 0 and at most {MAX_SIM_DURATION_S:g} s (a simulated "
+                    "scenario keeps its whole truth in memory)")  # fmt: skip
+    if args.runs < 0:
+        return f"--runs {args.runs}: must be ≥ 0"
+    if args.runs and not simulated:
+        return "--runs: only for a simulated scenario or 'sim' (--batch --seeds for a log)"
+    if args.write_offset and not args.estimate_offset:
+        return "--write-offset: only with --estimate-offset"
+    if args.write_mounting and not args.estimate_mounting:
+        return "--write-mounting: only with --estimate-mounting"
+    grids = (("offset", args.offset_span, args.offset_step, args.estimate_offset),
+             ("mounting", args.mounting_span, args.mounting_step, args.estimate_mounting))  # fmt: skip
+    for flag, span, step, on in grids:
+        if on and not (math.isfinite(span) and math.isfinite(step) and step > 0 and span >= 2 * step):
+            return f"--{flag}-span {span:g} --{flag}-step {step:g}: need a step > 0 and a span ≥ 2 steps"
+    if args.dataset is not None and args.dataset.is_dir():
+        return f"--dataset {args.dataset}: a folder; give a dataset config (configs/datasets/*.toml)"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     src = str(args.source)
+    why = _argument_error(src, args)
+    if why is not None:
+        print(f"ins-hil replay: {why}", file=sys.stderr)
+        return 2
     if not args.batch and (args.variants is not None or args.shifts):  # one log's variants: a batch of one
         args.batch = [str(args.dataset) if args.dataset is not None and src == "drive" else src]
         if args.dataset is not None and src == "drive":
