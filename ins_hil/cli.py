@@ -9,7 +9,8 @@ imports no command, and ``ins-hil CMD ...`` imports only CMD's module, when argp
 
 No command prints a traceback for a bad input: a :class:`~ins_hil.config.ConfigError` or a file that
 cannot be read or decoded is one line on stderr and exit status 2; any other exception is one line
-plus "(run with --debug for the traceback)" and exit status 1. ``--debug`` (before or after the
+plus "(run with --debug for the traceback)" and exit status 1; Ctrl-C is "interrupted", exit status 130 (a
+command that keeps what it finished says so itself). ``--debug`` (before or after the
 command name) or ``INS_HIL_DEBUG=1`` shows the traceback instead.
 
 OpenBLAS runs on one thread (``OPENBLAS_NUM_THREADS=1``) unless the environment sets it.
@@ -158,7 +159,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     debug = debug or bool(getattr(args, "debug", False))
     try:
         return int(args._run(args) or 0)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C that the command did not handle itself: one line, no traceback
+        if debug:
+            raise
+        print(f"\nins-hil {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as e:
         if debug:

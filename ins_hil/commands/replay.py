@@ -307,15 +307,22 @@ def _batch(args: argparse.Namespace) -> int:
     # the logs' replay times of the last run into this folder (its batch.json): the order of the jobs
     known = _last_costs(args.out / "batch.json")
     serial: dict[str, Any] | None = None
-    if args.compare_serial:
-        serial = reference_run("serially first (--compare-serial)", "serial", 0, None)
-        batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
-        known = batch.measured(serial["rows"])  # the same jobs' times, just measured
     defaults: dict[str, Any] | None = None
-    if args.compare_dask_defaults:
-        defaults = reference_run("on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)",
-                                 "dask_defaults", args.workers, {})  # fmt: skip
-    rows, wall = batch.run_batch(js, args.workers, args.scheduler, done, known=known)
+    phase = ""
+    try:
+        if args.compare_serial:
+            phase = " (the serial run of --compare-serial)"
+            serial = reference_run("serially first (--compare-serial)", "serial", 0, None)
+            batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
+            known = batch.measured(serial["rows"])  # the same jobs' times, just measured
+        if args.compare_dask_defaults:
+            phase = " (the Dask-defaults run of --compare-dask-defaults)"
+            defaults = reference_run("on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)",
+                                     "dask_defaults", args.workers, {})  # fmt: skip
+        phase = ""
+        rows, wall = batch.run_batch(js, args.workers, args.scheduler, done, known=known)
+    except batch.BatchInterrupted as e:
+        return _batch_interrupted(args, e, where + phase)
     args.out.mkdir(parents=True, exist_ok=True)
     text = batch.table(rows)
     failed = sum("error" in r for r in rows)
@@ -355,6 +362,31 @@ def _batch(args: argparse.Namespace) -> int:
     print(f"summary: {args.out / 'batch.md'}")
     differ = any(summary.get(k, {}).get("differences") for k in ("compare_serial", "compare_dask_defaults"))
     return 1 if failed or differ else 0
+
+
+def _batch_interrupted(args: argparse.Namespace, e: Any, where: str) -> int:
+    """Ctrl-C during a batch: the jobs that finished (``e``: ``batch.BatchInterrupted``) kept as its summary
+    (``batch.md``, ``batch.json`` with ``"interrupted": true``; each job's report stays in its folder), their
+    table printed, one line on stderr; exit status 130."""
+    from ins_hil.evaluation import batch
+
+    rows = e.rows
+    head = f"Interrupted (Ctrl-C) after {e.wall_s:.1f} s ({where}): {len(rows)} of {e.total} replays finished."
+    text = batch.table(rows) if rows else "(no replay finished)"
+    summary = {"rows": rows, "wall_s": e.wall_s, "where": where, "interrupted": True, "jobs": e.total}
+    try:
+        if not rows:  # an earlier summary in --out (the jobs' measured costs) is not replaced by an empty one
+            raise OSError("no replay finished")
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "batch.md").write_text("# Batch replay\n\n" + head + "\n\n" + text + "\n")
+        (args.out / "batch.json").write_text(json.dumps(summary, indent=2, default=str))
+        kept = f"kept in {args.out / 'batch.md'}"
+    except OSError as err:
+        kept = f"no summary written ({err})"
+    if rows:
+        print(text)
+    print(f"ins-hil replay: interrupted: {len(rows)} of {e.total} replays finished, {kept}", file=sys.stderr)
+    return 130
 
 
 def _estimate(src: str, args: argparse.Namespace) -> int:
