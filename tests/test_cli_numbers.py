@@ -1,0 +1,47 @@
+"""Numbers out of range (negative, zero, NaN, infinite, absurd) are one line naming the flag, exit status 2,
+before any work: not a ValueError from deep inside, a MemoryError after a long allocation, or a silent run."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from ins_hil.cli import main
+
+
+def _started(calls: list[str], name: str) -> Any:
+    def work(*a: Any, **k: Any) -> Any:
+        calls.append(name)
+        raise AssertionError(f"the work started: {name}")
+
+    return work
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["--duration", "nan"], "--duration nan: must be a finite number of seconds"),
+        (["--duration", "1e9"], "--duration 1e+09 x --rate 200 = 2e+11 IMU samples: at most 720,000"),
+        (["--duration", "1", "--rate", "1e7"], "IMU samples: at most 720,000"),
+        (["--duration", "1", "--rate", "inf"], "--rate inf: must be a positive number of Hz"),
+        (["--duration", "1", "--rate", "0.5"], "fewer than 2 IMU samples"),
+        (["--duration", "-1"], "--duration and --rate must be positive"),
+        (["--lat", "200"], "--lat 200: must be within ±90°"),
+        (["--lon", "nan"], "--lon nan: must be within ±180°"),
+        (["platform-ins", "--duration", "nan"], "--duration nan: must be a finite number of seconds"),
+        (["platform-ins", "--duration", "1e12"], "--duration 1e+12: at most 86400 s"),
+    ],
+)
+def test_demo_refuses_bad_numbers(
+    argv: list[str], says: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from ins_hil.commands import demo
+    from ins_hil.platform_ins import testbed
+
+    calls: list[str] = []
+    monkeypatch.setattr(demo, "generate", _started(calls, "generate"))
+    monkeypatch.setattr(testbed, "simulate", _started(calls, "simulate"))
+    rc = main(["demo", *argv])
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert rc == 2 and calls == [] and len(err) == 1 and err[0].startswith("ins-hil demo: ") and says in err[0], err
