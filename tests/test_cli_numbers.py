@@ -45,3 +45,18 @@ def test_demo_refuses_bad_numbers(
     rc = main(["demo", *argv])
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert rc == 2 and calls == [] and len(err) == 1 and err[0].startswith("ins-hil demo: ") and says in err[0], err
+
+
+@pytest.mark.parametrize("duration", ["nan", "inf", "0", "-3"])
+def test_run_refuses_a_duration_that_is_not_a_positive_number(
+    duration: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--duration nan`` ran the gateway for 0 s and exited 0; ``inf`` ran for ever."""
+    from ins_hil import config
+
+    calls: list[str] = []
+    monkeypatch.setattr(config, "load_outputs", _started(calls, "load_outputs"))
+    rc = main(["run", "--duration", duration, "--no-status"])
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert rc == 2 and calls == [] and len(err) == 1, err
+    assert err[0].startswith(f"ins-hil run: --duration {float(duration):g}: must be a positive number of seconds")

@@ -255,8 +255,9 @@ def run(args: argparse.Namespace) -> int:
     from ins_hil import config as config_mod
 
     path = args.config or config_mod.default_path()
-    if args.duration is not None and args.duration <= 0:
-        print("ins-hil run: --duration must be positive", file=sys.stderr)
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        print(f"ins-hil run: --duration {args.duration:g}: must be a positive number of seconds (leave it out to run "
+              "until Ctrl-C)", file=sys.stderr)  # fmt: skip
         return 2
     from ins_hil.commands._outputs import out_file
 
