@@ -60,3 +60,27 @@ def test_run_refuses_a_duration_that_is_not_a_positive_number(
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert rc == 2 and calls == [] and len(err) == 1, err
     assert err[0].startswith(f"ins-hil run: --duration {float(duration):g}: must be a positive number of seconds")
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (
+            ["--budget", "1"],
+            "--budget 1: too short, no target would run (a share of 0.5 s or less is skipped): at least",
+        ),
+        (["--budget", "0.4", "--targets", "dbc"], "--budget 0.4: too short, no target would run"),
+        (["--budget", "100", "--memory-mib", "-5"], "--memory-mib -5: must be ≥ 0 (0: no cap)"),
+    ],
+)
+def test_fuzz_refuses_a_budget_that_runs_nothing(
+    argv: list[str], says: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--budget 1`` ran none of the 16 targets (each share under 0.5 s is skipped) and exited 0."""
+    from ins_hil.commands import fuzz
+
+    calls: list[str] = []
+    monkeypatch.setattr(fuzz, "run_target", _started(calls, "run_target"))
+    rc = main(["fuzz", *argv, "--no-doc"])
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert rc == 2 and calls == [] and len(err) == 1 and err[0].startswith("ins-hil fuzz: ") and says in err[0], err

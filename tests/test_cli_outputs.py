@@ -111,9 +111,9 @@ def test_batch_with_a_job_folder_taken_by_a_file_is_refused_before_any_replay(
             ("ins_hil.commands.calibrate", "read_log"),
         ),
         (["calibrate", "bench", "--docs", "TMP"], "--docs", ("ins_hil.commands.calibrate", "bench")),
-        (["fuzz", "--budget", "1", "--doc", "TMP"], "--doc", ("ins_hil.commands.fuzz", "run_target")),
+        (["fuzz", "--budget", "100", "--doc", "TMP"], "--doc", ("ins_hil.commands.fuzz", "run_target")),
         (
-            ["fuzz", "--budget", "1", "--no-doc", "--state", "BLOCK/s.json"],
+            ["fuzz", "--budget", "100", "--no-doc", "--state", "BLOCK/s.json"],
             "--state",
             ("ins_hil.commands.fuzz", "run_target"),
         ),

@@ -285,6 +285,20 @@ def run(args: argparse.Namespace) -> int:
     if not args.budget > 0 or not math.isfinite(args.budget):
         print(f"ins-hil fuzz: --budget {args.budget}: must be > 0 s", file=sys.stderr)
         return 2
+    by_count = args.inputs is not None or args.to_goal
+    total_w = sum(t.weight for t in targets)
+    short = [] if by_count else [t.name for t in targets if args.budget * t.weight / total_w <= 0.5]
+    if short:  # a target's share of 0.5 s or less is skipped
+        need = int(0.5 * total_w / min(t.weight for t in targets)) + 1
+        if len(short) == len(targets):
+            print(f"ins-hil fuzz: --budget {args.budget:g}: too short, no target would run (a share of 0.5 s or less "
+                  f"is skipped): at least {need} s, or fewer --targets", file=sys.stderr)  # fmt: skip
+            return 2
+        print(f"[fuzz] --budget {args.budget:g}: {', '.join(short)} skipped (a share of 0.5 s or less; every target "
+              f"runs from {need} s)", file=sys.stderr)  # fmt: skip
+    if args.memory_mib < 0:
+        print(f"ins-hil fuzz: --memory-mib {args.memory_mib}: must be ≥ 0 (0: no cap)", file=sys.stderr)
+        return 2
     if args.inputs is not None and args.inputs <= 0:
         print(f"ins-hil fuzz: --inputs {args.inputs}: must be > 0", file=sys.stderr)
         return 2
@@ -317,8 +331,6 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
     old_cap = _cap_memory(args.memory_mib)
     old_term = signal.signal(signal.SIGTERM, _on_term)
-    by_count = args.inputs is not None or args.to_goal
-    total_w = sum(t.weight for t in targets)
     interrupted = env_failed = False
     faults = 0
     t0 = time.perf_counter()
