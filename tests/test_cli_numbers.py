@@ -84,3 +84,26 @@ def test_fuzz_refuses_a_budget_that_runs_nothing(
     rc = main(["fuzz", *argv, "--no-doc"])
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert rc == 2 and calls == [] and len(err) == 1 and err[0].startswith("ins-hil fuzz: ") and says in err[0], err
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["--duration", "nan"], "--duration nan: must be a finite number"),
+        (["--duration", "1", "--rate", "inf"], "--rate inf: must be a finite number"),
+        (["--duration", "1", "--baseline", "nan"], "--baseline nan: must be a finite number"),
+        (["--duration", "1", "--gcs-rate", "0"], "--gcs-rate and --sweep-duration must be positive"),
+        (["--duration", "1", "--sweep", "500,nan"], "--sweep: rates must be positive, got '500,nan'"),
+    ],
+)
+def test_soak_refuses_bad_numbers(
+    argv: list[str], says: str, tmp_path: Any, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--duration nan`` started the sensor simulator, which died on it (a traceback, exit 3)."""
+    from ins_hil.soak import suite
+
+    calls: list[str] = []
+    monkeypatch.setattr(suite, "campaign", _started(calls, "campaign"))
+    rc = main(["soak", *argv, "--no-rt", "--out", str(tmp_path / "soak")])
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert rc == 2 and calls == [] and len(err) == 1 and err[0].startswith("ins-hil soak: ") and says in err[0], err
