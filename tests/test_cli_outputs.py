@@ -101,12 +101,12 @@ def test_batch_with_a_job_folder_taken_by_a_file_is_refused_before_any_replay(
             ("ins_hil.commands.reproduce", "groups"),
         ),
         (
-            ["calibrate", "gyro", "LOG", "--output", "BLOCK/c.toml"],
+            ["calibrate", "gyro", "LOGCSV", "--output", "BLOCK/c.toml"],
             "--output",
             ("ins_hil.commands.calibrate", "read_log"),
         ),
         (
-            ["calibrate", "gyro", "LOG", "--output", "TMP/c.toml", "--report", "BLOCK"],
+            ["calibrate", "gyro", "LOGCSV", "--output", "TMP/c.toml", "--report", "BLOCK"],
             "--report",
             ("ins_hil.commands.calibrate", "read_log"),
         ),
@@ -134,7 +134,8 @@ def test_an_unwritable_output_is_one_line_before_any_work(
     monkeypatch.setattr(importlib.import_module(patch[0]), patch[1], _work(calls, patch[1]))
     log = tmp_path / "log.ulg"
     log.write_bytes(b"")
-    sub = {"BLOCK": str(blocker), "TMP": str(tmp_path), "LOG": str(log)}
+    (tmp_path / "log.csv").write_text("t,dt\n")
+    sub = {"BLOCK": str(blocker), "TMP": str(tmp_path), "LOGCSV": str(tmp_path / "log.csv"), "LOG": str(log)}
     args = [next((a.replace(k, v, 1) for k, v in sub.items() if a.startswith(k)), a) for a in argv]
     rc = main(args)
     line = _one_line(capsys.readouterr().err)
