@@ -19,7 +19,7 @@ class OutputPathError(ConfigError):
 
 
 def _refused(flag: str, path: Path, why: str) -> OutputPathError:
-    return OutputPathError(f"{flag} {path}: cannot write: {why}")
+    return OutputPathError(f"{flag} {path}: cannot write: {why}" if flag else f"{path}: cannot write: {why}")
 
 
 def _ancestor(path: Path) -> Path:
