@@ -107,3 +107,34 @@ def test_soak_refuses_bad_numbers(
     rc = main(["soak", *argv, "--no-rt", "--out", str(tmp_path / "soak")])
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert rc == 2 and calls == [] and len(err) == 1 and err[0].startswith("ins-hil soak: ") and says in err[0], err
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["--rate", "nan"], "--rate, --trials and --nominal-hours must be positive"),
+        (["--trials", "0"], "--rate, --trials and --nominal-hours must be positive"),
+        (["--nominal-hours", "inf"], "--rate, --trials and --nominal-hours must be positive"),
+        (["--p-fa", "2"], "--p-fa 2: a false-alarm probability per hour in [1e-12, 1)"),
+        (["--configs", "nope"], "unknown configuration 'nope' in --configs"),
+        (["--configs", ","], "--configs ',': name at least one of"),
+        (["--aiding-trials", "0"], "--aiding-trials must be ≥ 1"),
+    ],
+)
+def test_bench_fdi_refuses_bad_numbers_before_the_first_trial(
+    argv: list[str], says: str, tmp_path: Any, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--rate nan`` and ``--p-fa 2`` failed after the book reproductions and the first trials had run."""
+    from ins_hil.bench import fdi
+
+    calls: list[str] = []
+    monkeypatch.setattr(fdi, "book_section", _started(calls, "book_section"))
+    monkeypatch.setattr(fdi, "bench_aiding", _started(calls, "bench_aiding"))
+    rc = main(["bench-fdi", *argv, "--out", str(tmp_path / "fdi.md")])
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert rc == 2 and calls == [] and len(err) == 1 and err[0].startswith(f"ins-hil bench-fdi: {says}"), err
+
+
+def test_bench_drivers_refuses_few_samples_with_status_2(tmp_path: Any, capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["bench-drivers", "--samples", "10", "--out", str(tmp_path / "d.md")])
+    assert rc == 2 and capsys.readouterr().err.strip() == "ins-hil bench-drivers: --samples must be ≥ 100"
