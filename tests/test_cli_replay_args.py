@@ -40,6 +40,9 @@ CFG = str(ROOT / "configs" / "datasets" / "px4_hover.toml")
         (["LOG", "--estimate-mounting", "--mounting-step", "nan"], "--mounting-step nan: need a step > 0"),
         (["LOG", "--estimate-offset", "--offset-span", "0.01"], "--offset-span 0.01 --offset-step 0.02"),
         (["LOG", "--dataset", "TMP"], "--dataset TMP: a folder; give a dataset config"),
+        (["LOG", "--dataset", CFG, "--config", CFG], "--config: only for 'sim'"),
+        (["sim", "--config", "TMP/none.toml"], "--config TMP/none.toml: no such file"),
+        (["sim", "--config", "TMP"], "--config TMP: a folder"),
     ],
     ids=lambda v: " ".join(v) if isinstance(v, list) else None,
 )

@@ -475,6 +475,11 @@ def _argument_error(src: str, args: argparse.Namespace) -> str | None:
     for flag, span, step, on in grids:
         if on and not (math.isfinite(span) and math.isfinite(step) and step > 0 and span >= 2 * step):
             return f"--{flag}-span {span:g} --{flag}-step {step:g}: need a step > 0 and a span ≥ 2 steps"
+    if args.config is not None:
+        if src != "sim" or batch:
+            return "--config: only for 'sim' (a gateway config's [sim] flight); a log's settings: --dataset CONFIG"
+        if not args.config.is_file():
+            return f"--config {args.config}: " + ("a folder" if args.config.is_dir() else "no such file")
     if args.dataset is not None and args.dataset.is_dir():
         return f"--dataset {args.dataset}: a folder; give a dataset config (configs/datasets/*.toml)"
     return None
