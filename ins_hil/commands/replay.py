@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ins_hil.commands._inputs import HINTS, config_kind
 from ins_hil.commands._outputs import out_dir, out_file
 from ins_hil.datasets.config import DatasetConfigError
 from ins_hil.datasets.config import load as load_dataset_config
@@ -482,6 +483,10 @@ def _argument_error(src: str, args: argparse.Namespace) -> str | None:
             return f"--config {args.config}: " + ("a folder" if args.config.is_dir() else "no such file")
     if args.dataset is not None and args.dataset.is_dir():
         return f"--dataset {args.dataset}: a folder; give a dataset config (configs/datasets/*.toml)"
+    if args.dataset is not None and config_kind(args.dataset) == "gateway":
+        return f"--dataset {args.dataset}: {HINTS['gateway']}; a dataset config has a [dataset] table"
+    if src == "sim" and args.config is not None and config_kind(args.config) == "dataset":
+        return f"--config {args.config}: {HINTS['dataset']}"
     return None
 
 
