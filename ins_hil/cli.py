@@ -9,8 +9,9 @@ imports no command, and ``ins-hil CMD ...`` imports only CMD's module, when argp
 
 No command prints a traceback for a bad input: a :class:`~ins_hil.config.ConfigError` or a file that
 cannot be read or decoded is one line on stderr and exit status 2; any other exception is one line
-plus "(run with --debug for the traceback)" and exit status 1; Ctrl-C is "interrupted", exit status 130 (a
-command that keeps what it finished says so itself). ``--debug`` (before or after the
+plus "(run with --debug for the traceback)" and exit status 1; Ctrl-C is "interrupted", exit status 130, and
+SIGTERM "terminated (SIGTERM)", 143, raised like Ctrl-C (:class:`Terminated`; a command that keeps what it
+finished says so itself). ``--debug`` (before or after the
 command name) or ``INS_HIL_DEBUG=1`` shows the traceback instead.
 
 OpenBLAS runs on one thread (``OPENBLAS_NUM_THREADS=1``) unless the environment sets it.
@@ -24,6 +25,7 @@ import importlib
 import importlib.util
 import os
 import re
+import signal
 import struct
 import sys
 from collections.abc import Sequence
@@ -157,17 +159,41 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     debug = debug or bool(getattr(args, "debug", False))
+    old_term = _term_as_interrupt()
     try:
         return int(args._run(args) or 0)
-    except KeyboardInterrupt:  # Ctrl-C that the command did not handle itself: one line, no traceback
+    except KeyboardInterrupt as e:  # Ctrl-C / SIGTERM that the command did not handle itself: one line
         if debug:
             raise
-        print(f"\nins-hil {args.command}: interrupted", file=sys.stderr)
-        return 130
+        term = isinstance(e, Terminated)
+        print(f"\nins-hil {args.command}: {'terminated (SIGTERM)' if term else 'interrupted'}", file=sys.stderr)
+        return 143 if term else 130
     except Exception as e:
         if debug:
             raise
         return report_error(f"ins-hil {args.command}", e)
+    finally:
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM during a command (``timeout``, a service manager): raised like Ctrl-C's KeyboardInterrupt, so what a
+    command keeps on Ctrl-C (a batch's finished replays, a soak's cleanup) it keeps on SIGTERM; exit status 143."""
+
+
+def _on_term(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
+def _term_as_interrupt() -> Any:
+    """SIGTERM raises :class:`Terminated` while a command runs, unless something set a handler already (a command
+    may set its own: the gateway stops cleanly, fuzz writes its report). Returns the handler to restore, or None."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
+        return None
+    return signal.signal(signal.SIGTERM, _on_term)
 
 
 def _one_line(e: BaseException) -> str:

@@ -127,3 +127,38 @@ def test_sigint_to_a_batch_on_dask_keeps_what_finished(tmp_path: Path) -> None:
     assert 1 <= done < 12
     summary = json.loads((out / "batch.json").read_text())
     assert summary["interrupted"] is True and len(summary["rows"]) == done
+
+
+def test_the_soak_sensor_process_stops_on_a_second_sigterm_without_a_traceback(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """SIGTERM to the soak's process group (``timeout``): the sensor process got it again while waiting for its
+    producer in its clean-up, and printed a ``_Stop`` traceback."""
+    from ins_hil.soak import simproc
+
+    def run(a: Any) -> None:
+        raise simproc._Stop
+
+    monkeypatch.setattr(simproc, "run", run)
+    monkeypatch.setattr(simproc, "die_with_parent", lambda: None)
+    assert simproc.main(["--gnss-udp", "127.0.0.1:1", "--out", "unused", "--duration", "1"]) == 0
+
+
+def test_sigterm_is_handled_like_ctrl_c_with_its_own_line_and_status() -> None:
+    """SIGTERM (``timeout``, a service manager) killed a command outright: no clean-up, nothing kept. (In a child
+    process: a regression must not kill the test run.)"""
+    code = (
+        "import os, signal, sys\n"
+        "from ins_hil.commands import demo\n"
+        "from ins_hil.cli import main\n"
+        "def terminated(*a, **k):\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    raise AssertionError('SIGTERM did not interrupt')\n"
+        "demo.generate = terminated\n"
+        "rc = main(['demo', '--duration', '5'])\n"
+        "assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL, 'not restored'\n"
+        "sys.exit(rc)\n"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    err = [x for x in p.stderr.splitlines() if x.strip()]
+    assert p.returncode == 143 and err == ["ins-hil demo: terminated (SIGTERM)"], (p.returncode, p.stderr)

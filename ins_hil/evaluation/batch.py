@@ -306,9 +306,10 @@ def warm_up(ignore_sigint: bool = False) -> int:
     from ins_hil.datasets import report  # noqa: F401
     from ins_hil.datasets.plots import plot_series  # noqa: F401
 
-    if ignore_sigint:
+    if ignore_sigint:  # and SIGTERM as Dask's nanny expects it (a forked worker may inherit the CLI's handler)
         try:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
         except ValueError:  # not the process's main thread: left as it is
             pass
     return os.getpid()
