@@ -162,25 +162,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 # ---------------------------------------------------------------------------------------------- helpers
 class _Progress:
-    """A minimal progress line on stderr (long runs)."""
+    """A minimal progress line on stderr (long runs): a bar redrawn every 5 % on a terminal; in a log (stderr not a
+    terminal) a line at 0, 25, 50, 75 and 100 %."""
 
     def __init__(self, label: str, quiet: bool) -> None:
         self.label = label
         self.quiet = quiet
         self.t0 = time.perf_counter()
         self.last = -1
+        self.tty = sys.stderr.isatty()
 
     def __call__(self, k: int, n: int) -> None:
         if self.quiet:
             return
         pct = int(100 * k / max(n, 1))
-        if pct // 5 != self.last // 5 or k == n:
+        step = 5 if self.tty else 25
+        if pct // step != self.last // step or (k == n and self.last != 100):
             self.last = pct
             bar = "#" * (pct // 5) + "." * (20 - pct // 5)
             el = time.perf_counter() - self.t0
-            sys.stderr.write(f"\r{self.label:<28} [{bar}] {pct:3d}% {el:6.1f} s")
-            if k == n:
-                sys.stderr.write("\n")
+            line = f"{self.label:<28} [{bar}] {pct:3d}% {el:6.1f} s"
+            sys.stderr.write(f"\r{line}" + ("\n" if k == n else "") if self.tty else line + "\n")
             sys.stderr.flush()
 
 
