@@ -25,8 +25,12 @@ DESCRIPTION = (
 )
 
 
+#: the report's default path
+DEFAULT_OUTPUT = Path("docs/reproduction.md")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--output", "-o", type=Path, default=Path("docs/reproduction.md"), help="report path")
+    p.add_argument("--output", "-o", type=Path, default=DEFAULT_OUTPUT, help="report path")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     p.add_argument("--no-plots", action="store_true", help="do not write the PNG figures beside the report")
     p.add_argument(
@@ -116,6 +120,9 @@ def _run_mutations(quiet: bool) -> int:
 
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "mutations", False):
+        if args.output != DEFAULT_OUTPUT or args.no_plots:
+            print("ins-hil reproduce: --mutations writes no report: no --output / --no-plots", file=sys.stderr)
+            return 2
         return _run_mutations(args.quiet)
     t0 = time.perf_counter()
     out_file(args.output, "--output")  # before the work, not after it (one line, exit status 2)
