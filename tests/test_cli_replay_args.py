@@ -76,3 +76,22 @@ def test_a_bad_replay_argument_is_one_line_before_any_work(
     want = says.replace("LOG", str(log)).replace("TMP", str(tmp_path))
     assert lines[0].startswith("ins-hil replay: ") and want in lines[0], lines[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_a_batch_with_a_missing_log_is_refused_before_any_replay(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A log that does not exist (a typo in a config's dataset.path) failed its jobs one by one in the batch."""
+    from ins_hil.evaluation import batch
+
+    text = Path(CFG).read_text()
+    bad = tmp_path / "typo.toml"
+    bad.write_text(text.replace("hover.ulg", "hovr.ulg"))
+    calls: list[str] = []
+    monkeypatch.setattr(batch, "run_job", lambda job: calls.append(job.name) or {"job": job.name})
+    rc = main(["replay", "--batch", CFG, str(bad), "--seeds", "2", "--workers", "0", "--quiet", "--no-plots",
+               "--out", str(tmp_path / "out")])  # fmt: skip
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert rc == 2 and calls == [] and len(err) == 1, err
+    assert err[0].startswith("ins-hil replay: batch: ") and "hovr.ulg: no such file or folder" in err[0], err
+    assert f"(dataset.path of {bad})" in err[0]

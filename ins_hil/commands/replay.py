@@ -269,6 +269,11 @@ def _batch(args: argparse.Namespace) -> int:
     except (DatasetError, DatasetConfigError) as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
+    missing = batch.missing_logs(js)
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        print(f"ins-hil replay: batch: {missing[0]}{more}", file=sys.stderr)
+        return 2
     subs = ["serial"] * args.compare_serial + ["dask_defaults"] * args.compare_dask_defaults
     for folder in [j.out for j in js] + [str(args.out / s) for s in subs]:  # each job's folder: before any job runs
         out_dir(folder, "--out")

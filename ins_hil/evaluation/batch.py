@@ -210,6 +210,23 @@ def _files(path: Path) -> list[Path]:
     return sorted(q for q in path.iterdir() if q.is_file()) if path.is_dir() else [path]
 
 
+def missing_logs(js: list[Job]) -> list[str]:
+    """One line per log of ``js`` that cannot run at all (a config without ``dataset.path``, a log that does not
+    exist), each log once: checked before a batch starts rather than failing its jobs one by one."""
+    out: list[str] = []
+    for key in dict.fromkeys((j.source, j.config) for j in js):
+        job = next(j for j in js if (j.source, j.config) == key)
+        try:
+            path = _log_path(job, _config(job))
+        except ValueError as e:  # DatasetError (no dataset.path), DatasetConfigError
+            out.append(str(e))
+            continue
+        if not path.exists():
+            where = f" (dataset.path of {job.config})" if job.source is None and job.config else ""
+            out.append(f"{path}: no such file or folder{where}")
+    return out
+
+
 def cost(job: Job) -> float:
     """The job's expected replay cost (arbitrary units, for the order only): the log's size in bytes, times
     2 when the config has an outage protocol (a second replay); 0 when the log or its config cannot be
