@@ -95,3 +95,9 @@ def test_a_batch_with_a_missing_log_is_refused_before_any_replay(
     assert rc == 2 and calls == [] and len(err) == 1, err
     assert err[0].startswith("ins-hil replay: batch: ") and "hovr.ulg: no such file or folder" in err[0], err
     assert f"(dataset.path of {bad})" in err[0]
+
+
+def test_a_bad_scheduler_address_is_one_line_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["replay", "--batch", CFG, "--scheduler", "foo", "--quiet", "--no-plots", "--out", str(tmp_path / "o")])
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert rc == 2 and err == ["ins-hil replay: --scheduler foo: cannot connect (missing port number in address 'foo')"]

@@ -331,6 +331,9 @@ def _batch(args: argparse.Namespace) -> int:
         rows, wall = batch.run_batch(js, args.workers, args.scheduler, done, known=known)
     except batch.BatchInterrupted as e:
         return _batch_interrupted(args, e, where + phase)
+    except batch.SchedulerError as e:
+        print(f"ins-hil replay: {e}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     text = batch.table(rows)
     failed = sum("error" in r for r in rows)

@@ -422,6 +422,10 @@ def local_cluster(workers: int, worker_config: dict[str, Any] | None = None) -> 
                             memory_limit=0)  # fmt: skip
 
 
+class SchedulerError(ValueError):
+    """The Dask scheduler given to :func:`run_batch` cannot be reached (a bad address, nothing listening)."""
+
+
 class BatchInterrupted(KeyboardInterrupt):
     """Ctrl-C (SIGINT) during :func:`run_batch`: ``rows`` are the jobs that finished (in job order), ``total`` how
     many jobs the batch had, ``wall_s`` the time until the interrupt. Their reports stay in their folders."""
@@ -477,7 +481,13 @@ def _run_batch(
     from dask.distributed import Client, as_completed
 
     cluster = local_cluster(workers, worker_config) if scheduler is None else None
-    client = Client(scheduler if scheduler is not None else cluster)
+    try:
+        client = Client(scheduler if scheduler is not None else cluster)
+    except (OSError, ValueError, TypeError) as e:
+        if cluster is not None:
+            cluster.close()
+            raise
+        raise SchedulerError(f"--scheduler {scheduler}: cannot connect ({' '.join(str(e).split())})") from e
     futs: dict[Any, tuple[int, str | None]] = {}
     try:
         client.run(warm_up, cluster is not None)  # the imports on every worker at once, before the first job
