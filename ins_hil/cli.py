@@ -101,6 +101,14 @@ def command_table() -> dict[str, Command]:
     return dict(sorted(out.items()))
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument error is one line, ``PROG: error: MESSAGE (PROG --help)``, exit status 2: not argparse's usage
+    block first (a dozen lines for ``replay`` or ``soak``, the error last)."""
+
+    def error(self, message: str) -> Any:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 class _LazyCommands(argparse._SubParsersAction):
     """The subcommands' action: a command's module is imported, and its arguments added to its parser,
     only when argparse reaches that command's name."""
@@ -126,14 +134,14 @@ def _load(p: argparse.ArgumentParser, module: str) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The ``ins-hil`` parser: every command listed with its help; a command's own arguments are added
     when it is parsed (its module imported then)."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="ins-hil",
         description="Hardware-in-the-loop navigation gateway: strapdown INS + EKF + FDI, "
         "IMU over serial/CAN, GNSS over MAVLink, state out over MAVLink and MQTT.",
     )
     parser.add_argument("--version", action="version", version=f"ins-hil {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error (also INS_HIL_DEBUG=1)")
-    common = argparse.ArgumentParser(add_help=False)
+    common = _Parser(add_help=False)
     common.add_argument(
         "--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback of an error"
     )
@@ -146,11 +154,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _command_parser(parser: argparse.ArgumentParser, name: str | None) -> argparse.ArgumentParser:
+    """The parser of the command ``name`` (``parser`` itself when there is none)."""
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            return a.choices.get(name or "", parser)
+    return parser
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     debug = os.environ.get("INS_HIL_DEBUG", "") not in ("", "0")
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # reported by the command's parser: its name and its --help
+            _command_parser(parser, getattr(args, "command", None)).error(f"unrecognized arguments: {' '.join(extra)}")
     except Exception as e:  # the command's module failed to import (e.g. a missing optional dependency)
         if debug or "--debug" in (sys.argv[1:] if argv is None else argv):
             raise

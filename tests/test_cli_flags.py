@@ -18,3 +18,26 @@ def test_reproduce_mutations_refuses_report_options(
     assert main(["reproduce", "--mutations", *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "ins-hil reproduce: --mutations writes no report: no --output / --no-plots"
+
+
+@pytest.mark.parametrize(
+    "argv, line",
+    [
+        (["replay", "--seeds", "abc"], "ins-hil replay: error: argument --seeds: invalid int value: 'abc'"),
+        (["soak", "--rate", "x"], "ins-hil soak: error: argument --rate: invalid float value: 'x'"),
+        (["replay", "a", "b"], "ins-hil replay: error: unrecognized arguments: b"),
+        (["replay", "--nope"], "ins-hil replay: error: unrecognized arguments: --nope"),
+        (["--nope"], "ins-hil: error: unrecognized arguments: --nope"),
+        (["nope"], "ins-hil: error: argument COMMAND: invalid choice: 'nope'"),
+    ],
+)
+def test_an_argument_error_is_one_line_naming_the_command(
+    argv: list[str], line: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """argparse printed the command's usage first: a dozen lines for replay or soak, the error last."""
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    err = capsys.readouterr().err.splitlines()
+    prog = line.split(": error")[0]
+    assert e.value.code == 2 and len(err) == 1 and err[0].startswith(line), err
+    assert err[0].endswith(f"(see {prog} --help)")
