@@ -71,6 +71,7 @@ def test_run_refuses_a_duration_that_is_not_a_positive_number(
         ),
         (["--budget", "0.4", "--targets", "dbc"], "--budget 0.4: too short, no target would run"),
         (["--budget", "100", "--memory-mib", "-5"], "--memory-mib -5: must be ≥ 0 (0: no cap)"),
+        (["--budget", "100", "--jobs", "100000"], "--jobs 100000: at most "),
     ],
 )
 def test_fuzz_refuses_a_budget_that_runs_nothing(
@@ -81,6 +82,7 @@ def test_fuzz_refuses_a_budget_that_runs_nothing(
 
     calls: list[str] = []
     monkeypatch.setattr(fuzz, "run_target", _started(calls, "run_target"))
+    monkeypatch.setattr(fuzz, "_run_jobs", _started(calls, "_run_jobs"))  # a regression must not start 100000 processes
     rc = main(["fuzz", *argv, "--no-doc"])
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert rc == 2 and calls == [] and len(err) == 1 and err[0].startswith("ins-hil fuzz: ") and says in err[0], err

@@ -20,6 +20,7 @@ CFG = str(ROOT / "configs" / "datasets" / "px4_hover.toml")
         (["--batch", CFG, "--seeds", "0"], "--seeds 0: must be ≥ 1"),
         (["--batch", CFG, "--seeds", "-3"], "--seeds -3: must be ≥ 1"),
         (["--batch", CFG, "--workers", "-1"], "--workers -1: must be ≥ 0"),
+        (["--batch", CFG, "--workers", "100000"], "--workers 100000: at most "),
         (["LOG", "--batch", CFG], "a SOURCE (LOG) and --batch: give every log to --batch"),
         (["--batch", CFG, "--export", "TMP/t.csv"], "--export: one log's trajectory, not with --batch"),
         (["LOG", "--dataset", CFG, "--seeds", "4"], "--seeds: only with --batch"),

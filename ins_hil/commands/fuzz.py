@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shlex
 import signal
 import sys
@@ -307,6 +308,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.jobs < 1:
         print(f"ins-hil fuzz: --jobs {args.jobs}: must be >= 1", file=sys.stderr)
+        return 2
+    cpus = os.cpu_count() or 1
+    if args.jobs > 4 * cpus:  # each a process under --memory-mib
+        print(f"ins-hil fuzz: --jobs {args.jobs}: at most {4 * cpus} (4 x this machine's {cpus} CPUs)", file=sys.stderr)
         return 2
     if args.resume and args.state is None:
         print("ins-hil fuzz: --resume needs --state FILE", file=sys.stderr)

@@ -457,6 +457,9 @@ def _argument_error(src: str, args: argparse.Namespace) -> str | None:
         return f"--seeds {args.seeds}: must be ≥ 1"
     if args.workers < 0:
         return f"--workers {args.workers}: must be ≥ 0 (0 = one after the other, in this process)"
+    cpus = os.cpu_count() or 1
+    if args.workers > 4 * cpus:  # each a process with the readers, the core and a parsed log (~0.2 GB)
+        return f"--workers {args.workers}: at most {4 * cpus} (4 x this machine's {cpus} CPUs)"
     if not batch:
         given = [f for f, on in (("--seeds", args.seeds != 1), ("--workers", args.workers != 2),
                                  ("--scheduler", args.scheduler is not None), ("--compare-serial", args.compare_serial),
