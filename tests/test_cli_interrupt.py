@@ -162,3 +162,18 @@ def test_sigterm_is_handled_like_ctrl_c_with_its_own_line_and_status() -> None:
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     err = [x for x in p.stderr.splitlines() if x.strip()]
     assert p.returncode == 143 and err == ["ins-hil demo: terminated (SIGTERM)"], (p.returncode, p.stderr)
+
+
+def test_ctrl_c_in_the_serial_run_of_compare_serial_says_which_run_it_kept(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    ran = _interrupt_second_job(monkeypatch)  # in this process: the serial reference run, before any cluster
+    log = tmp_path / "a.csv"
+    log.write_text("# ins-hil dataset csv 1\n")
+    out = tmp_path / "out"
+    rc = main(["replay", "--batch", str(log), "--seeds", "3", "--workers", "2", "--compare-serial", "--quiet",
+               "--out", str(out)])  # fmt: skip
+    assert rc == 130 and len(ran) == 2
+    assert f"1 of 3 replays finished, kept in {out / 'batch.md'}" in capsys.readouterr().err
+    md = (out / "batch.md").read_text()
+    assert f"(serially: --compare-serial's reference run, reports in {out / 'serial'}): 1 of 3" in md

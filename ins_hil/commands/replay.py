@@ -319,18 +319,18 @@ def _batch(args: argparse.Namespace) -> int:
     phase = ""
     try:
         if args.compare_serial:
-            phase = " (the serial run of --compare-serial)"
+            phase = f"serially: --compare-serial's reference run, reports in {args.out / 'serial'}"
             serial = reference_run("serially first (--compare-serial)", "serial", 0, None)
             batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
             known = batch.measured(serial["rows"])  # the same jobs' times, just measured
         if args.compare_dask_defaults:
-            phase = " (the Dask-defaults run of --compare-dask-defaults)"
+            phase = f"Dask's worker settings: --compare-dask-defaults' run, reports in {args.out / 'dask_defaults'}"
             defaults = reference_run("on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)",
                                      "dask_defaults", args.workers, {})  # fmt: skip
         phase = ""
         rows, wall = batch.run_batch(js, args.workers, args.scheduler, done, known=known)
     except batch.BatchInterrupted as e:
-        return _batch_interrupted(args, e, where + phase)
+        return _batch_interrupted(args, e, phase or where)
     except batch.SchedulerError as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
