@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from ins_hil.cli import main
@@ -41,3 +43,18 @@ def test_an_argument_error_is_one_line_naming_the_command(
     prog = line.split(": error")[0]
     assert e.value.code == 2 and len(err) == 1 and err[0].startswith(line), err
     assert err[0].endswith(f"(see {prog} --help)")
+
+
+def test_run_does_not_overwrite_an_earlier_recording(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``run --record FILE`` truncated FILE: a second run with the same name lost the first recording."""
+    from ins_hil import config
+
+    rec = tmp_path / "flight.ihlog"
+    rec.write_bytes(b"IHLOG2\nprecious")
+    monkeypatch.setattr(config, "load_outputs", lambda *a: pytest.fail("the gateway started"))
+    assert main(["run", "--duration", "1", "--no-status", "--record", str(rec)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"ins-hil run: --record {rec}: exists (an earlier recording?): give a new name or remove it"
+    assert rec.read_bytes() == b"IHLOG2\nprecious"

@@ -7,6 +7,7 @@ import asyncio
 import json
 import logging
 import math
+import os
 import sys
 from typing import Any
 
@@ -271,6 +272,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.record:  # the files written during or after the run: refused before it starts
         out_file(args.record, "--record")
+        if os.path.lexists(args.record):  # the recorder truncates: an earlier recording would be lost
+            print(f"ins-hil run: --record {args.record}: exists (an earlier recording?): give a new name or remove "
+                  "it", file=sys.stderr)  # fmt: skip
+            return 2
     if args.json:
         out_file(args.json, "--json")
     try:
