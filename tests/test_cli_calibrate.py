@@ -24,6 +24,7 @@ from ins_hil.cli import main
         (["accel", "TMP/log.csv", "--height", "nan"], "--height nan: must be a finite number", 2),
         (["gyro", "TMP/log.csv", "--plan", "TMP/none.csv"], "--plan TMP/none.csv: cannot read", 1),
         (["gyro", "TMP/log.csv", "-o", "TMP/bad.toml"], "TMP/bad.toml: not valid TOML", 1),
+        (["gyro", "TMP/log.csv", "--simulate"], "TMP/log.csv: exists; --simulate writes a new simulated log", 2),
     ],
 )
 def test_calibrate_refuses_before_reading_the_log(

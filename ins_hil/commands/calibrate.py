@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -137,6 +138,8 @@ def _bad_arguments(args: argparse.Namespace) -> str | None:
         return "the log file argument is missing"
     if args.output.suffix not in (".toml", ".json"):
         return f"--output {args.output}: must end in .toml or .json"
+    if args.simulate and os.path.lexists(args.log):  # a recorded log under that name would be lost
+        return f"{args.log}: exists; --simulate writes a new simulated log there: give a new name or remove it"
     if not args.simulate:
         if not args.log.exists():
             return f"{args.log}: no such file"
