@@ -3,6 +3,7 @@ path (``ins_hil.commands._outputs``): not after a long run, not once per job of 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -165,3 +166,25 @@ def test_a_folder_without_write_access_is_refused(tmp_path: Path, monkeypatch: p
         out_dir(tmp_path / "out", "--out")
     with pytest.raises(OutputPathError, match="the folder is not writable"):
         out_dir(tmp_path, "--out")
+
+
+def test_a_folder_the_file_system_refuses_is_one_line_and_leaves_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Permission bits do not tell everything (a read-only or virtual file system, root): --out /sys/foo passed
+    the check and failed after the replay, as 'the replay failed (PermissionError …)', exit 1."""
+    import errno
+
+    real_mkdir = Path.mkdir
+
+    def mkdir(self: Path, *a: Any, **k: Any) -> None:
+        if self.name == "deep":
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+        real_mkdir(self, *a, **k)
+
+    monkeypatch.setattr(Path, "mkdir", mkdir)
+    with pytest.raises(OutputPathError, match=f"--out {tmp_path}/a/deep/out: cannot write: Read-only file system"):
+        out_dir(tmp_path / "a" / "deep" / "out")
+    with pytest.raises(OutputPathError, match="cannot write: Read-only file system"):
+        out_file(tmp_path / "a" / "deep" / "r.md")
+    assert list(tmp_path.iterdir()) == []  # the folder "a" made on the way was removed again

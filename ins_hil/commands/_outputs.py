@@ -1,8 +1,9 @@
 """Up-front checks of a command's output paths (``--out DIR``, ``--output FILE``, ...): a path that cannot be
 written is refused in one line naming the flag and the path before any work starts, not after a long run.
 
-Nothing is created: a folder that does not exist yet is fine when its nearest existing ancestor is a writable
-folder (the command creates it when it writes). Raises :class:`OutputPathError`, a
+Nothing is left behind: a folder or file that does not exist yet is created and removed again (permission bits
+and ``os.access`` do not tell everything: a read-only or virtual file system, root's rights), so the command
+creates it when it writes. Raises :class:`OutputPathError`, a
 :class:`~ins_hil.settings.ConfigError`: ``ins-hil`` prints it as one line, exit status 2.
 """
 
@@ -38,9 +39,31 @@ def _check_parent(path: Path, flag: str) -> None:
         raise _refused(flag, path, f"{a} is not writable")
 
 
+def _probe(path: Path, flag: str, folder: bool) -> None:
+    """Create ``path`` (a folder, or an empty file) and the folders above it that are missing, then remove what
+    was created: _refused naming the OS's reason when that fails."""
+    made: list[Path] = []
+    try:
+        for d in reversed([path, *path.parents] if folder else list(path.parents)):
+            if not d.exists():
+                d.mkdir()
+                made.append(d)
+        if not folder:
+            os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+            made.append(path)
+    except OSError as e:
+        raise _refused(flag, path, e.strerror or str(e)) from None
+    finally:
+        for d in reversed(made):
+            try:
+                d.rmdir() if d.is_dir() else d.unlink()
+            except OSError:
+                pass
+
+
 def out_dir(path: str | os.PathLike[str], flag: str = "--out") -> Path:
     """``path`` as an output folder: it is one (writable) or can be created. OutputPathError (one line) when it is
-    a file, lies under a file, or its folder is not writable. Creates nothing; returns ``Path(path)``."""
+    a file, lies under a file, or cannot be created there. Leaves nothing behind; returns ``Path(path)``."""
     p = Path(path)
     if str(path) == "":
         raise OutputPathError(f"{flag}: an empty path")
@@ -51,12 +74,14 @@ def out_dir(path: str | os.PathLike[str], flag: str = "--out") -> Path:
             raise _refused(flag, p, "the folder is not writable")
         return p
     _check_parent(p, flag)
+    _probe(p, flag, folder=True)
     return p
 
 
 def out_file(path: str | os.PathLike[str], flag: str = "--out") -> Path:
     """``path`` as an output file: it is a writable file or can be created (its folders too). OutputPathError
-    (one line) when it is a folder, lies under a file, or cannot be written. Creates nothing; returns ``Path(path)``."""
+    (one line) when it is a folder, lies under a file, or cannot be written. Leaves nothing behind; returns
+    ``Path(path)``."""
     p = Path(path)
     if str(path) == "":
         raise OutputPathError(f"{flag}: an empty path")
@@ -67,4 +92,5 @@ def out_file(path: str | os.PathLike[str], flag: str = "--out") -> Path:
             raise _refused(flag, p, "the file is not writable")
         return p
     _check_parent(p, flag)
+    _probe(p, flag, folder=False)
     return p
