@@ -102,3 +102,15 @@ def test_a_bad_scheduler_address_is_one_line_naming_it(tmp_path: Path, capsys: p
     rc = main(["replay", "--batch", CFG, "--scheduler", "foo", "--quiet", "--no-plots", "--out", str(tmp_path / "o")])
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert rc == 2 and err == ["ins-hil replay: --scheduler foo: cannot connect (missing port number in address 'foo')"]
+
+
+def test_dataset_with_a_batch_of_dataset_configs_only_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--dataset was ignored silently when every --batch entry is a dataset config (each with its own settings)."""
+    from ins_hil.evaluation import batch
+
+    monkeypatch.setattr(batch, "run_batch", lambda *a, **k: pytest.fail("the batch started"))
+    rc = main(["replay", "--batch", CFG, "--dataset", CFG, "--quiet", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith(f"ins-hil replay: --dataset {CFG}: every --batch entry is a dataset config")

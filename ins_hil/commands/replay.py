@@ -269,6 +269,10 @@ def _batch(args: argparse.Namespace) -> int:
     except (DatasetError, DatasetConfigError) as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
+    if args.dataset is not None and pairs and all(src is None for src, _ in pairs):
+        print(f"ins-hil replay: --dataset {args.dataset}: every --batch entry is a dataset config with its own "
+              "settings (--dataset is for logs given to --batch)", file=sys.stderr)  # fmt: skip
+        return 2
     missing = batch.missing_logs(js)
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
