@@ -23,6 +23,8 @@ CFG = str(ROOT / "configs" / "datasets" / "px4_hover.toml")
         (["--batch", CFG, "--workers", "100000"], "--workers 100000: at most "),
         (["LOG", "--batch", CFG], "a SOURCE (LOG) and --batch: give every log to --batch"),
         (["--batch", CFG, "--export", "TMP/t.csv"], "--export: one log's trajectory, not with --batch"),
+        (["--batch", CFG, "--estimate-offset"], "--estimate-offset: not with --batch / --variants / --shifts"),
+        (["LOG", "--shifts", "5", "--estimate-mounting"], "--estimate-mounting: not with --batch"),
         (["LOG", "--dataset", CFG, "--seeds", "4"], "--seeds: only with --batch"),
         (["LOG", "--dataset", CFG, "--workers", "0"], "--workers: only with --batch"),
         (["LOG", "--dataset", CFG, "--compare-serial"], "--compare-serial: only with --batch"),

@@ -472,6 +472,9 @@ def _argument_error(src: str, args: argparse.Namespace) -> str | None:
             return f"{given[0]}: only with --batch (or --variants / --shifts)"
     elif args.export is not None:
         return "--export: one log's trajectory, not with --batch / --variants / --shifts"
+    elif estimate or args.docs:
+        flag = "--docs" if args.docs else "--estimate-offset" if args.estimate_offset else "--estimate-mounting"
+        return f"{flag}: not with --batch / --variants / --shifts"
     if args.shifts and not all(math.isfinite(x) for x in args.shifts):
         return f"--shifts {' '.join(f'{x:g}' for x in args.shifts)}: must be finite"
     if args.duration is not None:
