@@ -31,6 +31,7 @@ def _started(calls: list[str], name: str) -> Any:
         (["--lon", "nan"], "--lon nan: must be within ±180°"),
         (["platform-ins", "--duration", "nan"], "--duration nan: must be a finite number of seconds"),
         (["platform-ins", "--duration", "1e12"], "--duration 1e+12: at most 86400 s"),
+        (["platform-ins", "--duration", "10"], "--duration 10: platform-ins needs at least"),
     ],
 )
 def test_demo_refuses_bad_numbers(

@@ -87,7 +87,9 @@ def run_platform_ins(args: argparse.Namespace) -> int:
     cfg = tb.TestbedConfig(seed=args.seed, manoeuvres=not args.constant_velocity)
     if args.duration is not None:
         if args.duration < 4 * cfg.T + cfg.settle:
-            raise SystemExit(f"ins-hil demo platform-ins: --duration must be at least {4 * cfg.T + cfg.settle:.0f} s")
+            print(f"ins-hil demo: --duration {args.duration:g}: platform-ins needs at least "
+                  f"{4 * cfg.T + cfg.settle:.0f} s", file=sys.stderr)  # fmt: skip
+            return 2
         cfg = replace(cfg, duration=args.duration)
     t0 = time.perf_counter()
     res = tb.simulate(cfg)
@@ -112,7 +114,7 @@ def run_platform_ins(args: argparse.Namespace) -> int:
     try:
         paths = platform_ins_figures(res, args.out)
     except OSError as e:
-        print(f"ins-hil demo platform-ins: cannot write {args.out}: {e}")
+        print(f"ins-hil demo: cannot write {args.out}: {e}", file=sys.stderr)
         return 2
     print("plots: " + ", ".join(str(p) for p in paths))
     return 0
