@@ -46,6 +46,7 @@ CFG = str(ROOT / "configs" / "datasets" / "px4_hover.toml")
         (["LOG", "--dataset", CFG, "--config", CFG], "--config: only for 'sim'"),
         (["sim", "--config", "TMP/none.toml"], "--config TMP/none.toml: no such file"),
         (["sim", "--config", "TMP"], "--config TMP: a folder"),
+        (["sim", "--config", "TMP/bad.toml"], "--config TMP/bad.toml: not a readable TOML file (Invalid value"),
     ],
     ids=lambda v: " ".join(v) if isinstance(v, list) else None,
 )
@@ -70,6 +71,7 @@ def test_a_bad_replay_argument_is_one_line_before_any_work(
         monkeypatch.setattr(mod, name, work(name))
     log = tmp_path / "log.ulg"
     log.write_bytes(b"")
+    (tmp_path / "bad.toml").write_text("x = [1,\n")
     sub = {"LOG": str(log), "TMP": str(tmp_path)}
     args = [next((a.replace(k, v, 1) for k, v in sub.items() if a.startswith(k)), a) for a in argv]
     rc = main(["replay", *args, "--no-plots", "--quiet", "--out", str(tmp_path / "out")])

@@ -28,6 +28,7 @@ import math
 import os
 import sys
 import time
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -501,6 +502,10 @@ def _argument_error(src: str, args: argparse.Namespace) -> str | None:
             return "--config: only for 'sim' (a gateway config's [sim] flight); a log's settings: --dataset CONFIG"
         if not args.config.is_file():
             return f"--config {args.config}: " + ("a folder" if args.config.is_dir() else "no such file")
+        try:
+            tomllib.loads(args.config.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as e:  # (the sim flight's own message goes to stdout)
+            return f"--config {args.config}: not a readable TOML file ({' '.join(str(e).split())})"
     if args.dataset is not None and args.dataset.is_dir():
         return f"--dataset {args.dataset}: a folder; give a dataset config (configs/datasets/*.toml)"
     if args.dataset is not None and config_kind(args.dataset) == "gateway":
