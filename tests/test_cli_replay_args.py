@@ -23,6 +23,8 @@ CFG = str(ROOT / "configs" / "datasets" / "px4_hover.toml")
         (["--batch", CFG, "--workers", "100000"], "--workers 100000: at most "),
         (["LOG", "--batch", CFG], "a SOURCE (LOG) and --batch: give every log to --batch"),
         (["--batch", CFG, "--export", "TMP/t.csv"], "--export: one log's trajectory, not with --batch"),
+        (["static", "--export", "TMP/t.csv"], "--export: the trajectory of a flight log / dataset replay or of a"),
+        (["--export", "TMP/t.csv"], "--export: the trajectory of a flight log / dataset replay or of a *.ihlog only"),
         (["--batch", CFG, "--estimate-offset"], "--estimate-offset: not with --batch / --variants / --shifts"),
         (["LOG", "--shifts", "5", "--estimate-mounting"], "--estimate-mounting: not with --batch"),
         (["LOG", "--dataset", CFG, "--seeds", "4"], "--seeds: only with --batch"),
@@ -66,7 +68,7 @@ def test_a_bad_replay_argument_is_one_line_before_any_work(
 
         return started
 
-    for mod, name in ((report, "replay_to_dir"), (report, "load"), (batch, "run_batch"), (replay, "run_scenario"),
+    for mod, name in ((report, "replay_to_dir"), (report, "load"), (batch, "run_batch"), (replay, "run_scenario"), (replay, "replay_drive"),
                       (replay, "_runtime_replay"), (offset, "estimate_imu_offset")):  # fmt: skip
         monkeypatch.setattr(mod, name, work(name))
     log = tmp_path / "log.ulg"

@@ -476,6 +476,8 @@ def _argument_error(src: str, args: argparse.Namespace) -> str | None:
     elif estimate or args.docs:
         flag = "--docs" if args.docs else "--estimate-offset" if args.estimate_offset else "--estimate-mounting"
         return f"{flag}: not with --batch / --variants / --shifts"
+    if args.export is not None and (simulated or estimate or args.docs or (src == "drive" and args.dataset is None)):
+        return "--export: the trajectory of a flight log / dataset replay or of a *.ihlog only"
     if args.shifts and not all(math.isfinite(x) for x in args.shifts):
         return f"--shifts {' '.join(f'{x:g}' for x in args.shifts)}: must be finite"
     if args.duration is not None:
