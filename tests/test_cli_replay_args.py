@@ -68,8 +68,9 @@ def test_a_bad_replay_argument_is_one_line_before_any_work(
 
         return started
 
-    for mod, name in ((report, "replay_to_dir"), (report, "load"), (batch, "run_batch"), (replay, "run_scenario"), (replay, "replay_drive"),
-                      (replay, "_runtime_replay"), (offset, "estimate_imu_offset")):  # fmt: skip
+    started = ((report, "replay_to_dir"), (report, "load"), (batch, "run_batch"), (replay, "run_scenario"),
+               (replay, "replay_drive"), (replay, "_runtime_replay"), (offset, "estimate_imu_offset"))  # fmt: skip
+    for mod, name in started:
         monkeypatch.setattr(mod, name, work(name))
     log = tmp_path / "log.ulg"
     log.write_bytes(b"")
