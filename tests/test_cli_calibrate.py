@@ -50,3 +50,21 @@ def test_calibrate_refuses_before_reading_the_log(
     assert rc == status and calls == [] and len(err) == 1, err
     assert err[0].startswith(f"ins-hil calibrate {argv[0]}: {says.replace('TMP', str(tmp_path))}"), err
     assert not (tmp_path / "c.toml").exists() and not (tmp_path / "c_report").exists()
+
+
+def test_a_failed_fit_leaves_no_empty_report_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """'no calibration written', yet an empty <output>_report folder was left behind."""
+    from ins_hil.commands import calibrate
+    from ins_hil.nav.calibration import CalibrationError
+
+    def fit(*a: Any, **k: Any) -> Any:
+        raise CalibrationError("gyro: fitted scale factor 10 on y is implausible")
+
+    monkeypatch.setattr(calibrate, "read_log", lambda *a, **k: object())
+    monkeypatch.setattr(calibrate, "fit_triad_log", fit)
+    (tmp_path / "log.csv").write_text("t,dt\n")
+    rc = main(["calibrate", "gyro", str(tmp_path / "log.csv"), "-o", str(tmp_path / "c.toml")])
+    assert rc == 1 and "(no calibration written)" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.csv"]

@@ -199,6 +199,7 @@ def _run(args: argparse.Namespace) -> int:
     refs = _plan_refs(args, args.kind) if args.kind in ("accel", "gyro") else None  # --plan read before the log
     print(f"reading {args.log} ...", flush=True)
     log = read_log(args.log, args.imu_id)
+    made = not rep.exists()
     rep.mkdir(parents=True, exist_ok=True)
     lines: list[str] = [
         f"# ins-hil calibrate {args.kind}",
@@ -206,15 +207,20 @@ def _run(args: argparse.Namespace) -> int:
         f"Generated {datetime.now(UTC):%Y-%m-%d %H:%M UTC}.",
         "",
     ]
-    if args.kind in ("accel", "gyro"):
-        base = cal.ACCEL_LIMITS if args.kind == "accel" else cal.GYRO_LIMITS
-        assert refs is not None
-        new = fit_triad_log(log, args.kind, refs, _limits(args, base), rep, lines, str(args.log), args.plan)
-    elif args.kind == "mag":
-        new = fit_mag_log(log, None if args.field is None else args.field * 1e-6, rep, lines, str(args.log))
-    else:
-        sensors = ["gyro", "accel"] if args.sensor == "both" else [args.sensor]
-        new = allan_log(log, sensors, rep, lines, str(args.log))
+    try:
+        if args.kind in ("accel", "gyro"):
+            base = cal.ACCEL_LIMITS if args.kind == "accel" else cal.GYRO_LIMITS
+            assert refs is not None
+            new = fit_triad_log(log, args.kind, refs, _limits(args, base), rep, lines, str(args.log), args.plan)
+        elif args.kind == "mag":
+            new = fit_mag_log(log, None if args.field is None else args.field * 1e-6, rep, lines, str(args.log))
+        else:
+            sensors = ["gyro", "accel"] if args.sensor == "both" else [args.sensor]
+            new = allan_log(log, sensors, rep, lines, str(args.log))
+    except BaseException:  # no calibration: the report folder this run made goes too if nothing is in it
+        if made and not any(rep.iterdir()):
+            rep.rmdir()
+        raise
     new.imu_id = args.imu_id if args.imu_id is not None else log.imu_id
     new.created = f"{datetime.now(UTC):%Y-%m-%dT%H:%M:%SZ}"
     new.source = str(args.log)
