@@ -9,7 +9,9 @@ imports no command, and ``ins-hil CMD ...`` imports only CMD's module, when argp
 
 No command prints a traceback for a bad input: a :class:`~ins_hil.config.ConfigError` or a file that
 cannot be read or decoded is one line on stderr and exit status 2; any other exception is one line
-plus "(run with --debug for the traceback)" and exit status 1. ``--debug`` (before or after the
+plus "(run with --debug for the traceback)" and exit status 1; Ctrl-C is "interrupted", exit status 130, and
+SIGTERM "terminated (SIGTERM)", 143, raised like Ctrl-C (:class:`Terminated`; a command that keeps what it
+finished says so itself). ``--debug`` (before or after the
 command name) or ``INS_HIL_DEBUG=1`` shows the traceback instead.
 
 OpenBLAS runs on one thread (``OPENBLAS_NUM_THREADS=1``) unless the environment sets it.
@@ -23,6 +25,7 @@ import importlib
 import importlib.util
 import os
 import re
+import signal
 import struct
 import sys
 from collections.abc import Sequence
@@ -98,6 +101,14 @@ def command_table() -> dict[str, Command]:
     return dict(sorted(out.items()))
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument error is one line, ``PROG: error: MESSAGE (PROG --help)``, exit status 2: not argparse's usage
+    block first (a dozen lines for ``replay`` or ``soak``, the error last)."""
+
+    def error(self, message: str) -> Any:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 class _LazyCommands(argparse._SubParsersAction):
     """The subcommands' action: a command's module is imported, and its arguments added to its parser,
     only when argparse reaches that command's name."""
@@ -123,14 +134,14 @@ def _load(p: argparse.ArgumentParser, module: str) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The ``ins-hil`` parser: every command listed with its help; a command's own arguments are added
     when it is parsed (its module imported then)."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="ins-hil",
         description="Hardware-in-the-loop navigation gateway: strapdown INS + EKF + FDI, "
         "IMU over serial/CAN, GNSS over MAVLink, state out over MAVLink and MQTT.",
     )
     parser.add_argument("--version", action="version", version=f"ins-hil {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error (also INS_HIL_DEBUG=1)")
-    common = argparse.ArgumentParser(add_help=False)
+    common = _Parser(add_help=False)
     common.add_argument(
         "--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback of an error"
     )
@@ -143,11 +154,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _command_parser(parser: argparse.ArgumentParser, name: str | None) -> argparse.ArgumentParser:
+    """The parser of the command ``name`` (``parser`` itself when there is none)."""
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            return a.choices.get(name or "", parser)
+    return parser
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     debug = os.environ.get("INS_HIL_DEBUG", "") not in ("", "0")
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # reported by the command's parser: its name and its --help
+            _command_parser(parser, getattr(args, "command", None)).error(f"unrecognized arguments: {' '.join(extra)}")
     except Exception as e:  # the command's module failed to import (e.g. a missing optional dependency)
         if debug or "--debug" in (sys.argv[1:] if argv is None else argv):
             raise
@@ -156,14 +177,41 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     debug = debug or bool(getattr(args, "debug", False))
+    old_term = _term_as_interrupt()
     try:
         return int(args._run(args) or 0)
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as e:  # Ctrl-C / SIGTERM that the command did not handle itself: one line
+        if debug:
+            raise
+        term = isinstance(e, Terminated)
+        print(f"\nins-hil {args.command}: {'terminated (SIGTERM)' if term else 'interrupted'}", file=sys.stderr)
+        return 143 if term else 130
     except Exception as e:
         if debug:
             raise
         return report_error(f"ins-hil {args.command}", e)
+    finally:
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM during a command (``timeout``, a service manager): raised like Ctrl-C's KeyboardInterrupt, so what a
+    command keeps on Ctrl-C (a batch's finished replays, a soak's cleanup) it keeps on SIGTERM; exit status 143."""
+
+
+def _on_term(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
+def _term_as_interrupt() -> Any:
+    """SIGTERM raises :class:`Terminated` while a command runs, unless something set a handler already (a command
+    may set its own: the gateway stops cleanly, fuzz writes its report). Returns the handler to restore, or None."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
+        return None
+    return signal.signal(signal.SIGTERM, _on_term)
 
 
 def _one_line(e: BaseException) -> str:

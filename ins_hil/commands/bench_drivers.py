@@ -6,9 +6,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 from ins_hil.bench import drivers as bench
+from ins_hil.commands._outputs import out_file
 from ins_hil.machine import summary
 
 NAME = "bench-drivers"
@@ -34,7 +36,9 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps({"rows": rows, "where": where}))
         return 0
     if args.samples < 100:
-        raise SystemExit("ins-hil bench-drivers: --samples must be ≥ 100")
+        print("ins-hil bench-drivers: --samples must be ≥ 100", file=sys.stderr)
+        return 2
+    out_file(args.out, "--out")
     machine = summary() + "."
     _say("decode cost ...")
     costs = bench.decode_costs(args.samples)

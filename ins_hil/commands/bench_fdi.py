@@ -9,10 +9,13 @@ GNSS-aided; µs per ``FdiMonitor.process`` call; the book's ch. 5 reproductions;
 from __future__ import annotations
 
 import argparse
+import math
+import sys
 import time
 from pathlib import Path
 
 from ins_hil.bench import fdi
+from ins_hil.commands._outputs import out_file
 from ins_hil.fdi.geometry import CONFIGS
 
 NAME = "bench-fdi"
@@ -55,11 +58,33 @@ def _aiding_only(args: argparse.Namespace, cfg: fdi.FdiBench) -> int:
     return 0
 
 
-def run(args: argparse.Namespace) -> int:
+def _bad_arguments(args: argparse.Namespace) -> str | None:
+    """Why the arguments cannot run (one line naming the flag), or None: checked before the first trial."""
     if args.aiding_trials < 1:
-        raise SystemExit("ins-hil bench-fdi: --aiding-trials must be ≥ 1")
+        return "--aiding-trials must be ≥ 1"
     if args.aiding_live_trials < 0:
-        raise SystemExit("ins-hil bench-fdi: --aiding-live-trials must be ≥ 0")
+        return "--aiding-live-trials must be ≥ 0"
+    if not (math.isfinite(args.rate) and args.rate > 0) or args.trials < 1:
+        return "--rate, --trials and --nominal-hours must be positive"
+    if not (math.isfinite(args.nominal_hours) and args.nominal_hours > 0):
+        return "--rate, --trials and --nominal-hours must be positive"
+    if not (math.isfinite(args.p_fa) and 1e-12 <= args.p_fa < 1.0):
+        return f"--p-fa {args.p_fa:g}: a false-alarm probability per hour in [1e-12, 1)"
+    names = [n.strip() for n in args.configs.split(",") if n.strip()]
+    if not names:
+        return f"--configs {args.configs!r}: name at least one of {sorted(CONFIGS)}"
+    for n in names:
+        if n not in CONFIGS:
+            return f"unknown configuration {n!r} in --configs; choose from {sorted(CONFIGS)}"
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    why = _bad_arguments(args)
+    if why is not None:
+        print(f"ins-hil bench-fdi: {why}", file=sys.stderr)
+        return 2
+    out_file(args.out, "--out")
     cfg = fdi.FdiBench(
         rate=args.rate,
         trials=args.trials,
@@ -72,14 +97,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.aiding_only:
         return _aiding_only(args, cfg)
-    if args.rate <= 0 or args.trials < 1 or args.nominal_hours <= 0:
-        raise SystemExit("ins-hil bench-fdi: --rate, --trials and --nominal-hours must be positive")
     names = [n.strip() for n in args.configs.split(",") if n.strip()]
-    for n in names:
-        if n not in CONFIGS:
-            raise SystemExit(
-                f"ins-hil bench-fdi: unknown configuration {n!r} in --configs; choose from {sorted(CONFIGS)}"
-            )
     t_start = time.perf_counter()
     dt = 1.0 / args.rate
     lines = fdi.header(cfg)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -22,7 +23,8 @@ from pathlib import Path
 from ins_hil.calibration.bench import bench, simulate_log
 from ins_hil.calibration.files import load_calibration, save_calibration
 from ins_hil.calibration.fit import allan_log, fit_mag_log, fit_triad_log
-from ins_hil.calibration.logs import read_log, read_plan
+from ins_hil.calibration.logs import LOG_READERS, read_log, read_plan
+from ins_hil.commands._outputs import out_dir, out_file
 from ins_hil.nav import calibration as cal
 from ins_hil.types import Vec
 
@@ -127,22 +129,63 @@ def _limits(args: argparse.Namespace, base: cal.StepLimits) -> cal.StepLimits:
 # ---------------------------------------------------------------------------
 
 
+def _bad_arguments(args: argparse.Namespace) -> str | None:
+    """Why the arguments cannot run (one line naming the flag or the file), or None: checked before the log is
+    read (a long log takes a while) and before anything is written."""
+    if args.kind == "bench":
+        return None
+    if args.log is None:
+        return "the log file argument is missing"
+    if args.output.suffix not in (".toml", ".json"):
+        return f"--output {args.output}: must end in .toml or .json"
+    if args.simulate and os.path.lexists(args.log):  # a recorded log under that name would be lost
+        return f"{args.log}: exists; --simulate writes a new simulated log there: give a new name or remove it"
+    if not args.simulate:
+        if not args.log.exists():
+            return f"{args.log}: no such file"
+        if args.log.is_dir():
+            return f"{args.log}: a folder, not a log file"
+        if args.log.suffix.lower() not in LOG_READERS:
+            return f"{args.log}: unknown log type {args.log.suffix!r}; known: {', '.join(sorted(LOG_READERS))}"
+    numbers = (("--lat", args.lat), ("--height", args.height), ("--field", args.field), ("--max-std", args.max_std),
+               ("--max-drift", args.max_drift), ("--range", args.sat_range))  # fmt: skip
+    for flag, v in numbers:
+        if v is not None and not math.isfinite(v):
+            return f"{flag} {v}: must be a finite number"
+    if args.lat is not None and abs(args.lat) > 90.0:
+        return f"--lat {args.lat:g}: must be within ±90°"
+    if args.kind == "gyro" and args.plan == "book" and not args.simulate:
+        try:
+            rates = [float(r) for r in args.rates.split(",") if r.strip()]
+        except ValueError:
+            return f"--rates {args.rates}: expected comma-separated numbers (deg/s), e.g. 3,9"
+        if not rates or not all(math.isfinite(r) and r > 0 for r in rates):
+            return f"--rates {args.rates}: table rates must be positive numbers (deg/s), e.g. 3,9"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
+    why = _bad_arguments(args)
+    if why is not None:
+        print(f"ins-hil calibrate {args.kind}: {why}", file=sys.stderr)
+        return 2
     try:
         return _run(args)
     except cal.CalibrationError as e:
-        print(f"ins-hil calibrate {args.kind}: {e}", file=sys.stderr)
-        print("no calibration written", file=sys.stderr)
+        print(f"ins-hil calibrate {args.kind}: {e} (no calibration written)", file=sys.stderr)
         return 1
 
 
 def _run(args: argparse.Namespace) -> int:
     if args.kind == "bench":
+        out_file(args.docs, "--docs")
         return bench(args.docs, args.seed)
-    if args.log is None:
-        raise cal.CalibrationError(f"calibrate {args.kind}: the log file argument is missing")
-    if args.output.suffix not in (".toml", ".json"):
-        raise cal.CalibrationError(f"--output {args.output}: must end in .toml or .json")
+    assert args.log is not None  # _bad_arguments
+    out_file(args.output, "--output")  # every file this writes: refused before the work
+    rep = args.report if args.report is not None else args.output.with_name(args.output.stem + "_report")
+    out_dir(rep, "--report")
+    if args.simulate:
+        out_file(args.log, "LOG (--simulate)")
     if args.simulate:
         print(f"writing a simulated {args.kind} log to {args.log} ...", flush=True)
         print("  " + simulate_log(args.kind, args.log, args.seed))
@@ -151,11 +194,12 @@ def _run(args: argparse.Namespace) -> int:
             print("  (simulated table rates 30 and 90 °/s at latitude 50.45°: using --rates 30,90 --lat 50.45)")
         if args.kind == "accel" and args.plan == "book":
             args.lat, args.height = 50.45, 100.0
-    print(f"reading {args.log} ...", flush=True)
-    log = read_log(args.log, args.imu_id)
     if args.output.exists():
         load_calibration(args.output)  # refuse early (before the work) if the file to update is broken
-    rep = args.report if args.report is not None else args.output.with_name(args.output.stem + "_report")
+    refs = _plan_refs(args, args.kind) if args.kind in ("accel", "gyro") else None  # --plan read before the log
+    print(f"reading {args.log} ...", flush=True)
+    log = read_log(args.log, args.imu_id)
+    made = not rep.exists()
     rep.mkdir(parents=True, exist_ok=True)
     lines: list[str] = [
         f"# ins-hil calibrate {args.kind}",
@@ -163,15 +207,20 @@ def _run(args: argparse.Namespace) -> int:
         f"Generated {datetime.now(UTC):%Y-%m-%d %H:%M UTC}.",
         "",
     ]
-    if args.kind in ("accel", "gyro"):
-        base = cal.ACCEL_LIMITS if args.kind == "accel" else cal.GYRO_LIMITS
-        refs = _plan_refs(args, args.kind)
-        new = fit_triad_log(log, args.kind, refs, _limits(args, base), rep, lines, str(args.log), args.plan)
-    elif args.kind == "mag":
-        new = fit_mag_log(log, None if args.field is None else args.field * 1e-6, rep, lines, str(args.log))
-    else:
-        sensors = ["gyro", "accel"] if args.sensor == "both" else [args.sensor]
-        new = allan_log(log, sensors, rep, lines, str(args.log))
+    try:
+        if args.kind in ("accel", "gyro"):
+            base = cal.ACCEL_LIMITS if args.kind == "accel" else cal.GYRO_LIMITS
+            assert refs is not None
+            new = fit_triad_log(log, args.kind, refs, _limits(args, base), rep, lines, str(args.log), args.plan)
+        elif args.kind == "mag":
+            new = fit_mag_log(log, None if args.field is None else args.field * 1e-6, rep, lines, str(args.log))
+        else:
+            sensors = ["gyro", "accel"] if args.sensor == "both" else [args.sensor]
+            new = allan_log(log, sensors, rep, lines, str(args.log))
+    except BaseException:  # no calibration: the report folder this run made goes too if nothing is in it
+        if made and not any(rep.iterdir()):
+            rep.rmdir()
+        raise
     new.imu_id = args.imu_id if args.imu_id is not None else log.imu_id
     new.created = f"{datetime.now(UTC):%Y-%m-%dT%H:%M:%SZ}"
     new.source = str(args.log)

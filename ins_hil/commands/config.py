@@ -24,17 +24,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ins_hil import config_schema
+    from ins_hil.commands._inputs import HINTS, config_kind
     from ins_hil.config import ConfigError, load
 
     if args.check is None and args.docs is None:
         print("ins-hil config: give --check FILE or --docs", file=sys.stderr)
         return 2
+    if args.docs:
+        from ins_hil.commands._outputs import out_file
+
+        out_file(args.docs, "--docs")
     status = 0
     for path in args.check or ():
         try:
             load(path)
         except ConfigError as e:
-            print(f"ins-hil config: {e}", file=sys.stderr)
+            kind = config_kind(path)
+            hint = f" ({HINTS[kind]})" if kind == "dataset" else ""
+            print(f"ins-hil config: {e}{hint}", file=sys.stderr)
             status = 2
         else:
             print(f"{path}: ok")

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shlex
 import signal
 import sys
@@ -285,6 +286,20 @@ def run(args: argparse.Namespace) -> int:
     if not args.budget > 0 or not math.isfinite(args.budget):
         print(f"ins-hil fuzz: --budget {args.budget}: must be > 0 s", file=sys.stderr)
         return 2
+    by_count = args.inputs is not None or args.to_goal
+    total_w = sum(t.weight for t in targets)
+    short = [] if by_count else [t.name for t in targets if args.budget * t.weight / total_w <= 0.5]
+    if short:  # a target's share of 0.5 s or less is skipped
+        need = int(0.5 * total_w / min(t.weight for t in targets)) + 1
+        if len(short) == len(targets):
+            print(f"ins-hil fuzz: --budget {args.budget:g}: too short, no target would run (a share of 0.5 s or less "
+                  f"is skipped): at least {need} s, or fewer --targets", file=sys.stderr)  # fmt: skip
+            return 2
+        print(f"[fuzz] --budget {args.budget:g}: {', '.join(short)} skipped (a share of 0.5 s or less; every target "
+              f"runs from {need} s)", file=sys.stderr)  # fmt: skip
+    if args.memory_mib < 0:
+        print(f"ins-hil fuzz: --memory-mib {args.memory_mib}: must be ≥ 0 (0: no cap)", file=sys.stderr)
+        return 2
     if args.inputs is not None and args.inputs <= 0:
         print(f"ins-hil fuzz: --inputs {args.inputs}: must be > 0", file=sys.stderr)
         return 2
@@ -294,9 +309,19 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         print(f"ins-hil fuzz: --jobs {args.jobs}: must be >= 1", file=sys.stderr)
         return 2
+    cpus = os.cpu_count() or 1
+    if args.jobs > 4 * cpus:  # each a process under --memory-mib
+        print(f"ins-hil fuzz: --jobs {args.jobs}: at most {4 * cpus} (4 x this machine's {cpus} CPUs)", file=sys.stderr)
+        return 2
     if args.resume and args.state is None:
         print("ins-hil fuzz: --resume needs --state FILE", file=sys.stderr)
         return 2
+    from ins_hil.commands._outputs import out_file
+
+    if args.state is not None:  # written after every chunk and at the end: refused before the campaign
+        out_file(args.state, "--state")
+    if not args.no_doc:
+        out_file(args.doc, "--doc")
     results: dict[str, TargetResult] = {}
     chunks: dict[str, int] = {}
     if args.resume and args.state.exists():
@@ -311,8 +336,6 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
     old_cap = _cap_memory(args.memory_mib)
     old_term = signal.signal(signal.SIGTERM, _on_term)
-    by_count = args.inputs is not None or args.to_goal
-    total_w = sum(t.weight for t in targets)
     interrupted = env_failed = False
     faults = 0
     t0 = time.perf_counter()

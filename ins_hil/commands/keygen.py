@@ -48,13 +48,23 @@ def write_key_file(path: Path, text: str, force: bool = False) -> None:
     finally:
         os.close(fd)
     if force:
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError:
+            tmp.unlink()  # no copy of the secret left beside a file that could not be replaced
+            raise
 
 
 def run(args: argparse.Namespace) -> int:
     import hashlib
 
+    from ins_hil.commands._outputs import out_file
+
     path: Path = args.file
+    out_file(path, "")  # a folder, a path under a file: one line before anything is written
+    if not path.parent.is_dir():
+        print(f"ins-hil keygen: {path}: no folder {path.parent} (create it first)", file=sys.stderr)
+        return 2
     secret = passphrase()
     try:
         write_key_file(path, secret, args.force)

@@ -28,9 +28,12 @@ import math
 import os
 import sys
 import time
+import tomllib
 from pathlib import Path
 from typing import Any
 
+from ins_hil.commands._inputs import HINTS, config_kind
+from ins_hil.commands._outputs import out_dir, out_file
 from ins_hil.datasets.config import DatasetConfigError
 from ins_hil.datasets.config import load as load_dataset_config
 from ins_hil.datasets.dataset import DatasetError
@@ -160,25 +163,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 # ---------------------------------------------------------------------------------------------- helpers
 class _Progress:
-    """A minimal progress line on stderr (long runs)."""
+    """A minimal progress line on stderr (long runs): a bar redrawn every 5 % on a terminal; in a log (stderr not a
+    terminal) a line at 0, 25, 50, 75 and 100 %."""
 
     def __init__(self, label: str, quiet: bool) -> None:
         self.label = label
         self.quiet = quiet
         self.t0 = time.perf_counter()
         self.last = -1
+        self.tty = sys.stderr.isatty()
 
     def __call__(self, k: int, n: int) -> None:
         if self.quiet:
             return
         pct = int(100 * k / max(n, 1))
-        if pct // 5 != self.last // 5 or k == n:
+        step = 5 if self.tty else 25
+        if pct // step != self.last // step or (k == n and self.last != 100):
             self.last = pct
             bar = "#" * (pct // 5) + "." * (20 - pct // 5)
             el = time.perf_counter() - self.t0
-            sys.stderr.write(f"\r{self.label:<28} [{bar}] {pct:3d}% {el:6.1f} s")
-            if k == n:
-                sys.stderr.write("\n")
+            line = f"{self.label:<28} [{bar}] {pct:3d}% {el:6.1f} s"
+            sys.stderr.write(f"\r{line}" + ("\n" if k == n else "") if self.tty else line + "\n")
             sys.stderr.flush()
 
 
@@ -255,7 +260,7 @@ def _batch(args: argparse.Namespace) -> int:
     (``--compare-serial``: the same jobs serially first, and the speed-up)."""
     from ins_hil.evaluation import batch
 
-    seeds = max(1, args.seeds)
+    seeds = args.seeds
     try:
         pairs = batch.expand(list(args.batch), str(args.dataset) if args.dataset else None)
         variants = batch.load_variants(args.variants) if args.variants is not None else None
@@ -265,6 +270,20 @@ def _batch(args: argparse.Namespace) -> int:
     except (DatasetError, DatasetConfigError) as e:
         print(f"ins-hil replay: {e}", file=sys.stderr)
         return 2
+    if args.dataset is not None and pairs and all(src is None for src, _ in pairs):
+        print(f"ins-hil replay: --dataset {args.dataset}: every --batch entry is a dataset config with its own "
+              "settings (--dataset is for logs given to --batch)", file=sys.stderr)  # fmt: skip
+        return 2
+    missing = batch.missing_logs(js)
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        print(f"ins-hil replay: batch: {missing[0]}{more}", file=sys.stderr)
+        return 2
+    subs = ["serial"] * args.compare_serial + ["dask_defaults"] * args.compare_dask_defaults
+    for folder in [j.out for j in js] + [str(args.out / s) for s in subs]:  # each job's folder: before any job runs
+        out_dir(folder, "--out")
+    for name in ("batch.md", "batch.json"):
+        out_file(args.out / name, "--out")
     parallel = args.scheduler is not None or args.workers > 0
     if args.compare_serial and not parallel:
         print("ins-hil replay: --compare-serial needs --workers > 0 or --scheduler", file=sys.stderr)
@@ -301,15 +320,25 @@ def _batch(args: argparse.Namespace) -> int:
     # the logs' replay times of the last run into this folder (its batch.json): the order of the jobs
     known = _last_costs(args.out / "batch.json")
     serial: dict[str, Any] | None = None
-    if args.compare_serial:
-        serial = reference_run("serially first (--compare-serial)", "serial", 0, None)
-        batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
-        known = batch.measured(serial["rows"])  # the same jobs' times, just measured
     defaults: dict[str, Any] | None = None
-    if args.compare_dask_defaults:
-        defaults = reference_run("on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)",
-                                 "dask_defaults", args.workers, {})  # fmt: skip
-    rows, wall = batch.run_batch(js, args.workers, args.scheduler, done, known=known)
+    phase = ""
+    try:
+        if args.compare_serial:
+            phase = f"serially: --compare-serial's reference run, reports in {args.out / 'serial'}"
+            serial = reference_run("serially first (--compare-serial)", "serial", 0, None)
+            batch.clear_cache()  # the parallel run parses in its own workers; free this process's copies
+            known = batch.measured(serial["rows"])  # the same jobs' times, just measured
+        if args.compare_dask_defaults:
+            phase = f"Dask's worker settings: --compare-dask-defaults' run, reports in {args.out / 'dask_defaults'}"
+            defaults = reference_run("on a LocalCluster with Dask's own worker settings (--compare-dask-defaults)",
+                                     "dask_defaults", args.workers, {})  # fmt: skip
+        phase = ""
+        rows, wall = batch.run_batch(js, args.workers, args.scheduler, done, known=known)
+    except batch.BatchInterrupted as e:
+        return _batch_interrupted(args, e, phase or where)
+    except batch.SchedulerError as e:
+        print(f"ins-hil replay: {e}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     text = batch.table(rows)
     failed = sum("error" in r for r in rows)
@@ -349,6 +378,31 @@ def _batch(args: argparse.Namespace) -> int:
     print(f"summary: {args.out / 'batch.md'}")
     differ = any(summary.get(k, {}).get("differences") for k in ("compare_serial", "compare_dask_defaults"))
     return 1 if failed or differ else 0
+
+
+def _batch_interrupted(args: argparse.Namespace, e: Any, where: str) -> int:
+    """Ctrl-C during a batch: the jobs that finished (``e``: ``batch.BatchInterrupted``) kept as its summary
+    (``batch.md``, ``batch.json`` with ``"interrupted": true``; each job's report stays in its folder), their
+    table printed, one line on stderr; exit status 130."""
+    from ins_hil.evaluation import batch
+
+    rows = e.rows
+    head = f"Interrupted (Ctrl-C) after {e.wall_s:.1f} s ({where}): {len(rows)} of {e.total} replays finished."
+    text = batch.table(rows) if rows else "(no replay finished)"
+    summary = {"rows": rows, "wall_s": e.wall_s, "where": where, "interrupted": True, "jobs": e.total}
+    try:
+        if not rows:  # an earlier summary in --out (the jobs' measured costs) is not replaced by an empty one
+            raise OSError("no replay finished")
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "batch.md").write_text("# Batch replay\n\n" + head + "\n\n" + text + "\n")
+        (args.out / "batch.json").write_text(json.dumps(summary, indent=2, default=str))
+        kept = f"kept in {args.out / 'batch.md'}"
+    except OSError as err:
+        kept = f"no summary written ({err})"
+    if rows:
+        print(text)
+    print(f"ins-hil replay: interrupted: {len(rows)} of {e.total} replays finished, {kept}", file=sys.stderr)
+    return 130
 
 
 def _estimate(src: str, args: argparse.Namespace) -> int:
@@ -391,12 +445,89 @@ def _estimate(src: str, args: argparse.Namespace) -> int:
     return 0
 
 
+#: the longest simulated scenario (s): its truth is held in memory, ~0.25 MB per simulated s at 100 Hz (static,
+#: 60 s vs 200 s: 56 vs 90 MB peak RSS), ~0.5 MB/s for coning at 200 Hz; 1 h is ~1-2 GB and ~2 min of CPU
+MAX_SIM_DURATION_S = 3600.0
+
+
+def _argument_error(src: str, args: argparse.Namespace) -> str | None:
+    """Why these arguments cannot run as given (one line naming the flag), or None: values out of range and
+    options the chosen mode would ignore silently, refused before anything is loaded."""
+    batch = bool(args.batch) or args.variants is not None or bool(args.shifts)
+    estimate = args.estimate_offset or args.estimate_mounting
+    simulated = not batch and not estimate and not args.docs and (src == "sim" or _is_scenario(src))
+    if args.batch and src != "drive":
+        return f"a SOURCE ({src}) and --batch: give every log to --batch"
+    if args.seeds < 1:
+        return f"--seeds {args.seeds}: must be ≥ 1"
+    if args.workers < 0:
+        return f"--workers {args.workers}: must be ≥ 0 (0 = one after the other, in this process)"
+    cpus = os.cpu_count() or 1
+    if args.workers > 4 * cpus:  # each a process with the readers, the core and a parsed log (~0.2 GB)
+        return f"--workers {args.workers}: at most {4 * cpus} (4 x this machine's {cpus} CPUs)"
+    if not batch:
+        given = [f for f, on in (("--seeds", args.seeds != 1), ("--workers", args.workers != 2),
+                                 ("--scheduler", args.scheduler is not None), ("--compare-serial", args.compare_serial),
+                                 ("--compare-dask-defaults", args.compare_dask_defaults)) if on]  # fmt: skip
+        if given:
+            return f"{given[0]}: only with --batch (or --variants / --shifts)"
+    elif args.export is not None:
+        return "--export: one log's trajectory, not with --batch / --variants / --shifts"
+    elif estimate or args.docs:
+        flag = "--docs" if args.docs else "--estimate-offset" if args.estimate_offset else "--estimate-mounting"
+        return f"{flag}: not with --batch / --variants / --shifts"
+    if args.export is not None and (simulated or estimate or args.docs or (src == "drive" and args.dataset is None)):
+        return "--export: the trajectory of a flight log / dataset replay or of a *.ihlog only"
+    if args.shifts and not all(math.isfinite(x) for x in args.shifts):
+        return f"--shifts {' '.join(f'{x:g}' for x in args.shifts)}: must be finite"
+    if args.duration is not None:
+        if not simulated:
+            return "--duration: only for a simulated scenario or 'sim' (a log replays whole)"
+        if not 0.0 < args.duration <= MAX_SIM_DURATION_S:
+            return (f"--duration {args.duration:g}: must be > 0 and at most {MAX_SIM_DURATION_S:g} s (a simulated "
+                    "scenario keeps its whole truth in memory)")  # fmt: skip
+    if args.runs < 0:
+        return f"--runs {args.runs}: must be ≥ 0"
+    if args.runs and not simulated:
+        return "--runs: only for a simulated scenario or 'sim' (--batch --seeds for a log)"
+    if args.write_offset and not args.estimate_offset:
+        return "--write-offset: only with --estimate-offset"
+    if args.write_mounting and not args.estimate_mounting:
+        return "--write-mounting: only with --estimate-mounting"
+    grids = (("offset", args.offset_span, args.offset_step, args.estimate_offset),
+             ("mounting", args.mounting_span, args.mounting_step, args.estimate_mounting))  # fmt: skip
+    for flag, span, step, on in grids:
+        if on and not (math.isfinite(span) and math.isfinite(step) and step > 0 and span >= 2 * step):
+            return f"--{flag}-span {span:g} --{flag}-step {step:g}: need a step > 0 and a span ≥ 2 steps"
+    if args.config is not None:
+        if src != "sim" or batch:
+            return "--config: only for 'sim' (a gateway config's [sim] flight); a log's settings: --dataset CONFIG"
+        if not args.config.is_file():
+            return f"--config {args.config}: " + ("a folder" if args.config.is_dir() else "no such file")
+        try:
+            tomllib.loads(args.config.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as e:  # (the sim flight's own message goes to stdout)
+            return f"--config {args.config}: not a readable TOML file ({' '.join(str(e).split())})"
+    if args.dataset is not None and args.dataset.is_dir():
+        return f"--dataset {args.dataset}: a folder; give a dataset config (configs/datasets/*.toml)"
+    if args.dataset is not None and config_kind(args.dataset) == "gateway":
+        return f"--dataset {args.dataset}: {HINTS['gateway']}; a dataset config has a [dataset] table"
+    if src == "sim" and args.config is not None and config_kind(args.config) == "dataset":
+        return f"--config {args.config}: {HINTS['dataset']}"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     src = str(args.source)
+    why = _argument_error(src, args)
+    if why is not None:
+        print(f"ins-hil replay: {why}", file=sys.stderr)
+        return 2
     if not args.batch and (args.variants is not None or args.shifts):  # one log's variants: a batch of one
         args.batch = [str(args.dataset) if args.dataset is not None and src == "drive" else src]
         if args.dataset is not None and src == "drive":
             args.dataset = None
+    _check_outputs(src, args)
     if args.batch:
         return _batch(args)
     core = getattr(args, "core", "python")
@@ -476,6 +607,17 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "metrics.json").write_text(json.dumps(out, indent=2, default=float))
     print(f"metrics: {args.out / 'metrics.json'}")
     return 0
+
+
+def _check_outputs(src: str, args: argparse.Namespace) -> None:
+    """Refuse, before any work, an ``--out`` folder or ``--export`` file this run would write and cannot
+    (:mod:`ins_hil.commands._outputs`, one line). A gateway-log replay (``*.ihlog`` without ``--dataset``), an
+    estimate and ``--docs`` write no ``--out``."""
+    if args.export is not None:
+        out_file(args.export, "--export")
+    if args.batch or not (args.docs or args.estimate_offset or args.estimate_mounting
+                          or (src.endswith(".ihlog") and args.dataset is None)):  # fmt: skip
+        out_dir(args.out, "--out")
 
 
 def _is_dataset(src: str, args: argparse.Namespace) -> bool:

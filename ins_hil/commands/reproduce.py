@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import time
 from pathlib import Path
 
+from ins_hil.commands._outputs import out_file
 from ins_hil.machine import summary
 from ins_hil.reproduce import Row, groups, notes
 
@@ -25,8 +25,12 @@ DESCRIPTION = (
 )
 
 
+#: the report's default path
+DEFAULT_OUTPUT = Path("docs/reproduction.md")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--output", "-o", type=Path, default=Path("docs/reproduction.md"), help="report path")
+    p.add_argument("--output", "-o", type=Path, default=DEFAULT_OUTPUT, help="report path")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     p.add_argument("--no-plots", action="store_true", help="do not write the PNG figures beside the report")
     p.add_argument(
@@ -102,19 +106,6 @@ def _result(r: Row) -> str:
     return "pass" if r.passed else "**FAIL**"
 
 
-def _writable(out: Path) -> str | None:
-    """Why ``out`` cannot be written (its folder is created), or None: checked before the work, not after it."""
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        return str(e)
-    if out.is_dir():
-        return "it is a directory"
-    if not os.access(out.parent, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
-        return "permission denied"
-    return None
-
-
 def _run_mutations(quiet: bool) -> int:
     from ins_hil.reproduce import mutations
 
@@ -129,12 +120,12 @@ def _run_mutations(quiet: bool) -> int:
 
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "mutations", False):
+        if args.output != DEFAULT_OUTPUT or args.no_plots:
+            print("ins-hil reproduce: --mutations writes no report: no --output / --no-plots", file=sys.stderr)
+            return 2
         return _run_mutations(args.quiet)
     t0 = time.perf_counter()
-    why = _writable(args.output)
-    if why is not None:
-        print(f"ins-hil reproduce: cannot write {args.output}: {why}", file=sys.stderr)
-        return 2
+    out_file(args.output, "--output")  # before the work, not after it (one line, exit status 2)
     sections: list[tuple[str, list[Row]]] = []
     for title, fn in groups():
         t1 = time.perf_counter()

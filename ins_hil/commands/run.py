@@ -7,6 +7,7 @@ import asyncio
 import json
 import logging
 import math
+import os
 import sys
 from typing import Any
 
@@ -228,6 +229,14 @@ def _prepare(args: argparse.Namespace, path: Any) -> tuple[Any, Any]:
     return cfg, devices
 
 
+def _config_error(e: Exception, path: Any) -> str:
+    """The one line of a bad config; a dataset config given as the gateway's says so."""
+    from ins_hil.commands._inputs import HINTS, config_kind
+
+    hint = f" ({HINTS['dataset']})" if config_kind(path) == "dataset" else ""
+    return f"ins-hil run: config error: {e}{hint}"
+
+
 async def _start(args: argparse.Namespace, path: Any, outputs: list[Any]) -> Any:
     """Start-up in the order a ground station sees it: the MAVLink outputs open and send their first
     HEARTBEAT, then the whole config is validated (in a thread, its heavy imports too, while the
@@ -241,7 +250,7 @@ async def _start(args: argparse.Namespace, path: Any, outputs: list[Any]) -> Any
         cfg, devices = await asyncio.to_thread(_prepare, args, path)
         return Gateway(cfg, record_path=args.record, devices=devices, outputs=opened)
     except config_mod.ConfigError as e:
-        print(f"ins-hil run: config error: {e}", file=sys.stderr)
+        print(_config_error(e, path), file=sys.stderr)
     except (RuntimeError, ValueError) as e:
         print(f"ins-hil run: {e}", file=sys.stderr)
     except BaseException:  # another error, Ctrl-C: the outputs closed before it goes on
@@ -255,13 +264,24 @@ def run(args: argparse.Namespace) -> int:
     from ins_hil import config as config_mod
 
     path = args.config or config_mod.default_path()
-    if args.duration is not None and args.duration <= 0:
-        print("ins-hil run: --duration must be positive", file=sys.stderr)
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        print(f"ins-hil run: --duration {args.duration:g}: must be a positive number of seconds (leave it out to run "
+              "until Ctrl-C)", file=sys.stderr)  # fmt: skip
         return 2
+    from ins_hil.commands._outputs import out_file
+
+    if args.record:  # the files written during or after the run: refused before it starts
+        out_file(args.record, "--record")
+        if os.path.lexists(args.record):  # the recorder truncates: an earlier recording would be lost
+            print(f"ins-hil run: --record {args.record}: exists (an earlier recording?): give a new name or remove "
+                  "it", file=sys.stderr)  # fmt: skip
+            return 2
+    if args.json:
+        out_file(args.json, "--json")
     try:
         outputs = config_mod.load_outputs(path)  # only the [[outputs]]: they open first (see _start)
     except config_mod.ConfigError as e:
-        print(f"ins-hil run: config error: {e}", file=sys.stderr)
+        print(_config_error(e, path), file=sys.stderr)
         return 2
     interactive = not args.no_status and sys.stdout.isatty()
     view = _status_live if interactive else _status_lines

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from ins_hil.soak.orchestrate import GCS_RATE
@@ -29,7 +30,7 @@ def _floats(text: str, what: str) -> list[float]:
         v = [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"{what}: expected comma-separated numbers, got {text!r}") from None
-    if any(x <= 0 for x in v):
+    if any(not (x > 0 and math.isfinite(x)) for x in v):
         raise argparse.ArgumentTypeError(f"{what}: rates must be positive, got {text!r}")
     return v
 
@@ -154,6 +155,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"ins-hil soak: {msg}", file=sys.stderr)
         return 2
 
+    from ins_hil.commands._outputs import out_dir, out_file
+
+    if args.docs:
+        out_file(args.docs, "--docs")
     if args.rerender:
         from ins_hil.soak.suite import rerender
 
@@ -164,8 +169,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"[soak] report: {args.rerender}/report.md" + (f" and {args.docs}" if args.docs else ""))
         return 0 if top["pass"] or args.report_only else 1
 
+    numbers = ("duration", "rate", "gcs_rate", "sweep_duration", "loaded_duration", "relay_duration", "interleave",
+               "continuous", "profile_duration", "can_duration", "baseline")  # fmt: skip
+    for key in numbers:
+        if not math.isfinite(getattr(args, key)):
+            return bad(f"--{key.replace('_', '-')} {getattr(args, key)}: must be a finite number")
     if args.duration <= 0 or args.rate <= 0:
         return bad("--duration and --rate must be positive")
+    if args.gcs_rate <= 0 or args.sweep_duration <= 0:
+        return bad("--gcs-rate and --sweep-duration must be positive")
     if not 1 <= args.imus <= 3:
         return bad(f"--imus {args.imus}: 1, 2 (dual_imu) or 3 (triple_imu)")
     if args.load < 0:
@@ -185,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
     if args.imus == 1 and args.faults.strip().lower() not in ("auto", "none"):
         return bad(f"--faults {args.faults!r}: fault detection needs --imus 2 or 3")
     faults = args.faults if args.imus > 1 else "none"
+    out_dir(args.out, "--out")
     try:
         parse_faults(faults, args.duration, args.imus)
         rates = _floats(args.sweep, "--sweep") if args.sweep else []

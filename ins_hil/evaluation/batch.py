@@ -27,10 +27,12 @@ load / replay / plot times (:func:`breakdown` sums them).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import glob
 import os
 import re
+import signal
 import sys
 import time
 from collections import OrderedDict
@@ -208,6 +210,23 @@ def _files(path: Path) -> list[Path]:
     return sorted(q for q in path.iterdir() if q.is_file()) if path.is_dir() else [path]
 
 
+def missing_logs(js: list[Job]) -> list[str]:
+    """One line per log of ``js`` that cannot run at all (a config without ``dataset.path``, a log that does not
+    exist), each log once: checked before a batch starts rather than failing its jobs one by one."""
+    out: list[str] = []
+    for key in dict.fromkeys((j.source, j.config) for j in js):
+        job = next(j for j in js if (j.source, j.config) == key)
+        try:
+            path = _log_path(job, _config(job))
+        except ValueError as e:  # DatasetError (no dataset.path), DatasetConfigError
+            out.append(str(e))
+            continue
+        if not path.exists():
+            where = f" (dataset.path of {job.config})" if job.source is None and job.config else ""
+            out.append(f"{path}: no such file or folder{where}")
+    return out
+
+
 def cost(job: Job) -> float:
     """The job's expected replay cost (arbitrary units, for the order only): the log's size in bytes, times
     2 when the config has an outage protocol (a second replay); 0 when the log or its config cannot be
@@ -296,13 +315,20 @@ def clear_cache() -> None:
     _CACHE.clear()
 
 
-def warm_up() -> int:
+def warm_up(ignore_sigint: bool = False) -> int:
     """Import what every job needs (the core, the readers, the plots' module) in this (worker) process; its pid.
     Not the simulator (``ins_hil.evaluation.sim_flight``, 0.12 CPU s): only a simulated gateway log's truth needs
-    it, and :func:`run_job` imports it on demand (``sim_truth_on_demand``)."""
+    it, and :func:`run_job` imports it on demand (``sim_truth_on_demand``). ``ignore_sigint`` (our LocalCluster's
+    workers): Ctrl-C in the terminal is the batch's, which collects the jobs that finished and then closes them."""
     from ins_hil.datasets import report  # noqa: F401
     from ins_hil.datasets.plots import plot_series  # noqa: F401
 
+    if ignore_sigint:  # and SIGTERM as Dask's nanny expects it (a forked worker may inherit the CLI's handler)
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        except ValueError:  # not the process's main thread: left as it is
+            pass
     return os.getpid()
 
 
@@ -396,6 +422,19 @@ def local_cluster(workers: int, worker_config: dict[str, Any] | None = None) -> 
                             memory_limit=0)  # fmt: skip
 
 
+class SchedulerError(ValueError):
+    """The Dask scheduler given to :func:`run_batch` cannot be reached (a bad address, nothing listening)."""
+
+
+class BatchInterrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) during :func:`run_batch`: ``rows`` are the jobs that finished (in job order), ``total`` how
+    many jobs the batch had, ``wall_s`` the time until the interrupt. Their reports stay in their folders."""
+
+    def __init__(self, rows: list[dict[str, Any]], total: int, wall_s: float) -> None:
+        super().__init__(f"interrupted after {len(rows)} of {total} jobs")
+        self.rows, self.total, self.wall_s = rows, total, wall_s
+
+
 def run_batch(
     js: list[Job],
     workers: int = 2,
@@ -409,9 +448,29 @@ def run_batch(
     ``worker_config`` as :func:`local_cluster`);
     ``workers = 0``: serial here. Either way the jobs start in :func:`order`; on Dask at most one job per
     worker thread is in flight, and a freed worker takes the next by :func:`pick`. ``on_done(row, k, n)`` after
-    each job (k done of n). ``known``: the logs' measured costs for the order (:func:`order`)."""
+    each job (k done of n). ``known``: the logs' measured costs for the order (:func:`order`). Ctrl-C:
+    :class:`BatchInterrupted` with the rows of the jobs that finished (the cluster is closed first)."""
     t0 = time.perf_counter()
     rows: dict[int, dict[str, Any]] = {}
+    try:
+        return _run_batch(js, workers, scheduler, on_done, worker_config, known, rows, t0)
+    except KeyboardInterrupt as e:
+        if isinstance(e, BatchInterrupted):
+            raise
+        raise BatchInterrupted([rows[i] for i in sorted(rows)], len(js), time.perf_counter() - t0) from None
+
+
+def _run_batch(
+    js: list[Job],
+    workers: int,
+    scheduler: str | None,
+    on_done: Callable[[dict[str, Any], int, int], None] | None,
+    worker_config: dict[str, Any] | None,
+    known: dict[tuple[str | None, str | None], float] | None,
+    rows: dict[int, dict[str, Any]],
+    t0: float,
+) -> tuple[list[dict[str, Any]], float]:
+    """:func:`run_batch`, each finished row put into ``rows`` (job index → row) as it comes."""
     seq = order(js, known)
     if scheduler is None and workers == 0:
         for i in seq:
@@ -422,11 +481,17 @@ def run_batch(
     from dask.distributed import Client, as_completed
 
     cluster = local_cluster(workers, worker_config) if scheduler is None else None
-    client = Client(scheduler if scheduler is not None else cluster)
     try:
-        client.run(warm_up)  # the imports on every worker at once, before the first job
+        client = Client(scheduler if scheduler is not None else cluster)
+    except (OSError, ValueError, TypeError) as e:
+        if cluster is not None:
+            cluster.close()
+            raise
+        raise SchedulerError(f"--scheduler {scheduler}: cannot connect ({' '.join(str(e).split())})") from e
+    futs: dict[Any, tuple[int, str | None]] = {}
+    try:
+        client.run(warm_up, cluster is not None)  # the imports on every worker at once, before the first job
         todo = list(seq)
-        futs: dict[Any, tuple[int, str | None]] = {}
         held: dict[str | None, list[Hashable]] = {}  # each worker's parsed logs, as its cache holds them
         started: set[Hashable] = set()
 
@@ -458,11 +523,46 @@ def run_batch(
                 rows[i] = {"job": js[i].name, "seed": js[i].seed, "error": f"worker: {type(e).__name__}: {e}"}
             if on_done:
                 on_done(rows[i], len(rows), len(js))
+    except KeyboardInterrupt:  # Ctrl-C: the jobs that finished meanwhile are kept; the running ones are dropped
+        for f, (i, _) in list(futs.items()):
+            if f.status == "finished":
+                try:
+                    rows[i] = f.result(timeout=2)
+                except Exception:  # gone with its worker: not finished after all
+                    continue
+                if on_done:
+                    on_done(rows[i], len(rows), len(js))
+        _close_quietly(client, cluster)
+        raise
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
     return [rows[i] for i in range(len(js))], time.perf_counter() - t0
+
+
+def _close_quietly(client: Any, cluster: Any) -> None:
+    """Close the client and our cluster after Ctrl-C, its workers killed at once (a worker still in a job does
+    not stop for a close: Dask waits, then kills it with a warning) and Dask's shutdown warnings not shown."""
+    import logging
+
+    log = logging.getLogger("distributed")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    try:
+        if cluster is not None:
+            for w in list(getattr(cluster, "workers", {}).values()):
+                pid = getattr(getattr(getattr(w, "process", None), "process", None), "pid", None)  # the Nanny's worker
+                if pid:
+                    with contextlib.suppress(OSError):
+                        os.kill(pid, signal.SIGKILL)
+        client.close(timeout=2)
+        if cluster is not None:
+            cluster.close(timeout=2)
+    except Exception:  # closing after an interrupt: what is left goes with this process
+        pass
+    finally:
+        log.setLevel(level)
 
 
 def breakdown(rows: list[dict[str, Any]], wall_s: float, workers: int) -> str:

@@ -490,7 +490,8 @@ def main(argv: list[str] | None = None) -> int:
         with contextlib.suppress(KeyboardInterrupt):
             produce(a, Path(a.produce))
         return 0
-    run(a)
+    with contextlib.suppress(_Stop, KeyboardInterrupt):  # a SIGTERM during the clean-up (the whole process group
+        run(a)  # was signalled: the soak's Ctrl-C or timeout): stopped, not a traceback
     return 0
 
 

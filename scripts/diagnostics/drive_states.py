@@ -74,15 +74,29 @@ def compare(a: Path, b: Path) -> int:
     return 1 if bad else 0
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser()
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("cmd", choices=("dump", "compare"))
-    ap.add_argument("files", nargs="+", type=Path)
-    ap.add_argument("--seconds", type=float, default=120.0)
-    a = ap.parse_args()
+    ap.add_argument("files", nargs="+", type=Path, help="dump: the .npz to write; compare: the two .npz to compare")
+    ap.add_argument("--seconds", type=float, default=120.0, help="dump: the first S s of the drive (default 120)")
+    a = ap.parse_args(argv)
+    want = 1 if a.cmd == "dump" else 2
+    if len(a.files) != want:
+        ap.error(f"{a.cmd} takes {want} file(s), got {len(a.files)}")
     if a.cmd == "dump":
+        if not 0 < a.seconds < float("inf"):
+            ap.error(f"--seconds {a.seconds:g}: must be a positive number of seconds")
+        from ins_hil.commands._outputs import OutputPathError, out_file
+
+        try:
+            out_file(a.files[0], "dump")  # before the replay, not after it
+        except OutputPathError as e:
+            ap.error(str(e))
         dump(a.files[0], a.seconds)
         return 0
+    for f in a.files:
+        if not f.is_file():
+            ap.error(f"{f}: no such file")
     return compare(a.files[0], a.files[1])
 
 

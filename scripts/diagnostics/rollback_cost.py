@@ -117,6 +117,8 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=40.0)
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args()
+    if not 0 < a.seconds < float("inf") or a.repeat < 1:
+        ap.error("--seconds must be a positive number of seconds and --repeat at least 1")
     for dc in (False, True):
         best = best_of([run(dc, a.seconds) for _ in range(a.repeat)])
         print(
