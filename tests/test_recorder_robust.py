@@ -394,3 +394,12 @@ def test_a_valid_record_copied_elsewhere_is_detected(tmp_path: Path) -> None:
     keys = [_key(s) for s in src]
     assert err and f"byte {b}" in err, err
     assert got == keys[:10]
+
+
+def test_an_empty_recording_is_one_line_naming_the_file_once(tmp_path: Path, capsys) -> None:
+    p = tmp_path / "empty.ihlog"
+    p.write_bytes(b"")
+    assert replay_cli(p, None) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.count(str(p)) == 1, err  # was "…: empty.ihlog: empty.ihlog: …"
+    assert "cut off" in err

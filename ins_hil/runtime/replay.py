@@ -30,7 +30,7 @@ import numpy as np
 
 from ins_hil.core_parts.config import nest
 from ins_hil.runtime.pipeline import Pipeline, PipelineConfig
-from ins_hil.runtime.recorder import LogReader, parts_of, read_header, read_records
+from ins_hil.runtime.recorder import LogReader, RecordError, parts_of, read_header, read_records
 from ins_hil.types import FaultEvent, ImuSample, NavState, SimConfig
 from ins_hil.validation import Limits
 
@@ -159,8 +159,8 @@ def replay_cli(
 
     try:
         res = replay_log(path, keep_states=False, on_state=keep)
-    except (OSError, ValueError) as err:
-        print(f"ins-hil replay: {path}: {err}", file=sys.stderr)
+    except (OSError, ValueError) as err:  # a RecordError names the file (and part, byte) itself
+        print(f"ins-hil replay: {err if isinstance(err, RecordError) else f'{path}: {err}'}", file=sys.stderr)
         return 2
     pipe = res.header.get("pipeline", {})
     print(f"{path}: {res.records} inputs in {res.parts} part(s), core {pipe.get('core', '?')}")
