@@ -261,6 +261,10 @@ def test_a_config_reads_its_flight_stacks_other_form_and_refuses_another(tmp_pat
     with pytest.raises(DatasetError, match=r"hover\.ulg: a px4-ulog recording, but the dataset config names format "
                                            r"= 'rtklib'"):  # fmt: skip
         report.load(uav / "px4_hover_92s" / "hover.ulg", drive)
+    hover = config.load(root / "px4_hover.toml")
+    with pytest.raises(DatasetError, match=r"flight\.bin: an ardupilot-bin recording, but the dataset config names "
+                                           r"format = 'px4-ulog'"):  # fmt: skip
+        report.load(uav / "ardupilot_copter_150s" / "flight.bin", hover)
     quad = config.load(root / "px4_quad.toml")
     topic = uav / "px4_quad_157s" / "sensor_combined_0.csv"
     with pytest.raises(DatasetError, match="give the folder"):

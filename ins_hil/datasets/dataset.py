@@ -302,7 +302,8 @@ def reader_for(path: Path, fmt: str | None) -> str | None:
         return fmt
     if r.family and READERS[other].family == r.family:
         return other
-    raise DatasetError(f"{path}: a {other} recording, but the dataset config names format = {fmt!r} "
+    a = "an" if other[:1] in "aeiou" else "a"  # an ardupilot-bin, a px4-ulog
+    raise DatasetError(f"{path}: {a} {other} recording, but the dataset config names format = {fmt!r} "
                        f"(a config for {other}, or one without a format, reads it)")  # fmt: skip
 
 
