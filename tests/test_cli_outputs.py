@@ -188,3 +188,25 @@ def test_a_folder_the_file_system_refuses_is_one_line_and_leaves_nothing(
     with pytest.raises(OutputPathError, match="cannot write: Read-only file system"):
         out_file(tmp_path / "a" / "deep" / "r.md")
     assert list(tmp_path.iterdir()) == []  # the folder "a" made on the way was removed again
+
+
+def test_the_report_commands_write_the_checkouts_docs_by_default_from_any_folder() -> None:
+    """bench-drivers, bench-fdi, calibrate bench and reproduce default to this checkout's docs/ pages (as bench-core
+    and fuzz do), not to a docs/ folder under wherever they are run."""
+    import argparse
+
+    from ins_hil.commands import bench_drivers, bench_fdi, calibrate, reproduce
+    from ins_hil.commands._outputs import DOCS
+
+    repo_docs = Path(__file__).resolve().parents[1] / "docs"
+    assert DOCS == repo_docs
+    for mod, dest, page in ((bench_drivers, "out", "drivers.md"), (bench_fdi, "out", "fdi.md"),
+                            (reproduce, "output", "reproduction.md")):  # fmt: skip
+        p = argparse.ArgumentParser()
+        mod.add_arguments(p)
+        assert Path(getattr(p.parse_args([]), dest)) == repo_docs / page, mod.__name__
+        assert (repo_docs / page).is_file()
+    p = argparse.ArgumentParser()
+    calibrate.add_arguments(p)
+    docs = [a.default for a in p._actions if a.dest == "docs"]
+    assert docs == [repo_docs / "calibration.md"]

@@ -14,6 +14,10 @@ from pathlib import Path
 
 from ins_hil.settings import ConfigError
 
+#: this checkout's docs/ folder: where the report commands (bench-*, reproduce, calibrate bench, fuzz) write their
+#: generated pages by default, from whatever folder they are run
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+
 
 class OutputPathError(ConfigError):
     """An output path that cannot be written (one line: the flag, the path, why)."""

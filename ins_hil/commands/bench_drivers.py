@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from ins_hil.bench import drivers as bench
-from ins_hil.commands._outputs import out_file
+from ins_hil.commands._outputs import DOCS, out_file
 from ins_hil.machine import summary
 
 NAME = "bench-drivers"
@@ -18,7 +18,8 @@ HELP = "measure driver decode cost, max loss-free frame rate (pty, vcan) and 1%%
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", default="docs/drivers.md", help="report file (default docs/drivers.md)")
+    p.add_argument("--out", default=str(DOCS / "drivers.md"),
+                   help="report file (default: the checkout's docs/drivers.md)")  # fmt: skip
     p.add_argument("--samples", type=int, default=3000, help="samples per decode-cost run, best of 7 (default 3000)")
     p.add_argument("--no-vcan", action="store_true", help="skip the vcan measurement (guest boot costs ~1 min)")
     p.add_argument("--only", choices=["vcan"], help=argparse.SUPPRESS)  # internal: run inside scripts/vcan

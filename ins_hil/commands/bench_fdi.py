@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from ins_hil.bench import fdi
-from ins_hil.commands._outputs import out_file
+from ins_hil.commands._outputs import DOCS, out_file
 from ins_hil.fdi.geometry import CONFIGS
 
 NAME = "bench-fdi"
@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nominal-hours", type=float, default=1.0, help="nominal flight per configuration (default 1 h)")
     p.add_argument("--configs", default=",".join(CONFIGS), help=f"comma list from {sorted(CONFIGS)}")
     p.add_argument("--p-fa", type=float, default=1e-3, help="false-alarm probability per hour and test (1e-3)")
-    p.add_argument("--out", default="docs/fdi.md", help="report path (default docs/fdi.md)")
+    p.add_argument("--out", default=str(DOCS / "fdi.md"), help="report path (default: the checkout's docs/fdi.md)")
     p.add_argument("--seed", type=int, default=1, help="base random seed")
     p.add_argument("--aiding-trials", type=int, default=5, help="closed-loop runs per GNSS/baro fault (default 5)")
     p.add_argument(

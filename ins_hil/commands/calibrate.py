@@ -24,7 +24,7 @@ from ins_hil.calibration.bench import bench, simulate_log
 from ins_hil.calibration.files import load_calibration, save_calibration
 from ins_hil.calibration.fit import allan_log, fit_mag_log, fit_triad_log
 from ins_hil.calibration.logs import LOG_READERS, read_log, read_plan
-from ins_hil.commands._outputs import out_dir, out_file
+from ins_hil.commands._outputs import DOCS, out_dir, out_file
 from ins_hil.nav import calibration as cal
 from ins_hil.types import Vec
 
@@ -46,8 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--docs",
         type=Path,
-        default=Path("docs/calibration.md"),
-        help="bench: Markdown file whose generated section is rewritten (default docs/calibration.md)",
+        default=DOCS / "calibration.md",
+        help="bench: Markdown file whose generated section is rewritten (default: the checkout's docs/calibration.md)",
     )
     p.add_argument(
         "-o",

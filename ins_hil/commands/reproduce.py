@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from ins_hil.commands._outputs import out_file
+from ins_hil.commands._outputs import DOCS, out_file
 from ins_hil.machine import summary
 from ins_hil.reproduce import Row, groups, notes
 
@@ -26,7 +26,7 @@ DESCRIPTION = (
 
 
 #: the report's default path
-DEFAULT_OUTPUT = Path("docs/reproduction.md")
+DEFAULT_OUTPUT = DOCS / "reproduction.md"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
