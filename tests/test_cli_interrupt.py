@@ -109,7 +109,10 @@ def test_sigint_to_a_batch_on_dask_keeps_what_finished(tmp_path: Path) -> None:
     out = tmp_path / "out"
     argv = [sys.executable, "-m", "ins_hil", "replay", "--batch", str(logs), "--dataset", str(cfg), "--seeds", "6",
             "--workers", "2", "--no-plots", "--out", str(out)]  # fmt: skip
-    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    # SIGINT at its default in the child, as a terminal's command has it: a test run started in the background of a
+    # non-interactive shell (a CI runner's `cmd &`) inherits SIGINT ignored, and Python then leaves it ignored
+    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
     assert p.stderr is not None
     lines = []
     for line in p.stderr:
