@@ -25,6 +25,7 @@ from ins_hil.cli import main
         (["gyro", "TMP/log.csv", "--plan", "TMP/none.csv"], "--plan TMP/none.csv: cannot read", 1),
         (["gyro", "TMP/log.csv", "-o", "TMP/bad.toml"], "TMP/bad.toml: not valid TOML", 1),
         (["gyro", "TMP/log.csv", "--simulate"], "TMP/log.csv: exists; --simulate writes a new simulated log", 2),
+        (["gyro", "TMP/log.csv", "--force"], "--force: only with --simulate", 2),
     ],
 )
 def test_calibrate_refuses_before_reading_the_log(
@@ -68,3 +69,14 @@ def test_a_failed_fit_leaves_no_empty_report_folder(
     rc = main(["calibrate", "gyro", str(tmp_path / "log.csv"), "-o", str(tmp_path / "c.toml")])
     assert rc == 1 and "(no calibration written)" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.csv"]
+
+
+def test_simulate_with_force_overwrites_the_simulated_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The tutorial run a second time: --simulate refuses the log it wrote the first time, --force writes it anew."""
+    log, out = tmp_path / "accel.csv", tmp_path / "imu.toml"
+    assert main(["calibrate", "accel", str(log), "--simulate", "-o", str(out)]) == 0
+    first = log.read_bytes()
+    assert main(["calibrate", "accel", str(log), "--simulate", "-o", str(out)]) == 2
+    assert "add --force" in capsys.readouterr().err
+    assert main(["calibrate", "accel", str(log), "--simulate", "--force", "--seed", "2", "-o", str(out)]) == 0
+    assert log.read_bytes() != first  # written anew (another seed)

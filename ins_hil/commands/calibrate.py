@@ -104,6 +104,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="first write a simulated log with known errors to LOG, then calibrate it",
     )
     p.add_argument("--seed", type=int, default=1, help="--simulate: random seed")
+    p.add_argument("--force", action="store_true", help="--simulate: overwrite an existing LOG (a simulated one)")
 
 
 def _plan_refs(args: argparse.Namespace, kind: str) -> Vec:
@@ -138,8 +139,11 @@ def _bad_arguments(args: argparse.Namespace) -> str | None:
         return "the log file argument is missing"
     if args.output.suffix not in (".toml", ".json"):
         return f"--output {args.output}: must end in .toml or .json"
-    if args.simulate and os.path.lexists(args.log):  # a recorded log under that name would be lost
-        return f"{args.log}: exists; --simulate writes a new simulated log there: give a new name or remove it"
+    if args.force and not args.simulate:
+        return "--force: only with --simulate (it lets the simulated log overwrite LOG)"
+    if args.simulate and os.path.lexists(args.log) and not args.force:  # a recorded log under that name would be lost
+        return (f"{args.log}: exists; --simulate writes a new simulated log there: give a new name, remove it or add"
+                " --force")
     if not args.simulate:
         if not args.log.exists():
             return f"{args.log}: no such file"
