@@ -142,8 +142,10 @@ def _bad_arguments(args: argparse.Namespace) -> str | None:
     if args.force and not args.simulate:
         return "--force: only with --simulate (it lets the simulated log overwrite LOG)"
     if args.simulate and os.path.lexists(args.log) and not args.force:  # a recorded log under that name would be lost
-        return (f"{args.log}: exists; --simulate writes a new simulated log there: give a new name, remove it or add"
-                " --force")
+        return (
+            f"{args.log}: exists; --simulate writes a new simulated log there: give a new name, remove it or add"
+            " --force"
+        )
     if not args.simulate:
         if not args.log.exists():
             return f"{args.log}: no such file"
