@@ -80,8 +80,11 @@ def test_check_imu_matches_the_regenerated_samples_bit_for_bit() -> None:
 
 def test_replay_sim_command_prints_the_figures(tmp_path: Path, capsys) -> None:
     assert main(["replay", "sim", "--runs", "1", "--seed", "203", "--duration", "20", "--out", str(tmp_path)]) == 0
-    out = capsys.readouterr().out
+    cap = capsys.readouterr()
+    out = cap.out
     assert "along-track bias" in out and "mean NEES over the runs" in out and "3σ_h" in out
+    # progress on stderr, a line a run (each flies its whole duration)
+    assert [x for x in cap.err.splitlines() if x.startswith("  [1/1] seed 203: horizontal RMS ")], cap.err
     r = json.loads((tmp_path / "metrics.json").read_text())["sim"]
     assert r["seeds"] == [203] and len(r["runs"]) == 1
     # the figures of one short run, not just their ranges: the error inside 3σ_h (measured 100 % of 100 epochs),
@@ -91,3 +94,12 @@ def test_replay_sim_command_prints_the_figures(tmp_path: Path, capsys) -> None:
         lo, hi = r[f"nees_{name}_band_95"]
         assert lo <= r[f"nees_{name}"] <= hi, (name, r)
     assert f"position (3 dof) {r['nees_pos']:.2f}" in out
+
+
+def test_replay_sim_with_a_broken_config_is_one_line_on_stderr(tmp_path: Path, capsys) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sim\n")
+    assert main(["replay", "sim", "--config", str(bad), "--out", str(tmp_path / "o")]) == 2
+    cap = capsys.readouterr()
+    err = [x for x in cap.err.splitlines() if x.strip()]
+    assert len(err) == 1 and str(bad) in err[0] and cap.out == "", (cap.out, cap.err)

@@ -15,6 +15,8 @@ import argparse
 import copy
 import json
 import math
+import sys
+import time
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -99,11 +101,13 @@ def fly_sim(
 
 
 def monte_carlo_sim(
-    config: dict[str, Any], seeds: list[int], duration: float = 60.0, t_from: float = 20.0
-) -> dict[str, Any]:
+    config: dict[str, Any], seeds: list[int], duration: float = 60.0, t_from: float = 20.0,
+    on_run: Callable[[int, int, dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:  # fmt: skip
     """:func:`fly_sim` over ``seeds``, scored from ``t_from`` s: per seed :func:`score`; over the runs the
     mean along-track bias, the RMS, the mean NEES (position, velocity) with the two-sided 95 % band of
-    χ²(3 R)/R for R runs (the mean over runs at each epoch, averaged over the epochs), and the coverage."""
+    χ²(3 R)/R for R runs (the mean over runs at each epoch, averaged over the epochs), and the coverage.
+    ``on_run(k, n, row)`` after each run (k of n done; its seed and :func:`score`)."""
     from scipy.stats import chi2
 
     runs = []
@@ -112,6 +116,8 @@ def monte_carlo_sim(
         states, truth, _ = fly_sim(config, seed, duration)
         e = errors([s for s in states if s.t >= t_from], truth)
         runs.append({"seed": seed, **score(e)})
+        if on_run is not None:
+            on_run(len(runs), len(seeds), runs[-1])
         for name, err, sd in (("pos", e.pos, e.std_pos), ("vel", e.vel, e.std_vel)):
             q = (err / sd) ** 2
             nees.setdefault(name, []).append(np.sum(q, axis=1))
@@ -165,14 +171,20 @@ def sim_cli(args: argparse.Namespace) -> int:
     try:
         d = tomllib.loads(Path(path).read_text())
     except (OSError, tomllib.TOMLDecodeError) as err:
-        print(f"ins-hil replay sim: {path}: {err}")
+        print(f"ins-hil replay sim: {path}: {err}", file=sys.stderr)
         return 2
     duration = float(args.duration) if args.duration else 60.0
     seeds = list(range(int(args.seed), int(args.seed) + max(1, int(args.runs))))
+    t0 = time.perf_counter()
+
+    def progress(k: int, n: int, row: dict[str, Any]) -> None:  # one line a run (each flies `duration` s)
+        print(f"  [{k}/{n}] seed {row['seed']}: horizontal RMS {row['horiz_rms_m']:.3f} m"
+              f" ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)  # fmt: skip
+
     try:
-        r = monte_carlo_sim(d, seeds, duration, min(20.0, 0.5 * duration))
+        r = monte_carlo_sim(d, seeds, duration, min(20.0, 0.5 * duration), on_run=progress)
     except ValueError as err:
-        print(f"ins-hil replay sim: {path}: {err}")
+        print(f"ins-hil replay sim: {path}: {err}", file=sys.stderr)
         return 2
     for line in mc_lines(r):
         print(line)
