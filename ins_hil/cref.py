@@ -1147,6 +1147,19 @@ class CNavCore:
         s long (its DROPOUT record)."""
         return int(self._core.steps) > 0 and imu_lost(t_end, dt, float(self._core.mech.t)) is not None
 
+    def _groups_ok(self, inc: Vec, t_end: Vec, dt: Vec, k0: int, end: Vec, ab: Vec, n_upd: int) -> bool:
+        """Whether the core navigates with its own steps and the groups of :meth:`run_baro` / :meth:`run_gnss` are
+        well formed: C-contiguous float64 (n, 6) ``inc``, (n,) ``t_end`` and ``dt``; int64 ``end`` rising from ``k0``
+        to at most n; int64 ``ab`` (len(end) + 1) rising within the ``n_upd`` updates."""
+        ng = len(end)
+        return bool(
+            self.can_run() and self._align is None and len(ab) == ng + 1 and inc.shape == (len(t_end), 6)
+            and len(dt) == len(t_end) and all(a.dtype == np.float64 and a.flags.c_contiguous for a in (inc, t_end, dt))
+            and end.dtype == np.int64 and ab.dtype == np.int64
+            and (not ng or (end[0] > k0 >= 0 and end[-1] <= len(t_end) and ab[0] >= 0 and ab[-1] <= n_upd
+                            and bool(np.all(np.diff(end) > 0)) and bool(np.all(np.diff(ab) >= 0))))
+        )  # fmt: skip
+
     def run_baro(self, inc: Vec, t_end: Vec, dt: Vec, k0: int, end: Vec, ab: Vec, bt: Vec, alt: Vec,
                  bounds: tuple[float, float, float, float]) -> AidRun:  # fmt: skip
         """:meth:`run_states` and :meth:`fuse` of baro altitudes alternately in ONE C call (``cref_run_baro``; an
@@ -1160,13 +1173,8 @@ class CNavCore:
         fails the guard (:class:`AidRun` says which). The ratios and the gate counters as :meth:`fuse` leaves
         them."""
         ng = len(end)
-        arrays = (inc, t_end, dt, bt, alt)
-        if not (self.can_run() and self._align is None) or len(ab) != ng + 1 or inc.shape != (len(t_end), 6) or (
-            len(dt) != len(t_end) or len(alt) != len(bt)
-            or any(a.dtype != np.float64 or not a.flags.c_contiguous for a in arrays)
-            or end.dtype != np.int64 or ab.dtype != np.int64
-            or (ng and not (end[0] > k0 >= 0 and end[-1] <= len(t_end) and ab[0] >= 0 and ab[-1] <= len(bt)
-                            and bool(np.all(np.diff(end) > 0)) and bool(np.all(np.diff(ab) >= 0))))
+        if not self._groups_ok(inc, t_end, dt, k0, end, ab, len(bt)) or len(alt) != len(bt) or any(
+            a.dtype != np.float64 or not a.flags.c_contiguous for a in (bt, alt)
         ):  # fmt: skip
             raise ValueError("CNavCore.run_baro: a navigating core with fixed_step=False, C-contiguous float64 "
                              "(n, 6) increments, times and steps, baro times and altitudes; int64 end rising from "
@@ -1220,14 +1228,7 @@ class CNavCore:
         them. ``records=False``: no states (an empty ``states``, ``t_pre``, ``aligned``) and no guard: the runs as
         :meth:`run_increments`."""
         ng = len(end)
-        arrays = (inc, t_end, dt)
-        if not (self.can_run() and self._align is None) or self._rejected or len(ab) != ng + 1 or (
-            inc.shape != (len(t_end), 6) or len(dt) != len(t_end)
-            or any(a.dtype != np.float64 or not a.flags.c_contiguous for a in arrays)
-            or end.dtype != np.int64 or ab.dtype != np.int64
-            or (ng and not (end[0] > k0 >= 0 and end[-1] <= len(t_end) and ab[0] >= 0 and ab[-1] <= len(fixes)
-                            and bool(np.all(np.diff(end) > 0)) and bool(np.all(np.diff(ab) >= 0))))
-        ):  # fmt: skip
+        if self._rejected or not self._groups_ok(inc, t_end, dt, k0, end, ab, len(fixes)):
             raise ValueError("CNavCore.run_gnss: a navigating core with fixed_step=False and no rejected fix held, "
                              "C-contiguous float64 (n, 6) increments, times and steps; int64 end rising from k0 to "
                              "at most n, ab = len(end) + 1 bounds rising within the fixes")  # fmt: skip
