@@ -1217,7 +1217,7 @@ class CNavCore:
         return AidRun(states, g, u, int(why[0]), pre[:u, 0].tolist(), aligned)
 
     def run_gnss(self, inc: Vec, t_end: Vec, dt: Vec, k0: int, end: Vec, ab: Vec, fixes: Sequence[GnssFix],
-                 bounds: tuple[float, float, float, float], records: bool = True) -> AidRun:  # fmt: skip
+                 bounds: tuple[float, float, float, float] | None = None, records: bool = True) -> AidRun:  # fmt: skip
         """:meth:`run_baro` with GNSS fixes: :meth:`run_states` and :meth:`fuse` of ``fixes`` alternately in ONE C
         call (``cref_run_gnss``; an offline replay's stretch of fixes between two other measurements): group g is
         the IMU samples ``[end[g - 1], end[g])`` of ``inc`` (n, 6), ``t_end``, ``dt`` (n,), then the fixes
@@ -1225,7 +1225,8 @@ class CNavCore:
         time). Each fix's velocity is None or finite; no rejected fix is held for a reset (:meth:`fuse` does the
         rest). Stops as :meth:`run_baro` (a fix whose position or velocity gate is not a plain acceptance: its events
         raised here, as :meth:`fuse`); the ratios, the rejected fixes and the gate counters as :meth:`fuse` leaves
-        them. ``records=False``: no states (an empty ``states``, ``t_pre``, ``aligned``) and no guard: the runs as
+        them. ``bounds``: the core guard's (:meth:`first_bad`), None: none (every state passes but NaN).
+        ``records=False``: no states (an empty ``states``, ``t_pre``, ``aligned``) and no guard: the runs as
         :meth:`run_increments`."""
         ng = len(end)
         if self._rejected or not self._groups_ok(inc, t_end, dt, k0, end, ab, len(fixes)):
@@ -1253,7 +1254,7 @@ class CNavCore:
         fb = ffi.from_buffer
         groups = ffi.new("size_t *")
         why = ffi.new("int *")
-        q, vmax, h0, h1 = bounds
+        q, vmax, h0, h1 = bounds if bounds is not None and records else (math.inf, math.inf, -math.inf, math.inf)
         self._st = None
         if records:
             out = np.empty(((int(end[-1]) - k0) if ng else 0, 32))

@@ -83,7 +83,7 @@ def test_run_gnss_records_are_the_states_of_run_states_and_stop_at_the_rejected_
     reach = np.searchsorted(t, [f.t for f in fixes], side="left") + 1
     ends, first = np.unique(np.maximum(reach, k0 + 1), return_index=True)
     ab = np.append(first, len(fixes)).astype(np.int64)
-    r = b.run_gnss(inc, t, dts, k0, ends.astype(np.int64), ab, fixes, cr._NO_GUARD)
+    r = b.run_gnss(inc, t, dts, k0, ends.astype(np.int64), ab, fixes, None)
     # the same, a run_states per group and a fuse per fix, up to the fix the call stopped at
     rows, ratios, k = [], [], k0
     for g in range(r.groups):
@@ -104,7 +104,7 @@ def test_run_gnss_records_are_the_states_of_run_states_and_stop_at_the_rejected_
     assert len(y["rejected"]) == 1
     with pytest.raises(ValueError, match="no rejected fix held"):  # fuse takes the fixes after a rejection
         b.run_gnss(inc, t, dts, int(ends[r.groups - 1]), ends[r.groups :].astype(np.int64),
-                   ab[r.groups :] - ab[r.groups], fixes[int(ab[r.groups]) :], cr._NO_GUARD)  # fmt: skip
+                   ab[r.groups :] - ab[r.groups], fixes[int(ab[r.groups]) :], None)  # fmt: skip
 
 
 def test_run_gnss_refuses_what_fuse_takes_one_by_one(log: Any) -> None:
@@ -116,12 +116,12 @@ def test_run_gnss_refuses_what_fuse_takes_one_by_one(log: Any) -> None:
     t0 = c.state().t
     bad_vel = dataclasses.replace(f, vel_ned=np.array([0.0, math.inf, 0.0]))
     with pytest.raises(ValueError, match="velocity must be None or finite"):
-        c.run_gnss(inc, t, dts, k0, e, ab, [bad_vel], cr._NO_GUARD)
+        c.run_gnss(inc, t, dts, k0, e, ab, [bad_vel], None)
     with pytest.raises(ValueError, match=r"GnssFix\.std_d must be >= 0"):
-        c.run_gnss(inc, t, dts, k0, e, ab, [dataclasses.replace(f, std_d=-1.0)], cr._NO_GUARD)
+        c.run_gnss(inc, t, dts, k0, e, ab, [dataclasses.replace(f, std_d=-1.0)], None)
     with pytest.raises(ValueError, match="int64 end rising"):
-        c.run_gnss(inc, t, dts, k0, np.array([k0], dtype=np.int64), ab, [f], cr._NO_GUARD)
+        c.run_gnss(inc, t, dts, k0, np.array([k0], dtype=np.int64), ab, [f], None)
     assert c.state().t == t0  # nothing ran
-    r = c.run_gnss(inc, t, dts, k0, e, ab, [f], cr._NO_GUARD, records=False)
+    r = c.run_gnss(inc, t, dts, k0, e, ab, [f], records=False)
     assert (r.groups, r.updates, r.why, len(r.states), r.t_pre) == (1, 1, 0, 0, [])
     assert c.state().t == t[k0 + 4] and isinstance(f, GnssFix)

@@ -27,8 +27,6 @@ CONFIGS = ROOT / "configs" / "datasets"
 #: the fewest fixes :func:`feed` hands to ``CNavCore.run_gnss`` in one call (fewer: a ``fuse`` each, cheaper than
 #: the call's set-up)
 GNSS_RUN_MIN = 8
-#: the C core's guard bounds for :func:`feed` (it has none: every state passes but NaN)
-_NO_GUARD = (math.inf, math.inf, -math.inf, math.inf)
 
 
 def feed(p: Any, core: Any, gnss_runs: bool = True) -> None:
@@ -75,7 +73,7 @@ def feed(p: Any, core: Any, gnss_runs: bool = True) -> None:
             ends, first = np.unique(np.maximum(reach_a[j:jj], k + 1), return_index=True)
             if jj - j >= GNSS_RUN_MIN and core._e_cons[0] < core._reset_after:
                 ab = np.append(first, jj - j).astype(np.int64)
-                r = core.run_gnss(inc, t, dts, k, ends, ab, [m[2] for m in meas[j:jj]], _NO_GUARD, records=False)
+                r = core.run_gnss(inc, t, dts, k, ends, ab, [m[2] for m in meas[j:jj]], records=False)
                 k = int(ends[r.groups - 1])
                 j += r.updates
             else:
