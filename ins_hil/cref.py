@@ -28,7 +28,7 @@ import importlib
 import math
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any, Generic, Literal, TypeVar, cast, overload
+from typing import Any, Generic, Literal, NoReturn, TypeVar, cast, overload
 
 import numpy as np
 
@@ -691,10 +691,7 @@ class CNavCore:
         one C call). The C call returns each group's gate (``cref_gfuse_*``: its test ratio, rejected or not, the
         rejections in a row before and after it), from which the ratios and NavCore's gate events follow."""
         if not (meas.std_ne >= 0.0 and meas.std_d >= 0.0 and meas.std_vel >= 0.0):
-            for name in ("std_ne", "std_d", "std_vel"):
-                sd = getattr(meas, name)
-                if not sd >= 0.0:
-                    raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
+            _refuse_gnss_std(meas)
         g = self._gate
         v = meas.vel_ned
         split = v is not None and self._vel_delay > 0.0
@@ -1240,10 +1237,7 @@ class CNavCore:
         if not bool(np.all(np.isfinite(fix[has_vel, 4:7]))):
             raise ValueError("CNavCore.run_gnss: a fix's velocity must be None or finite (fuse takes the others)")
         if not bool(np.all(fix[:, 7:] >= 0.0)):
-            for f in fixes:  # the first that fails, named as fuse names it
-                for name in ("std_ne", "std_d", "std_vel"):
-                    if not getattr(f, name) >= 0.0:
-                        raise ValueError(f"GnssFix.{name} must be >= 0, got {getattr(f, name)!r}")
+            _refuse_gnss_std(fixes[int(np.argmin(np.all(fix[:, 7:] >= 0.0, axis=1)))])  # the first that fails
         pos = np.isfinite(fix[:, 1])
         fix[~pos, 1] = math.nan  # as fuse: a latitude that is not finite is no position
         if ng and self._e_cons[0] >= self._reset_after and bool(pos[int(ab[0]) : int(ab[-1])].any()):
@@ -1312,6 +1306,16 @@ class CNavCore:
         p = self._core.ekf.P
         n = int(self._core.ekf.nx)
         return np.array([[float(p[i][j]) for j in range(n)] for i in range(n)])
+
+
+def _refuse_gnss_std(meas: GnssFix) -> NoReturn:
+    """ValueError (one line) naming the first of ``meas``'s σ (``std_ne``, ``std_d``, ``std_vel``) that is not a
+    number >= 0 (:meth:`CNavCore.fuse`, :meth:`CNavCore.run_gnss`; the caller found one)."""
+    for name in ("std_ne", "std_d", "std_vel"):
+        sd = getattr(meas, name)
+        if not sd >= 0.0:
+            raise ValueError(f"GnssFix.{name} must be >= 0, got {sd!r}")
+    raise ValueError("GnssFix: every σ must be >= 0")
 
 
 def _record(st: NavState) -> Vec:

@@ -361,30 +361,30 @@ def batch_row(seeds: int = 4, workers: int = 2, say: Callable[[str], None] | Non
                            "load_before": os.getloadavg(), "runs": []}  # fmt: skip
     sames: list[str] = []
     best = math.inf
-    cache = tempfile.TemporaryDirectory()  # the runs' bytecode cache (_child_env), warmed by a small batch first
-    for k in range(max(1, repeat) + 1):
-        with tempfile.TemporaryDirectory() as out:
-            logs, n = (ok[:1], 2) if k == 0 else (ok, seeds)
-            pr = subprocess.run(
-                [sys.executable, "-m", "ins_hil.cli", "replay", "--batch", *map(str, logs), "--seeds", str(n),
-                 "--workers", str(workers), "--core", "c", "--compare-serial", "--no-plots", "--quiet", "--out", out],
-                capture_output=True, text=True, check=False, env=_child_env(cache.name),
-            )  # fmt: skip
-            if k == 0 and pr.returncode == 0:
-                continue
-            m = re.search(r"serial ([0-9.]+) s, parallel ([0-9.]+) s \(([^)]*)\): ([0-9.]+)x; (.*)", pr.stdout)
-            if pr.returncode or m is None:
-                row["error"] = (pr.stderr.strip().splitlines() or ["no ratio printed"])[-1]
-                break
-            ser, par = float(m.group(1)), float(m.group(2))
-            row["runs"].append((ser, par, float(m.group(4))))
-            sames.append(m.group(5).strip())
-            if par < best:
-                best = par
-                row.update(batch_cpu(Path(out) / "batch.json"), cpu_run_ratio=ser / par)
-        if say and "error" not in row:
-            say(f"  batch run {len(row['runs'])}: serial {ser:.1f} s, Dask {par:.1f} s: {ser / par:.2f}x")
-    cache.cleanup()
+    with tempfile.TemporaryDirectory() as cache:  # the runs' bytecode cache (_child_env), warmed by a small batch first
+        for k in range(max(1, repeat) + 1):
+            with tempfile.TemporaryDirectory() as out:
+                logs, n = (ok[:1], 2) if k == 0 else (ok, seeds)
+                pr = subprocess.run(
+                    [sys.executable, "-m", "ins_hil.cli", "replay", "--batch", *map(str, logs), "--seeds", str(n),
+                     "--workers", str(workers), "--core", "c", "--compare-serial", "--no-plots", "--quiet", "--out",
+                     out],
+                    capture_output=True, text=True, check=False, env=_child_env(cache),
+                )  # fmt: skip
+                if k == 0 and pr.returncode == 0:
+                    continue
+                m = re.search(r"serial ([0-9.]+) s, parallel ([0-9.]+) s \(([^)]*)\): ([0-9.]+)x; (.*)", pr.stdout)
+                if pr.returncode or m is None:
+                    row["error"] = (pr.stderr.strip().splitlines() or ["no ratio printed"])[-1]
+                    break
+                ser, par = float(m.group(1)), float(m.group(2))
+                row["runs"].append((ser, par, float(m.group(4))))
+                sames.append(m.group(5).strip())
+                if par < best:
+                    best = par
+                    row.update(batch_cpu(Path(out) / "batch.json"), cpu_run_ratio=ser / par)
+            if say and "error" not in row:
+                say(f"  batch run {len(row['runs'])}: serial {ser:.1f} s, Dask {par:.1f} s: {ser / par:.2f}x")
     row["load_after"] = os.getloadavg()
     if "error" not in row:
         ser_s, par_s = min(r[0] for r in row["runs"]), min(r[1] for r in row["runs"])
