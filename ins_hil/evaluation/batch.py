@@ -214,8 +214,10 @@ def missing_logs(js: list[Job]) -> list[str]:
     """One line per log of ``js`` that cannot run at all (a config without ``dataset.path``, a log that does not
     exist), each log once: checked before a batch starts rather than failing its jobs one by one."""
     out: list[str] = []
-    for key in dict.fromkeys((j.source, j.config) for j in js):
-        job = next(j for j in js if (j.source, j.config) == key)
+    first: dict[tuple[str | None, str | None], Job] = {}
+    for j in js:
+        first.setdefault((j.source, j.config), j)
+    for job in first.values():
         try:
             path = _log_path(job, _config(job))
         except ValueError as e:  # DatasetError (no dataset.path), DatasetConfigError
