@@ -195,6 +195,11 @@ def test_one_read_of_two_imus_runs_the_core_once_with_the_same_result() -> None:
     assert one["digest"] == many["digest"] and one["counts"] == many["counts"]
     assert many["received"] == one["received"] == 2 * 3000 and many["dropped"] == one["dropped"] == 0
     assert many["sent"]["ODOMETRY"] > 100
+    # the two samples of a read in one pipeline call (Pipeline.imu_pair) with the FDI isolating faults: the same
+    ns.faults, ns.duration, ns.chunk_s = "auto", 12.0, 12.0
+    one = live_path.drive(ns, batch=False)
+    many = live_path.drive(ns)
+    assert one["digest"] == many["digest"] and one["counts"] == many["counts"] and many["fdi_events"] >= 2
 
     from ins_hil.drivers.serial_frame import encode
     from ins_hil.drivers.serial_imu import SerialImuDriver

@@ -194,11 +194,23 @@ def _calls(fn: ast.AST) -> set[str]:
 
 def test_the_pipeline_entries_validate_first_and_only_they_reach_the_core() -> None:
     P = pipeline_mod.Pipeline
-    # imu/aid: the validator runs before any other statement that uses the sample
-    imu = _method(P, "imu")
-    first_use = [st for st in imu.body if not isinstance(st, ast.Expr)]  # skip the docstring
+    # imu/aid: the validator runs before any other statement that uses the sample (imu: in _admit, first)
+    admit = _method(P, "_admit")
+    first_use = [st for st in admit.body if not isinstance(st, ast.Expr)]  # skip the docstring
     val = next(i for i, st in enumerate(first_use) if "_val_imu" in ast.unparse(st))
     assert all("core" not in ast.unparse(st) and "_epoch" not in ast.unparse(st) for st in first_use[:val])
+    assert not _calls(admit) & {"_take", "_group", "_epoch"}
+    imu = [st for st in _method(P, "imu").body if not isinstance(st, ast.Expr)]
+    assert ast.unparse(imu[0]) == "a = self._admit(s)"
+    # imu_pair (two samples of one read): each through _admit before anything else takes it; only what
+    # _admit returned (a2, b2) goes on
+    pair = _method(P, "imu_pair")
+    body = [st for st in pair.body if not isinstance(st, ast.Expr)]
+    assert ast.unparse(body[0]) == "a2 = self._admit(a)"
+    src = ast.unparse(pair)
+    assert src.index("b2 = self._admit(b)") < min(src.index("self._epoch("), src.index("self._take(a2)"))
+    for bad in ("_take(a)", "_take(b)", "_epoch([a,", "_epoch([b,", "_group("):
+        assert bad not in src, bad
     aid = _method(P, "aid")
     body = [st for st in aid.body if not isinstance(st, ast.Expr)]
     assert "self.validator.check(m)" in ast.unparse(body[0])
@@ -219,7 +231,7 @@ def test_the_pipeline_entries_validate_first_and_only_they_reach_the_core() -> N
         reach[root] = seen
     public = {n for n in methods if not n.startswith("_")}
     entries = {n for n in public if reach[n] & touching or n in touching}
-    assert entries <= {"imu", "aid", "imu_run", "baro_runs", "work", "flush"}, entries
+    assert entries <= {"imu", "imu_pair", "aid", "imu_run", "baro_runs", "work", "flush"}, entries
     # baro_runs (an offline replay's screened stretch of baro samples on C): the screen was the boundary; the
     # pipeline's validator confirms the first IMU sample is after its last checked time before the C call
     br = ast.unparse(_method(P, "baro_runs"))
@@ -239,7 +251,8 @@ def test_the_gateway_hands_every_sample_to_a_pipeline_entry_and_nothing_else_fee
     assert "pipe.imu(s)" in src and "pipe.aid(s)" in src
     tree = ast.parse(textwrap.dedent(src))
     branch = next(n for n in ast.walk(tree) if isinstance(n, ast.If) and ast.unparse(n.test) == "s.kind == 'imu'")
-    assert "pipe.imu(s)" in ast.unparse(ast.Module(branch.body, []))  # an IMU sample: the pipeline's IMU entry
+    body = ast.unparse(ast.Module(branch.body, []))
+    assert "pipe.imu(s)" in body and "pipe.imu_pair(first, s)" in body  # an IMU sample: the pipeline's IMU entries
     assert "pipe.aid(s)" in ast.unparse(ast.Module(branch.orelse, []))  # anything else: its aiding entry
     # no runtime module but the pipeline steps or fuses a core, or reaches into the pipeline's core
     for f in sorted((ROOT / "ins_hil" / "runtime").glob("*.py")):

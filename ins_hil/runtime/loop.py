@@ -239,16 +239,30 @@ class Gateway:
         depth = len(q)
         if depth > m.queue_depth_max:
             m.queue_depth_max = depth
+        pair = pipe.pair_ready
         while q:
             s, name = q.popleft()
             self._current = name
             if s.kind == "imu":
                 t0 = mono()
-                st = pipe.imu(s)
+                first = None
+                if q and pair(s, q[0][0]):
+                    # the two units' samples of one epoch (one read of a serial link) in one call, as one each
+                    first = s
+                    s, name = q.popleft()
+                    self._current = name
+                    t_first, st = pipe.imu_pair(first, s)
+                else:
+                    st = pipe.imu(s)
                 ready = mono()
                 if st is not None:
                     for p in pubs:  # first: the bookkeeping below is not on the latency path
                         p.offer(st, s.t_arrival_ns, ready)
+                if first is not None:  # the first sample's, as after its own call
+                    if t_first is not None:
+                        clock.update(t_first, first.t_arrival_ns)
+                    if rec is not None:
+                        unrec.append(first)
                 if pipe.imu_t is not None:  # only a sample past the validation boundary, at its (re-anchored) time
                     clock.update(pipe.imu_t, s.t_arrival_ns)
                 if rec is not None:

@@ -75,7 +75,7 @@ from ins_hil.core_parts.config import MOVED, NavConfig
 from ins_hil.nav.mechanization import StrapdownState
 from ins_hil.nav.rotation import quat_from_euler
 from ins_hil.settings import ConfigError, build, setting, table
-from ins_hil.types import AidSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState
+from ins_hil.types import AidSample, FaultEvent, FaultMode, GnssFix, ImuSample, NavState, Sample
 from ins_hil.validation import Limits, SampleValidator
 
 #: an aiding sample (any aid source's, :mod:`ins_hil.aids`)
@@ -391,6 +391,7 @@ class Pipeline:
         self._miss: dict[int, int] = {}  # imu_id → consecutive epochs run without it
         self._unit_key: dict[int, int] = {}  # imu_id → newest sensor time (µs) it delivered
         self._calib = _load_calibration(cfg.calibration) if cfg.calibration else None
+        self._pair = self._n_ids == 2 and self._calib is None  # imu_pair may run (see pair_ready)
         self._fdi = fdi_monitor(cfg.fdi_config()) if cfg.fdi else None
         # the validator checked the raw sample: only calibration or FDI can make it non-finite again
         self._recheck = self._calib is not None or self._fdi is not None
@@ -474,6 +475,12 @@ class Pipeline:
         The sample passes the validation boundary first (a rejection is counted as ``reject_<reason>``);
         an exception inside the core is caught and recovered from (:meth:`_core_fault`); any other
         exception is counted (``pipeline_error``) and the sample dropped: this never raises."""
+        a = self._admit(s)
+        return None if a is None else self._take(a)
+
+    def _admit(self, s: ImuSample) -> ImuSample | None:
+        """The validation boundary of :meth:`imu`: the sample (at its re-anchored time after a clock restart), or
+        None when refused (counted); sets :attr:`imu_t`."""
         off = self._t_off
         if off and s.imu_id in off:  # this IMU's clock restarted: its times continue the old time base
             s = dataclasses.replace(s, t=s.t + off[s.imu_id])
@@ -486,6 +493,10 @@ class Pipeline:
                 return None
             s = r
         self.imu_t = s.t
+        return s
+
+    def _take(self, s: ImuSample) -> NavState | None:
+        """An admitted sample: calibrated, then grouped into its epoch (or its epoch, one IMU)."""
         try:
             if self._calib is not None:
                 s = self._calib.apply(s)
@@ -496,6 +507,52 @@ class Pipeline:
             self._count("pipeline_error")
             self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
             return None
+
+    def pair_ready(self, a: Sample, b: Sample) -> bool:
+        """Whether :meth:`imu_pair` may take ``a`` and ``b`` (no side effect): two IMU samples of one sensor time
+        (after the units' clock offsets) from the two units of a two-unit group, e.g. the two frames of one read of
+        a serial link; no epoch waiting, none later than the last epoch run, the second unit not gone (missing
+        ``GONE_EPOCHS`` epochs), no calibration file, an epoch wait of at least a nanosecond. Then the grouping
+        would keep ``a`` waiting for ``b`` (never run it alone), so one call may do both."""
+        if not (self._pair and a.kind == "imu" and b.kind == "imu") or self._pending:
+            return False
+        a = cast(ImuSample, a)
+        b = cast(ImuSample, b)
+        ia, ib, ids = a.imu_id, b.imu_id, self._ids
+        if ia == ib or ia not in ids or ib not in ids or self._miss.get(ib, 0) >= GONE_EPOCHS:
+            return False
+        ta, tb, off = a.t, b.t, self._t_off
+        if off:
+            ta, tb = ta + off.get(ia, 0.0), tb + off.get(ib, 0.0)
+        key = round(ta * 1e6)
+        return key == round(tb * 1e6) and key > self._last_key and round(self.cfg.epoch_wait_periods * a.dt * 1e9) > 0
+
+    def imu_pair(self, a: ImuSample, b: ImuSample) -> tuple[float | None, NavState | None]:
+        """:meth:`imu` on ``a``, then on ``b``, when :meth:`pair_ready`: the same validation, counts, events and
+        states. When both pass the validation boundary at one sensor time, their epoch runs at once (what the
+        grouping does: ``a`` opens it and waits, ``b`` completes it); else each as :meth:`imu` takes it. Returns
+        (:attr:`imu_t` after ``a``, the state of ``b``): ``a`` gives none either way."""
+        a2 = self._admit(a)
+        t_a = self.imu_t
+        if a2 is None:
+            return t_a, self.imu(b)
+        b2 = self._admit(b)
+        key = round(a2.t * 1e6)
+        if b2 is None or round(b2.t * 1e6) != key or key <= self._last_key:  # e.g. a clock re-anchored just now
+            self._take(a2)  # opens its epoch, or is late: no state (no epoch was waiting)
+            return t_a, None if b2 is None else self._take(b2)
+        try:  # one complete epoch, as the grouping runs it (_group, _run_pending)
+            miss = self._miss
+            if miss:
+                miss.pop(a2.imu_id, None)
+                miss.pop(b2.imu_id, None)
+            uk = self._unit_key
+            uk[a2.imu_id] = uk[b2.imu_id] = self._last_key = key
+            return t_a, self._epoch([a2, b2] if a2.imu_id < b2.imu_id else [b2, a2])
+        except Exception as e:  # counted; the gateway keeps running
+            self._count("pipeline_error")
+            self._core_fault(b2.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+            return t_a, None
 
     def imu_run(self, samples: list[ImuSample], screened: bool = False,
                 arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,

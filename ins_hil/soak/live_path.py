@@ -40,6 +40,7 @@ _PROBES: tuple[tuple[str, str, str, str], ...] = (
     ("read → sink (driver decode)", "ins_hil.drivers.serial_imu:SerialImuDriver", "feed", ""),
     ("  loop bookkeeping", "ins_hil.runtime.loop:Gateway", "_process_queue", "read → sink (driver decode)"),
     ("  pipeline.imu", "ins_hil.runtime.pipeline:Pipeline", "imu", "  loop bookkeeping"),
+    ("  pipeline.imu_pair", "ins_hil.runtime.pipeline:Pipeline", "imu_pair", "  loop bookkeeping"),
     ("    validation", "ins_hil.validation:SampleValidator", "imu", "  pipeline.imu"),
     ("    grouping", "ins_hil.runtime.pipeline:Pipeline", "_group", "  pipeline.imu"),
     ("    epoch glue", "ins_hil.runtime.pipeline:Pipeline", "_epoch", "    grouping"),
