@@ -214,3 +214,26 @@ def test_one_read_of_two_imus_runs_the_core_once_with_the_same_result() -> None:
     SerialImuDriver("/dev/null", name="imu0").feed(data, sink, 1_000_000)
     src = gw.metrics.source("imu0")
     assert src.received == 2 and gw.metrics.dropped_total() == 0 and not gw.queue
+
+
+def test_live_path_counts_instructions_of_the_same_run(monkeypatch: pytest.MonkeyPatch,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``live_path --instructions`` counts the run of ``--mark`` (the simulator's samples made first, the counted
+    window between two getppid calls): the same states and bytes as the timed run; without valgrind, one line."""
+    import json as _json
+    import os
+    import shutil
+
+    from ins_hil.soak import live_path
+
+    ns = live_path._namespace("c", 1000.0, 2, 2.0, 7)
+    ns.warmup = 1.0
+    calls: list[int] = []
+    marked = live_path.drive(ns, mark=lambda: calls.append(os.getppid()))
+    assert len(calls) == 2 and marked["digest"] == live_path.drive(ns)["digest"] and marked["epochs"] == 1001
+    assert live_path.main(["--mark", "--seconds", "2", "--warmup", "1"]) == 0
+    assert _json.loads(capsys.readouterr().out.strip().splitlines()[-1])["digest"] == marked["digest"]
+    monkeypatch.setattr(shutil, "which", lambda _: None)
+    assert live_path.main(["--instructions", "--seconds", "2", "--warmup", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["live_path --instructions: valgrind not found (apt-get install valgrind)"]

@@ -17,9 +17,11 @@ Two measurements of the same run of ``--seconds`` of sensor time (the first ``--
   per epoch of each stage (calls with the top 1 % of durations trimmed: a preemption inside a probe is not
   the stage's cost), and the calls per epoch.
 
-``--profile FILE`` writes a cProfile of a third run (call counts). ``--digest`` prints a SHA-256 of the bytes on
-the wire, the fault events, the pipeline's counts and the last state: two versions of the code whose digests
-agree sent the same bytes and made the same decisions.
+``--instructions`` counts instead the instructions per epoch of the counted window under valgrind's callgrind
+(host-independent: what to compare two versions of the code by on a shared host). ``--profile FILE`` writes a
+cProfile of a third run (call counts). The ``digest`` printed is a SHA-256 of the bytes on the wire, the fault
+events, the pipeline's counts and the last state: two versions of the code whose digests agree sent the same bytes
+and made the same decisions.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import contextlib
 import hashlib
 import json
 import math
+import os
 import sys
 import time
 import types
@@ -96,10 +99,11 @@ class _Wire:
 
 
 def _namespace(core: str, rate: float, imus: int, seconds: float, seed: int) -> argparse.Namespace:
+    chunk = seconds / max(1, math.ceil(seconds / 10.0))  # ≤ 10 s, whole chunks ending at ``seconds``
     return argparse.Namespace(
         imu=["/dev/null"], gnss_port=1, gcs_port=1, gcs_rate=47.0, rate=rate, core=core, duration=seconds,
         out="/tmp", cpu=-1, record=False, imus=imus, rt=0, imu_transport="serial", profile="uav", seed=seed,
-        faults="none", gnss_rate=5.0, gnss_latency=0.05, baro_rate=25.0, chunk_s=10.0, lat_deg=50.45,
+        faults="none", gnss_rate=5.0, gnss_latency=0.05, baro_rate=25.0, chunk_s=chunk, lat_deg=50.45,
         lon_deg=30.52, h=180.0,
     )  # fmt: skip
 
@@ -171,16 +175,24 @@ def build(a: argparse.Namespace) -> tuple[Any, Any, _Wire]:
     return gw, SerialImuDriver("/dev/null", name="imu0"), wire
 
 
-def drive(a: argparse.Namespace, probe: Callable[[int], None] | None = None, batch: bool = True) -> dict[str, Any]:
+def drive(a: argparse.Namespace, probe: Callable[[int], None] | None = None, batch: bool = True,
+          mark: Callable[[], Any] | None = None) -> dict[str, Any]:  # fmt: skip
     """One run; returns epochs counted, process time (s) over them, and the digest parts. ``batch`` False: the
-    driver hands the samples of a read to the gateway one call each (a sink without ``many``)."""
+    driver hands the samples of a read to the gateway one call each (a sink without ``many``). ``mark``: the
+    simulator's samples made before the run, and ``mark()`` called where the counted window starts and where it
+    ends (``--instructions``: a C function callgrind dumps its counts at)."""
     clock = [0]
     with simulated_clock(clock):
-        return _drive(a, clock, probe, batch)
+        return _drive(a, clock, probe, batch, mark)
 
 
-def _drive(a: argparse.Namespace, clock: list[int], probe: Callable[[int], None] | None, batch: bool) -> dict[str, Any]:
+def _drive(a: argparse.Namespace, clock: list[int], probe: Callable[[int], None] | None, batch: bool,
+           mark: Callable[[], Any] | None = None) -> dict[str, Any]:  # fmt: skip
     gw, drv, wire = build(a)
+    evs: Any = events(a)
+    if mark is not None:
+        evs = list(evs)
+        probe = (lambda _: mark()) if probe is None else probe
     sink_imu = gw._sink_for("imu0")
     if not batch:
         one = sink_imu
@@ -192,7 +204,7 @@ def _drive(a: argparse.Namespace, clock: list[int], probe: Callable[[int], None]
     pt = time.process_time
     feed = drv.feed
     counting = False
-    for arr, name, payload in events(a):
+    for arr, name, payload in evs:
         clock[0] = arr
         if name == "gnss":
             payload.t = arr * 1e-9  # the MAVLink driver's stamp: host monotonic (the loop maps it)
@@ -209,6 +221,8 @@ def _drive(a: argparse.Namespace, clock: list[int], probe: Callable[[int], None]
             n += 1
         else:
             feed(payload, sink_imu, arr)
+    if mark is not None:
+        mark()
     pipe = gw.pipeline
     st = pipe.last_state
     ev = [(e.t, e.sensor, e.mode.name, e.isolated, e.cleared) for e in (gw.pipeline._fdi.events if pipe._fdi else [])]
@@ -296,6 +310,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--faults", default="none", help="the soak's fault schedule (ins_hil.soak.faults), e.g. auto")
     ap.add_argument("--profile", metavar="FILE", help="also write a cProfile of a run (call counts)")
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    ap.add_argument("--instructions", action="store_true",
+                    help="count the instructions per epoch of the counted window under valgrind's callgrind instead "
+                         "(host-independent; the simulator's samples made before the run)")  # fmt: skip
+    ap.add_argument("--mark", action="store_true", help=argparse.SUPPRESS)  # the run --instructions counts
     a = ap.parse_args(argv)
     ns = _namespace(a.core, a.rate, 2, a.seconds, a.seed)
     ns.faults = a.faults
@@ -304,6 +322,12 @@ def main(argv: list[str] | None = None) -> int:
 
     gc.collect()
     gc.freeze()
+    if a.instructions:
+        return _instructions(a)
+    if a.mark:  # one run, the counted window between two getppid() calls (callgrind --dump-before=getppid)
+        r = drive(ns, mark=os.getppid)
+        print(json.dumps({"epochs": r["epochs"], "digest": r["digest"]}))
+        return 0
     plain = drive(ns)
     with probes() as times:
         on = times.pop("_on")
@@ -340,6 +364,37 @@ def main(argv: list[str] | None = None) -> int:
         with open(a.json, "w") as f:
             json.dump({"epochs": n, "total_us": plain["cpu_s"] / n * 1e6, "digest": plain["digest"],
                        "stages": {r[0].strip(): {"us": r[1], "calls": r[2]} for r in rows}}, f, indent=1)  # fmt: skip
+    return 0
+
+
+def _instructions(a: argparse.Namespace) -> int:
+    """``--instructions``: this benchmark's run (``--mark``) under ``valgrind --tool=callgrind``, which dumps its
+    counts at each ``getppid`` call: the second part is the counted window. Prints instructions per IMU epoch."""
+    import shutil
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    vg = shutil.which("valgrind")
+    if vg is None:
+        print("live_path --instructions: valgrind not found (apt-get install valgrind)", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "cg.out"
+        cmd = [vg, "--tool=callgrind", "--dump-before=getppid", f"--callgrind-out-file={out}", sys.executable, "-m",
+               "ins_hil.soak.live_path", "--mark", "--core", a.core, "--seconds", str(a.seconds), "--warmup",
+               str(a.warmup), "--rate", str(a.rate), "--seed", str(a.seed), "--faults", a.faults]  # fmt: skip
+        r = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        part = out.with_name(out.name + ".2")
+        if r.returncode != 0 or not part.exists():
+            why = r.stderr.strip()[-300:]
+            print(f"live_path --instructions: the run under valgrind failed: {why}", file=sys.stderr)
+            return 1
+        res = json.loads(r.stdout.strip().splitlines()[-1])
+        n = int(res["epochs"])
+        total = next(int(x.split()[1]) for x in part.read_text().splitlines() if x.startswith(("summary:", "totals:")))
+    print(f"live path, core {a.core}, 1 kHz x 2 IMUs, faults {a.faults}, {n} epochs counted; digest {res['digest']}")
+    print(f"instructions (callgrind): {total / max(n, 1):,.0f} per epoch ({total:,} in all)")
     return 0
 
 
