@@ -231,9 +231,17 @@ def test_live_path_counts_instructions_of_the_same_run(monkeypatch: pytest.Monke
     calls: list[int] = []
     marked = live_path.drive(ns, mark=lambda: calls.append(os.getppid()))
     assert len(calls) == 2 and marked["digest"] == live_path.drive(ns)["digest"] and marked["epochs"] == 1001
-    assert live_path.main(["--mark", "--seconds", "2", "--warmup", "1"]) == 0
-    assert _json.loads(capsys.readouterr().out.strip().splitlines()[-1])["digest"] == marked["digest"]
-    monkeypatch.setattr(shutil, "which", lambda _: None)
-    assert live_path.main(["--instructions", "--seconds", "2", "--warmup", "1"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["live_path --instructions: valgrind not found (apt-get install valgrind)"]
+    import gc
+
+    try:
+        assert live_path.main(["--mark", "--seconds", "2", "--warmup", "1"]) == 0
+        assert _json.loads(capsys.readouterr().out.strip().splitlines()[-1])["digest"] == marked["digest"]
+        monkeypatch.setattr(shutil, "which", lambda _: None)
+        assert live_path.main(["--instructions", "--seconds", "2", "--warmup", "1"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == ["live_path --instructions: valgrind not found (apt-get install valgrind)"]
+        assert live_path.main(["--instructions", "--seconds", "2", "--warmup", "2"]) == 2  # no counted window
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == ["live_path: --warmup must be >= 0 and below --seconds (the counted window)"]
+    finally:
+        gc.unfreeze()  # main() froze what this process holds

@@ -53,7 +53,10 @@ def _stream(seconds: float, seed: int) -> list[ImuSample]:
             pair.reverse()
         elif u < 0.07:  # a unit's frame lost
             pair.pop(rng.randrange(2))
-        elif u < 0.08:  # no arrival stamp (a replay of an old recording)
+        elif u < 0.075:  # a non-finite time or step (refused; the pair test does no arithmetic on it)
+            i = rng.randrange(2)
+            pair[i] = dataclasses.replace(pair[i], **{rng.choice(("t", "dt")): rng.choice((math.nan, math.inf))})
+        elif u < 0.085:  # no arrival stamp (a replay of an old recording)
             pair = [dataclasses.replace(s, t_arrival_ns=0) for s in pair]
         # a time that steps back once, a duplicate of unit 0's frame (each refused for its time; 0.3 s apart: two
         # such within 0.1 s would be taken for a clock restart)
@@ -133,3 +136,13 @@ def test_pair_ready_refuses_what_the_grouping_would_do_otherwise() -> None:
     assert not short.pair_ready(a, b)
     three = Pipeline(dataclasses.replace(_cfg(), imu_ids=[0, 1, 2], fdi=False))
     assert not three.pair_ready(a, b)
+    # samples the validation boundary has not seen yet: no arithmetic on a non-finite time or step (imu() takes
+    # each, and refuses it)
+    fresh = Pipeline(_cfg())
+    for bad in (math.nan, math.inf, -math.inf):
+        c, d = stream[4], stream[5]
+        assert not fresh.pair_ready(dataclasses.replace(c, t=bad), d)
+        assert not fresh.pair_ready(c, dataclasses.replace(d, t=bad))
+        assert not fresh.pair_ready(dataclasses.replace(c, dt=bad), d)
+    assert fresh.imu(dataclasses.replace(stream[4], t=math.nan)) is None
+    assert fresh.counts == {"reject_imu_nonfinite": 1}

@@ -524,6 +524,8 @@ class Pipeline:
         ta, tb, off = a.t, b.t, self._t_off
         if off:
             ta, tb = ta + off.get(ia, 0.0), tb + off.get(ib, 0.0)
+        if not (-_INF < ta < _INF and -_INF < tb < _INF and 0.0 < a.dt < _INF):  # not validated yet: no arithmetic
+            return False
         key = round(ta * 1e6)
         return key == round(tb * 1e6) and key > self._last_key and round(self.cfg.epoch_wait_periods * a.dt * 1e9) > 0
 

@@ -192,7 +192,13 @@ def _drive(a: argparse.Namespace, clock: list[int], probe: Callable[[int], None]
     evs: Any = events(a)
     if mark is not None:
         evs = list(evs)
-        probe = (lambda _: mark()) if probe is None else probe
+        inner = probe
+
+        def probe(k: int) -> None:
+            mark()
+            if inner is not None:
+                inner(k)
+
     sink_imu = gw._sink_for("imu0")
     if not batch:
         one = sink_imu
@@ -322,6 +328,9 @@ def main(argv: list[str] | None = None) -> int:
 
     gc.collect()
     gc.freeze()
+    if (a.instructions or a.mark) and not 0.0 <= a.warmup < a.seconds:
+        print("live_path: --warmup must be >= 0 and below --seconds (the counted window)", file=sys.stderr)
+        return 2
     if a.instructions:
         return _instructions(a)
     if a.mark:  # one run, the counted window between two getppid() calls (callgrind --dump-before=getppid)
@@ -392,8 +401,13 @@ def _instructions(a: argparse.Namespace) -> int:
             return 1
         res = json.loads(r.stdout.strip().splitlines()[-1])
         n = int(res["epochs"])
-        total = next(int(x.split()[1]) for x in part.read_text().splitlines() if x.startswith(("summary:", "totals:")))
-    print(f"live path, core {a.core}, 1 kHz x 2 IMUs, faults {a.faults}, {n} epochs counted; digest {res['digest']}")
+        lines = part.read_text().splitlines()
+        total = next((int(x.split()[1]) for x in lines if x.startswith(("summary:", "totals:"))), None)
+        if total is None:
+            print(f"live_path --instructions: no instruction count in {part.name}", file=sys.stderr)
+            return 1
+    print(f"live path, core {a.core}, {a.rate:g} Hz x 2 IMUs, faults {a.faults}, {n} epochs counted; digest"
+          f" {res['digest']}")  # fmt: skip
     print(f"instructions (callgrind): {total / max(n, 1):,.0f} per epoch ({total:,} in all)")
     return 0
 
