@@ -457,6 +457,12 @@ class Pipeline:
     def _count(self, key: str) -> None:
         self.counts[key] = self.counts.get(key, 0) + 1
 
+    def _imu_error(self, t: float, e: Exception) -> None:
+        """An exception outside the core on the IMU path (sensor time ``t``, s): counted (``pipeline_error``) and
+        handed to :meth:`_core_fault` (the core kept unless its state is bad); the gateway keeps running."""
+        self._count("pipeline_error")
+        self._core_fault(t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+
     def _reject(self, why: str) -> None:
         """Count a sample the validation boundary rejected (``reject_<reason>``, once per sample)."""
         self._count("reject_" + why)
@@ -504,8 +510,7 @@ class Pipeline:
                 return self._epoch([s])
             return self._group(s)
         except Exception as e:  # counted; the gateway keeps running
-            self._count("pipeline_error")
-            self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+            self._imu_error(s.t, e)
             return None
 
     def pair_ready(self, a: Sample, b: Sample) -> bool:
@@ -552,8 +557,7 @@ class Pipeline:
             uk[a2.imu_id] = uk[b2.imu_id] = self._last_key = key
             return t_a, self._epoch([a2, b2] if a2.imu_id < b2.imu_id else [b2, a2])
         except Exception as e:  # counted; the gateway keeps running
-            self._count("pipeline_error")
-            self._core_fault(b2.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+            self._imu_error(b2.t, e)
             return t_a, None
 
     def imu_run(self, samples: list[ImuSample], screened: bool = False,
@@ -615,9 +619,7 @@ class Pipeline:
                         self._epochs_validated(run)
                         break
             except Exception as e:  # counted; the gateway keeps running (as imu())
-                self._count("pipeline_error")
-                self._core_fault(samples[j - 1].t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}",
-                                 "pipeline")  # fmt: skip
+                self._imu_error(samples[j - 1].t, e)
             k = j
 
     def _can_run(self) -> bool:
@@ -686,8 +688,7 @@ class Pipeline:
                 for o in obs:
                     o.epoch(self, st)
             except Exception as e:  # counted, as imu() does for an epoch
-                self._count("pipeline_error")
-                self._core_fault(s.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+                self._imu_error(s.t, e)
         return n
 
     def _epochs_rows(self, run: list[ImuSample], states: Any, bad: int, pre: list[FaultEvent],
@@ -714,9 +715,7 @@ class Pipeline:
                 try:
                     o.epochs(self, part)
                 except Exception as e:  # counted, as imu() does for an epoch
-                    self._count("pipeline_error")
-                    self._core_fault(run[bad - 1].t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}",
-                                     "pipeline")  # fmt: skip
+                    self._imu_error(run[bad - 1].t, e)
         s = run[min(bad, n - 1)]
         self._t_imu = s.t
         self._last_arrival = s.t_arrival_ns
@@ -733,8 +732,7 @@ class Pipeline:
             try:
                 self._epoch([r])
             except Exception as e:
-                self._count("pipeline_error")
-                self._core_fault(r.t, f"pipeline error on an IMU sample: {type(e).__name__}: {e}", "pipeline")
+                self._imu_error(r.t, e)
 
     def baro_runs(self, imu: list[ImuSample], arrays: tuple[np.ndarray, np.ndarray, np.ndarray], k0: int,
                   end: np.ndarray, ab: np.ndarray, baro: Sequence[Any], bt: np.ndarray,
