@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from typing import Any
 
 from ins_hil.soak.orchestrate import GCS_RATE
 
@@ -252,7 +253,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"[soak] interleaved: gateway e2e p99 {a['gateway']['p99_us']:.0f} µs p99.9 {a['gateway']['p999_us']:.0f} "
             f"µs, floor p99 {a['floor']['p99_us']:.0f} µs p99.9 {a['floor']['p999_us']:.0f} µs, ratios "
-            f"{a['ratio']['p99_us']:.2f} / {a['ratio']['p999_us']:.2f}, lost {c['lost_frames']['value']}, "
+            f"{a['ratio']['p99_us']:.2f} / {a['ratio']['p999_us']:.2f}{_intervals(c)}, "
+            f"lost {c['lost_frames']['value']}, "
             + ("PASS" if inter["pass"] else "targets missed: " + ", ".join(missed))
         )
     if top.get("can") is not None:
@@ -282,3 +284,15 @@ def run(args: argparse.Namespace) -> int:
         )
     print(f"[soak] report: {args.out}/report.md" + (f" and {args.docs}" if args.docs else ""))
     return 0 if top["pass"] or args.report_only else 1
+
+
+def _intervals(checks: dict[str, Any]) -> str:
+    """The ratio checks' intervals of an interleaved run for its summary line (e.g. `` (95 % intervals 1.15–1.37 /
+    0.29–1.07, p99 not resolved)``), or "" when it has none."""
+    p99, p999 = checks["ratio_p99"], checks["ratio_p999"]
+    if "interval" not in p99:
+        return ""
+    unres = [k for k, c in (("p99", p99), ("p99.9", p999)) if not c["resolved"]]
+    return (f" ({100 * p99['level']:.0f} % intervals {p99['interval'][0]:.2f}–{p99['interval'][1]:.2f} / "
+            f"{p999['interval'][0]:.2f}–{p999['interval'][1]:.2f}"
+            + (f", {' and '.join(unres)} not resolved)" if unres else ", resolved)"))  # fmt: skip

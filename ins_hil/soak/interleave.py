@@ -31,6 +31,12 @@ from ins_hil.soak.orchestrate import SoakOptions, run_soak
 RATIO_TARGETS = {"p99_us": 1.2, "p999_us": 1.5}
 QUANTILES = (("p50_us", 50.0), ("p99_us", 99.0), ("p999_us", 99.9))
 SIDES = ("gateway", "floor")
+#: the block-pair bootstrap of the ratios (:func:`pair_interval`): resamples, its seed (the same data gives the same
+#: interval), the fewest pairs it is given for, and the interval's coverage
+BOOT_N = 2000
+BOOT_SEED = 0
+BOOT_MIN_PAIRS = 3
+BOOT_LEVEL = 0.95
 
 
 def plan(total_s: float, block_s: float) -> list[tuple[str, float]]:
@@ -63,14 +69,48 @@ def compare(g: dict[str, float], f: dict[str, float]) -> dict[str, Any]:
     return {"gateway": g, "floor": f, "ratio": ratio, "added_us": {k: g[k] - f[k] for k in keys}}
 
 
+def pair_interval(blocks: list[dict[str, Any]], n: int = BOOT_N, seed: int = BOOT_SEED) -> dict[str, Any] | None:
+    """How far the pooled ratios (gateway quantile / floor quantile, p99 and p99.9) move with the minutes the host
+    gave each side: the block pairs of the run (blocks 2i and 2i + 1 in run order, one of each side: adjacent in
+    time, the same sensor data) resampled with replacement ``n`` times, each resample's samples pooled per side as
+    :func:`summarise` pools them; the central :data:`BOOT_LEVEL` interval of each ratio (a percentile bootstrap
+    over pairs). ``{"pairs", "n", "level", "p99_us": [lo, hi], "p999_us": [lo, hi]}``; None with fewer than
+    :data:`BOOT_MIN_PAIRS` pairs or blocks that do not pair up (an interval of so few minutes says nothing)."""
+    if len(blocks) % 2 or len(blocks) < 2 * BOOT_MIN_PAIRS:
+        return None
+    pairs = []
+    for i in range(0, len(blocks), 2):
+        a, b = blocks[i], blocks[i + 1]
+        if {a["side"], b["side"]} != set(SIDES):
+            return None
+        g, f = (a, b) if a["side"] == "gateway" else (b, a)
+        pairs.append((np.asarray(g["lat_us"], float), np.asarray(f["lat_us"], float)))
+    if any(len(g) == 0 or len(f) == 0 for g, f in pairs):
+        return None
+    qs = [p for k, p in QUANTILES if k in RATIO_TARGETS]
+    pick = np.random.default_rng(seed).integers(0, len(pairs), size=(n, len(pairs)))
+    ratios = np.empty((n, len(qs)))
+    for r, idx in enumerate(pick):
+        g = np.percentile(np.concatenate([pairs[i][0] for i in idx]), qs)
+        f = np.percentile(np.concatenate([pairs[i][1] for i in idx]), qs)
+        ratios[r] = g / f
+    tail = 50.0 * (1.0 - BOOT_LEVEL)
+    lo, hi = np.percentile(ratios, [tail, 100.0 - tail], axis=0)
+    out: dict[str, Any] = {"pairs": len(pairs), "n": n, "level": BOOT_LEVEL}
+    for j, k in enumerate(k for k, _ in QUANTILES if k in RATIO_TARGETS):
+        out[k] = [float(lo[j]), float(hi[j])]
+    return out
+
+
 def summarise(blocks: list[dict[str, Any]]) -> dict[str, Any]:
     """The interleaved comparison from per-block samples.
 
     ``blocks``: ``{"side": "gateway" | "floor", "lat_us": (n,) e2e latencies µs, "calm": (n,) bool, True
     for a sample in a second without host steal}`` in run order. Returns ``all`` and ``steal_free``
     (:func:`compare` over the pooled samples of each side), ``blocks`` (per block: side, count, quantiles,
-    steal-free share), ``spread`` (per side, of the per-block p99 and p99.9: min, median, max) and
-    ``without_worst`` (the pooled comparison leaving out, per side, the block with the highest p99.9)."""
+    steal-free share), ``spread`` (per side, of the per-block p99 and p99.9: min, median, max),
+    ``without_worst`` (the pooled comparison leaving out, per side, the block with the highest p99.9) and
+    ``interval`` (:func:`pair_interval` of the ratios, or None)."""
     pooled = {s: [b for b in blocks if b["side"] == s] for s in SIDES}
     for s in SIDES:
         if not pooled[s]:
@@ -107,6 +147,7 @@ def summarise(blocks: list[dict[str, Any]]) -> dict[str, Any]:
         "spread": spread,
         "worst_block": worst,
         "without_worst": without,
+        "interval": pair_interval(blocks),
     }
 
 
@@ -129,9 +170,13 @@ def verdict(s: dict[str, Any], gw_blocks: list[dict[str, Any]], floor_blocks: li
 
     a, sf = s["all"], s["steal_free"]
     checks: dict[str, Any] = {}
+    iv = s.get("interval")
     for k, lim in RATIO_TARGETS.items():
         r = a["ratio"][k]
         checks[f"ratio_{k[:-3]}"] = {"value": r, "target": lim, "ok": bool(r <= lim) if math.isfinite(r) else None}
+        if iv is not None:  # resolved: the whole interval on one side of the limit (else another run may decide it)
+            lo, hi = iv[k]
+            checks[f"ratio_{k[:-3]}"].update(interval=[lo, hi], level=iv["level"], resolved=bool(hi <= lim or lo > lim))
     g999, f999 = sf["gateway"]["p999_us"], sf["floor"]["p999_us"]
     checks["e2e_p999_steal_free"] = {
         "value_us": g999,
