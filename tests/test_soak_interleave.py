@@ -260,6 +260,8 @@ def test_report_sections_show_ratios_and_the_sweep_picks_the_highest_passing_rat
     lo, hi = c6["ratio_p99"]["interval"]
     row = f"| e2e p99 ratio gateway / floor | {c6['ratio_p99']['value']:.2f} (95 %: {lo:.2f}–{hi:.2f}) | ≤ 1.2 |"
     assert row + " **FAIL**, not resolved |" in md6 and "6 block pairs" in md6
+    sf = s6["interval_steal_free"]["p99_us"]  # every sample steal-free here: the same interval
+    assert sf == [lo, hi] and f"(6 block pairs): p99 {lo:.2f}–{hi:.2f}, p99.9 " in md6
     line = _intervals(c6)  # the command's summary line
     assert line.startswith(f" (95 % intervals {lo:.2f}–{hi:.2f} / ") and "p99 not resolved" in line
     assert _intervals(c) == ""

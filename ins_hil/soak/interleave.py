@@ -110,7 +110,8 @@ def summarise(blocks: list[dict[str, Any]]) -> dict[str, Any]:
     (:func:`compare` over the pooled samples of each side), ``blocks`` (per block: side, count, quantiles,
     steal-free share), ``spread`` (per side, of the per-block p99 and p99.9: min, median, max),
     ``without_worst`` (the pooled comparison leaving out, per side, the block with the highest p99.9) and
-    ``interval`` (:func:`pair_interval` of the ratios, or None)."""
+    ``interval`` / ``interval_steal_free`` (:func:`pair_interval` of the ratios over all seconds / the steal-free
+    ones, or None)."""
     pooled = {s: [b for b in blocks if b["side"] == s] for s in SIDES}
     for s in SIDES:
         if not pooled[s]:
@@ -138,6 +139,7 @@ def summarise(blocks: list[dict[str, Any]]) -> dict[str, Any]:
         }  # fmt: skip
         worst[s] = max(rows, key=lambda r: -math.inf if math.isnan(r["p999_us"]) else r["p999_us"])["index"]
     rest = {s: [b for i, b in enumerate(blocks) if b["side"] == s and i != worst[s]] for s in SIDES}
+    calm_blocks = [{**b, "lat_us": np.asarray(b["lat_us"], float)[np.asarray(b["calm"], bool)]} for b in blocks]
     without = (compare(quantiles(cat(rest["gateway"])), quantiles(cat(rest["floor"])))
                if rest["gateway"] and rest["floor"] else None)  # fmt: skip
     return {
@@ -148,6 +150,7 @@ def summarise(blocks: list[dict[str, Any]]) -> dict[str, Any]:
         "worst_block": worst,
         "without_worst": without,
         "interval": pair_interval(blocks),
+        "interval_steal_free": pair_interval(calm_blocks),
     }
 
 

@@ -489,6 +489,14 @@ def interleave_section(
             f"| added by the gateway | | {_q(x['added_us'])} |",
             "",
         ]
+        ivk = s.get("interval" if key == "all" else "interval_steal_free")
+        if ivk is not None:
+            lines += [
+                f"The ratios' {100 * ivk['level']:.0f} % intervals ({ivk['pairs']} block pairs): p99 "
+                f"{_f(ivk['p99_us'][0], 2)}–{_f(ivk['p99_us'][1], 2)}, p99.9 {_f(ivk['p999_us'][0], 2)}–"
+                f"{_f(ivk['p999_us'][1], 2)}.",
+                "",
+            ]
     sp = s["spread"]
     lines += [
         "Block-level spread (per-block quantiles, µs): whether one noisy block decides the figure.",
