@@ -87,6 +87,7 @@ def pair_interval(blocks: list[dict[str, Any]], n: int = BOOT_N, seed: int = BOO
         pairs.append((np.asarray(g["lat_us"], float), np.asarray(f["lat_us"], float)))
     if any(len(g) == 0 or len(f) == 0 for g, f in pairs):
         return None
+    keys = [k for k, _ in QUANTILES if k in RATIO_TARGETS]
     qs = [p for k, p in QUANTILES if k in RATIO_TARGETS]
     pick = np.random.default_rng(seed).integers(0, len(pairs), size=(n, len(pairs)))
     ratios = np.empty((n, len(qs)))
@@ -96,10 +97,8 @@ def pair_interval(blocks: list[dict[str, Any]], n: int = BOOT_N, seed: int = BOO
         ratios[r] = g / f
     tail = 50.0 * (1.0 - BOOT_LEVEL)
     lo, hi = np.percentile(ratios, [tail, 100.0 - tail], axis=0)
-    out: dict[str, Any] = {"pairs": len(pairs), "n": n, "level": BOOT_LEVEL}
-    for j, k in enumerate(k for k, _ in QUANTILES if k in RATIO_TARGETS):
-        out[k] = [float(lo[j]), float(hi[j])]
-    return out
+    return {"pairs": len(pairs), "n": n, "level": BOOT_LEVEL,
+            **{k: [float(lo[j]), float(hi[j])] for j, k in enumerate(keys)}}  # fmt: skip
 
 
 def summarise(blocks: list[dict[str, Any]]) -> dict[str, Any]:

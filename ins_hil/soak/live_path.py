@@ -326,11 +326,11 @@ def main(argv: list[str] | None = None) -> int:
     ns.warmup = a.warmup
     import gc
 
-    gc.collect()
-    gc.freeze()
     if (a.instructions or a.mark) and not 0.0 <= a.warmup < a.seconds:
         print("live_path: --warmup must be >= 0 and below --seconds (the counted window)", file=sys.stderr)
         return 2
+    gc.collect()
+    gc.freeze()
     if a.instructions:
         return _instructions(a)
     if a.mark:  # one run, the counted window between two getppid() calls (callgrind --dump-before=getppid)

@@ -489,7 +489,7 @@ def interleave_section(
             f"| added by the gateway | | {_q(x['added_us'])} |",
             "",
         ]
-        ivk = s.get("interval" if key == "all" else "interval_steal_free")
+        ivk = s.get("interval_steal_free") if key == "steal_free" else None  # (all seconds: the table above)
         if ivk is not None:
             lines += [
                 f"The ratios' {100 * ivk['level']:.0f} % intervals ({ivk['pairs']} block pairs): p99 "
